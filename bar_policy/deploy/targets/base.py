@@ -75,7 +75,7 @@ class Target(abc.ABC):
         return time.monotonic()
 
     def safe_stop(self, q: np.ndarray | None = None, kd: float = 1.0) -> None:
-        """Damping, then stop: the default safe ending. Real hardware overrides it to also send stop frames."""
+        """Damping, then stop: the safe ending. Real hardware overrides it to also send stop frames."""
         state_q = self.read_state().q if q is None else q
         self.write_command(MitCommand.damping(state_q, kd))
 
