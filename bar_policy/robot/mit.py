@@ -29,6 +29,7 @@ __all__ = [
     "clip_effort",
     "decode_u16",
     "encode_u16",
+    "firmware_torque",
     "mit_torque",
     "quantize",
     "quantize_command",
@@ -163,3 +164,33 @@ def quantize_command(cmd: MitCommand, ranges: WireRanges) -> MitCommand:
         kd=quantize(cmd.kd, zero, ranges.kd_max),
         tau_ff=quantize(cmd.tau_ff, -ranges.t_max, ranges.t_max),
     )
+
+
+def firmware_torque(
+    cmd: MitCommand,
+    q: Array,
+    dq: Array,
+    ranges: WireRanges,
+    tau_cap: Array,
+    *,
+    quantize_wire: bool = True,
+) -> Array:
+    """The torque a Robstride motor applies for ``cmd``: 16-bit wire quantisation, MIT law, torque cap.
+
+    This is the one actuator model shared by the MJX env (jax), the C MuJoCo sim target and the CAN bus
+    emulator (numpy).
+
+    Args:
+        cmd: commanded fields, each shape ``(..., n)``.
+        q: joint positions, rad, shape ``(..., n)``.
+        dq: joint velocities, rad/s, shape ``(..., n)``.
+        ranges: per-joint wire ranges (``wire_ranges(robot.models)``).
+        tau_cap: firmware torque cap per joint, N*m, shape ``(n,)`` (``RobotSpec.torque_cap``).
+        quantize_wire: apply the 16-bit encoding of every field (True on every faithful path).
+
+    Returns:
+        Applied torque, N*m, shape ``(..., n)``.
+    """
+    if quantize_wire:
+        cmd = quantize_command(cmd, ranges)
+    return mit_torque(cmd, q, dq, tau_cap)
