@@ -235,12 +235,18 @@ class RobotSpec:
             raise ValueError(f"unknown joint {name!r}; joints: {list(self.joint_names)}") from None
 
 
-def robot_from_ros2_control(data: Mapping[str, Any], mode: str = "arms") -> RobotSpec:
+def robot_from_ros2_control(
+    data: Mapping[str, Any],
+    mode: str = "arms",
+    joint_extras: Mapping[str, Mapping[str, Any]] | None = None,
+) -> RobotSpec:
     """Build a ``RobotSpec`` from a ros2_control.json-style mapping.
 
-    The mapping has ``groups`` (name, can_interface), ``modes`` (mode -> group names) and ``joints`` (name,
-    group, can_id, model, direction, torque_limit, current_limit, and here also lower/upper, kp/kd,
-    armature, frictionloss, sim_effort). Joints keep the file's order within the selected groups.
+    The mapping has ``groups`` (name, and ``can_interface`` or upstream's ``can_interface_arg`` naming an
+    entry of ``args``), ``modes`` (mode -> group names) and ``joints`` (name, group, can_id, model,
+    direction, torque_limit, current_limit; our packaged file also carries lower/upper, kp/kd, armature,
+    frictionloss, sim_effort). Upstream's file keeps limits in the URDF and gains elsewhere: pass those as
+    ``joint_extras`` (joint name -> missing fields). Joints keep the file's order within the mode's groups.
     """
     if mode not in MODES:
         raise ValueError(f"unknown mode {mode!r}; valid modes: {list(MODES)}")
@@ -256,10 +262,16 @@ def robot_from_ros2_control(data: Mapping[str, Any], mode: str = "arms") -> Robo
         "name", "group", "can_id", "model", "direction", "lower", "upper",
         "torque_limit", "current_limit", "kp", "kd", "armature", "frictionloss", "sim_effort",
     )  # fmt: skip
+    args = data.get("args", {})
     joints = []
     for raw in data["joints"]:
         if raw.get("group") not in wanted:
             continue
+        raw = {**(joint_extras or {}).get(raw.get("name", ""), {}), **raw}
+        group = groups[raw["group"]]
+        iface = group.get("can_interface") or args.get(group.get("can_interface_arg", ""))
+        if not iface:
+            raise ValueError(f"group {group['name']!r} names no CAN interface")
         missing = [k for k in required if k not in raw]
         if missing:
             raise ValueError(f"joint {raw.get('name', '?')!r} lacks keys {missing}")
@@ -269,7 +281,7 @@ def robot_from_ros2_control(data: Mapping[str, Any], mode: str = "arms") -> Robo
                 name=str(raw["name"]),
                 group=str(raw["group"]),
                 can_id=int(raw["can_id"]),
-                can_interface=str(groups[raw["group"]]["can_interface"]),
+                can_interface=str(iface),
                 model=str(raw["model"]),
                 direction=int(raw["direction"]),
                 lower=float(raw["lower"]),

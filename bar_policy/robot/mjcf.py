@@ -96,7 +96,7 @@ _ARM_RGBA = "0.65 0.68 0.72 1"
 
 
 def _fmt(values: tuple[float, ...]) -> str:
-    return " ".join(f"{v:.9g}" for v in values)
+    return " ".join(repr(float(v)) for v in values)
 
 
 def _body_xml(
