@@ -1,0 +1,572 @@
+"""The fixed-rate control loop: state -> observation -> ONNX -> MIT command, under the safety supervisor.
+
+Each tick: read the target's state, check it (safety), fetch the commands (reach targets), build the
+observation with the frozen ``ObservationManager`` (joint_pos / joint_vel from the measured state,
+``actions`` = the previous raw policy output, fingertips by forward kinematics of the measured q), run the
+policy in POLICY mode, clip the raw action to ``+-policy.action_clip`` (as the env does; counted), turn it
+into ``q_cmd = default + action_scale * action`` (clipped to the joint limits and counted by the
+supervisor), check the torque demand, write the command, record the tick. The ``actions`` observation term
+is the previous clipped action, as in the env.
+
+Scheduling uses absolute deadlines ``t0 + k * dt``, so errors never accumulate (no drift). An asynchronous
+target (mock, real bus) is paced against ``time.perf_counter`` (sleep, then spin for the last
+``spin_s``); a tick that ends after the next deadline is an overrun, and missed deadlines are skipped (the
+grid keeps its phase). A synchronous target (sim) is not paced: the loop calls ``target.advance(dt)`` and
+runs as fast as it can (``realtime=True`` paces it for the viewer).
+
+Start-up: ZERO_TORQUE until the first state; a valid first state gives DAMPING then HOLD (ramp to the
+default pose over ``safety.ramp_time``) then POLICY; ``start_mode="policy"`` skips the ramp (evaluation).
+A fault latches DAMPING; the run then continues in DAMPING for ``damping_after_fault`` s and ends. The
+run always ends through ``finally``: DAMPING, ``target.safe_stop()``, and the log is written.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import signal
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from bar_policy.deploy.commands import CommandSource
+from bar_policy.deploy.log import RunLog, log_fields
+from bar_policy.deploy.policy import DEFAULT_CONTROL_DT, OnnxPolicy
+from bar_policy.deploy.safety import Mode, SafetyConfig, SafetySupervisor
+from bar_policy.deploy.targets.base import JointState, Target
+from bar_policy.robot.kinematics import Kinematics
+from bar_policy.robot.mit import mit_torque
+
+__all__ = ["RunResult", "Runtime", "RuntimeConfig", "TimingStats", "sleep_until"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, kw_only=True)
+class RuntimeConfig:
+    """Loop settings."""
+
+    control_dt: float = DEFAULT_CONTROL_DT
+    """Control period, s (must equal the policy's ``policy_dt``)."""
+    duration: float | None = 10.0
+    """Run length, s of target time (ticks = duration / control_dt); None runs until Ctrl+C or a fault."""
+    start_mode: Literal["hold", "policy"] = "hold"
+    """``hold``: ramp to the default pose, then the policy. ``policy``: the policy from the first tick."""
+    damping_after_fault: float = 1.0
+    """After a fault, keep commanding damping this long before ending the run, s."""
+    realtime: bool = False
+    """Pace a synchronous target at wall-clock rate (for the viewer)."""
+    spin_s: float = 0.0003
+    """Busy-wait this long before each deadline instead of sleeping (sleep overshoots), s."""
+    handle_sigint: bool = True
+    """Turn Ctrl+C into a DAMPING fault (main thread only); a second Ctrl+C raises KeyboardInterrupt."""
+    rt_priority: int | None = None
+    """Run the loop thread under SCHED_FIFO at this priority (1-99; Linux, needs CAP_SYS_NICE) for the
+    length of the run; None keeps the normal scheduler. On a loaded CPU it removes most overruns."""
+    safety: SafetyConfig = field(default_factory=SafetyConfig)
+    """Safety thresholds."""
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.control_dt) and self.control_dt > 0):
+            raise ValueError(f"RuntimeConfig.control_dt must be > 0 s, got {self.control_dt}")
+        if self.duration is not None and not (math.isfinite(self.duration) and self.duration > 0):
+            raise ValueError(f"RuntimeConfig.duration must be > 0 s or None, got {self.duration}")
+        if self.start_mode not in ("hold", "policy"):
+            raise ValueError(f"RuntimeConfig.start_mode must be 'hold' or 'policy', got {self.start_mode!r}")
+        if self.rt_priority is not None and not 1 <= self.rt_priority <= 99:
+            raise ValueError(f"RuntimeConfig.rt_priority must be in 1..99, got {self.rt_priority}")
+        if not self.damping_after_fault >= 0:
+            raise ValueError(
+                f"RuntimeConfig.damping_after_fault must be >= 0 s, got {self.damping_after_fault}"
+            )
+
+
+def sleep_until(deadline: float, spin_s: float = 0.0003) -> None:
+    """Wait until ``time.perf_counter() >= deadline``: sleep, then busy-wait the last ``spin_s`` seconds."""
+    while True:
+        remaining = deadline - time.perf_counter()
+        if remaining <= 0:
+            return
+        if remaining > spin_s:
+            time.sleep(remaining - spin_s)
+
+
+@dataclass(frozen=True)
+class TimingStats:
+    """Per-tick timing of a run. Arrays have shape (ticks,), seconds."""
+
+    compute: np.ndarray
+    """Host compute per tick: state read -> observation -> ONNX -> command written."""
+    infer: np.ndarray
+    """ONNX inference alone (NaN in ticks without inference)."""
+    jitter: np.ndarray
+    """Tick start minus its deadline (0 for an unpaced synchronous target)."""
+    overruns: int
+    """Ticks that ended after the next deadline."""
+    wall: float
+    """Wall-clock duration of the loop, s."""
+    target_time: float
+    """Target-clock duration, s."""
+    paced: bool
+    """True when ticks were paced against the wall clock."""
+
+    def summary(self) -> dict[str, float]:
+        """p50 / p99 / max in ms, counts, rates."""
+
+        def pct(x: np.ndarray, p: float) -> float:
+            x = x[np.isfinite(x)]
+            return float(np.percentile(x, p) * 1e3) if x.size else float("nan")
+
+        ticks = int(self.compute.size)
+        out = {
+            "ticks": ticks,
+            "compute_p50_ms": pct(self.compute, 50),
+            "compute_p99_ms": pct(self.compute, 99),
+            "compute_max_ms": pct(self.compute, 100),
+            "infer_p50_ms": pct(self.infer, 50),
+            "infer_p99_ms": pct(self.infer, 99),
+            "overruns": self.overruns,
+            "wall_s": self.wall,
+            "target_s": self.target_time,
+            "rate_hz": ticks / self.wall if self.wall > 0 else float("nan"),
+            "realtime_factor": self.target_time / self.wall if self.wall > 0 else float("nan"),
+        }
+        if self.paced:
+            out |= {
+                "jitter_p50_ms": pct(np.abs(self.jitter), 50),
+                "jitter_p99_ms": pct(np.abs(self.jitter), 99),
+                "jitter_max_ms": pct(np.abs(self.jitter), 100),
+            }
+        return out
+
+    def format(self) -> str:
+        """Human-readable table."""
+        s = self.summary()
+        lines = [
+            f"ticks {s['ticks']}  wall {s['wall_s']:.3f} s  target {s['target_s']:.3f} s  "
+            f"rate {s['rate_hz']:.1f} Hz  real-time factor {s['realtime_factor']:.1f}x",
+            f"compute (state->obs->ONNX->command) p50 {s['compute_p50_ms']:.3f} ms  "
+            f"p99 {s['compute_p99_ms']:.3f} ms  max {s['compute_max_ms']:.3f} ms",
+            f"ONNX inference p50 {s['infer_p50_ms']:.3f} ms  p99 {s['infer_p99_ms']:.3f} ms",
+        ]
+        if self.paced:
+            lines.append(
+                f"jitter p50 {s['jitter_p50_ms']:.3f} ms  p99 {s['jitter_p99_ms']:.3f} ms  "
+                f"max {s['jitter_max_ms']:.3f} ms  overruns {s['overruns']}"
+            )
+        else:
+            lines.append("unpaced synchronous target: no jitter, no overruns")
+        return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """What a run did."""
+
+    ticks: int
+    final_mode: Mode
+    transitions: list[dict[str, Any]]
+    timing: TimingStats
+    end_reason: str
+    clip_count: int
+    """Joint-ticks whose q_cmd was clipped to a limit."""
+    fault_count: int
+    log_path: Path | None
+    last_state: JointState | None
+    """The last state read."""
+    action_clip_count: int = 0
+    """Action entries clipped to ``+-policy.action_clip``."""
+    extras: dict[str, Any] = field(default_factory=dict)
+
+
+class _RealtimePriority:
+    """SCHED_FIFO for the calling thread while inside the block (restored after); logs when not permitted."""
+
+    def __init__(self, priority: int | None) -> None:
+        self.priority = priority
+        self._previous: tuple[int, int] | None = None
+
+    def __enter__(self) -> _RealtimePriority:
+        if self.priority is None:
+            return self
+        import os
+
+        try:
+            prev = (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.priority))
+            self._previous = prev
+            log.info("control loop runs under SCHED_FIFO priority %d", self.priority)
+        except (AttributeError, OSError) as e:
+            log.warning(
+                "cannot use SCHED_FIFO priority %d (%s); running with the normal scheduler", self.priority, e
+            )
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._previous is not None:
+            import os
+
+            policy, prio = self._previous
+            os.sched_setscheduler(0, policy, os.sched_param(prio))
+
+
+class _SigintFlag:
+    """Ctrl+C -> a flag the loop turns into a fault; a second Ctrl+C raises KeyboardInterrupt."""
+
+    def __init__(self) -> None:
+        self.raised = False
+        self._previous: Any = None
+        self._installed = False
+
+    def __enter__(self) -> _SigintFlag:
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGINT, self._handle)
+            self._installed = True
+        return self
+
+    def _handle(self, signum: int, frame: object) -> None:
+        if self.raised:
+            raise KeyboardInterrupt
+        self.raised = True
+
+    def __exit__(self, *exc: object) -> None:
+        if self._installed:
+            signal.signal(signal.SIGINT, self._previous)
+
+
+class Runtime:
+    """Runs a policy on a target at a fixed rate under the safety supervisor."""
+
+    def __init__(
+        self,
+        policy: OnnxPolicy,
+        target: Target,
+        commands: CommandSource,
+        config: RuntimeConfig | None = None,
+        *,
+        log_dir: str | Path | None = None,
+        log_meta: Mapping[str, Any] | None = None,
+        log_name: str = "run",
+        kinematics: Kinematics | None = None,
+        on_tick: Callable[[int, float, Runtime], None] | None = None,
+    ) -> None:
+        """Wire a policy, a target and a command source.
+
+        Args:
+            policy: a loaded, contract-checked policy.
+            target: the joints (started by the caller; the runtime never starts or closes it).
+            commands: source of the command terms.
+            config: loop settings.
+            log_dir: parent directory of the run log; None records nothing.
+            log_meta: extra JSON metadata for the run log.
+            log_name: suffix of the run directory.
+            kinematics: fingertip FK (built for the policy's mode when None).
+            on_tick: called after every tick with (tick, run time, runtime) (tests, evaluation).
+        """
+        self.policy = policy
+        self.target = target
+        self.commands = commands
+        self.config = config or RuntimeConfig()
+        robot = policy.robot
+        if tuple(target.joint_names) != robot.joint_names:
+            raise ValueError(
+                f"target joints {list(target.joint_names)} differ from the policy's {list(robot.joint_names)}"
+            )
+        if abs(policy.policy_dt - self.config.control_dt) > 1e-9:
+            raise ValueError(
+                f"policy dt {policy.policy_dt} s differs from control dt {self.config.control_dt} s"
+            )
+        missing = [n for n in policy.obs_manager.command_names if n not in commands.names]
+        if missing:
+            raise ValueError(f"command source {commands.describe()} does not feed {missing}")
+        self.safety = SafetySupervisor(
+            joint_names=robot.joint_names,
+            lower=robot.lower,
+            upper=robot.upper,
+            torque_cap=robot.torque_cap,
+            kp=policy.kp,
+            kd=policy.kd,
+            default_q=policy.default_joint_pos,
+            config=self.config.safety,
+        )
+        self.kinematics = kinematics or Kinematics(robot.mode)
+        self.log_dir = None if log_dir is None else Path(log_dir)
+        self.log_meta = dict(log_meta or {})
+        self.log_name = log_name
+        self.on_tick = on_tick
+        self.last_action = np.zeros(policy.n_actions, dtype=np.float32)
+        self.action_clip_count = 0
+        """Action entries clipped to ``+-policy.action_clip`` over the run."""
+        self._action_clip_warned = False
+        self.last_state: JointState | None = None
+        self.last_commands: dict[str, np.ndarray] = {}
+        self._fault_t: float | None = None
+        self._fault_reason = ""
+        self._cap = robot.torque_cap
+
+    # -- helpers -------------------------------------------------------------------------------------
+    def _fault(self, kind: str, detail: str, t: float) -> None:
+        changed = self.safety.fault(kind, detail, t)
+        if changed and self._fault_t is None:
+            self._fault_t = t
+            self._fault_reason = f"fault {kind}: {detail}"
+
+    def _meta(self) -> dict[str, Any]:
+        p = self.policy
+        return {
+            "policy": str(p.path),
+            "task": p.metadata.task,
+            "mode": p.robot.mode,
+            "obs_fingerprint": p.obs_manager.fingerprint,
+            "policy_code_version": p.metadata.code_version,
+            "action_clip": p.action_clip,
+            "target": type(self.target).__name__,
+            "synchronous": self.target.synchronous,
+            "commands": self.commands.describe(),
+            "joint_names": list(p.robot.joint_names),
+            "action_joint_names": list(p.metadata.action_joint_names),
+            "mode_names": {m.name: int(m) for m in Mode},
+            "runtime_config": asdict(self.config),
+        } | self.log_meta
+
+    # -- one tick ------------------------------------------------------------------------------------
+    def _tick(self, k: int, t: float, sigint: bool) -> dict[str, Any]:
+        t_start = time.perf_counter()
+        sf = self.safety
+        sf.tick = k
+        state = self.target.read_state()
+        self.last_state = state
+        if sigint:
+            self._fault("sigint", "Ctrl+C (SIGINT) received", t)
+        fault = sf.check_state(state, self.target.now())
+        if fault is not None:
+            self._fault(*fault, t)
+        if sf.mode == Mode.ZERO_TORQUE:
+            if fault is not None or sigint:
+                reason = f"start refused: fault {fault[0]}: {fault[1]}" if fault else "start refused: Ctrl+C"
+                sf.transition(Mode.DAMPING, reason, t, level=logging.WARNING)
+                self._fault_t, self._fault_reason = t, reason
+            else:
+                sf.transition(Mode.DAMPING, "first valid state received", t)
+                if self.config.start_mode == "hold":
+                    sf.transition(Mode.HOLD, f"ramp to the default pose over {sf.config.ramp_time:g} s", t)
+                else:
+                    sf.transition(Mode.POLICY, "start_mode=policy (no ramp)", t)
+                    self.last_action[:] = 0.0
+        if sf.mode == Mode.HOLD and self._ramp_complete(t):
+            sf.transition(Mode.POLICY, "ramp complete", t)
+            self.last_action[:] = 0.0
+
+        cmds = self.commands(t)
+        self.last_commands = cmds
+        left, right = self.kinematics.fingertips(state.q)
+        inputs = {
+            "joint_pos": state.q,
+            "joint_vel": state.dq,
+            "actions": self.last_action,
+            "fingertip_pos_left": left,
+            "fingertip_pos_right": right,
+            **cmds,
+        }
+        obs = self.policy.obs_manager.compute(inputs)
+        action = None
+        q_policy = None
+        infer = math.nan
+        n_action_clipped = 0
+        if sf.mode == Mode.POLICY:
+            t_inf = time.perf_counter()
+            action = self.policy(obs)
+            infer = time.perf_counter() - t_inf
+            bad = sf.check_action(action)
+            if bad is not None:
+                self._fault(*bad, t)
+            else:
+                used = self._clip_action(action, t)
+                n_action_clipped = int(np.count_nonzero(used != action))
+                q_policy = self.policy.q_command(used)
+                self.last_action = used
+        cmd = sf.command(t, q_policy)
+        sat = sf.check_torque(cmd, state, self.config.control_dt)
+        demand = sf.last_demand
+        if sat is not None:
+            self._fault(*sat, t)
+            cmd = sf.command(t, q_policy)
+            demand = mit_torque(cmd, state.q, state.dq)
+        self.target.write_command(cmd)
+        compute = time.perf_counter() - t_start
+        return {
+            "t": t,
+            "mode": int(sf.mode),
+            "q": state.q,
+            "dq": state.dq,
+            "tau": state.tau,
+            "obs": obs,
+            "action": np.nan if action is None else action,
+            "q_cmd": cmd.q,
+            "dq_cmd": cmd.dq,
+            "kp": cmd.kp,
+            "kd": cmd.kd,
+            "tau_ff": cmd.tau_ff,
+            "tau_cmd": np.minimum(np.maximum(demand, -self._cap), self._cap),
+            "n_clipped": sf.last_clipped,
+            "n_action_clipped": n_action_clipped,
+            "compute": compute,
+            "infer": infer,
+            **cmds,
+        }
+
+    def _clip_action(self, action: np.ndarray, t: float) -> np.ndarray:
+        """``clip(action, -c, c)`` with c = ``policy.action_clip`` (float32); clipped entries are counted."""
+        c = self.policy.action_clip
+        if c is None:
+            return action
+        used = np.minimum(np.maximum(action, np.float32(-c)), np.float32(c))
+        if (used != action).any():
+            n = int(np.count_nonzero(used != action))
+            self.action_clip_count += n
+            if not self._action_clip_warned:
+                self._action_clip_warned = True
+                log.warning(
+                    "policy action outside +-%g at t=%.3f s (indices %s); clipped as in training "
+                    "(further ones counted)",
+                    c,
+                    t,
+                    np.flatnonzero(used != action).tolist(),
+                )
+        return used
+
+    def _ramp_complete(self, t: float) -> bool:
+        sf = self.safety
+        return sf.config.ramp_time <= 0 or (t - sf.ramp_t0) >= sf.config.ramp_time - 1e-9
+
+    # -- the loop ------------------------------------------------------------------------------------
+    def run(self) -> RunResult:
+        """Run until the duration, a fault (+ ``damping_after_fault``), Ctrl+C or an exception.
+
+        Returns:
+            The result with timing statistics. Exceptions propagate after the safe ending and the log.
+        """
+        cfg = self.config
+        dt = cfg.control_dt
+        n_ticks = None if cfg.duration is None else max(round(cfg.duration / dt), 1)
+        paced = not self.target.synchronous or cfg.realtime
+        runlog = None
+        if self.log_dir is not None:
+            om = self.policy.obs_manager
+            fields = log_fields(
+                self.policy.robot.num_joints, self.policy.n_actions, om.size, self.commands.names
+            )
+            fields["jitter"] = ((), np.float64)
+            runlog = RunLog(self.log_dir, fields, self._meta(), name=self.log_name)
+        compute, infer, jitter = [], [], []
+        overruns = 0
+        k = 0
+        end_reason = "duration reached"
+        t0_target = self.target.now()
+        wall0 = time.perf_counter()
+        deadline = wall0
+        error: BaseException | None = None
+        try:
+            with _SigintFlag() as sigint, _RealtimePriority(cfg.rt_priority):
+                while n_ticks is None or k < n_ticks:
+                    if paced:
+                        sleep_until(deadline, cfg.spin_s)
+                    start = time.perf_counter()
+                    lateness = start - deadline if paced else 0.0
+                    t = self.target.now() - t0_target if not self.target.synchronous else k * dt
+                    rec = self._tick(k, t, sigint.raised)
+                    end = time.perf_counter()
+                    overran = False
+                    if paced:
+                        deadline += dt
+                        if end > deadline:
+                            overran = True
+                            overruns += 1
+                            missed = math.ceil((end - deadline) / dt)
+                            deadline += missed * dt  # skip the missed deadlines, keep the grid
+                    rec["jitter"] = lateness
+                    rec["overrun"] = overran
+                    rec["wall"] = start - wall0
+                    compute.append(rec["compute"])
+                    infer.append(rec["infer"])
+                    jitter.append(lateness)
+                    if runlog is not None:
+                        runlog.append(rec)
+                    if self.target.synchronous:
+                        self.target.advance(dt)
+                    else:
+                        ov = self.safety.note_overrun(overran)
+                        if ov is not None:
+                            self._fault(*ov, t)
+                    if self.on_tick is not None:
+                        self.on_tick(k, t, self)
+                    k += 1
+                    if self._fault_t is not None and t - self._fault_t >= cfg.damping_after_fault - 1e-9:
+                        end_reason = self._fault_reason
+                        break
+                    if sigint.raised and self._fault_t is None and self.safety.mode == Mode.DAMPING:
+                        # Ctrl+C while already in DAMPING / ZERO_TORQUE: end now.
+                        end_reason = "Ctrl+C (SIGINT)"
+                        break
+        except BaseException as e:
+            error = e
+            end_reason = f"exception {type(e).__name__}: {e}"
+            raise
+        finally:
+            wall = time.perf_counter() - wall0  # the loop alone, without the safe ending
+            t_end = self.target.now() - t0_target
+            self._safe_end(end_reason, t_end)
+            timing = TimingStats(
+                compute=np.asarray(compute),
+                infer=np.asarray(infer),
+                jitter=np.asarray(jitter),
+                overruns=overruns,
+                wall=wall,
+                target_time=k * dt if self.target.synchronous else t_end,
+                paced=paced,
+            )
+            log_path = None
+            if runlog is not None:
+                try:
+                    log_path = runlog.close(
+                        end_reason=end_reason,
+                        transitions=[tr.to_dict() for tr in self.safety.transitions],
+                        timing=timing.summary(),
+                        clip_count=self.safety.clip_count,
+                        action_clip_count=self.action_clip_count,
+                        fault_count=self.safety.fault_count,
+                        command_outside_workspace=self.commands.outside_count,
+                    )
+                except Exception:
+                    log.exception("could not write the run log in %s", runlog.path)
+                    if error is None:
+                        raise
+            self.log_path = log_path
+        return RunResult(
+            ticks=k,
+            final_mode=self.safety.mode,
+            transitions=[tr.to_dict() for tr in self.safety.transitions],
+            timing=timing,
+            end_reason=end_reason,
+            clip_count=self.safety.clip_count,
+            fault_count=self.safety.fault_count,
+            log_path=log_path,
+            action_clip_count=self.action_clip_count,
+            last_state=self.last_state,
+        )
+
+    def _safe_end(self, reason: str, t: float) -> None:
+        """DAMPING (logged with the reason), then the target's safe stop; errors here are logged only."""
+        sf = self.safety
+        if sf.mode in (Mode.HOLD, Mode.POLICY, Mode.ZERO_TORQUE):
+            level = logging.INFO if reason == "duration reached" else logging.WARNING
+            sf.transition(Mode.DAMPING, f"run ended: {reason}", t, level=level)
+        try:
+            self.target.safe_stop(sf.captured_q, sf.config.damping_kd)
+        except Exception:
+            log.exception("safe_stop of %s failed", type(self.target).__name__)

@@ -1,0 +1,329 @@
+"""Controller modes and the safety state machine between the policy and the joints.
+
+Modes (the MIT surface of the seed; which fields are nonzero):
+
+- ``ZERO_TORQUE``: everything 0, "alive but inert". The state before the first reading.
+- ``DAMPING``: Kp = 0, Kd > 0, q_cmd = the q captured on entry: the compliant fail-safe. Every fault lands
+  here, and it latches: the supervisor never leaves DAMPING by itself.
+- ``HOLD``: PD from the pose at entry to the default pose over ``ramp_time`` seconds, with a soft start of
+  the gains (Kp from 0 to the policy's Kp, Kd from the damping Kd to the policy's Kd, both on a smoothstep),
+  then holding the default pose.
+- ``POLICY``: q_cmd = default + action_scale * action, clipped to the joint limits (every clipped joint is
+  counted, and the first clip of each joint is logged), the file's Kp / Kd, dq_cmd = 0, tau_ff = 0.
+
+Faults (each moves HOLD or POLICY to DAMPING with its reason; the first occurrence of a fault kind while
+already in DAMPING is logged too): non-finite state or action, a joint beyond its limit by more than
+``limit_margin``, a torque demand at the cap for longer than ``saturation_time``, a state older than
+``stale_timeout``, ``max_overruns`` consecutive loop overruns, hardware faults reported by the target, and
+SIGINT. Every transition is logged (python ``logging``) and kept in ``transitions`` for the run log.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bar_policy.deploy.targets.base import JointState
+from bar_policy.robot.mit import MitCommand, mit_torque
+
+__all__ = ["Mode", "SafetyConfig", "SafetySupervisor", "Transition"]
+
+log = logging.getLogger(__name__)
+
+
+class Mode(enum.IntEnum):
+    """Controller modes, in the order of the start-up sequence."""
+
+    ZERO_TORQUE = 0
+    DAMPING = 1
+    HOLD = 2
+    POLICY = 3
+
+
+@dataclass(frozen=True, kw_only=True)
+class SafetyConfig:
+    """Thresholds of the safety supervisor."""
+
+    damping_kd: float = 1.0
+    """Kd of the DAMPING mode, N*m*s/rad (Humanoid Control's damping-controller default)."""
+    ramp_time: float = 3.0
+    """Duration of the HOLD ramp from the current pose to the default pose, s (0 = jump)."""
+    limit_margin: float = 0.1
+    """A measured joint further than this beyond its limit is a fault, rad."""
+    saturation_fraction: float = 1.0
+    """A joint is at the cap when ``|unclipped MIT torque| >= fraction * torque_cap``."""
+    saturation_time: float = 0.5
+    """Time a joint may stay at its torque cap before it is a fault, s."""
+    stale_timeout: float = 0.1
+    """A state older than this (target clock) is stale, s (Humanoid Control: 100 ms)."""
+    max_overruns: int = 5
+    """Consecutive loop overruns that make a fault (0 disables the check)."""
+
+    def __post_init__(self) -> None:
+        for name in ("ramp_time", "limit_margin", "saturation_time", "stale_timeout"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"SafetyConfig.{name} must be a finite number >= 0, got {v!r}")
+        if not (math.isfinite(self.damping_kd) and self.damping_kd > 0):
+            raise ValueError(f"SafetyConfig.damping_kd must be > 0 N*m*s/rad, got {self.damping_kd!r}")
+        if not 0 < self.saturation_fraction <= 1:
+            raise ValueError(
+                f"SafetyConfig.saturation_fraction must be in (0, 1], got {self.saturation_fraction}"
+            )
+        if self.max_overruns < 0:
+            raise ValueError(f"SafetyConfig.max_overruns must be >= 0, got {self.max_overruns}")
+
+
+@dataclass(frozen=True)
+class Transition:
+    """One mode change."""
+
+    t: float
+    """Target time of the change, s."""
+    tick: int
+    """Control tick of the change."""
+    src: Mode
+    dst: Mode
+    reason: str
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON form for the run log."""
+        return {
+            "t": self.t,
+            "tick": self.tick,
+            "from": self.src.name,
+            "to": self.dst.name,
+            "reason": self.reason,
+        }
+
+
+def _smoothstep(x: float) -> float:
+    x = min(max(x, 0.0), 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+@dataclass
+class SafetySupervisor:
+    """Decides the MIT command of every tick from the mode, the state and (in POLICY) the policy's q_cmd.
+
+    Arrays have shape ``(num_joints,)`` in canonical order.
+    """
+
+    joint_names: tuple[str, ...]
+    lower: np.ndarray
+    """Joint lower limits, rad."""
+    upper: np.ndarray
+    """Joint upper limits, rad."""
+    torque_cap: np.ndarray
+    """Firmware torque cap, N*m."""
+    kp: np.ndarray
+    """Kp of HOLD (after the ramp) and POLICY, N*m/rad."""
+    kd: np.ndarray
+    """Kd of HOLD (after the ramp) and POLICY, N*m*s/rad."""
+    default_q: np.ndarray
+    """Default pose (HOLD target), rad."""
+    config: SafetyConfig = field(default_factory=SafetyConfig)
+    mode: Mode = Mode.ZERO_TORQUE
+    transitions: list[Transition] = field(default_factory=list)
+    clip_count: int = 0
+    """Joint-ticks whose q_cmd was clipped to a limit, over the run."""
+    fault_count: int = 0
+    """Faults detected (including those while already in DAMPING)."""
+    tick: int = 0
+    """Current control tick (set by the runtime)."""
+
+    def __post_init__(self) -> None:
+        n = len(self.joint_names)
+        for name in ("lower", "upper", "torque_cap", "kp", "kd", "default_q"):
+            arr = np.asarray(getattr(self, name), dtype=np.float64)
+            if arr.shape != (n,):
+                raise ValueError(f"SafetySupervisor.{name} has shape {arr.shape}, expected ({n},)")
+            setattr(self, name, arr)
+        self._captured_q = np.zeros(n)
+        self._last_finite_q: np.ndarray | None = None
+        self._ramp_q0 = self.default_q.copy()
+        self._ramp_t0 = 0.0
+        self._sat_time = np.zeros(n)
+        self._sat_level = self.config.saturation_fraction * self.torque_cap
+        self.last_demand = np.zeros(n)
+        """Unclipped MIT torque of the last command checked by ``check_torque``, N*m."""
+        self._overruns = 0
+        self._clipped_joints: set[int] = set()
+        self._fault_kinds_logged: set[str] = set()
+        self.last_clipped = 0
+        """Joints clipped in the last POLICY command."""
+        self._now = 0.0
+
+    # -- transitions ---------------------------------------------------------------------------------
+    def transition(self, dst: Mode, reason: str, t: float, *, level: int = logging.INFO) -> None:
+        """Change mode (no-op when already there), capturing what the new mode needs, and log it.
+
+        Args:
+            dst: the new mode.
+            reason: why (kept in ``transitions`` and the run log).
+            t: target time, s.
+            level: logging level of the message (faults use WARNING).
+        """
+        if dst == self.mode:
+            return
+        src = self.mode
+        if dst == Mode.DAMPING:
+            self._captured_q = (
+                self._last_finite_q.copy()
+                if self._last_finite_q is not None
+                else np.zeros(len(self.joint_names))
+            )
+        elif dst == Mode.HOLD:
+            if self._last_finite_q is None:
+                raise RuntimeError("HOLD needs a finite joint state first")
+            self._ramp_q0 = self._last_finite_q.copy()
+            self._ramp_t0 = t
+            self._sat_time[:] = 0.0
+        elif dst == Mode.POLICY:
+            self._sat_time[:] = 0.0
+        self.mode = dst
+        tr = Transition(t=t, tick=self.tick, src=src, dst=dst, reason=reason)
+        self.transitions.append(tr)
+        log.log(level, "mode %s -> %s at t=%.3f s (tick %d): %s", src.name, dst.name, t, self.tick, reason)
+
+    def fault(self, kind: str, detail: str, t: float) -> bool:
+        """Report a fault: HOLD / POLICY go to DAMPING. Returns True when it changed the mode."""
+        self.fault_count += 1
+        reason = f"fault {kind}: {detail}"
+        if self.mode in (Mode.HOLD, Mode.POLICY):
+            self.transition(Mode.DAMPING, reason, t, level=logging.WARNING)
+            self._fault_kinds_logged.add(kind)
+            return True
+        if kind not in self._fault_kinds_logged:
+            self._fault_kinds_logged.add(kind)
+            log.warning("in %s at t=%.3f s (tick %d): %s", self.mode.name, t, self.tick, reason)
+        return False
+
+    @property
+    def captured_q(self) -> np.ndarray:
+        """q_cmd of DAMPING: the last finite q at entry (zeros before any finite reading), rad."""
+        return self._captured_q.copy()
+
+    @property
+    def ramp_t0(self) -> float:
+        """Target time the HOLD ramp started, s."""
+        return self._ramp_t0
+
+    @property
+    def ramp_done(self) -> bool:
+        """True once HOLD has reached the default pose with the full gains (checked by the runtime)."""
+        return self.mode == Mode.HOLD and self._ramp_alpha(self._now) >= 1.0
+
+    def _ramp_alpha(self, t: float) -> float:
+        T = self.config.ramp_time
+        return 1.0 if T <= 0 else (t - self._ramp_t0) / T
+
+    # -- checks --------------------------------------------------------------------------------------
+    def check_state(self, state: JointState, now: float) -> tuple[str, str] | None:
+        """The first fault in a state reading, as ``(kind, detail)``, or None. Remembers the last finite q."""
+        q, dq = state.q, state.dq
+        finite_q = bool(np.isfinite(q).all())
+        if finite_q:
+            self._last_finite_q = np.array(q, dtype=np.float64)
+        if state.faults:
+            return "target", f"target reports faults {list(state.faults)}"
+        if not (finite_q and np.isfinite(dq).all()):
+            bad = np.flatnonzero(~(np.isfinite(q) & np.isfinite(dq)))
+            return "nonfinite_state", f"non-finite q/dq at joints {[self.joint_names[i] for i in bad]}"
+        age = now - state.stamp
+        if not age <= self.config.stale_timeout:
+            return (
+                "stale_state",
+                f"state is {age * 1e3:.1f} ms old (timeout {self.config.stale_timeout * 1e3:g} ms)",
+            )
+        m = self.config.limit_margin
+        if (q < self.lower - m).any() or (q > self.upper + m).any():
+            beyond = np.flatnonzero((q < self.lower - m) | (q > self.upper + m))
+            items = ", ".join(
+                f"{self.joint_names[i]} q={q[i]:.3f} rad not in [{self.lower[i]:.3f}, {self.upper[i]:.3f}]"
+                for i in beyond
+            )
+            return "joint_limit", f"beyond the limit margin {m:g} rad: {items}"
+        return None
+
+    def check_action(self, action: np.ndarray) -> tuple[str, str] | None:
+        """A fault for a non-finite action (shape (n_actions,)), or None."""
+        if np.isfinite(action).all():
+            return None
+        bad = np.flatnonzero(~np.isfinite(action))
+        if bad.size:
+            return "nonfinite_action", f"policy output non-finite at action indices {bad.tolist()}"
+        return None
+
+    def check_torque(self, cmd: MitCommand, state: JointState, dt: float) -> tuple[str, str] | None:
+        """Track time at the torque cap; a fault when any joint has been there longer than allowed.
+
+        The demand is the unclipped MIT torque of ``cmd`` at the measured state, N*m.
+        """
+        signed = mit_torque(cmd, state.q, state.dq)
+        self.last_demand = signed
+        demand = np.abs(signed)
+        at_cap = demand >= self._sat_level
+        if not at_cap.any():
+            self._sat_time[:] = 0.0
+            return None
+        self._sat_time = np.where(at_cap, self._sat_time + dt, 0.0)
+        over = np.flatnonzero(self._sat_time > self.config.saturation_time + 1e-12)
+        if over.size:
+            items = ", ".join(
+                f"{self.joint_names[i]} ({demand[i]:.2f} N*m, cap {self.torque_cap[i]:g})" for i in over
+            )
+            return "torque_saturation", f"torque at the cap for > {self.config.saturation_time:g} s: {items}"
+        return None
+
+    def note_overrun(self, overran: bool) -> tuple[str, str] | None:
+        """Count consecutive overruns; a fault at ``max_overruns`` in a row."""
+        self._overruns = self._overruns + 1 if overran else 0
+        n = self.config.max_overruns
+        if n and self._overruns >= n:
+            self._overruns = 0
+            return "overrun", f"{n} consecutive loop overruns (the tick took longer than its period)"
+        return None
+
+    # -- commands ------------------------------------------------------------------------------------
+    def command(self, t: float, q_policy: np.ndarray | None = None) -> MitCommand:
+        """The MIT command of the current mode at target time ``t`` (s).
+
+        Args:
+            t: target time, s (drives the HOLD ramp).
+            q_policy: unclipped q_cmd from the policy, rad, shape (num_joints,); required in POLICY.
+        """
+        self._now = t
+        self.last_clipped = 0
+        n = len(self.joint_names)
+        if self.mode == Mode.ZERO_TORQUE:
+            return MitCommand.zero_torque(n)
+        if self.mode == Mode.DAMPING:
+            return MitCommand.damping(self._captured_q, self.config.damping_kd)
+        if self.mode == Mode.HOLD:
+            s = _smoothstep(self._ramp_alpha(t))
+            q = self._ramp_q0 + s * (self.default_q - self._ramp_q0)
+            kd0 = self.config.damping_kd
+            return MitCommand.position(q, s * self.kp, kd0 + s * (self.kd - kd0))
+        if q_policy is None:
+            raise ValueError("POLICY mode needs q_policy")
+        q = np.minimum(np.maximum(q_policy, self.lower), self.upper)
+        if (q != q_policy).any():
+            clipped = np.flatnonzero(q != q_policy)
+            self.last_clipped = int(clipped.size)
+            self.clip_count += int(clipped.size)
+            for i in clipped:
+                if i not in self._clipped_joints:
+                    self._clipped_joints.add(int(i))
+                    log.warning(
+                        "q_cmd of %s clipped to its limit: %.4f -> %.4f rad (t=%.3f s; further ones counted)",
+                        self.joint_names[i],
+                        q_policy[i],
+                        q[i],
+                        t,
+                    )
+        return MitCommand(q, np.zeros(n), self.kp.copy(), self.kd.copy(), np.zeros(n))

@@ -1,0 +1,137 @@
+"""``bar-deploy``: runs on mock and sim, refusals, plot, eval, the lazily imported real target."""
+
+from __future__ import annotations
+
+import sys
+import types
+
+import numpy as np
+import pytest
+from policy_factory import default_metadata, make_policy_file
+
+from bar_policy.deploy.cli import main
+from bar_policy.deploy.log import load_log
+from bar_policy.deploy.targets.mock import MockTarget
+
+
+def test_run_on_mock_then_plot(policy_path, tmp_path, capsys):
+    rc = main(
+        [
+            "run", "--policy", str(policy_path), "--target", "mock", "--duration", "0.3",
+            "--ramp-time", "0.1", "--log", str(tmp_path / "runs"),
+        ]
+    )  # fmt: skip
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "HOLD -> POLICY: ramp complete" in out and "jitter p50" in out
+    run_dir = next((tmp_path / "runs").iterdir())
+    arrays, meta = load_log(run_dir)
+    assert arrays["t"].size == 15 and meta["target"] == "MockTarget"
+    assert main(["plot", str(run_dir), "--out", str(tmp_path / "png")]) == 0
+    assert sorted(p.name for p in (tmp_path / "png").iterdir()) == ["joints.png", "timing.png", "torques.png"]
+
+
+def test_run_on_sim_default_target(policy_path, tmp_path, capsys):
+    rc = main(["--policy", str(policy_path), "--duration", "0.5", "--log", str(tmp_path), "--seed", "3"])
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "on sim" in out and "unpaced synchronous target" in out and "sampled(seed=3" in out
+
+
+def test_refused_policy_exits_2_with_the_reason(tmp_path, capsys):
+    bad = make_policy_file(tmp_path / "kp.onnx", metadata=default_metadata(joint_stiffness=(40.0,) * 14))
+    assert main(["--policy", str(bad), "--target", "mock", "--no-log"]) == 2
+    err = capsys.readouterr().err
+    assert "bar-deploy: error: refusing policy" in err and "Kp" in err
+
+
+def test_bad_command_spec_exits_2(policy_path, capsys):
+    assert main(["--policy", str(policy_path), "--commands", "joystick", "--no-log"]) == 2
+    assert "valid: sampled" in capsys.readouterr().err
+
+
+def test_unknown_target_names_the_choices(policy_path, capsys):
+    with pytest.raises(SystemExit):
+        main(["--policy", str(policy_path), "--target", "gazebo"])
+    err = capsys.readouterr().err.replace("'", "")
+    assert "invalid choice: gazebo (choose from sim, mock, real)" in err
+
+
+def test_real_target_missing_module_fails_clearly(policy_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "bar_policy.deploy.targets.real", None)
+    with pytest.raises(SystemExit, match="--target real is not available"):
+        main(["--policy", str(policy_path), "--target", "real"])
+
+
+def test_real_target_plugs_in_through_add_arguments_and_make_target(policy_path, monkeypatch, capsys):
+    fake = types.ModuleType("bar_policy.deploy.targets.real")
+    seen = {}
+
+    def add_arguments(parser):
+        parser.add_argument("--can-interface", default="can0")
+        parser.add_argument("--dry-run", action="store_true")
+
+    def make_target(args, mode):
+        seen.update(iface=args.can_interface, dry=args.dry_run, mode=mode)
+        return MockTarget(mode)
+
+    fake.add_arguments = add_arguments
+    fake.make_target = make_target
+    monkeypatch.setitem(sys.modules, "bar_policy.deploy.targets.real", fake)
+    rc = main(
+        [
+            "--policy", str(policy_path), "--target", "real", "--can-interface", "vcan0", "--dry-run",
+            "--duration", "0.1", "--no-log", "--ramp-time", "0",
+        ]
+    )  # fmt: skip
+    assert rc == 0
+    assert seen == {"iface": "vcan0", "dry": True, "mode": "arms"}
+
+
+def test_eval_prints_success_rate_with_seeds(policy_path, capsys, tmp_path):
+    out_json = tmp_path / "eval.json"
+    rc = main(
+        ["eval", "--policy", str(policy_path), "--episodes", "2", "--seed", "5", "--episode-length", "0.2",
+         "--json", str(out_json)]
+    )  # fmt: skip
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "episodes 2 (seeds 5..6)" in out and "success rate 0.0 %" in out
+    import json
+
+    data = json.loads(out_json.read_text())
+    assert [e["seed"] for e in data["episodes"]] == [5, 6]
+    assert np.isfinite(data["episodes"][0]["dist_left"])
+
+
+def test_help_lists_subcommands(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["--help"])
+    assert e.value.code == 0
+    out = capsys.readouterr().out
+    assert "plot" in out and "eval" in out and "stream:udp:PORT" in out
+
+
+def test_real_target_on_the_virtual_bus_emulator(policy_path, tmp_path, capsys):
+    # Integration with the Robstride CAN target (its in-process emulator on python-can's virtual bus).
+    pytest.importorskip("can")
+    try:
+        import bar_policy.deploy.targets.real  # noqa: F401
+    except ImportError as e:
+        pytest.skip(f"real target not importable: {e}")
+    rc = main(
+        [
+            "--policy", str(policy_path), "--target", "real", "--can-interface", "virtual",
+            "--duration", "0.4", "--ramp-time", "0.2", "--log", str(tmp_path / "runs"),
+        ]
+    )  # fmt: skip
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    assert "HOLD -> POLICY: ramp complete" in out and "run ended: duration reached" in out
+    arrays, meta = load_log(next((tmp_path / "runs").iterdir()))
+    assert meta["target"] == "RealTarget" and arrays["t"].size == 20
+    # After the ramp the zero policy commands the default pose with the policy gains.
+    np.testing.assert_allclose(
+        arrays["q_cmd"][-1], [0.3, -1.0, 0.0, -1.7, -1.2, 0.0, 0.3, 0.3, 1.0, 0.0, -1.7, 1.2, 0.0, -0.3]
+    )
+    np.testing.assert_array_equal(arrays["kp"][-1], 50.0)
