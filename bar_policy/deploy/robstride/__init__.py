@@ -1,0 +1,39 @@
+"""Robstride actuators over python-can: protocol codec, bus layer, safety sequence, emulator and tools.
+
+Layers (style.md item 15): ``framing`` + ``protocol`` (pure bytes <-> messages), ``bus`` (one CAN
+interface, injected ``can.BusABC``), ``group`` (both arms as one flat joint list, activation and
+damping-then-stop), ``calibration`` (homing offsets), ``emulator`` (MuJoCo-backed motors on a bus; imported
+on demand), ``tools`` (``bar-bus``). The deploy target is ``bar_policy.deploy.targets.real.RealTarget``.
+"""
+
+from bar_policy.deploy.robstride.bus import BusReading, MotorConfig, RobstrideBus
+from bar_policy.deploy.robstride.calibration import Calibration, JointCalibration, homing_offset
+from bar_policy.deploy.robstride.errors import (
+    CommandError,
+    FaultError,
+    FrameError,
+    InitializationError,
+    OperationError,
+    RobstrideError,
+    TimeoutError,
+    UnexpectedDeviceError,
+)
+from bar_policy.deploy.robstride.group import RobstrideGroup
+
+__all__ = [
+    "BusReading",
+    "Calibration",
+    "CommandError",
+    "FaultError",
+    "FrameError",
+    "InitializationError",
+    "JointCalibration",
+    "MotorConfig",
+    "OperationError",
+    "RobstrideBus",
+    "RobstrideError",
+    "RobstrideGroup",
+    "TimeoutError",
+    "UnexpectedDeviceError",
+    "homing_offset",
+]

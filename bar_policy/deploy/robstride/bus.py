@@ -1,0 +1,498 @@
+"""One Robstride CAN interface: an injected ``can.BusABC`` plus the motors on it (style.md item 15).
+
+``RobstrideBus`` works in *joint* coordinates: it applies ``joint = direction * (raw - homing_offset)`` to
+feedback and the inverse to commands, so its callers never see motor frames. Every exchange is a *round*:
+one frame per motor out, one type-2 reply per motor back before a deadline. Late or unsolicited frames
+are drained and inspected before the next round, so a type-21 fault frame or a stranger on the bus is
+never dropped silently, and a late reply is never mistaken for a fresh one.
+
+Deadline: the default 3 ms covers the worst-case wire time of one round on a 1 Mbit/s bus with 7 motors
+(7 commands + 7 replies, 160 bits each with worst-case stuffing: 14 * 160 us = 2.24 ms) plus motor latency.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+
+import can
+import numpy as np
+
+from bar_policy.deploy.robstride import protocol as proto
+from bar_policy.deploy.robstride.errors import (
+    FaultError,
+    InitializationError,
+    OperationError,
+    RobstrideError,
+    TimeoutError,
+    UnexpectedDeviceError,
+)
+from bar_policy.robot.actuators import robstride_spec
+from bar_policy.robot.mit import wire_ranges
+
+__all__ = ["DEFAULT_REPLY_TIMEOUT", "BusReading", "MotorConfig", "RobstrideBus"]
+
+log = logging.getLogger(__name__)
+
+DEFAULT_REPLY_TIMEOUT = 0.003
+"""Reply deadline of one round, s (see the module docstring)."""
+_SEND_RETRIES = 20
+_SEND_RETRY_SLEEP = 0.0002
+
+
+@dataclass(frozen=True, kw_only=True)
+class MotorConfig:
+    """One motor on a bus, with its joint mapping."""
+
+    name: str
+    """Joint name."""
+    can_id: int
+    """CAN id, 1..127."""
+    model: str
+    """Robstride model key (``rs-00`` ..)."""
+    direction: int = 1
+    """+1 or -1: joint = direction * (raw - homing_offset)."""
+    homing_offset: float = 0.0
+    """Raw position at joint zero, rad (per robot, from the calibration file)."""
+    torque_limit: float = 0.0
+    """Torque cap written to 0x700B at activation, N*m; 0 skips the write."""
+    current_limit: float = 0.0
+    """Current cap written to 0x7018 at activation, A; 0 skips the write."""
+
+    def __post_init__(self) -> None:
+        robstride_spec(self.model)
+        if self.direction not in (-1, 1):
+            raise ValueError(f"{self.name}: direction must be +1 or -1, got {self.direction!r}")
+        if not 0 < self.can_id < 128:
+            raise ValueError(f"{self.name}: CAN id must be in 1..127, got {self.can_id}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class BusReading:
+    """Joint-frame state of the motors of one bus. Arrays have shape (num_motors,); NaN where missing."""
+
+    q: np.ndarray
+    """Positions, rad."""
+    dq: np.ndarray
+    """Velocities, rad/s."""
+    tau: np.ndarray
+    """Torques, N*m."""
+    temperature: np.ndarray
+    """Temperatures, degC."""
+    mode: np.ndarray
+    """Mode state per motor (0 reset, 1 calibration, 2 run; -1 no reply)."""
+    faults: np.ndarray
+    """Type-2 fault bits per motor (0 = healthy)."""
+    stamp: float
+    """``time.monotonic()`` when the round completed, s."""
+
+
+class RobstrideBus:
+    """The motors on one CAN interface, over an injected ``can.BusABC``.
+
+    A context manager; ``shutdown()`` closes the CAN bus (it never sends frames: stopping motors is the
+    caller's explicit decision, see ``stop``).
+    """
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        motors: Sequence[MotorConfig],
+        *,
+        interface: str = "can0",
+        host_id: int = proto.HOST_ID,
+        reply_timeout: float = DEFAULT_REPLY_TIMEOUT,
+    ) -> None:
+        ids = [m.can_id for m in motors]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"{interface}: duplicate CAN ids in {ids}")
+        if reply_timeout <= 0:
+            raise ValueError(f"reply_timeout must be > 0 s, got {reply_timeout}")
+        self.bus = bus
+        self.motors = tuple(motors)
+        self.interface = interface
+        self.host_id = host_id
+        self.reply_timeout = reply_timeout
+        self.ids = tuple(ids)
+        self.models = {m.can_id: m.model for m in motors}
+        self._index = {m.can_id: i for i, m in enumerate(motors)}
+        self._ranges = wire_ranges([m.model for m in motors])
+        self._bounds = proto.field_bounds(self._ranges)
+        self._direction = np.array([m.direction for m in motors], dtype=np.float64)
+        self.offsets = np.array([m.homing_offset for m in motors], dtype=np.float64)
+        """Homing offsets, rad (settable for calibration tools)."""
+        self.clamps = proto.ClampCounter()
+        """Deliberately clamped MIT fields, counted per field and id."""
+        self.ignored_frames = 0
+        """Frames that were not valid replies (garbage, other hosts' requests), counted."""
+        self.late_frames = 0
+        """Replies that arrived after their round's deadline."""
+        self._logged_clamps: set[tuple[int, str]] = set()
+        self._closed = False
+        self._pending_unexpected: set[int] = set()
+        self._pending_faultwords: dict[int, int] = {}
+        self._pending_faultbits: dict[int, int] = {}
+        self.last_reading = self.empty_reading()
+        """The most recent reading of this bus (NaN where replies were missing)."""
+
+    # ----------------------------------------------------------------------------------------------
+    # lifecycle
+    def __enter__(self) -> RobstrideBus:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.shutdown()
+
+    def shutdown(self) -> None:
+        """Close the CAN bus. Safe to call twice."""
+        if not self._closed:
+            self._closed = True
+            self.bus.shutdown()
+
+    def name_of(self, can_id: int) -> str:
+        """Joint name of a motor id (or ``id N``)."""
+        i = self._index.get(can_id)
+        return self.motors[i].name if i is not None else f"id {can_id}"
+
+    # ----------------------------------------------------------------------------------------------
+    # raw I/O
+    def send(self, frame: proto.Frame) -> None:
+        """Send one extended frame, retrying briefly on a full TX queue (ENOBUFS)."""
+        msg = can.Message(arbitration_id=frame[0], data=frame[1], is_extended_id=True)
+        for attempt in range(_SEND_RETRIES):
+            try:
+                self.bus.send(msg)
+                return
+            except can.CanOperationError as exc:
+                if attempt == _SEND_RETRIES - 1:
+                    raise OperationError(f"{self.interface}: cannot send {frame!r}: {exc}") from exc
+                time.sleep(_SEND_RETRY_SLEEP)
+
+    def _recv(self, timeout: float) -> proto.Reply | bool | None:
+        """One reply, None on timeout, False for an ignored (undecodable) frame."""
+        try:
+            msg = self.bus.recv(timeout=max(timeout, 0.0))
+        except can.CanError as exc:  # interface down, socket error
+            raise OperationError(f"{self.interface}: receive failed: {exc}") from exc
+        if msg is None:
+            return None
+        if msg.is_error_frame or msg.is_remote_frame:
+            self.ignored_frames += 1
+            return False
+        try:
+            return proto.decode_reply(
+                msg.arbitration_id, msg.data, is_extended_id=msg.is_extended_id, models=self.models
+            )
+        except proto.FrameError as exc:
+            self.ignored_frames += 1
+            if self.ignored_frames <= 10 or self.ignored_frames % 1000 == 0:
+                log.warning("%s: ignored frame (%d so far): %s", self.interface, self.ignored_frames, exc)
+            return False
+
+    def request(
+        self, frame: proto.Frame, match: Callable[[proto.Reply], bool], timeout: float
+    ) -> proto.Reply:
+        """Send one frame; return the first reply ``match`` accepts, ``TimeoutError`` at the deadline."""
+        self.drain()
+        self.send(frame)
+        deadline = time.perf_counter() + timeout
+        while (remaining := deadline - time.perf_counter()) > 0:
+            reply = self._recv(remaining)
+            if reply is None:
+                break
+            if reply is not False and match(reply):
+                return reply
+        raise TimeoutError(
+            f"{self.interface}: no reply to {frame!r} within {timeout * 1e3:.1f} ms",
+            missing=(frame[0] & 0xFF,),
+            interface=self.interface,
+        )
+
+    def drain(self) -> list[proto.Reply]:
+        """Read every frame already queued (non-blocking); returns the decoded ones."""
+        out = []
+        while (reply := self._recv(0.0)) is not None:
+            if reply is not False:
+                out.append(reply)
+        return out
+
+    # ----------------------------------------------------------------------------------------------
+    # discovery and parameters
+    def scan(
+        self, ids: Iterable[int] = range(1, 128), *, timeout: float = 0.05, batch: int = 8
+    ) -> dict[int, bytes]:
+        """Ask every id in ``ids`` for its device id (type 0); returns responder id -> 64-bit MCU id.
+
+        Read-only. Queries go out ``batch`` at a time so a short SocketCAN TX queue does not overflow.
+        """
+        self.drain()
+        found: dict[int, bytes] = {}
+        id_list = list(ids)
+
+        def collect(until: float) -> None:
+            while (remaining := until - time.perf_counter()) > 0:
+                reply = self._recv(remaining)
+                if reply is None:
+                    return
+                if isinstance(reply, proto.DeviceIdReply):
+                    found[reply.motor_id] = reply.uid
+
+        for k in range(0, len(id_list), batch):
+            for can_id in id_list[k : k + batch]:
+                self.send(proto.get_id_frame(can_id, self.host_id))
+            collect(time.perf_counter() + 0.002)
+        collect(time.perf_counter() + timeout)
+        return dict(sorted(found.items()))
+
+    def read_param(
+        self, can_id: int, index: int, *, dtype: str | None = None, timeout: float = 0.05
+    ) -> float | int:
+        """Read a parameter (type 17); raises ``OperationError`` when the motor reports failure."""
+        frame = proto.read_param_frame(can_id, index, self.host_id)
+        reply = self.request(
+            frame,
+            lambda r: isinstance(r, proto.ParamReply) and r.motor_id == can_id and r.index == index,
+            timeout,
+        )
+        if not isinstance(reply, proto.ParamReply):  # pragma: no cover - guaranteed by the match
+            raise OperationError(f"unexpected reply {reply!r}")
+        if reply.status != 0:
+            raise OperationError(
+                f"{self.interface}: id {can_id} refused to read parameter {index:#06x} "
+                f"(status {reply.status})"
+            )
+        return reply.value(dtype)
+
+    def write_param(
+        self, can_id: int, index: int, value: float | int, *, dtype: str | None = None, timeout: float = 0.05
+    ) -> None:
+        """Write a parameter (type 18, volatile) and wait for the motor's type-2 acknowledgement."""
+        frame = proto.write_param_frame(can_id, index, value, dtype=dtype, host_id=self.host_id)
+        self.request(frame, lambda r: isinstance(r, proto.Feedback) and r.motor_id == can_id, timeout)
+
+    # ----------------------------------------------------------------------------------------------
+    # activation checks
+    def verify_scan(self, found: Iterable[int]) -> None:
+        """Refuse (``InitializationError``) unless exactly this bus's motor ids answered the scan."""
+        found_set, expected = set(found), set(self.ids)
+        missing, extra = sorted(expected - found_set), sorted(found_set - expected)
+        if missing or extra:
+            raise InitializationError(
+                f"{self.interface}: scan mismatch, refusing to enable. expected ids {sorted(expected)}; "
+                f"missing {[(i, self.name_of(i)) for i in missing]}; unknown devices {extra}"
+            )
+
+    def verify_models(self, *, tolerance: float = 1e-3) -> dict[int, float]:
+        """Check each motor's model is plausible; returns id -> limit_torque read.
+
+        There is no documented model-id parameter, so the model comes from the robot data and is checked
+        against the torque cap 0x700B: its power-on default is the model's T_max and the firmware keeps it
+        within [0, T_max], so a value above the configured model's T_max proves a bigger model than
+        configured (e.g. an rs-02 where an rs-05 belongs). A smaller model than configured can pass
+        (its cap reads like a lowered cap): the hardware check list in docs/can.md covers that.
+        """
+        read: dict[int, float] = {}
+        for m in self.motors:
+            try:
+                value = float(self.read_param(m.can_id, proto.PARAM_LIMIT_TORQUE))
+            except RobstrideError as exc:
+                raise InitializationError(
+                    f"{self.interface}: cannot read limit_torque of {m.name} (id {m.can_id}): {exc}"
+                ) from exc
+            t_max = robstride_spec(m.model).t_max
+            if not 0.0 <= value <= t_max + tolerance:
+                raise InitializationError(
+                    f"{self.interface}: {m.name} (id {m.can_id}) reports limit_torque={value:g} N*m, outside "
+                    f"[0, {t_max:g}] of the configured {m.model}: wrong model on this id, refusing to enable"
+                )
+            read[m.can_id] = value
+        return read
+
+    def write_caps(self, *, verify: bool = True) -> list[tuple[int, str, float]]:
+        """Write the torque (0x700B) and current (0x7018) caps of every motor; a cap of 0 is skipped.
+
+        Logs every write and skip; reads each write back when ``verify``. Returns (id, param, value) written.
+        """
+        written = []
+        for m in self.motors:
+            for index, pname, value in (
+                (proto.PARAM_LIMIT_TORQUE, "torque_limit", m.torque_limit),
+                (proto.PARAM_LIMIT_CURRENT, "current_limit", m.current_limit),
+            ):
+                if value == 0:
+                    log.info(
+                        "skipped %s (cap 0) for can_id=%d (%s) on %s", pname, m.can_id, m.name, self.interface
+                    )
+                    continue
+                self.write_param(m.can_id, index, value)
+                if verify:
+                    back = float(self.read_param(m.can_id, index))
+                    if abs(back - value) > 1e-4 * max(1.0, abs(value)):
+                        raise InitializationError(
+                            f"{self.interface}: wrote {pname}={value:g} to {m.name} (id {m.can_id}) "
+                            f"but it reads back {back:g}"
+                        )
+                log.info(
+                    "wrote %s=%s to can_id=%d (%s) on %s",
+                    pname,
+                    float(value),
+                    m.can_id,
+                    m.name,
+                    self.interface,
+                )
+                written.append((m.can_id, pname, float(value)))
+        return written
+
+    # ----------------------------------------------------------------------------------------------
+    # rounds
+    def send_round(self, frames: Sequence[proto.Frame]) -> float:
+        """Drain stale frames, send one frame per motor; returns the deadline (``perf_counter``)."""
+        self._pending_unexpected = set()
+        self._pending_faultwords = {}
+        self._pending_faultbits = {}
+        for reply in self.drain():
+            self._note(reply, None)
+        for frame in frames:
+            self.send(frame)
+        return time.perf_counter() + self.reply_timeout
+
+    def _note(self, reply: proto.Reply, got: dict[int, proto.Feedback] | None) -> None:
+        motor_id = reply.motor_id
+        if motor_id not in self._index:
+            if not isinstance(reply, proto.ActiveReport):
+                self._pending_unexpected.add(motor_id)
+            return
+        if isinstance(reply, proto.FaultReport):
+            if reply.fault_word:
+                self._pending_faultwords[motor_id] = reply.fault_word
+        elif isinstance(reply, proto.Feedback):
+            if got is None:  # a late reply drained before a new round: count it, keep its fault bits
+                self.late_frames += 1
+                if reply.faults:
+                    self._pending_faultbits[motor_id] = reply.faults
+            else:
+                got[motor_id] = reply
+
+    def collect_round(self, deadline: float, *, strict: bool = True) -> BusReading:
+        """Collect one type-2 reply per motor until ``deadline`` (``perf_counter``).
+
+        Raises (when ``strict``), in this order of precedence: ``UnexpectedDeviceError`` (a sender that is not
+        one of this bus's motors), ``FaultError`` (fault bits or a type-21 frame), ``TimeoutError`` (missing
+        replies, naming the ids). The reading is stored in ``last_reading`` before raising.
+        """
+        got: dict[int, proto.Feedback] = {}
+        n = len(self.ids)
+        while len(got) < n and (remaining := deadline - time.perf_counter()) > 0:
+            reply = self._recv(remaining)
+            if reply is None:
+                break
+            if reply is not False:
+                self._note(reply, got)
+        # Frames already queued count even when this thread was descheduled past the deadline (a loaded
+        # host): the deadline bounds the wait, it does not discard replies that did arrive.
+        while len(got) < n and (reply := self._recv(0.0)) is not None:
+            if reply is not False:
+                self._note(reply, got)
+        reading = self._reading(got)
+        self.last_reading = reading
+        if not strict:
+            return reading
+        if self._pending_unexpected:
+            ids = sorted(self._pending_unexpected)
+            raise UnexpectedDeviceError(
+                f"{self.interface}: frames from unexpected CAN ids {ids}; expected only {list(self.ids)}",
+                can_ids=ids,
+                interface=self.interface,
+            )
+        bits = dict(self._pending_faultbits)
+        bits.update({i: int(f.faults) for i, f in got.items() if f.faults})
+        words = self._pending_faultwords
+        if bits or words:
+            desc = "; ".join(
+                f"{self.name_of(i)} (id {i}): "
+                + ", ".join(proto.fault_names(bits.get(i, 0)) + proto.fault_word_names(words.get(i, 0)))
+                for i in sorted(set(bits) | set(words))
+            )
+            raise FaultError(
+                f"{self.interface}: motor fault: {desc}",
+                faults=bits,
+                fault_words=words,
+                interface=self.interface,
+            )
+        missing = [i for i in self.ids if i not in got]
+        if missing:
+            raise TimeoutError(
+                f"{self.interface}: no reply within {self.reply_timeout * 1e3:.1f} ms from "
+                f"{[(i, self.name_of(i)) for i in missing]}",
+                missing=missing,
+                interface=self.interface,
+            )
+        return reading
+
+    def empty_reading(self) -> BusReading:
+        """A reading with no replies (NaN, mode -1)."""
+        return self._reading({})
+
+    def _reading(self, got: dict[int, proto.Feedback]) -> BusReading:
+        n = len(self.ids)
+        raw = np.full((4, n), np.nan)
+        mode = np.full(n, -1, dtype=np.int64)
+        faults = np.zeros(n, dtype=np.int64)
+        for motor_id, fb in got.items():
+            i = self._index[motor_id]
+            raw[:, i] = (fb.position, fb.velocity, fb.torque, fb.temperature)
+            mode[i], faults[i] = fb.mode, fb.faults
+        d = self._direction
+        return BusReading(
+            q=d * (raw[0] - self.offsets),
+            dq=d * raw[1],
+            tau=d * raw[2],
+            temperature=raw[3],
+            mode=mode,
+            faults=faults,
+            stamp=time.monotonic(),
+        )
+
+    def mit_frames(
+        self, q: np.ndarray, dq: np.ndarray, kp: np.ndarray, kd: np.ndarray, tau: np.ndarray
+    ) -> list[proto.Frame]:
+        """Encode joint-frame MIT commands (each shape (num_motors,)) into one frame per motor.
+
+        Applies ``raw = direction * q + homing_offset`` (velocity and torque: direction only), clamps
+        deliberately and counts the clamps in ``clamps`` (logging the first clamp of each id and field).
+        """
+        d = self._direction
+        values = np.empty((5, len(self.ids)))
+        values[0] = q
+        values[1] = dq
+        values[2] = kp
+        values[3] = kd
+        values[4] = tau
+        values[[0, 1, 4]] *= d  # velocity and torque: direction only; position: also the offset
+        values[0] += self.offsets
+        frames, clamped = proto.encode_mit_batch(self.ids, self._ranges, values, bounds=self._bounds)
+        if clamped.any():
+            for f, j in np.argwhere(clamped):
+                can_id, fname = self.ids[j], proto.MIT_FIELDS[f]
+                self.clamps.add(can_id, (fname,))
+                if (can_id, fname) not in self._logged_clamps:
+                    self._logged_clamps.add((can_id, fname))
+                    log.warning(
+                        "%s: clamped MIT %s=%g of %s (id %d) to its wire range (counted in .clamps)",
+                        self.interface, fname, values[f, j], self.name_of(can_id), can_id,
+                    )  # fmt: skip
+        return frames
+
+    def exchange(self, frames: Sequence[proto.Frame], *, strict: bool = True) -> BusReading:
+        """``send_round`` then ``collect_round``."""
+        return self.collect_round(self.send_round(frames), strict=strict)
+
+    def enable_frames(self) -> list[proto.Frame]:
+        """Type-3 enable frames for every motor."""
+        return [proto.enable_frame(i, self.host_id) for i in self.ids]
+
+    def stop_frames(self, *, clear_faults: bool = False) -> list[proto.Frame]:
+        """Type-4 stop frames for every motor (byte0 = 1 when ``clear_faults``)."""
+        return [proto.stop_frame(i, clear_faults=clear_faults, host_id=self.host_id) for i in self.ids]

@@ -1,0 +1,492 @@
+"""Robstride actuators on a python-can bus, driven by MuJoCo physics of the Lite (bus-level emulator).
+
+Every emulated motor listens on its interface's bus (python-can ``virtual``; SocketCAN ``vcan`` where the
+kernel has it), decodes the host's frames with the protocol layer, and answers like the firmware:
+
+- type 0 -> type-0 device-id reply; type 3/4/6/18 -> type-2 feedback; type 17 -> type-17 reply (status 1 and
+  a zero value for an unknown index); type 1 -> stores the command (decoded with the motor's *own* model
+  ranges) and answers type-2 feedback with mode 2 (run) when enabled, 0 (reset) when not.
+- Physics: each MuJoCo step (2 ms) the MIT law of every enabled motor, ``firmware_torque`` (the one shared
+  actuator model) with the motor's ``limit_torque`` as the cap, goes into ``qfrc_applied``. Disabled motors
+  apply nothing. Joint <-> motor frames use the robot data's directions and the emulated robot's *true*
+  homing offsets (``offsets``), so a calibration error shows up as it would on hardware.
+- Time: ``mode="lockstep"`` advances ``control_dt`` of physics once every enabled motor has received a type-1
+  frame (a complete command round) and only then answers that round's type-1 frames, with the post-step
+  state (deterministic, faster than real time, the semantics of the synchronous sim target).
+  ``mode="realtime"`` steps physics in a thread at the wall-clock rate and answers every frame at once.
+
+Fault injection (``inject``, ``silence``, ``garbage_per_round``): dropped replies, fault bits and type-21
+fault frames, replies from a wrong id, garbage frames, bus silence, active-report (0x18) chatter; at
+construction: absent motors, wrong models, unknown extra devices.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import random
+import struct
+import threading
+import time
+import zlib
+from collections.abc import Collection, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import can
+import mujoco
+import numpy as np
+
+from bar_policy.deploy.robstride import protocol as proto
+from bar_policy.robot.actuators import P_MAX, robstride_spec
+from bar_policy.robot.constants import RobotSpec
+from bar_policy.robot.mit import MitCommand, WireRanges, firmware_torque, wire_ranges
+from bar_policy.robot.mjcf import load_model
+
+__all__ = ["EMULATOR_MODES", "Injection", "RobstrideEmulator"]
+
+log = logging.getLogger(__name__)
+
+EMULATOR_MODES = ("lockstep", "realtime")
+"""Physics clock modes."""
+DEFAULT_LIMIT_CURRENT = 23.0
+"""Power-on limit_cur of an emulated motor, A (a placeholder: current is not modelled)."""
+
+
+@dataclass(kw_only=True)
+class Injection:
+    """Faults injected into one emulated motor (mutable; change through ``RobstrideEmulator.inject``)."""
+
+    drop_replies: int = 0
+    """Replies to drop from now on; -1 drops all."""
+    fault_bits: int = 0
+    """Type-2 fault flags (6 bits) reported in every feedback."""
+    fault_word: int = 0
+    """When non-zero, a type-21 fault frame with this word follows every feedback."""
+    reply_as: int | None = None
+    """Answer as this CAN id (a wrong id) instead of the own one."""
+    active_reports: bool = False
+    """Follow every feedback with a type-24 (0x18) active report frame."""
+
+
+@dataclass(kw_only=True)
+class _Motor:
+    can_id: int
+    model: str
+    interface: str
+    name: str
+    joint: int | None
+    """Index in the robot's joint order; None for an extra device that is not attached to a joint."""
+    direction: int = 1
+    offset: float = 0.0
+    enabled: bool = False
+    cmd: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
+    params: dict[int, float | int] = field(default_factory=dict)
+    inj: Injection = field(default_factory=Injection)
+    uid: bytes = b""
+
+
+class RobstrideEmulator:
+    """Emulated Robstride motors of a robot on python-can buses, backed by MuJoCo.
+
+    Args:
+        robot: the robot data; one motor per joint on the joint's ``can_interface``.
+        channels: robot interface name (``can0``) -> python-can channel (``can0``, ``vcan0``, a test name).
+        interface: python-can interface for the emulator's buses (``virtual``, or ``socketcan`` on vcan).
+        mode: ``lockstep`` or ``realtime`` (module docstring).
+        control_dt: physics advanced per complete command round in lockstep, s.
+        offsets: true homing offset per joint name, rad (raw = direction * joint + offset); default 0.
+        initial_q: initial joint positions, canonical order, rad; default the ``arms_hanging`` pose.
+        models: joint name -> model actually installed (injects a wrong model); default the robot data's.
+        absent: joint names whose motors are not on the bus.
+        extra_ids: interface -> CAN ids of unknown devices (rs-00) that answer scans and frames.
+        temperature: reported temperature, degC.
+        seed: seed of the garbage-frame generator.
+    """
+
+    def __init__(
+        self,
+        robot: RobotSpec,
+        channels: Mapping[str, str],
+        *,
+        interface: str = "virtual",
+        mode: str = "lockstep",
+        control_dt: float = 0.02,
+        offsets: Mapping[str, float] | None = None,
+        initial_q: Sequence[float] | None = None,
+        models: Mapping[str, str] | None = None,
+        absent: Collection[str] = (),
+        extra_ids: Mapping[str, Sequence[int]] | None = None,
+        temperature: float = 30.0,
+        seed: int = 0,
+    ) -> None:
+        if mode not in EMULATOR_MODES:
+            raise ValueError(f"unknown emulator mode {mode!r}; valid: {list(EMULATOR_MODES)}")
+        used = {j.can_interface for j in robot.joints}
+        unmapped = sorted(used - set(channels))
+        if unmapped:
+            raise ValueError(f"no channel given for robot interfaces {unmapped}; channels: {dict(channels)}")
+        self.robot = robot
+        self.mode = mode
+        self.model = load_model(robot.mode)
+        self.data = mujoco.MjData(self.model)
+        self.n_substeps = max(1, round(control_dt / self.model.opt.timestep))
+        self.temperature = temperature
+        self.garbage_per_round = 0
+        """Garbage frames sent after each answered round (lockstep) or frame (realtime)."""
+        self._rng = random.Random(seed)
+        self._lock = threading.RLock()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._silent: set[str] = set()
+        self._pending: list[tuple[_Motor, bytes]] = []
+        self._commanded: set[tuple[str, int]] = set()
+        self._static_cache: tuple[list[_Motor], np.ndarray, np.ndarray, WireRanges, np.ndarray] | None = None
+
+        offsets = dict(offsets or {})
+        models = dict(models or {})
+        unknown = sorted((set(offsets) | set(models) | set(absent)) - set(robot.joint_names))
+        if unknown:
+            raise ValueError(f"unknown joints {unknown}; joints: {list(robot.joint_names)}")
+        self.motors: dict[tuple[str, int], _Motor] = {}
+        for j in robot.joints:
+            if j.name in absent:
+                continue
+            self._add(
+                _Motor(
+                    can_id=j.can_id,
+                    model=models.get(j.name, j.model),
+                    interface=j.can_interface,
+                    name=j.name,
+                    joint=j.index,
+                    direction=j.direction,
+                    offset=float(offsets.get(j.name, 0.0)),
+                )
+            )
+        for iface, ids in (extra_ids or {}).items():
+            for can_id in ids:
+                self._add(
+                    _Motor(can_id=can_id, model="rs-00", interface=iface, name=f"extra{can_id}", joint=None)
+                )
+
+        jid = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in robot.joint_names]
+        self._qadr = np.array([self.model.jnt_qposadr[i] for i in jid])
+        self._dadr = np.array([self.model.jnt_dofadr[i] for i in jid])
+        q0 = robot.pose("arms_hanging") if initial_q is None else np.asarray(initial_q, dtype=np.float64)
+        self.data.qpos[self._qadr] = q0
+        mujoco.mj_forward(self.model, self.data)
+        self._tau_raw = np.zeros(robot.num_joints)
+
+        self.buses: dict[str, can.BusABC] = {
+            iface: can.Bus(interface=interface, channel=channels[iface], receive_own_messages=False)
+            for iface in sorted({m.interface for m in self.motors.values()} | used)
+        }
+
+    def _add(self, m: _Motor) -> None:
+        spec = robstride_spec(m.model)
+        m.params = {
+            0x7005: 0,
+            0x700B: spec.t_max,
+            0x7018: DEFAULT_LIMIT_CURRENT,
+            0x701C: 48.0,
+            0x701A: 0.0,
+            0x7026: 1,
+            0x7028: 0,
+            0x7029: 0,
+            0x3022: 0,
+        }
+        m.uid = struct.pack(
+            "<Q", 0x5253000000000000 | (zlib.crc32(m.interface.encode()) & 0xFFFF) << 8 | m.can_id
+        )
+        self.motors[(m.interface, m.can_id)] = m
+
+    # ----------------------------------------------------------------------------------------------
+    # lifecycle
+    def start(self) -> RobstrideEmulator:
+        """Start the receiver threads (and the physics thread in realtime mode)."""
+        if self._threads:
+            return self
+        for iface, bus in self.buses.items():
+            t = threading.Thread(target=self._serve, args=(iface, bus), name=f"emu-{iface}", daemon=True)
+            self._threads.append(t)
+        if self.mode == "realtime":
+            self._threads.append(threading.Thread(target=self._physics_loop, name="emu-physics", daemon=True))
+        for t in self._threads:
+            t.start()
+        return self
+
+    def close(self) -> None:
+        """Stop the threads and shut the buses down. Safe to call twice."""
+        self._stop.set()
+        for t in self._threads:
+            t.join(timeout=2.0)
+        self._threads.clear()
+        for bus in self.buses.values():
+            bus.shutdown()
+
+    def __enter__(self) -> RobstrideEmulator:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ----------------------------------------------------------------------------------------------
+    # fault injection and inspection
+    def motor(self, key: str | int) -> _Motor:
+        """The emulated motor of a joint name or CAN id."""
+        for m in self.motors.values():
+            if key in (m.name, m.can_id):
+                return m
+        raise KeyError(f"no emulated motor {key!r}; motors: {sorted(m.name for m in self.motors.values())}")
+
+    def inject(self, key: str | int, **changes: object) -> None:
+        """Change a motor's ``Injection`` fields (e.g. ``inject("left_elbow_pitch", drop_replies=1)``)."""
+        m = self.motor(key)
+        with self._lock:
+            for k, v in changes.items():
+                if not hasattr(m.inj, k):
+                    raise ValueError(
+                        f"unknown injection {k!r}; valid: {list(Injection.__dataclass_fields__)}"
+                    )
+                setattr(m.inj, k, v)
+
+    def silence(self, interface: str, on: bool = True) -> None:
+        """Bus silence: the motors on ``interface`` neither hear nor answer anything."""
+        with self._lock:
+            (self._silent.add if on else self._silent.discard)(interface)
+
+    @property
+    def sim_time(self) -> float:
+        """Physics time, s."""
+        return float(self.data.time)
+
+    def joint_positions(self) -> np.ndarray:
+        """True joint positions, canonical order, rad."""
+        with self._lock:
+            return self.data.qpos[self._qadr].copy()
+
+    def set_joint_positions(self, q: Sequence[float]) -> None:
+        """Teleport the joints (e.g. to play a hand sweep for calibration), zero velocity."""
+        with self._lock:
+            self.data.qpos[self._qadr] = np.asarray(q, dtype=np.float64)
+            self.data.qvel[:] = 0.0
+            mujoco.mj_forward(self.model, self.data)
+
+    def enabled(self) -> dict[str, bool]:
+        """Joint name -> enabled."""
+        with self._lock:
+            return {m.name: m.enabled for m in self.motors.values()}
+
+    # ----------------------------------------------------------------------------------------------
+    # physics
+    def _joint_motors(self) -> list[_Motor]:
+        return [m for m in self.motors.values() if m.joint is not None]
+
+    def _static(self) -> tuple[list[_Motor], np.ndarray, np.ndarray, WireRanges, np.ndarray]:
+        """Per-motor constants of the joint motors (cached): motors, joint index, direction, ranges, T_max."""
+        if self._static_cache is None:
+            ms = self._joint_motors()
+            self._static_cache = (
+                ms,
+                np.array([m.joint for m in ms], dtype=np.int64),
+                np.array([m.direction for m in ms], dtype=np.float64),
+                wire_ranges([m.model for m in ms]),
+                np.array([robstride_spec(m.model).t_max for m in ms]),
+            )
+        return self._static_cache
+
+    def _step(self, n: int) -> None:
+        """``n`` physics steps with the latest commands (lock held)."""
+        ms, idx, d, ranges, t_max = self._static()
+        off = np.array([m.offset for m in ms])
+        on = np.array([m.enabled for m in ms], dtype=np.float64)
+        cmd = np.array([m.cmd for m in ms]).T
+        cap = np.clip(np.array([float(m.params[0x700B]) for m in ms]), 0.0, t_max)
+        mit = MitCommand(cmd[0], cmd[1], cmd[2], cmd[3], cmd[4])
+        qadr, dadr = self._qadr[idx], self._dadr[idx]
+        tau_raw = np.zeros(len(ms))
+        for _ in range(n):
+            q_raw = d * self.data.qpos[qadr] + off
+            dq_raw = d * self.data.qvel[dadr]
+            tau_raw = on * firmware_torque(mit, q_raw, dq_raw, ranges, cap, quantize_wire=False)
+            self.data.qfrc_applied[:] = 0.0
+            self.data.qfrc_applied[dadr] = d * tau_raw
+            mujoco.mj_step(self.model, self.data)
+        self._tau_raw[idx] = tau_raw
+
+    def _physics_loop(self) -> None:
+        """Step physics at the wall-clock rate, in chunks of the steps that are due.
+
+        It sleeps between chunks whatever the lag (so the receiver threads always get the lock), and drops
+        time rather than spiral when it falls more than 0.1 s behind (a loaded host).
+        """
+        dt = float(self.model.opt.timestep)
+        sim_wall = time.perf_counter()
+        while not self._stop.is_set():
+            due = int((time.perf_counter() - sim_wall) / dt)
+            if due > int(0.1 / dt):
+                sim_wall = time.perf_counter() - dt
+                due = 1
+            if due > 0:
+                with self._lock:
+                    self._step(due)
+                sim_wall += due * dt
+            time.sleep(max(0.0002, sim_wall + dt - time.perf_counter()))
+
+    # ----------------------------------------------------------------------------------------------
+    # the firmware side of the protocol
+    def _feedback(self, m: _Motor) -> proto.Frame:
+        if m.joint is None:
+            pos = vel = tau = 0.0
+        else:
+            pos = m.direction * float(self.data.qpos[self._qadr[m.joint]]) + m.offset
+            pos = (pos + P_MAX) % (2 * P_MAX) - P_MAX  # the feedback wraps within +-4*pi
+            vel = m.direction * float(self.data.qvel[self._dadr[m.joint]])
+            tau = float(self._tau_raw[m.joint]) if m.enabled else 0.0
+        sender = m.inj.reply_as if m.inj.reply_as is not None else m.can_id
+        return proto.feedback_frame(
+            sender,
+            m.model,
+            position=pos,
+            velocity=vel,
+            torque=tau,
+            temperature=self.temperature,
+            mode=2 if m.enabled else 0,
+            faults=m.inj.fault_bits,
+        )
+
+    def _reply(self, m: _Motor, frames: Sequence[proto.Frame]) -> None:
+        """Send frames for motor ``m``, honouring drop and silence injections (lock held)."""
+        if m.interface in self._silent:
+            return
+        if m.inj.drop_replies:
+            if m.inj.drop_replies > 0:
+                m.inj.drop_replies -= 1
+            return
+        bus = self.buses[m.interface]
+        for f in frames:
+            bus.send(can.Message(arbitration_id=f[0], data=f[1], is_extended_id=True))
+
+    def _feedback_frames(self, m: _Motor) -> list[proto.Frame]:
+        frames = [self._feedback(m)]
+        if m.inj.fault_word:
+            frames.append(proto.fault_frame(m.can_id, m.inj.fault_word))
+        if m.inj.active_reports:
+            frames.append(
+                proto.Frame(proto.pack_id(proto.CommType.ACTIVE_REPORT, m.can_id, proto.HOST_ID), bytes(8))
+            )
+        return frames
+
+    def _garbage(self, interface: str) -> None:
+        bus, rng = self.buses[interface], self._rng
+        for _ in range(self.garbage_per_round):
+            kind = rng.randrange(3)
+            if kind == 0:  # a standard 11-bit frame
+                msg = can.Message(
+                    arbitration_id=rng.randrange(0x800), data=rng.randbytes(8), is_extended_id=False
+                )
+            elif kind == 1:  # a short extended frame
+                msg = can.Message(arbitration_id=rng.randrange(1 << 29), data=rng.randbytes(rng.randrange(8)))
+            else:  # an extended frame of an undefined communication type
+                msg = can.Message(arbitration_id=(30 << 24) | rng.randrange(1 << 24), data=rng.randbytes(8))
+            bus.send(msg)
+
+    def _serve(self, interface: str, bus: can.BusABC) -> None:
+        while not self._stop.is_set():
+            try:
+                msg = bus.recv(timeout=0.05)
+            except can.CanError:
+                return
+            if msg is None or msg.is_error_frame or msg.is_remote_frame:
+                continue
+            try:
+                req = proto.decode_request(msg.arbitration_id, msg.data, is_extended_id=msg.is_extended_id)
+            except proto.FrameError:
+                continue  # not for a motor (another reply, garbage): firmware ignores it
+            with self._lock:
+                if interface in self._silent:
+                    continue
+                m = self.motors.get((interface, req.motor_id))
+                if m is not None:
+                    self._handle(m, req)
+
+    def _handle(self, m: _Motor, req: proto.Request) -> None:
+        if isinstance(req, proto.MitRequest):
+            s = req.setpoint(m.model)
+            m.cmd = (s.q, s.dq, s.kp, s.kd, s.tau)
+            if self.mode == "lockstep" and m.enabled and m.joint is not None:
+                self._commanded.add((m.interface, m.can_id))
+                self._pending.append((m, b""))
+                self._maybe_complete_round()
+                return
+            self._reply(m, self._feedback_frames(m))
+            if self.garbage_per_round:
+                self._garbage(m.interface)
+            return
+        t = req.comm_type
+        if t == proto.CommType.GET_ID:
+            self._reply(m, [proto.device_id_reply_frame(m.inj.reply_as or m.can_id, m.uid)])
+        elif t == proto.CommType.ENABLE:
+            m.enabled = True
+            self._reply(m, self._feedback_frames(m))
+        elif t == proto.CommType.STOP:
+            m.enabled = False
+            m.cmd = (0.0, 0.0, 0.0, 0.0, 0.0)
+            self._commanded.discard((m.interface, m.can_id))
+            if req.data[0] == 1:
+                m.inj.fault_bits = 0
+                m.inj.fault_word = 0
+            self._reply(m, self._feedback_frames(m))
+            self._maybe_complete_round()
+        elif t == proto.CommType.SET_ZERO:
+            if req.data[0] == 1 and m.joint is not None:
+                m.offset = -m.direction * float(self.data.qpos[self._qadr[m.joint]])
+            self._reply(m, self._feedback_frames(m))
+        elif t == proto.CommType.PARAM_READ:
+            self._reply(m, [self._param_reply(m, req.index)])
+        elif t == proto.CommType.PARAM_WRITE:
+            self._param_write(m, req.index, req.value_bytes)
+            self._reply(m, self._feedback_frames(m))
+
+    def _param_reply(self, m: _Motor, index: int) -> proto.Frame:
+        spec = proto.PARAMS.get(index)
+        if spec is None or (index not in m.params and index not in (0x7019, 0x701B)):
+            return proto.param_reply_frame(m.can_id, index, bytes(4), status=1)
+        if index in (0x7019, 0x701B) and m.joint is not None:
+            arr = self.data.qpos[self._qadr] if index == 0x7019 else self.data.qvel[self._dadr]
+            value: float | int = m.direction * float(arr[m.joint]) + (m.offset if index == 0x7019 else 0.0)
+        elif index == 0x3022:
+            value = m.inj.fault_word
+        else:
+            value = m.params.get(index, 0.0)
+        return proto.param_reply_frame(m.can_id, index, proto.encode_param_value(value, spec.dtype))
+
+    def _param_write(self, m: _Motor, index: int, raw: bytes) -> None:
+        spec = proto.PARAMS.get(index)
+        if spec is None or index in (0x7019, 0x701A, 0x701B, 0x701C, 0x3022):
+            return  # unknown or read-only: ignored (the reply is still a type-2 frame)
+        value = proto.decode_param_value(raw, spec.dtype)
+        if index == 0x700B:  # the firmware keeps the torque cap within the model's range
+            value = min(max(float(value), 0.0), robstride_spec(m.model).t_max)
+        if isinstance(value, float) and not math.isfinite(value):
+            return
+        m.params[index] = value
+
+    def _maybe_complete_round(self) -> None:
+        """Lockstep: step physics and answer once every enabled, audible joint motor was commanded."""
+        if self.mode != "lockstep" or not self._pending:
+            return
+        due = {
+            (m.interface, m.can_id)
+            for m in self._joint_motors()
+            if m.enabled and m.interface not in self._silent
+        }
+        if not due <= self._commanded:
+            return
+        self._step(self.n_substeps)
+        pending, self._pending = self._pending, []
+        self._commanded.clear()
+        for m, _ in pending:
+            self._reply(m, self._feedback_frames(m))
+        if self.garbage_per_round:
+            for iface in {m.interface for m, _ in pending}:
+                self._garbage(iface)

@@ -1,0 +1,90 @@
+"""Typed errors of the Robstride driver (style.md item 16).
+
+``RobstrideError`` is the root; every failure the driver raises on purpose is one of its subclasses, so a
+caller can catch the whole family, or one kind:
+
+- ``InitializationError``: the bus or the motors cannot be brought up (wrong scan, bad calibration file,
+  unreadable parameter). Nothing was enabled.
+- ``OperationError``: a running exchange failed (unexpected sender, invalid command, send error).
+- ``TimeoutError``: replies missing at the deadline; also a ``builtins.TimeoutError``.
+- ``FaultError``: a motor reported fault bits (type-2 status bits or a type-21 fault frame).
+- ``FrameError``: a CAN frame is not a valid Robstride frame of the expected direction; also a ``ValueError``.
+"""
+
+from __future__ import annotations
+
+import builtins
+from collections.abc import Mapping, Sequence
+
+__all__ = [
+    "CommandError",
+    "FaultError",
+    "FrameError",
+    "InitializationError",
+    "OperationError",
+    "RobstrideError",
+    "TimeoutError",
+    "UnexpectedDeviceError",
+]
+
+
+class RobstrideError(Exception):
+    """Root of every error the Robstride driver raises deliberately."""
+
+
+class InitializationError(RobstrideError):
+    """The bus or its motors cannot be brought up; nothing was enabled."""
+
+
+class OperationError(RobstrideError):
+    """An exchange with running motors failed."""
+
+
+class CommandError(OperationError, ValueError):
+    """A command is invalid (non-finite field, wrong shape); nothing was sent."""
+
+
+class UnexpectedDeviceError(OperationError):
+    """A reply came from a CAN id that is not one of this bus's motors."""
+
+    def __init__(self, message: str, *, can_ids: Sequence[int], interface: str) -> None:
+        super().__init__(message)
+        self.can_ids = tuple(can_ids)
+        """The unexpected sender ids."""
+        self.interface = interface
+        """The CAN interface name."""
+
+
+class TimeoutError(RobstrideError, builtins.TimeoutError):
+    """Replies were missing when the deadline passed."""
+
+    def __init__(self, message: str, *, missing: Sequence[int] = (), interface: str = "") -> None:
+        super().__init__(message)
+        self.missing = tuple(missing)
+        """CAN ids that did not answer."""
+        self.interface = interface
+        """The CAN interface name."""
+
+
+class FaultError(RobstrideError):
+    """One or more motors reported fault bits."""
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        faults: Mapping[int, int],
+        fault_words: Mapping[int, int] | None = None,
+        interface: str = "",
+    ) -> None:
+        super().__init__(message)
+        self.faults = dict(faults)
+        """CAN id -> type-2 fault bits (id bits 21..16 as a 6-bit number)."""
+        self.fault_words = dict(fault_words or {})
+        """CAN id -> type-21 fault word."""
+        self.interface = interface
+        """The CAN interface name."""
+
+
+class FrameError(RobstrideError, ValueError):
+    """A CAN frame is not a valid Robstride frame (wrong id format, length, type or direction)."""

@@ -1,0 +1,212 @@
+"""``bar-bus``: the bench tools for the Robstride buses.
+
+    bar-bus discover --iface can0 --scan-to 32 [--interface socketcan|virtual] [--status]
+    bar-bus calibrate [--channels can0,can1] [--out calibration.json] [--prior old.json] [--duration S]
+    bar-bus param read  --iface can0 --id 11 --index 0x700B [--type f32]
+    bar-bus param write --iface can0 --id 11 --index 0x700B --value 12.0 [--type f32]
+
+``discover`` is read-only (type-0 scan and type-17 parameter reads); ``--status`` also sends each found
+motor a stop frame (it disables the motor) to read its type-2 mode and fault bits. ``calibrate`` keeps the
+motors disabled (stop frames) while a person sweeps every joint to both stops, and writes the calibration
+JSON on Ctrl+C (or after ``--duration``). ``--emulate`` (with ``--interface virtual``) answers with the
+in-process emulator, for a demonstration without hardware.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import sys
+import time
+from collections.abc import Iterator, Sequence
+
+import can
+import numpy as np
+
+from bar_policy.deploy.robstride import protocol as proto
+from bar_policy.deploy.robstride.bus import RobstrideBus
+from bar_policy.deploy.robstride.calibration import Calibration, SweepRecorder
+from bar_policy.deploy.robstride.errors import RobstrideError
+from bar_policy.deploy.robstride.group import RobstrideGroup
+from bar_policy.robot.actuators import ROBSTRIDE_MODELS
+from bar_policy.robot.constants import MODES, load_robot
+
+__all__ = ["main", "model_guess"]
+
+
+def model_guess(limit_torque: float) -> str:
+    """Models whose power-on torque cap (T_max) equals the read ``limit_torque`` (a lowered cap: ``?``)."""
+    names = [m for m, s in ROBSTRIDE_MODELS.items() if abs(s.t_max - limit_torque) < 1e-3]
+    return "/".join(names) if names else f"? (cap {limit_torque:g} lowered?)"
+
+
+@contextlib.contextmanager
+def _emulator(args: argparse.Namespace, channels: dict[str, str]) -> Iterator[None]:
+    if not getattr(args, "emulate", False):
+        yield
+        return
+    if args.interface != "virtual":
+        raise SystemExit("--emulate needs --interface virtual")
+    from bar_policy.deploy.robstride.emulator import RobstrideEmulator
+
+    with RobstrideEmulator(load_robot(args.mode), channels, mode="realtime"):
+        yield
+
+
+def _robot_channels(args: argparse.Namespace) -> dict[str, str]:
+    from bar_policy.deploy.targets.real import parse_channels
+
+    robot = load_robot(args.mode)
+    return parse_channels(
+        getattr(args, "channels", None), list(dict.fromkeys(j.can_interface for j in robot.joints))
+    )
+
+
+def _discover(args: argparse.Namespace) -> int:
+    channels = {i: i for i in dict.fromkeys(j.can_interface for j in load_robot(args.mode).joints)}
+    with _emulator(args, channels), RobstrideBus(can.Bus(interface=args.interface, channel=args.iface), [],
+                                                 interface=args.iface) as bus:  # fmt: skip
+        found = bus.scan(range(1, args.scan_to + 1), timeout=args.timeout)
+        print(f"{args.iface}: {len(found)} device(s) answered ids 1..{args.scan_to}")
+        print(f"{'id':>4}  {'uid':<16}  {'model guess':<22} {'run_mode':>8}  {'faultSta':>10}  status")
+        for can_id, uid in found.items():
+            cells = []
+            for index in (proto.PARAM_LIMIT_TORQUE, 0x7005, 0x3022):
+                try:
+                    cells.append(bus.read_param(can_id, index, timeout=args.timeout))
+                except RobstrideError:
+                    cells.append(None)
+            guess = model_guess(float(cells[0])) if cells[0] is not None else "? (0x700B unreadable)"
+            status = "-"
+            if args.status:
+                try:
+                    fb = bus.request(
+                        proto.stop_frame(can_id),
+                        lambda r, i=can_id: isinstance(r, proto.Feedback) and r.motor_id == i,
+                        args.timeout,
+                    )
+                    if not isinstance(fb, proto.Feedback):  # pragma: no cover - guaranteed by the match
+                        raise TypeError(fb)
+                    names = ", ".join(proto.fault_names(fb.faults)) or "no faults"
+                    status = f"mode={proto.MODE_NAMES[fb.mode]} faults={names} pos={fb.position:+.3f} rad"
+                except RobstrideError as exc:
+                    status = f"no feedback ({exc})"
+            fault = "n/a" if cells[2] is None else f"{int(cells[2]):#010x}"
+            run_mode = "n/a" if cells[1] is None else str(cells[1])
+            print(f"{can_id:>4}  {uid.hex():<16}  {guess:<22} {run_mode:>8}  {fault:>10}  {status}")
+    return 0
+
+
+def _param(args: argparse.Namespace) -> int:
+    index = int(args.index, 0)
+    with RobstrideBus(can.Bus(interface=args.interface, channel=args.iface), [], interface=args.iface) as bus:
+        if args.action == "write":
+            if args.value is None:
+                raise SystemExit("param write needs --value")
+            dtype = args.type or (proto.PARAMS[index].dtype if index in proto.PARAMS else None)
+            if dtype is None:
+                raise SystemExit(f"parameter {index:#06x} is not in the known table: pass --type")
+            value: float | int = float(args.value) if dtype == "f32" else int(args.value, 0)
+            bus.write_param(args.id, index, value, dtype=args.type, timeout=args.timeout)
+            print(f"wrote {value} to parameter {index:#06x} of id {args.id} on {args.iface}")
+        value = bus.read_param(args.id, index, dtype=args.type, timeout=args.timeout)
+        name = proto.PARAMS[index].name if index in proto.PARAMS else "?"
+        print(f"id {args.id} parameter {index:#06x} ({name}) = {value}")
+    return 0
+
+
+def _calibrate(args: argparse.Namespace) -> int:
+    robot = load_robot(args.mode)
+    channels = _robot_channels(args)
+    prior = Calibration.load(args.prior) if args.prior else None
+    with _emulator(args, channels):
+        buses = {i: can.Bus(interface=args.interface, channel=c) for i, c in channels.items()}
+        group = RobstrideGroup.from_robot(robot, buses, reply_timeout=args.timeout)  # zero offsets
+        try:
+            group.scan_and_verify(range(1, 128))
+            recorder = SweepRecorder(robot)
+            d = robot.direction
+            print("Motors are disabled. Move each joint to both mechanical stops, then Ctrl+C to save.")
+            end = time.monotonic() + args.duration if args.duration else None
+            last_print = 0.0
+            try:
+                while end is None or time.monotonic() < end:
+                    reading = group.poll_disabled()
+                    recorder.update(d * reading.q)  # zero offsets: q = direction * raw
+                    if time.monotonic() - last_print > 0.2 and sys.stdout.isatty():
+                        last_print = time.monotonic()
+                        _print_sweep(robot.joint_names, d * reading.q, recorder)
+                    time.sleep(1.0 / args.rate)
+            except KeyboardInterrupt:
+                print()
+            result = recorder.result(prior, sweep_threshold=args.sweep_threshold)
+        finally:
+            group.stop()
+            group.shutdown()
+    result.calibration.save(args.out)
+    print(f"Wrote calibration to {args.out} ({recorder.samples} samples)")
+    if result.kept:
+        print(f"kept the prior offset (sweep < {args.sweep_threshold} rad) for: {', '.join(result.kept)}")
+    for w in result.warnings:
+        print(f"WARNING: {w}")
+    return 0
+
+
+def _print_sweep(names: Sequence[str], raw: np.ndarray, rec: SweepRecorder) -> None:
+    lines = ["\x1b[H\x1b[J"]
+    for n, p, lo, hi, s in zip(names, raw, rec.raw_min, rec.raw_max, rec.sweep, strict=True):
+        lines.append(f"  {n:<22} raw={p:+.3f}  min={lo:+.3f}  max={hi:+.3f}  sweep={s:.3f}")
+    print("\n".join(lines), flush=True)
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="bar-bus", description="Robstride CAN bench tools")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    def common(sp: argparse.ArgumentParser) -> None:
+        sp.add_argument("--interface", choices=("socketcan", "virtual"), default="socketcan")
+        sp.add_argument("--timeout", type=float, default=0.05, help="reply deadline, s")
+        sp.add_argument("--mode", choices=MODES, default="arms", help="robot joint set")
+        sp.add_argument(
+            "--emulate", action="store_true", help="answer with the in-process emulator (virtual)"
+        )
+
+    d = sub.add_parser("discover", help="read-only scan: id, model guess, run mode, faults")
+    common(d)
+    d.add_argument("--iface", default="can0", help="CAN channel")
+    d.add_argument("--scan-to", type=int, default=32, help="highest id scanned")
+    d.add_argument("--status", action="store_true", help="also send a stop frame to read mode and fault bits")
+
+    c = sub.add_parser("calibrate", help="record homing offsets from swept extremes")
+    common(c)
+    c.add_argument("--channels", default=None, help="'can0,can1' or 'can0=vcan0,can1=vcan1'")
+    c.add_argument("--out", default="calibration.json", help="calibration JSON to write")
+    c.add_argument("--prior", default=None, help="previous calibration: un-swept joints keep its offsets")
+    c.add_argument("--sweep-threshold", type=float, default=0.5, help="minimum sweep to recompute, rad")
+    c.add_argument("--rate", type=float, default=50.0, help="sampling rate, Hz")
+    c.add_argument("--duration", type=float, default=None, help="stop after S seconds instead of Ctrl+C")
+
+    pa = sub.add_parser("param", help="read or write one parameter")
+    pa.add_argument("action", choices=("read", "write"))
+    common(pa)
+    pa.add_argument("--iface", default="can0", help="CAN channel")
+    pa.add_argument("--id", type=int, required=True, help="motor CAN id")
+    pa.add_argument("--index", required=True, help="parameter index, e.g. 0x700B")
+    pa.add_argument("--value", default=None, help="value to write")
+    pa.add_argument("--type", default=None, choices=("f32", "u8", "u16", "u32", "i16"),
+                    help="wire type (default: from the known-parameter table)")  # fmt: skip
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``bar-bus``; returns the exit status."""
+    args = _parser().parse_args(argv)
+    try:
+        return {"discover": _discover, "calibrate": _calibrate, "param": _param}[args.command](args)
+    except (RobstrideError, can.CanError, OSError, ValueError) as exc:
+        print(f"bar-bus: error: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

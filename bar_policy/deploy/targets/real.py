@@ -1,0 +1,310 @@
+"""The real target: the Lite's Robstride actuators in MIT mode over CAN (python-can), one bus per arm.
+
+``RealTarget`` is asynchronous (wall clock): ``advance`` only returns, the runtime keeps the rate.
+
+- ``start()`` runs the safety sequence of ``RobstrideGroup.activate``: scan (exactly the expected ids),
+  model plausibility, joint positions within limits, cap writes, enable, damping hold at the present pose.
+  With ``dry_run`` it stops before writing anything; reads then poll with stop frames and commands are
+  encoded, decoded and logged, never sent.
+- ``write_command`` is one round on both buses (one MIT frame per motor, one reply each). ``read_state``
+  returns fresh feedback: it re-sends the last command (harmless: the motors already apply it) unless
+  ``refresh_on_read`` is off (the lockstep emulator, whose replies already carry the post-step state).
+- Any driver error (missing reply, fault bit, unexpected id, invalid command), ``KeyboardInterrupt`` or other
+  exception inside a read or write sends damping then stop frames on every bus, then raises
+  (``TargetError`` from the driver error). ``close()`` does the same when the motors are still enabled.
+
+CLI glue for ``bar-deploy --target real``: ``add_arguments(parser)`` and ``make_target(args, mode)``. With
+``--can-interface virtual`` an in-process emulator (``RobstrideEmulator``) answers on the same channels.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from collections.abc import Callable, Iterable, Sequence
+from typing import NoReturn, TypeVar
+
+import can
+import numpy as np
+
+from bar_policy.deploy.robstride.bus import DEFAULT_REPLY_TIMEOUT, BusReading
+from bar_policy.deploy.robstride.calibration import Calibration
+from bar_policy.deploy.robstride.errors import CommandError, InitializationError, RobstrideError
+from bar_policy.deploy.robstride.group import RobstrideGroup
+from bar_policy.deploy.robstride.protocol import decode_request, fault_names
+from bar_policy.deploy.targets.base import JointState, Target, TargetError
+from bar_policy.robot.constants import RobotSpec, load_robot
+from bar_policy.robot.mit import MitCommand
+
+__all__ = ["RealTarget", "add_arguments", "make_target"]
+
+log = logging.getLogger(__name__)
+_T = TypeVar("_T")
+
+VIRTUAL_REPLY_TIMEOUT = 0.05
+"""Default reply deadline on the in-process virtual bus, s (Python thread hand-offs, not wire time)."""
+
+
+class RealTarget(Target):
+    """The robot's Robstride motors as a ``Target`` (canonical joint order, joint frame)."""
+
+    synchronous = False
+
+    def __init__(
+        self,
+        robot: RobotSpec,
+        group: RobstrideGroup,
+        *,
+        dry_run: bool = False,
+        refresh_on_read: bool = True,
+        damping_kd: float = 1.0,
+        damping_hold_s: float = 0.2,
+        scan_ids: Iterable[int] = range(1, 128),
+        limit_margin: float = 0.3,
+        companions: Sequence[object] = (),
+    ) -> None:
+        super().__init__(robot.joint_names)
+        if group.joint_names != robot.joint_names:
+            raise ValueError("the bus group's joint order differs from the robot's canonical order")
+        self.robot = robot
+        self.group = group
+        self.dry_run = dry_run
+        self.refresh_on_read = refresh_on_read
+        self.damping_kd = damping_kd
+        self.damping_hold_s = damping_hold_s
+        self.scan_ids = list(scan_ids)
+        self.limit_margin = limit_margin
+        self.companions = list(companions)
+        """Objects with ``close()`` closed after the buses (the in-process emulator)."""
+        self.enabled = False
+        """True between a successful enable and the stop frames."""
+        self.stopped = False
+        """True once damping-then-stop ran; commands are refused afterwards."""
+        self._last_cmd: MitCommand | None = None
+        self._reading: BusReading | None = None
+        self._closed = False
+
+    # ----------------------------------------------------------------------------------------------
+    def start(self) -> None:
+        """Scan, verify, write caps, enable and hold damping (or only check, in a dry run).
+
+        On failure the buses (and companions) are closed and ``TargetError`` is raised from the driver's
+        ``InitializationError`` (or other ``RobstrideError``); anything enabled was damped and stopped first.
+        """
+        try:
+            reading = self.group.activate(
+                lower=self.robot.lower,
+                upper=self.robot.upper,
+                scan_ids=self.scan_ids,
+                limit_margin=self.limit_margin,
+                dry_run=self.dry_run,
+                damping_kd=self.damping_kd,
+            )
+        except RobstrideError as exc:
+            log.error("real target: activation failed: %s", exc)
+            self.close()
+            raise TargetError(f"activation refused: {exc}") from exc
+        except BaseException:
+            self.close()
+            raise
+        self._reading = reading
+        if not self.dry_run:
+            self.enabled = True
+            self._last_cmd = MitCommand.damping(reading.q, self.damping_kd)
+        log.info(
+            "real target started (%s): q = %s",
+            "dry run" if self.dry_run else "enabled",
+            np.round(reading.q, 3),
+        )
+
+    def _fail(self, exc: RobstrideError) -> NoReturn:
+        log.error("real target: %s -> damping, then stop", exc)
+        self.safe_stop()
+        raise TargetError(str(exc)) from exc
+
+    def _guarded(self, fn: Callable[..., _T], *args: object) -> _T:
+        """Run a bus operation; on any failure: damping, stop, raise."""
+        try:
+            return fn(*args)
+        except RobstrideError as exc:
+            self._fail(exc)
+        except BaseException:
+            log.error("real target: interrupted -> damping, then stop")
+            self.safe_stop()
+            raise
+
+    def _check_running(self) -> None:
+        if self.stopped:
+            raise TargetError("the real target was stopped (damping then stop); restart it to continue")
+        if not self.enabled and not self.dry_run:
+            raise TargetError("the real target is not started; call start() first")
+
+    def read_state(self) -> JointState:
+        """Fresh joint state (see the module docstring)."""
+        self._check_running()
+        if self.dry_run:
+            reading = self._guarded(lambda: self.group.poll_disabled(strict=False))
+            log.debug("dry run: q=%s faults=%s", np.round(reading.q, 4), reading.faults)
+        elif self.refresh_on_read and self._last_cmd is not None:
+            reading = self._guarded(self.group.exchange_mit, self._last_cmd)
+        else:
+            reading = self._reading
+        self._reading = reading
+        return self._state(reading)
+
+    def _state(self, r: BusReading) -> JointState:
+        faults = tuple(
+            f"{name}: {', '.join(fault_names(int(bits)))}"
+            for name, bits in zip(self.joint_names, r.faults, strict=True)
+            if bits
+        )
+        return JointState(q=r.q.copy(), dq=r.dq.copy(), tau=r.tau.copy(), stamp=r.stamp, faults=faults)
+
+    def write_command(self, cmd: MitCommand) -> None:
+        """One MIT round on every bus (canonical order, joint frame, fields shape (num_joints,))."""
+        self._check_running()
+        fields = [np.asarray(f, dtype=np.float64) for f in cmd]
+        bad = [
+            name
+            for name, f in zip(MitCommand._fields, fields, strict=True)
+            if f.shape not in ((), (self.num_joints,))
+        ]
+        if bad:
+            self._fail(CommandError(f"command fields {bad} must have shape ({self.num_joints},)"))
+        cmd = MitCommand(*fields)
+        if self.dry_run:
+            frames = self._guarded(self.group.mit_frames, cmd)
+            for bus, bus_frames in zip(self.group.buses, frames, strict=True):
+                for f in bus_frames:
+                    req = decode_request(*f)
+                    log.debug(
+                        "dry run %s: %s -> %s", bus.interface, f, req.setpoint(bus.models[req.motor_id])
+                    )
+            return
+        self._reading = self._guarded(self.group.exchange_mit, cmd)
+        self._last_cmd = cmd
+
+    def safe_stop(self, q: np.ndarray | None = None, kd: float | None = None) -> None:
+        """Damping (Kp = 0) at ``q`` (default: the last reading), then stop frames on every bus."""
+        if self.dry_run:
+            self.stopped = True
+            return
+        if q is None and self._reading is not None:
+            q = self._reading.q
+        try:
+            self.group.damping_then_stop(q, self.damping_kd if kd is None else kd, hold_s=self.damping_hold_s)
+        finally:
+            self.enabled = False
+            self.stopped = True
+
+    def close(self) -> None:
+        """Damping then stop if still enabled, then close the buses and companions. Safe to call twice."""
+        if self._closed:
+            return
+        try:
+            if self.enabled and not self.stopped:
+                self.safe_stop()
+        finally:
+            self._closed = True
+            self.group.shutdown()
+            for c in self.companions:
+                c.close()  # type: ignore[attr-defined]
+
+
+# ---------------------------------------------------------------------------------------------------
+# CLI glue
+# ---------------------------------------------------------------------------------------------------
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the real target's options to ``bar-deploy``'s parser (one argument group)."""
+    g = parser.add_argument_group("real target (Robstride over CAN)")
+    add = g.add_argument
+    add("--can-interface", choices=("socketcan", "virtual"), default="socketcan",
+        help="python-can interface; 'virtual' runs against the in-process emulator")  # fmt: skip
+    add("--channels", default=None,
+        help="channels per robot interface: 'can0,can1' in order, or 'can0=vcan0,can1=vcan1'")  # fmt: skip
+    add("--calibration", default=None,
+        help="calibration JSON (bar-bus calibrate); 'none': zero offsets (needed on socketcan)")  # fmt: skip
+    add("--dry-run", action="store_true",
+        help="scan, verify, decode and log commands; write no caps, enable nothing")  # fmt: skip
+    add("--emulate", choices=("auto", "none", "realtime", "lockstep"), default="auto",
+        help="in-process emulator: auto = realtime on virtual, none on socketcan")  # fmt: skip
+    add("--emulate-dt", type=float, default=None,
+        help="lockstep emulator: physics s per command round (default: --control-dt, else 0.02)")  # fmt: skip
+    add("--reply-timeout", type=float, default=None,
+        help=f"reply deadline per round, s (default {DEFAULT_REPLY_TIMEOUT} socketcan, "
+             f"{VIRTUAL_REPLY_TIMEOUT} virtual)")  # fmt: skip
+    add("--damping-kd", type=float, default=1.0, help="Kd of the damping fail-safe, N*m*s/rad")
+    add("--scan-to", type=int, default=127, help="highest CAN id scanned before enabling")
+
+
+def parse_channels(spec: str | None, interfaces: Sequence[str]) -> dict[str, str]:
+    """Robot interface -> channel from ``--channels`` (ordered list or ``iface=channel`` pairs)."""
+    if not spec:
+        return {i: i for i in interfaces}
+    items = [s.strip() for s in spec.split(",") if s.strip()]
+    if all("=" in s for s in items):
+        mapping = dict(s.split("=", 1) for s in items)
+    elif not any("=" in s for s in items) and len(items) == len(interfaces):
+        mapping = dict(zip(interfaces, items, strict=True))
+    else:
+        raise ValueError(
+            f"--channels {spec!r}: give {len(interfaces)} channels for {list(interfaces)} in order, "
+            "or iface=channel pairs"
+        )
+    missing = [i for i in interfaces if i not in mapping]
+    if missing:
+        raise ValueError(f"--channels {spec!r} lacks interfaces {missing}")
+    return mapping
+
+
+def make_target(args: argparse.Namespace, mode: str) -> Target:
+    """Build the real target from parsed options (nothing is enabled before ``start()``)."""
+    try:
+        return _make_target(args, mode)
+    except (RobstrideError, ValueError, OSError, can.CanError) as exc:
+        raise TargetError(f"cannot build the real target: {exc}") from exc
+
+
+def _make_target(args: argparse.Namespace, mode: str) -> RealTarget:
+    robot = load_robot(mode)
+    interface = getattr(args, "can_interface", "socketcan")
+    interfaces = list(dict.fromkeys(j.can_interface for j in robot.joints))
+    channels = parse_channels(getattr(args, "channels", None), interfaces)
+    emulate = getattr(args, "emulate", "auto")
+    if emulate == "auto":
+        emulate = "realtime" if interface == "virtual" else "none"
+    calib_arg = getattr(args, "calibration", None)
+    if calib_arg is None and interface == "socketcan":
+        raise InitializationError("--calibration PATH is required on socketcan ('none' for zero offsets)")
+    calibration = Calibration.zeros(robot) if calib_arg in (None, "none") else Calibration.load(calib_arg)
+    timeout = getattr(args, "reply_timeout", None) or (
+        VIRTUAL_REPLY_TIMEOUT if interface == "virtual" else DEFAULT_REPLY_TIMEOUT
+    )
+    companions: list[object] = []
+    if emulate != "none":
+        from bar_policy.deploy.robstride.emulator import RobstrideEmulator
+
+        offsets = dict(zip(robot.joint_names, calibration.offsets(robot), strict=True))
+        emulator = RobstrideEmulator(
+            robot, channels, interface=interface, mode=emulate,
+            control_dt=getattr(args, "emulate_dt", None) or getattr(args, "control_dt", 0.02),
+            offsets=offsets,
+        )  # fmt: skip
+        companions.append(emulator.start())
+        log.info("started the %s Robstride emulator on %s", emulate, channels)
+    try:
+        buses = {i: can.Bus(interface=interface, channel=channels[i]) for i in interfaces}
+    except (can.CanError, OSError) as exc:
+        for c in companions:
+            c.close()  # type: ignore[attr-defined]
+        raise InitializationError(f"cannot open {interface} channels {channels}: {exc}") from exc
+    group = RobstrideGroup.from_robot(robot, buses, calibration=calibration, reply_timeout=timeout)
+    return RealTarget(
+        robot,
+        group,
+        dry_run=getattr(args, "dry_run", False),
+        refresh_on_read=emulate != "lockstep",
+        damping_kd=getattr(args, "damping_kd", 1.0),
+        scan_ids=range(1, getattr(args, "scan_to", 127) + 1),
+        companions=companions,
+    )
