@@ -1,0 +1,162 @@
+"""MJX training envs: a small registry of name -> (env class, default config, randomizer).
+
+Usage::
+
+    from bar_policy import envs
+    env = envs.load("LiteReach", overrides=["reward.scales.reach_fine=2.0", "episode_length_s=6.0"])
+    state = jax.jit(env.reset)(jax.random.PRNGKey(0))
+    state = jax.jit(env.step)(state, jnp.zeros(env.action_size))
+
+For brax PPO: ``ppo.train(environment=env, wrap_env_fn=envs.wrap_for_brax_training,
+randomization_fn=envs.get_randomizer("LiteReach", env.config), episode_length=env.episode_length, ...)``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any
+
+from bar_policy.envs.base import MjxEnv, State
+from bar_policy.envs.reach import LiteReach, ReachEnvConfig, nominal_config
+from bar_policy.envs.reach import default_config as _reach_default
+
+__all__ = [
+    "ALL_ENVS",
+    "LiteReach",
+    "MjxEnv",
+    "ReachEnvConfig",
+    "State",
+    "apply_overrides",
+    "default_config",
+    "get_randomizer",
+    "load",
+    "make_batched_env",
+    "nominal_config",
+    "wrap_for_brax_training",
+]
+
+
+def _reach_randomizer(config: Any) -> Callable:
+    from bar_policy.envs.randomize import make_randomizer
+
+    return make_randomizer(config)
+
+
+_REGISTRY: dict[str, tuple[type[MjxEnv], Callable[[], Any], Callable[[Any], Callable]]] = {
+    "LiteReach": (LiteReach, _reach_default, _reach_randomizer),
+    "LiteReachNeck": (
+        LiteReach,
+        lambda: dataclasses.replace(_reach_default(), mode="arms_neck"),
+        _reach_randomizer,
+    ),
+}
+ALL_ENVS: tuple[str, ...] = tuple(_REGISTRY)
+"""Registered env names."""
+
+
+def _entry(name: str) -> tuple:
+    if name not in _REGISTRY:
+        raise ValueError(f"unknown env {name!r}; available envs: {list(ALL_ENVS)}")
+    return _REGISTRY[name]
+
+
+def default_config(name: str = "LiteReach") -> Any:
+    """The default (training) config of a registered env."""
+    return _entry(name)[1]()
+
+
+def _parse_value(text: str, current: Any) -> Any:
+    """Parse an override value with JSON (numbers, bools, lists, null); bare words stay strings."""
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError:
+        value = text
+    if isinstance(current, tuple) and isinstance(value, list):
+        value = tuple(value)
+    if isinstance(current, float) and isinstance(value, int) and not isinstance(value, bool):
+        value = float(value)
+    return value
+
+
+def apply_overrides(config: Any, overrides: Iterable[str] | Mapping[str, Any]) -> Any:
+    """Return ``config`` with dotted-path overrides applied (frozen dataclasses via ``replace``).
+
+    Args:
+        config: a (nested) frozen dataclass config.
+        overrides: ``["reward.scales.action_rate=-0.02", "actuator.latency_steps=[0, 1]"]`` (values parsed
+            as JSON) or a mapping ``{"reward.scales.action_rate": -0.02}`` (values used as given).
+
+    Raises:
+        ValueError: a path names no field; the message lists the valid fields at that level.
+    """
+    items = overrides.items() if isinstance(overrides, Mapping) else (_split(o) for o in overrides)
+    for path, value in items:
+        config = _set(config, path.split("."), value, path, parse=not isinstance(overrides, Mapping))
+    return config
+
+
+def _split(text: str) -> tuple[str, str]:
+    if "=" not in text:
+        raise ValueError(f"override {text!r} must look like 'path.to.field=value'")
+    path, value = text.split("=", 1)
+    return path.strip(), value.strip()
+
+
+def _set(obj: Any, parts: list[str], value: Any, path: str, *, parse: bool) -> Any:
+    if not dataclasses.is_dataclass(obj):
+        raise ValueError(f"override {path!r}: {type(obj).__name__} has no fields")
+    names = [f.name for f in dataclasses.fields(obj)]
+    head = parts[0]
+    if head not in names:
+        raise ValueError(f"override {path!r}: no field {head!r} in {type(obj).__name__}; fields: {names}")
+    current = getattr(obj, head)
+    if len(parts) == 1:
+        new = _parse_value(value, current) if parse else value
+    else:
+        new = _set(current, parts[1:], value, path, parse=parse)
+    return dataclasses.replace(obj, **{head: new})
+
+
+def load(
+    name: str = "LiteReach",
+    config: Any | None = None,
+    overrides: Iterable[str] | Mapping[str, Any] | None = None,
+) -> MjxEnv:
+    """Build a registered env.
+
+    Args:
+        name: one of ``ALL_ENVS``.
+        config: a full config (default: ``default_config(name)``).
+        overrides: dotted-path overrides applied on top (see ``apply_overrides``).
+    """
+    cls, default, _ = _entry(name)
+    cfg = config if config is not None else default()
+    if overrides:
+        cfg = apply_overrides(cfg, overrides)
+    return cls(cfg)
+
+
+def get_randomizer(name: str = "LiteReach", config: Any | None = None) -> Callable:
+    """The model-level domain randomiser ``(model, rng) -> (batched_model, in_axes)`` of an env.
+
+    ``rng`` is a batch of keys, shape (num_envs, 2) (what brax PPO passes). Pass the env's config so the
+    ranges match it (default: ``default_config(name)``).
+    """
+    _, default, make = _entry(name)
+    return make(config if config is not None else default())
+
+
+def make_batched_env(*args: Any, **kwargs: Any) -> Any:
+    """See ``bar_policy.envs.wrappers.make_batched_env`` (jitted batched reset/step for rsl-rl)."""
+    from bar_policy.envs.wrappers import make_batched_env as _make
+
+    return _make(*args, **kwargs)
+
+
+def wrap_for_brax_training(*args: Any, **kwargs: Any) -> Any:
+    """See ``bar_policy.envs.wrappers.wrap_for_brax_training`` (imported lazily)."""
+    from bar_policy.envs.wrappers import wrap_for_brax_training as _wrap
+
+    return _wrap(*args, **kwargs)
