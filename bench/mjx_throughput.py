@@ -4,7 +4,8 @@ One invocation prints (and writes to ``--out``) markdown tables:
 
 1. Throughput at each batch size for
    (a)   raw ``jit(vmap(mjx.step))`` on the Lite model, one physics step per call;
-   (a10) the same with ``lax.scan`` over 10 raw steps per call (same physics work per call as b/c);
+   (a10) the same with ``lax.scan`` over 10 raw steps per call (same physics work per call as b/c;
+         only at ``--a10-batches``, default 8192 and 32768, to save compiles);
    (b)   the MIT law (``firmware_torque``, quantised, capped, env's damping treatment) written to
          ``qfrc_applied`` + ``lax.scan`` over 10 substeps: one control step per call;
    (c)   the full env step: ``BatchedEnv`` with model randomisation, latency, noise, obs, rewards,
@@ -25,7 +26,8 @@ Timing: one warm-up call (compile, reported separately), a second warm-up call, 
 
 Examples::
 
-    python bench/mjx_throughput.py --out $OUT/bench.md                  # full run (GPU, ~5 min)
+    python bench/mjx_throughput.py --quick --out $OUT/bench.md          # batches 8192, 32768 first
+    python bench/mjx_throughput.py --out $OUT/bench.md                  # full run (GPU)
     python bench/mjx_throughput.py --harness a,b,c --batches 8192        # a subset
     python bench/mjx_throughput.py --smoke                               # CPU sanity check, tiny batch
     python bench/mjx_throughput.py --only-diagnose --profile $OUT/prof   # with a jax.profiler trace
@@ -185,6 +187,11 @@ class Result:
         return self.env_per_call / (self.ms_per_call / 1e3)
 
 
+def _fmt(x: float) -> str:
+    """Thousands separators for large rates, 3 significant digits for small ones."""
+    return f"{x:,.0f}" if x >= 100 else f"{x:.3g}"
+
+
 def _block(x: Any) -> None:
     jax.tree.map(lambda a: a.block_until_ready() if hasattr(a, "block_until_ready") else a, x)
 
@@ -207,8 +214,9 @@ def measure(
     state = call(state)
     _block(state)
     compile_s = time.perf_counter() - t0
-    state = call(state)
-    _block(state)
+    if max_calls is None:  # a second warm-up call; the slow diagnosis variants skip it
+        state = call(state)
+        _block(state)
     c0, tr0 = COMPILES.count, TRACES["n"]
     n = 0
     t0 = time.perf_counter()
@@ -258,7 +266,7 @@ def run_throughput(args: argparse.Namespace, env: Any, humanoid: str | None) -> 
             r, _ = measure("a raw mjx.step", lambda d: raw(m, d), d, batch=batch,
                            phys_per_call=batch, env_per_call=0, args=args)  # fmt: skip
             out.append(r)
-        if "a10" in args.harness:
+        if "a10" in args.harness and batch in args.a10_batches:
             d = batched_data(m, mj, batch)
             r, _ = measure("a10 raw scan x10", lambda d: raw10(m, d), d, batch=batch,
                            phys_per_call=batch * n_sub, env_per_call=batch, args=args)  # fmt: skip
@@ -382,6 +390,8 @@ def report(args: argparse.Namespace, thr: list[Result], diag: list[Result], huma
         f"- jax {jax.__version__}, mujoco {mujoco.__version__}, commit {args.commit or _commit()}",
         f"- Lite: mode arms, timestep {args.dt_info}, {args.n_sub} substeps per control step, "
         f"damping {args.damping}; humanoid.xml: {humanoid or 'NOT FOUND (pass --humanoid-xml)'}",
+        "- persistent compilation cache: "
+        f"{args.cache_dir or os.environ.get('JAX_COMPILATION_CACHE_DIR') or 'off'}",
         f"- timing: warm-up excluded, >= {args.min_time} s and >= {args.min_iters} calls, "
         "block_until_ready at the end",
         "",
@@ -393,8 +403,8 @@ def report(args: argparse.Namespace, thr: list[Result], diag: list[Result], huma
             "|---|---:|---:|---:|---:|---:|---|",
         ]
         for r in thr:
-            env_sps = f"{r.env_sps:,.0f}" if r.env_per_call else "-"
-            lines.append(f"| {r.name} | {r.batch} | {r.phys_sps:,.0f} | {env_sps} | {r.ms_per_call:.3f} | "
+            env_sps = _fmt(r.env_sps) if r.env_per_call else "-"
+            lines.append(f"| {r.name} | {r.batch} | {_fmt(r.phys_sps)} | {env_sps} | {r.ms_per_call:.3f} | "
                          f"{r.compile_s:.1f} | {r.compiles}/{r.traces} |")  # fmt: skip
         by = {(r.name.split()[0], r.batch): r for r in thr}
         lines += ["", "| batch | env overhead c vs b | c vs a10 | b vs a10 (MIT law cost) "
@@ -422,7 +432,7 @@ def report(args: argparse.Namespace, thr: list[Result], diag: list[Result], huma
             "|---|---:|---:|---:|---|---|",
         ]
         for r in diag:
-            lines.append(f"| {r.name} | {r.ms_per_call:.3f} | {r.phys_sps:,.0f} | {r.calls} | "
+            lines.append(f"| {r.name} | {r.ms_per_call:.3f} | {_fmt(r.phys_sps)} | {r.calls} | "
                          f"{r.compiles}/{r.traces} | {r.note} |")  # fmt: skip
     return "\n".join(lines) + "\n"
 
@@ -437,31 +447,46 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--min-time", type=float, default=1.0, help="s of timed calls per row")
     p.add_argument("--min-iters", type=int, default=5)
     p.add_argument("--max-iters", type=int, default=2000)
-    p.add_argument("--slow-calls", type=int, default=3, help="timed calls of the slow diagnosis variants")
+    p.add_argument("--slow-calls", type=int, default=2, help="timed calls of the slow diagnosis variants")
+    p.add_argument("--a10-batches", default="8192,32768", help="batches of harness a10 (comma-separated)")
+    p.add_argument("--quick", action="store_true", help="batches 8192,32768 only (about half the compiles)")
     p.add_argument("--humanoid-xml", default=None)
     p.add_argument("--damping", default="implicit", choices=("implicit", "explicit"))
     p.add_argument("--profile", default=None, help="write a jax.profiler trace of D0/D2/D1 here")
     p.add_argument("--out", default=None, help="also write the markdown here")
     p.add_argument("--commit", default=None)
+    p.add_argument("--cache-dir", default=None,
+                   help="enable jax's persistent compilation cache here (off by default: with it, the "
+                        "recompile-per-call variants turn into retrace + cache load)")  # fmt: skip
     p.add_argument("--smoke", action="store_true", help="CPU sanity check: batch 4, 1-2 calls")
     args = p.parse_args(argv)
+    if args.quick:
+        args.batches = "8192,32768"
     args.batches = [int(b) for b in args.batches.split(",") if b]
+    args.a10_batches = [int(b) for b in args.a10_batches.split(",") if b]
     args.harness = [h for h in args.harness.split(",") if h]
     bad = [h for h in args.harness if h not in ALL_HARNESSES]
     if bad:
         raise SystemExit(f"unknown harness {bad}; valid: {list(ALL_HARNESSES)}")
     if args.smoke:
-        args.batches, args.diag_batch = [4], 4
+        args.batches, args.diag_batch, args.a10_batches = [4], 4, [4]
         args.min_time, args.min_iters, args.max_iters, args.slow_calls = 0.0, 1, 2, 1
     _install_counters()
+    if args.cache_dir:
+        jax.config.update("jax_compilation_cache_dir", args.cache_dir)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    elif os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+        print(f"note: JAX_COMPILATION_CACHE_DIR={os.environ['JAX_COMPILATION_CACHE_DIR']} is set", flush=True)
     cfg = envs.default_config("LiteReach")
     cfg = dataclasses.replace(cfg, actuator=dataclasses.replace(cfg.actuator, damping=args.damping))
     env = envs.load("LiteReach", config=cfg)
     args.dt_info, args.n_sub = cfg.sim_dt, env.n_substeps
     humanoid = find_humanoid_xml(args.humanoid_xml) if "d" in args.harness else None
     print(f"devices: {jax.devices()}; humanoid.xml: {humanoid}", flush=True)
+    t_start = time.perf_counter()
     thr = [] if args.only_diagnose else run_throughput(args, env, humanoid)
     diag = [] if args.no_diagnose else run_diagnosis(args, env)
+    print(f"total wall time {time.perf_counter() - t_start:.0f} s (compiles included)", flush=True)
     text = report(args, thr, diag, humanoid)
     print(text)
     if args.out:

@@ -1,0 +1,104 @@
+"""Reward terms with hand-computed values, and pure actuator pieces."""
+
+from __future__ import annotations
+
+import math
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bar_policy.envs import rewards
+from bar_policy.envs.actuator import ActuatorParams, apply_latency, implicit_damping, make_command
+from bar_policy.robot.constants import load_robot
+
+
+def test_reach_kernel_hand_values():
+    # d = std -> 1 - tanh(1) = 0.238406; d = 0 -> 1; mean of the two hands.
+    got = float(rewards.reach_kernel(jnp.float32(0.1), jnp.float32(0.0), 0.1))
+    assert got == pytest.approx(0.5 * ((1 - math.tanh(1.0)) + 1.0), abs=1e-6)
+    # far away -> ~0: 1 - tanh(10) = 4.1e-9.
+    assert float(rewards.reach_kernel(jnp.float32(1.0), jnp.float32(1.0), 0.1)) < 1e-6
+
+
+def test_success_needs_both_hands():
+    assert float(rewards.success(jnp.float32(0.029), jnp.float32(0.0), 0.03)) == 1.0
+    assert float(rewards.success(jnp.float32(0.029), jnp.float32(0.031), 0.03)) == 0.0
+    assert float(rewards.success(jnp.float32(0.03), jnp.float32(0.0), 0.03)) == 0.0  # strict
+
+
+def test_action_rate_hand_value():
+    # (0.5 - 0)^2 + (-1 - 1)^2 + 0 = 0.25 + 4 = 4.25
+    a = jnp.array([0.5, -1.0, 0.2])
+    b = jnp.array([0.0, 1.0, 0.2])
+    assert float(rewards.action_rate(a, b)) == pytest.approx(4.25)
+
+
+def test_joint_limit_hand_value():
+    # range [-1, 1], fraction 0.9 -> soft range [-0.9, 0.9]; q = 0.95 -> 0.05; q = -1.0 -> 0.1; q = 0 -> 0.
+    lo, hi = jnp.array([-1.0, -1.0, -1.0]), jnp.array([1.0, 1.0, 1.0])
+    q = jnp.array([0.95, -1.0, 0.0])
+    assert float(rewards.joint_limit(q, lo, hi, 0.9)) == pytest.approx(0.15, abs=1e-6)
+    # asymmetric range [-2.356, 0] (elbow), fraction 1.0: only beyond the hard limit counts.
+    assert float(rewards.joint_limit(jnp.array([0.01]), jnp.array([-2.356]), jnp.array([0.0]), 1.0)) == (
+        pytest.approx(0.01, abs=1e-6)
+    )
+
+
+def test_joint_vel_and_torque_hand_values():
+    assert float(rewards.joint_vel(jnp.array([1.0, -2.0, 0.5]))) == pytest.approx(5.25)
+    assert float(rewards.torque(jnp.float32(0.7))) == pytest.approx(0.7)
+
+
+def test_latency_buffer():
+    buf = jnp.zeros((3, 2))
+    b1, out0 = apply_latency(buf, jnp.array([1.0, 1.0]), jnp.int32(0))
+    np.testing.assert_array_equal(out0, [1.0, 1.0])  # no delay
+    b2, out = apply_latency(b1, jnp.array([2.0, 2.0]), jnp.int32(1))
+    np.testing.assert_array_equal(out, [1.0, 1.0])  # one step old
+    _, out = apply_latency(b2, jnp.array([3.0, 3.0]), jnp.int32(2))
+    np.testing.assert_array_equal(out, [1.0, 1.0])  # two steps old
+    _, out = apply_latency(b2, jnp.array([3.0, 3.0]), jnp.int32(1))
+    np.testing.assert_array_equal(out, [2.0, 2.0])
+
+
+def test_command_quantisation_hand_values():
+    robot = load_robot("arms")
+    p = ActuatorParams.from_robot(robot, quantize_wire=True, torque_saturation=True)
+    n = robot.num_joints
+    cmd = make_command(jnp.zeros(n), jnp.full(n, 50.0), jnp.full(n, 2.0), p)
+    # Kp range [0, 500]: floor(50 * 65535 / 500) = 6553 -> 6553 * 500 / 65535 = 49.99619
+    np.testing.assert_allclose(cmd.kp, 6553 * 500 / 65535, rtol=1e-6)
+    # Kd range [0, 5]: floor(2 * 65535 / 5) = 26214 -> 26214 * 5 / 65535 = 1.9999847
+    np.testing.assert_allclose(cmd.kd, 26214 * 5 / 65535, rtol=1e-6)
+    # q = 0 in [-4 pi, 4 pi]: floor(32767.5) = 32767 -> 32767 * 8 pi / 65535 - 4 pi = -1.9175e-4 rad
+    np.testing.assert_allclose(cmd.q, 32767 * 8 * math.pi / 65535 - 4 * math.pi, atol=2e-6)
+    off = make_command(
+        jnp.zeros(n),
+        jnp.full(n, 50.0),
+        jnp.full(n, 2.0),
+        ActuatorParams.from_robot(robot, quantize_wire=False, torque_saturation=False),
+    )
+    np.testing.assert_array_equal(off.kp, 50.0)
+    assert np.all(
+        np.isinf(ActuatorParams.from_robot(robot, quantize_wire=False, torque_saturation=False).tau_cap)
+    )
+
+
+class _FakeModel:
+    def __init__(self, damping):
+        self.dof_damping = damping
+
+    def replace(self, **kw):
+        return _FakeModel(kw["dof_damping"])
+
+
+def test_implicit_damping_keeps_applied_torque():
+    kd = jnp.array([2.0, 2.0, 2.0])
+    tau = jnp.array([1.0, 4.0, -4.0])  # joints 1, 2 saturated at the cap 4
+    cap = jnp.array([4.0, 4.0, 4.0])
+    dq = jnp.array([0.5, 1.0, -1.0])
+    m, qfrc = implicit_damping(_FakeModel(jnp.array([0.1, 0.0, 0.0])), kd, tau, dq, cap)
+    # unsaturated: D = 2 -> qfrc = 1 + 2 * 0.5 = 2; passive -(0.1 + 2) * 0.5 brings the sum to 1 - 0.05.
+    np.testing.assert_allclose(m.dof_damping, [2.1, 0.0, 0.0])
+    np.testing.assert_allclose(qfrc, [2.0, 4.0, -4.0])
