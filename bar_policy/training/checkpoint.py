@@ -1,0 +1,129 @@
+"""Resumable checkpoints as msgpack (flax.serialization), never pickle.
+
+A checkpoint ``<run>/checkpoints/step_<env_steps>.msgpack`` holds a state tree (for the brax backend:
+normaliser, policy and value params, optimizer state) plus the step count and iteration; a small JSON
+sidecar of the same name records the step count and the config for humans. ``latest_checkpoint(run_dir)``
+finds the newest one, so ``--resume runs/<name>`` works.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from flax import serialization
+
+__all__ = ["Checkpoint", "latest_checkpoint", "load_checkpoint", "save_checkpoint"]
+
+_NAME = re.compile(r"step_(\d+)\.msgpack$")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Checkpoint:
+    """What a checkpoint restores."""
+
+    state: Any
+    """State tree (restored into the caller's template structure)."""
+    env_steps: int
+    """Environment steps trained so far (summed over envs and devices)."""
+    iteration: int
+    """Training iterations done so far."""
+    path: Path
+    """File it came from."""
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".partial", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def save_checkpoint(
+    directory: str | os.PathLike[str],
+    state: Any,
+    *,
+    env_steps: int,
+    iteration: int,
+    extra: dict[str, Any] | None = None,
+) -> Path:
+    """Write ``step_<env_steps>.msgpack`` (+ ``.json`` sidecar) into ``directory``; returns the msgpack path.
+
+    Args:
+        directory: checkpoint folder (created).
+        state: a pytree of arrays (flax structs, dicts, optax named tuples); host or device arrays.
+        env_steps: environment steps so far.
+        iteration: training iterations so far.
+        extra: JSON-able record for the sidecar (e.g. the config).
+    """
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    payload = {
+        "state": serialization.to_state_dict(state),
+        "env_steps": int(env_steps),
+        "iteration": int(iteration),
+    }
+    path = directory / f"step_{int(env_steps):012d}.msgpack"
+    _write_atomic(path, serialization.msgpack_serialize(payload))
+    sidecar = {"env_steps": int(env_steps), "iteration": int(iteration), **(extra or {})}
+    _write_atomic(path.with_suffix(".json"), json.dumps(sidecar, indent=2, sort_keys=True).encode())
+    return path
+
+
+def latest_checkpoint(path: str | os.PathLike[str]) -> Path:
+    """The newest checkpoint file: ``path`` itself if it is one, else the highest step under it.
+
+    Accepts a checkpoint file, a ``checkpoints/`` folder or a run directory.
+
+    Raises:
+        FileNotFoundError: nothing to resume from (the message names the places searched).
+    """
+    path = Path(path)
+    if path.is_file():
+        if not _NAME.search(path.name):
+            raise FileNotFoundError(f"{path} is not a checkpoint (expected step_<N>.msgpack)")
+        return path
+    candidates = [*path.glob("step_*.msgpack"), *path.glob("checkpoints/step_*.msgpack")]
+    candidates = [c for c in candidates if _NAME.search(c.name)]
+    if not candidates:
+        raise FileNotFoundError(f"no step_<N>.msgpack checkpoint in {path} or {path / 'checkpoints'}")
+    return max(candidates, key=lambda c: int(_NAME.search(c.name).group(1)))  # type: ignore[union-attr]
+
+
+def load_checkpoint(path: str | os.PathLike[str], template: Any) -> Checkpoint:
+    """Read a checkpoint into the structure of ``template`` (same tree as the one saved).
+
+    Args:
+        path: a checkpoint file, its folder, or a run directory (the newest checkpoint is used).
+        template: a state tree of the right structure (e.g. a freshly initialised training state).
+
+    Raises:
+        FileNotFoundError: no checkpoint found.
+        ValueError: the file is not a checkpoint of this structure (e.g. another network size).
+    """
+    file = latest_checkpoint(path)
+    try:
+        payload = serialization.msgpack_restore(file.read_bytes())
+        state = serialization.from_state_dict(template, payload["state"])
+    except (KeyError, ValueError, TypeError) as e:
+        raise ValueError(f"cannot restore {file}: {e} (was it written by another network/config?)") from e
+    import jax
+    import numpy as np
+
+    shapes_ok = jax.tree_util.tree_all(
+        jax.tree_util.tree_map(lambda a, b: np.shape(a) == np.shape(b), template, state)
+    )
+    if not shapes_ok:
+        raise ValueError(f"cannot restore {file}: array shapes differ from this run's networks")
+    return Checkpoint(
+        state=state, env_steps=int(payload["env_steps"]), iteration=int(payload["iteration"]), path=file
+    )

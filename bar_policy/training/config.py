@@ -1,0 +1,367 @@
+"""Typed training configuration: one frozen dataclass tree shared by both PPO backends.
+
+``TrainConfig`` is the root. ``preset(name)`` builds the tuned variants (``gpu``, ``cpu``, ``tiny``) as
+functions of the base with ``dataclasses.replace``; ``apply_overrides`` applies dotted-path overrides
+(``"ppo.learning_rate=1e-3"``) to any config. The CLI (``bar_policy.training.cli``) turns every field into
+a flag with tyro, whose ``--help`` shows each field's docstring below (units included).
+
+Sizes follow brax's PPO: one training iteration collects ``batch_size * num_minibatches`` trajectories of
+``unroll_length`` steps (``num_envs`` environments, ``batch_size * num_minibatches / num_envs`` unrolls
+each), then runs ``num_updates_per_batch`` passes of ``num_minibatches`` SGD steps over them.
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+__all__ = [
+    "PRESETS",
+    "DistributedConfig",
+    "EvalConfig",
+    "NetworkConfig",
+    "PPOConfig",
+    "RslRlConfig",
+    "TrainConfig",
+    "apply_overrides",
+    "config_from_dict",
+    "config_to_dict",
+    "preset",
+]
+
+
+@dataclass(frozen=True, kw_only=True)
+class NetworkConfig:
+    """Actor and critic MLPs."""
+
+    policy_hidden: tuple[int, ...] = (128, 128, 128)
+    """Hidden layer widths of the policy MLP (its output layer is added: 2 x action size for brax)."""
+    value_hidden: tuple[int, ...] = (256, 256, 256)
+    """Hidden layer widths of the value MLP."""
+    activation: Literal["swish", "elu", "relu", "tanh"] = "swish"
+    """Hidden activation (brax's default is swish = x * sigmoid(x); rsl-rl's is elu)."""
+    init_noise_std: float = 1.0
+    """Initial action noise std, action units (rsl-rl backend; brax's tanh-normal head learns its own)."""
+
+    def __post_init__(self) -> None:
+        if not self.policy_hidden or any(w <= 0 for w in (*self.policy_hidden, *self.value_hidden)):
+            raise ValueError(
+                f"hidden layer widths must be positive and policy_hidden non-empty, got "
+                f"policy_hidden={self.policy_hidden}, value_hidden={self.value_hidden}"
+            )
+
+
+@dataclass(frozen=True, kw_only=True)
+class PPOConfig:
+    """PPO hyperparameters (brax names; the rsl-rl backend maps them, see ``RslRlConfig``)."""
+
+    num_timesteps: int = 40_000_000
+    """Total environment steps (policy steps summed over all envs and devices) to train for."""
+    num_envs: int = 4096
+    """Parallel environments, summed over all devices and hosts (must divide by the device count)."""
+    unroll_length: int = 10
+    """Policy steps per environment per rollout segment (the GAE horizon)."""
+    batch_size: int = 512
+    """Trajectory segments per SGD minibatch."""
+    num_minibatches: int = 16
+    """SGD minibatches per pass; batch_size * num_minibatches must be a multiple of num_envs."""
+    num_updates_per_batch: int = 8
+    """Passes (epochs) over the collected data per training iteration."""
+    learning_rate: float = 5e-4
+    """Adam learning rate."""
+    entropy_cost: float = 5e-3
+    """Weight of the entropy bonus in the loss."""
+    discounting: float = 0.97
+    """Discount factor gamma per policy step."""
+    gae_lambda: float = 0.95
+    """GAE lambda."""
+    clipping_epsilon: float = 0.2
+    """PPO ratio clip."""
+    reward_scaling: float = 1.0
+    """Multiplier applied to rewards inside the loss."""
+    max_grad_norm: float = 1.0
+    """Global gradient-norm clip (<= 0 disables it)."""
+    normalize_observations: bool = True
+    """Keep running mean/std of observations and feed (obs - mean) / std to the networks."""
+    vf_loss_coefficient: float = 0.5
+    """Weight of the value loss."""
+
+    def __post_init__(self) -> None:
+        ints = ("num_timesteps", "num_envs", "unroll_length", "batch_size", "num_minibatches")
+        for name in (*ints, "num_updates_per_batch"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"ppo.{name} must be positive, got {getattr(self, name)}")
+        if (self.batch_size * self.num_minibatches) % self.num_envs:
+            raise ValueError(
+                f"ppo.batch_size * ppo.num_minibatches = {self.batch_size * self.num_minibatches} must be a "
+                f"multiple of ppo.num_envs = {self.num_envs}"
+            )
+        if not 0 < self.discounting <= 1 or not 0 <= self.gae_lambda <= 1:
+            raise ValueError(f"discounting must be in (0, 1] and gae_lambda in [0, 1], got {self}")
+
+    @property
+    def steps_per_iteration(self) -> int:
+        """Environment steps collected per training iteration."""
+        return self.batch_size * self.num_minibatches * self.unroll_length
+
+
+@dataclass(frozen=True, kw_only=True)
+class RslRlConfig:
+    """Settings that only the rsl-rl backend uses (the rest comes from ``PPOConfig``).
+
+    Mapping: num_steps_per_env = ppo.unroll_length, num_learning_epochs = ppo.num_updates_per_batch,
+    num_mini_batches = ppo.num_minibatches, gamma = ppo.discounting, lam = ppo.gae_lambda,
+    clip_param = ppo.clipping_epsilon, entropy_coef = ppo.entropy_cost.
+    """
+
+    schedule: Literal["adaptive", "fixed"] = "adaptive"
+    """Learning-rate schedule (adaptive = rsl-rl's KL-targeting schedule)."""
+    desired_kl: float = 0.01
+    """KL target of the adaptive schedule."""
+    value_loss_coef: float = 1.0
+    """Weight of the value loss."""
+    device: str = "auto"
+    """Torch device: ``auto`` (cuda when jax runs on a GPU, else cpu), ``cpu`` or ``cuda``."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class EvalConfig:
+    """Periodic evaluation on fresh seeds (deterministic policy, domain randomisation as in training)."""
+
+    num_evals: int = 11
+    """Evaluations over the run (the first before training, the last at the end)."""
+    num_eval_envs: int = 1024
+    """Episodes per evaluation (one per parallel env)."""
+    success_threshold: float = 0.95
+    """Success rate that counts as solved (reported as time-to-threshold)."""
+
+    def __post_init__(self) -> None:
+        if self.num_evals < 2 or self.num_eval_envs <= 0:
+            raise ValueError(f"eval.num_evals must be >= 2 and num_eval_envs > 0, got {self}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class DistributedConfig:
+    """Multi-host training through ``jax.distributed.initialize`` (leave empty on one machine)."""
+
+    coordinator_address: str | None = None
+    """host:port of process 0, e.g. ``10.0.0.1:1234``; None = single process."""
+    num_processes: int = 1
+    """Number of processes (hosts) taking part."""
+    process_id: int = 0
+    """This process's rank, 0 .. num_processes - 1."""
+    max_devices_per_host: int | None = None
+    """Use at most this many local devices (None = all of them)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class TrainConfig:
+    """Root configuration of ``python train/ppo.py``."""
+
+    env_name: str = "LiteReach"
+    """Registered environment name (``bar_policy.envs.load``)."""
+    env_overrides: tuple[str, ...] = ()
+    """Dotted ``key=value`` overrides of the env config, e.g. ``reward.scales.distance=-2``."""
+    backend: Literal["brax", "rsl-rl"] = "brax"
+    """brax = brax's PPO pieces, JAX end to end (default); rsl-rl = rsl-rl-lib (torch) on the same env."""
+    preset: str = "gpu"
+    """Preset that supplied the defaults: gpu (one H100), cpu, tiny (tests). Recorded; pick with --preset."""
+    seed: int = 0
+    """Seed of parameter init, env resets and evaluation."""
+    run_name: str = ""
+    """Run directory name under runs_dir (empty = ``<env>-<backend>-<timestamp>``)."""
+    runs_dir: str = "runs"
+    """Parent directory of run directories."""
+    resume: str | None = None
+    """Run directory or checkpoint file to resume from (params, normaliser, optimizer, step count)."""
+    log_every_iterations: int = 0
+    """Training iterations per progress line (one compiled epoch); 0 = auto, about 2 lines per evaluation."""
+    checkpoint_every: int = 1
+    """Save a checkpoint every this many evaluation periods (0 = only at the end)."""
+    max_minutes: float = 0.0
+    """Stop training after this wall time, min (0 = no limit; checked at each progress line); then export."""
+    export_onnx: bool = True
+    """Export ONNX (with the parity gate) and the final evaluation at the end."""
+    onnx_path: str = ""
+    """Where to write the ONNX file (empty = ``<run dir>/policy.onnx``)."""
+    final_eval_envs: int = 4096
+    """Episodes in the final evaluation written next to the ONNX file."""
+    ppo: PPOConfig = field(default_factory=PPOConfig)
+    network: NetworkConfig = field(default_factory=NetworkConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
+    rsl_rl: RslRlConfig = field(default_factory=RslRlConfig)
+    distributed: DistributedConfig = field(default_factory=DistributedConfig)
+
+    def __post_init__(self) -> None:
+        if (
+            self.checkpoint_every < 0
+            or self.max_minutes < 0
+            or self.final_eval_envs <= 0
+            or self.log_every_iterations < 0
+        ):
+            raise ValueError(
+                "checkpoint_every, max_minutes and log_every_iterations must be >= 0 and final_eval_envs "
+                f"> 0, got {self.checkpoint_every}, {self.max_minutes}, {self.log_every_iterations}, "
+                f"{self.final_eval_envs}"
+            )
+        for o in self.env_overrides:
+            if "=" not in o:
+                raise ValueError(f"env override {o!r} must look like 'dotted.key=value'")
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Presets
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _gpu() -> TrainConfig:
+    """Default, for one H100: 40 M steps, 4096 envs, 81,920 env steps and 128 SGD steps per iteration.
+
+    Budget: about 5 minutes including compile if the batched env runs at >= 200 k steps/s.
+    """
+    return TrainConfig(preset="gpu")
+
+
+def _cpu() -> TrainConfig:
+    """A few minutes on a laptop CPU: small batches, short run."""
+    base = TrainConfig()
+    return dataclasses.replace(
+        base,
+        preset="cpu",
+        ppo=dataclasses.replace(
+            base.ppo,
+            num_timesteps=1_000_000,
+            num_envs=128,
+            unroll_length=10,
+            batch_size=64,
+            num_minibatches=8,
+            num_updates_per_batch=4,
+        ),
+        network=dataclasses.replace(base.network, policy_hidden=(64, 64), value_hidden=(128, 128)),
+        eval=dataclasses.replace(base.eval, num_evals=6, num_eval_envs=128),
+        final_eval_envs=256,
+    )
+
+
+def _tiny() -> TrainConfig:
+    """Seconds of training on a CPU, for tests and smoke runs (not expected to solve the task)."""
+    base = TrainConfig()
+    return dataclasses.replace(
+        base,
+        preset="tiny",
+        ppo=dataclasses.replace(
+            base.ppo,
+            num_timesteps=4 * 16 * 8 * 4,
+            num_envs=16,
+            unroll_length=8,
+            batch_size=16,
+            num_minibatches=4,
+            num_updates_per_batch=2,
+            learning_rate=1e-3,
+        ),
+        network=dataclasses.replace(base.network, policy_hidden=(32, 32), value_hidden=(32, 32)),
+        eval=dataclasses.replace(base.eval, num_evals=3, num_eval_envs=16),
+        final_eval_envs=32,
+    )
+
+
+PRESETS = {"gpu": _gpu, "cpu": _cpu, "tiny": _tiny}
+"""Preset name -> factory."""
+
+
+def preset(name: str) -> TrainConfig:
+    """The config of a named preset; raises ``ValueError`` listing the valid names."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r}; presets: {sorted(PRESETS)}")
+    return PRESETS[name]()
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Overrides and (de)serialisation
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _parse_value(text: str) -> Any:
+    """A Python literal when the text is one (numbers, tuples, None, True), else the text itself."""
+    try:
+        return ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        return text
+
+
+def _coerce(old: Any, new: Any, path: str) -> Any:
+    """Give ``new`` the type of the field's current value (int stays int, tuple stays tuple)."""
+    if isinstance(old, bool) and isinstance(new, str):
+        if new.lower() in ("true", "false", "1", "0"):
+            return new.lower() in ("true", "1")
+        raise ValueError(f"override {path}: expected a boolean, got {new!r}")
+    if isinstance(old, float) and isinstance(new, int) and not isinstance(new, bool):
+        return float(new)
+    if isinstance(old, tuple) and isinstance(new, list | tuple):
+        return tuple(new)
+    if isinstance(old, tuple) and isinstance(new, int | float):
+        return (new,)
+    return new
+
+
+def _apply(obj: Any, items: list[tuple[list[str], Any, str]]) -> Any:
+    """Apply (keys, value, path) items to one dataclass level with a single ``replace`` (validated once)."""
+    if not dataclasses.is_dataclass(obj):
+        raise ValueError(f"override {items[0][2]}: {type(obj).__name__} has no fields to set")
+    names = {f.name for f in dataclasses.fields(obj)}
+    leaf: dict[str, Any] = {}
+    nested: dict[str, list[tuple[list[str], Any, str]]] = {}
+    for keys, value, path in items:
+        if keys[0] not in names:
+            raise ValueError(f"override {path}: no field {keys[0]!r}; valid: {sorted(names)}")
+        if len(keys) == 1:
+            leaf[keys[0]] = _coerce(getattr(obj, keys[0]), value, path)
+        else:
+            nested.setdefault(keys[0], []).append((keys[1:], value, path))
+    changes = {name: _apply(getattr(obj, name), sub) for name, sub in nested.items()}
+    return dataclasses.replace(obj, **changes, **leaf)
+
+
+def apply_overrides(cfg: Any, overrides: tuple[str, ...] | list[str]) -> Any:
+    """Apply ``"a.b.c=value"`` overrides to a frozen dataclass tree, validating names and types.
+
+    Values are parsed as Python literals when they are one (``1e-3``, ``(64, 64)``, ``None``). All
+    overrides are applied together, so related fields (``ppo.num_envs`` and ``ppo.batch_size``) can change
+    at once; validation runs on the result.
+    """
+    items = []
+    for item in overrides:
+        if "=" not in item:
+            raise ValueError(f"override {item!r} must look like 'dotted.key=value'")
+        path, text = item.split("=", 1)
+        items.append((path.strip().split("."), _parse_value(text.strip()), path.strip()))
+    return _apply(cfg, items) if items else cfg
+
+
+def config_to_dict(cfg: TrainConfig) -> dict[str, Any]:
+    """Plain-JSON form of a config."""
+    return json.loads(json.dumps(dataclasses.asdict(cfg)))
+
+
+def _from_dict(cls: type, data: dict[str, Any]) -> Any:
+    kwargs = {}
+    hints = {f.name: f for f in dataclasses.fields(cls)}
+    for name, value in data.items():
+        if name not in hints:
+            raise ValueError(f"{cls.__name__} has no field {name!r}; valid: {sorted(hints)}")
+        default = getattr(cls(), name) if name in hints else None
+        if dataclasses.is_dataclass(default):
+            kwargs[name] = _from_dict(type(default), value)
+        elif isinstance(value, list):
+            kwargs[name] = tuple(value)
+        else:
+            kwargs[name] = value
+    return cls(**kwargs)
+
+
+def config_from_dict(data: dict[str, Any]) -> TrainConfig:
+    """Inverse of ``config_to_dict`` (e.g. to read a run's ``config.json``)."""
+    return _from_dict(TrainConfig, data)

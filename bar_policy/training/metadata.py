@@ -1,0 +1,80 @@
+"""The ``PolicyMetadata`` of a policy trained on an env: everything read from the env, nothing retyped."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from typing import Any
+
+from bar_policy.deploy.metadata import PolicyMetadata
+from bar_policy.export import code_version
+from bar_policy.robot.mjcf import PHYSICS_DT
+
+__all__ = ["policy_metadata", "randomization_record"]
+
+_RANDOMIZATION_FIELDS = ("actuator", "obs_noise", "randomization", "init_noise")
+"""Env config fields that describe training randomisation (recorded in ``bar.randomization``)."""
+
+
+def randomization_record(env_config: Any) -> dict[str, Any]:
+    """The randomisation ranges of an env config as plain JSON (tuples become lists).
+
+    Takes the config's ``actuator`` (latency, Kp/Kd scale, encoder offset, wire quantisation, torque
+    saturation), ``obs_noise``, model-level ``randomization`` and ``init_noise`` when present.
+    """
+    out: dict[str, Any] = {}
+    for name in _RANDOMIZATION_FIELDS:
+        if hasattr(env_config, name):
+            value = getattr(env_config, name)
+            out[name] = dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
+    return _jsonable(out)
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, Mapping):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_jsonable(v) for v in x]
+    if hasattr(x, "item"):
+        return x.item()
+    return x
+
+
+def policy_metadata(
+    env: Any, *, task: str = "reach", training: Mapping[str, Any] | None = None
+) -> PolicyMetadata:
+    """Metadata for a policy trained on ``env`` (a ``bar_policy.envs`` env).
+
+    Reads the joint order, action joints and observation schema from ``env.obs_manager``, Kp/Kd from
+    ``env.kp``/``env.kd`` (N*m/rad, N*m*s/rad), the default pose and per-joint action scale (rad) from
+    ``env.default_pose``/``env.action_scale``, the policy period from ``env.dt`` (s), the physics step from
+    ``env.config.sim_dt`` and the randomisation ranges from ``env.config``.
+
+    Args:
+        env: the (unwrapped) training env.
+        task: task name written to ``task_type`` / ``bar.task``.
+        training: free-form training record (backend, steps, evaluation, config).
+    """
+    om = env.obs_manager
+    schema = om.schema
+    cfg = getattr(env, "config", None)
+    return PolicyMetadata(
+        task=task,
+        robot=schema.robot,
+        mode=schema.mode,
+        joint_names=tuple(schema.joint_names),
+        action_joint_names=tuple(schema.action_joint_names),
+        joint_stiffness=tuple(float(x) for x in env.kp),
+        joint_damping=tuple(float(x) for x in env.kd),
+        default_joint_pos=tuple(float(x) for x in env.default_pose),
+        action_scale=tuple(float(x) for x in env.action_scale),
+        action_semantics="delta_from_default",
+        policy_dt=float(env.dt),
+        physics_dt=float(getattr(cfg, "sim_dt", PHYSICS_DT)),
+        obs_schema=om.to_json(),
+        obs_fingerprint=om.fingerprint,
+        command_names=tuple(om.command_names),
+        randomization=randomization_record(cfg) if cfg is not None else {},
+        code_version=code_version(),
+        training=_jsonable(dict(training or {})),
+    )

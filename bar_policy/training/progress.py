@@ -1,0 +1,131 @@
+"""Run directory, progress lines, TensorBoard and a JSON-lines metric log.
+
+Every metric record goes to three places: ``<run>/metrics.jsonl`` (one JSON object per line, the source of
+``docs/training_curve.png``), TensorBoard (tensorboardX, ``<run>/tb``) and, for the main numbers, one
+terminal line::
+
+    [ 37%] 14.7M/40.0M steps | 301k steps/s | reward 312.4 | success 91.2% (eval 93.0%) | 1m04s, ETA 1m23s
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any, TextIO
+
+__all__ = ["RunLogger", "format_duration", "format_steps"]
+
+
+def format_steps(n: float) -> str:
+    """``1234567 -> '1.23M'``."""
+    for div, unit in ((1e9, "G"), (1e6, "M"), (1e3, "k")):
+        if abs(n) >= div:
+            return f"{n / div:.3g}{unit}"
+    return f"{n:.0f}"
+
+
+def format_duration(seconds: float) -> str:
+    """``83.2 -> '1m23s'``; '?' for unknown."""
+    if not math.isfinite(seconds) or seconds < 0:
+        return "?"
+    s = round(seconds)
+    if s >= 3600:
+        return f"{s // 3600}h{(s % 3600) // 60:02d}m"
+    if s >= 60:
+        return f"{s // 60}m{s % 60:02d}s"
+    return f"{s}s"
+
+
+class RunLogger:
+    """Writes one run's metrics (only process 0 of a multi-host job should own one that is enabled).
+
+    Args:
+        run_dir: the run directory (created).
+        total_steps: target env steps (for percentages and ETA).
+        enabled: False makes every method a no-op (non-zero processes).
+        stream: where progress lines go (default stdout).
+    """
+
+    def __init__(
+        self, run_dir: str | Path, total_steps: int, *, enabled: bool = True, stream: TextIO | None = None
+    ) -> None:
+        self.run_dir = Path(run_dir)
+        self.total_steps = int(total_steps)
+        self.enabled = enabled
+        self.stream = stream or sys.stdout
+        self.t0 = time.monotonic()
+        self._tb: Any = None
+        self._jsonl: TextIO | None = None
+        self.last_eval: dict[str, float] = {}
+        if enabled:
+            self.run_dir.mkdir(parents=True, exist_ok=True)
+            self._jsonl = (self.run_dir / "metrics.jsonl").open("a")
+            try:
+                from tensorboardX import SummaryWriter
+
+                self._tb = SummaryWriter(str(self.run_dir / "tb"))
+            except ImportError:  # pragma: no cover - tensorboardX is a train dependency
+                self._tb = None
+
+    def elapsed(self) -> float:
+        """Seconds since the logger was created."""
+        return time.monotonic() - self.t0
+
+    def log(self, step: int, metrics: dict[str, float], *, kind: str) -> None:
+        """Record ``metrics`` at env step ``step``; ``kind`` is ``train``, ``eval`` or ``final``."""
+        if not self.enabled:
+            return
+        clean = {k: float(v) for k, v in metrics.items() if _finite_number(v)}
+        record = {"kind": kind, "step": int(step), "time_s": round(self.elapsed(), 3), **clean}
+        assert self._jsonl is not None
+        self._jsonl.write(json.dumps(record) + "\n")
+        self._jsonl.flush()
+        if self._tb is not None:
+            for k, v in clean.items():
+                self._tb.add_scalar(f"{kind}/{k}" if "/" not in k else k, v, int(step))
+            self._tb.flush()
+        if kind == "eval":
+            self.last_eval = clean
+
+    def progress(self, step: int, sps: float, metrics: dict[str, float]) -> None:
+        """Print the progress line for env step ``step`` at ``sps`` env steps/s."""
+        if not self.enabled:
+            return
+        frac = min(step / max(self.total_steps, 1), 1.0)
+        eta = (self.total_steps - step) / sps if sps > 0 else math.inf
+        parts = [
+            f"[{100 * frac:3.0f}%] {format_steps(step)}/{format_steps(self.total_steps)} steps",
+            f"{format_steps(sps)} steps/s",
+        ]
+        if "episode_reward" in metrics:
+            parts.append(f"reward {metrics['episode_reward']:.2f}")
+        if "success_rate" in metrics:
+            ev = self.last_eval.get("success_rate")
+            tail = f" (eval {100 * ev:.1f}%)" if ev is not None else ""
+            parts.append(f"success {100 * metrics['success_rate']:.1f}%{tail}")
+        parts.append(f"{format_duration(self.elapsed())}, ETA {format_duration(eta)}")
+        self.print(" | ".join(parts))
+
+    def print(self, text: str) -> None:
+        """A line on the terminal (flushed)."""
+        if self.enabled:
+            print(text, file=self.stream, flush=True)
+
+    def close(self) -> None:
+        """Flush and close the files."""
+        if self._jsonl is not None:
+            self._jsonl.close()
+            self._jsonl = None
+        if self._tb is not None:
+            self._tb.close()
+            self._tb = None
+
+
+def _finite_number(v: Any) -> bool:
+    try:
+        return math.isfinite(float(v))
+    except (TypeError, ValueError):
+        return False

@@ -1,0 +1,148 @@
+"""Publish a finished run: ONNX + JSON into ``checkpoints/``, the curve PNG and results into ``docs/``.
+
+``publish(run_dir, name="lite_reach_arms")`` copies ``<run>/policy.onnx`` to ``checkpoints/<name>.onnx``
+after loading it with the deploy loader (the same checks ``bar-deploy`` runs), writes
+``checkpoints/<name>.json`` (config, final evaluation, evaluation history, export record), draws
+``docs/training_curve.png`` from ``<run>/metrics.jsonl`` and rewrites the results block of
+``docs/training.md`` (between ``<!-- results:start -->`` and ``<!-- results:end -->``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from pathlib import Path
+from typing import Any
+
+__all__ = ["RESULTS_END", "RESULTS_START", "plot_curve", "publish", "results_markdown"]
+
+RESULTS_START = "<!-- results:start -->"
+RESULTS_END = "<!-- results:end -->"
+
+
+def _records(run_dir: Path) -> list[dict[str, Any]]:
+    return [json.loads(x) for x in (run_dir / "metrics.jsonl").read_text().splitlines() if x.strip()]
+
+
+def plot_curve(run_dir: str | Path, out: str | Path, threshold: float = 0.95) -> Path:
+    """Training curve PNG: eval success rate and episode reward against env steps and wall time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    run_dir, out = Path(run_dir), Path(out)
+    recs = _records(run_dir)
+    ev = [r for r in recs if r["kind"] == "eval"]
+    tr = [r for r in recs if r["kind"] == "train"]
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
+    steps = [r["step"] / 1e6 for r in ev]
+    ax1.plot(steps, [100 * r["success_rate"] for r in ev], "o-", label="eval success (deterministic)")
+    if tr:
+        ax1.plot([r["step"] / 1e6 for r in tr], [100 * r["success_rate"] for r in tr], ".-", alpha=0.6,
+                 label="training success (stochastic)")  # fmt: skip
+    ax1.axhline(100 * threshold, color="gray", ls="--", lw=1, label=f"{100 * threshold:.0f}%")
+    ax1.set(xlabel="env steps (M)", ylabel="success rate (%)", ylim=(0, 101), title="Reach success")
+    ax1.legend(loc="lower right", fontsize=8)
+    if ev:
+        top = ax1.secondary_xaxis("top", functions=_time_axis(ev))
+        top.set_xlabel("wall time since start (s)")
+    ax2.plot(steps, [r["episode_reward"] for r in ev], "o-", label="eval")
+    if tr:
+        ax2.plot(
+            [r["step"] / 1e6 for r in tr],
+            [r["episode_reward"] for r in tr],
+            ".-",
+            alpha=0.6,
+            label="training",
+        )
+    ax2.set(xlabel="env steps (M)", ylabel="episode reward", title="Episode reward")
+    ax2.legend(fontsize=8)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return out
+
+
+def _time_axis(ev: list[dict[str, Any]]) -> tuple:
+    import numpy as np
+
+    s = np.array([r["step"] / 1e6 for r in ev], dtype=float)
+    t = np.array([r.get("time_s", 0.0) for r in ev], dtype=float)
+    if len(s) < 2 or np.any(np.diff(s) <= 0):
+        return (lambda x: x, lambda x: x)
+    return (lambda x: np.interp(x, s, t), lambda x: np.interp(x, t, s))
+
+
+def results_markdown(final: dict[str, Any], name: str) -> str:
+    """The results block for docs/training.md from a run's ``final_eval.json`` content."""
+    fe = final["final_eval"]
+    dev = final["config"]["device"]
+    ttt = final.get("time_to_threshold_s")
+    thr = 100 * final.get("success_threshold", 0.95)
+    ttt_text = f"{ttt:.0f} s" if ttt is not None else "not reached"
+    train = final["config"]["train"]
+    lines = [
+        RESULTS_START,
+        f"Shipped policy: `checkpoints/{name}.onnx` (config and evaluation: `checkpoints/{name}.json`).",
+        "",
+        "| quantity | value |",
+        "|---|---|",
+        f"| device | {dev['device_kind']} x {len(dev['devices'])} (jax {dev['jax']}) |",
+        f"| command | `python train/ppo.py --preset {train['preset']}` (backend {train['backend']}) |",
+        f"| env steps trained | {final['env_steps']:,} |",
+        f"| wall time, start to exported ONNX | {final['wall_s']:.0f} s |",
+        f"| time to {thr:.0f}% eval success (compile included) | {ttt_text} |",
+        f"| training env steps/s, end to end | {final['train_sps_end_to_end']:,.0f} |",
+        f"| final success rate ({int(fe.get('episodes', 0))} episodes, randomisation on) | "
+        f"{100 * fe['success_rate']:.2f}% |",
+        f"| final episode reward | {fe['episode_reward']:.2f} |",
+        f"| mean fingertip distance at segment end | {100 * fe['final_distance']:.2f} cm |",
+        f"| ONNX parity (max abs error, 4096 obs) | {final['export'].get('max_abs_error', math.nan):.2e} |",
+        "",
+        "![training curve](training_curve.png)",
+        RESULTS_END,
+    ]
+    return "\n".join(lines)
+
+
+def publish(
+    run_dir: str | Path,
+    *,
+    name: str = "lite_reach_arms",
+    checkpoints_dir: str | Path = "checkpoints",
+    docs_dir: str | Path = "docs",
+) -> dict[str, Path]:
+    """Ship a finished run (see the module docstring); returns the written paths.
+
+    Raises:
+        FileNotFoundError: the run has no ``policy.onnx`` / ``final_eval.json`` (export failed or skipped).
+        bar_policy.deploy.policy.PolicyLoadError: the deploy loader refuses the file.
+    """
+    from bar_policy.deploy.policy import load_policy
+
+    run_dir = Path(run_dir)
+    onnx_src, final_src = run_dir / "policy.onnx", run_dir / "final_eval.json"
+    for p in (onnx_src, final_src):
+        if not p.exists():
+            raise FileNotFoundError(f"{p} is missing; did the run finish and export?")
+    load_policy(onnx_src)  # the checks bar-deploy runs
+    final = json.loads(final_src.read_text())
+    ck, docs = Path(checkpoints_dir), Path(docs_dir)
+    ck.mkdir(parents=True, exist_ok=True)
+    onnx_dst, json_dst = ck / f"{name}.onnx", ck / f"{name}.json"
+    shutil.copyfile(onnx_src, onnx_dst)
+    json_dst.write_text(json.dumps({"run_dir": str(run_dir), **final}, indent=2, sort_keys=True))
+    curve = plot_curve(run_dir, docs / "training_curve.png", final.get("success_threshold", 0.95))
+    md = docs / "training.md"
+    block = results_markdown(final, name)
+    text = md.read_text() if md.exists() else "# Training\n\n## Results\n\n"
+    if RESULTS_START in text and RESULTS_END in text:
+        head, rest = text.split(RESULTS_START, 1)
+        text = head + block + rest.split(RESULTS_END, 1)[1]
+    else:
+        text = text.rstrip() + "\n\n## Results\n\n" + block + "\n"
+    md.write_text(text)
+    return {"onnx": onnx_dst, "json": json_dst, "curve": curve, "docs": md}

@@ -1,0 +1,385 @@
+"""The ``--backend rsl-rl`` path: rsl-rl-lib's PPO (torch) on the same MJX env through ``RslRlVecEnv``.
+
+rsl-rl's ``OnPolicyRunner`` builds the algorithm (actor/critic ``MLPModel`` with empirical observation
+normalisation, Gaussian policy, adaptive-KL schedule); the rollout/update loop is written here so that it
+shares our progress lines, evaluation, msgpack checkpoints (torch state dicts as numpy, no pickle) and
+export with the brax backend. The loop is the runner's: ``act`` -> ``env.step`` -> ``process_env_step``
+for ``num_steps_per_env`` steps, then ``compute_returns`` and ``update``.
+
+Config mapping from ``PPOConfig``: num_steps_per_env = unroll_length, num_learning_epochs =
+num_updates_per_batch, num_mini_batches = num_minibatches, gamma = discounting, lam = gae_lambda,
+clip_param = clipping_epsilon, entropy_coef = entropy_cost, learning_rate, max_grad_norm. One rsl-rl
+iteration collects ``num_envs * unroll_length`` env steps.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+from bar_policy.export import MlpPolicy, export_policy
+from bar_policy.training.checkpoint import latest_checkpoint, save_checkpoint
+from bar_policy.training.config import TrainConfig
+from bar_policy.training.progress import RunLogger
+from bar_policy.training.rsl_rl_env import RslRlVecEnv, torch_device_for_jax
+
+__all__ = [
+    "RslRlTrainResult",
+    "evaluate_torch_policy",
+    "mlp_policy_from_rsl_rl",
+    "rsl_rl_train_cfg",
+    "torch_policy_reference",
+    "train_rsl_rl",
+]
+
+_ACT = {"swish": "swish", "elu": "elu", "relu": "relu", "tanh": "tanh"}
+
+
+def rsl_rl_train_cfg(cfg: TrainConfig) -> dict[str, Any]:
+    """rsl-rl 5.x ``train_cfg`` dict for ``OnPolicyRunner`` from our config."""
+    ppo, net, r = cfg.ppo, cfg.network, cfg.rsl_rl
+    dist = {"class_name": "GaussianDistribution", "init_std": net.init_noise_std, "std_type": "scalar"}
+    return {
+        "num_steps_per_env": ppo.unroll_length,
+        "save_interval": 10**9,
+        "obs_groups": {"actor": ["policy"], "critic": ["policy"]},
+        "check_for_nan": True,
+        "algorithm": {
+            "class_name": "PPO",
+            "num_learning_epochs": ppo.num_updates_per_batch,
+            "num_mini_batches": ppo.num_minibatches,
+            "clip_param": ppo.clipping_epsilon,
+            "gamma": ppo.discounting,
+            "lam": ppo.gae_lambda,
+            "value_loss_coef": r.value_loss_coef,
+            "entropy_coef": ppo.entropy_cost,
+            "learning_rate": ppo.learning_rate,
+            "max_grad_norm": ppo.max_grad_norm if ppo.max_grad_norm > 0 else 1e9,
+            "schedule": r.schedule,
+            "desired_kl": r.desired_kl,
+        },
+        "actor": {
+            "class_name": "MLPModel",
+            "hidden_dims": list(net.policy_hidden),
+            "activation": _ACT[net.activation],
+            "obs_normalization": ppo.normalize_observations,
+            "distribution_cfg": dist,
+        },
+        "critic": {
+            "class_name": "MLPModel",
+            "hidden_dims": list(net.value_hidden),
+            "activation": _ACT[net.activation],
+            "obs_normalization": ppo.normalize_observations,
+        },
+    }
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Torch state <-> msgpack-able numpy trees (no pickle)
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _module_state(module: torch.nn.Module) -> dict[str, np.ndarray]:
+    return {k: v.detach().cpu().numpy() for k, v in module.state_dict().items()}
+
+
+def _optimizer_state(opt: torch.optim.Optimizer) -> dict[str, Any]:
+    sd = opt.state_dict()
+    state = {
+        str(pid): {
+            k: (v.detach().cpu().numpy() if torch.is_tensor(v) else np.asarray(v)) for k, v in s.items()
+        }
+        for pid, s in sd["state"].items()
+    }
+    return {"state": state, "param_groups": json.dumps(sd["param_groups"])}
+
+
+def _load_optimizer_state(opt: torch.optim.Optimizer, data: dict[str, Any], device: str) -> None:
+    groups = json.loads(data["param_groups"])
+    state = {
+        int(pid): {
+            k: torch.as_tensor(np.array(v), device="cpu" if k == "step" else device) for k, v in s.items()
+        }
+        for pid, s in data["state"].items()
+    }
+    opt.load_state_dict({"state": state, "param_groups": groups})
+
+
+def _load_module_state(module: torch.nn.Module, data: dict[str, Any], device: str) -> None:
+    module.load_state_dict({k: torch.as_tensor(np.array(v), device=device) for k, v in data.items()})
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Policy extraction, reference and evaluation
+# ----------------------------------------------------------------------------------------------------------
+
+
+def mlp_policy_from_rsl_rl(actor: torch.nn.Module) -> MlpPolicy:
+    """The deterministic policy of an rsl-rl ``MLPModel`` actor as an ``MlpPolicy``.
+
+    Folds ``EmpiricalNormalization`` (``(x - mean) / (std + eps)``) into (mean, std + eps); reads the
+    ``Linear`` layers of ``actor.mlp`` (kernel = weight.T); the Gaussian head's deterministic output is the
+    MLP output itself (``identity``).
+    """
+    norm = actor.obs_normalizer
+    n = actor.obs_dim
+    if isinstance(norm, torch.nn.Identity):
+        mean, std = np.zeros(n, np.float32), np.ones(n, np.float32)
+    else:
+        mean = norm._mean.detach().cpu().numpy().reshape(-1).astype(np.float32)
+        std = (norm._std.detach().cpu().numpy().reshape(-1) + norm.eps).astype(np.float32)
+    kernels, biases, acts = [], [], set()
+    names = {torch.nn.ELU: "elu", torch.nn.SiLU: "swish", torch.nn.ReLU: "relu", torch.nn.Tanh: "tanh"}
+    for layer in actor.mlp:
+        if isinstance(layer, torch.nn.Linear):
+            kernels.append(layer.weight.detach().cpu().numpy().T.copy())
+            biases.append(layer.bias.detach().cpu().numpy().copy())
+        elif type(layer) in names:
+            if isinstance(layer, torch.nn.ELU) and layer.alpha != 1.0:
+                raise ValueError(f"ELU alpha {layer.alpha} is not exportable (only 1.0)")
+            acts.add(names[type(layer)])
+        else:
+            raise ValueError(f"cannot export layer {layer!r}; supported: Linear, {sorted(names.values())}")
+    if len(acts) != 1:
+        raise ValueError(f"expected one hidden activation, found {sorted(acts)}")
+    dist = getattr(actor, "distribution", None)
+    if dist is not None and type(dist).__name__ != "GaussianDistribution":
+        raise ValueError(f"only the Gaussian head exports (identity mean), got {type(dist).__name__}")
+    return MlpPolicy(
+        obs_mean=mean,
+        obs_std=std,
+        kernels=tuple(kernels),
+        biases=tuple(biases),
+        activation=acts.pop(),  # type: ignore[arg-type]
+        head="identity",
+    )
+
+
+def torch_policy_reference(actor: torch.nn.Module) -> Callable[[np.ndarray], np.ndarray]:
+    """rsl-rl's own deterministic export module (``actor.as_onnx``) as a CPU float32 numpy function."""
+    module = actor.as_onnx(verbose=False).to("cpu").eval()
+
+    def fn(obs: np.ndarray) -> np.ndarray:
+        with torch.inference_mode():
+            return module(torch.as_tensor(obs, dtype=torch.float32)).numpy()
+
+    return fn
+
+
+def evaluate_torch_policy(
+    policy: Callable[[torch.Tensor], torch.Tensor], vec_env: RslRlVecEnv, episode_length: int, seed: int
+) -> dict[str, float]:
+    """Deterministic evaluation on ``vec_env`` (one episode per env from a fresh reset with ``seed``).
+
+    Success rate = sum of ``success_end`` / sum of ``segment_end`` (reach), else the mean ``success``.
+    """
+    vec_env.reset_all(seed=seed)
+    obs = vec_env.get_observations()
+    ret = torch.zeros(vec_env.num_envs, device=vec_env.device)
+    num = den = dist = 0.0
+    with torch.inference_mode():
+        for _ in range(episode_length):
+            obs, rew, _, _ = vec_env.step(policy(obs["policy"]))
+            ret += rew
+            m = vec_env.metrics
+            if "success_end" in m and "segment_end" in m:
+                n_i, d_i = float(m["success_end"].sum()), float(m["segment_end"].sum())
+            else:
+                n_i, d_i = float(m["success"].sum()), float(m["success"].size)
+            num, den = num + n_i, den + d_i
+            if "dist_left" in m and "segment_end" in m:
+                dist += float((0.5 * (m["dist_left"] + m["dist_right"]) * m["segment_end"]).sum())
+    return {
+        "success_rate": num / max(den, 1.0),
+        "episode_reward": float(ret.mean()),
+        "episode_reward_std": float(ret.std()),
+        "final_distance": dist / max(den, 1.0),
+    }
+
+
+@dataclass(frozen=True, kw_only=True)
+class RslRlTrainResult:
+    """Outcome of ``train_rsl_rl`` (same interface as ``BraxTrainResult`` where ``run`` uses it)."""
+
+    actor: torch.nn.Module
+    """The trained rsl-rl actor (``MLPModel``)."""
+    eval_env: RslRlVecEnv
+    """Evaluation env (randomised like training, its own seeds)."""
+    episode_length: int
+    """Control steps per episode."""
+    env_steps: int
+    """Total env steps trained (including before a resume)."""
+    run_env_steps: int
+    """Env steps trained in this run."""
+    train_seconds: float
+    """Wall time of the training loop, s."""
+    evals: list[dict[str, float]] = field(default_factory=list)
+    """Evaluation records."""
+    time_to_threshold_s: float | None = None
+    """Seconds to the first evaluation at or above the success threshold."""
+
+    def policy_fn(self) -> Callable[[torch.Tensor], torch.Tensor]:
+        """Deterministic torch policy on the env's device."""
+        module = self.actor.as_onnx(verbose=False).to(self.eval_env.device).eval()
+        return lambda obs: module(obs)
+
+    def final_evaluation(self, episodes: int, seed: int) -> dict[str, float]:
+        """Evaluate on ``episodes`` episodes, in batches of the eval env size."""
+        rounds = max(1, math.ceil(episodes / self.eval_env.num_envs))
+        runs = [
+            evaluate_torch_policy(self.policy_fn(), self.eval_env, self.episode_length, seed + i)
+            for i in range(rounds)
+        ]
+        out = {k: float(np.mean([r[k] for r in runs])) for k in runs[0]}
+        out["episodes"] = float(rounds * self.eval_env.num_envs)
+        return out
+
+    def export_onnx(self, metadata: Any, path: str | Any) -> dict[str, Any]:
+        """Export with the parity gate against rsl-rl's own deterministic module."""
+        actor_cpu = self.actor
+        return export_policy(
+            mlp_policy_from_rsl_rl(actor_cpu), metadata, path, torch_policy_reference(actor_cpu)
+        )
+
+
+def train_rsl_rl(
+    env: Any,
+    cfg: TrainConfig,
+    logger: RunLogger,
+    *,
+    wrap_fn: Callable[..., Any] | None = None,
+    randomizer: Callable[..., Any] | None,
+    checkpoint_dir: str | None,
+    config_record: dict[str, Any] | None = None,
+) -> RslRlTrainResult:
+    """Train with rsl-rl-lib's PPO on ``env``; same arguments and outputs as ``train_brax``."""
+    from flax import serialization
+    from rsl_rl.runners import OnPolicyRunner
+
+    if wrap_fn is None:
+        from bar_policy.envs import wrap_for_brax_training as wrap_fn
+    ppo = cfg.ppo
+    t_start = time.monotonic()
+    device = torch_device_for_jax() if cfg.rsl_rl.device == "auto" else cfg.rsl_rl.device
+    torch.manual_seed(cfg.seed)
+    vec_env = RslRlVecEnv(
+        env, ppo.num_envs, wrap_fn=wrap_fn, randomizer=randomizer, seed=cfg.seed, device=device
+    )
+    eval_env = RslRlVecEnv(
+        env, cfg.eval.num_eval_envs, wrap_fn=wrap_fn, randomizer=randomizer, seed=cfg.seed + 1, device=device
+    )
+    runner = OnPolicyRunner(vec_env, rsl_rl_train_cfg(cfg), log_dir=None, device=device)
+    alg = runner.alg
+    steps_per_iter = ppo.num_envs * ppo.unroll_length
+    total_iters = math.ceil(ppo.num_timesteps / steps_per_iter)
+    env_steps = iteration = 0
+    if cfg.resume:
+        path = latest_checkpoint(cfg.resume)
+        payload = serialization.msgpack_restore(path.read_bytes())
+        st = payload["state"]
+        _load_module_state(alg.actor, st["actor"], device)
+        _load_module_state(alg.critic, st["critic"], device)
+        _load_optimizer_state(alg.optimizer, st["optimizer"], device)
+        alg.learning_rate = float(st["learning_rate"])
+        env_steps, iteration = int(payload["env_steps"]), int(payload["iteration"])
+        logger.print(f"resumed {path} at {env_steps} env steps (iteration {iteration})")
+    start_steps = env_steps
+    periods = max((cfg.eval.num_evals - 1), 1)
+    iters_per_eval = max(1, math.ceil(total_iters / periods))
+    evals: list[dict[str, float]] = []
+    ttt: list[float] = []
+    episode_length = int(env.episode_length)
+
+    def run_eval(step: int) -> None:
+        alg.eval_mode()
+        module = alg.actor.as_onnx(verbose=False).to(device).eval()
+        m = evaluate_torch_policy(lambda o: module(o), eval_env, episode_length, seed=cfg.seed + 1000 + step)
+        alg.train_mode()
+        m["time_s"] = logger.elapsed()
+        logger.log(step, m, kind="eval")
+        evals.append({"step": step, **m})
+        logger.print(
+            f"  eval @ {step:,} steps: success {100 * m['success_rate']:.1f}%, "
+            f"episode reward {m['episode_reward']:.2f}"
+        )
+        if not ttt and m["success_rate"] >= cfg.eval.success_threshold:
+            ttt.append(m["time_s"])
+
+    def checkpoint(step: int, it: int) -> None:
+        if checkpoint_dir is None:
+            return
+        state = {
+            "actor": _module_state(alg.actor),
+            "critic": _module_state(alg.critic),
+            "optimizer": _optimizer_state(alg.optimizer),
+            "learning_rate": np.asarray(alg.learning_rate),
+        }
+        save_checkpoint(checkpoint_dir, state, env_steps=step, iteration=it, extra=config_record)
+
+    if iteration == 0:
+        run_eval(0)
+    obs = vec_env.get_observations().to(device)
+    alg.train_mode()
+    t_loop = time.monotonic()
+    while iteration < total_iters:
+        t0 = time.monotonic()
+        rew_sum = num = den = 0.0
+        with torch.inference_mode():
+            for _ in range(ppo.unroll_length):
+                actions = alg.act(obs)
+                obs, rewards, dones, extras = vec_env.step(actions)
+                alg.process_env_step(obs, rewards, dones, extras)
+                m = vec_env.metrics
+                rew_sum += float(rewards.sum())
+                if "success_end" in m:
+                    num += float(m["success_end"].sum())
+                    den += float(m["segment_end"].sum())
+            alg.compute_returns(obs)
+        losses = alg.update()
+        iteration += 1
+        env_steps += steps_per_iter
+        dt = time.monotonic() - t0
+        train_metrics = {
+            **{f"loss/{k}": float(v) for k, v in losses.items()},
+            "episode_reward": rew_sum / steps_per_iter * episode_length,
+            "success_rate": num / max(den, 1.0),
+            "sps": steps_per_iter / dt,
+            "learning_rate": float(alg.learning_rate),
+        }
+        logger.log(env_steps, train_metrics, kind="train")
+        last = iteration >= total_iters
+        over_budget = cfg.max_minutes > 0 and logger.elapsed() > 60 * cfg.max_minutes
+        if iteration % max(1, iters_per_eval // 2) == 0 or last or over_budget:
+            logger.progress(env_steps, steps_per_iter / dt, train_metrics)
+        if iteration % iters_per_eval == 0 or last or over_budget:
+            run_eval(env_steps)
+            if (
+                last
+                or over_budget
+                or (cfg.checkpoint_every and (iteration // iters_per_eval) % cfg.checkpoint_every == 0)
+            ):
+                checkpoint(env_steps, iteration)
+        if over_budget and not last:
+            logger.print(f"stopping: wall-clock budget of {cfg.max_minutes} min reached")
+            break
+    logger.print(
+        f"trained {env_steps - start_steps:,} env steps in {time.monotonic() - t_loop:.1f} s of loop"
+    )
+    alg.eval_mode()
+    return RslRlTrainResult(
+        actor=alg.actor,
+        eval_env=eval_env,
+        episode_length=episode_length,
+        env_steps=env_steps,
+        run_env_steps=env_steps - start_steps,
+        train_seconds=time.monotonic() - t_start,
+        evals=evals,
+        time_to_threshold_s=ttt[0] if ttt else None,
+    )

@@ -1,0 +1,117 @@
+"""rsl-rl ``VecEnv`` over a batched MJX env: JAX steps under jit, tensors cross by DLPack (no host copies).
+
+The jax env is wrapped for training (batch, episode truncation, auto-reset, domain randomisation) exactly
+as for the brax backend, and ``reset``/``step`` are jitted once. Each ``step(actions)``:
+
+1. turns the torch action tensor into a jax array with ``jax.dlpack.from_dlpack`` (zero copy, same device),
+2. runs the jitted batched step,
+3. hands ``obs``, ``reward``, ``done`` and ``truncation`` back with ``torch.from_dlpack`` (zero copy).
+
+The jax state is never donated, so the torch views of its buffers stay valid until rsl-rl copies them
+into its rollout storage. Torch must run on the device jax uses (``cuda`` for a GPU jax, else ``cpu``).
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import torch
+from rsl_rl.env import VecEnv
+from tensordict import TensorDict
+
+__all__ = ["RslRlVecEnv", "torch_device_for_jax"]
+
+
+def torch_device_for_jax() -> str:
+    """The torch device that shares memory with jax's default device (``cuda:N`` or ``cpu``)."""
+    dev = jax.local_devices()[0]
+    return f"cuda:{dev.id}" if dev.platform == "gpu" else "cpu"
+
+
+def _to_torch(x: jax.Array) -> torch.Tensor:
+    return torch.from_dlpack(x)
+
+
+def _to_jax(t: torch.Tensor) -> jax.Array:
+    return jax.dlpack.from_dlpack(t.detach().contiguous())
+
+
+class RslRlVecEnv(VecEnv):
+    """A batch of ``num_envs`` copies of a ``bar_policy.envs`` env as an rsl-rl ``VecEnv``.
+
+    Args:
+        env: the unwrapped jax env.
+        num_envs: batch size.
+        wrap_fn: ``wrap_for_brax_training(env, episode_length=, action_repeat=, randomization_fn=)``.
+        randomizer: ``(model, rng) -> (model, in_axes)``, or None for the nominal model.
+        seed: seed of the randomisation and of the resets.
+        device: torch device; must be where jax's arrays live (``torch_device_for_jax()``).
+
+    Observations are returned as ``TensorDict({"policy": obs})`` (shape ``(num_envs, obs)``); extras carry
+    ``time_outs`` (truncations) for rsl-rl's bootstrapping.
+    """
+
+    def __init__(
+        self,
+        env: Any,
+        num_envs: int,
+        *,
+        wrap_fn: Callable[..., Any],
+        randomizer: Callable[..., Any] | None = None,
+        seed: int = 0,
+        device: str | None = None,
+    ) -> None:
+        self.num_envs = int(num_envs)
+        self.num_actions = int(env.action_size)
+        self.num_obs = int(env.observation_size)
+        self.max_episode_length = int(env.episode_length)
+        self.device = device or torch_device_for_jax()
+        self.cfg = getattr(env, "config", {})
+        key = jax.random.PRNGKey(seed)
+        k_rand, self._key = jax.random.split(key)
+        rfn = None
+        if randomizer is not None:
+            rfn = functools.partial(randomizer, rng=jax.random.split(k_rand, self.num_envs))
+        self._env = wrap_fn(
+            env, episode_length=self.max_episode_length, action_repeat=1, randomization_fn=rfn
+        )
+        self._reset = jax.jit(self._env.reset)
+        self._step = jax.jit(self._env.step)
+        self.state = self.reset_all()
+        self.episode_length_buf = torch.zeros(self.num_envs, dtype=torch.long, device=self.device)
+
+    def reset_all(self, seed: int | None = None) -> Any:
+        """Reset every env (fresh keys; ``seed`` picks them explicitly). Returns the jax state."""
+        if seed is None:
+            self._key, k = jax.random.split(self._key)
+        else:
+            k = jax.random.PRNGKey(seed)
+        self.state = self._reset(jax.random.split(k, self.num_envs))
+        return self.state
+
+    def get_observations(self) -> TensorDict:
+        """Current observations, ``{"policy": (num_envs, obs)}``."""
+        return TensorDict(
+            {"policy": _to_torch(self.state.obs)}, batch_size=[self.num_envs], device=self.device
+        )
+
+    @property
+    def metrics(self) -> dict[str, jax.Array]:
+        """The env metrics of the last step (jax arrays, shape (num_envs,))."""
+        return self.state.metrics
+
+    def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
+        """Step every env with ``actions`` (num_envs, num_actions); returns obs, reward, done, extras."""
+        self.state = self._step(self.state, _to_jax(actions.to(torch.float32)))
+        obs = self.get_observations()
+        reward = _to_torch(self.state.reward)
+        done = _to_torch(self.state.done)
+        extras = {"time_outs": _to_torch(self.state.info["truncation"]), "log": {}}
+        return obs, reward, done, extras
+
+    def jax_actions(self, actions: torch.Tensor) -> jax.Array:
+        """The zero-copy jax view of a torch action batch (exposed for tests)."""
+        return _to_jax(actions)

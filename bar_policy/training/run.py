@@ -1,0 +1,231 @@
+"""One training run end to end: env, run directory, backend, final evaluation, ONNX export, summary.
+
+``run(cfg)`` is what ``python train/ppo.py`` calls after parsing. The run directory ``<runs_dir>/<name>/``
+receives ``config.json`` (the resolved training and env config), ``metrics.jsonl``, ``tb/`` (TensorBoard),
+``checkpoints/step_<N>.msgpack``, ``policy.onnx`` and ``final_eval.json``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import platform
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from bar_policy.training.config import TrainConfig, config_to_dict
+from bar_policy.training.progress import RunLogger, format_duration, format_steps
+
+__all__ = ["RunSummary", "init_distributed", "resolve_run_dir", "run"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunSummary:
+    """What a run produced."""
+
+    run_dir: Path
+    """The run directory."""
+    env_steps: int
+    """Total env steps trained (including those before a resume)."""
+    wall_s: float
+    """Wall time from ``run`` start to the end of the final evaluation, s."""
+    train_sps_end_to_end: float
+    """Env steps of this run / wall time of training (compile and evaluations included), steps/s."""
+    final_eval: dict[str, float]
+    """Final evaluation (``success_rate``, ``episode_reward``, ... over ``final_eval_envs`` episodes)."""
+    time_to_threshold_s: float | None
+    """Seconds from start to the first evaluation at or above ``eval.success_threshold`` (None: never)."""
+    onnx_path: Path | None
+    """Exported policy, if exported."""
+    export: dict[str, Any]
+    """Export record (parity error, size)."""
+
+
+def init_distributed(cfg: TrainConfig) -> None:
+    """``jax.distributed.initialize`` when a coordinator address is configured (multi-host)."""
+    d = cfg.distributed
+    if d.coordinator_address:
+        import jax
+
+        jax.distributed.initialize(
+            coordinator_address=d.coordinator_address, num_processes=d.num_processes, process_id=d.process_id
+        )
+
+
+def resolve_run_dir(cfg: TrainConfig) -> Path:
+    """``runs_dir/run_name``; an unnamed resume continues in the resumed run's directory."""
+    if cfg.run_name:
+        return Path(cfg.runs_dir) / cfg.run_name
+    if cfg.resume:
+        p = Path(cfg.resume)
+        if p.is_file():
+            p = p.parent
+        return p.parent if p.name == "checkpoints" else p
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    return Path(cfg.runs_dir) / f"{cfg.env_name}-{cfg.backend}-{stamp}"
+
+
+def _device_record() -> dict[str, Any]:
+    import jax
+
+    return {
+        "backend": jax.default_backend(),
+        "devices": [str(d) for d in jax.local_devices()],
+        "device_kind": jax.local_devices()[0].device_kind,
+        "process_count": jax.process_count(),
+        "host": platform.node(),
+        "jax": jax.__version__,
+    }
+
+
+def run(cfg: TrainConfig, *, env_config: Any | None = None, env: Any | None = None) -> RunSummary:
+    """Train, evaluate and export as configured; returns the summary (also printed as a table).
+
+    Args:
+        cfg: the resolved training config.
+        env_config: a full env config object to use instead of the registry default (overrides in
+            ``cfg.env_overrides`` still apply on top).
+        env: an env object to train on instead of ``envs.load(cfg.env_name)`` (tests use a stand-in);
+            it is trained without model randomisation.
+    """
+    t0 = time.monotonic()
+    init_distributed(cfg)
+    import jax
+
+    from bar_policy import envs
+
+    randomizer = None
+    if env is None:
+        env = envs.load(cfg.env_name, config=env_config, overrides=list(cfg.env_overrides) or None)
+        randomizer = envs.get_randomizer(cfg.env_name, env.config)
+    run_dir = resolve_run_dir(cfg)
+    is_main = jax.process_index() == 0
+    logger = RunLogger(run_dir, cfg.ppo.num_timesteps, enabled=is_main)
+    logger.t0 = t0
+    record = {
+        "train": config_to_dict(cfg),
+        "env": json.loads(json.dumps(dataclasses.asdict(env.config), default=list))
+        if dataclasses.is_dataclass(getattr(env, "config", None))
+        else {},
+        "device": _device_record(),
+    }
+    if is_main:
+        (run_dir / "config.json").write_text(json.dumps(record, indent=2, sort_keys=True))
+        logger.print(
+            f"run {run_dir} | {cfg.env_name} ({env.observation_size} obs, {env.action_size} actions, "
+            f"dt {env.dt} s) | backend {cfg.backend} | {record['device']['device_kind']} x "
+            f"{jax.device_count()} | {format_steps(cfg.ppo.num_timesteps)} steps, {cfg.ppo.num_envs} envs"
+        )
+    ckpt_dir = str(run_dir / "checkpoints")
+
+    if cfg.backend == "brax":
+        from bar_policy.training.brax_ppo import train_brax
+
+        result = train_brax(
+            env,
+            cfg,
+            logger,
+            wrap_fn=envs.wrap_for_brax_training,
+            randomizer=randomizer,
+            checkpoint_dir=ckpt_dir,
+            config_record=record,
+        )
+    else:
+        from bar_policy.training.rsl_rl_backend import train_rsl_rl
+
+        result = train_rsl_rl(
+            env, cfg, logger, randomizer=randomizer, checkpoint_dir=ckpt_dir, config_record=record
+        )
+
+    if not is_main:
+        return RunSummary(
+            run_dir=run_dir,
+            env_steps=result.env_steps,
+            wall_s=time.monotonic() - t0,
+            train_sps_end_to_end=result.run_env_steps / max(result.train_seconds, 1e-9),
+            final_eval={},
+            time_to_threshold_s=result.time_to_threshold_s,
+            onnx_path=None,
+            export={},
+        )
+
+    final = result.final_evaluation(cfg.final_eval_envs, seed=cfg.seed + 10_000)
+    logger.log(result.env_steps, final, kind="final")
+    sps = result.run_env_steps / max(result.train_seconds, 1e-9)
+    training_record = {
+        "backend": cfg.backend,
+        "env_name": cfg.env_name,
+        "env_steps": result.env_steps,
+        "train_seconds": round(result.train_seconds, 2),
+        "train_sps_end_to_end": round(sps, 1),
+        "time_to_threshold_s": result.time_to_threshold_s,
+        "final_eval": final,
+        "preset": cfg.preset,
+        "seed": cfg.seed,
+        "device": record["device"]["device_kind"],
+        "device_count": jax.device_count(),
+        "network": config_to_dict(cfg)["network"],
+        "env_overrides": list(cfg.env_overrides),
+    }
+    export: dict[str, Any] = {}
+    onnx_path: Path | None = None
+    if cfg.export_onnx:
+        from bar_policy.training.metadata import policy_metadata
+
+        onnx_path = Path(cfg.onnx_path) if cfg.onnx_path else run_dir / "policy.onnx"
+        meta = policy_metadata(env, task="reach", training=training_record)
+        export = result.export_onnx(meta, onnx_path)
+    wall = time.monotonic() - t0
+    final_record = {
+        "final_eval": final,
+        "final_eval_episodes": cfg.final_eval_envs,
+        "env_steps": result.env_steps,
+        "wall_s": round(wall, 2),
+        "train_seconds": round(result.train_seconds, 2),
+        "train_sps_end_to_end": round(sps, 1),
+        "time_to_threshold_s": result.time_to_threshold_s,
+        "success_threshold": cfg.eval.success_threshold,
+        "evals": result.evals,
+        "export": export,
+        "config": record,
+    }
+    (run_dir / "final_eval.json").write_text(json.dumps(final_record, indent=2, sort_keys=True))
+    summary = RunSummary(
+        run_dir=run_dir,
+        env_steps=result.env_steps,
+        wall_s=wall,
+        train_sps_end_to_end=sps,
+        final_eval=final,
+        time_to_threshold_s=result.time_to_threshold_s,
+        onnx_path=onnx_path,
+        export=export,
+    )
+    for line in summary_table(summary, cfg):
+        logger.print(line)
+    logger.close()
+    return summary
+
+
+def summary_table(s: RunSummary, cfg: TrainConfig) -> list[str]:
+    """The end-of-run table (plain text)."""
+    thr = f"{100 * cfg.eval.success_threshold:.0f}%"
+    ttt = format_duration(s.time_to_threshold_s) if s.time_to_threshold_s is not None else "not reached"
+    rows = [
+        ("run directory", str(s.run_dir)),
+        ("backend / preset", f"{cfg.backend} / {cfg.preset}"),
+        ("env steps", f"{s.env_steps:,}"),
+        ("wall time", format_duration(s.wall_s)),
+        ("training env steps/s (end to end)", f"{s.train_sps_end_to_end:,.0f}"),
+        (f"time to {thr} eval success", ttt),
+        ("final success rate", f"{100 * s.final_eval.get('success_rate', math.nan):.2f}%"),
+        ("final episode reward", f"{s.final_eval.get('episode_reward', math.nan):.2f}"),
+        ("final fingertip distance", f"{100 * s.final_eval.get('final_distance', math.nan):.2f} cm"),
+        ("ONNX", str(s.onnx_path) if s.onnx_path else "not exported"),
+        ("parity max abs error", f"{s.export.get('max_abs_error', math.nan):.2e}"),
+    ]
+    width = max(len(k) for k, _ in rows)
+    bar = "-" * (width + 40)
+    return [bar, *(f"{k:<{width}}  {v}" for k, v in rows), bar]
