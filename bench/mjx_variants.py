@@ -21,7 +21,7 @@ from mujoco import mjx
 
 from bar_policy.robot.mjcf import lite_xml
 
-BASE_OPT = 'iterations="6" ls_iterations="8"'
+BASE_OPT = 'iterations="3" ls_iterations="5"'
 
 
 def variant_xml(name: str) -> str:

@@ -19,7 +19,11 @@ stable for Kd = 2 N*m*s/rad by only ~3%. The env and the sim target therefore in
 implicitly through Euler's joint damping while applying exactly the firmware torque (docs/physics.md 3).
 
 Contacts are frictionless (condim 1): they only keep links apart (self-collision), and one constraint row
-per contact instead of four keeps MJX's solver small (nefc 82 instead of 244 per env).
+per contact instead of four keeps MJX's solver small (nefc 82 instead of 244 per env). The Newton solver
+is capped at 3 iterations (5 line-search steps): with frictionless contacts, joint limits and frictionloss it
+converges in 1-2 iterations, and the cap bounds MJX's batched while-loop (H100, batch 8192: 0.73M physics
+steps/s with condim 3 and 6 iterations, 1.26M with condim 1, 1.72M with condim 1 and 3 iterations;
+``bench/mjx_variants.py``, docs/benchmarks.md).
 
 Collision filtering: torso (chest, head) collides with both arms, and the arms collide with each other;
 links of one arm do not collide with each other (the joint limits keep them apart), and the chest does not
@@ -187,7 +191,7 @@ def lite_xml(mode: str = "arms") -> str:
 
     return f"""<mujoco model="lite_dummy_{mode}">
   <compiler angle="radian" autolimits="true"/>
-  <option timestep="{PHYSICS_DT}" integrator="Euler" iterations="6" ls_iterations="8"/>
+  <option timestep="{PHYSICS_DT}" integrator="Euler" iterations="3" ls_iterations="5"/>
   <visual><global offwidth="640" offheight="480"/></visual>
   <default><geom condim="1"/></default>
   <worldbody>
