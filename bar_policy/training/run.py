@@ -58,7 +58,13 @@ def init_distributed(cfg: TrainConfig) -> None:
 def resolve_run_dir(cfg: TrainConfig) -> Path:
     """``runs_dir/run_name``; an unnamed resume continues in the resumed run's directory."""
     if cfg.run_name:
-        return Path(cfg.runs_dir) / cfg.run_name
+        run_dir = Path(cfg.runs_dir) / cfg.run_name
+        if not cfg.resume and (run_dir / "metrics.jsonl").exists():
+            # Appending a second run to the same metrics.jsonl mixes two curves (seen on a reused machine).
+            raise ValueError(
+                f"run directory {run_dir} already holds a run; choose another --run-name or --resume it"
+            )
+        return run_dir
     if cfg.resume:
         p = Path(cfg.resume)
         if p.is_file():
