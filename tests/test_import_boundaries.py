@@ -12,7 +12,8 @@ import bar_policy.robot.kinematics, bar_policy.robot.mjcf
 mods = [m.name for m in pkgutil.walk_packages(bar_policy.deploy.__path__, "bar_policy.deploy.")]
 for name in mods:
     importlib.import_module(name)
-heavy = sorted(m for m in ("jax", "jaxlib", "torch", "brax", "flax", "onnx", "mujoco.mjx") if m in sys.modules)
+HEAVY = ("jax", "jaxlib", "torch", "brax", "flax", "onnx", "mujoco.mjx")
+heavy = sorted(m for m in HEAVY if m in sys.modules)
 print(len(mods), heavy)
 """
 

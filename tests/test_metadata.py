@@ -44,11 +44,11 @@ def test_round_trip_and_hc_keys() -> None:
 def test_missing_and_malformed_keys_are_named() -> None:
     props = make().to_props()
     del props["bar.obs_fingerprint"], props["lookahead_steps"]
-    with pytest.raises(MetadataError, match=r"lacks keys \['bar.obs_fingerprint', 'lookahead_steps'\]"):
+    with pytest.raises(MetadataError, match=r"lacks keys \['bar\.obs_fingerprint', 'lookahead_steps'\]"):
         PolicyMetadata.from_props(props)
     props = make().to_props()
     props["bar.joint_stiffness"] = '["a"]'
-    with pytest.raises(MetadataError, match="'bar.joint_stiffness' must be a list of numbers"):
+    with pytest.raises(MetadataError, match=r"'bar\.joint_stiffness' must be a list of numbers"):
         PolicyMetadata.from_props(props)
     props = make().to_props()
     props["bar.metadata_version"] = "7"

@@ -15,7 +15,7 @@ from bar_policy.robot.mit import decode_u16, encode_u16, firmware_torque, wire_r
 P = 4 * math.pi
 
 
-def cmd(q=0.0, dq=0.0, kp=0.0, kd=0.0, tau=0.0) -> MitCommand:  # noqa: ANN001
+def cmd(q=0.0, dq=0.0, kp=0.0, kd=0.0, tau=0.0) -> MitCommand:
     return MitCommand(*(np.array([x], dtype=np.float64) for x in (q, dq, kp, kd, tau)))
 
 
