@@ -27,7 +27,6 @@ from __future__ import annotations
 import json
 import os
 import subprocess
-import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,6 +37,7 @@ import onnx
 from onnx import TensorProto, helper, numpy_helper
 
 import bar_policy
+from bar_policy._files import write_atomic
 from bar_policy.deploy.metadata import PolicyMetadata
 
 __all__ = [
@@ -344,14 +344,7 @@ def export_policy(
     )
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".partial", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_atomic(path, data)
     return {
         "path": str(path),
         "max_abs_error": err,

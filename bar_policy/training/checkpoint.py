@@ -11,12 +11,13 @@ from __future__ import annotations
 import json
 import os
 import re
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from flax import serialization
+
+from bar_policy._files import write_atomic
 
 __all__ = ["Checkpoint", "latest_checkpoint", "load_checkpoint", "save_checkpoint"]
 
@@ -35,17 +36,6 @@ class Checkpoint:
     """Training iterations done so far."""
     path: Path
     """File it came from."""
-
-
-def _write_atomic(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".partial", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def save_checkpoint(
@@ -73,9 +63,9 @@ def save_checkpoint(
         "iteration": int(iteration),
     }
     path = directory / f"step_{int(env_steps):012d}.msgpack"
-    _write_atomic(path, serialization.msgpack_serialize(payload))
+    write_atomic(path, serialization.msgpack_serialize(payload))
     sidecar = {"env_steps": int(env_steps), "iteration": int(iteration), **(extra or {})}
-    _write_atomic(path.with_suffix(".json"), json.dumps(sidecar, indent=2, sort_keys=True).encode())
+    write_atomic(path.with_suffix(".json"), json.dumps(sidecar, indent=2, sort_keys=True).encode())
     return path
 
 
