@@ -54,40 +54,33 @@ def plot_log(path: str | Path, out_dir: str | Path | None = None) -> list[Path]:
     written = []
 
     rows, cols = _grid(n)
-    fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 1.8 * rows), sharex=True, squeeze=False)
-    for i, ax in enumerate(axes.flat):
-        if i >= n:
-            ax.set_visible(False)
-            continue
-        ax.plot(t, arrays["q"][:, i], label="q measured", lw=1.0)
-        ax.plot(t, arrays["q_cmd"][:, i], "--", label="q_cmd", lw=1.0)
-        ax.set_title(names[i], fontsize=8)
-        ax.tick_params(labelsize=7)
-    axes.flat[0].legend(fontsize=7)
-    fig.suptitle(f"joint positions (rad) - {title}", fontsize=9)
-    fig.supxlabel("t (s)", fontsize=8)
-    fig.subplots_adjust(left=0.05, right=0.98, top=0.93, bottom=0.06, hspace=0.45, wspace=0.15)
-    written.append(out / "joints.png")
-    fig.savefig(written[-1], dpi=80)
-    plt.close(fig)
 
-    fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 1.8 * rows), sharex=True, squeeze=False)
-    for i, ax in enumerate(axes.flat):
-        if i >= n:
-            ax.set_visible(False)
-            continue
-        ax.plot(t, arrays["tau"][:, i], label="tau measured/applied", lw=1.0)
-        if "tau_cmd" in arrays:
-            ax.plot(t, arrays["tau_cmd"][:, i], "--", label="tau of command", lw=1.0)
-        ax.set_title(names[i], fontsize=8)
-        ax.tick_params(labelsize=7)
-    axes.flat[0].legend(fontsize=7)
-    fig.suptitle(f"joint torques (N*m) - {title}", fontsize=9)
-    fig.supxlabel("t (s)", fontsize=8)
-    fig.subplots_adjust(left=0.05, right=0.98, top=0.93, bottom=0.06, hspace=0.45, wspace=0.15)
-    written.append(out / "torques.png")
-    fig.savefig(written[-1], dpi=80)
-    plt.close(fig)
+    def joint_grid(series: list[tuple[str, str, str]], label: str, filename: str) -> None:
+        """One panel per joint; ``series`` = (array key, line style, legend label), absent keys skipped."""
+        fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 1.8 * rows), sharex=True, squeeze=False)
+        for i, ax in enumerate(axes.flat):
+            if i >= n:
+                ax.set_visible(False)
+                continue
+            for key, style, legend in series:
+                if key in arrays:
+                    ax.plot(t, arrays[key][:, i], style, label=legend, lw=1.0)
+            ax.set_title(names[i], fontsize=8)
+            ax.tick_params(labelsize=7)
+        axes.flat[0].legend(fontsize=7)
+        fig.suptitle(f"{label} - {title}", fontsize=9)
+        fig.supxlabel("t (s)", fontsize=8)
+        fig.subplots_adjust(left=0.05, right=0.98, top=0.93, bottom=0.06, hspace=0.45, wspace=0.15)
+        written.append(out / filename)
+        fig.savefig(written[-1], dpi=80)
+        plt.close(fig)
+
+    joint_grid([("q", "-", "q measured"), ("q_cmd", "--", "q_cmd")], "joint positions (rad)", "joints.png")
+    joint_grid(
+        [("tau", "-", "tau measured/applied"), ("tau_cmd", "--", "tau of command")],
+        "joint torques (N*m)",
+        "torques.png",
+    )
 
     fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
     axes[0].plot(t, arrays["compute"] * 1e3, lw=0.8, label="compute (state->command)")

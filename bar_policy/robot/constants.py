@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import cache
 from importlib import resources
@@ -308,8 +308,3 @@ def _robot_data() -> dict[str, Any]:
 def load_robot(mode: str = "arms") -> RobotSpec:
     """The Lite joint set for ``mode`` (``arms``: 14 joints, ``arms_neck``: 17), from the packaged data."""
     return robot_from_ros2_control(_robot_data(), mode)
-
-
-def joint_names(mode: str = "arms") -> Sequence[str]:
-    """Canonical joint names of a mode."""
-    return load_robot(mode).joint_names

@@ -358,15 +358,7 @@ def train_brax(
             return
         k = jax.random.fold_in(key_eval, step)
         m = {k2: float(v) for k2, v in evaluate(jax.device_put(host_params(), local_devices[0]), k).items()}
-        m["time_s"] = logger.elapsed()
-        logger.log(step, m, kind="eval")
-        evals.append({"step": step, **m})
-        logger.print(
-            f"  eval @ {step:,} steps: success {100 * m['success_rate']:.1f}%, "
-            f"episode reward {m['episode_reward']:.2f}, final distance {100 * m['final_distance']:.2f} cm"
-        )
-        if not time_to_threshold and m["success_rate"] >= cfg.eval.success_threshold:
-            time_to_threshold.append(m["time_s"])
+        logger.record_eval(step, m, evals, time_to_threshold, cfg.eval.success_threshold)
 
     def checkpoint(step: int, it: int) -> None:
         if is_main and checkpoint_dir is not None:

@@ -90,6 +90,37 @@ class RunLogger:
         if kind == "eval":
             self.last_eval = clean
 
+    def record_eval(
+        self,
+        step: int,
+        metrics: dict[str, float],
+        evals: list[dict[str, float]],
+        time_to_threshold: list[float],
+        threshold: float,
+    ) -> None:
+        """Log, keep and print one evaluation; note the first time success reaches ``threshold``.
+
+        Args:
+            step: env steps so far.
+            metrics: the evaluation (``success_rate``, ``episode_reward``, optionally ``final_distance``, m);
+                ``time_s`` is added.
+            evals: the run's evaluation records, appended to.
+            time_to_threshold: empty until the threshold is first reached, then holds that time, s.
+            threshold: success rate that counts as solved (0..1).
+        """
+        metrics["time_s"] = self.elapsed()
+        self.log(step, metrics, kind="eval")
+        evals.append({"step": step, **metrics})
+        text = (
+            f"  eval @ {step:,} steps: success {100 * metrics['success_rate']:.1f}%, "
+            f"episode reward {metrics['episode_reward']:.2f}"
+        )
+        if "final_distance" in metrics:
+            text += f", final distance {100 * metrics['final_distance']:.2f} cm"
+        self.print(text)
+        if not time_to_threshold and metrics["success_rate"] >= threshold:
+            time_to_threshold.append(metrics["time_s"])
+
     def progress(self, step: int, sps: float, metrics: dict[str, float]) -> None:
         """Print the progress line for env step ``step`` at ``sps`` env steps/s."""
         if not self.enabled:

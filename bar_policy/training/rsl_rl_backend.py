@@ -302,15 +302,7 @@ def train_rsl_rl(
         module = alg.actor.as_onnx(verbose=False).to(device).eval()
         m = evaluate_torch_policy(lambda o: module(o), eval_env, episode_length, seed=cfg.seed + 1000 + step)
         alg.train_mode()
-        m["time_s"] = logger.elapsed()
-        logger.log(step, m, kind="eval")
-        evals.append({"step": step, **m})
-        logger.print(
-            f"  eval @ {step:,} steps: success {100 * m['success_rate']:.1f}%, "
-            f"episode reward {m['episode_reward']:.2f}"
-        )
-        if not ttt and m["success_rate"] >= cfg.eval.success_threshold:
-            ttt.append(m["time_s"])
+        logger.record_eval(step, m, evals, ttt, cfg.eval.success_threshold)
 
     def checkpoint(step: int, it: int) -> None:
         if checkpoint_dir is None:

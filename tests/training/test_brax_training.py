@@ -9,8 +9,8 @@ import numpy as np
 import onnx
 import onnxruntime as ort
 import pytest
-from conftest import TOY_BRAX, toy_config
 from flax import serialization
+from toy_configs import TOY_BRAX, toy_config
 
 from bar_policy.deploy.metadata import BAR_KEYS, HC_KEYS, PolicyMetadata
 from bar_policy.training.checkpoint import latest_checkpoint, load_checkpoint

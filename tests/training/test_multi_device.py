@@ -20,7 +20,7 @@ SCRIPT = textwrap.dedent(
     import jax
     assert jax.local_device_count() == 2, jax.devices()
     from toy_env import ToyReach
-    from conftest import toy_config
+    from toy_configs import toy_config
     from bar_policy.training.run import run
     cfg = toy_config({tmp!r}, "md", [
         "ppo.num_envs=64", "ppo.batch_size=64", "ppo.num_minibatches=4", "ppo.unroll_length=10",

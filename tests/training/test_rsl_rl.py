@@ -8,7 +8,7 @@ import numpy as np
 import onnx
 import pytest
 import torch
-from conftest import TOY_RSL, toy_config
+from toy_configs import TOY_RSL, toy_config
 
 from bar_policy.deploy.metadata import BAR_KEYS, HC_KEYS, PolicyMetadata
 from bar_policy.envs import wrap_for_brax_training
