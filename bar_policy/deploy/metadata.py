@@ -94,6 +94,12 @@ class PolicyMetadata:
     """bar_policy version and git commit that exported the file."""
     training: Mapping[str, Any] = field(default_factory=dict)
     """Free-form training record (backend, steps, evaluation)."""
+    body_names: tuple[str, ...] = ()
+    """Tracked bodies of a reference-tracking task (Humanoid Control ``body_names``); empty otherwise."""
+    lookahead_steps: int = 0
+    """Reference frames ahead that the observation holds (Humanoid Control ``lookahead_steps``)."""
+    dataset_repo_id: str = ""
+    """Id of the reference data the policy was trained on (Humanoid Control ``dataset_repo_id``)."""
 
     def __post_init__(self) -> None:
         n = len(self.joint_names)
@@ -114,6 +120,12 @@ class PolicyMetadata:
         values = (*self.joint_stiffness, *self.joint_damping, *self.default_joint_pos, *self.action_scale)
         if not all(math.isfinite(v) for v in values):
             raise MetadataError("gains, default pose and action scale must be finite")
+        if isinstance(self.lookahead_steps, bool) or not (
+            isinstance(self.lookahead_steps, int) and self.lookahead_steps >= 0
+        ):
+            raise MetadataError(f"lookahead_steps must be an integer >= 0, got {self.lookahead_steps!r}")
+        if any("," in n for n in self.body_names) or "," in self.dataset_repo_id:
+            raise MetadataError("body_names and dataset_repo_id must not contain commas (HC's CSV form)")
 
     # -- writing ---------------------------------------------------------------------------------------
     def to_props(self) -> dict[str, str]:
@@ -158,9 +170,9 @@ class PolicyMetadata:
                 "command_names": csv(self.command_names),
                 "action_scale": csv(self.action_scale),
                 "policy_dt": f"{self.policy_dt:.6g}",
-                "body_names": "",
-                "dataset_repo_id": "",
-                "lookahead_steps": "0",
+                "body_names": csv(self.body_names),
+                "dataset_repo_id": self.dataset_repo_id,
+                "lookahead_steps": str(self.lookahead_steps),
             }
         )
         return props
@@ -221,4 +233,15 @@ class PolicyMetadata:
             randomization=parsed["bar.randomization"],
             code_version=str(parsed["bar.code_version"]),
             training=parsed["bar.training"],
+            body_names=tuple(n for n in props["body_names"].split(",") if n),
+            lookahead_steps=_int_prop(props, "lookahead_steps"),
+            dataset_repo_id=props["dataset_repo_id"],
         )
+
+
+def _int_prop(props: Mapping[str, str], key: str) -> int:
+    """A non-negative integer HC key (``lookahead_steps``); refuses anything else naming the key."""
+    text = props[key].strip()
+    if not text.isdigit():
+        raise MetadataError(f"metadata key {key!r} must be a non-negative integer, got {props[key]!r}")
+    return int(text)

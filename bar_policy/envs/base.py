@@ -10,6 +10,15 @@
 Every env exposes pure ``reset(rng) -> State`` and ``step(state, action) -> State`` (unbatched; jit- and
 vmap-able), and model-explicit twins ``reset_with_model(model, rng)`` / ``step_with_model(model, state,
 action)`` that the domain-randomisation wrapper vmaps over a batch of randomised ``mjx.Model``s.
+
+The seam between a task and the trainers is three members, so that the training code never names a task:
+
+- ``task_name``: written to the policy file (``task_type`` / ``bar.task``).
+- ``eval_ratios(metrics)``: what an evaluation reports, as ``name -> (numerator, denominator)`` per step;
+  the evaluators sum both over steps and envs and report the ratio. ``success_rate`` is always present
+  (it drives time-to-threshold); reach adds ``final_distance`` (m).
+- ``task_metadata()``: the task's Humanoid Control keys (``body_names``, ``lookahead_steps``,
+  ``dataset_repo_id``) for the exported file.
 """
 
 from __future__ import annotations
@@ -21,7 +30,7 @@ import jax
 from flax import struct
 from mujoco import mjx
 
-__all__ = ["MjxEnv", "State"]
+__all__ = ["MjxEnv", "State", "eval_ratios"]
 
 
 @struct.dataclass
@@ -94,6 +103,24 @@ class MjxEnv(abc.ABC):
     def action_size(self) -> int:
         """Length of the action vector."""
 
+    task_name: str = "reach"
+    """Task name written to exported policy files (``task_type``)."""
+
+    def eval_ratios(self, metrics: dict[str, jax.Array]) -> dict[str, tuple[jax.Array, jax.Array]]:
+        """Evaluation counts of one step: ``name -> (numerator, denominator)``, same shapes as the metrics.
+
+        The default is reach's convention (see ``eval_ratios``); tasks override it.
+        """
+        return reach_eval_ratios(metrics)
+
+    def task_metadata(self) -> dict[str, Any]:
+        """Humanoid Control task keys for the policy file.
+
+        ``body_names`` (tuple of str), ``lookahead_steps`` (int) and ``dataset_repo_id`` (str); empty for
+        tasks without references.
+        """
+        return {}
+
     @property
     def unwrapped(self) -> MjxEnv:
         """The env itself (wrappers forward this, as brax's ``Wrapper.unwrapped`` expects)."""
@@ -103,3 +130,26 @@ class MjxEnv(abc.ABC):
     def backend(self) -> str:
         """Physics backend name (read by brax's ``Wrapper.backend``)."""
         return "mjx"
+
+
+def reach_eval_ratios(metrics: dict[str, jax.Array]) -> dict[str, tuple[jax.Array, jax.Array]]:
+    """Reach's evaluation: success at the end of each target segment, and the distance there.
+
+    ``success_rate`` = sum(``success_end``) / sum(``segment_end``); ``final_distance`` (m) = mean over
+    segment ends of the two hands' mean distance. A metrics dict without segment keys falls back to the
+    per-step ``success`` flag over all steps.
+    """
+    if "success_end" in metrics and "segment_end" in metrics:
+        seg = metrics["segment_end"]
+        out = {"success_rate": (metrics["success_end"], seg)}
+        if "dist_left" in metrics and "dist_right" in metrics:
+            out["final_distance"] = (0.5 * (metrics["dist_left"] + metrics["dist_right"]) * seg, seg)
+        return out
+    s = metrics["success"]
+    return {"success_rate": (s, s * 0 + 1)}
+
+
+def eval_ratios(env: Any, metrics: dict[str, jax.Array]) -> dict[str, tuple[jax.Array, jax.Array]]:
+    """``env.eval_ratios(metrics)`` when the env defines it, else reach's convention (stand-in envs)."""
+    fn = getattr(env, "eval_ratios", None)
+    return fn(metrics) if fn is not None else reach_eval_ratios(metrics)

@@ -285,6 +285,8 @@ _METRIC_KEYS = ("dist_left", "dist_right", "success", "success_end", "segment_en
 class LiteReach(MjxEnv):
     """Bimanual reach on the Lite upper body (see the module docstring for the exact semantics)."""
 
+    task_name = "reach"
+
     def __init__(self, config: ReachEnvConfig | None = None) -> None:
         cfg = config or default_config()
         self.config = cfg

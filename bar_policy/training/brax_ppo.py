@@ -6,7 +6,7 @@ policy), its loss (``compute_ppo_loss`` with GAE), its running observation stati
 SGD passes, gradients averaged over devices with ``pmean``). The loop around them is ours, for what
 ``ppo.train`` cannot give: checkpoints with the optimizer state and step count (exact resume), progress
 lines with success rate and ETA between evaluations, a wall-clock budget, and evaluation of the reach
-success rate (sum of ``success_end`` / sum of ``segment_end``) on fresh seeds with randomisation on.
+success rate (the task's ``eval_ratios``) on fresh seeds with randomisation on.
 
 Data parallelism: the training epoch is ``jax.pmap``-ed over the local devices (``num_envs`` and
 ``batch_size`` split evenly); under ``jax.distributed`` the same ``pmap`` spans every process's devices
@@ -33,6 +33,7 @@ from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import networks as ppo_networks
 from flax import linen
 
+from bar_policy.envs.base import eval_ratios
 from bar_policy.training.checkpoint import load_checkpoint, save_checkpoint
 from bar_policy.training.config import NetworkConfig, TrainConfig
 from bar_policy.training.progress import RunLogger
@@ -120,14 +121,6 @@ def make_networks(
     )
 
 
-def _success_counts(metrics: dict[str, jax.Array]) -> tuple[jax.Array, jax.Array]:
-    """(successes, opportunities) of one step: reach's segment-end success, else the per-step flag."""
-    if "success_end" in metrics and "segment_end" in metrics:
-        return metrics["success_end"], metrics["segment_end"]
-    s = metrics.get("success", jnp.zeros_like(next(iter(metrics.values()))))
-    return s, jnp.ones_like(s)
-
-
 def make_evaluator(
     eval_env: Any, make_policy: Callable[..., Any], episode_length: int, num_envs: int
 ) -> Callable[[Any, jax.Array], dict[str, jax.Array]]:
@@ -140,30 +133,27 @@ def make_evaluator(
         num_envs: episodes per call.
 
     Returns:
-        ``evaluate(params, key) -> {"success_rate", "episode_reward", "episode_reward_std",
-        "final_distance"}`` (device scalars). Success rate = sum of successes / sum of opportunities
-        over all episodes (see ``_success_counts``).
+        ``evaluate(params, key) -> {"episode_reward", "episode_reward_std", <ratio>...}`` (device
+        scalars), one ratio per entry of the task's ``eval_ratios`` (``success_rate`` always): the sums of
+        its numerators over all steps and episodes divided by the sums of its denominators.
     """
+    task = eval_env.unwrapped
 
     def evaluate(params: Any, key: jax.Array) -> dict[str, jax.Array]:
         policy = make_policy(params, deterministic=True)
         state = eval_env.reset(jax.random.split(key, num_envs))
 
-        def step(s: Any, _: None) -> tuple[Any, tuple[jax.Array, ...]]:
+        def step(s: Any, _: None) -> tuple[Any, tuple[Any, ...]]:
             action, _ = policy(s.obs, key)
             ns = eval_env.step(s, action)
-            num, den = _success_counts(ns.metrics)
-            dist = 0.5 * (ns.metrics.get("dist_left", 0.0) + ns.metrics.get("dist_right", 0.0))
-            return ns, (ns.reward, num, den, dist * den)
+            sums = {k: (n.sum(), d.sum()) for k, (n, d) in eval_ratios(task, ns.metrics).items()}
+            return ns, (ns.reward, sums)
 
-        _, (rew, num, den, dist) = jax.lax.scan(step, state, None, length=episode_length)
+        _, (rew, sums) = jax.lax.scan(step, state, None, length=episode_length)
         ret = rew.sum(axis=0)
-        return {
-            "success_rate": num.sum() / jnp.maximum(den.sum(), 1.0),
-            "episode_reward": ret.mean(),
-            "episode_reward_std": ret.std(),
-            "final_distance": dist.sum() / jnp.maximum(den.sum(), 1.0),
-        }
+        out = {"episode_reward": ret.mean(), "episode_reward_std": ret.std()}
+        out.update({k: n.sum() / jnp.maximum(d.sum(), 1.0) for k, (n, d) in sums.items()})
+        return out
 
     return jax.jit(evaluate)
 
@@ -287,7 +277,7 @@ def train_brax(
             kk, k_act = jax.random.split(kk)
             action, extras = policy(s.obs, k_act)
             ns = train_env.step(s, action)
-            num, den = _success_counts(ns.metrics)
+            num, den = eval_ratios(env, ns.metrics)["success_rate"]
             tr = types.Transition(
                 observation=s.obs,
                 action=action,

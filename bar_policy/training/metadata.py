@@ -41,7 +41,7 @@ def _jsonable(x: Any) -> Any:
 
 
 def policy_metadata(
-    env: Any, *, task: str = "reach", training: Mapping[str, Any] | None = None
+    env: Any, *, task: str | None = None, training: Mapping[str, Any] | None = None
 ) -> PolicyMetadata:
     """Metadata for a policy trained on ``env`` (a ``bar_policy.envs`` env).
 
@@ -52,14 +52,15 @@ def policy_metadata(
 
     Args:
         env: the (unwrapped) training env.
-        task: task name written to ``task_type`` / ``bar.task``.
+        task: task name written to ``task_type`` / ``bar.task`` (default: ``env.task_name``, else reach).
         training: free-form training record (backend, steps, evaluation, config).
     """
     om = env.obs_manager
     schema = om.schema
     cfg = getattr(env, "config", None)
+    extra = env.task_metadata() if hasattr(env, "task_metadata") else {}
     return PolicyMetadata(
-        task=task,
+        task=task or getattr(env, "task_name", "reach"),
         robot=schema.robot,
         mode=schema.mode,
         joint_names=tuple(schema.joint_names),
@@ -77,4 +78,7 @@ def policy_metadata(
         randomization=randomization_record(cfg) if cfg is not None else {},
         code_version=code_version(),
         training=_jsonable(dict(training or {})),
+        body_names=tuple(extra.get("body_names", ())),
+        lookahead_steps=int(extra.get("lookahead_steps", 0)),
+        dataset_repo_id=str(extra.get("dataset_repo_id", "")),
     )

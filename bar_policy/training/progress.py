@@ -102,8 +102,8 @@ class RunLogger:
 
         Args:
             step: env steps so far.
-            metrics: the evaluation (``success_rate``, ``episode_reward``, optionally ``final_distance``, m);
-                ``time_s`` is added.
+            metrics: the evaluation (``success_rate``, ``episode_reward``, optionally ``final_distance``, m,
+                and the task's other ratios); ``time_s`` is added.
             evals: the run's evaluation records, appended to.
             time_to_threshold: empty until the threshold is first reached, then holds that time, s.
             threshold: success rate that counts as solved (0..1).
@@ -117,6 +117,9 @@ class RunLogger:
         )
         if "final_distance" in metrics:
             text += f", final distance {100 * metrics['final_distance']:.2f} cm"
+        for k, v in metrics.items():
+            if k not in ("success_rate", "episode_reward", "episode_reward_std", "final_distance", "time_s"):
+                text += f", {k} {v:.4g}"
         self.print(text)
         if not time_to_threshold and metrics["success_rate"] >= threshold:
             time_to_threshold.append(metrics["time_s"])

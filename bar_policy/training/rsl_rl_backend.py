@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from bar_policy.envs.base import eval_ratios
 from bar_policy.export import MlpPolicy, export_policy
 from bar_policy.training.checkpoint import latest_checkpoint, save_checkpoint
 from bar_policy.training.config import TrainConfig
@@ -178,30 +179,24 @@ def evaluate_torch_policy(
 ) -> dict[str, float]:
     """Deterministic evaluation on ``vec_env`` (one episode per env from a fresh reset with ``seed``).
 
-    Success rate = sum of ``success_end`` / sum of ``segment_end`` (reach), else the mean ``success``.
+    Reports ``episode_reward`` (mean and std) and one ratio per entry of the task's ``eval_ratios``
+    (``success_rate`` always): sums of numerators over steps and envs / sums of denominators.
     """
     vec_env.reset_all(seed=seed)
     obs = vec_env.get_observations()
     ret = torch.zeros(vec_env.num_envs, device=vec_env.device)
-    num = den = dist = 0.0
+    sums: dict[str, list[float]] = {}
     with torch.inference_mode():
         for _ in range(episode_length):
             obs, rew, _, _ = vec_env.step(policy(obs["policy"]))
             ret += rew
-            m = vec_env.metrics
-            if "success_end" in m and "segment_end" in m:
-                n_i, d_i = float(m["success_end"].sum()), float(m["segment_end"].sum())
-            else:
-                n_i, d_i = float(m["success"].sum()), float(m["success"].size)
-            num, den = num + n_i, den + d_i
-            if "dist_left" in m and "segment_end" in m:
-                dist += float((0.5 * (m["dist_left"] + m["dist_right"]) * m["segment_end"]).sum())
-    return {
-        "success_rate": num / max(den, 1.0),
-        "episode_reward": float(ret.mean()),
-        "episode_reward_std": float(ret.std()),
-        "final_distance": dist / max(den, 1.0),
-    }
+            for k, (n, d) in eval_ratios(vec_env.task, vec_env.metrics).items():
+                acc = sums.setdefault(k, [0.0, 0.0])
+                acc[0] += float(n.sum())
+                acc[1] += float(d.sum())
+    out = {"episode_reward": float(ret.mean()), "episode_reward_std": float(ret.std())}
+    out.update({k: n / max(d, 1.0) for k, (n, d) in sums.items()})
+    return out
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -328,11 +323,10 @@ def train_rsl_rl(
                 actions = alg.act(obs)
                 obs, rewards, dones, extras = vec_env.step(actions)
                 alg.process_env_step(obs, rewards, dones, extras)
-                m = vec_env.metrics
                 rew_sum += float(rewards.sum())
-                if "success_end" in m:
-                    num += float(m["success_end"].sum())
-                    den += float(m["segment_end"].sum())
+                n_s, d_s = eval_ratios(vec_env.task, vec_env.metrics)["success_rate"]
+                num += float(n_s.sum())
+                den += float(d_s.sum())
             alg.compute_returns(obs)
         losses = alg.update()
         iteration += 1

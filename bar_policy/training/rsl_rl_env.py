@@ -65,6 +65,8 @@ class RslRlVecEnv(VecEnv):
         device: str | None = None,
     ) -> None:
         self.num_envs = int(num_envs)
+        self.task = env
+        """The unwrapped env (its ``eval_ratios`` define the evaluation)."""
         self.num_actions = int(env.action_size)
         self.num_obs = int(env.observation_size)
         self.max_episode_length = int(env.episode_length)

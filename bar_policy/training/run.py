@@ -182,7 +182,7 @@ def run(cfg: TrainConfig, *, env_config: Any | None = None, env: Any | None = No
         from bar_policy.training.metadata import policy_metadata
 
         onnx_path = Path(cfg.onnx_path) if cfg.onnx_path else run_dir / "policy.onnx"
-        meta = policy_metadata(env, task="reach", training=training_record)
+        meta = policy_metadata(env, training=training_record)
         export = result.export_onnx(meta, onnx_path)
     wall = time.monotonic() - t0
     final_record = {
@@ -228,7 +228,16 @@ def summary_table(s: RunSummary, cfg: TrainConfig) -> list[str]:
         (f"time to {thr} eval success", ttt),
         ("final success rate", f"{100 * s.final_eval.get('success_rate', math.nan):.2f}%"),
         ("final episode reward", f"{s.final_eval.get('episode_reward', math.nan):.2f}"),
-        ("final fingertip distance", f"{100 * s.final_eval.get('final_distance', math.nan):.2f} cm"),
+        *(
+            [("final fingertip distance", f"{100 * s.final_eval['final_distance']:.2f} cm")]
+            if "final_distance" in s.final_eval
+            else []
+        ),
+        *(
+            (f"final {k}", f"{v:.4g}")
+            for k, v in s.final_eval.items()
+            if k not in ("success_rate", "episode_reward", "episode_reward_std", "final_distance", "episodes")
+        ),
         ("ONNX", str(s.onnx_path) if s.onnx_path else "not exported"),
         ("parity max abs error", f"{s.export.get('max_abs_error', math.nan):.2e}"),
     ]
