@@ -21,6 +21,7 @@ import can
 import numpy as np
 
 from bar_policy.deploy.robstride import protocol as proto
+from bar_policy.deploy.robstride.canbus import down_hint
 from bar_policy.deploy.robstride.errors import (
     FaultError,
     InitializationError,
@@ -60,9 +61,13 @@ class MotorConfig:
     """Torque cap written to 0x700B at activation, N*m; 0 skips the write."""
     current_limit: float = 0.0
     """Current cap written to 0x7018 at activation, A; 0 skips the write."""
+    can_timeout: float = proto.DEFAULT_CAN_TIMEOUT
+    """CAN watchdog written to canTimeout (0x7028) at activation, s: the motor disables itself when no frame
+    reaches it for this long. 0 skips the write (the motor keeps its own setting). See ``watchdog``."""
 
     def __post_init__(self) -> None:
         robstride_spec(self.model)
+        proto.check_can_timeout(self.can_timeout, f"{self.name}: can_timeout")
         if self.direction not in (-1, 1):
             raise ValueError(f"{self.name}: direction must be +1 or -1, got {self.direction!r}")
         if not 0 < self.can_id < 128:
@@ -159,13 +164,19 @@ class RobstrideBus:
     # ----------------------------------------------------------------------------------------------
     # raw I/O
     def send(self, frame: proto.Frame) -> None:
-        """Send one extended frame, retrying briefly on a full TX queue (ENOBUFS)."""
+        """Send one extended frame, retrying briefly on a full TX queue (ENOBUFS).
+
+        An interface that is down or gone fails at once, with the command that brings it up.
+        """
         msg = can.Message(arbitration_id=frame[0], data=frame[1], is_extended_id=True)
         for attempt in range(_SEND_RETRIES):
             try:
                 self.bus.send(msg)
                 return
             except can.CanOperationError as exc:
+                hint = down_hint(exc.error_code, self.interface)
+                if hint is not None:
+                    raise OperationError(f"{self.interface}: cannot send: {hint}") from exc
                 if attempt == _SEND_RETRIES - 1:
                     raise OperationError(f"{self.interface}: cannot send {frame!r}: {exc}") from exc
                 time.sleep(_SEND_RETRY_SLEEP)
@@ -175,7 +186,8 @@ class RobstrideBus:
         try:
             msg = self.bus.recv(timeout=max(timeout, 0.0))
         except can.CanError as exc:  # interface down, socket error
-            raise OperationError(f"{self.interface}: receive failed: {exc}") from exc
+            hint = down_hint(getattr(exc, "error_code", None), self.interface)
+            raise OperationError(f"{self.interface}: receive failed: {hint or exc}") from exc
         if msg is None:
             return None
         if msg.is_error_frame or msg.is_remote_frame:
