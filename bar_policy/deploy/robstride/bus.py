@@ -39,6 +39,8 @@ log = logging.getLogger(__name__)
 
 DEFAULT_REPLY_TIMEOUT = 0.003
 """Reply deadline of one round, s (see the module docstring)."""
+DEFAULT_PARAM_TIMEOUT = 0.05
+"""Shortest deadline of a parameter exchange, s (lerobot waits 20 ms for reads; section 7)."""
 _SEND_RETRIES = 20
 _SEND_RETRY_SLEEP = 0.0002
 
@@ -120,6 +122,8 @@ class RobstrideBus:
         self.interface = interface
         self.host_id = host_id
         self.reply_timeout = reply_timeout
+        self.param_timeout = max(DEFAULT_PARAM_TIMEOUT, reply_timeout)
+        """Deadline of one parameter read or write, s: 50 ms, or the round deadline when that is longer."""
         self.ids = tuple(ids)
         self.models = {m.can_id: m.model for m in motors}
         self._index = {m.can_id: i for i, m in enumerate(motors)}
@@ -259,14 +263,17 @@ class RobstrideBus:
         return dict(sorted(found.items()))
 
     def read_param(
-        self, can_id: int, index: int, *, dtype: str | None = None, timeout: float = 0.05
+        self, can_id: int, index: int, *, dtype: str | None = None, timeout: float | None = None
     ) -> float | int:
-        """Read a parameter (type 17); raises ``OperationError`` when the motor reports failure."""
+        """Read a parameter (type 17); ``OperationError`` when the motor reports failure.
+
+        The deadline is ``timeout``, or ``param_timeout`` when None.
+        """
         frame = proto.read_param_frame(can_id, index, self.host_id)
         reply = self.request(
             frame,
             lambda r: isinstance(r, proto.ParamReply) and r.motor_id == can_id and r.index == index,
-            timeout,
+            self.param_timeout if timeout is None else timeout,
         )
         if not isinstance(reply, proto.ParamReply):  # pragma: no cover - guaranteed by the match
             raise OperationError(f"unexpected reply {reply!r}")
@@ -278,11 +285,24 @@ class RobstrideBus:
         return reply.value(dtype)
 
     def write_param(
-        self, can_id: int, index: int, value: float | int, *, dtype: str | None = None, timeout: float = 0.05
+        self,
+        can_id: int,
+        index: int,
+        value: float | int,
+        *,
+        dtype: str | None = None,
+        timeout: float | None = None,
     ) -> None:
-        """Write a parameter (type 18, volatile) and wait for the motor's type-2 acknowledgement."""
+        """Write a parameter (type 18, volatile) and wait for the motor's type-2 acknowledgement.
+
+        The deadline is ``timeout``, or ``param_timeout`` when None.
+        """
         frame = proto.write_param_frame(can_id, index, value, dtype=dtype, host_id=self.host_id)
-        self.request(frame, lambda r: isinstance(r, proto.Feedback) and r.motor_id == can_id, timeout)
+        self.request(
+            frame,
+            lambda r: isinstance(r, proto.Feedback) and r.motor_id == can_id,
+            self.param_timeout if timeout is None else timeout,
+        )
 
     # ----------------------------------------------------------------------------------------------
     # activation checks

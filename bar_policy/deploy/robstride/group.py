@@ -232,13 +232,14 @@ class RobstrideGroup:
         limit_margin: float = 0.3,
         dry_run: bool = False,
         damping_kd: float = 1.0,
+        scan_timeout: float = 0.05,
     ) -> BusReading:
         """The safety sequence up to enabling (module docstring). Returns the reading after enabling.
 
         With ``dry_run`` it stops after the checks (nothing written, nothing enabled). On any failure after
         the first enable frame it sends damping then stop frames before raising.
         """
-        self.scan_and_verify(scan_ids)
+        self.scan_and_verify(scan_ids, timeout=scan_timeout)
         for bus in self.buses:
             bus.verify_models()
             read_can_timeouts(bus)  # old firmware without canTimeout is refused before anything is written

@@ -146,7 +146,7 @@ def _calibrate(args: argparse.Namespace) -> int:
                 robot, open_can_buses(args.interface, channels), reply_timeout=args.timeout, can_timeout=0.0
             )
             try:
-                group.scan_and_verify(range(1, 128))
+                group.scan_and_verify(range(1, 128), timeout=args.timeout)
                 d = robot.direction
                 print("Motors are disabled. Move each joint to both mechanical stops, then Ctrl+C to save.",
                       flush=True)  # fmt: skip
