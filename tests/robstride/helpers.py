@@ -61,15 +61,19 @@ class Child:
         )
         self.lines: queue.Queue[str] = queue.Queue()
         self.out: list[str] = []
-        self.err = ""
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
+        self._err: list[str] = []
+        self._readers = [
+            threading.Thread(target=self._read, args=(self.proc.stdout, self.out, True), daemon=True),
+            threading.Thread(target=self._read, args=(self.proc.stderr, self._err, False), daemon=True),
+        ]
+        for t in self._readers:
+            t.start()
 
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.out.append(line)
-            self.lines.put(line)
+    def _read(self, stream, sink: list[str], notify: bool) -> None:
+        for line in stream:
+            sink.append(line)
+            if notify:
+                self.lines.put(line)
 
     def wait_for(self, text: str, timeout: float = 60.0) -> None:
         """Block until a stdout line contains ``text``; fails with the child's stderr otherwise."""
@@ -85,10 +89,11 @@ class Child:
         raise AssertionError(f"no line with {text!r}; stdout {self.out}; stderr {self.finish()[1]}")
 
     def finish(self, timeout: float = 60.0) -> tuple[int, str]:
-        """Wait for the exit; returns (status, stderr)."""
-        _, self.err = self.proc.communicate(timeout=timeout)
-        self._reader.join(timeout=5)
-        return self.proc.returncode, self.err
+        """Wait for the exit and the end of both streams; returns (status, stderr)."""
+        self.proc.wait(timeout=timeout)
+        for t in self._readers:
+            t.join(timeout=5)
+        return self.proc.returncode, "".join(self._err)
 
     def kill(self) -> None:
         if self.proc.poll() is None:
