@@ -171,6 +171,7 @@ class RobstrideEmulator:
         if unknown:
             raise ValueError(f"unknown joints {unknown}; joints: {list(robot.joint_names)}")
         self.motors: dict[tuple[str, int], _Motor] = {}
+        self._by_interface: dict[str, list[_Motor]] = {}
         for j in robot.joints:
             if j.name in absent:
                 continue
@@ -222,6 +223,7 @@ class RobstrideEmulator:
             "<Q", 0x5253000000000000 | (zlib.crc32(m.interface.encode()) & 0xFFFF) << 8 | m.can_id
         )
         self.motors[(m.interface, m.can_id)] = m
+        self._by_interface.setdefault(m.interface, []).append(m)
 
     # ----------------------------------------------------------------------------------------------
     # lifecycle
@@ -439,14 +441,15 @@ class RobstrideEmulator:
             bus.send(msg)
 
     def _serve(self, interface: str, bus: can.BusABC) -> None:
+        wait = 0.0
         while not self._stop.is_set():
             try:
-                msg = bus.recv(timeout=self._next_watchdog(interface))
+                msg = bus.recv(timeout=wait)
             except can.CanError:
                 return
             arrival = (msg.timestamp or self.clock()) if msg is not None else self.clock()
-            with self._lock:
-                self._check_watchdogs(interface, arrival)
+            with self._lock:  # trip what expired before this frame arrived; sleep at most to the next expiry
+                wait = self._watchdog_pass(interface, arrival)
             if msg is None or msg.is_error_frame or msg.is_remote_frame:
                 continue
             try:
@@ -460,6 +463,8 @@ class RobstrideEmulator:
                 if m is not None:
                     m.last_rx = arrival
                     self._handle(m, req)
+                    if m.enabled and (w := self._window(m)) > 0:  # (re)armed by this frame
+                        wait = min(wait, max(arrival + w - self.clock(), 0.0))
 
     # ----------------------------------------------------------------------------------------------
     # the watchdog (canTimeout)
@@ -467,32 +472,29 @@ class RobstrideEmulator:
         """Watchdog window of ``m``, s; 0 when off."""
         return int(m.params.get(proto.PARAM_CAN_TIMEOUT, 0)) * self.watchdog_tick
 
-    def _next_watchdog(self, interface: str) -> float:
-        """Seconds until the next armed watchdog on ``interface`` expires (at most 50 ms: the stop poll)."""
-        wait = 0.05
-        now = self.clock()
-        for m in self.motors.values():
-            if m.enabled and m.interface == interface and (w := self._window(m)) > 0:
-                wait = min(wait, m.last_rx + w - now)
-        return max(wait, 0.0)
+    def _watchdog_pass(self, interface: str, now: float) -> float:
+        """Trip every enabled motor on ``interface`` that heard nothing for its window before ``now``.
 
-    def _check_watchdogs(self, interface: str, now: float) -> None:
-        """Trip every enabled motor on ``interface`` that heard nothing for its window before ``now``."""
-        for m in self.motors.values():
-            if not (m.enabled and m.interface == interface):
+        Returns the seconds until the next armed watchdog expires (at most 50 ms, the stop poll).
+        """
+        wait, clock = 0.05, self.clock()
+        for m in self._by_interface.get(interface, ()):
+            if not m.enabled or (w := self._window(m)) <= 0:
                 continue
-            w = self._window(m)
-            if w > 0 and now - m.last_rx >= w:
-                trip = self.clock()
-                m.enabled = False
-                m.cmd = (0.0, 0.0, 0.0, 0.0, 0.0)
-                m.watchdog_trips.append((m.last_rx, trip))
-                self._commanded.discard((m.interface, m.can_id))
-                log.info(
-                    "%s id %d (%s): canTimeout %.3f s expired (%.3f s since the last frame): reset mode",
-                    m.interface, m.can_id, m.name, w, trip - m.last_rx,
-                )  # fmt: skip
-                self._maybe_complete_round()
+            if now - m.last_rx < w:
+                wait = min(wait, m.last_rx + w - clock)
+                continue
+            trip = self.clock()
+            m.enabled = False
+            m.cmd = (0.0, 0.0, 0.0, 0.0, 0.0)
+            m.watchdog_trips.append((m.last_rx, trip))
+            self._commanded.discard((m.interface, m.can_id))
+            log.info(
+                "%s id %d (%s): canTimeout %.3f s expired (%.3f s since the last frame): reset mode",
+                m.interface, m.can_id, m.name, w, trip - m.last_rx,
+            )  # fmt: skip
+            self._maybe_complete_round()
+        return max(wait, 0.0)
 
     def _handle(self, m: _Motor, req: proto.Request) -> None:
         if isinstance(req, proto.MitRequest):
