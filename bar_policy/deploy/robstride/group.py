@@ -301,6 +301,7 @@ class RobstrideGroup:
         One bus failing to send never keeps the frames off another. None when no bus could send.
         """
         sent: list[tuple[int, float]] = []
+        self.last_sent = time.perf_counter()
         for b, (bus, f) in enumerate(zip(self.buses, frames, strict=True)):
             try:
                 sent.append((b, bus.send_round(f)))
