@@ -137,3 +137,22 @@ def test_nothing_swept_writes_nothing(tmp_path, channels, make_emulator, capsys)
                  "--timeout", "0.5", "--duration", "0.2"])  # fmt: skip
     assert code == 1 and not out.exists()
     assert "no joint was swept by 0.5 rad or more" in capsys.readouterr().err
+
+
+def test_watchdog_probe_stopped_by_sigterm_damps_then_stops(channels, listeners, make_emulator):
+    emu = make_emulator()
+    with SocketcandBridge(channels) as bridge:
+        child = Child(["bar-bus", "watchdog", "--interface", "virtual", "--iface", "can0", "--id", "11",
+                       "--timeout", "0.5", "--silences", "0.3,0.3,0.3,0.3"], bridge.port)  # fmt: skip
+        try:
+            child.wait_for("probing silences")
+            time.sleep(0.2)
+            os.kill(child.proc.pid, signal.SIGTERM)
+            code, err = child.finish()
+        finally:
+            child.kill()
+    assert code == 128 + signal.SIGTERM, err  # cut short: not the documented finish
+    assert "stopped by SIGTERM received before the end; damping and stop frames sent" in "".join(child.out)
+    assert_ends_with_damping_then_stop(listeners["can0"], [11])
+    assert listeners["can1"].host_frames() == []
+    assert not any(emu.enabled().values())

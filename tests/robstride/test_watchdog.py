@@ -81,6 +81,7 @@ def test_activation_arms_every_motor_before_enabling(robot, channels, listeners,
     caplog.set_level(logging.INFO, logger="bar_policy.deploy.robstride")
     with make_target(robot, channels) as target:
         target.write_command(_hold(robot, target.read_state().q))
+    assert target.can_timeout == 0.2
     for iface, ids in (("can0", LEFT), ("can1", RIGHT)):
         frames = listeners[iface].collect()
         writes = [
@@ -101,6 +102,7 @@ def test_zero_skips_the_watchdog_entirely(robot, channels, listeners, make_emula
     caplog.set_level(logging.INFO, logger="bar_policy.deploy.robstride")
     with make_target(robot, channels, group_kw={"can_timeout": 0.0}) as target:
         target.write_command(_hold(robot, target.read_state().q))
+    assert target.can_timeout == 0.0
     for lst in listeners.values():
         lst.collect()
         assert _watchdog_frames(lst, 17) == [] and _watchdog_frames(lst, 18) == []

@@ -91,6 +91,11 @@ class RealTarget(Target):
         self._reading: BusReading | None = None
         self._closed = False
 
+    @property
+    def can_timeout(self) -> float:
+        """The CAN watchdog armed at ``start()``, s (0: the motors keep their own); for run metadata."""
+        return min((m.can_timeout for bus in self.group.buses for m in bus.motors), default=0.0)
+
     # ----------------------------------------------------------------------------------------------
     def start(self) -> None:
         """Scan, verify, write caps, enable and hold damping (or only check, in a dry run).
