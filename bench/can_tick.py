@@ -3,9 +3,10 @@
     python bench/can_tick.py [--ticks 2000] [--mode realtime|lockstep|both]
 
 A tick = ``RobstrideGroup.exchange_mit``: 7 MIT frames out and 7 type-2 replies in on each of the two
-buses (14 + 14), through python-can ``virtual`` buses to the in-process emulator (its threads answer; in
-realtime mode a third thread steps MuJoCo at 500 Hz; in lockstep mode every tick also runs 20 ms of physics
-before the replies, so that number includes 10 physics steps).
+buses (14 + 14), with every motor's CAN watchdog armed (0.2 s) as activation arms it, through python-can
+``virtual`` buses to the in-process emulator (its threads answer; in realtime mode a third thread steps
+MuJoCo at 500 Hz; in lockstep mode every tick also runs 20 ms of physics before the replies, so that number
+includes 10 physics steps).
 
 The wire limit is computed from the tick's actual frames: each extended 8-byte frame is laid out bit by
 bit (SOF, 29-bit id with SRR/IDE, RTR, r1, r0, DLC, data, CRC-15), stuffed (a complement bit after 5
@@ -24,6 +25,7 @@ import numpy as np
 
 from bar_policy.deploy.robstride.emulator import RobstrideEmulator
 from bar_policy.deploy.robstride.group import RobstrideGroup
+from bar_policy.deploy.robstride.watchdog import arm_can_timeout
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.mit import MitCommand
 
@@ -69,6 +71,8 @@ def bench(mode: str, ticks: int) -> dict[str, float]:
     buses = {i: can.Bus(interface="virtual", channel=c) for i, c in channels.items()}
     group = RobstrideGroup.from_robot(robot, buses, reply_timeout=0.05)
     try:
+        for bus in group.buses:  # as activation does: the emulator then checks every motor's watchdog
+            arm_can_timeout(bus)
         group.enable()
         cmd = MitCommand.position(robot.pose("arms_hanging"), robot.kp, robot.kd)
         for _ in range(50):  # warm up

@@ -1,15 +1,20 @@
 """Robstride actuators over python-can: protocol codec, bus layer, safety sequence, emulator and tools.
 
-Layers (style.md item 15): ``framing`` + ``protocol`` (pure bytes <-> messages), ``bus`` (one CAN
-interface, injected ``can.BusABC``), ``group`` (both arms as one flat joint list, activation and
-damping-then-stop), ``calibration`` (homing offsets), ``emulator`` (MuJoCo-backed motors on a bus; imported
-on demand), ``tools`` (``bar-bus``). The deploy target is ``bar_policy.deploy.targets.real.RealTarget``.
+Layers (style.md item 15): ``framing`` + ``protocol`` (pure bytes <-> messages), ``canbus`` (opening
+python-can buses, ``BusOpenError`` with a one-line fix), ``bus`` (one CAN interface, injected
+``can.BusABC``), ``group`` (both arms as one flat joint list, activation and damping-then-stop),
+``watchdog`` (the motors' CAN watchdog canTimeout), ``calibration`` (homing offsets), ``emulator``
+(MuJoCo-backed motors on a bus; imported on demand), ``tools`` (``bar-bus``). The deploy target is
+``bar_policy.deploy.targets.real.RealTarget``.
 """
 
 from bar_policy.deploy.robstride.bus import BusReading, MotorConfig, RobstrideBus
 from bar_policy.deploy.robstride.calibration import Calibration, JointCalibration, homing_offset
+from bar_policy.deploy.robstride.canbus import open_can_bus
 from bar_policy.deploy.robstride.errors import (
+    BusOpenError,
     CommandError,
+    DisabledError,
     FaultError,
     FrameError,
     InitializationError,
@@ -21,9 +26,11 @@ from bar_policy.deploy.robstride.errors import (
 from bar_policy.deploy.robstride.group import RobstrideGroup
 
 __all__ = [
+    "BusOpenError",
     "BusReading",
     "Calibration",
     "CommandError",
+    "DisabledError",
     "FaultError",
     "FrameError",
     "InitializationError",
@@ -36,4 +43,5 @@ __all__ = [
     "TimeoutError",
     "UnexpectedDeviceError",
     "homing_offset",
+    "open_can_bus",
 ]

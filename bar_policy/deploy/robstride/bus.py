@@ -21,6 +21,7 @@ import can
 import numpy as np
 
 from bar_policy.deploy.robstride import protocol as proto
+from bar_policy.deploy.robstride.canbus import down_hint
 from bar_policy.deploy.robstride.errors import (
     FaultError,
     InitializationError,
@@ -38,6 +39,8 @@ log = logging.getLogger(__name__)
 
 DEFAULT_REPLY_TIMEOUT = 0.003
 """Reply deadline of one round, s (see the module docstring)."""
+DEFAULT_PARAM_TIMEOUT = 0.05
+"""Shortest deadline of a parameter exchange, s (lerobot waits 20 ms for reads; section 7)."""
 _SEND_RETRIES = 20
 _SEND_RETRY_SLEEP = 0.0002
 
@@ -60,9 +63,13 @@ class MotorConfig:
     """Torque cap written to 0x700B at activation, N*m; 0 skips the write."""
     current_limit: float = 0.0
     """Current cap written to 0x7018 at activation, A; 0 skips the write."""
+    can_timeout: float = proto.DEFAULT_CAN_TIMEOUT
+    """CAN watchdog written to canTimeout (0x7028) at activation, s: the motor disables itself when no frame
+    reaches it for this long. 0 skips the write (the motor keeps its own setting). See ``watchdog``."""
 
     def __post_init__(self) -> None:
         robstride_spec(self.model)
+        proto.check_can_timeout(self.can_timeout, f"{self.name}: can_timeout")
         if self.direction not in (-1, 1):
             raise ValueError(f"{self.name}: direction must be +1 or -1, got {self.direction!r}")
         if not 0 < self.can_id < 128:
@@ -115,6 +122,8 @@ class RobstrideBus:
         self.interface = interface
         self.host_id = host_id
         self.reply_timeout = reply_timeout
+        self.param_timeout = max(DEFAULT_PARAM_TIMEOUT, reply_timeout)
+        """Deadline of one parameter read or write, s: 50 ms, or the round deadline when that is longer."""
         self.ids = tuple(ids)
         self.models = {m.can_id: m.model for m in motors}
         self._index = {m.can_id: i for i, m in enumerate(motors)}
@@ -159,13 +168,19 @@ class RobstrideBus:
     # ----------------------------------------------------------------------------------------------
     # raw I/O
     def send(self, frame: proto.Frame) -> None:
-        """Send one extended frame, retrying briefly on a full TX queue (ENOBUFS)."""
+        """Send one extended frame, retrying briefly on a full TX queue (ENOBUFS).
+
+        An interface that is down or gone fails at once, with the command that brings it up.
+        """
         msg = can.Message(arbitration_id=frame[0], data=frame[1], is_extended_id=True)
         for attempt in range(_SEND_RETRIES):
             try:
                 self.bus.send(msg)
                 return
             except can.CanOperationError as exc:
+                hint = down_hint(exc.error_code, self.interface)
+                if hint is not None:
+                    raise OperationError(f"{self.interface}: cannot send: {hint}") from exc
                 if attempt == _SEND_RETRIES - 1:
                     raise OperationError(f"{self.interface}: cannot send {frame!r}: {exc}") from exc
                 time.sleep(_SEND_RETRY_SLEEP)
@@ -175,7 +190,8 @@ class RobstrideBus:
         try:
             msg = self.bus.recv(timeout=max(timeout, 0.0))
         except can.CanError as exc:  # interface down, socket error
-            raise OperationError(f"{self.interface}: receive failed: {exc}") from exc
+            hint = down_hint(getattr(exc, "error_code", None), self.interface)
+            raise OperationError(f"{self.interface}: receive failed: {hint or exc}") from exc
         if msg is None:
             return None
         if msg.is_error_frame or msg.is_remote_frame:
@@ -247,14 +263,17 @@ class RobstrideBus:
         return dict(sorted(found.items()))
 
     def read_param(
-        self, can_id: int, index: int, *, dtype: str | None = None, timeout: float = 0.05
+        self, can_id: int, index: int, *, dtype: str | None = None, timeout: float | None = None
     ) -> float | int:
-        """Read a parameter (type 17); raises ``OperationError`` when the motor reports failure."""
+        """Read a parameter (type 17); ``OperationError`` when the motor reports failure.
+
+        The deadline is ``timeout``, or ``param_timeout`` when None.
+        """
         frame = proto.read_param_frame(can_id, index, self.host_id)
         reply = self.request(
             frame,
             lambda r: isinstance(r, proto.ParamReply) and r.motor_id == can_id and r.index == index,
-            timeout,
+            self.param_timeout if timeout is None else timeout,
         )
         if not isinstance(reply, proto.ParamReply):  # pragma: no cover - guaranteed by the match
             raise OperationError(f"unexpected reply {reply!r}")
@@ -266,11 +285,24 @@ class RobstrideBus:
         return reply.value(dtype)
 
     def write_param(
-        self, can_id: int, index: int, value: float | int, *, dtype: str | None = None, timeout: float = 0.05
+        self,
+        can_id: int,
+        index: int,
+        value: float | int,
+        *,
+        dtype: str | None = None,
+        timeout: float | None = None,
     ) -> None:
-        """Write a parameter (type 18, volatile) and wait for the motor's type-2 acknowledgement."""
+        """Write a parameter (type 18, volatile) and wait for the motor's type-2 acknowledgement.
+
+        The deadline is ``timeout``, or ``param_timeout`` when None.
+        """
         frame = proto.write_param_frame(can_id, index, value, dtype=dtype, host_id=self.host_id)
-        self.request(frame, lambda r: isinstance(r, proto.Feedback) and r.motor_id == can_id, timeout)
+        self.request(
+            frame,
+            lambda r: isinstance(r, proto.Feedback) and r.motor_id == can_id,
+            self.param_timeout if timeout is None else timeout,
+        )
 
     # ----------------------------------------------------------------------------------------------
     # activation checks

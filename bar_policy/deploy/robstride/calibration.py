@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bar_policy._files import write_atomic
 from bar_policy.deploy.robstride.errors import InitializationError
 from bar_policy.robot.constants import RobotSpec
 
@@ -157,8 +158,8 @@ class Calibration:
         return cls(robot=str(data.get("robot", "lite_dummy")), joints=joints)
 
     def save(self, path: str | Path) -> None:
-        """Write the JSON file."""
-        Path(path).write_text(self.to_json() + "\n")
+        """Write the JSON file atomically (a temporary file, then a rename: never half a file)."""
+        write_atomic(Path(path), (self.to_json() + "\n").encode())
 
     @classmethod
     def load(cls, path: str | Path) -> Calibration:

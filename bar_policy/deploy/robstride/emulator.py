@@ -15,6 +15,14 @@ kernel has it), decodes the host's frames with the protocol layer, and answers l
   state (deterministic, faster than real time, the semantics of the synchronous sim target).
   ``mode="realtime"`` steps physics in a thread at the wall-clock rate and answers every frame at once.
 
+Watchdog (``canTimeout``, 0x7028, as the reference gives it): per motor, the arrival time of the last frame
+addressed to it; when the parameter is non-zero and an enabled motor hears nothing for ``ticks *
+watchdog_tick`` seconds (50 us ticks: 4000 = 0.2 s), it goes to reset mode: disabled, command cleared, zero
+torque, feedback mode 0, exactly as after a stop frame. Each trip is recorded in ``watchdog_trips`` as
+(last frame, trip) times on the emulator's clock. The clock is the bus's frame-timestamp clock
+(``time.time``, what python-can stamps ``virtual`` and SocketCAN frames with), so a frame that arrived in
+time is never counted late when the emulator thread runs late. A disabled motor is not affected.
+
 Fault injection (``inject``, ``silence``, ``garbage_per_round``): dropped replies, fault bits and type-21
 fault frames, replies from a wrong id, garbage frames, bus silence, active-report (0x18) chatter; at
 construction: absent motors, wrong models, unknown extra devices.
@@ -29,7 +37,7 @@ import struct
 import threading
 import time
 import zlib
-from collections.abc import Collection, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import can
@@ -83,6 +91,10 @@ class _Motor:
     params: dict[int, float | int] = field(default_factory=dict)
     inj: Injection = field(default_factory=Injection)
     uid: bytes = b""
+    last_rx: float = 0.0
+    """Arrival time of the last frame addressed to this motor, emulator clock, s."""
+    watchdog_trips: list[tuple[float, float]] = field(default_factory=list)
+    """(last frame, trip) times of every watchdog trip, emulator clock, s."""
 
 
 class RobstrideEmulator:
@@ -101,6 +113,9 @@ class RobstrideEmulator:
         extra_ids: interface -> CAN ids of unknown devices (rs-00) that answer scans and frames.
         temperature: reported temperature, degC.
         seed: seed of the garbage-frame generator.
+        watchdog_tick: seconds per canTimeout tick (the reference's 50 us; 1e-6 emulates the conflicting
+            microsecond reading).
+        clock: the emulator's clock, s; must be the clock of the buses' frame timestamps.
     """
 
     def __init__(
@@ -118,6 +133,8 @@ class RobstrideEmulator:
         extra_ids: Mapping[str, Sequence[int]] | None = None,
         temperature: float = 30.0,
         seed: int = 0,
+        watchdog_tick: float = proto.CAN_TIMEOUT_TICK,
+        clock: Callable[[], float] = time.time,
     ) -> None:
         if mode not in EMULATOR_MODES:
             raise ValueError(f"unknown emulator mode {mode!r}; valid: {list(EMULATOR_MODES)}")
@@ -131,6 +148,12 @@ class RobstrideEmulator:
         self.data = mujoco.MjData(self.model)
         self.n_substeps = max(1, round(control_dt / self.model.opt.timestep))
         self.temperature = temperature
+        if not watchdog_tick > 0:
+            raise ValueError(f"watchdog_tick must be > 0 s, got {watchdog_tick!r}")
+        self.watchdog_tick = watchdog_tick
+        """Seconds per canTimeout tick."""
+        self.clock = clock
+        """The emulator's clock (frame timestamps, watchdog), s."""
         self.garbage_per_round = 0
         """Garbage frames sent after each answered round (lockstep) or frame (realtime)."""
         self._rng = random.Random(seed)
@@ -148,6 +171,7 @@ class RobstrideEmulator:
         if unknown:
             raise ValueError(f"unknown joints {unknown}; joints: {list(robot.joint_names)}")
         self.motors: dict[tuple[str, int], _Motor] = {}
+        self._by_interface: dict[str, list[_Motor]] = {}
         for j in robot.joints:
             if j.name in absent:
                 continue
@@ -194,10 +218,12 @@ class RobstrideEmulator:
             0x7029: 0,
             0x3022: 0,
         }
+        m.last_rx = self.clock()
         m.uid = struct.pack(
             "<Q", 0x5253000000000000 | (zlib.crc32(m.interface.encode()) & 0xFFFF) << 8 | m.can_id
         )
         self.motors[(m.interface, m.can_id)] = m
+        self._by_interface.setdefault(m.interface, []).append(m)
 
     # ----------------------------------------------------------------------------------------------
     # lifecycle
@@ -294,8 +320,11 @@ class RobstrideEmulator:
             )
         return self._static_cache
 
-    def _step(self, n: int) -> None:
-        """``n`` physics steps with the latest commands (lock held)."""
+    def _law(self) -> tuple[Callable[[], np.ndarray], np.ndarray, np.ndarray]:
+        """The motors' MIT law at the present state (lock held): (torque function, joint index, direction).
+
+        The function returns the raw (motor-frame) torque of every joint motor, 0 for disabled ones.
+        """
         ms, idx, d, ranges, t_max = self._static()
         off = np.array([m.offset for m in ms])
         on = np.array([m.enabled for m in ms], dtype=np.float64)
@@ -303,15 +332,36 @@ class RobstrideEmulator:
         cap = np.clip(np.array([float(m.params[0x700B]) for m in ms]), 0.0, t_max)
         mit = MitCommand(cmd[0], cmd[1], cmd[2], cmd[3], cmd[4])
         qadr, dadr = self._qadr[idx], self._dadr[idx]
-        tau_raw = np.zeros(len(ms))
-        for _ in range(n):
+
+        def torque() -> np.ndarray:
             q_raw = d * self.data.qpos[qadr] + off
             dq_raw = d * self.data.qvel[dadr]
-            tau_raw = on * firmware_torque(mit, q_raw, dq_raw, ranges, cap, quantize_wire=False)
+            return on * firmware_torque(mit, q_raw, dq_raw, ranges, cap, quantize_wire=False)
+
+        return torque, idx, d
+
+    def _step(self, n: int) -> None:
+        """``n`` physics steps with the latest commands (lock held)."""
+        torque, idx, d = self._law()
+        dadr = self._dadr[idx]
+        tau_raw = np.zeros(len(idx))
+        for _ in range(n):
+            tau_raw = torque()
             self.data.qfrc_applied[:] = 0.0
             self.data.qfrc_applied[dadr] = d * tau_raw
             mujoco.mj_step(self.model, self.data)
         self._tau_raw[idx] = tau_raw
+
+    def applied_torques(self) -> np.ndarray:
+        """Torque every joint motor applies at the present state, joint frame, canonical order, N*m.
+
+        Zero for a disabled motor (stopped, or tripped by its watchdog).
+        """
+        with self._lock:
+            torque, idx, d = self._law()
+            out = np.zeros(self.robot.num_joints)
+            out[idx] = d * torque()
+            return out
 
     def _physics_loop(self) -> None:
         """Step physics at the wall-clock rate, in chunks of the steps that are due.
@@ -391,11 +441,15 @@ class RobstrideEmulator:
             bus.send(msg)
 
     def _serve(self, interface: str, bus: can.BusABC) -> None:
+        wait = 0.0
         while not self._stop.is_set():
             try:
-                msg = bus.recv(timeout=0.05)
+                msg = bus.recv(timeout=wait)
             except can.CanError:
                 return
+            arrival = (msg.timestamp or self.clock()) if msg is not None else self.clock()
+            with self._lock:  # trip what expired before this frame arrived; sleep at most to the next expiry
+                wait = self._watchdog_pass(interface, arrival)
             if msg is None or msg.is_error_frame or msg.is_remote_frame:
                 continue
             try:
@@ -407,7 +461,40 @@ class RobstrideEmulator:
                     continue
                 m = self.motors.get((interface, req.motor_id))
                 if m is not None:
+                    m.last_rx = arrival
                     self._handle(m, req)
+                    if m.enabled and (w := self._window(m)) > 0:  # (re)armed by this frame
+                        wait = min(wait, max(arrival + w - self.clock(), 0.0))
+
+    # ----------------------------------------------------------------------------------------------
+    # the watchdog (canTimeout)
+    def _window(self, m: _Motor) -> float:
+        """Watchdog window of ``m``, s; 0 when off."""
+        return int(m.params.get(proto.PARAM_CAN_TIMEOUT, 0)) * self.watchdog_tick
+
+    def _watchdog_pass(self, interface: str, now: float) -> float:
+        """Trip every enabled motor on ``interface`` that heard nothing for its window before ``now``.
+
+        Returns the seconds until the next armed watchdog expires (at most 50 ms, the stop poll).
+        """
+        wait, clock = 0.05, self.clock()
+        for m in self._by_interface.get(interface, ()):
+            if not m.enabled or (w := self._window(m)) <= 0:
+                continue
+            if now - m.last_rx < w:
+                wait = min(wait, m.last_rx + w - clock)
+                continue
+            trip = self.clock()
+            m.enabled = False
+            m.cmd = (0.0, 0.0, 0.0, 0.0, 0.0)
+            m.watchdog_trips.append((m.last_rx, trip))
+            self._commanded.discard((m.interface, m.can_id))
+            log.info(
+                "%s id %d (%s): canTimeout %.3f s expired (%.3f s since the last frame): reset mode",
+                m.interface, m.can_id, m.name, w, trip - m.last_rx,
+            )  # fmt: skip
+            self._maybe_complete_round()
+        return max(wait, 0.0)
 
     def _handle(self, m: _Motor, req: proto.Request) -> None:
         if isinstance(req, proto.MitRequest):

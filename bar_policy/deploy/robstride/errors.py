@@ -5,7 +5,11 @@ caller can catch the whole family, or one kind:
 
 - ``InitializationError``: the bus or the motors cannot be brought up (wrong scan, bad calibration file,
   unreadable parameter). Nothing was enabled.
+- ``BusOpenError`` (an ``InitializationError``): the CAN interface cannot be opened or used: no SocketCAN in
+  the kernel, the interface is absent, or it is down. The one-line message says how to fix it.
 - ``OperationError``: a running exchange failed (unexpected sender, invalid command, send error).
+- ``DisabledError`` (an ``OperationError``): a motor that should be running reports reset mode (disabled):
+  its CAN watchdog ``canTimeout`` tripped, or something else stopped it.
 - ``TimeoutError``: replies missing at the deadline; also a ``builtins.TimeoutError``.
 - ``FaultError``: a motor reported fault bits (type-2 status bits or a type-21 fault frame).
 - ``FrameError``: a CAN frame is not a valid Robstride frame of the expected direction; also a ``ValueError``.
@@ -17,7 +21,9 @@ import builtins
 from collections.abc import Mapping, Sequence
 
 __all__ = [
+    "BusOpenError",
     "CommandError",
+    "DisabledError",
     "FaultError",
     "FrameError",
     "InitializationError",
@@ -36,8 +42,30 @@ class InitializationError(RobstrideError):
     """The bus or its motors cannot be brought up; nothing was enabled."""
 
 
+class BusOpenError(InitializationError):
+    """A CAN interface cannot be opened or used (SocketCAN missing, interface absent or down)."""
+
+    def __init__(self, message: str, *, interface: str = "", channel: str = "") -> None:
+        super().__init__(message)
+        self.interface = interface
+        """The python-can interface (``socketcan``, ``virtual``)."""
+        self.channel = channel
+        """The channel (``can0``)."""
+
+
 class OperationError(RobstrideError):
     """An exchange with running motors failed."""
+
+
+class DisabledError(OperationError):
+    """Motors that should be running report reset mode (disabled), e.g. after a watchdog trip."""
+
+    def __init__(self, message: str, *, can_ids: Sequence[int], interface: str = "") -> None:
+        super().__init__(message)
+        self.can_ids = tuple(can_ids)
+        """The CAN ids that left run mode."""
+        self.interface = interface
+        """The CAN interface names, comma separated."""
 
 
 class CommandError(OperationError, ValueError):

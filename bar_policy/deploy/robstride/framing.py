@@ -14,6 +14,10 @@ from enum import IntEnum
 from bar_policy.deploy.robstride.errors import CommandError, FrameError
 
 __all__ = [
+    "CAN_TIMEOUT_MAX",
+    "CAN_TIMEOUT_MIN",
+    "CAN_TIMEOUT_TICK",
+    "DEFAULT_CAN_TIMEOUT",
     "DEVICE_ID_REPLY_DEST",
     "FAULT_BITS",
     "FAULT_WORD_BITS",
@@ -21,11 +25,14 @@ __all__ = [
     "MIT_FIELDS",
     "MODE_NAMES",
     "PARAMS",
+    "PARAM_CAN_TIMEOUT",
     "PARAM_LIMIT_CURRENT",
     "PARAM_LIMIT_TORQUE",
     "CommType",
     "Frame",
     "ParamSpec",
+    "can_timeout_ticks",
+    "check_can_timeout",
     "check_motor_id",
     "decode_param_value",
     "enable_frame",
@@ -224,6 +231,40 @@ PARAM_LIMIT_TORQUE = 0x700B
 """Torque cap parameter, N*m (written at activation)."""
 PARAM_LIMIT_CURRENT = 0x7018
 """Current cap parameter, A (written at activation)."""
+PARAM_CAN_TIMEOUT = 0x7028
+"""CAN watchdog ``canTimeout``, u32 in ``CAN_TIMEOUT_TICK`` ticks, 0 = off (written at activation)."""
+
+CAN_TIMEOUT_TICK = 50e-6
+"""One ``canTimeout`` tick, s: the manual's "20000 = 1 s" (section 5.2). kscalelabs labels the 0x200C twin in
+microseconds instead (section 5.3, a conflict); ``bar-bus watchdog`` measures which one a motor uses."""
+DEFAULT_CAN_TIMEOUT = 0.2
+"""Default watchdog, s (4000 ticks, what s2015-turtle writes): a motor that hears nothing for 0.2 s disables
+itself (reset mode), so a dead host leaves no motor on its last command for longer than that."""
+CAN_TIMEOUT_MIN = 0.01
+"""Shortest accepted watchdog, s: below 10 ms one late tick of a 50-100 Hz loop would disable the motors."""
+CAN_TIMEOUT_MAX = 10.0
+"""Longest accepted watchdog, s: a longer one protects nothing (the u32 field would allow 59 hours)."""
+
+
+def check_can_timeout(seconds: float, what: str = "can_timeout") -> float:
+    """Return ``seconds`` as a float if it is 0 (leave the motors' setting) or within the accepted range.
+
+    Raises:
+        ValueError: naming ``what``, the value and the valid choices (NaN, negative, out of range).
+    """
+    value = float(seconds)
+    if value == 0.0 or CAN_TIMEOUT_MIN <= value <= CAN_TIMEOUT_MAX:
+        return value
+    raise ValueError(
+        f"{what} must be 0 (leave the motors' watchdog setting) or "
+        f"{CAN_TIMEOUT_MIN:g}..{CAN_TIMEOUT_MAX:g} s, got {seconds!r}"
+    )
+
+
+def can_timeout_ticks(seconds: float) -> int:
+    """``canTimeout`` register value for a watchdog of ``seconds`` (nearest tick; 0 stays 0)."""
+    return round(check_can_timeout(seconds) / CAN_TIMEOUT_TICK)
+
 
 _DTYPES: dict[str, str] = {"f32": "<f", "u8": "<B", "u16": "<H", "u32": "<I", "i16": "<h"}
 

@@ -5,10 +5,13 @@ own deadline, so the buses' wire times overlap (interleaved non-blocking send / 
 locks, no thread hand-offs on the control path). The flat joint list is the robot's canonical order.
 
 Safety sequence (``activate``): scan every bus and refuse unless exactly the expected ids answer; check
-each motor's model is plausible (``RobstrideBus.verify_models``); read the joints with stop frames (the
-motors stay disabled) and refuse faults or positions outside the limits (a calibration or 2*pi wrap error);
-write the torque/current caps; enable; hold damping at the present pose. ``damping_then_stop`` is the one
-way out: damping frames on every bus, then stop frames on every bus, whatever fails in between.
+each motor's model is plausible (``RobstrideBus.verify_models``) and that its firmware knows the CAN
+watchdog (``watchdog.read_can_timeouts``); read the joints with stop frames (the motors stay disabled) and
+refuse faults or positions outside the limits (a calibration or 2*pi wrap error); write the torque/current
+caps and arm the watchdog (``watchdog.arm_can_timeout``); enable; hold damping at the present pose.
+``damping_then_stop`` is the one way out: damping frames on every bus, then stop frames on every bus,
+whatever fails in between. While running, ``exchange_mit`` refuses replies from motors that left run mode
+(``DisabledError``, e.g. the watchdog tripped because the host fell silent for longer than canTimeout).
 """
 
 from __future__ import annotations
@@ -25,12 +28,14 @@ from bar_policy.deploy.robstride.bus import DEFAULT_REPLY_TIMEOUT, BusReading, M
 from bar_policy.deploy.robstride.calibration import Calibration
 from bar_policy.deploy.robstride.errors import (
     CommandError,
+    DisabledError,
     FaultError,
     InitializationError,
     RobstrideError,
     TimeoutError,
     UnexpectedDeviceError,
 )
+from bar_policy.deploy.robstride.watchdog import arm_can_timeout, read_can_timeouts
 from bar_policy.robot.constants import RobotSpec
 from bar_policy.robot.mit import MitCommand
 
@@ -58,6 +63,8 @@ class RobstrideGroup:
         ]
         self.last_reading: BusReading | None = None
         """The most recent flat reading (also after a failed round: NaN where replies were missing)."""
+        self.last_sent: float | None = None
+        """``perf_counter`` when the latest round's frames went out (None before the first round)."""
 
     @classmethod
     def from_robot(
@@ -67,8 +74,12 @@ class RobstrideGroup:
         *,
         calibration: Calibration | None = None,
         reply_timeout: float = DEFAULT_REPLY_TIMEOUT,
+        can_timeout: float = proto.DEFAULT_CAN_TIMEOUT,
     ) -> RobstrideGroup:
-        """Build from the robot data: one ``RobstrideBus`` per ``can_interface`` (keys of ``can_buses``)."""
+        """Build from the robot data: one ``RobstrideBus`` per ``can_interface`` (keys of ``can_buses``).
+
+        ``can_timeout`` (s) is every motor's CAN watchdog, armed by ``activate``; 0 leaves the motors' own.
+        """
         offsets = (calibration or Calibration.zeros(robot)).offsets(robot)
         buses = []
         for iface in dict.fromkeys(j.can_interface for j in robot.joints):
@@ -85,6 +96,7 @@ class RobstrideGroup:
                     homing_offset=float(offsets[j.index]),
                     torque_limit=j.torque_limit,
                     current_limit=j.current_limit,
+                    can_timeout=can_timeout,
                 )
                 for j in robot.joints
                 if j.can_interface == iface
@@ -110,6 +122,7 @@ class RobstrideGroup:
         All buses are collected even when one fails; then the most severe error is raised (unexpected id,
         fault, timeout), with the other buses' errors attached as notes. ``last_reading`` is set first.
         """
+        self.last_sent = time.perf_counter()
         deadlines = [bus.send_round(f) for bus, f in zip(self.buses, frames, strict=True)]
         parts: list[BusReading] = []
         errors: list[RobstrideError] = []
@@ -151,8 +164,36 @@ class RobstrideGroup:
         return [bus.mit_frames(*values[:, idx]) for bus, idx in zip(self.buses, self._flat, strict=True)]
 
     def exchange_mit(self, cmd: MitCommand) -> BusReading:
-        """One control tick: one MIT frame per motor out, one reply per motor back (all buses)."""
-        return self.round(self.mit_frames(cmd))
+        """One control tick: one MIT frame per motor out, one reply per motor back (all buses).
+
+        Raises ``DisabledError`` when a motor's reply reports a mode other than run (motors ignore MIT frames
+        in reset mode, so an arm would hang limp while the caller believes it is commanded).
+        """
+        before = self.last_sent
+        reading = self.round(self.mit_frames(cmd))
+        if (reading.mode != 2).any():
+            self._raise_not_running(reading, before)
+        return reading
+
+    def _raise_not_running(self, reading: BusReading, before: float | None) -> None:
+        off = {self.joint_names[i]: int(reading.mode[i]) for i in np.flatnonzero(reading.mode != 2)}
+        names = [f"{n} ({proto.MODE_NAMES.get(mode, mode)})" for n, mode in off.items()]
+        motors = [m for bus in self.buses for m in bus.motors]
+        watchdog = min((m.can_timeout for m in motors if m.can_timeout > 0), default=0.0)
+        gap = self.last_sent - before if before is not None and self.last_sent is not None else None
+        why = "something else disabled them (another node on the bus, a brown-out reset)"
+        if watchdog and gap is not None and gap >= watchdog:
+            why = (
+                f"the CAN watchdog tripped: the previous round went out {gap * 1e3:.0f} ms earlier, longer "
+                f"than canTimeout {watchdog * 1e3:.0f} ms (the host stalled or started ticking late)"
+            )
+        elif gap is not None:
+            why += f"; the previous round went out {gap * 1e3:.0f} ms earlier"
+        raise DisabledError(
+            f"motors left run mode while commanded: {', '.join(names)}: {why}",
+            can_ids=[m.can_id for m in motors if m.name in off],
+            interface=",".join(b.interface for b in self.buses),
+        )
 
     def poll_disabled(self, *, strict: bool = False) -> BusReading:
         """Read every joint with stop (type 4, byte0 = 0) frames: the motors stay / become disabled."""
@@ -191,15 +232,17 @@ class RobstrideGroup:
         limit_margin: float = 0.3,
         dry_run: bool = False,
         damping_kd: float = 1.0,
+        scan_timeout: float = 0.05,
     ) -> BusReading:
         """The safety sequence up to enabling (module docstring). Returns the reading after enabling.
 
         With ``dry_run`` it stops after the checks (nothing written, nothing enabled). On any failure after
         the first enable frame it sends damping then stop frames before raising.
         """
-        self.scan_and_verify(scan_ids)
+        self.scan_and_verify(scan_ids, timeout=scan_timeout)
         for bus in self.buses:
             bus.verify_models()
+            read_can_timeouts(bus)  # old firmware without canTimeout is refused before anything is written
         reading = self.poll_disabled(strict=True)
         bad = [
             f"{n}: q={q:+.3f} rad outside [{lo - limit_margin:+.3f}, {hi + limit_margin:+.3f}]"
@@ -216,6 +259,7 @@ class RobstrideGroup:
             return reading
         for bus in self.buses:
             bus.write_caps()
+            arm_can_timeout(bus)
         try:
             enabled = self.enable()
             not_run = [n for n, m in zip(self.joint_names, enabled.mode, strict=True) if m != 2]
@@ -257,6 +301,7 @@ class RobstrideGroup:
         One bus failing to send never keeps the frames off another. None when no bus could send.
         """
         sent: list[tuple[int, float]] = []
+        self.last_sent = time.perf_counter()
         for b, (bus, f) in enumerate(zip(self.buses, frames, strict=True)):
             try:
                 sent.append((b, bus.send_round(f)))

@@ -29,18 +29,25 @@ import numpy as np
 
 from bar_policy.deploy.robstride.errors import CommandError, FrameError
 from bar_policy.deploy.robstride.framing import (
+    CAN_TIMEOUT_MAX,
+    CAN_TIMEOUT_MIN,
+    CAN_TIMEOUT_TICK,
+    DEFAULT_CAN_TIMEOUT,
     DEVICE_ID_REPLY_DEST,
     FAULT_BITS,
     FAULT_WORD_BITS,
     HOST_ID,
     MIT_FIELDS,
     MODE_NAMES,
+    PARAM_CAN_TIMEOUT,
     PARAM_LIMIT_CURRENT,
     PARAM_LIMIT_TORQUE,
     PARAMS,
     CommType,
     Frame,
     ParamSpec,
+    can_timeout_ticks,
+    check_can_timeout,
     check_motor_id,
     decode_param_value,
     enable_frame,
@@ -61,6 +68,10 @@ from bar_policy.robot.mit import U16_MAX, WireRanges, decode_u16, encode_u16, wi
 
 __all__ = [
     # re-exported from ``framing``
+    "CAN_TIMEOUT_MAX",
+    "CAN_TIMEOUT_MIN",
+    "CAN_TIMEOUT_TICK",
+    "DEFAULT_CAN_TIMEOUT",
     "DEVICE_ID_REPLY_DEST",
     "FAULT_BITS",
     "FAULT_WORD_BITS",
@@ -68,6 +79,7 @@ __all__ = [
     "MIT_FIELDS",
     "MODE_NAMES",
     "PARAMS",
+    "PARAM_CAN_TIMEOUT",
     "PARAM_LIMIT_CURRENT",
     "PARAM_LIMIT_TORQUE",
     "ActiveReport",
@@ -86,6 +98,8 @@ __all__ = [
     "Reply",
     "Request",
     "SimpleRequest",
+    "can_timeout_ticks",
+    "check_can_timeout",
     "decode_param_value",
     "decode_reply",
     "decode_request",

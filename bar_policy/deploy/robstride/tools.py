@@ -4,30 +4,45 @@
     bar-bus calibrate [--channels can0,can1] [--out calibration.json] [--prior old.json] [--duration S]
     bar-bus param read  --iface can0 --id 11 --index 0x700B [--type f32]
     bar-bus param write --iface can0 --id 11 --index 0x700B --value 12.0 [--type f32]
+    bar-bus watchdog --iface can0 --id 11 [--can-timeout 0.2] [--silences 0.1,0.18,0.22,0.3]
 
 ``discover`` is read-only (type-0 scan and type-17 parameter reads); ``--status`` also sends each found
 motor a stop frame (it disables the motor) to read its type-2 mode and fault bits. ``calibrate`` keeps the
 motors disabled (stop frames) while a person sweeps every joint to both stops, and writes the calibration
-JSON on Ctrl+C (or after ``--duration``). ``--emulate`` (with ``--interface virtual``) answers with the
-in-process emulator, for a demonstration without hardware.
+JSON on Ctrl+C (or after ``--duration``). ``watchdog`` measures the CAN watchdog of one motor on a bench
+(``watchdog.probe_watchdog``; the motor is enabled with zero torque). ``--emulate`` (with ``--interface
+virtual``) answers with the in-process emulator, for a demonstration without hardware.
+
+Stop path of ``calibrate`` and ``watchdog`` (the commands that command motors): SIGINT, SIGTERM and SIGHUP
+(``StopSignals``) and any exception end the same way: damping frames, then stop frames, on every bus
+(``RobstrideGroup.damping_then_stop``); a second signal is counted and cannot skip them. Then ``calibrate``
+writes the calibration (a stop signal is its documented way to finish: exit 0) or discards it (an exception:
+exit 1). Errors are one line on stderr (``bar-bus: error: ...``), never a traceback: exit 1 at run time,
+2 for bad arguments.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import signal
 import sys
 import time
 from collections.abc import Iterator, Sequence
+from typing import NoReturn
 
 import can
 import numpy as np
 
 from bar_policy.deploy.robstride import protocol as proto
-from bar_policy.deploy.robstride.bus import RobstrideBus
+from bar_policy.deploy.robstride.bus import MotorConfig, RobstrideBus
 from bar_policy.deploy.robstride.calibration import Calibration, SweepRecorder
-from bar_policy.deploy.robstride.errors import RobstrideError
+from bar_policy.deploy.robstride.canbus import open_can_bus, open_can_buses
+from bar_policy.deploy.robstride.cli_args import can_timeout_arg, float_list, int_range, positive
+from bar_policy.deploy.robstride.errors import InitializationError, RobstrideError
 from bar_policy.deploy.robstride.group import RobstrideGroup
+from bar_policy.deploy.robstride.watchdog import arm_can_timeout, probe_watchdog, read_can_timeouts, verdict
+from bar_policy.deploy.signals import StopSignals
 from bar_policy.robot.actuators import ROBSTRIDE_MODELS
 from bar_policy.robot.constants import MODES, load_robot
 
@@ -46,7 +61,7 @@ def _emulator(args: argparse.Namespace, channels: dict[str, str]) -> Iterator[No
         yield
         return
     if args.interface != "virtual":
-        raise SystemExit("--emulate needs --interface virtual")
+        raise ValueError("--emulate needs --interface virtual")
     from bar_policy.deploy.robstride.emulator import RobstrideEmulator
 
     with RobstrideEmulator(load_robot(args.mode), channels, mode="realtime"):
@@ -64,7 +79,7 @@ def _robot_channels(args: argparse.Namespace) -> dict[str, str]:
 
 def _discover(args: argparse.Namespace) -> int:
     channels = {i: i for i in dict.fromkeys(j.can_interface for j in load_robot(args.mode).joints)}
-    with _emulator(args, channels), RobstrideBus(can.Bus(interface=args.interface, channel=args.iface), [],
+    with _emulator(args, channels), RobstrideBus(open_can_bus(args.interface, args.iface), [],
                                                  interface=args.iface) as bus:  # fmt: skip
         found = bus.scan(range(1, args.scan_to + 1), timeout=args.timeout)
         print(f"{args.iface}: {len(found)} device(s) answered ids 1..{args.scan_to}")
@@ -98,20 +113,25 @@ def _discover(args: argparse.Namespace) -> int:
 
 
 def _param(args: argparse.Namespace) -> int:
-    index = int(args.index, 0)
-    with RobstrideBus(can.Bus(interface=args.interface, channel=args.iface), [], interface=args.iface) as bus:
-        if args.action == "write":
-            if args.value is None:
-                raise SystemExit("param write needs --value")
-            dtype = args.type or (proto.PARAMS[index].dtype if index in proto.PARAMS else None)
-            if dtype is None:
-                raise SystemExit(f"parameter {index:#06x} is not in the known table: pass --type")
-            value: float | int = float(args.value) if dtype == "f32" else int(args.value, 0)
-            bus.write_param(args.id, index, value, dtype=args.type, timeout=args.timeout)
+    index = args.index
+    dtype = args.type or (proto.PARAMS[index].dtype if index in proto.PARAMS else None)
+    if dtype is None:
+        raise ValueError(f"parameter {index:#06x} is not in the known table: pass --type")
+    value: float | int | None = None
+    if args.action == "write":
+        if args.value is None:
+            raise ValueError("param write needs --value")
+        try:
+            value = float(args.value) if dtype == "f32" else int(args.value, 0)
+        except ValueError:
+            raise ValueError(f"--value {args.value!r} is not a valid {dtype}") from None
+    with RobstrideBus(open_can_bus(args.interface, args.iface), [], interface=args.iface) as bus:
+        if value is not None:
+            bus.write_param(args.id, index, value, dtype=dtype, timeout=args.timeout)
             print(f"wrote {value} to parameter {index:#06x} of id {args.id} on {args.iface}")
-        value = bus.read_param(args.id, index, dtype=args.type, timeout=args.timeout)
+        got = bus.read_param(args.id, index, dtype=dtype, timeout=args.timeout)
         name = proto.PARAMS[index].name if index in proto.PARAMS else "?"
-        print(f"id {args.id} parameter {index:#06x} ({name}) = {value}")
+        print(f"id {args.id} parameter {index:#06x} ({name}) = {got}")
     return 0
 
 
@@ -119,31 +139,37 @@ def _calibrate(args: argparse.Namespace) -> int:
     robot = load_robot(args.mode)
     channels = _robot_channels(args)
     prior = Calibration.load(args.prior) if args.prior else None
-    with _emulator(args, channels):
-        buses = {i: can.Bus(interface=args.interface, channel=c) for i, c in channels.items()}
-        group = RobstrideGroup.from_robot(robot, buses, reply_timeout=args.timeout)  # zero offsets
-        try:
-            group.scan_and_verify(range(1, 128))
-            recorder = SweepRecorder(robot)
-            d = robot.direction
-            print("Motors are disabled. Move each joint to both mechanical stops, then Ctrl+C to save.")
-            end = time.monotonic() + args.duration if args.duration else None
-            last_print = 0.0
+    recorder = SweepRecorder(robot)
+    with StopSignals() as stop:
+        with _emulator(args, channels):
+            group = RobstrideGroup.from_robot(  # zero offsets; nothing is armed or enabled
+                robot, open_can_buses(args.interface, channels), reply_timeout=args.timeout, can_timeout=0.0
+            )
             try:
-                while end is None or time.monotonic() < end:
+                group.scan_and_verify(range(1, 128), timeout=args.timeout)
+                d = robot.direction
+                print("Motors are disabled. Move each joint to both mechanical stops, then Ctrl+C to save.",
+                      flush=True)  # fmt: skip
+                end = time.monotonic() + args.duration if args.duration else None
+                last_print = 0.0
+                while not stop.requested and (end is None or time.monotonic() < end):
                     reading = group.poll_disabled()
                     recorder.update(d * reading.q)  # zero offsets: q = direction * raw
                     if time.monotonic() - last_print > 0.2 and sys.stdout.isatty():
                         last_print = time.monotonic()
                         _print_sweep(robot.joint_names, d * reading.q, recorder)
                     time.sleep(1.0 / args.rate)
-            except KeyboardInterrupt:
-                print()
-            result = recorder.result(prior, sweep_threshold=args.sweep_threshold)
-        finally:
-            group.stop()
-            group.shutdown()
-    result.calibration.save(args.out)
+            finally:  # a signal, the duration, or an exception: damping, then stop frames, on every bus
+                group.damping_then_stop()
+                group.shutdown()
+        print(f"\nstopping: {stop.reason or 'duration reached'}; damping and stop frames sent", flush=True)
+        result = recorder.result(prior, sweep_threshold=args.sweep_threshold)
+        if not result.swept:
+            raise InitializationError(
+                f"no joint was swept by {args.sweep_threshold} rad or more ({recorder.samples} samples): "
+                f"nothing written, {args.out} is untouched"
+            )
+        result.calibration.save(args.out)
     print(f"Wrote calibration to {args.out} ({recorder.samples} samples)")
     if result.kept:
         print(f"kept the prior offset (sweep < {args.sweep_threshold} rad) for: {', '.join(result.kept)}")
@@ -159,13 +185,59 @@ def _print_sweep(names: Sequence[str], raw: np.ndarray, rec: SweepRecorder) -> N
     print("\n".join(lines), flush=True)
 
 
+def _watchdog(args: argparse.Namespace) -> int:
+    robot = load_robot(args.mode)
+    if args.can_timeout == 0:
+        raise ValueError("watchdog needs --can-timeout > 0 (the window to measure)")
+    model = args.model or next((j.model for j in robot.joints if j.can_id == args.id), None)
+    if model is None:
+        raise ValueError(f"id {args.id} is not a joint of the {args.mode} robot data: pass --model")
+    silences = args.silences or [round(f * args.can_timeout, 4) for f in (0.5, 0.9, 1.1, 1.5)]
+    channels = {i: i for i in dict.fromkeys(j.can_interface for j in robot.joints)}
+    name = f"id {args.id}"
+    motor = MotorConfig(name=name, can_id=args.id, model=model, can_timeout=args.can_timeout)
+    results = []
+    with StopSignals() as stop, _emulator(args, channels):
+        bus = RobstrideBus(open_can_bus(args.interface, args.iface), [motor], interface=args.iface,
+                           reply_timeout=args.timeout)  # fmt: skip
+        group = RobstrideGroup([bus], [name])
+        try:
+            if args.id not in bus.scan([args.id], timeout=args.timeout):
+                raise InitializationError(f"{args.iface}: id {args.id} does not answer a scan")
+            read_can_timeouts(bus)
+            arm_can_timeout(bus)
+            print(f"{args.iface} id {args.id} ({model}): canTimeout armed at {args.can_timeout:g} s; "
+                  f"probing silences {silences} s with zero torque (free shaft)", flush=True)  # fmt: skip
+            results = probe_watchdog(bus, silences, timeout=args.timeout, stop=lambda: stop.requested)
+        finally:
+            group.damping_then_stop()
+            group.shutdown()
+    for r in results:
+        state = {2: "still running", 0: "tripped (reset mode)"}.get(r.mode, "no reply")
+        print(f"  silence {r.silence:.3f} s: {state}")
+    if stop.requested:
+        print(f"stopped by {stop.reason} before the end; damping and stop frames sent")
+        return 128 + signal.Signals[stop.signal_name].value if stop.signal_name else 1
+    ok, text = verdict(results, args.can_timeout)
+    print(text)
+    return 0 if ok else 1
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with a one-line error (``prog: error: message (see prog --help)``), exit status 2."""
+
+    def error(self, message: str) -> NoReturn:
+        """Print one line and exit 2."""
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="bar-bus", description="Robstride CAN bench tools")
+    p = _Parser(prog="bar-bus", description="Robstride CAN bench tools")
     sub = p.add_subparsers(dest="command", required=True)
 
     def common(sp: argparse.ArgumentParser) -> None:
         sp.add_argument("--interface", choices=("socketcan", "virtual"), default="socketcan")
-        sp.add_argument("--timeout", type=float, default=0.05, help="reply deadline, s")
+        sp.add_argument("--timeout", type=positive("s"), default=0.05, help="reply deadline, s")
         sp.add_argument("--mode", choices=MODES, default="arms", help="robot joint set")
         sp.add_argument(
             "--emulate", action="store_true", help="answer with the in-process emulator (virtual)"
@@ -174,7 +246,7 @@ def _parser() -> argparse.ArgumentParser:
     d = sub.add_parser("discover", help="read-only scan: id, model guess, run mode, faults")
     common(d)
     d.add_argument("--iface", default="can0", help="CAN channel")
-    d.add_argument("--scan-to", type=int, default=32, help="highest id scanned")
+    d.add_argument("--scan-to", type=int_range(1, 127), default=32, help="highest id scanned (1..127)")
     d.add_argument("--status", action="store_true", help="also send a stop frame to read mode and fault bits")
 
     c = sub.add_parser("calibrate", help="record homing offsets from swept extremes")
@@ -182,30 +254,45 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--channels", default=None, help="'can0,can1' or 'can0=vcan0,can1=vcan1'")
     c.add_argument("--out", default="calibration.json", help="calibration JSON to write")
     c.add_argument("--prior", default=None, help="previous calibration: un-swept joints keep its offsets")
-    c.add_argument("--sweep-threshold", type=float, default=0.5, help="minimum sweep to recompute, rad")
-    c.add_argument("--rate", type=float, default=50.0, help="sampling rate, Hz")
-    c.add_argument("--duration", type=float, default=None, help="stop after S seconds instead of Ctrl+C")
+    c.add_argument("--sweep-threshold", type=positive("rad"), default=0.5, help="minimum sweep to recompute")
+    c.add_argument("--rate", type=positive("Hz"), default=50.0, help="sampling rate, Hz")
+    c.add_argument("--duration", type=positive("s"), default=None, help="stop after S seconds (or Ctrl+C)")
 
     pa = sub.add_parser("param", help="read or write one parameter")
     pa.add_argument("action", choices=("read", "write"))
     common(pa)
     pa.add_argument("--iface", default="can0", help="CAN channel")
-    pa.add_argument("--id", type=int, required=True, help="motor CAN id")
-    pa.add_argument("--index", required=True, help="parameter index, e.g. 0x700B")
+    pa.add_argument("--id", type=int_range(1, 127), required=True, help="motor CAN id (1..127)")
+    pa.add_argument("--index", type=int_range(0, 0xFFFF), required=True, help="parameter index, e.g. 0x700B")
     pa.add_argument("--value", default=None, help="value to write")
     pa.add_argument("--type", default=None, choices=("f32", "u8", "u16", "u32", "i16"),
                     help="wire type (default: from the known-parameter table)")  # fmt: skip
+
+    w = sub.add_parser("watchdog", help="measure one motor's CAN watchdog (enables it with zero torque)")
+    common(w)
+    w.add_argument("--iface", default="can0", help="CAN channel")
+    w.add_argument("--id", type=int_range(1, 127), required=True, help="motor CAN id (1..127)")
+    w.add_argument("--model", choices=sorted(ROBSTRIDE_MODELS), default=None,
+                   help="motor model (default: from the robot data for --id)")  # fmt: skip
+    w.add_argument("--can-timeout", type=can_timeout_arg, default=proto.DEFAULT_CAN_TIMEOUT,
+                   help=f"watchdog to arm and measure, s (default {proto.DEFAULT_CAN_TIMEOUT})")  # fmt: skip
+    w.add_argument("--silences", type=float_list(positive("s")), default=None,
+                   help="silences to probe, s, comma separated (default 0.5,0.9,1.1,1.5 x it)")  # fmt: skip
     return p
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``bar-bus``; returns the exit status."""
     args = _parser().parse_args(argv)
+    commands = {"discover": _discover, "calibrate": _calibrate, "param": _param, "watchdog": _watchdog}
     try:
-        return {"discover": _discover, "calibrate": _calibrate, "param": _param}[args.command](args)
+        return commands[args.command](args)
     except (RobstrideError, can.CanError, OSError, ValueError) as exc:
-        print(f"bar-bus: error: {exc}", file=sys.stderr)
+        print(f"bar-bus: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:  # discover and param: read-only or a single write, nothing to stop
+        print("bar-bus: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -3,18 +3,23 @@
 ``RealTarget`` is asynchronous (wall clock): ``advance`` only returns, the runtime keeps the rate.
 
 - ``start()`` runs the safety sequence of ``RobstrideGroup.activate``: scan (exactly the expected ids),
-  model plausibility, joint positions within limits, cap writes, enable, damping hold at the present pose.
+  model plausibility, canTimeout support, joint positions within limits, cap writes, the CAN watchdog
+  (``canTimeout``, default 0.2 s: a motor that hears no frame for that long disables itself, so a killed
+  host cannot leave the arms on their last command), enable, damping hold at the present pose. The caller
+  must then tick (``read_state``/``write_command``) at least every ``can_timeout`` s, from the first tick on.
   With ``dry_run`` it stops before writing anything; reads then poll with stop frames and commands are
   encoded, decoded and logged, never sent.
 - ``write_command`` is one round on both buses (one MIT frame per motor, one reply each). ``read_state``
   returns fresh feedback: it re-sends the last command (harmless: the motors already apply it) unless
   ``refresh_on_read`` is off (the lockstep emulator, whose replies already carry the post-step state).
-- Any driver error (missing reply, fault bit, unexpected id, invalid command), ``KeyboardInterrupt`` or other
-  exception inside a read or write sends damping then stop frames on every bus, then raises
-  (``TargetError`` from the driver error). ``close()`` does the same when the motors are still enabled.
+- Any driver error (missing reply, fault bit, unexpected id, invalid command, a motor that left run mode:
+  a watchdog trip), ``KeyboardInterrupt`` or other exception inside a read or write sends damping then stop
+  frames on every bus, then raises (``TargetError`` from the driver error). ``close()`` does the same when
+  the motors are still enabled.
 
 CLI glue for ``bar-deploy --target real``: ``add_arguments(parser)`` and ``make_target(args, mode)``. With
 ``--can-interface virtual`` an in-process emulator (``RobstrideEmulator``) answers on the same channels.
+Opening a channel that cannot be used raises ``BusOpenError`` with a one-line fix (``canbus``).
 """
 
 from __future__ import annotations
@@ -29,9 +34,11 @@ import numpy as np
 
 from bar_policy.deploy.robstride.bus import DEFAULT_REPLY_TIMEOUT, BusReading
 from bar_policy.deploy.robstride.calibration import Calibration
+from bar_policy.deploy.robstride.canbus import open_can_buses
+from bar_policy.deploy.robstride.cli_args import can_timeout_arg, int_range, non_negative, positive
 from bar_policy.deploy.robstride.errors import CommandError, InitializationError, RobstrideError
 from bar_policy.deploy.robstride.group import RobstrideGroup
-from bar_policy.deploy.robstride.protocol import decode_request, fault_names
+from bar_policy.deploy.robstride.protocol import DEFAULT_CAN_TIMEOUT, decode_request, fault_names
 from bar_policy.deploy.targets.base import JointState, Target, TargetError
 from bar_policy.robot.constants import RobotSpec, load_robot
 from bar_policy.robot.mit import MitCommand
@@ -83,6 +90,11 @@ class RealTarget(Target):
         self._last_cmd: MitCommand | None = None
         self._reading: BusReading | None = None
         self._closed = False
+
+    @property
+    def can_timeout(self) -> float:
+        """The CAN watchdog armed at ``start()``, s (0: the motors keep their own); for run metadata."""
+        return min((m.can_timeout for bus in self.group.buses for m in bus.motors), default=0.0)
 
     # ----------------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -228,13 +240,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="scan, verify, decode and log commands; write no caps, enable nothing")  # fmt: skip
     add("--emulate", choices=("auto", "none", "realtime", "lockstep"), default="auto",
         help="in-process emulator: auto = realtime on virtual, none on socketcan")  # fmt: skip
-    add("--emulate-dt", type=float, default=None,
+    add("--emulate-dt", type=positive("s"), default=None,
         help="lockstep emulator: physics s per command round (default: --control-dt, else 0.02)")  # fmt: skip
-    add("--reply-timeout", type=float, default=None,
+    add("--reply-timeout", type=positive("s"), default=None,
         help=f"reply deadline per round, s (default {DEFAULT_REPLY_TIMEOUT} socketcan, "
              f"{VIRTUAL_REPLY_TIMEOUT} virtual)")  # fmt: skip
-    add("--damping-kd", type=float, default=1.0, help="Kd of the damping fail-safe, N*m*s/rad")
-    add("--scan-to", type=int, default=127, help="highest CAN id scanned before enabling")
+    add("--can-timeout", type=can_timeout_arg, default=DEFAULT_CAN_TIMEOUT,
+        help="motor-side CAN watchdog canTimeout (0x7028), s: a motor that hears no frame for this long "
+             f"disables itself; 0 leaves the motors' setting (default {DEFAULT_CAN_TIMEOUT})")  # fmt: skip
+    add("--damping-kd", type=non_negative("N*m*s/rad"), default=1.0,
+        help="Kd of the damping fail-safe, N*m*s/rad")  # fmt: skip
+    add("--scan-to", type=int_range(1, 127), default=127, help="highest CAN id scanned before enabling")
 
 
 def parse_channels(spec: str | None, interfaces: Sequence[str]) -> dict[str, str]:
@@ -280,6 +296,14 @@ def _make_target(args: argparse.Namespace, mode: str) -> RealTarget:
     timeout = getattr(args, "reply_timeout", None) or (
         VIRTUAL_REPLY_TIMEOUT if interface == "virtual" else DEFAULT_REPLY_TIMEOUT
     )
+    can_timeout = getattr(args, "can_timeout", DEFAULT_CAN_TIMEOUT)
+    control_dt = getattr(args, "control_dt", None)
+    if can_timeout and control_dt and can_timeout < 3 * control_dt:
+        raise InitializationError(
+            f"--can-timeout {can_timeout:g} s is shorter than 3 control periods (--control-dt "
+            f"{control_dt:g} s): one late tick would disable the motors; use a longer watchdog, or 0 to "
+            "leave the motors' own"
+        )
     companions: list[object] = []
     if emulate != "none":
         from bar_policy.deploy.robstride.emulator import RobstrideEmulator
@@ -293,12 +317,14 @@ def _make_target(args: argparse.Namespace, mode: str) -> RealTarget:
         companions.append(emulator.start())
         log.info("started the %s Robstride emulator on %s", emulate, channels)
     try:
-        buses = {i: can.Bus(interface=interface, channel=channels[i]) for i in interfaces}
-    except (can.CanError, OSError) as exc:
+        buses = open_can_buses(interface, {i: channels[i] for i in interfaces})
+    except BaseException:
         for c in companions:
             c.close()  # type: ignore[attr-defined]
-        raise InitializationError(f"cannot open {interface} channels {channels}: {exc}") from exc
-    group = RobstrideGroup.from_robot(robot, buses, calibration=calibration, reply_timeout=timeout)
+        raise
+    group = RobstrideGroup.from_robot(
+        robot, buses, calibration=calibration, reply_timeout=timeout, can_timeout=can_timeout
+    )
     return RealTarget(
         robot,
         group,
