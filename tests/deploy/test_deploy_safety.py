@@ -215,7 +215,7 @@ def test_stop_signal_goes_to_damping_and_is_not_a_fault(zero_policy, sig, tmp_pa
             os.kill(os.getpid(), sig)
 
     previous = signal.getsignal(sig)
-    rt, res = _run(zero_policy, target, on_tick=on_tick, log_dir=tmp_path)
+    _rt, res = _run(zero_policy, target, on_tick=on_tick, log_dir=tmp_path)
     assert signal.getsignal(sig) is previous  # handler restored
     # The request is seen at the next tick (11): POLICY -> DAMPING with the signal as reason.
     (tr,) = [tr for tr in res.transitions if tr["reason"].startswith("stop requested")]
