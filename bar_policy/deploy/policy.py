@@ -28,7 +28,8 @@ holds them (lite-model.md 2.1). ``policy.hold_pose`` (that target at action 0) i
 Action clip: the LiteReach env clips every action to [-1, 1] before ``q_cmd`` and feeds the clipped action
 back as the ``actions`` observation term. ``OnnxPolicy.action_clip`` carries that bound: the optional
 metadata key ``bar.action_clip`` (a JSON number, or null for none) when the file has it, else
-``DEFAULT_ACTION_CLIP`` (1.0). The runtime applies it and counts every clipped entry.
+``DEFAULT_ACTION_CLIP`` (1.0); an HC-only file gets no action clip (Humanoid Control applies none). The
+runtime applies it and counts every clipped entry.
 """
 
 from __future__ import annotations
@@ -533,5 +534,6 @@ def load_policy(
         action_scale=np.asarray(meta.action_scale, dtype=np.float64),
         kp=kp.astype(np.float64),
         kd=kd.astype(np.float64),
-        action_clip=_action_clip(path, sess),
+        # HC-only files: no clip, as Humanoid Control runs them (q_cmd is still clipped to the limits).
+        action_clip=_action_clip(path, sess) if meta.dialect == "bar" else None,
     )

@@ -114,6 +114,7 @@ def test_hc_only_file_loads_with_schema_and_gains_from_its_keys(tmp_path):
     assert pol.robot.mode == "arms" and pol.metadata.physics_dt is None
     assert pol.obs_manager.term_names == ("joint_pos", "joint_vel", "actions") and pol.obs_manager.size == 35
     assert pol.obs_manager.command_names == ()
+    assert pol.action_clip is None  # HC applies no action clip
     np.testing.assert_array_equal(pol.kp, 30.0)  # from the file, not the robot data (50 / 2)
     np.testing.assert_array_equal(pol.kd, 1.5)
     # HOLD goes where the policy starts: the default pose on the left arm, 0 on the undriven right arm.
