@@ -103,8 +103,10 @@ def _assert_stopped_log(run: Path, sig: signal.Signals) -> dict[str, np.ndarray]
     np.testing.assert_array_equal(arrays["mode"][k:], int(Mode.DAMPING))
     np.testing.assert_array_equal(arrays["kp"][k:], 0.0)  # damping: Kp = 0, Kd = 1
     np.testing.assert_array_equal(arrays["kd"][k:], 1.0)
-    # DAMPING lasted --damping-time (0.3 s = 15 ticks of 20 ms, the last one ending the run).
-    assert arrays["t"][-1] - arrays["t"][k] == pytest.approx(DAMPING_TIME, abs=0.021)
+    # DAMPING lasted --damping-time: the run ended at the first tick at least 0.3 s after the stop request
+    # (on the wall clock for the real target, where a late tick on a loaded machine skips deadlines).
+    damped = arrays["t"][k:] - arrays["t"][k]
+    assert damped[-2] < DAMPING_TIME - 1e-9 <= damped[-1]
     # The MCAP beside it is complete and holds the same ticks.
     mcap = read_mcap_log(run / MCAP_FILE)
     assert mcap.complete and mcap.meta["end_reason"] == f"{sig.name} received"
