@@ -310,10 +310,17 @@ def _run_session(args: argparse.Namespace, argv: Sequence[str], real: object, st
         f"policy {args.policy} [{policy.obs_manager.fingerprint}] on {args.target}, "
         f"commands {commands.describe()}"
     )
+    from bar_policy.deploy.log import LogDirError
+
     try:
+        try:
+            rt.open_log()  # before the target starts: nothing slow between activation and the first tick
+        except LogDirError as e:
+            return _fail(e)
         try:
             target.start()
         except TargetError as e:
+            rt.close_unstarted(f"not started: target {args.target}: {_one_line(e)}")
             return _fail(f"target {args.target}: {e}")
         result = rt.run(stop)  # type: ignore[arg-type]
     except TargetError as e:

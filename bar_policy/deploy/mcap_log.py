@@ -305,6 +305,8 @@ class McapLog:
     """True when the file has its footer (the run closed); False for a truncated file."""
     error: str = ""
     """Why reading stopped early (empty for a complete file)."""
+    publish_unix: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """Wall clock when each tick started (the ``/timing`` messages' publish time), s since the epoch."""
 
 
 def _decode_column(values: list[Any], shape: tuple[int, ...], dtype: np.dtype) -> np.ndarray:
@@ -340,6 +342,7 @@ def read_mcap_log(path: str | Path) -> McapLog:
     spec: dict[str, Any] | None = None
     per_topic: dict[str, dict[int, dict[str, Any]]] = {topic: {} for topic in TICK_TOPICS}
     transitions: list[dict[str, Any]] = []
+    published: dict[int, int] = {}
     complete = False
     error = ""
     with path.open("rb") as f:
@@ -357,6 +360,8 @@ def read_mcap_log(path: str | Path) -> McapLog:
                         transitions.append(msg)
                     elif topic in per_topic:
                         per_topic[topic][int(msg["tick"])] = msg
+                        if topic == "/timing":
+                            published[int(msg["tick"])] = rec.publish_time
                 elif isinstance(rec, Metadata):
                     body = json.loads(rec.metadata.get("json", "{}"))
                     if rec.name == "bar_deploy.run":
@@ -393,4 +398,12 @@ def read_mcap_log(path: str | Path) -> McapLog:
             arrays[name] = _decode_column(values, *fields[name])
     if end_meta is not None:
         meta = meta | end_meta
-    return McapLog(arrays=arrays, meta=meta, transitions=transitions, complete=complete, error=error)
+    publish = np.array([published.get(k, 0) / 1e9 if k in published else np.nan for k in ticks])
+    return McapLog(
+        arrays=arrays,
+        meta=meta,
+        transitions=transitions,
+        complete=complete,
+        error=error,
+        publish_unix=publish,
+    )

@@ -487,9 +487,30 @@ class Runtime:
         with installed:
             return self._run(stop)
 
-    def _make_log(self) -> RunLog | None:
-        if self.log_dir is None:
-            return None
+    def open_log(self) -> Path | None:
+        """Create the run directory and start the log now (``run`` does it otherwise); idempotent.
+
+        ``bar-deploy`` calls it before the target starts: a log directory that cannot be written is then
+        refused before anything moves, and no file-system work (``fsync``) falls between the real target's
+        activation and the first tick, which must come within the motors' CAN watchdog.
+
+        Returns:
+            The run directory, or None without ``log_dir``.
+
+        Raises:
+            LogDirError: the run directory cannot be created or written.
+        """
+        if self._runlog is None and self.log_dir is not None:
+            self._runlog = self._make_log()
+        return None if self._runlog is None else self._runlog.path
+
+    def close_unstarted(self, reason: str) -> None:
+        """Close a log opened by ``open_log`` for a run that never started (``end_reason`` = ``reason``)."""
+        if self._runlog is not None and not self._runlog.closed:
+            self._runlog.close(end_reason=reason, transitions=[], fault_count=0)
+            self.log_path = self._runlog.path / "log.npz"
+
+    def _make_log(self) -> RunLog:
         om = self.policy.obs_manager
         fields = log_fields(self.policy.robot.num_joints, self.policy.n_actions, om.size, self.commands.names)
         return RunLog(
@@ -505,7 +526,8 @@ class Runtime:
         dt = cfg.control_dt
         n_ticks = None if cfg.duration is None else max(round(cfg.duration / dt), 1)
         paced = not self.target.synchronous or cfg.realtime
-        runlog = self._runlog = self._make_log()
+        self.open_log()
+        runlog = self._runlog
         compute, infer, jitter = [], [], []
         overruns = 0
         k = 0
@@ -578,6 +600,7 @@ class Runtime:
                 try:
                     log_path = runlog.close(
                         end_reason=end_reason,
+                        target_metadata=self._target_metadata(),
                         stop_reason=self._stop_reason,
                         stop_signal=stop.signal_name,
                         stop_signals_received=stop.count,
@@ -609,6 +632,12 @@ class Runtime:
             stop_reason=self._stop_reason,
             safe_stop=safe_stop,
         )
+
+    def _target_metadata(self) -> dict[str, Any]:
+        try:
+            return dict(self.target.run_metadata())
+        except Exception as e:  # never lose the log for a description
+            return {"error": f"{type(e).__name__}: {e}"}
 
     def _safe_end(self, reason: str, t: float) -> str:
         """DAMPING (logged with the reason), then the target's safe stop; errors here are logged only.

@@ -170,11 +170,54 @@ def test_error_during_the_run_is_one_line_status_1_and_the_log_closed(
     fake.add_arguments = lambda parser: None
     fake.make_target = lambda args, mode: _FailingMock(mode, error)
     monkeypatch.setitem(sys.modules, "bar_policy.deploy.targets.real", fake)
-    argv = ["--policy", str(policy_path), "--target", "real", "--ramp-time", "0", "--log", str(tmp_path)]
+    runs = tmp_path / "runs"
+    argv = ["--policy", str(policy_path), "--target", "real", "--ramp-time", "0", "--log", str(runs)]
     assert main(argv) == 1
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("bar-deploy")]
     assert len(err) == 1 and err[0].startswith("bar-deploy: error: ") and line in err[0]
     assert "; from ids [11]" in err[0] or isinstance(error, RuntimeError)  # a multi-line message, one line
-    arrays, meta = load_log(next(tmp_path.iterdir()))
+    arrays, meta = load_log(next(runs.iterdir()))
     assert meta["end_reason"].startswith(f"exception {type(error).__name__}") and meta["safe_stop"] == "ok"
     assert arrays["t"].size == 9 and meta["transitions"][-1]["to"] == "DAMPING"
+
+
+class _RefusingMock(MockTarget):
+    def start(self):
+        raise TargetError("activation refused: scan found ids [11, 12], expected 14 motors")
+
+
+class _DescribedMock(MockTarget):
+    def run_metadata(self):
+        return {"can_timeout": 0.2}
+
+
+def _fake_real(monkeypatch, target_cls):
+    fake = types.ModuleType("bar_policy.deploy.targets.real")
+    fake.add_arguments = lambda parser: None
+    fake.make_target = lambda args, mode: target_cls(mode)
+    monkeypatch.setitem(sys.modules, "bar_policy.deploy.targets.real", fake)
+
+
+def test_target_that_cannot_start_is_refused_and_its_log_closed(policy_path, tmp_path, monkeypatch, capsys):
+    _fake_real(monkeypatch, _RefusingMock)
+    runs = tmp_path / "runs"
+    assert main(["--policy", str(policy_path), "--target", "real", "--log", str(runs)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        "bar-deploy: error: target real: activation refused: scan found ids [11, 12], expected 14 motors"
+    ]
+    arrays, meta = load_log(next(runs.iterdir()))
+    assert arrays["t"].size == 0 and meta["status"] == "closed"
+    assert (
+        meta["end_reason"]
+        == "not started: target real: activation refused: scan found ids [11, 12], expected 14 motors"
+    )
+
+
+def test_target_run_metadata_is_kept_in_the_log(policy_path, tmp_path, monkeypatch):
+    _fake_real(monkeypatch, _DescribedMock)
+    runs = tmp_path / "runs"
+    argv = ["--policy", str(policy_path), "--target", "real", "--duration", "0.1", "--log", str(runs)]
+    assert main(argv) == 0
+    _, meta = load_log(next(runs.iterdir()))
+    assert meta["target_metadata"] == {"can_timeout": 0.2}
