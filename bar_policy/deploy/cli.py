@@ -2,11 +2,17 @@
 
 Usage::
 
-    bar-deploy --policy x.onnx [--target sim|mock|real] [--duration S] [--commands SPEC] [--viewer]
+    bar-deploy --policy x.onnx [--target sim|mock|real] [--duration S|inf] [--commands SPEC] [--viewer]
                [--video out.mp4] [--log DIR] [--seed N]
     bar-deploy run ...          (same as above)
     bar-deploy plot LOG [--out DIR]
     bar-deploy eval --policy x.onnx [--episodes N] [--seed N]
+
+Stopping: SIGINT (Ctrl+C), SIGTERM and SIGHUP take one path: DAMPING, then the stop frames on every bus,
+then the log closed with the reason; exit status 0. A second signal is counted and ignored. Exit status:
+0 ran to the end or stopped on request, 1 ended on a fault or an error during the run (the joints were
+damped and stopped), 2 refused before anything moved (bad arguments, policy or target); every refusal is
+one line on stderr, ``bar-deploy: error: ...``.
 
 The only module that prints. Never imports jax, torch or onnx.
 """
@@ -16,12 +22,16 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import NoReturn
 
 __all__ = ["main"]
+
+log = logging.getLogger("bar_policy.deploy.cli")
 
 TARGETS = ("sim", "mock", "real")
 SUBCOMMANDS = ("run", "plot", "eval")
@@ -31,16 +41,69 @@ _EPILOG = """subcommands:
   eval  sim2sim success rate:            bar-deploy eval --policy x.onnx --episodes 100
 command sources (--commands):
   sampled | sampled:PERIOD | file:PATH (.json/.csv/.npz) | stream:stdin | stream:udp:PORT (127.0.0.1 only)
+real target options (CAN interface, channels, calibration, dry run, emulator): bar-deploy --target real --help
+stopping: SIGINT (Ctrl+C), SIGTERM, SIGHUP -> DAMPING, stop frames, log closed; a second signal is ignored
+exit status: 0 done or stopped on request, 1 fault or error during the run, 2 refused before the start
 """
+
+
+def _one_line(msg: object) -> str:
+    """A message on one line (multi-line driver messages joined with '; ')."""
+    return "; ".join(part.strip() for part in str(msg).splitlines() if part.strip())
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors: ``PROG: error: MESSAGE (see PROG --help)``, exit status 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {_one_line(message)} (see {self.prog} --help)\n")
+
+
+def _number(kind: str, test: Callable[[float], bool], cast: type = float) -> Callable[[str], float]:
+    """An argparse type: a finite number of ``cast`` that passes ``test``; the error says ``kind``."""
+
+    def parse(text: str) -> float:
+        try:
+            value = cast(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {kind}, got {text!r}") from None
+        if not (math.isfinite(value) and test(value)):
+            raise argparse.ArgumentTypeError(f"expected {kind}, got {text!r}")
+        return value
+
+    parse.__name__ = kind  # argparse names the type in some messages
+    return parse
+
+
+_seconds = _number("a time > 0 s", lambda v: v > 0)
+_seconds0 = _number("a time >= 0 s", lambda v: v >= 0)
+_count0 = _number("an integer >= 0", lambda v: v >= 0, int)
+_count1 = _number("an integer >= 1", lambda v: v >= 1, int)
+_priority = _number("an integer in 1..99", lambda v: 1 <= v <= 99, int)
+
+
+def _duration(text: str) -> float | None:
+    """``--duration``: seconds > 0, or ``inf`` (until a stop signal): None."""
+    if text.strip().lower() in ("inf", "infinity", "forever"):
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(
+            f"expected a time > 0 s, or 'inf' to run until stopped; got {text!r}"
+        )
+    return value
 
 
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--policy", required=True, type=Path, help="ONNX policy file exported by bar_policy")
     p.add_argument("--mode", default="arms", choices=("arms", "arms_neck"), help="joint set of the robot")
-    p.add_argument("--control-dt", type=float, default=0.02, help="control period in s (the policy's dt)")
+    p.add_argument("--control-dt", type=_seconds, default=0.02, help="control period in s (the policy's dt)")
     p.add_argument(
         "--action-clip",
-        type=float,
+        type=_number("a number >= 0", lambda v: v >= 0),
         help="clip raw actions to +-this (default: the file's bar.action_clip, else 1.0 as in training; "
         "0: none)",
     )
@@ -48,7 +111,7 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 
 def _run_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="bar-deploy",
         description="Run an ONNX policy at its policy rate on a target, under the safety supervisor.",
         epilog=_EPILOG,
@@ -56,26 +119,49 @@ def _run_parser() -> argparse.ArgumentParser:
     )
     _common(p)
     p.add_argument("--target", default="sim", choices=TARGETS, help="where to run (default: sim)")
-    p.add_argument("--duration", type=float, default=10.0, help="run length in s (0: until Ctrl+C)")
+    p.add_argument(
+        "--duration",
+        type=_duration,
+        default=10.0,
+        help="run length in s, or 'inf' until stopped (default 10)",
+    )
     p.add_argument("--commands", default="sampled", help="command source (see below); default: sampled")
     p.add_argument("--seed", type=int, default=0, help="seed of the sampled command source")
     p.add_argument(
         "--log", type=Path, default=Path("runs/deploy"), help="directory of run logs (default: runs/deploy)"
     )
     p.add_argument("--no-log", action="store_true", help="record no run log")
-    p.add_argument("--ramp-time", type=float, default=3.0, help="HOLD ramp to the default pose, s")
+    p.add_argument("--ramp-time", type=_seconds0, default=3.0, help="HOLD ramp to the default pose, s")
     p.add_argument(
         "--start", default="hold", choices=("hold", "policy"), help="start with the ramp or the policy"
     )
-    p.add_argument("--max-overruns", type=int, default=5, help="consecutive overruns that trip damping")
-    p.add_argument("--stale-timeout", type=float, default=0.1, help="state age that trips damping, s")
     p.add_argument(
-        "--rt-priority", type=int, help="run the loop under SCHED_FIFO at this priority (1-99, needs root)"
+        "--max-overruns", type=_count0, default=5, help="consecutive overruns that trip damping (0: off)"
+    )
+    p.add_argument("--stale-timeout", type=_seconds, default=0.1, help="state age that trips damping, s")
+    p.add_argument(
+        "--damping-time",
+        type=_seconds0,
+        default=1.0,
+        help="after a fault or a stop signal, damp this long before the stop frames, s (default 1)",
+    )
+    p.add_argument(
+        "--rt-priority",
+        type=_priority,
+        help="run the loop under SCHED_FIFO at this priority (1-99, needs root)",
     )
     p.add_argument("--viewer", action="store_true", help="sim: live MuJoCo viewer (runs at real time)")
     p.add_argument("--realtime", action="store_true", help="sim: pace at wall-clock rate")
     p.add_argument("--video", type=Path, help="sim: write a video (.mp4, or .gif without ffmpeg)")
     return p
+
+
+def _target_of(argv: Sequence[str]) -> str | None:
+    """The ``--target`` value in ``argv`` (None when absent), before the full parser exists."""
+    pre = _Parser(prog="bar-deploy", add_help=False)
+    pre.add_argument("--target")
+    known, _ = pre.parse_known_args(argv)
+    return known.target
 
 
 def _configure_logging(verbose: bool) -> None:
@@ -85,9 +171,9 @@ def _configure_logging(verbose: bool) -> None:
     )
 
 
-def _fail(msg: str) -> int:
-    print(f"bar-deploy: error: {msg}", file=sys.stderr)
-    return 2
+def _fail(msg: object, status: int = 2) -> int:
+    print(f"bar-deploy: error: {_one_line(msg)}", file=sys.stderr)
+    return status
 
 
 def _with_action_clip(policy: object, args: argparse.Namespace) -> object:
@@ -117,9 +203,8 @@ def _real_module():  # noqa: ANN202 - module
 
 def _run(argv: Sequence[str]) -> int:
     parser = _run_parser()
-    pre, _ = parser.parse_known_args(argv)
     real = None
-    if pre.target == "real":
+    if _target_of(argv) == "real":
         real = _real_module()
         real.add_arguments(parser)
     args = parser.parse_args(argv)
@@ -127,13 +212,27 @@ def _run(argv: Sequence[str]) -> int:
         return _fail("--video needs --target sim")
     if args.viewer and args.target != "sim":
         return _fail("--viewer needs --target sim")
+    if not args.no_log:
+        from bar_policy.deploy.log import LogDirError, check_log_dir
+
+        try:
+            check_log_dir(args.log)
+        except LogDirError as e:
+            return _fail(e)
     if args.video and not args.viewer:
         # Headless offscreen GL, chosen before mujoco is imported.
         os.environ.setdefault("MUJOCO_GL", "egl")
         if os.environ["MUJOCO_GL"] == "egl":
             os.environ.setdefault("EGL_PLATFORM", "surfaceless")
     _configure_logging(args.verbose)
+    from bar_policy.deploy.signals import StopSignals
 
+    # Installed before anything moves and kept until the log is closed: every stop takes one path.
+    with StopSignals() as stop:
+        return _run_session(args, argv, real, stop)
+
+
+def _run_session(args: argparse.Namespace, argv: Sequence[str], real: object, stop: object) -> int:
     from bar_policy.deploy.commands import CommandError, make_command_source
     from bar_policy.deploy.policy import PolicyLoadError, load_policy
     from bar_policy.deploy.runtime import Runtime, RuntimeConfig
@@ -148,14 +247,15 @@ def _run(argv: Sequence[str]) -> int:
         )
         config = RuntimeConfig(
             control_dt=args.control_dt,
-            duration=args.duration if args.duration > 0 else None,
+            duration=args.duration,
             start_mode=args.start,
+            damping_after_fault=args.damping_time,
             realtime=args.realtime or args.viewer,
             rt_priority=args.rt_priority,
             safety=safety,
         )
     except (PolicyLoadError, ValueError) as e:
-        return _fail(str(e))
+        return _fail(e)
     kin = Kinematics(args.mode)
     left, right = kin.fingertips(policy.default_joint_pos)
     try:
@@ -166,54 +266,80 @@ def _run(argv: Sequence[str]) -> int:
             initial={"target_pos_left": left, "target_pos_right": right},
         )
     except CommandError as e:
-        return _fail(str(e))
+        return _fail(e)
 
-    if args.target == "sim":
-        from bar_policy.deploy.targets.sim import SimConfig, SimTarget, training_damping
+    target = None
+    try:
+        if args.target == "sim":
+            from bar_policy.deploy.targets.sim import SimConfig, SimTarget, training_damping
 
-        sim_cfg = SimConfig(
-            viewer=args.viewer,
-            video_path=str(args.video) if args.video else None,
-            damping=training_damping(policy.metadata.randomization),
+            sim_cfg = SimConfig(
+                viewer=args.viewer,
+                video_path=str(args.video) if args.video else None,
+                damping=training_damping(policy.metadata.randomization),
+            )
+            target = SimTarget(args.mode, sim_cfg)
+        elif args.target == "mock":
+            from bar_policy.deploy.targets.mock import MockTarget
+
+            target = MockTarget(args.mode)
+        else:
+            target = real.make_target(args, args.mode)  # type: ignore[attr-defined]
+        rt = Runtime(
+            policy,
+            target,
+            commands,
+            config,
+            log_dir=None if args.no_log else args.log,
+            log_meta={"argv": list(argv), "seed": args.seed},
+            log_name=args.target,
+            kinematics=kin,
         )
-        target = SimTarget(args.mode, sim_cfg)
-    elif args.target == "mock":
-        from bar_policy.deploy.targets.mock import MockTarget
+    except (TargetError, ValueError) as e:
+        commands.close()
+        if target is not None:
+            target.close()
+        return _fail(f"target {args.target}: {e}")
 
-        target = MockTarget(args.mode)
-    else:
-        try:
-            target = real.make_target(args, args.mode)
-        except TargetError as e:
-            commands.close()
-            return _fail(f"target real: {e}")
-
+    if stop.requested:  # type: ignore[attr-defined]
+        commands.close()
+        target.close()
+        print(f"{stop.reason} before the start: nothing was started")  # type: ignore[attr-defined]
+        return 0
     print(
         f"policy {args.policy} [{policy.obs_manager.fingerprint}] on {args.target}, "
         f"commands {commands.describe()}"
     )
-    meta = {"argv": list(argv), "seed": args.seed}
+    from bar_policy.deploy.log import LogDirError
+
     try:
-        with target:
-            rt = Runtime(
-                policy,
-                target,
-                commands,
-                config,
-                log_dir=None if args.no_log else args.log,
-                log_meta=meta,
-                log_name=args.target,
-                kinematics=kin,
-            )
-            result = rt.run()
+        try:
+            rt.open_log()  # before the target starts: nothing slow between activation and the first tick
+        except LogDirError as e:
+            return _fail(e)
+        try:
+            target.start()
+        except TargetError as e:
+            rt.close_unstarted(f"not started: target {args.target}: {_one_line(e)}")
+            return _fail(f"target {args.target}: {e}")
+        result = rt.run(stop)  # type: ignore[arg-type]
     except TargetError as e:
-        return _fail(f"target {args.target}: {e}")
+        where = f"; log: {rt.log_path.parent}" if rt.log_path is not None else ""
+        return _fail(f"target {args.target} failed during the run: {e} (damped, then stopped{where})", 1)
+    except Exception as e:
+        log.error("the run ended on an exception (damped, then stopped)", exc_info=True)
+        where = f"; log: {rt.log_path.parent}" if rt.log_path is not None else ""
+        return _fail(f"the run ended on {type(e).__name__}: {e} (damped, then stopped{where})", 1)
     finally:
         commands.close()
+        try:
+            target.close()
+        except Exception:
+            log.exception("closing the %s target failed", args.target)
     print(result.timing.format())
     print(
         f"end: {result.end_reason}; final mode {result.final_mode.name}; "
-        f"q_cmd clipped {result.clip_count} joint-ticks"
+        f"q_cmd clipped {result.clip_count} joint-ticks; safe stop: {result.safe_stop}"
     )
     for tr in result.transitions:
         print(f"  t={tr['t']:.3f} s  {tr['from']} -> {tr['to']}: {tr['reason']}")
@@ -226,8 +352,8 @@ def _run(argv: Sequence[str]) -> int:
 
 
 def _plot(argv: Sequence[str]) -> int:
-    p = argparse.ArgumentParser(prog="bar-deploy plot", description="Write PNG plots of a run log.")
-    p.add_argument("log", type=Path, help="run directory or its log.npz")
+    p = _Parser(prog="bar-deploy plot", description="Write PNG plots of a run log.")
+    p.add_argument("log", type=Path, help="run directory, its log.npz or its run.mcap")
     p.add_argument("--out", type=Path, help="output directory (default: the run directory)")
     args = p.parse_args(argv)
     from bar_policy.deploy.plot import plot_log
@@ -235,27 +361,39 @@ def _plot(argv: Sequence[str]) -> int:
     try:
         files = plot_log(args.log, args.out)
     except (FileNotFoundError, ValueError) as e:
-        return _fail(str(e))
+        return _fail(e)
+    except OSError as e:
+        return _fail(f"cannot write the plots: {e.strerror or e}: {e.filename or args.out}")
     for f in files:
         print(f)
     return 0
 
 
 def _eval(argv: Sequence[str]) -> int:
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="bar-deploy eval",
         description="Sim2sim: success rate of the policy on the C MuJoCo sim target over seeded episodes.",
     )
     _common(p)
-    p.add_argument("--episodes", type=int, default=100, help="number of episodes (default 100)")
+    p.add_argument("--episodes", type=_count1, default=100, help="number of episodes (default 100)")
     p.add_argument("--seed", type=int, default=0, help="seed of episode 0 (episode e uses seed + e)")
-    p.add_argument("--episode-length", type=float, default=5.0, help="episode length in s (env: 5)")
+    p.add_argument("--episode-length", type=_seconds, default=5.0, help="episode length in s (env: 5)")
     p.add_argument(
-        "--resample-period", type=float, default=2.5, help="target resampling period in s (env: 2.5; 0: none)"
+        "--resample-period",
+        type=_seconds0,
+        default=2.5,
+        help="target resampling period in s (env: 2.5; 0: none)",
     )
-    p.add_argument("--init-noise", type=float, default=0.0, help="initial joint noise half-width, rad")
+    p.add_argument(
+        "--init-noise",
+        type=_number("an angle >= 0 rad", lambda v: v >= 0),
+        default=0.0,
+        help="initial joint noise half-width, rad",
+    )
     p.add_argument("--json", type=Path, help="write per-episode results here")
     args = p.parse_args(argv)
+    if args.json is not None and not (args.json.parent.is_dir() and os.access(args.json.parent, os.W_OK)):
+        return _fail(f"--json {str(args.json)!r}: its directory does not exist or is not writable")
     _configure_logging(args.verbose)
     logging.getLogger("bar_policy.deploy.safety").setLevel(logging.WARNING)
     from bar_policy.deploy.policy import PolicyLoadError, load_policy
@@ -271,17 +409,24 @@ def _eval(argv: Sequence[str]) -> int:
             init_noise=args.init_noise,
         )
     except (PolicyLoadError, ValueError) as e:
-        return _fail(str(e))
+        return _fail(e)
     result = evaluate(policy, cfg)
     print(result.format())
     if args.json:
-        args.json.write_text(json.dumps(result.to_dict(), indent=2))
+        try:
+            args.json.write_text(json.dumps(result.to_dict(), indent=2))
+        except OSError as e:
+            return _fail(f"cannot write --json {str(args.json)!r}: {e.strerror or e}")
         print(f"per-episode results: {args.json}")
     return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``bar-deploy``; returns the exit status (0 ok, 1 run ended on a fault, 2 error)."""
+    """Entry point of ``bar-deploy``; returns the exit status.
+
+    0: ran to the end, or stopped on request (SIGINT / SIGTERM / SIGHUP); 1: ended on a fault or an error
+    during the run; 2: refused before anything moved (bad arguments, policy, log directory or target).
+    """
     args = list(sys.argv[1:] if argv is None else argv)
     if args and args[0] in SUBCOMMANDS:
         sub, rest = args[0], args[1:]

@@ -1,13 +1,19 @@
-"""One log per run, as NumPy NPZ (numpy only, no pickles).
+"""One log per run: a streaming MCAP file that survives a crash, and one NPZ of every tick at the end.
 
 A run directory ``<dir>/<YYYYmmdd-HHMMSS>-<target>/`` holds:
 
-- ``chunks/chunk_NNNNNN.npz``: every ``chunk_ticks`` ticks the filled buffer is handed to a writer thread
-  and saved, so at most one chunk is lost if the process is killed outright;
-- ``log.npz``: all ticks, written by ``close()`` (the runtime calls it in ``finally``, so it is written when
-  the run ends on an exception too), plus ``meta_json`` (a 0-d string array: run metadata, mode
-  transitions, timing summary, end reason);
-- ``run.json``: the same metadata, for humans.
+- ``run.mcap``: every tick as JSON messages on named topics (``mcap_log`` documents the schema), written by a
+  background thread as the ticks arrive. Every ``flush_interval`` s of wall time (0.5 s) the chunk in
+  progress is closed, written and ``fsync``-ed, so a SIGKILL or a power loss loses at most the last
+  ``flush_interval`` s plus the writer's backlog (counted: ``log_max_backlog_ticks``). Foxglove and the
+  ``mcap`` CLI open it; ``read_mcap_log`` reads it back even without its footer.
+- ``log.npz``: all ticks as arrays, written (atomically, fsync-ed) by ``close()``, plus ``meta_json`` (a 0-d
+  string: run metadata, mode transitions, timing summary, end reason, the stop path's outcome). The runtime
+  calls ``close()`` in ``finally``, so it is written when the run ends on a signal or an exception too.
+- ``run.json``: the metadata for humans, ``status: running`` until ``close()`` rewrites it with
+  ``status: closed`` (both writes atomic and fsync-ed).
+- ``chunks/``: while the run lasts, the NPZ spill of every ``chunk_ticks`` ticks (memory stays bounded);
+  removed once ``log.npz`` is on disk.
 
 Per-tick arrays (first axis = tick): ``t`` (target clock, s), ``wall`` (s since start), ``mode`` (int8,
 ``safety.Mode``), ``q``/``dq``/``tau`` (measured, (T, n)), ``obs`` (T, obs_size) float32, ``action``
@@ -15,27 +21,41 @@ Per-tick arrays (first axis = tick): ``t`` (target clock, s), ``wall`` (s since 
 (T, n), ``tau_cmd`` (host's MIT torque for the command at the measured state, capped, (T, n)),
 ``n_clipped`` (joints whose q_cmd was clipped to a limit that tick), ``n_action_clipped`` (action
 entries clipped to the action bound), ``compute`` / ``infer`` / ``jitter`` (s), ``overrun`` (bool),
-and one (T, 3) array per command name. ``load_log`` reads a ``log.npz`` or, when the run died before
-``close``, reassembles the chunks.
+and one (T, 3) array per command name. ``load_log`` reads ``log.npz``, or, for a run that never closed
+(killed, power loss), ``run.mcap`` (and NPZ chunks of older runs).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
+import os
 import queue
+import shutil
 import threading
 import time
 import zipfile
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
-__all__ = ["RunLog", "load_log", "log_fields"]
+from bar_policy.deploy.mcap_log import MCAP_FILE, McapRunWriter, read_mcap_log
+
+__all__ = ["FLUSH_INTERVAL", "LogDirError", "RunLog", "check_log_dir", "load_log", "log_fields"]
 
 log = logging.getLogger(__name__)
+
+FLUSH_INTERVAL = 0.5
+"""Wall time between durable flushes of ``run.mcap``, s (the log loses at most this much on a crash)."""
+NOT_CLOSED = "not closed: the process ended without closing the log (killed or power loss)"
+"""``end_reason`` that ``load_log`` reports for a run recovered from ``run.mcap``."""
+
+
+class LogDirError(ValueError):
+    """The log directory cannot be created or written."""
 
 
 def log_fields(
@@ -70,8 +90,67 @@ def log_fields(
     return fields
 
 
+# ---------------------------------------------------------------------------------------------------
+# Durable file helpers
+# ---------------------------------------------------------------------------------------------------
+def _fsync_dir(path: Path) -> None:
+    """Make a directory's new or renamed entries durable (a no-op where a directory cannot be opened)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _write_durable(path: Path, write: Callable[[IO[bytes]], None]) -> None:
+    """Write through ``<path>.partial``, fsync, rename over ``path``, fsync the directory."""
+    tmp = path.with_name(path.name + ".partial")
+    try:
+        with tmp.open("wb") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    _fsync_dir(path.parent)
+
+
+def _json_bytes(meta: Mapping[str, Any]) -> bytes:
+    return json.dumps(meta, indent=2, sort_keys=True, default=str).encode()
+
+
+def check_log_dir(root: str | Path) -> Path:
+    """Create ``root`` if needed and check that a file can be written in it.
+
+    Raises:
+        LogDirError: naming the directory and the operating system's reason.
+    """
+    root = Path(root)
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        probe = root / f".bar-deploy-probe-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as e:
+        reason = e.strerror or str(e)
+        raise LogDirError(
+            f"cannot write run logs under {str(root)!r}: {reason} (give a writable --log DIR, or --no-log)"
+        ) from None
+    return root
+
+
+# ---------------------------------------------------------------------------------------------------
+# Writer
+# ---------------------------------------------------------------------------------------------------
 class RunLog:
-    """Buffered per-tick recorder that writes NPZ chunks in the background and one ``log.npz`` at close."""
+    """Per-tick recorder: a durable streaming ``run.mcap``, an NPZ spill, and ``log.npz`` at close."""
 
     def __init__(
         self,
@@ -81,41 +160,83 @@ class RunLog:
         *,
         name: str = "run",
         chunk_ticks: int = 1000,
+        flush_interval: float = FLUSH_INTERVAL,
+        labels: Mapping[str, Mapping[int, str]] | None = None,
     ) -> None:
-        """Create the run directory.
+        """Create the run directory and start the writer thread.
 
         Args:
             root: parent directory of run directories.
             fields: per-tick fields (``log_fields``).
             meta: JSON-serialisable run metadata.
             name: suffix of the run directory (the target name).
-            chunk_ticks: ticks per chunk file.
+            chunk_ticks: ticks per NPZ spill chunk (bounds the memory of a long run).
+            flush_interval: wall time between durable flushes of ``run.mcap``, s (> 0).
+            labels: names of integer field values for the MCAP messages (``{"mode": {1: "DAMPING"}}``).
+
+        Raises:
+            LogDirError: the run directory or its files cannot be created.
         """
         if chunk_ticks < 1:
             raise ValueError(f"chunk_ticks must be >= 1, got {chunk_ticks}")
-        stamp = time.strftime("%Y%m%d-%H%M%S")
-        root = Path(root)
-        path = root / f"{stamp}-{name}"
-        k = 1
-        while path.exists():
-            path = root / f"{stamp}-{name}-{k}"
-            k += 1
-        (path / "chunks").mkdir(parents=True)
-        self.path = path
+        if not flush_interval > 0:
+            raise ValueError(f"flush_interval must be > 0 s, got {flush_interval}")
         self.fields = dict(fields)
-        self.meta: dict[str, Any] = dict(meta)
         self.chunk_ticks = chunk_ticks
+        self.flush_interval = float(flush_interval)
+        start_ns = time.time_ns()
+        self.meta: dict[str, Any] = {"started_unix": start_ns / 1e9} | dict(meta)
+        self.path = self._make_dir(Path(root), name)
         self.ticks = 0
         self._n = 0
         self._chunk = 0
         self._buf = self._new_buffer()
         self._chunk_files: list[Path] = []
-        self._queue: queue.SimpleQueue[tuple[Path, dict[str, np.ndarray]] | None] = queue.SimpleQueue()
+        self._write_errors: list[str] = []
+        self.flushes = 0
+        """Durable flushes of ``run.mcap`` so far."""
+        self.max_backlog = 0
+        """Most ticks ever waiting for the writer thread (what a crash could lose beyond a flush period)."""
+        self._written = 0
+        self.closed = False
+        try:
+            _write_durable(
+                self.path / "run.json", lambda f: f.write(_json_bytes(self.meta | {"status": "running"}))
+            )
+            self._mcap_file = (self.path / MCAP_FILE).open("wb")
+            self._mcap = McapRunWriter(
+                self._mcap_file, self.fields, self.meta, start_unix_ns=start_ns, labels=labels
+            )
+            self._mcap.flush()
+            self._mcap_file.flush()
+            os.fsync(self._mcap_file.fileno())
+            _fsync_dir(self.path)
+        except OSError as e:
+            raise LogDirError(f"cannot write the run log in {str(self.path)!r}: {e.strerror or e}") from None
+        self._queue: queue.SimpleQueue[tuple[Any, ...]] = queue.SimpleQueue()
         self._writer = threading.Thread(target=self._write_loop, name="bar-deploy-log", daemon=True)
         self._writer.start()
-        self._write_errors: list[str] = []
-        self.closed = False
-        self._write_json(self.meta | {"status": "running"})
+
+    @staticmethod
+    def _make_dir(root: Path, name: str) -> Path:
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+        try:
+            root.mkdir(parents=True, exist_ok=True)
+            k = 0
+            while True:
+                path = root / (f"{stamp}-{name}" if k == 0 else f"{stamp}-{name}-{k}")
+                try:
+                    (path / "chunks").mkdir(parents=True, exist_ok=False)
+                    break
+                except FileExistsError:
+                    k += 1
+        except OSError as e:
+            raise LogDirError(
+                f"cannot create a run directory under {str(root)!r}: {e.strerror or e} "
+                "(give a writable --log DIR, or --no-log)"
+            ) from None
+        _fsync_dir(root)
+        return path
 
     def _new_buffer(self) -> dict[str, np.ndarray]:
         def empty(shape: tuple[int, ...], dt: type) -> np.ndarray:
@@ -124,59 +245,133 @@ class RunLog:
 
         return {k: empty(shape, dt) for k, (shape, dt) in self.fields.items()}
 
-    def _write_loop(self) -> None:
-        while True:
-            item = self._queue.get()
-            if item is None:
-                return
-            path, arrays = item
-            try:
-                np.savez(path, **arrays)
-            except OSError as e:  # keep running; reported at close
-                self._write_errors.append(f"{path}: {e}")
-
+    # -- the loop's side (cheap: copy into the buffer, hand a reference to the writer) ----------------
     def append(self, record: Mapping[str, Any]) -> None:
         """Record one tick (name -> value); fields left out stay NaN (float fields) or 0."""
+        if self.closed:
+            raise RuntimeError("the run log is closed")
         i = self._n
         buf = self._buf
         for k, v in record.items():
             buf[k][i] = v
+        # Rows are never written again once appended, so the writer thread may read them at leisure.
+        self._queue.put(("tick", buf, i, self.ticks, time.time_ns()))
         self._n += 1
         self.ticks += 1
         if self._n == self.chunk_ticks:
-            self._flush_chunk()
+            self._spill_chunk()
 
-    def _flush_chunk(self) -> None:
+    def transition(self, transition: Mapping[str, Any]) -> None:
+        """Record a mode change (``Transition.to_dict()``) on ``/safety/transition``."""
+        if not self.closed:
+            self._queue.put(("transition", dict(transition), time.time_ns()))
+
+    def _spill_chunk(self) -> None:
         if self._n == 0:
             return
         arrays = {k: v[: self._n] for k, v in self._buf.items()}
         path = self.path / "chunks" / f"chunk_{self._chunk:06d}.npz"
         self._chunk_files.append(path)
-        self._queue.put((path, arrays))
+        self._queue.put(("chunk", path, arrays))
         self._chunk += 1
         self._buf = self._new_buffer()
         self._n = 0
 
-    def _write_json(self, meta: Mapping[str, Any]) -> None:
-        (self.path / "run.json").write_text(json.dumps(meta, indent=2, sort_keys=True, default=str))
+    # -- the writer thread -------------------------------------------------------------------------
+    def _error(self, what: str, e: BaseException) -> None:
+        msg = f"{what}: {type(e).__name__}: {e}"
+        if not self._write_errors:
+            log.error("run log: %s (further errors counted)", msg)
+        self._write_errors.append(msg)
 
+    def _durable_flush(self) -> None:
+        try:
+            self._mcap.flush()
+            self._mcap_file.flush()
+            os.fsync(self._mcap_file.fileno())
+            self.flushes += 1
+        except (OSError, ValueError) as e:
+            self._error("flush run.mcap", e)
+
+    def _write_loop(self) -> None:
+        dirty = False
+        next_flush = time.monotonic() + self.flush_interval
+        while True:
+            try:
+                item = self._queue.get(timeout=max(next_flush - time.monotonic(), 0.0))
+            except queue.Empty:
+                item = ("idle",)
+            kind = item[0]
+            if kind == "tick":
+                _, buf, i, tick, wall_ns = item
+                try:
+                    self._mcap.write_tick(tick, {k: v[i] for k, v in buf.items()}, wall_ns)
+                except Exception as e:
+                    self._error(f"tick {tick} to run.mcap", e)
+                self._written = tick + 1
+                self.max_backlog = max(self.max_backlog, self.ticks - self._written)
+                dirty = True
+            elif kind == "transition":
+                try:
+                    self._mcap.write_transition(item[1], item[2])
+                except Exception as e:
+                    self._error("transition to run.mcap", e)
+                dirty = True
+            elif kind == "chunk":
+                _, path, arrays = item
+                try:
+                    np.savez(path, **arrays)
+                except OSError as e:
+                    self._error(f"spill {path.name}", e)
+            elif kind == "close":
+                try:
+                    self._mcap.finish(item[1])
+                    self._mcap_file.flush()
+                    os.fsync(self._mcap_file.fileno())
+                except Exception as e:
+                    self._error("finish run.mcap", e)
+                with contextlib.suppress(OSError):
+                    self._mcap_file.close()
+                return
+            if time.monotonic() >= next_flush:
+                if dirty:
+                    self._durable_flush()
+                    dirty = False
+                next_flush = time.monotonic() + self.flush_interval
+
+    # -- closing -----------------------------------------------------------------------------------
     def close(self, **meta: Any) -> Path:
-        """Flush everything, write ``log.npz`` and ``run.json`` (idempotent); returns the ``log.npz`` path."""
+        """Finish ``run.mcap``, write ``log.npz`` and ``run.json`` (idempotent); returns the ``log.npz`` path.
+
+        ``meta`` is merged into the run metadata (end reason, transitions, timing, counts).
+        """
         out = self.path / "log.npz"
         if self.closed:
             return out
         self.closed = True
-        self._flush_chunk()
-        self._queue.put(None)
-        self._writer.join()
+        self._spill_chunk()
         self.meta.update(meta)
         self.meta["ticks"] = self.ticks
         self.meta["status"] = "closed"
+        self.meta["log_flush_interval_s"] = self.flush_interval
+        # The writer finishes the MCAP with the final metadata; the counters it adds are its own.
+        end = dict(self.meta)
+        self._queue.put(("close", end))
+        self._writer.join()
+        self.meta["log_flushes"] = self.flushes
+        self.meta["log_max_backlog_ticks"] = self.max_backlog
         if self._write_errors:
-            self.meta["chunk_write_errors"] = self._write_errors
+            self.meta["log_write_errors"] = self._write_errors[:20]
+            self.meta["log_write_error_count"] = len(self._write_errors)
         arrays = _concat_chunks(self._chunk_files, self.fields)
-        np.savez(out, meta_json=np.array(json.dumps(self.meta, sort_keys=True, default=str)), **arrays)
-        self._write_json(self.meta)
+        meta_json = np.array(json.dumps(self.meta, sort_keys=True, default=str))
+
+        def write_npz(f: IO[bytes]) -> None:
+            np.savez(f, meta_json=meta_json, **arrays)
+
+        _write_durable(out, write_npz)
+        _write_durable(self.path / "run.json", lambda f: f.write(_json_bytes(self.meta)))
+        shutil.rmtree(self.path / "chunks", ignore_errors=True)
         log.info("run log written to %s (%d ticks)", out, self.ticks)
         return out
 
@@ -196,29 +391,70 @@ def _concat_chunks(
     return {k: np.zeros((0, *shape), dtype=dt) for k, (shape, dt) in fields.items()}
 
 
+# ---------------------------------------------------------------------------------------------------
+# Reading
+# ---------------------------------------------------------------------------------------------------
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def _load_mcap(path: Path, run_json: dict[str, Any]) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    rec = read_mcap_log(path)
+    meta = run_json | rec.meta
+    if not rec.complete:
+        meta["status"] = "running"
+        meta["end_reason"] = NOT_CLOSED
+        meta["recovered_from"] = path.name
+        if rec.error:
+            meta["recovery_stopped_at"] = rec.error
+        meta.setdefault("transitions", rec.transitions)
+    meta["ticks"] = int(rec.arrays["t"].shape[0]) if "t" in rec.arrays else 0
+    return rec.arrays, meta
+
+
 def load_log(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    """Read a run log: a ``log.npz`` file or a run directory (chunks are used when ``log.npz`` is absent).
+    """Read a run log: a run directory, its ``log.npz`` or its ``run.mcap``.
+
+    A directory is read from ``log.npz`` when the run closed, else from ``run.mcap`` (complete or cut off by
+    a crash: everything up to the last durable flush), else from NPZ chunks (logs of older versions). A run
+    recovered without ``close()`` has ``meta["status"] == "running"`` and ``meta["end_reason"]`` saying so.
 
     Returns:
         ``(arrays, meta)``: per-tick arrays (first axis = tick) and the run metadata.
 
     Raises:
         FileNotFoundError: nothing readable at ``path``.
+        ValueError: the file is not a run log.
     """
     path = Path(path)
     if path.is_dir():
-        final = path / "log.npz"
-        if final.is_file():
-            path = final
+        run_json = _read_json(path / "run.json")
+        if (path / "log.npz").is_file():
+            path = path / "log.npz"
+        elif (path / MCAP_FILE).is_file():
+            try:
+                return _load_mcap(path / MCAP_FILE, run_json)
+            except ValueError as e:
+                chunks = sorted((path / "chunks").glob("chunk_*.npz"))
+                if not chunks:
+                    raise ValueError(
+                        f"run {path} has no log.npz and its {MCAP_FILE} is unreadable: {e}"
+                    ) from None
+                return _concat_chunks(chunks, None), run_json
         else:
             chunks = sorted((path / "chunks").glob("chunk_*.npz"))
             if not chunks:
-                raise FileNotFoundError(f"{path} has neither log.npz nor chunks/chunk_*.npz")
-            meta_file = path / "run.json"
-            meta = json.loads(meta_file.read_text()) if meta_file.is_file() else {}
-            return _concat_chunks(chunks, None), meta
+                raise FileNotFoundError(f"{path} has neither log.npz, {MCAP_FILE} nor chunks/chunk_*.npz")
+            return _concat_chunks(chunks, None), run_json
     if not path.is_file():
-        raise FileNotFoundError(f"no run log at {path} (give a run directory or its log.npz)")
+        raise FileNotFoundError(
+            f"no run log at {path} (give a run directory, its log.npz or its {MCAP_FILE})"
+        )
+    if path.suffix == ".mcap":
+        return _load_mcap(path, _read_json(path.parent / "run.json"))
     try:
         with np.load(path, allow_pickle=False) as z:
             if not hasattr(z, "files"):

@@ -8,6 +8,18 @@ Two families of keys are written:
 - The 13 keys that Berkeley Humanoids' Humanoid Control runner requires (task_type, joint_names, ...), in
   the comma-separated form that mjlab's exporter writes, so our files also load there.
 
+Two dialects are read (``PolicyMetadata.dialect``):
+
+- ``bar``: the ``bar.*`` keys and the 13 HC keys. The keys that both carry must agree, or the file is
+  refused with a message naming both keys: joint names, action joints, stiffness, damping, default pose,
+  action scale, policy dt, observation and command names (numbers to 1e-5 relative, as the HC form is
+  written with 6 significant digits). Otherwise a runtime reading one dialect and a runtime reading the
+  other would drive different joints or gains from the same file.
+- ``hc``: only the 13 HC keys, as mjlab / Humanoid Control write them (no ``bar.*`` key at all). The
+  schema comes from ``observation_names`` and the gains from ``joint_stiffness`` / ``joint_damping``;
+  ``deploy.policy`` completes the joint set (``mode``) and the observation schema, and refuses terms the
+  runtime cannot feed.
+
 numpy-free and jax-free: the exporter (training side) and the runtime (robot side) both import it.
 """
 
@@ -22,6 +34,7 @@ from typing import Any
 __all__ = [
     "ACTION_SEMANTICS",
     "BAR_KEYS",
+    "DIALECTS",
     "HC_KEYS",
     "METADATA_VERSION",
     "MetadataError",
@@ -48,6 +61,15 @@ BAR_KEYS = (
     "bar.obs_fingerprint", "bar.command_names", "bar.randomization", "bar.code_version",
     "bar.training",
 )  # fmt: skip
+
+
+DIALECTS = ("bar", "hc")
+"""Metadata dialects: ``bar`` (``bar.*`` keys plus the HC keys, checked to agree), ``hc`` (HC keys only)."""
+
+_HC_REL_TOL = 1e-5
+"""Relative tolerance between a ``bar.*`` number and its HC copy (written with ``%.6g``)."""
+_HC_ABS_TOL = 1e-6
+"""Absolute tolerance for the same comparison (values near 0)."""
 
 
 class MetadataError(ValueError):
@@ -80,12 +102,13 @@ class PolicyMetadata:
     """One of ``ACTION_SEMANTICS``."""
     policy_dt: float
     """Policy period, s."""
-    physics_dt: float
-    """Physics step the policy was trained with, s."""
+    physics_dt: float | None
+    """Physics step the policy was trained with, s (None: not recorded, an HC-only file)."""
     obs_schema: str
-    """Observation schema JSON (``ObservationSchema.to_json``)."""
+    """Observation schema JSON (``ObservationSchema.to_json``); empty for a parsed HC-only file until
+    ``deploy.policy`` builds it from ``observation_names``."""
     obs_fingerprint: str
-    """Fingerprint of ``obs_schema``."""
+    """Fingerprint of ``obs_schema`` (empty with it)."""
     command_names: tuple[str, ...]
     """Observation terms fed by the command source."""
     randomization: Mapping[str, Any] = field(default_factory=dict)
@@ -100,8 +123,14 @@ class PolicyMetadata:
     """Reference frames ahead that the observation holds (Humanoid Control ``lookahead_steps``)."""
     dataset_repo_id: str = ""
     """Id of the reference data the policy was trained on (Humanoid Control ``dataset_repo_id``)."""
+    observation_names: tuple[str, ...] = ()
+    """HC ``observation_names`` of an HC-only file (a ``bar`` file's terms are in ``obs_schema``)."""
+    dialect: str = "bar"
+    """Which keys the file carried: ``bar`` or ``hc`` (``DIALECTS``)."""
 
     def __post_init__(self) -> None:
+        if self.dialect not in DIALECTS:
+            raise MetadataError(f"unknown metadata dialect {self.dialect!r}; valid: {list(DIALECTS)}")
         n = len(self.joint_names)
         for name in ("joint_stiffness", "joint_damping", "default_joint_pos"):
             if len(getattr(self, name)) != n:
@@ -130,6 +159,8 @@ class PolicyMetadata:
     # -- writing ---------------------------------------------------------------------------------------
     def to_props(self) -> dict[str, str]:
         """All metadata keys (``bar.*`` JSON plus the Humanoid Control keys) as strings."""
+        if not self.obs_schema:
+            raise MetadataError("metadata without an observation schema cannot be written")
         schema = json.loads(self.obs_schema)
         obs_names = [t["name"] for t in schema["terms"]]
         bar = {
@@ -180,13 +211,21 @@ class PolicyMetadata:
     # -- reading ---------------------------------------------------------------------------------------
     @classmethod
     def from_props(cls, props: Mapping[str, str]) -> PolicyMetadata:
-        """Parse ``metadata_props``; raises ``MetadataError`` naming missing or malformed keys."""
+        """Parse ``metadata_props`` in either dialect; raises ``MetadataError`` naming the offending keys."""
+        if not any(k in props for k in BAR_KEYS):
+            return cls._from_hc(props)
         missing = [k for k in (*BAR_KEYS, *HC_KEYS) if k not in props]
         if missing:
             raise MetadataError(
                 f"policy metadata lacks keys {missing}; export the policy with bar_policy "
                 "(train/ppo.py writes every key)"
             )
+        meta = cls._from_bar(props)
+        _check_agreement(meta, props)
+        return meta
+
+    @classmethod
+    def _from_bar(cls, props: Mapping[str, str]) -> PolicyMetadata:
         parsed: dict[str, Any] = {}
         for k in BAR_KEYS:
             try:
@@ -233,9 +272,130 @@ class PolicyMetadata:
             randomization=parsed["bar.randomization"],
             code_version=str(parsed["bar.code_version"]),
             training=parsed["bar.training"],
-            body_names=tuple(n for n in props["body_names"].split(",") if n),
+            body_names=_csv_names(props, "body_names"),
             lookahead_steps=_int_prop(props, "lookahead_steps"),
             dataset_repo_id=props["dataset_repo_id"],
+        )
+
+    @classmethod
+    def _from_hc(cls, props: Mapping[str, str]) -> PolicyMetadata:
+        """An HC-only file: every setting from the 13 comma-separated keys (mode and schema left empty)."""
+        missing = [k for k in HC_KEYS if k not in props]
+        if missing:
+            raise MetadataError(
+                f"policy metadata has no bar.* keys and lacks the Humanoid Control keys {missing}; a file "
+                f"needs all 13 HC keys {list(HC_KEYS)} (as mjlab writes them), or the bar.* keys as well "
+                "(export with bar_policy)"
+            )
+        joints = _csv_names(props, "joint_names")
+        if not joints:
+            raise MetadataError("metadata key 'joint_names' is empty")
+        return cls(
+            task=props["task_type"].strip(),
+            robot="",
+            mode="",
+            joint_names=joints,
+            action_joint_names=_csv_names(props, "action_joint_names"),
+            joint_stiffness=_csv_floats(props, "joint_stiffness"),
+            joint_damping=_csv_floats(props, "joint_damping"),
+            default_joint_pos=_csv_floats(props, "default_joint_pos"),
+            action_scale=_csv_floats(props, "action_scale"),
+            action_semantics="delta_from_default",
+            policy_dt=_csv_float(props, "policy_dt"),
+            physics_dt=None,
+            obs_schema="",
+            obs_fingerprint="",
+            command_names=_csv_names(props, "command_names"),
+            body_names=_csv_names(props, "body_names"),
+            lookahead_steps=_int_prop(props, "lookahead_steps"),
+            dataset_repo_id=props["dataset_repo_id"].strip(),
+            observation_names=_csv_names(props, "observation_names"),
+            dialect="hc",
+        )
+
+
+# ---------------------------------------------------------------------------------------------------
+# The HC (comma-separated) form
+# ---------------------------------------------------------------------------------------------------
+def _csv_names(props: Mapping[str, str], key: str) -> tuple[str, ...]:
+    """Comma-separated names (``""`` -> ``()``); empty items between commas are refused."""
+    text = props[key].strip()
+    if not text:
+        return ()
+    items = tuple(x.strip() for x in text.split(","))
+    if any(not x for x in items):
+        raise MetadataError(f"metadata key {key!r} has an empty name between commas: {props[key]!r}")
+    return items
+
+
+def _csv_floats(props: Mapping[str, str], key: str) -> tuple[float, ...]:
+    out = []
+    for x in _csv_names(props, key):
+        try:
+            out.append(float(x))
+        except ValueError:
+            raise MetadataError(
+                f"metadata key {key!r} must be comma-separated numbers; {x!r} is not"
+            ) from None
+    return tuple(out)
+
+
+def _csv_float(props: Mapping[str, str], key: str) -> float:
+    values = _csv_floats(props, key)
+    if len(values) != 1:
+        raise MetadataError(f"metadata key {key!r} must be one number, got {props[key]!r}")
+    return values[0]
+
+
+def _check_agreement(meta: PolicyMetadata, props: Mapping[str, str]) -> None:
+    """Refuse a file whose ``bar.*`` keys and HC keys disagree (naming both keys and the first difference)."""
+
+    def refuse(key: str, detail: str) -> MetadataError:
+        return MetadataError(
+            f"metadata keys 'bar.{key}' and {key!r} (Humanoid Control) disagree: {detail}; Humanoid Control "
+            "and bar-deploy would run this file differently, re-export it"
+        )
+
+    def names(key: str, ours: tuple[str, ...], theirs: tuple[str, ...]) -> None:
+        if ours == theirs:
+            return
+        if len(ours) != len(theirs):
+            raise refuse(key, f"{len(ours)} names {list(ours)} vs {len(theirs)} names {list(theirs)}")
+        i = next(i for i, (a, b) in enumerate(zip(ours, theirs, strict=True)) if a != b)
+        raise refuse(key, f"index {i} is {ours[i]!r} vs {theirs[i]!r}")
+
+    def numbers(key: str, ours: tuple[float, ...], labels: tuple[str, ...]) -> None:
+        theirs = _csv_floats(props, key)
+        if len(ours) != len(theirs):
+            raise refuse(key, f"{len(ours)} values vs {len(theirs)}")
+        bad = [
+            f"{labels[i]}: {a:g} vs {b:g}"
+            for i, (a, b) in enumerate(zip(ours, theirs, strict=True))
+            if not math.isclose(a, b, rel_tol=_HC_REL_TOL, abs_tol=_HC_ABS_TOL)
+        ]
+        if bad:
+            raise refuse(key, ", ".join(bad[:4]) + (f" (and {len(bad) - 4} more)" if len(bad) > 4 else ""))
+
+    names("joint_names", meta.joint_names, _csv_names(props, "joint_names"))
+    names("action_joint_names", meta.action_joint_names, _csv_names(props, "action_joint_names"))
+    numbers("joint_stiffness", meta.joint_stiffness, meta.joint_names)
+    numbers("joint_damping", meta.joint_damping, meta.joint_names)
+    numbers("default_joint_pos", meta.default_joint_pos, meta.joint_names)
+    numbers("action_scale", meta.action_scale, meta.action_joint_names)
+    numbers("policy_dt", (meta.policy_dt,), ("policy_dt",))
+    names("command_names", meta.command_names, _csv_names(props, "command_names"))
+    schema_terms = json.loads(meta.obs_schema).get("terms", [])
+    terms = (
+        tuple(t.get("name") for t in schema_terms if isinstance(t, dict))
+        if isinstance(schema_terms, list)
+        else ()
+    )
+    theirs = _csv_names(props, "observation_names")
+    if terms != theirs:
+        raise MetadataError(
+            f"metadata keys 'bar.obs_schema' (terms {list(terms)}) and 'observation_names' "
+            f"(Humanoid Control: {list(theirs)}) disagree; Humanoid Control and bar-deploy would build "
+            "different observations, re-export it"
         )
 
 

@@ -1,29 +1,40 @@
 """Load an ONNX policy and check its contract against the robot data and the running code.
 
 ``load_policy(path)`` opens the file with onnxruntime (never pickle, never the ``onnx`` package: the robot
-computer only has onnxruntime), reads ``custom_metadata_map`` into a ``PolicyMetadata`` and refuses to run,
-with a ``PolicyLoadError`` naming the mismatch, when any of these differ:
+computer only has onnxruntime), reads ``custom_metadata_map`` into a ``PolicyMetadata`` (either dialect, see
+``deploy.metadata``) and refuses to run, with a ``PolicyLoadError`` naming the mismatch, when any of these
+differ:
 
-- the observation schema: the embedded JSON must hash to the embedded fingerprint, and equal the layout that
-  this code builds for the task and mode (``ObservationManager.for_task``);
-- the joint set (``arms`` / ``arms_neck``) and the canonical joint order (``load_robot(mode)``);
+- ``bar`` files: the observation schema: the embedded JSON must hash to the embedded fingerprint, and equal
+  the layout that this code builds for the task and mode (``ObservationManager.for_task``);
+- HC-only files: every term of ``observation_names`` and ``command_names`` must be one the runtime can feed
+  (``supported_terms()``: the catalogue's command terms and the state / action terms the runtime computes);
+  the schema is built from those names (HC's built-in meaning: ``joint_pos = (q - default) * 1``,
+  ``joint_vel`` raw, ``actions`` = the previous action, every scale 1, no clip), whatever the ``task_type``;
+- the joint set (``arms`` / ``arms_neck``) and the canonical joint order (``load_robot(mode)``; an HC-only
+  file's joint set is the mode whose joints its ``joint_names`` lists, in canonical order);
 - the action joints, default pose and command names (against the schema);
 - the policy period against the runtime's control period (0.02 s unless overridden);
-- the gains Kp / Kd against the robot data;
+- the gains Kp / Kd: ``bar`` files against the robot data; HC-only files within each motor's MIT wire range
+  (the file's gains are used);
 - the graph's I/O: one float32 input ``obs`` of shape ``[batch, obs_size]`` and a float32 output
   ``actions`` of shape ``[batch, n_action_joints]``.
 
 The accepted policy is an ``OnnxPolicy``: ``policy(obs)`` runs one inference and ``policy.q_command(action)``
-turns an action into the unclipped joint target ``default + action_scale * action``.
+turns an action into the unclipped joint target ``default + action_scale * action`` for the joints the
+policy drives; joints it does not drive are pinned at 0 rad with the file's Kp / Kd, as Humanoid Control
+holds them (lite-model.md 2.1). ``policy.hold_pose`` (that target at action 0) is where the HOLD ramp goes.
 
 Action clip: the LiteReach env clips every action to [-1, 1] before ``q_cmd`` and feeds the clipped action
 back as the ``actions`` observation term. ``OnnxPolicy.action_clip`` carries that bound: the optional
 metadata key ``bar.action_clip`` (a JSON number, or null for none) when the file has it, else
-``DEFAULT_ACTION_CLIP`` (1.0). The runtime applies it and counts every clipped entry.
+``DEFAULT_ACTION_CLIP`` (1.0); an HC-only file gets no action clip (Humanoid Control applies none). The
+runtime applies it and counts every clipped entry.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -33,18 +44,23 @@ from pathlib import Path
 import numpy as np
 
 from bar_policy.deploy.metadata import MetadataError, PolicyMetadata
-from bar_policy.obs.manager import ObservationManager, ObservationSchema
+from bar_policy.obs.manager import ObservationManager, ObservationSchema, ObsTerm
+from bar_policy.obs.terms import TERM_CATALOG
 from bar_policy.robot.constants import MODES, RobotSpec, load_robot
+from bar_policy.robot.mit import wire_ranges
 from bar_policy.robot.mjcf import PHYSICS_DT
 
 __all__ = [
     "ACTION_CLIP_KEY",
     "DEFAULT_ACTION_CLIP",
     "DEFAULT_CONTROL_DT",
+    "HC_TERM_CLIP",
+    "RUNTIME_INPUTS",
     "OnnxPolicy",
     "PolicyLoadError",
     "load_policy",
     "read_metadata",
+    "supported_terms",
 ]
 
 log = logging.getLogger(__name__)
@@ -56,6 +72,12 @@ ACTION_CLIP_KEY = "bar.action_clip"
 """Optional metadata key: symmetric bound applied to raw actions (JSON number > 0, or null for none)."""
 DEFAULT_ACTION_CLIP = 1.0
 """Action bound when the file has no ``bar.action_clip`` (the LiteReach contract: actions in [-1, 1])."""
+
+RUNTIME_INPUTS = ("joint_pos", "joint_vel", "actions", "fingertip_pos_left", "fingertip_pos_right")
+"""Observation inputs the runtime computes itself each tick (measured q and dq, the previous action, forward
+kinematics of the fingertips). Command-category terms come from the command source."""
+HC_TERM_CLIP = 1e6
+"""Clip of every term of an HC-only file's schema: effectively none, as Humanoid Control does not clip."""
 
 _DT_TOL = 1e-9
 """Tolerance on the policy period, s."""
@@ -70,6 +92,98 @@ class PolicyLoadError(ValueError):
 
 def _refuse(path: Path, msg: str) -> PolicyLoadError:
     return PolicyLoadError(f"refusing policy {str(path)!r}: {msg}")
+
+
+def supported_terms() -> tuple[str, ...]:
+    """Observation terms a policy may use: the catalogue's terms the runtime can feed, catalogue order.
+
+    Read from ``TERM_CATALOG`` each call: a command-category term is fed by the command source, any other
+    term only when the runtime computes it (``RUNTIME_INPUTS``); IMU terms, for one, are not fed.
+    """
+    return tuple(n for n, kind in TERM_CATALOG.items() if kind.category == "command" or n in RUNTIME_INPUTS)
+
+
+def _hc_mode(path: Path, meta: PolicyMetadata) -> str:
+    """The joint set whose canonical joints an HC-only file's ``joint_names`` lists."""
+    for mode in MODES:
+        robot = load_robot(mode)
+        if set(meta.joint_names) == set(robot.joint_names) and len(meta.joint_names) == robot.num_joints:
+            msg = _diff_joints("metadata key 'joint_names'", meta.joint_names, robot.joint_names)
+            if msg:
+                raise _refuse(path, msg)
+            return mode
+    sets = "; ".join(f"{m}: {list(load_robot(m).joint_names)}" for m in MODES)
+    raise _refuse(
+        path,
+        f"metadata key 'joint_names' lists {len(meta.joint_names)} joints {list(meta.joint_names)}, which is "
+        f"not the joint set of any mode ({sets})",
+    )
+
+
+def _complete_hc(path: Path, meta: PolicyMetadata) -> PolicyMetadata:
+    """An HC-only file's joint set and observation schema, built from its HC keys (refusing unknown terms)."""
+    mode = _hc_mode(path, meta)
+    robot = load_robot(mode)
+    supported = supported_terms()
+    for key, names in (("observation_names", meta.observation_names), ("command_names", meta.command_names)):
+        unknown = [n for n in names if n not in supported]
+        if unknown:
+            raise _refuse(
+                path,
+                f"metadata key {key!r} uses terms {unknown} that this runtime cannot feed; "
+                f"supported terms: {list(supported)}",
+            )
+    if not meta.observation_names:
+        raise _refuse(path, "metadata key 'observation_names' is empty")
+    obs_commands = tuple(n for n in meta.observation_names if TERM_CATALOG[n].category == "command")
+    if set(meta.command_names) != set(obs_commands):
+        raise _refuse(
+            path,
+            f"metadata key 'command_names' {list(meta.command_names)} differs from the command terms of "
+            f"'observation_names' {list(obs_commands)}",
+        )
+    sizes = {"joints": len(meta.joint_names), "actions": len(meta.action_joint_names)}
+    terms = tuple(
+        ObsTerm(name=n, size=sizes.get(TERM_CATALOG[n].size, TERM_CATALOG[n].size), clip=HC_TERM_CLIP)  # type: ignore[arg-type]
+        for n in meta.observation_names
+    )
+    try:
+        schema = ObservationSchema(
+            name=f"hc_{meta.task or 'policy'}_{mode}",
+            version=0,
+            robot=robot.robot,
+            mode=mode,
+            joint_names=meta.joint_names,
+            action_joint_names=meta.action_joint_names,
+            default_joint_pos=meta.default_joint_pos,
+            terms=terms,
+        )
+    except ValueError as e:
+        raise _refuse(path, f"the HC keys do not make a valid observation schema: {e}") from None
+    return dataclasses.replace(
+        meta,
+        robot=robot.robot,
+        mode=mode,
+        command_names=obs_commands,
+        obs_schema=schema.to_json(indent=None),
+        obs_fingerprint=schema.fingerprint,
+    )
+
+
+def _check_hc_gains(path: Path, meta: PolicyMetadata, robot: RobotSpec) -> None:
+    """An HC-only file's gains must be finite, >= 0 and within each motor's MIT wire range (never clamped)."""
+    ranges = wire_ranges(robot.models)
+    for key, values, top in (
+        ("joint_stiffness", meta.joint_stiffness, ranges.kp_max),
+        ("joint_damping", meta.joint_damping, ranges.kd_max),
+    ):
+        bad = [
+            f"{robot.joint_names[i]}: {v:g} not in [0, {top[i]:g}]"
+            for i, v in enumerate(values)
+            if not (math.isfinite(v) and 0.0 <= v <= top[i])
+        ]
+        if bad:
+            raise _refuse(path, f"metadata key {key!r} is outside the motors' MIT range: {', '.join(bad)}")
 
 
 def _read_bytes(path: Path) -> bytes:
@@ -112,7 +226,8 @@ def read_metadata(path: str | Path) -> PolicyMetadata:
     """
     path = Path(path)
     sess = _session(path, _read_bytes(path), threads=1)
-    return _metadata(path, sess)
+    meta = _metadata(path, sess)
+    return _complete_hc(path, meta) if meta.dialect == "hc" else meta
 
 
 def _action_clip(path: Path, sess: object) -> float | None:
@@ -252,11 +367,16 @@ class OnnxPolicy:
         x = np.asarray(obs, dtype=np.float32).reshape(1, -1)
         return self.session.run(["actions"], {"obs": x})[0][0]  # type: ignore[attr-defined]
 
+    @property
+    def hold_pose(self) -> np.ndarray:
+        """``q_command`` at action 0: default pose on driven joints, 0 on the others, rad (HOLD target)."""
+        return self.q_command(np.zeros(self.n_actions))
+
     def q_command(self, action: np.ndarray) -> np.ndarray:
         """Joint targets ``default + action_scale * action`` (action semantics ``delta_from_default``).
 
-        Joints the policy does not drive stay at the default pose. Not clipped: the safety layer clips to
-        the joint limits and counts it.
+        Joints the policy does not drive are pinned at 0 rad (with the file's Kp / Kd), as Humanoid Control
+        holds them. Not clipped: the safety layer clips to the joint limits and counts it.
 
         Args:
             action: raw action, shape ``(n_actions,)``.
@@ -264,8 +384,9 @@ class OnnxPolicy:
         Returns:
             q_cmd, rad, float64, shape ``(num_joints,)``.
         """
-        q = self.default_joint_pos.copy()
-        q[self.action_index] += self.action_scale * np.asarray(action, dtype=np.float64)
+        q = np.zeros_like(self.default_joint_pos)
+        idx = self.action_index
+        q[idx] = self.default_joint_pos[idx] + self.action_scale * np.asarray(action, dtype=np.float64)
         return q
 
 
@@ -292,6 +413,8 @@ def load_policy(
     path = Path(path)
     sess = _session(path, _read_bytes(path), threads)
     meta = _metadata(path, sess)
+    if meta.dialect == "hc":
+        meta = _complete_hc(path, meta)
 
     # Joint set and task.
     if meta.mode not in MODES:
@@ -325,10 +448,13 @@ def load_policy(
             f"observation fingerprint {meta.obs_fingerprint} does not match the embedded schema "
             f"(which hashes to {schema.fingerprint}); the file was edited or corrupted",
         )
-    try:
-        om = ObservationManager.for_task(meta.task, meta.mode)
-    except ValueError as e:
-        raise _refuse(path, str(e)) from None
+    if meta.dialect == "hc":
+        om = ObservationManager(schema)  # built from the file's HC keys: no code layout to compare with
+    else:
+        try:
+            om = ObservationManager.for_task(meta.task, meta.mode)
+        except ValueError as e:
+            raise _refuse(path, str(e)) from None
     if schema.fingerprint != om.fingerprint or schema != om.schema:
         theirs, ours = schema.to_dict(), om.schema.to_dict()
         keys = sorted(k for k in set(theirs) | set(ours) if theirs.get(k) != ours.get(k))
@@ -365,17 +491,25 @@ def load_policy(
             f"policy dt {meta.policy_dt} s differs from the runtime's control dt {control_dt} s "
             f"({1 / meta.policy_dt:g} Hz vs {1 / control_dt:g} Hz)",
         )
-    if not math.isclose(meta.physics_dt, PHYSICS_DT, rel_tol=0.0, abs_tol=_DT_TOL):
+    if meta.physics_dt is not None and not math.isclose(
+        meta.physics_dt, PHYSICS_DT, rel_tol=0.0, abs_tol=_DT_TOL
+    ):
         log.warning(
             "policy was trained with physics dt %g s; the sim target steps %g s", meta.physics_dt, PHYSICS_DT
         )
 
-    # Gains.
+    # Gains: a bar file's must be the robot data's; an HC-only file's are used as they are (in range).
     kp, kd = np.asarray(meta.joint_stiffness), np.asarray(meta.joint_damping)
-    for label, unit, got, want in (("Kp", "N*m/rad", kp, robot.kp), ("Kd", "N*m*s/rad", kd, robot.kd)):
-        msg = _diff_values(label, unit, robot.joint_names, got, want)
-        if msg:
-            raise _refuse(path, msg)
+    if meta.dialect == "hc":
+        _check_hc_gains(path, meta, robot)
+    else:
+        for label, unit, got, want in (("Kp", "N*m/rad", kp, robot.kp), ("Kd", "N*m*s/rad", kd, robot.kd)):
+            msg = _diff_values(label, unit, robot.joint_names, got, want)
+            if msg:
+                raise _refuse(path, msg)
+    undriven = [n for n in robot.joint_names if n not in meta.action_joint_names]
+    if undriven:
+        log.info("joints the policy does not drive, pinned at 0 rad with the file's Kp/Kd: %s", undriven)
 
     # Graph I/O, then one dry inference to be sure the shapes hold at run time.
     n_act = len(meta.action_joint_names)
@@ -400,5 +534,6 @@ def load_policy(
         action_scale=np.asarray(meta.action_scale, dtype=np.float64),
         kp=kp.astype(np.float64),
         kd=kd.astype(np.float64),
-        action_clip=_action_clip(path, sess),
+        # HC-only files: no clip, as Humanoid Control runs them (q_cmd is still clipped to the limits).
+        action_clip=_action_clip(path, sess) if meta.dialect == "bar" else None,
     )

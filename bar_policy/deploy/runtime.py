@@ -15,17 +15,23 @@ grid keeps its phase). A synchronous target (sim) is not paced: the loop calls `
 runs as fast as it can (``realtime=True`` paces it for the viewer).
 
 Start-up: ZERO_TORQUE until the first state; a valid first state gives DAMPING then HOLD (ramp to the
-default pose over ``safety.ramp_time``) then POLICY; ``start_mode="policy"`` skips the ramp (evaluation).
-A fault latches DAMPING; the run then continues in DAMPING for ``damping_after_fault`` s and ends. The
-run always ends through ``finally``: DAMPING, ``target.safe_stop()``, and the log is written.
+policy's rest pose ``policy.hold_pose`` over ``safety.ramp_time``) then POLICY; ``start_mode="policy"``
+skips the ramp (evaluation). A fault latches DAMPING; the run then continues in DAMPING for
+``damping_after_fault`` s and ends.
+
+Stopping: SIGINT, SIGTERM and SIGHUP (``signals.StopSignals``; the caller's, or installed by ``run`` in
+the main thread) and ``request_stop`` all take one path: the next tick enters DAMPING with the reason, the
+loop keeps damping for ``damping_after_fault`` s, then ends. A requested stop is not a fault. The run
+always ends through ``finally``: DAMPING, ``target.safe_stop()`` (stop frames on every bus on the real
+target), then the log is closed with the reason and the stop path's outcome. The signal handlers stay
+installed until the log is closed and never raise, so a second signal cannot cut the stop frames short.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
-import signal
-import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
@@ -38,6 +44,7 @@ from bar_policy.deploy.commands import CommandSource
 from bar_policy.deploy.log import RunLog, log_fields
 from bar_policy.deploy.policy import DEFAULT_CONTROL_DT, OnnxPolicy
 from bar_policy.deploy.safety import Mode, SafetyConfig, SafetySupervisor
+from bar_policy.deploy.signals import StopSignals
 from bar_policy.deploy.targets.base import JointState, Target
 from bar_policy.robot.kinematics import Kinematics
 from bar_policy.robot.mit import mit_torque
@@ -54,17 +61,18 @@ class RuntimeConfig:
     control_dt: float = DEFAULT_CONTROL_DT
     """Control period, s (must equal the policy's ``policy_dt``)."""
     duration: float | None = 10.0
-    """Run length, s of target time (ticks = duration / control_dt); None runs until Ctrl+C or a fault."""
+    """Run length, s of target time (ticks = duration / control_dt); None runs until a stop or a fault."""
     start_mode: Literal["hold", "policy"] = "hold"
     """``hold``: ramp to the default pose, then the policy. ``policy``: the policy from the first tick."""
     damping_after_fault: float = 1.0
-    """After a fault, keep commanding damping this long before ending the run, s."""
+    """After a fault or a stop request, keep commanding damping this long before ending the run, s."""
     realtime: bool = False
     """Pace a synchronous target at wall-clock rate (for the viewer)."""
     spin_s: float = 0.0003
     """Busy-wait this long before each deadline instead of sleeping (sleep overshoots), s."""
-    handle_sigint: bool = True
-    """Turn Ctrl+C into a DAMPING fault (main thread only); a second Ctrl+C raises KeyboardInterrupt."""
+    handle_signals: bool = True
+    """``run()`` without a ``stop`` installs ``StopSignals`` (SIGINT, SIGTERM, SIGHUP -> the stop path; main
+    thread only) for the whole run, the safe ending and the log included."""
     rt_priority: int | None = None
     """Run the loop thread under SCHED_FIFO at this priority (1-99; Linux, needs CAP_SYS_NICE) for the
     length of the run; None keeps the normal scheduler. On a loaded CPU it removes most overruns."""
@@ -181,6 +189,10 @@ class RunResult:
     """The last state read."""
     action_clip_count: int = 0
     """Action entries clipped to ``+-policy.action_clip``."""
+    stop_reason: str | None = None
+    """Why a stop was requested (``"SIGTERM received"``), None when none was."""
+    safe_stop: str = ""
+    """Outcome of ``target.safe_stop``: ``"ok"`` or the error it raised."""
     extras: dict[str, Any] = field(default_factory=dict)
 
 
@@ -213,30 +225,6 @@ class _RealtimePriority:
 
             policy, prio = self._previous
             os.sched_setscheduler(0, policy, os.sched_param(prio))
-
-
-class _SigintFlag:
-    """Ctrl+C -> a flag the loop turns into a fault; a second Ctrl+C raises KeyboardInterrupt."""
-
-    def __init__(self) -> None:
-        self.raised = False
-        self._previous: Any = None
-        self._installed = False
-
-    def __enter__(self) -> _SigintFlag:
-        if threading.current_thread() is threading.main_thread():
-            self._previous = signal.signal(signal.SIGINT, self._handle)
-            self._installed = True
-        return self
-
-    def _handle(self, signum: int, frame: object) -> None:
-        if self.raised:
-            raise KeyboardInterrupt
-        self.raised = True
-
-    def __exit__(self, *exc: object) -> None:
-        if self._installed:
-            signal.signal(signal.SIGINT, self._previous)
 
 
 class Runtime:
@@ -291,7 +279,7 @@ class Runtime:
             torque_cap=robot.torque_cap,
             kp=policy.kp,
             kd=policy.kd,
-            default_q=policy.default_joint_pos,
+            default_q=policy.hold_pose,
             config=self.config.safety,
         )
         self.kinematics = kinematics or Kinematics(robot.mode)
@@ -305,16 +293,45 @@ class Runtime:
         self._action_clip_warned = False
         self.last_state: JointState | None = None
         self.last_commands: dict[str, np.ndarray] = {}
-        self._fault_t: float | None = None
-        self._fault_reason = ""
+        self._end_t: float | None = None
+        """Target time the run started to end (first fault or stop request), s."""
+        self._end_reason = ""
+        self._stop_reason: str | None = None
+        self._pending_stop: str | None = None
         self._cap = robot.torque_cap
+        self._runlog: RunLog | None = None
+        self._transitions_logged = 0
+        self.log_path: Path | None = None
 
     # -- helpers -------------------------------------------------------------------------------------
     def _fault(self, kind: str, detail: str, t: float) -> None:
         changed = self.safety.fault(kind, detail, t)
-        if changed and self._fault_t is None:
-            self._fault_t = t
-            self._fault_reason = f"fault {kind}: {detail}"
+        if changed and self._end_t is None:
+            self._end_t = t
+            self._end_reason = f"fault {kind}: {detail}"
+
+    def request_stop(self, reason: str) -> None:
+        """Ask the loop to stop (DAMPING at the next tick, then the safe ending); the first reason is kept."""
+        if self._pending_stop is None:
+            self._pending_stop = reason
+
+    def _stop(self, reason: str, t: float) -> None:
+        """A stop request at target time ``t``: DAMPING now (not a fault); the run ends after the damping."""
+        if self._stop_reason is None:
+            self._stop_reason = reason
+        sf = self.safety
+        if sf.mode in (Mode.HOLD, Mode.POLICY):
+            sf.transition(Mode.DAMPING, f"stop requested: {reason}", t, level=logging.WARNING)
+        if self._end_t is None:
+            self._end_t = t
+            self._end_reason = reason
+
+    def _log_transitions(self) -> None:
+        trs = self.safety.transitions
+        if self._runlog is not None:
+            for tr in trs[self._transitions_logged :]:
+                self._runlog.transition(tr.to_dict())
+        self._transitions_logged = len(trs)
 
     def _meta(self) -> dict[str, Any]:
         p = self.policy
@@ -331,26 +348,31 @@ class Runtime:
             "joint_names": list(p.robot.joint_names),
             "action_joint_names": list(p.metadata.action_joint_names),
             "mode_names": {m.name: int(m) for m in Mode},
+            "policy_dialect": p.metadata.dialect,
+            "hold_pose": p.hold_pose.tolist(),
             "runtime_config": asdict(self.config),
         } | self.log_meta
 
     # -- one tick ------------------------------------------------------------------------------------
-    def _tick(self, k: int, t: float, sigint: bool) -> dict[str, Any]:
+    def _tick(self, k: int, t: float, stop: str | None = None) -> dict[str, Any]:
+        """One control tick at target time ``t``; ``stop``: a stop request's reason (None: keep running)."""
         t_start = time.perf_counter()
+        stop = stop or None  # False / "" (older callers) mean no stop
         sf = self.safety
         sf.tick = k
         state = self.target.read_state()
         self.last_state = state
-        if sigint:
-            self._fault("sigint", "Ctrl+C (SIGINT) received", t)
         fault = sf.check_state(state, self.target.now())
         if fault is not None:
             self._fault(*fault, t)
         if sf.mode == Mode.ZERO_TORQUE:
-            if fault is not None or sigint:
-                reason = f"start refused: fault {fault[0]}: {fault[1]}" if fault else "start refused: Ctrl+C"
+            if fault is not None or stop is not None:
+                reason = f"start refused: fault {fault[0]}: {fault[1]}" if fault else f"start refused: {stop}"
                 sf.transition(Mode.DAMPING, reason, t, level=logging.WARNING)
-                self._fault_t, self._fault_reason = t, reason
+                if stop is not None and fault is None:
+                    self._stop(stop, t)
+                else:
+                    self._end_t, self._end_reason = t, reason
             else:
                 sf.transition(Mode.DAMPING, "first valid state received", t)
                 if self.config.start_mode == "hold":
@@ -358,6 +380,8 @@ class Runtime:
                 else:
                     sf.transition(Mode.POLICY, "start_mode=policy (no ramp)", t)
                     self.last_action[:] = 0.0
+        if stop is not None:
+            self._stop(stop, t)
         if sf.mode == Mode.HOLD and self._ramp_complete(t):
             sf.transition(Mode.POLICY, "ramp complete", t)
             self.last_action[:] = 0.0
@@ -445,24 +469,65 @@ class Runtime:
         return sf.config.ramp_time <= 0 or (t - sf.ramp_t0) >= sf.config.ramp_time - 1e-9
 
     # -- the loop ------------------------------------------------------------------------------------
-    def run(self) -> RunResult:
-        """Run until the duration, a fault (+ ``damping_after_fault``), Ctrl+C or an exception.
+    def run(self, stop: StopSignals | None = None) -> RunResult:
+        """Run until the duration, a fault or a stop request (+ ``damping_after_fault``), or an exception.
+
+        Args:
+            stop: the caller's installed ``StopSignals`` (``bar-deploy`` installs them before the target
+                starts); None installs its own for the run when ``config.handle_signals``.
 
         Returns:
             The result with timing statistics. Exceptions propagate after the safe ending and the log.
         """
+        if stop is None:
+            stop = StopSignals()
+            installed = stop if self.config.handle_signals else contextlib.nullcontext()
+        else:
+            installed = contextlib.nullcontext()
+        with installed:
+            return self._run(stop)
+
+    def open_log(self) -> Path | None:
+        """Create the run directory and start the log now (``run`` does it otherwise); idempotent.
+
+        ``bar-deploy`` calls it before the target starts: a log directory that cannot be written is then
+        refused before anything moves, and no file-system work (``fsync``) falls between the real target's
+        activation and the first tick, which must come within the motors' CAN watchdog.
+
+        Returns:
+            The run directory, or None without ``log_dir``.
+
+        Raises:
+            LogDirError: the run directory cannot be created or written.
+        """
+        if self._runlog is None and self.log_dir is not None:
+            self._runlog = self._make_log()
+        return None if self._runlog is None else self._runlog.path
+
+    def close_unstarted(self, reason: str) -> None:
+        """Close a log opened by ``open_log`` for a run that never started (``end_reason`` = ``reason``)."""
+        if self._runlog is not None and not self._runlog.closed:
+            self._runlog.close(end_reason=reason, transitions=[], fault_count=0)
+            self.log_path = self._runlog.path / "log.npz"
+
+    def _make_log(self) -> RunLog:
+        om = self.policy.obs_manager
+        fields = log_fields(self.policy.robot.num_joints, self.policy.n_actions, om.size, self.commands.names)
+        return RunLog(
+            self.log_dir,
+            fields,
+            self._meta(),
+            name=self.log_name,
+            labels={"mode": {int(m): m.name for m in Mode}},
+        )
+
+    def _run(self, stop: StopSignals) -> RunResult:
         cfg = self.config
         dt = cfg.control_dt
         n_ticks = None if cfg.duration is None else max(round(cfg.duration / dt), 1)
         paced = not self.target.synchronous or cfg.realtime
-        runlog = None
-        if self.log_dir is not None:
-            om = self.policy.obs_manager
-            fields = log_fields(
-                self.policy.robot.num_joints, self.policy.n_actions, om.size, self.commands.names
-            )
-            fields["jitter"] = ((), np.float64)
-            runlog = RunLog(self.log_dir, fields, self._meta(), name=self.log_name)
+        self.open_log()
+        runlog = self._runlog
         compute, infer, jitter = [], [], []
         overruns = 0
         k = 0
@@ -472,14 +537,16 @@ class Runtime:
         deadline = wall0
         error: BaseException | None = None
         try:
-            with _SigintFlag() as sigint, _RealtimePriority(cfg.rt_priority):
+            with _RealtimePriority(cfg.rt_priority):
                 while n_ticks is None or k < n_ticks:
                     if paced:
                         sleep_until(deadline, cfg.spin_s)
                     start = time.perf_counter()
                     lateness = start - deadline if paced else 0.0
                     t = self.target.now() - t0_target if not self.target.synchronous else k * dt
-                    rec = self._tick(k, t, sigint.raised)
+                    if stop.requested:
+                        self.request_stop(stop.reason)
+                    rec = self._tick(k, t, self._pending_stop)
                     end = time.perf_counter()
                     overran = False
                     if paced:
@@ -503,15 +570,12 @@ class Runtime:
                         ov = self.safety.note_overrun(overran)
                         if ov is not None:
                             self._fault(*ov, t)
+                    self._log_transitions()
                     if self.on_tick is not None:
                         self.on_tick(k, t, self)
                     k += 1
-                    if self._fault_t is not None and t - self._fault_t >= cfg.damping_after_fault - 1e-9:
-                        end_reason = self._fault_reason
-                        break
-                    if sigint.raised and self._fault_t is None and self.safety.mode == Mode.DAMPING:
-                        # Ctrl+C while already in DAMPING / ZERO_TORQUE: end now.
-                        end_reason = "Ctrl+C (SIGINT)"
+                    if self._end_t is not None and t - self._end_t >= cfg.damping_after_fault - 1e-9:
+                        end_reason = self._end_reason
                         break
         except BaseException as e:
             error = e
@@ -520,7 +584,8 @@ class Runtime:
         finally:
             wall = time.perf_counter() - wall0  # the loop alone, without the safe ending
             t_end = self.target.now() - t0_target
-            self._safe_end(end_reason, t_end)
+            safe_stop = self._safe_end(end_reason, t_end)
+            self._log_transitions()
             timing = TimingStats(
                 compute=np.asarray(compute),
                 infer=np.asarray(infer),
@@ -535,6 +600,12 @@ class Runtime:
                 try:
                     log_path = runlog.close(
                         end_reason=end_reason,
+                        target_metadata=self._target_metadata(),
+                        stop_reason=self._stop_reason,
+                        stop_signal=stop.signal_name,
+                        stop_signals_received=stop.count,
+                        safe_stop=safe_stop,
+                        exception=None if error is None else f"{type(error).__name__}: {error}",
                         transitions=[tr.to_dict() for tr in self.safety.transitions],
                         timing=timing.summary(),
                         clip_count=self.safety.clip_count,
@@ -556,17 +627,31 @@ class Runtime:
             clip_count=self.safety.clip_count,
             fault_count=self.safety.fault_count,
             log_path=log_path,
-            action_clip_count=self.action_clip_count,
             last_state=self.last_state,
+            action_clip_count=self.action_clip_count,
+            stop_reason=self._stop_reason,
+            safe_stop=safe_stop,
         )
 
-    def _safe_end(self, reason: str, t: float) -> None:
-        """DAMPING (logged with the reason), then the target's safe stop; errors here are logged only."""
+    def _target_metadata(self) -> dict[str, Any]:
+        try:
+            return dict(self.target.run_metadata())
+        except Exception as e:  # never lose the log for a description
+            return {"error": f"{type(e).__name__}: {e}"}
+
+    def _safe_end(self, reason: str, t: float) -> str:
+        """DAMPING (logged with the reason), then the target's safe stop; errors here are logged only.
+
+        Returns:
+            ``"ok"``, or the error ``target.safe_stop`` raised.
+        """
         sf = self.safety
         if sf.mode in (Mode.HOLD, Mode.POLICY, Mode.ZERO_TORQUE):
             level = logging.INFO if reason == "duration reached" else logging.WARNING
             sf.transition(Mode.DAMPING, f"run ended: {reason}", t, level=level)
         try:
             self.target.safe_stop(sf.captured_q, sf.config.damping_kd)
-        except Exception:
+        except Exception as e:
             log.exception("safe_stop of %s failed", type(self.target).__name__)
+            return f"failed: {type(e).__name__}: {e}"
+        return "ok"

@@ -14,8 +14,9 @@ Modes (the MIT surface of the seed; which fields are nonzero):
 Faults (each moves HOLD or POLICY to DAMPING with its reason; the first occurrence of a fault kind while
 already in DAMPING is logged too): non-finite state or action, a joint beyond its limit by more than
 ``limit_margin``, a torque demand at the cap for longer than ``saturation_time``, a state older than
-``stale_timeout``, ``max_overruns`` consecutive loop overruns, hardware faults reported by the target, and
-SIGINT. Every transition is logged (python ``logging``) and kept in ``transitions`` for the run log.
+``stale_timeout``, ``max_overruns`` consecutive loop overruns, and hardware faults reported by the target.
+A stop request (SIGINT / SIGTERM / SIGHUP, see ``runtime``) also ends in DAMPING, but is not a fault. Every
+transition is logged (python ``logging``) and kept in ``transitions`` for the run log.
 """
 
 from __future__ import annotations

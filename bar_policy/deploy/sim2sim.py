@@ -163,7 +163,7 @@ def evaluate(
         duration=cfg.episode_length,
         start_mode="policy",
         damping_after_fault=0.0,
-        handle_sigint=False,
+        handle_signals=False,
         safety=SafetyConfig(ramp_time=0.0),
     )
     n_ticks = round(cfg.episode_length / policy.policy_dt)

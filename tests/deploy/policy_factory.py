@@ -4,6 +4,9 @@
 out by hand: with the default ``W = 0`` the action is the constant ``b``, so the runtime must command
 ``q_cmd = default_joint_pos + action_scale * b`` exactly (clipped to the joint limits).
 
+``make_hc_policy_file(path, props, ...)`` writes the same kind of graph with only the 13 Humanoid Control keys
+(comma-separated values, no ``bar.*`` key), as mjlab exports them; ``hc_props`` builds those keys.
+
 Reuse from other test folders::
 
     sys.path.insert(0, str(Path(__file__).parents[1] / "deploy"))
@@ -25,7 +28,7 @@ from bar_policy.obs.manager import ObservationManager
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.mjcf import PHYSICS_DT
 
-__all__ = ["default_metadata", "make_policy_file"]
+__all__ = ["default_metadata", "hc_props", "make_hc_policy_file", "make_policy_file"]
 
 
 def default_metadata(mode: str = "arms", task: str = "reach", **overrides: Any) -> PolicyMetadata:
@@ -132,6 +135,80 @@ def make_policy_file(
     for k in drop_keys:
         all_props.pop(k, None)
     helper.set_model_props(model, all_props)
+    onnx.checker.check_model(model)
+    path = Path(path)
+    onnx.save(model, str(path))
+    return path
+
+
+def hc_props(
+    *,
+    task_type: str = "tracking",
+    joint_names: tuple[str, ...] | None = None,
+    action_joint_names: tuple[str, ...] | None = None,
+    stiffness: float | tuple[float, ...] = 30.0,
+    damping: float | tuple[float, ...] = 1.5,
+    default_joint_pos: tuple[float, ...] | None = None,
+    observation_names: tuple[str, ...] = ("joint_pos", "joint_vel", "actions"),
+    command_names: tuple[str, ...] = (),
+    action_scale: float | tuple[float, ...] = 0.5,
+    policy_dt: float = 0.02,
+    mode: str = "arms",
+) -> dict[str, str]:
+    """The 13 HC keys as mjlab writes them (defaults: the canonical joints of ``mode``, all driven)."""
+    robot = load_robot(mode)
+    joints = robot.joint_names if joint_names is None else joint_names
+    acts = joints if action_joint_names is None else action_joint_names
+    default = tuple(robot.pose("piano_ready")) if default_joint_pos is None else default_joint_pos
+
+    def per(value: float | tuple[float, ...], n: int) -> tuple[float, ...]:
+        return (value,) * n if isinstance(value, int | float) else tuple(value)
+
+    def csv(values: tuple) -> str:
+        return ",".join(str(v) for v in values)
+
+    return {
+        "task_type": task_type,
+        "joint_names": csv(joints),
+        "action_joint_names": csv(acts),
+        "joint_stiffness": csv(per(stiffness, len(joints))),
+        "joint_damping": csv(per(damping, len(joints))),
+        "default_joint_pos": csv(default),
+        "observation_names": csv(observation_names),
+        "command_names": csv(command_names),
+        "action_scale": csv(per(action_scale, len(acts))),
+        "policy_dt": str(policy_dt),
+        "body_names": "",
+        "dataset_repo_id": "",
+        "lookahead_steps": "0",
+    }
+
+
+def make_hc_policy_file(
+    path: str | Path,
+    props: dict[str, str],
+    *,
+    obs_size: int,
+    weight: np.ndarray | None = None,
+    bias: np.ndarray | float = 0.0,
+) -> Path:
+    """A linear policy ``actions = obs @ weight + bias`` with exactly ``props`` as metadata (no ``bar.*``)."""
+    n_act = len([n for n in props["action_joint_names"].split(",") if n])
+    w = np.zeros((obs_size, n_act)) if weight is None else np.asarray(weight)
+    b = np.broadcast_to(np.asarray(bias, dtype=np.float64), (n_act,))
+    graph = helper.make_graph(
+        [helper.make_node("MatMul", ["obs", "W"], ["xw"]), helper.make_node("Add", ["xw", "b"], ["actions"])],
+        "hc_policy",
+        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", obs_size])],
+        [helper.make_tensor_value_info("actions", TensorProto.FLOAT, ["batch", n_act])],
+        initializer=[
+            numpy_helper.from_array(w.astype(np.float32), "W"),
+            numpy_helper.from_array(b.astype(np.float32), "b"),
+        ],
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    helper.set_model_props(model, dict(props))
     onnx.checker.check_model(model)
     path = Path(path)
     onnx.save(model, str(path))

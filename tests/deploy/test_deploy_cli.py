@@ -11,6 +11,7 @@ from policy_factory import default_metadata, make_policy_file
 
 from bar_policy.deploy.cli import main
 from bar_policy.deploy.log import load_log
+from bar_policy.deploy.targets.base import TargetError
 from bar_policy.deploy.targets.mock import MockTarget
 
 
@@ -135,3 +136,88 @@ def test_real_target_on_the_virtual_bus_emulator(policy_path, tmp_path, capsys):
         arrays["q_cmd"][-1], [0.3, -1.0, 0.0, -1.7, -1.2, 0.0, 0.3, 0.3, 1.0, 0.0, -1.7, 1.2, 0.0, -0.3]
     )
     np.testing.assert_array_equal(arrays["kp"][-1], 50.0)
+
+
+class _FailingMock(MockTarget):
+    """The mock, whose 10th state read raises ``error``."""
+
+    def __init__(self, mode, error):
+        super().__init__(mode)
+        self.error, self.reads = error, 0
+
+    def read_state(self):
+        self.reads += 1
+        if self.reads == 10:
+            raise self.error
+        return super().read_state()
+
+
+@pytest.mark.parametrize(
+    ("error", "line"),
+    [
+        (
+            TargetError("can0: no reply within 5 ms\nfrom ids [11]"),
+            "target real failed during the run: can0: no reply",
+        ),
+        (RuntimeError("a bug"), "the run ended on RuntimeError: a bug (damped, then stopped"),
+    ],
+    ids=["target-error", "bug"],
+)
+def test_error_during_the_run_is_one_line_status_1_and_the_log_closed(
+    error, line, policy_path, tmp_path, monkeypatch, capsys
+):
+    fake = types.ModuleType("bar_policy.deploy.targets.real")
+    fake.add_arguments = lambda parser: None
+    fake.make_target = lambda args, mode: _FailingMock(mode, error)
+    monkeypatch.setitem(sys.modules, "bar_policy.deploy.targets.real", fake)
+    runs = tmp_path / "runs"
+    argv = ["--policy", str(policy_path), "--target", "real", "--ramp-time", "0", "--log", str(runs)]
+    assert main(argv) == 1
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("bar-deploy")]
+    assert len(err) == 1 and err[0].startswith("bar-deploy: error: ") and line in err[0]
+    assert "; from ids [11]" in err[0] or isinstance(error, RuntimeError)  # a multi-line message, one line
+    arrays, meta = load_log(next(runs.iterdir()))
+    assert meta["end_reason"].startswith(f"exception {type(error).__name__}") and meta["safe_stop"] == "ok"
+    assert arrays["t"].size == 9 and meta["transitions"][-1]["to"] == "DAMPING"
+
+
+class _RefusingMock(MockTarget):
+    def start(self):
+        raise TargetError("activation refused: scan found ids [11, 12], expected 14 motors")
+
+
+class _DescribedMock(MockTarget):
+    def run_metadata(self):
+        return {"can_timeout": 0.2}
+
+
+def _fake_real(monkeypatch, target_cls):
+    fake = types.ModuleType("bar_policy.deploy.targets.real")
+    fake.add_arguments = lambda parser: None
+    fake.make_target = lambda args, mode: target_cls(mode)
+    monkeypatch.setitem(sys.modules, "bar_policy.deploy.targets.real", fake)
+
+
+def test_target_that_cannot_start_is_refused_and_its_log_closed(policy_path, tmp_path, monkeypatch, capsys):
+    _fake_real(monkeypatch, _RefusingMock)
+    runs = tmp_path / "runs"
+    assert main(["--policy", str(policy_path), "--target", "real", "--log", str(runs)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        "bar-deploy: error: target real: activation refused: scan found ids [11, 12], expected 14 motors"
+    ]
+    arrays, meta = load_log(next(runs.iterdir()))
+    assert arrays["t"].size == 0 and meta["status"] == "closed"
+    assert (
+        meta["end_reason"]
+        == "not started: target real: activation refused: scan found ids [11, 12], expected 14 motors"
+    )
+
+
+def test_target_run_metadata_is_kept_in_the_log(policy_path, tmp_path, monkeypatch):
+    _fake_real(monkeypatch, _DescribedMock)
+    runs = tmp_path / "runs"
+    argv = ["--policy", str(policy_path), "--target", "real", "--duration", "0.1", "--log", str(runs)]
+    assert main(argv) == 0
+    _, meta = load_log(next(runs.iterdir()))
+    assert meta["target_metadata"] == {"can_timeout": 0.2}

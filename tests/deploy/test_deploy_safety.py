@@ -206,42 +206,55 @@ def test_loop_overruns_go_to_damping(make_policy, tmp_path):
     assert ov[3:6].all()  # the slow reads always overrun
 
 
-def test_sigint_goes_to_damping(zero_policy):
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+def test_stop_signal_goes_to_damping_and_is_not_a_fault(zero_policy, sig, tmp_path):
     target = SteppedMock()
 
     def on_tick(k, t, rt):
         if k == 10:
-            os.kill(os.getpid(), signal.SIGINT)
+            os.kill(os.getpid(), sig)
 
-    previous = signal.getsignal(signal.SIGINT)
-    _, res = _run(zero_policy, target, on_tick=on_tick)
-    assert signal.getsignal(signal.SIGINT) is previous  # handler restored
-    tr = _fault_transition(res)
-    assert tr["tick"] == 11 and "SIGINT" in tr["reason"]
-    assert res.final_mode == Mode.DAMPING
+    previous = signal.getsignal(sig)
+    _rt, res = _run(zero_policy, target, on_tick=on_tick, log_dir=tmp_path)
+    assert signal.getsignal(sig) is previous  # handler restored
+    # The request is seen at the next tick (11): POLICY -> DAMPING with the signal as reason.
+    (tr,) = [tr for tr in res.transitions if tr["reason"].startswith("stop requested")]
+    assert tr["tick"] == 11 and tr["reason"] == f"stop requested: {sig.name} received"
+    assert (tr["from"], tr["to"]) == ("POLICY", "DAMPING")
+    assert res.fault_count == 0 and res.stop_reason == f"{sig.name} received"
+    # damping_after_fault 0.1 s = 5 ticks of damping after tick 11: ticks 0..16 ran, then the safe stop.
+    assert res.ticks == 17 and res.end_reason == f"{sig.name} received" and res.safe_stop == "ok"
     _assert_damping_after(target, 10, DEFAULT)
+    arrays, meta = load_log(res.log_path)
+    assert meta["stop_signal"] == sig.name and meta["stop_signals_received"] == 1
+    assert meta["safe_stop"] == "ok" and meta["status"] == "closed"
+    np.testing.assert_array_equal(arrays["mode"][11:], int(Mode.DAMPING))
 
 
-def test_second_sigint_raises_keyboard_interrupt_and_log_survives(zero_policy, tmp_path):
+def test_second_signal_is_counted_and_cannot_skip_the_stop(zero_policy, tmp_path):
     target = SteppedMock()
 
     def on_tick(k, t, rt):
         if k in (2, 4):
-            os.kill(os.getpid(), signal.SIGINT)
+            os.kill(os.getpid(), signal.SIGINT if k == 2 else signal.SIGTERM)
 
     rt = Runtime(
         zero_policy,
         target,
         SampledCommands(zero_policy.obs_manager.command_names),
-        RuntimeConfig(duration=1.0, start_mode="policy", damping_after_fault=1.0),
+        RuntimeConfig(duration=1.0, start_mode="policy", damping_after_fault=0.2),
         log_dir=tmp_path,
         on_tick=on_tick,
     )
-    with pytest.raises(KeyboardInterrupt):
-        rt.run()
+    res = rt.run()  # no KeyboardInterrupt: the second signal is counted, never raised
+    # Stop seen at tick 3; 0.2 s (10 ticks) of damping: ticks 0..13, then the safe stop's damping command.
+    assert res.ticks == 14 and res.end_reason == "SIGINT received" and res.fault_count == 0
+    assert len(target.commands) == 15
+    _assert_damping_after(target, 2, DEFAULT)
     arrays, meta = load_log(rt.log_path)
-    assert arrays["t"].shape == (5,)  # ticks 0..4 recorded
-    assert meta["end_reason"].startswith("exception KeyboardInterrupt")
+    assert arrays["t"].shape == (14,)
+    assert meta["stop_signal"] == "SIGINT" and meta["stop_signals_received"] == 2
+    assert meta["safe_stop"] == "ok"
 
 
 def test_exception_mid_run_still_writes_the_log(zero_policy, tmp_path):

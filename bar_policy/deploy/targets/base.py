@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import abc
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -78,6 +79,13 @@ class Target(abc.ABC):
         """Damping, then stop: the safe ending. Real hardware overrides it to also send stop frames."""
         state_q = self.read_state().q if q is None else q
         self.write_command(MitCommand.damping(state_q, kd))
+
+    def run_metadata(self) -> dict[str, Any]:
+        """Target settings worth keeping in the run log (JSON values), read when the run ends.
+
+        The real target can report, for example, the CAN watchdog it armed; the default reports nothing.
+        """
+        return {}
 
     def close(self) -> None:  # noqa: B027 - optional hook
         """Release resources (buses, viewers). Must be safe to call twice."""
