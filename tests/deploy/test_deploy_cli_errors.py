@@ -41,9 +41,9 @@ RUN_ROWS = [
     ("mode-mismatch", ["--mode", "arms_neck"], "joint set mismatch: the policy is for mode 'arms'"),
     ("real-channels", ["--target", "real", "--can-interface", "virtual", "--channels", "a,b,c"],
      "target real: cannot build the real target: --channels 'a,b,c': give 2 channels"),
-    # No SocketCAN here (or no can0): the driver's own message, printed on one line.
+    # No SocketCAN here (or no can0): the driver's own message, printed on one line, with the fix.
     ("real-socketcan", ["--target", "real", "--can-interface", "socketcan", "--calibration", "none"],
-     "target real: cannot build the real target:"),
+     "ip link set can0 up type can bitrate 1000000"),
 ]  # fmt: skip
 
 OTHER_ROWS = [

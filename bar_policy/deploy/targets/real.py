@@ -96,6 +96,10 @@ class RealTarget(Target):
         """The CAN watchdog armed at ``start()``, s (0: the motors keep their own); for run metadata."""
         return min((m.can_timeout for bus in self.group.buses for m in bus.motors), default=0.0)
 
+    def run_metadata(self) -> dict[str, float]:
+        """The armed CAN watchdog (``can_timeout``, s; 0 = left to the motors) for the run log."""
+        return {"can_timeout": self.can_timeout}
+
     # ----------------------------------------------------------------------------------------------
     def start(self) -> None:
         """Scan, verify, write caps, enable and hold damping (or only check, in a dry run).
