@@ -31,7 +31,7 @@ import numpy as np
 from mujoco import mjx
 
 from bar_policy.envs import rewards
-from bar_policy.envs.robot import LiteRobotEnv, TaskStep
+from bar_policy.envs.robot import LiteRobotEnv
 from bar_policy.envs.robot_config import (
     ActuatorConfig,
     ModelRandomizationConfig,
@@ -40,6 +40,7 @@ from bar_policy.envs.robot_config import (
     check_multiple,
     nominal,
 )
+from bar_policy.envs.task import TaskStep, Transition
 from bar_policy.obs import ObservationManager
 from bar_policy.robot.constants import FINGERTIP_SITES
 from bar_policy.tasks.reach import SUCCESS_RADIUS, ReachTargetConfig, sample_targets
@@ -151,19 +152,10 @@ class LiteReach(LiteRobotEnv):
         tl, tr = sample_targets(jax.random.uniform(key, (6,)), self.config.target)
         return {"target_left": tl, "target_right": tr}, self._default, jnp.zeros(self.action_size)
 
-    def task_step(
-        self,
-        model: mjx.Model,
-        data: mjx.Data,
-        info: dict,
-        action: jax.Array,
-        tau_sq: jax.Array,
-        step: jax.Array,
-        finite: jax.Array,
-        key: jax.Array,
-    ) -> TaskStep:
+    def task_step(self, tr: Transition) -> TaskStep:
         """Distance rewards on the true fingertips, success, and target resampling at segment ends."""
         cfg = self.config
+        data, info, finite = tr.data, tr.info, tr.finite
         tips = data.site_xpos[self._site_ids]
         d_l = jnp.linalg.norm(tips[0] - info["target_left"])
         d_r = jnp.linalg.norm(tips[1] - info["target_right"])
@@ -172,13 +164,13 @@ class LiteReach(LiteRobotEnv):
             "reach_coarse": rewards.reach_kernel(d_l, d_r, rc.coarse_std),
             "reach_fine": rewards.reach_kernel(d_l, d_r, rc.fine_std),
             "success": rewards.success(d_l, d_r, SUCCESS_RADIUS),
-            "action_rate": rewards.action_rate(action, info["last_act"]),
+            "action_rate": rewards.action_rate(tr.action, info["last_act"]),
             "joint_limit": rewards.joint_limit(data.qpos, self._lower, self._upper, rc.soft_limit_fraction),
-            "torque": rewards.torque(tau_sq),
+            "torque": rewards.torque(tr.tau_sq),
             "joint_vel": rewards.joint_vel(data.qvel),
         }
-        seg_end = (step % cfg.resample_steps) == 0
-        new_l, new_r = sample_targets(jax.random.uniform(key, (6,)), cfg.target)
+        seg_end = (tr.step % cfg.resample_steps) == 0
+        new_l, new_r = sample_targets(jax.random.uniform(tr.key, (6,)), cfg.target)
         seg = seg_end.astype(jnp.float32)
         metrics = {
             "dist_left": jnp.where(finite, d_l, 0.0),

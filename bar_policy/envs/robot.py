@@ -1,7 +1,8 @@
 """The Lite robot env: everything a task does not own, with the Robstride MIT law in the loop.
 
-A task subclasses ``LiteRobotEnv`` and fills four hooks (``task_reset``, ``task_step``, ``task_obs`` and
-``metric_keys``) plus its observation layout; the robot env does the rest, identically for every task:
+A task subclasses ``LiteRobotEnv``, passes its observation layout and fills the hooks of
+``bar_policy.envs.task.TaskHooks`` (``task_reset``, ``task_step``, ``task_obs``, ``metric_keys``); the
+robot env does the rest, identically for every task:
 
 - **Action**: ``a`` in [-1, 1]^n (canonical joint order), clipped. ``q_cmd = clip(default_pose +
   action_scale * a, lower, upper)`` with ``default_pose`` = the layout's ``default_joint_pos`` and
@@ -30,8 +31,7 @@ PRNG use is fixed (reach's outputs are pinned by tests/data/reach_golden.npz): `
 
 from __future__ import annotations
 
-import abc
-from dataclasses import dataclass, fields
+from dataclasses import fields
 
 import jax
 import jax.numpy as jnp
@@ -48,31 +48,24 @@ from bar_policy.envs.actuator import (
 )
 from bar_policy.envs.base import MjxEnv, State
 from bar_policy.envs.robot_config import RobotEnvConfig
+from bar_policy.envs.task import TaskHooks, Transition
 from bar_policy.obs import ObservationManager
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.mjcf import load_model
 
-__all__ = ["LiteRobotEnv", "TaskStep"]
+__all__ = ["LiteRobotEnv"]
 
 
-@dataclass(frozen=True)
-class TaskStep:
-    """What a task returns from ``task_step`` (a trace-time container, not a pytree)."""
+class LiteRobotEnv(TaskHooks, MjxEnv):
+    """The Lite with the Robstride actuator model; tasks subclass it and fill ``TaskHooks``."""
 
-    terms: dict[str, jax.Array]
-    """Unscaled reward terms by name (every field of ``config.reward.scales``), scalars."""
-    info: dict[str, jax.Array]
-    """The task's info entries for the new state (merged over the old info)."""
-    metrics: dict[str, jax.Array]
-    """The task's metrics, scalars (keys = ``metric_keys``)."""
-    terminate: jax.Array | None = None
-    """Boolean scalar: end the episode now (besides a non-finite state); None never ends it."""
+    def __init__(
+        self, config: RobotEnvConfig, obs_manager: ObservationManager, default_scale: np.ndarray | None = None
+    ) -> None:
+        """The robot of ``config.mode`` with the task's observation layout.
 
-
-class LiteRobotEnv(MjxEnv):
-    """The Lite with the Robstride actuator model; tasks subclass it (see the module docstring)."""
-
-    def __init__(self, config: RobotEnvConfig, obs_manager: ObservationManager) -> None:
+        ``default_scale`` (rad, shape (n,)) is the action scale used when ``config.action_scale`` is None.
+        """
         cfg = config
         self.config = cfg
         self.robot = load_robot(cfg.mode)
@@ -91,7 +84,10 @@ class LiteRobotEnv(MjxEnv):
         n = self.robot.num_joints
         f32 = np.float32
         self._default = np.asarray(obs_manager.schema.default_joint_pos, dtype=f32)
-        self._scale = np.array(np.broadcast_to(np.asarray(cfg.action_scale, dtype=f32), (n,)))
+        scale = default_scale if cfg.action_scale is None else cfg.action_scale
+        if scale is None:
+            raise ValueError("action_scale is None and the task gives no default per-joint scale")
+        self._scale = np.array(np.broadcast_to(np.asarray(scale, dtype=f32), (n,)))
         self._lower = self.robot.lower.astype(f32)
         self._upper = self.robot.upper.astype(f32)
         self._kp = self.robot.kp.astype(f32)
@@ -103,48 +99,6 @@ class LiteRobotEnv(MjxEnv):
             torque_saturation=cfg.actuator.torque_saturation,
         )
         self._reward_names = tuple(f.name for f in fields(cfg.reward.scales))  # type: ignore[attr-defined]
-
-    # -- task hooks --------------------------------------------------------------------------------
-    @abc.abstractmethod
-    def task_reset(self, model: mjx.Model, key: jax.Array) -> tuple[dict, jax.Array, jax.Array]:
-        """A new episode's task state: ``(task info, initial pose (n,) rad, initial velocity (n,) rad/s)``.
-
-        The robot env adds U(-init_noise, init_noise) to the pose and clips it to the joint limits.
-        """
-
-    @abc.abstractmethod
-    def task_step(
-        self,
-        model: mjx.Model,
-        data: mjx.Data,
-        info: dict,
-        action: jax.Array,
-        tau_sq: jax.Array,
-        step: jax.Array,
-        finite: jax.Array,
-        key: jax.Array,
-    ) -> TaskStep:
-        """Reward terms, metrics, termination and the next task info after one control step.
-
-        Args:
-            model: this env's model.
-            data: the state after the step (its kinematics are those of the last substep's start, 2 ms old).
-            info: the info of the state before the step (robot keys included: ``last_act`` etc.).
-            action: the clipped action of this step, shape (n,).
-            tau_sq: ``sum((tau / tau_cap)^2)`` averaged over the substeps (dimensionless).
-            step: control steps since reset, after this one (int32).
-            finite: whether the new physics state is finite (bool scalar).
-            key: PRNG key for the task.
-        """
-
-    @abc.abstractmethod
-    def task_obs(self, model: mjx.Model, data: mjx.Data, q_meas: jax.Array, info: dict) -> dict:
-        """The task's observation inputs (term name -> array) for the measured (noisy) joint positions."""
-
-    @property
-    @abc.abstractmethod
-    def metric_keys(self) -> tuple[str, ...]:
-        """The task's metric names (besides ``reward/<term>``)."""
 
     # -- properties --------------------------------------------------------------------------------
     @property
@@ -215,10 +169,14 @@ class LiteRobotEnv(MjxEnv):
 
     def reset_with_model(self, model: mjx.Model, rng: jax.Array) -> State:
         """Fresh episode: the task's pose + noise, the task's velocity, new actuator samples."""
+        ks = jax.random.split(rng, 8)
+        return self._reset(model, ks, self.task_reset(model, ks[1]))
+
+    def _reset(self, model: mjx.Model, ks: jax.Array, task: tuple[dict, jax.Array, jax.Array]) -> State:
+        """The reset state from the 8 keys ``ks`` and the task's ``(info, pose, velocity)``."""
         cfg = self.config
         n = self.action_size
-        ks = jax.random.split(rng, 8)
-        task_info, q_init, qvel_init = self.task_reset(model, ks[1])
+        task_info, q_init, qvel_init = task
         noise = jax.random.uniform(ks[0], (n,), minval=-cfg.init_noise, maxval=cfg.init_noise)
         q0 = jnp.clip(q_init + noise, self._lower, self._upper)
         data = self._init_data.replace(qpos=q0, qvel=qvel_init)
@@ -270,7 +228,7 @@ class LiteRobotEnv(MjxEnv):
         # A non-finite state ends the episode (the wrapper resets it) and logs zeros, not NaN.
         finite = jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
         step = info["step"] + 1
-        task = self.task_step(model, data, info, action, jnp.mean(tau_sq), step, finite, k_task)
+        task = self.task_step(Transition(model, data, info, action, jnp.mean(tau_sq), step, finite, k_task))
         end = jnp.logical_not(finite)
         if task.terminate is not None:
             end = jnp.logical_or(end, task.terminate)

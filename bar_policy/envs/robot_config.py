@@ -119,9 +119,9 @@ class RobotEnvConfig:
     """Physics timestep, s (Euler). See docs/physics.md before changing it."""
     episode_length_s: float = 5.0
     """Episode length, s (250 control steps); the wrappers truncate episodes there."""
-    action_scale: float | tuple[float, ...] = 0.8
-    """q_cmd = default_pose + action_scale * action, rad per unit action: one value for every joint, or one
-    per joint (canonical order)."""
+    action_scale: float | tuple[float, ...] | None = 0.8
+    """q_cmd = default_pose + action_scale * action, rad per unit action: one value for every joint, one
+    per joint (canonical order), or None for the task's own per-joint default."""
     init_noise: float = 0.05
     """Half-width of the initial joint-position noise around the task's initial pose, rad."""
     actuator: ActuatorConfig = field(default_factory=ActuatorConfig)
@@ -140,7 +140,7 @@ class RobotEnvConfig:
         check_multiple("episode_length_s", self.episode_length_s, self.ctrl_dt)
         scale = self.action_scale if isinstance(self.action_scale, tuple) else (self.action_scale,)
         n = load_robot(self.mode).num_joints
-        if len(scale) not in (1, n) or not all(s > 0 for s in scale):
+        if scale != (None,) and (len(scale) not in (1, n) or not all(s > 0 for s in scale)):
             raise ValueError(
                 f"action_scale must be > 0 rad, one value or {n} (mode {self.mode!r}), got "
                 f"{self.action_scale}"

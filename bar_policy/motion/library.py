@@ -1,7 +1,7 @@
 """The clip sets of the tracking task, each with an id for the policy file (numpy, C MuJoCo).
 
-- ``train``: random clips from seed ``TRAIN_SEED`` (default 256 clips of 12 s at 50 Hz, about 51 min).
-- ``heldout``: random clips from seed ``HELDOUT_SEED`` (default 16 of 12 s) plus every named gesture; never
+- ``train``: random clips from seed ``TRAIN_SEED`` (default 64 clips of 30 s at 50 Hz, 32 min).
+- ``heldout``: random clips from seed ``HELDOUT_SEED`` (default 8 of 30 s) plus every named gesture; never
   used in training, for evaluation (``bench/track_fidelity.py``).
 - ``gestures``: the named gestures only.
 
@@ -25,7 +25,7 @@ TRAIN_SEED = 0
 """Seed of the training clips."""
 HELDOUT_SEED = 1
 """Seed of the held-out random clips."""
-CLIP_SETS: dict[str, int] = {"train": 256, "heldout": 16, "gestures": 0}
+CLIP_SETS: dict[str, int] = {"train": 64, "heldout": 8, "gestures": 0}
 """Set name -> default number of random clips."""
 
 
@@ -56,7 +56,7 @@ def clip_set(
     mode: str = "arms",
     rate_hz: float = 50.0,
     num_clips: int | None = None,
-    length_s: float = 12.0,
+    length_s: float = 30.0,
     config: RandomMotionConfig | None = None,
 ) -> ClipSet:
     """Build a named clip set.

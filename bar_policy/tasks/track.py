@@ -164,7 +164,9 @@ def reference_inputs(joint_pos: Array, body_pos: Array, body_ori: Array, idx: Ar
     """The reference terms of the observation for table indices ``idx`` (shape (K,)).
 
     Args:
-        joint_pos: table joint positions (F, n); body_pos: (F, B, 3); body_ori: (F, B, 6) (numpy or jax).
+        joint_pos: table joint positions, shape (F, n) (numpy or jax, like the others).
+        body_pos: table body positions, shape (F, B, 3).
+        body_ori: table body orientations (6-D), shape (F, B, 6).
         idx: frame indices from ``lookahead_frames``, shape (K,).
 
     Returns:
