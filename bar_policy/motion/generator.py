@@ -33,7 +33,7 @@ __all__ = ["MIRROR", "MOTION_BOX_LEFT", "RandomMotionConfig", "motion_box", "ran
 
 MOTION_BOX_LEFT: tuple[tuple[float, float], ...] = (
     (-1.6, 0.6),  # left_shoulder_pitch: from arm raised forward to slightly back
-    (-1.5708, 0.2),  # left_shoulder_roll: from hanging (the limit) to just above horizontal
+    (-math.pi / 2, 0.2),  # left_shoulder_roll: from hanging (the limit) to just above horizontal
     (-1.2, 1.2),  # left_shoulder_yaw
     (-2.2, 0.0),  # left_elbow_pitch: flexed to straight (the limit)
     (-1.5, 1.5),  # left_wrist_yaw
