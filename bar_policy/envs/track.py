@@ -35,6 +35,7 @@ import numpy as np
 from mujoco import mjx
 
 from bar_policy.envs import rewards
+from bar_policy.envs.base import State
 from bar_policy.envs.robot import LiteRobotEnv
 from bar_policy.envs.task import TaskStep, Transition
 from bar_policy.envs.track_config import TrackEnvConfig, default_config
@@ -129,10 +130,16 @@ class LiteTrack(LiteRobotEnv):
         info = {"clip": clip, "frame": frame, "last_frame": start + self._clip_length[clip] - 1}
         return info, self._ref_q[frame], self._ref_dq[frame]
 
-    def reset_at(self, rng: jax.Array, clip: jax.Array, phase: jax.Array) -> object:
-        """Reset on the nominal model at a given clip and start frame (evaluation); the key as ``reset``."""
+    def reset_at(
+        self, rng: jax.Array, clip: jax.Array, phase: jax.Array, model: mjx.Model | None = None
+    ) -> State:
+        """Reset at a given clip (table order) and start frame (evaluation); keys used as by ``reset``.
+
+        ``model``: the model to reset on (default: the nominal one; pass a randomised one under vmap).
+        """
         ks = jax.random.split(rng, 8)
-        return self._reset(self.mjx_model, ks, self.start_at(jnp.asarray(clip), jnp.asarray(phase)))
+        task = self.start_at(jnp.asarray(clip), jnp.asarray(phase))
+        return self._reset(self.mjx_model if model is None else model, ks, task)
 
     def task_step(self, tr: Transition) -> TaskStep:
         """Advance the reference one frame; tracking rewards and errors against it."""
