@@ -44,7 +44,10 @@ def test_every_env_traces_and_keeps_the_trainer_contract(name):
     s1 = jax.eval_shape(w.step, s, jnp.zeros((2, act_size), jnp.float32))
     assert s1.obs.shape == (2, obs_size) and s1.reward.shape == (2,) and s1.done.shape == (2,)
     assert set(s1.metrics) == {f"reward/{k}" for k in env.reward_names} | set(env.metric_keys)
+    # step(state) keeps the state's structure, shapes, dtypes and weak types (the training scan needs it).
     assert jax.tree_util.tree_structure(s) == jax.tree_util.tree_structure(s1)
+    for a, b in zip(jax.tree_util.tree_leaves(s), jax.tree_util.tree_leaves(s1), strict=True):
+        assert (a.shape, a.dtype, a.weak_type) == (b.shape, b.dtype, b.weak_type)
     assert "success_rate" in jax.eval_shape(env.eval_ratios, s1.metrics)
     assert set(env.task_metadata()) <= {"body_names", "lookahead_steps", "dataset_repo_id"}
 
