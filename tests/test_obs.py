@@ -149,3 +149,43 @@ def test_fingerprint_command_prints_each_layout(capsys: pytest.CaptureFixture[st
     for name in SHIPPED_LAYOUTS:
         fp = ObservationManager.golden(name).fingerprint
         assert f"{name}  v1" in out and f"fingerprint={fp}  matches golden" in out
+
+
+# ---------------------------------------------------------------------------------------------------
+# The tracking layout: lookahead sizes, body names, schema keys
+# ---------------------------------------------------------------------------------------------------
+def test_layout_of_track_arms() -> None:
+    om = ObservationManager.for_task("track", "arms")
+    k, b = 5, 4
+    assert om.schema.lookahead_steps == k and len(om.schema.body_names) == b
+    # K*n + K*B*3 + K*B*6 + 3n = 70 + 60 + 120 + 42.
+    assert om.size == 70 + 60 + 120 + 42 == 292
+    assert om.term_slice("motion_body_pos_b") == slice(70, 130)
+    assert om.term_slice("joint_pos") == slice(250, 264)
+    assert om.command_names == ("motion_joint_pos", "motion_body_pos_b", "motion_body_ori_b")
+    assert om.fingerprint == ObservationManager.golden("lite_track_arms").fingerprint
+    # Reach's JSON has no tracking keys (its fingerprint predates them); the tracking JSON round-trips them.
+    assert "body_names" not in ObservationManager.for_task("reach", "arms").schema.to_dict()
+    again = ObservationManager.from_json(om.to_json())
+    assert again.schema == om.schema and again.schema.body_names == om.schema.body_names
+    # The default pose offsets joint_pos only, never the reference terms.
+    x = {name: np.zeros(om.schema.terms[i].size) for i, name in enumerate(om.term_names)}
+    x["motion_joint_pos"] = np.tile(np.asarray(om.schema.default_joint_pos), k)
+    obs = om.compute(x)
+    np.testing.assert_allclose(obs[:70], x["motion_joint_pos"], atol=1e-6)
+    np.testing.assert_allclose(obs[250:264], -np.asarray(om.schema.default_joint_pos), atol=1e-6)
+
+
+def test_track_schema_refusals() -> None:
+    good = ObservationManager.for_task("track", "arms").schema.to_dict()
+    with pytest.raises(ValueError, match="lookahead_steps = 0: it must be >= 1 exactly when"):
+        ObservationSchema.from_dict({**good, "lookahead_steps": 0})
+    with pytest.raises(ValueError, match=r"body_names \[\] must be given exactly when a body term is used"):
+        ObservationSchema.from_dict({**good, "body_names": []})
+    with pytest.raises(ValueError, match="term 'motion_body_pos_b' has size 60, expected 45"):
+        ObservationSchema.from_dict({**good, "body_names": good["body_names"][:3]})
+    with pytest.raises(ValueError, match="distinct non-empty names"):
+        ObservationSchema.from_dict({**good, "body_names": ["left_hand"] * 4})
+    reach = ObservationManager.for_task("reach", "arms").schema.to_dict()
+    with pytest.raises(ValueError, match="lookahead_steps = 3: it must be >= 1 exactly when"):
+        ObservationSchema.from_dict({**reach, "lookahead_steps": 3})

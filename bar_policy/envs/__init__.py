@@ -1,5 +1,11 @@
 """MJX training envs: a small registry of name -> (env class, default config, randomizer).
 
+Every env is a task on the Lite robot env (``robot.py``: actuator model, latency, quantisation, noise,
+substeps, action map, initial state; ``robot_config.py``: its config), plugged in through the hooks of
+``task.py``: ``LiteReach`` / ``LiteReachNeck`` (``reach.py``) and ``LiteTrack`` (``track.py``,
+``track_config.py``). Domain randomisation (``randomize.py``) and the batched wrappers (``wrappers.py``)
+are shared by every task.
+
 Usage::
 
     from bar_policy import envs
@@ -19,15 +25,24 @@ from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from bar_policy.envs.base import MjxEnv, State
-from bar_policy.envs.reach import LiteReach, ReachEnvConfig, nominal_config
+from bar_policy.envs.reach import LiteReach, ReachEnvConfig
 from bar_policy.envs.reach import default_config as _reach_default
+from bar_policy.envs.robot import LiteRobotEnv
+from bar_policy.envs.robot_config import RobotEnvConfig, nominal
+from bar_policy.envs.track import LiteTrack
+from bar_policy.envs.track_config import TrackEnvConfig
+from bar_policy.envs.track_config import default_config as _track_default
 
 __all__ = [
     "ALL_ENVS",
     "LiteReach",
+    "LiteRobotEnv",
+    "LiteTrack",
     "MjxEnv",
     "ReachEnvConfig",
+    "RobotEnvConfig",
     "State",
+    "TrackEnvConfig",
     "apply_overrides",
     "default_config",
     "get_randomizer",
@@ -38,19 +53,20 @@ __all__ = [
 ]
 
 
-def _reach_randomizer(config: Any) -> Callable:
+def _randomizer(config: Any) -> Callable:
     from bar_policy.envs.randomize import make_randomizer
 
     return make_randomizer(config)
 
 
+def _reach_neck_default() -> ReachEnvConfig:
+    return dataclasses.replace(_reach_default(), mode="arms_neck")
+
+
 _REGISTRY: dict[str, tuple[type[MjxEnv], Callable[[], Any], Callable[[Any], Callable]]] = {
-    "LiteReach": (LiteReach, _reach_default, _reach_randomizer),
-    "LiteReachNeck": (
-        LiteReach,
-        lambda: dataclasses.replace(_reach_default(), mode="arms_neck"),
-        _reach_randomizer,
-    ),
+    "LiteReach": (LiteReach, _reach_default, _randomizer),
+    "LiteReachNeck": (LiteReach, _reach_neck_default, _randomizer),
+    "LiteTrack": (LiteTrack, _track_default, _randomizer),
 }
 ALL_ENVS: tuple[str, ...] = tuple(_REGISTRY)
 """Registered env names."""
@@ -65,6 +81,14 @@ def _entry(name: str) -> tuple:
 def default_config(name: str = "LiteReach") -> Any:
     """The default (training) config of a registered env."""
     return _entry(name)[1]()
+
+
+def nominal_config(base: RobotEnvConfig | None = None) -> Any:
+    """``base`` (default: LiteReach's default config) with every randomisation and noise off.
+
+    Works for any task's config (``robot_config.nominal``); quantisation and torque saturation stay on.
+    """
+    return nominal(base if base is not None else _reach_default())
 
 
 def _parse_value(text: str, current: Any) -> Any:

@@ -7,7 +7,7 @@ once per control step (``quantize_command``), because the command is constant ov
 substeps then call ``firmware_torque(..., quantize_wire=False)``. This is arithmetically identical to
 quantising inside every substep and saves ten quantisations per control step.
 
-Each effect is switchable through ``ActuatorConfig`` (bar_policy.envs.reach).
+Each effect is switchable through ``ActuatorConfig`` (bar_policy.envs.robot_config).
 """
 
 from __future__ import annotations

@@ -3,8 +3,9 @@
 Brax PPO calls the randomiser once at the start of training with one key per env slot (``rng`` shape
 ``(num_envs, 2)``); each slot then keeps its randomised model for the whole run, while the episode-level
 effects (latency, Kp/Kd scale, encoder offset, observation noise, initial pose, targets) are sampled at
-every reset by the env itself. ``in_axes`` has the model's structure with ``0`` on the randomised fields and
-``None`` elsewhere, for ``jax.vmap(..., in_axes=(in_axes, 0))``.
+every reset by the env itself. The randomiser reads only the robot part of a config (``RobotEnvConfig``:
+``mode`` and ``randomization``), so it is the same for every task. ``in_axes`` has the model's structure
+with ``0`` on the randomised fields and ``None`` elsewhere, for ``jax.vmap(..., in_axes=(in_axes, 0))``.
 """
 
 from __future__ import annotations
@@ -12,11 +13,10 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from mujoco import mjx
 
-from bar_policy.envs.reach import ReachEnvConfig
+from bar_policy.envs.robot_config import RobotEnvConfig
 from bar_policy.robot.actuators import ROBSTRIDE_MODELS
 from bar_policy.robot.constants import load_robot
 
@@ -40,8 +40,8 @@ def armature_bounds(mode: str) -> tuple[np.ndarray, np.ndarray]:
     return np.minimum(desc, ident), np.maximum(desc, ident)
 
 
-def make_randomizer(config: ReachEnvConfig) -> Randomizer:
-    """The randomiser for ``config`` (its ``randomization`` field and ``mode``).
+def make_randomizer(config: RobotEnvConfig) -> Randomizer:
+    """The randomiser for any task's ``config`` (its ``randomization`` field and ``mode``).
 
     Returns:
         ``domain_randomize(model, rng)``: ``rng`` is a batch of keys, shape ``(B, 2)``; returns the model
@@ -80,6 +80,3 @@ def make_randomizer(config: ReachEnvConfig) -> Randomizer:
         return model.tree_replace(fields), in_axes
 
     return domain_randomize
-
-
-_ = jnp

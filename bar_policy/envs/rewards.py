@@ -1,8 +1,11 @@
-"""Reward terms of the reach task: small pure functions of arrays, positive "goodness" or positive "cost".
+"""Reward terms of the tasks: small pure functions of arrays, positive "goodness" or positive "cost".
 
-Every term returns a non-negative scalar; the sign lives only in the weight (``RewardScales``: rewards
-positive, costs negative), and ``bar_policy.envs.reach`` logs each scaled term as ``reward/<name>``.
-All functions are plain jnp arithmetic on unbatched inputs (vmap them for a batch).
+Every term returns a non-negative scalar; the sign lives only in the weight (a task's ``reward.scales``:
+rewards positive, costs negative), and the robot env (``bar_policy.envs.robot``) logs each scaled term as
+``reward/<name>``. All functions are plain jnp arithmetic on unbatched inputs (vmap them for a batch).
+Reach uses ``reach_kernel``, ``success``, ``joint_limit`` and ``joint_vel``; tracking uses
+``joint_tracking``, ``body_pos_tracking`` and ``body_ori_tracking`` (with ``orientation_error``); both use
+``action_rate`` and ``torque``.
 """
 
 from __future__ import annotations
@@ -12,9 +15,14 @@ import jax.numpy as jnp
 
 __all__ = [
     "action_rate",
+    "body_ori_tracking",
+    "body_pos_tracking",
     "joint_limit",
+    "joint_tracking",
     "joint_vel",
+    "orientation_error",
     "reach_kernel",
+    "rotation_from_6d",
     "success",
     "torque",
 ]
@@ -63,3 +71,55 @@ def torque(tau_sq_normalised: jax.Array) -> jax.Array:
 def joint_vel(dq: jax.Array) -> jax.Array:
     """Cost ``sum(dq^2)``, (rad/s)^2: damps needless motion and oscillation."""
     return jnp.sum(jnp.square(dq))
+
+
+# ---------------------------------------------------------------------------------------------------
+# Tracking
+# ---------------------------------------------------------------------------------------------------
+def joint_tracking(q: jax.Array, q_ref: jax.Array, std: float) -> jax.Array:
+    """``exp(-mean_j (q_j - q_ref_j)^2 / std^2)``: 1 on the reference, exp(-1) at an RMS error of ``std``.
+
+    Shapes ``(n,)``, rad; ``std`` in rad.
+    """
+    return jnp.exp(-jnp.mean(jnp.square(q - q_ref)) / std**2)
+
+
+def body_pos_tracking(pos: jax.Array, pos_ref: jax.Array, std: float) -> jax.Array:
+    """``exp(-mean_b |p_b - p_ref_b|^2 / std^2)`` over the tracked bodies.
+
+    Shapes ``(B, 3)``, m; ``std`` in m.
+    """
+    return jnp.exp(-jnp.mean(jnp.sum(jnp.square(pos - pos_ref), axis=-1)) / std**2)
+
+
+def rotation_from_6d(ori6: jax.Array) -> jax.Array:
+    """Rotation matrices from the 6-D form ``(r00, r01, r10, r11, r20, r21)`` (columns 0-1, row-major).
+
+    The third column is the cross product of the first two (exact for the rotation matrices the reference
+    table stores). Shape ``(..., 6) -> (..., 3, 3)``.
+    """
+    c = ori6.reshape(*ori6.shape[:-1], 3, 2)
+    c2 = jnp.cross(c[..., 0], c[..., 1])
+    return jnp.concatenate([c, c2[..., None]], axis=-1)
+
+
+def orientation_error(rot: jax.Array, rot_ref: jax.Array) -> jax.Array:
+    """Geodesic angle between rotation matrices, rad, in [0, pi]. Shapes ``(..., 3, 3) -> (...)``.
+
+    Uses ``||R - R_ref||_F = 2 sqrt(2) sin(theta / 2)`` (arcsin of a clipped argument: no NaN at theta = 0
+    or for slightly non-orthogonal float32 input, unlike ``arccos((trace - 1) / 2)``).
+    """
+    fro = jnp.sqrt(jnp.sum(jnp.square(rot - rot_ref), axis=(-2, -1)))
+    return 2.0 * jnp.arcsin(jnp.clip(fro / (2.0 * jnp.sqrt(2.0)), 0.0, 1.0))
+
+
+def body_ori_tracking(rot: jax.Array, ori6_ref: jax.Array, std: float) -> jax.Array:
+    """``exp(-mean_b theta_b^2 / std^2)`` with ``theta_b`` = ``orientation_error`` of each tracked body.
+
+    Args:
+        rot: body rotation matrices, shape ``(B, 3, 3)``.
+        ori6_ref: reference orientations in 6-D form, shape ``(B, 6)``.
+        std: angle scale, rad.
+    """
+    theta = orientation_error(rot, rotation_from_6d(ori6_ref))
+    return jnp.exp(-jnp.mean(jnp.square(theta)) / std**2)

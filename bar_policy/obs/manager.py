@@ -21,8 +21,9 @@ from typing import Any
 import numpy as np
 
 from bar_policy._array import Array, array_namespace
-from bar_policy.obs.terms import TERM_CATALOG
+from bar_policy.obs.terms import LOOKAHEAD_RULES, TERM_CATALOG
 from bar_policy.robot.constants import MODES, load_robot
+from bar_policy.tasks.track import TRACK_BODY_NAMES, TRACK_LOOKAHEAD_STEPS, track_default_pose
 
 __all__ = ["SCHEMA_FORMAT", "SHIPPED_LAYOUTS", "ObsTerm", "ObservationManager", "ObservationSchema"]
 
@@ -32,6 +33,7 @@ SCHEMA_FORMAT = "bar_policy.obs/1"
 SHIPPED_LAYOUTS: dict[str, tuple[str, str]] = {
     "lite_reach_arms": ("reach", "arms"),
     "lite_reach_arms_neck": ("reach", "arms_neck"),
+    "lite_track_arms": ("track", "arms"),
 }
 """Golden layouts committed under ``bar_policy/obs/schemas/``: name -> (task, mode)."""
 
@@ -70,6 +72,11 @@ class ObservationSchema:
     """Pose subtracted from q in ``joint_pos``, rad, in ``joint_names`` order."""
     terms: tuple[ObsTerm, ...]
     """Terms in concatenation order."""
+    body_names: tuple[str, ...] = ()
+    """Tracked bodies of the lookahead terms, in term order (tracking layouts; omitted from the JSON when
+    empty, so layouts without it hash as before)."""
+    lookahead_steps: int = 0
+    """Reference frames K of the lookahead terms (tracking layouts; omitted from the JSON when 0)."""
     format: str = field(default=SCHEMA_FORMAT)
 
     def __post_init__(self) -> None:
@@ -82,6 +89,12 @@ class ObservationSchema:
         d["action_joint_names"] = list(self.action_joint_names)
         d["default_joint_pos"] = [float(x) for x in self.default_joint_pos]
         d["terms"] = [asdict(t) for t in self.terms]
+        if self.body_names:
+            d["body_names"] = list(self.body_names)
+        else:
+            del d["body_names"]
+        if not self.lookahead_steps:
+            del d["lookahead_steps"]
         return d
 
     def to_json(self, indent: int | None = 2) -> str:
@@ -106,7 +119,7 @@ class ObservationSchema:
         missing = [k for k in required if k not in data]
         if missing:
             raise ValueError(f"observation schema lacks keys {missing}")
-        unknown_keys = sorted(set(data) - set(required) - {"format"})
+        unknown_keys = sorted(set(data) - set(required) - {"format", "body_names", "lookahead_steps"})
         if unknown_keys:
             raise ValueError(f"observation schema has unknown keys {unknown_keys}")
         fmt = data.get("format", SCHEMA_FORMAT)
@@ -134,6 +147,8 @@ class ObservationSchema:
             action_joint_names=tuple(data["action_joint_names"]),
             default_joint_pos=tuple(float(x) for x in data["default_joint_pos"]),
             terms=tuple(terms),
+            body_names=tuple(str(b) for b in data.get("body_names", ())),
+            lookahead_steps=int(data.get("lookahead_steps", 0)),
             format=fmt,
         )
 
@@ -178,6 +193,21 @@ def _validate(s: ObservationSchema) -> None:
         raise ValueError("default_joint_pos has non-finite entries")
     if not s.terms:
         raise ValueError("schema has no terms")
+    if len(set(s.body_names)) != len(s.body_names) or not all(isinstance(b, str) and b for b in s.body_names):
+        raise ValueError(f"body_names must be distinct non-empty names, got {list(s.body_names)}")
+    if not (isinstance(s.lookahead_steps, int) and s.lookahead_steps >= 0):
+        raise ValueError(f"lookahead_steps must be an integer >= 0, got {s.lookahead_steps!r}")
+    rules = {TERM_CATALOG[t.name].size for t in s.terms if t.name in TERM_CATALOG}
+    uses_lookahead = any(r in LOOKAHEAD_RULES for r in rules)
+    if uses_lookahead != (s.lookahead_steps > 0):
+        raise ValueError(
+            f"lookahead_steps = {s.lookahead_steps}: it must be >= 1 exactly when a term has a lookahead "
+            f"size ({list(LOOKAHEAD_RULES)})"
+        )
+    uses_bodies = bool(rules & {"lookahead_body_pos", "lookahead_body_ori"})
+    if uses_bodies != bool(s.body_names):
+        raise ValueError(f"body_names {list(s.body_names)} must be given exactly when a body term is used")
+    k, b = s.lookahead_steps, len(s.body_names)
     seen: set[str] = set()
     for t in s.terms:
         kind = TERM_CATALOG.get(t.name)
@@ -186,10 +216,13 @@ def _validate(s: ObservationSchema) -> None:
         if t.name in seen:
             raise ValueError(f"duplicate observation term {t.name!r}")
         seen.add(t.name)
-        expected = {"joints": len(s.joint_names), "actions": len(s.action_joint_names)}.get(
-            kind.size,
-            kind.size,  # type: ignore[arg-type]
-        )
+        expected = {
+            "joints": len(s.joint_names),
+            "actions": len(s.action_joint_names),
+            "lookahead_joints": k * len(s.joint_names),
+            "lookahead_body_pos": k * b * 3,
+            "lookahead_body_ori": k * b * 6,
+        }.get(kind.size, kind.size)  # type: ignore[arg-type]
         if t.size != expected:
             raise ValueError(f"term {t.name!r} has size {t.size}, expected {expected}")
         if not (math.isfinite(t.scale) and math.isfinite(t.clip) and t.clip > 0):
@@ -220,7 +253,36 @@ def _reach_schema(mode: str) -> ObservationSchema:
     )
 
 
-_TASK_BUILDERS = {"reach": _reach_schema}
+def _track_schema(mode: str) -> ObservationSchema:
+    """Version 1 of the motion tracking layout (``bar_policy.tasks.track``).
+
+    The reference at the next ``TRACK_LOOKAHEAD_STEPS`` frames (joint positions, then Humanoid Control's
+    ``motion_body_pos_b`` / ``motion_body_ori_b``), then the robot's own state in Humanoid Control's order.
+    """
+    robot = load_robot(mode)
+    n, k, b = robot.num_joints, TRACK_LOOKAHEAD_STEPS, len(TRACK_BODY_NAMES)
+    return ObservationSchema(
+        name=f"lite_track_{mode}",
+        version=1,
+        robot=robot.robot,
+        mode=mode,
+        joint_names=robot.joint_names,
+        action_joint_names=robot.joint_names,
+        default_joint_pos=tuple(float(x) for x in track_default_pose(mode)),
+        terms=(
+            ObsTerm(name="motion_joint_pos", size=k * n, scale=1.0, clip=100.0),
+            ObsTerm(name="motion_body_pos_b", size=k * b * 3, scale=1.0, clip=100.0),
+            ObsTerm(name="motion_body_ori_b", size=k * b * 6, scale=1.0, clip=100.0),
+            ObsTerm(name="joint_pos", size=n, scale=1.0, clip=100.0),
+            ObsTerm(name="joint_vel", size=n, scale=0.1, clip=100.0),
+            ObsTerm(name="actions", size=n, scale=1.0, clip=100.0),
+        ),
+        body_names=TRACK_BODY_NAMES,
+        lookahead_steps=k,
+    )
+
+
+_TASK_BUILDERS = {"reach": _reach_schema, "track": _track_schema}
 
 
 class ObservationManager:

@@ -52,3 +52,28 @@ def explicit_env():
         "LiteReach",
         config=dataclasses.replace(cfg, actuator=dataclasses.replace(cfg.actuator, damping="explicit")),
     )
+
+
+@pytest.fixture(scope="session")
+def track_clips():
+    """A 3-frame clip worked by hand (piano_ready + 0.01 rad per frame on every joint), and a gesture."""
+    import numpy as np
+
+    from bar_policy.motion import Clip, gesture
+    from bar_policy.robot.constants import load_robot
+
+    piano = load_robot("arms").pose("piano_ready")
+    tiny = Clip.make("tiny", 50.0, piano + 0.01 * np.arange(3)[:, None])
+    return (tiny, gesture("hanging_to_piano_ready"))
+
+
+@pytest.fixture(scope="session")
+def track_env(track_clips):
+    """LiteTrack with every randomisation and noise off, on ``track_clips``."""
+    return envs.LiteTrack(envs.nominal_config(envs.default_config("LiteTrack")), clips=track_clips)
+
+
+@pytest.fixture(scope="session")
+def track_fns(track_env):
+    """(jit reset, jit step, jit reset_at) of ``track_env``, unbatched."""
+    return jax.jit(track_env.reset), jax.jit(track_env.step), jax.jit(track_env.reset_at)

@@ -102,3 +102,59 @@ def test_implicit_damping_keeps_applied_torque():
     # unsaturated: D = 2 -> qfrc = 1 + 2 * 0.5 = 2; passive -(0.1 + 2) * 0.5 brings the sum to 1 - 0.05.
     np.testing.assert_allclose(m.dof_damping, [2.1, 0.0, 0.0])
     np.testing.assert_allclose(qfrc, [2.0, 4.0, -4.0])
+
+
+# ---------------------------------------------------------------------------------------------------
+# Tracking terms
+# ---------------------------------------------------------------------------------------------------
+def _rot_x(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def test_joint_tracking_hand_value():
+    # errors (0.1, -0.1, 0, 0): mean square 0.02 / 4 = 0.005; std 0.1 -> exp(-0.005 / 0.01) = exp(-0.5).
+    q_ref = jnp.array([0.3, -1.0, 0.0, -1.7])
+    q = q_ref + jnp.array([0.1, -0.1, 0.0, 0.0])
+    assert float(rewards.joint_tracking(q, q_ref, 0.1)) == pytest.approx(math.exp(-0.5), rel=1e-5)
+    assert float(rewards.joint_tracking(q_ref, q_ref, 0.1)) == 1.0
+
+
+def test_body_pos_tracking_hand_value():
+    # body 0 off by (0.03, 0.04, 0): 0.0025 m^2; body 1 exact: mean 0.00125; std 0.05 -> exp(-0.5).
+    ref = jnp.array([[0.1, 0.2, 0.3], [0.0, -0.2, 0.2]])
+    pos = ref + jnp.array([[0.03, 0.04, 0.0], [0.0, 0.0, 0.0]])
+    assert float(rewards.body_pos_tracking(pos, ref, 0.05)) == pytest.approx(math.exp(-0.5), rel=1e-5)
+
+
+def test_orientation_error_hand_values():
+    eye = np.eye(3)
+    assert float(rewards.orientation_error(jnp.asarray(_rot_x(0.3)), jnp.asarray(eye))) == pytest.approx(
+        0.3, abs=1e-5
+    )
+    # 2.0 rad about (1, 1, 1) / sqrt(3) (Rodrigues), relative to a non-identity reference.
+    k = np.ones(3) / math.sqrt(3)
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    r = eye + math.sin(2.0) * kx + (1 - math.cos(2.0)) * kx @ kx
+    ref = _rot_x(0.7)
+    got = rewards.orientation_error(jnp.asarray(ref @ r), jnp.asarray(ref))
+    assert float(got) == pytest.approx(2.0, abs=1e-5)
+    assert float(rewards.orientation_error(jnp.asarray(eye), jnp.asarray(eye))) == 0.0  # no NaN at 0
+    assert float(rewards.orientation_error(jnp.asarray(_rot_x(math.pi)), jnp.asarray(eye))) == pytest.approx(
+        math.pi, abs=1e-3
+    )
+
+
+def test_rotation_from_6d_inverts_the_6d_form():
+    r = _rot_x(0.4) @ np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    six = r[:, :2].reshape(6)  # (r00, r01, r10, r11, r20, r21)
+    np.testing.assert_allclose(rewards.rotation_from_6d(jnp.asarray(six)), r, atol=1e-6)
+
+
+def test_body_ori_tracking_hand_value():
+    # body 0 rotated 0.3 rad from its reference, body 1 exact: mean theta^2 = 0.045; std 0.3 -> exp(-0.5).
+    ref = np.stack([np.eye(3), _rot_x(1.0)])
+    rot = np.stack([_rot_x(0.3), _rot_x(1.0)])
+    six = ref[:, :, :2].reshape(2, 6)
+    got = rewards.body_ori_tracking(jnp.asarray(rot), jnp.asarray(six), 0.3)
+    assert float(got) == pytest.approx(math.exp(-0.5), rel=1e-4)

@@ -1,0 +1,179 @@
+"""Configuration of the Lite robot env, shared by every task: timing, action map, actuator, noise, DR.
+
+A task's config subclasses ``RobotEnvConfig`` and adds its own fields (commands, reward, termination), so
+one dataclass tree holds everything and dotted overrides keep their paths (``actuator.latency_steps``,
+``obs_noise.joint_pos``, ``reward.scales.<term>``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import TypeVar
+
+from bar_policy.robot.constants import MODES, load_robot
+from bar_policy.robot.mjcf import PHYSICS_DT
+
+__all__ = [
+    "ActuatorConfig",
+    "ModelRandomizationConfig",
+    "ObsNoiseConfig",
+    "RobotEnvConfig",
+    "check_multiple",
+    "check_range",
+    "nominal",
+]
+
+
+def check_range(name: str, lo_hi: tuple[float, float], *, low: float = -math.inf) -> None:
+    """``ValueError`` unless ``lo_hi`` is a finite ``(low, high)`` with ``low <= lo <= hi``."""
+    lo, hi = lo_hi
+    if not (math.isfinite(lo) and math.isfinite(hi) and low <= lo <= hi):
+        raise ValueError(f"{name} must be (low, high) with {low} <= low <= high, got {lo_hi!r}")
+
+
+def check_multiple(name: str, value: float, unit: float) -> None:
+    """``ValueError`` unless ``value`` is a positive whole multiple of ``unit`` (both in s)."""
+    ratio = value / unit
+    if round(ratio) < 1 or abs(ratio - round(ratio)) > 1e-6:
+        raise ValueError(f"{name}={value} s must be a positive whole multiple of {unit} s")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ActuatorConfig:
+    """The Robstride actuator model and its per-episode randomisation. Ranges are sampled uniformly."""
+
+    quantize_wire: bool = True
+    """16-bit encoding of every MIT command field (per motor model's ranges)."""
+    torque_saturation: bool = True
+    """Clip the law's torque at the firmware cap (``RobotSpec.torque_cap``); False leaves it unclipped."""
+    latency_steps: tuple[int, int] = (0, 2)
+    """Action latency, control steps (20 ms each), inclusive integer range sampled per episode."""
+    kp_scale: tuple[float, float] = (0.9, 1.1)
+    """Per-joint, per-episode multiplier on Kp, dimensionless."""
+    kd_scale: tuple[float, float] = (0.8, 1.2)
+    """Per-joint, per-episode multiplier on Kd, dimensionless."""
+    encoder_offset: float = 0.01
+    """Half-width of the per-joint, per-episode encoder offset U(-x, x), rad (added to measured q)."""
+    damping: str = "implicit"
+    """How the integrator treats the law's Kd term: ``implicit`` (Kd of unsaturated joints goes into
+    Euler's implicit joint damping, the applied force is unchanged; stable at 2 ms with a 6x margin) or
+    ``explicit`` (torque only through qfrc_applied, exactly mujoco_ros2_control; only 3% inside the
+    stability bound at 2 ms and unstable with Kd > 1.03x nominal). See docs/physics.md."""
+
+    def __post_init__(self) -> None:
+        if self.damping not in ("implicit", "explicit"):
+            raise ValueError(f"damping must be 'implicit' or 'explicit', got {self.damping!r}")
+        lo, hi = self.latency_steps
+        if not (isinstance(lo, int) and isinstance(hi, int) and 0 <= lo <= hi <= 10):
+            raise ValueError(
+                f"latency_steps must be integers 0 <= low <= high <= 10, got {self.latency_steps}"
+            )
+        check_range("kp_scale", self.kp_scale, low=0.0)
+        check_range("kd_scale", self.kd_scale, low=0.0)
+        if not self.encoder_offset >= 0:
+            raise ValueError(f"encoder_offset must be >= 0 rad, got {self.encoder_offset}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ObsNoiseConfig:
+    """Per-step uniform observation noise U(-x, x) on the measured joint state (0 disables)."""
+
+    joint_pos: float = 0.005
+    """rad; also moves any observed forward kinematics (computed from the noisy measured q)."""
+    joint_vel: float = 0.1
+    """rad/s."""
+
+    def __post_init__(self) -> None:
+        if not (self.joint_pos >= 0 and self.joint_vel >= 0):
+            raise ValueError(f"noise half-widths must be >= 0, got {self.joint_pos}, {self.joint_vel}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ModelRandomizationConfig:
+    """Model-level randomisation (``bar_policy.envs.randomize.domain_randomize``), fixed per env slot."""
+
+    armature: bool = True
+    """Armature ~ U(description, identified) per joint (robstride-protocol.md section 8, up to ~7x)."""
+    frictionloss: tuple[float, float] | None = (0.05, 0.35)
+    """Joint Coulomb friction ~ U(low, high) per joint, N*m; None keeps the MJCF value (0.1)."""
+    link_mass_scale: tuple[float, float] | None = (0.9, 1.1)
+    """Per-body multiplier on mass and inertia (density scaling), dimensionless; None disables."""
+
+    def __post_init__(self) -> None:
+        if self.frictionloss is not None:
+            check_range("frictionloss", self.frictionloss, low=0.0)
+        if self.link_mass_scale is not None:
+            check_range("link_mass_scale", self.link_mass_scale, low=1e-3)
+
+
+@dataclass(frozen=True, kw_only=True)
+class RobotEnvConfig:
+    """What every Lite task shares. Subclass it for a task; derive variants with ``dataclasses.replace``."""
+
+    mode: str = "arms"
+    """Joint set: ``arms`` (14) or ``arms_neck`` (17)."""
+    ctrl_dt: float = 0.02
+    """Control period, s (50 Hz)."""
+    sim_dt: float = PHYSICS_DT
+    """Physics timestep, s (Euler). See docs/physics.md before changing it."""
+    episode_length_s: float = 5.0
+    """Episode length, s (250 control steps); the wrappers truncate episodes there."""
+    action_scale: float | tuple[float, ...] | None = 0.8
+    """q_cmd = default_pose + action_scale * action, rad per unit action: one value for every joint, one
+    per joint (canonical order), or None for the task's own per-joint default."""
+    init_noise: float = 0.05
+    """Half-width of the initial joint-position noise around the task's initial pose, rad."""
+    actuator: ActuatorConfig = field(default_factory=ActuatorConfig)
+    """Actuator model and its per-episode randomisation."""
+    obs_noise: ObsNoiseConfig = field(default_factory=ObsNoiseConfig)
+    """Observation noise."""
+    randomization: ModelRandomizationConfig = field(default_factory=ModelRandomizationConfig)
+    """Model-level randomisation used by ``get_randomizer``."""
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"unknown mode {self.mode!r}; valid modes: {list(MODES)}")
+        if not (self.sim_dt > 0 and self.ctrl_dt > 0):
+            raise ValueError(f"ctrl_dt and sim_dt must be > 0 s, got {self.ctrl_dt}, {self.sim_dt}")
+        check_multiple("ctrl_dt", self.ctrl_dt, self.sim_dt)
+        check_multiple("episode_length_s", self.episode_length_s, self.ctrl_dt)
+        scale = self.action_scale if isinstance(self.action_scale, tuple) else (self.action_scale,)
+        n = load_robot(self.mode).num_joints
+        if scale != (None,) and (len(scale) not in (1, n) or not all(s > 0 for s in scale)):
+            raise ValueError(
+                f"action_scale must be > 0 rad, one value or {n} (mode {self.mode!r}), got "
+                f"{self.action_scale}"
+            )
+        if not self.init_noise >= 0:
+            raise ValueError(f"init_noise must be >= 0 rad, got {self.init_noise}")
+
+    @property
+    def n_substeps(self) -> int:
+        """Physics steps per control step."""
+        return round(self.ctrl_dt / self.sim_dt)
+
+    @property
+    def episode_length(self) -> int:
+        """Episode length in control steps."""
+        return round(self.episode_length_s / self.ctrl_dt)
+
+
+C = TypeVar("C", bound=RobotEnvConfig)
+
+
+def nominal(base: C) -> C:
+    """``base`` with every randomisation and noise off (any task's config).
+
+    Wire quantisation and torque saturation stay on (they are the nominal actuator, not randomisation).
+    Use it for evaluation, the parity test and sim2sim comparisons.
+    """
+    return replace(
+        base,
+        init_noise=0.0,
+        actuator=replace(
+            base.actuator, latency_steps=(0, 0), kp_scale=(1.0, 1.0), kd_scale=(1.0, 1.0), encoder_offset=0.0
+        ),
+        obs_noise=ObsNoiseConfig(joint_pos=0.0, joint_vel=0.0),
+        randomization=ModelRandomizationConfig(armature=False, frictionloss=None, link_mass_scale=None),
+    )

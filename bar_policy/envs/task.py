@@ -1,0 +1,86 @@
+"""The contract between the robot env (``robot.py``) and a task: the hooks a task fills and what they see.
+
+A task module (``reach.py``, ``track.py``) subclasses ``LiteRobotEnv`` and implements ``TaskHooks``:
+
+- ``task_reset(model, key) -> (info, q_init, qvel_init)``: the task's entries of ``State.info`` for a new
+  episode and the initial joint state (the robot env adds the initial-pose noise);
+- ``task_step(transition) -> TaskStep``: reward terms (unscaled), metrics, termination and the task's info
+  for the next state;
+- ``task_obs(model, data, q_meas, info) -> inputs``: the task's observation inputs (term name -> array);
+- ``metric_keys``: the names of the task's metrics.
+
+Hooks are pure functions of their arguments (jit- and vmap-able, unbatched).
+"""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass
+
+import jax
+from mujoco import mjx
+
+__all__ = ["TaskHooks", "TaskStep", "Transition"]
+
+
+@dataclass(frozen=True)
+class Transition:
+    """One control step as the task sees it (a trace-time container, not a pytree)."""
+
+    model: mjx.Model
+    """This env's model (possibly randomised)."""
+    data: mjx.Data
+    """The state after the step; its kinematics (xpos, site_xpos) are the last substep's, 2 ms old."""
+    info: dict
+    """``State.info`` before the step (the robot's keys included: ``last_act``, ``step``, ...)."""
+    action: jax.Array
+    """The clipped action of this step, shape (n,)."""
+    tau_sq: jax.Array
+    """``sum((tau / tau_cap)^2)`` over joints, averaged over the substeps (dimensionless)."""
+    step: jax.Array
+    """Control steps since reset, this one included (int32)."""
+    finite: jax.Array
+    """Whether the new physics state is finite (bool scalar); a non-finite state ends the episode."""
+    key: jax.Array
+    """PRNG key for the task."""
+
+
+@dataclass(frozen=True)
+class TaskStep:
+    """What a task returns from ``task_step`` (a trace-time container, not a pytree)."""
+
+    terms: dict[str, jax.Array]
+    """Unscaled reward terms by name (every field of ``config.reward.scales``, in its order), scalars."""
+    info: dict[str, jax.Array]
+    """The task's info entries for the new state (merged over the old info)."""
+    metrics: dict[str, jax.Array]
+    """The task's metrics, scalars (keys = ``metric_keys``)."""
+    terminate: jax.Array | None = None
+    """Boolean scalar: end the episode now (besides a non-finite state); None never ends it."""
+
+
+class TaskHooks(abc.ABC):
+    """The hooks ``LiteRobotEnv`` calls (see the module docstring)."""
+
+    @abc.abstractmethod
+    def task_reset(self, model: mjx.Model, key: jax.Array) -> tuple[dict, jax.Array, jax.Array]:
+        """A new episode's task state: ``(task info, initial pose (n,) rad, initial velocity (n,) rad/s)``.
+
+        The robot env adds U(-init_noise, init_noise) to the pose and clips it to the joint limits.
+        """
+
+    @abc.abstractmethod
+    def task_step(self, tr: Transition) -> TaskStep:
+        """Reward terms, metrics, termination and the next task info after one control step."""
+
+    @abc.abstractmethod
+    def task_obs(self, model: mjx.Model, data: mjx.Data, q_meas: jax.Array, info: dict) -> dict:
+        """The task's observation inputs (term name -> array).
+
+        From the measured (noisy) joint positions ``q_meas`` (n,) and the new state's ``info``.
+        """
+
+    @property
+    @abc.abstractmethod
+    def metric_keys(self) -> tuple[str, ...]:
+        """The task's metric names (besides ``reward/<term>``)."""
