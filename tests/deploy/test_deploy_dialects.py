@@ -174,14 +174,14 @@ def test_hc_only_reach_file_runs_through_bar_deploy_on_sim(tmp_path, capsys):
 def test_hc_only_unknown_terms_are_refused_with_the_supported_list(tmp_path):
     path = make_hc_policy_file(
         tmp_path / "u.onnx",
-        hc_props(observation_names=("motion_body_pos_b", "joint_pos", "joint_vel", "actions")),
+        hc_props(observation_names=("base_lin_vel", "joint_pos", "joint_vel", "actions")),
         obs_size=45,
     )
     with pytest.raises(PolicyLoadError) as e:
         load_policy(path)
     msg = str(e.value)
     assert (
-        "metadata key 'observation_names' uses terms ['motion_body_pos_b'] that this runtime cannot feed"
+        "metadata key 'observation_names' uses terms ['base_lin_vel'] that this runtime cannot feed"
         in msg
     )
     supported = msg.split("supported terms: ")[1]
