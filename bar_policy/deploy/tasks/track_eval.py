@@ -12,7 +12,10 @@ code path (``Runtime``: observation manager, action clip, safety supervisor, the
   ``body_pos_error`` (mean distance of the tracked bodies, m), ``fingertip_error`` (mean over both
   fingertips, m), ``success`` (joint error <= 0.05 rad and fingertip error <= 2 cm), ``lost`` (a tracked
   body more than 0.25 m off); body poses by C MuJoCo kinematics (``robot.kinematics``);
-- a fault ends the clip (counted in ``faults``; its steps so far are kept).
+- a fault ends the clip (counted in ``faults``; its steps so far are kept, so the means of a clip that
+  faulted cover less of it). The supervisor's torque-saturation fault (a joint at its cap for > 0.5 s) has
+  no counterpart in the env, which only clips at the cap: ``safety`` can relax it for a physics-only
+  comparison (``bench/track_fidelity.py --saturation-time``).
 
 Means are frame-weighted over all steps (``summarise``), for all clips and for the random clips and the
 named gestures apart. Latency, gain scaling and observation noise of training are not modelled: compare
@@ -21,6 +24,7 @@ with the MJX column on nominal physics.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -156,6 +160,10 @@ class TrackEvalResult(EvalReport):
                 g["fingertip_error_cm"], g["success_pct"], g["lost_steps"], g["faults"],
             ))  # fmt: skip
         s = self.summary
+        if s["faults"]:
+            lines.append(
+                f"{s['faults']} clip(s) ended by a fault (damped): their means cover the steps before it"
+            )
         lines.append(
             f"mean joint error {s['joint_error_rad']:.4f} rad, tracked-body position error "
             f"{s['body_pos_error_cm']:.2f} cm, fingertip error {s['fingertip_error_cm']:.2f} cm "
@@ -200,6 +208,7 @@ def evaluate_track(
     clip_set: str = "",
     label: str = "",
     on_clip: Callable[[ClipResult], None] | None = None,
+    safety: SafetyConfig | None = None,
 ) -> TrackEvalResult:
     """Run every clip on ``target`` (default: a C MuJoCo ``SimTarget`` with the training damping).
 
@@ -211,6 +220,7 @@ def evaluate_track(
         clip_set: the clips' set id (for the report).
         label: the target's name in the report (default: its class name).
         on_clip: called with each clip's result as it finishes (progress).
+        safety: the supervisor's thresholds (default ``SafetyConfig()``; the ramp is always 0).
     """
     from bar_policy.deploy.targets.sim import SimConfig, SimTarget, training_damping
 
@@ -242,7 +252,7 @@ def evaluate_track(
             start_mode="policy",
             damping_after_fault=0.0,
             handle_signals=False,
-            safety=SafetyConfig(ramp_time=0.0),
+            safety=dataclasses.replace(safety or SafetyConfig(), ramp_time=0.0),
         )
         res = Runtime(policy, sim, ref, cfg, kinematics=kin, on_tick=meter).run()
         result = ClipResult(clip.name, steps[0], sums, res.fault_count > 0, res.end_reason)
