@@ -9,11 +9,10 @@ the env does; counted), turn it into ``q_cmd = default + action_scale * action``
 limits and counted by the supervisor), check the torque demand, write the command, record the tick. The
 ``actions`` observation term is the previous clipped action, as in the env.
 
-Scheduling uses absolute deadlines ``t0 + k * dt``, so errors never accumulate (no drift). An asynchronous
-target (mock, real bus) is paced against ``time.perf_counter`` (sleep, then spin for the last
-``spin_s``); a tick that ends after the next deadline is an overrun, and missed deadlines are skipped (the
-grid keeps its phase). A synchronous target (sim) is not paced: the loop calls ``target.advance(dt)`` and
-runs as fast as it can (``realtime=True`` paces it for the viewer).
+Scheduling (``timing.Pacer``) uses absolute deadlines ``t0 + k * dt`` (no drift): an asynchronous target
+(mock, real bus) is paced against the wall clock, with overruns counted and missed deadlines skipped; a
+synchronous target (sim) is not paced: the loop calls ``target.advance(dt)`` and runs as fast as it can
+(``realtime=True`` paces it for the viewer).
 
 Start-up: ZERO_TORQUE until the first state; a valid first state gives DAMPING then HOLD (ramp to the
 command source's ``hold_pose``, else the policy's rest pose ``policy.hold_pose``, over
@@ -21,11 +20,10 @@ command source's ``hold_pose``, else the policy's rest pose ``policy.hold_pose``
 ``start_mode="policy"`` skips the ramp (evaluation). A fault latches DAMPING; the run then continues in
 DAMPING for ``damping_after_fault`` s and ends.
 
-The end of the commands: once the source reports ``finished`` (a motion clip past its last frame), POLICY
-gives way to HOLD at the source's ``end_pose`` (the gains stay at the policy's; the pose ramps over half of
-``end_hold``), HOLD lasts ``end_hold`` s, and the run ends as completed (``end_reason`` = the source's
-reason, not a fault) through the same safe ending as a run that reached its duration. The loop never
-names a task: it only knows the ``CommandSource`` interface (``deploy.tasks.base``).
+The end of the commands: once the source is ``finished`` (a motion clip at its last frame), POLICY gives
+way to HOLD at the source's ``end_pose`` with the policy's gains (the pose ramps over half of
+``end_hold``) for ``end_hold`` s, then the run ends as completed through the usual safe ending. The loop
+never names a task: it only knows the ``CommandSource`` interface (``deploy.tasks.base``).
 
 Stopping: SIGINT, SIGTERM and SIGHUP (``signals.StopSignals``; the caller's, or installed by ``run`` in
 the main thread) and ``request_stop`` all take one path: the next tick enters DAMPING with the reason, the
@@ -54,7 +52,7 @@ from bar_policy.deploy.policy import OnnxPolicy
 from bar_policy.deploy.run_config import RunResult, RuntimeConfig
 from bar_policy.deploy.safety import Mode, SafetySupervisor
 from bar_policy.deploy.signals import StopSignals
-from bar_policy.deploy.targets.base import JointState, Target
+from bar_policy.deploy.targets.base import JointState, Target, run_metadata_of
 from bar_policy.deploy.tasks.base import CommandSource
 from bar_policy.deploy.timing import Pacer, RealtimePriority, TimingStats, sleep_until
 from bar_policy.robot.kinematics import Kinematics
@@ -179,13 +177,13 @@ class Runtime:
 
     def _finish(self, reason: str, t: float) -> None:
         """The command source finished: POLICY -> HOLD at its end pose (gains kept); the run completes."""
-        sf = self.safety
         end = self.commands.end_pose
-        sf.transition(
+        target = self.last_state.q if end is None else end
+        self.safety.transition(
             Mode.HOLD,
             f"commands finished: {reason}",
             t,
-            hold_target=self.last_state.q if end is None else end,
+            hold_target=target,
             hold_ramp=0.5 * self.config.end_hold,
         )
         self._end_t, self._end_after, self._end_reason = t, self.config.end_hold, reason
@@ -444,7 +442,7 @@ class Runtime:
                 try:
                     log_path = runlog.close(
                         end_reason=end_reason,
-                        target_metadata=self._target_metadata(),
+                        target_metadata=run_metadata_of(self.target),
                         stop_reason=self._stop_reason,
                         stop_signal=stop.signal_name,
                         stop_signals_received=stop.count,
@@ -478,12 +476,6 @@ class Runtime:
             safe_stop=safe_stop,
             completed=self.completed,
         )
-
-    def _target_metadata(self) -> dict[str, Any]:
-        try:
-            return dict(self.target.run_metadata())
-        except Exception as e:  # never lose the log for a description
-            return {"error": f"{type(e).__name__}: {e}"}
 
     def _safe_end(self, reason: str, t: float) -> str:
         """DAMPING (logged with the reason), then the target's safe stop; errors here are logged only.

@@ -32,7 +32,8 @@ def _deploy_obs(clip, phase: int, q, dq, action) -> np.ndarray:
         control_dt=0.02,
     )
     ref.begin(1.5)  # POLICY started at run time 1.5 s: phase j at 1.5 + 0.02 j
-    inputs = StateInputs(om, "arms")(np.asarray(q, np.float64), np.asarray(dq, np.float64), np.asarray(action))
+    state = StateInputs(om, "arms")
+    inputs = state(np.asarray(q, np.float64), np.asarray(dq, np.float64), np.asarray(action))
     inputs.update(ref(1.5 + 0.02 * phase))
     return om.compute(inputs)
 
@@ -62,4 +63,4 @@ def test_shared_thresholds_match_the_env():
     """The deploy evaluation's success and lost thresholds are the env's."""
     assert task.SUCCESS_JOINT_RAD == SUCCESS_JOINT_RAD
     assert task.SUCCESS_FINGERTIP_M == SUCCESS_FINGERTIP_M
-    assert task.LOST_DISTANCE == default_config().termination_distance
+    assert default_config().termination_distance == task.LOST_DISTANCE

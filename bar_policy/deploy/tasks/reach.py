@@ -49,7 +49,9 @@ class ReachTask(DeployTask):
         """The episode protocol's options (``sim2sim.EvalConfig``)."""
         g = parser.add_argument_group("reach policies (segment success rate)")
         g.add_argument("--episodes", type=count1, help="number of episodes (default 100)")
-        g.add_argument("--seed", dest="eval_seed", type=int, help="seed of episode 0 (episode e: seed + e)")
+        g.add_argument(
+            "--seed", dest="eval_seed", type=int, metavar="N", help="seed of episode 0 (episode e: seed + e)"
+        )
         g.add_argument("--episode-length", type=seconds, help="episode length in s (env: 5)")
         g.add_argument("--resample-period", type=seconds0,
                        help="target resampling period in s (env: 2.5; 0: none)")  # fmt: skip

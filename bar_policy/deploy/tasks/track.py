@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from bar_policy.deploy.cli_types import number, seconds0
 from bar_policy.deploy.tasks import TASK_COMMAND_TERMS
 from bar_policy.deploy.tasks.base import CommandSource, DeployTask, EvalReport, OptionError
 from bar_policy.motion.clip import Clip, ClipError, load_clip, load_csv
@@ -253,7 +254,10 @@ class TrackTask(DeployTask):
             ".npz / .csv clip; the run ends after the clip",
         )
         g.add_argument(
-            "--motion-rate", type=float, metavar="HZ", help="rate of a CSV clip without a 'time' column, Hz"
+            "--motion-rate",
+            type=number("a rate > 0 Hz", lambda v: v > 0),
+            metavar="HZ",
+            help="rate of a CSV clip without a 'time' column, Hz",
         )
 
     def add_eval_arguments(self, parser: argparse.ArgumentParser) -> None:
@@ -269,7 +273,7 @@ class TrackTask(DeployTask):
         )
         g.add_argument(
             "--hold-s",
-            type=float,
+            type=seconds0,
             metavar="S",
             help=f"s of tracking the held last frame after each clip (default {DEFAULT_HOLD_S})",
         )
