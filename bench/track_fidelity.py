@@ -135,6 +135,7 @@ ROWS = (
     ("success_pct", "steps within 0.05 rad and 2 cm, %", "{:.1f}"),
     ("lost_steps", "steps with a body > 25 cm off", "{}"),
     ("faults", "clips ended by a fault", "{}"),
+    ("steps", "steps scored", "{}"),
 )
 
 
@@ -179,7 +180,7 @@ def markdown(out: dict) -> str:
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * 2 + "---:|" * (len(head) - 2)]
     first = table[cols[0]]
     for group, g0 in first.items():
-        label = f"{group} ({g0['clips']} clips, {g0['steps']} steps)"
+        label = f"{group} ({g0['clips']} clips)"
         for key, metric, fmt in ROWS:
             row = [label, metric] + [
                 fmt.format(table[c][group][key]) if group in table[c] else "" for c in cols
