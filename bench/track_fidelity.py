@@ -1,19 +1,29 @@
-"""Tracking fidelity of an ONNX tracking policy on held-out clips, one column per execution target.
+"""Tracking fidelity of an ONNX tracking policy on held-out clips: MJX, the C MuJoCo sim target, the bus.
 
-Issue 10 item 5 compares the tracking error of the shipped policy in MJX, on the C MuJoCo sim target and
-through the emulated Robstride bus, side by side. This script has the MJX column; the ``sim`` and ``bus``
-columns plug into ``COLUMNS`` with the same signature once the deploy side streams motion references
-(``bar-deploy --motion``). Every column runs each clip once from its first frame to its last plus
-``--hold-s`` of holding the last frame, with the policy's own ONNX graph (onnxruntime), and reports per
-clip and overall (frame-weighted): mean joint error (rad), mean tracked-body position error (cm), mean
-fingertip error (cm), the per-step success rate (joint error <= 0.05 rad and fingertip error <= 2 cm),
-and the steps on which a tracked body was more than 0.25 m off (``lost``).
+Issue 10 item 5: the tracking error of one policy on the same clips in three places, side by side:
 
-    python bench/track_fidelity.py --policy checkpoints/lite_track_arms.onnx
-    python bench/track_fidelity.py --policy runs/<run>/policy.onnx --randomize --json track_fidelity.json
+- ``mjx``: the training env (``LiteTrack`` on exactly these clips, a batch stepped in lockstep, nominal
+  physics unless ``--randomize``), the policy's own ONNX graph (onnxruntime);
+- ``sim``: the deploy code path (``Runtime``: observation manager, action clip, safety supervisor) on the C
+  MuJoCo sim target (``bar_policy.deploy.tasks.track_eval``, as ``bar-deploy eval``);
+- ``bus``: the same through ``RealTarget`` and the python-can ``virtual`` bus to the in-process Robstride
+  emulator in lockstep (``bar-deploy --target real --can-interface virtual --emulate lockstep``; the
+  ``EmulatedBusTarget``): the CAN codec, the 16-bit feedback and the motors' firmware law in the loop.
+
+Every column runs each clip once from its first frame to its last plus ``--hold-s`` of holding the last
+frame, and reports per clip and overall (frame-weighted): mean joint error (rad), mean tracked-body position
+error (cm), mean fingertip error (cm), the per-step success rate (joint error <= 0.05 rad and fingertip
+error <= 2 cm), and the steps on which a tracked body was more than 0.25 m off (``lost``). The sim and bus
+columns model no latency, gain scaling or noise: compare them with the nominal MJX column. They start each
+clip at the reference velocity (sim) or at rest (bus; the reference starts at rest in every library clip).
+
+    python bench/track_fidelity.py --policy checkpoints/lite_track_arms.onnx \
+        --json track_fidelity.json --markdown track_fidelity.md
+    python bench/track_fidelity.py --policy runs/<run>/policy.onnx --columns mjx --randomize
 
 Targets (issue 10): on held-out clips (random clips of another seed plus the named gestures) mean joint
-error <= 0.05 rad and mean fingertip error <= 2 cm on the sim target; sim within 20 % of MJX.
+error <= 0.05 rad and mean fingertip error <= 2 cm on the sim target; sim within 20 % of MJX; the emulated
+bus within 30 % of sim (``check_targets``; relative differences of the joint and fingertip errors).
 """
 
 from __future__ import annotations
@@ -24,29 +34,14 @@ import json
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from bar_policy.deploy.policy import OnnxPolicy, load_policy
+from bar_policy.deploy.safety import SafetyConfig
+from bar_policy.deploy.tasks.track_eval import METRICS, ClipResult, evaluate_track, groups
 from bar_policy.motion import Clip, clip_set
-
-METRICS = ("joint_error", "body_pos_error", "fingertip_error", "success", "lost")
-
-
-@dataclass(frozen=True)
-class ClipResult:
-    """One clip on one target: sums over its steps (divide by ``steps`` for means)."""
-
-    clip: str
-    steps: int
-    sums: dict[str, float]
-
-    def mean(self, key: str) -> float:
-        """Mean of a metric over the clip's steps."""
-        return self.sums[key] / max(self.steps, 1)
-
 
 Column = Callable[[OnnxPolicy, Sequence[Clip], argparse.Namespace], list[ClipResult]]
 """A target: runs every clip with the policy and returns one result per clip, in order."""
@@ -94,38 +89,146 @@ def run_mjx(policy: OnnxPolicy, clips: Sequence[Clip], args: argparse.Namespace)
     ]
 
 
-COLUMNS: dict[str, Column] = {"mjx": run_mjx}
-"""Targets by name. ``sim`` (C MuJoCo sim target) and ``bus`` (through the Robstride CAN emulator) are
-added with the deploy side of tracking (issue 10 item 4)."""
+def _progress(name: str) -> Callable[[ClipResult], None]:
+    def show(r: ClipResult) -> None:
+        print(f"  [{name}] {r.clip}: {r.steps} steps, joint {r.mean('joint_error'):.4f} rad", flush=True)
+
+    return show
 
 
-def summarise(results: list[ClipResult], label: str) -> dict[str, float]:
-    """Frame-weighted means over ``results`` (errors in rad and cm, rates in %)."""
-    steps = sum(r.steps for r in results)
-    tot = {k: sum(r.sums[k] for r in results) for k in METRICS}
-    return {
-        "group": label,
-        "clips": len(results),
-        "steps": steps,
-        "joint_error_rad": tot["joint_error"] / steps,
-        "body_pos_error_cm": 100 * tot["body_pos_error"] / steps,
-        "fingertip_error_cm": 100 * tot["fingertip_error"] / steps,
-        "success_pct": 100 * tot["success"] / steps,
-        "lost_steps": int(tot["lost"]),
-    }
+def _safety(args: argparse.Namespace) -> SafetyConfig:
+    """The deploy supervisor's thresholds, with ``--saturation-time``."""
+    return SafetyConfig(saturation_time=args.saturation_time)
+
+
+def run_sim(policy: OnnxPolicy, clips: Sequence[Clip], args: argparse.Namespace) -> list[ClipResult]:
+    """The deploy path on the C MuJoCo sim target (training's damping integration), nominal physics."""
+    res = evaluate_track(
+        policy, clips, hold_s=args.hold_s, on_clip=_progress("sim") if args.verbose else None,
+        safety=_safety(args),
+    )  # fmt: skip
+    return res.clips
+
+
+def run_bus(policy: OnnxPolicy, clips: Sequence[Clip], args: argparse.Namespace) -> list[ClipResult]:
+    """The deploy path through RealTarget and the lockstep Robstride emulator on virtual CAN buses."""
+    from bar_policy.deploy.targets.emulated import EmulatedBusTarget
+
+    target = EmulatedBusTarget(policy.robot.mode, policy.policy_dt)
+    try:
+        res = evaluate_track(
+            policy, clips, hold_s=args.hold_s, target=target,
+            on_clip=_progress("bus") if args.verbose else None, safety=_safety(args),
+        )  # fmt: skip
+    finally:
+        target.close()
+    return res.clips
+
+
+COLUMNS: dict[str, Column] = {"mjx": run_mjx, "sim": run_sim, "bus": run_bus}
+"""Targets by name, in table order."""
+
+ROWS = (
+    ("joint_error_rad", "joint error, rad", "{:.4f}"),
+    ("body_pos_error_cm", "tracked-body position error, cm", "{:.2f}"),
+    ("fingertip_error_cm", "fingertip error, cm", "{:.2f}"),
+    ("success_pct", "steps within 0.05 rad and 2 cm, %", "{:.1f}"),
+    ("lost_steps", "steps with a body > 25 cm off", "{}"),
+    ("faults", "clips ended by a fault", "{}"),
+    ("steps", "steps scored", "{}"),
+)
+
+
+def _rel(a: float, b: float) -> float:
+    """Relative difference a / b - 1 (NaN when b is 0)."""
+    return a / b - 1.0 if b else float("nan")
+
+
+def check_targets(table: dict[str, dict[str, dict]]) -> list[tuple[str, bool | None, str]]:
+    """The issue's targets on the ``all`` group: (target, met (None: column not run), the numbers)."""
+    out: list[tuple[str, bool | None, str]] = []
+    sim, mjx, bus = (table.get(c, {}).get("all") for c in ("sim", "mjx", "bus"))
+    if sim is None:
+        return [("sim target: joint error <= 0.05 rad, fingertip error <= 2 cm", None, "sim column not run")]
+    j, f = sim["joint_error_rad"], sim["fingertip_error_cm"]
+    out.append(("sim: mean joint error <= 0.05 rad", j <= 0.05, f"{j:.4f} rad"))
+    out.append(("sim: mean fingertip error <= 2 cm", f <= 2.0, f"{f:.2f} cm"))
+    for name, ref, other, limit in (
+        ("sim within 20 % of MJX", mjx, sim, 0.2),
+        ("bus within 30 % of sim", sim, bus, 0.3),
+    ):
+        if ref is None or other is None:
+            out.append((name, None, "column not run"))
+            continue
+        rj = _rel(other["joint_error_rad"], ref["joint_error_rad"])
+        rf = _rel(other["fingertip_error_cm"], ref["fingertip_error_cm"])
+        ok = abs(rj) <= limit and abs(rf) <= limit
+        out.append((name, ok, f"joint {100 * rj:+.1f} %, fingertip {100 * rf:+.1f} %"))
+    return out
+
+
+def markdown(out: dict) -> str:
+    """The side-by-side table (one row per metric and clip group, one column per target) and the targets."""
+    cols = [c for c in COLUMNS if c in out["columns"]]
+    table = {c: {g["group"]: g for g in out["columns"][c]["groups"]} for c in cols}
+    names = {"mjx": "MJX", "sim": "sim target (C MuJoCo)", "bus": "emulated bus (lockstep)"}
+    head = ["clips", "metric", *(names[c] for c in cols)]
+    if "sim" in cols and "mjx" in cols:
+        head.append("sim vs MJX")
+    if "sim" in cols and "bus" in cols:
+        head.append("bus vs sim")
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * 2 + "---:|" * (len(head) - 2)]
+    first = table[cols[0]]
+    for group, g0 in first.items():
+        label = f"{group} ({g0['clips']} clips)"
+        for key, metric, fmt in ROWS:
+            row = [label, metric] + [
+                fmt.format(table[c][group][key]) if group in table[c] else "" for c in cols
+            ]
+            for a, b in (("sim", "mjx"), ("bus", "sim")):
+                if a in cols and b in cols:
+                    ok = key.endswith(("_rad", "_cm")) and group in table[a] and group in table[b]
+                    row.append(
+                        f"{100 * _rel(table[a][group][key], table[b][group][key]):+.1f} %" if ok else ""
+                    )
+            lines.append("| " + " | ".join(row) + " |")
+            label = ""
+    lines += ["", "| target (issue 10, all held-out clips) | met | value |", "|---|---|---|"]
+    for name, ok, value in check_targets(table):
+        lines.append(f"| {name} | {'n/a' if ok is None else 'yes' if ok else 'NO'} | {value} |")
+    secs = ", ".join(f"{names[c]} {out['columns'][c]['wall_s']:.0f} s" for c in cols)
+    physics = "training randomisation (MJX only)" if out["randomize"] else "nominal physics"
+    lines += [
+        "",
+        f"Policy `{out['policy']}` ({out['dataset_repo_id']}), clips `{out['clip_set']}`, {physics}, hold "
+        f"{out['hold_s']:g} s after each clip, torque-saturation fault after {out['saturation_time']:g} s "
+        f"(sim, bus); wall time: {secs}. A clip ended by a fault is scored up to the fault.",
+    ]
+    return "\n".join(lines)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the chosen columns and print a table per column (and JSON with ``--json``)."""
+    """Run the chosen columns; print a table per column and the markdown table; write JSON / markdown."""
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--policy", required=True, help="ONNX tracking policy (checked with the deploy loader)")
     p.add_argument("--clips", default="heldout", choices=["heldout", "gestures", "train"], help="clip set")
     p.add_argument("--num-clips", type=int, default=None, help="random clips in the set (library default)")
-    p.add_argument("--columns", nargs="+", default=["mjx"], choices=sorted(COLUMNS), help="targets to run")
+    p.add_argument(
+        "--columns", nargs="+", default=list(COLUMNS), choices=list(COLUMNS), help="targets to run"
+    )
     p.add_argument("--hold-s", type=float, default=0.5, help="s of holding the last frame after each clip")
-    p.add_argument("--randomize", action="store_true", help="training randomisation instead of nominal")
+    p.add_argument("--randomize", action="store_true", help="MJX column: training randomisation")
+    p.add_argument(
+        "--saturation-time",
+        type=float,
+        default=SafetyConfig().saturation_time,
+        help="sim / bus: s a joint may stay at its torque cap before the supervisor faults (default 0.5, "
+        "the deploy default; MJX only clips at the cap: 1e9 for a physics-only comparison)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", type=Path, default=None, help="write the results here")
+    p.add_argument("--markdown", type=Path, default=None, help="write the side-by-side table here")
+    p.add_argument("-v", "--verbose", action="store_true", help="print each clip as it finishes")
     args = p.parse_args(argv)
 
     policy = load_policy(args.policy, task="track")
@@ -133,31 +236,46 @@ def main(argv: Sequence[str] | None = None) -> int:
     meta = policy.metadata
     print(f"policy {args.policy} [{policy.obs_manager.fingerprint}] trained on {meta.dataset_repo_id}")
     print(f"clips {chosen.id}: {len(chosen.clips)} clips, {'randomised' if args.randomize else 'nominal'}")
-    out: dict[str, object] = {"policy": str(args.policy), "clip_set": chosen.id, "randomize": args.randomize}
-    for name in args.columns:
+    out: dict = {
+        "policy": str(args.policy),
+        "obs_fingerprint": policy.obs_manager.fingerprint,
+        "dataset_repo_id": meta.dataset_repo_id,
+        "clip_set": chosen.id,
+        "randomize": args.randomize,
+        "hold_s": args.hold_s,
+        "saturation_time": args.saturation_time,
+        "columns": {},
+    }
+    for name in [c for c in COLUMNS if c in args.columns]:
         t0 = time.monotonic()
         results = COLUMNS[name](policy, chosen.clips, args)
-        groups = [summarise(results, "all")]
-        rand = [r for r in results if r.clip.startswith("random-")]
-        named = [r for r in results if not r.clip.startswith("random-")]
-        groups += [summarise(sub, label) for label, sub in (("random", rand), ("gestures", named)) if sub]
-        print(f"\n[{name}] {time.monotonic() - t0:.0f} s")
-        head = ("clip", "steps", "joint rad", "body cm", "tip cm", "success %", "lost")
-        print("{:<26}{:>7}{:>11}{:>9}{:>8}{:>11}{:>6}".format(*head))
+        wall = time.monotonic() - t0
+        grp = groups(results)
+        print(f"\n[{name}] {wall:.0f} s")
+        head = ("clip", "steps", "joint rad", "body cm", "tip cm", "success %", "lost", "fault")
+        print("{:<26}{:>7}{:>11}{:>9}{:>8}{:>11}{:>6}{:>7}".format(*head))
         rows = [
             (r.clip, r.steps, r.mean("joint_error"), 100 * r.mean("body_pos_error"),
-             100 * r.mean("fingertip_error"), 100 * r.mean("success"), int(r.sums["lost"]))
+             100 * r.mean("fingertip_error"), 100 * r.mean("success"), int(r.sums["lost"]), int(r.faulted))
             for r in results
         ] + [
             ("= " + g["group"], g["steps"], g["joint_error_rad"], g["body_pos_error_cm"],
-             g["fingertip_error_cm"], g["success_pct"], g["lost_steps"])
-            for g in groups
+             g["fingertip_error_cm"], g["success_pct"], g["lost_steps"], g["faults"])
+            for g in grp
         ]  # fmt: skip
-        for c, st, j, b, f, su, lo in rows:
-            print(f"{c:<26}{st:>7}{j:>11.4f}{b:>9.2f}{f:>8.2f}{su:>11.1f}{lo:>6}")
-        out[name] = {"groups": groups, "clips": [dataclasses.asdict(r) for r in results]}
+        for c, st, j, b, f, su, lo, fa in rows:
+            print(f"{c:<26}{st:>7}{j:>11.4f}{b:>9.2f}{f:>8.2f}{su:>11.1f}{lo:>6}{fa:>7}")
+        out["columns"][name] = {
+            "wall_s": wall,
+            "groups": grp,
+            "clips": [dataclasses.asdict(r) for r in results],
+        }
+    md = markdown(out)
+    print("\n" + md)
     if args.json:
         args.json.write_text(json.dumps(out, indent=2))
+    if args.markdown:
+        args.markdown.write_text(md + "\n")
     return 0
 
 

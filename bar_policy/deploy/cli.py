@@ -2,11 +2,16 @@
 
 Usage::
 
-    bar-deploy --policy x.onnx [--target sim|mock|real] [--duration S|inf] [--commands SPEC] [--viewer]
+    bar-deploy --policy reach.onnx [--target sim|mock|real] [--duration S|inf] [--commands SPEC] [--viewer]
                [--video out.mp4] [--log DIR] [--seed N]
+    bar-deploy --policy track.onnx --motion NAME|PATH [...]      (ends after the clip)
     bar-deploy run ...          (same as above)
     bar-deploy plot LOG [--out DIR]
-    bar-deploy eval --policy x.onnx [--episodes N] [--seed N]
+    bar-deploy eval --policy reach.onnx [--episodes N] [--seed N]
+    bar-deploy eval --policy track.onnx [--clips heldout|gestures|NAME,...] [--hold-s S]
+
+The policy file's task (``bar.task``; for HC-only files the task its terms imply) picks the command source
+and the evaluation (``deploy.tasks``); an option of another task is refused with a message that names both.
 
 Stopping: SIGINT (Ctrl+C), SIGTERM and SIGHUP take one path: DAMPING, then the stop frames on every bus,
 then the log closed with the reason; exit status 0. A second signal is counted and ignored. Exit status:
@@ -25,9 +30,18 @@ import logging
 import math
 import os
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
-from typing import NoReturn
+
+from bar_policy.deploy.cli_types import Parser as _Parser
+from bar_policy.deploy.cli_types import count0 as _count0
+from bar_policy.deploy.cli_types import duration as _duration
+from bar_policy.deploy.cli_types import number as _number
+from bar_policy.deploy.cli_types import one_line as _one_line
+from bar_policy.deploy.cli_types import priority as _priority
+from bar_policy.deploy.cli_types import seconds as _seconds
+from bar_policy.deploy.cli_types import seconds0 as _seconds0
+from bar_policy.deploy.tasks import all_tasks, get_task
 
 __all__ = ["main"]
 
@@ -38,63 +52,14 @@ SUBCOMMANDS = ("run", "plot", "eval")
 _EPILOG = """subcommands:
   run   (default) run a policy:         bar-deploy --policy x.onnx --target sim --duration 10
   plot  PNG plots of a run log:          bar-deploy plot runs/deploy/20250101-120000-sim
-  eval  sim2sim success rate:            bar-deploy eval --policy x.onnx --episodes 100
-command sources (--commands):
-  sampled | sampled:PERIOD | file:PATH (.json/.csv/.npz) | stream:stdin | stream:udp:PORT (127.0.0.1 only)
+  eval  sim2sim, the task's metric:      bar-deploy eval --policy x.onnx
+command sources (by the policy's task):
+  reach --commands sampled | sampled:PERIOD | file:PATH (.json/.csv/.npz) | stream:stdin | stream:udp:PORT
+  track --motion wave | clap | reach_sweep | hanging_to_piano_ready | random-s<seed>-<index> | clip.npz | .csv
 real target options (CAN interface, channels, calibration, dry run, emulator): bar-deploy --target real --help
 stopping: SIGINT (Ctrl+C), SIGTERM, SIGHUP -> DAMPING, stop frames, log closed; a second signal is ignored
 exit status: 0 done or stopped on request, 1 fault or error during the run, 2 refused before the start
 """
-
-
-def _one_line(msg: object) -> str:
-    """A message on one line (multi-line driver messages joined with '; ')."""
-    return "; ".join(part.strip() for part in str(msg).splitlines() if part.strip())
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse with one-line errors: ``PROG: error: MESSAGE (see PROG --help)``, exit status 2."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {_one_line(message)} (see {self.prog} --help)\n")
-
-
-def _number(kind: str, test: Callable[[float], bool], cast: type = float) -> Callable[[str], float]:
-    """An argparse type: a finite number of ``cast`` that passes ``test``; the error says ``kind``."""
-
-    def parse(text: str) -> float:
-        try:
-            value = cast(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {kind}, got {text!r}") from None
-        if not (math.isfinite(value) and test(value)):
-            raise argparse.ArgumentTypeError(f"expected {kind}, got {text!r}")
-        return value
-
-    parse.__name__ = kind  # argparse names the type in some messages
-    return parse
-
-
-_seconds = _number("a time > 0 s", lambda v: v > 0)
-_seconds0 = _number("a time >= 0 s", lambda v: v >= 0)
-_count0 = _number("an integer >= 0", lambda v: v >= 0, int)
-_count1 = _number("an integer >= 1", lambda v: v >= 1, int)
-_priority = _number("an integer in 1..99", lambda v: 1 <= v <= 99, int)
-
-
-def _duration(text: str) -> float | None:
-    """``--duration``: seconds > 0, or ``inf`` (until a stop signal): None."""
-    if text.strip().lower() in ("inf", "infinity", "forever"):
-        return None
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(
-            f"expected a time > 0 s, or 'inf' to run until stopped; got {text!r}"
-        )
-    return value
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -122,10 +87,8 @@ def _run_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--duration",
         type=_duration,
-        default=10.0,
-        help="run length in s, or 'inf' until stopped (default 10)",
+        help="run length in s, or 'inf' until stopped (default: 10 s; track policies: until the clip ends)",
     )
-    p.add_argument("--commands", default="sampled", help="command source (see below); default: sampled")
     p.add_argument("--seed", type=int, default=0, help="seed of the sampled command source")
     p.add_argument(
         "--log", type=Path, default=Path("runs/deploy"), help="directory of run logs (default: runs/deploy)"
@@ -146,6 +109,12 @@ def _run_parser() -> argparse.ArgumentParser:
         help="after a fault or a stop signal, damp this long before the stop frames, s (default 1)",
     )
     p.add_argument(
+        "--end-hold",
+        type=_seconds0,
+        default=1.0,
+        help="after the commands end (a motion clip's last frame), HOLD that pose this long, s (default 1)",
+    )
+    p.add_argument(
         "--rt-priority",
         type=_priority,
         help="run the loop under SCHED_FIFO at this priority (1-99, needs root)",
@@ -153,6 +122,8 @@ def _run_parser() -> argparse.ArgumentParser:
     p.add_argument("--viewer", action="store_true", help="sim: live MuJoCo viewer (runs at real time)")
     p.add_argument("--realtime", action="store_true", help="sim: pace at wall-clock rate")
     p.add_argument("--video", type=Path, help="sim: write a video (.mp4, or .gif without ffmpeg)")
+    for task in all_tasks():
+        task.add_run_arguments(p)
     return p
 
 
@@ -232,40 +203,46 @@ def _run(argv: Sequence[str]) -> int:
         return _run_session(args, argv, real, stop)
 
 
+def _policy_task(args: argparse.Namespace, which: str) -> tuple[object, object]:
+    """The loaded policy and its deploy task, after refusing the other tasks' options.
+
+    Raises:
+        PolicyLoadError, OptionError, ValueError: with the message to print.
+    """
+    from bar_policy.deploy.policy import load_policy
+
+    policy = _with_action_clip(load_policy(args.policy, control_dt=args.control_dt, mode=args.mode), args)
+    task = get_task(policy.task)  # type: ignore[attr-defined]
+    others = tuple(t for t in all_tasks() if t.name != task.name)
+    task.check_options(args.policy, args, others, which)
+    return policy, task
+
+
 def _run_session(args: argparse.Namespace, argv: Sequence[str], real: object, stop: object) -> int:
-    from bar_policy.deploy.commands import CommandError, make_command_source
-    from bar_policy.deploy.policy import PolicyLoadError, load_policy
     from bar_policy.deploy.runtime import Runtime, RuntimeConfig
     from bar_policy.deploy.safety import SafetyConfig
     from bar_policy.deploy.targets.base import TargetError
     from bar_policy.robot.kinematics import Kinematics
 
+    kin = Kinematics(args.mode)
     try:
-        policy = _with_action_clip(load_policy(args.policy, control_dt=args.control_dt, mode=args.mode), args)
+        policy, task = _policy_task(args, "run")
         safety = SafetyConfig(
             ramp_time=args.ramp_time, max_overruns=args.max_overruns, stale_timeout=args.stale_timeout
         )
+        duration = task.default_duration if args.duration is None else args.duration
         config = RuntimeConfig(
             control_dt=args.control_dt,
-            duration=args.duration,
+            duration=None if duration is None or math.isinf(duration) else duration,
             start_mode=args.start,
             damping_after_fault=args.damping_time,
+            end_hold=args.end_hold,
             realtime=args.realtime or args.viewer,
             rt_priority=args.rt_priority,
             safety=safety,
         )
-    except (PolicyLoadError, ValueError) as e:
-        return _fail(e)
-    kin = Kinematics(args.mode)
-    left, right = kin.fingertips(policy.default_joint_pos)
-    try:
-        commands = make_command_source(
-            args.commands,
-            policy.obs_manager.command_names,
-            seed=args.seed,
-            initial={"target_pos_left": left, "target_pos_right": right},
-        )
-    except CommandError as e:
+        commands = task.command_source(policy, args, kin)
+    except ValueError as e:  # PolicyLoadError, OptionError, bad settings
         return _fail(e)
 
     target = None
@@ -307,8 +284,8 @@ def _run_session(args: argparse.Namespace, argv: Sequence[str], real: object, st
         print(f"{stop.reason} before the start: nothing was started")  # type: ignore[attr-defined]
         return 0
     print(
-        f"policy {args.policy} [{policy.obs_manager.fingerprint}] on {args.target}, "
-        f"commands {commands.describe()}"
+        f"policy {args.policy} [{policy.obs_manager.fingerprint}] ({task.name}: {task.summary}) on "
+        f"{args.target}, commands {commands.describe()}"
     )
     from bar_policy.deploy.log import LogDirError
 
@@ -372,52 +349,31 @@ def _plot(argv: Sequence[str]) -> int:
 def _eval(argv: Sequence[str]) -> int:
     p = _Parser(
         prog="bar-deploy eval",
-        description="Sim2sim: success rate of the policy on the C MuJoCo sim target over seeded episodes.",
+        description="Sim2sim on the C MuJoCo sim target with the policy's task metric: reach, the segment "
+        "success rate over seeded episodes; track, the joint / tracked-body / fingertip errors on held-out "
+        "clips.",
     )
     _common(p)
-    p.add_argument("--episodes", type=_count1, default=100, help="number of episodes (default 100)")
-    p.add_argument("--seed", type=int, default=0, help="seed of episode 0 (episode e uses seed + e)")
-    p.add_argument("--episode-length", type=_seconds, default=5.0, help="episode length in s (env: 5)")
-    p.add_argument(
-        "--resample-period",
-        type=_seconds0,
-        default=2.5,
-        help="target resampling period in s (env: 2.5; 0: none)",
-    )
-    p.add_argument(
-        "--init-noise",
-        type=_number("an angle >= 0 rad", lambda v: v >= 0),
-        default=0.0,
-        help="initial joint noise half-width, rad",
-    )
-    p.add_argument("--json", type=Path, help="write per-episode results here")
+    p.add_argument("--json", type=Path, help="write the per-episode / per-clip results here")
+    for task in all_tasks():
+        task.add_eval_arguments(p)
     args = p.parse_args(argv)
     if args.json is not None and not (args.json.parent.is_dir() and os.access(args.json.parent, os.W_OK)):
         return _fail(f"--json {str(args.json)!r}: its directory does not exist or is not writable")
     _configure_logging(args.verbose)
     logging.getLogger("bar_policy.deploy.safety").setLevel(logging.WARNING)
-    from bar_policy.deploy.policy import PolicyLoadError, load_policy
-    from bar_policy.deploy.sim2sim import EvalConfig, evaluate
-
     try:
-        policy = _with_action_clip(load_policy(args.policy, control_dt=args.control_dt, mode=args.mode), args)
-        cfg = EvalConfig(
-            episodes=args.episodes,
-            seed=args.seed,
-            episode_length=args.episode_length,
-            resample_period=args.resample_period if args.resample_period > 0 else None,
-            init_noise=args.init_noise,
-        )
-    except (PolicyLoadError, ValueError) as e:
+        policy, task = _policy_task(args, "eval")
+        result = task.evaluate(policy, args)
+    except ValueError as e:  # PolicyLoadError, OptionError, bad settings
         return _fail(e)
-    result = evaluate(policy, cfg)
     print(result.format())
     if args.json:
         try:
             args.json.write_text(json.dumps(result.to_dict(), indent=2))
         except OSError as e:
             return _fail(f"cannot write --json {str(args.json)!r}: {e.strerror or e}")
-        print(f"per-episode results: {args.json}")
+        print(f"per-episode / per-clip results: {args.json}")
     return 0
 
 

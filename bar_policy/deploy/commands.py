@@ -1,4 +1,4 @@
-"""Command sources: where the task's command terms (the reach targets) come from at run time.
+"""Reach command sources: where the reach task's command terms (the fingertip targets) come from at run time.
 
 A source is called once per control tick with the run time ``t`` (s since the start) and returns one array
 per command name (``target_pos_left``, ``target_pos_right``: shape (3,), chest frame, m). Nothing is
@@ -17,6 +17,7 @@ hard-coded in the runtime; the CLI picks a source with ``--commands``:
   line is logged and counted, and the previous targets stay.
 
 Targets outside the training workspace are not clipped: each is counted and logged (first time per source).
+Every source is a ``tasks.base.CommandSource`` of task ``reach``; the run log records its targets each tick.
 """
 
 from __future__ import annotations
@@ -36,13 +37,16 @@ from typing import IO, Any
 
 import numpy as np
 
+from bar_policy.deploy.tasks.base import CommandSource
 from bar_policy.tasks.reach import ReachTargetConfig, sample_targets
 
 __all__ = [
+    "COMMAND_SIZES",
     "DEFAULT_RESAMPLE_PERIOD",
     "CommandError",
     "CommandSource",
     "FileCommands",
+    "ReachSource",
     "SampledCommands",
     "StreamCommands",
     "make_command_source",
@@ -83,8 +87,10 @@ def _vector(name: str, value: Any, where: str) -> np.ndarray:
     return v
 
 
-class CommandSource(abc.ABC):
-    """Feeds the task's command terms, one dict per control tick."""
+class ReachSource(CommandSource):
+    """Feeds the reach targets (a subset of ``COMMAND_SIZES``), one dict per control tick."""
+
+    task = "reach"
 
     def __init__(self, names: tuple[str, ...], workspace: ReachTargetConfig | None = None) -> None:
         _check_names(tuple(names))
@@ -93,6 +99,7 @@ class CommandSource(abc.ABC):
         self.outside_count = 0
         """Targets seen outside the training workspace (not clipped)."""
         self._warned_outside = False
+        self._last: dict[str, np.ndarray] = {}
         lo, hi = self.workspace.low, self.workspace.high
         mirror = np.array([1.0, -1.0, 1.0])
         right = (np.minimum(lo * mirror, hi * mirror) - 1e-9, np.maximum(lo * mirror, hi * mirror) + 1e-9)
@@ -106,7 +113,17 @@ class CommandSource(abc.ABC):
         """The commands at run time ``t`` (s): one array per name, shape (3,), chest frame, m."""
         values = self._values(t)
         self._check_workspace(values)
+        self._last = values
         return values
+
+    @property
+    def log_fields(self) -> dict[str, tuple[tuple[int, ...], type]]:
+        """Every target, each tick: name -> ((3,), float64)."""
+        return {n: ((COMMAND_SIZES[n],), np.float64) for n in self.names}
+
+    def record(self) -> dict[str, np.ndarray]:
+        """The targets of the last call."""
+        return dict(self._last)
 
     def _check_workspace(self, values: Mapping[str, np.ndarray]) -> None:
         for name, v in values.items():
@@ -123,15 +140,8 @@ class CommandSource(abc.ABC):
                         np.round(hi, 3).tolist(),
                     )
 
-    def describe(self) -> str:
-        """One line for logs."""
-        return type(self).__name__
 
-    def close(self) -> None:  # noqa: B027 - optional hook
-        """Release threads and sockets."""
-
-
-class SampledCommands(CommandSource):
+class SampledCommands(ReachSource):
     """Targets drawn like training's, resampled every ``period`` s, from a seeded generator."""
 
     def __init__(
@@ -164,7 +174,7 @@ class SampledCommands(CommandSource):
         return f"sampled(seed={self.seed}, period={self.period:g} s)"
 
 
-class FileCommands(CommandSource):
+class FileCommands(ReachSource):
     """A timed sequence from a JSON, CSV or NPZ file (zero-order hold)."""
 
     def __init__(
@@ -277,7 +287,7 @@ class FileCommands(CommandSource):
         return f"file({self.path}, {self.t.size} entries, {self.t[0]:g}..{self.t[-1]:g} s)"
 
 
-class StreamCommands(CommandSource):
+class StreamCommands(ReachSource):
     """Live targets from JSON lines on stdin or UDP datagrams on 127.0.0.1 (a background reader thread)."""
 
     def __init__(
@@ -387,7 +397,7 @@ def make_command_source(
     seed: int = 0,
     initial: Mapping[str, np.ndarray] | None = None,
     workspace: ReachTargetConfig | None = None,
-) -> CommandSource:
+) -> ReachSource:
     """Build a source from a CLI spec.
 
     Specs: ``sampled[:PERIOD]``, ``file:PATH``, ``stream:stdin``, ``stream:udp:PORT``.

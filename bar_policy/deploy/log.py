@@ -21,8 +21,12 @@ Per-tick arrays (first axis = tick): ``t`` (target clock, s), ``wall`` (s since 
 (T, n), ``tau_cmd`` (host's MIT torque for the command at the measured state, capped, (T, n)),
 ``n_clipped`` (joints whose q_cmd was clipped to a limit that tick), ``n_action_clipped`` (action
 entries clipped to the action bound), ``compute`` / ``infer`` / ``jitter`` (s), ``overrun`` (bool),
-and one (T, 3) array per command name. ``load_log`` reads ``log.npz``, or, for a run that never closed
-(killed, power loss), ``run.mcap`` (and NPZ chunks of older runs).
+and the command source's fields (``CommandSource.log_fields``): for reach one (T, 3) array per target
+(``target_pos_left`` / ``target_pos_right``, chest frame, m); for tracking the reference the robot should
+be at that tick, ``ref_q`` (T, n) rad, and ``ref_frame`` (T,) int32, its frame index in the clip (0 during
+the start-up HOLD, which ramps to the first frame; the last frame once the clip is over). ``load_log``
+reads ``log.npz``, or, for a run that never closed (killed, power loss), ``run.mcap`` (and NPZ chunks of
+older runs).
 """
 
 from __future__ import annotations
@@ -36,7 +40,7 @@ import shutil
 import threading
 import time
 import zipfile
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
 
@@ -59,9 +63,20 @@ class LogDirError(ValueError):
 
 
 def log_fields(
-    n_joints: int, n_actions: int, obs_size: int, command_names: tuple[str, ...]
+    n_joints: int,
+    n_actions: int,
+    obs_size: int,
+    commands: Mapping[str, tuple[tuple[int, ...], type]] | Sequence[str] = (),
 ) -> dict[str, tuple[tuple[int, ...], type]]:
-    """The per-tick fields of a run log: name -> (per-tick shape, dtype)."""
+    """The per-tick fields of a run log: name -> (per-tick shape, dtype).
+
+    Args:
+        n_joints: joints of the robot state.
+        n_actions: action entries.
+        obs_size: observation entries.
+        commands: the command source's fields (``CommandSource.log_fields``: name -> (shape, dtype)), or
+            command names, each a (3,) float64 vector (the reach targets).
+    """
     n = (n_joints,)
     fields: dict[str, tuple[tuple[int, ...], type]] = {
         "t": ((), np.float64),
@@ -85,8 +100,13 @@ def log_fields(
         "jitter": ((), np.float64),
         "overrun": ((), np.bool_),
     }
-    for name in command_names:
-        fields[name] = ((3,), np.float64)
+    if isinstance(commands, Mapping):
+        clash = sorted(set(commands) & set(fields))
+        if clash:
+            raise ValueError(f"command source log fields {clash} collide with the run log's own fields")
+        fields.update({k: (tuple(shape), dt) for k, (shape, dt) in commands.items()})
+    else:
+        fields.update({name: ((3,), np.float64) for name in commands})
     return fields
 
 

@@ -16,6 +16,9 @@ Layout of ``run.mcap`` (written by ``McapRunWriter``, read back by ``read_mcap_l
                             the policy did not run that tick)
   ``/commands``             one 3-vector per command term (``target_pos_left`` ...); every per-tick field
                             that no other topic takes lands here
+  ``/reference``            tracking runs only (the topic exists when the log has its fields): ``q``
+                            (rad), the motion reference the robot should be at that tick, and ``frame``,
+                            its frame index in the clip
   ``/safety``               ``mode`` (int), ``mode_name``, ``n_clipped``, ``n_action_clipped``
   ``/timing``               ``wall`` (s since the loop started), ``compute``, ``infer``, ``jitter`` (s),
                             ``overrun`` (bool)
@@ -50,6 +53,7 @@ import numpy as np
 __all__ = [
     "FIELD_ROUTES",
     "MCAP_FILE",
+    "OPTIONAL_TICK_TOPICS",
     "TICK_TOPICS",
     "TRANSITION_TOPIC",
     "McapLog",
@@ -62,6 +66,8 @@ MCAP_FILE = "run.mcap"
 
 TICK_TOPICS = ("/joint_state", "/mit_command", "/policy", "/commands", "/safety", "/timing")
 """Topics with one message per control tick, in the order they are written."""
+OPTIONAL_TICK_TOPICS = ("/reference",)
+"""Per-tick topics written only when some field routes there (a tracking run's reference)."""
 TRANSITION_TOPIC = "/safety/transition"
 """Topic of mode changes."""
 COMMANDS_TOPIC = "/commands"
@@ -86,6 +92,8 @@ FIELD_ROUTES: dict[str, tuple[str, str]] = {
     "infer": ("/timing", "infer"),
     "jitter": ("/timing", "jitter"),
     "overrun": ("/timing", "overrun"),
+    "ref_q": ("/reference", "q"),
+    "ref_frame": ("/reference", "frame"),
 }
 """Per-tick field -> (topic, JSON key). ``t`` is in every message; other fields go to ``/commands``."""
 
@@ -96,6 +104,7 @@ _SCHEMA_NAMES = {
     "/commands": "bar_deploy.Commands",
     "/safety": "bar_deploy.Safety",
     "/timing": "bar_deploy.Timing",
+    "/reference": "bar_deploy.Reference",
     TRANSITION_TOPIC: "bar_deploy.Transition",
 }
 _DESCRIPTIONS = {
@@ -105,6 +114,7 @@ _DESCRIPTIONS = {
     "/commands": "Command terms fed to the observation (chest frame, m).",
     "/safety": "Controller mode of the tick and clip counts.",
     "/timing": "Loop timing of the tick (s).",
+    "/reference": "Motion reference the robot should be at this tick: joint positions (rad), clip frame.",
     TRANSITION_TOPIC: "A controller mode change and its reason.",
 }
 
@@ -130,14 +140,17 @@ def _property(shape: tuple[int, ...], dtype: Any) -> dict[str, Any]:
 
 
 def _routes(fields: Fields) -> dict[str, list[tuple[str, str]]]:
-    """Topic -> [(JSON key, field)] for the per-tick fields (``t`` excluded: it is in every message)."""
-    out: dict[str, list[tuple[str, str]]] = {topic: [] for topic in TICK_TOPICS}
+    """Topic -> [(JSON key, field)] for the per-tick fields (``t`` excluded: it is in every message).
+
+    Every ``TICK_TOPICS`` topic is present; an ``OPTIONAL_TICK_TOPICS`` topic only when a field routes there.
+    """
+    out: dict[str, list[tuple[str, str]]] = {topic: [] for topic in (*TICK_TOPICS, *OPTIONAL_TICK_TOPICS)}
     for name in fields:
         if name == "t":
             continue
         topic, key = FIELD_ROUTES.get(name, (COMMANDS_TOPIC, name))
         out[topic].append((key, name))
-    return out
+    return {topic: keys for topic, keys in out.items() if keys or topic in TICK_TOPICS}
 
 
 def _tick_schema(topic: str, keys: list[tuple[str, str]], fields: Fields, labels: Iterable[str]) -> dict:
@@ -222,7 +235,8 @@ class McapRunWriter:
         self._w.start(profile="", library=library)
         self._channels: dict[str, int] = {}
         joint_names = meta.get("joint_names")
-        for topic in (*TICK_TOPICS, TRANSITION_TOPIC):
+        self._topics = tuple(self._routes)  # TICK_TOPICS, plus the optional ones that have fields
+        for topic in (*self._topics, TRANSITION_TOPIC):
             schema = (
                 _TRANSITION_SCHEMA
                 if topic == TRANSITION_TOPIC
@@ -251,7 +265,7 @@ class McapRunWriter:
         t = float(row["t"])
         log_ns, pub_ns = self._times(t, wall_ns)
         head = {"tick": int(tick), "t": _finite_or_none(t)}
-        for topic in TICK_TOPICS:
+        for topic in self._topics:
             msg = dict(head)
             for key, name in self._routes[topic]:
                 value = _value(row[name])
@@ -340,7 +354,8 @@ def read_mcap_log(path: str | Path) -> McapLog:
     meta: dict[str, Any] = {}
     end_meta: dict[str, Any] | None = None
     spec: dict[str, Any] | None = None
-    per_topic: dict[str, dict[int, dict[str, Any]]] = {topic: {} for topic in TICK_TOPICS}
+    all_topics = (*TICK_TOPICS, *OPTIONAL_TICK_TOPICS)
+    per_topic: dict[str, dict[int, dict[str, Any]]] = {topic: {} for topic in all_topics}
     transitions: list[dict[str, Any]] = []
     published: dict[int, int] = {}
     complete = False
@@ -388,10 +403,10 @@ def read_mcap_log(path: str | Path) -> McapLog:
     routes = _routes(fields)
     ticks = sorted(set().union(*(set(m) for m in per_topic.values())))
     arrays: dict[str, np.ndarray] = {}
-    any_topic = {k: next((per_topic[tp][k] for tp in TICK_TOPICS if k in per_topic[tp]), {}) for k in ticks}
+    any_topic = {k: next((per_topic[tp][k] for tp in all_topics if k in per_topic[tp]), {}) for k in ticks}
     if "t" in fields:
         arrays["t"] = _decode_column([any_topic[k].get("t") for k in ticks], *fields["t"])
-    for topic in TICK_TOPICS:
+    for topic in routes:
         msgs = per_topic[topic]
         for key, name in routes[topic]:
             values = [msgs[k].get(key) if k in msgs else None for k in ticks]

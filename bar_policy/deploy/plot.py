@@ -1,8 +1,11 @@
-"""PNG plots of a run log (matplotlib, Agg backend): joints, torques, timing.
+"""PNG plots of a run log (matplotlib, Agg backend): joints, torques, timing, and tracking for tracking runs.
 
-``plot_log(log, out_dir)`` writes ``joints.png`` (commanded q_cmd vs measured q per joint, mode bands),
-``torques.png`` (measured / applied torque and the host's MIT torque for the command, with the torque cap)
-and ``timing.png`` (compute and ONNX time per tick, jitter, overruns, mode).
+``plot_log(log, out_dir)`` writes ``joints.png`` (commanded q_cmd vs measured q per joint, and for a
+tracking run the reference ``ref_q`` the robot should be at), ``torques.png`` (measured / applied torque
+and the host's MIT torque for the command, with the torque cap) and ``timing.png`` (compute and ONNX time
+per tick, jitter, overruns, mode). A tracking run (a log with ``ref_q``) also gets ``tracking.png``: the
+mean joint error |q - ref_q| (rad) and the fingertip distance to the reference's fingertips (cm, C MuJoCo
+kinematics of both), with the mode.
 """
 
 from __future__ import annotations
@@ -13,12 +16,33 @@ import numpy as np
 
 from bar_policy.deploy.log import load_log
 
-__all__ = ["plot_log"]
+__all__ = ["plot_log", "tracking_errors"]
 
 
 def _grid(n: int) -> tuple[int, int]:
     cols = 2 if n <= 8 else 3
     return (n + cols - 1) // cols, cols
+
+
+def tracking_errors(arrays: dict[str, np.ndarray], mode: str = "arms") -> dict[str, np.ndarray]:
+    """Per-tick tracking errors of a tracking run's log (``q`` against ``ref_q``).
+
+    Returns:
+        ``joint_error`` (T,) mean |q - ref_q| over joints, rad; ``fingertip_error`` (T, 2) distance of the
+        left / right fingertip from the reference pose's, m (C MuJoCo forward kinematics of both).
+    """
+    from bar_policy.robot.kinematics import Kinematics
+
+    q, ref = arrays["q"], arrays["ref_q"]
+    kin = Kinematics(mode)
+    tips = np.full((len(q), 2), np.nan)
+    for k in range(len(q)):
+        if np.isfinite(q[k]).all() and np.isfinite(ref[k]).all():
+            tips[k] = [
+                np.linalg.norm(a - b)
+                for a, b in zip(kin.fingertips(q[k]), kin.fingertips(ref[k]), strict=True)
+            ]
+    return {"joint_error": np.mean(np.abs(q - ref), axis=1), "fingertip_error": tips}
 
 
 def plot_log(path: str | Path, out_dir: str | Path | None = None) -> list[Path]:
@@ -75,12 +99,42 @@ def plot_log(path: str | Path, out_dir: str | Path | None = None) -> list[Path]:
         fig.savefig(written[-1], dpi=80)
         plt.close(fig)
 
-    joint_grid([("q", "-", "q measured"), ("q_cmd", "--", "q_cmd")], "joint positions (rad)", "joints.png")
+    joint_grid(
+        [("q", "-", "q measured"), ("q_cmd", "--", "q_cmd"), ("ref_q", ":", "reference")],
+        "joint positions (rad)",
+        "joints.png",
+    )
     joint_grid(
         [("tau", "-", "tau measured/applied"), ("tau_cmd", "--", "tau of command")],
         "joint torques (N*m)",
         "torques.png",
     )
+
+    mode_names = {v: k for k, v in (meta.get("mode_names") or {}).items()}
+
+    def mode_axis(ax: object) -> None:
+        ax.step(t, arrays["mode"], where="post")  # type: ignore[attr-defined]
+        if mode_names:
+            ax.set_yticks(sorted(mode_names), [mode_names[k] for k in sorted(mode_names)], fontsize=7)  # type: ignore[attr-defined]
+        ax.set_ylabel("mode")  # type: ignore[attr-defined]
+        ax.set_xlabel("t (s)")  # type: ignore[attr-defined]
+
+    if "ref_q" in arrays:
+        fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
+        err = tracking_errors(arrays, meta.get("mode") or "arms")
+        axes[0].plot(t, err["joint_error"], lw=0.8, label="mean |q - ref_q|")
+        axes[0].set_ylabel("joint error (rad)")
+        axes[0].legend(fontsize=7)
+        for side, i in (("left", 0), ("right", 1)):
+            axes[1].plot(t, 100 * err["fingertip_error"][:, i], lw=0.8, label=f"{side} fingertip")
+        axes[1].set_ylabel("fingertip error (cm)")
+        axes[1].legend(fontsize=7)
+        mode_axis(axes[2])
+        fig.suptitle(f"tracking - {title}", fontsize=9)
+        fig.subplots_adjust(left=0.1, right=0.98, top=0.93, bottom=0.08, hspace=0.25)
+        written.append(out / "tracking.png")
+        fig.savefig(written[-1], dpi=80)
+        plt.close(fig)
 
     fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
     axes[0].plot(t, arrays["compute"] * 1e3, lw=0.8, label="compute (state->command)")
@@ -95,12 +149,7 @@ def plot_log(path: str | Path, out_dir: str | Path | None = None) -> list[Path]:
         axes[1].plot(t[ov], np.zeros(ov.sum()), "rx", label="overrun")
     axes[1].set_ylabel("jitter (ms)")
     axes[1].legend(fontsize=7)
-    mode_names = {v: k for k, v in (meta.get("mode_names") or {}).items()}
-    axes[2].step(t, arrays["mode"], where="post")
-    if mode_names:
-        axes[2].set_yticks(sorted(mode_names), [mode_names[k] for k in sorted(mode_names)], fontsize=7)
-    axes[2].set_ylabel("mode")
-    axes[2].set_xlabel("t (s)")
+    mode_axis(axes[2])
     fig.suptitle(f"timing - {title}", fontsize=9)
     fig.subplots_adjust(left=0.1, right=0.98, top=0.93, bottom=0.08, hspace=0.25)
     written.append(out / "timing.png")

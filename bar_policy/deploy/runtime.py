@@ -1,23 +1,29 @@
 """The fixed-rate control loop: state -> observation -> ONNX -> MIT command, under the safety supervisor.
 
-Each tick: read the target's state, check it (safety), fetch the commands (reach targets), build the
-observation with the frozen ``ObservationManager`` (joint_pos / joint_vel from the measured state,
-``actions`` = the previous raw policy output, fingertips by forward kinematics of the measured q), run the
-policy in POLICY mode, clip the raw action to ``+-policy.action_clip`` (as the env does; counted), turn it
-into ``q_cmd = default + action_scale * action`` (clipped to the joint limits and counted by the
-supervisor), check the torque demand, write the command, record the tick. The ``actions`` observation term
-is the previous clipped action, as in the env.
+Each tick: read the target's state, check it (safety), fetch the task's command terms from the command
+source (``deploy.tasks``: reach targets, a motion reference, ...), build the observation with the frozen
+``ObservationManager`` (the state terms from ``deploy.inputs``: joint_pos / joint_vel from the measured
+state, ``actions`` = the previous raw policy output, fingertips by forward kinematics of the measured q when
+the layout has them), run the policy in POLICY mode, clip the raw action to ``+-policy.action_clip`` (as
+the env does; counted), turn it into ``q_cmd = default + action_scale * action`` (clipped to the joint
+limits and counted by the supervisor), check the torque demand, write the command, record the tick. The
+``actions`` observation term is the previous clipped action, as in the env.
 
-Scheduling uses absolute deadlines ``t0 + k * dt``, so errors never accumulate (no drift). An asynchronous
-target (mock, real bus) is paced against ``time.perf_counter`` (sleep, then spin for the last
-``spin_s``); a tick that ends after the next deadline is an overrun, and missed deadlines are skipped (the
-grid keeps its phase). A synchronous target (sim) is not paced: the loop calls ``target.advance(dt)`` and
-runs as fast as it can (``realtime=True`` paces it for the viewer).
+Scheduling (``timing.Pacer``) uses absolute deadlines ``t0 + k * dt`` (no drift): an asynchronous target
+(mock, real bus) is paced against the wall clock, with overruns counted and missed deadlines skipped; a
+synchronous target (sim) is not paced: the loop calls ``target.advance(dt)`` and runs as fast as it can
+(``realtime=True`` paces it for the viewer).
 
 Start-up: ZERO_TORQUE until the first state; a valid first state gives DAMPING then HOLD (ramp to the
-policy's rest pose ``policy.hold_pose`` over ``safety.ramp_time``) then POLICY; ``start_mode="policy"``
-skips the ramp (evaluation). A fault latches DAMPING; the run then continues in DAMPING for
-``damping_after_fault`` s and ends.
+command source's ``hold_pose``, else the policy's rest pose ``policy.hold_pose``, over
+``safety.ramp_time``) then POLICY, where the source's phase 0 begins (``source.begin(t)``);
+``start_mode="policy"`` skips the ramp (evaluation). A fault latches DAMPING; the run then continues in
+DAMPING for ``damping_after_fault`` s and ends.
+
+The end of the commands: once the source is ``finished`` (a motion clip at its last frame), POLICY gives
+way to HOLD at the source's ``end_pose`` with the policy's gains (the pose ramps over half of
+``end_hold``) for ``end_hold`` s, then the run ends as completed through the usual safe ending. The loop
+never names a task: it only knows the ``CommandSource`` interface (``deploy.tasks.base``).
 
 Stopping: SIGINT, SIGTERM and SIGHUP (``signals.StopSignals``; the caller's, or installed by ``run`` in
 the main thread) and ``request_stop`` all take one path: the next tick enters DAMPING with the reason, the
@@ -34,197 +40,27 @@ import logging
 import math
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
-from bar_policy.deploy.commands import CommandSource
+from bar_policy.deploy.inputs import StateInputs
 from bar_policy.deploy.log import RunLog, log_fields
-from bar_policy.deploy.policy import DEFAULT_CONTROL_DT, OnnxPolicy
-from bar_policy.deploy.safety import Mode, SafetyConfig, SafetySupervisor
+from bar_policy.deploy.policy import OnnxPolicy
+from bar_policy.deploy.run_config import RunResult, RuntimeConfig
+from bar_policy.deploy.safety import Mode, SafetySupervisor
 from bar_policy.deploy.signals import StopSignals
-from bar_policy.deploy.targets.base import JointState, Target
+from bar_policy.deploy.targets.base import JointState, Target, run_metadata_of
+from bar_policy.deploy.tasks.base import CommandSource
+from bar_policy.deploy.timing import Pacer, RealtimePriority, TimingStats, sleep_until
 from bar_policy.robot.kinematics import Kinematics
 from bar_policy.robot.mit import mit_torque
 
 __all__ = ["RunResult", "Runtime", "RuntimeConfig", "TimingStats", "sleep_until"]
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True, kw_only=True)
-class RuntimeConfig:
-    """Loop settings."""
-
-    control_dt: float = DEFAULT_CONTROL_DT
-    """Control period, s (must equal the policy's ``policy_dt``)."""
-    duration: float | None = 10.0
-    """Run length, s of target time (ticks = duration / control_dt); None runs until a stop or a fault."""
-    start_mode: Literal["hold", "policy"] = "hold"
-    """``hold``: ramp to the default pose, then the policy. ``policy``: the policy from the first tick."""
-    damping_after_fault: float = 1.0
-    """After a fault or a stop request, keep commanding damping this long before ending the run, s."""
-    realtime: bool = False
-    """Pace a synchronous target at wall-clock rate (for the viewer)."""
-    spin_s: float = 0.0003
-    """Busy-wait this long before each deadline instead of sleeping (sleep overshoots), s."""
-    handle_signals: bool = True
-    """``run()`` without a ``stop`` installs ``StopSignals`` (SIGINT, SIGTERM, SIGHUP -> the stop path; main
-    thread only) for the whole run, the safe ending and the log included."""
-    rt_priority: int | None = None
-    """Run the loop thread under SCHED_FIFO at this priority (1-99; Linux, needs CAP_SYS_NICE) for the
-    length of the run; None keeps the normal scheduler. On a loaded CPU it removes most overruns."""
-    safety: SafetyConfig = field(default_factory=SafetyConfig)
-    """Safety thresholds."""
-
-    def __post_init__(self) -> None:
-        if not (math.isfinite(self.control_dt) and self.control_dt > 0):
-            raise ValueError(f"RuntimeConfig.control_dt must be > 0 s, got {self.control_dt}")
-        if self.duration is not None and not (math.isfinite(self.duration) and self.duration > 0):
-            raise ValueError(f"RuntimeConfig.duration must be > 0 s or None, got {self.duration}")
-        if self.start_mode not in ("hold", "policy"):
-            raise ValueError(f"RuntimeConfig.start_mode must be 'hold' or 'policy', got {self.start_mode!r}")
-        if self.rt_priority is not None and not 1 <= self.rt_priority <= 99:
-            raise ValueError(f"RuntimeConfig.rt_priority must be in 1..99, got {self.rt_priority}")
-        if not self.damping_after_fault >= 0:
-            raise ValueError(
-                f"RuntimeConfig.damping_after_fault must be >= 0 s, got {self.damping_after_fault}"
-            )
-
-
-def sleep_until(deadline: float, spin_s: float = 0.0003) -> None:
-    """Wait until ``time.perf_counter() >= deadline``: sleep, then busy-wait the last ``spin_s`` seconds."""
-    while True:
-        remaining = deadline - time.perf_counter()
-        if remaining <= 0:
-            return
-        if remaining > spin_s:
-            time.sleep(remaining - spin_s)
-
-
-@dataclass(frozen=True)
-class TimingStats:
-    """Per-tick timing of a run. Arrays have shape (ticks,), seconds."""
-
-    compute: np.ndarray
-    """Host compute per tick: state read -> observation -> ONNX -> command written."""
-    infer: np.ndarray
-    """ONNX inference alone (NaN in ticks without inference)."""
-    jitter: np.ndarray
-    """Tick start minus its deadline (0 for an unpaced synchronous target)."""
-    overruns: int
-    """Ticks that ended after the next deadline."""
-    wall: float
-    """Wall-clock duration of the loop, s."""
-    target_time: float
-    """Target-clock duration, s."""
-    paced: bool
-    """True when ticks were paced against the wall clock."""
-
-    def summary(self) -> dict[str, float]:
-        """p50 / p99 / max in ms, counts, rates."""
-
-        def pct(x: np.ndarray, p: float) -> float:
-            x = x[np.isfinite(x)]
-            return float(np.percentile(x, p) * 1e3) if x.size else float("nan")
-
-        ticks = int(self.compute.size)
-        out = {
-            "ticks": ticks,
-            "compute_p50_ms": pct(self.compute, 50),
-            "compute_p99_ms": pct(self.compute, 99),
-            "compute_max_ms": pct(self.compute, 100),
-            "infer_p50_ms": pct(self.infer, 50),
-            "infer_p99_ms": pct(self.infer, 99),
-            "overruns": self.overruns,
-            "wall_s": self.wall,
-            "target_s": self.target_time,
-            "rate_hz": ticks / self.wall if self.wall > 0 else float("nan"),
-            "realtime_factor": self.target_time / self.wall if self.wall > 0 else float("nan"),
-        }
-        if self.paced:
-            out |= {
-                "jitter_p50_ms": pct(np.abs(self.jitter), 50),
-                "jitter_p99_ms": pct(np.abs(self.jitter), 99),
-                "jitter_max_ms": pct(np.abs(self.jitter), 100),
-            }
-        return out
-
-    def format(self) -> str:
-        """Human-readable table."""
-        s = self.summary()
-        lines = [
-            f"ticks {s['ticks']}  wall {s['wall_s']:.3f} s  target {s['target_s']:.3f} s  "
-            f"rate {s['rate_hz']:.1f} Hz  real-time factor {s['realtime_factor']:.1f}x",
-            f"compute (state->obs->ONNX->command) p50 {s['compute_p50_ms']:.3f} ms  "
-            f"p99 {s['compute_p99_ms']:.3f} ms  max {s['compute_max_ms']:.3f} ms",
-            f"ONNX inference p50 {s['infer_p50_ms']:.3f} ms  p99 {s['infer_p99_ms']:.3f} ms",
-        ]
-        if self.paced:
-            lines.append(
-                f"jitter p50 {s['jitter_p50_ms']:.3f} ms  p99 {s['jitter_p99_ms']:.3f} ms  "
-                f"max {s['jitter_max_ms']:.3f} ms  overruns {s['overruns']}"
-            )
-        else:
-            lines.append("unpaced synchronous target: no jitter, no overruns")
-        return "\n".join(lines)
-
-
-@dataclass(frozen=True)
-class RunResult:
-    """What a run did."""
-
-    ticks: int
-    final_mode: Mode
-    transitions: list[dict[str, Any]]
-    timing: TimingStats
-    end_reason: str
-    clip_count: int
-    """Joint-ticks whose q_cmd was clipped to a limit."""
-    fault_count: int
-    log_path: Path | None
-    last_state: JointState | None
-    """The last state read."""
-    action_clip_count: int = 0
-    """Action entries clipped to ``+-policy.action_clip``."""
-    stop_reason: str | None = None
-    """Why a stop was requested (``"SIGTERM received"``), None when none was."""
-    safe_stop: str = ""
-    """Outcome of ``target.safe_stop``: ``"ok"`` or the error it raised."""
-    extras: dict[str, Any] = field(default_factory=dict)
-
-
-class _RealtimePriority:
-    """SCHED_FIFO for the calling thread while inside the block (restored after); logs when not permitted."""
-
-    def __init__(self, priority: int | None) -> None:
-        self.priority = priority
-        self._previous: tuple[int, int] | None = None
-
-    def __enter__(self) -> _RealtimePriority:
-        if self.priority is None:
-            return self
-        import os
-
-        try:
-            prev = (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.priority))
-            self._previous = prev
-            log.info("control loop runs under SCHED_FIFO priority %d", self.priority)
-        except (AttributeError, OSError) as e:
-            log.warning(
-                "cannot use SCHED_FIFO priority %d (%s); running with the normal scheduler", self.priority, e
-            )
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self._previous is not None:
-            import os
-
-            policy, prio = self._previous
-            os.sched_setscheduler(0, policy, os.sched_param(prio))
 
 
 class Runtime:
@@ -248,12 +84,13 @@ class Runtime:
         Args:
             policy: a loaded, contract-checked policy.
             target: the joints (started by the caller; the runtime never starts or closes it).
-            commands: source of the command terms.
+            commands: the task's command source (``deploy.tasks``); it must feed every command term of the
+                policy's layout.
             config: loop settings.
             log_dir: parent directory of the run log; None records nothing.
             log_meta: extra JSON metadata for the run log.
             log_name: suffix of the run directory.
-            kinematics: fingertip FK (built for the policy's mode when None).
+            kinematics: fingertip FK (built for the policy's mode when the layout has fingertips and None).
             on_tick: called after every tick with (tick, run time, runtime) (tests, evaluation).
         """
         self.policy = policy
@@ -271,7 +108,13 @@ class Runtime:
             )
         missing = [n for n in policy.obs_manager.command_names if n not in commands.names]
         if missing:
-            raise ValueError(f"command source {commands.describe()} does not feed {missing}")
+            raise ValueError(
+                f"command source {commands.describe()} (task {commands.task!r}) does not feed {missing}, "
+                f"which the policy (task {policy.task!r}) reads; its commands: {list(commands.names)}"
+            )
+        hold = commands.hold_pose
+        self.hold_pose = policy.hold_pose if hold is None else np.asarray(hold, dtype=np.float64)
+        """Where the start-up HOLD ramp goes: the source's ``hold_pose``, else the policy's, rad."""
         self.safety = SafetySupervisor(
             joint_names=robot.joint_names,
             lower=robot.lower,
@@ -279,10 +122,11 @@ class Runtime:
             torque_cap=robot.torque_cap,
             kp=policy.kp,
             kd=policy.kd,
-            default_q=policy.hold_pose,
+            default_q=self.hold_pose,
             config=self.config.safety,
         )
-        self.kinematics = kinematics or Kinematics(robot.mode)
+        self.inputs = StateInputs(policy.obs_manager, robot.mode, kinematics)
+        """The observation's state terms (``deploy.inputs``)."""
         self.log_dir = None if log_dir is None else Path(log_dir)
         self.log_meta = dict(log_meta or {})
         self.log_name = log_name
@@ -296,6 +140,10 @@ class Runtime:
         self._end_t: float | None = None
         """Target time the run started to end (first fault or stop request), s."""
         self._end_reason = ""
+        self._end_after = self.config.damping_after_fault
+        """How long the run goes on after ``_end_t``: damping after a fault or stop, HOLD after the end."""
+        self.completed = False
+        """True when the run ends because the command source finished (a motion clip played to its end)."""
         self._stop_reason: str | None = None
         self._pending_stop: str | None = None
         self._cap = robot.torque_cap
@@ -306,9 +154,10 @@ class Runtime:
     # -- helpers -------------------------------------------------------------------------------------
     def _fault(self, kind: str, detail: str, t: float) -> None:
         changed = self.safety.fault(kind, detail, t)
-        if changed and self._end_t is None:
-            self._end_t = t
+        if changed and (self._end_t is None or self.completed):  # a fault in the final HOLD is a fault
+            self._end_t, self._end_after = t, self.config.damping_after_fault
             self._end_reason = f"fault {kind}: {detail}"
+            self.completed = False
 
     def request_stop(self, reason: str) -> None:
         """Ask the loop to stop (DAMPING at the next tick, then the safe ending); the first reason is kept."""
@@ -323,8 +172,22 @@ class Runtime:
         if sf.mode in (Mode.HOLD, Mode.POLICY):
             sf.transition(Mode.DAMPING, f"stop requested: {reason}", t, level=logging.WARNING)
         if self._end_t is None:
-            self._end_t = t
+            self._end_t, self._end_after = t, self.config.damping_after_fault
             self._end_reason = reason
+
+    def _finish(self, reason: str, t: float) -> None:
+        """The command source finished: POLICY -> HOLD at its end pose (gains kept); the run completes."""
+        end = self.commands.end_pose
+        target = self.last_state.q if end is None else end
+        self.safety.transition(
+            Mode.HOLD,
+            f"commands finished: {reason}",
+            t,
+            hold_target=target,
+            hold_ramp=0.5 * self.config.end_hold,
+        )
+        self._end_t, self._end_after, self._end_reason = t, self.config.end_hold, reason
+        self.completed = True
 
     def _log_transitions(self) -> None:
         trs = self.safety.transitions
@@ -345,11 +208,13 @@ class Runtime:
             "target": type(self.target).__name__,
             "synchronous": self.target.synchronous,
             "commands": self.commands.describe(),
+            "deploy_task": p.task,
+            "command_source": self.commands.metadata(),
             "joint_names": list(p.robot.joint_names),
             "action_joint_names": list(p.metadata.action_joint_names),
             "mode_names": {m.name: int(m) for m in Mode},
             "policy_dialect": p.metadata.dialect,
-            "hold_pose": p.hold_pose.tolist(),
+            "hold_pose": self.hold_pose.tolist(),
             "runtime_config": asdict(self.config),
         } | self.log_meta
 
@@ -376,27 +241,25 @@ class Runtime:
             else:
                 sf.transition(Mode.DAMPING, "first valid state received", t)
                 if self.config.start_mode == "hold":
-                    sf.transition(Mode.HOLD, f"ramp to the default pose over {sf.config.ramp_time:g} s", t)
+                    where = (
+                        "the default pose" if self.commands.hold_pose is None else "the commands' start pose"
+                    )
+                    sf.transition(Mode.HOLD, f"ramp to {where} over {sf.config.ramp_time:g} s", t)
                 else:
-                    sf.transition(Mode.POLICY, "start_mode=policy (no ramp)", t)
-                    self.last_action[:] = 0.0
+                    self._start_policy("start_mode=policy (no ramp)", t)
         if stop is not None:
             self._stop(stop, t)
-        if sf.mode == Mode.HOLD and self._ramp_complete(t):
-            sf.transition(Mode.POLICY, "ramp complete", t)
-            self.last_action[:] = 0.0
+        if sf.mode == Mode.HOLD and self._end_t is None and sf.ramp_complete(t):
+            self._start_policy("ramp complete", t)
+        if sf.mode == Mode.POLICY:
+            done = self.commands.finished(t)
+            if done is not None:
+                self._finish(done, t)
 
         cmds = self.commands(t)
         self.last_commands = cmds
-        left, right = self.kinematics.fingertips(state.q)
-        inputs = {
-            "joint_pos": state.q,
-            "joint_vel": state.dq,
-            "actions": self.last_action,
-            "fingertip_pos_left": left,
-            "fingertip_pos_right": right,
-            **cmds,
-        }
+        inputs = self.inputs(state.q, state.dq, self.last_action)
+        inputs.update(cmds)
         obs = self.policy.obs_manager.compute(inputs)
         action = None
         q_policy = None
@@ -441,7 +304,7 @@ class Runtime:
             "n_action_clipped": n_action_clipped,
             "compute": compute,
             "infer": infer,
-            **cmds,
+            **self.commands.record(),
         }
 
     def _clip_action(self, action: np.ndarray, t: float) -> np.ndarray:
@@ -464,13 +327,18 @@ class Runtime:
                 )
         return used
 
-    def _ramp_complete(self, t: float) -> bool:
-        sf = self.safety
-        return sf.config.ramp_time <= 0 or (t - sf.ramp_t0) >= sf.config.ramp_time - 1e-9
+    def _start_policy(self, reason: str, t: float) -> None:
+        """Enter POLICY at ``t``: the previous action is reset and the source's phase 0 begins."""
+        self.safety.transition(Mode.POLICY, reason, t)
+        self.last_action[:] = 0.0
+        self.commands.begin(t)
 
     # -- the loop ------------------------------------------------------------------------------------
     def run(self, stop: StopSignals | None = None) -> RunResult:
-        """Run until the duration, a fault or a stop request (+ ``damping_after_fault``), or an exception.
+        """Run until the duration, a fault, a stop request or the end of the commands, or an exception.
+
+        A fault or a stop is followed by ``damping_after_fault`` s of damping, the end of the commands by
+        ``end_hold`` s of HOLD, before the safe ending.
 
         Args:
             stop: the caller's installed ``StopSignals`` (``bar-deploy`` installs them before the target
@@ -512,7 +380,9 @@ class Runtime:
 
     def _make_log(self) -> RunLog:
         om = self.policy.obs_manager
-        fields = log_fields(self.policy.robot.num_joints, self.policy.n_actions, om.size, self.commands.names)
+        fields = log_fields(
+            self.policy.robot.num_joints, self.policy.n_actions, om.size, self.commands.log_fields
+        )
         return RunLog(
             self.log_dir,
             fields,
@@ -525,46 +395,27 @@ class Runtime:
         cfg = self.config
         dt = cfg.control_dt
         n_ticks = None if cfg.duration is None else max(round(cfg.duration / dt), 1)
-        paced = not self.target.synchronous or cfg.realtime
         self.open_log()
         runlog = self._runlog
-        compute, infer, jitter = [], [], []
-        overruns = 0
+        sync = self.target.synchronous
         k = 0
         end_reason = "duration reached"
         t0_target = self.target.now()
-        wall0 = time.perf_counter()
-        deadline = wall0
+        pacer = Pacer(dt, paced=not sync or cfg.realtime, spin_s=cfg.spin_s)
         error: BaseException | None = None
         try:
-            with _RealtimePriority(cfg.rt_priority):
+            with RealtimePriority(cfg.rt_priority):
                 while n_ticks is None or k < n_ticks:
-                    if paced:
-                        sleep_until(deadline, cfg.spin_s)
-                    start = time.perf_counter()
-                    lateness = start - deadline if paced else 0.0
-                    t = self.target.now() - t0_target if not self.target.synchronous else k * dt
+                    start, lateness = pacer.wait()
+                    t = k * dt if sync else self.target.now() - t0_target
                     if stop.requested:
                         self.request_stop(stop.reason)
                     rec = self._tick(k, t, self._pending_stop)
-                    end = time.perf_counter()
-                    overran = False
-                    if paced:
-                        deadline += dt
-                        if end > deadline:
-                            overran = True
-                            overruns += 1
-                            missed = math.ceil((end - deadline) / dt)
-                            deadline += missed * dt  # skip the missed deadlines, keep the grid
-                    rec["jitter"] = lateness
-                    rec["overrun"] = overran
-                    rec["wall"] = start - wall0
-                    compute.append(rec["compute"])
-                    infer.append(rec["infer"])
-                    jitter.append(lateness)
+                    overran = pacer.tick_done(lateness, rec["compute"], rec["infer"])
+                    rec.update(jitter=lateness, overrun=overran, wall=start - pacer.wall0)
                     if runlog is not None:
                         runlog.append(rec)
-                    if self.target.synchronous:
+                    if sync:
                         self.target.advance(dt)
                     else:
                         ov = self.safety.note_overrun(overran)
@@ -574,7 +425,7 @@ class Runtime:
                     if self.on_tick is not None:
                         self.on_tick(k, t, self)
                     k += 1
-                    if self._end_t is not None and t - self._end_t >= cfg.damping_after_fault - 1e-9:
+                    if self._end_t is not None and t - self._end_t >= self._end_after - 1e-9:
                         end_reason = self._end_reason
                         break
         except BaseException as e:
@@ -582,25 +433,16 @@ class Runtime:
             end_reason = f"exception {type(e).__name__}: {e}"
             raise
         finally:
-            wall = time.perf_counter() - wall0  # the loop alone, without the safe ending
             t_end = self.target.now() - t0_target
+            timing = pacer.stats(k * dt if sync else t_end)  # the loop alone, without the safe ending
             safe_stop = self._safe_end(end_reason, t_end)
             self._log_transitions()
-            timing = TimingStats(
-                compute=np.asarray(compute),
-                infer=np.asarray(infer),
-                jitter=np.asarray(jitter),
-                overruns=overruns,
-                wall=wall,
-                target_time=k * dt if self.target.synchronous else t_end,
-                paced=paced,
-            )
             log_path = None
             if runlog is not None:
                 try:
                     log_path = runlog.close(
                         end_reason=end_reason,
-                        target_metadata=self._target_metadata(),
+                        target_metadata=run_metadata_of(self.target),
                         stop_reason=self._stop_reason,
                         stop_signal=stop.signal_name,
                         stop_signals_received=stop.count,
@@ -612,6 +454,7 @@ class Runtime:
                         action_clip_count=self.action_clip_count,
                         fault_count=self.safety.fault_count,
                         command_outside_workspace=self.commands.outside_count,
+                        completed=self.completed,
                     )
                 except Exception:
                     log.exception("could not write the run log in %s", runlog.path)
@@ -631,13 +474,8 @@ class Runtime:
             action_clip_count=self.action_clip_count,
             stop_reason=self._stop_reason,
             safe_stop=safe_stop,
+            completed=self.completed,
         )
-
-    def _target_metadata(self) -> dict[str, Any]:
-        try:
-            return dict(self.target.run_metadata())
-        except Exception as e:  # never lose the log for a description
-            return {"error": f"{type(e).__name__}: {e}"}
 
     def _safe_end(self, reason: str, t: float) -> str:
         """DAMPING (logged with the reason), then the target's safe stop; errors here are logged only.
@@ -647,7 +485,7 @@ class Runtime:
         """
         sf = self.safety
         if sf.mode in (Mode.HOLD, Mode.POLICY, Mode.ZERO_TORQUE):
-            level = logging.INFO if reason == "duration reached" else logging.WARNING
+            level = logging.INFO if reason == "duration reached" or self.completed else logging.WARNING
             sf.transition(Mode.DAMPING, f"run ended: {reason}", t, level=level)
         try:
             self.target.safe_stop(sf.captured_q, sf.config.damping_kd)

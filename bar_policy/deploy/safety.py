@@ -7,7 +7,9 @@ Modes (the MIT surface of the seed; which fields are nonzero):
   here, and it latches: the supervisor never leaves DAMPING by itself.
 - ``HOLD``: PD from the pose at entry to the default pose over ``ramp_time`` seconds, with a soft start of
   the gains (Kp from 0 to the policy's Kp, Kd from the damping Kd to the policy's Kd, both on a smoothstep),
-  then holding the default pose.
+  then holding the default pose. The runtime also enters HOLD from POLICY when the task's commands end (a
+  motion clip's last frame): then the target is the pose the command source names, the ramp its own, and
+  the gains stay at the policy's (no soft start from POLICY: the arms are carried, not dropped).
 - ``POLICY``: q_cmd = default + action_scale * action, clipped to the joint limits (every clipped joint is
   counted, and the first clip of each joint is logged), the file's Kp / Kd, dq_cmd = 0, tau_ff = 0.
 
@@ -148,6 +150,9 @@ class SafetySupervisor:
         self._last_finite_q: np.ndarray | None = None
         self._ramp_q0 = self.default_q.copy()
         self._ramp_t0 = 0.0
+        self._ramp_target = self.default_q.copy()
+        self._ramp_T = self.config.ramp_time
+        self._gain0 = 0.0
         self._sat_time = np.zeros(n)
         self._sat_level = self.config.saturation_fraction * self.torque_cap
         self.last_demand = np.zeros(n)
@@ -160,7 +165,16 @@ class SafetySupervisor:
         self._now = 0.0
 
     # -- transitions ---------------------------------------------------------------------------------
-    def transition(self, dst: Mode, reason: str, t: float, *, level: int = logging.INFO) -> None:
+    def transition(
+        self,
+        dst: Mode,
+        reason: str,
+        t: float,
+        *,
+        level: int = logging.INFO,
+        hold_target: np.ndarray | None = None,
+        hold_ramp: float | None = None,
+    ) -> None:
         """Change mode (no-op when already there), capturing what the new mode needs, and log it.
 
         Args:
@@ -168,6 +182,8 @@ class SafetySupervisor:
             reason: why (kept in ``transitions`` and the run log).
             t: target time, s.
             level: logging level of the message (faults use WARNING).
+            hold_target: HOLD only: the pose to ramp to, rad, shape (n,) (default: ``default_q``).
+            hold_ramp: HOLD only: the ramp's duration, s (default: ``config.ramp_time``).
         """
         if dst == self.mode:
             return
@@ -181,8 +197,14 @@ class SafetySupervisor:
         elif dst == Mode.HOLD:
             if self._last_finite_q is None:
                 raise RuntimeError("HOLD needs a finite joint state first")
+            target = self.default_q if hold_target is None else np.asarray(hold_target, dtype=np.float64)
+            if target.shape != self.default_q.shape or not np.isfinite(target).all():
+                raise ValueError(f"HOLD target must be finite with shape {self.default_q.shape}")
             self._ramp_q0 = self._last_finite_q.copy()
             self._ramp_t0 = t
+            self._ramp_target = target.copy()
+            self._ramp_T = self.config.ramp_time if hold_ramp is None else float(hold_ramp)
+            self._gain0 = 1.0 if src == Mode.POLICY else 0.0  # no soft start when the policy had full gains
             self._sat_time[:] = 0.0
         elif dst == Mode.POLICY:
             self._sat_time[:] = 0.0
@@ -216,11 +238,20 @@ class SafetySupervisor:
 
     @property
     def ramp_done(self) -> bool:
-        """True once HOLD has reached the default pose with the full gains (checked by the runtime)."""
-        return self.mode == Mode.HOLD and self._ramp_alpha(self._now) >= 1.0
+        """True once HOLD has reached its target pose with the full gains (at the last command's time)."""
+        return self.ramp_complete(self._now)
+
+    def ramp_complete(self, t: float) -> bool:
+        """True when HOLD's ramp is over at target time ``t`` (s)."""
+        return self.mode == Mode.HOLD and self._ramp_alpha(t) >= 1.0 - 1e-9 / max(self._ramp_T, 1e-9)
+
+    @property
+    def hold_target(self) -> np.ndarray:
+        """Where HOLD ramps to (``default_q`` unless the runtime entered HOLD with a target), rad."""
+        return self._ramp_target.copy()
 
     def _ramp_alpha(self, t: float) -> float:
-        T = self.config.ramp_time
+        T = self._ramp_T
         return 1.0 if T <= 0 else (t - self._ramp_t0) / T
 
     # -- checks --------------------------------------------------------------------------------------
@@ -307,9 +338,10 @@ class SafetySupervisor:
             return MitCommand.damping(self._captured_q, self.config.damping_kd)
         if self.mode == Mode.HOLD:
             s = _smoothstep(self._ramp_alpha(t))
-            q = self._ramp_q0 + s * (self.default_q - self._ramp_q0)
+            q = self._ramp_q0 + s * (self._ramp_target - self._ramp_q0)
+            g = self._gain0 + (1.0 - self._gain0) * s
             kd0 = self.config.damping_kd
-            return MitCommand.position(q, s * self.kp, kd0 + s * (self.kd - kd0))
+            return MitCommand.position(q, g * self.kp, kd0 + g * (self.kd - kd0))
         if q_policy is None:
             raise ValueError("POLICY mode needs q_policy")
         q = np.minimum(np.maximum(q_policy, self.lower), self.upper)

@@ -1,4 +1,7 @@
-"""Sim2sim evaluation: the ONNX policy on the C MuJoCo ``sim`` target over seeded reach episodes.
+"""Sim2sim evaluation of a reach policy: the ONNX policy on the C MuJoCo ``sim`` target over seeded episodes.
+
+``bar-deploy eval`` runs it for reach policies (``deploy.tasks.reach``); tracking policies have their own
+metric (``deploy.tasks.track_eval``).
 
 The protocol mirrors the LiteReach env's (``bar_policy.envs.reach``; defaults of ``ReachEnvConfig``):
 
@@ -33,6 +36,7 @@ from bar_policy.deploy.policy import OnnxPolicy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import SafetyConfig
 from bar_policy.deploy.targets.sim import SimConfig, SimTarget, training_damping
+from bar_policy.deploy.tasks.base import EvalReport
 from bar_policy.robot.kinematics import Kinematics
 from bar_policy.tasks.reach import SUCCESS_RADIUS
 
@@ -87,7 +91,7 @@ class EpisodeResult:
 
 
 @dataclass(frozen=True)
-class EvalResult:
+class EvalResult(EvalReport):
     """All episodes and the success rate."""
 
     config: EvalConfig

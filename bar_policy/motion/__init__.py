@@ -2,7 +2,8 @@
 
 ``Clip`` and its NPZ/CSV loaders (``load_clip``, ``load_csv``, ``save_clip``; refusals raise ``ClipError``),
 the named gestures (``gesture``, ``GESTURES``), the random trajectory generator (``random_clips``,
-``RandomMotionConfig``) and the clip sets with their ids (``clip_set``). See docs/tracking.md.
+``RandomMotionConfig``), the clip sets with their ids (``clip_set``) and any library clip by name
+(``library_clip``). See docs/tracking.md.
 """
 
 from bar_policy.motion.clip import (
@@ -16,7 +17,7 @@ from bar_policy.motion.clip import (
 )
 from bar_policy.motion.generator import RandomMotionConfig, motion_box, random_clips
 from bar_policy.motion.gestures import GESTURES, gesture, gestures
-from bar_policy.motion.library import CLIP_SETS, ClipSet, clip_set
+from bar_policy.motion.library import CLIP_SETS, ClipSet, clip_set, library_clip
 
 __all__ = [
     "CLIP_SETS",
@@ -29,6 +30,7 @@ __all__ = [
     "clip_set",
     "gesture",
     "gestures",
+    "library_clip",
     "load_clip",
     "load_csv",
     "motion_box",

@@ -13,13 +13,23 @@ policy file (``dataset_repo_id``) names exactly the frames it was trained on.
 from __future__ import annotations
 
 import hashlib
+import re
 from dataclasses import dataclass
 
 from bar_policy.motion.clip import Clip
 from bar_policy.motion.generator import RandomMotionConfig, random_clips
-from bar_policy.motion.gestures import gestures
+from bar_policy.motion.gestures import GESTURES, gesture, gestures
 
-__all__ = ["CLIP_SETS", "HELDOUT_SEED", "TRAIN_SEED", "ClipSet", "clip_set", "clip_set_id"]
+__all__ = [
+    "CLIP_SETS",
+    "DEFAULT_LENGTH_S",
+    "HELDOUT_SEED",
+    "TRAIN_SEED",
+    "ClipSet",
+    "clip_set",
+    "clip_set_id",
+    "library_clip",
+]
 
 TRAIN_SEED = 0
 """Seed of the training clips."""
@@ -27,6 +37,9 @@ HELDOUT_SEED = 1
 """Seed of the held-out random clips."""
 CLIP_SETS: dict[str, int] = {"train": 64, "heldout": 8, "gestures": 0}
 """Set name -> default number of random clips."""
+DEFAULT_LENGTH_S = 30.0
+"""Duration of each random clip of a set, s."""
+_MEMBER = re.compile(r"random-s(\d+)-(\d+)")
 
 
 def clip_set_id(name: str, clips: tuple[Clip, ...] | list[Clip]) -> str:
@@ -56,7 +69,7 @@ def clip_set(
     mode: str = "arms",
     rate_hz: float = 50.0,
     num_clips: int | None = None,
-    length_s: float = 30.0,
+    length_s: float = DEFAULT_LENGTH_S,
     config: RandomMotionConfig | None = None,
 ) -> ClipSet:
     """Build a named clip set.
@@ -84,3 +97,24 @@ def clip_set(
     if name in ("heldout", "gestures"):
         clips += gestures(mode, rate_hz)
     return ClipSet(name=name, clips=tuple(clips))
+
+
+def library_clip(name: str, *, mode: str = "arms", rate_hz: float = 50.0) -> Clip:
+    """A clip of the library by name: a gesture (``wave``), or a random member ``random-s<seed>-<index>``.
+
+    A random member is the ``index``-th clip (from 0) of ``random_clips(seed, ...)`` at the sets' default
+    length: ``random-s0-*`` are the ``train`` set's clips, ``random-s1-*`` the ``heldout`` set's.
+
+    Raises:
+        ValueError: an unknown name; the message lists the gestures and the member pattern.
+    """
+    if name in GESTURES:
+        return gesture(name, mode, rate_hz)
+    m = _MEMBER.fullmatch(name)
+    if m is None:
+        raise ValueError(
+            f"no library clip named {name!r}; gestures: {sorted(GESTURES)}, or a clip set member "
+            f"'random-s<seed>-<index>' (train: seed {TRAIN_SEED}, heldout: seed {HELDOUT_SEED}, index from 0)"
+        )
+    seed, index = int(m.group(1)), int(m.group(2))
+    return random_clips(seed, index + 1, DEFAULT_LENGTH_S, mode=mode, rate_hz=rate_hz)[index]

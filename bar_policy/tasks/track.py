@@ -38,6 +38,9 @@ from bar_policy.robot.kinematics import Kinematics, rotation_to_6d
 
 __all__ = [
     "ACTION_MARGIN",
+    "LOST_DISTANCE",
+    "SUCCESS_FINGERTIP_M",
+    "SUCCESS_JOINT_RAD",
     "TRACK_BODY_NAMES",
     "TRACK_LOOKAHEAD_STEPS",
     "ReferenceTable",
@@ -56,6 +59,13 @@ TRACK_LOOKAHEAD_STEPS = 5
 
 ACTION_MARGIN = 0.25
 """Action range beyond the motion box on each side, rad (gravity compensation and lead)."""
+
+SUCCESS_JOINT_RAD = 0.05
+"""A tracking step succeeds when the mean joint error is at most this, rad (the env's metric, issue 10)."""
+SUCCESS_FINGERTIP_M = 0.02
+"""... and the mean fingertip error at most this, m."""
+LOST_DISTANCE = 0.25
+"""A tracked body farther than this from its reference is lost, m (the env's ``termination_distance``)."""
 
 
 def track_default_pose(mode: str = "arms") -> np.ndarray:

@@ -32,7 +32,10 @@ __all__ = ["default_metadata", "hc_props", "make_hc_policy_file", "make_policy_f
 
 
 def default_metadata(mode: str = "arms", task: str = "reach", **overrides: Any) -> PolicyMetadata:
-    """Metadata that matches the robot data and the running code; ``overrides`` replace fields."""
+    """Metadata that matches the robot data and the running code; ``overrides`` replace fields.
+
+    ``task="track"`` gives the tracking layout with its HC keys (``body_names``, ``lookahead_steps``).
+    """
     robot = load_robot(mode)
     om = ObservationManager.for_task(task, mode)
     meta = PolicyMetadata(
@@ -53,6 +56,9 @@ def default_metadata(mode: str = "arms", task: str = "reach", **overrides: Any) 
         command_names=om.command_names,
         code_version="test",
         training={"backend": "test"},
+        body_names=om.schema.body_names,
+        lookahead_steps=om.schema.lookahead_steps,
+        dataset_repo_id="test" if om.schema.lookahead_steps else "",
     )
     return dataclasses.replace(meta, **overrides) if overrides else meta
 

@@ -36,6 +36,8 @@ RUN_ROWS = [
     ("log-under-a-file", ["--log", "FILE/sub"], "Not a directory (give a writable --log DIR, or --no-log)"),
     ("commands-unknown", ["--commands", "joystick"], "unknown command source 'joystick'; valid: sampled"),
     ("commands-period", ["--commands", "sampled:-1"], "resample period must be > 0 s, got -1.0"),
+    ("motion-rate-zero", ["--motion-rate", "0"], "argument --motion-rate: expected a rate > 0 Hz, got '0'"),
+    ("motion-for-reach", ["--motion", "wave"], "--motion wave is for 'track' policies (motion tracking)"),
     ("video-not-sim", ["--target", "mock", "--video", "x.mp4"], "--video needs --target sim"),
     ("policy-missing", ["--policy", "missing.onnx"], "cannot read the file: No such file or directory"),
     ("mode-mismatch", ["--mode", "arms_neck"], "joint set mismatch: the policy is for mode 'arms'"),
@@ -55,6 +57,8 @@ OTHER_ROWS = [
         "argument --resample-period: expected a time >= 0",
     ),
     ("eval-json", ["eval", "--json", "/proc/x/e.json"], "--json '/proc/x/e.json': its directory does not"),
+    ("eval-hold-negative", ["eval", "--hold-s", "-1"], "argument --hold-s: expected a time >= 0 s"),
+    ("eval-clips-for-reach", ["eval", "--clips", "wave"], "--clips wave is for 'track' policies"),
     ("plot-missing", ["plot", "nowhere"], "no run log at nowhere"),
 ]
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from bar_policy.robot.mit import MitCommand
 
-__all__ = ["JointState", "Target", "TargetError"]
+__all__ = ["JointState", "Target", "TargetError", "run_metadata_of"]
 
 
 class TargetError(RuntimeError):
@@ -96,3 +96,11 @@ class Target(abc.ABC):
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def run_metadata_of(target: Target) -> dict[str, Any]:
+    """``target.run_metadata()``, or ``{"error": ...}`` when it raises (a run log is never lost for it)."""
+    try:
+        return dict(target.run_metadata())
+    except Exception as e:
+        return {"error": f"{type(e).__name__}: {e}"}

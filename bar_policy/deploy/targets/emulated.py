@@ -1,0 +1,121 @@
+"""The real target over an emulated Robstride bus, in lockstep: the sim2sim path through the CAN code.
+
+``EmulatedBusTarget`` is what ``bar-deploy --target real --can-interface virtual --emulate lockstep`` builds
+(``RealTarget`` on python-can ``virtual`` buses + an in-process ``RobstrideEmulator``), presented as a
+synchronous, resettable target for the evaluations (``deploy.sim2sim``, ``deploy.tasks.track_eval``) and
+the benchmarks (``bench/reach_emulator.py``, ``bench/track_fidelity.py``):
+
+- every command round (``write_command``: one MIT frame and one reply per motor on both buses) advances one
+  control period of the emulator's MuJoCo physics, so a run goes faster than real time and is repeatable;
+- the state the policy sees went through the 16-bit feedback codec (``read_state`` returns the replies of
+  the last round: the post-step state; ``refresh_on_read`` is off);
+- ``reset(q)`` teleports the emulated joints to ``q`` at rest and starts a fresh ``RealTarget`` on them:
+  scan, cap writes, watchdog, enable and one damping round (20 ms of physics: the only difference in the
+  initial condition from the sim target, which also starts at the reference velocity when given one).
+
+The emulator applies the MIT law with explicit damping (``qfrc_applied``), the firmware's law as is; the
+sim target and the MJX env integrate the Kd term implicitly by default (``targets.sim``). Channels are
+unique per instance (``virtual`` channels are process-wide), so several can coexist.
+"""
+
+from __future__ import annotations
+
+import time
+
+import can
+import numpy as np
+
+from bar_policy.deploy.robstride.emulator import RobstrideEmulator
+from bar_policy.deploy.robstride.group import RobstrideGroup
+from bar_policy.deploy.targets.base import JointState, Target
+from bar_policy.deploy.targets.real import RealTarget
+from bar_policy.robot.constants import load_robot
+from bar_policy.robot.mit import MitCommand
+
+__all__ = ["LOCKSTEP_CAN_TIMEOUT", "EmulatedBusTarget"]
+
+LOCKSTEP_CAN_TIMEOUT = 2.0
+"""CAN watchdog armed on the emulated motors, s. It runs on the wall clock while lockstep physics does not:
+at the deploy default (0.2 s) a stall of the evaluating process (a loaded CPU, a garbage collection) would
+disable the motors mid-clip; 2 s keeps the arming path (the 0x7028 write) with room for such stalls."""
+
+
+class EmulatedBusTarget(Target):
+    """``RealTarget`` + lockstep emulator as a synchronous, resettable target (module docstring)."""
+
+    synchronous = True
+
+    def __init__(
+        self,
+        mode: str = "arms",
+        control_dt: float = 0.02,
+        *,
+        reply_timeout: float = 0.2,
+        can_timeout: float = LOCKSTEP_CAN_TIMEOUT,
+    ) -> None:
+        """Start the emulator (the real target starts on ``reset``).
+
+        Args:
+            mode: joint set.
+            control_dt: physics per command round, s (the policy's period).
+            reply_timeout: reply deadline per round on the virtual bus, s.
+            can_timeout: the motors' CAN watchdog armed at start (wall clock), s.
+        """
+        self.robot = load_robot(mode)
+        super().__init__(self.robot.joint_names)
+        key = f"emulated-{id(self)}-{time.monotonic_ns()}"
+        interfaces = sorted({j.can_interface for j in self.robot.joints})
+        self.channels = {i: f"{key}-{i}" for i in interfaces}
+        self.reply_timeout = reply_timeout
+        self.can_timeout = can_timeout
+        self.emu = RobstrideEmulator(
+            self.robot, self.channels, mode="lockstep", control_dt=control_dt
+        ).start()
+        self.inner: RealTarget | None = None
+
+    def reset(self, q: np.ndarray | None = None, dq: np.ndarray | None = None) -> None:
+        """Teleport the emulated joints to ``q`` (default ``piano_ready``) at rest, start a fresh real target.
+
+        ``dq`` is accepted for the evaluations' reset interface and not used (the emulator starts at rest).
+        """
+        if self.inner is not None:
+            self.inner.close()
+            self.inner = None
+        self.emu.set_joint_positions(self.robot.pose("piano_ready") if q is None else np.asarray(q, float))
+        buses = {i: can.Bus(interface="virtual", channel=c) for i, c in self.channels.items()}
+        group = RobstrideGroup.from_robot(
+            self.robot, buses, reply_timeout=self.reply_timeout, can_timeout=self.can_timeout
+        )
+        self.inner = RealTarget(
+            self.robot, group, refresh_on_read=False, damping_hold_s=0.0, scan_ids=range(1, 33)
+        )
+        self.inner.start()
+
+    def _target(self) -> RealTarget:
+        if self.inner is None:
+            self.reset()
+        assert self.inner is not None
+        return self.inner
+
+    def read_state(self) -> JointState:
+        """The last round's feedback (the post-step state in lockstep)."""
+        return self._target().read_state()
+
+    def write_command(self, cmd: MitCommand) -> None:
+        """One command round = one control period of physics."""
+        self._target().write_command(cmd)
+
+    def now(self) -> float:
+        """Emulator physics time, s."""
+        return self.emu.sim_time
+
+    def safe_stop(self, q: np.ndarray | None = None, kd: float = 1.0) -> None:
+        """Damping, then stop frames on the buses."""
+        self._target().safe_stop(q, kd)
+
+    def close(self) -> None:
+        """Close the real target and the emulator (safe to call twice)."""
+        if self.inner is not None:
+            self.inner.close()
+            self.inner = None
+        self.emu.close()

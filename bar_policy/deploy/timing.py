@@ -1,0 +1,183 @@
+"""Loop timing: absolute-deadline sleeping, per-tick timing statistics, real-time scheduling of the loop.
+
+``sleep_until`` sleeps, then busy-waits the last ``spin_s`` (``time.sleep`` overshoots by tens of
+microseconds to milliseconds); ``Pacer`` keeps the loop on its deadline grid and collects the per-tick
+times; ``TimingStats`` summarises a run's compute, inference and jitter;
+``RealtimePriority`` runs the calling thread under SCHED_FIFO for the length of a block (Linux, needs
+CAP_SYS_NICE; logged and skipped when not permitted).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Pacer", "RealtimePriority", "TimingStats", "sleep_until"]
+
+log = logging.getLogger("bar_policy.deploy.runtime")
+
+
+def sleep_until(deadline: float, spin_s: float = 0.0003) -> None:
+    """Wait until ``time.perf_counter() >= deadline``: sleep, then busy-wait the last ``spin_s`` seconds."""
+    while True:
+        remaining = deadline - time.perf_counter()
+        if remaining <= 0:
+            return
+        if remaining > spin_s:
+            time.sleep(remaining - spin_s)
+
+
+@dataclass(frozen=True)
+class TimingStats:
+    """Per-tick timing of a run. Arrays have shape (ticks,), seconds."""
+
+    compute: np.ndarray
+    """Host compute per tick: state read -> observation -> ONNX -> command written."""
+    infer: np.ndarray
+    """ONNX inference alone (NaN in ticks without inference)."""
+    jitter: np.ndarray
+    """Tick start minus its deadline (0 for an unpaced synchronous target)."""
+    overruns: int
+    """Ticks that ended after the next deadline."""
+    wall: float
+    """Wall-clock duration of the loop, s."""
+    target_time: float
+    """Target-clock duration, s."""
+    paced: bool
+    """True when ticks were paced against the wall clock."""
+
+    def summary(self) -> dict[str, float]:
+        """p50 / p99 / max in ms, counts, rates."""
+
+        def pct(x: np.ndarray, p: float) -> float:
+            x = x[np.isfinite(x)]
+            return float(np.percentile(x, p) * 1e3) if x.size else float("nan")
+
+        ticks = int(self.compute.size)
+        out = {
+            "ticks": ticks,
+            "compute_p50_ms": pct(self.compute, 50),
+            "compute_p99_ms": pct(self.compute, 99),
+            "compute_max_ms": pct(self.compute, 100),
+            "infer_p50_ms": pct(self.infer, 50),
+            "infer_p99_ms": pct(self.infer, 99),
+            "overruns": self.overruns,
+            "wall_s": self.wall,
+            "target_s": self.target_time,
+            "rate_hz": ticks / self.wall if self.wall > 0 else float("nan"),
+            "realtime_factor": self.target_time / self.wall if self.wall > 0 else float("nan"),
+        }
+        if self.paced:
+            out |= {
+                "jitter_p50_ms": pct(np.abs(self.jitter), 50),
+                "jitter_p99_ms": pct(np.abs(self.jitter), 99),
+                "jitter_max_ms": pct(np.abs(self.jitter), 100),
+            }
+        return out
+
+    def format(self) -> str:
+        """Human-readable table."""
+        s = self.summary()
+        lines = [
+            f"ticks {s['ticks']}  wall {s['wall_s']:.3f} s  target {s['target_s']:.3f} s  "
+            f"rate {s['rate_hz']:.1f} Hz  real-time factor {s['realtime_factor']:.1f}x",
+            f"compute (state->obs->ONNX->command) p50 {s['compute_p50_ms']:.3f} ms  "
+            f"p99 {s['compute_p99_ms']:.3f} ms  max {s['compute_max_ms']:.3f} ms",
+            f"ONNX inference p50 {s['infer_p50_ms']:.3f} ms  p99 {s['infer_p99_ms']:.3f} ms",
+        ]
+        if self.paced:
+            lines.append(
+                f"jitter p50 {s['jitter_p50_ms']:.3f} ms  p99 {s['jitter_p99_ms']:.3f} ms  "
+                f"max {s['jitter_max_ms']:.3f} ms  overruns {s['overruns']}"
+            )
+        else:
+            lines.append("unpaced synchronous target: no jitter, no overruns")
+        return "\n".join(lines)
+
+
+class RealtimePriority:
+    """SCHED_FIFO for the calling thread while inside the block (restored after); logs when not permitted."""
+
+    def __init__(self, priority: int | None) -> None:
+        self.priority = priority
+        self._previous: tuple[int, int] | None = None
+
+    def __enter__(self) -> RealtimePriority:
+        if self.priority is None:
+            return self
+        try:
+            prev = (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.priority))
+            self._previous = prev
+            log.info("control loop runs under SCHED_FIFO priority %d", self.priority)
+        except (AttributeError, OSError) as e:
+            log.warning(
+                "cannot use SCHED_FIFO priority %d (%s); running with the normal scheduler", self.priority, e
+            )
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._previous is not None:
+            policy, prio = self._previous
+            os.sched_setscheduler(0, policy, os.sched_param(prio))
+
+
+class Pacer:
+    """The loop's clock: absolute deadlines ``t0 + k * dt`` (no drift), overruns, per-tick statistics.
+
+    A paced loop sleeps until each deadline (``sleep_until``); a tick that ends after the next deadline is
+    an overrun, and the missed deadlines are skipped (the grid keeps its phase). An unpaced loop (a
+    synchronous target) never waits and has no jitter or overruns.
+    """
+
+    def __init__(self, dt: float, paced: bool, spin_s: float = 0.0003) -> None:
+        """Args: control period (s), whether to pace against the wall clock, busy-wait margin (s)."""
+        self.dt = dt
+        self.paced = paced
+        self.spin_s = spin_s
+        self.wall0 = time.perf_counter()
+        """Wall clock of the loop's start, s (``time.perf_counter``)."""
+        self._deadline = self.wall0
+        self.compute: list[float] = []
+        self.infer: list[float] = []
+        self.jitter: list[float] = []
+        self.overruns = 0
+
+    def wait(self) -> tuple[float, float]:
+        """Wait for the next deadline; returns (tick start, lateness = start - deadline; 0 unpaced), s."""
+        if self.paced:
+            sleep_until(self._deadline, self.spin_s)
+        start = time.perf_counter()
+        return start, (start - self._deadline if self.paced else 0.0)
+
+    def tick_done(self, lateness: float, compute: float, infer: float) -> bool:
+        """Record a tick that took ``compute`` s (``infer`` in ONNX); returns True when it overran."""
+        self.compute.append(compute)
+        self.infer.append(infer)
+        self.jitter.append(lateness)
+        if not self.paced:
+            return False
+        end = time.perf_counter()
+        self._deadline += self.dt
+        if end <= self._deadline:
+            return False
+        self.overruns += 1
+        self._deadline += math.ceil((end - self._deadline) / self.dt) * self.dt  # skip, keep the grid
+        return True
+
+    def stats(self, target_time: float) -> TimingStats:
+        """The run's statistics (the loop's wall time ends now)."""
+        return TimingStats(
+            compute=np.asarray(self.compute),
+            infer=np.asarray(self.infer),
+            jitter=np.asarray(self.jitter),
+            overruns=self.overruns,
+            wall=time.perf_counter() - self.wall0,
+            target_time=target_time,
+            paced=self.paced,
+        )
