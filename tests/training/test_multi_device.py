@@ -56,7 +56,13 @@ SCRIPT = textwrap.dedent(
         f = dp.map(lambda a, b, n=n: probe(a, b, 8 // n), (P(), P()), P(AXIS))
         q = f(dp.replicate(host_key(3, 1)), dp.replicate(host_key(3, 2)))
         out[n] = np.asarray(q).tolist()
-    print("RESULT", json.dumps({{"steps": s.env_steps, "err": s.export["max_abs_error"], "probe": out}}))
+    try:
+        dp.check_divisible(**{{"ppo.num_envs": 4096, "ppo.batch_size": 3}})
+        refusal = ""
+    except ValueError as e:
+        refusal = str(e)
+    print("RESULT", json.dumps({{"steps": s.env_steps, "err": s.export["max_abs_error"], "probe": out,
+                                "refusal": refusal}}))
     """
 )
 
@@ -107,3 +113,9 @@ def test_every_slot_steps_on_its_own_model_whatever_the_device_count(two_device_
         np.testing.assert_allclose(q, np.repeat(gains[:, None] * 0.4, 14, axis=1), rtol=1e-5)
     # Not one set of models per device repeated on each device (the old pmap layout): 8 distinct gains.
     assert len(set(np.round(gains, 6))) == 8
+
+
+def test_sizes_that_do_not_split_over_the_devices_are_refused_by_name(two_device_run):
+    _, result = two_device_run
+    assert result["refusal"].startswith("ppo.batch_size = 3 must be a multiple of the device count 2")
+    assert "ppo.num_envs" not in result["refusal"]
