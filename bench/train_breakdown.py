@@ -3,7 +3,8 @@
 At the training batch of a preset (default ``gpu``: 4096 envs, 81,920 env steps and 128 Adam steps per
 iteration), on one device, every part compiled once and timed over ``--iters`` calls after a warm-up:
 
-- ``env``: the batched env alone (zero actions), as many steps as one iteration collects;
+- ``env``: the batched env alone (zero actions, as ``mjx_throughput.py``'s harness c), as many steps as one
+  iteration collects; ``env random``: the same with uniform random actions in [-1, 1];
 - ``rollout``: env + policy sampling + transitions (``Learner.rollout``), the same steps;
 - ``update``: normaliser update + ``num_updates_per_batch`` x ``num_minibatches`` Adam steps on one
   iteration's data (``Learner.update``);
@@ -23,12 +24,12 @@ Examples::
 from __future__ import annotations
 
 import argparse
+import functools
 import time
 from pathlib import Path
 from typing import Any
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
@@ -76,19 +77,26 @@ def main() -> int:
     args.epoch_iters = args.epoch_iters or epoch_iterations(cfg)  # the trainer's: its compile is cached
     progs = make_programs(env, cfg, learner, dp, wrap, randomizer, args.epoch_iters)
 
-    def env_only(envs_carry: Any) -> Any:
+    def env_only(envs_carry: Any, key: jax.Array, scale: float) -> Any:
+        """The env alone: zero actions (as bench/mjx_throughput.py's harness c), or uniform random ones
+        (motion like a young policy's: more contacts for the solver)."""
         state, model_keys = envs_carry
         batch = slot_env(env, wrap, randomizer, model_keys)
-        zeros = jnp.zeros((n, env.action_size))
-        state = jax.lax.scan(lambda s, _: (batch.step(s, zeros), None), state, None, length=steps // n)[0]
-        return state.obs
+
+        def step(s: Any, k: jax.Array) -> tuple[Any, None]:
+            a = jax.random.uniform(k, (n, env.action_size), minval=-1.0, maxval=1.0) * scale
+            return batch.step(s, a), None
+
+        keys = jax.random.split(key, steps // n)
+        return jax.lax.scan(step, state, keys)[0].obs
 
     def rollout(ts: Any, envs_carry: Any, key: jax.Array) -> Any:
         batch = slot_env(env, wrap, randomizer, envs_carry[1])
         return learner.rollout(ts, envs_carry[0], key, batch, unrolls)[1]
 
     rep, shard = P(), P(AXIS)
-    f_env = dp.map(env_only, (shard,), shard)
+    f_env = dp.map(functools.partial(env_only, scale=0.0), (shard, rep), shard)
+    f_env_random = dp.map(functools.partial(env_only, scale=1.0), (shard, rep), shard)
     f_roll = dp.map(rollout, (rep, shard, rep), shard)
     f_update = dp.map(lambda ts, data, key: learner.update(ts, data, key)[0], (rep, shard, rep), rep)
 
@@ -99,7 +107,8 @@ def main() -> int:
     envs_abs = dp.abstract(compiler.submit("reset", progs.reset, key_abs, key_abs).out_info, sharded=True)
     compiler.submit("init", progs.init, key_abs)
     compiler.submit("epoch", progs.epoch, ts_abs, envs_abs, key_abs)
-    compiler.submit("env", f_env, envs_abs)
+    compiler.submit("env", f_env, envs_abs, key_abs)
+    compiler.submit("env random", f_env_random, envs_abs, key_abs)
     rollout_lowered = compiler.submit("rollout", f_roll, ts_abs, envs_abs, key_abs)
     data_abs = dp.abstract(rollout_lowered.out_info, sharded=True)
     compiler.submit("update", f_update, ts_abs, data_abs, key_abs)
@@ -109,7 +118,8 @@ def main() -> int:
     carry = compiler.get("reset")(dp.replicate(host_key(0, 2)), dp.replicate(host_key(0, 3)))
     data = compiler.get("rollout")(ts, carry, key)
     rows: dict[str, float] = {}
-    rows["env"] = _time(lambda: compiler.get("env")(carry), args.iters)
+    rows["env"] = _time(lambda: compiler.get("env")(carry, key), args.iters)
+    rows["env random"] = _time(lambda: compiler.get("env random")(carry, key), args.iters)
     rows["rollout"] = _time(lambda: compiler.get("rollout")(ts, carry, key), args.iters)
     rows["update"] = _time(lambda: compiler.get("update")(ts, data, key), args.iters)
     epoch = compiler.get("epoch")
@@ -132,7 +142,7 @@ def main() -> int:
         "| part | ms per iteration | env steps/s | env alone / part (time) |",
         "|---|---:|---:|---:|",
     ]
-    for name in ("env", "rollout", "update", "epoch", "loop"):
+    for name in ("env", "env random", "rollout", "update", "epoch", "loop"):
         sps = steps / rows[name]
         lines.append(f"| {name} | {1e3 * rows[name]:.1f} | {sps:,.0f} | {rows['env'] / rows[name]:.1%} |")
     lines.append("")

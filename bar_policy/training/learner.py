@@ -116,9 +116,12 @@ class Learner:
         )
         grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
 
+        # One permutation for every leaf: the same order as brax's per-leaf
+        # ``jax.random.permutation(k_perm, x)`` (which draws these indices for each leaf again).
+        perm = jax.random.permutation(k_perm, jax.tree.leaves(data)[0].shape[0])
+
         def shuffle(x: jax.Array) -> jax.Array:
-            x = jax.random.permutation(k_perm, x)
-            return x.reshape((ppo.num_minibatches, -1, *x.shape[1:]))
+            return x[perm].reshape((ppo.num_minibatches, -1, *x.shape[1:]))
 
         def minibatch(c: tuple, mb: types.Transition) -> tuple:
             o, p, kk = c
