@@ -267,7 +267,8 @@ def train_brax(
     programs = make_programs(env, cfg, learner, dp, wrap_fn, randomizer, iters_per_epoch)
     seed = cfg.seed
 
-    # Trace each program here and compile it on a worker thread: the longest (epoch) first.
+    # Trace each program here and compile it on a worker thread. The reset goes first (its outputs are the
+    # epoch's inputs), the epoch (the longest compile) right after it, the evaluation beside them.
     key_abs = dp.abstract(np.zeros(2, np.uint32), sharded=False)
     template = jax.eval_shape(learner.init, key_abs)
     ts_abs = dp.abstract(template, sharded=False)

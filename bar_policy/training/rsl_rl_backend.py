@@ -36,7 +36,7 @@ from bar_policy.training.checkpoint import latest_checkpoint, save_checkpoint
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.progress import RunLogger
 from bar_policy.training.rsl_rl_env import RslRlVecEnv, torch_device_for_jax
-from bar_policy.training.startup import StartupTimer
+from bar_policy.training.startup import Compiler, StartupTimer
 
 __all__ = [
     "RslRlTrainResult",
@@ -269,12 +269,11 @@ def train_rsl_rl(
     t_start = time.monotonic()
     device = torch_device_for_jax() if cfg.rsl_rl.device == "auto" else cfg.rsl_rl.device
     torch.manual_seed(cfg.seed)
-    vec_env = RslRlVecEnv(
-        env, ppo.num_envs, wrap_fn=wrap_fn, randomizer=randomizer, seed=cfg.seed, device=device
-    )
-    eval_env = RslRlVecEnv(
-        env, cfg.eval.num_eval_envs, wrap_fn=wrap_fn, randomizer=randomizer, seed=cfg.seed + 1, device=device
-    )
+    timer = timer or StartupTimer()
+    compiler = Compiler(timer)  # the training and evaluation steps compile side by side
+    kw = {"wrap_fn": wrap_fn, "randomizer": randomizer, "device": device, "compiler": compiler}
+    vec_env = RslRlVecEnv(env, ppo.num_envs, seed=cfg.seed, name="train step", **kw)
+    eval_env = RslRlVecEnv(env, cfg.eval.num_eval_envs, seed=cfg.seed + 1, name="eval step", **kw)
     runner = OnPolicyRunner(vec_env, rsl_rl_train_cfg(cfg), log_dir=None, device=device)
     alg = runner.alg
     steps_per_env = ppo.steps_per_iteration // ppo.num_envs
@@ -321,7 +320,6 @@ def train_rsl_rl(
     obs = vec_env.get_observations().to(device)
     vec_env.take_stats()  # drop the evaluation's sums
     alg.train_mode()
-    timer = timer or StartupTimer()
     timer.add("set-up (torch, runner, envs, eval @ 0)", time.monotonic() - t_start)
     t_loop = time.monotonic()
     first = True

@@ -29,6 +29,7 @@ from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
 from bar_policy.envs.base import eval_ratios
+from bar_policy.training.startup import Compiler
 
 __all__ = ["RslRlVecEnv", "torch_device_for_jax"]
 
@@ -57,6 +58,9 @@ class RslRlVecEnv(VecEnv):
         randomizer: ``(model, rng) -> (model, in_axes)``, or None for the nominal model.
         seed: seed of the randomisation and of the resets.
         device: torch device; must be where jax's arrays live (``torch_device_for_jax()``).
+        compiler: compile the batched step ahead of time on this ``startup.Compiler``'s threads (as
+            ``name``), instead of at the first ``step``.
+        name: the step program's name in ``compiler``.
 
     Observations are returned as ``TensorDict({"policy": obs})`` (shape ``(num_envs, obs)``); extras carry
     ``time_outs`` (truncations) for rsl-rl's bootstrapping.
@@ -76,6 +80,8 @@ class RslRlVecEnv(VecEnv):
         randomizer: Callable[..., Any] | None = None,
         seed: int = 0,
         device: str | None = None,
+        compiler: Compiler | None = None,
+        name: str = "env step",
     ) -> None:
         self.num_envs = int(num_envs)
         self.task = env
@@ -94,10 +100,16 @@ class RslRlVecEnv(VecEnv):
             env, episode_length=self.max_episode_length, action_repeat=1, randomization_fn=rfn
         )
         self._reset = jax.jit(self._reset_fn)
-        self._step = jax.jit(self._step_fn)
         self.stats: dict[str, Any] = {}
         self.state = self.reset_all()
         self.episode_length_buf = torch.zeros(self.num_envs, dtype=torch.long, device=self.device)
+        step = jax.jit(self._step_fn)
+        self._step: Callable[..., Any] = step
+        if compiler is not None:
+            # Traced now, compiled on a worker thread: several envs' steps compile side by side.
+            actions = jax.ShapeDtypeStruct((self.num_envs, self.num_actions), jnp.float32)
+            compiler.submit(name, step, self.state, actions, self.stats)
+            self._step = lambda *args: compiler.get(name)(*args)
 
     # -- jitted pure functions ---------------------------------------------------------------------
     def _reset_fn(self, keys: jax.Array) -> tuple[Any, dict[str, Any]]:
