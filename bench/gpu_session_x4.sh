@@ -53,7 +53,8 @@ train() {  # train NAME GPU_LIST N
 }
 
 two_process() {  # jax.distributed on localhost, one process per device
-  local port=$((20000 + RANDOM % 20000)) d="--distributed.coordinator-address 127.0.0.1:$port --distributed.num-processes 2"
+  local port=$((20000 + RANDOM % 20000))
+  local d="--distributed.coordinator-address 127.0.0.1:$port --distributed.num-processes 2"
   stamp "2 processes (jax.distributed) on 2,3"
   for pid in 0 1; do
     local ids="--distributed.local-device-ids $pid"
