@@ -84,6 +84,8 @@ def test_cli_env_alias_and_cache_flags():
     assert cfg.env_name == "LiteReachNeck" and cfg.compile_cache and cfg.compile_cache_dir == "/tmp/c"
     # --env-overrides is not mistaken for the alias.
     assert parse_config(["--env-overrides", "a=1"]).env_overrides == ("a=1",)
+    # One process per GPU: the GPU ids parse to a tuple.
+    assert parse_config(["--distributed.local-device-ids", "1"]).distributed.local_device_ids == (1,)
 
 
 def test_distributed_config_validation_names_the_values():

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import jax
@@ -105,3 +106,23 @@ def test_cache_dir_is_printed_by_a_run_and_the_breakdown_logged(brax_run):
     assert {"compile init", "compile reset", "compile epoch", "compile evaluate"} <= set(startup)
     # Four programs, plus at most a few tiny ones jax needs (the pmap trainer compiled ~85 here).
     assert 4 <= startup["compiles"] <= 8
+
+
+def test_rsl_rl_runs_let_torch_have_the_gpu_memory(monkeypatch):
+    import dataclasses
+
+    from bar_policy.training.config import preset
+    from bar_policy.training.run import _set_memory_env
+
+    for var in ("XLA_PYTHON_CLIENT_PREALLOCATE", "XLA_PYTHON_CLIENT_MEM_FRACTION"):
+        monkeypatch.delenv(var, raising=False)
+    brax, rsl = preset("tiny"), dataclasses.replace(preset("tiny"), backend="rsl-rl")
+    _set_memory_env(brax)
+    assert "XLA_PYTHON_CLIENT_PREALLOCATE" not in os.environ
+    _set_memory_env(rsl)
+    assert os.environ["XLA_PYTHON_CLIENT_PREALLOCATE"] == "false"
+    # A user's own setting wins.
+    monkeypatch.delenv("XLA_PYTHON_CLIENT_PREALLOCATE")
+    monkeypatch.setenv("XLA_PYTHON_CLIENT_MEM_FRACTION", "0.3")
+    _set_memory_env(rsl)
+    assert "XLA_PYTHON_CLIENT_PREALLOCATE" not in os.environ
