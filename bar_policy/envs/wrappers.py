@@ -47,6 +47,7 @@ class BatchedEnv:
         episode_length: int | None = None,
         action_repeat: int = 1,
         randomization_fn: Callable[[mjx.Model], tuple[mjx.Model, Any]] | None = None,
+        auto_reset: bool = True,
     ) -> None:
         """Wrap ``env``.
 
@@ -57,6 +58,9 @@ class BatchedEnv:
             randomization_fn: ``model -> (batched_model, in_axes)``, the env's randomiser with its ``rng``
                 already bound (brax binds it with ``functools.partial(fn, rng=keys)``); the batch size of
                 the randomised model must equal the batch size given to ``reset``. None: nominal model.
+            auto_reset: reset finished envs inside ``step`` (training). False leaves a finished env in its
+                terminal state (an evaluator that runs one episode per env and masks what follows ``done``);
+                the step then holds no copy of the reset, a smaller program to compile.
         """
         length = episode_length if episode_length is not None else getattr(env, "episode_length", None)
         if length is None or int(length) < 1:
@@ -66,6 +70,7 @@ class BatchedEnv:
         self.env = env
         self.episode_length = int(length)
         self.action_repeat = int(action_repeat)
+        self.auto_reset = bool(auto_reset)
         if randomization_fn is None:
             self._model, self._in_axes = env.mjx_model, None
         else:
@@ -161,7 +166,8 @@ class BatchedEnv:
                 info=jax.tree.map(sel, fresh.info, s.info),
             )
 
-        ns = jax.lax.cond(jnp.any(done > 0), with_reset, lambda s: s, ns)
+        if self.auto_reset:
+            ns = jax.lax.cond(jnp.any(done > 0), with_reset, lambda s: s, ns)
         new_info = {
             **ns.info,
             "steps": steps,
@@ -178,8 +184,12 @@ def wrap_for_brax_training(
     episode_length: int | None = None,
     action_repeat: int = 1,
     randomization_fn: Callable[[mjx.Model], tuple[mjx.Model, Any]] | None = None,
+    *,
+    auto_reset: bool = True,
 ) -> BatchedEnv:
     """``wrap_env_fn`` for ``brax.training.agents.ppo.train``: same keywords as brax's ``envs.training.wrap``.
+
+    ``auto_reset=False`` (not a brax keyword) builds an evaluation batch without the in-step reset.
 
     Example::
 
@@ -192,7 +202,11 @@ def wrap_for_brax_training(
             num_envs=8192, ...)
     """
     return BatchedEnv(
-        env, episode_length=episode_length, action_repeat=action_repeat, randomization_fn=randomization_fn
+        env,
+        episode_length=episode_length,
+        action_repeat=action_repeat,
+        randomization_fn=randomization_fn,
+        auto_reset=auto_reset,
     )
 
 

@@ -113,9 +113,10 @@ class PPOConfig:
 class RslRlConfig:
     """Settings that only the rsl-rl backend uses (the rest comes from ``PPOConfig``).
 
-    Mapping: num_steps_per_env = ppo.unroll_length, num_learning_epochs = ppo.num_updates_per_batch,
-    num_mini_batches = ppo.num_minibatches, gamma = ppo.discounting, lam = ppo.gae_lambda,
-    clip_param = ppo.clipping_epsilon, entropy_coef = ppo.entropy_cost.
+    Mapping: num_steps_per_env = ppo.steps_per_iteration / ppo.num_envs (the env steps of one brax
+    iteration), num_learning_epochs = ppo.num_updates_per_batch, num_mini_batches = ppo.num_minibatches,
+    gamma = ppo.discounting, lam = ppo.gae_lambda, clip_param = ppo.clipping_epsilon,
+    entropy_coef = ppo.entropy_cost.
     """
 
     schedule: Literal["adaptive", "fixed"] = "adaptive"
@@ -155,7 +156,20 @@ class DistributedConfig:
     process_id: int = 0
     """This process's rank, 0 .. num_processes - 1."""
     max_devices_per_host: int | None = None
-    """Use at most this many local devices (None = all of them)."""
+    """Use at most this many local devices (None = all of them; single-process runs only)."""
+    local_device_ids: tuple[int, ...] | None = None
+    """GPUs this process uses, e.g. ``(0,)`` for one process per GPU on one host (None = all visible)."""
+
+    def __post_init__(self) -> None:
+        if self.num_processes < 1 or not 0 <= self.process_id < self.num_processes:
+            raise ValueError(
+                f"distributed.process_id must be in 0 .. num_processes - 1 and num_processes >= 1, got "
+                f"process_id={self.process_id}, num_processes={self.num_processes}"
+            )
+        if self.max_devices_per_host is not None and self.max_devices_per_host <= 0:
+            raise ValueError(
+                f"distributed.max_devices_per_host must be positive or None, got {self.max_devices_per_host}"
+            )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -190,6 +204,11 @@ class TrainConfig:
     """Where to write the ONNX file (empty = ``<run dir>/policy.onnx``)."""
     final_eval_envs: int = 4096
     """Episodes in the final evaluation written next to the ONNX file."""
+    compile_cache: bool = True
+    """Persistent XLA compilation cache (a rerun of the same command loads programs instead of compiling)."""
+    compile_cache_dir: str = ""
+    """Cache directory (empty = JAX_COMPILATION_CACHE_DIR if set, else $XDG_CACHE_HOME/bar_policy/jax or
+    ~/.cache/bar_policy/jax)."""
     ppo: PPOConfig = field(default_factory=PPOConfig)
     network: NetworkConfig = field(default_factory=NetworkConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
@@ -221,9 +240,11 @@ class TrainConfig:
 def _gpu() -> TrainConfig:
     """Default, for one H100: 40 M steps, 4096 envs, 81,920 env steps and 128 SGD steps per iteration.
 
-    Budget: about 5 minutes including compile if the batched env runs at >= 200 k steps/s.
+    Budget: about 5 minutes including compile if the batched env runs at >= 200 k steps/s. Evaluations
+    every 2 M steps (21 over the run), so that the time to a success threshold is resolved to ~15 s.
     """
-    return TrainConfig(preset="gpu")
+    base = TrainConfig(preset="gpu")
+    return dataclasses.replace(base, eval=dataclasses.replace(base.eval, num_evals=21))
 
 
 def _cpu() -> TrainConfig:

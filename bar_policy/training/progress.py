@@ -64,9 +64,7 @@ class RunLogger:
             self.run_dir.mkdir(parents=True, exist_ok=True)
             self._jsonl = (self.run_dir / "metrics.jsonl").open("a")
             try:
-                from tensorboardX import SummaryWriter
-
-                self._tb = SummaryWriter(str(self.run_dir / "tb"))
+                self._tb = _summary_writer_class()(str(self.run_dir / "tb"))
             except ImportError:  # pragma: no cover - tensorboardX is a train dependency
                 self._tb = None
 
@@ -156,6 +154,26 @@ class RunLogger:
         if self._tb is not None:
             self._tb.close()
             self._tb = None
+
+
+def _summary_writer_class() -> type:
+    """TensorboardX's ``SummaryWriter``, imported without pulling in torch.
+
+    ``tensorboardX.writer`` runs ``try: import torch`` at import time only to accept torch tensors; we log
+    Python floats. Importing torch would bring torch's own CUDA and NCCL libraries into a JAX process (the
+    brax backend must not load them), so while tensorboardX is first imported ``import torch`` fails (a
+    ``None`` entry in ``sys.modules``, which tensorboardX's ``except ImportError`` handles). When torch is
+    already loaded (the rsl-rl backend) the import is left alone.
+    """
+    if "tensorboardX" not in sys.modules and "torch" not in sys.modules:
+        sys.modules["torch"] = None  # type: ignore[assignment]
+        try:
+            from tensorboardX import SummaryWriter
+        finally:
+            del sys.modules["torch"]
+    from tensorboardX import SummaryWriter
+
+    return SummaryWriter
 
 
 def _finite_number(v: Any) -> bool:

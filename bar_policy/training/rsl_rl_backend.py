@@ -6,10 +6,17 @@ shares our progress lines, evaluation, msgpack checkpoints (torch state dicts as
 export with the brax backend. The loop is the runner's: ``act`` -> ``env.step`` -> ``process_env_step``
 for ``num_steps_per_env`` steps, then ``compute_returns`` and ``update``.
 
-Config mapping from ``PPOConfig``: num_steps_per_env = unroll_length, num_learning_epochs =
-num_updates_per_batch, num_mini_batches = num_minibatches, gamma = discounting, lam = gae_lambda,
-clip_param = clipping_epsilon, entropy_coef = entropy_cost, learning_rate, max_grad_norm. One rsl-rl
-iteration collects ``num_envs * unroll_length`` env steps.
+Config mapping from ``PPOConfig`` (``rsl_rl_train_cfg``): one rsl-rl iteration collects the env steps
+of one brax iteration, ``ppo.steps_per_iteration`` (num_steps_per_env = steps_per_iteration / num_envs,
+the ``batch_size * num_minibatches / num_envs`` segments of ``unroll_length`` that brax collects per env,
+back to back), and updates on them as brax does: num_learning_epochs = num_updates_per_batch passes of
+num_mini_batches = num_minibatches minibatches (``batch_size * unroll_length`` samples each);
+gamma = discounting, lam = gae_lambda, clip_param = clipping_epsilon, entropy_coef = entropy_cost,
+learning_rate, max_grad_norm.
+
+Speed: nothing in the rollout waits for the device. Actions and observations cross by DLPack on the
+device; the logged sums accumulate on the device (``RslRlVecEnv.take_stats`` reads them once per
+iteration). rsl-rl's own ``update`` still reads its losses and KL with ``.item()`` once per minibatch.
 """
 
 from __future__ import annotations
@@ -24,12 +31,12 @@ from typing import Any
 import numpy as np
 import torch
 
-from bar_policy.envs.base import eval_ratios
 from bar_policy.export import MlpPolicy, export_policy
 from bar_policy.training.checkpoint import latest_checkpoint, save_checkpoint
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.progress import RunLogger
 from bar_policy.training.rsl_rl_env import RslRlVecEnv, torch_device_for_jax
+from bar_policy.training.startup import Compiler, StartupTimer
 
 __all__ = [
     "RslRlTrainResult",
@@ -48,7 +55,7 @@ def rsl_rl_train_cfg(cfg: TrainConfig) -> dict[str, Any]:
     ppo, net, r = cfg.ppo, cfg.network, cfg.rsl_rl
     dist = {"class_name": "GaussianDistribution", "init_std": net.init_noise_std, "std_type": "scalar"}
     return {
-        "num_steps_per_env": ppo.unroll_length,
+        "num_steps_per_env": ppo.steps_per_iteration // ppo.num_envs,
         "save_interval": 10**9,
         "obs_groups": {"actor": ["policy"], "critic": ["policy"]},
         "check_for_nan": True,
@@ -179,23 +186,20 @@ def evaluate_torch_policy(
 ) -> dict[str, float]:
     """Deterministic evaluation on ``vec_env`` (one episode per env from a fresh reset with ``seed``).
 
-    Reports ``episode_reward`` (mean and std) and one ratio per entry of the task's ``eval_ratios``
-    (``success_rate`` always): sums of numerators over steps and envs / sums of denominators.
+    Reports ``episode_reward`` (mean and std over envs) and one ratio per entry of the task's
+    ``eval_ratios`` (``success_rate`` always): sums of numerators over steps and envs / sums of
+    denominators. As in the brax evaluator, a slot counts until its episode's first ``done``. The sums
+    accumulate on the device; the host reads them once at the end.
     """
     vec_env.reset_all(seed=seed)
     obs = vec_env.get_observations()
-    ret = torch.zeros(vec_env.num_envs, device=vec_env.device)
-    sums: dict[str, list[float]] = {}
     with torch.inference_mode():
         for _ in range(episode_length):
-            obs, rew, _, _ = vec_env.step(policy(obs["policy"]))
-            ret += rew
-            for k, (n, d) in eval_ratios(vec_env.task, vec_env.metrics).items():
-                acc = sums.setdefault(k, [0.0, 0.0])
-                acc[0] += float(n.sum())
-                acc[1] += float(d.sum())
-    out = {"episode_reward": float(ret.mean()), "episode_reward_std": float(ret.std())}
-    out.update({k: n / max(d, 1.0) for k, (n, d) in sums.items()})
+            obs, _, _, _ = vec_env.step(policy(obs["policy"]))
+    stats = vec_env.take_stats()
+    ret = stats["return"]
+    out = {"episode_reward": float(np.mean(ret)), "episode_reward_std": float(np.std(ret))}
+    out.update({k: n / max(d, 1.0) for k, (n, d) in stats["ratios"].items()})
     return out
 
 
@@ -253,6 +257,7 @@ def train_rsl_rl(
     randomizer: Callable[..., Any] | None,
     checkpoint_dir: str | None,
     config_record: dict[str, Any] | None = None,
+    timer: StartupTimer | None = None,
 ) -> RslRlTrainResult:
     """Train with rsl-rl-lib's PPO on ``env``; same arguments and outputs as ``train_brax``."""
     from flax import serialization
@@ -264,15 +269,15 @@ def train_rsl_rl(
     t_start = time.monotonic()
     device = torch_device_for_jax() if cfg.rsl_rl.device == "auto" else cfg.rsl_rl.device
     torch.manual_seed(cfg.seed)
-    vec_env = RslRlVecEnv(
-        env, ppo.num_envs, wrap_fn=wrap_fn, randomizer=randomizer, seed=cfg.seed, device=device
-    )
-    eval_env = RslRlVecEnv(
-        env, cfg.eval.num_eval_envs, wrap_fn=wrap_fn, randomizer=randomizer, seed=cfg.seed + 1, device=device
-    )
+    timer = timer or StartupTimer()
+    compiler = Compiler(timer)  # the training and evaluation steps compile side by side
+    kw = {"wrap_fn": wrap_fn, "randomizer": randomizer, "device": device, "compiler": compiler}
+    vec_env = RslRlVecEnv(env, ppo.num_envs, seed=cfg.seed, name="train step", **kw)
+    eval_env = RslRlVecEnv(env, cfg.eval.num_eval_envs, seed=cfg.seed + 1, name="eval step", **kw)
     runner = OnPolicyRunner(vec_env, rsl_rl_train_cfg(cfg), log_dir=None, device=device)
     alg = runner.alg
-    steps_per_iter = ppo.num_envs * ppo.unroll_length
+    steps_per_env = ppo.steps_per_iteration // ppo.num_envs
+    steps_per_iter = ppo.num_envs * steps_per_env
     total_iters = math.ceil(ppo.num_timesteps / steps_per_iter)
     env_steps = iteration = 0
     if cfg.resume:
@@ -313,32 +318,36 @@ def train_rsl_rl(
     if iteration == 0:
         run_eval(0)
     obs = vec_env.get_observations().to(device)
+    vec_env.take_stats()  # drop the evaluation's sums
     alg.train_mode()
+    timer.add("set-up (torch, runner, envs, eval @ 0)", time.monotonic() - t_start)
     t_loop = time.monotonic()
+    first = True
     while iteration < total_iters:
         t0 = time.monotonic()
-        rew_sum = num = den = 0.0
         with torch.inference_mode():
-            for _ in range(ppo.unroll_length):
+            for _ in range(steps_per_env):
                 actions = alg.act(obs)
                 obs, rewards, dones, extras = vec_env.step(actions)
                 alg.process_env_step(obs, rewards, dones, extras)
-                rew_sum += float(rewards.sum())
-                n_s, d_s = eval_ratios(vec_env.task, vec_env.metrics)["success_rate"]
-                num += float(n_s.sum())
-                den += float(d_s.sum())
             alg.compute_returns(obs)
         losses = alg.update()
+        stats = vec_env.take_stats()
         iteration += 1
         env_steps += steps_per_iter
         dt = time.monotonic() - t0
         train_metrics = {
             **{f"loss/{k}": float(v) for k, v in losses.items()},
-            "episode_reward": rew_sum / steps_per_iter * episode_length,
-            "success_rate": num / max(den, 1.0),
+            "episode_reward": stats["reward"] / steps_per_iter * episode_length,
+            "success_rate": stats["success"][0] / max(stats["success"][1], 1.0),
             "sps": steps_per_iter / dt,
             "learning_rate": float(alg.learning_rate),
         }
+        if first:
+            first = False
+            timer.add("first iteration (includes the env step compile)", dt)
+            for line in timer.lines(logger.elapsed()):
+                logger.print(line)
         logger.log(env_steps, train_metrics, kind="train")
         last = iteration >= total_iters
         over_budget = cfg.max_minutes > 0 and logger.elapsed() > 60 * cfg.max_minutes

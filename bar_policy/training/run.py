@@ -7,17 +7,20 @@ receives ``config.json`` (the resolved training and env config), ``metrics.jsonl
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
 import platform
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from bar_policy.training.config import TrainConfig, config_to_dict
 from bar_policy.training.progress import RunLogger, format_duration, format_steps
+from bar_policy.training.startup import StartupTimer, configure_compile_cache
 
 __all__ = ["RunSummary", "init_distributed", "resolve_run_dir", "run"]
 
@@ -42,24 +45,82 @@ class RunSummary:
     """Exported policy, if exported."""
     export: dict[str, Any]
     """Export record (parity error, size)."""
+    params: Any = None
+    """The trained policy's parameters on the host (brax: ``(normalizer, policy, value)``; rsl-rl: None)."""
 
 
 def init_distributed(cfg: TrainConfig) -> None:
-    """``jax.distributed.initialize`` when a coordinator address is configured (multi-host)."""
+    """``jax.distributed.initialize`` when a coordinator address is configured (multi-host).
+
+    Must run before anything touches a device. On CPU the cross-process collectives are gloo's (jax's
+    default ``jax_cpu_collectives_implementation``); on GPUs NCCL's.
+    """
     d = cfg.distributed
     if d.coordinator_address:
         import jax
 
+        if getattr(jax.distributed, "is_initialized", lambda: False)():
+            return
         jax.distributed.initialize(
-            coordinator_address=d.coordinator_address, num_processes=d.num_processes, process_id=d.process_id
+            coordinator_address=d.coordinator_address,
+            num_processes=d.num_processes,
+            process_id=d.process_id,
+            local_device_ids=list(d.local_device_ids) if d.local_device_ids is not None else None,
+        )
+    elif d.num_processes > 1:
+        raise ValueError(
+            f"distributed.num_processes = {d.num_processes} needs distributed.coordinator_address "
+            "(host:port of process 0)"
         )
 
 
-def resolve_run_dir(cfg: TrainConfig) -> Path:
-    """``runs_dir/run_name``; an unnamed resume continues in the resumed run's directory."""
+@contextlib.contextmanager
+def _local_default_devices() -> Iterator[None]:
+    """While building the env under ``jax.distributed``, ``jax.devices()`` lists this process's devices.
+
+    MJX's ``put_model``/``put_data`` place the model on ``jax.devices()[0]`` when given no device; with
+    several processes that is process 0's device, so every other process would hold a model it cannot read
+    (and the trainer cannot close over it). Listing the local devices first puts it on this process's first
+    device, as on one host.
+    """
+    import jax
+
+    if jax.process_count() == 1:
+        yield
+        return
+    real = jax.devices
+    jax.devices = lambda backend=None: jax.local_devices(backend=backend)  # type: ignore[assignment]
+    try:
+        yield
+    finally:
+        jax.devices = real  # type: ignore[assignment]
+
+
+def _set_memory_env(cfg: TrainConfig) -> None:
+    """rsl-rl: let torch have the GPU memory that XLA would otherwise preallocate (75 % by default).
+
+    Sets ``XLA_PYTHON_CLIENT_PREALLOCATE=false`` (jax grows its pool on demand) unless the user set it or
+    ``XLA_PYTHON_CLIENT_MEM_FRACTION``; it takes effect only if jax has not started its GPU backend yet
+    (``python train/ppo.py`` calls this first).
+    """
+    import os
+
+    if cfg.backend == "rsl-rl" and not {
+        "XLA_PYTHON_CLIENT_PREALLOCATE",
+        "XLA_PYTHON_CLIENT_MEM_FRACTION",
+    } & set(os.environ):
+        os.environ["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"
+
+
+def resolve_run_dir(cfg: TrainConfig, *, check: bool = True) -> Path:
+    """``runs_dir/run_name``; an unnamed resume continues in the resumed run's directory.
+
+    ``check=False`` skips the refusal of a used directory (processes other than 0, which write nothing
+    and may see process 0's files already).
+    """
     if cfg.run_name:
         run_dir = Path(cfg.runs_dir) / cfg.run_name
-        if not cfg.resume and (run_dir / "metrics.jsonl").exists():
+        if check and not cfg.resume and (run_dir / "metrics.jsonl").exists():
             # Appending a second run to the same metrics.jsonl mixes two curves (seen on a reused machine).
             raise ValueError(
                 f"run directory {run_dir} already holds a run; choose another --run-name or --resume it"
@@ -87,7 +148,13 @@ def _device_record() -> dict[str, Any]:
     }
 
 
-def run(cfg: TrainConfig, *, env_config: Any | None = None, env: Any | None = None) -> RunSummary:
+def run(
+    cfg: TrainConfig,
+    *,
+    env_config: Any | None = None,
+    env: Any | None = None,
+    started_at: float | None = None,
+) -> RunSummary:
     """Train, evaluate and export as configured; returns the summary (also printed as a table).
 
     Args:
@@ -96,21 +163,41 @@ def run(cfg: TrainConfig, *, env_config: Any | None = None, env: Any | None = No
             ``cfg.env_overrides`` still apply on top).
         env: an env object to train on instead of ``envs.load(cfg.env_name)`` (tests use a stand-in);
             it is trained without model randomisation.
+        started_at: ``time.monotonic()`` of the process start (the command line passes it): progress
+            times, time-to-threshold and the start-up breakdown then count from there, not from ``run``.
     """
     t0 = time.monotonic()
+    timer = StartupTimer()
+    if started_at is not None:
+        timer.add("interpreter, imports, parsing (before run)", t0 - started_at)
+    _set_memory_env(cfg)
+    if cfg.backend == "rsl-rl" and cfg.distributed.num_processes > 1:
+        raise ValueError(
+            "the rsl-rl backend runs in one process on one device; use --backend brax for several"
+        )
+    cache_dir = configure_compile_cache(cfg.compile_cache, cfg.compile_cache_dir)
     init_distributed(cfg)
     import jax
 
     from bar_policy import envs
 
+    if cfg.backend == "brax":
+        from bar_policy.training.brax_ppo import train_brax
+    else:
+        from bar_policy.training.rsl_rl_backend import train_rsl_rl
+    timer.add("imports (jax, mujoco, mjx, brax or torch)", time.monotonic() - t0)
+
+    t_env = time.monotonic()
     randomizer = None
     if env is None:
-        env = envs.load(cfg.env_name, config=env_config, overrides=list(cfg.env_overrides) or None)
+        with _local_default_devices():
+            env = envs.load(cfg.env_name, config=env_config, overrides=list(cfg.env_overrides) or None)
         randomizer = envs.get_randomizer(cfg.env_name, env.config)
-    run_dir = resolve_run_dir(cfg)
     is_main = jax.process_index() == 0
+    run_dir = resolve_run_dir(cfg, check=is_main)
+    timer.add("env build and devices", time.monotonic() - t_env)
     logger = RunLogger(run_dir, cfg.ppo.num_timesteps, enabled=is_main)
-    logger.t0 = t0
+    logger.t0 = t0 if started_at is None else started_at
     record = {
         "train": config_to_dict(cfg),
         "env": json.loads(json.dumps(dataclasses.asdict(env.config), default=list))
@@ -125,11 +212,14 @@ def run(cfg: TrainConfig, *, env_config: Any | None = None, env: Any | None = No
             f"dt {env.dt} s) | backend {cfg.backend} | {record['device']['device_kind']} x "
             f"{jax.device_count()} | {format_steps(cfg.ppo.num_timesteps)} steps, {cfg.ppo.num_envs} envs"
         )
+        logger.print(
+            f"compile cache: {cache_dir} (--no-compile-cache turns it off, --compile-cache-dir moves it)"
+            if cache_dir
+            else "compile cache: off"
+        )
     ckpt_dir = str(run_dir / "checkpoints")
 
     if cfg.backend == "brax":
-        from bar_policy.training.brax_ppo import train_brax
-
         result = train_brax(
             env,
             cfg,
@@ -138,27 +228,34 @@ def run(cfg: TrainConfig, *, env_config: Any | None = None, env: Any | None = No
             randomizer=randomizer,
             checkpoint_dir=ckpt_dir,
             config_record=record,
+            timer=timer,
         )
     else:
-        from bar_policy.training.rsl_rl_backend import train_rsl_rl
-
         result = train_rsl_rl(
-            env, cfg, logger, randomizer=randomizer, checkpoint_dir=ckpt_dir, config_record=record
+            env,
+            cfg,
+            logger,
+            randomizer=randomizer,
+            checkpoint_dir=ckpt_dir,
+            config_record=record,
+            timer=timer,
         )
 
+    # Every process evaluates (the brax evaluation is one program over all devices); process 0 reports.
+    final = result.final_evaluation(cfg.final_eval_envs, seed=cfg.seed + 10_000)
     if not is_main:
         return RunSummary(
             run_dir=run_dir,
             env_steps=result.env_steps,
             wall_s=time.monotonic() - t0,
             train_sps_end_to_end=result.run_env_steps / max(result.train_seconds, 1e-9),
-            final_eval={},
+            final_eval=final,
             time_to_threshold_s=result.time_to_threshold_s,
             onnx_path=None,
             export={},
+            params=getattr(result, "params", None),
         )
 
-    final = result.final_evaluation(cfg.final_eval_envs, seed=cfg.seed + 10_000)
     logger.log(result.env_steps, final, kind="final")
     sps = result.run_env_steps / max(result.train_seconds, 1e-9)
     training_record = {
@@ -208,6 +305,7 @@ def run(cfg: TrainConfig, *, env_config: Any | None = None, env: Any | None = No
         time_to_threshold_s=result.time_to_threshold_s,
         onnx_path=onnx_path,
         export=export,
+        params=getattr(result, "params", None),
     )
     for line in summary_table(summary, cfg):
         logger.print(line)

@@ -75,3 +75,23 @@ def test_cli_help_lists_every_option_with_its_docstring(capsys):
             assert flag in out, flag
     # Units and meanings come from the attribute docstrings.
     assert "Total environment steps" in out and "Adam learning rate" in out and "min (0 = no limit;" in out
+
+
+def test_cli_env_alias_and_cache_flags():
+    cfg = parse_config(["--preset", "tiny", "--env", "LiteTrack", "--no-compile-cache"])
+    assert cfg.env_name == "LiteTrack" and cfg.compile_cache is False
+    cfg = parse_config(["--env=LiteReachNeck", "--compile-cache-dir", "/tmp/c"])
+    assert cfg.env_name == "LiteReachNeck" and cfg.compile_cache and cfg.compile_cache_dir == "/tmp/c"
+    # --env-overrides is not mistaken for the alias.
+    assert parse_config(["--env-overrides", "a=1"]).env_overrides == ("a=1",)
+    # One process per GPU: the GPU ids parse to a tuple.
+    assert parse_config(["--distributed.local-device-ids", "1"]).distributed.local_device_ids == (1,)
+
+
+def test_distributed_config_validation_names_the_values():
+    from bar_policy.training.config import DistributedConfig
+
+    with pytest.raises(ValueError, match=r"process_id=2, num_processes=2"):
+        DistributedConfig(num_processes=2, process_id=2)
+    with pytest.raises(ValueError, match=r"max_devices_per_host must be positive or None, got 0"):
+        DistributedConfig(max_devices_per_host=0)

@@ -29,7 +29,7 @@ TOY_BRAX = [
 TOY_RSL = [
     "backend=rsl-rl",
     "ppo.num_envs=32",
-    "ppo.batch_size=32",
+    "ppo.batch_size=16",
     "ppo.num_minibatches=2",
     "ppo.unroll_length=8",
     "ppo.num_updates_per_batch=2",
@@ -40,7 +40,8 @@ TOY_RSL = [
     "network.activation=elu",
     "seed=0",
 ]
-"""Tiny rsl-rl config on the toy env: 256 env steps per iteration, 10 iterations."""
+"""Tiny rsl-rl config on the toy env: 256 env steps per iteration (16 x 2 segments of 8 steps = 8 steps per
+env), 10 iterations."""
 
 
 def toy_config(tmp: Path, name: str, extra: list[str]) -> object:

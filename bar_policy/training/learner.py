@@ -1,0 +1,263 @@
+"""brax's PPO as per-device functions: networks, training state, one iteration, one evaluation.
+
+Everything here is written for one device's shard of the env batch and reduces across devices through the
+mesh axis ``AXIS`` (``bar_policy.training.parallel``): ``lax.pmean`` of the gradients, brax's
+``running_statistics.update(..., pmap_axis_name=AXIS)`` for the observation statistics, ``psum`` of the
+logged sums. On one device the collectives are identities.
+
+The algorithm is brax's (``brax.training.agents.ppo``): ``make_ppo_networks`` (tanh-normal policy),
+``compute_ppo_loss`` (GAE, clipped ratio, entropy bonus), running observation statistics, and its data layout
+(``batch_size * num_minibatches`` segments of ``unroll_length`` steps per iteration, ``num_updates_per_batch``
+shuffled passes of ``num_minibatches`` Adam steps).
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import flax
+import jax
+import jax.numpy as jnp
+import optax
+from brax.training import types
+from brax.training.acme import running_statistics, specs
+from brax.training.agents.ppo import losses as ppo_losses
+from brax.training.agents.ppo import networks as ppo_networks
+from flax import linen
+
+from bar_policy.envs.base import eval_ratios
+from bar_policy.training.config import NetworkConfig, PPOConfig
+from bar_policy.training.parallel import AXIS
+
+__all__ = ["Learner", "TrainingState", "make_learner", "make_networks", "strip_weak_type"]
+
+_ACTIVATIONS: dict[str, Callable[[jax.Array], jax.Array]] = {
+    "swish": linen.swish,
+    "elu": linen.elu,
+    "relu": linen.relu,
+    "tanh": linen.tanh,
+}
+
+
+@flax.struct.dataclass
+class TrainingState:
+    """Everything the learner carries between iterations (and what a checkpoint stores)."""
+
+    optimizer_state: optax.OptState
+    params: ppo_losses.PPONetworkParams
+    normalizer_params: running_statistics.RunningStatisticsState
+
+
+def make_networks(
+    observation_size: int, action_size: int, net: NetworkConfig, normalize: bool
+) -> ppo_networks.PPONetworks:
+    """Brax PPO networks (tanh-normal policy) with our layer sizes and activation."""
+    return ppo_networks.make_ppo_networks(
+        observation_size,
+        action_size,
+        preprocess_observations_fn=running_statistics.normalize
+        if normalize
+        else types.identity_observation_preprocessor,
+        policy_hidden_layer_sizes=net.policy_hidden,
+        value_hidden_layer_sizes=net.value_hidden,
+        activation=_ACTIVATIONS[net.activation],
+    )
+
+
+def strip_weak_type(tree: Any) -> Any:
+    """Same tree without weak types, so a compiled program's outputs match its input types exactly."""
+    return jax.tree.map(lambda x: jnp.asarray(x).astype(jnp.asarray(x).dtype), tree)
+
+
+@dataclass(frozen=True)
+class Learner:
+    """brax PPO for one env's sizes and one config (see the module docstring)."""
+
+    networks: ppo_networks.PPONetworks
+    make_policy: Callable[..., Any]
+    optimizer: optax.GradientTransformation
+    ppo: PPOConfig
+    observation_size: int
+
+    def init(self, key: jax.Array) -> TrainingState:
+        """Fresh params, Adam state and normaliser (jit it: eagerly it is dozens of tiny compiles)."""
+        k_pol, k_val = jax.random.split(key)
+        params = ppo_losses.PPONetworkParams(
+            policy=self.networks.policy_network.init(k_pol), value=self.networks.value_network.init(k_val)
+        )
+        return strip_weak_type(
+            TrainingState(
+                optimizer_state=self.optimizer.init(params),
+                params=params,
+                normalizer_params=running_statistics.init_state(
+                    specs.Array((self.observation_size,), jnp.float32)
+                ),
+            )
+        )
+
+    def _sgd_pass(self, carry: tuple, data: types.Transition, normalizer: Any) -> tuple:
+        """One shuffled pass of ``num_minibatches`` Adam steps over this device's segments."""
+        ppo = self.ppo
+        opt_state, params, k = carry
+        k, k_perm, k_mb = jax.random.split(k, 3)
+        loss_fn = functools.partial(
+            ppo_losses.compute_ppo_loss,
+            ppo_network=self.networks,
+            entropy_cost=ppo.entropy_cost,
+            discounting=ppo.discounting,
+            reward_scaling=ppo.reward_scaling,
+            gae_lambda=ppo.gae_lambda,
+            clipping_epsilon=ppo.clipping_epsilon,
+            normalize_advantage=True,
+            vf_coefficient=ppo.vf_loss_coefficient,
+        )
+        grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
+
+        # One permutation for every leaf: the same order as brax's per-leaf
+        # ``jax.random.permutation(k_perm, x)`` (which draws these indices for each leaf again).
+        perm = jax.random.permutation(k_perm, jax.tree.leaves(data)[0].shape[0])
+
+        def shuffle(x: jax.Array) -> jax.Array:
+            return x[perm].reshape((ppo.num_minibatches, -1, *x.shape[1:]))
+
+        def minibatch(c: tuple, mb: types.Transition) -> tuple:
+            o, p, kk = c
+            kk, k_loss = jax.random.split(kk)
+            (_, metrics), grads = grad_fn(p, normalizer, mb, k_loss)
+            grads = jax.lax.pmean(grads, axis_name=AXIS)
+            updates, o = self.optimizer.update(grads, o, p)
+            return (o, optax.apply_updates(p, updates), kk), metrics
+
+        (opt_state, params, _), metrics = jax.lax.scan(
+            minibatch, (opt_state, params, k_mb), jax.tree.map(shuffle, data)
+        )
+        return (opt_state, params, k), metrics
+
+    def rollout(
+        self, ts: TrainingState, env_state: Any, key: jax.Array, env: Any, unrolls: int
+    ) -> tuple[Any, types.Transition, jax.Array]:
+        """Collect ``unrolls`` segments of ``unroll_length`` steps per env slot with the stochastic policy.
+
+        Args:
+            ts: replicated training state.
+            env_state: this device's env slots (batched ``State``).
+            key: this device's key.
+            env: the batched env of this device's slots (``BatchedEnv``).
+            unrolls: segments per env slot per iteration (``batch_size * num_minibatches / num_envs``).
+
+        Returns:
+            ``(env_state, data, stats)``: ``data`` = transitions, leaves ``(unrolls * envs, T, ...)``;
+            ``stats`` = this device's sums of ``[reward, success numerator, success denominator]``.
+        """
+        policy = self.make_policy((ts.normalizer_params, ts.params.policy, ts.params.value))
+        task = env.unwrapped
+
+        def env_step(c: tuple, _: None) -> tuple:
+            s, kk = c
+            kk, k_act = jax.random.split(kk)
+            action, extras = policy(s.obs, k_act)
+            ns = env.step(s, action)
+            num, den = eval_ratios(task, ns.metrics)["success_rate"]
+            tr = types.Transition(
+                observation=s.obs,
+                action=action,
+                reward=ns.reward,
+                discount=1.0 - ns.done,
+                next_observation=ns.obs,
+                extras={"policy_extras": extras, "state_extras": {"truncation": ns.info["truncation"]}},
+            )
+            return (ns, kk), (tr, jnp.stack([ns.reward.sum(), num.sum(), den.sum()]))
+
+        def unroll(c: tuple, _: None) -> tuple:
+            return jax.lax.scan(env_step, c, None, length=self.ppo.unroll_length)
+
+        (env_state, _), (data, stats) = jax.lax.scan(unroll, (env_state, key), None, length=unrolls)
+        # (unrolls, T, envs, ...) -> (unrolls * envs, T, ...)
+        data = jax.tree.map(lambda x: jnp.swapaxes(x, 1, 2), data)
+        data = jax.tree.map(lambda x: x.reshape((-1, *x.shape[2:])), data)
+        return env_state, data, stats.sum(axis=(0, 1))
+
+    def update(
+        self, ts: TrainingState, data: types.Transition, key: jax.Array
+    ) -> tuple[TrainingState, dict[str, jax.Array]]:
+        """Normaliser update, then ``num_updates_per_batch`` shuffled SGD passes over ``data``."""
+        ppo = self.ppo
+        normalizer = ts.normalizer_params
+        if ppo.normalize_observations:
+            normalizer = running_statistics.update(normalizer, data.observation, pmap_axis_name=AXIS)
+        (opt_state, params, _), metrics = jax.lax.scan(
+            lambda c, _: self._sgd_pass(c, data, normalizer),
+            (ts.optimizer_state, ts.params, key),
+            None,
+            length=ppo.num_updates_per_batch,
+        )
+        ts = TrainingState(optimizer_state=opt_state, params=params, normalizer_params=normalizer)
+        return ts, jax.tree.map(jnp.mean, metrics)
+
+    def iteration(
+        self, ts: TrainingState, env_state: Any, key: jax.Array, env: Any, unrolls: int
+    ) -> tuple[TrainingState, Any, dict[str, jax.Array], jax.Array]:
+        """One PPO iteration: ``rollout`` then ``update``.
+
+        Returns:
+            ``(ts, env_state, loss_metrics, stats)`` (``stats`` as in ``rollout``).
+        """
+        k_roll, k_sgd = jax.random.split(key)
+        env_state, data, stats = self.rollout(ts, env_state, k_roll, env, unrolls)
+        ts, metrics = self.update(ts, data, k_sgd)
+        return ts, env_state, metrics, stats
+
+    def evaluate(
+        self, params: Any, env: Any, env_state: Any, key: jax.Array, episode_length: int
+    ) -> dict[str, jax.Array]:
+        """Deterministic episodes of ``episode_length`` steps from ``env_state`` (this device's slots).
+
+        Every step's task ratios (``eval_ratios``) and rewards count while the episode is alive (up to and
+        including its first ``done``), as brax's evaluator counts episode metrics. Sums are reduced over the
+        mesh, so the results are global.
+
+        Returns:
+            ``{"episode_reward", "episode_reward_std", <ratio>...}`` (scalars): mean and std of the episode
+            returns over every slot, and per ratio the sum of its numerators / the sum of its denominators.
+        """
+        policy = self.make_policy(params, deterministic=True)
+        task = env.unwrapped
+
+        def step(c: tuple, _: None) -> tuple:
+            s, alive = c
+            action, _ = policy(s.obs, key)
+            ns = env.step(s, action)
+            sums = {
+                k: ((n * alive).sum(), (d * alive).sum())
+                for k, (n, d) in eval_ratios(task, ns.metrics).items()
+            }
+            return (ns, alive * (1.0 - ns.done)), (ns.reward * alive, sums)
+
+        alive = jnp.ones(env_state.reward.shape)
+        _, (rewards, sums) = jax.lax.scan(step, (env_state, alive), None, length=episode_length)
+        ret = rewards.sum(axis=0)
+        n_eps = jax.lax.psum(jnp.float32(ret.shape[0]), AXIS)
+        mean = jax.lax.psum(ret.sum(), AXIS) / n_eps
+        var = jax.lax.psum(((ret - mean) ** 2).sum(), AXIS) / n_eps
+        out = {"episode_reward": mean, "episode_reward_std": jnp.sqrt(var)}
+        for k, (n, d) in sums.items():
+            out[k] = jax.lax.psum(n.sum(), AXIS) / jnp.maximum(jax.lax.psum(d.sum(), AXIS), 1.0)
+        return out
+
+
+def make_learner(observation_size: int, action_size: int, ppo: PPOConfig, net: NetworkConfig) -> Learner:
+    """The learner for an env's sizes: brax networks, Adam (with global-norm clipping when configured)."""
+    networks = make_networks(observation_size, action_size, net, ppo.normalize_observations)
+    optimizer = optax.adam(ppo.learning_rate)
+    if ppo.max_grad_norm > 0:
+        optimizer = optax.chain(optax.clip_by_global_norm(ppo.max_grad_norm), optimizer)
+    return Learner(
+        networks=networks,
+        make_policy=ppo_networks.make_inference_fn(networks),
+        optimizer=optimizer,
+        ppo=ppo,
+        observation_size=observation_size,
+    )

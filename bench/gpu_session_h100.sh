@@ -1,0 +1,106 @@
+#!/usr/bin/env bash
+# The nvidia-h100-x1 measurements of issue 9, in two calls of under 10 minutes each (argument = part):
+#
+#   startup  (~7 min, 9.7 at worst): cold start on an empty compilation cache -> the same command again (warm) ->
+#                      raw env throughput at the training batch (bench/mjx_throughput.py, harness c, 4096)
+#                      -> where an iteration's time goes (bench/train_breakdown.py)
+#   rsl      (~8 min): the rsl-rl backend, --max-minutes 5, same env and config, then where an rsl-rl
+#                      iteration's time goes (bench/rsl_rl_profile.py)
+#   flags    (~3 min, optional): a cold start with XLA_FLAGS=$FLAGS (default --xla_gpu_autotune_level=0),
+#                      to compare compile times with the startup part's cold run
+#   smoke             : CPU logic check of startup and rsl with tiny sizes (not for the GPU)
+#
+# Every training run is `python3 train/ppo.py` with the default (gpu) preset, a wall-clock budget
+# (--max-minutes, from process start) and no ONNX export; time to 95 % is counted from process start.
+# Each step has its own timeout. Work goes to $WORK; $OUT gets 2 files per part: summary_<part>.md (the
+# table printed last) and h100_<part>.tgz (logs, metrics, configs).
+#
+# Usage (repository root, after the pip prefix of /work/shared/gpu/README.md):
+#   bash bench/gpu_session_h100.sh startup
+#   bash bench/gpu_session_h100.sh rsl
+set -u
+PART=${1:-startup}
+OUT=${OUT:-/tmp/session_h100_out}
+WORK=${WORK:-/tmp/session_h100}
+mkdir -p "$OUT" "$WORK"
+export PYTHONUNBUFFERED=1
+T0=$(date +%s)
+stamp() { echo "[$(( $(date +%s) - T0 )) s] $*"; }
+CACHE=$WORK/jaxcache
+RUNS=$WORK/runs
+SMOKE=""
+TS=1  # timeout scale: a CPU compiles the same programs several times slower
+if [ "$PART" = smoke ]; then
+  export JAX_PLATFORMS=cpu
+  SMOKE="--preset tiny --ppo.num-timesteps 2048 --final-eval-envs 16"
+  TS=6
+fi
+COMMON="--runs-dir $RUNS --no-export-onnx --final-eval-envs 1024 $SMOKE"
+
+ppo() {  # ppo NAME TIMEOUT_S ARGS...
+  local name=$1 t=$2; shift 2
+  stamp "train $name: $*"
+  timeout -k 10 $((t * TS)) python3 train/ppo.py --run-name "$name" $COMMON "$@" > "$WORK/$name.log" 2>&1
+  stamp "train $name exit $?"
+  grep -v "^WARNING\|^I0000\|^W0000" "$WORK/$name.log" | grep -A16 "^start-up" | head -n 18
+}
+
+startup() {
+  rm -rf "$CACHE"
+  local runs=("$RUNS/cold" "$RUNS/warm") app=(--append "$WORK/raw_env.md" "$WORK/breakdown.md")
+  ppo cold 230 --compile-cache-dir "$CACHE" --max-minutes "${COLD_MIN:-2.6}"
+  finish startup "${runs[@]}" "${app[@]}" > /dev/null  # after every step: a killed call still returns it
+  ppo warm 120 --compile-cache-dir "$CACHE" --max-minutes "${WARM_MIN:-1.4}"
+  finish startup "${runs[@]}" "${app[@]}" > /dev/null
+  stamp "raw env throughput (harness c, training batch)"
+  local b=4096 extra=""
+  [ -n "$SMOKE" ] && b=16 && extra="--min-time 1 --min-iters 2"
+  timeout -k 10 $((100 * TS)) python3 bench/mjx_throughput.py --harness c --batches $b --no-diagnose $extra \
+    --out "$WORK/raw_env.md" > "$WORK/raw_env.log" 2>&1
+  stamp "raw env exit $?"
+  finish startup "${runs[@]}" "${app[@]}" > /dev/null
+  stamp "train breakdown"
+  local bd=""
+  [ -n "$SMOKE" ] && bd="--preset tiny --iters 1"
+  JAX_COMPILATION_CACHE_DIR=$CACHE timeout -k 10 $((120 * TS)) python3 bench/train_breakdown.py $bd \
+    --out "$WORK/breakdown.md" > "$WORK/breakdown.log" 2>&1
+  stamp "breakdown exit $?"
+  tail -n 3 "$WORK/breakdown.log"
+  finish startup "${runs[@]}" "${app[@]}"
+}
+
+rsl() {
+  ppo rsl 450 --compile-cache-dir "$CACHE" --backend rsl-rl --max-minutes "${RSL_MIN:-5}"
+  grep -v "^WARNING" "$WORK/rsl.log" | grep "steps/s" | tail -n 3
+  finish rsl "$RUNS/rsl" > /dev/null
+  stamp "rsl-rl profile"
+  local pr=""
+  [ -n "$SMOKE" ] && pr="--preset tiny --iters 1"
+  JAX_COMPILATION_CACHE_DIR=$CACHE timeout -k 10 $((100 * TS)) python3 bench/rsl_rl_profile.py $pr \
+    --out "$WORK/rsl_profile.md" > "$WORK/rsl_profile.log" 2>&1
+  stamp "rsl-rl profile exit $?"
+  finish rsl "$RUNS/rsl" --append "$WORK/rsl_profile.md"
+}
+
+flags() {
+  export XLA_FLAGS="${FLAGS:---xla_gpu_autotune_level=0}"
+  rm -rf "$WORK/jaxcache_flags"
+  ppo "cold_flags" 200 --compile-cache-dir "$WORK/jaxcache_flags" --max-minutes "${COLD_MIN:-2.2}"
+  echo "XLA_FLAGS=$XLA_FLAGS" > "$WORK/flags.md"
+  finish flags "$RUNS/cold_flags" --append "$WORK/flags.md"
+}
+
+finish() {  # finish PART RUN_DIRS... [--append FILES...]
+  local part=$1; shift
+  tar -czf "$OUT/h100_$part.tgz" -C "$WORK" --exclude='*.msgpack' --exclude='tb' --exclude='jaxcache*' . 2>/dev/null
+  stamp "part $part done"
+  python3 bench/session_summary.py "$@" --out "$OUT/summary_$part.md"
+}
+
+case "$PART" in
+  startup) startup ;;
+  rsl) rsl ;;
+  flags) flags ;;
+  smoke) COLD_MIN=8 WARM_MIN=8 startup; RSL_MIN=0.5 rsl ;;
+  *) echo "unknown part $PART; parts: startup, rsl, flags, smoke"; exit 2 ;;
+esac

@@ -1,0 +1,144 @@
+"""Where an rsl-rl iteration's time goes (issue 9, item 4): act, env step, process, returns, update.
+
+Builds the rsl-rl backend's pieces exactly as ``train_rsl_rl`` does (``RslRlVecEnv`` + rsl-rl's
+``OnPolicyRunner`` algorithm, config from a preset) and times ``--iters`` iterations twice:
+
+1. as the trainer runs them (no waits in the rollout): env steps/s end to end (best of a run before and one
+   after the synced runs, after two warm-up iterations);
+2. with a device sync after every phase, so each phase's own time shows: ``act`` (actor + critic forward
+   and sampling), ``env`` (DLPack hand-off + jitted batched step), ``process`` (rsl-rl's storage and
+   time-out bootstrap), ``returns`` (GAE), ``update`` (rsl-rl's PPO update), ``stats`` (the one host read
+   of the logged sums).
+
+Examples::
+
+    python bench/rsl_rl_profile.py --out $OUT/rsl_profile.md            # gpu preset, LiteReach
+    python bench/rsl_rl_profile.py --preset tiny --iters 2             # CPU smoke check
+    python bench/rsl_rl_profile.py --set ppo.num_envs=8192 ppo.batch_size=1024
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from collections import defaultdict
+from pathlib import Path
+
+from bar_policy.training.config import apply_overrides, preset
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--preset", default="gpu")
+    p.add_argument("--env", default="LiteReach")
+    p.add_argument("--set", nargs="*", default=[], help="config overrides, e.g. ppo.num_envs=8192")
+    p.add_argument("--iters", type=int, default=3)
+    p.add_argument("--out", default="")
+    args = p.parse_args()
+    cfg = apply_overrides(preset(args.preset), ["backend=rsl-rl", *args.set])
+    os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")  # as the backend does
+
+    import jax
+    import torch
+    from rsl_rl.runners import OnPolicyRunner
+
+    from bar_policy import envs
+    from bar_policy.training.rsl_rl_backend import rsl_rl_train_cfg
+    from bar_policy.training.rsl_rl_env import RslRlVecEnv, torch_device_for_jax
+    from bar_policy.training.startup import configure_compile_cache
+
+    configure_compile_cache(True)
+    env = envs.load(args.env)
+    device = torch_device_for_jax()
+    vec = RslRlVecEnv(
+        env,
+        cfg.ppo.num_envs,
+        wrap_fn=envs.wrap_for_brax_training,
+        randomizer=envs.get_randomizer(args.env, env.config),
+        seed=0,
+        device=device,
+    )
+    runner = OnPolicyRunner(vec, rsl_rl_train_cfg(cfg), log_dir=None, device=device)
+    alg = runner.alg
+    steps_per_env = cfg.ppo.steps_per_iteration // cfg.ppo.num_envs
+    steps = steps_per_env * cfg.ppo.num_envs
+
+    def sync() -> None:
+        jax.block_until_ready(vec.state.obs)
+        if device.startswith("cuda"):
+            torch.cuda.synchronize()
+
+    def iteration(obs: object, phases: dict[str, float] | None) -> object:
+        def mark(name: str, t: float) -> float:
+            if phases is None:
+                return t
+            sync()
+            now = time.perf_counter()
+            phases[name] += now - t
+            return now
+
+        t = time.perf_counter()
+        with torch.inference_mode():
+            for _ in range(steps_per_env):
+                actions = alg.act(obs)
+                t = mark("act", t)
+                obs, rew, dones, extras = vec.step(actions)
+                t = mark("env", t)
+                alg.process_env_step(obs, rew, dones, extras)
+                t = mark("process", t)
+            alg.compute_returns(obs)
+            t = mark("returns", t)
+        alg.update()
+        t = mark("update", t)
+        vec.take_stats()
+        mark("stats", t)
+        return obs
+
+    alg.train_mode()
+    obs = vec.get_observations()
+    t0 = time.perf_counter()
+    obs = iteration(obs, None)  # warm-up: compiles the env step
+    sync()
+    warm = time.perf_counter() - t0
+    obs = iteration(obs, None)  # and a second one: the first iterations after it still run slow
+
+    def free_run() -> float:
+        nonlocal obs
+        sync()
+        t0 = time.perf_counter()
+        for _ in range(args.iters):
+            obs = iteration(obs, None)
+        sync()
+        return (time.perf_counter() - t0) / args.iters
+
+    free_first = free_run()
+    phases: dict[str, float] = defaultdict(float)
+    for _ in range(args.iters):
+        obs = iteration(obs, phases)
+    total = sum(phases.values()) / args.iters
+    free = min(free_first, free_run())  # before and after the synced runs: the better of the two
+
+    lines = [
+        f"rsl-rl profile: {args.env}, preset {args.preset} {' '.join(args.set)}, torch {device}, "
+        f"{cfg.ppo.num_envs} envs x {steps_per_env} steps = {steps:,} env steps per iteration, "
+        f"{cfg.ppo.num_updates_per_batch} x {cfg.ppo.num_minibatches} minibatches",
+        "",
+        f"as trained (no waits): {1e3 * free:.0f} ms per iteration, {steps / free:,.0f} env steps/s "
+        f"(first iteration with compile {warm:.1f} s)",
+        "",
+        "| phase (synced after each) | ms per iteration | share |",
+        "|---|---:|---:|",
+    ]
+    for k, v in phases.items():
+        lines.append(f"| {k} | {1e3 * v / args.iters:.1f} | {v / args.iters / total:.1%} |")
+    lines.append(f"| total (synced) | {1e3 * total:.1f} | {steps / total:,.0f} env steps/s |")
+    text = "\n".join(lines)
+    print(text)
+    if args.out:
+        Path(args.out).write_text(text + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,159 @@
+"""Where a training iteration's time goes (issue 9, item 5): env alone, rollout, SGD, the epoch program.
+
+At the training batch of a preset (default ``gpu``: 4096 envs, 81,920 env steps and 128 Adam steps per
+iteration), on one device, every part compiled once and timed over ``--iters`` calls after a warm-up:
+
+- ``env``: the batched env alone (zero actions, as ``mjx_throughput.py``'s harness c), as many steps as one
+  iteration collects; ``env random``: the same with uniform random actions in [-1, 1];
+- ``rollout``: env + policy sampling + transitions (``Learner.rollout``), the same steps;
+- ``update``: normaliser update + ``num_updates_per_batch`` x ``num_minibatches`` Adam steps on one
+  iteration's data (``Learner.update``);
+- ``epoch``: the trainer's own epoch program (``brax_ppo``) over ``--epoch-iters`` iterations, per iteration;
+- ``loop``: the same epoch called as the training loop calls it (host sync and metrics read each call).
+
+The training loop's target is ``loop`` >= 90 % of ``env`` steps/s. ``rollout - env`` is the policy's cost,
+``update`` the learner's, ``loop - epoch`` the host's.
+
+Examples::
+
+    python bench/train_breakdown.py --out $OUT/breakdown.md            # gpu preset, one GPU
+    python bench/train_breakdown.py --preset tiny --iters 2            # CPU smoke check
+    python bench/train_breakdown.py --set ppo.num_updates_per_batch=4  # what an override would change
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+from jax.sharding import Mesh
+from jax.sharding import PartitionSpec as P
+
+from bar_policy import envs
+from bar_policy.training.brax_ppo import epoch_iterations, host_key, make_programs, slot_env
+from bar_policy.training.config import apply_overrides, preset
+from bar_policy.training.learner import make_learner
+from bar_policy.training.parallel import AXIS, DataParallel
+from bar_policy.training.startup import Compiler, StartupTimer, configure_compile_cache
+
+
+def _time(fn: Any, iters: int) -> float:
+    """Seconds per call (best of ``iters`` calls after one warm-up)."""
+    jax.block_until_ready(fn())
+    best = float("inf")
+    for _ in range(iters):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--preset", default="gpu")
+    p.add_argument("--env", default="LiteReach")
+    p.add_argument("--set", nargs="*", default=[], help="config overrides, e.g. ppo.num_envs=8192")
+    p.add_argument("--iters", type=int, default=5, help="timed calls per part")
+    p.add_argument("--epoch-iters", type=int, default=0, help="iterations per epoch call (0: the trainer's)")
+    p.add_argument("--no-compile-cache", action="store_true")
+    p.add_argument("--out", default="")
+    args = p.parse_args()
+
+    configure_compile_cache(not args.no_compile_cache)
+    cfg = apply_overrides(preset(args.preset), args.set)
+    ppo = cfg.ppo
+    env = envs.load(args.env)
+    randomizer = envs.get_randomizer(args.env, env.config)
+    wrap = envs.wrap_for_brax_training
+    dp = DataParallel(Mesh(np.asarray(jax.devices()[:1]), (AXIS,)))
+    learner = make_learner(env.observation_size, env.action_size, ppo, cfg.network)
+    n, steps = ppo.num_envs, ppo.steps_per_iteration
+    unrolls = steps // (n * ppo.unroll_length)
+    args.epoch_iters = args.epoch_iters or epoch_iterations(cfg)  # the trainer's: its compile is cached
+    progs = make_programs(env, cfg, learner, dp, wrap, randomizer, args.epoch_iters)
+
+    def env_only(envs_carry: Any, key: jax.Array, scale: float) -> Any:
+        """The env alone: zero actions (as bench/mjx_throughput.py's harness c), or uniform random ones
+        (motion like a young policy's: more contacts for the solver)."""
+        state, model_keys = envs_carry
+        batch = slot_env(env, wrap, randomizer, model_keys)
+
+        def step(s: Any, k: jax.Array) -> tuple[Any, None]:
+            a = jax.random.uniform(k, (n, env.action_size), minval=-1.0, maxval=1.0) * scale
+            return batch.step(s, a), None
+
+        keys = jax.random.split(key, steps // n)
+        return jax.lax.scan(step, state, keys)[0].obs
+
+    def rollout(ts: Any, envs_carry: Any, key: jax.Array) -> Any:
+        batch = slot_env(env, wrap, randomizer, envs_carry[1])
+        return learner.rollout(ts, envs_carry[0], key, batch, unrolls)[1]
+
+    rep, shard = P(), P(AXIS)
+    f_env = dp.map(functools.partial(env_only, scale=0.0), (shard, rep), shard)
+    f_env_random = dp.map(functools.partial(env_only, scale=1.0), (shard, rep), shard)
+    f_roll = dp.map(rollout, (rep, shard, rep), shard)
+    f_update = dp.map(lambda ts, data, key: learner.update(ts, data, key)[0], (rep, shard, rep), rep)
+
+    timer = StartupTimer()
+    compiler = Compiler(timer)
+    key_abs = dp.abstract(np.zeros(2, np.uint32), sharded=False)
+    ts_abs = dp.abstract(jax.eval_shape(learner.init, key_abs), sharded=False)
+    envs_abs = dp.abstract(compiler.submit("reset", progs.reset, key_abs, key_abs).out_info, sharded=True)
+    compiler.submit("init", progs.init, key_abs)
+    compiler.submit("epoch", progs.epoch, ts_abs, envs_abs, key_abs)
+    compiler.submit("env", f_env, envs_abs, key_abs)
+    compiler.submit("env random", f_env_random, envs_abs, key_abs)
+    rollout_lowered = compiler.submit("rollout", f_roll, ts_abs, envs_abs, key_abs)
+    data_abs = dp.abstract(rollout_lowered.out_info, sharded=True)
+    compiler.submit("update", f_update, ts_abs, data_abs, key_abs)
+
+    key = dp.replicate(host_key(0, 9))
+    ts = compiler.get("init")(dp.replicate(host_key(0, 1)))
+    carry = compiler.get("reset")(dp.replicate(host_key(0, 2)), dp.replicate(host_key(0, 3)))
+    data = compiler.get("rollout")(ts, carry, key)
+    rows: dict[str, float] = {}
+    rows["env"] = _time(lambda: compiler.get("env")(carry, key), args.iters)
+    rows["env random"] = _time(lambda: compiler.get("env random")(carry, key), args.iters)
+    rows["rollout"] = _time(lambda: compiler.get("rollout")(ts, carry, key), args.iters)
+    rows["update"] = _time(lambda: compiler.get("update")(ts, data, key), args.iters)
+    epoch = compiler.get("epoch")
+    state = {"ts": ts, "carry": carry}
+
+    def run_epoch(read: bool) -> Any:
+        state["ts"], state["carry"], metrics, stats = epoch(state["ts"], state["carry"], key)
+        if read:
+            dp.to_host((metrics, stats))
+        return stats
+
+    rows["epoch"] = _time(lambda: run_epoch(False), args.iters) / args.epoch_iters
+    rows["loop"] = _time(lambda: run_epoch(True), args.iters) / args.epoch_iters
+
+    dev = jax.devices()[0].device_kind
+    lines = [
+        f"train breakdown: {args.env}, preset {args.preset} {' '.join(args.set)}, {dev}, {n} envs, "
+        f"{steps:,} env steps and {ppo.num_updates_per_batch * ppo.num_minibatches} Adam steps per iteration",
+        "",
+        "| part | ms per iteration | env steps/s | env alone / part (time) |",
+        "|---|---:|---:|---:|",
+    ]
+    for name in ("env", "env random", "rollout", "update", "epoch", "loop"):
+        sps = steps / rows[name]
+        lines.append(f"| {name} | {1e3 * rows[name]:.1f} | {sps:,.0f} | {rows['env'] / rows[name]:.1%} |")
+    lines.append("")
+    compiles = [f"{k[8:]} {v:.1f}" for k, v in timer.phases.items() if k.startswith("compile")]
+    lines.append("compile s (concurrent): " + ", ".join(compiles))
+    text = "\n".join(lines)
+    print(text)
+    if args.out:
+        Path(args.out).write_text(text + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

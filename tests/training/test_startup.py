@@ -1,0 +1,128 @@
+"""Start-up pieces: the compilation cache's location and switch, concurrent compiles, the breakdown."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bar_policy.training.startup import (
+    Compiler,
+    CompileStats,
+    StartupTimer,
+    configure_compile_cache,
+    default_cache_dir,
+)
+
+_CACHE_OPTIONS = (
+    "jax_enable_compilation_cache",
+    "jax_compilation_cache_dir",
+    "jax_persistent_cache_min_compile_time_secs",
+    "jax_persistent_cache_min_entry_size_bytes",
+)
+
+
+@pytest.fixture
+def restore_cache_config():
+    """Put jax's cache options back (the suite shares one cache, set up in tests/conftest.py)."""
+    saved = {k: getattr(jax.config, k) for k in _CACHE_OPTIONS}
+    yield
+    for k, v in saved.items():
+        jax.config.update(k, v)
+
+
+def test_default_cache_dir_follows_xdg(monkeypatch, tmp_path):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert default_cache_dir() == tmp_path / "xdg" / "bar_policy" / "jax"
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    assert default_cache_dir() == tmp_path / "home" / ".cache" / "bar_policy" / "jax"
+
+
+def test_cache_dir_precedence_and_switch(monkeypatch, tmp_path, restore_cache_config):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)
+    # Default: the XDG location, created, every program cached.
+    assert configure_compile_cache() == tmp_path / "xdg" / "bar_policy" / "jax"
+    assert (tmp_path / "xdg" / "bar_policy" / "jax").is_dir()
+    assert jax.config.jax_persistent_cache_min_compile_time_secs == 0.0
+    assert jax.config.jax_compilation_cache_dir == str(tmp_path / "xdg" / "bar_policy" / "jax")
+    # The environment variable wins over XDG, an explicit directory over both.
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path / "env"))
+    assert configure_compile_cache() == tmp_path / "env"
+    assert configure_compile_cache(directory=str(tmp_path / "flag")) == tmp_path / "flag"
+    # Off: no directory, jax's switch off.
+    assert configure_compile_cache(enabled=False) is None
+    assert jax.config.jax_enable_compilation_cache is False
+
+
+def test_compiler_runs_programs_compiled_on_threads():
+    timer = StartupTimer()
+    compiler = Compiler(timer)
+    x = jnp.arange(6.0)
+    compiler.submit("double", jax.jit(lambda a: 2.0 * a), x)
+    lowered = compiler.submit("total", jax.jit(lambda a: a.sum()), x)
+    assert lowered.out_info.shape == ()
+    np.testing.assert_allclose(compiler.get("double")(x), [0, 2, 4, 6, 8, 10])
+    assert float(compiler.get("total")(x)) == 15.0
+    assert {"trace double", "trace total", "compile double", "compile total"} <= set(timer.phases)
+    with pytest.raises(KeyError):
+        compiler.get("never submitted")
+    compiler.close()
+
+
+def test_timer_block_lists_phases_and_compile_counts():
+    timer = StartupTimer()
+    timer.add("imports", 1.25)
+    timer.add("compile epoch", 30.0)
+    timer.add("imports", 0.25)  # accumulates
+    lines = timer.lines(40.0, {"compiles": 4, "compile_s": 35.5, "cache_hits": 3, "cache_misses": 1})
+    assert lines[0].startswith("start-up: 40.0 s")
+    assert any(line.split() == ["imports", "1.5", "s"] for line in lines)
+    assert lines[-1].strip() == (
+        "XLA compiles: 4 (35.5 s summed over threads), persistent cache 3 hits / 1 misses"
+    )
+
+
+def test_compile_stats_count_a_fresh_compile():
+    stats = CompileStats.get()
+    before = stats.snapshot()
+    jax.jit(lambda a: a * 3.0 + float(np.pi))(np.ones(7, np.float32)).block_until_ready()  # a new program
+    after = stats.snapshot()
+    assert after["compiles"] == before["compiles"] + 1
+    assert CompileStats.get() is stats
+
+
+def test_cache_dir_is_printed_by_a_run_and_the_breakdown_logged(brax_run):
+    _, summary = brax_run
+    import json
+
+    recs = [json.loads(x) for x in (Path(summary.run_dir) / "metrics.jsonl").read_text().splitlines()]
+    (startup,) = [r for r in recs if r["kind"] == "startup"]
+    assert {"compile init", "compile reset", "compile epoch", "compile evaluate"} <= set(startup)
+    # Four programs, plus at most a few tiny ones jax needs (the pmap trainer compiled ~85 here).
+    assert 4 <= startup["compiles"] <= 8
+
+
+def test_rsl_rl_runs_let_torch_have_the_gpu_memory(monkeypatch):
+    import dataclasses
+
+    from bar_policy.training.config import preset
+    from bar_policy.training.run import _set_memory_env
+
+    for var in ("XLA_PYTHON_CLIENT_PREALLOCATE", "XLA_PYTHON_CLIENT_MEM_FRACTION"):
+        monkeypatch.delenv(var, raising=False)
+    brax, rsl = preset("tiny"), dataclasses.replace(preset("tiny"), backend="rsl-rl")
+    _set_memory_env(brax)
+    assert "XLA_PYTHON_CLIENT_PREALLOCATE" not in os.environ
+    _set_memory_env(rsl)
+    assert os.environ["XLA_PYTHON_CLIENT_PREALLOCATE"] == "false"
+    # A user's own setting wins.
+    monkeypatch.delenv("XLA_PYTHON_CLIENT_PREALLOCATE")
+    monkeypatch.setenv("XLA_PYTHON_CLIENT_MEM_FRACTION", "0.3")
+    _set_memory_env(rsl)
+    assert "XLA_PYTHON_CLIENT_PREALLOCATE" not in os.environ
