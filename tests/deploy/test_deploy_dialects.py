@@ -180,10 +180,7 @@ def test_hc_only_unknown_terms_are_refused_with_the_supported_list(tmp_path):
     with pytest.raises(PolicyLoadError) as e:
         load_policy(path)
     msg = str(e.value)
-    assert (
-        "metadata key 'observation_names' uses terms ['base_lin_vel'] that this runtime cannot feed"
-        in msg
-    )
+    assert "metadata key 'observation_names' uses terms ['base_lin_vel'] that this runtime cannot feed" in msg
     supported = msg.split("supported terms: ")[1]
     for term in REACH_TERMS:  # HC's built-ins and our reach terms
         assert f"'{term}'" in supported
