@@ -19,6 +19,12 @@ Stages (each compiles and runs one program over all N devices and waits for the 
 - ``env_reset``: ``pmap(BatchedEnv.reset)`` on the nominal model (closed over).
 - ``old_reset``: the old trainer's reset: ``pmap(train_env.reset)``, randomised batched model computed on
   the host and closed over (commit bf9f572's ``brax_ppo.py``).
+- ``cholesky``: ``pmap(jnp.linalg.cholesky)`` of a 14x14 SPD matrix (the Newton solver's factorisation).
+- ``while_loop``: ``pmap`` of a ``lax.while_loop`` with a data-dependent exit (the solver's loop shape).
+- ``forward_cg`` / ``forward_noconstraint``: ``forward`` with the CG solver / with constraints disabled.
+- ``fwd_position``: ``pmap(mjx.fwd_position)`` only (kinematics, inertia, factorisation, constraints).
+- ``shard_forward`` / ``shard_step``: ``jit(shard_map(mjx.forward / mjx.step))`` over a 2-device mesh,
+  nominal model closed over (the new trainer's form, without the learner).
 - ``sharded_reset``: the new trainer's reset: ``jit(shard_map)`` over a ``Mesh``, each slot's model built
   in the program from its key (``bar_policy.training.brax_ppo``).
 
@@ -53,6 +59,13 @@ STAGES = (
     "env_reset",
     "old_reset",
     "sharded_reset",
+    "cholesky",
+    "while_loop",
+    "forward_cg",
+    "forward_noconstraint",
+    "fwd_position",
+    "shard_forward",
+    "shard_step",
 )
 
 
@@ -126,6 +139,47 @@ def _stage(name: str, envs_per_device: int) -> str:
         w = envs.wrap_for_brax_training(env, episode_length=env.episode_length, randomization_fn=rfn)
         jax.block_until_ready(jax.pmap(w.reset, axis_name="devices")(keys).obs)
         return f"old trainer's reset: pmap, randomised model closed over, {b} envs per device"
+    if name == "cholesky":
+        a = np.eye(14, dtype=np.float32) * 2.0 + 0.1
+        out = jax.pmap(jnp.linalg.cholesky)(np.stack([a] * n))
+        jax.block_until_ready(out)
+        return "cholesky of a 14x14 SPD matrix per device"
+    if name == "while_loop":
+
+        def loop(x: jax.Array) -> jax.Array:
+            return jax.lax.while_loop(lambda c: c[1] < 3, lambda c: (c[0] * 0.5 + 1.0, c[1] + 1), (x, 0))[0]
+
+        jax.block_until_ready(jax.pmap(loop)(np.ones((n, 14), np.float32)))
+        return "while_loop with a carried counter"
+    if name in ("forward_cg", "forward_noconstraint", "fwd_position"):
+        import copy
+
+        mm = copy.deepcopy(mj_model)
+        if name == "forward_cg":
+            mm.opt.solver = mujoco.mjtSolver.mjSOL_CG
+        if name == "forward_noconstraint":
+            mm.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
+        m2 = mjx.put_model(mm)
+        d = mjx.put_data(mm, mujoco.MjData(mm))
+        fn = mjx.fwd_position if name == "fwd_position" else mjx.forward
+        jax.block_until_ready(jax.pmap(lambda dd: fn(m2, dd))(host_stack(d)))
+        return f"{fn.__name__}, 1 env per device"
+    if name in ("shard_forward", "shard_step"):
+        from jax.sharding import PartitionSpec as P
+
+        from bar_policy.training.parallel import AXIS, make_data_parallel
+
+        dp = make_data_parallel()
+        d = mjx.put_data(mj_model, mujoco.MjData(mj_model))
+        fn = mjx.step if name == "shard_step" else mjx.forward
+
+        def run(q: jax.Array) -> jax.Array:
+            dd = jax.vmap(lambda qi: d.replace(qpos=qi))(q)
+            return jax.vmap(lambda x: fn(model, x))(dd).qacc
+
+        q = np.zeros((n * b, mj_model.nq), np.float32)
+        jax.block_until_ready(dp.map(run, (P(AXIS),), P(AXIS))(q))
+        return f"jit(shard_map({fn.__name__})), {b} envs per device"
     if name == "sharded_reset":
         from jax.sharding import PartitionSpec as P
 
