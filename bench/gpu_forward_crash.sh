@@ -8,7 +8,7 @@ export NCCL_NVLS_ENABLE=0 TORCH_SYMM_MEM_DISABLE_MULTICAST=1 NVSHMEM_DISABLE_NVL
 OUT=${OUT:-/tmp/fwd_crash_out}; mkdir -p "$OUT/logs"
 B="python3 bench/pmap_reset_bisect.py --no-torch-variant --envs-per-device 128 --timeout 150"
 CUDA_VISIBLE_DEVICES=0,1 $B --parallel 8 --out "$OUT/stages.md" --logs "$OUT/logs/stages" \
-  --stages forward,cholesky,while_loop,forward_cg,forward_noconstraint,fwd_position,shard_forward,shard_step \
+  --stages ${STAGES:-forward,cholesky,while_loop,forward_cg,forward_noconstraint,fwd_position,shard_forward,shard_step} \
   > "$OUT/stages.log" 2>&1 &
 i=0
 for f in --xla_gpu_force_compilation_parallelism=1 --xla_gpu_enable_triton_gemm=false \

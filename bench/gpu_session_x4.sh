@@ -15,6 +15,7 @@
 # Usage (repository root, after the pip prefix of /work/shared/gpu/README.md):
 #   bash bench/gpu_session_x4.sh            # on nvidia-h200-x4
 #   bash bench/gpu_session_x4.sh --smoke    # CPU logic check: forced host devices, tiny sizes
+#   SHORT=1 bash bench/gpu_session_x4.sh    # scaling only: 1 GPU | 2 GPUs side by side, then 4 GPUs
 set -u
 export NCCL_NVLS_ENABLE=0 TORCH_SYMM_MEM_DISABLE_MULTICAST=1 NVSHMEM_DISABLE_NVLS=1
 OUT=${OUT:-/tmp/session_x4_out}
@@ -67,6 +68,25 @@ two_process() {  # jax.distributed on localhost, one process per device
   stamp "2 processes done"
 }
 
+summary() {
+  tar -czf "$OUT/session_x4.tgz" -C "$WORK" --exclude='*.msgpack' --exclude='tb' . 2>/dev/null
+  python3 bench/session_summary.py "$WORK/runs/g1" "$WORK/runs/g2" "$WORK/runs/g4" "$WORK/runs/dist2" \
+    --append "$WORK/bisect.md" --out "$OUT/summary.md"
+}
+
+if [ "${SHORT:-0}" = 1 ]; then  # scaling only (about 5 min): 1 GPU | 2 GPUs side by side, then 4 GPUs
+  MINUTES=${MINUTES_SHORT:-1.7}
+  COMMON="--runs-dir $WORK/runs --no-export-onnx --final-eval-envs $FINAL --max-minutes $MINUTES"
+  stamp "short: 1 device (0) | 2 devices (1,2)"
+  train g1 0 1 &
+  train g2 1,2 2 &
+  wait
+  summary > /dev/null
+  train g4 0,1,2,3 4
+  summary
+  exit 0
+fi
+
 stamp "phase 1: bisect | 1 device"
 env $(gpus 0,1 2) timeout -k 10 $T_BISECT python3 bench/pmap_reset_bisect.py $BISECT \
   --out "$WORK/bisect.md" --logs "$WORK/bisect_logs" > "$WORK/bisect.log" 2>&1 &
@@ -83,6 +103,4 @@ for f in g1 g2 g4 dist2_p0 dist2_p1; do
   echo "== $f (tail)"; grep -v "^WARNING\|^I0000\|^W0000" "$WORK/$f.log" 2>/dev/null | tail -n 4
 done
 stamp "session done"
-tar -czf "$OUT/session_x4.tgz" -C "$WORK" --exclude='*.msgpack' --exclude='tb' . 2>/dev/null
-python3 bench/session_summary.py "$WORK/runs/g1" "$WORK/runs/g2" "$WORK/runs/g4" "$WORK/runs/dist2" \
-  --append "$WORK/bisect.md" --out "$OUT/summary.md"
+summary

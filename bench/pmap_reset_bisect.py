@@ -25,6 +25,19 @@ Stages (each compiles and runs one program over all N devices and waits for the 
 - ``fwd_position``: ``pmap(mjx.fwd_position)`` only (kinematics, inertia, factorisation, constraints).
 - ``shard_forward`` / ``shard_step``: ``jit(shard_map(mjx.forward / mjx.step))`` over a 2-device mesh,
   nominal model closed over (the new trainer's form, without the learner).
+- ``upto_<fn>``: ``pmap`` of ``fwd_position``'s pieces in order, up to and including ``fn``
+  (``kinematics``, ``com_pos``, ``crb``, ``factor_m``, ``collision``, ``make_constraint``).
+- ``segment_sum``: ``pmap(jax.ops.segment_sum)`` (a scatter-add, as ``com_pos`` uses).
+- ``kin_*``: ``mjx.kinematics`` in the forms the env uses it: ``kin_model_arg`` (model a pmap input, not a
+  constant), ``kin_qpos_in`` (only ``qpos`` in, ``xpos`` out, data closed over), ``kin_make_data`` (data
+  built in the program), ``kin_vmap`` (2 envs per device, data in), ``kin_qpos_in_vmap`` (``kin_qpos_in``
+  over 2 envs per device), ``kin_jit_one`` (plain ``jit`` on one device with all devices visible),
+  ``kin_pmap_one`` (``pmap`` over the first device only).
+- ``zero_out``: ``pmap`` returning a zero-size array beside a normal one.
+- ``vchol``: ``pmap(vmap(cholesky))`` over 2 matrices per device.
+- ``ret.<fn>.<field>``: ``pmap`` of ``qpos -> fn(model, data(qpos)).field``, one env per device, for ``fn``
+  one of ``fwd_position``'s pieces (all pieces up to it run), ``forward`` or ``step``.
+- ``strip.<fn>``: as ``upto_<fn>`` but returning ``Data`` without its zero-size leaves.
 - ``sharded_reset``: the new trainer's reset: ``jit(shard_map)`` over a ``Mesh``, each slot's model built
   in the program from its key (``bar_policy.training.brax_ppo``).
 
@@ -66,6 +79,24 @@ STAGES = (
     "fwd_position",
     "shard_forward",
     "shard_step",
+    "upto_kinematics",
+    "upto_com_pos",
+    "upto_crb",
+    "upto_factor_m",
+    "upto_collision",
+    "upto_make_constraint",
+    "segment_sum",
+    "kin_model_arg",
+    "kin_qpos_in",
+    "kin_make_data",
+    "kin_vmap",
+    "kin_jit_one",
+    "kin_pmap_one",
+    "kin_qpos_in_vmap",
+    "zero_out",
+    "vchol",
+    "trsm",
+    "cho_solve",
 )
 
 
@@ -180,6 +211,118 @@ def _stage(name: str, envs_per_device: int) -> str:
         q = np.zeros((n * b, mj_model.nq), np.float32)
         jax.block_until_ready(dp.map(run, (P(AXIS),), P(AXIS))(q))
         return f"jit(shard_map({fn.__name__})), {b} envs per device"
+    if name == "zero_out":
+        out = jax.pmap(lambda x: (x * 2.0, jnp.zeros((0, 3), x.dtype)))(np.ones((n, 4), np.float32))
+        jax.block_until_ready(out)
+        return "a (4,) and a (0, 3) output"
+    if name in ("trsm", "cho_solve"):
+        import jax.scipy.linalg as jsl
+
+        a = np.tril(np.ones((14, 14), np.float32)) + np.eye(14, dtype=np.float32)
+        if name == "trsm":
+            fn = lambda x: jsl.solve_triangular(a, x, lower=True)  # noqa: E731
+        else:
+            fn = lambda x: jsl.cho_solve((a, True), x)  # noqa: E731
+        jax.block_until_ready(jax.pmap(fn)(np.ones((n, 14), np.float32)))
+        return f"{name} of a 14x14 triangular factor"
+    if name == "vchol":
+        a = np.eye(14, dtype=np.float32) * 2.0 + 0.1
+        jax.block_until_ready(jax.pmap(jax.vmap(jnp.linalg.cholesky))(np.stack([np.stack([a] * 2)] * n)))
+        return "vmap(cholesky), 2 per device"
+    if name.startswith(("ret.", "strip.")):
+        from mujoco.mjx._src import collision_driver, constraint, smooth
+
+        order = ["kinematics", "com_pos", "camlight", "tendon", "crb", "tendon_armature", "factor_m"]
+        order += ["collision", "make_constraint"]
+        mods = {"collision": collision_driver, "make_constraint": constraint}
+        parts = name.split(".")
+        fn_name = parts[1]
+        d = mjx.put_data(mj_model, mujoco.MjData(mj_model))
+        if fn_name in ("forward", "step"):
+            fns = [getattr(mjx, fn_name)]
+        elif fn_name == "solve":  # forward's pieces, the constraint solver last
+            from mujoco.mjx._src import forward as fwd_mod
+            from mujoco.mjx._src import solver
+
+            fns = [fwd_mod.fwd_position, fwd_mod.fwd_velocity, fwd_mod.fwd_actuation]
+            fns += [fwd_mod.fwd_acceleration, solver.solve]
+        elif fn_name == "nosolve":  # forward's pieces without the constraint solver
+            from mujoco.mjx._src import forward as fwd_mod
+
+            fns = [fwd_mod.fwd_position, fwd_mod.fwd_velocity, fwd_mod.fwd_actuation]
+            fns += [fwd_mod.fwd_acceleration]
+        elif fn_name.startswith("fwd_"):  # one stage of forward alone, on the initial data
+            from mujoco.mjx._src import forward as fwd_mod
+
+            fns = [getattr(fwd_mod, fn_name)]
+        else:
+            fns = [getattr(mods.get(f, smooth), f) for f in order[: order.index(fn_name) + 1]]
+
+        def run(q: jax.Array) -> object:
+            dd = d.replace(qpos=q)
+            for f in fns:
+                dd = f(model, dd)
+            if parts[0] == "ret":
+                return getattr(dd, parts[2])
+            return [x for x in jax.tree.leaves(dd) if x.size > 0]
+
+        out = jax.pmap(run)(np.zeros((n, mj_model.nq), np.float32))
+        jax.block_until_ready(out)
+        return name
+    if name.startswith("upto_"):
+        from mujoco.mjx._src import collision_driver, constraint, smooth
+
+        pieces = [
+            ("kinematics", smooth.kinematics),
+            ("com_pos", smooth.com_pos),
+            ("camlight", smooth.camlight),
+            ("tendon", smooth.tendon),
+            ("crb", smooth.crb),
+            ("tendon_armature", smooth.tendon_armature),
+            ("factor_m", smooth.factor_m),
+            ("collision", collision_driver.collision),
+            ("make_constraint", constraint.make_constraint),
+        ]
+        last = name.removeprefix("upto_")
+        upto = [f for f in pieces[: [p for p, _ in pieces].index(last) + 1]]
+        d = mjx.put_data(mj_model, mujoco.MjData(mj_model))
+
+        def part(dd: object) -> object:
+            for _, fn in upto:
+                dd = fn(model, dd)
+            return dd
+
+        jax.block_until_ready(jax.pmap(part)(host_stack(d)))
+        return "fwd_position pieces: " + ", ".join(p for p, _ in upto)
+    if name.startswith("kin_"):
+        d = mjx.put_data(mj_model, mujoco.MjData(mj_model))
+        kin = mjx.kinematics
+        q1 = np.zeros((n, mj_model.nq), np.float32)
+        if name == "kin_model_arg":
+            out = jax.pmap(lambda mm, dd: kin(mm, dd).xpos)(host_stack(model), host_stack(d))
+        elif name == "kin_qpos_in":
+            out = jax.pmap(lambda q: kin(model, d.replace(qpos=q)).xpos)(q1)
+        elif name == "kin_make_data":
+            out = jax.pmap(lambda q: kin(model, mjx.make_data(model).replace(qpos=q)).xpos)(q1)
+        elif name == "kin_vmap":
+            d2 = jax.tree.map(lambda x: np.stack([np.asarray(x)] * 2), d)
+            out = jax.pmap(jax.vmap(lambda dd: kin(model, dd).xpos))(host_stack(d2))
+        elif name == "kin_qpos_in_vmap":
+            q2 = np.zeros((n, 2, mj_model.nq), np.float32)
+            out = jax.pmap(jax.vmap(lambda q: kin(model, d.replace(qpos=q)).xpos))(q2)
+        elif name == "kin_jit_one":
+            out = jax.jit(lambda dd: kin(model, dd).xpos)(d)
+        else:
+            out = jax.pmap(lambda dd: kin(model, dd).xpos, devices=jax.local_devices()[:1])(
+                jax.tree.map(lambda x: np.asarray(x)[None], d)
+            )
+        jax.block_until_ready(out)
+        return name
+    if name == "segment_sum":
+        seg = np.array([0, 0, 1, 2, 2, 2, 3, 3], np.int32)
+        out = jax.pmap(lambda x: jax.ops.segment_sum(x, seg, 4))(np.ones((n, 8), np.float32))
+        jax.block_until_ready(out)
+        return "segment_sum of 8 values into 4 segments"
     if name == "sharded_reset":
         from jax.sharding import PartitionSpec as P
 
@@ -263,7 +406,7 @@ def main() -> int:
         return _child(args)
 
     stages = [s for s in args.stages.split(",") if s]
-    bad = [s for s in stages if s not in STAGES]
+    bad = [s for s in stages if s not in STAGES and not s.startswith(("ret.", "strip."))]
     if bad:
         p.error(f"unknown stages {bad}; valid: {list(STAGES)}")
     variants = (False,) if args.no_torch_variant else (False, True)

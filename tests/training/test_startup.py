@@ -126,3 +126,19 @@ def test_rsl_rl_runs_let_torch_have_the_gpu_memory(monkeypatch):
     monkeypatch.setenv("XLA_PYTHON_CLIENT_MEM_FRACTION", "0.3")
     _set_memory_env(rsl)
     assert "XLA_PYTHON_CLIENT_PREALLOCATE" not in os.environ
+
+
+def test_runs_compile_with_gspmd_unless_the_user_chose(monkeypatch):
+    """The multi-GPU segfault is in Shardy's pipeline (bisect on 2 H200s): runs turn it off, users decide."""
+    from bar_policy.training.run import _set_partitioner
+
+    before = jax.config.jax_use_shardy_partitioner
+    try:
+        monkeypatch.delenv("JAX_USE_SHARDY_PARTITIONER", raising=False)
+        jax.config.update("jax_use_shardy_partitioner", True)
+        assert _set_partitioner() == "gspmd" and not jax.config.jax_use_shardy_partitioner
+        monkeypatch.setenv("JAX_USE_SHARDY_PARTITIONER", "true")
+        jax.config.update("jax_use_shardy_partitioner", True)
+        assert _set_partitioner() == "shardy"
+    finally:
+        jax.config.update("jax_use_shardy_partitioner", before)
