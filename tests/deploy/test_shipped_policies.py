@@ -1,0 +1,61 @@
+"""The policies in ``checkpoints/``: what their files declare, and what they do on the C MuJoCo sim target.
+
+Figures come from ``bar-deploy eval`` on the sim target, the path a user runs; the thresholds are the
+issues' targets (reach: >= 95 % segment success, issue 9's "the shipped policy still reaches 95 %"; track:
+issue 10's <= 2 cm fingertip error, and its 0.05 rad joint error with 25 % room for the two gestures alone,
+whose mean the shipped tracker holds at 0.056 rad: see docs/tracking.md).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import onnx
+import pytest
+
+from bar_policy.deploy.cli import main
+from bar_policy.motion import clip_set
+from bar_policy.obs import ObservationManager
+
+CHECKPOINTS = Path(__file__).resolve().parents[2] / "checkpoints"
+REACH, TRACK = CHECKPOINTS / "lite_reach_arms.onnx", CHECKPOINTS / "lite_track_arms.onnx"
+
+
+def _eval(tmp_path: Path, *args: str) -> dict:
+    out = tmp_path / "eval.json"
+    assert main(["eval", *args, "--json", str(out)]) == 0
+    return json.loads(out.read_text())
+
+
+def _metadata(path: Path) -> dict[str, str]:
+    return {p.key: p.value for p in onnx.load(str(path)).metadata_props}
+
+
+def test_shipped_reach_policy_reaches_on_the_sim_target(tmp_path):
+    res = _eval(tmp_path, "--policy", str(REACH), "--episodes", "20", "--seed", "1000")
+    assert res["obs_fingerprint"] == ObservationManager.golden("lite_reach_arms").fingerprint
+    assert res["success_rate"] >= 0.95
+
+
+def test_shipped_tracker_declares_its_task_for_humanoid_control():
+    md = _metadata(TRACK)
+    assert md["task_type"] == "track"
+    assert md["body_names"].split(",") == ["left_elbow_pitch", "left_hand", "right_elbow_pitch", "right_hand"]
+    assert int(md["lookahead_steps"]) == 5
+    # The clip set it was trained on, rebuilt here from the library: the id pins every frame.
+    assert md["dataset_repo_id"] == clip_set("train").id
+    assert json.loads(md["bar.obs_fingerprint"]) == ObservationManager.golden("lite_track_arms").fingerprint
+
+
+def test_shipped_tracker_follows_the_gestures_on_the_sim_target(tmp_path):
+    res = _eval(tmp_path, "--policy", str(TRACK), "--clips", "wave,clap")
+    (all_clips,) = [g for g in res["groups"] if g["group"] == "all"]
+    assert all_clips["faults"] == 0 and all_clips["lost_steps"] == 0
+    assert all_clips["joint_error_rad"] <= 1.25 * 0.05
+    assert all_clips["fingertip_error_cm"] <= 2.0
+
+
+@pytest.mark.parametrize("path", [REACH, TRACK])
+def test_shipped_files_are_small(path):
+    assert path.stat().st_size < 1_000_000
