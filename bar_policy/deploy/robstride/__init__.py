@@ -4,7 +4,8 @@ Layers (style.md item 15): ``framing`` + ``protocol`` (pure bytes <-> messages),
 python-can buses, ``BusOpenError`` with a one-line fix), ``bus`` (one CAN interface, injected
 ``can.BusABC``), ``group`` (both arms as one flat joint list, activation and damping-then-stop),
 ``watchdog`` (the motors' CAN watchdog canTimeout), ``calibration`` (homing offsets), ``emulator``
-(MuJoCo-backed motors on a bus; imported on demand), ``tools`` (``bar-bus``). The deploy target is
+(MuJoCo-backed motors on a bus; imported on demand) with ``firmware`` (one emulated motor's state and
+answers), ``tools`` (``bar-bus``). The deploy target is
 ``bar_policy.deploy.targets.real.RealTarget``.
 """
 

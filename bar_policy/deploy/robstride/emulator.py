@@ -1,11 +1,10 @@
 """Robstride actuators on a python-can bus, driven by MuJoCo physics of the Lite (bus-level emulator).
 
 Every emulated motor listens on its interface's bus (python-can ``virtual``; SocketCAN ``vcan`` where the
-kernel has it), decodes the host's frames with the protocol layer, and answers like the firmware:
+kernel has it), decodes the host's frames with the protocol layer, and answers like the firmware
+(``firmware.py``: the per-motor state and its answer to one request); this module holds the buses, threads,
+physics and clock:
 
-- type 0 -> type-0 device-id reply; type 3/4/6/18 -> type-2 feedback; type 17 -> type-17 reply (status 1 and
-  a zero value for an unknown index); type 1 -> stores the command (decoded with the motor's *own* model
-  ranges) and answers type-2 feedback with mode 2 (run) when enabled, 0 (reset) when not.
 - Physics: each MuJoCo step (2 ms) the MIT law of every enabled motor, ``firmware_torque`` (the one shared
   actuator model) with the motor's ``limit_torque`` as the cap, goes into ``qfrc_applied``. Disabled motors
   apply nothing. Joint <-> motor frames use the robot data's directions and the emulated robot's *true*
@@ -15,13 +14,12 @@ kernel has it), decodes the host's frames with the protocol layer, and answers l
   state (deterministic, faster than real time, the semantics of the synchronous sim target).
   ``mode="realtime"`` steps physics in a thread at the wall-clock rate and answers every frame at once.
 
-Watchdog (``canTimeout``, 0x7028, as the reference gives it): per motor, the arrival time of the last frame
-addressed to it; when the parameter is non-zero and an enabled motor hears nothing for ``ticks *
-watchdog_tick`` seconds (50 us ticks: 4000 = 0.2 s), it goes to reset mode: disabled, command cleared, zero
-torque, feedback mode 0, exactly as after a stop frame. Each trip is recorded in ``watchdog_trips`` as
-(last frame, trip) times on the emulator's clock. The clock is the bus's frame-timestamp clock
-(``time.time``, what python-can stamps ``virtual`` and SocketCAN frames with), so a frame that arrived in
-time is never counted late when the emulator thread runs late. A disabled motor is not affected.
+Watchdog (``canTimeout``, 0x7028): per motor, the arrival time of the last frame addressed to it; an enabled
+motor that hears nothing for ``ticks * watchdog_tick`` s (50 us ticks: 4000 = 0.2 s) goes to reset mode as
+after a stop frame (``firmware.trip_watchdog``; trips in ``watchdog_trips``). The clock is the bus's
+frame-timestamp clock (``time.time``, what python-can stamps ``virtual`` and SocketCAN frames with), so a
+frame that arrived in time is never counted late when the emulator thread runs late. A disabled motor is
+not affected.
 
 Fault injection (``inject``, ``silence``, ``garbage_per_round``): dropped replies, fault bits and type-21
 fault frames, replies from a wrong id, garbage frames, bus silence, active-report (0x18) chatter; at
@@ -31,70 +29,31 @@ construction: absent motors, wrong models, unknown extra devices.
 from __future__ import annotations
 
 import logging
-import math
 import random
-import struct
 import threading
 import time
-import zlib
 from collections.abc import Callable, Collection, Mapping, Sequence
-from dataclasses import dataclass, field
 
 import can
 import mujoco
 import numpy as np
 
+from bar_policy.deploy.robstride import firmware as fw
 from bar_policy.deploy.robstride import protocol as proto
-from bar_policy.robot.actuators import P_MAX, robstride_spec
+from bar_policy.deploy.robstride.firmware import DEFAULT_LIMIT_CURRENT, EmulatedMotor, Injection, JointReading
+from bar_policy.robot.actuators import robstride_spec
 from bar_policy.robot.constants import RobotSpec
 from bar_policy.robot.mit import MitCommand, WireRanges, firmware_torque, wire_ranges
 from bar_policy.robot.mjcf import load_model
 
-__all__ = ["EMULATOR_MODES", "Injection", "RobstrideEmulator"]
+__all__ = ["DEFAULT_LIMIT_CURRENT", "EMULATOR_MODES", "Injection", "RobstrideEmulator"]
 
 log = logging.getLogger(__name__)
 
 EMULATOR_MODES = ("lockstep", "realtime")
 """Physics clock modes."""
-DEFAULT_LIMIT_CURRENT = 23.0
-"""Power-on limit_cur of an emulated motor, A (a placeholder: current is not modelled)."""
-
-
-@dataclass(kw_only=True)
-class Injection:
-    """Faults injected into one emulated motor (mutable; change through ``RobstrideEmulator.inject``)."""
-
-    drop_replies: int = 0
-    """Replies to drop from now on; -1 drops all."""
-    fault_bits: int = 0
-    """Type-2 fault flags (6 bits) reported in every feedback."""
-    fault_word: int = 0
-    """When non-zero, a type-21 fault frame with this word follows every feedback."""
-    reply_as: int | None = None
-    """Answer as this CAN id (a wrong id) instead of the own one."""
-    active_reports: bool = False
-    """Follow every feedback with a type-24 (0x18) active report frame."""
-
-
-@dataclass(kw_only=True)
-class _Motor:
-    can_id: int
-    model: str
-    interface: str
-    name: str
-    joint: int | None
-    """Index in the robot's joint order; None for an extra device that is not attached to a joint."""
-    direction: int = 1
-    offset: float = 0.0
-    enabled: bool = False
-    cmd: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
-    params: dict[int, float | int] = field(default_factory=dict)
-    inj: Injection = field(default_factory=Injection)
-    uid: bytes = b""
-    last_rx: float = 0.0
-    """Arrival time of the last frame addressed to this motor, emulator clock, s."""
-    watchdog_trips: list[tuple[float, float]] = field(default_factory=list)
-    """(last frame, trip) times of every watchdog trip, emulator clock, s."""
+_Static = tuple[list[EmulatedMotor], np.ndarray, np.ndarray, WireRanges, np.ndarray]
+"""Constants of the joint motors: motors, joint index, direction, wire ranges, T_max (N*m)."""
 
 
 class RobstrideEmulator:
@@ -161,22 +120,22 @@ class RobstrideEmulator:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._silent: set[str] = set()
-        self._pending: list[tuple[_Motor, bytes]] = []
+        self._pending: list[tuple[EmulatedMotor, bytes]] = []
         self._commanded: set[tuple[str, int]] = set()
-        self._static_cache: tuple[list[_Motor], np.ndarray, np.ndarray, WireRanges, np.ndarray] | None = None
+        self._static_cache: _Static | None = None
 
         offsets = dict(offsets or {})
         models = dict(models or {})
         unknown = sorted((set(offsets) | set(models) | set(absent)) - set(robot.joint_names))
         if unknown:
             raise ValueError(f"unknown joints {unknown}; joints: {list(robot.joint_names)}")
-        self.motors: dict[tuple[str, int], _Motor] = {}
-        self._by_interface: dict[str, list[_Motor]] = {}
+        self.motors: dict[tuple[str, int], EmulatedMotor] = {}
+        self._by_interface: dict[str, list[EmulatedMotor]] = {}
         for j in robot.joints:
             if j.name in absent:
                 continue
             self._add(
-                _Motor(
+                EmulatedMotor(
                     can_id=j.can_id,
                     model=models.get(j.name, j.model),
                     interface=j.can_interface,
@@ -188,9 +147,10 @@ class RobstrideEmulator:
             )
         for iface, ids in (extra_ids or {}).items():
             for can_id in ids:
-                self._add(
-                    _Motor(can_id=can_id, model="rs-00", interface=iface, name=f"extra{can_id}", joint=None)
+                extra = EmulatedMotor(
+                    can_id=can_id, model="rs-00", interface=iface, name=f"extra{can_id}", joint=None
                 )
+                self._add(extra)
 
         jid = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in robot.joint_names]
         self._qadr = np.array([self.model.jnt_qposadr[i] for i in jid])
@@ -205,23 +165,10 @@ class RobstrideEmulator:
             for iface in sorted({m.interface for m in self.motors.values()} | used)
         }
 
-    def _add(self, m: _Motor) -> None:
-        spec = robstride_spec(m.model)
-        m.params = {
-            0x7005: 0,
-            0x700B: spec.t_max,
-            0x7018: DEFAULT_LIMIT_CURRENT,
-            0x701C: 48.0,
-            0x701A: 0.0,
-            0x7026: 1,
-            0x7028: 0,
-            0x7029: 0,
-            0x3022: 0,
-        }
+    def _add(self, m: EmulatedMotor) -> None:
+        m.params = fw.power_on_params(m.model)
         m.last_rx = self.clock()
-        m.uid = struct.pack(
-            "<Q", 0x5253000000000000 | (zlib.crc32(m.interface.encode()) & 0xFFFF) << 8 | m.can_id
-        )
+        m.uid = fw.device_uid(m.interface, m.can_id)
         self.motors[(m.interface, m.can_id)] = m
         self._by_interface.setdefault(m.interface, []).append(m)
 
@@ -257,7 +204,7 @@ class RobstrideEmulator:
 
     # ----------------------------------------------------------------------------------------------
     # fault injection and inspection
-    def motor(self, key: str | int) -> _Motor:
+    def motor(self, key: str | int) -> EmulatedMotor:
         """The emulated motor of a joint name or CAN id."""
         for m in self.motors.values():
             if key in (m.name, m.can_id):
@@ -304,10 +251,10 @@ class RobstrideEmulator:
 
     # ----------------------------------------------------------------------------------------------
     # physics
-    def _joint_motors(self) -> list[_Motor]:
+    def _joint_motors(self) -> list[EmulatedMotor]:
         return [m for m in self.motors.values() if m.joint is not None]
 
-    def _static(self) -> tuple[list[_Motor], np.ndarray, np.ndarray, WireRanges, np.ndarray]:
+    def _static(self) -> _Static:
         """Per-motor constants of the joint motors (cached): motors, joint index, direction, ranges, T_max."""
         if self._static_cache is None:
             ms = self._joint_motors()
@@ -384,47 +331,26 @@ class RobstrideEmulator:
 
     # ----------------------------------------------------------------------------------------------
     # the firmware side of the protocol
-    def _feedback(self, m: _Motor) -> proto.Frame:
+    def _joint(self, m: EmulatedMotor) -> JointReading | None:
+        """What ``m`` sees of its joint now (lock held); None for an extra device."""
         if m.joint is None:
-            pos = vel = tau = 0.0
-        else:
-            pos = m.direction * float(self.data.qpos[self._qadr[m.joint]]) + m.offset
-            pos = (pos + P_MAX) % (2 * P_MAX) - P_MAX  # the feedback wraps within +-4*pi
-            vel = m.direction * float(self.data.qvel[self._dadr[m.joint]])
-            tau = float(self._tau_raw[m.joint]) if m.enabled else 0.0
-        sender = m.inj.reply_as if m.inj.reply_as is not None else m.can_id
-        return proto.feedback_frame(
-            sender,
-            m.model,
-            position=pos,
-            velocity=vel,
-            torque=tau,
-            temperature=self.temperature,
-            mode=2 if m.enabled else 0,
-            faults=m.inj.fault_bits,
+            return None
+        return JointReading(
+            q=float(self.data.qpos[self._qadr[m.joint]]),
+            dq=float(self.data.qvel[self._dadr[m.joint]]),
+            tau_raw=float(self._tau_raw[m.joint]),
         )
 
-    def _reply(self, m: _Motor, frames: Sequence[proto.Frame]) -> None:
+    def _reply(self, m: EmulatedMotor, frames: Sequence[proto.Frame]) -> None:
         """Send frames for motor ``m``, honouring drop and silence injections (lock held)."""
-        if m.interface in self._silent:
-            return
-        if m.inj.drop_replies:
-            if m.inj.drop_replies > 0:
-                m.inj.drop_replies -= 1
+        if m.interface in self._silent or fw.drop_reply(m):
             return
         bus = self.buses[m.interface]
         for f in frames:
             bus.send(can.Message(arbitration_id=f[0], data=f[1], is_extended_id=True))
 
-    def _feedback_frames(self, m: _Motor) -> list[proto.Frame]:
-        frames = [self._feedback(m)]
-        if m.inj.fault_word:
-            frames.append(proto.fault_frame(m.can_id, m.inj.fault_word))
-        if m.inj.active_reports:
-            frames.append(
-                proto.Frame(proto.pack_id(proto.CommType.ACTIVE_REPORT, m.can_id, proto.HOST_ID), bytes(8))
-            )
-        return frames
+    def _feedback_frames(self, m: EmulatedMotor) -> list[proto.Frame]:
+        return fw.feedback_frames(m, self._joint(m), self.temperature)
 
     def _garbage(self, interface: str) -> None:
         bus, rng = self.buses[interface], self._rng
@@ -463,15 +389,11 @@ class RobstrideEmulator:
                 if m is not None:
                     m.last_rx = arrival
                     self._handle(m, req)
-                    if m.enabled and (w := self._window(m)) > 0:  # (re)armed by this frame
+                    if m.enabled and (w := fw.watchdog_window(m, self.watchdog_tick)) > 0:  # (re)armed
                         wait = min(wait, max(arrival + w - self.clock(), 0.0))
 
     # ----------------------------------------------------------------------------------------------
     # the watchdog (canTimeout)
-    def _window(self, m: _Motor) -> float:
-        """Watchdog window of ``m``, s; 0 when off."""
-        return int(m.params.get(proto.PARAM_CAN_TIMEOUT, 0)) * self.watchdog_tick
-
     def _watchdog_pass(self, interface: str, now: float) -> float:
         """Trip every enabled motor on ``interface`` that heard nothing for its window before ``now``.
 
@@ -479,15 +401,13 @@ class RobstrideEmulator:
         """
         wait, clock = 0.05, self.clock()
         for m in self._by_interface.get(interface, ()):
-            if not m.enabled or (w := self._window(m)) <= 0:
+            if not m.enabled or (w := fw.watchdog_window(m, self.watchdog_tick)) <= 0:
                 continue
-            if now - m.last_rx < w:
+            if not fw.watchdog_expired(m, now, w):
                 wait = min(wait, m.last_rx + w - clock)
                 continue
             trip = self.clock()
-            m.enabled = False
-            m.cmd = (0.0, 0.0, 0.0, 0.0, 0.0)
-            m.watchdog_trips.append((m.last_rx, trip))
+            fw.trip_watchdog(m, trip)
             self._commanded.discard((m.interface, m.can_id))
             log.info(
                 "%s id %d (%s): canTimeout %.3f s expired (%.3f s since the last frame): reset mode",
@@ -496,10 +416,10 @@ class RobstrideEmulator:
             self._maybe_complete_round()
         return max(wait, 0.0)
 
-    def _handle(self, m: _Motor, req: proto.Request) -> None:
+    def _handle(self, m: EmulatedMotor, req: proto.Request) -> None:
+        """The firmware's answer to one request (lock held); lockstep defers a round's type-1 replies."""
         if isinstance(req, proto.MitRequest):
-            s = req.setpoint(m.model)
-            m.cmd = (s.q, s.dq, s.kp, s.kd, s.tau)
+            fw.apply_mit(m, req)
             if self.mode == "lockstep" and m.enabled and m.joint is not None:
                 self._commanded.add((m.interface, m.can_id))
                 self._pending.append((m, b""))
@@ -509,54 +429,12 @@ class RobstrideEmulator:
             if self.garbage_per_round:
                 self._garbage(m.interface)
             return
-        t = req.comm_type
-        if t == proto.CommType.GET_ID:
-            self._reply(m, [proto.device_id_reply_frame(m.inj.reply_as or m.can_id, m.uid)])
-        elif t == proto.CommType.ENABLE:
-            m.enabled = True
-            self._reply(m, self._feedback_frames(m))
-        elif t == proto.CommType.STOP:
-            m.enabled = False
-            m.cmd = (0.0, 0.0, 0.0, 0.0, 0.0)
+        frames = fw.handle_request(m, req, self._joint(m), self.temperature)
+        if frames is not None:
+            self._reply(m, frames)
+        if req.comm_type == proto.CommType.STOP:  # reset mode: this round no longer waits for this motor
             self._commanded.discard((m.interface, m.can_id))
-            if req.data[0] == 1:
-                m.inj.fault_bits = 0
-                m.inj.fault_word = 0
-            self._reply(m, self._feedback_frames(m))
             self._maybe_complete_round()
-        elif t == proto.CommType.SET_ZERO:
-            if req.data[0] == 1 and m.joint is not None:
-                m.offset = -m.direction * float(self.data.qpos[self._qadr[m.joint]])
-            self._reply(m, self._feedback_frames(m))
-        elif t == proto.CommType.PARAM_READ:
-            self._reply(m, [self._param_reply(m, req.index)])
-        elif t == proto.CommType.PARAM_WRITE:
-            self._param_write(m, req.index, req.value_bytes)
-            self._reply(m, self._feedback_frames(m))
-
-    def _param_reply(self, m: _Motor, index: int) -> proto.Frame:
-        spec = proto.PARAMS.get(index)
-        if spec is None or (index not in m.params and index not in (0x7019, 0x701B)):
-            return proto.param_reply_frame(m.can_id, index, bytes(4), status=1)
-        if index in (0x7019, 0x701B) and m.joint is not None:
-            arr = self.data.qpos[self._qadr] if index == 0x7019 else self.data.qvel[self._dadr]
-            value: float | int = m.direction * float(arr[m.joint]) + (m.offset if index == 0x7019 else 0.0)
-        elif index == 0x3022:
-            value = m.inj.fault_word
-        else:
-            value = m.params.get(index, 0.0)
-        return proto.param_reply_frame(m.can_id, index, proto.encode_param_value(value, spec.dtype))
-
-    def _param_write(self, m: _Motor, index: int, raw: bytes) -> None:
-        spec = proto.PARAMS.get(index)
-        if spec is None or index in (0x7019, 0x701A, 0x701B, 0x701C, 0x3022):
-            return  # unknown or read-only: ignored (the reply is still a type-2 frame)
-        value = proto.decode_param_value(raw, spec.dtype)
-        if index == 0x700B:  # the firmware keeps the torque cap within the model's range
-            value = min(max(float(value), 0.0), robstride_spec(m.model).t_max)
-        if isinstance(value, float) and not math.isfinite(value):
-            return
-        m.params[index] = value
 
     def _maybe_complete_round(self) -> None:
         """Lockstep: step physics and answer once every enabled, audible joint motor was commanded."""
