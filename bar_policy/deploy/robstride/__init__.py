@@ -1,11 +1,12 @@
 """Robstride actuators over python-can: protocol codec, bus layer, safety sequence, emulator and tools.
 
-Layers (style.md item 15): ``framing`` + ``protocol`` (pure bytes <-> messages), ``canbus`` (opening
-python-can buses, ``BusOpenError`` with a one-line fix), ``bus`` (one CAN interface, injected
-``can.BusABC``), ``group`` (both arms as one flat joint list, activation and damping-then-stop),
-``watchdog`` (the motors' CAN watchdog canTimeout), ``calibration`` (homing offsets), ``emulator``
-(MuJoCo-backed motors on a bus; imported on demand) with ``firmware`` (one emulated motor's state and
-answers), ``tools`` (``bar-bus``). The deploy target is
+Layers (style.md item 15): ``framing`` + ``protocol`` (pure bytes <-> messages, host side) +
+``motor_side`` (pure, what a motor sends and decodes), ``canbus`` (opening python-can buses,
+``BusOpenError`` with a one-line fix), ``bus`` (one CAN interface, injected ``can.BusABC``) with
+``activation`` (its activation-time checks and cap writes), ``group`` (both arms as one flat joint list,
+activation and damping-then-stop), ``watchdog`` (the motors' CAN watchdog canTimeout), ``calibration``
+(homing offsets), ``emulator`` (MuJoCo-backed motors on a bus; imported on demand) with ``firmware`` (one
+emulated motor's state and answers), ``tools`` (``bar-bus``). The deploy target is
 ``bar_policy.deploy.targets.real.RealTarget``.
 """
 

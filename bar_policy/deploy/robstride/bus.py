@@ -4,7 +4,8 @@
 feedback and the inverse to commands, so its callers never see motor frames. Every exchange is a *round*:
 one frame per motor out, one type-2 reply per motor back before a deadline. Late or unsolicited frames
 are drained and inspected before the next round, so a type-21 fault frame or a stranger on the bus is
-never dropped silently, and a late reply is never mistaken for a fresh one.
+never dropped silently, and a late reply is never mistaken for a fresh one. The activation-time checks and
+cap writes (scan match, model plausibility, torque/current caps) are functions in ``activation``.
 
 Deadline: the default 3 ms covers the worst-case wire time of one round on a 1 Mbit/s bus with 7 motors
 (7 commands + 7 replies, 160 bits each with worst-case stuffing: 14 * 160 us = 2.24 ms) plus motor latency.
@@ -20,16 +21,10 @@ from dataclasses import dataclass
 import can
 import numpy as np
 
+from bar_policy.deploy.robstride import activation
 from bar_policy.deploy.robstride import protocol as proto
 from bar_policy.deploy.robstride.canbus import down_hint
-from bar_policy.deploy.robstride.errors import (
-    FaultError,
-    InitializationError,
-    OperationError,
-    RobstrideError,
-    TimeoutError,
-    UnexpectedDeviceError,
-)
+from bar_policy.deploy.robstride.errors import FaultError, OperationError, TimeoutError, UnexpectedDeviceError
 from bar_policy.robot.actuators import robstride_spec
 from bar_policy.robot.mit import wire_ranges
 
@@ -305,77 +300,10 @@ class RobstrideBus:
         )
 
     # ----------------------------------------------------------------------------------------------
-    # activation checks
-    def verify_scan(self, found: Iterable[int]) -> None:
-        """Refuse (``InitializationError``) unless exactly this bus's motor ids answered the scan."""
-        found_set, expected = set(found), set(self.ids)
-        missing, extra = sorted(expected - found_set), sorted(found_set - expected)
-        if missing or extra:
-            raise InitializationError(
-                f"{self.interface}: scan mismatch, refusing to enable. expected ids {sorted(expected)}; "
-                f"missing {[(i, self.name_of(i)) for i in missing]}; unknown devices {extra}"
-            )
-
-    def verify_models(self, *, tolerance: float = 1e-3) -> dict[int, float]:
-        """Check each motor's model is plausible; returns id -> limit_torque read.
-
-        There is no documented model-id parameter, so the model comes from the robot data and is checked
-        against the torque cap 0x700B: its power-on default is the model's T_max and the firmware keeps it
-        within [0, T_max], so a value above the configured model's T_max proves a bigger model than
-        configured (e.g. an rs-02 where an rs-05 belongs). A smaller model than configured can pass
-        (its cap reads like a lowered cap): the hardware check list in docs/can.md covers that.
-        """
-        read: dict[int, float] = {}
-        for m in self.motors:
-            try:
-                value = float(self.read_param(m.can_id, proto.PARAM_LIMIT_TORQUE))
-            except RobstrideError as exc:
-                raise InitializationError(
-                    f"{self.interface}: cannot read limit_torque of {m.name} (id {m.can_id}): {exc}"
-                ) from exc
-            t_max = robstride_spec(m.model).t_max
-            if not 0.0 <= value <= t_max + tolerance:
-                raise InitializationError(
-                    f"{self.interface}: {m.name} (id {m.can_id}) reports limit_torque={value:g} N*m, outside "
-                    f"[0, {t_max:g}] of the configured {m.model}: wrong model on this id, refusing to enable"
-                )
-            read[m.can_id] = value
-        return read
-
+    # activation (the checks and cap writes live in ``activation``)
     def write_caps(self, *, verify: bool = True) -> list[tuple[int, str, float]]:
-        """Write the torque (0x700B) and current (0x7018) caps of every motor; a cap of 0 is skipped.
-
-        Logs every write and skip; reads each write back when ``verify``. Returns (id, param, value) written.
-        """
-        written = []
-        for m in self.motors:
-            for index, pname, value in (
-                (proto.PARAM_LIMIT_TORQUE, "torque_limit", m.torque_limit),
-                (proto.PARAM_LIMIT_CURRENT, "current_limit", m.current_limit),
-            ):
-                if value == 0:
-                    log.info(
-                        "skipped %s (cap 0) for can_id=%d (%s) on %s", pname, m.can_id, m.name, self.interface
-                    )
-                    continue
-                self.write_param(m.can_id, index, value)
-                if verify:
-                    back = float(self.read_param(m.can_id, index))
-                    if abs(back - value) > 1e-4 * max(1.0, abs(value)):
-                        raise InitializationError(
-                            f"{self.interface}: wrote {pname}={value:g} to {m.name} (id {m.can_id}) "
-                            f"but it reads back {back:g}"
-                        )
-                log.info(
-                    "wrote %s=%s to can_id=%d (%s) on %s",
-                    pname,
-                    float(value),
-                    m.can_id,
-                    m.name,
-                    self.interface,
-                )
-                written.append((m.can_id, pname, float(value)))
-        return written
+        """``activation.write_caps(self, verify=verify)``: torque/current caps, (id, param, value) written."""
+        return activation.write_caps(self, verify=verify)
 
     # ----------------------------------------------------------------------------------------------
     # rounds

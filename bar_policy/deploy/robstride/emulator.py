@@ -39,7 +39,8 @@ import mujoco
 import numpy as np
 
 from bar_policy.deploy.robstride import firmware as fw
-from bar_policy.deploy.robstride import protocol as proto
+from bar_policy.deploy.robstride import framing, motor_side
+from bar_policy.deploy.robstride.errors import FrameError
 from bar_policy.deploy.robstride.firmware import DEFAULT_LIMIT_CURRENT, EmulatedMotor, Injection, JointReading
 from bar_policy.robot.actuators import robstride_spec
 from bar_policy.robot.constants import RobotSpec
@@ -92,7 +93,7 @@ class RobstrideEmulator:
         extra_ids: Mapping[str, Sequence[int]] | None = None,
         temperature: float = 30.0,
         seed: int = 0,
-        watchdog_tick: float = proto.CAN_TIMEOUT_TICK,
+        watchdog_tick: float = framing.CAN_TIMEOUT_TICK,
         clock: Callable[[], float] = time.time,
     ) -> None:
         if mode not in EMULATOR_MODES:
@@ -341,7 +342,7 @@ class RobstrideEmulator:
             tau_raw=float(self._tau_raw[m.joint]),
         )
 
-    def _reply(self, m: EmulatedMotor, frames: Sequence[proto.Frame]) -> None:
+    def _reply(self, m: EmulatedMotor, frames: Sequence[framing.Frame]) -> None:
         """Send frames for motor ``m``, honouring drop and silence injections (lock held)."""
         if m.interface in self._silent or fw.drop_reply(m):
             return
@@ -349,7 +350,7 @@ class RobstrideEmulator:
         for f in frames:
             bus.send(can.Message(arbitration_id=f[0], data=f[1], is_extended_id=True))
 
-    def _feedback_frames(self, m: EmulatedMotor) -> list[proto.Frame]:
+    def _feedback_frames(self, m: EmulatedMotor) -> list[framing.Frame]:
         return fw.feedback_frames(m, self._joint(m), self.temperature)
 
     def _garbage(self, interface: str) -> None:
@@ -379,8 +380,10 @@ class RobstrideEmulator:
             if msg is None or msg.is_error_frame or msg.is_remote_frame:
                 continue
             try:
-                req = proto.decode_request(msg.arbitration_id, msg.data, is_extended_id=msg.is_extended_id)
-            except proto.FrameError:
+                req = motor_side.decode_request(
+                    msg.arbitration_id, msg.data, is_extended_id=msg.is_extended_id
+                )
+            except FrameError:
                 continue  # not for a motor (another reply, garbage): firmware ignores it
             with self._lock:
                 if interface in self._silent:
@@ -416,9 +419,9 @@ class RobstrideEmulator:
             self._maybe_complete_round()
         return max(wait, 0.0)
 
-    def _handle(self, m: EmulatedMotor, req: proto.Request) -> None:
+    def _handle(self, m: EmulatedMotor, req: motor_side.Request) -> None:
         """The firmware's answer to one request (lock held); lockstep defers a round's type-1 replies."""
-        if isinstance(req, proto.MitRequest):
+        if isinstance(req, motor_side.MitRequest):
             fw.apply_mit(m, req)
             if self.mode == "lockstep" and m.enabled and m.joint is not None:
                 self._commanded.add((m.interface, m.can_id))
@@ -432,7 +435,7 @@ class RobstrideEmulator:
         frames = fw.handle_request(m, req, self._joint(m), self.temperature)
         if frames is not None:
             self._reply(m, frames)
-        if req.comm_type == proto.CommType.STOP:  # reset mode: this round no longer waits for this motor
+        if req.comm_type == framing.CommType.STOP:  # reset mode: this round no longer waits for this motor
             self._commanded.discard((m.interface, m.can_id))
             self._maybe_complete_round()
 

@@ -22,7 +22,7 @@ import struct
 import zlib
 from dataclasses import dataclass, field
 
-from bar_policy.deploy.robstride import protocol as proto
+from bar_policy.deploy.robstride import framing, motor_side
 from bar_policy.robot.actuators import P_MAX, robstride_spec
 
 __all__ = [
@@ -140,13 +140,13 @@ def reset_mode(m: EmulatedMotor) -> None:
     m.cmd = _ZERO_CMD
 
 
-def apply_mit(m: EmulatedMotor, req: proto.MitRequest) -> None:
+def apply_mit(m: EmulatedMotor, req: motor_side.MitRequest) -> None:
     """Store a type-1 command, decoded with the motor's own model ranges (stored even when disabled)."""
     s = req.setpoint(m.model)
     m.cmd = (s.q, s.dq, s.kp, s.kd, s.tau)
 
 
-def _feedback(m: EmulatedMotor, joint: JointReading | None, temperature: float) -> proto.Frame:
+def _feedback(m: EmulatedMotor, joint: JointReading | None, temperature: float) -> framing.Frame:
     """The type-2 feedback frame; an extra device (``joint`` None) reports zeros."""
     if joint is None:
         pos = vel = tau = 0.0
@@ -156,7 +156,7 @@ def _feedback(m: EmulatedMotor, joint: JointReading | None, temperature: float) 
         vel = m.direction * joint.dq
         tau = joint.tau_raw if m.enabled else 0.0
     sender = m.inj.reply_as if m.inj.reply_as is not None else m.can_id
-    return proto.feedback_frame(
+    return motor_side.feedback_frame(
         sender,
         m.model,
         position=pos,
@@ -168,7 +168,7 @@ def _feedback(m: EmulatedMotor, joint: JointReading | None, temperature: float) 
     )
 
 
-def feedback_frames(m: EmulatedMotor, joint: JointReading | None, temperature: float) -> list[proto.Frame]:
+def feedback_frames(m: EmulatedMotor, joint: JointReading | None, temperature: float) -> list[framing.Frame]:
     """Type-2 feedback, then the injected type-21 fault frame and type-24 active report, if any.
 
     Args:
@@ -178,10 +178,10 @@ def feedback_frames(m: EmulatedMotor, joint: JointReading | None, temperature: f
     """
     frames = [_feedback(m, joint, temperature)]
     if m.inj.fault_word:
-        frames.append(proto.fault_frame(m.can_id, m.inj.fault_word))
+        frames.append(motor_side.fault_frame(m.can_id, m.inj.fault_word))
     if m.inj.active_reports:
-        report_id = proto.pack_id(proto.CommType.ACTIVE_REPORT, m.can_id, proto.HOST_ID)
-        frames.append(proto.Frame(report_id, bytes(8)))
+        report_id = framing.pack_id(framing.CommType.ACTIVE_REPORT, m.can_id, framing.HOST_ID)
+        frames.append(framing.Frame(report_id, bytes(8)))
     return frames
 
 
@@ -194,11 +194,11 @@ def drop_reply(m: EmulatedMotor) -> bool:
     return True
 
 
-def _param_reply(m: EmulatedMotor, index: int, joint: JointReading | None) -> proto.Frame:
+def _param_reply(m: EmulatedMotor, index: int, joint: JointReading | None) -> framing.Frame:
     """Type-17 reply; status 1 and a zero value for an index the motor does not have."""
-    spec = proto.PARAMS.get(index)
+    spec = framing.PARAMS.get(index)
     if spec is None or (index not in m.params and index not in _JOINT_STATE_PARAMS):
-        return proto.param_reply_frame(m.can_id, index, bytes(4), status=1)
+        return motor_side.param_reply_frame(m.can_id, index, bytes(4), status=1)
     if index in _JOINT_STATE_PARAMS and joint is not None:
         raw = joint.q if index == 0x7019 else joint.dq
         value: float | int = m.direction * raw + (m.offset if index == 0x7019 else 0.0)
@@ -206,15 +206,15 @@ def _param_reply(m: EmulatedMotor, index: int, joint: JointReading | None) -> pr
         value = m.inj.fault_word
     else:
         value = m.params.get(index, 0.0)
-    return proto.param_reply_frame(m.can_id, index, proto.encode_param_value(value, spec.dtype))
+    return motor_side.param_reply_frame(m.can_id, index, framing.encode_param_value(value, spec.dtype))
 
 
 def _param_write(m: EmulatedMotor, index: int, raw: bytes) -> None:
     """Type-18 write; unknown, read-only and non-finite values are ignored (the reply is still type 2)."""
-    spec = proto.PARAMS.get(index)
+    spec = framing.PARAMS.get(index)
     if spec is None or index in _READ_ONLY_PARAMS:
         return
-    value = proto.decode_param_value(raw, spec.dtype)
+    value = framing.decode_param_value(raw, spec.dtype)
     if index == 0x700B:  # the firmware keeps the torque cap within the model's range
         value = min(max(float(value), 0.0), robstride_spec(m.model).t_max)
     if isinstance(value, float) and not math.isfinite(value):
@@ -223,8 +223,8 @@ def _param_write(m: EmulatedMotor, index: int, raw: bytes) -> None:
 
 
 def handle_request(
-    m: EmulatedMotor, req: proto.SimpleRequest, joint: JointReading | None, temperature: float
-) -> list[proto.Frame] | None:
+    m: EmulatedMotor, req: motor_side.SimpleRequest, joint: JointReading | None, temperature: float
+) -> list[framing.Frame] | None:
     """Apply a non-MIT request to ``m`` and return the firmware's reply frames; None: no reply.
 
     None rather than an empty list, so that a request the firmware does not answer (set id, save, baud,
@@ -239,21 +239,21 @@ def handle_request(
         temperature: reported temperature, degC.
     """
     t = req.comm_type
-    if t == proto.CommType.GET_ID:
-        return [proto.device_id_reply_frame(m.inj.reply_as or m.can_id, m.uid)]
-    if t == proto.CommType.ENABLE:
+    if t == framing.CommType.GET_ID:
+        return [motor_side.device_id_reply_frame(m.inj.reply_as or m.can_id, m.uid)]
+    if t == framing.CommType.ENABLE:
         m.enabled = True
-    elif t == proto.CommType.STOP:
+    elif t == framing.CommType.STOP:
         reset_mode(m)
         if req.data[0] == 1:  # byte 0 = 1: clear faults
             m.inj.fault_bits = 0
             m.inj.fault_word = 0
-    elif t == proto.CommType.SET_ZERO:
+    elif t == framing.CommType.SET_ZERO:
         if req.data[0] == 1 and joint is not None:  # the present position becomes raw zero
             m.offset = -m.direction * joint.q
-    elif t == proto.CommType.PARAM_READ:
+    elif t == framing.CommType.PARAM_READ:
         return [_param_reply(m, req.index, joint)]
-    elif t == proto.CommType.PARAM_WRITE:
+    elif t == framing.CommType.PARAM_WRITE:
         _param_write(m, req.index, req.value_bytes)
     else:
         return None
@@ -268,7 +268,7 @@ def watchdog_window(m: EmulatedMotor, tick: float) -> float:
 
     A motor without the parameter (an old firmware) has no watchdog.
     """
-    return int(m.params.get(proto.PARAM_CAN_TIMEOUT, 0)) * tick
+    return int(m.params.get(framing.PARAM_CAN_TIMEOUT, 0)) * tick
 
 
 def watchdog_expired(m: EmulatedMotor, now: float, window: float) -> bool:

@@ -1,7 +1,9 @@
 """Robstride private CAN framing: ids, communication types, simple host frames, parameters, fault names.
 
-Pure: no I/O, no python-can. The MIT/feedback codec and the decoders are in ``protocol`` (which re-exports
-everything here). Reference: ``shared/reference/robstride-protocol.md`` sections 1, 5 and 6.
+Also what both sides of the wire share: ``MitSetpoint`` (one MIT command in SI units) and ``check_frame``
+(an 8-byte extended frame, else ``FrameError``). Pure: no I/O, no python-can. The host side (MIT encoder,
+reply decoder) is ``protocol``, which re-exports everything here; the motor side (frames a motor sends,
+request decoder) is ``motor_side``. Reference: ``shared/reference/robstride-protocol.md`` sections 1, 5 and 6.
 """
 
 from __future__ import annotations
@@ -30,9 +32,11 @@ __all__ = [
     "PARAM_LIMIT_TORQUE",
     "CommType",
     "Frame",
+    "MitSetpoint",
     "ParamSpec",
     "can_timeout_ticks",
     "check_can_timeout",
+    "check_frame",
     "check_motor_id",
     "decode_param_value",
     "enable_frame",
@@ -107,6 +111,22 @@ MIT_FIELDS: tuple[str, ...] = ("q", "dq", "kp", "kd", "tau")
 """Names of the five MIT fields, in the order clamp masks use."""
 
 
+@dataclass(frozen=True, kw_only=True, slots=True)
+class MitSetpoint:
+    """One motor's MIT command in the motor's own frame (raw, before direction/offset)."""
+
+    q: float
+    """Target position, rad."""
+    dq: float
+    """Target velocity, rad/s."""
+    kp: float
+    """Stiffness, N*m/rad."""
+    kd: float
+    """Damping, N*m*s/rad."""
+    tau: float
+    """Feed-forward torque, N*m."""
+
+
 # ---------------------------------------------------------------------------------------------------
 # Ids and frames
 # ---------------------------------------------------------------------------------------------------
@@ -151,6 +171,24 @@ def check_motor_id(can_id: int) -> None:
     """Raise ``CommandError`` unless ``can_id`` is a valid motor id (0..127)."""
     if not 0 <= can_id <= _MAX_ID:
         raise CommandError(f"CAN id must be in 0..127, got {can_id}")
+
+
+def check_frame(arbitration_id: object, data: object, is_extended_id: bool) -> tuple[int, bytes]:
+    """Validate a received frame of either direction; returns ``(id, payload)``, else ``FrameError``.
+
+    Valid: an extended (29-bit) id and exactly 8 payload bytes (every private-protocol frame has 8).
+    """
+    if not is_extended_id:
+        raise FrameError(f"standard (11-bit) frame id {arbitration_id!r}: not a private-protocol frame")
+    if not isinstance(arbitration_id, int) or not 0 <= arbitration_id < (1 << 29):
+        raise FrameError(f"arbitration id {arbitration_id!r} is not a 29-bit integer")
+    try:
+        payload = bytes(data)  # type: ignore[arg-type]
+    except (TypeError, ValueError) as exc:
+        raise FrameError(f"payload {data!r} is not bytes") from exc
+    if len(payload) != 8:
+        raise FrameError(f"id {arbitration_id:#010x}: payload has {len(payload)} bytes, expected 8")
+    return arbitration_id, payload
 
 
 def _simple(comm_type: CommType, can_id: int, host_id: int, data: bytes = bytes(8)) -> Frame:

@@ -5,7 +5,7 @@ own deadline, so the buses' wire times overlap (interleaved non-blocking send / 
 locks, no thread hand-offs on the control path). The flat joint list is the robot's canonical order.
 
 Safety sequence (``activate``): scan every bus and refuse unless exactly the expected ids answer; check
-each motor's model is plausible (``RobstrideBus.verify_models``) and that its firmware knows the CAN
+each motor's model is plausible (``activation.verify_models``) and that its firmware knows the CAN
 watchdog (``watchdog.read_can_timeouts``); read the joints with stop frames (the motors stay disabled) and
 refuse faults or positions outside the limits (a calibration or 2*pi wrap error); write the torque/current
 caps and arm the watchdog (``watchdog.arm_can_timeout``); enable; hold damping at the present pose.
@@ -24,6 +24,7 @@ import can
 import numpy as np
 
 from bar_policy.deploy.robstride import protocol as proto
+from bar_policy.deploy.robstride.activation import verify_models, verify_scan, write_caps
 from bar_policy.deploy.robstride.bus import DEFAULT_REPLY_TIMEOUT, BusReading, MotorConfig, RobstrideBus
 from bar_policy.deploy.robstride.calibration import Calibration
 from bar_policy.deploy.robstride.errors import (
@@ -214,7 +215,7 @@ class RobstrideGroup:
         problems = []
         for bus in self.buses:
             try:
-                bus.verify_scan(found[bus.interface])
+                verify_scan(bus, found[bus.interface])
             except InitializationError as exc:
                 problems.append(str(exc))
         if problems:
@@ -241,7 +242,7 @@ class RobstrideGroup:
         """
         self.scan_and_verify(scan_ids, timeout=scan_timeout)
         for bus in self.buses:
-            bus.verify_models()
+            verify_models(bus)
             read_can_timeouts(bus)  # old firmware without canTimeout is refused before anything is written
         reading = self.poll_disabled(strict=True)
         bad = [
@@ -258,7 +259,7 @@ class RobstrideGroup:
             log.info("dry run: checks passed, nothing written or enabled")
             return reading
         for bus in self.buses:
-            bus.write_caps()
+            write_caps(bus)
             arm_can_timeout(bus)
         try:
             enabled = self.enable()

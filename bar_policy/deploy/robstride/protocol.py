@@ -1,4 +1,4 @@
-"""Robstride private CAN protocol: bytes <-> typed messages. Pure: no I/O, no python-can.
+"""Robstride private CAN protocol, host side: MIT encoding and reply decoding. Pure: no I/O, no python-can.
 
 Reference: ``shared/reference/robstride-protocol.md`` (section numbers below are that file's).
 
@@ -15,7 +15,9 @@ Reference: ``shared/reference/robstride-protocol.md`` (section numbers below are
   and value), fault frame 21 (LE fault and warning words), active report 24 (tolerated, ignored).
 
 Decoders raise only ``FrameError`` on frames they cannot interpret, whatever the input. Ids, simple host
-frames, parameters and fault names live in ``framing`` and are re-exported here.
+frames, parameters and fault names live in ``framing``; the motor side (frames a motor sends, decoding of
+host requests: what firmware does, used by the emulator) lives in ``motor_side``. Both are re-exported
+here, so ``protocol`` stays the one import for the whole codec.
 """
 
 from __future__ import annotations
@@ -45,9 +47,11 @@ from bar_policy.deploy.robstride.framing import (
     PARAMS,
     CommType,
     Frame,
+    MitSetpoint,
     ParamSpec,
     can_timeout_ticks,
     check_can_timeout,
+    check_frame,
     check_motor_id,
     decode_param_value,
     enable_frame,
@@ -63,11 +67,22 @@ from bar_policy.deploy.robstride.framing import (
     unpack_id,
     write_param_frame,
 )
-from bar_policy.robot.actuators import P_MAX, ROBSTRIDE_MODELS, robstride_spec
-from bar_policy.robot.mit import U16_MAX, WireRanges, decode_u16, encode_u16, wire_ranges
+from bar_policy.deploy.robstride.motor_side import (
+    MitRequest,
+    Request,
+    SimpleRequest,
+    _u16,  # noqa: F401 - re-exported for tests/robstride/test_protocol.py (bit-identical to encode_u16)
+    decode_request,
+    device_id_reply_frame,
+    fault_frame,
+    feedback_frame,
+    param_reply_frame,
+)
+from bar_policy.robot.actuators import P_MAX, ROBSTRIDE_MODELS
+from bar_policy.robot.mit import U16_MAX, WireRanges, encode_u16, wire_ranges
 
 __all__ = [
-    # re-exported from ``framing``
+    # re-exported from ``framing`` and ``motor_side``
     "CAN_TIMEOUT_MAX",
     "CAN_TIMEOUT_MIN",
     "CAN_TIMEOUT_TICK",
@@ -100,6 +115,7 @@ __all__ = [
     "SimpleRequest",
     "can_timeout_ticks",
     "check_can_timeout",
+    "check_frame",
     "decode_param_value",
     "decode_reply",
     "decode_request",
@@ -128,22 +144,6 @@ __all__ = [
 # ---------------------------------------------------------------------------------------------------
 # MIT (type 1)
 # ---------------------------------------------------------------------------------------------------
-@dataclass(frozen=True, kw_only=True, slots=True)
-class MitSetpoint:
-    """One motor's MIT command in the motor's own frame (raw, before direction/offset)."""
-
-    q: float
-    """Target position, rad."""
-    dq: float
-    """Target velocity, rad/s."""
-    kp: float
-    """Stiffness, N*m/rad."""
-    kd: float
-    """Damping, N*m*s/rad."""
-    tau: float
-    """Feed-forward torque, N*m."""
-
-
 @dataclass
 class ClampCounter:
     """Counts deliberately clamped MIT fields, per field and per CAN id (never a silent clamp)."""
@@ -225,66 +225,6 @@ def encode_mit(can_id: int, model: str, cmd: MitSetpoint) -> tuple[Frame, tuple[
     values = np.array([[cmd.q], [cmd.dq], [cmd.kp], [cmd.kd], [cmd.tau]])
     frames, clamped = encode_mit_batch([can_id], wire_ranges([model]), values)
     return frames[0], tuple(MIT_FIELDS[f] for f in range(5) if clamped[f, 0])
-
-
-# ---------------------------------------------------------------------------------------------------
-# Motor -> host frames (built by the emulator, decoded by the bus)
-# ---------------------------------------------------------------------------------------------------
-def _u16(x: float, lo: float, hi: float) -> int:
-    """Scalar ``encode_u16`` (same float operations, so bit-identical; tested), NaN -> 0."""
-    if not math.isfinite(x):
-        return 0 if math.isnan(x) or x < 0 else U16_MAX
-    return int((min(max(x, lo), hi) - lo) * (U16_MAX / (hi - lo)))
-
-
-def feedback_frame(
-    motor_id: int,
-    model: str,
-    *,
-    position: float,
-    velocity: float,
-    torque: float,
-    temperature: float,
-    mode: int = 2,
-    faults: int = 0,
-    host_id: int = HOST_ID,
-) -> Frame:
-    """Type 2 feedback as a motor sends it (values saturate at the model's ranges)."""
-    spec = robstride_spec(model)
-    check_motor_id(motor_id)
-    area2 = ((mode & 0x3) << 14) | ((faults & 0x3F) << 8) | motor_id
-    temp = max(0, min(U16_MAX, round(temperature * 10.0))) if math.isfinite(temperature) else 0
-    data = struct.pack(
-        ">HHHH",
-        _u16(position, -spec.p_max, spec.p_max),
-        _u16(velocity, -spec.v_max, spec.v_max),
-        _u16(torque, -spec.t_max, spec.t_max),
-        temp,
-    )
-    return Frame(pack_id(CommType.FEEDBACK, area2, host_id), data)
-
-
-def param_reply_frame(
-    motor_id: int, index: int, value: bytes, *, status: int = 0, host_id: int = HOST_ID
-) -> Frame:
-    """Type 17 reply: status in bits 23..16, index LE in bytes 0..1, value bytes 4..7."""
-    area2 = ((status & 0xFF) << 8) | motor_id
-    return Frame(
-        pack_id(CommType.PARAM_READ, area2, host_id), struct.pack("<H", index) + bytes(2) + value[:4]
-    )
-
-
-def device_id_reply_frame(motor_id: int, uid: bytes) -> Frame:
-    """Type 0 reply: motor id in bits 15..8, 0xFE in bits 7..0, 64-bit MCU id as payload."""
-    return Frame(pack_id(CommType.GET_ID, motor_id, DEVICE_ID_REPLY_DEST), bytes(uid[:8]).ljust(8, b"\0"))
-
-
-def fault_frame(motor_id: int, fault_word: int, warning_word: int = 0, *, host_id: int = HOST_ID) -> Frame:
-    """Type 21 fault report: LE u32 fault word, LE u32 warning word."""
-    return Frame(
-        pack_id(CommType.FAULT, motor_id, host_id),
-        struct.pack("<II", fault_word & 0xFFFFFFFF, warning_word & 0xFFFFFFFF),
-    )
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -373,20 +313,6 @@ Reply = Feedback | ParamReply | DeviceIdReply | FaultReport | ActiveReport
 """Anything ``decode_reply`` returns."""
 
 
-def _check_frame(arbitration_id: object, data: object, is_extended_id: bool) -> tuple[int, bytes]:
-    if not is_extended_id:
-        raise FrameError(f"standard (11-bit) frame id {arbitration_id!r}: not a private-protocol frame")
-    if not isinstance(arbitration_id, int) or not 0 <= arbitration_id < (1 << 29):
-        raise FrameError(f"arbitration id {arbitration_id!r} is not a 29-bit integer")
-    try:
-        payload = bytes(data)  # type: ignore[arg-type]
-    except (TypeError, ValueError) as exc:
-        raise FrameError(f"payload {data!r} is not bytes") from exc
-    if len(payload) != 8:
-        raise FrameError(f"id {arbitration_id:#010x}: payload has {len(payload)} bytes, expected 8")
-    return arbitration_id, payload
-
-
 def decode_reply(
     arbitration_id: int,
     data: bytes,
@@ -405,7 +331,7 @@ def decode_reply(
     Raises:
         FrameError: the frame is not a motor -> host private-protocol frame this driver understands.
     """
-    arbitration_id, payload = _check_frame(arbitration_id, data, is_extended_id)
+    arbitration_id, payload = check_frame(arbitration_id, data, is_extended_id)
     comm, area2, dest = unpack_id(arbitration_id)
     motor_id = area2 & 0xFF
     if comm == CommType.FEEDBACK:
@@ -436,86 +362,3 @@ def decode_reply(
     if comm == CommType.ACTIVE_REPORT:
         return ActiveReport(motor_id=motor_id)
     raise FrameError(f"id {arbitration_id:#010x}: communication type {comm} is not a motor reply")
-
-
-# ---------------------------------------------------------------------------------------------------
-# Decoded requests (what a motor, i.e. the emulator, receives)
-# ---------------------------------------------------------------------------------------------------
-@dataclass(frozen=True, kw_only=True, slots=True)
-class MitRequest:
-    """A type-1 frame as received: raw 16-bit fields (scaling needs the receiving motor's model)."""
-
-    motor_id: int
-    """Addressed CAN id."""
-    raw: tuple[int, int, int, int, int]
-    """u16 of q, dq, kp, kd, tau (``MIT_FIELDS`` order)."""
-
-    def setpoint(self, model: str) -> MitSetpoint:
-        """The command as a motor of ``model`` decodes it (official ``uint_to_float``)."""
-        s = robstride_spec(model)
-        q, dq, kp, kd, tau = self.raw
-        return MitSetpoint(
-            q=float(decode_u16(q, -s.p_max, s.p_max)),
-            dq=float(decode_u16(dq, -s.v_max, s.v_max)),
-            kp=float(decode_u16(kp, 0.0, s.kp_max)),
-            kd=float(decode_u16(kd, 0.0, s.kd_max)),
-            tau=float(decode_u16(tau, -s.t_max, s.t_max)),
-        )
-
-
-@dataclass(frozen=True, kw_only=True, slots=True)
-class SimpleRequest:
-    """Any other host -> motor frame: type, addressed id, host id and payload."""
-
-    comm_type: CommType
-    """Communication type."""
-    motor_id: int
-    """Addressed CAN id (bits 7..0)."""
-    host_id: int
-    """Sender host id (bits 15..8)."""
-    data: bytes
-    """Payload."""
-
-    @property
-    def index(self) -> int:
-        """Parameter index (types 17/18)."""
-        return struct.unpack_from("<H", self.data, 0)[0]
-
-    @property
-    def value_bytes(self) -> bytes:
-        """Parameter value bytes 4..7 (type 18)."""
-        return self.data[4:8]
-
-
-Request = MitRequest | SimpleRequest
-"""Anything ``decode_request`` returns."""
-
-_REQUEST_TYPES = frozenset(
-    {
-        CommType.GET_ID,
-        CommType.ENABLE,
-        CommType.STOP,
-        CommType.SET_ZERO,
-        CommType.SET_ID,
-        CommType.PARAM_READ,
-        CommType.PARAM_WRITE,
-        CommType.SAVE,
-        CommType.BAUD,
-        CommType.ACTIVE_REPORT,
-        CommType.PROTOCOL,
-    }
-)
-
-
-def decode_request(arbitration_id: int, data: bytes, *, is_extended_id: bool = True) -> Request:
-    """Decode a host -> motor frame; raises ``FrameError`` for anything else."""
-    arbitration_id, payload = _check_frame(arbitration_id, data, is_extended_id)
-    comm, area2, dest = unpack_id(arbitration_id)
-    if comm == CommType.MIT:
-        q, dq, kp, kd = struct.unpack(">HHHH", payload)
-        return MitRequest(motor_id=dest, raw=(q, dq, kp, kd, area2))
-    if comm == CommType.GET_ID and dest == DEVICE_ID_REPLY_DEST:
-        raise FrameError(f"type-0 frame {arbitration_id:#010x} is a device-id reply, not a request")
-    if comm in _REQUEST_TYPES:
-        return SimpleRequest(comm_type=CommType(comm), motor_id=dest, host_id=area2 & 0xFF, data=payload)
-    raise FrameError(f"id {arbitration_id:#010x}: communication type {comm} is not a host request")

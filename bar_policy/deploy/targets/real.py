@@ -37,8 +37,9 @@ from bar_policy.deploy.robstride.calibration import Calibration
 from bar_policy.deploy.robstride.canbus import open_can_buses
 from bar_policy.deploy.robstride.cli_args import can_timeout_arg, int_range, non_negative, positive
 from bar_policy.deploy.robstride.errors import CommandError, InitializationError, RobstrideError
+from bar_policy.deploy.robstride.framing import DEFAULT_CAN_TIMEOUT, fault_names
 from bar_policy.deploy.robstride.group import RobstrideGroup
-from bar_policy.deploy.robstride.protocol import DEFAULT_CAN_TIMEOUT, decode_request, fault_names
+from bar_policy.deploy.robstride.motor_side import decode_request
 from bar_policy.deploy.targets.base import JointState, Target, TargetError
 from bar_policy.robot.constants import RobotSpec, load_robot
 from bar_policy.robot.mit import MitCommand
