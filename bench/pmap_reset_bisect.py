@@ -368,7 +368,10 @@ def _run_one(stage: str, torch_first: bool, args: argparse.Namespace, log: Path 
     ]
     if torch_first:
         cmd.append("--torch")
-    env = {**os.environ, "XLA_PYTHON_CLIENT_PREALLOCATE": "false", "PYTHONFAULTHANDLER": "1"}
+    # jax's own default partitioner (Shardy) unless the caller chose: the stages probe XLA as jax ships it,
+    # and the sharded ones go through make_data_parallel, which would otherwise pick GSPMD.
+    env = {"JAX_USE_SHARDY_PARTITIONER": "true", **os.environ}
+    env |= {"XLA_PYTHON_CLIENT_PREALLOCATE": "false", "PYTHONFAULTHANDLER": "1"}
     if log is None:
         return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     with open(log, "w") as out:  # the child keeps its own copy of the descriptor

@@ -11,6 +11,7 @@ kinematics of both), with the mode.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -22,6 +23,18 @@ __all__ = ["plot_log", "tracking_errors"]
 def _grid(n: int) -> tuple[int, int]:
     cols = 2 if n <= 8 else 3
     return (n + cols - 1) // cols, cols
+
+
+def _save(fig: Any, path: Path, title: str, **adjust: float) -> Path:
+    """Title, margins (``adjust`` overrides the stacked-panels defaults), PNG at 80 dpi, figure closed."""
+    import matplotlib.pyplot as plt
+
+    fig.suptitle(title, fontsize=9)
+    margins = {"left": 0.1, "right": 0.98, "top": 0.93, "bottom": 0.08, "hspace": 0.25} | adjust
+    fig.subplots_adjust(**margins)
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
 
 
 def tracking_errors(arrays: dict[str, np.ndarray], mode: str = "arms") -> dict[str, np.ndarray]:
@@ -92,12 +105,10 @@ def plot_log(path: str | Path, out_dir: str | Path | None = None) -> list[Path]:
             ax.set_title(names[i], fontsize=8)
             ax.tick_params(labelsize=7)
         axes.flat[0].legend(fontsize=7)
-        fig.suptitle(f"{label} - {title}", fontsize=9)
         fig.supxlabel("t (s)", fontsize=8)
-        fig.subplots_adjust(left=0.05, right=0.98, top=0.93, bottom=0.06, hspace=0.45, wspace=0.15)
-        written.append(out / filename)
-        fig.savefig(written[-1], dpi=80)
-        plt.close(fig)
+        written.append(
+            _save(fig, out / filename, f"{label} - {title}", hspace=0.45, wspace=0.15, left=0.05, bottom=0.06)
+        )
 
     joint_grid(
         [("q", "-", "q measured"), ("q_cmd", "--", "q_cmd"), ("ref_q", ":", "reference")],
@@ -130,11 +141,7 @@ def plot_log(path: str | Path, out_dir: str | Path | None = None) -> list[Path]:
         axes[1].set_ylabel("fingertip error (cm)")
         axes[1].legend(fontsize=7)
         mode_axis(axes[2])
-        fig.suptitle(f"tracking - {title}", fontsize=9)
-        fig.subplots_adjust(left=0.1, right=0.98, top=0.93, bottom=0.08, hspace=0.25)
-        written.append(out / "tracking.png")
-        fig.savefig(written[-1], dpi=80)
-        plt.close(fig)
+        written.append(_save(fig, out / "tracking.png", f"tracking - {title}"))
 
     fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
     axes[0].plot(t, arrays["compute"] * 1e3, lw=0.8, label="compute (state->command)")
@@ -150,9 +157,5 @@ def plot_log(path: str | Path, out_dir: str | Path | None = None) -> list[Path]:
     axes[1].set_ylabel("jitter (ms)")
     axes[1].legend(fontsize=7)
     mode_axis(axes[2])
-    fig.suptitle(f"timing - {title}", fontsize=9)
-    fig.subplots_adjust(left=0.1, right=0.98, top=0.93, bottom=0.08, hspace=0.25)
-    written.append(out / "timing.png")
-    fig.savefig(written[-1], dpi=80)
-    plt.close(fig)
+    written.append(_save(fig, out / "timing.png", f"timing - {title}"))
     return written

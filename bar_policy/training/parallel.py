@@ -30,7 +30,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
-__all__ = ["AXIS", "DataParallel", "barrier", "make_data_parallel"]
+__all__ = ["AXIS", "DataParallel", "barrier", "choose_partitioner", "make_data_parallel"]
 
 AXIS = "data"
 """Name of the mesh axis the env batch is split over (the axis of ``pmean``/``psum`` in the learner)."""
@@ -160,8 +160,27 @@ def barrier(name: str, timeout_s: float = 1800.0) -> None:
     client.wait_at_barrier(name, int(timeout_s * 1000))
 
 
+def choose_partitioner() -> str:
+    """Compile the data-parallel programs with GSPMD, not Shardy, unless the user chose.
+
+    On 2 and 4 H200s (jax 0.11.2, CUDA 13) XLA segfaults while compiling any multi-device program that
+    holds ``mjx.forward``/``mjx.step`` or returns an ``mjx.Data`` whole; one device compiles them, and the
+    same programs compile on every device count once ``jax_use_shardy_partitioner`` is off
+    (``bench/pmap_reset_bisect.py``, ``docs/benchmarks.md``). ``JAX_USE_SHARDY_PARTITIONER`` in the
+    environment wins. Idempotent; returns the partitioner in use, for a run's header.
+    """
+    import os
+
+    if "JAX_USE_SHARDY_PARTITIONER" not in os.environ:
+        jax.config.update("jax_use_shardy_partitioner", False)
+    return "shardy" if jax.config.jax_use_shardy_partitioner else "gspmd"
+
+
 def make_data_parallel(max_devices_per_host: int | None = None) -> DataParallel:
     """The mesh over every device of every process (or the first ``max_devices_per_host`` local ones).
+
+    Sets the partitioner first (``choose_partitioner``): every program mapped over this mesh compiles
+    after it.
 
     Raises:
         ValueError: ``max_devices_per_host`` is not positive, or is combined with several processes
@@ -180,4 +199,5 @@ def make_data_parallel(max_devices_per_host: int | None = None) -> DataParallel:
         devices = jax.local_devices()[:max_devices_per_host]
     else:
         devices = jax.devices()
+    choose_partitioner()
     return DataParallel(Mesh(np.asarray(devices), (AXIS,)))

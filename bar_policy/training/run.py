@@ -112,24 +112,6 @@ def _set_memory_env(cfg: TrainConfig) -> None:
         os.environ["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"
 
 
-def _set_partitioner() -> str:
-    """Compile the data-parallel programs with GSPMD, not Shardy, unless the user chose.
-
-    On 2 and 4 H200s (jax 0.11.2, CUDA 13) XLA segfaults while compiling any multi-device program that
-    holds ``mjx.forward``/``mjx.step`` or returns an ``mjx.Data`` whole; one device compiles them, and the
-    same programs compile on every device count once ``jax_use_shardy_partitioner`` is off
-    (``bench/pmap_reset_bisect.py``, ``docs/training.md``). ``JAX_USE_SHARDY_PARTITIONER`` in the
-    environment wins. Returns the partitioner in use, for the run's header.
-    """
-    import os
-
-    import jax
-
-    if "JAX_USE_SHARDY_PARTITIONER" not in os.environ:
-        jax.config.update("jax_use_shardy_partitioner", False)
-    return "shardy" if jax.config.jax_use_shardy_partitioner else "gspmd"
-
-
 def resolve_run_dir(cfg: TrainConfig, *, check: bool = True) -> Path:
     """``runs_dir/run_name``; an unnamed resume continues in the resumed run's directory.
 
@@ -193,8 +175,10 @@ def run(
         raise ValueError(
             "the rsl-rl backend runs in one process on one device; use --backend brax for several"
         )
+    from bar_policy.training.parallel import choose_partitioner
+
     cache_dir = configure_compile_cache(cfg.compile_cache, cfg.compile_cache_dir)
-    partitioner = _set_partitioner()
+    partitioner = choose_partitioner()
     init_distributed(cfg)
     import jax
 

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import itertools
+import threading
+import time
 from collections.abc import Iterator
 
 import can
+import numpy as np
 import pytest
 
 from bar_policy.deploy.robstride import protocol as proto
@@ -88,3 +92,27 @@ def assert_ends_with_damping_then_stop(listener: Listener, ids: list[int], kd: f
         assert kd_u == int(kd * 65535 / 5)
         assert tau == 32767  # tau_ff = 0: floor(0.5 * 65535) = 32767
         assert dq == 32767  # dq_cmd = 0
+
+
+@contextlib.contextmanager
+def swept_emulator(robot, make_emulator, seed: int) -> Iterator[tuple[object, np.ndarray]]:
+    """An emulator with random true offsets (uniform +-0.3 rad, ``seed``) whose joints a 'person' pushes
+    from one stop to the other, resting 30 ms at each; yields ``(emulator, true offsets in joint order)``."""
+    rng = np.random.default_rng(seed)
+    true = {n: float(rng.uniform(-0.3, 0.3)) for n in robot.joint_names}
+    emu = make_emulator(offsets=true)
+    stop = threading.Event()
+
+    def sweep() -> None:
+        while not stop.is_set():
+            for a in (0.0, 0.5, 1.0, 0.5):
+                emu.set_joint_positions(robot.lower + a * (robot.upper - robot.lower))
+                time.sleep(0.03)
+
+    t = threading.Thread(target=sweep, daemon=True)
+    t.start()
+    try:
+        yield emu, np.array([true[n] for n in robot.joint_names])
+    finally:
+        stop.set()
+        t.join()

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import threading
-import time
-
 import numpy as np
 
 from bar_policy.deploy.robstride.calibration import Calibration
 from bar_policy.deploy.robstride.tools import main, model_guess
+
+from .conftest import swept_emulator
 
 
 def test_model_guess():
@@ -52,21 +51,8 @@ def test_param_write_then_read(channels, make_emulator, capsys):
 
 
 def test_calibrate_records_true_offsets(tmp_path, robot, channels, make_emulator, capsys):
-    rng = np.random.default_rng(5)
-    true = {n: float(rng.uniform(-0.3, 0.3)) for n in robot.joint_names}
-    emu = make_emulator(offsets=true)
-    stop = threading.Event()
-
-    def sweep():  # a person pushing every joint from one stop to the other, resting 30 ms at each
-        while not stop.is_set():
-            for a in (0.0, 0.5, 1.0, 0.5):
-                emu.set_joint_positions(robot.lower + a * (robot.upper - robot.lower))
-                time.sleep(0.03)
-
-    t = threading.Thread(target=sweep, daemon=True)
-    t.start()
     out = tmp_path / "cal.json"
-    try:
+    with swept_emulator(robot, make_emulator, seed=5) as (emu, true_offsets):
         code = main(
             [
                 "calibrate",
@@ -82,12 +68,9 @@ def test_calibrate_records_true_offsets(tmp_path, robot, channels, make_emulator
                 "200",
             ]
         )
-    finally:
-        stop.set()
-        t.join()
     assert code == 0
     got = Calibration.load(out).offsets(robot)
     # both stops were sampled exactly: the offsets are right within the 16-bit position step
-    np.testing.assert_allclose(got, [true[n] for n in robot.joint_names], atol=2 * 8 * np.pi / 65535)
+    np.testing.assert_allclose(got, true_offsets, atol=2 * 8 * np.pi / 65535)
     assert "Wrote calibration" in capsys.readouterr().out
     assert not any(emu.enabled().values())

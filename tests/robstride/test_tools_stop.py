@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import os
 import signal
-import threading
 import time
 
 import numpy as np
@@ -17,7 +16,7 @@ from bar_policy.deploy.robstride.group import RobstrideGroup
 from bar_policy.deploy.robstride.tools import main
 
 from .bridge import SocketcandBridge
-from .conftest import assert_ends_with_damping_then_stop
+from .conftest import assert_ends_with_damping_then_stop, swept_emulator
 from .helpers import Child
 
 LEFT = [11, 12, 13, 14, 15, 16, 17]
@@ -28,22 +27,8 @@ LSB = 8 * np.pi / 65535  # one step of the 16-bit position field
 @pytest.fixture
 def sweeping(robot, make_emulator):
     """An emulator with random true offsets whose joints a 'person' sweeps stop to stop (30 ms rests)."""
-    rng = np.random.default_rng(3)
-    true = {n: float(rng.uniform(-0.3, 0.3)) for n in robot.joint_names}
-    emu = make_emulator(offsets=true)
-    stop = threading.Event()
-
-    def sweep():
-        while not stop.is_set():
-            for a in (0.0, 0.5, 1.0, 0.5):
-                emu.set_joint_positions(robot.lower + a * (robot.upper - robot.lower))
-                time.sleep(0.03)
-
-    t = threading.Thread(target=sweep, daemon=True)
-    t.start()
-    yield emu, np.array([true[n] for n in robot.joint_names])
-    stop.set()
-    t.join()
+    with swept_emulator(robot, make_emulator, seed=3) as swept:
+        yield swept
 
 
 def _calibrate_child(bridge, out, *extra):

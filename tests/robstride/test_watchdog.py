@@ -217,9 +217,9 @@ def test_sigkilled_driver_leaves_the_motors_passive_in_time(robot, channels, lis
     assert not emu.enabled()["left_shoulder_pitch"]
 
 
-def test_bar_bus_watchdog_brackets_the_window(channels, make_emulator, listeners, capsys):
-    emu = make_emulator()
-    argv = [
+def _watchdog_argv(channels: dict[str, str]) -> list[str]:
+    """``bar-bus watchdog`` on motor 11 of can0 with a 0.2 s window."""
+    return [
         "watchdog",
         "--interface",
         "virtual",
@@ -230,6 +230,11 @@ def test_bar_bus_watchdog_brackets_the_window(channels, make_emulator, listeners
         "--timeout",
         "0.2",
     ]
+
+
+def test_bar_bus_watchdog_brackets_the_window(channels, make_emulator, listeners, capsys):
+    emu = make_emulator()
+    argv = _watchdog_argv(channels)
     assert main([*argv, "--silences", "0.1,0.3"]) == 0
     out = capsys.readouterr().out
     assert "still running" in out.splitlines()[1] and "tripped (reset mode)" in out.splitlines()[2]
@@ -241,16 +246,6 @@ def test_bar_bus_watchdog_brackets_the_window(channels, make_emulator, listeners
 
 def test_bar_bus_watchdog_flags_a_window_shorter_than_configured(channels, make_emulator, capsys):
     make_emulator(watchdog_tick=1e-6)  # a firmware that counts microseconds
-    argv = [
-        "watchdog",
-        "--interface",
-        "virtual",
-        "--iface",
-        channels["can0"],
-        "--id",
-        "11",
-        "--timeout",
-        "0.2",
-    ]
+    argv = _watchdog_argv(channels)
     assert main([*argv, "--silences", "0.1,0.3"]) == 1
     assert "tripped after every silence, even 0.1" in capsys.readouterr().out

@@ -130,7 +130,7 @@ def test_rsl_rl_runs_let_torch_have_the_gpu_memory(monkeypatch):
 
 def test_runs_compile_with_gspmd_unless_the_user_chose(monkeypatch):
     """The multi-GPU segfault is in Shardy's pipeline (bisect on 2 H200s): runs turn it off, users decide."""
-    from bar_policy.training.run import _set_partitioner
+    from bar_policy.training.parallel import choose_partitioner as _set_partitioner
 
     before = jax.config.jax_use_shardy_partitioner
     try:
