@@ -16,15 +16,19 @@ from bar_policy.deploy.targets.mock import MockTarget
 
 
 def test_run_on_mock_then_plot(policy_path, tmp_path, capsys):
+    # The mock is paced by the wall clock. On a loaded 2-core CI runner a burst of late ticks can trip the
+    # overrun fault (CI saw 7 overruns in 15 ticks), so the overrun check is off here. It is tested on its own
+    # in test_deploy_safety.py::test_loop_overruns_go_to_damping. This test is about the run, its log and the plot.
     rc = main(
         [
             "run", "--policy", str(policy_path), "--target", "mock", "--duration", "0.3",
-            "--ramp-time", "0.1", "--log", str(tmp_path / "runs"),
+            "--ramp-time", "0.1", "--max-overruns", "0", "--log", str(tmp_path / "runs"),
         ]
     )  # fmt: skip
-    assert rc == 0
     out = capsys.readouterr().out
+    assert rc == 0, out
     assert "HOLD -> POLICY: ramp complete" in out and "jitter p50" in out
+    assert "end: duration reached" in out
     run_dir = next((tmp_path / "runs").iterdir())
     arrays, meta = load_log(run_dir)
     assert arrays["t"].size == 15 and meta["target"] == "MockTarget"
