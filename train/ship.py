@@ -2,6 +2,7 @@
 
     python train/ship.py                       # train with the gpu preset, then publish
     python train/ship.py --from-run runs/X     # publish an existing run only
+    python train/ship.py --from-run runs/X --iterate auto   # ship policy_best.onnx if it scores higher
     python train/ship.py --ppo.num-timesteps 60000000   # any train/ppo.py flag passes through
 
 Writes checkpoints/lite_reach_arms.onnx, checkpoints/lite_reach_arms.json, docs/training_curve.png and the
@@ -15,7 +16,7 @@ import sys
 import time
 
 from bar_policy.training.cli import parse_config
-from bar_policy.training.publish import publish
+from bar_policy.training.publish import ITERATES, publish
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -25,6 +26,12 @@ def main(argv: list[str] | None = None) -> int:
     pre = argparse.ArgumentParser(add_help=False)
     pre.add_argument("--from-run", default=None, help="publish this finished run instead of training")
     pre.add_argument("--name", default="lite_reach_arms", help="file stem under checkpoints/")
+    pre.add_argument(
+        "--iterate",
+        default="last",
+        choices=ITERATES,
+        help="ship the last iterate, the best evaluated one, or the one with the higher final evaluation",
+    )
     pre.add_argument(
         "--raw-throughput",
         type=int,
@@ -41,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
         run_dir = run(cfg).run_dir
     else:
         run_dir = known.from_run
-    paths = publish(run_dir, name=known.name)
+    paths = publish(run_dir, name=known.name, iterate=known.iterate)
     final = json.loads(paths["json"].read_text())
     if known.raw_throughput:
         from bar_policy import envs

@@ -23,6 +23,7 @@ start never waits for the evaluator's compile.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable
@@ -33,6 +34,7 @@ import jax
 import numpy as np
 from jax.sharding import PartitionSpec as P
 
+from bar_policy.training.best import BestIterate, BestKeeper
 from bar_policy.training.checkpoint import load_checkpoint, save_checkpoint
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.learner import Learner, TrainingState, make_learner, make_networks, strip_weak_type
@@ -89,6 +91,13 @@ class BraxTrainResult:
     """Episodes per ``evaluator`` call."""
     activation: str = "swish"
     """Hidden activation of the networks (for export)."""
+    best: BestIterate | None = None
+    """The best evaluated iterate of this run (``bar_policy.training.best``); None when nothing was
+    evaluated after training started."""
+
+    def at(self, params: tuple[Any, Any, Any]) -> BraxTrainResult:
+        """The same result with other parameters (e.g. ``best.params``), to evaluate or export them."""
+        return dataclasses.replace(self, params=params)
 
     def final_evaluation(self, episodes: int, seed: int) -> dict[str, float]:
         """Evaluate on ``episodes`` fresh episodes (rounded up to whole evaluator batches).
@@ -216,6 +225,11 @@ def make_programs(
     )
 
 
+def _host_params(host: TrainingState) -> tuple[Any, Any, Any]:
+    """``(normalizer, policy, value)`` of a host copy of the training state (brax's layout)."""
+    return (host.normalizer_params, host.params.policy, host.params.value)
+
+
 def _policy_params(ts: TrainingState) -> tuple[Any, Any]:
     """What the deterministic policy reads: ``(normalizer, policy)``."""
     return (ts.normalizer_params, ts.params.policy)
@@ -310,6 +324,8 @@ def train_brax(
         m = compiler.get("evaluate")(params, dp.replicate(host_key(seed, _K_EVAL, step)), eval_model_key)
         m = {k: float(v) for k, v in dp.to_host(m).items()}
         logger.record_eval(step, m, evals, time_to_threshold, cfg.eval.success_threshold)
+        if keeper.offer(step, m, lambda: _host_params(dp.to_host(ts))):
+            logger.print(f"  best so far: the parameters at {step:,} steps are kept")
 
     is_main = jax.process_index() == 0
     evals: list[dict[str, float]] = []
@@ -321,6 +337,7 @@ def train_brax(
             save_checkpoint(checkpoint_dir, host, env_steps=step, iteration=it, extra=config_record)
 
     start_steps = env_steps
+    keeper = BestKeeper(start_steps)
     eval_at_start = iteration == 0
     epochs_done = 0
     t_loop = time.monotonic()
@@ -374,9 +391,8 @@ def train_brax(
             f"trained {env_steps - start_steps:,} env steps in {time.monotonic() - t_loop:.1f} s of loop "
             f"({train_seconds:.1f} s with setup and compile)"
         )
-    host = dp.to_host(ts)
     return BraxTrainResult(
-        params=(host.normalizer_params, host.params.policy, host.params.value),
+        params=_host_params(dp.to_host(ts)),
         make_policy=learner.make_policy,
         env_steps=env_steps,
         run_env_steps=env_steps - start_steps,
@@ -386,4 +402,5 @@ def train_brax(
         evaluator=evaluator,
         num_eval_envs=cfg.eval.num_eval_envs,
         activation=cfg.network.activation,
+        best=keeper.best,
     )

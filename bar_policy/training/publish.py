@@ -15,7 +15,7 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-__all__ = ["RESULTS_END", "RESULTS_START", "plot_curve", "publish", "results_markdown"]
+__all__ = ["ITERATES", "RESULTS_END", "RESULTS_START", "plot_curve", "publish", "results_markdown"]
 
 RESULTS_START = "<!-- results:start -->"
 RESULTS_END = "<!-- results:end -->"
@@ -108,28 +108,68 @@ def results_markdown(final: dict[str, Any], name: str) -> str:
     return "\n".join(lines)
 
 
+ITERATES = ("last", "best", "auto")
+"""Which exported iterate ``publish`` ships: the last one, the best evaluated one (``policy_best.onnx``),
+or whichever of the two has the higher-ranked final evaluation (``bar_policy.training.best.score``)."""
+
+
+def _choose_iterate(final: dict[str, Any], iterate: str, run_dir: Path) -> tuple[Path, dict[str, Any]]:
+    """The ONNX file to ship and the record describing it (``final`` with the chosen iterate's figures)."""
+    from bar_policy.training.best import is_better
+
+    if iterate not in ITERATES:
+        raise ValueError(f"iterate must be one of {', '.join(ITERATES)}, got {iterate!r}")
+    best = final.get("best_iterate") or {"is_last": True}
+    if iterate == "auto":
+        better = not best["is_last"] and is_better(best["final_eval"], final["final_eval"])
+        iterate = "best" if better else "last"
+    if iterate == "last" or best["is_last"]:
+        return run_dir / "policy.onnx", {**final, "iterate": "last"}
+    src = Path(best.get("onnx", run_dir / "policy_best.onnx"))
+    record = {
+        **final,
+        "iterate": "best",
+        "final_eval": best["final_eval"],
+        "env_steps": best["step"],
+        "export": best.get("export", {}),
+        "last_iterate": {"env_steps": final["env_steps"], "final_eval": final["final_eval"]},
+    }
+    return src, record
+
+
 def publish(
     run_dir: str | Path,
     *,
     name: str = "lite_reach_arms",
     checkpoints_dir: str | Path = "checkpoints",
     docs_dir: str | Path = "docs",
+    iterate: str = "last",
 ) -> dict[str, Path]:
     """Ship a finished run (see the module docstring); returns the written paths.
 
+    Args:
+        run_dir: the finished run's directory.
+        name: file stem under ``checkpoints_dir``.
+        checkpoints_dir: where the ONNX and JSON go.
+        docs_dir: where the curve PNG and ``training.md`` go.
+        iterate: ``"last"``, ``"best"`` or ``"auto"`` (see ``ITERATES``). ``"best"`` ships the last iterate
+            when the run's best one is the last.
+
     Raises:
         FileNotFoundError: the run has no ``policy.onnx`` / ``final_eval.json`` (export failed or skipped).
+        ValueError: an unknown ``iterate``.
         bar_policy.deploy.policy.PolicyLoadError: the deploy loader refuses the file.
     """
     from bar_policy.deploy.policy import load_policy
 
     run_dir = Path(run_dir)
-    onnx_src, final_src = run_dir / "policy.onnx", run_dir / "final_eval.json"
-    for p in (onnx_src, final_src):
-        if not p.exists():
-            raise FileNotFoundError(f"{p} is missing; did the run finish and export?")
+    final_src = run_dir / "final_eval.json"
+    if not final_src.exists():
+        raise FileNotFoundError(f"{final_src} is missing; did the run finish and export?")
+    onnx_src, final = _choose_iterate(json.loads(final_src.read_text()), iterate, run_dir)
+    if not onnx_src.exists():
+        raise FileNotFoundError(f"{onnx_src} is missing; did the run finish and export?")
     load_policy(onnx_src)  # the checks bar-deploy runs
-    final = json.loads(final_src.read_text())
     ck, docs = Path(checkpoints_dir), Path(docs_dir)
     ck.mkdir(parents=True, exist_ok=True)
     onnx_dst, json_dst = ck / f"{name}.onnx", ck / f"{name}.json"

@@ -21,6 +21,8 @@ iteration). rsl-rl's own ``update`` still reads its losses and KL with ``.item()
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import json
 import math
 import time
@@ -32,6 +34,7 @@ import numpy as np
 import torch
 
 from bar_policy.export import MlpPolicy, export_policy
+from bar_policy.training.best import BestIterate, BestKeeper
 from bar_policy.training.checkpoint import latest_checkpoint, save_checkpoint
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.progress import RunLogger
@@ -223,6 +226,22 @@ class RslRlTrainResult:
     """Evaluation records."""
     time_to_threshold_s: float | None = None
     """Seconds to the first evaluation at or above the success threshold."""
+    best: BestIterate | None = None
+    """The best evaluated iterate of this run (its ``params`` is a copy of the actor's state dict)."""
+    spare_actor: torch.nn.Module | None = None
+    """An actor of the same structure that ``at`` loads other parameters into (the trained one is kept)."""
+
+    def at(self, state: dict[str, torch.Tensor]) -> RslRlTrainResult:
+        """The same result with the actor parameters ``state`` (e.g. ``best.params``), to evaluate or export.
+
+        Loads ``state`` into ``spare_actor`` (one spare per result: the previous ``at`` result then
+        shares it).
+        """
+        if self.spare_actor is None:
+            raise ValueError("this result has no spare actor to load other parameters into")
+        self.spare_actor.load_state_dict(state)
+        self.spare_actor.eval()
+        return dataclasses.replace(self, actor=self.spare_actor)
 
     def policy_fn(self) -> Callable[[torch.Tensor], torch.Tensor]:
         """Deterministic torch policy on the env's device."""
@@ -291,6 +310,9 @@ def train_rsl_rl(
         env_steps, iteration = int(payload["env_steps"]), int(payload["iteration"])
         logger.print(f"resumed {path} at {env_steps} env steps (iteration {iteration})")
     start_steps = env_steps
+    keeper = BestKeeper(start_steps)
+    # Copied before any forward pass: later the Gaussian head holds non-leaf tensors deepcopy refuses.
+    spare_actor = copy.deepcopy(alg.actor)
     periods = max((cfg.eval.num_evals - 1), 1)
     iters_per_eval = max(1, math.ceil(total_iters / periods))
     evals: list[dict[str, float]] = []
@@ -301,8 +323,10 @@ def train_rsl_rl(
         alg.eval_mode()
         module = alg.actor.as_onnx(verbose=False).to(device).eval()
         m = evaluate_torch_policy(lambda o: module(o), eval_env, episode_length, seed=cfg.seed + 1000 + step)
-        alg.train_mode()
         logger.record_eval(step, m, evals, ttt, cfg.eval.success_threshold)
+        if keeper.offer(step, m, lambda: {k: v.detach().clone() for k, v in alg.actor.state_dict().items()}):
+            logger.print(f"  best so far: the actor at {step:,} steps is kept")
+        alg.train_mode()
 
     def checkpoint(step: int, it: int) -> None:
         if checkpoint_dir is None:
@@ -377,4 +401,6 @@ def train_rsl_rl(
         train_seconds=time.monotonic() - t_start,
         evals=evals,
         time_to_threshold_s=ttt[0] if ttt else None,
+        best=keeper.best,
+        spare_actor=spare_actor,
     )

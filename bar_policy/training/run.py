@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from bar_policy.training.best import finish_best
 from bar_policy.training.config import TrainConfig, config_to_dict
 from bar_policy.training.progress import RunLogger, format_duration, format_steps
 from bar_policy.training.startup import StartupTimer, configure_compile_cache
@@ -47,6 +48,12 @@ class RunSummary:
     """Export record (parity error, size)."""
     params: Any = None
     """The trained policy's parameters on the host (brax: ``(normalizer, policy, value)``; rsl-rl: None)."""
+    result: Any = None
+    """The backend's result (``BraxTrainResult`` / ``RslRlTrainResult``): evaluate or export again, or
+    reach ``result.best``, without retraining."""
+    best: dict[str, Any] = dataclasses.field(default_factory=dict)
+    """The best evaluated iterate (``bar_policy.training.best.finish_best``): ``step``, ``is_last``, and
+    when it is not the last iterate its ``final_eval`` and ``onnx``."""
 
 
 def init_distributed(cfg: TrainConfig) -> None:
@@ -247,7 +254,10 @@ def run(
 
     # Every process evaluates (the brax evaluation is one program over all devices); process 0 reports.
     final = result.final_evaluation(cfg.final_eval_envs, seed=cfg.seed + 10_000)
+    # The best iterate is evaluated on the same fresh seeds, so the two figures compare fairly.
+    best_args = {"final_step": result.env_steps, "episodes": cfg.final_eval_envs, "seed": cfg.seed + 10_000}
     if not is_main:
+        finish_best(result, export_to=None, **best_args)
         return RunSummary(
             run_dir=run_dir,
             env_steps=result.env_steps,
@@ -258,6 +268,7 @@ def run(
             onnx_path=None,
             export={},
             params=getattr(result, "params", None),
+            result=result,
         )
 
     logger.log(result.env_steps, final, kind="final")
@@ -280,10 +291,18 @@ def run(
     export: dict[str, Any] = {}
     onnx_path: Path | None = None
     if cfg.export_onnx:
-        from bar_policy.training.metadata import policy_metadata
-
         onnx_path = Path(cfg.onnx_path) if cfg.onnx_path else run_dir / "policy.onnx"
-        meta = policy_metadata(env, training=training_record)
+    from bar_policy.training.metadata import policy_metadata
+
+    best = finish_best(
+        result,
+        export_to=onnx_path,
+        metadata_fn=lambda training: policy_metadata(env, training=training),
+        training_record={**training_record, "iterate": "last"},
+        **best_args,
+    )
+    if onnx_path is not None:
+        meta = policy_metadata(env, training={**training_record, "iterate": "last"})
         export = result.export_onnx(meta, onnx_path)
     wall = time.monotonic() - t0
     final_record = {
@@ -297,6 +316,7 @@ def run(
         "success_threshold": cfg.eval.success_threshold,
         "evals": result.evals,
         "export": export,
+        "best_iterate": best,
         "config": record,
     }
     (run_dir / "final_eval.json").write_text(json.dumps(final_record, indent=2, sort_keys=True))
@@ -310,11 +330,23 @@ def run(
         onnx_path=onnx_path,
         export=export,
         params=getattr(result, "params", None),
+        result=result,
+        best=best,
     )
     for line in summary_table(summary, cfg):
         logger.print(line)
     logger.close()
     return summary
+
+
+def _best_text(best: dict[str, Any]) -> str:
+    if not best or best.get("is_last", True):
+        return "the last one (no earlier evaluation ranked higher)"
+    fe = best["final_eval"]
+    text = f"{best['step']:,} steps: final success {100 * fe.get('success_rate', math.nan):.2f}%"
+    if "final_distance" in fe:
+        text += f", fingertip distance {100 * fe['final_distance']:.2f} cm"
+    return text + (f" -> {best['onnx']}" if "onnx" in best else " (not exported)")
 
 
 def summary_table(s: RunSummary, cfg: TrainConfig) -> list[str]:
@@ -342,6 +374,7 @@ def summary_table(s: RunSummary, cfg: TrainConfig) -> list[str]:
         ),
         ("ONNX", str(s.onnx_path) if s.onnx_path else "not exported"),
         ("parity max abs error", f"{s.export.get('max_abs_error', math.nan):.2e}"),
+        ("best iterate", _best_text(s.best)),
     ]
     width = max(len(k) for k, _ in rows)
     bar = "-" * (width + 40)

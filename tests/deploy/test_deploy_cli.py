@@ -17,8 +17,8 @@ from bar_policy.deploy.targets.mock import MockTarget
 
 def test_run_on_mock_then_plot(policy_path, tmp_path, capsys):
     # The mock is paced by the wall clock. On a loaded 2-core CI runner a burst of late ticks can trip the
-    # overrun fault (CI saw 7 overruns in 15 ticks), so the overrun check is off here. It is tested on its own
-    # in test_deploy_safety.py::test_loop_overruns_go_to_damping. This test is about the run, its log and the plot.
+    # overrun fault (CI saw 7 overruns in 15 ticks), so the overrun check is off here; it is tested on its
+    # own in test_deploy_safety.py::test_loop_overruns_go_to_damping. This test is the run, its log and plot.
     rc = main(
         [
             "run", "--policy", str(policy_path), "--target", "mock", "--duration", "0.3",

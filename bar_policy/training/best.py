@@ -1,0 +1,139 @@
+"""The best iterate of a run: the evaluated parameters that scored highest, kept beside the last ones.
+
+PPO is not monotone on hard tasks. The shipped tracker's run (``docs/tracking.md``) reached 92 % eval
+success at 57.7M env steps and ended at 36 %; only the last iterate was exported, so the better policy was
+lost. A run now keeps a host copy of the parameters at each evaluation that beats every earlier one, and at
+the end, when that iterate is not the last one, evaluates it again on the final evaluation's seeds and
+exports it as ``<policy>_best.onnx`` next to ``policy.onnx``.
+
+Order: a higher ``success_rate`` wins, then a higher ``episode_reward`` (ties at 100 % success are common on
+reach). Only parameters trained in this run count: the evaluation at step 0 (untrained parameters) and
+evaluations before a resume are not candidates.
+
+The best of N noisy evaluations is an optimistic estimate of that iterate (selection bias). The final
+evaluation of the best iterate uses fresh seeds, the same ones as the last iterate's, so the two final
+figures in ``final_eval.json`` are a fair, paired comparison; that is the figure to choose by.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+__all__ = ["BestIterate", "BestKeeper", "best_onnx_path", "finish_best", "is_better", "score"]
+
+
+def score(metrics: Mapping[str, float]) -> tuple[float, float]:
+    """Ranking key of an evaluation: ``(success_rate, episode_reward)``; NaN counts as the worst value."""
+
+    def clean(x: float) -> float:
+        return -math.inf if math.isnan(x) else x
+
+    return clean(float(metrics["success_rate"])), clean(float(metrics["episode_reward"]))
+
+
+def is_better(new: Mapping[str, float], old: Mapping[str, float] | None) -> bool:
+    """True when evaluation ``new`` ranks strictly above ``old`` (any evaluation beats none)."""
+    return old is None or score(new) > score(old)
+
+
+@dataclass(frozen=True, kw_only=True)
+class BestIterate:
+    """The highest-ranked evaluated parameters of a run."""
+
+    step: int
+    """Env steps trained when the parameters were evaluated."""
+    metrics: dict[str, float]
+    """The evaluation during training that selected them (its seeds, not the final evaluation's)."""
+    params: Any
+    """Host copy of the parameters, in the backend's layout (brax: ``(normalizer, policy, value)``; rsl-rl:
+    a copy of the actor module)."""
+
+
+class BestKeeper:
+    """Offer each evaluation; keeps the best one with a snapshot of its parameters.
+
+    ``snapshot`` is called only for an evaluation that beats the kept one, so a run pays one host copy
+    of a small network per improvement, not per evaluation.
+    """
+
+    def __init__(self, first_step: int) -> None:
+        """``first_step``: env steps at the start of this run; evaluations at or before it are skipped."""
+        self.first_step = int(first_step)
+        self.best: BestIterate | None = None
+
+    def offer(self, step: int, metrics: Mapping[str, float], snapshot: Callable[[], Any]) -> bool:
+        """Keep ``(step, metrics, snapshot())`` if it is a candidate and ranks above the kept one."""
+        if step <= self.first_step:
+            return False
+        if not is_better(metrics, None if self.best is None else self.best.metrics):
+            return False
+        self.best = BestIterate(step=int(step), metrics=dict(metrics), params=snapshot())
+        return True
+
+
+def best_onnx_path(onnx_path: str | Path) -> Path:
+    """Where the best iterate is exported: ``policy.onnx`` -> ``policy_best.onnx`` (same folder)."""
+    p = Path(onnx_path)
+    return p.with_name(f"{p.stem}_best{p.suffix or '.onnx'}")
+
+
+def finish_best(
+    result: Any,
+    *,
+    final_step: int,
+    episodes: int,
+    seed: int,
+    export_to: Path | None,
+    metadata_fn: Callable[[dict[str, Any]], Any] | None = None,
+    training_record: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Evaluate (and export) the run's best iterate when it is not the last one; returns its record.
+
+    Under ``jax.distributed`` every process calls this (the brax evaluation is one program over all
+    devices); only the caller that passes ``export_to`` writes a file.
+
+    Args:
+        result: a backend result with ``best`` (``BestIterate`` or None), ``at(params)`` (the same result
+            with other parameters), ``final_evaluation`` and ``export_onnx``.
+        final_step: env steps of the last iterate.
+        episodes: episodes of the final evaluation (same as the last iterate's).
+        seed: seed of the final evaluation (same as the last iterate's, for a paired comparison).
+        export_to: the last iterate's ONNX path; the best one goes to ``best_onnx_path(export_to)``. None:
+            no export.
+        metadata_fn: builds the ONNX metadata from a training record (required with ``export_to``).
+        training_record: the last iterate's training record; the best one's copies it with its own step,
+            final evaluation and selection.
+
+    Returns:
+        ``{"step", "is_last"}``, plus, when the best is not the last iterate, ``eval_during_training``,
+        ``final_eval``, and with an export ``onnx`` and ``export``.
+    """
+    best = getattr(result, "best", None)
+    if best is None or best.step == final_step:
+        return {"step": final_step, "is_last": True}
+    final = result.at(best.params).final_evaluation(episodes, seed=seed)
+    record: dict[str, Any] = {
+        "step": best.step,
+        "is_last": False,
+        "eval_during_training": best.metrics,
+        "final_eval": final,
+    }
+    if export_to is not None:
+        if metadata_fn is None:
+            raise ValueError("finish_best: export_to needs metadata_fn")
+        path = best_onnx_path(export_to)
+        training = {
+            **dict(training_record or {}),
+            "env_steps": best.step,
+            "final_eval": final,
+            "iterate": "best",
+            "selected_by": "highest eval success rate, then episode reward, during training",
+            "eval_during_training": best.metrics,
+        }
+        record["onnx"] = str(path)
+        record["export"] = result.at(best.params).export_onnx(metadata_fn(training), path)
+    return record
