@@ -39,9 +39,10 @@ from pathlib import Path
 import numpy as np
 
 from bar_policy.deploy.policy import OnnxPolicy, load_policy
-from bar_policy.deploy.safety import SafetyConfig
+from bar_policy.deploy.safety import CapDwell, SafetyConfig
 from bar_policy.deploy.tasks.track_eval import METRICS, ClipResult, evaluate_track, groups
 from bar_policy.motion import Clip, clip_set
+from bar_policy.robot.mit import MitCommand, mit_torque
 
 Column = Callable[[OnnxPolicy, Sequence[Clip], argparse.Namespace], list[ClipResult]]
 """A target: runs every clip with the policy and returns one result per clip, in order."""
@@ -70,6 +71,11 @@ def run_mjx(policy: OnnxPolicy, clips: Sequence[Clip], args: argparse.Namespace)
     def reset(m: object, key: jax.Array, clip: jax.Array) -> object:
         return env.reset_at(key, clip, jnp.zeros((), jnp.int32), model=m)
 
+    robot = policy.robot
+    safety = _safety(args)
+    dwell = [CapDwell(safety.saturation_fraction * robot.torque_cap, safety.saturation_time) for _ in clips]
+    cap_dwell = [""] * n
+
     reset_b = jax.jit(jax.vmap(reset, in_axes=(in_axes, 0, 0)))
     step_b = jax.jit(jax.vmap(env.step_with_model, in_axes=(in_axes, 0, 0)))
     state = reset_b(model, jax.random.split(jax.random.PRNGKey(args.seed), n), jnp.arange(n))
@@ -78,13 +84,35 @@ def run_mjx(policy: OnnxPolicy, clips: Sequence[Clip], args: argparse.Namespace)
     sums = {k: np.zeros(n) for k in METRICS}
     clip_lim = policy.action_clip or np.inf
     for t in range(int(lengths.max())):
-        action = policy.session.run(["actions"], {"obs": np.asarray(state.obs, dtype=np.float32)})[0]
-        state = step_b(model, state, jnp.asarray(np.clip(action, -clip_lim, clip_lim), jnp.float32))
+        action = np.clip(
+            policy.session.run(["actions"], {"obs": np.asarray(state.obs, dtype=np.float32)})[0],
+            -clip_lim,
+            clip_lim,
+        )
+        # The deploy supervisor's torque-saturation rule on the state before the step (MJX only clips at
+        # the cap and runs on): q_cmd clipped to the joint limits, the unclipped MIT demand.
+        q, dq = np.asarray(state.data.qpos), np.asarray(state.data.qvel)
+        for i in range(n):
+            if cap_dwell[i] or t >= lengths[i]:
+                continue
+            q_cmd = np.clip(policy.q_command(action[i]), robot.lower, robot.upper)
+            over = dwell[i].update(
+                mit_torque(MitCommand.position(q_cmd, policy.kp, policy.kd), q[i], dq[i]), env.dt
+            )
+            if over.size:
+                names = ", ".join(robot.joint_names[j] for j in over)
+                cap_dwell[i] = f"t={(t + 1) * env.dt:.2f} s: {names}"
+        state = step_b(model, state, jnp.asarray(action, jnp.float32))
         live = t < lengths
         for k in METRICS:
             sums[k] += np.where(live, np.asarray(state.metrics[k]), 0.0)
     return [
-        ClipResult(clip=c.name, steps=int(lengths[i]), sums={k: float(sums[k][i]) for k in METRICS})
+        ClipResult(
+            clip=c.name,
+            steps=int(lengths[i]),
+            sums={k: float(sums[k][i]) for k in METRICS},
+            cap_dwell=cap_dwell[i],
+        )
         for i, c in enumerate(clips)
     ]
 
@@ -135,6 +163,11 @@ ROWS = (
     ("success_pct", "steps within 0.05 rad and 2 cm, %", "{:.1f}"),
     ("lost_steps", "steps with a body > 25 cm off", "{}"),
     ("faults", "clips ended by a fault", "{}"),
+    (
+        "cap_dwell_clips",
+        "clips with a torque demand at the cap > saturation time (MJX: counted, not stopped)",
+        "{}",
+    ),
     ("steps", "steps scored", "{}"),
 )
 
@@ -222,8 +255,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--saturation-time",
         type=float,
         default=SafetyConfig().saturation_time,
-        help="sim / bus: s a joint may stay at its torque cap before the supervisor faults (default 0.5, "
-        "the deploy default; MJX only clips at the cap: 1e9 for a physics-only comparison)",
+        help="s a joint may stay at its torque cap: sim / bus fault and stop (default 0.5, the deploy "
+        "default; 1e9 for a physics-only comparison); MJX only clips at the cap and counts the clips that "
+        "would have faulted",
     )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", type=Path, default=None, help="write the results here")
@@ -265,6 +299,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         ]  # fmt: skip
         for c, st, j, b, f, su, lo, fa in rows:
             print(f"{c:<26}{st:>7}{j:>11.4f}{b:>9.2f}{f:>8.2f}{su:>11.1f}{lo:>6}{fa:>7}")
+        for r in results:
+            if r.cap_dwell or r.faulted:
+                print(f"  {r.clip}: {r.cap_dwell or r.end_reason}")
         out["columns"][name] = {
             "wall_s": wall,
             "groups": grp,

@@ -33,9 +33,40 @@ import numpy as np
 from bar_policy.deploy.targets.base import JointState
 from bar_policy.robot.mit import MitCommand, mit_torque
 
-__all__ = ["Mode", "SafetyConfig", "SafetySupervisor", "Transition"]
+__all__ = ["CapDwell", "Mode", "SafetyConfig", "SafetySupervisor", "Transition"]
 
 log = logging.getLogger(__name__)
+
+
+class CapDwell:
+    """Time each joint's torque demand has stayed at its cap; the supervisor's saturation rule.
+
+    A joint is at the cap when ``|demand| >= level``. Its time grows by ``dt`` per tick at the cap and
+    returns to 0 at its first tick below it, so only an unbroken run at the cap counts (a sign change
+    at the cap does not break it: a 25 Hz bang-bang between +cap and -cap counts as at the cap).
+    ``over()`` lists the joints past ``limit`` seconds. ``bench/track_fidelity.py`` applies the same rule
+    to the MJX env's torques.
+    """
+
+    def __init__(self, level: np.ndarray, limit: float) -> None:
+        """``level``: per-joint cap, N*m, shape (n,); ``limit``: allowed time at it, s."""
+        self.level = np.asarray(level, dtype=float)
+        self.limit = float(limit)
+        self.time = np.zeros_like(self.level)
+
+    def update(self, demand: np.ndarray, dt: float) -> np.ndarray:
+        """Count one tick of ``dt`` s at signed torque ``demand`` (N*m, shape (n,)); returns ``over()``."""
+        at_cap = np.abs(demand) >= self.level
+        self.time = np.where(at_cap, self.time + dt, 0.0)
+        return self.over()
+
+    def reset(self) -> None:
+        """Clear every joint's time (a mode change starts a new count)."""
+        self.time = np.zeros_like(self.level)
+
+    def over(self) -> np.ndarray:
+        """Indices of the joints at the cap for longer than ``limit``."""
+        return np.flatnonzero(self.time > self.limit + 1e-12)
 
 
 class Mode(enum.IntEnum):
@@ -153,8 +184,7 @@ class SafetySupervisor:
         self._ramp_target = self.default_q.copy()
         self._ramp_T = self.config.ramp_time
         self._gain0 = 0.0
-        self._sat_time = np.zeros(n)
-        self._sat_level = self.config.saturation_fraction * self.torque_cap
+        self._dwell = CapDwell(self.config.saturation_fraction * self.torque_cap, self.config.saturation_time)
         self.last_demand = np.zeros(n)
         """Unclipped MIT torque of the last command checked by ``check_torque``, N*m."""
         self._overruns = 0
@@ -205,9 +235,9 @@ class SafetySupervisor:
             self._ramp_target = target.copy()
             self._ramp_T = self.config.ramp_time if hold_ramp is None else float(hold_ramp)
             self._gain0 = 1.0 if src == Mode.POLICY else 0.0  # no soft start when the policy had full gains
-            self._sat_time[:] = 0.0
+            self._dwell.reset()
         elif dst == Mode.POLICY:
-            self._sat_time[:] = 0.0
+            self._dwell.reset()
         self.mode = dst
         tr = Transition(t=t, tick=self.tick, src=src, dst=dst, reason=reason)
         self.transitions.append(tr)
@@ -299,12 +329,7 @@ class SafetySupervisor:
         signed = mit_torque(cmd, state.q, state.dq)
         self.last_demand = signed
         demand = np.abs(signed)
-        at_cap = demand >= self._sat_level
-        if not at_cap.any():
-            self._sat_time[:] = 0.0
-            return None
-        self._sat_time = np.where(at_cap, self._sat_time + dt, 0.0)
-        over = np.flatnonzero(self._sat_time > self.config.saturation_time + 1e-12)
+        over = self._dwell.update(signed, dt)
         if over.size:
             items = ", ".join(
                 f"{self.joint_names[i]} ({demand[i]:.2f} N*m, cap {self.torque_cap[i]:g})" for i in over

@@ -15,7 +15,7 @@ from bar_policy.deploy.commands import SampledCommands
 from bar_policy.deploy.log import load_log
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
-from bar_policy.deploy.safety import Mode, SafetyConfig, SafetySupervisor
+from bar_policy.deploy.safety import CapDwell, Mode, SafetyConfig, SafetySupervisor
 from bar_policy.deploy.targets.base import JointState, TargetError
 from bar_policy.robot.constants import load_robot
 
@@ -339,3 +339,22 @@ def test_make_policy_file_is_reusable(tmp_path):
     # The factory is the fixture other test suites use: a loadable file with the full key set.
     p = make_policy_file(tmp_path / "x.onnx", bias=0.1)
     assert load_policy(p).metadata.code_version == "test"
+
+
+def test_cap_dwell_counts_unbroken_runs_at_the_cap_per_joint():
+    # Caps 2 and 4 N*m, 0.05 s allowed, 0.02 s ticks; worked by hand. A sign flip at the cap (25 Hz
+    # bang-bang, what the shipped tracker does on 3 held-out clips) stays at the cap.
+    d = CapDwell(np.array([2.0, 4.0]), 0.05)
+    steps = [
+        ([2.0, 0.0], [0.02, 0.0], []),
+        ([-2.5, 4.0], [0.04, 0.02], []),
+        ([2.0, -3.9], [0.06, 0.0], [0]),  # joint 0 past 0.05 s; joint 1 left the cap
+        ([1.9, 5.0], [0.0, 0.02], []),
+        ([-2.0, -4.0], [0.02, 0.04], []),
+    ]
+    for demand, want_time, want_over in steps:
+        over = d.update(np.array(demand), 0.02)
+        np.testing.assert_allclose(d.time, want_time, atol=1e-12)
+        assert over.tolist() == want_over
+    d.reset()
+    assert d.time.tolist() == [0.0, 0.0] and d.over().size == 0

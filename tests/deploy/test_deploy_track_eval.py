@@ -17,7 +17,7 @@ from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import SafetyConfig
 from bar_policy.deploy.tasks.track import reference_for
-from bar_policy.deploy.tasks.track_eval import evaluate_track, summarise
+from bar_policy.deploy.tasks.track_eval import ClipResult, evaluate_track, summarise
 from bar_policy.motion import Clip, save_clip
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.mjcf import load_model
@@ -90,6 +90,18 @@ def test_tracking_metrics_by_hand(track_policy):
         100 * (near.sums["fingertip_error"] + far.sums["fingertip_error"]) / 10
     )
     assert "mean joint error" in res.format() and res.to_dict()["groups"][0]["clips"] == 2
+
+
+def test_summary_counts_clips_at_the_torque_cap_on_every_target():
+    sums = dict.fromkeys(("joint_error", "body_pos_error", "fingertip_error", "success", "lost"), 0.0)
+    results = [
+        ClipResult("a", 10, sums),
+        ClipResult("b", 10, sums, cap_dwell="t=3.50 s: right_wrist_yaw"),  # MJX: counted, not stopped
+        ClipResult("c", 4, sums, faulted=True, end_reason="fault torque_saturation: torque at the cap"),
+        ClipResult("d", 4, sums, faulted=True, end_reason="fault stale_state: no state for 0.1 s"),
+    ]
+    s = summarise(results, "all")
+    assert (s["faults"], s["cap_dwell_clips"], s["steps"]) == (2, 2, 28)
 
 
 def test_eval_cli_reports_the_tracking_metric(track_policy, tmp_path, capsys):

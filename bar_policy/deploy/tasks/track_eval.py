@@ -87,6 +87,9 @@ class ClipResult:
     sums: dict[str, float]
     faulted: bool = False
     end_reason: str = ""
+    cap_dwell: str = ""
+    """A target that does not stop on a fault (the MJX env): when a joint's torque demand first stayed at
+    its cap longer than the supervisor allows, and which joints; empty when it never did."""
 
     def mean(self, key: str) -> float:
         """Mean of a metric over the clip's steps."""
@@ -108,6 +111,7 @@ def summarise(results: Sequence[ClipResult], label: str) -> dict[str, Any]:
         "success_pct": 100 * tot["success"] / n,
         "lost_steps": int(tot["lost"]),
         "faults": sum(r.faulted for r in results),
+        "cap_dwell_clips": sum(bool(r.cap_dwell) or "torque_saturation" in r.end_reason for r in results),
     }
 
 
