@@ -158,8 +158,9 @@ class Compiler:
     """Ahead-of-time compiles on worker threads: trace here, compile there, collect when needed.
 
     ``submit(name, jitted, *args)`` lowers ``jitted`` for ``args`` (arrays or ``ShapeDtypeStruct``s) in the
-    calling thread and compiles it on a worker; ``get(name)`` waits for the compiled executable. The trace
-    and compile seconds of each program go into the ``StartupTimer``.
+    calling thread (or, with ``background=True``, on the worker) and compiles it on a worker; ``get(name)``
+    waits for the compiled executable. The trace and compile seconds of each program go into the
+    ``StartupTimer``.
     """
 
     def __init__(self, timer: StartupTimer, max_workers: int = 4) -> None:
@@ -167,17 +168,29 @@ class Compiler:
         self._pool = ThreadPoolExecutor(max_workers=max_workers, thread_name_prefix="xla-compile")
         self._futures: dict[str, Future] = {}
 
-    def submit(self, name: str, jitted: Callable[..., Any], *args: Any) -> Any:
-        """Trace/lower now, compile in the background; returns the ``Lowered`` (its ``out_info``)."""
-        t0 = time.monotonic()
-        lowered = jitted.lower(*args)  # type: ignore[attr-defined]
-        self.timer.add(f"trace {name}", time.monotonic() - t0)
+    def submit(self, name: str, jitted: Callable[..., Any], *args: Any, background: bool = False) -> Any:
+        """Trace/lower now, compile in the background; returns the ``Lowered`` (its ``out_info``).
 
-        def compile_it() -> tuple[Any, float]:
+        With ``background=True`` the trace runs on the worker too and None is returned: for a program
+        nothing waits on soon (the evaluation), whose trace then overlaps the first epochs instead of
+        delaying them. Tracing holds the GIL, so submit it after the programs this thread traces next.
+        """
+
+        def trace() -> Any:
+            t0 = time.monotonic()
+            lowered = jitted.lower(*args)  # type: ignore[attr-defined]
+            self.timer.add(f"trace {name}" + (" (worker)" if background else ""), time.monotonic() - t0)
+            return lowered
+
+        def compile_it(lowered: Any) -> tuple[Any, float]:
             t = time.monotonic()
             return lowered.compile(), time.monotonic() - t
 
-        self._futures[name] = self._pool.submit(compile_it)
+        if background:
+            self._futures[name] = self._pool.submit(lambda: compile_it(trace()))
+            return None
+        lowered = trace()
+        self._futures[name] = self._pool.submit(compile_it, lowered)
         return lowered
 
     def done(self, name: str) -> bool:

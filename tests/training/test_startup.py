@@ -72,6 +72,14 @@ def test_compiler_runs_programs_compiled_on_threads():
     assert {"trace double", "trace total", "compile double", "compile total"} <= set(timer.phases)
     with pytest.raises(KeyError):
         compiler.get("never submitted")
+    # Traced on the worker too: nothing returned now, the executable and both phases later.
+    assert compiler.submit("cube", jax.jit(lambda a: a**3), x, background=True) is None
+    np.testing.assert_allclose(compiler.get("cube")(x), [0, 1, 8, 27, 64, 125])
+    assert compiler.done("cube") and {"trace cube (worker)", "compile cube"} <= set(timer.phases)
+    # A trace error on the worker surfaces at get().
+    compiler.submit("bad", jax.jit(lambda a: a @ a), jnp.ones((2, 3)), background=True)
+    with pytest.raises(TypeError, match="dot_general"):
+        compiler.get("bad")
     compiler.close()
 
 
@@ -104,6 +112,9 @@ def test_cache_dir_is_printed_by_a_run_and_the_breakdown_logged(brax_run):
     recs = [json.loads(x) for x in (Path(summary.run_dir) / "metrics.jsonl").read_text().splitlines()]
     (startup,) = [r for r in recs if r["kind"] == "startup"]
     assert {"compile init", "compile reset", "compile epoch", "compile evaluate"} <= set(startup)
+    # The evaluation is traced on a worker; the step-0 evaluation is still the first one recorded.
+    assert "trace evaluate (worker)" in startup and "trace evaluate" not in startup
+    assert next(r for r in recs if r["kind"] == "eval")["step"] == 0
     # Four programs, plus at most a few tiny ones jax needs (the pmap trainer compiled ~85 here).
     assert 4 <= startup["compiles"] <= 8
 
