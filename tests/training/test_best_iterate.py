@@ -70,25 +70,41 @@ def test_run_records_the_best_evaluated_iterate(which, request):
         assert rec["final_eval"]["episodes"] == final["final_eval"]["episodes"]
 
 
-@pytest.mark.slow
-def test_a_best_iterate_before_the_last_is_evaluated_and_exported(brax_run, toy_env, tmp_path):
+def _brax_best_at_mid(summary, toy_env, scale: float, export_to, **record) -> tuple[dict, tuple, dict]:
+    """The brax run's result with its policy weights times ``scale`` posing as the best iterate at the
+    second evaluation; ``finish_best`` on it (128 episodes, the run's final-evaluation seed 10_000)."""
     from bar_policy.training.metadata import policy_metadata
 
-    _, summary = brax_run
     res = summary.result
     mid = res.evals[1]
     assert 0 < mid["step"] < res.env_steps
     norm, pol, val = res.params
-    halved = (norm, jax.tree_util.tree_map(lambda x: 0.5 * np.asarray(x), pol), val)  # other, valid params
-    fake = dataclasses.replace(res, best=BestIterate(step=mid["step"], metrics=mid, params=halved))
+    params = (norm, jax.tree_util.tree_map(lambda x: scale * np.asarray(x), pol), val)
+    fake = dataclasses.replace(res, best=BestIterate(step=mid["step"], metrics=mid, params=params))
     rec = finish_best(
         fake,
         final_step=res.env_steps,
         episodes=128,
         seed=10_000,
-        export_to=tmp_path / "policy.onnx",
+        export_to=export_to,
         metadata_fn=lambda tr: policy_metadata(toy_env, training=tr),
-        training_record={"backend": "brax", "env_steps": res.env_steps, "iterate": "last"},
+        training_record=record,
+    )
+    return rec, params, mid
+
+
+@pytest.mark.slow
+def test_a_best_iterate_before_the_last_is_evaluated_and_exported(brax_run, toy_env, tmp_path):
+    _, summary = brax_run
+    res = summary.result
+    rec, halved, mid = _brax_best_at_mid(  # other, valid params
+        summary,
+        toy_env,
+        0.5,
+        tmp_path / "policy.onnx",
+        backend="brax",
+        env_steps=res.env_steps,
+        iterate="last",
     )
     assert rec["step"] == mid["step"] and rec["is_last"] is False and rec["eval_during_training"] == mid
     # The same deterministic evaluation as the run's final one (seed cfg.seed + 10_000), on the best params.
@@ -171,7 +187,6 @@ def test_rsl_rl_best_iterate_loads_into_a_spare_actor_and_exports(rsl_run, toy_e
 def test_publish_ships_the_chosen_iterate(brax_run, toy_env, tmp_path):
     import shutil
 
-    from bar_policy.training.metadata import policy_metadata
     from bar_policy.training.publish import publish
 
     _, summary = brax_run
@@ -180,18 +195,7 @@ def test_publish_ships_the_chosen_iterate(brax_run, toy_env, tmp_path):
     run_dir.mkdir()
     for f in ("policy.onnx", "metrics.jsonl"):
         shutil.copyfile(summary.run_dir / f, run_dir / f)
-    norm, pol, val = res.params
-    worse = (norm, jax.tree_util.tree_map(lambda x: 0.0 * np.asarray(x), pol), val)  # all-zero actions
-    mid = res.evals[1]
-    fake = dataclasses.replace(res, best=BestIterate(step=mid["step"], metrics=mid, params=worse))
-    rec = finish_best(
-        fake,
-        final_step=res.env_steps,
-        episodes=128,
-        seed=10_000,
-        export_to=run_dir / "policy.onnx",
-        metadata_fn=lambda tr: policy_metadata(toy_env, training=tr),
-    )
+    rec, _, mid = _brax_best_at_mid(summary, toy_env, 0.0, run_dir / "policy.onnx")  # all-zero actions
     final = json.loads((summary.run_dir / "final_eval.json").read_text())
     (run_dir / "final_eval.json").write_text(json.dumps({**final, "best_iterate": rec}))
     last_fe, best_fe = final["final_eval"], rec["final_eval"]
