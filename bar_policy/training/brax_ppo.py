@@ -17,8 +17,10 @@ learner state replicated), each compiled once, ahead of time and concurrently (`
 - ``evaluate(params, key, model_key) -> metrics``: one deterministic episode in each of ``num_eval_envs``
   slots (sharded too), without the in-step reset; every process takes part.
 
-The evaluation at step 0 runs after the first epoch (on the initial params, re-created), so the training
-start never waits for the evaluator's compile.
+The evaluation is traced and compiled on a worker thread, and the evaluation at step 0 (on the initial
+params, re-created) runs at the first epoch end where it is ready, so the training start waits for neither
+its trace nor its compile. Each evaluation that ranks above every earlier one keeps a host copy of its
+params (``bar_policy.training.best``): ``BraxTrainResult.best``.
 """
 
 from __future__ import annotations
