@@ -115,7 +115,8 @@ def finish_best(
     best = getattr(result, "best", None)
     if best is None or best.step == final_step:
         return {"step": final_step, "is_last": True}
-    final = result.at(best.params).final_evaluation(episodes, seed=seed)
+    chosen = result.at(best.params)
+    final = chosen.final_evaluation(episodes, seed=seed)
     record: dict[str, Any] = {
         "step": best.step,
         "is_last": False,
@@ -135,5 +136,5 @@ def finish_best(
             "eval_during_training": best.metrics,
         }
         record["onnx"] = str(path)
-        record["export"] = result.at(best.params).export_onnx(metadata_fn(training), path)
+        record["export"] = chosen.export_onnx(metadata_fn(training), path)
     return record

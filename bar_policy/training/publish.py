@@ -115,7 +115,7 @@ or whichever of the two has the higher-ranked final evaluation (``bar_policy.tra
 
 def _choose_iterate(final: dict[str, Any], iterate: str, run_dir: Path) -> tuple[Path, dict[str, Any]]:
     """The ONNX file to ship and the record describing it (``final`` with the chosen iterate's figures)."""
-    from bar_policy.training.best import is_better
+    from bar_policy.training.best import best_onnx_path, is_better
 
     if iterate not in ITERATES:
         raise ValueError(f"iterate must be one of {', '.join(ITERATES)}, got {iterate!r}")
@@ -125,7 +125,7 @@ def _choose_iterate(final: dict[str, Any], iterate: str, run_dir: Path) -> tuple
         iterate = "best" if better else "last"
     if iterate == "last" or best["is_last"]:
         return run_dir / "policy.onnx", {**final, "iterate": "last"}
-    src = Path(best.get("onnx", run_dir / "policy_best.onnx"))
+    src = Path(best.get("onnx") or best_onnx_path(run_dir / "policy.onnx"))
     record = {
         **final,
         "iterate": "best",

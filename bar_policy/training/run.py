@@ -274,6 +274,7 @@ def run(
     logger.log(result.env_steps, final, kind="final")
     sps = result.run_env_steps / max(result.train_seconds, 1e-9)
     training_record = {
+        "iterate": "last",
         "backend": cfg.backend,
         "env_name": cfg.env_name,
         "env_steps": result.env_steps,
@@ -298,11 +299,11 @@ def run(
         result,
         export_to=onnx_path,
         metadata_fn=lambda training: policy_metadata(env, training=training),
-        training_record={**training_record, "iterate": "last"},
+        training_record=training_record,
         **best_args,
     )
     if onnx_path is not None:
-        meta = policy_metadata(env, training={**training_record, "iterate": "last"})
+        meta = policy_metadata(env, training=training_record)
         export = result.export_onnx(meta, onnx_path)
     wall = time.monotonic() - t0
     final_record = {

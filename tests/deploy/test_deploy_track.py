@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import json
 
-import mujoco
 import numpy as np
 import pytest
+import track_fk
 from fault_targets import SteppedMock
 from policy_factory import default_metadata, make_hc_policy_file, make_policy_file
 
@@ -23,7 +23,6 @@ from bar_policy.deploy.tasks.base import OptionError
 from bar_policy.deploy.tasks.track import MotionReference, load_motion, reference_for
 from bar_policy.motion import Clip, ClipError, save_clip
 from bar_policy.robot.constants import load_robot
-from bar_policy.robot.mjcf import load_model
 
 ROBOT = load_robot("arms")
 PIANO = ROBOT.pose("piano_ready")
@@ -33,14 +32,8 @@ FRAMES = [PIANO + 0.02 + 0.01 * k for k in range(4)]
 
 
 def c_fk(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Tracked body positions (4, 3) and 6-D orientations (4, 6) straight from C MuJoCo's MjData."""
-    m = load_model("arms")
-    d = mujoco.MjData(m)
-    d.qpos[:] = q
-    mujoco.mj_kinematics(m, d)
-    pos = np.stack([d.body(b).xpos for b in BODIES])
-    rot = np.stack([d.body(b).xmat.reshape(3, 3) for b in BODIES])
-    return pos, rot[:, :, :2].reshape(-1, 6)  # (r00, r01, r10, r11, r20, r21)
+    """Tracked body positions (B, 3) and 6-D orientations (B, 6) straight from C MuJoCo's MjData."""
+    return track_fk.c_fk(q, BODIES)
 
 
 @pytest.fixture

@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+import track_fk
 from mujoco import mjx
 
 from bar_policy.motion import motion_box
@@ -22,14 +23,8 @@ PIANO = ROBOT.pose("piano_ready")
 
 
 def c_fk(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Tracked body positions (B, 3) and 6-D orientations (B, 6) by C MuJoCo, straight from MjData."""
-    m = load_model("arms")
-    d = mujoco.MjData(m)
-    d.qpos[:] = q
-    mujoco.mj_kinematics(m, d)
-    pos = np.stack([d.body(b).xpos for b in TRACK_BODY_NAMES])
-    rot = np.stack([d.body(b).xmat.reshape(3, 3) for b in TRACK_BODY_NAMES])
-    return pos, rot[:, :, :2].reshape(-1, 6)
+    """Tracked body positions (B, 3) and 6-D orientations (B, 6) straight from C MuJoCo's MjData."""
+    return track_fk.c_fk(q, TRACK_BODY_NAMES)
 
 
 def test_lookahead_observation_by_hand(track_env, track_fns):
