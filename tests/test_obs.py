@@ -66,6 +66,7 @@ def test_batched_and_broadcast() -> None:
     assert om.compute(x).shape == (4, 3, 54)
 
 
+@pytest.mark.numerics
 def test_numpy_jax_parity_under_jit_and_vmap() -> None:
     om = ObservationManager.for_task("reach", "arms")
     x = inputs((16,), seed=3)

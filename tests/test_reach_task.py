@@ -56,6 +56,7 @@ def test_every_box_corner_reachable_within_action_scale():
             assert ncon == 0, (side, corner)  # no self-collision at the reaching pose
 
 
+@pytest.mark.numerics
 def test_sample_targets_numpy_and_jax_agree():
     jnp = pytest.importorskip("jax.numpy")
     u = np.random.default_rng(0).random((64, 6)).astype(np.float32)

@@ -64,6 +64,7 @@ def test_q_command_hand_values(nominal_env):
     np.testing.assert_allclose(env.q_command(jnp.zeros(14)), env.default_pose, atol=1e-7)
 
 
+@pytest.mark.numerics
 def test_reset_obs_matches_schema_and_c_kinematics(nominal_env, nominal_fns):
     env = nominal_env
     reset, _ = nominal_fns

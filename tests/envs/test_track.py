@@ -27,6 +27,7 @@ def c_fk(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return track_fk.c_fk(q, TRACK_BODY_NAMES)
 
 
+@pytest.mark.numerics
 def test_lookahead_observation_by_hand(track_env, track_fns):
     """Clip 'tiny' has frames q_k = piano_ready + 0.01 k (k = 0, 1, 2). Reset at frame 0: the observation
     holds frames 1, 2, 2, 2, 2 (K = 5; past the end the last frame repeats); one step later 2, 2, 2, 2, 2."""
@@ -125,6 +126,7 @@ def test_random_reset_and_metadata(track_env, track_fns, track_clips):
     np.testing.assert_allclose(env.default_pose, track_default_pose(), atol=1e-7)
 
 
+@pytest.mark.numerics
 def test_mjx_and_c_forward_kinematics_agree(track_env):
     """The reference poses come from C MuJoCo; the reward compares them with MJX's kinematics of the robot."""
     env = track_env

@@ -75,6 +75,7 @@ def test_export_writes_every_metadata_key(brax_run, toy_env):
     assert json.loads(props["bar.action_clip"]) == 1.0
 
 
+@pytest.mark.numerics
 def test_exported_graph_matches_the_jax_policy(brax_run):
     """Independent of the gate: the graph's I/O and its outputs against brax's inference function."""
     _, summary = brax_run
