@@ -42,6 +42,8 @@ def test_lookahead_observation_by_hand(track_env, track_fns):
     assert int(s.info["frame"]) == 0 and int(s.info["last_frame"]) == 2
     parts = om.split(np.asarray(s.obs))
     frames = [1, 2, 2, 2, 2]
+    # The table is float32 copies of float64 values (q, C MuJoCo FK): one rounding of |x| <= pi
+    # (ulp <= 2.4e-7) and one in the chest-frame transform: 1e-6 = 4 ulps.
     np.testing.assert_allclose(parts["motion_joint_pos"], np.concatenate([q[k] for k in frames]), atol=1e-6)
     fk = {k: c_fk(q[k]) for k in (1, 2)}
     np.testing.assert_allclose(parts["motion_body_pos_b"], np.concatenate([fk[k][0].ravel() for k in frames]),
