@@ -127,6 +127,9 @@ class PolicyMetadata:
     """HC ``observation_names`` of an HC-only file (a ``bar`` file's terms are in ``obs_schema``)."""
     dialect: str = "bar"
     """Which keys the file carried: ``bar`` or ``hc`` (``DIALECTS``)."""
+    action_filter_hz: float | None = None
+    """Cutoff of the first-order low-pass between the policy's output and the command, Hz
+    (``bar_policy.robot.action_filter``; optional key ``bar.action_filter``); None: no filter."""
 
     def __post_init__(self) -> None:
         if self.dialect not in DIALECTS:
@@ -153,6 +156,12 @@ class PolicyMetadata:
             isinstance(self.lookahead_steps, int) and self.lookahead_steps >= 0
         ):
             raise MetadataError(f"lookahead_steps must be an integer >= 0, got {self.lookahead_steps!r}")
+        f = self.action_filter_hz
+        if f is not None and not (isinstance(f, int | float) and 0 < f < 0.5 / self.policy_dt):
+            raise MetadataError(
+                f"action filter cutoff must be a number of Hz in (0, {0.5 / self.policy_dt:g}) (below "
+                f"Nyquist), got {f!r}"
+            )
         if any("," in n for n in self.body_names) or "," in self.dataset_repo_id:
             raise MetadataError("body_names and dataset_repo_id must not contain commas (HC's CSV form)")
 
@@ -183,6 +192,7 @@ class PolicyMetadata:
             "bar.randomization": dict(self.randomization),
             "bar.code_version": self.code_version,
             "bar.training": dict(self.training),
+            **({"bar.action_filter": {"cutoff_hz": self.action_filter_hz}} if self.action_filter_hz else {}),
         }
         props = {k: json.dumps(v, sort_keys=True) for k, v in bar.items()}
 
@@ -275,6 +285,7 @@ class PolicyMetadata:
             body_names=_csv_names(props, "body_names"),
             lookahead_steps=_int_prop(props, "lookahead_steps"),
             dataset_repo_id=props["dataset_repo_id"],
+            action_filter_hz=_action_filter(props),
         )
 
     @classmethod
@@ -317,6 +328,24 @@ class PolicyMetadata:
 # ---------------------------------------------------------------------------------------------------
 # The HC (comma-separated) form
 # ---------------------------------------------------------------------------------------------------
+def _action_filter(props: Mapping[str, str]) -> float | None:
+    """The optional ``bar.action_filter`` key: ``{"cutoff_hz": f}`` or null; absent in older files."""
+    text = props.get("bar.action_filter")
+    if text is None:
+        return None
+    try:
+        v = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise MetadataError(f"metadata key 'bar.action_filter' is not valid JSON: {e}") from None
+    if v is None:
+        return None
+    if not isinstance(v, dict) or set(v) != {"cutoff_hz"} or isinstance(v["cutoff_hz"], bool):
+        raise MetadataError(
+            f"metadata key 'bar.action_filter' must be null or {{\"cutoff_hz\": <Hz>}}, got {text!r}"
+        )
+    return v["cutoff_hz"]
+
+
 def _csv_names(props: Mapping[str, str], key: str) -> tuple[str, ...]:
     """Comma-separated names (``""`` -> ``()``); empty items between commas are refused."""
     text = props[key].strip()
