@@ -4,15 +4,18 @@ A task subclasses ``LiteRobotEnv``, passes its observation layout and fills the 
 ``bar_policy.envs.task.TaskHooks`` (``task_reset``, ``task_step``, ``task_obs``, ``metric_keys``); the
 robot env does the rest, identically for every task:
 
-- **Action**: ``a`` in [-1, 1]^n (canonical joint order), clipped. ``q_cmd = clip(default_pose +
-  action_scale * a, lower, upper)`` with ``default_pose`` = the layout's ``default_joint_pos`` and
-  ``action_scale`` per joint (``RobotEnvConfig.action_scale``).
-- **Control**: MIT command ``(q_cmd, dq_cmd = 0, Kp, Kd, tau_ff = 0)`` with Kp/Kd from the robot data
-  (``env.kp``, ``env.kd``; per-episode scale when randomised), 16-bit wire quantisation, at ``ctrl_dt``
-  over ``n_substeps`` physics steps (Euler). Each substep computes the motor torque from the measured q
-  (true q + encoder offset) and the true dq with ``bar_policy.robot.mit.firmware_torque`` (MIT law, clip
-  at the firmware cap) and writes it to ``data.qfrc_applied`` before ``mjx.step``, as
-  mujoco_ros2_control's MujocoSystem does; the Kd term is integrated implicitly (``actuator.py``).
+- **Action**: ``a`` in [-1, 1]^n (canonical joint order), clipped, then (``action_filter_hz``) low-passed
+  by ``bar_policy.robot.action_filter`` (the deploy runtime's filter too); the applied action is the
+  observation's ``actions`` and the filter's state, which a reset sets to the action of the start pose.
+  ``q_cmd = clip(default_pose + action_scale * a, lower, upper)`` with ``default_pose`` = the layout's
+  ``default_joint_pos`` and ``action_scale`` per joint (``RobotEnvConfig.action_scale``).
+- **Control**: MIT command ``(q_cmd, dq_cmd = 0, Kp, Kd, tau_ff = 0)`` with Kp/Kd from the robot data or
+  the armature (``RobotEnvConfig.gains``; ``env.kp``, ``env.kd``; per-episode scale when randomised),
+  16-bit wire quantisation, at ``ctrl_dt`` over ``n_substeps`` physics steps (Euler). Each substep
+  computes the motor torque from the measured q (true q + encoder offset) and the true dq with
+  ``bar_policy.robot.mit.firmware_torque`` (MIT law, clip at the firmware cap) and writes it to
+  ``data.qfrc_applied`` before ``mjx.step``, as mujoco_ros2_control's MujocoSystem does; the Kd term is
+  integrated implicitly (``actuator.py``).
 - **Latency**: the applied action is the one issued ``L`` control steps ago, ``L`` sampled per episode in
   ``ActuatorConfig.latency_steps``.
 - **Observation**: ``obs_manager.compute`` of the measured q (with encoder offset and noise), dq (with
@@ -50,10 +53,18 @@ from bar_policy.envs.base import MjxEnv, State
 from bar_policy.envs.robot_config import RobotEnvConfig
 from bar_policy.envs.task import TaskHooks, Transition
 from bar_policy.obs import ObservationManager
+from bar_policy.robot.action_filter import filter_alpha, lowpass_step, pose_action
+from bar_policy.robot.actuators import armature_gains
 from bar_policy.robot.constants import load_robot
+from bar_policy.robot.mit import MitCommand, mit_torque
 from bar_policy.robot.mjcf import load_model
 
-__all__ = ["LiteRobotEnv"]
+__all__ = ["NEAR_CAP_FRACTION", "LiteRobotEnv"]
+
+NEAR_CAP_FRACTION = 0.8
+"""Share of a joint's torque cap above which its unclipped MIT demand counts towards ``Transition.near_cap``
+(the tasks' torque-near-cap cost): the last 20 % before saturation and what a saturated joint asks beyond
+its cap, up to 1 per joint (1.8 caps), so a random early policy's cost stays bounded."""
 
 
 class LiteRobotEnv(TaskHooks, MjxEnv):
@@ -90,8 +101,12 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         self._scale = np.array(np.broadcast_to(np.asarray(scale, dtype=f32), (n,)))
         self._lower = self.robot.lower.astype(f32)
         self._upper = self.robot.upper.astype(f32)
-        self._kp = self.robot.kp.astype(f32)
-        self._kd = self.robot.kd.astype(f32)
+        kp, kd = (
+            armature_gains(self.robot.armature) if cfg.gains == "actuator" else (self.robot.kp, self.robot.kd)
+        )
+        self._kp = np.asarray(kp, dtype=f32)
+        self._kd = np.asarray(kd, dtype=f32)
+        self._filter_alpha = filter_alpha(cfg.action_filter_hz, cfg.ctrl_dt)
         self._cap = self.robot.torque_cap.astype(f32)
         self._act = ActuatorParams.from_robot(
             self.robot,
@@ -147,8 +162,13 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         return self._default.copy()
 
     @property
+    def action_filter_hz(self) -> float | None:
+        """Cutoff of the action low-pass, Hz (None: no filter); goes into the ONNX metadata."""
+        return self.config.action_filter_hz
+
+    @property
     def kp(self) -> np.ndarray:
-        """Nominal Kp, N*m/rad. Shape (n,)."""
+        """Nominal Kp, N*m/rad (``config.gains``). Shape (n,)."""
         return self._kp.copy()
 
     @property
@@ -167,10 +187,71 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         a = jnp.clip(action, -1.0, 1.0)
         return jnp.clip(self._default + self._scale * a, self._lower, self._upper)
 
-    def reset_with_model(self, model: mjx.Model, rng: jax.Array) -> State:
-        """Fresh episode: the task's pose + noise, the task's velocity, new actuator samples."""
+    def evaluation_env(self) -> LiteRobotEnv:
+        """The env the trainer evaluates on: held-out data where the task has it (default: this env)."""
+        return self
+
+    def initial_action(self, q_start: jax.Array) -> jax.Array:
+        """The previous action of a new episode, shape (n,).
+
+        0, or with the action filter on, the action of the pose the episode starts from
+        (``robot.action_filter.pose_action``; the deploy runtime does the same after its HOLD ramp), so the
+        filter's first command continues from that pose.
+        """
+        if self.config.action_filter_hz is None:
+            return jnp.zeros(self.action_size)
+        return pose_action(q_start, self._default, self._scale)
+
+    def filtered_action(self, last_action: jax.Array, action: jax.Array) -> jax.Array:
+        """The action applied this step: clipped to [-1, 1], then low-passed when the filter is on."""
+        action = jnp.clip(action, -1.0, 1.0)
+        if self.config.action_filter_hz is None:
+            return action
+        return lowpass_step(last_action, action, self._filter_alpha)
+
+    def _command(self, info: dict, action: jax.Array) -> tuple[jax.Array, jax.Array, MitCommand]:
+        """``(applied action, new latency buffer, decoded MIT command)`` of ``action`` in state ``info``."""
+        action = self.filtered_action(info["last_act"], action)
+        buf, delayed = apply_latency(info["act_buf"], action, info["latency"])
+        return action, buf, make_command(self.q_command(delayed), info["kp"], info["kd"], self._act)
+
+    def quality_signals(self, state: State, action: jax.Array) -> dict[str, jax.Array]:
+        """What the safety and smoothness metrics (``bar_policy.quality``) see at this tick, unbatched.
+
+        Returns ``demand`` (the unclipped MIT torque of the command this step applies, at the measured
+        state: the supervisor's saturation test on the robot, N*m), ``q`` (true positions, rad),
+        ``action`` (the applied action) and ``signal`` (the chatter signal: ``q_cmd - q_ref`` when the task
+        has a reference, else ``q_cmd``, rad), each shape (n,).
+        """
+        info, data = state.info, state.data
+        applied, _, cmd = self._command(info, action)
+        q_cmd = self.q_command(applied)
+        ref = self.task_reference(info)
+        return {
+            "demand": mit_torque(cmd, data.qpos + info["encoder_offset"], data.qvel),
+            "q": data.qpos,
+            "action": applied,
+            "signal": q_cmd if ref is None else q_cmd - ref,
+        }
+
+    def task_reference(self, info: dict) -> jax.Array | None:
+        """The joint positions the command of this step targets, rad (n,); None for a task without one."""
+        return None
+
+    def reset_with_model(self, model: mjx.Model, rng: jax.Array, start_bin: jax.Array | None = None) -> State:
+        """Fresh episode: the task's pose + noise, the task's velocity, new actuator samples.
+
+        ``start_bin``: the adaptive sampler's start bin (``task_reset_in_bin``; tasks with ``sampler_bins``).
+        """
         ks = jax.random.split(rng, 8)
-        return self._reset(model, ks, self.task_reset(model, ks[1]))
+        if start_bin is None:
+            return self._reset(model, ks, self.task_reset(model, ks[1]))
+        return self._reset(model, ks, self.task_reset_in_bin(ks[1], start_bin))  # type: ignore[attr-defined]
+
+    @property
+    def sampler_bins(self) -> int:
+        """Start bins of the task's adaptive start sampler; 0: none (starts are the task's own)."""
+        return 0
 
     def _reset(self, model: mjx.Model, ks: jax.Array, task: tuple[dict, jax.Array, jax.Array]) -> State:
         """The reset state from the 8 keys ``ks`` and the task's ``(info, pose, velocity)``."""
@@ -190,14 +271,14 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
             "rng": ks[6],
             "step": jnp.zeros((), jnp.int32),
             **task_info,
-            "last_act": jnp.zeros(n),
+            "last_act": self.initial_action(q_init),
             "act_buf": jnp.zeros((lat_hi + 1, n)),
             "latency": latency,
             "kp": kp,
             "kd": kd,
             "encoder_offset": off,
         }
-        obs = self._observe(model, data, info, jnp.zeros(n), ks[7])
+        obs = self._observe(model, data, info, info["last_act"], ks[7])
         metrics = {f"reward/{k}": jnp.zeros(()) for k in self._reward_names}
         metrics.update({k: jnp.zeros(()) for k in self.metric_keys})
         return State(data=data, obs=obs, reward=jnp.zeros(()), done=jnp.zeros(()), metrics=metrics, info=info)
@@ -206,29 +287,31 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         """One control step: latency, MIT command, ``n_substeps`` physics steps, the task, obs."""
         cfg = self.config
         info = state.info
-        action = jnp.clip(action, -1.0, 1.0)
         rng, k_noise, k_task = jax.random.split(info["rng"], 3)
-        buf, applied = apply_latency(info["act_buf"], action, info["latency"])
-        cmd = make_command(self.q_command(applied), info["kp"], info["kd"], self._act)
+        action, buf, cmd = self._command(info, action)
         offset = info["encoder_offset"]
+        inv_cap = 1.0 / self._cap
         inv_cap_sq = 1.0 / np.square(self._cap)
         implicit = cfg.actuator.damping == "implicit"
 
-        def substep(d: mjx.Data, _: None) -> tuple[mjx.Data, jax.Array]:
+        def substep(d: mjx.Data, _: None) -> tuple[mjx.Data, tuple[jax.Array, jax.Array]]:
             tau = motor_torque(cmd, d.qpos + offset, d.qvel, self._act)
+            demand = jnp.abs(mit_torque(cmd, d.qpos + offset, d.qvel)) * inv_cap
             if implicit:
                 m_sub, qfrc = implicit_damping(model, cmd.kd, tau, d.qvel, self._act.tau_cap)
             else:
                 m_sub, qfrc = model, tau
             d = mjx.step(m_sub, d.replace(qfrc_applied=qfrc))
-            return d, jnp.sum(jnp.square(tau) * inv_cap_sq)
+            near_cap = jnp.sum(jnp.clip(demand - NEAR_CAP_FRACTION, 0.0, 1.0))
+            return d, (jnp.sum(jnp.square(tau) * inv_cap_sq), near_cap)
 
-        data, tau_sq = jax.lax.scan(substep, state.data, None, length=self.n_substeps)
+        data, (tau_sq, near_cap) = jax.lax.scan(substep, state.data, None, length=self.n_substeps)
 
         # A non-finite state ends the episode (the wrapper resets it) and logs zeros, not NaN.
         finite = jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
         step = info["step"] + 1
-        task = self.task_step(Transition(model, data, info, action, jnp.mean(tau_sq), step, finite, k_task))
+        tr = Transition(model, data, info, action, jnp.mean(tau_sq), step, finite, k_task, jnp.mean(near_cap))
+        task = self.task_step(tr)
         end = jnp.logical_not(finite)
         if task.terminate is not None:
             end = jnp.logical_or(end, task.terminate)

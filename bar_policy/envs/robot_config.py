@@ -11,10 +11,12 @@ import math
 from dataclasses import dataclass, field, replace
 from typing import TypeVar
 
+from bar_policy.robot.action_filter import filter_alpha
 from bar_policy.robot.constants import MODES, load_robot
 from bar_policy.robot.mjcf import PHYSICS_DT
 
 __all__ = [
+    "GAINS",
     "ActuatorConfig",
     "ModelRandomizationConfig",
     "ObsNoiseConfig",
@@ -23,6 +25,10 @@ __all__ = [
     "check_range",
     "nominal",
 ]
+
+
+GAINS = ("robot", "actuator")
+"""Valid ``RobotEnvConfig.gains``."""
 
 
 def check_range(name: str, lo_hi: tuple[float, float], *, low: float = -math.inf) -> None:
@@ -124,6 +130,14 @@ class RobotEnvConfig:
     per joint (canonical order), or None for the task's own per-joint default."""
     init_noise: float = 0.05
     """Half-width of the initial joint-position noise around the task's initial pose, rad."""
+    action_filter_hz: float | None = None
+    """Cutoff of the first-order low-pass between the policy's action and the command, Hz
+    (``bar_policy.robot.action_filter``; the deploy runtime applies the same one, from the file's
+    ``bar.action_filter``); None: no filter, the action is applied as it comes."""
+    gains: str = "robot"
+    """Kp/Kd of the MIT command: ``robot`` (the joint table: Humanoid Control's first-activation gains, 50 and
+    2 on every arm joint) or ``actuator`` (derived from each joint's armature J as lite_description does,
+    BeyondMimic's recipe: ``Kp = J w^2``, ``Kd = 2 zeta J w``, ``w = 2 pi 10 Hz``, ``zeta = 2``)."""
     actuator: ActuatorConfig = field(default_factory=ActuatorConfig)
     """Actuator model and its per-episode randomisation."""
     obs_noise: ObsNoiseConfig = field(default_factory=ObsNoiseConfig)
@@ -147,6 +161,9 @@ class RobotEnvConfig:
             )
         if not self.init_noise >= 0:
             raise ValueError(f"init_noise must be >= 0 rad, got {self.init_noise}")
+        if self.gains not in GAINS:
+            raise ValueError(f"unknown gains {self.gains!r}; valid: {list(GAINS)}")
+        filter_alpha(self.action_filter_hz, self.ctrl_dt)  # validates the cutoff
 
     @property
     def n_substeps(self) -> int:

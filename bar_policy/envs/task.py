@@ -43,6 +43,10 @@ class Transition:
     """Whether the new physics state is finite (bool scalar); a non-finite state ends the episode."""
     key: jax.Array
     """PRNG key for the task."""
+    near_cap: jax.Array
+    """``sum_j clip(|tau_law_j| / tau_cap_j - NEAR_CAP_FRACTION, 0, 1)`` of the unclipped MIT torque,
+    averaged over the substeps (dimensionless, <= n): 0 while every joint asks under 80 % of its cap, and it
+    keeps growing past the cap where the firmware clips, up to 1.8 caps (``robot.NEAR_CAP_FRACTION``)."""
 
 
 @dataclass(frozen=True)

@@ -14,8 +14,11 @@ and the initial-pose noise are the robot env's; the task adds:
   ``TRACK_LOOKAHEAD_STEPS`` frames (joint positions, ``motion_body_pos_b``, ``motion_body_ori_b`` of
   ``TRACK_BODY_NAMES`` in the chest frame), then joint_pos, joint_vel, actions.
 - **Reward** (terms in ``bar_policy.envs.rewards``, weights ``TrackRewardScales``): ``joint_pos``,
-  ``body_pos``, ``body_ori`` (exponential kernels of the error against the frame the step arrives at, on
-  the true state), ``action_rate``, ``torque``.
+  ``body_pos``, ``body_ori``, ``fingertip_pos`` (exponential kernels of the error against the frame the step
+  arrives at, on the true state), ``action_rate`` (of the applied, filtered action), ``torque`` and
+  ``torque_near_cap`` (the unclipped demand beyond 80 % of each cap).
+- **Start sampling** (training): with ``config.sampling.enabled`` the batched wrapper draws each reset's
+  start bin adaptively, more often just before where episodes fail (``envs/sampling.py``).
 - **Termination**: when any tracked body is farther than ``termination_distance`` (0.25 m) from its
   reference, or the physics turns non-finite; the wrappers truncate at ``episode_length`` (10 s).
 - **Initial state**: the start frame's pose + U(-init_noise, init_noise), at the reference's velocity.
@@ -37,8 +40,9 @@ from mujoco import mjx
 from bar_policy.envs import rewards
 from bar_policy.envs.base import State
 from bar_policy.envs.robot import LiteRobotEnv
+from bar_policy.envs.sampling import StartBins, start_probabilities, update_counts
 from bar_policy.envs.task import TaskStep, Transition
-from bar_policy.envs.track_config import TrackEnvConfig, default_config
+from bar_policy.envs.track_config import TrackEnvConfig, default_config, heldout_config
 from bar_policy.motion.clip import Clip
 from bar_policy.motion.library import clip_set, clip_set_id
 from bar_policy.obs import ObservationManager
@@ -87,6 +91,12 @@ class LiteTrack(LiteRobotEnv):
         self._clip_length = jnp.asarray(table.clip_length)
         self._body_ids = np.array([self.mj_model.body(b).id for b in TRACK_BODY_NAMES])
         self._site_ids = np.array([self.mj_model.site(s).id for s in FINGERTIP_SITES])
+        bin_frames = max(round(cfg.sampling.bin_s / cfg.ctrl_dt), 1)
+        self.start_bins = StartBins.build(table.clip_start, table.clip_length, bin_frames)
+
+    def evaluation_env(self) -> LiteTrack:
+        """This config on the held-out clips, uniform starts (``track_config.heldout_config``)."""
+        return LiteTrack(heldout_config(self.config))
 
     def _spans(self) -> list[tuple[int, int]]:
         t = self.reference
@@ -123,6 +133,31 @@ class LiteTrack(LiteRobotEnv):
         phase = jax.random.randint(k_phase, (), 0, self._clip_length[clip] - 1)
         return self.start_at(clip, phase)
 
+    # -- adaptive start sampling (the batched wrapper's protocol; envs/sampling.py) ----------------------
+    @property
+    def sampler_bins(self) -> int:
+        """Start bins of the adaptive sampler, B (0 when ``config.sampling.enabled`` is off)."""
+        return self.start_bins.size if self.config.sampling.enabled else 0
+
+    def sampler_update(self, counts: jax.Array, info: dict, failed: jax.Array) -> jax.Array:
+        """Add one batched step to the ``(2, B)`` counts: each env's current bin, and its failure."""
+        bins = jnp.asarray(self.start_bins.bin_of_frame)[info["frame"]]
+        return update_counts(counts, bins, failed, self.config.sampling.decay)
+
+    def start_probabilities(self, counts: jax.Array) -> jax.Array:
+        """Start-bin probabilities (B,) of the counts (``AdaptiveSamplingConfig``)."""
+        c = self.config.sampling
+        return start_probabilities(
+            counts, self.start_bins.clip, c.uniform_share, c.kernel_bins, c.kernel_decay
+        )
+
+    def task_reset_in_bin(self, key: jax.Array, start_bin: jax.Array) -> tuple[dict, jax.Array, jax.Array]:
+        """``task_reset`` with the start frame drawn uniformly inside start bin ``start_bin``."""
+        b = self.start_bins
+        first = jnp.asarray(b.first_phase)[start_bin]
+        phase = first + jax.random.randint(key, (), 0, jnp.asarray(b.num_phases)[start_bin])
+        return self.start_at(jnp.asarray(b.clip)[start_bin], phase)
+
     def start_at(self, clip: jax.Array, phase: jax.Array) -> tuple[dict, jax.Array, jax.Array]:
         """``task_reset``'s result for a given clip (table order) and start frame within it."""
         start = self._clip_start[clip]
@@ -141,6 +176,10 @@ class LiteTrack(LiteRobotEnv):
         task = self.start_at(jnp.asarray(clip), jnp.asarray(phase))
         return self._reset(self.mjx_model if model is None else model, ks, task)
 
+    def task_reference(self, info: dict) -> jax.Array:
+        """The reference joint positions of the frame this step arrives at (what its command targets)."""
+        return self._ref_q[jnp.minimum(info["frame"] + 1, info["last_frame"])]
+
     def task_step(self, tr: Transition) -> TaskStep:
         """Advance the reference one frame; tracking rewards and errors against it."""
         cfg, info, data = self.config, tr.info, tr.data
@@ -154,8 +193,10 @@ class LiteTrack(LiteRobotEnv):
             "joint_pos": rewards.joint_tracking(data.qpos, q_ref, rc.joint_std),
             "body_pos": rewards.body_pos_tracking(pos, pos_ref, rc.body_pos_std),
             "body_ori": rewards.body_ori_tracking(rot, ori_ref, rc.body_ori_std),
+            "fingertip_pos": rewards.body_pos_tracking(tips, self._ref_tip[frame], rc.fingertip_std),
             "action_rate": rewards.action_rate(tr.action, info["last_act"]),
             "torque": rewards.torque(tr.tau_sq),
+            "torque_near_cap": tr.near_cap,
         }
         dist = jnp.linalg.norm(pos - pos_ref, axis=-1)
         joint_err = jnp.mean(jnp.abs(data.qpos - q_ref))

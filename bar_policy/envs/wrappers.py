@@ -10,6 +10,9 @@ Info keys added on top of the env's (brax PPO reads them as ``state_extras``):
 - ``truncation``: 1 when the episode ended by time limit (not by the env); ``time_out``: the same.
 - ``episode_done``: ``done`` of this step.
 - ``episode_metrics``: per-episode running sums of ``sum_reward``, ``length`` and every metric.
+- ``sampler`` (tasks with an adaptive start sampler, auto-reset on): this device's decaying failure and
+  visit counts per start bin, spread over the env axis (``envs/sampling.py``); each auto-reset draws its
+  start bin from them.
 
 Auto-reset: when ``done``, the returned state carries the terminal ``reward``/``done``/``metrics`` but the
 ``data``/``obs``/env ``info`` of a fresh episode (new targets, new per-episode actuator samples, rng
@@ -28,13 +31,15 @@ import jax.numpy as jnp
 from mujoco import mjx
 
 from bar_policy.envs.base import MjxEnv, State
+from bar_policy.envs.sampling import pack, unpack
 
 __all__ = ["WRAPPER_INFO_KEYS", "BatchedEnv", "make_batched_env", "wrap_for_brax_training"]
 
-WRAPPER_INFO_KEYS = ("steps", "truncation", "time_out", "episode_done", "episode_metrics")
+WRAPPER_INFO_KEYS = ("steps", "truncation", "time_out", "episode_done", "episode_metrics", "sampler")
 """Info keys owned by the wrapper (stripped before the inner env's step)."""
 
 _RESET_SALT = 0x5EED
+_START_SALT = 0xB1A5
 
 
 class BatchedEnv:
@@ -71,6 +76,7 @@ class BatchedEnv:
         self.episode_length = int(length)
         self.action_repeat = int(action_repeat)
         self.auto_reset = bool(auto_reset)
+        self._bins = int(getattr(env, "sampler_bins", 0)) if self.auto_reset else 0
         if randomization_fn is None:
             self._model, self._in_axes = env.mjx_model, None
         else:
@@ -103,8 +109,12 @@ class BatchedEnv:
         return self._model
 
     # -- pure functions ----------------------------------------------------------------------------
-    def _reset_envs(self, rng: jax.Array) -> State:
-        return jax.vmap(self.env.reset_with_model, in_axes=(self._in_axes, 0))(self._model, rng)
+    def _reset_envs(self, rng: jax.Array, start_bins: jax.Array | None = None) -> State:
+        if start_bins is None:
+            return jax.vmap(self.env.reset_with_model, in_axes=(self._in_axes, 0))(self._model, rng)
+        return jax.vmap(self.env.reset_with_model, in_axes=(self._in_axes, 0, 0))(
+            self._model, rng, start_bins
+        )
 
     def reset(self, rng: jax.Array) -> State:
         """Reset a batch. ``rng``: keys, shape (B, 2). Returns a State with leading axis B."""
@@ -119,6 +129,8 @@ class BatchedEnv:
             "episode_done": zeros,
             "episode_metrics": ep_metrics,
         }
+        if self._bins:
+            info["sampler"] = pack(jnp.zeros((2, self._bins)), rng.shape[0])
         return state.replace(info=info)
 
     def step(self, state: State, action: jax.Array) -> State:
@@ -153,9 +165,18 @@ class BatchedEnv:
             **{k: old[k] * keep + v for k, v in ns.metrics.items()},
         }
 
+        counts = None
+        if self._bins:
+            counts = self.env.sampler_update(unpack(info["sampler"], self._bins), ns.info, ns.done)  # type: ignore[attr-defined]
+
         def with_reset(s: State) -> State:
             keys = jax.vmap(lambda k: jax.random.fold_in(k, _RESET_SALT))(s.info["rng"])
-            fresh = self._reset_envs(keys)
+            start_bins = None
+            if counts is not None:
+                logp = jnp.log(self.env.start_probabilities(counts))  # type: ignore[attr-defined]
+                start_keys = jax.vmap(lambda k: jax.random.fold_in(k, _START_SALT))(keys)
+                start_bins = jax.vmap(lambda k: jax.random.categorical(k, logp))(start_keys)
+            fresh = self._reset_envs(keys, start_bins)
 
             def sel(a: jax.Array, b: jax.Array) -> jax.Array:
                 return jnp.where(done.reshape(done.shape + (1,) * (a.ndim - 1)) > 0, a, b)
@@ -176,6 +197,8 @@ class BatchedEnv:
             "episode_done": done,
             "episode_metrics": ep_metrics,
         }
+        if counts is not None:
+            new_info["sampler"] = pack(counts, action.shape[0])
         return ns.replace(done=done, info=new_info)
 
 

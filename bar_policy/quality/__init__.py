@@ -14,6 +14,7 @@ from bar_policy.quality.metrics import (
     at_cap,
     cap_dwell_step,
     chatter_mrad,
+    dwell_exceeded,
     highpass_rms,
     near_limit,
 )
@@ -34,6 +35,7 @@ __all__ = [
     "cap_dwell_step",
     "chatter_mrad",
     "check",
+    "dwell_exceeded",
     "gate_for",
     "highpass_rms",
     "near_limit",

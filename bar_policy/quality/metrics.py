@@ -41,6 +41,7 @@ __all__ = [
     "at_cap",
     "cap_dwell_step",
     "chatter_mrad",
+    "dwell_exceeded",
     "highpass_rms",
     "near_limit",
 ]
@@ -91,7 +92,7 @@ def cap_dwell_step(time_at_cap: Array, at_cap_now: Array, dt: float) -> Array:
     """One tick of the saturation rule: per joint, the unbroken time at the cap, s.
 
     Grows by ``dt`` on a tick at the cap and returns to 0 on the first tick below it, so only an unbroken
-    run counts (a bang-bang between +cap and -cap stays at the cap). A fault is ``time > CAP_DWELL_S``.
+    run counts (a bang-bang between +cap and -cap stays at the cap). A fault is ``dwell_exceeded``.
 
     Args:
         time_at_cap: the time so far, s, shape ``(..., n)``.
@@ -100,6 +101,16 @@ def cap_dwell_step(time_at_cap: Array, at_cap_now: Array, dt: float) -> Array:
     """
     xp = array_namespace(time_at_cap, at_cap_now)
     return xp.where(at_cap_now, time_at_cap + dt, 0.0 * time_at_cap)
+
+
+def dwell_exceeded(time_at_cap: Array, limit: float = CAP_DWELL_S) -> Array:
+    """Whether each joint's unbroken time at the cap is past ``limit`` s: the saturation fault.
+
+    ``time > limit + 1e-6``: the microsecond absorbs the rounding of a time summed tick by tick (25 ticks of
+    0.02 s sum to 0.50000006 in float32 and 0.5000000000000002 in float64), so 25 ticks at 50 Hz are 0.5 s
+    (no fault) and the 26th tick faults, in jax and numpy alike.
+    """
+    return time_at_cap > limit + 1e-6
 
 
 def action_rate(actions: Array) -> Array:

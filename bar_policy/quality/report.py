@@ -9,8 +9,9 @@ and the gate (``bar_policy.quality.gate``) checks:
 - ``cap_share_pct``: policy ticks with any joint at its torque cap, % of all ticks;
 - ``limit_share_pct``: policy ticks with any joint within ``LIMIT_MARGIN_RAD`` of a limit, %;
 - ``action_rate``: mean ``sum_j (a_t - a_{t-1})^2`` per tick, action units squared;
-- ``chatter_max_mrad`` / ``chatter_mean_mrad``: the worst and the mean of the episodes' chatter, mrad
-  (episodes too short to measure are left out of both and counted in ``chatter_unmeasured``).
+- ``chatter_max_mrad`` / ``chatter_mean_mrad``: the worst and the mean chatter of the episodes that
+  completed, mrad (a faulted episode's chatter stays in its record; episodes that faulted or were too short
+  to measure are counted in ``chatter_unmeasured``), as the MJX evaluation counts them.
 """
 
 from __future__ import annotations
@@ -132,8 +133,9 @@ def summarise(episodes: Sequence[EpisodeQuality]) -> dict[str, Any]:
     n = len(episodes)
     ticks = sum(e.ticks for e in episodes)
     rate_ticks = sum(max(e.ticks - 1, 0) for e in episodes)
-    measured = [e.chatter_mrad for e in episodes if not math.isnan(e.chatter_mrad)]
-    worst = max(episodes, key=lambda e: -1.0 if math.isnan(e.chatter_mrad) else e.chatter_mrad, default=None)
+    done = [e for e in episodes if not e.faulted and not math.isnan(e.chatter_mrad)]
+    measured = [e.chatter_mrad for e in done]
+    worst = max(done, key=lambda e: e.chatter_mrad, default=None)
     return {
         "episodes": n,
         "completed": sum(not e.faulted for e in episodes),
@@ -144,6 +146,6 @@ def summarise(episodes: Sequence[EpisodeQuality]) -> dict[str, Any]:
         "action_rate": sum(e.action_rate_sum for e in episodes) / rate_ticks if rate_ticks else math.nan,
         "chatter_max_mrad": max(measured) if measured else math.nan,
         "chatter_mean_mrad": float(np.mean(measured)) if measured else math.nan,
-        "chatter_worst_episode": worst.name if worst is not None and measured else "",
+        "chatter_worst_episode": worst.name if worst is not None else "",
         "chatter_unmeasured": n - len(measured),
     }

@@ -11,7 +11,16 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["ROBSTRIDE_MODELS", "RobstrideSpec", "robstride_spec"]
+import numpy as np
+
+__all__ = [
+    "GAIN_DAMPING_RATIO",
+    "GAIN_NATURAL_HZ",
+    "ROBSTRIDE_MODELS",
+    "RobstrideSpec",
+    "armature_gains",
+    "robstride_spec",
+]
 
 P_MAX = 4.0 * math.pi
 """MIT position range of every model, rad (the feedback wraps within +-4*pi)."""
@@ -109,3 +118,32 @@ def robstride_spec(model: str) -> RobstrideSpec:
         raise ValueError(
             f"unknown Robstride model {model!r}; valid models: {sorted(ROBSTRIDE_MODELS)}"
         ) from None
+
+
+GAIN_NATURAL_HZ = 10.0
+"""Natural frequency of the armature-derived PD gains, Hz (lite_description's ``func.py``, BeyondMimic)."""
+GAIN_DAMPING_RATIO = 2.0
+"""Damping ratio of the armature-derived PD gains (the same sources)."""
+
+
+def armature_gains(
+    armature: np.ndarray, natural_hz: float = GAIN_NATURAL_HZ, damping_ratio: float = GAIN_DAMPING_RATIO
+) -> tuple[np.ndarray, np.ndarray]:
+    """PD gains from the reflected rotor inertia J: ``Kp = J w^2``, ``Kd = 2 zeta J w``, ``w = 2 pi f``.
+
+    The recipe of Berkeley-Humanoids/Lite-Description ``robot_assets/actuators/func.py`` (BeyondMimic's):
+    the rotor alone would ring at ``f`` with damping ratio ``zeta``; with the link's inertia added the joint
+    is softer. For the Lite's MJCF armature (0.005 kg*m^2 on rs-02, 0.002 elsewhere) that is Kp 19.74 / 7.90
+    N*m/rad and Kd 1.257 / 0.503 N*m*s/rad (lite-model.md section 2.1).
+
+    Args:
+        armature: J per joint, kg*m^2, shape (n,).
+        natural_hz: f, Hz.
+        damping_ratio: zeta.
+
+    Returns:
+        ``(kp, kd)``, shape (n,) each, N*m/rad and N*m*s/rad.
+    """
+    w = 2.0 * math.pi * natural_hz
+    j = np.asarray(armature, dtype=float)
+    return j * w * w, 2.0 * damping_ratio * j * w

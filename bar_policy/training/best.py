@@ -6,9 +6,12 @@ lost. A run now keeps a host copy of the parameters at each evaluation that beat
 the end, when that iterate is not the last one, evaluates it again on the final evaluation's seeds and
 exports it as ``<policy>_best.onnx`` next to ``policy.onnx``.
 
-Order: a higher ``success_rate`` wins, then a higher ``episode_reward`` (ties at 100 % success are common on
-reach). Only parameters trained in this run count: the evaluation at step 0 (untrained parameters) and
-evaluations before a resume are not candidates.
+Order: when the evaluation measured safety and smoothness (the MJX evaluation's ``quality/*`` figures, on
+held-out data), the ship gate's ``score`` (``bar_policy.quality.gate``): fewer safety thresholds missed
+(completion, torque caps, chatter), then fewer accuracy thresholds missed, then accuracy. Otherwise (an
+evaluation without them) a higher ``success_rate`` wins, then a higher ``episode_reward`` (ties at 100 %
+success are common on reach). Only parameters trained in this run count: the evaluation at step 0
+(untrained parameters) and evaluations before a resume are not candidates.
 
 The best of N noisy evaluations is an optimistic estimate of that iterate (selection bias). The final
 evaluation of the best iterate uses fresh seeds, the same ones as the last iterate's, so the two final
@@ -23,11 +26,43 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-__all__ = ["BestIterate", "BestKeeper", "best_onnx_path", "finish_best", "is_better", "score"]
+from bar_policy.quality import gate
+
+__all__ = [
+    "BestIterate",
+    "BestKeeper",
+    "best_onnx_path",
+    "finish_best",
+    "held_out_report",
+    "is_better",
+    "score",
+]
 
 
-def score(metrics: Mapping[str, float]) -> tuple[float, float]:
-    """Ranking key of an evaluation: ``(success_rate, episode_reward)``; NaN counts as the worst value."""
+def held_out_report(metrics: Mapping[str, float]) -> dict[str, Any]:
+    """An evaluation's figures in the ship gate's report form (``bar_policy.quality.gate``).
+
+    ``quality/<key>`` become the ``quality`` summary; ``joint_error_rad`` and ``fingertip_error_cm``
+    (tracking) stay; ``success_rate`` becomes ``success_pct``.
+    """
+    report: dict[str, Any] = {
+        "quality": {k.split("/", 1)[1]: v for k, v in metrics.items() if k.startswith("quality/")},
+        "success_pct": 100.0 * float(metrics["success_rate"]),
+    }
+    for k in ("joint_error_rad", "fingertip_error_cm"):
+        if k in metrics:
+            report[k] = metrics[k]
+    return report
+
+
+def score(metrics: Mapping[str, float], task: str | None = None) -> tuple[float, ...]:
+    """Ranking key of an evaluation (higher is better; NaN counts as the worst value).
+
+    With ``task`` and the evaluation's ``quality/*`` figures: the gate's score of ``held_out_report``;
+    otherwise ``(success_rate, episode_reward)``.
+    """
+    if task is not None and "quality/completion_pct" in metrics:
+        return gate.score(task, held_out_report(metrics))
 
     def clean(x: float) -> float:
         return -math.inf if math.isnan(x) else x
@@ -35,9 +70,9 @@ def score(metrics: Mapping[str, float]) -> tuple[float, float]:
     return clean(float(metrics["success_rate"])), clean(float(metrics["episode_reward"]))
 
 
-def is_better(new: Mapping[str, float], old: Mapping[str, float] | None) -> bool:
+def is_better(new: Mapping[str, float], old: Mapping[str, float] | None, task: str | None = None) -> bool:
     """True when evaluation ``new`` ranks strictly above ``old`` (any evaluation beats none)."""
-    return old is None or score(new) > score(old)
+    return old is None or score(new, task) > score(old, task)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -60,16 +95,21 @@ class BestKeeper:
     of a small network per improvement, not per evaluation.
     """
 
-    def __init__(self, first_step: int) -> None:
-        """``first_step``: env steps at the start of this run; evaluations at or before it are skipped."""
+    def __init__(self, first_step: int, task: str | None = None) -> None:
+        """Keep the best evaluation after ``first_step``.
+
+        ``first_step``: env steps at the start of this run (evaluations at or before it are skipped);
+        ``task``: the task whose ship gate ranks evaluations that carry quality figures (``score``).
+        """
         self.first_step = int(first_step)
+        self.task = task
         self.best: BestIterate | None = None
 
     def offer(self, step: int, metrics: Mapping[str, float], snapshot: Callable[[], Any]) -> bool:
         """Keep ``(step, metrics, snapshot())`` if it is a candidate and ranks above the kept one."""
         if step <= self.first_step:
             return False
-        if not is_better(metrics, None if self.best is None else self.best.metrics):
+        if not is_better(metrics, None if self.best is None else self.best.metrics, self.task):
             return False
         self.best = BestIterate(step=int(step), metrics=dict(metrics), params=snapshot())
         return True
@@ -132,7 +172,8 @@ def finish_best(
             "env_steps": best.step,
             "final_eval": final,
             "iterate": "best",
-            "selected_by": "highest eval success rate, then episode reward, during training",
+            "selected_by": "the ship gate's score of the held-out evaluations during training (safety "
+            "misses, accuracy misses, accuracy), or success rate then reward without quality figures",
             "eval_during_training": best.metrics,
         }
         record["onnx"] = str(path)

@@ -180,8 +180,12 @@ def make_programs(
     wrap_fn: Callable[..., Any],
     randomizer: Callable[..., Any] | None,
     iters_per_epoch: int,
+    eval_env: Any | None = None,
 ) -> Programs:
-    """The run's ``init``, ``reset``, ``epoch`` and ``evaluate`` programs on the mesh of ``dp``."""
+    """The run's ``init``, ``reset``, ``epoch`` and ``evaluate`` programs on the mesh of ``dp``.
+
+    ``eval_env``: the env the evaluation runs (the task's held-out variant; default ``env``).
+    """
     ppo = cfg.ppo
     n = dp.n_devices
     envs_local, eval_local = ppo.num_envs // n, cfg.eval.num_eval_envs // n
@@ -214,7 +218,8 @@ def make_programs(
         return strip_weak_type(ts), (env_state, model_keys), metrics, stats
 
     def evaluate(params: Any, key: jax.Array, model_key: jax.Array) -> dict[str, jax.Array]:
-        env_e = batch(slot_keys(model_key, cfg.eval.num_eval_envs, eval_local), auto_reset=False)
+        keys = slot_keys(model_key, cfg.eval.num_eval_envs, eval_local)
+        env_e = slot_env(eval_env or env, wrap_fn, randomizer, keys, auto_reset=False)
         state = env_e.reset(slot_keys(key, cfg.eval.num_eval_envs, eval_local))
         return learner.evaluate(params, env_e, state, key, episode_length)
 
@@ -247,6 +252,7 @@ def train_brax(
     checkpoint_dir: str | None,
     config_record: dict[str, Any] | None = None,
     timer: StartupTimer | None = None,
+    eval_env: Any | None = None,
 ) -> BraxTrainResult:
     """Train with brax PPO pieces on every device; see the module docstring.
 
@@ -259,6 +265,8 @@ def train_brax(
         checkpoint_dir: where checkpoints go (None: no checkpoints).
         config_record: JSON record stored in checkpoint sidecars.
         timer: start-up breakdown to add the compile phases to (printed after the first epoch).
+        eval_env: the env every evaluation runs (the task's held-out variant, ``evaluation_env()``;
+            default ``env``).
 
     Returns:
         The trained params and a record of the run.
@@ -280,7 +288,7 @@ def train_brax(
     iters_per_epoch = epoch_iterations(cfg)
 
     learner = make_learner(env.observation_size, env.action_size, ppo, cfg.network)
-    programs = make_programs(env, cfg, learner, dp, wrap_fn, randomizer, iters_per_epoch)
+    programs = make_programs(env, cfg, learner, dp, wrap_fn, randomizer, iters_per_epoch, eval_env)
     seed = cfg.seed
 
     # Trace each program here and compile it on a worker thread. The reset goes first (its outputs are the
@@ -341,7 +349,7 @@ def train_brax(
             save_checkpoint(checkpoint_dir, host, env_steps=step, iteration=it, extra=config_record)
 
     start_steps = env_steps
-    keeper = BestKeeper(start_steps)
+    keeper = BestKeeper(start_steps, getattr(env, "task_name", None))
     eval_at_start = iteration == 0
     epochs_done = 0
     first_epoch_end = 0.0

@@ -72,7 +72,18 @@ class PPOConfig:
     num_updates_per_batch: int = 8
     """Passes (epochs) over the collected data per training iteration."""
     learning_rate: float = 5e-4
-    """Adam learning rate."""
+    """Adam learning rate (the initial one with the adaptive schedule)."""
+    schedule: Literal["fixed", "adaptive"] = "fixed"
+    """Learning-rate schedule: ``fixed``, or ``adaptive`` (rsl-rl's KL-targeting rule, brax backend: before
+    each minibatch step, the learning rate is divided by 1.5 when the policy's KL divergence from the one
+    that collected the data exceeds 2 x ``desired_kl``, multiplied by 1.5 below ``desired_kl`` / 2, and kept
+    within [``min_learning_rate``, ``max_learning_rate``]; the rsl-rl backend uses ``rsl_rl.schedule``)."""
+    desired_kl: float = 0.01
+    """KL target of the adaptive schedule (nats; the KL of the whole action distribution, as rsl-rl's)."""
+    min_learning_rate: float = 1e-5
+    """Floor of the adaptive learning rate."""
+    max_learning_rate: float = 1e-2
+    """Ceiling of the adaptive learning rate."""
     entropy_cost: float = 5e-3
     """Weight of the entropy bonus in the loss."""
     discounting: float = 0.97
@@ -99,6 +110,14 @@ class PPOConfig:
             raise ValueError(
                 f"ppo.batch_size * ppo.num_minibatches = {self.batch_size * self.num_minibatches} must be a "
                 f"multiple of ppo.num_envs = {self.num_envs}"
+            )
+        if not (
+            0 < self.min_learning_rate <= self.learning_rate <= self.max_learning_rate and self.desired_kl > 0
+        ):
+            raise ValueError(
+                f"need 0 < ppo.min_learning_rate <= ppo.learning_rate <= ppo.max_learning_rate and "
+                f"ppo.desired_kl > 0, got {self.min_learning_rate}, {self.learning_rate}, "
+                f"{self.max_learning_rate}, {self.desired_kl}"
             )
         if not 0 < self.discounting <= 1 or not 0 <= self.gae_lambda <= 1:
             raise ValueError(f"discounting must be in (0, 1] and gae_lambda in [0, 1], got {self}")
@@ -204,6 +223,10 @@ class TrainConfig:
     """Where to write the ONNX file (empty = ``<run dir>/policy.onnx``)."""
     final_eval_envs: int = 4096
     """Episodes in the final evaluation written next to the ONNX file."""
+    matmul_precision: Literal["default", "highest"] = "highest"
+    """float32 matrix products: ``highest`` (full float32, what MuJoCo Playground sets: TF32 products on
+    NVIDIA GPUs destabilised its training) or ``default`` (the backend's fastest, TF32 on Ampere and later;
+    no effect on CPUs)."""
     compile_cache: bool = True
     """Persistent XLA compilation cache (a rerun of the same command loads programs instead of compiling)."""
     compile_cache_dir: str = ""

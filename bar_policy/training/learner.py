@@ -29,10 +29,20 @@ from brax.training.agents.ppo import networks as ppo_networks
 from flax import linen
 
 from bar_policy.envs.base import eval_ratios
+from bar_policy.training import eval_quality
 from bar_policy.training.config import NetworkConfig, PPOConfig
 from bar_policy.training.parallel import AXIS
 
-__all__ = ["Learner", "TrainingState", "make_learner", "make_networks", "strip_weak_type"]
+__all__ = [
+    "Learner",
+    "TrainingState",
+    "adapt_learning_rate",
+    "learning_rate",
+    "make_learner",
+    "make_networks",
+    "set_learning_rate",
+    "strip_weak_type",
+]
 
 _ACTIVATIONS: dict[str, Callable[[jax.Array], jax.Array]] = {
     "swish": linen.swish,
@@ -126,15 +136,37 @@ class Learner:
         def minibatch(c: tuple, mb: types.Transition) -> tuple:
             o, p, kk = c
             kk, k_loss = jax.random.split(kk)
+            kl = jax.lax.pmean(self.approx_kl(p, normalizer, mb), axis_name=AXIS)
+            if ppo.schedule == "adaptive":
+                o = set_learning_rate(o, adapt_learning_rate(learning_rate(o), kl, ppo))
             (_, metrics), grads = grad_fn(p, normalizer, mb, k_loss)
             grads = jax.lax.pmean(grads, axis_name=AXIS)
             updates, o = self.optimizer.update(grads, o, p)
+            metrics = {**metrics, "kl": kl, "learning_rate": learning_rate(o)}
             return (o, optax.apply_updates(p, updates), kk), metrics
 
         (opt_state, params, _), metrics = jax.lax.scan(
             minibatch, (opt_state, params, k_mb), jax.tree.map(shuffle, data)
         )
         return (opt_state, params, k), metrics
+
+    def approx_kl(
+        self, params: ppo_losses.PPONetworkParams, normalizer: Any, mb: types.Transition
+    ) -> jax.Array:
+        """KL(behaviour policy || current policy) on this device's minibatch, nats.
+
+        The KL of the joint (all action dimensions) distribution, averaged over the minibatch's states, as
+        rsl-rl measures it for its schedule.
+
+        Estimated by ``mean(r - 1 - log r)`` with ``r`` the probability ratio of the stored raw
+        (pre-tanh) actions (its expectation under the behaviour policy is the KL divergence; the tanh's
+        Jacobian cancels in the ratio).
+        """
+        logits = self.networks.policy_network.apply(normalizer, params.policy, mb.observation)
+        extras = mb.extras["policy_extras"]
+        new = self.networks.parametric_action_distribution.log_prob(logits, extras["raw_action"])
+        log_r = new - extras["log_prob"]
+        return jnp.mean(jnp.exp(log_r) - 1.0 - log_r)
 
     def rollout(
         self, ts: TrainingState, env_state: Any, key: jax.Array, env: Any, unrolls: int
@@ -219,25 +251,38 @@ class Learner:
         including its first ``done``), as brax's evaluator counts episode metrics. Sums are reduced over the
         mesh, so the results are global.
 
+        Safety and smoothness (``eval_quality``: completion, torque-cap and joint-limit shares, action rate,
+        chatter) are measured on the same episodes, with the definitions the deploy side uses.
+
         Returns:
-            ``{"episode_reward", "episode_reward_std", <ratio>...}`` (scalars): mean and std of the episode
-            returns over every slot, and per ratio the sum of its numerators / the sum of its denominators.
+            ``{"episode_reward", "episode_reward_std", <ratio>..., "quality/<figure>"...}`` (scalars): mean
+            and std of the episode returns over every slot, per ratio the sum of its numerators / the sum of
+            its denominators, and the quality figures.
         """
         policy = self.make_policy(params, deterministic=True)
         task = env.unwrapped
+        robot = task.robot
+        f32 = lambda x: jnp.asarray(x, dtype=jnp.float32)  # noqa: E731
+        limits = {"cap": f32(robot.torque_cap), "lower": f32(robot.lower), "upper": f32(robot.upper)}
 
-        def step(c: tuple, _: None) -> tuple:
-            s, alive = c
+        def step(c: tuple, t: jax.Array) -> tuple:
+            s, alive, qc = c
             action, _ = policy(s.obs, key)
+            sig = jax.vmap(task.quality_signals)(s, action)
             ns = env.step(s, action)
             sums = {
                 k: ((n * alive).sum(), (d * alive).sum())
                 for k, (n, d) in eval_ratios(task, ns.metrics).items()
             }
-            return (ns, alive * (1.0 - ns.done)), (ns.reward * alive, sums)
+            terminated = ns.done * (1.0 - ns.info["truncation"])
+            qc, _ = eval_quality.update(qc, sig, alive, terminated, t == 0, dt=task.dt, **limits)
+            return (ns, alive * (1.0 - ns.done), qc), (ns.reward * alive, sums, sig["signal"])
 
         alive = jnp.ones(env_state.reward.shape)
-        _, (rewards, sums) = jax.lax.scan(step, (env_state, alive), None, length=episode_length)
+        qc = eval_quality.init(alive.shape[0], task.action_size)
+        (_, _, qc), (rewards, sums, signals) = jax.lax.scan(
+            step, (env_state, alive, qc), jnp.arange(episode_length)
+        )
         ret = rewards.sum(axis=0)
         n_eps = jax.lax.psum(jnp.float32(ret.shape[0]), AXIS)
         mean = jax.lax.psum(ret.sum(), AXIS) / n_eps
@@ -245,15 +290,37 @@ class Learner:
         out = {"episode_reward": mean, "episode_reward_std": jnp.sqrt(var)}
         for k, (n, d) in sums.items():
             out[k] = jax.lax.psum(n.sum(), AXIS) / jnp.maximum(jax.lax.psum(d.sum(), AXIS), 1.0)
+        out.update(eval_quality.finish(qc, signals, task.dt))
         return out
 
 
+def learning_rate(opt_state: Any) -> jax.Array:
+    """The learning rate held in ``make_learner``'s optimizer state (scalar)."""
+    return opt_state[1].hyperparams["learning_rate"]
+
+
+def set_learning_rate(opt_state: Any, lr: jax.Array) -> Any:
+    """``opt_state`` with the learning rate ``lr`` (the next update uses it)."""
+    adam = opt_state[1]
+    new = adam._replace(hyperparams={**adam.hyperparams, "learning_rate": jnp.asarray(lr, jnp.float32)})
+    return (opt_state[0], new)
+
+
+def adapt_learning_rate(lr: jax.Array, kl: jax.Array, ppo: PPOConfig) -> jax.Array:
+    """rsl-rl's KL-adaptive rule: / 1.5 above 2 x ``desired_kl``, x 1.5 below half of it, within bounds."""
+    lr = jnp.where(kl > 2.0 * ppo.desired_kl, lr / 1.5, jnp.where(kl < 0.5 * ppo.desired_kl, lr * 1.5, lr))
+    return jnp.clip(lr, ppo.min_learning_rate, ppo.max_learning_rate)
+
+
 def make_learner(observation_size: int, action_size: int, ppo: PPOConfig, net: NetworkConfig) -> Learner:
-    """The learner for an env's sizes: brax networks, Adam (with global-norm clipping when configured)."""
+    """The learner for an env's sizes: brax networks and Adam after global-norm clipping (when configured).
+
+    Adam's learning rate sits in the optimizer state (``optax.inject_hyperparams``), so the adaptive schedule
+    can change it between minibatch steps (``learning_rate`` / ``set_learning_rate``).
+    """
     networks = make_networks(observation_size, action_size, net, ppo.normalize_observations)
-    optimizer = optax.adam(ppo.learning_rate)
-    if ppo.max_grad_norm > 0:
-        optimizer = optax.chain(optax.clip_by_global_norm(ppo.max_grad_norm), optimizer)
+    clip = optax.clip_by_global_norm(ppo.max_grad_norm) if ppo.max_grad_norm > 0 else optax.identity()
+    optimizer = optax.chain(clip, optax.inject_hyperparams(optax.adam)(learning_rate=ppo.learning_rate))
     return Learner(
         networks=networks,
         make_policy=ppo_networks.make_inference_fn(networks),

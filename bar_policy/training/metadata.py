@@ -48,7 +48,8 @@ def policy_metadata(
     Reads the joint order, action joints and observation schema from ``env.obs_manager``, Kp/Kd from
     ``env.kp``/``env.kd`` (N*m/rad, N*m*s/rad), the default pose and per-joint action scale (rad) from
     ``env.default_pose``/``env.action_scale``, the policy period from ``env.dt`` (s), the physics step from
-    ``env.config.sim_dt`` and the randomisation ranges from ``env.config``.
+    ``env.config.sim_dt``, the randomisation ranges from ``env.config`` and the action filter's cutoff from
+    ``env.action_filter_hz`` (Hz; None: no filter).
 
     Args:
         env: the (unwrapped) training env.
@@ -78,6 +79,7 @@ def policy_metadata(
         randomization=randomization_record(cfg) if cfg is not None else {},
         code_version=code_version(),
         training=_jsonable(dict(training or {})),
+        action_filter_hz=getattr(env, "action_filter_hz", None),
         body_names=tuple(extra.get("body_names", ())),
         lookahead_steps=int(extra.get("lookahead_steps", 0)),
         dataset_repo_id=str(extra.get("dataset_repo_id", "")),

@@ -189,6 +189,11 @@ def run(
     init_distributed(cfg)
     import jax
 
+    # Full float32 products unless asked otherwise (a TF32 policy gradient destabilised Playground's runs).
+    jax.config.update(
+        "jax_default_matmul_precision", "highest" if cfg.matmul_precision == "highest" else None
+    )
+
     from bar_policy import envs
 
     if cfg.backend == "brax":
@@ -203,6 +208,7 @@ def run(
         with _local_default_devices():
             env = envs.load(cfg.env_name, config=env_config, overrides=list(cfg.env_overrides) or None)
         randomizer = envs.get_randomizer(cfg.env_name, env.config)
+    eval_env = env.evaluation_env() if hasattr(env, "evaluation_env") else env
     is_main = jax.process_index() == 0
     run_dir = resolve_run_dir(cfg, check=is_main)
     timer.add("env build and devices", time.monotonic() - t_env)
@@ -240,6 +246,7 @@ def run(
             checkpoint_dir=ckpt_dir,
             config_record=record,
             timer=timer,
+            eval_env=eval_env,
         )
     else:
         result = train_rsl_rl(

@@ -16,7 +16,12 @@ from bar_policy.motion.library import clip_set_id
 from bar_policy.robot.constants import FINGERTIP_SITES, load_robot
 from bar_policy.robot.kinematics import Kinematics, rotation_to_6d
 from bar_policy.robot.mjcf import load_model
-from bar_policy.tasks.track import TRACK_BODY_NAMES, TRACK_LOOKAHEAD_STEPS, track_default_pose
+from bar_policy.tasks.track import (
+    TRACK_BODY_NAMES,
+    TRACK_LOOKAHEAD_STEPS,
+    track_action_scale,
+    track_default_pose,
+)
 
 ROBOT = load_robot("arms")
 PIANO = ROBOT.pose("piano_ready")
@@ -54,12 +59,17 @@ def test_lookahead_observation_by_hand(track_env, track_fns):
     # = 0.5 rad/s (one-sided difference at the clip's start); joint_vel has scale 0.1.
     np.testing.assert_allclose(parts["joint_pos"], q[0] - track_default_pose(), atol=1e-6)
     np.testing.assert_allclose(parts["joint_vel"], 0.05, atol=1e-6)
-    np.testing.assert_array_equal(parts["actions"], 0.0)
+    # The action filter (4 Hz) starts from the action of the start pose: (q0 - default) / scale, and one
+    # step of a = 0.1 moves it by alpha = 1 - exp(-2 pi 4 Hz 0.02 s) = 0.395077 of the way.
+    assert env.config.action_filter_hz == 4.0
+    a0 = (q[0] - track_default_pose()) / track_action_scale("arms")
+    assert np.all(np.abs(a0) < 1)  # inside the action range: no clip
+    np.testing.assert_allclose(parts["actions"], a0, atol=1e-6)
     s1 = step(s, jnp.full(14, 0.1, jnp.float32))
     assert int(s1.info["frame"]) == 1
     parts = om.split(np.asarray(s1.obs))
     np.testing.assert_allclose(parts["motion_joint_pos"], np.tile(q[2], 5), atol=1e-6)
-    np.testing.assert_allclose(parts["actions"], 0.1, atol=1e-7)
+    np.testing.assert_allclose(parts["actions"], a0 + 0.395077 * (0.1 - a0), atol=1e-6)
     s2 = step(s1, jnp.zeros(14, jnp.float32))
     s3 = step(s2, jnp.zeros(14, jnp.float32))
     assert int(s2.info["frame"]) == int(s3.info["frame"]) == 2  # holds the last frame
@@ -80,7 +90,7 @@ def test_step_rewards_and_metrics_wiring(track_env, track_fns):
     qpos = np.asarray(s1.data.qpos, np.float64)
     q_ref = ref.joint_pos[f].astype(np.float64)
     terms = {k: float(v) for k, v in s1.metrics.items() if k.startswith("reward/")}
-    names = ("joint_pos", "body_pos", "body_ori", "action_rate", "torque")
+    names = ("joint_pos", "body_pos", "body_ori", "fingertip_pos", "action_rate", "torque", "torque_near_cap")
     assert set(terms) == {f"reward/{n}" for n in names}
     assert float(s1.reward) == pytest.approx(sum(terms.values()), rel=1e-5, abs=1e-6)
     # joint_pos = exp(-mean (q - q_ref)^2 / 0.15^2), weight 1; errors against the frame the step arrives at.
@@ -91,8 +101,17 @@ def test_step_rewards_and_metrics_wiring(track_env, track_fns):
     dist = np.linalg.norm(pos - ref.body_pos[f], axis=-1)
     assert float(s1.metrics["body_pos_error"]) == pytest.approx(dist.mean(), abs=1e-6)
     tips = np.asarray(s1.data.site_xpos)[[env.mj_model.site(x).id for x in FINGERTIP_SITES]]
-    tip_err = np.linalg.norm(tips - ref.fingertip_pos[f], axis=-1).mean()
+    tip_dist = np.linalg.norm(tips - ref.fingertip_pos[f], axis=-1)
+    tip_err = tip_dist.mean()
     assert float(s1.metrics["fingertip_error"]) == pytest.approx(tip_err, abs=1e-6)
+    # fingertip_pos = exp(-mean |tip - tip_ref|^2 / 0.02^2), weight 1.
+    want = np.exp(-np.mean(tip_dist**2) / 0.02**2)
+    assert terms["reward/fingertip_pos"] == pytest.approx(want, rel=1e-4, abs=1e-6)
+    # Zero action from the filter's start state: a = a0 (1 - alpha), so the applied action moved by
+    # alpha * a0; action_rate = -0.1 * sum((alpha a0)^2).
+    a0 = np.asarray(s.info["last_act"], np.float64)
+    want = -0.1 * np.sum((0.395077 * a0) ** 2)
+    assert terms["reward/action_rate"] == pytest.approx(want, rel=1e-4, abs=1e-7)
     want = float(np.mean(np.abs(qpos - q_ref)) <= 0.05 and tip_err <= 0.02)
     assert float(s1.metrics["success"]) == want
     assert float(s1.metrics["tracked"]) == 1.0 and float(s1.done) == 0.0 and float(s1.metrics["lost"]) == 0.0

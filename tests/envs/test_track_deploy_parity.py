@@ -19,6 +19,7 @@ from bar_policy.deploy.tasks.track import MotionReference
 from bar_policy.envs.track import SUCCESS_FINGERTIP_M, SUCCESS_JOINT_RAD
 from bar_policy.envs.track_config import default_config
 from bar_policy.obs import ObservationManager
+from bar_policy.robot.action_filter import filter_alpha, lowpass_step, pose_action
 from bar_policy.tasks import track as task
 
 pytestmark = pytest.mark.numerics  # compares XLA floats with another implementation / a recording
@@ -54,9 +55,18 @@ def test_deploy_observation_equals_the_env_observation(track_env, track_fns, tra
     start = int(track_env.reference.clip_start[clip])
     frame = int(s.info["frame"]) - start
     assert frame == min(phase + steps, track_clips[clip].num_frames - 1)
-    last_action = np.asarray(actions[-1], np.float32) if actions else np.zeros(14, np.float32)
+    # The deploy side's filter state, with the shared functions: from the start pose's action, one low-pass
+    # step per action (the env's initial_action / filtered_action).
+    cfg = track_env.config
+    alpha = filter_alpha(cfg.action_filter_hz, cfg.ctrl_dt)
+    start_q = track_env.reference.joint_pos[start + phase].astype(np.float64)
+    last_action = pose_action(start_q, task.track_default_pose(), task.track_action_scale("arms"))
+    for a in actions:
+        last_action = lowpass_step(last_action, np.clip(np.asarray(a, np.float64), -1, 1), alpha)
     want = np.asarray(s.obs)
-    got = _deploy_obs(track_clips[clip], phase + steps, s.data.qpos, s.data.qvel, last_action)
+    got = _deploy_obs(
+        track_clips[clip], phase + steps, s.data.qpos, s.data.qvel, last_action.astype(np.float32)
+    )
     assert got.dtype == np.float32 and got.shape == want.shape == (292,)
     np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-6)
 

@@ -97,6 +97,13 @@ class ToyReach(MjxEnv):
     def kd(self) -> np.ndarray:
         return self.robot.kd.astype(np.float32)
 
+    def quality_signals(self, state: State, action: jax.Array) -> dict:
+        """The robot env's quality signals for the toy: the MIT law at the robot gains (Kd term 0)."""
+        q = state.data["q"]
+        q_cmd = self._default + self.config.action_scale * jnp.clip(action, -1.0, 1.0)
+        a = jnp.clip(action, -1.0, 1.0)
+        return {"demand": self.kp * (q_cmd - q), "q": q, "action": a, "signal": q_cmd}
+
     # dynamics ---------------------------------------------------------------------------------------
     def _tips(self, q: jax.Array) -> tuple[jax.Array, jax.Array]:
         d = q - self._default
