@@ -1,0 +1,109 @@
+#!/usr/bin/env bash
+# The tracker's training recipe on one GPU (issue 16): an ablation of recipe variants, and the recipe's
+# training runs by seed. Run from the repository root after the pip prefix of shared/gpu/README.md.
+#
+#   bash bench/track_recipe.sh ablate A   (~9.5 min) four variants side by side on the one GPU, 4096 envs each,
+#                                          the same wall-clock budget; set A: recipe, actuator gains, no
+#                                          filter, the old (shipped) recipe
+#   bash bench/track_recipe.sh ablate B   (~9.5 min) the recipe without adaptive sampling, with a fixed
+#                                          learning rate, without the near-cap term, TF32 products
+#   bash bench/track_recipe.sh train SEED (~9.5 min) `--preset track --seed SEED` alone on the GPU: the
+#                                          figure of record (10 min on one H100, compile included)
+#   bash bench/track_recipe.sh smoke      CPU check of the script with tiny sizes
+#
+# $OUT gets runs.tgz (each run's config, metrics.jsonl, final_eval.json, ONNX files and log) and summary.md
+# (per run: held-out MJX evaluation at the end, best iterate, steps, wall time). Evaluate the ONNX files on
+# the C MuJoCo sim target here with `bar-deploy eval --policy <run>/policy.onnx --clips heldout`.
+set -u
+PART=${1:-smoke}
+ARG=${2:-A}
+OUT=${OUT:-/tmp/track_recipe_out}
+WORK=${WORK:-/tmp/track_recipe}
+mkdir -p "$OUT" "$WORK"
+export PYTHONUNBUFFERED=1
+RUNS=$WORK/runs
+CACHE=$WORK/jaxcache
+T0=$(date +%s)
+stamp() { echo "[$(( $(date +%s) - T0 )) s] $*"; }
+
+# Recipe variants: name -> extra arguments (on top of --preset track).
+OLD_ENV="reward.scales.action_rate=-0.005 reward.scales.torque_near_cap=0.0 reward.scales.fingertip_pos=0.0"
+OLD_ENV="$OLD_ENV action_filter_hz=null sampling.enabled=false"
+declare -A VARIANT=(
+  [recipe]=""
+  [actuator_gains]="--env-overrides gains=actuator"
+  [no_filter]="--env-overrides action_filter_hz=null"
+  [old]="--ppo.schedule fixed --matmul-precision default --env-overrides $OLD_ENV"
+  [no_sampling]="--env-overrides sampling.enabled=false"
+  [fixed_lr]="--ppo.schedule fixed"
+  [no_near_cap]="--env-overrides reward.scales.torque_near_cap=0.0"
+  [tf32]="--matmul-precision default"
+)
+SETS_A="recipe actuator_gains no_filter old"
+SETS_B="no_sampling fixed_lr no_near_cap tf32"
+
+SIZE=""
+MINUTES=${MINUTES:-7.2}
+if [ "$PART" = smoke ]; then
+  export JAX_PLATFORMS=cpu
+  SIZE="--ppo.num-envs 16 --ppo.batch-size 16 --ppo.num-minibatches 2 --ppo.unroll-length 4 --ppo.num-updates-per-batch 1"
+  SIZE="$SIZE --ppo.num-timesteps 256 --eval.num-eval-envs 8 --eval.num-evals 2 --final-eval-envs 8"
+  SIZE="$SIZE --network.policy-hidden 16 16 --network.value-hidden 16 16"
+  MINUTES=0
+  SETS_A="recipe old"
+fi
+
+run_one() {  # run_one NAME SEED EXTRA...
+  local name=$1 seed=$2; shift 2
+  stamp "start $name (seed $seed): $*"
+  # shellcheck disable=SC2086
+  timeout -k 10 570 python3 train/ppo.py --preset track --seed "$seed" --run-name "$name" --runs-dir "$RUNS" \
+    --compile-cache-dir "$CACHE" --max-minutes "$MINUTES" $SIZE "$@" > "$WORK/$name.log" 2>&1
+  stamp "end $name: exit $?"
+}
+
+summary() {
+  python3 - "$RUNS" > "$OUT/summary.md" <<'EOF'
+import json, sys
+from pathlib import Path
+keys = ("success_rate", "joint_error_rad", "fingertip_error_cm", "quality/completion_pct",
+        "quality/cap_share_pct", "quality/chatter_max_mrad", "quality/chatter_mean_mrad", "quality/action_rate")
+print("| run | env steps | wall s | " + " | ".join(k.split("/")[-1] for k in keys) + " | best iterate |")
+print("|---" * (len(keys) + 4) + "|")
+for run in sorted(Path(sys.argv[1]).iterdir()):
+    f = run / "final_eval.json"
+    if not f.exists():
+        print(f"| {run.name} | (no final_eval.json) |")
+        continue
+    r = json.loads(f.read_text())
+    fe = r["final_eval"]
+    best = r.get("best_iterate", {})
+    b = "last" if best.get("is_last", True) else f"{best['step']:,}: " + ", ".join(
+        f"{k.split('/')[-1]} {best['final_eval'].get(k, float('nan')):.4g}" for k in keys[1:6])
+    print(f"| {run.name} | {r['env_steps']:,} | {r['wall_s']:.0f} | "
+          + " | ".join(f"{fe.get(k, float('nan')):.4g}" for k in keys) + f" | {b} |")
+EOF
+  cat "$OUT/summary.md"
+  (cd "$WORK" && tar czf "$OUT/runs.tgz" --exclude='checkpoints' runs ./*.log 2>/dev/null)
+}
+
+case "$PART" in
+  ablate|smoke)
+    set_names=$SETS_A
+    [ "$ARG" = B ] && set_names=$SETS_B
+    [ "$PART" = ablate ] && SIZE="--ppo.num-envs 4096 --ppo.batch-size 512 --final-eval-envs 1024"
+    export XLA_PYTHON_CLIENT_MEM_FRACTION=0.22
+    for v in $set_names; do
+      # shellcheck disable=SC2086
+      run_one "$v" 0 ${VARIANT[$v]} &
+      sleep 2
+    done
+    wait
+    ;;
+  train)
+    run_one "recipe-seed$ARG" "$ARG" --final-eval-envs 1024
+    ;;
+  *) echo "unknown part $PART (ablate A|B, train SEED, smoke)"; exit 2 ;;
+esac
+summary
+stamp done
