@@ -4,7 +4,10 @@ Two families of keys are written:
 
 - ``bar.*`` keys, JSON-valued: everything ``bar-deploy`` checks before it runs a policy (observation schema
   and fingerprint, joint order, gains, default pose, action scale and semantics, rates, training
-  randomisation ranges, code version).
+  randomisation ranges, code version). One optional key, ``bar.provenance`` (``OPTIONAL_BAR_KEYS``): the
+  git commit and dirty flag, the library versions and the training command (``bar_policy.provenance``).
+  It informs and is never checked: older files load without it, a malformed one with the problem in its
+  place (``provenance.read_record``).
 - The 13 keys that Berkeley Humanoids' Humanoid Control runner requires (task_type, joint_names, ...), in
   the comma-separated form that mjlab's exporter writes, so our files also load there.
 
@@ -31,12 +34,15 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from bar_policy.provenance import read_record
+
 __all__ = [
     "ACTION_SEMANTICS",
     "BAR_KEYS",
     "DIALECTS",
     "HC_KEYS",
     "METADATA_VERSION",
+    "OPTIONAL_BAR_KEYS",
     "MetadataError",
     "PolicyMetadata",
 ]
@@ -61,7 +67,10 @@ BAR_KEYS = (
     "bar.obs_fingerprint", "bar.command_names", "bar.randomization", "bar.code_version",
     "bar.training",
 )  # fmt: skip
+"""Keys every ``bar`` file carries (``from_props`` refuses a file that lacks one)."""
 
+OPTIONAL_BAR_KEYS = ("bar.provenance",)
+"""``bar.*`` keys a file may lack (older files): read when present, never required, never checked."""
 
 DIALECTS = ("bar", "hc")
 """Metadata dialects: ``bar`` (``bar.*`` keys plus the HC keys, checked to agree), ``hc`` (HC keys only)."""
@@ -127,6 +136,9 @@ class PolicyMetadata:
     """HC ``observation_names`` of an HC-only file (a ``bar`` file's terms are in ``obs_schema``)."""
     dialect: str = "bar"
     """Which keys the file carried: ``bar`` or ``hc`` (``DIALECTS``)."""
+    provenance: Mapping[str, Any] = field(default_factory=dict)
+    """``bar.provenance``: git commit and dirty flag, library versions, training command
+    (``bar_policy.provenance.collect``); empty when the file has none."""
 
     def __post_init__(self) -> None:
         if self.dialect not in DIALECTS:
@@ -184,6 +196,8 @@ class PolicyMetadata:
             "bar.code_version": self.code_version,
             "bar.training": dict(self.training),
         }
+        if self.provenance:
+            bar["bar.provenance"] = dict(self.provenance)
         props = {k: json.dumps(v, sort_keys=True) for k, v in bar.items()}
 
         def csv(values: Any) -> str:
@@ -275,6 +289,7 @@ class PolicyMetadata:
             body_names=_csv_names(props, "body_names"),
             lookahead_steps=_int_prop(props, "lookahead_steps"),
             dataset_repo_id=props["dataset_repo_id"],
+            provenance=read_record(props.get("bar.provenance")),
         )
 
     @classmethod
