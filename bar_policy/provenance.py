@@ -166,17 +166,24 @@ def commit_text(record: Mapping[str, Any]) -> str:
     return f"{commit[:12]} ({tree})"
 
 
-def describe(record: Mapping[str, Any] | None) -> list[str]:
+def describe(record: Mapping[str, Any] | None, code_version: str = "") -> list[str]:
     """One or two lines for a terminal: commit, dirty flag and versions; then the training command.
 
-    Never raises: a missing record says so, and fields of the wrong type are shown as found.
+    Never raises: a missing record says so (with ``code_version``, the short form older files carry),
+    and fields of the wrong type are shown as found.
     """
     if not record:
-        return ["provenance: not recorded (a file exported before provenance, or not by bar_policy)"]
+        known = f"; its code version: {code_version}" if code_version else ""
+        return [f"provenance: not recorded (a file exported before provenance, or not by bar_policy{known})"]
     if "error" in record:
         return [f"provenance: unreadable ({record['error']})"]
     versions = record.get("versions", {})
-    libs = ", ".join(f"{k} {v}" for k, v in versions.items()) if isinstance(versions, Mapping) else versions
+    if isinstance(versions, Mapping):  # in LIBRARIES' order (a stored record's keys come back sorted)
+        order = [d for d, _ in LIBRARIES]
+        names = sorted(versions, key=lambda k: (order.index(k) if k in order else len(order), k))
+        libs = ", ".join(f"{k} {versions[k]}" for k in names)
+    else:
+        libs = str(versions)
     head = f"provenance: commit {commit_text(record)}; {libs}"
     lines = [head]
     argv = record.get("argv")

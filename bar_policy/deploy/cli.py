@@ -42,6 +42,7 @@ from bar_policy.deploy.cli_types import priority as _priority
 from bar_policy.deploy.cli_types import seconds as _seconds
 from bar_policy.deploy.cli_types import seconds0 as _seconds0
 from bar_policy.deploy.tasks import all_tasks, get_task
+from bar_policy.provenance import describe as describe_provenance
 
 __all__ = ["main"]
 
@@ -215,6 +216,9 @@ def _policy_task(args: argparse.Namespace, which: str) -> tuple[object, object]:
     task = get_task(policy.task)  # type: ignore[attr-defined]
     others = tuple(t for t in all_tasks() if t.name != task.name)
     task.check_options(args.policy, args, others, which)
+    meta = policy.metadata  # type: ignore[attr-defined]
+    for line in describe_provenance(meta.provenance, meta.code_version):
+        print(line)  # informs only: nothing is refused for it
     return policy, task
 
 
