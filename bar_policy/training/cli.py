@@ -58,8 +58,8 @@ def parse_config(argv: Sequence[str] | None = None) -> TrainConfig:
     name = preset_of(args)
     description = (
         __doc__.split("\n\n")[0]
-        + f"\n\nDefaults shown: the {name} preset (choose with --preset). Env and reward settings: "
-        + "--env-overrides dotted.path=value (docs/training.md lists them)."
+        + f"\n\nDefaults shown: the {name} preset's. Env and reward settings: dotted.path=value items "
+        + "(docs/training.md lists them)."
     )
     cfg = tyro.cli(TrainConfig, default=preset(name), args=args, description=description, prog=PROG)
     try:

@@ -28,10 +28,12 @@ UP = "sudo ip link set {} up type can bitrate 1000000"
 
 # (argv, exit status, a fragment of the one error line)
 BAD_ARGS = [
+    (["discover", "--reply-timeout", "-1"], 2, "argument --reply-timeout: must be a number > 0 s, got '-1'"),
+    (["discover", "--reply-timeout", "0"], 2, "argument --reply-timeout: must be a number > 0 s, got '0'"),
+    (["discover", "--reply-timeout", "nan"], 2, "argument --reply-timeout: must be finite, got 'nan'"),
+    (["discover", "--reply-timeout", "soon"], 2, "argument --reply-timeout: not a number: 'soon'"),
+    # The deprecated spelling refuses a bad value the same way (its name in the message).
     (["discover", "--timeout", "-1"], 2, "argument --timeout: must be a number > 0 s, got '-1'"),
-    (["discover", "--timeout", "0"], 2, "argument --timeout: must be a number > 0 s, got '0'"),
-    (["discover", "--timeout", "nan"], 2, "argument --timeout: must be finite, got 'nan'"),
-    (["discover", "--timeout", "soon"], 2, "argument --timeout: not a number: 'soon'"),
     (["discover", "--scan-to", "0"], 2, "argument --scan-to: must be an integer in 1..127, got '0'"),
     (["discover", "--scan-to", "200"], 2, "argument --scan-to: must be an integer in 1..127, got '200'"),
     (["calibrate", "--rate", "0"], 2, "argument --rate: must be a number > 0 Hz, got '0'"),
@@ -55,7 +57,7 @@ BAD_ARGS = [
      "--value 'lots' is not a valid u32"),
     (["param", "write", "--id", "11", "--index", "0x7028"], 1, "param write needs --value"),
     (["param", "read", "--id", "11", "--index", "0x1234"], 1, "parameter 0x1234 is not in the known table"),
-    (["discover", "--emulate"], 1, "--emulate needs --interface virtual"),
+    (["discover", "--emulate"], 1, "--emulate needs --can-interface virtual"),
     (["calibrate", "--channels", "a,b,c"], 1, "--channels 'a,b,c': give 2 channels"),
     (["calibrate", "--prior", "/nonexistent/cal.json"], 1,
      "cannot read calibration file /nonexistent/cal.json"),
@@ -82,7 +84,7 @@ def test_bad_arguments_give_one_line(argv, status, fragment, capsys):
 def test_missing_socketcan_or_interface_one_line_from_the_console():
     """A real process: whatever this machine lacks (no SocketCAN, or no interface of that name)."""
     r = subprocess.run(
-        [sys.executable, "-m", "bar_policy.deploy.robstride.tools", "discover", "--iface", "nocan7"],
+        [sys.executable, "-m", "bar_policy.deploy.robstride.tools", "discover", "--channel", "nocan7"],
         capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert r.returncode == 1 and r.stdout == ""

@@ -50,7 +50,12 @@ class ReachTask(DeployTask):
         g = parser.add_argument_group("reach policies (segment success rate)")
         g.add_argument("--episodes", type=count1, help="number of episodes (default 100)")
         g.add_argument(
-            "--seed", dest="eval_seed", type=int, metavar="N", help="seed of episode 0 (episode e: seed + e)"
+            "--seed",
+            dest="eval_seed",
+            type=int,
+            metavar="N",
+            help="seed of the sampled fingertip targets (and initial noise) of episode 0; episode e: N + e. "
+            "Episode 0's targets are those of bar-deploy --seed N (default 0)",
         )
         g.add_argument("--episode-length", type=seconds, help="episode length in s (env: 5)")
         g.add_argument("--resample-period", type=seconds0,
