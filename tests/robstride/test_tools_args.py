@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import re
 import subprocess
 import sys
 
@@ -202,3 +203,98 @@ def test_real_target_bus_open_error_is_one_line():
     assert "\n" not in msg
     assert msg.startswith("cannot build the real target: cannot open socketcan channel nocan7")
     assert isinstance(info.value.__cause__, BusOpenError) and f"`{UP.format('nocan7')}`" in msg
+
+
+# ---------------------------------------------------------------------------------------------------
+# one name per concept: bar-bus and bar-deploy; the old spellings as hidden deprecated aliases
+# ---------------------------------------------------------------------------------------------------
+def _bus_help(command, capsys):
+    with pytest.raises(SystemExit) as info:
+        main([*command, "--help"])
+    assert info.value.code == 0
+    text = capsys.readouterr().out
+    names = []
+    for line in text.splitlines():
+        if line.startswith("  -"):
+            invocation = re.split(r"\s{2,}", line.strip())[0]
+            names += [part.split(" ")[0] for part in invocation.split(", ")]
+    return text, names
+
+
+SHARED = {"--can-interface", "--reply-timeout", "--mode"}
+"""Options of every bar-bus command."""
+
+
+@pytest.mark.parametrize(
+    ("command", "own"),
+    [
+        (["discover"], {"--channel", "--scan-to", "--status", "--emulate"}),
+        (["calibrate"], {"--channels", "--calibration", "--prior", "--sweep-threshold", "--rate",
+                         "--duration", "--emulate"}),
+        (["param", "read"], {"--channel", "--id", "--index", "--value", "--type", "--emulate"}),
+        (["watchdog"], {"--channel", "--id", "--model", "--can-timeout", "--silences", "--emulate"}),
+    ],
+)  # fmt: skip
+def test_bar_bus_help_lists_each_option_once_and_hides_the_old_spellings(command, own, capsys):
+    text, names = _bus_help(command, capsys)
+    assert sorted(names) == sorted({"-h", "--help"} | SHARED | own)
+    for old in ("--interface", "--iface", "--out", "--timeout"):
+        assert f"{old} " not in text and f"[{old}" not in text
+
+
+def test_the_shared_concepts_have_one_name_in_both_tools(capsys):
+    from bar_policy.deploy.cli import main as deploy
+
+    with pytest.raises(SystemExit):
+        deploy(["--help"])
+    deploy_help = capsys.readouterr().out
+    for name in ("--can-interface", "--channels", "--calibration", "--reply-timeout", "--scan-to",
+                 "--can-timeout"):  # fmt: skip
+        assert f"\n  {name} " in deploy_help, name
+    tools = {
+        name
+        for command in (["discover"], ["calibrate"], ["watchdog"])
+        for name in _bus_help(command, capsys)[1]
+    }
+    assert {
+        "--can-interface",
+        "--channels",
+        "--calibration",
+        "--reply-timeout",
+        "--scan-to",
+        "--can-timeout",
+    } <= tools
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "value", "dest"),
+    [
+        (["discover", "--iface", "vcan3"], ["discover", "--channel", "vcan3"], "vcan3", "iface"),
+        (["discover", "--interface", "virtual"], ["discover", "--can-interface", "virtual"], "virtual",
+         "interface"),
+        (["discover", "--timeout", "0.5"], ["discover", "--reply-timeout", "0.5"], 0.5, "timeout"),
+        (["calibrate", "--out", "c.json"], ["calibrate", "--calibration", "c.json"], "c.json", "out"),
+        (["watchdog", "--id", "11", "--iface", "can1"], ["watchdog", "--id", "11", "--channel", "can1"],
+         "can1", "iface"),
+    ],
+)  # fmt: skip
+def test_deprecated_spellings_still_work_with_a_one_line_notice(old, new, value, dest, capsys):
+    from bar_policy.deploy.robstride.tools import _parser
+
+    got, want = _parser().parse_args(old), _parser().parse_args(new)
+    assert got == want and getattr(got, dest) == value
+    prog = "bar-bus " + " ".join(old[:1])
+    new_name = next(a for a in new if a.startswith("--") and a not in old)
+    old_name = next(a for a in old if a.startswith("--") and a not in new)
+    assert capsys.readouterr().err == f"{prog}: note: {old_name} is deprecated; use {new_name}\n"
+
+
+def test_deprecated_spelling_in_a_child_process_runs_the_command():
+    """The old console line still runs: one notice line, then the command's own (here: no SocketCAN)."""
+    r = subprocess.run(
+        [sys.executable, "-m", "bar_policy.deploy.robstride.tools", "discover", "--iface", "nocan7"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    notice, error = r.stderr.splitlines()
+    assert notice == "bar-bus discover: note: --iface is deprecated; use --channel"
+    assert r.returncode == 1 and error.startswith("bar-bus: error: cannot open socketcan channel nocan7: ")

@@ -33,8 +33,8 @@ def sweeping(robot, make_emulator):
 
 def _calibrate_child(bridge, out, *extra):
     return Child(
-        ["bar-bus", "calibrate", "--can-interface", "virtual", "--calibration", str(out), "--reply-timeout", "0.5",
-         "--rate", "100", *extra],
+        ["bar-bus", "calibrate", "--can-interface", "virtual", "--calibration", str(out),
+         "--reply-timeout", "0.5", "--rate", "100", *extra],
         bridge.port,
     )  # fmt: skip
 
