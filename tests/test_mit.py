@@ -88,6 +88,7 @@ def test_quantize_command_per_model() -> None:
         assert np.all(np.abs(getattr(qc, field) - getattr(c, field)) <= span / 65535 + 1e-12)
 
 
+@pytest.mark.numerics
 def test_numpy_and_jax_give_the_same_torque() -> None:
     robot = load_robot("arms")
     ranges = wire_ranges(robot.models)

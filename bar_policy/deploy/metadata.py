@@ -4,10 +4,10 @@ Two families of keys are written:
 
 - ``bar.*`` keys, JSON-valued: everything ``bar-deploy`` checks before it runs a policy (observation schema
   and fingerprint, joint order, gains, default pose, action scale and semantics, rates, training
-  randomisation ranges, code version). One optional key, ``bar.provenance`` (``OPTIONAL_BAR_KEYS``): the
-  git commit and dirty flag, the library versions and the training command (``bar_policy.provenance``).
-  It informs and is never checked: older files load without it, a malformed one with the problem in its
-  place (``provenance.read_record``).
+  randomisation ranges, code version). Optional keys (``OPTIONAL_BAR_KEYS``): ``bar.action_filter``, and
+  ``bar.provenance``: the git commit and dirty flag, the library versions and the training command
+  (``bar_policy.provenance``), which informs and is never checked (older files load without it, a
+  malformed one with the problem in its place, ``provenance.read_record``).
 - The 13 keys that Berkeley Humanoids' Humanoid Control runner requires (task_type, joint_names, ...), in
   the comma-separated form that mjlab's exporter writes, so our files also load there.
 
@@ -69,8 +69,9 @@ BAR_KEYS = (
 )  # fmt: skip
 """Keys every ``bar`` file carries (``from_props`` refuses a file that lacks one)."""
 
-OPTIONAL_BAR_KEYS = ("bar.provenance",)
-"""``bar.*`` keys a file may lack (older files): read when present, never required, never checked."""
+OPTIONAL_BAR_KEYS = ("bar.action_filter", "bar.provenance")
+"""``bar.*`` keys a file may lack (older files): read when present, never required. ``bar.action_filter``
+is validated when present; ``bar.provenance`` informs only and is never checked."""
 
 DIALECTS = ("bar", "hc")
 """Metadata dialects: ``bar`` (``bar.*`` keys plus the HC keys, checked to agree), ``hc`` (HC keys only)."""
@@ -136,6 +137,9 @@ class PolicyMetadata:
     """HC ``observation_names`` of an HC-only file (a ``bar`` file's terms are in ``obs_schema``)."""
     dialect: str = "bar"
     """Which keys the file carried: ``bar`` or ``hc`` (``DIALECTS``)."""
+    action_filter_hz: float | None = None
+    """Cutoff of the first-order low-pass between the policy's output and the command, Hz
+    (``bar_policy.robot.action_filter``; optional key ``bar.action_filter``); None: no filter."""
     provenance: Mapping[str, Any] = field(default_factory=dict)
     """``bar.provenance``: git commit and dirty flag, library versions, training command
     (``bar_policy.provenance.collect``); empty when the file has none."""
@@ -165,6 +169,12 @@ class PolicyMetadata:
             isinstance(self.lookahead_steps, int) and self.lookahead_steps >= 0
         ):
             raise MetadataError(f"lookahead_steps must be an integer >= 0, got {self.lookahead_steps!r}")
+        f = self.action_filter_hz
+        if f is not None and not (isinstance(f, int | float) and 0 < f < 0.5 / self.policy_dt):
+            raise MetadataError(
+                f"action filter cutoff must be a number of Hz in (0, {0.5 / self.policy_dt:g}) (below "
+                f"Nyquist), got {f!r}"
+            )
         if any("," in n for n in self.body_names) or "," in self.dataset_repo_id:
             raise MetadataError("body_names and dataset_repo_id must not contain commas (HC's CSV form)")
 
@@ -195,6 +205,7 @@ class PolicyMetadata:
             "bar.randomization": dict(self.randomization),
             "bar.code_version": self.code_version,
             "bar.training": dict(self.training),
+            **({"bar.action_filter": {"cutoff_hz": self.action_filter_hz}} if self.action_filter_hz else {}),
         }
         if self.provenance:
             bar["bar.provenance"] = dict(self.provenance)
@@ -289,6 +300,7 @@ class PolicyMetadata:
             body_names=_csv_names(props, "body_names"),
             lookahead_steps=_int_prop(props, "lookahead_steps"),
             dataset_repo_id=props["dataset_repo_id"],
+            action_filter_hz=_action_filter(props),
             provenance=read_record(props.get("bar.provenance")),
         )
 
@@ -332,6 +344,24 @@ class PolicyMetadata:
 # ---------------------------------------------------------------------------------------------------
 # The HC (comma-separated) form
 # ---------------------------------------------------------------------------------------------------
+def _action_filter(props: Mapping[str, str]) -> float | None:
+    """The optional ``bar.action_filter`` key: ``{"cutoff_hz": f}`` or null; absent in older files."""
+    text = props.get("bar.action_filter")
+    if text is None:
+        return None
+    try:
+        v = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise MetadataError(f"metadata key 'bar.action_filter' is not valid JSON: {e}") from None
+    if v is None:
+        return None
+    if not isinstance(v, dict) or set(v) != {"cutoff_hz"} or isinstance(v["cutoff_hz"], bool):
+        raise MetadataError(
+            f"metadata key 'bar.action_filter' must be null or {{\"cutoff_hz\": <Hz>}}, got {text!r}"
+        )
+    return v["cutoff_hz"]
+
+
 def _csv_names(props: Mapping[str, str], key: str) -> tuple[str, ...]:
     """Comma-separated names (``""`` -> ``()``); empty items between commas are refused."""
     text = props[key].strip()

@@ -86,6 +86,7 @@ def _parity(env, reset, step, n_steps: int = 100) -> tuple[np.ndarray, np.ndarra
     return np.abs(np.array(qj) - qc).max(axis=1), np.abs(np.array(vj) - vc).max(axis=1)
 
 
+@pytest.mark.numerics
 def test_mjx_matches_c_mujoco(nominal_env, nominal_fns):
     """2 s of sinusoidal commands (amplitude 0.4 -> +-0.32 rad, up to ~6 rad/s): float32 MJX vs float64 C.
 
@@ -103,6 +104,7 @@ def test_mjx_matches_c_mujoco(nominal_env, nominal_fns):
 @pytest.mark.skipif(
     os.environ.get("BAR_ENV_FULL") != "1", reason="extra 50 s compile; BAR_ENV_FULL=1 runs it"
 )
+@pytest.mark.numerics
 def test_mjx_matches_c_mujoco_explicit(explicit_env):
     eq, ev = _parity(explicit_env, jax.jit(explicit_env.reset), jax.jit(explicit_env.step))
     print(f"parity explicit: max q err {eq.max():.2e} rad, max dq err {ev.max():.2e} rad/s")

@@ -27,6 +27,7 @@ def c_fk(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return track_fk.c_fk(q, TRACK_BODY_NAMES)
 
 
+@pytest.mark.numerics
 def test_lookahead_observation_by_hand(track_env, track_fns):
     """Clip 'tiny' has frames q_k = piano_ready + 0.01 k (k = 0, 1, 2). Reset at frame 0: the observation
     holds frames 1, 2, 2, 2, 2 (K = 5; past the end the last frame repeats); one step later 2, 2, 2, 2, 2."""
@@ -41,6 +42,8 @@ def test_lookahead_observation_by_hand(track_env, track_fns):
     assert int(s.info["frame"]) == 0 and int(s.info["last_frame"]) == 2
     parts = om.split(np.asarray(s.obs))
     frames = [1, 2, 2, 2, 2]
+    # The table is float32 copies of float64 values (q, C MuJoCo FK): one rounding of |x| <= pi
+    # (ulp <= 2.4e-7) and one in the chest-frame transform: 1e-6 = 4 ulps.
     np.testing.assert_allclose(parts["motion_joint_pos"], np.concatenate([q[k] for k in frames]), atol=1e-6)
     fk = {k: c_fk(q[k]) for k in (1, 2)}
     np.testing.assert_allclose(parts["motion_body_pos_b"], np.concatenate([fk[k][0].ravel() for k in frames]),
@@ -125,6 +128,7 @@ def test_random_reset_and_metadata(track_env, track_fns, track_clips):
     np.testing.assert_allclose(env.default_pose, track_default_pose(), atol=1e-7)
 
 
+@pytest.mark.numerics
 def test_mjx_and_c_forward_kinematics_agree(track_env):
     """The reference poses come from C MuJoCo; the reward compares them with MJX's kinematics of the robot."""
     env = track_env

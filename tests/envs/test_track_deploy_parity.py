@@ -21,6 +21,8 @@ from bar_policy.envs.track_config import default_config
 from bar_policy.obs import ObservationManager
 from bar_policy.tasks import track as task
 
+pytestmark = pytest.mark.numerics  # compares XLA floats with another implementation / a recording
+
 
 def _deploy_obs(clip, phase: int, q, dq, action) -> np.ndarray:
     om = ObservationManager.for_task("track", "arms")

@@ -60,6 +60,7 @@ def test_extracted_policy_is_brax_mode_by_hand(brax_params):
     assert pol.kernels[-1].shape == (64, 14)
 
 
+@pytest.mark.numerics
 def test_export_passes_gate_and_loads_in_deploy(brax_params, metadata, tmp_path):
     params, make_policy = brax_params
     path = tmp_path / "p.onnx"

@@ -1,0 +1,149 @@
+"""Per-episode safety and smoothness records and their summary over a set of episodes (numpy only).
+
+``QualityMeter`` accumulates one episode tick by tick on the deploy side (``bar-deploy`` runs, ``eval``);
+the MJX evaluation computes the same quantities with ``bar_policy.quality.metrics`` on device and fills
+``EpisodeQuality`` records from them. ``summarise`` turns records into the figures every report prints
+and the gate (``bar_policy.quality.gate``) checks:
+
+- ``completion_pct``: episodes that ended without a fault, %;
+- ``cap_share_pct``: policy ticks with any joint at its torque cap, % of all ticks;
+- ``limit_share_pct``: policy ticks with any joint within ``LIMIT_MARGIN_RAD`` of a limit, %;
+- ``action_rate``: mean ``sum_j (a_t - a_{t-1})^2`` per tick, action units squared;
+- ``chatter_max_mrad`` / ``chatter_mean_mrad``: the worst and the mean of the episodes' chatter, mrad
+  (episodes too short to measure are left out of both and counted in ``chatter_unmeasured``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from bar_policy.quality import metrics as qm
+
+__all__ = ["EpisodeQuality", "QualityMeter", "summarise"]
+
+
+@dataclass(frozen=True)
+class EpisodeQuality:
+    """One episode's (clip's, run's) counts and chatter."""
+
+    name: str
+    """The episode's label (clip name, ``episode-3``, the run)."""
+    ticks: int
+    """Policy ticks measured."""
+    faulted: bool
+    """A fault ended the episode early."""
+    cap_ticks: int
+    """Ticks with any joint at its torque cap."""
+    limit_ticks: int
+    """Ticks with any joint near a limit."""
+    action_rate_sum: float
+    """Sum over ticks of ``sum_j (a_t - a_{t-1})^2`` (ticks after the first)."""
+    chatter_mrad: float
+    """Chatter of the episode's signal, mrad (NaN: too short to measure)."""
+    fault: str = ""
+    """The fault that ended it (empty when none)."""
+    chatter_joint: str = ""
+    """The joint with the worst chatter."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form (NaN as None: JSON has no NaN)."""
+        d = asdict(self)
+        d["chatter_mrad"] = None if math.isnan(self.chatter_mrad) else self.chatter_mrad
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> EpisodeQuality:
+        """Inverse of ``to_dict``."""
+        c = d.get("chatter_mrad")
+        return cls(**{**d, "chatter_mrad": math.nan if c is None else float(c)})
+
+
+class QualityMeter:
+    """Accumulate one episode's quality tick by tick (numpy; the deploy side).
+
+    Args:
+        cap: firmware torque cap per joint, N*m, shape (n,).
+        lower, upper: joint limits, rad, shape (n,).
+        dt: policy tick, s.
+        joint_names: names for the worst-chatter joint.
+    """
+
+    def __init__(
+        self, cap: np.ndarray, lower: np.ndarray, upper: np.ndarray, dt: float, joint_names: Sequence[str]
+    ) -> None:
+        self.cap = np.asarray(cap, dtype=float)
+        self.lower = np.asarray(lower, dtype=float)
+        self.upper = np.asarray(upper, dtype=float)
+        self.dt = float(dt)
+        self.joint_names = tuple(joint_names)
+        self._signal: list[np.ndarray] = []
+        self._last_action: np.ndarray | None = None
+        self.ticks = 0
+        self.cap_ticks = 0
+        self.limit_ticks = 0
+        self.action_rate_sum = 0.0
+
+    def update(self, demand: np.ndarray, q: np.ndarray, action: np.ndarray, signal: np.ndarray) -> None:
+        """Count one policy tick.
+
+        Args:
+            demand: unclipped MIT torque demand, N*m, (n,).
+            q: measured joint positions, rad, (n,).
+            action: the policy's action this tick (after any filter: what was applied), (n,).
+            signal: the chatter signal, rad, (n,): ``q_cmd - q_ref`` (tracking) or ``q_cmd`` (reach).
+        """
+        self.ticks += 1
+        self.cap_ticks += int(np.any(qm.at_cap(np.asarray(demand, dtype=float), self.cap)))
+        self.limit_ticks += int(np.any(qm.near_limit(np.asarray(q, dtype=float), self.lower, self.upper)))
+        a = np.asarray(action, dtype=float)
+        if self._last_action is not None:
+            self.action_rate_sum += float(qm.action_rate(np.stack([self._last_action, a]))[0])
+        self._last_action = a
+        self._signal.append(np.asarray(signal, dtype=float))
+
+    def finish(self, name: str, fault: str = "") -> EpisodeQuality:
+        """The episode's record (``fault``: what ended it early, empty when nothing did)."""
+        chatter, joint = math.nan, ""
+        if self._signal:
+            per_joint = qm.highpass_rms(np.stack(self._signal), self.dt)
+            if np.all(np.isfinite(per_joint)):
+                j = int(np.argmax(per_joint))
+                chatter, joint = 1000.0 * float(per_joint[j]), self.joint_names[j]
+        return EpisodeQuality(
+            name=name,
+            ticks=self.ticks,
+            faulted=bool(fault),
+            cap_ticks=self.cap_ticks,
+            limit_ticks=self.limit_ticks,
+            action_rate_sum=self.action_rate_sum,
+            chatter_mrad=chatter,
+            fault=fault,
+            chatter_joint=joint,
+        )
+
+
+def summarise(episodes: Sequence[EpisodeQuality]) -> dict[str, Any]:
+    """The summary figures of ``episodes`` (see the module docstring); tick-weighted shares."""
+    n = len(episodes)
+    ticks = sum(e.ticks for e in episodes)
+    rate_ticks = sum(max(e.ticks - 1, 0) for e in episodes)
+    measured = [e.chatter_mrad for e in episodes if not math.isnan(e.chatter_mrad)]
+    worst = max(episodes, key=lambda e: -1.0 if math.isnan(e.chatter_mrad) else e.chatter_mrad, default=None)
+    return {
+        "episodes": n,
+        "completed": sum(not e.faulted for e in episodes),
+        "completion_pct": 100.0 * sum(not e.faulted for e in episodes) / n if n else math.nan,
+        "ticks": ticks,
+        "cap_share_pct": 100.0 * sum(e.cap_ticks for e in episodes) / ticks if ticks else math.nan,
+        "limit_share_pct": 100.0 * sum(e.limit_ticks for e in episodes) / ticks if ticks else math.nan,
+        "action_rate": sum(e.action_rate_sum for e in episodes) / rate_ticks if rate_ticks else math.nan,
+        "chatter_max_mrad": max(measured) if measured else math.nan,
+        "chatter_mean_mrad": float(np.mean(measured)) if measured else math.nan,
+        "chatter_worst_episode": worst.name if worst is not None and measured else "",
+        "chatter_unmeasured": n - len(measured),
+    }
