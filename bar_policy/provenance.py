@@ -5,13 +5,15 @@
 ``checkpoints/*.json`` that ``train/ship.py`` publishes) and into every exported ONNX file
 (``bar.provenance``)::
 
-    {"git_commit": "5a90292...", "git_dirty": false, "versions": {"jax": "0.10.2", ..., "torch": "absent"},
-     "argv": ["train/ppo.py", "--preset", "tiny"], "cwd": "/work/main", "python": "3.11.7",
-     "created_utc": "2026-01-01T12:00:00Z"}
+    {"git_commit": "5a90292...", "git_dirty": false, "git_source": "git",
+     "versions": {"jax": "0.10.2", ..., "torch": "absent"}, "argv": ["train/ppo.py", "--preset", "tiny"],
+     "cwd": "/work/main", "python": "3.11.7", "created_utc": "2026-01-01T12:00:00Z"}
 
 Nothing here fails: without git, outside a git checkout, or when git times out, the commit and the dirty
-flag read ``"unknown"``; a library that is not installed reads ``"absent"``. ``describe(record)`` gives the
-one or two lines ``bar-deploy`` prints at start; it informs and never refuses. numpy-free and jax-free (the
+flag read ``"unknown"``, unless ``BAR_POLICY_GIT_COMMIT`` (and ``BAR_POLICY_GIT_DIRTY``) state them for a
+copied work tree (the lent GPU machines get no ``.git``), recorded as ``git_source: "environment"``. A
+library that is not installed reads ``"absent"``. ``describe(record)`` gives the one or two lines
+``bar-deploy`` prints at start; it informs and never refuses. numpy-free and jax-free (the
 deploy runtime imports it).
 """
 
@@ -31,6 +33,8 @@ from typing import Any
 
 __all__ = [
     "ABSENT",
+    "COMMIT_ENV",
+    "DIRTY_ENV",
     "LIBRARIES",
     "UNKNOWN",
     "collect",
@@ -59,6 +63,11 @@ LIBRARIES: tuple[tuple[str, str], ...] = (
     ("numpy", "numpy"),
 )
 """(distribution, top-level module) pairs whose versions a record carries."""
+
+COMMIT_ENV = "BAR_POLICY_GIT_COMMIT"
+"""Environment variable giving the commit when git cannot (a copied work tree without ``.git``)."""
+DIRTY_ENV = "BAR_POLICY_GIT_DIRTY"
+"""Environment variable giving the dirty flag with ``COMMIT_ENV``: ``1``/``true`` or ``0``/``false``."""
 
 _GIT_TIMEOUT_S = 5.0
 """Longest wait for one git command, s (a network file system can stall)."""
@@ -130,9 +139,18 @@ def collect(argv: Sequence[str] | None = None, root: str | os.PathLike[str] | No
         root: the checkout to read git from (default: the one holding this package).
     """
     commit, dirty = git_state(root)
+    source = "git" if commit != UNKNOWN else "none"
+    if commit == UNKNOWN and os.environ.get(COMMIT_ENV, "").strip():
+        # A copy of a checkout without .git (the lent GPU machines get the work tree only): the commit as
+        # the person who copied it states it, recorded as such.
+        commit, source = os.environ[COMMIT_ENV].strip(), "environment"
+        dirty = {"1": True, "true": True, "0": False, "false": False}.get(
+            os.environ.get(DIRTY_ENV, "").strip().lower(), UNKNOWN
+        )
     return {
         "git_commit": commit,
         "git_dirty": dirty,
+        "git_source": source,
         "versions": library_versions(),
         "argv": list(sys.argv if argv is None else argv),
         "cwd": os.getcwd(),
@@ -163,7 +181,8 @@ def commit_text(record: Mapping[str, Any]) -> str:
         return "not recorded"
     commit = str(record.get("git_commit", UNKNOWN))
     tree = {True: "dirty tree", False: "clean tree"}.get(record.get("git_dirty"), "tree state unknown")
-    return f"{commit[:12]} ({tree})"
+    given = f", as given by {COMMIT_ENV}" if record.get("git_source") == "environment" else ""
+    return f"{commit[:12]} ({tree}{given})"
 
 
 def describe(record: Mapping[str, Any] | None, code_version: str = "") -> list[str]:

@@ -37,7 +37,8 @@ RECORD = {
 def test_metadata_round_trip_with_provenance():
     md = make(provenance=RECORD)
     props = md.to_props()
-    assert set(props) == set(BAR_KEYS) | set(HC_KEYS) | set(OPTIONAL_BAR_KEYS)
+    assert set(props) == set(BAR_KEYS) | set(HC_KEYS) | {"bar.provenance"}
+    assert "bar.provenance" in OPTIONAL_BAR_KEYS
     assert json.loads(props["bar.provenance"]) == RECORD
     back = PolicyMetadata.from_props(props)
     assert back.provenance == RECORD
@@ -154,10 +155,30 @@ def test_git_state_is_unknown_without_git_or_outside_a_checkout(repo, tmp_path, 
     assert provenance.git_state(repo / "sub") == ("unknown", "unknown")
     monkeypatch.setenv("PATH", str(tmp_path / "empty-bin"))  # no git executable at all
     assert provenance.git_state(repo) == ("unknown", "unknown")
+    monkeypatch.delenv("BAR_POLICY_GIT_COMMIT", raising=False)
     record = provenance.collect(argv=["bar-train", "--preset", "tiny"], root=repo)
-    assert (record["git_commit"], record["git_dirty"]) == ("unknown", "unknown")
+    assert (record["git_commit"], record["git_dirty"], record["git_source"]) == ("unknown", "unknown", "none")
     assert record["argv"] == ["bar-train", "--preset", "tiny"]
     assert provenance.describe(record)[0].startswith("provenance: commit unknown (tree state unknown); ")
+
+
+def test_a_copied_work_tree_takes_the_commit_from_the_environment(repo, tmp_path, monkeypatch):
+    copy = tmp_path / "copy"  # the work tree without .git, as the lent GPU machines receive it
+    copy.mkdir()
+    monkeypatch.setenv("BAR_POLICY_GIT_COMMIT", "abcdef0123456789abcdef0123456789abcdef01")
+    monkeypatch.setenv("BAR_POLICY_GIT_DIRTY", "0")
+    record = provenance.collect(root=copy)
+    assert (record["git_commit"], record["git_dirty"], record["git_source"]) == (
+        "abcdef0123456789abcdef0123456789abcdef01",
+        False,
+        "environment",
+    )
+    assert provenance.commit_text(record) == "abcdef012345 (clean tree, as given by BAR_POLICY_GIT_COMMIT)"
+    monkeypatch.setenv("BAR_POLICY_GIT_DIRTY", "maybe")  # not a flag: unknown, not guessed
+    assert provenance.collect(root=copy)["git_dirty"] == "unknown"
+    # In a real checkout git wins over the variable.
+    record = provenance.collect(root=repo)
+    assert record["git_source"] == "git" and record["git_commit"] == _expected_commit(b"hello\n", "first")
 
 
 def test_library_versions_installed_or_absent():
