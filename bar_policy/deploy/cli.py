@@ -70,7 +70,11 @@ exit status: 0 done or stopped on request, 1 fault or error during the run, 2 re
 
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument(
-        "--policy", required=True, type=Path, metavar="PATH", help="ONNX policy file (bar_policy or HC)"
+        "--policy",
+        required=True,
+        type=Path,
+        metavar="PATH",
+        help="ONNX policy file (exported by bar_policy, or with the Humanoid Control keys)",
     )
     p.add_argument("--mode", default="arms", choices=("arms", "arms_neck"), help="joint set of the robot")
     p.add_argument("--control-dt", type=_seconds, default=0.02, metavar="S",
