@@ -34,6 +34,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from bar_policy.deploy.cli_types import Parser as _Parser
+from bar_policy.deploy.cli_types import asks_help as _asks_help
 from bar_policy.deploy.cli_types import count0 as _count0
 from bar_policy.deploy.cli_types import duration as _duration
 from bar_policy.deploy.cli_types import number as _number
@@ -42,6 +43,7 @@ from bar_policy.deploy.cli_types import priority as _priority
 from bar_policy.deploy.cli_types import seconds as _seconds
 from bar_policy.deploy.cli_types import seconds0 as _seconds0
 from bar_policy.deploy.tasks import all_tasks, get_task
+from bar_policy.deploy.tasks.reach import SEED_HELP
 from bar_policy.provenance import describe as describe_provenance
 
 __all__ = ["main"]
@@ -49,11 +51,6 @@ __all__ = ["main"]
 log = logging.getLogger("bar_policy.deploy.cli")
 
 TARGETS = ("sim", "mock", "real")
-SEED_HELP = (
-    "seed of the sampled fingertip targets (reach; --commands sampled[:PERIOD]): bar-deploy --seed N draws "
-    "the targets that episode 0 of bar-deploy eval --seed N draws"
-)
-"""``--seed`` means one thing in ``bar-deploy`` and ``bar-deploy eval``: the seed of the target sampler."""
 SUBCOMMANDS = ("run", "plot", "eval")
 _EPILOG = """subcommands:
   run   (default) run a policy:         bar-deploy --policy x.onnx --target sim --duration 10
@@ -69,23 +66,14 @@ exit status: 0 done or stopped on request, 1 fault or error during the run, 2 re
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--policy",
-        required=True,
-        type=Path,
-        metavar="PATH",
-        help="ONNX policy file (exported by bar_policy, or with the Humanoid Control keys)",
-    )
+    p.add_argument("--policy", required=True, type=Path, metavar="PATH",
+                   help="ONNX policy file (bar_policy's, or one with the Humanoid Control keys)")  # fmt: skip
     p.add_argument("--mode", default="arms", choices=("arms", "arms_neck"), help="joint set of the robot")
     p.add_argument("--control-dt", type=_seconds, default=0.02, metavar="S",
                    help="control period, s: the policy's dt (default 0.02)")  # fmt: skip
-    p.add_argument(
-        "--action-clip",
-        type=_number("a number >= 0", lambda v: v >= 0),
-        metavar="A",
-        help="clip raw actions to +-A, action units (default: the file's bar.action_clip, else 1.0 as in "
-        "training; 0: none)",
-    )
+    p.add_argument("--action-clip", type=_number("a number >= 0", lambda v: v >= 0), metavar="A",
+                   help="clip raw actions to +-A, action units (default: the file's bar.action_clip, else "
+                        "1.0 as in training; 0: none)")  # fmt: skip
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
 
 
@@ -98,60 +86,34 @@ def _run_parser() -> argparse.ArgumentParser:
     )
     _common(p)
     p.add_argument("--target", default="sim", choices=TARGETS, help="where to run (default: sim)")
-    p.add_argument(
-        "--duration",
-        type=_duration,
-        metavar="S|inf",
-        help="run length in s, or 'inf' until stopped (default: 10 s; track policies: until the clip ends)",
-    )
-    p.add_argument("--seed", type=int, default=0, metavar="N", help=SEED_HELP + " (default 0)")
-    p.add_argument(
-        "--log",
-        type=Path,
-        default=Path("runs/deploy"),
-        metavar="DIR",
-        help="directory of run logs (default: runs/deploy)",
-    )
+    p.add_argument("--duration", type=_duration, metavar="S|inf",
+                   help="run length in s, or 'inf' until stopped (default: 10 s; track policies: until the "
+                        "clip ends)")  # fmt: skip
+    p.add_argument("--seed", type=int, default=0, metavar="N", help=f"{SEED_HELP} (default 0)")
+    p.add_argument("--log", type=Path, default=Path("runs/deploy"), metavar="DIR",
+                   help="directory of run logs (default: runs/deploy)")  # fmt: skip
     p.add_argument("--no-log", action="store_true", help="record no run log")
     p.add_argument("--ramp-time", type=_seconds0, default=3.0, metavar="S",
                    help="HOLD ramp to the default pose, s (default 3)")  # fmt: skip
     p.add_argument(
         "--start", default="hold", choices=("hold", "policy"), help="start with the ramp or the policy"
     )
-    p.add_argument(
-        "--max-overruns",
-        type=_count0,
-        default=5,
-        metavar="N",
-        help="consecutive overrun ticks that trip damping (0: off; default 5)",
-    )
+    p.add_argument("--max-overruns", type=_count0, default=5, metavar="N",
+                   help="consecutive overrun ticks that trip damping (0: off; default 5)")  # fmt: skip
     p.add_argument("--stale-timeout", type=_seconds, default=0.1, metavar="S",
                    help="state age that trips damping, s (default 0.1)")  # fmt: skip
-    p.add_argument(
-        "--damping-time",
-        type=_seconds0,
-        default=1.0,
-        metavar="S",
-        help="after a fault or a stop signal, damp this long before the stop frames, s (default 1)",
-    )
-    p.add_argument(
-        "--end-hold",
-        type=_seconds0,
-        default=1.0,
-        metavar="S",
-        help="after the commands end (a motion clip's last frame), HOLD that pose this long, s (default 1)",
-    )
-    p.add_argument(
-        "--rt-priority",
-        type=_priority,
-        metavar="1-99",
-        help="run the loop under SCHED_FIFO at this priority (needs root or CAP_SYS_NICE)",
-    )
+    p.add_argument("--damping-time", type=_seconds0, default=1.0, metavar="S",
+                   help="after a fault or a stop signal, damp this long before the stop frames, s "
+                        "(default 1)")  # fmt: skip
+    p.add_argument("--end-hold", type=_seconds0, default=1.0, metavar="S",
+                   help="after the commands end (a motion clip's last frame), HOLD that pose this long, s "
+                        "(default 1)")  # fmt: skip
+    p.add_argument("--rt-priority", type=_priority, metavar="1-99",
+                   help="run the loop under SCHED_FIFO at this priority (root or CAP_SYS_NICE)")  # fmt: skip
     p.add_argument("--viewer", action="store_true", help="sim: live MuJoCo viewer (runs at real time)")
     p.add_argument("--realtime", action="store_true", help="sim: pace at wall-clock rate")
-    p.add_argument(
-        "--video", type=Path, metavar="PATH", help="sim: write a video (.mp4, or .gif without ffmpeg)"
-    )
+    p.add_argument("--video", type=Path, metavar="PATH",
+                   help="sim: write a video (.mp4, or .gif without ffmpeg)")  # fmt: skip
     for task in all_tasks():
         task.add_run_arguments(p)
     return p
@@ -163,12 +125,6 @@ def _target_of(argv: Sequence[str]) -> str | None:
     pre.add_argument("--target")
     known, _ = pre.parse_known_args(argv)
     return known.target
-
-
-def _asks_help(argv: Sequence[str]) -> bool:
-    """``-h`` / ``--help`` in ``argv`` (before a ``--``)."""
-    args = list(argv)
-    return any(a in ("-h", "--help") for a in args[: args.index("--") if "--" in args else len(args)])
 
 
 def _add_real_help(parser: argparse.ArgumentParser) -> None:
@@ -222,7 +178,7 @@ def _run(argv: Sequence[str]) -> int:
     if _target_of(argv) == "real":
         real = _real_module()
         real.add_arguments(parser)
-    elif _asks_help(argv):
+    elif _asks_help(argv):  # --help lists the real target's options too
         _add_real_help(parser)
     args = parser.parse_args(argv)
     if args.video and args.target != "sim":
@@ -262,8 +218,7 @@ def _policy_task(args: argparse.Namespace, which: str) -> tuple[object, object]:
     others = tuple(t for t in all_tasks() if t.name != task.name)
     task.check_options(args.policy, args, others, which)
     meta = policy.metadata  # type: ignore[attr-defined]
-    for line in describe_provenance(meta.provenance, meta.code_version):
-        print(line)  # informs only: nothing is refused for it
+    print("\n".join(describe_provenance(meta.provenance, meta.code_version)))  # informs, refuses nothing
     return policy, task
 
 

@@ -19,9 +19,15 @@ if TYPE_CHECKING:
     from bar_policy.deploy.policy import OnnxPolicy
     from bar_policy.robot.kinematics import Kinematics
 
-__all__ = ["TASK", "ReachTask"]
+__all__ = ["SEED_HELP", "TASK", "ReachTask"]
 
 _SPECS = "sampled | sampled:PERIOD | file:PATH | stream:stdin | stream:udp:PORT"
+
+SEED_HELP = (
+    "seed of the sampled fingertip targets (reach; --commands sampled[:PERIOD]): bar-deploy --seed N draws "
+    "the targets that episode 0 of bar-deploy eval --seed N draws"
+)
+"""``--seed`` means one thing in ``bar-deploy`` and ``bar-deploy eval``: the seed of the target sampler."""
 
 
 class ReachTask(DeployTask):
