@@ -9,7 +9,8 @@ The graph is written directly with ``onnx.helper`` (no TF, no tracing): ``obs`` 
   are exported.
 - ``identity`` (rsl-rl's Gaussian): the MLP output is the action mean.
 
-Every file carries ``PolicyMetadata.to_props()`` (``bar.*`` JSON keys plus Humanoid Control's 13 keys).
+Every file carries ``PolicyMetadata.to_props()`` (``bar.*`` JSON keys plus Humanoid Control's 13 keys), and
+``bar.provenance`` when the metadata holds it (commit, dirty flag, library versions, training command).
 
 **Parity gate.** ``export_policy`` serialises the model, runs it in onnxruntime on 4096 fresh random
 observations (``mean + k * std * normal`` with k = 1, 4 and 8, see ``parity_observations``), compares with
@@ -26,7 +27,6 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -282,25 +282,17 @@ def check_parity(
 
 
 def code_version() -> str:
-    """``<bar_policy version>+g<short sha>`` (``+dirty`` for uncommitted changes) or the bare version."""
-    root = Path(__file__).resolve().parent.parent
-    try:
-        sha = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True, timeout=5
-        )
-        if sha.returncode != 0:
-            return bar_policy.__version__
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=root,
-            capture_output=True,
-            text=True,
-            timeout=5,
-        )
-        suffix = "+dirty" if dirty.stdout.strip() else ""
-        return f"{bar_policy.__version__}+g{sha.stdout.strip()}{suffix}"
-    except (OSError, subprocess.SubprocessError):
+    """``<bar_policy version>+g<short sha>`` (``+dirty`` for a changed tree) or the bare version.
+
+    The full commit, the dirty flag and the library versions are in ``bar.provenance``
+    (``bar_policy.provenance``); this short form stays for ``bar.code_version``.
+    """
+    from bar_policy.provenance import UNKNOWN, git_state
+
+    commit, dirty = git_state()
+    if commit == UNKNOWN:
         return bar_policy.__version__
+    return f"{bar_policy.__version__}+g{commit[:7]}{'+dirty' if dirty is True else ''}"
 
 
 def export_policy(

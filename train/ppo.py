@@ -1,4 +1,7 @@
-"""Train a Lite policy with PPO on the MJX env; see ``python train/ppo.py --help`` and docs/training.md."""
+"""Train a Lite policy with PPO on the MJX env: the same command as ``bar-train`` (same flags).
+
+See ``bar-train --help`` (or ``python train/ppo.py --help``) and docs/training.md.
+"""
 
 from __future__ import annotations
 

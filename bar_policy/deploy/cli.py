@@ -3,7 +3,7 @@
 Usage::
 
     bar-deploy --policy reach.onnx [--target sim|mock|real] [--duration S|inf] [--commands SPEC] [--viewer]
-               [--video out.mp4] [--log DIR] [--seed N]
+               [--video out.mp4] [--log DIR] [--seed N] [real target: --can-interface, --channels, ...]
     bar-deploy --policy track.onnx --motion NAME|PATH [...]      (ends after the clip)
     bar-deploy run ...          (same as above)
     bar-deploy plot LOG [--out DIR]
@@ -34,6 +34,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from bar_policy.deploy.cli_types import Parser as _Parser
+from bar_policy.deploy.cli_types import asks_help as _asks_help
 from bar_policy.deploy.cli_types import count0 as _count0
 from bar_policy.deploy.cli_types import duration as _duration
 from bar_policy.deploy.cli_types import number as _number
@@ -42,6 +43,8 @@ from bar_policy.deploy.cli_types import priority as _priority
 from bar_policy.deploy.cli_types import seconds as _seconds
 from bar_policy.deploy.cli_types import seconds0 as _seconds0
 from bar_policy.deploy.tasks import all_tasks, get_task
+from bar_policy.deploy.tasks.reach import SEED_HELP
+from bar_policy.provenance import describe as describe_provenance
 
 __all__ = ["main"]
 
@@ -56,22 +59,21 @@ _EPILOG = """subcommands:
 command sources (by the policy's task):
   reach --commands sampled | sampled:PERIOD | file:PATH (.json/.csv/.npz) | stream:stdin | stream:udp:PORT
   track --motion wave | clap | reach_sweep | hanging_to_piano_ready | random-s<seed>-<index> | clip.npz | .csv
-real target options (CAN interface, channels, calibration, dry run, emulator): bar-deploy --target real --help
+real target options: the group above (also listed by bar-deploy --target real --help)
 stopping: SIGINT (Ctrl+C), SIGTERM, SIGHUP -> DAMPING, stop frames, log closed; a second signal is ignored
 exit status: 0 done or stopped on request, 1 fault or error during the run, 2 refused before the start
 """
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--policy", required=True, type=Path, help="ONNX policy file exported by bar_policy")
+    p.add_argument("--policy", required=True, type=Path, metavar="PATH",
+                   help="ONNX policy file (bar_policy's, or one with the Humanoid Control keys)")  # fmt: skip
     p.add_argument("--mode", default="arms", choices=("arms", "arms_neck"), help="joint set of the robot")
-    p.add_argument("--control-dt", type=_seconds, default=0.02, help="control period in s (the policy's dt)")
-    p.add_argument(
-        "--action-clip",
-        type=_number("a number >= 0", lambda v: v >= 0),
-        help="clip raw actions to +-this (default: the file's bar.action_clip, else 1.0 as in training; "
-        "0: none)",
-    )
+    p.add_argument("--control-dt", type=_seconds, default=0.02, metavar="S",
+                   help="control period, s: the policy's dt (default 0.02)")  # fmt: skip
+    p.add_argument("--action-clip", type=_number("a number >= 0", lambda v: v >= 0), metavar="A",
+                   help="clip raw actions to +-A, action units (default: the file's bar.action_clip, else "
+                        "1.0 as in training; 0: none)")  # fmt: skip
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
 
 
@@ -84,44 +86,34 @@ def _run_parser() -> argparse.ArgumentParser:
     )
     _common(p)
     p.add_argument("--target", default="sim", choices=TARGETS, help="where to run (default: sim)")
-    p.add_argument(
-        "--duration",
-        type=_duration,
-        help="run length in s, or 'inf' until stopped (default: 10 s; track policies: until the clip ends)",
-    )
-    p.add_argument("--seed", type=int, default=0, help="seed of the sampled command source")
-    p.add_argument(
-        "--log", type=Path, default=Path("runs/deploy"), help="directory of run logs (default: runs/deploy)"
-    )
+    p.add_argument("--duration", type=_duration, metavar="S|inf",
+                   help="run length in s, or 'inf' until stopped (default: 10 s; track policies: until the "
+                        "clip ends)")  # fmt: skip
+    p.add_argument("--seed", type=int, default=0, metavar="N", help=f"{SEED_HELP} (default 0)")
+    p.add_argument("--log", type=Path, default=Path("runs/deploy"), metavar="DIR",
+                   help="directory of run logs (default: runs/deploy)")  # fmt: skip
     p.add_argument("--no-log", action="store_true", help="record no run log")
-    p.add_argument("--ramp-time", type=_seconds0, default=3.0, help="HOLD ramp to the default pose, s")
+    p.add_argument("--ramp-time", type=_seconds0, default=3.0, metavar="S",
+                   help="HOLD ramp to the default pose, s (default 3)")  # fmt: skip
     p.add_argument(
         "--start", default="hold", choices=("hold", "policy"), help="start with the ramp or the policy"
     )
-    p.add_argument(
-        "--max-overruns", type=_count0, default=5, help="consecutive overruns that trip damping (0: off)"
-    )
-    p.add_argument("--stale-timeout", type=_seconds, default=0.1, help="state age that trips damping, s")
-    p.add_argument(
-        "--damping-time",
-        type=_seconds0,
-        default=1.0,
-        help="after a fault or a stop signal, damp this long before the stop frames, s (default 1)",
-    )
-    p.add_argument(
-        "--end-hold",
-        type=_seconds0,
-        default=1.0,
-        help="after the commands end (a motion clip's last frame), HOLD that pose this long, s (default 1)",
-    )
-    p.add_argument(
-        "--rt-priority",
-        type=_priority,
-        help="run the loop under SCHED_FIFO at this priority (1-99, needs root)",
-    )
+    p.add_argument("--max-overruns", type=_count0, default=5, metavar="N",
+                   help="consecutive overrun ticks that trip damping (0: off; default 5)")  # fmt: skip
+    p.add_argument("--stale-timeout", type=_seconds, default=0.1, metavar="S",
+                   help="state age that trips damping, s (default 0.1)")  # fmt: skip
+    p.add_argument("--damping-time", type=_seconds0, default=1.0, metavar="S",
+                   help="after a fault or a stop signal, damp this long before the stop frames, s "
+                        "(default 1)")  # fmt: skip
+    p.add_argument("--end-hold", type=_seconds0, default=1.0, metavar="S",
+                   help="after the commands end (a motion clip's last frame), HOLD that pose this long, s "
+                        "(default 1)")  # fmt: skip
+    p.add_argument("--rt-priority", type=_priority, metavar="1-99",
+                   help="run the loop under SCHED_FIFO at this priority (root or CAP_SYS_NICE)")  # fmt: skip
     p.add_argument("--viewer", action="store_true", help="sim: live MuJoCo viewer (runs at real time)")
     p.add_argument("--realtime", action="store_true", help="sim: pace at wall-clock rate")
-    p.add_argument("--video", type=Path, help="sim: write a video (.mp4, or .gif without ffmpeg)")
+    p.add_argument("--video", type=Path, metavar="PATH",
+                   help="sim: write a video (.mp4, or .gif without ffmpeg)")  # fmt: skip
     for task in all_tasks():
         task.add_run_arguments(p)
     return p
@@ -133,6 +125,14 @@ def _target_of(argv: Sequence[str]) -> str | None:
     pre.add_argument("--target")
     known, _ = pre.parse_known_args(argv)
     return known.target
+
+
+def _add_real_help(parser: argparse.ArgumentParser) -> None:
+    """``--help`` lists the real target's options too; without python-can it says how to get them."""
+    try:
+        _real_module().add_arguments(parser)
+    except SystemExit as e:  # the real target cannot be imported here
+        parser.add_argument_group("real target (Robstride over CAN)", f"not available here: {e}")
 
 
 def _configure_logging(verbose: bool) -> None:
@@ -178,6 +178,8 @@ def _run(argv: Sequence[str]) -> int:
     if _target_of(argv) == "real":
         real = _real_module()
         real.add_arguments(parser)
+    elif _asks_help(argv):  # --help lists the real target's options too
+        _add_real_help(parser)
     args = parser.parse_args(argv)
     if args.video and args.target != "sim":
         return _fail("--video needs --target sim")
@@ -215,6 +217,8 @@ def _policy_task(args: argparse.Namespace, which: str) -> tuple[object, object]:
     task = get_task(policy.task)  # type: ignore[attr-defined]
     others = tuple(t for t in all_tasks() if t.name != task.name)
     task.check_options(args.policy, args, others, which)
+    meta = policy.metadata  # type: ignore[attr-defined]
+    print("\n".join(describe_provenance(meta.provenance, meta.code_version)))  # informs, refuses nothing
     return policy, task
 
 

@@ -7,15 +7,32 @@ from __future__ import annotations
 
 import argparse
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import NoReturn
 
-__all__ = ["Parser", "count0", "count1", "duration", "number", "one_line", "priority", "seconds", "seconds0"]
+__all__ = [
+    "Parser",
+    "asks_help",
+    "count0",
+    "count1",
+    "duration",
+    "number",
+    "one_line",
+    "priority",
+    "seconds",
+    "seconds0",
+]
 
 
 def one_line(msg: object) -> str:
     """A message on one line (multi-line driver messages joined with '; ')."""
     return "; ".join(part.strip() for part in str(msg).splitlines() if part.strip())
+
+
+def asks_help(argv: Sequence[str]) -> bool:
+    """``-h`` / ``--help`` in ``argv`` (before a ``--``)."""
+    args = list(argv)
+    return any(a in ("-h", "--help") for a in args[: args.index("--") if "--" in args else len(args)])
 
 
 class Parser(argparse.ArgumentParser):

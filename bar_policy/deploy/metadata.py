@@ -4,7 +4,10 @@ Two families of keys are written:
 
 - ``bar.*`` keys, JSON-valued: everything ``bar-deploy`` checks before it runs a policy (observation schema
   and fingerprint, joint order, gains, default pose, action scale and semantics, rates, training
-  randomisation ranges, code version).
+  randomisation ranges, code version). Optional keys (``OPTIONAL_BAR_KEYS``): ``bar.action_filter``, and
+  ``bar.provenance``: the git commit and dirty flag, the library versions and the training command
+  (``bar_policy.provenance``), which informs and is never checked (older files load without it, a
+  malformed one with the problem in its place, ``provenance.read_record``).
 - The 13 keys that Berkeley Humanoids' Humanoid Control runner requires (task_type, joint_names, ...), in
   the comma-separated form that mjlab's exporter writes, so our files also load there.
 
@@ -31,12 +34,15 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from bar_policy.provenance import read_record
+
 __all__ = [
     "ACTION_SEMANTICS",
     "BAR_KEYS",
     "DIALECTS",
     "HC_KEYS",
     "METADATA_VERSION",
+    "OPTIONAL_BAR_KEYS",
     "MetadataError",
     "PolicyMetadata",
 ]
@@ -61,7 +67,11 @@ BAR_KEYS = (
     "bar.obs_fingerprint", "bar.command_names", "bar.randomization", "bar.code_version",
     "bar.training",
 )  # fmt: skip
+"""Keys every ``bar`` file carries (``from_props`` refuses a file that lacks one)."""
 
+OPTIONAL_BAR_KEYS = ("bar.action_filter", "bar.provenance")
+"""``bar.*`` keys a file may lack (older files): read when present, never required. ``bar.action_filter``
+is validated when present; ``bar.provenance`` informs only and is never checked."""
 
 DIALECTS = ("bar", "hc")
 """Metadata dialects: ``bar`` (``bar.*`` keys plus the HC keys, checked to agree), ``hc`` (HC keys only)."""
@@ -130,6 +140,9 @@ class PolicyMetadata:
     action_filter_hz: float | None = None
     """Cutoff of the first-order low-pass between the policy's output and the command, Hz
     (``bar_policy.robot.action_filter``; optional key ``bar.action_filter``); None: no filter."""
+    provenance: Mapping[str, Any] = field(default_factory=dict)
+    """``bar.provenance``: git commit and dirty flag, library versions, training command
+    (``bar_policy.provenance.collect``); empty when the file has none."""
 
     def __post_init__(self) -> None:
         if self.dialect not in DIALECTS:
@@ -194,6 +207,8 @@ class PolicyMetadata:
             "bar.training": dict(self.training),
             **({"bar.action_filter": {"cutoff_hz": self.action_filter_hz}} if self.action_filter_hz else {}),
         }
+        if self.provenance:
+            bar["bar.provenance"] = dict(self.provenance)
         props = {k: json.dumps(v, sort_keys=True) for k, v in bar.items()}
 
         def csv(values: Any) -> str:
@@ -286,6 +301,7 @@ class PolicyMetadata:
             lookahead_steps=_int_prop(props, "lookahead_steps"),
             dataset_repo_id=props["dataset_repo_id"],
             action_filter_hz=_action_filter(props),
+            provenance=read_record(props.get("bar.provenance")),
         )
 
     @classmethod

@@ -20,7 +20,6 @@ randomization_fn=envs.get_randomizer("LiteReach", env.config), episode_length=en
 from __future__ import annotations
 
 import dataclasses
-import json
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
@@ -32,6 +31,7 @@ from bar_policy.envs.robot_config import RobotEnvConfig, nominal
 from bar_policy.envs.track import LiteTrack
 from bar_policy.envs.track_config import TrackEnvConfig
 from bar_policy.envs.track_config import default_config as _track_default
+from bar_policy.overrides import apply_overrides
 
 __all__ = [
     "ALL_ENVS",
@@ -91,58 +91,6 @@ def nominal_config(base: RobotEnvConfig | None = None) -> Any:
     return nominal(base if base is not None else _reach_default())
 
 
-def _parse_value(text: str, current: Any) -> Any:
-    """Parse an override value with JSON (numbers, bools, lists, null); bare words stay strings."""
-    try:
-        value = json.loads(text)
-    except json.JSONDecodeError:
-        value = text
-    if isinstance(current, tuple) and isinstance(value, list):
-        value = tuple(value)
-    if isinstance(current, float) and isinstance(value, int) and not isinstance(value, bool):
-        value = float(value)
-    return value
-
-
-def apply_overrides(config: Any, overrides: Iterable[str] | Mapping[str, Any]) -> Any:
-    """Return ``config`` with dotted-path overrides applied (frozen dataclasses via ``replace``).
-
-    Args:
-        config: a (nested) frozen dataclass config.
-        overrides: ``["reward.scales.action_rate=-0.02", "actuator.latency_steps=[0, 1]"]`` (values parsed
-            as JSON) or a mapping ``{"reward.scales.action_rate": -0.02}`` (values used as given).
-
-    Raises:
-        ValueError: a path names no field; the message lists the valid fields at that level.
-    """
-    items = overrides.items() if isinstance(overrides, Mapping) else (_split(o) for o in overrides)
-    for path, value in items:
-        config = _set(config, path.split("."), value, path, parse=not isinstance(overrides, Mapping))
-    return config
-
-
-def _split(text: str) -> tuple[str, str]:
-    if "=" not in text:
-        raise ValueError(f"override {text!r} must look like 'path.to.field=value'")
-    path, value = text.split("=", 1)
-    return path.strip(), value.strip()
-
-
-def _set(obj: Any, parts: list[str], value: Any, path: str, *, parse: bool) -> Any:
-    if not dataclasses.is_dataclass(obj):
-        raise ValueError(f"override {path!r}: {type(obj).__name__} has no fields")
-    names = [f.name for f in dataclasses.fields(obj)]
-    head = parts[0]
-    if head not in names:
-        raise ValueError(f"override {path!r}: no field {head!r} in {type(obj).__name__}; fields: {names}")
-    current = getattr(obj, head)
-    if len(parts) == 1:
-        new = _parse_value(value, current) if parse else value
-    else:
-        new = _set(current, parts[1:], value, path, parse=parse)
-    return dataclasses.replace(obj, **{head: new})
-
-
 def load(
     name: str = "LiteReach",
     config: Any | None = None,
@@ -153,7 +101,8 @@ def load(
     Args:
         name: one of ``ALL_ENVS``.
         config: a full config (default: ``default_config(name)``).
-        overrides: dotted-path overrides applied on top (see ``apply_overrides``).
+        overrides: dotted-path overrides applied on top (``bar_policy.overrides.apply_overrides``: the one
+            override syntax, also that of ``bar-train --env-overrides``).
     """
     cls, default, _ = _entry(name)
     cfg = config if config is not None else default()

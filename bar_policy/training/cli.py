@@ -1,62 +1,89 @@
-"""Command line of ``python train/ppo.py``: tyro over ``TrainConfig``; ``--preset`` picks the defaults.
+"""Command line of ``bar-train`` (and ``python train/ppo.py``, the same flags): tyro over ``TrainConfig``.
 
 Examples::
 
-    python train/ppo.py                                   # gpu preset, brax backend
-    python train/ppo.py --preset tiny --ppo.num-timesteps 4096
-    python train/ppo.py --backend rsl-rl --ppo.num-envs 2048
-    python train/ppo.py --env-overrides episode_length_s=4.0 reward.scales.reach_fine=2.0
-    python train/ppo.py --resume runs/LiteReach-brax-20260101-120000 --ppo.num-timesteps 80000000
-    python train/ppo.py --env LiteReach                   # --env is short for --env-name
-    python train/ppo.py --no-compile-cache                # compile everything afresh
-    python train/ppo.py --help                            # every option, with units
+    bar-train                                             # gpu preset, brax backend
+    bar-train --preset tiny --ppo.num-timesteps 4096
+    bar-train --backend rsl-rl --ppo.num-envs 2048
+    bar-train --env-overrides episode_length_s=4.0 reward.scales.reach_fine=2.0
+    bar-train --resume runs/LiteReach-brax-20260101-120000 --ppo.num-timesteps 80000000
+    bar-train --env LiteReach                             # --env is short for --env-name
+    bar-train --no-compile-cache                          # compile everything afresh
+    bar-train --help                                      # every option once, grouped, with units
+
+tyro parses every flag, ``--preset`` included. Because a preset supplies the defaults of every other flag
+(and ``--help`` shows them), its value is looked up in the arguments first (``preset_of``) and handed to
+tyro as the default instance; tyro then parses the whole line, ``--preset`` validated with its choices.
+``--env-overrides`` items are checked against the chosen env's config before training starts (an unknown
+path is refused naming the valid ones), with the one override syntax of ``bar_policy.overrides``.
 """
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections.abc import Sequence
 
 from bar_policy.training.config import PRESETS, TrainConfig, preset
 
-__all__ = ["main", "parse_config"]
+__all__ = ["check_env_overrides", "main", "parse_config", "preset_of"]
+
+PROG = "bar-train"
+"""Program name in messages (``python train/ppo.py`` runs the same parser)."""
+
+
+def preset_of(argv: Sequence[str]) -> str:
+    """The ``--preset`` value in ``argv`` (the last one wins, as in tyro); ``gpu`` when absent or unknown.
+
+    An unknown name is left for tyro to refuse with the valid choices.
+    """
+    name = "gpu"
+    for i, a in enumerate(argv):
+        if a == "--":
+            break
+        if a == "--preset" and i + 1 < len(argv):
+            name = argv[i + 1]
+        elif a.startswith("--preset="):
+            name = a.split("=", 1)[1]
+    return name if name in PRESETS else "gpu"
 
 
 def parse_config(argv: Sequence[str] | None = None) -> TrainConfig:
-    """Parse the command line into a ``TrainConfig`` (``--preset`` first picks the defaults)."""
+    """Parse a command line into a ``TrainConfig`` (tyro; defaults from the named preset).
+
+    Exits with status 2 and a one-line message on a bad flag, value or env override.
+    """
     import tyro
 
-    argv = _expand_aliases(list(sys.argv[1:] if argv is None else argv))
-    pre = argparse.ArgumentParser(add_help=False)
-    pre.add_argument("--preset", default="gpu", choices=sorted(PRESETS))
-    known, rest = pre.parse_known_args(argv)
-    default = preset(known.preset)
+    args = list(sys.argv[1:] if argv is None else argv)
+    name = preset_of(args)
     description = (
         __doc__.split("\n\n")[0]
-        + f"\n\n--preset {{{','.join(sorted(PRESETS))}}} picks the defaults shown below "
-        + f"(now: {known.preset}). --env NAME is short for --env-name NAME."
+        + f"\n\nDefaults shown: the {name} preset's. Env and reward settings: dotted.path=value items "
+        + "(docs/training.md lists them)."
     )
-    return tyro.cli(TrainConfig, default=default, args=rest, description=description)
+    cfg = tyro.cli(TrainConfig, default=preset(name), args=args, description=description, prog=PROG)
+    try:
+        check_env_overrides(cfg)
+    except ValueError as e:
+        print(f"{PROG}: error: --env-overrides: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
+    return cfg
 
 
-_ALIASES = {"--env": "--env-name"}
-"""Short flags -> the tyro flag they stand for."""
+def check_env_overrides(cfg: TrainConfig) -> None:
+    """Apply ``cfg.env_overrides`` to ``cfg.env_name``'s default config; raises ``ValueError`` if one fails.
 
+    Imports the env package (jax) only when there are overrides, so ``--help`` and plain runs stay quick.
+    """
+    if not cfg.env_overrides:
+        return
+    from bar_policy import envs
 
-def _expand_aliases(argv: list[str]) -> list[str]:
-    """``--env X`` / ``--env=X`` -> ``--env-name X`` (tyro makes one flag per field; these are short ones)."""
-    out = []
-    for a in argv:
-        name, eq, value = a.partition("=")
-        if name in _ALIASES:
-            a = _ALIASES[name] + eq + value
-        out.append(a)
-    return out
+    envs.apply_overrides(envs.default_config(cfg.env_name), cfg.env_overrides)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point: parse, train, evaluate, export; prints progress and a final summary table."""
+    """Entry point of ``bar-train``: parse, train, evaluate, export; prints progress and a summary table."""
     import time
 
     from bar_policy.training.startup import process_uptime

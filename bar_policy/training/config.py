@@ -2,9 +2,10 @@
 
 ``TrainConfig`` is the root. ``preset(name)`` builds the tuned variants (``gpu``, ``cpu``, ``tiny``, and
 ``track`` for LiteTrack on the GPU) as
-functions of the base with ``dataclasses.replace``; ``apply_overrides`` applies dotted-path overrides
-(``"ppo.learning_rate=1e-3"``) to any config. The CLI (``bar_policy.training.cli``) turns every field into
-a flag with tyro, whose ``--help`` shows each field's docstring below (units included).
+functions of the base with ``dataclasses.replace``; ``apply_overrides`` (``bar_policy.overrides``, the same
+syntax as the env's ``--env-overrides``) applies dotted-path overrides (``"ppo.learning_rate=1e-3"``) to any
+config. The CLI (``bar_policy.training.cli``) turns every field into a flag with tyro, whose ``--help``
+shows each field's docstring below (units included).
 
 Sizes follow brax's PPO: one training iteration collects ``batch_size * num_minibatches`` trajectories of
 ``unroll_length`` steps (``num_envs`` environments, ``batch_size * num_minibatches / num_envs`` unrolls
@@ -13,18 +14,23 @@ each), then runs ``num_updates_per_batch`` passes of ``num_minibatches`` SGD ste
 
 from __future__ import annotations
 
-import ast
 import dataclasses
 import json
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
+
+import tyro
+
+from bar_policy.overrides import apply_overrides, split_override
 
 __all__ = [
     "PRESETS",
     "DistributedConfig",
+    "EnvName",
     "EvalConfig",
     "NetworkConfig",
     "PPOConfig",
+    "PresetName",
     "RslRlConfig",
     "TrainConfig",
     "apply_overrides",
@@ -32,6 +38,12 @@ __all__ = [
     "config_to_dict",
     "preset",
 ]
+
+
+EnvName = Literal["LiteReach", "LiteReachNeck", "LiteTrack"]
+"""Registered env names (``bar_policy.envs.ALL_ENVS``; spelled out here so that ``--help`` imports no jax)."""
+PresetName = Literal["gpu", "cpu", "tiny", "track"]
+"""Preset names (``PRESETS``)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -195,20 +207,20 @@ class DistributedConfig:
 class TrainConfig:
     """Root configuration of ``python train/ppo.py``."""
 
-    env_name: str = "LiteReach"
-    """Registered environment name (``bar_policy.envs.load``)."""
+    env_name: Annotated[EnvName, tyro.conf.arg(aliases=("--env",))] = "LiteReach"
+    """Registered environment (``bar_policy.envs.load``); ``--env`` is short for it."""
     env_overrides: tuple[str, ...] = ()
-    """Dotted ``key=value`` overrides of the env config, e.g. ``reward.scales.distance=-2``."""
+    """Env/reward settings, ``path=value`` in the env config's units: ``reward.scales.action_rate=-0.1``."""
     backend: Literal["brax", "rsl-rl"] = "brax"
     """brax = brax's PPO pieces, JAX end to end (default); rsl-rl = rsl-rl-lib (torch) on the same env."""
-    preset: str = "gpu"
-    """Preset that supplied the defaults: gpu (one H100), cpu, tiny (tests). Recorded; pick with --preset."""
+    preset: PresetName = "gpu"
+    """Preset supplying every default shown: gpu (one H100), cpu, tiny (tests), track (LiteTrack, H100)."""
     seed: int = 0
     """Seed of parameter init, env resets and evaluation."""
     run_name: str = ""
     """Run directory name under runs_dir (empty = ``<env>-<backend>-<timestamp>``)."""
     runs_dir: str = "runs"
-    """Parent directory of run directories."""
+    """Parent directory of run directories (path)."""
     resume: str | None = None
     """Run directory or checkpoint file to resume from (params, normaliser, optimizer, step count)."""
     log_every_iterations: int = 0
@@ -222,7 +234,7 @@ class TrainConfig:
     onnx_path: str = ""
     """Where to write the ONNX file (empty = ``<run dir>/policy.onnx``)."""
     final_eval_envs: int = 4096
-    """Episodes in the final evaluation written next to the ONNX file."""
+    """Episodes in the final evaluation written next to the ONNX file, episodes."""
     matmul_precision: Literal["default", "highest"] = "highest"
     """float32 matrix products: ``highest`` (full float32, what MuJoCo Playground sets: TF32 products on
     NVIDIA GPUs destabilised its training) or ``default`` (the backend's fastest, TF32 on Ampere and later;
@@ -230,8 +242,7 @@ class TrainConfig:
     compile_cache: bool = True
     """Persistent XLA compilation cache (a rerun of the same command loads programs instead of compiling)."""
     compile_cache_dir: str = ""
-    """Cache directory (empty = JAX_COMPILATION_CACHE_DIR if set, else $XDG_CACHE_HOME/bar_policy/jax or
-    ~/.cache/bar_policy/jax)."""
+    """Cache directory (empty: $JAX_COMPILATION_CACHE_DIR, else $XDG_CACHE_HOME/bar_policy/jax)."""
     ppo: PPOConfig = field(default_factory=PPOConfig)
     network: NetworkConfig = field(default_factory=NetworkConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
@@ -251,8 +262,7 @@ class TrainConfig:
                 f"{self.final_eval_envs}"
             )
         for o in self.env_overrides:
-            if "=" not in o:
-                raise ValueError(f"env override {o!r} must look like 'dotted.key=value'")
+            split_override(o)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -365,63 +375,6 @@ def preset(name: str) -> TrainConfig:
 # ----------------------------------------------------------------------------------------------------------
 # Overrides and (de)serialisation
 # ----------------------------------------------------------------------------------------------------------
-
-
-def _parse_value(text: str) -> Any:
-    """A Python literal when the text is one (numbers, tuples, None, True), else the text itself."""
-    try:
-        return ast.literal_eval(text)
-    except (ValueError, SyntaxError):
-        return text
-
-
-def _coerce(old: Any, new: Any, path: str) -> Any:
-    """Give ``new`` the type of the field's current value (int stays int, tuple stays tuple)."""
-    if isinstance(old, bool) and isinstance(new, str):
-        if new.lower() in ("true", "false", "1", "0"):
-            return new.lower() in ("true", "1")
-        raise ValueError(f"override {path}: expected a boolean, got {new!r}")
-    if isinstance(old, float) and isinstance(new, int) and not isinstance(new, bool):
-        return float(new)
-    if isinstance(old, tuple) and isinstance(new, list | tuple):
-        return tuple(new)
-    if isinstance(old, tuple) and isinstance(new, int | float):
-        return (new,)
-    return new
-
-
-def _apply(obj: Any, items: list[tuple[list[str], Any, str]]) -> Any:
-    """Apply (keys, value, path) items to one dataclass level with a single ``replace`` (validated once)."""
-    if not dataclasses.is_dataclass(obj):
-        raise ValueError(f"override {items[0][2]}: {type(obj).__name__} has no fields to set")
-    names = {f.name for f in dataclasses.fields(obj)}
-    leaf: dict[str, Any] = {}
-    nested: dict[str, list[tuple[list[str], Any, str]]] = {}
-    for keys, value, path in items:
-        if keys[0] not in names:
-            raise ValueError(f"override {path}: no field {keys[0]!r}; valid: {sorted(names)}")
-        if len(keys) == 1:
-            leaf[keys[0]] = _coerce(getattr(obj, keys[0]), value, path)
-        else:
-            nested.setdefault(keys[0], []).append((keys[1:], value, path))
-    changes = {name: _apply(getattr(obj, name), sub) for name, sub in nested.items()}
-    return dataclasses.replace(obj, **changes, **leaf)
-
-
-def apply_overrides(cfg: Any, overrides: tuple[str, ...] | list[str]) -> Any:
-    """Apply ``"a.b.c=value"`` overrides to a frozen dataclass tree, validating names and types.
-
-    Values are parsed as Python literals when they are one (``1e-3``, ``(64, 64)``, ``None``). All
-    overrides are applied together, so related fields (``ppo.num_envs`` and ``ppo.batch_size``) can change
-    at once; validation runs on the result.
-    """
-    items = []
-    for item in overrides:
-        if "=" not in item:
-            raise ValueError(f"override {item!r} must look like 'dotted.key=value'")
-        path, text = item.split("=", 1)
-        items.append((path.strip().split("."), _parse_value(text.strip()), path.strip()))
-    return _apply(cfg, items) if items else cfg
 
 
 def config_to_dict(cfg: TrainConfig) -> dict[str, Any]:

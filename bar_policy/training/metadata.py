@@ -8,6 +8,7 @@ from typing import Any
 
 from bar_policy.deploy.metadata import PolicyMetadata
 from bar_policy.export import code_version
+from bar_policy.provenance import collect
 from bar_policy.robot.mjcf import PHYSICS_DT
 
 __all__ = ["policy_metadata", "randomization_record"]
@@ -41,7 +42,11 @@ def _jsonable(x: Any) -> Any:
 
 
 def policy_metadata(
-    env: Any, *, task: str | None = None, training: Mapping[str, Any] | None = None
+    env: Any,
+    *,
+    task: str | None = None,
+    training: Mapping[str, Any] | None = None,
+    provenance: Mapping[str, Any] | None = None,
 ) -> PolicyMetadata:
     """Metadata for a policy trained on ``env`` (a ``bar_policy.envs`` env).
 
@@ -55,6 +60,8 @@ def policy_metadata(
         env: the (unwrapped) training env.
         task: task name written to ``task_type`` / ``bar.task`` (default: ``env.task_name``, else reach).
         training: free-form training record (backend, steps, evaluation, config).
+        provenance: the run's ``bar_policy.provenance.collect()`` record (commit, dirty flag, library
+            versions, training command); None collects this process's now.
     """
     om = env.obs_manager
     schema = om.schema
@@ -83,4 +90,5 @@ def policy_metadata(
         body_names=tuple(extra.get("body_names", ())),
         lookahead_steps=int(extra.get("lookahead_steps", 0)),
         dataset_repo_id=str(extra.get("dataset_repo_id", "")),
+        provenance=_jsonable(dict(provenance) if provenance is not None else collect()),
     )

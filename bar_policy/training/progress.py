@@ -88,6 +88,17 @@ class RunLogger:
         if kind == "eval":
             self.last_eval = clean
 
+    def note(self, kind: str, payload: dict[str, Any]) -> None:
+        """One non-metric JSON line in ``metrics.jsonl``: ``{"kind": kind, "time_s": ..., **payload}``.
+
+        For records such as the run's provenance (strings, nested objects); TensorBoard gets nothing.
+        """
+        if not self.enabled:
+            return
+        assert self._jsonl is not None
+        self._jsonl.write(json.dumps({"kind": kind, "time_s": round(self.elapsed(), 3), **payload}) + "\n")
+        self._jsonl.flush()
+
     def record_eval(
         self,
         step: int,

@@ -11,9 +11,12 @@ from __future__ import annotations
 
 import json
 import math
+import shlex
 import shutil
 from pathlib import Path
 from typing import Any
+
+from bar_policy.provenance import commit_text
 
 __all__ = ["ITERATES", "RESULTS_END", "RESULTS_START", "plot_curve", "publish", "results_markdown"]
 
@@ -91,7 +94,8 @@ def results_markdown(final: dict[str, Any], name: str) -> str:
         "| quantity | value |",
         "|---|---|",
         f"| device | {dev['device_kind']} x {len(dev['devices'])} (jax {dev['jax']}) |",
-        f"| command | `python train/ppo.py --preset {train['preset']}` (backend {train['backend']}) |",
+        f"| command | `{_command(final)}` (backend {train['backend']}) |",
+        f"| commit | {commit_text(final.get('provenance', {}))} |",
         f"| env steps trained | {final['env_steps']:,} |",
         f"| wall time, start to exported ONNX | {final['wall_s']:.0f} s |",
         f"| time to {thr:.0f}% eval success (compile included) | {ttt_text} |",
@@ -106,6 +110,14 @@ def results_markdown(final: dict[str, Any], name: str) -> str:
         RESULTS_END,
     ]
     return "\n".join(lines)
+
+
+def _command(final: dict[str, Any]) -> str:
+    """The run's exact training command (its provenance), else the preset's command (older runs)."""
+    argv = final.get("provenance", {}).get("argv")
+    if argv:
+        return shlex.join(str(a) for a in argv)
+    return f"python train/ppo.py --preset {final['config']['train']['preset']}"
 
 
 ITERATES = ("last", "best", "auto")

@@ -1,8 +1,12 @@
 """One training run end to end: env, run directory, backend, final evaluation, ONNX export, summary.
 
-``run(cfg)`` is what ``python train/ppo.py`` calls after parsing. The run directory ``<runs_dir>/<name>/``
-receives ``config.json`` (the resolved training and env config), ``metrics.jsonl``, ``tb/`` (TensorBoard),
-``checkpoints/step_<N>.msgpack``, ``policy.onnx`` and ``final_eval.json``.
+``run(cfg)`` is what ``bar-train`` (``python train/ppo.py``) calls after parsing. The run directory
+``<runs_dir>/<name>/`` receives ``config.json`` (the resolved training and env config), ``metrics.jsonl``,
+``tb/`` (TensorBoard), ``checkpoints/step_<N>.msgpack``, ``policy.onnx`` and ``final_eval.json``. Each of
+them carries the run's provenance (``bar_policy.provenance``: commit, dirty flag, library versions, the
+command): ``config.json`` and ``final_eval.json`` under ``provenance``, ``metrics.jsonl`` as a
+``{"kind": "provenance"}`` line at each (re)start, the checkpoint sidecars through the config record, the
+ONNX files as ``bar.provenance``.
 """
 
 from __future__ import annotations
@@ -214,7 +218,11 @@ def run(
     timer.add("env build and devices", time.monotonic() - t_env)
     logger = RunLogger(run_dir, cfg.ppo.num_timesteps, enabled=is_main)
     logger.t0 = t0 if started_at is None else started_at
+    from bar_policy.provenance import collect, describe
+
+    provenance = collect()
     record = {
+        "provenance": provenance,
         "train": config_to_dict(cfg),
         "env": json.loads(json.dumps(dataclasses.asdict(env.config), default=list))
         if dataclasses.is_dataclass(getattr(env, "config", None))
@@ -223,6 +231,8 @@ def run(
     }
     if is_main:
         (run_dir / "config.json").write_text(json.dumps(record, indent=2, sort_keys=True))
+        logger.note("provenance", {"provenance": provenance})
+        logger.print(describe(provenance)[0])
         logger.print(
             f"run {run_dir} | {cfg.env_name} ({env.observation_size} obs, {env.action_size} actions, "
             f"dt {env.dt} s) | backend {cfg.backend} | {record['device']['device_kind']} x "
@@ -305,12 +315,12 @@ def run(
     best = finish_best(
         result,
         export_to=onnx_path,
-        metadata_fn=lambda training: policy_metadata(env, training=training),
+        metadata_fn=lambda training: policy_metadata(env, training=training, provenance=provenance),
         training_record=training_record,
         **best_args,
     )
     if onnx_path is not None:
-        meta = policy_metadata(env, training=training_record)
+        meta = policy_metadata(env, training=training_record, provenance=provenance)
         export = result.export_onnx(meta, onnx_path)
     wall = time.monotonic() - t0
     final_record = {
@@ -325,6 +335,7 @@ def run(
         "evals": result.evals,
         "export": export,
         "best_iterate": best,
+        "provenance": provenance,
         "config": record,
     }
     (run_dir / "final_eval.json").write_text(json.dumps(final_record, indent=2, sort_keys=True))

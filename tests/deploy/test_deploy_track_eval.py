@@ -113,7 +113,9 @@ def test_eval_cli_reports_the_tracking_metric(track_policy, tmp_path, capsys):
                "--json", str(out_json)])  # fmt: skip
     out = capsys.readouterr().out
     assert rc == 0, out
-    assert out.startswith(f"tracking (SimTarget) policy {track_policy.path}")
+    first, report = out.split("\n", 1)
+    assert first.startswith("provenance: not recorded")  # bar-deploy's first line: the file's provenance
+    assert report.startswith(f"tracking (SimTarget) policy {track_policy.path}")
     data = json.loads(out_json.read_text())
     assert [c["clip"] for c in data["clips"]] == ["tiny"] and data["clips"][0]["steps"] == 3 + 5
     # The same protocol in process (the sim is deterministic): the CLI printed and wrote these numbers.

@@ -20,7 +20,8 @@ def test_model_guess():
 def test_discover_lists_ids_models_and_status(channels, make_emulator, capsys, listeners):
     emu = make_emulator(extra_ids={"can0": [3]})
     emu.inject("left_wrist_roll", fault_word=1 << 2)  # faultSta reads 0x00000004 (undervoltage)
-    assert main(["discover", "--interface", "virtual", "--iface", channels["can0"], "--scan-to", "32"]) == 0
+    argv = ["discover", "--can-interface", "virtual", "--channel", channels["can0"], "--scan-to", "32"]
+    assert main(argv) == 0
     out = capsys.readouterr().out
     assert "8 device(s) answered ids 1..32" in out
     rows = {int(line.split()[0]): line for line in out.splitlines()[2:]}
@@ -29,19 +30,15 @@ def test_discover_lists_ids_models_and_status(channels, make_emulator, capsys, l
     assert "0x00000004" in rows[16] and "0x00000000" in rows[15]
     # read-only: no stop, enable, MIT or write frames went out
     assert listeners["can0"].host_frames((1, 3, 4, 6, 18)) == []
-    assert (
-        main(
-            ["discover", "--interface", "virtual", "--iface", channels["can0"], "--scan-to", "16", "--status"]
-        )
-        == 0
-    )
+    argv = ["discover", "--can-interface", "virtual", "--channel", channels["can0"], "--scan-to", "16"]
+    assert main([*argv, "--status"]) == 0
     out = capsys.readouterr().out
     assert "mode=reset faults=no faults" in out
 
 
 def test_param_write_then_read(channels, make_emulator, capsys):
     emu = make_emulator()
-    base = ["--interface", "virtual", "--iface", channels["can0"], "--id", "12", "--index", "0x700B"]
+    base = ["--can-interface", "virtual", "--channel", channels["can0"], "--id", "12", "--index", "0x700B"]
     assert main(["param", "write", *base, "--value", "12.5"]) == 0
     assert emu.motor(12).params[0x700B] == 12.5
     assert main(["param", "read", *base]) == 0
@@ -56,11 +53,11 @@ def test_calibrate_records_true_offsets(tmp_path, robot, channels, make_emulator
         code = main(
             [
                 "calibrate",
-                "--interface",
+                "--can-interface",
                 "virtual",
                 "--channels",
                 f"{channels['can0']},{channels['can1']}",
-                "--out",
+                "--calibration",
                 str(out),
                 "--duration",
                 "1.0",

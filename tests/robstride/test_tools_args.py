@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import re
 import subprocess
 import sys
 
@@ -28,10 +29,12 @@ UP = "sudo ip link set {} up type can bitrate 1000000"
 
 # (argv, exit status, a fragment of the one error line)
 BAD_ARGS = [
+    (["discover", "--reply-timeout", "-1"], 2, "argument --reply-timeout: must be a number > 0 s, got '-1'"),
+    (["discover", "--reply-timeout", "0"], 2, "argument --reply-timeout: must be a number > 0 s, got '0'"),
+    (["discover", "--reply-timeout", "nan"], 2, "argument --reply-timeout: must be finite, got 'nan'"),
+    (["discover", "--reply-timeout", "soon"], 2, "argument --reply-timeout: not a number: 'soon'"),
+    # The deprecated spelling refuses a bad value the same way (its name in the message).
     (["discover", "--timeout", "-1"], 2, "argument --timeout: must be a number > 0 s, got '-1'"),
-    (["discover", "--timeout", "0"], 2, "argument --timeout: must be a number > 0 s, got '0'"),
-    (["discover", "--timeout", "nan"], 2, "argument --timeout: must be finite, got 'nan'"),
-    (["discover", "--timeout", "soon"], 2, "argument --timeout: not a number: 'soon'"),
     (["discover", "--scan-to", "0"], 2, "argument --scan-to: must be an integer in 1..127, got '0'"),
     (["discover", "--scan-to", "200"], 2, "argument --scan-to: must be an integer in 1..127, got '200'"),
     (["calibrate", "--rate", "0"], 2, "argument --rate: must be a number > 0 Hz, got '0'"),
@@ -55,7 +58,7 @@ BAD_ARGS = [
      "--value 'lots' is not a valid u32"),
     (["param", "write", "--id", "11", "--index", "0x7028"], 1, "param write needs --value"),
     (["param", "read", "--id", "11", "--index", "0x1234"], 1, "parameter 0x1234 is not in the known table"),
-    (["discover", "--emulate"], 1, "--emulate needs --interface virtual"),
+    (["discover", "--emulate"], 1, "--emulate needs --can-interface virtual"),
     (["calibrate", "--channels", "a,b,c"], 1, "--channels 'a,b,c': give 2 channels"),
     (["calibrate", "--prior", "/nonexistent/cal.json"], 1,
      "cannot read calibration file /nonexistent/cal.json"),
@@ -82,7 +85,7 @@ def test_bad_arguments_give_one_line(argv, status, fragment, capsys):
 def test_missing_socketcan_or_interface_one_line_from_the_console():
     """A real process: whatever this machine lacks (no SocketCAN, or no interface of that name)."""
     r = subprocess.run(
-        [sys.executable, "-m", "bar_policy.deploy.robstride.tools", "discover", "--iface", "nocan7"],
+        [sys.executable, "-m", "bar_policy.deploy.robstride.tools", "discover", "--channel", "nocan7"],
         capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert r.returncode == 1 and r.stdout == ""
@@ -200,3 +203,98 @@ def test_real_target_bus_open_error_is_one_line():
     assert "\n" not in msg
     assert msg.startswith("cannot build the real target: cannot open socketcan channel nocan7")
     assert isinstance(info.value.__cause__, BusOpenError) and f"`{UP.format('nocan7')}`" in msg
+
+
+# ---------------------------------------------------------------------------------------------------
+# one name per concept: bar-bus and bar-deploy; the old spellings as hidden deprecated aliases
+# ---------------------------------------------------------------------------------------------------
+def _bus_help(command, capsys):
+    with pytest.raises(SystemExit) as info:
+        main([*command, "--help"])
+    assert info.value.code == 0
+    text = capsys.readouterr().out
+    names = []
+    for line in text.splitlines():
+        if line.startswith("  -"):
+            invocation = re.split(r"\s{2,}", line.strip())[0]
+            names += [part.split(" ")[0] for part in invocation.split(", ")]
+    return text, names
+
+
+SHARED = {"--can-interface", "--reply-timeout", "--mode"}
+"""Options of every bar-bus command."""
+
+
+@pytest.mark.parametrize(
+    ("command", "own"),
+    [
+        (["discover"], {"--channel", "--scan-to", "--status", "--emulate"}),
+        (["calibrate"], {"--channels", "--calibration", "--prior", "--sweep-threshold", "--rate",
+                         "--duration", "--emulate"}),
+        (["param", "read"], {"--channel", "--id", "--index", "--value", "--type", "--emulate"}),
+        (["watchdog"], {"--channel", "--id", "--model", "--can-timeout", "--silences", "--emulate"}),
+    ],
+)  # fmt: skip
+def test_bar_bus_help_lists_each_option_once_and_hides_the_old_spellings(command, own, capsys):
+    text, names = _bus_help(command, capsys)
+    assert sorted(names) == sorted({"-h", "--help"} | SHARED | own)
+    for old in ("--interface", "--iface", "--out", "--timeout"):
+        assert f"{old} " not in text and f"[{old}" not in text
+
+
+def test_the_shared_concepts_have_one_name_in_both_tools(capsys):
+    from bar_policy.deploy.cli import main as deploy
+
+    with pytest.raises(SystemExit):
+        deploy(["--help"])
+    deploy_help = capsys.readouterr().out
+    for name in ("--can-interface", "--channels", "--calibration", "--reply-timeout", "--scan-to",
+                 "--can-timeout"):  # fmt: skip
+        assert f"\n  {name} " in deploy_help, name
+    tools = {
+        name
+        for command in (["discover"], ["calibrate"], ["watchdog"])
+        for name in _bus_help(command, capsys)[1]
+    }
+    assert {
+        "--can-interface",
+        "--channels",
+        "--calibration",
+        "--reply-timeout",
+        "--scan-to",
+        "--can-timeout",
+    } <= tools
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "value", "dest"),
+    [
+        (["discover", "--iface", "vcan3"], ["discover", "--channel", "vcan3"], "vcan3", "iface"),
+        (["discover", "--interface", "virtual"], ["discover", "--can-interface", "virtual"], "virtual",
+         "interface"),
+        (["discover", "--timeout", "0.5"], ["discover", "--reply-timeout", "0.5"], 0.5, "timeout"),
+        (["calibrate", "--out", "c.json"], ["calibrate", "--calibration", "c.json"], "c.json", "out"),
+        (["watchdog", "--id", "11", "--iface", "can1"], ["watchdog", "--id", "11", "--channel", "can1"],
+         "can1", "iface"),
+    ],
+)  # fmt: skip
+def test_deprecated_spellings_still_work_with_a_one_line_notice(old, new, value, dest, capsys):
+    from bar_policy.deploy.robstride.tools import _parser
+
+    got, want = _parser().parse_args(old), _parser().parse_args(new)
+    assert got == want and getattr(got, dest) == value
+    prog = "bar-bus " + " ".join(old[:1])
+    new_name = next(a for a in new if a.startswith("--") and a not in old)
+    old_name = next(a for a in old if a.startswith("--") and a not in new)
+    assert capsys.readouterr().err == f"{prog}: note: {old_name} is deprecated; use {new_name}\n"
+
+
+def test_deprecated_spelling_in_a_child_process_runs_the_command():
+    """The old console line still runs: one notice line, then the command's own (here: no SocketCAN)."""
+    r = subprocess.run(
+        [sys.executable, "-m", "bar_policy.deploy.robstride.tools", "discover", "--iface", "nocan7"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    notice, error = r.stderr.splitlines()
+    assert notice == "bar-bus discover: note: --iface is deprecated; use --channel"
+    assert r.returncode == 1 and error.startswith("bar-bus: error: cannot open socketcan channel nocan7: ")

@@ -221,13 +221,13 @@ def _watchdog_argv(channels: dict[str, str]) -> list[str]:
     """``bar-bus watchdog`` on motor 11 of can0 with a 0.2 s window."""
     return [
         "watchdog",
-        "--interface",
+        "--can-interface",
         "virtual",
-        "--iface",
+        "--channel",
         channels["can0"],
         "--id",
         "11",
-        "--timeout",
+        "--reply-timeout",
         "0.2",
     ]
 

@@ -1,18 +1,35 @@
-"""argparse value types shared by ``bar-bus`` and the real target's ``bar-deploy`` options.
+"""argparse value types and option names shared by ``bar-bus`` and the real target's ``bar-deploy`` options.
 
-Each refuses a bad value with ``argparse.ArgumentTypeError`` naming the valid range, so argparse prints one
-line (``argument --timeout: must be a number > 0 s, got '-1'``) and exits with status 2.
+Each type refuses a bad value with ``argparse.ArgumentTypeError`` naming the valid range, so argparse prints
+one line (``argument --reply-timeout: must be a number > 0 s, got '-1'``) and exits with status 2.
+
+One name per concept in both tools (``HELP`` words the shared ones once): ``--can-interface`` (python-can's
+driver), ``--channel`` (one bus) / ``--channels`` (the robot's buses), ``--calibration`` (the calibration
+JSON, written by ``bar-bus calibrate``, read by ``bar-deploy --target real``), ``--reply-timeout``,
+``--can-timeout``, ``--scan-to``. Old spellings stay as hidden ``deprecated_alias`` options that print a
+one-line notice.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import sys
 from collections.abc import Callable
 
 from bar_policy.deploy.robstride import protocol as proto
 
-__all__ = ["can_timeout_arg", "float_list", "int_range", "non_negative", "positive"]
+__all__ = [
+    "CAN_INTERFACES",
+    "HELP",
+    "DeprecatedAlias",
+    "can_timeout_arg",
+    "deprecated_alias",
+    "float_list",
+    "int_range",
+    "non_negative",
+    "positive",
+]
 
 
 def _unit(unit: str) -> str:
@@ -87,3 +104,62 @@ def float_list(item: Callable[[str], float]) -> Callable[[str], list[float]]:
         return [item(p) for p in parts]
 
     return parse
+
+
+# ---------------------------------------------------------------------------------------------------
+# One name per concept across bar-bus and bar-deploy
+# ---------------------------------------------------------------------------------------------------
+CAN_INTERFACES = ("socketcan", "virtual")
+"""python-can interfaces (drivers) the tools open: the robot's SocketCAN, or the in-process virtual bus."""
+
+HELP = {
+    "--can-interface": "python-can interface (driver): socketcan for the robot, virtual for the in-process "
+    "emulator (default socketcan)",
+    "--channel": "CAN channel of the one bus, e.g. can0 (default can0)",
+    "--channels": "CAN channels of the robot's buses (can0: left arm and neck, can1: right arm): "
+    "'can0,can1' in that order, or 'can0=vcan0,can1=vcan1' (default: the names themselves)",
+    "--reply-timeout": "deadline for each motor's reply, s",
+    "--scan-to": "highest CAN id scanned, 1..127",
+}
+"""Help of the options both tools share, worded once."""
+
+
+class DeprecatedAlias(argparse.Action):
+    """A hidden old spelling of an option: stores into the new option's ``dest`` and prints a notice.
+
+    The notice is one line on stderr, ``PROG: note: --iface is deprecated; use --channel``, each time the
+    old spelling is used. Type and choices are the new option's, so a bad value is refused the same way.
+    """
+
+    def __init__(self, option_strings: list[str], dest: str, new: str = "", **kwargs: object) -> None:
+        self.new = new
+        super().__init__(option_strings, dest, **kwargs)  # type: ignore[arg-type]
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: object,
+        option_string: str | None = None,
+    ) -> None:
+        """Store the value as the new option would, after the notice."""
+        sys.stderr.write(f"{parser.prog}: note: {option_string} is deprecated; use {self.new}\n")
+        setattr(namespace, self.dest, values)
+
+
+def deprecated_alias(parser: argparse.ArgumentParser, old: str, new: argparse.Action) -> None:
+    """Add ``old`` as a hidden, deprecated spelling of the option ``new`` (an action ``add_argument`` made).
+
+    ``new`` must take one value (``nargs`` None); the alias takes the same type, choices and metavar.
+    """
+    parser.add_argument(
+        old,
+        action=DeprecatedAlias,
+        new=new.option_strings[0],
+        dest=new.dest,
+        type=new.type,
+        choices=new.choices,
+        metavar=new.metavar,
+        default=argparse.SUPPRESS,
+        help=argparse.SUPPRESS,
+    )

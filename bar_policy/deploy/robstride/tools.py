@@ -1,16 +1,21 @@
 """``bar-bus``: the bench tools for the Robstride buses.
 
-    bar-bus discover --iface can0 --scan-to 32 [--interface socketcan|virtual] [--status]
-    bar-bus calibrate [--channels can0,can1] [--out calibration.json] [--prior old.json] [--duration S]
-    bar-bus param read  --iface can0 --id 11 --index 0x700B [--type f32]
-    bar-bus param write --iface can0 --id 11 --index 0x700B --value 12.0 [--type f32]
-    bar-bus watchdog --iface can0 --id 11 [--can-timeout 0.2] [--silences 0.1,0.18,0.22,0.3]
+    bar-bus discover --channel can0 --scan-to 32 [--can-interface socketcan|virtual] [--status]
+    bar-bus calibrate [--channels can0,can1] [--calibration cal.json] [--prior old.json] [--duration S]
+    bar-bus param read  --channel can0 --id 11 --index 0x700B [--type f32]
+    bar-bus param write --channel can0 --id 11 --index 0x700B --value 12.0 [--type f32]
+    bar-bus watchdog --channel can0 --id 11 [--can-timeout 0.2] [--silences 0.1,0.18,0.22,0.3]
+
+Option names are ``bar-deploy``'s for the same things (``robstride.cli_args``): ``--can-interface``,
+``--channel`` / ``--channels``, ``--calibration``, ``--reply-timeout``, ``--scan-to``, ``--can-timeout``.
+The old spellings ``--interface``, ``--iface``, ``--out`` and ``--timeout`` still work, with a one-line
+notice.
 
 ``discover`` is read-only (type-0 scan and type-17 parameter reads); ``--status`` also sends each found
 motor a stop frame (it disables the motor) to read its type-2 mode and fault bits. ``calibrate`` keeps the
 motors disabled (stop frames) while a person sweeps every joint to both stops, and writes the calibration
 JSON on Ctrl+C (or after ``--duration``). ``watchdog`` measures the CAN watchdog of one motor on a bench
-(``watchdog.probe_watchdog``; the motor is enabled with zero torque). ``--emulate`` (with ``--interface
+(``watchdog.probe_watchdog``; the motor is enabled with zero torque). ``--emulate`` (with ``--can-interface
 virtual``) answers with the in-process emulator, for a demonstration without hardware.
 
 Stop path of ``calibrate`` and ``watchdog`` (the commands that command motors): SIGINT, SIGTERM and SIGHUP
@@ -38,7 +43,15 @@ from bar_policy.deploy.robstride import protocol as proto
 from bar_policy.deploy.robstride.bus import MotorConfig, RobstrideBus
 from bar_policy.deploy.robstride.calibration import Calibration, SweepRecorder
 from bar_policy.deploy.robstride.canbus import open_can_bus, open_can_buses
-from bar_policy.deploy.robstride.cli_args import can_timeout_arg, float_list, int_range, positive
+from bar_policy.deploy.robstride.cli_args import (
+    CAN_INTERFACES,
+    HELP,
+    can_timeout_arg,
+    deprecated_alias,
+    float_list,
+    int_range,
+    positive,
+)
 from bar_policy.deploy.robstride.errors import InitializationError, RobstrideError
 from bar_policy.deploy.robstride.group import RobstrideGroup
 from bar_policy.deploy.robstride.watchdog import arm_can_timeout, probe_watchdog, read_can_timeouts, verdict
@@ -61,7 +74,7 @@ def _emulator(args: argparse.Namespace, channels: dict[str, str]) -> Iterator[No
         yield
         return
     if args.interface != "virtual":
-        raise ValueError("--emulate needs --interface virtual")
+        raise ValueError("--emulate needs --can-interface virtual")
     from bar_policy.deploy.robstride.emulator import RobstrideEmulator
 
     with RobstrideEmulator(load_robot(args.mode), channels, mode="realtime"):
@@ -236,47 +249,65 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
 
     def common(sp: argparse.ArgumentParser) -> None:
-        sp.add_argument("--interface", choices=("socketcan", "virtual"), default="socketcan")
-        sp.add_argument("--timeout", type=positive("s"), default=0.05, help="reply deadline, s")
+        iface = sp.add_argument("--can-interface", dest="interface", choices=CAN_INTERFACES,
+                                default="socketcan", help=HELP["--can-interface"])  # fmt: skip
+        deprecated_alias(sp, "--interface", iface)
+        timeout = sp.add_argument("--reply-timeout", dest="timeout", type=positive("s"), default=0.05,
+                                  metavar="S", help=f"{HELP['--reply-timeout']} (default 0.05)")  # fmt: skip
+        deprecated_alias(sp, "--timeout", timeout)
         sp.add_argument("--mode", choices=MODES, default="arms", help="robot joint set")
-        sp.add_argument(
-            "--emulate", action="store_true", help="answer with the in-process emulator (virtual)"
+        sp.add_argument("--emulate", action="store_true",
+                        help="answer with the in-process emulator (--can-interface virtual)")  # fmt: skip
+
+    def channel(sp: argparse.ArgumentParser) -> None:
+        one = sp.add_argument(
+            "--channel", dest="iface", default="can0", metavar="NAME", help=HELP["--channel"]
         )
+        deprecated_alias(sp, "--iface", one)
 
     d = sub.add_parser("discover", help="read-only scan: id, model guess, run mode, faults")
     common(d)
-    d.add_argument("--iface", default="can0", help="CAN channel")
-    d.add_argument("--scan-to", type=int_range(1, 127), default=32, help="highest id scanned (1..127)")
+    channel(d)
+    d.add_argument("--scan-to", type=int_range(1, 127), default=32, metavar="ID",
+                   help=f"{HELP['--scan-to']} (default 32)")  # fmt: skip
     d.add_argument("--status", action="store_true", help="also send a stop frame to read mode and fault bits")
 
     c = sub.add_parser("calibrate", help="record homing offsets from swept extremes")
     common(c)
-    c.add_argument("--channels", default=None, help="'can0,can1' or 'can0=vcan0,can1=vcan1'")
-    c.add_argument("--out", default="calibration.json", help="calibration JSON to write")
-    c.add_argument("--prior", default=None, help="previous calibration: un-swept joints keep its offsets")
-    c.add_argument("--sweep-threshold", type=positive("rad"), default=0.5, help="minimum sweep to recompute")
-    c.add_argument("--rate", type=positive("Hz"), default=50.0, help="sampling rate, Hz")
-    c.add_argument("--duration", type=positive("s"), default=None, help="stop after S seconds (or Ctrl+C)")
+    c.add_argument("--channels", default=None, metavar="SPEC", help=HELP["--channels"])
+    out = c.add_argument("--calibration", dest="out", default="calibration.json", metavar="PATH",
+                         help="calibration JSON to write (bar-deploy --target real --calibration reads it; "
+                              "default calibration.json)")  # fmt: skip
+    deprecated_alias(c, "--out", out)
+    c.add_argument("--prior", default=None, metavar="PATH",
+                   help="previous calibration JSON: un-swept joints keep its offsets")  # fmt: skip
+    c.add_argument("--sweep-threshold", type=positive("rad"), default=0.5, metavar="RAD",
+                   help="minimum sweep to recompute a joint's offset, rad (default 0.5)")  # fmt: skip
+    c.add_argument(
+        "--rate", type=positive("Hz"), default=50.0, metavar="HZ", help="sampling rate, Hz (default 50)"
+    )
+    c.add_argument("--duration", type=positive("s"), default=None, metavar="S",
+                   help="stop after this long, s (default: at Ctrl+C)")  # fmt: skip
 
     pa = sub.add_parser("param", help="read or write one parameter")
     pa.add_argument("action", choices=("read", "write"))
     common(pa)
-    pa.add_argument("--iface", default="can0", help="CAN channel")
+    channel(pa)
     pa.add_argument("--id", type=int_range(1, 127), required=True, help="motor CAN id (1..127)")
     pa.add_argument("--index", type=int_range(0, 0xFFFF), required=True, help="parameter index, e.g. 0x700B")
-    pa.add_argument("--value", default=None, help="value to write")
+    pa.add_argument("--value", default=None, help="value to write (in the parameter's unit)")
     pa.add_argument("--type", default=None, choices=("f32", "u8", "u16", "u32", "i16"),
                     help="wire type (default: from the known-parameter table)")  # fmt: skip
 
     w = sub.add_parser("watchdog", help="measure one motor's CAN watchdog (enables it with zero torque)")
     common(w)
-    w.add_argument("--iface", default="can0", help="CAN channel")
+    channel(w)
     w.add_argument("--id", type=int_range(1, 127), required=True, help="motor CAN id (1..127)")
     w.add_argument("--model", choices=sorted(ROBSTRIDE_MODELS), default=None,
                    help="motor model (default: from the robot data for --id)")  # fmt: skip
-    w.add_argument("--can-timeout", type=can_timeout_arg, default=proto.DEFAULT_CAN_TIMEOUT,
+    w.add_argument("--can-timeout", type=can_timeout_arg, default=proto.DEFAULT_CAN_TIMEOUT, metavar="S",
                    help=f"watchdog to arm and measure, s (default {proto.DEFAULT_CAN_TIMEOUT})")  # fmt: skip
-    w.add_argument("--silences", type=float_list(positive("s")), default=None,
+    w.add_argument("--silences", type=float_list(positive("s")), default=None, metavar="S,S,...",
                    help="silences to probe, s, comma separated (default 0.5,0.9,1.1,1.5 x it)")  # fmt: skip
     return p
 

@@ -35,7 +35,14 @@ import numpy as np
 from bar_policy.deploy.robstride.bus import DEFAULT_REPLY_TIMEOUT, BusReading
 from bar_policy.deploy.robstride.calibration import Calibration
 from bar_policy.deploy.robstride.canbus import open_can_buses
-from bar_policy.deploy.robstride.cli_args import can_timeout_arg, int_range, non_negative, positive
+from bar_policy.deploy.robstride.cli_args import (
+    CAN_INTERFACES,
+    HELP,
+    can_timeout_arg,
+    int_range,
+    non_negative,
+    positive,
+)
 from bar_policy.deploy.robstride.errors import CommandError, InitializationError, RobstrideError
 from bar_policy.deploy.robstride.framing import DEFAULT_CAN_TIMEOUT, fault_names
 from bar_policy.deploy.robstride.group import RobstrideGroup
@@ -232,30 +239,33 @@ class RealTarget(Target):
 # CLI glue
 # ---------------------------------------------------------------------------------------------------
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Add the real target's options to ``bar-deploy``'s parser (one argument group)."""
+    """Add the real target's options to ``bar-deploy``'s parser (one argument group, units in the help).
+
+    The names and wording shared with ``bar-bus`` come from ``robstride.cli_args`` (one name per concept).
+    """
     g = parser.add_argument_group("real target (Robstride over CAN)")
     add = g.add_argument
-    add("--can-interface", choices=("socketcan", "virtual"), default="socketcan",
-        help="python-can interface; 'virtual' runs against the in-process emulator")  # fmt: skip
-    add("--channels", default=None,
-        help="channels per robot interface: 'can0,can1' in order, or 'can0=vcan0,can1=vcan1'")  # fmt: skip
-    add("--calibration", default=None,
-        help="calibration JSON (bar-bus calibrate); 'none': zero offsets (needed on socketcan)")  # fmt: skip
+    add("--can-interface", choices=CAN_INTERFACES, default="socketcan", help=HELP["--can-interface"])
+    add("--channels", metavar="SPEC", default=None, help=HELP["--channels"])
+    add("--calibration", metavar="PATH|none", default=None,
+        help="calibration JSON written by bar-bus calibrate --calibration PATH; 'none': zero offsets "
+             "(required on socketcan)")  # fmt: skip
     add("--dry-run", action="store_true",
         help="scan, verify, decode and log commands; write no caps, enable nothing")  # fmt: skip
     add("--emulate", choices=("auto", "none", "realtime", "lockstep"), default="auto",
         help="in-process emulator: auto = realtime on virtual, none on socketcan")  # fmt: skip
-    add("--emulate-dt", type=positive("s"), default=None,
+    add("--emulate-dt", type=positive("s"), default=None, metavar="S",
         help="lockstep emulator: physics s per command round (default: --control-dt, else 0.02)")  # fmt: skip
-    add("--reply-timeout", type=positive("s"), default=None,
-        help=f"reply deadline per round, s (default {DEFAULT_REPLY_TIMEOUT} socketcan, "
+    add("--reply-timeout", type=positive("s"), default=None, metavar="S",
+        help=f"{HELP['--reply-timeout']} (default {DEFAULT_REPLY_TIMEOUT} socketcan, "
              f"{VIRTUAL_REPLY_TIMEOUT} virtual)")  # fmt: skip
-    add("--can-timeout", type=can_timeout_arg, default=DEFAULT_CAN_TIMEOUT,
+    add("--can-timeout", type=can_timeout_arg, default=DEFAULT_CAN_TIMEOUT, metavar="S",
         help="motor-side CAN watchdog canTimeout (0x7028), s: a motor that hears no frame for this long "
              f"disables itself; 0 leaves the motors' setting (default {DEFAULT_CAN_TIMEOUT})")  # fmt: skip
-    add("--damping-kd", type=non_negative("N*m*s/rad"), default=1.0,
-        help="Kd of the damping fail-safe, N*m*s/rad")  # fmt: skip
-    add("--scan-to", type=int_range(1, 127), default=127, help="highest CAN id scanned before enabling")
+    add("--damping-kd", type=non_negative("N*m*s/rad"), default=1.0, metavar="KD",
+        help="Kd of the damping fail-safe, N*m*s/rad (default 1.0)")  # fmt: skip
+    add("--scan-to", type=int_range(1, 127), default=127, metavar="ID",
+        help=f"{HELP['--scan-to']}, before enabling (default 127)")  # fmt: skip
 
 
 def parse_channels(spec: str | None, interfaces: Sequence[str]) -> dict[str, str]:

@@ -19,9 +19,15 @@ if TYPE_CHECKING:
     from bar_policy.deploy.policy import OnnxPolicy
     from bar_policy.robot.kinematics import Kinematics
 
-__all__ = ["TASK", "ReachTask"]
+__all__ = ["SEED_HELP", "TASK", "ReachTask"]
 
 _SPECS = "sampled | sampled:PERIOD | file:PATH | stream:stdin | stream:udp:PORT"
+
+SEED_HELP = (
+    "seed of the sampled fingertip targets (reach; --commands sampled[:PERIOD]): bar-deploy --seed N draws "
+    "the targets that episode 0 of bar-deploy eval --seed N draws"
+)
+"""``--seed`` means one thing in ``bar-deploy`` and ``bar-deploy eval``: the seed of the target sampler."""
 
 
 class ReachTask(DeployTask):
@@ -50,7 +56,12 @@ class ReachTask(DeployTask):
         g = parser.add_argument_group("reach policies (segment success rate)")
         g.add_argument("--episodes", type=count1, help="number of episodes (default 100)")
         g.add_argument(
-            "--seed", dest="eval_seed", type=int, metavar="N", help="seed of episode 0 (episode e: seed + e)"
+            "--seed",
+            dest="eval_seed",
+            type=int,
+            metavar="N",
+            help="seed of the sampled fingertip targets (and initial noise) of episode 0; episode e: N + e. "
+            "Episode 0's targets are those of bar-deploy --seed N (default 0)",
         )
         g.add_argument("--episode-length", type=seconds, help="episode length in s (env: 5)")
         g.add_argument("--resample-period", type=seconds0,
