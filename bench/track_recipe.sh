@@ -11,7 +11,8 @@
 #                                          figure of record (10 min on one H100, compile included)
 #   bash bench/track_recipe.sh smoke      CPU check of the script with tiny sizes
 #
-# $OUT gets runs.tgz (each run's config, metrics.jsonl, final_eval.json, ONNX files and log) and summary.md
+# $OUT gets runs.tgz (each run's config, metrics.jsonl, final_eval.json, ONNX files, newest checkpoint and
+# log) and summary.md
 # (per run: held-out MJX evaluation at the end, best iterate, steps, wall time). Evaluate the ONNX files on
 # the C MuJoCo sim target here with `bar-deploy eval --policy <run>/policy.onnx --clips heldout`.
 set -u
@@ -84,7 +85,12 @@ for run in sorted(Path(sys.argv[1]).iterdir()):
           + " | ".join(f"{fe.get(k, float('nan')):.4g}" for k in keys) + f" | {b} |")
 EOF
   cat "$OUT/summary.md"
-  (cd "$WORK" && tar czf "$OUT/runs.tgz" --exclude='checkpoints' runs ./*.log 2>/dev/null)
+  # Keep each run's newest checkpoint (a failed export must not lose the trained parameters).
+  for d in "$RUNS"/*/checkpoints; do
+    [ -d "$d" ] && ls -1 "$d"/step_*.msgpack 2>/dev/null | head -n -1 | sed 's/.msgpack$//' | \
+      while read -r old; do rm -f "$old.msgpack" "$old.json"; done
+  done
+  (cd "$WORK" && tar czf "$OUT/runs.tgz" runs ./*.log 2>/dev/null)
 }
 
 case "$PART" in

@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 
 __all__ = [
+    "action_accel",
     "action_rate",
     "body_ori_tracking",
     "body_pos_tracking",
@@ -47,6 +48,15 @@ def success(dist_left: jax.Array, dist_right: jax.Array, radius: float) -> jax.A
 def action_rate(action: jax.Array, last_action: jax.Array) -> jax.Array:
     """Cost ``sum((a_t - a_{t-1})^2)`` over joints, in action units (actions in [-1, 1])."""
     return jnp.sum(jnp.square(action - last_action))
+
+
+def action_accel(action: jax.Array, last_action: jax.Array, last_last_action: jax.Array) -> jax.Array:
+    """Cost ``sum((a_t - 2 a_{t-1} + a_{t-2})^2)`` over joints, action units: the action's second difference.
+
+    A high-pass of the action: its gain is ``(2 sin(pi f dt))^2``, 4 at the Nyquist frequency (25 Hz at
+    50 Hz) and 0.016 at 1 Hz, so it penalises chatter and barely the motion itself.
+    """
+    return jnp.sum(jnp.square(action - 2.0 * last_action + last_last_action))
 
 
 def joint_limit(q: jax.Array, lower: jax.Array, upper: jax.Array, soft_fraction: float) -> jax.Array:

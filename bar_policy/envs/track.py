@@ -15,7 +15,8 @@ and the initial-pose noise are the robot env's; the task adds:
   ``TRACK_BODY_NAMES`` in the chest frame), then joint_pos, joint_vel, actions.
 - **Reward** (terms in ``bar_policy.envs.rewards``, weights ``TrackRewardScales``): ``joint_pos``,
   ``body_pos``, ``body_ori``, ``fingertip_pos`` (exponential kernels of the error against the frame the step
-  arrives at, on the true state), ``action_rate`` (of the applied, filtered action), ``torque`` and
+  arrives at, on the true state), ``action_rate`` and ``action_accel`` (first and second differences of the
+  applied, filtered action: the second weighs content at 25 Hz 250 times more than at 1 Hz), ``torque`` and
   ``torque_near_cap`` (the unclipped demand beyond 80 % of each cap).
 - **Start sampling** (training): with ``config.sampling.enabled`` the batched wrapper draws each reset's
   start bin adaptively, more often just before where episodes fail (``envs/sampling.py``).
@@ -162,8 +163,14 @@ class LiteTrack(LiteRobotEnv):
         """``task_reset``'s result for a given clip (table order) and start frame within it."""
         start = self._clip_start[clip]
         frame = start + phase
-        info = {"clip": clip, "frame": frame, "last_frame": start + self._clip_length[clip] - 1}
-        return info, self._ref_q[frame], self._ref_dq[frame]
+        q0 = self._ref_q[frame]
+        info = {
+            "clip": clip,
+            "frame": frame,
+            "last_frame": start + self._clip_length[clip] - 1,
+            "act_prev": self.initial_action(q0),  # a_{t-2} of the first step: the filter's start state
+        }
+        return info, q0, self._ref_dq[frame]
 
     def reset_at(
         self, rng: jax.Array, clip: jax.Array, phase: jax.Array, model: mjx.Model | None = None
@@ -195,6 +202,7 @@ class LiteTrack(LiteRobotEnv):
             "body_ori": rewards.body_ori_tracking(rot, ori_ref, rc.body_ori_std),
             "fingertip_pos": rewards.body_pos_tracking(tips, self._ref_tip[frame], rc.fingertip_std),
             "action_rate": rewards.action_rate(tr.action, info["last_act"]),
+            "action_accel": rewards.action_accel(tr.action, info["last_act"], info["act_prev"]),
             "torque": rewards.torque(tr.tau_sq),
             "torque_near_cap": tr.near_cap,
         }
@@ -212,7 +220,12 @@ class LiteTrack(LiteRobotEnv):
             "lost": (lost & ok).astype(jnp.float32),
             "tracked": ok.astype(jnp.float32),
         }
-        task_info = {"clip": info["clip"], "frame": frame, "last_frame": info["last_frame"]}
+        task_info = {
+            "clip": info["clip"],
+            "frame": frame,
+            "last_frame": info["last_frame"],
+            "act_prev": info["last_act"],
+        }
         return TaskStep(terms=terms, info=task_info, metrics=metrics, terminate=lost)
 
     def task_obs(self, model: mjx.Model, data: mjx.Data, q_meas: jax.Array, info: dict) -> dict:

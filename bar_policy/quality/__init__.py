@@ -4,7 +4,16 @@ Completion, torque caps, joint limits, action rate and chatter are defined once 
 ``bar-deploy`` and the benches (numpy or jax, never torch).
 """
 
-from bar_policy.quality.gate import GATES, GateThresholds, Miss, check, gate_for, score, thresholds_text
+from bar_policy.quality.gate import (
+    GATES,
+    GateThresholds,
+    Miss,
+    check,
+    excess,
+    gate_for,
+    score,
+    thresholds_text,
+)
 from bar_policy.quality.metrics import (
     CAP_DWELL_S,
     CAP_FRACTION,
@@ -36,6 +45,7 @@ __all__ = [
     "chatter_mrad",
     "check",
     "dwell_exceeded",
+    "excess",
     "gate_for",
     "highpass_rms",
     "near_limit",

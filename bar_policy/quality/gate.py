@@ -5,7 +5,8 @@ A held-out report is a dict with the ``summarise`` figures of ``bar_policy.quali
 them chatter is judged on the summary's worst episode, as the MJX evaluation reports it), and the task's
 accuracy figures at the top level (``joint_error_rad``, ``fingertip_error_cm`` for tracking,
 ``success_pct`` for reach). ``check`` lists every miss, each naming the metric, its value and the threshold;
-``train/ship.py`` refuses a file with any, and the trainer ranks iterates with ``score``.
+``train/ship.py`` refuses a file with any, and the trainer ranks iterates with ``score`` (by ``excess``: how
+far beyond the thresholds, summed).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from typing import Any
 
-__all__ = ["GATES", "GateThresholds", "Miss", "check", "gate_for", "score", "thresholds_text"]
+__all__ = ["GATES", "GateThresholds", "Miss", "check", "excess", "gate_for", "score", "thresholds_text"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -131,31 +132,50 @@ def check(task: str, report: Mapping[str, Any]) -> list[Miss]:
     return out
 
 
-def score(task: str, report: Mapping[str, Any]) -> tuple[float, ...]:
-    """Rank of a held-out evaluation (higher is better): safety misses, then accuracy misses, then accuracy.
+def excess(task: str, report: Mapping[str, Any]) -> float:
+    """How far ``report`` is from the gate: the sum over thresholds of the relative excess, 0 when it passes.
 
-    ``(-safety thresholds missed, -accuracy thresholds missed, accuracy, -cap share %, -worst chatter)``
-    compared lexicographically (chatter on several episodes is one threshold missed). So an iterate that
-    faults or chatters never beats one that does not, and among equally safe ones the more accurate wins;
-    accuracy is ``success %`` (reach) or ``-joint error`` (tracking). NaN counts as worst.
+    For a bound ``value <= limit``: ``max(0, value / limit - 1)``; for ``value >= limit``:
+    ``max(0, 1 - value / limit)``; chatter counts on the worst episode; a figure not measured counts 1. So
+    twice the allowed cap share adds 1, a fingertip error of 1.5 cm against 1 cm adds 0.5, 98 % completion
+    adds 0.02.
     """
+    g = gate_for(task)
     q = report.get("quality") or {}
-    misses = check(task, report)
-    safety = {m.metric for m in misses if m.safety}
-    accuracy = {m.metric for m in misses if not m.safety}
-
-    def val(x: Any, worst: float) -> float:
-        return worst if _bad(x) else float(x)
-
-    acc = (
-        val(report.get("success_pct"), -math.inf)
-        if gate_for(task).min_success_pct is not None
-        else -val(report.get("joint_error_rad"), math.inf)
+    eps = report.get("episodes") or []
+    chatter = (
+        max((e.get("chatter_mrad") or 0.0 for e in eps), default=None) if eps else q.get("chatter_max_mrad")
     )
-    return (
-        -float(len(safety)),
-        -float(len(accuracy)),
-        acc,
-        -val(q.get("cap_share_pct"), math.inf),
-        -val(q.get("chatter_max_mrad"), math.inf),
-    )
+    pairs = [
+        (q.get("completion_pct"), g.min_completion_pct, False),
+        (q.get("cap_share_pct"), g.max_cap_share_pct, True),
+        (chatter, g.max_chatter_mrad, True),
+        (report.get("joint_error_rad"), g.max_joint_error_rad, True),
+        (report.get("fingertip_error_cm"), g.max_fingertip_error_cm, True),
+        (report.get("success_pct"), g.min_success_pct, False),
+    ]
+    total = 0.0
+    for value, limit, upper in pairs:
+        if limit is None:
+            continue
+        if _bad(value):
+            total += 1.0
+        elif upper:
+            total += max(0.0, float(value) / limit - 1.0)
+        else:
+            total += max(0.0, 1.0 - float(value) / limit)
+    return total
+
+
+def score(task: str, report: Mapping[str, Any]) -> tuple[float, ...]:
+    """Rank of a held-out evaluation (higher is better): ``(-excess, accuracy)``.
+
+    ``excess`` (0 for a report that passes the gate) weighs safety and accuracy thresholds alike, each by how
+    far beyond it the figure is, so an early iterate that barely moves (no chatter, no accuracy) does not
+    beat a later one that tracks well and chatters a little; among reports that pass, the more accurate
+    wins: accuracy is ``success %`` (reach) or ``-joint error`` (tracking). NaN counts as worst.
+    """
+    acc_key = "success_pct" if gate_for(task).min_success_pct is not None else "joint_error_rad"
+    value = report.get(acc_key)
+    acc = -math.inf if _bad(value) else (float(value) if acc_key == "success_pct" else -float(value))
+    return (-excess(task, report), acc)

@@ -7,8 +7,9 @@ the end, when that iterate is not the last one, evaluates it again on the final 
 exports it as ``<policy>_best.onnx`` next to ``policy.onnx``.
 
 Order: when the evaluation measured safety and smoothness (the MJX evaluation's ``quality/*`` figures, on
-held-out data), the ship gate's ``score`` (``bar_policy.quality.gate``): fewer safety thresholds missed
-(completion, torque caps, chatter), then fewer accuracy thresholds missed, then accuracy. Otherwise (an
+held-out data), the ship gate's ``score`` (``bar_policy.quality.gate``): the least total excess beyond the
+gate's thresholds (completion, torque caps, chatter, tracking errors, each relative to its threshold), then
+accuracy. Otherwise (an
 evaluation without them) a higher ``success_rate`` wins, then a higher ``episode_reward`` (ties at 100 %
 success are common on reach). Only parameters trained in this run count: the evaluation at step 0
 (untrained parameters) and evaluations before a resume are not candidates.
@@ -172,8 +173,8 @@ def finish_best(
             "env_steps": best.step,
             "final_eval": final,
             "iterate": "best",
-            "selected_by": "the ship gate's score of the held-out evaluations during training (safety "
-            "misses, accuracy misses, accuracy), or success rate then reward without quality figures",
+            "selected_by": "the ship gate's score of the held-out evaluations during training (least "
+            "excess beyond the thresholds, then accuracy), or success rate then reward without them",
             "eval_during_training": best.metrics,
         }
         record["onnx"] = str(path)

@@ -158,3 +158,9 @@ def test_body_ori_tracking_hand_value():
     six = ref[:, :, :2].reshape(2, 6)
     got = rewards.body_ori_tracking(jnp.asarray(rot), jnp.asarray(six), 0.3)
     assert float(got) == pytest.approx(math.exp(-0.5), rel=1e-4)
+
+
+def test_action_accel_hand_value():
+    # Second differences per joint: 0.3 - 2 * 0.1 + 0.0 = 0.1 and -0.2 - 2 * 0.0 + 0.4 = 0.2: 0.01 + 0.04.
+    got = rewards.action_accel(jnp.array([0.3, -0.2]), jnp.array([0.1, 0.0]), jnp.array([0.0, 0.4]))
+    assert float(got) == pytest.approx(0.05, rel=1e-6)

@@ -90,7 +90,8 @@ def test_step_rewards_and_metrics_wiring(track_env, track_fns):
     qpos = np.asarray(s1.data.qpos, np.float64)
     q_ref = ref.joint_pos[f].astype(np.float64)
     terms = {k: float(v) for k, v in s1.metrics.items() if k.startswith("reward/")}
-    names = ("joint_pos", "body_pos", "body_ori", "fingertip_pos", "action_rate", "torque", "torque_near_cap")
+    names = ("joint_pos", "body_pos", "body_ori", "fingertip_pos", "action_rate", "action_accel", "torque",
+             "torque_near_cap")  # fmt: skip
     assert set(terms) == {f"reward/{n}" for n in names}
     assert float(s1.reward) == pytest.approx(sum(terms.values()), rel=1e-5, abs=1e-6)
     # joint_pos = exp(-mean (q - q_ref)^2 / 0.15^2), weight 1; errors against the frame the step arrives at.
@@ -112,6 +113,9 @@ def test_step_rewards_and_metrics_wiring(track_env, track_fns):
     a0 = np.asarray(s.info["last_act"], np.float64)
     want = -0.1 * np.sum((0.395077 * a0) ** 2)
     assert terms["reward/action_rate"] == pytest.approx(want, rel=1e-4, abs=1e-7)
+    # action_accel: the reset sets a_{t-2} = a_{t-1} = a0, so the second difference is the first one:
+    # -0.2 * sum((alpha a0)^2).
+    assert terms["reward/action_accel"] == pytest.approx(2 * want, rel=1e-4, abs=1e-7)
     want = float(np.mean(np.abs(qpos - q_ref)) <= 0.05 and tip_err <= 0.02)
     assert float(s1.metrics["success"]) == want
     assert float(s1.metrics["tracked"]) == 1.0 and float(s1.done) == 0.0 and float(s1.metrics["lost"]) == 0.0

@@ -14,12 +14,17 @@ from brax.training.agents.ppo import networks as ppo_networks
 
 from bar_policy.deploy.policy import PolicyLoadError, load_policy
 from bar_policy.export import (
+    PARITY_TOLERANCE,
     ParityError,
+    _run_onnx,
     brax_policy_reference,
     build_onnx_model,
+    check_parity,
     export_brax_policy,
     export_policy,
     mlp_policy_from_brax,
+    parity_observations,
+    parity_sigmas,
 )
 from bar_policy.training.brax_ppo import make_networks
 from bar_policy.training.config import NetworkConfig
@@ -121,3 +126,27 @@ def test_deploy_refuses_a_corrupted_file(brax_params, metadata, tmp_path):
     truncated.write_bytes(data[: len(data) // 2])
     with pytest.raises(PolicyLoadError, match="corrupted or truncated"):
         load_policy(truncated)
+
+
+def test_parity_tolerance_grows_with_the_rows_sigma(brax_params, metadata):
+    """A row at k sigma may differ by k * 1e-5 (rounding grows with the inputs' size): an offset of 5e-5
+    passes on an 8-sigma row and is refused on a 1-sigma row, with the row and its tolerance named."""
+    params, _ = brax_params
+    policy = mlp_policy_from_brax(params, 14)
+    data = build_onnx_model(policy, metadata.to_props()).SerializeToString()
+    obs = parity_observations(policy, 8, seed=3)
+    k = parity_sigmas(8)
+    np.testing.assert_array_equal(k, [1, 1, 1, 1, 4, 4, 8, 8])
+    exact = _run_onnx(data, obs)
+
+    def shifted(row: int):
+        def fn(o):
+            out = exact.copy()
+            out[row] += 5e-5
+            return out
+
+        return fn
+
+    assert check_parity(data, shifted(7), obs, PARITY_TOLERANCE, k) == pytest.approx(5e-5, rel=1e-3)
+    with pytest.raises(ParityError, match=r"by 5e-05 \(> 1e-05\) on row 0 of 8 observations"):
+        check_parity(data, shifted(0), obs, PARITY_TOLERANCE, k)
