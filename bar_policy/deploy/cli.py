@@ -292,6 +292,7 @@ def _run_session(args: argparse.Namespace, argv: Sequence[str], real: object, st
         f"{args.target}, commands {commands.describe()}"
     )
     from bar_policy.deploy.log import LogDirError
+    from bar_policy.quality.report import run_quality_line
 
     try:
         try:
@@ -322,6 +323,7 @@ def _run_session(args: argparse.Namespace, argv: Sequence[str], real: object, st
         f"end: {result.end_reason}; final mode {result.final_mode.name}; "
         f"q_cmd clipped {result.clip_count} joint-ticks; safe stop: {result.safe_stop}"
     )
+    print(run_quality_line(result.quality))
     for tr in result.transitions:
         print(f"  t={tr['t']:.3f} s  {tr['from']} -> {tr['to']}: {tr['reason']}")
     if result.log_path is not None:

@@ -81,4 +81,6 @@ class RunResult:
     """Outcome of ``target.safe_stop``: ``"ok"`` or the error it raised."""
     completed: bool = False
     """True when the run ended because the commands finished (a motion clip played to its end)."""
+    quality: dict[str, Any] = field(default_factory=dict)
+    """Safety and smoothness of the POLICY ticks: ``{"episode": EpisodeQuality dict, "summary": ...}``."""
     extras: dict[str, Any] = field(default_factory=dict)

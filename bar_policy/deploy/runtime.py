@@ -4,10 +4,13 @@ Each tick: read the target's state, check it (safety), fetch the task's command 
 source (``deploy.tasks``: reach targets, a motion reference, ...), build the observation with the frozen
 ``ObservationManager`` (the state terms from ``deploy.inputs``: joint_pos / joint_vel from the measured
 state, ``actions`` = the previous raw policy output, fingertips by forward kinematics of the measured q when
-the layout has them), run the policy in POLICY mode, clip the raw action to ``+-policy.action_clip`` (as
-the env does; counted), turn it into ``q_cmd = default + action_scale * action`` (clipped to the joint
-limits and counted by the supervisor), check the torque demand, write the command, record the tick. The
-``actions`` observation term is the previous clipped action, as in the env.
+the layout has them), run the policy in POLICY mode, clip the raw action to ``+-policy.action_clip`` and
+low-pass it when the file has an action filter (``deploy.action_path``: the env's code, counted), turn it
+into ``q_cmd = default + action_scale * action`` (clipped to the joint limits and counted by the
+supervisor), check the torque demand, write the command, record the tick. The ``actions`` observation term
+is the previous applied action, as in the env. Every POLICY tick also feeds the run's safety and
+smoothness record (``bar_policy.quality``: torque caps, joint limits, action rate, chatter of ``q_cmd``
+minus the reference the source targets, or of ``q_cmd`` itself), in ``RunResult.quality`` and the log.
 
 Scheduling (``timing.Pacer``) uses absolute deadlines ``t0 + k * dt`` (no drift): an asynchronous target
 (mock, real bus) is paced against the wall clock, with overruns counted and missed deadlines skipped; a
@@ -46,6 +49,7 @@ from typing import Any
 
 import numpy as np
 
+from bar_policy.deploy.action_path import ActionPath
 from bar_policy.deploy.inputs import StateInputs
 from bar_policy.deploy.log import RunLog, log_fields
 from bar_policy.deploy.policy import OnnxPolicy
@@ -55,6 +59,7 @@ from bar_policy.deploy.signals import StopSignals
 from bar_policy.deploy.targets.base import JointState, Target, run_metadata_of
 from bar_policy.deploy.tasks.base import CommandSource
 from bar_policy.deploy.timing import Pacer, RealtimePriority, TimingStats, sleep_until
+from bar_policy.quality import QualityMeter, summarise
 from bar_policy.robot.kinematics import Kinematics
 from bar_policy.robot.mit import mit_torque
 
@@ -131,10 +136,12 @@ class Runtime:
         self.log_meta = dict(log_meta or {})
         self.log_name = log_name
         self.on_tick = on_tick
-        self.last_action = np.zeros(policy.n_actions, dtype=np.float32)
-        self.action_clip_count = 0
-        """Action entries clipped to ``+-policy.action_clip`` over the run."""
-        self._action_clip_warned = False
+        self.actions = ActionPath(policy)
+        """The clip and the action filter; ``actions.last`` is the observation's ``actions`` term."""
+        self.quality = QualityMeter(
+            robot.torque_cap, robot.lower, robot.upper, self.config.control_dt, robot.joint_names
+        )
+        """Safety and smoothness of the POLICY ticks (``bar_policy.quality``)."""
         self.last_state: JointState | None = None
         self.last_commands: dict[str, np.ndarray] = {}
         self._end_t: float | None = None
@@ -150,6 +157,16 @@ class Runtime:
         self._runlog: RunLog | None = None
         self._transitions_logged = 0
         self.log_path: Path | None = None
+
+    @property
+    def last_action(self) -> np.ndarray:
+        """The last applied action (the observation's ``actions`` term), float32 (n_actions,)."""
+        return self.actions.last
+
+    @property
+    def action_clip_count(self) -> int:
+        """Action entries clipped to ``+-policy.action_clip`` over the run."""
+        return self.actions.clip_count
 
     # -- helpers -------------------------------------------------------------------------------------
     def _fault(self, kind: str, detail: str, t: float) -> None:
@@ -273,13 +290,14 @@ class Runtime:
             if bad is not None:
                 self._fault(*bad, t)
             else:
-                used = self._clip_action(action, t)
-                n_action_clipped = int(np.count_nonzero(used != action))
+                used, n_action_clipped = self.actions(action, t)
                 q_policy = self.policy.q_command(used)
-                self.last_action = used
         cmd = sf.command(t, q_policy)
         sat = sf.check_torque(cmd, state, self.config.control_dt)
         demand = sf.last_demand
+        if q_policy is not None:
+            ref = self.commands.target_q()
+            self.quality.update(demand, state.q, self.actions.last, cmd.q if ref is None else cmd.q - ref)
         if sat is not None:
             self._fault(*sat, t)
             cmd = sf.command(t, q_policy)
@@ -307,31 +325,17 @@ class Runtime:
             **self.commands.record(),
         }
 
-    def _clip_action(self, action: np.ndarray, t: float) -> np.ndarray:
-        """``clip(action, -c, c)`` with c = ``policy.action_clip`` (float32); clipped entries are counted."""
-        c = self.policy.action_clip
-        if c is None:
-            return action
-        used = np.minimum(np.maximum(action, np.float32(-c)), np.float32(c))
-        if (used != action).any():
-            n = int(np.count_nonzero(used != action))
-            self.action_clip_count += n
-            if not self._action_clip_warned:
-                self._action_clip_warned = True
-                log.warning(
-                    "policy action outside +-%g at t=%.3f s (indices %s); clipped as in training "
-                    "(further ones counted)",
-                    c,
-                    t,
-                    np.flatnonzero(used != action).tolist(),
-                )
-        return used
-
     def _start_policy(self, reason: str, t: float) -> None:
-        """Enter POLICY at ``t``: the previous action is reset and the source's phase 0 begins."""
+        """Enter POLICY at ``t``: the filter starts at the HOLD target's action; the phase 0 begins."""
         self.safety.transition(Mode.POLICY, reason, t)
-        self.last_action[:] = 0.0
+        self.actions.start(self.hold_pose)
         self.commands.begin(t)
+
+    def quality_record(self) -> dict[str, Any]:
+        """The run's POLICY ticks as one episode (``EpisodeQuality``) with its summary figures."""
+        fault = self._end_reason if self.safety.fault_count and not self._stop_reason else ""
+        rec = self.quality.finish(self.log_name, fault)
+        return {"episode": rec.to_dict(), "summary": summarise([rec]) if rec.ticks else {}}
 
     # -- the loop ------------------------------------------------------------------------------------
     def run(self, stop: StopSignals | None = None) -> RunResult:
@@ -455,6 +459,7 @@ class Runtime:
                         fault_count=self.safety.fault_count,
                         command_outside_workspace=self.commands.outside_count,
                         completed=self.completed,
+                        quality=self.quality_record(),
                     )
                 except Exception:
                     log.exception("could not write the run log in %s", runlog.path)
@@ -475,6 +480,7 @@ class Runtime:
             stop_reason=self._stop_reason,
             safe_stop=safe_stop,
             completed=self.completed,
+            quality=self.quality_record(),
         )
 
     def _safe_end(self, reason: str, t: float) -> str:

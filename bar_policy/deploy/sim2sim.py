@@ -26,7 +26,7 @@ evaluation of the nominal config.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -37,6 +37,8 @@ from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import SafetyConfig
 from bar_policy.deploy.targets.sim import SimConfig, SimTarget, training_damping
 from bar_policy.deploy.tasks.base import EvalReport
+from bar_policy.quality import EpisodeQuality, summarise
+from bar_policy.quality.report import quality_summary_line
 from bar_policy.robot.kinematics import Kinematics
 from bar_policy.tasks.reach import SUCCESS_RADIUS
 
@@ -88,6 +90,8 @@ class EpisodeResult:
     """Right fingertip-to-target distance at each segment end, m."""
     faulted: bool
     end_reason: str
+    quality: dict[str, Any] = field(default_factory=dict)
+    """The episode's safety and smoothness (``EpisodeQuality.to_dict``)."""
 
 
 @dataclass(frozen=True)
@@ -127,6 +131,17 @@ class EvalResult(EvalReport):
             "success_rate": self.success_rate,
             "wilson95": [lo, hi],
             "episodes": [asdict(e) for e in self.episodes],
+            "gate_report": self.gate_report(),
+        }
+
+    def gate_report(self) -> dict[str, Any]:
+        """Success % of the segments, and the episodes' safety and smoothness (the ship gate's input)."""
+        records = [EpisodeQuality.from_dict(e.quality) for e in self.episodes if e.quality]
+        return {
+            "task": "reach",
+            "quality": summarise(records),
+            "episodes": [r.to_dict() for r in records],
+            "success_pct": 100.0 * self.success_rate,
         }
 
     def format(self) -> str:
@@ -147,6 +162,8 @@ class EvalResult(EvalReport):
                 f"(95 % CI {lo * 100:.1f}-{hi * 100:.1f} %), faults {sum(e.faulted for e in self.episodes)}",
                 f"segment-end distance left median {np.median(dl) * 100:.1f} cm, "
                 f"right median {np.median(dr) * 100:.1f} cm",
+                quality_summary_line(self.gate_report()["quality"]),
+                *self.gate_lines(),
             ]
         )
 
@@ -205,6 +222,7 @@ def evaluate(
                 dist_right=[d[1] for d in dists],
                 faulted=faulted,
                 end_reason=res.end_reason,
+                quality={**res.quality["episode"], "name": f"episode-{seed}"},
             )
         )
     return EvalResult(

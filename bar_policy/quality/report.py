@@ -25,7 +25,7 @@ import numpy as np
 
 from bar_policy.quality import metrics as qm
 
-__all__ = ["EpisodeQuality", "QualityMeter", "summarise"]
+__all__ = ["EpisodeQuality", "QualityMeter", "quality_summary_line", "run_quality_line", "summarise"]
 
 
 @dataclass(frozen=True)
@@ -149,3 +149,30 @@ def summarise(episodes: Sequence[EpisodeQuality]) -> dict[str, Any]:
         "chatter_worst_episode": worst.name if worst is not None else "",
         "chatter_unmeasured": n - len(measured),
     }
+
+
+def run_quality_line(quality: dict[str, Any]) -> str:
+    """One line of a run's safety and smoothness (``RunResult.quality``: its episode and summary)."""
+    ep, q = quality.get("episode") or {}, quality.get("summary") or {}
+    if not q:
+        return "quality: no POLICY tick"
+    chatter = ep.get("chatter_mrad")
+    ended = "ended by a fault" if ep.get("faulted") else "completed"
+    text = "n/a (too short)" if chatter is None else f"{chatter:.2f} mrad ({ep.get('chatter_joint')})"
+    return (
+        f"quality over {q['ticks']} POLICY ticks: {ended}; at a torque cap {q['cap_share_pct']:.2f} % of "
+        f"ticks; near a joint limit {q['limit_share_pct']:.2f} %; action rate {q['action_rate']:.3g}; "
+        f"chatter {text}"
+    )
+
+
+def quality_summary_line(q: dict[str, Any]) -> str:
+    """One line of ``summarise`` figures over several episodes (``bar-deploy eval``)."""
+    if not q.get("episodes"):
+        return "quality: no episode"
+    worst = f" ({q['chatter_worst_episode']})" if q.get("chatter_worst_episode") else ""
+    return (
+        f"quality: {q['completed']}/{q['episodes']} completed; at a torque cap {q['cap_share_pct']:.2f} % "
+        f"of ticks; near a joint limit {q['limit_share_pct']:.2f} %; action rate {q['action_rate']:.3g}; "
+        f"chatter mean {q['chatter_mean_mrad']:.2f} mrad, worst {q['chatter_max_mrad']:.2f} mrad{worst}"
+    )

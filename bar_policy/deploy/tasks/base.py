@@ -78,6 +78,13 @@ class CommandSource(abc.ABC):
     def begin(self, t: float) -> None:  # noqa: B027 - optional hook
         """POLICY starts at run time ``t`` (s): the commands' phase 0."""
 
+    def target_q(self) -> np.ndarray | None:
+        """Joint positions the last call's command targets, rad (canonical order); None: no reference.
+
+        Chatter is measured on ``q_cmd`` minus it (tracking), or on ``q_cmd`` itself when it is None.
+        """
+        return None
+
     def finished(self, t: float) -> str | None:
         """Why the commands are over at run time ``t`` (a completed run), or None while they last."""
         return None
@@ -100,7 +107,23 @@ class EvalReport(abc.ABC):
 
     @abc.abstractmethod
     def to_dict(self) -> dict[str, Any]:
-        """JSON form."""
+        """JSON form (with ``gate_report()`` under ``"gate_report"``)."""
+
+    @abc.abstractmethod
+    def gate_report(self) -> dict[str, Any]:
+        """The held-out report the ship gate reads (``bar_policy.quality.gate``).
+
+        ``{"task", "quality", "episodes", <the task's accuracy figures>}``.
+        """
+
+    def gate_lines(self) -> list[str]:
+        """The gate's thresholds, then PASS or one line per miss."""
+        from bar_policy.quality import check, thresholds_text
+
+        rep = self.gate_report()
+        misses = check(rep["task"], rep)
+        verdict = ["gate: PASS"] if not misses else [f"gate: MISS {m}" for m in misses]
+        return [thresholds_text(rep["task"]), *verdict]
 
 
 class DeployTask(abc.ABC):

@@ -156,6 +156,10 @@ class MotionReference(CommandSource):
         """Phase 0 at run time ``t`` (the first POLICY tick)."""
         self._t0 = t
 
+    def target_q(self) -> np.ndarray:
+        """The frame the current tick's command targets, ``min(f + 1, last)`` (the env's), rad."""
+        return self.table.joint_pos[min(self._frame + 1, self.last)].astype(np.float64)
+
     def finished(self, t: float) -> str | None:
         """The completion reason once the phase reaches the last frame (+ ``tail_s``), else None."""
         if self._t0 is None or self.phase(t) < self.last + self.tail_ticks:

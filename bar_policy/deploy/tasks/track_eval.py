@@ -38,6 +38,9 @@ from bar_policy.deploy.tasks.base import EvalReport
 from bar_policy.deploy.tasks.track import load_motion, reference_for
 from bar_policy.motion.clip import Clip
 from bar_policy.motion.library import CLIP_SETS, clip_set, clip_set_id
+from bar_policy.quality import EpisodeQuality
+from bar_policy.quality import summarise as summarise_quality
+from bar_policy.quality.report import quality_summary_line
 from bar_policy.robot.constants import FINGERTIP_SITES
 from bar_policy.robot.kinematics import Kinematics
 from bar_policy.tasks.track import LOST_DISTANCE, SUCCESS_FINGERTIP_M, SUCCESS_JOINT_RAD, ReferenceTable
@@ -90,6 +93,8 @@ class ClipResult:
     cap_dwell: str = ""
     """A target that does not stop on a fault (the MJX env): when a joint's torque demand first stayed at
     its cap longer than the supervisor allows, and which joints; empty when it never did."""
+    quality: dict[str, Any] = field(default_factory=dict)
+    """The clip's safety and smoothness (``EpisodeQuality.to_dict``; empty when not measured)."""
 
     def mean(self, key: str) -> float:
         """Mean of a metric over the clip's steps."""
@@ -147,17 +152,29 @@ class TrackEvalResult(EvalReport):
             f"tracking ({self.target}) policy {self.policy} [{self.fingerprint}]",
             f"clips {self.clip_set}: {len(self.clips)} clips, each from its first frame to its last, then "
             f"{self.hold_s:g} s holding it",
-            "{:<26}{:>7}{:>11}{:>9}{:>8}{:>11}{:>6}{:>7}".format(
-                "clip", "steps", "joint rad", "body cm", "tip cm", "success %", "lost", "fault"
+            "{:<26}{:>7}{:>11}{:>9}{:>8}{:>11}{:>6}{:>7}{:>8}{:>9}".format(
+                "clip",
+                "steps",
+                "joint rad",
+                "body cm",
+                "tip cm",
+                "success %",
+                "lost",
+                "fault",
+                "cap %",
+                "chatter",
             ),
         ]
         row = "{:<26}{:>7}{:>11.4f}{:>9.2f}{:>8.2f}{:>11.1f}{:>6}{:>7}"
         for r in self.clips:
+            q = r.quality
+            cap = f"{100 * q['cap_ticks'] / max(q['ticks'], 1):>8.2f}" if q else f"{'':>8}"
+            chatter = q.get("chatter_mrad") if q else None
             lines.append(row.format(
                 r.clip, r.steps, r.mean("joint_error"), 100 * r.mean("body_pos_error"),
                 100 * r.mean("fingertip_error"), 100 * r.mean("success"), int(r.sums["lost"]),
                 "yes" if r.faulted else "",
-            ))  # fmt: skip
+            ) + cap + (f"{'':>9}" if chatter is None else f"{chatter:>9.2f}"))  # fmt: skip
         for g in groups(self.clips):
             lines.append(row.format(
                 "= " + g["group"], g["steps"], g["joint_error_rad"], g["body_pos_error_cm"],
@@ -171,9 +188,25 @@ class TrackEvalResult(EvalReport):
         lines.append(
             f"mean joint error {s['joint_error_rad']:.4f} rad, tracked-body position error "
             f"{s['body_pos_error_cm']:.2f} cm, fingertip error {s['fingertip_error_cm']:.2f} cm "
-            f"(targets: <= {SUCCESS_JOINT_RAD} rad, <= {100 * SUCCESS_FINGERTIP_M:g} cm)"
+            f"(per-step success: <= {SUCCESS_JOINT_RAD} rad and <= {100 * SUCCESS_FINGERTIP_M:g} cm)"
         )
+        if any(r.quality for r in self.clips):
+            lines += [quality_summary_line(self.gate_report()["quality"]), *self.gate_lines()]
         return "\n".join(lines)
+
+    def gate_report(self) -> dict[str, Any]:
+        """Frame-weighted tracking errors and the clips' safety and smoothness (the ship gate's input)."""
+        records = [EpisodeQuality.from_dict(r.quality) for r in self.clips if r.quality]
+        s = self.summary
+        return {
+            "task": "track",
+            "clip_set": self.clip_set,
+            "target": self.target,
+            "quality": summarise_quality(records),
+            "episodes": [r.to_dict() for r in records],
+            "joint_error_rad": s["joint_error_rad"],
+            "fingertip_error_cm": s["fingertip_error_cm"],
+        }
 
     def to_dict(self) -> dict[str, Any]:
         """JSON form."""
@@ -185,6 +218,7 @@ class TrackEvalResult(EvalReport):
             "hold_s": self.hold_s,
             "groups": groups(self.clips),
             "clips": [asdict(r) for r in self.clips],
+            "gate_report": self.gate_report(),
         }
 
 
@@ -259,7 +293,8 @@ def evaluate_track(
             safety=dataclasses.replace(safety or SafetyConfig(), ramp_time=0.0),
         )
         res = Runtime(policy, sim, ref, cfg, kinematics=kin, on_tick=meter).run()
-        result = ClipResult(clip.name, steps[0], sums, res.fault_count > 0, res.end_reason)
+        quality = {**res.quality["episode"], "name": clip.name}
+        result = ClipResult(clip.name, steps[0], sums, res.fault_count > 0, res.end_reason, quality=quality)
         results.append(result)
         if on_clip is not None:
             on_clip(result)
