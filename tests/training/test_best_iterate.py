@@ -12,7 +12,16 @@ import onnxruntime as ort
 import pytest
 
 from bar_policy.deploy.metadata import PolicyMetadata
-from bar_policy.training.best import BestIterate, BestKeeper, best_onnx_path, finish_best, is_better, score
+from bar_policy.quality.gate import excess
+from bar_policy.training.best import (
+    BestIterate,
+    BestKeeper,
+    best_onnx_path,
+    finish_best,
+    held_out_report,
+    is_better,
+    score,
+)
 
 
 def _ev(success: float, reward: float) -> dict[str, float]:
@@ -51,9 +60,17 @@ def test_best_onnx_path_sits_next_to_the_policy(tmp_path):
 
 
 def _expected_best_step(evals: list[dict], first_step: int) -> int:
+    """The documented order: with quality figures (brax's evaluation), the least total excess beyond the
+    reach gate (quality.gate.excess, tested by hand in tests/quality), then success; without them (rsl-rl's
+    evaluation), success then reward. The first of equal ones."""
     cands = [e for e in evals if e["step"] > first_step]
-    top = max(cands, key=lambda e: (e["success_rate"], e["episode_reward"]))  # first of equal ones
-    return top["step"]
+
+    def key(e: dict) -> tuple:
+        if "quality/completion_pct" in e:
+            return (-excess("reach", held_out_report(e)), 100 * e["success_rate"])
+        return (e["success_rate"], e["episode_reward"])
+
+    return max(cands, key=key)["step"]
 
 
 @pytest.mark.slow
