@@ -181,10 +181,12 @@ def make_programs(
     randomizer: Callable[..., Any] | None,
     iters_per_epoch: int,
     eval_env: Any | None = None,
+    eval_randomizer: Callable[..., Any] | None = None,
 ) -> Programs:
     """The run's ``init``, ``reset``, ``epoch`` and ``evaluate`` programs on the mesh of ``dp``.
 
-    ``eval_env``: the env the evaluation runs (the task's held-out variant; default ``env``).
+    ``eval_env``: the env the evaluation runs (the task's held-out variant) with ``eval_randomizer``;
+    None: ``env`` with ``randomizer``.
     """
     ppo = cfg.ppo
     n = dp.n_devices
@@ -219,7 +221,8 @@ def make_programs(
 
     def evaluate(params: Any, key: jax.Array, model_key: jax.Array) -> dict[str, jax.Array]:
         keys = slot_keys(model_key, cfg.eval.num_eval_envs, eval_local)
-        env_e = slot_env(eval_env or env, wrap_fn, randomizer, keys, auto_reset=False)
+        e_env, e_rand = (env, randomizer) if eval_env is None else (eval_env, eval_randomizer)
+        env_e = slot_env(e_env, wrap_fn, e_rand, keys, auto_reset=False)
         state = env_e.reset(slot_keys(key, cfg.eval.num_eval_envs, eval_local))
         return learner.evaluate(params, env_e, state, key, episode_length)
 
@@ -253,6 +256,7 @@ def train_brax(
     config_record: dict[str, Any] | None = None,
     timer: StartupTimer | None = None,
     eval_env: Any | None = None,
+    eval_randomizer: Callable[..., Any] | None = None,
 ) -> BraxTrainResult:
     """Train with brax PPO pieces on every device; see the module docstring.
 
@@ -265,8 +269,9 @@ def train_brax(
         checkpoint_dir: where checkpoints go (None: no checkpoints).
         config_record: JSON record stored in checkpoint sidecars.
         timer: start-up breakdown to add the compile phases to (printed after the first epoch).
-        eval_env: the env every evaluation runs (the task's held-out variant, ``evaluation_env()``;
-            default ``env``).
+        eval_env: the env every evaluation runs (the task's held-out variant, ``evaluation_env()``) with
+            ``eval_randomizer``; None: ``env`` with ``randomizer``.
+        eval_randomizer: the model randomiser of ``eval_env`` (None: its nominal model).
 
     Returns:
         The trained params and a record of the run.
@@ -288,7 +293,9 @@ def train_brax(
     iters_per_epoch = epoch_iterations(cfg)
 
     learner = make_learner(env.observation_size, env.action_size, ppo, cfg.network)
-    programs = make_programs(env, cfg, learner, dp, wrap_fn, randomizer, iters_per_epoch, eval_env)
+    programs = make_programs(
+        env, cfg, learner, dp, wrap_fn, randomizer, iters_per_epoch, eval_env, eval_randomizer
+    )
     seed = cfg.seed
 
     # Trace each program here and compile it on a worker thread. The reset goes first (its outputs are the

@@ -212,7 +212,10 @@ def run(
         with _local_default_devices():
             env = envs.load(cfg.env_name, config=env_config, overrides=list(cfg.env_overrides) or None)
         randomizer = envs.get_randomizer(cfg.env_name, env.config)
-    eval_env = env.evaluation_env() if hasattr(env, "evaluation_env") else env
+    # The task's evaluation env (LiteTrack: held-out clips, nominal physics, as the ship gate's sim target);
+    # a distinct one is evaluated without model randomisation.
+    eval_env = env.evaluation_env() if hasattr(env, "evaluation_env") else None
+    eval_env = None if eval_env is env else eval_env
     is_main = jax.process_index() == 0
     run_dir = resolve_run_dir(cfg, check=is_main)
     timer.add("env build and devices", time.monotonic() - t_env)
@@ -257,6 +260,7 @@ def run(
             config_record=record,
             timer=timer,
             eval_env=eval_env,
+            eval_randomizer=None,
         )
     else:
         result = train_rsl_rl(
