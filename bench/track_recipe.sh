@@ -9,6 +9,7 @@
 #                                          learning rate, without the near-cap term, TF32 products
 #   bash bench/track_recipe.sh train SEED (~9.5 min) `--preset track --seed SEED` alone on the GPU: the
 #                                          figure of record (10 min on one H100, compile included)
+#                                          (EXTRA="--env-overrides k=v ..." adds arguments: a candidate)
 #   bash bench/track_recipe.sh smoke      CPU check of the script with tiny sizes
 #
 # $OUT gets runs.tgz (each run's config, metrics.jsonl, final_eval.json, ONNX files, newest checkpoint and
@@ -107,7 +108,8 @@ case "$PART" in
     wait
     ;;
   train)
-    run_one "recipe-seed$ARG" "$ARG" --final-eval-envs 1024
+    # shellcheck disable=SC2086
+    run_one "recipe-seed$ARG" "$ARG" --final-eval-envs 1024 ${EXTRA:-}
     ;;
   *) echo "unknown part $PART (ablate A|B, train SEED, smoke)"; exit 2 ;;
 esac
