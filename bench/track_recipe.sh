@@ -45,7 +45,7 @@ SETS_A="recipe actuator_gains no_filter old"
 SETS_B="no_sampling fixed_lr no_near_cap tf32"
 
 SIZE=""
-MINUTES=${MINUTES:-7.2}
+MINUTES=${MINUTES:-8.9}
 if [ "$PART" = smoke ]; then
   export JAX_PLATFORMS=cpu
   SIZE="--ppo.num-envs 16 --ppo.batch-size 16 --ppo.num-minibatches 2 --ppo.unroll-length 4 --ppo.num-updates-per-batch 1"
@@ -59,7 +59,7 @@ run_one() {  # run_one NAME SEED EXTRA...
   local name=$1 seed=$2; shift 2
   stamp "start $name (seed $seed): $*"
   # shellcheck disable=SC2086
-  timeout -k 10 570 python3 train/ppo.py --preset track --seed "$seed" --run-name "$name" --runs-dir "$RUNS" \
+  timeout -k 5 585 python3 train/ppo.py --preset track --seed "$seed" --run-name "$name" --runs-dir "$RUNS" \
     --compile-cache-dir "$CACHE" --max-minutes "$MINUTES" $SIZE "$@" > "$WORK/$name.log" 2>&1
   stamp "end $name: exit $?"
 }

@@ -41,7 +41,7 @@ from bar_policy.training.checkpoint import load_checkpoint, save_checkpoint
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.learner import Learner, TrainingState, make_learner, make_networks, strip_weak_type
 from bar_policy.training.parallel import AXIS, DataParallel, barrier, make_data_parallel
-from bar_policy.training.progress import RunLogger
+from bar_policy.training.progress import RunLogger, next_would_overrun
 from bar_policy.training.startup import Compiler, CompileStats, StartupTimer
 
 __all__ = [
@@ -339,9 +339,15 @@ def train_brax(
         )
         return {k: float(v) for k, v in dp.to_host(metrics).items()}
 
+    last_eval_s = 0.0
+
     def device_eval(params: tuple[Any, Any], step: int) -> None:
+        nonlocal last_eval_s
+        t_eval = time.monotonic()
         m = compiler.get("evaluate")(params, dp.replicate(host_key(seed, _K_EVAL, step)), eval_model_key)
         m = {k: float(v) for k, v in dp.to_host(m).items()}
+        if step:  # the step-0 evaluation's time includes its compile
+            last_eval_s = time.monotonic() - t_eval
         logger.record_eval(step, m, evals, time_to_threshold, cfg.eval.success_threshold)
         if keeper.offer(step, m, lambda: _host_params(dp.to_host(ts))):
             logger.print(f"  best so far: the parameters at {step:,} steps are kept")
@@ -390,7 +396,12 @@ def train_brax(
         if epochs_done == 1:
             timer.add("first epoch (run)", dt)
             first_epoch_end = logger.elapsed()
-        over_budget = cfg.max_minutes > 0 and logger.elapsed() > 60 * cfg.max_minutes
+        # Stop before an epoch that would end past the budget (its expected length: this epoch's, plus an
+        # evaluation's when the next epoch ends with one).
+        next_eval_due = (epochs_done + 1) % _LINES_PER_EVAL == 0
+        over_budget = next_would_overrun(
+            logger.elapsed(), dt + (last_eval_s if next_eval_due else 0.0), 60 * cfg.max_minutes
+        )
         if jax.process_count() > 1:
             from jax.experimental import multihost_utils
 

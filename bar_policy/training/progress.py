@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 from typing import Any, TextIO
 
-__all__ = ["RunLogger", "format_duration", "format_steps"]
+__all__ = ["RunLogger", "format_duration", "format_steps", "next_would_overrun"]
 
 
 def format_steps(n: float) -> str:
@@ -25,6 +25,16 @@ def format_steps(n: float) -> str:
         if abs(n) >= div:
             return f"{n / div:.3g}{unit}"
     return f"{n:.0f}"
+
+
+def next_would_overrun(elapsed_s: float, next_s: float, budget_s: float) -> bool:
+    """Whether a next step expected to take ``next_s`` would end past a wall-clock budget, s.
+
+    The trainers stop *before* an epoch that would overrun ``max_minutes`` (its expected length: the last
+    epoch's, plus the last evaluation's when one is due), so the budget bounds the run instead of being
+    overshot by up to one epoch; ``budget_s <= 0`` means no budget.
+    """
+    return budget_s > 0 and elapsed_s + next_s > budget_s
 
 
 def format_duration(seconds: float) -> str:

@@ -37,7 +37,7 @@ from bar_policy.export import MlpPolicy, export_policy
 from bar_policy.training.best import BestIterate, BestKeeper
 from bar_policy.training.checkpoint import latest_checkpoint, save_checkpoint
 from bar_policy.training.config import TrainConfig
-from bar_policy.training.progress import RunLogger
+from bar_policy.training.progress import RunLogger, next_would_overrun
 from bar_policy.training.rsl_rl_env import RslRlVecEnv, torch_device_for_jax
 from bar_policy.training.startup import Compiler, StartupTimer
 
@@ -374,7 +374,7 @@ def train_rsl_rl(
                 logger.print(line)
         logger.log(env_steps, train_metrics, kind="train")
         last = iteration >= total_iters
-        over_budget = cfg.max_minutes > 0 and logger.elapsed() > 60 * cfg.max_minutes
+        over_budget = next_would_overrun(logger.elapsed(), dt, 60 * cfg.max_minutes)
         if iteration % max(1, iters_per_eval // 2) == 0 or last or over_budget:
             logger.progress(env_steps, steps_per_iter / dt, train_metrics)
         if iteration % iters_per_eval == 0 or last or over_budget:

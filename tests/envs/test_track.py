@@ -94,8 +94,9 @@ def test_step_rewards_and_metrics_wiring(track_env, track_fns):
              "torque_near_cap")  # fmt: skip
     assert set(terms) == {f"reward/{n}" for n in names}
     assert float(s1.reward) == pytest.approx(sum(terms.values()), rel=1e-5, abs=1e-6)
-    # joint_pos = exp(-mean (q - q_ref)^2 / 0.15^2), weight 1; errors against the frame the step arrives at.
-    want = np.exp(-np.mean((qpos - q_ref) ** 2) / 0.15**2)
+    # joint_pos = exp(-mean (q - q_ref)^2 / 0.08^2), weight 1 (the default joint_std); errors against the
+    # frame the step arrives at.
+    want = np.exp(-np.mean((qpos - q_ref) ** 2) / 0.08**2)
     assert terms["reward/joint_pos"] == pytest.approx(want, rel=1e-4)
     assert float(s1.metrics["joint_error"]) == pytest.approx(np.mean(np.abs(qpos - q_ref)), abs=1e-6)
     pos = np.asarray(s1.data.xpos)[[env.mj_model.body(b).id for b in TRACK_BODY_NAMES]]
@@ -105,8 +106,8 @@ def test_step_rewards_and_metrics_wiring(track_env, track_fns):
     tip_dist = np.linalg.norm(tips - ref.fingertip_pos[f], axis=-1)
     tip_err = tip_dist.mean()
     assert float(s1.metrics["fingertip_error"]) == pytest.approx(tip_err, abs=1e-6)
-    # fingertip_pos = exp(-mean |tip - tip_ref|^2 / 0.02^2), weight 1.
-    want = np.exp(-np.mean(tip_dist**2) / 0.02**2)
+    # fingertip_pos = exp(-mean |tip - tip_ref|^2 / 0.01^2), weight 1 (the default fingertip_std).
+    want = np.exp(-np.mean(tip_dist**2) / 0.01**2)
     assert terms["reward/fingertip_pos"] == pytest.approx(want, rel=1e-4, abs=1e-6)
     # Zero action from the filter's start state: a = a0 (1 - alpha), so the applied action moved by
     # alpha * a0; action_rate = -0.1 * sum((alpha a0)^2).

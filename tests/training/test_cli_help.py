@@ -61,7 +61,7 @@ def test_help_lists_every_option_once_grouped(preset, capsys, monkeypatch):
     # Grouped: one box per nested config, with the group's own docstring.
     for group in ("ppo", "network", "eval", "rsl-rl", "distributed"):
         assert re.search(rf"^\W*{group} options", text, re.M), group
-    # Units and the preset's defaults (the track preset's 7.5 min limit, the gpu preset's none).
+    # Units and the preset's defaults (the track preset's 8.9 min limit, the gpu preset's none).
     one = " ".join(text.split())
     assert "min (0 = no limit;" in one and "Total environment steps" in one
     assert f"(default: {PRESETS[preset]().max_minutes})" in one
