@@ -149,9 +149,11 @@ class TrackEnvConfig(RobotEnvConfig):
     """The episode ends when any tracked body is farther than this from its reference, m (0 disables)."""
     sampling: AdaptiveSamplingConfig = field(default_factory=AdaptiveSamplingConfig)
     """Where training episodes start (the batched wrapper's auto-reset)."""
-    action_filter_hz: float | None = 4.0
-    """Cutoff of the action low-pass, Hz (``RobotEnvConfig.action_filter_hz``): -6 dB at 7 Hz, -16 dB at the
-    25 Hz limit cycle of earlier trackers; 40 ms of lag, inside the 100 ms lookahead."""
+    action_filter_hz: float | None = 3.0
+    """Cutoff of the action low-pass, Hz (``RobotEnvConfig.action_filter_hz``): -8 dB at 7 Hz, -18 dB at the
+    25 Hz limit cycle of earlier trackers; 53 ms of lag, inside the 100 ms lookahead. Measured on one H100
+    at the same 9 min budget (docs/tracking.md): 3 Hz held-out 0.0156 rad / 1.03 cm, 4 Hz 0.0171 / 1.22,
+    10 Hz 0.045 / 2.57 (the smoothed exploration noise is what lets PPO find the precise policy)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -13,6 +13,7 @@ from mujoco import mjx
 
 from bar_policy.motion import motion_box
 from bar_policy.motion.library import clip_set_id
+from bar_policy.robot.action_filter import filter_alpha
 from bar_policy.robot.constants import FINGERTIP_SITES, load_robot
 from bar_policy.robot.kinematics import Kinematics, rotation_to_6d
 from bar_policy.robot.mjcf import load_model
@@ -59,9 +60,9 @@ def test_lookahead_observation_by_hand(track_env, track_fns):
     # = 0.5 rad/s (one-sided difference at the clip's start); joint_vel has scale 0.1.
     np.testing.assert_allclose(parts["joint_pos"], q[0] - track_default_pose(), atol=1e-6)
     np.testing.assert_allclose(parts["joint_vel"], 0.05, atol=1e-6)
-    # The action filter (4 Hz) starts from the action of the start pose: (q0 - default) / scale, and one
-    # step of a = 0.1 moves it by alpha = 1 - exp(-2 pi 4 Hz 0.02 s) = 0.395077 of the way.
-    assert env.config.action_filter_hz == 4.0
+    # The action filter (3 Hz) starts from the action of the start pose: (q0 - default) / scale, and one step
+    # of a = 0.1 moves it by alpha = 1 - exp(-2 pi 3 Hz 0.02 s) = 1 - exp(-0.376991) = 0.314078 of the way.
+    assert env.config.action_filter_hz == 3.0
     a0 = (q[0] - track_default_pose()) / track_action_scale("arms")
     assert np.all(np.abs(a0) < 1)  # inside the action range: no clip
     np.testing.assert_allclose(parts["actions"], a0, atol=1e-6)
@@ -69,7 +70,7 @@ def test_lookahead_observation_by_hand(track_env, track_fns):
     assert int(s1.info["frame"]) == 1
     parts = om.split(np.asarray(s1.obs))
     np.testing.assert_allclose(parts["motion_joint_pos"], np.tile(q[2], 5), atol=1e-6)
-    np.testing.assert_allclose(parts["actions"], a0 + 0.395077 * (0.1 - a0), atol=1e-6)
+    np.testing.assert_allclose(parts["actions"], a0 + 0.314078 * (0.1 - a0), atol=1e-6)
     s2 = step(s1, jnp.zeros(14, jnp.float32))
     s3 = step(s2, jnp.zeros(14, jnp.float32))
     assert int(s2.info["frame"]) == int(s3.info["frame"]) == 2  # holds the last frame
@@ -112,7 +113,7 @@ def test_step_rewards_and_metrics_wiring(track_env, track_fns):
     # Zero action from the filter's start state: a = a0 (1 - alpha), so the applied action moved by
     # alpha * a0; action_rate = -0.1 * sum((alpha a0)^2).
     a0 = np.asarray(s.info["last_act"], np.float64)
-    want = -0.1 * np.sum((0.395077 * a0) ** 2)
+    want = -0.1 * np.sum((0.314078 * a0) ** 2)
     assert terms["reward/action_rate"] == pytest.approx(want, rel=1e-4, abs=1e-7)
     # action_accel: the reset sets a_{t-2} = a_{t-1} = a0, so the second difference is the first one:
     # -0.2 * sum((alpha a0)^2).
@@ -190,6 +191,7 @@ def test_task_is_solvable_through_the_action_interface(track_env, track_fns):
     q_ref = env.reference.joint_pos.astype(np.float64)
     first, last = 3, 3 + 226 - 1  # the gesture's frames in the table (after the 3-frame clip)
     s = reset_at(jax.random.PRNGKey(0), 1, 0)
+    alpha = filter_alpha(env.config.action_filter_hz, env.dt) if env.config.action_filter_hz else 1.0
     errors = []
     for _ in range(last - first):
         g = min(int(s.info["frame"]) + 1, last)
@@ -199,7 +201,11 @@ def test_task_is_solvable_through_the_action_interface(track_env, track_fns):
         d.qacc[:] = (q_ref[nxt] - 2 * q_ref[g] + q_ref[prev]) / env.dt**2
         mujoco.mj_inverse(m, d)
         q_cmd = q_ref[g] + (d.qfrc_inverse + env.kd * d.qvel) / env.kp
-        a = np.clip((q_cmd - env.default_pose) / env.action_scale, -1, 1)
+        target = (q_cmd - env.default_pose) / env.action_scale
+        # Through the action low-pass: the raw action that lands the filtered one on the target,
+        # a = last + (target - last) / alpha (inverting lowpass_step; alpha = 1 without a filter).
+        last_applied = np.asarray(s.info["last_act"], np.float64)
+        a = np.clip(last_applied + (target - last_applied) / alpha, -1, 1)
         s = step(s, jnp.asarray(a, jnp.float32))
         errors.append([float(s.metrics[k]) for k in ("joint_error", "fingertip_error", "success")])
     joint, tip, success = np.mean(errors, axis=0)
