@@ -18,8 +18,10 @@ Per policy tick ``t`` of an episode (a clip, a reach episode, a deploy run's POL
   on the worst joint (``highpass_rms``: Welch's method, half-overlapping Hann-windowed segments of
   ``CHATTER_SEGMENT_S``). The signal is ``q_cmd - q_ref`` for tracking (the command minus the reference
   frame it targets: what the policy adds on top of the motion) and ``q_cmd`` itself for reach. A sine of
-  amplitude A on a DFT bin above the cutoff has chatter ``A / sqrt(2)``, one below it 0; a slow drift leaks
-  nothing above it (the windows go to zero at their ends).
+  amplitude A on a DFT bin at least one bin clear of the cutoff (and of Nyquist) has chatter
+  ``A / sqrt(2)`` above it, 0 below it (the Hann window puts a sixth of the power into each neighbour bin);
+  a slow drift leaks almost nothing above it (-73 dB for a linear ramp: the windows go to zero at their
+  ends).
 - **completion**: an episode completes when no fault (a supervisor fault on the robot and the sim targets; a
   termination or a would-be saturation fault in MJX) ended it before its end.
 """
@@ -107,7 +109,7 @@ def dwell_exceeded(time_at_cap: Array, limit: float = CAP_DWELL_S) -> Array:
     """Whether each joint's unbroken time at the cap is past ``limit`` s: the saturation fault.
 
     ``time > limit + 1e-6``: the microsecond absorbs the rounding of a time summed tick by tick (25 ticks of
-    0.02 s sum to 0.50000006 in float32 and 0.5000000000000002 in float64), so 25 ticks at 50 Hz are 0.5 s
+    0.02 s sum to 0.50000006 in float32 and 0.5000000000000001 in float64), so 25 ticks at 50 Hz are 0.5 s
     (no fault) and the 26th tick faults, in jax and numpy alike.
     """
     return time_at_cap > limit + 1e-6
@@ -141,12 +143,13 @@ def highpass_rms(x: Array, dt: float, cutoff_hz: float = CHATTER_CUTOFF_HZ) -> A
     The window is cut into half-overlapping segments of ``CHATTER_SEGMENT_S`` (the whole window when it is
     shorter), the last one aligned with the end; each segment's mean is removed and it is multiplied by a
     periodic Hann window ``w_k = (1 - cos(2 pi k / L)) / 2`` (its ends go to zero, so a slow drift across the
-    segment leaks nothing above the cutoff), and its power above the cutoff is
+    segment leaks almost nothing above the cutoff: -73 dB for a ramp), and its power above the cutoff is
     ``sum_f 2 |X_f|^2 / (L sum_k w_k^2)`` over the one-sided DFT bins ``f > cutoff`` (the Nyquist bin counted
     once). By Parseval's theorem that is the ``w^2``-weighted mean square of the segment's content above the
     cutoff, and the half-overlapping Hann windows weigh every tick alike. The result is the square root of
-    the mean over segments. Exact for a sine on a DFT bin: amplitude A above the cutoff gives A / sqrt(2),
-    below it 0.
+    the mean over segments. Exact for a sine on a DFT bin whose neighbours lie on the same side of the
+    cutoff (and below Nyquist): amplitude A above the cutoff gives A / sqrt(2), below it 0; next to the
+    cutoff the neighbour's sixth of the power falls on the other side (tests/quality/test_metrics.py).
 
     Args:
         x: signal, shape ``(T, ...)`` with time along axis 0 (e.g. ``(T, n)`` or ``(T, envs, n)``).

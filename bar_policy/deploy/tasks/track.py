@@ -272,8 +272,9 @@ class TrackTask(DeployTask):
         g.add_argument(
             "--clips",
             metavar="SET|NAMES",
-            help="clip set (heldout, gestures, train) or comma-separated --motion specs (default heldout: "
-            "random clips of seed 1 and the gestures, none used in training)",
+            help="clip set (heldout, gestures, families, train) or comma-separated --motion specs (default "
+            "heldout: random clips of seed 1 and the gestures; families: periodic, noisy, long holds, one "
+            "arm still; none used in training)",
         )
         g.add_argument(
             "--hold-s",

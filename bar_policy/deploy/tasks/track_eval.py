@@ -17,8 +17,9 @@ code path (``Runtime``: observation manager, action clip, safety supervisor, the
   no counterpart in the env, which only clips at the cap: ``safety`` can relax it for a physics-only
   comparison (``bench/track_fidelity.py --saturation-time``).
 
-Means are frame-weighted over all steps (``summarise``), for all clips and for the random clips and the
-named gestures apart. Latency, gain scaling and observation noise of training are not modelled: compare
+Means are frame-weighted over all steps (``summarise``), for all clips and for the random clips, the named
+gestures and each clip family (``motion.families``) apart.
+Latency, gain scaling and observation noise of training are not modelled: compare
 with the MJX column on nominal physics.
 """
 
@@ -37,6 +38,7 @@ from bar_policy.deploy.safety import SafetyConfig
 from bar_policy.deploy.tasks.base import EvalReport
 from bar_policy.deploy.tasks.track import load_motion, reference_for
 from bar_policy.motion.clip import Clip
+from bar_policy.motion.families import FAMILIES, family_of
 from bar_policy.motion.library import CLIP_SETS, clip_set, clip_set_id
 from bar_policy.quality import EpisodeQuality
 from bar_policy.quality import summarise as summarise_quality
@@ -121,12 +123,18 @@ def summarise(results: Sequence[ClipResult], label: str) -> dict[str, Any]:
 
 
 def groups(results: Sequence[ClipResult]) -> list[dict[str, Any]]:
-    """``summarise`` over all clips, then the random clips and the named gestures (when present)."""
-    rand = [r for r in results if r.clip.startswith("random-")]
-    named = [r for r in results if not r.clip.startswith("random-")]
+    """``summarise`` over all clips, then per group when there are several.
+
+    The groups: the random clips, the named gestures and each clip family (``motion.families.family_of``),
+    in that order.
+    """
+    by_group: dict[str, list[ClipResult]] = {}
+    for r in results:
+        by_group.setdefault(family_of(r.clip), []).append(r)
     out = [summarise(results, "all")]
-    if rand and named:
-        out += [summarise(rand, "random"), summarise(named, "gestures")]
+    if len(by_group) > 1:
+        order = ["random", "gestures", *FAMILIES]
+        out += [summarise(by_group[g], g) for g in order if g in by_group]
     return out
 
 
