@@ -244,7 +244,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the chosen columns; print a table per column and the markdown table; write JSON / markdown."""
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--policy", required=True, help="ONNX tracking policy (checked with the deploy loader)")
-    p.add_argument("--clips", default="heldout", choices=["heldout", "gestures", "train"], help="clip set")
+    p.add_argument(
+        "--clips", default="heldout", choices=["heldout", "gestures", "families", "train"], help="clip set"
+    )
     p.add_argument("--num-clips", type=int, default=None, help="random clips in the set (library default)")
     p.add_argument(
         "--columns", nargs="+", default=list(COLUMNS), choices=list(COLUMNS), help="targets to run"

@@ -1,31 +1,123 @@
-"""Train the shipped reach policy and publish it (checkpoints/ + docs/), in one shot.
+"""Train a policy and publish it (checkpoints/ + docs/), in one shot, if it passes the ship gate.
 
-    python train/ship.py                       # train with the gpu preset, then publish
+    python train/ship.py                       # train with the gpu preset (LiteReach), then publish
     python train/ship.py --from-run runs/X     # publish an existing run only
     python train/ship.py --from-run runs/X --iterate auto   # ship policy_best.onnx if it scores higher
+    python train/ship.py --from-run runs/T --name lite_track_arms   # a LiteTrack run: the tracker
     python train/ship.py --ppo.num-timesteps 60000000   # any train/ppo.py flag passes through
 
-Writes checkpoints/lite_reach_arms.onnx, checkpoints/lite_reach_arms.json, docs/training_curve.png and the
-results block of docs/training.md, then prints whether the issue's targets were met.
+The task comes from the run (``env_name`` in its ``final_eval.json`` / ``config.json``: LiteReach and
+LiteReachNeck -> reach, LiteTrack -> track); the default name is ``lite_<task>_<mode>``.
+
+Before anything is written, the ONNX file to ship is evaluated on held-out data on the C MuJoCo sim target
+by the evaluation ``bar-deploy eval`` runs (its defaults: reach, 100 seeded episodes; track, the ``heldout``
+clip set), and judged by the ship gate (``bar_policy.quality.gate``): the thresholds are printed, then PASS
+or one line per miss naming the metric, its value and the threshold. A file that misses is refused: nothing
+is written. A file that passes is published: ``checkpoints/<name>.onnx`` and ``checkpoints/<name>.json``
+(with the gate's record under ``ship_gate``: task, thresholds, verdict, the report's figures); for reach
+also ``docs/training_curve.png`` and the results block of ``docs/training.md`` (they describe the reach
+policy, so a tracker run leaves them alone), then whether the issue's reach targets were met.
+
+Exit status:
+    0: published (reach: and the final MJX evaluation reached >= 95 % success).
+    1: published, but the reach run's final MJX evaluation missed 95 % success.
+    2: nothing published: the run or its file could not be evaluated (missing files, no env name, a file
+       the deploy loader refuses, a file of another task than the run's).
+    3: nothing published: the file misses the ship gate on held-out data (each miss is printed).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import logging
 import sys
 import time
+from collections.abc import Mapping
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
 
+from bar_policy.quality.gate import Miss, check, gate_for, thresholds_text
 from bar_policy.training.cli import parse_config
-from bar_policy.training.publish import ITERATES, publish
+from bar_policy.training.publish import ITERATES, choose_iterate, publish
+
+SHIPPED, TARGET_MISSED, NOT_EVALUATED, REFUSED = 0, 1, 2, 3
+"""Exit codes (see the module docstring)."""
+
+ENV_TASKS: dict[str, str] = {"LiteReach": "reach", "LiteReachNeck": "reach", "LiteTrack": "track"}
+"""A run's env name -> the task of its policies (the env's ``task_name``, the file's ``bar.task``)."""
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Train (unless ``--from-run``) and publish; exit code 0 when the policy reaches the targets."""
-    import json
+def run_config(run_dir: str | Path) -> dict[str, Any]:
+    """The run's config record: ``train``, ``env`` (``final_eval.json``'s ``config``, else config.json)."""
+    run_dir = Path(run_dir)
+    for path, key in ((run_dir / "final_eval.json", "config"), (run_dir / "config.json", None)):
+        if path.exists():
+            data = json.loads(path.read_text())
+            record = data.get(key) if key else data
+            if isinstance(record, dict) and "train" in record:
+                return record
+    raise FileNotFoundError(f"{run_dir} has no final_eval.json or config.json with the run's config")
 
+
+def run_task(run_dir: str | Path) -> tuple[str, str]:
+    """``(env name, task)`` of a run, from the env name its config records.
+
+    Raises:
+        FileNotFoundError: no config record; ValueError: no env name, or one with no task here.
+    """
+    env_name = run_config(run_dir)["train"].get("env_name")
+    if env_name not in ENV_TASKS:
+        known = sorted(ENV_TASKS)
+        raise ValueError(f"{run_dir}: env_name {env_name!r} has no ship task; known envs: {known}")
+    return env_name, ENV_TASKS[env_name]
+
+
+def held_out_evaluation(onnx: str | Path, task: str, options: Mapping[str, Any] | None = None) -> Any:
+    """``bar-deploy eval``'s evaluation of ``onnx`` (C MuJoCo sim target, held-out data); its ``EvalReport``.
+
+    Args:
+        onnx: the policy file.
+        task: the run's task; the file must declare it (else ``PolicyLoadError``).
+        options: ``bar-deploy eval`` options by argparse dest (``episodes``, ``clips``, ``hold_s``, ...);
+            None: the eval's defaults, the gate's held-out data. Tests pass smaller ones.
+    """
+    from bar_policy.deploy.policy import load_policy
+    from bar_policy.deploy.tasks import get_task
+
+    logging.getLogger("bar_policy.deploy.safety").setLevel(logging.WARNING)  # as bar-deploy eval
+    policy = load_policy(onnx, task=task)
+    return get_task(task).evaluate(policy, argparse.Namespace(**dict(options or {})))
+
+
+def gate_record(task: str, report: Mapping[str, Any], misses: list[Miss]) -> dict[str, Any]:
+    """The gate's record for the published JSON: task, thresholds, verdict, misses, the report's figures."""
+    return {
+        "task": task,
+        "thresholds": {k: v for k, v in asdict(gate_for(task)).items() if v is not None},
+        "verdict": "pass" if not misses else "miss",
+        "misses": [m.text for m in misses],
+        "report": {k: v for k, v in report.items() if k != "episodes"},  # the summary judges chatter too
+        "episodes": len(report.get("episodes") or []),
+    }
+
+
+def _eval_lines(result: Any) -> list[str]:
+    """The evaluation's summary without its own gate lines (ship prints the gate's verdict itself)."""
+    lines = result.format().splitlines()
+    gate = result.gate_lines()
+    return lines[: -len(gate)] if lines[-len(gate) :] == gate else lines
+
+
+def main(argv: list[str] | None = None, *, eval_options: Mapping[str, Any] | None = None) -> int:
+    """Train (unless ``--from-run``), judge the file by the ship gate, publish; the exit status.
+
+    ``eval_options``: for tests only, smaller held-out evaluations (see ``held_out_evaluation``).
+    """
     pre = argparse.ArgumentParser(add_help=False)
     pre.add_argument("--from-run", default=None, help="publish this finished run instead of training")
-    pre.add_argument("--name", default="lite_reach_arms", help="file stem under checkpoints/")
+    pre.add_argument("--name", default=None, help="file stem under checkpoints/ (default lite_<task>_<mode>)")
     pre.add_argument(
         "--iterate",
         default="last",
@@ -38,6 +130,8 @@ def main(argv: list[str] | None = None) -> int:
         default=4096,
         help="after training, time the batched env alone at this batch size (0 = skip); recorded in the JSON",
     )
+    pre.add_argument("--checkpoints-dir", default="checkpoints", help="where the ONNX and JSON go")
+    pre.add_argument("--docs-dir", default="docs", help="where the reach curve and training.md results go")
     known, rest = pre.parse_known_args(sys.argv[1:] if argv is None else argv)
     if known.from_run is None:
         if not any(a.startswith("--run-name") for a in rest):
@@ -48,18 +142,50 @@ def main(argv: list[str] | None = None) -> int:
         run_dir = run(cfg).run_dir
     else:
         run_dir = known.from_run
-    paths = publish(run_dir, name=known.name, iterate=known.iterate)
+
+    try:
+        env_name, task = run_task(run_dir)
+        onnx, _ = choose_iterate(run_dir, known.iterate)
+        result = held_out_evaluation(onnx, task, eval_options)
+    except (FileNotFoundError, ValueError) as e:  # ValueError: PolicyLoadError, OptionError, bad records
+        print(f"ship: error: {e}", file=sys.stderr)
+        print("ship: nothing published")
+        return NOT_EVALUATED
+    report = result.gate_report()
+    misses = check(task, report)
+    print(f"held-out evaluation of {onnx} ({env_name} run {run_dir}, task {task}):")
+    print("\n".join(_eval_lines(result)))
+    print(thresholds_text(task))
+    for line in ["gate: PASS"] if not misses else [f"gate: MISS {m}" for m in misses]:
+        print(line)
+    if misses:
+        print(
+            f"ship: refused: {onnx} misses the {task} ship gate on held-out data ({len(misses)} miss(es)); "
+            f"nothing written to {known.checkpoints_dir}/"
+        )
+        return REFUSED
+
+    mode = run_config(run_dir).get("env", {}).get("mode", "arms")
+    name = known.name or f"lite_{task}_{mode}"
+    paths = publish(
+        run_dir,
+        name=name,
+        iterate=known.iterate,
+        checkpoints_dir=known.checkpoints_dir,
+        docs_dir=known.docs_dir if task == "reach" else None,
+        extra={"ship_gate": gate_record(task, report, misses)},
+    )
     final = json.loads(paths["json"].read_text())
     if known.raw_throughput:
         from bar_policy import envs
         from bar_policy.training.throughput import raw_env_steps_per_second
 
-        env = envs.load("LiteReach")
+        env = envs.load(env_name)
         raw = raw_env_steps_per_second(
             env,
             envs.wrap_for_brax_training,
             num_envs=known.raw_throughput,
-            randomizer=envs.get_randomizer("LiteReach", env.config),
+            randomizer=envs.get_randomizer(env_name, env.config),
         )
         final["raw_env_throughput"] = raw
         paths["json"].write_text(json.dumps(final, indent=2, sort_keys=True))
@@ -67,14 +193,16 @@ def main(argv: list[str] | None = None) -> int:
             f"raw env throughput: {raw['env_steps_per_s']:,.0f} env steps/s at {raw['num_envs']} envs; "
             f"training end to end: {final['train_sps_end_to_end']:,.0f} env steps/s"
         )
+    print(f"published: {', '.join(str(p) for p in paths.values())}")
+    if task != "reach":
+        return SHIPPED
     success = final["final_eval"]["success_rate"]
     ttt = final.get("time_to_threshold_s")
-    print(f"published: {', '.join(str(p) for p in paths.values())}")
     ok_success = success >= 0.95
     ok_time = ttt is not None and ttt <= 300
     print(f"target >= 95% final success: {'MET' if ok_success else 'NOT MET'} ({100 * success:.2f}%)")
     print(f"target <= 5 min to 95% eval success: {'MET' if ok_time else 'NOT MET'} ({ttt} s)")
-    return 0 if ok_success else 1
+    return SHIPPED if ok_success else TARGET_MISSED
 
 
 if __name__ == "__main__":

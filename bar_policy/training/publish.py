@@ -4,7 +4,10 @@
 after loading it with the deploy loader (the same checks ``bar-deploy`` runs), writes
 ``checkpoints/<name>.json`` (config, final evaluation, evaluation history, export record), draws
 ``docs/training_curve.png`` from ``<run>/metrics.jsonl`` and rewrites the results block of
-``docs/training.md`` (between ``<!-- results:start -->`` and ``<!-- results:end -->``).
+``docs/training.md`` (between ``<!-- results:start -->`` and ``<!-- results:end -->``); with
+``docs_dir=None`` it writes no docs (the results block and the curve describe the reach policy).
+``choose_iterate`` names the file ``publish`` ships, so ``train/ship.py`` can judge that file on held-out data
+before anything is written.
 """
 
 from __future__ import annotations
@@ -13,12 +16,21 @@ import json
 import math
 import shlex
 import shutil
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from bar_policy.provenance import commit_text
 
-__all__ = ["ITERATES", "RESULTS_END", "RESULTS_START", "plot_curve", "publish", "results_markdown"]
+__all__ = [
+    "ITERATES",
+    "RESULTS_END",
+    "RESULTS_START",
+    "choose_iterate",
+    "plot_curve",
+    "publish",
+    "results_markdown",
+]
 
 RESULTS_START = "<!-- results:start -->"
 RESULTS_END = "<!-- results:end -->"
@@ -149,13 +161,31 @@ def _choose_iterate(final: dict[str, Any], iterate: str, run_dir: Path) -> tuple
     return src, record
 
 
+def choose_iterate(run_dir: str | Path, iterate: str = "last") -> tuple[Path, dict[str, Any]]:
+    """The ONNX file ``publish(run_dir, iterate=iterate)`` ships, and the record its JSON is made of.
+
+    Raises:
+        FileNotFoundError: the run has no ``final_eval.json`` or no such ONNX file (export failed or skipped).
+        ValueError: an unknown ``iterate``.
+    """
+    run_dir = Path(run_dir)
+    final_src = run_dir / "final_eval.json"
+    if not final_src.exists():
+        raise FileNotFoundError(f"{final_src} is missing; did the run finish and export?")
+    onnx_src, final = _choose_iterate(json.loads(final_src.read_text()), iterate, run_dir)
+    if not onnx_src.exists():
+        raise FileNotFoundError(f"{onnx_src} is missing; did the run finish and export?")
+    return onnx_src, final
+
+
 def publish(
     run_dir: str | Path,
     *,
     name: str = "lite_reach_arms",
     checkpoints_dir: str | Path = "checkpoints",
-    docs_dir: str | Path = "docs",
+    docs_dir: str | Path | None = "docs",
     iterate: str = "last",
+    extra: Mapping[str, Any] | None = None,
 ) -> dict[str, Path]:
     """Ship a finished run (see the module docstring); returns the written paths.
 
@@ -163,9 +193,11 @@ def publish(
         run_dir: the finished run's directory.
         name: file stem under ``checkpoints_dir``.
         checkpoints_dir: where the ONNX and JSON go.
-        docs_dir: where the curve PNG and ``training.md`` go.
+        docs_dir: where the curve PNG and ``training.md`` go; None writes no docs (then the returned paths
+            are the ONNX and JSON only).
         iterate: ``"last"``, ``"best"`` or ``"auto"`` (see ``ITERATES``). ``"best"`` ships the last iterate
             when the run's best one is the last.
+        extra: more top-level entries for the JSON (``train/ship.py``: the ship gate's record).
 
     Raises:
         FileNotFoundError: the run has no ``policy.onnx`` / ``final_eval.json`` (export failed or skipped).
@@ -175,18 +207,17 @@ def publish(
     from bar_policy.deploy.policy import load_policy
 
     run_dir = Path(run_dir)
-    final_src = run_dir / "final_eval.json"
-    if not final_src.exists():
-        raise FileNotFoundError(f"{final_src} is missing; did the run finish and export?")
-    onnx_src, final = _choose_iterate(json.loads(final_src.read_text()), iterate, run_dir)
-    if not onnx_src.exists():
-        raise FileNotFoundError(f"{onnx_src} is missing; did the run finish and export?")
+    onnx_src, final = choose_iterate(run_dir, iterate)
     load_policy(onnx_src)  # the checks bar-deploy runs
-    ck, docs = Path(checkpoints_dir), Path(docs_dir)
+    ck = Path(checkpoints_dir)
     ck.mkdir(parents=True, exist_ok=True)
     onnx_dst, json_dst = ck / f"{name}.onnx", ck / f"{name}.json"
     shutil.copyfile(onnx_src, onnx_dst)
-    json_dst.write_text(json.dumps({"run_dir": str(run_dir), **final}, indent=2, sort_keys=True))
+    record = {"run_dir": str(run_dir), **final, **(extra or {})}
+    json_dst.write_text(json.dumps(record, indent=2, sort_keys=True))
+    if docs_dir is None:
+        return {"onnx": onnx_dst, "json": json_dst}
+    docs = Path(docs_dir)
     curve = plot_curve(run_dir, docs / "training_curve.png", final.get("success_threshold", 0.95))
     md = docs / "training.md"
     block = results_markdown(final, name)

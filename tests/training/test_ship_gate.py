@@ -1,0 +1,184 @@
+"""train/ship.py judges the file to ship by the ship gate on held-out data and refuses one that misses.
+
+Tiny runs: a ``final_eval.json`` recording the env name and a policy file from ``tests/deploy``'s factory
+(zero weights: the arms hold the default pose, so reach scores 0 % and tracking errs by decimetres). The
+held-out evaluations are ``bar-deploy eval``'s, cut short through ``main``'s test-only ``eval_options``.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+from bar_policy.quality.gate import check, thresholds_text
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "tests" / "deploy"))
+
+from policy_factory import default_metadata, make_policy_file  # noqa: E402
+
+
+def _load_ship():
+    spec = importlib.util.spec_from_file_location("ship_script", ROOT / "train" / "ship.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+ship = _load_ship()
+
+SHORT = {
+    "reach": {"episodes": 2, "episode_length": 1.0},
+    "track": {"clips": "wave", "hold_s": 0.0},
+}
+"""Held-out evaluations cut short (the defaults are 100 episodes / the heldout clip set)."""
+
+
+def _run(tmp_path: Path, env_name: str, file_task: str) -> Path:
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    make_policy_file(run_dir / "policy.onnx", metadata=default_metadata(task=file_task))
+    final = {
+        "config": {"train": {"env_name": env_name}, "env": {"mode": "arms"}},
+        "final_eval": {"success_rate": 0.0, "episode_reward": 0.0},
+        "env_steps": 0,
+    }
+    (run_dir / "final_eval.json").write_text(json.dumps(final))
+    return run_dir
+
+
+def _args(tmp_path: Path, run_dir: Path, *more: str) -> list[str]:
+    return [
+        "--from-run",
+        str(run_dir),
+        "--checkpoints-dir",
+        str(tmp_path / "ck"),
+        "--docs-dir",
+        str(tmp_path / "docs"),
+        "--raw-throughput",
+        "0",
+        *more,
+    ]
+
+
+@pytest.mark.parametrize(
+    ("env_name", "task", "metric", "threshold"),
+    [
+        ("LiteReach", "reach", "min_success_pct", "< 95 %"),
+        ("LiteTrack", "track", "max_fingertip_error_cm", "> 1 cm"),
+    ],
+)
+def test_a_file_that_misses_the_gate_is_refused_and_nothing_is_written(
+    tmp_path, monkeypatch, capsys, env_name, task, metric, threshold
+):
+    monkeypatch.chdir(tmp_path)  # relative defaults would land here, never in the repo
+    run_dir = _run(tmp_path, env_name, task)
+    rc = ship.main(_args(tmp_path, run_dir), eval_options=SHORT[task])
+    out = capsys.readouterr().out
+    assert rc == ship.REFUSED == 3
+    assert thresholds_text(task) in out
+    (line,) = [x for x in out.splitlines() if x.startswith("gate: MISS") and f"({metric})" in x]
+    assert threshold in line  # "gate: MISS mean fingertip error 29.68 cm > 1 cm (max_fingertip_error_cm)"
+    assert "ship: refused" in out and "gate: PASS" not in out
+    assert not (tmp_path / "ck").exists() and not (tmp_path / "docs").exists()
+    assert not (tmp_path / "checkpoints").exists()
+
+
+class _Passing:
+    """An evaluation result whose gate report passes the track gate."""
+
+    def __init__(self, report: dict) -> None:
+        self.report = report
+
+    def gate_report(self) -> dict:
+        return self.report
+
+    def gate_lines(self) -> list[str]:
+        return ["(the eval's own gate lines)"]
+
+    def format(self) -> str:
+        return "tracking (SimTarget) policy x\n(the eval's own gate lines)"
+
+
+def _passing_track_report() -> dict:
+    quality = {"completion_pct": 100.0, "cap_share_pct": 0.1, "chatter_max_mrad": 1.0}
+    episodes = [{"name": "wave", "faulted": False, "chatter_mrad": 1.0}]
+    return {"task": "track", "quality": quality, "episodes": episodes, "joint_error_rad": 0.015,
+            "fingertip_error_cm": 0.8}  # fmt: skip
+
+
+def test_a_passing_file_is_published_with_the_gate_record(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    run_dir = _run(tmp_path, "LiteTrack", "track")
+    seen = {}
+
+    def fake_eval(onnx, task, options=None):
+        seen.update(onnx=Path(onnx), task=task, options=options)
+        return _Passing(_passing_track_report())
+
+    monkeypatch.setattr(ship, "held_out_evaluation", fake_eval)
+    rc = ship.main(_args(tmp_path, run_dir, "--name", "lite_track_arms"))
+    out = capsys.readouterr().out
+    assert rc == ship.SHIPPED == 0
+    assert seen == {"onnx": run_dir / "policy.onnx", "task": "track", "options": None}  # the eval's defaults
+    assert thresholds_text("track") in out and "gate: PASS" in out
+    assert "(the eval's own gate lines)" not in out  # printed once, by ship
+    ck = tmp_path / "ck"
+    assert sorted(p.name for p in ck.iterdir()) == ["lite_track_arms.json", "lite_track_arms.onnx"]
+    assert not (tmp_path / "docs").exists()  # the docs' results block is the reach policy's
+    rec = json.loads((ck / "lite_track_arms.json").read_text())["ship_gate"]
+    assert rec["verdict"] == "pass" and rec["misses"] == [] and rec["task"] == "track"
+    assert rec["thresholds"]["max_fingertip_error_cm"] == 1.0 and "min_success_pct" not in rec["thresholds"]
+    assert rec["report"]["fingertip_error_cm"] == 0.8 and rec["episodes"] == 1
+    assert check("track", rec["report"]) == []  # the recorded figures pass again
+
+
+def test_default_name_comes_from_the_runs_task_and_mode(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    run_dir = _run(tmp_path, "LiteTrack", "track")
+    monkeypatch.setattr(ship, "held_out_evaluation", lambda *a, **k: _Passing(_passing_track_report()))
+    assert ship.main(_args(tmp_path, run_dir)) == 0
+    assert (tmp_path / "ck" / "lite_track_arms.onnx").exists()
+
+
+def test_gate_record_of_hand_made_reports():
+    quality = {"completion_pct": 100.0, "cap_share_pct": 0.0, "chatter_max_mrad": 0.5}
+    ok = {"task": "reach", "quality": quality, "success_pct": 97.0}
+    assert check("reach", ok) == []
+    assert ship.gate_record("reach", ok, [])["verdict"] == "pass"
+    bad = {**ok, "success_pct": 90.0}
+    misses = check("reach", bad)
+    rec = ship.gate_record("reach", bad, misses)
+    assert rec["verdict"] == "miss"
+    assert rec["misses"] == ["success 90 % < 95 % (min_success_pct)"]
+    assert rec["thresholds"] == {
+        "min_completion_pct": 100.0,
+        "max_cap_share_pct": 0.5,
+        "max_chatter_mrad": 5.0,
+        "min_success_pct": 95.0,
+    }
+
+
+def test_a_file_of_another_task_than_the_run_is_not_evaluated(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    run_dir = _run(tmp_path, "LiteTrack", "reach")
+    assert ship.main(_args(tmp_path, run_dir), eval_options=SHORT["reach"]) == ship.NOT_EVALUATED == 2
+    assert "task mismatch" in capsys.readouterr().err
+    assert not (tmp_path / "ck").exists()
+
+
+def test_run_task_reads_the_env_name_and_matches_the_envs():
+    from bar_policy import envs
+
+    for name in envs.ALL_ENVS:
+        assert ship.ENV_TASKS[name] == envs._entry(name)[0].task_name
+
+
+def test_a_run_without_an_env_name_has_no_task(tmp_path):
+    (tmp_path / "final_eval.json").write_text(json.dumps({"config": {"train": {}}}))
+    with pytest.raises(ValueError, match="env_name None"):
+        ship.run_task(tmp_path)
