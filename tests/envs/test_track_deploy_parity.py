@@ -76,3 +76,96 @@ def test_shared_thresholds_match_the_env():
     assert task.SUCCESS_JOINT_RAD == SUCCESS_JOINT_RAD
     assert task.SUCCESS_FINGERTIP_M == SUCCESS_FINGERTIP_M
     assert default_config().termination_distance == task.LOST_DISTANCE
+
+
+def test_action_filter_parity_env_and_deploy(track_env, track_fns, tmp_path):
+    """The robot's ``ActionPath`` applies the env's action filter: the same applied actions, tick by tick.
+
+    The env (``reset_at`` on a gesture frame, then steps) and the deploy side (a policy file carrying the
+    env's cutoff, default pose and action scale; ``ActionPath.start`` at the same pose, then the same raw
+    actions, some outside [-1, 1] so the clip matters) must hold the same filter state after every tick:
+    both are ``robot.action_filter.lowpass_step`` of the clipped action, one in float32 XLA, one in float64
+    numpy rounded to float32; 1e-6 covers a few float32 ulps on |a| <= 1 (6e-8 each) over 6 ticks.
+    """
+    import dataclasses
+    import sys
+    from pathlib import Path
+
+    from bar_policy.deploy.action_path import ActionPath
+    from bar_policy.deploy.policy import load_policy
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "deploy"))
+    from policy_factory import default_metadata, make_policy_file
+
+    _, step, reset_at = track_fns
+    cfg = track_env.config
+    meta = dataclasses.replace(
+        default_metadata("arms", task="track"),
+        action_filter_hz=cfg.action_filter_hz,
+        action_scale=tuple(float(x) for x in task.track_action_scale("arms")),
+        default_joint_pos=tuple(float(x) for x in task.track_default_pose()),
+    )
+    policy = load_policy(make_policy_file(tmp_path / "p.onnx", metadata=meta))
+    path = ActionPath(policy)
+    assert path.alpha == pytest.approx(filter_alpha(cfg.action_filter_hz, cfg.ctrl_dt), rel=1e-12)
+    s = reset_at(jax.random.PRNGKey(3), 1, 40)
+    start = int(track_env.reference.clip_start[1])
+    path.start(track_env.reference.joint_pos[start + 40].astype(np.float64))
+    np.testing.assert_allclose(path.last, np.asarray(s.info["last_act"]), atol=1e-6)
+    rng = np.random.default_rng(0)
+    for k in range(6):
+        raw = rng.uniform(-1.5, 1.5, 14).astype(np.float32)  # a third of the entries clip
+        s = step(s, jnp.asarray(raw))
+        applied, n_clipped = path(raw, 0.02 * k)
+        assert n_clipped == int(np.count_nonzero(np.abs(raw) > 1))
+        np.testing.assert_allclose(applied, np.asarray(s.info["last_act"]), atol=1e-6)
+
+
+def test_first_policy_tick_after_the_hold_ramp_sees_the_env_reset_observation(
+    track_env, track_fns, track_clips, tmp_path
+):
+    """The deploy run's first POLICY tick, after the HOLD ramp to the clip's first frame, observes what the
+    env shows after ``reset_at`` on that frame: the lookahead frames 1..5, q - default, the velocity, and the
+    applied action of the start pose (the filter's start state, not 0).
+
+    The mock target starts on the gesture's first frame (``arms_hanging``, where the gesture rests for
+    0.5 s, so the env's reset velocity is 0 as the robot's is) and echoes each command, so the measured
+    state at that tick is the frame exactly. Float32 observation rounding: 1e-6.
+    """
+    import dataclasses
+    import sys
+    from pathlib import Path
+
+    from bar_policy.deploy.log import load_log
+    from bar_policy.deploy.policy import load_policy
+    from bar_policy.deploy.runtime import Runtime, RuntimeConfig
+    from bar_policy.deploy.safety import Mode, SafetyConfig
+    from bar_policy.deploy.tasks.track import reference_for
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "deploy"))
+    from fault_targets import SteppedMock
+    from policy_factory import default_metadata, make_policy_file
+
+    _, _, reset_at = track_fns
+    cfg = track_env.config
+    meta = dataclasses.replace(
+        default_metadata("arms", task="track"),
+        action_filter_hz=cfg.action_filter_hz,
+        action_scale=tuple(float(x) for x in task.track_action_scale("arms")),
+        default_joint_pos=tuple(float(x) for x in task.track_default_pose()),
+    )
+    policy = load_policy(make_policy_file(tmp_path / "p.onnx", metadata=meta, bias=0.1))
+    clip = track_clips[1]
+    frame0 = clip.joint_pos[0].astype(np.float64)
+    assert np.array_equal(clip.joint_pos[0], clip.joint_pos[1])  # the gesture rests: reset velocity 0
+    config = RuntimeConfig(duration=0.2, safety=SafetyConfig(ramp_time=0.1))
+    target = SteppedMock(initial_q=frame0)
+    result = Runtime(policy, target, reference_for(policy, clip), config, log_dir=tmp_path / "runs").run()
+    arrays, _ = load_log(result.log_path)
+    first = int(np.flatnonzero(arrays["mode"] == int(Mode.POLICY))[0])
+    assert first == 5  # 0.1 s of HOLD ramp at 50 Hz
+    want = np.asarray(reset_at(jax.random.PRNGKey(0), 1, 0).obs)
+    np.testing.assert_allclose(arrays["obs"][first], want, rtol=1e-6, atol=1e-6)
+    # Not trivially zero: the start pose's action is far from 0 (arms_hanging vs the motion box centre).
+    om = policy.obs_manager
+    assert np.abs(om.split(arrays["obs"][first])["actions"]).max() > 0.3
