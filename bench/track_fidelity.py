@@ -42,6 +42,10 @@ from bar_policy.deploy.policy import OnnxPolicy, load_policy
 from bar_policy.deploy.safety import CapDwell, SafetyConfig
 from bar_policy.deploy.tasks.track_eval import METRICS, ClipResult, evaluate_track, groups
 from bar_policy.motion import Clip, clip_set
+from bar_policy.motion.families import family_of
+from bar_policy.quality import EpisodeQuality, QualityMeter
+from bar_policy.quality import summarise as summarise_quality
+from bar_policy.robot.action_filter import filter_alpha, lowpass_step
 from bar_policy.robot.mit import MitCommand, mit_torque
 
 Column = Callable[[OnnxPolicy, Sequence[Clip], argparse.Namespace], list[ClipResult]]
@@ -61,6 +65,8 @@ def run_mjx(policy: OnnxPolicy, clips: Sequence[Clip], args: argparse.Namespace)
 
     base = envs.default_config("LiteTrack")
     cfg = base if args.randomize else envs.nominal_config(base)
+    # The env filters actions as the file says its training env did (files made before the filter: none).
+    cfg = dataclasses.replace(cfg, action_filter_hz=policy.metadata.action_filter_hz)
     env = envs.LiteTrack(cfg, clips=clips)
     n = len(clips)
     model, in_axes = env.mjx_model, None
@@ -76,6 +82,11 @@ def run_mjx(policy: OnnxPolicy, clips: Sequence[Clip], args: argparse.Namespace)
     dwell = [CapDwell(safety.saturation_fraction * robot.torque_cap, safety.saturation_time) for _ in clips]
     cap_dwell = [""] * n
 
+    meters = [
+        QualityMeter(robot.torque_cap, robot.lower, robot.upper, env.dt, robot.joint_names) for _ in clips
+    ]
+    alpha = filter_alpha(cfg.action_filter_hz, cfg.ctrl_dt)
+    last_frame = np.asarray(env.reference.clip_start) + np.asarray(env.reference.clip_length) - 1
     reset_b = jax.jit(jax.vmap(reset, in_axes=(in_axes, 0, 0)))
     step_b = jax.jit(jax.vmap(env.step_with_model, in_axes=(in_axes, 0, 0)))
     state = reset_b(model, jax.random.split(jax.random.PRNGKey(args.seed), n), jnp.arange(n))
@@ -89,16 +100,23 @@ def run_mjx(policy: OnnxPolicy, clips: Sequence[Clip], args: argparse.Namespace)
             -clip_lim,
             clip_lim,
         )
-        # The deploy supervisor's torque-saturation rule on the state before the step (MJX only clips at
-        # the cap and runs on): q_cmd clipped to the joint limits, the unclipped MIT demand.
+        # The deploy supervisor's torque-saturation rule and the quality meter on the state before the step
+        # (MJX only clips at the cap and runs on): the applied action (the env's low-pass of the clipped
+        # one, when the env filters), q_cmd clipped to the joint limits, the unclipped MIT demand.
         q, dq = np.asarray(state.data.qpos), np.asarray(state.data.qvel)
+        last_act = np.asarray(state.info["last_act"], dtype=np.float64)
+        frame = np.minimum(np.asarray(state.info["frame"]) + 1, last_frame)
         for i in range(n):
-            if cap_dwell[i] or t >= lengths[i]:
+            if t >= lengths[i]:
                 continue
-            q_cmd = np.clip(policy.q_command(action[i]), robot.lower, robot.upper)
-            over = dwell[i].update(
-                mit_torque(MitCommand.position(q_cmd, policy.kp, policy.kd), q[i], dq[i]), env.dt
-            )
+            applied = lowpass_step(last_act[i], action[i], alpha)  # alpha 1: no filter
+            q_cmd = np.clip(policy.q_command(applied), robot.lower, robot.upper)
+            demand = mit_torque(MitCommand.position(q_cmd, policy.kp, policy.kd), q[i], dq[i])
+            q_ref = env.reference.joint_pos[frame[i]]
+            meters[i].update(demand, q[i], applied, q_cmd - q_ref)
+            if cap_dwell[i]:
+                continue
+            over = dwell[i].update(demand, env.dt)
             if over.size:
                 names = ", ".join(robot.joint_names[j] for j in over)
                 cap_dwell[i] = f"t={(t + 1) * env.dt:.2f} s: {names}"
@@ -112,6 +130,7 @@ def run_mjx(policy: OnnxPolicy, clips: Sequence[Clip], args: argparse.Namespace)
             steps=int(lengths[i]),
             sums={k: float(sums[k][i]) for k in METRICS},
             cap_dwell=cap_dwell[i],
+            quality=meters[i].finish(c.name).to_dict(),
         )
         for i, c in enumerate(clips)
     ]
@@ -172,6 +191,25 @@ ROWS = (
 )
 
 
+QUALITY_ROWS = (
+    ("completion_pct", "clips completed, %", "{:.0f}"),
+    ("cap_share_pct", "ticks at a torque cap, %", "{:.2f}"),
+    ("limit_share_pct", "ticks within 0.02 rad of a limit, %", "{:.2f}"),
+    ("chatter_max_mrad", "chatter, worst clip, mrad (RMS above 5 Hz of q_cmd - q_ref)", "{:.2f}"),
+)
+"""The safety and smoothness rows (``bar_policy.quality``), per clip group and column."""
+
+
+def _group_quality(clips: list[dict], group: str) -> dict | None:
+    """``quality.summarise`` over the group's clips (``all``: every clip); None when none was measured."""
+    eps = [
+        EpisodeQuality.from_dict(c["quality"])
+        for c in clips
+        if c.get("quality") and (group == "all" or family_of(c["clip"]) == group)
+    ]
+    return summarise_quality(eps) if eps else None
+
+
 def _rel(a: float, b: float) -> float:
     """Relative difference a / b - 1 (NaN when b is 0)."""
     return a / b - 1.0 if b else float("nan")
@@ -224,6 +262,16 @@ def markdown(out: dict) -> str:
                     row.append(
                         f"{100 * _rel(table[a][group][key], table[b][group][key]):+.1f} %" if ok else ""
                     )
+            lines.append("| " + " | ".join(row) + " |")
+            label = ""
+    for group in first:
+        label = f"{group} quality"
+        for key, metric, fmt in QUALITY_ROWS:
+            row = [label, metric]
+            for c in cols:
+                qs = _group_quality(out["columns"][c]["clips"], group)
+                row.append(fmt.format(qs[key]) if qs else "")
+            row += [""] * (len(head) - len(row))
             lines.append("| " + " | ".join(row) + " |")
             label = ""
     lines += ["", "| target (issue 10, all held-out clips) | met | value |", "|---|---|---|"]
