@@ -1,10 +1,14 @@
-"""File helpers shared by the exporter and the checkpoint writer."""
+"""File helpers shared by the exporter and the checkpoint writer, and the error type of malformed input."""
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import tempfile
+from collections.abc import Iterable, Mapping
 from pathlib import Path
+from typing import Any
 
 
 def write_atomic(path: Path, data: bytes) -> None:
@@ -20,3 +24,91 @@ def write_atomic(path: Path, data: bytes) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+# ---------------------------------------------------------------------------------------------------
+# Malformed input: one error type, short messages, bounded JSON
+# ---------------------------------------------------------------------------------------------------
+ECHO_LIMIT = 200
+"""Characters of an input value that an error message echoes (``shorten``)."""
+
+MAX_JSON_DEPTH = 64
+"""Deepest nesting of arrays / objects that ``loads_json`` accepts (project files nest a few levels)."""
+
+
+class InputError(ValueError):
+    """Malformed input: a file or a message that a loader cannot read.
+
+    Policy metadata, motion clips, commands files, calibration files, run logs, CAN frames: every loader
+    raises this type (through its own subclass: ``MetadataError``, ``PolicyLoadError``, ``ClipError``,
+    ``CommandError``, ...) for any malformed input, and nothing else; the CLIs print it as one line and
+    exit with status 2.
+    """
+
+
+def shorten(value: object, limit: int = ECHO_LIMIT) -> str:
+    """``str(value)`` cut to ``limit`` characters plus ``... (N chars)`` when longer (for error messages)."""
+    text = value if isinstance(value, str) else str(value)
+    if len(text) <= limit:
+        return text
+    return f"{text[:limit]}... ({len(text)} chars)"
+
+
+def json_depth(value: object) -> int:
+    """Nesting depth of a parsed JSON value (a scalar is 0, ``[]`` 1), without recursion."""
+    deepest = 0
+    stack: list[tuple[object, int]] = [(value, 0)]
+    while stack:
+        item, depth = stack.pop()
+        if isinstance(item, dict):
+            children: Iterable[object] = item.values()
+        elif isinstance(item, list | tuple):
+            children = item
+        else:
+            continue
+        depth += 1
+        deepest = max(deepest, depth)
+        stack.extend((c, depth) for c in children)
+    return deepest
+
+
+def loads_json(
+    text: str | bytes,
+    what: str,
+    error: type[InputError] = InputError,
+    max_depth: int = MAX_JSON_DEPTH,
+) -> Any:
+    """``json.loads(text)``, raising ``error`` (naming ``what``) for any malformed text.
+
+    Refused: invalid JSON, text that is not UTF-8, and nesting deeper than ``max_depth`` (which would
+    otherwise end in a ``RecursionError`` here or in whatever walks the value later).
+    """
+    try:
+        value = json.loads(text)
+    except RecursionError:
+        raise error(f"{what} is nested too deeply (more than {max_depth} levels)") from None
+    except (ValueError, TypeError) as e:  # JSONDecodeError, UnicodeDecodeError, huge integers
+        raise error(f"{what} is not valid JSON: {shorten(e)}") from None
+    if json_depth(value) > max_depth:
+        raise error(f"{what} is nested too deeply (more than {max_depth} levels)")
+    return value
+
+
+def finite_json(value: object) -> Any:
+    """``value`` made valid for ``json.dumps(..., allow_nan=False)``: every NaN or infinity becomes None.
+
+    Walks mappings (keys made strings), lists and tuples; numpy scalars and arrays become Python numbers
+    and lists first (``tolist``). Anything else is returned as is (``default=str`` writes it).
+    """
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, bool | int | str) or value is None:
+        return value
+    if isinstance(value, Mapping):
+        return {str(k): finite_json(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [finite_json(v) for v in value]
+    tolist = getattr(value, "tolist", None)
+    if callable(tolist):  # numpy scalar or array
+        return finite_json(tolist())
+    return value

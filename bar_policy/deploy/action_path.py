@@ -11,6 +11,11 @@ Per POLICY tick (the env's ``LiteRobotEnv.filtered_action``, in numpy):
 The applied action is the filter's state and the observation's ``actions`` term. ``start(q)`` sets it when
 POLICY begins: the action of the pose ``q`` the robot was brought to (the HOLD ramp's target; an
 evaluation's start frame) with the filter, 0 without it, as the env's reset does.
+
+``check_action_scale`` (a pure function, in ``safety``: no import of the loader, so ``policy`` can call it
+at load) checks the file's ``action_scale`` against the joint ranges: the
+reach ``default +- action_scale * bound`` (bound = the action clip, else 1 action unit) must stay within
+``[lower - margin, upper + margin]``. The runtime refuses a policy that fails it (``PolicyLoadError``).
 """
 
 from __future__ import annotations
@@ -20,9 +25,10 @@ import logging
 import numpy as np
 
 from bar_policy.deploy.policy import OnnxPolicy
+from bar_policy.deploy.safety import DEFAULT_REACH_MARGIN, check_action_scale
 from bar_policy.robot.action_filter import filter_alpha, lowpass_step, pose_action
 
-__all__ = ["ActionPath"]
+__all__ = ["DEFAULT_REACH_MARGIN", "ActionPath", "check_action_scale"]
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +49,14 @@ class ActionPath:
         self.clip_count = 0
         """Action entries clipped to ``+-policy.action_clip`` over the run."""
         self._warned = False
+        self.count = 0
+        """Raw action entries seen over the run (the clip count's denominator)."""
+
+    @property
+    def bound(self) -> float:
+        """The action range, action units: ``policy.action_clip``, else 1 (training's range)."""
+        c = self.policy.action_clip
+        return 1.0 if c is None else float(c)
 
     def start(self, q: np.ndarray) -> None:
         """POLICY begins with the robot at pose ``q`` (rad, canonical order): set the filter state."""
@@ -54,6 +68,7 @@ class ActionPath:
 
     def __call__(self, action: np.ndarray, t: float) -> tuple[np.ndarray, int]:
         """The applied action of raw ``action`` at run time ``t`` (s), and how many entries were clipped."""
+        self.count += int(np.size(action))
         used = self._clip(action, t)
         n_clipped = int(np.count_nonzero(used != action))
         if self.cutoff_hz is not None:

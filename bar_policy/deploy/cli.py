@@ -16,8 +16,13 @@ and the evaluation (``deploy.tasks``); an option of another task is refused with
 Stopping: SIGINT (Ctrl+C), SIGTERM and SIGHUP take one path: DAMPING, then the stop frames on every bus,
 then the log closed with the reason; exit status 0. A second signal is counted and ignored. Exit status:
 0 ran to the end or stopped on request, 1 ended on a fault or an error during the run (the joints were
-damped and stopped), 2 refused before anything moved (bad arguments, policy or target); every refusal is
-one line on stderr, ``bar-deploy: error: ...``.
+damped and stopped), 2 refused before anything moved (bad arguments, policy or target), 3 the safe stop was
+not confirmed (some joint did not answer the damping or stop frames; the end line names them, also after a
+fault, which 3 takes precedence over; ``run_config.EXIT_*``); every refusal is
+one line on stderr, ``bar-deploy: error: ...``. A malformed input file (policy metadata, motion clip,
+commands file, calibration, run log) is refused the same way: its loader raises ``_files.InputError``
+naming the file and the problem, and the line is cut to ``MAX_ERROR_CHARS``. A SIGINT before the stop
+handlers are installed (the first fraction of a second) ends quietly: ``signals.early_interrupt``.
 
 The only module that prints. Never imports jax, torch or onnx.
 """
@@ -33,6 +38,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from bar_policy._files import shorten
 from bar_policy.deploy.cli_types import Parser as _Parser
 from bar_policy.deploy.cli_types import asks_help as _asks_help
 from bar_policy.deploy.cli_types import count0 as _count0
@@ -42,13 +48,17 @@ from bar_policy.deploy.cli_types import one_line as _one_line
 from bar_policy.deploy.cli_types import priority as _priority
 from bar_policy.deploy.cli_types import seconds as _seconds
 from bar_policy.deploy.cli_types import seconds0 as _seconds0
-from bar_policy.deploy.tasks import all_tasks, get_task
-from bar_policy.deploy.tasks.reach import SEED_HELP
-from bar_policy.provenance import describe as describe_provenance
+from bar_policy.deploy.signals import early_interrupt
+
+# The tasks and provenance modules (numpy and more) are imported where they are used: until ``main`` runs,
+# a SIGINT is a ``KeyboardInterrupt`` that ``main`` cannot catch, so the module itself loads in milliseconds.
 
 __all__ = ["main"]
 
 log = logging.getLogger("bar_policy.deploy.cli")
+
+MAX_ERROR_CHARS = 1000
+"""Longest error line printed (the file and the problem come first; longer lines end in ``... (N chars)``)."""
 
 TARGETS = ("sim", "mock", "real")
 SUBCOMMANDS = ("run", "plot", "eval")
@@ -61,7 +71,8 @@ command sources (by the policy's task):
   track --motion wave | clap | reach_sweep | hanging_to_piano_ready | random-s<seed>-<index> | clip.npz | .csv
 real target options: the group above (also listed by bar-deploy --target real --help)
 stopping: SIGINT (Ctrl+C), SIGTERM, SIGHUP -> DAMPING, stop frames, log closed; a second signal is ignored
-exit status: 0 done or stopped on request, 1 fault or error during the run, 2 refused before the start
+exit status: 0 done or stopped on request, 1 fault or error during the run, 2 refused before the start,
+3 the safe stop was not confirmed by every joint
 """
 
 
@@ -78,6 +89,9 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 
 def _run_parser() -> argparse.ArgumentParser:
+    from bar_policy.deploy.tasks import all_tasks
+    from bar_policy.deploy.tasks.reach import SEED_HELP
+
     p = _Parser(
         prog="bar-deploy",
         description="Run an ONNX policy at its policy rate on a target, under the safety supervisor.",
@@ -143,7 +157,7 @@ def _configure_logging(verbose: bool) -> None:
 
 
 def _fail(msg: object, status: int = 2) -> int:
-    print(f"bar-deploy: error: {_one_line(msg)}", file=sys.stderr)
+    print(f"bar-deploy: error: {shorten(_one_line(msg), MAX_ERROR_CHARS)}", file=sys.stderr)
     return status
 
 
@@ -212,6 +226,8 @@ def _policy_task(args: argparse.Namespace, which: str) -> tuple[object, object]:
         PolicyLoadError, OptionError, ValueError: with the message to print.
     """
     from bar_policy.deploy.policy import load_policy
+    from bar_policy.deploy.tasks import all_tasks, get_task
+    from bar_policy.provenance import describe as describe_provenance
 
     policy = _with_action_clip(load_policy(args.policy, control_dt=args.control_dt, mode=args.mode), args)
     task = get_task(policy.task)  # type: ignore[attr-defined]
@@ -307,11 +323,13 @@ def _run_session(args: argparse.Namespace, argv: Sequence[str], real: object, st
         result = rt.run(stop)  # type: ignore[arg-type]
     except TargetError as e:
         where = f"; log: {rt.log_path.parent}" if rt.log_path is not None else ""
-        return _fail(f"target {args.target} failed during the run: {e} (damped, then stopped{where})", 1)
+        msg = f"target {args.target} failed during the run: {e} (safe stop: {_stop_text(rt)}{where})"
+        return _fail(msg, _after_exception(rt))
     except Exception as e:
-        log.error("the run ended on an exception (damped, then stopped)", exc_info=True)
+        log.error("the run ended on an exception (safe stop: %s)", _stop_text(rt), exc_info=True)
         where = f"; log: {rt.log_path.parent}" if rt.log_path is not None else ""
-        return _fail(f"the run ended on {type(e).__name__}: {e} (damped, then stopped{where})", 1)
+        msg = f"the run ended on {type(e).__name__}: {e} (safe stop: {_stop_text(rt)}{where})"
+        return _fail(msg, _after_exception(rt))
     finally:
         commands.close()
         try:
@@ -319,10 +337,7 @@ def _run_session(args: argparse.Namespace, argv: Sequence[str], real: object, st
         except Exception:
             log.exception("closing the %s target failed", args.target)
     print(result.timing.format())
-    print(
-        f"end: {result.end_reason}; final mode {result.final_mode.name}; "
-        f"q_cmd clipped {result.clip_count} joint-ticks; safe stop: {result.safe_stop}"
-    )
+    print(result.end_line())
     print(run_quality_line(result.quality))
     for tr in result.transitions:
         print(f"  t={tr['t']:.3f} s  {tr['from']} -> {tr['to']}: {tr['reason']}")
@@ -331,7 +346,20 @@ def _run_session(args: argparse.Namespace, argv: Sequence[str], real: object, st
     video = getattr(target, "video_path", None)
     if video is not None:
         print(f"video: {video}")
-    return 0 if result.fault_count == 0 else 1
+    return result.exit_status
+
+
+def _stop_text(rt: object) -> str:
+    """The safe stop's outcome after a run that raised (``Runtime.safe_stop_summary``)."""
+    return getattr(rt, "safe_stop_summary", "") or "not reached"
+
+
+def _after_exception(rt: object) -> int:
+    """Exit status of a run that raised: 1, or 3 when the safe stop was not confirmed by every joint."""
+    from bar_policy.deploy.run_config import EXIT_FAULT, EXIT_STOP_UNCONFIRMED
+
+    report = getattr(rt, "stop_report", None)
+    return EXIT_FAULT if report is not None and report.confirmed else EXIT_STOP_UNCONFIRMED
 
 
 def _plot(argv: Sequence[str]) -> int:
@@ -359,6 +387,8 @@ def _eval(argv: Sequence[str]) -> int:
         "success rate over seeded episodes; track, the joint / tracked-body / fingertip errors on held-out "
         "clips.",
     )
+    from bar_policy.deploy.tasks import all_tasks
+
     _common(p)
     p.add_argument("--json", type=Path, help="write the per-episode / per-clip results here")
     for task in all_tasks():
@@ -386,19 +416,27 @@ def _eval(argv: Sequence[str]) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``bar-deploy``; returns the exit status.
 
-    0: ran to the end, or stopped on request (SIGINT / SIGTERM / SIGHUP); 1: ended on a fault or an error
-    during the run; 2: refused before anything moved (bad arguments, policy, log directory or target).
+    0: ran to the end, or stopped on request (SIGINT / SIGTERM / SIGHUP), also before the start; 1: ended on
+    a fault or an error during the run; 2: refused before anything moved (bad arguments, policy, motion
+    clip, commands file, log directory or target: one line naming the file and the problem); 130: ``eval``
+    or ``plot`` ended by SIGINT. A SIGINT that comes before the stop handlers are installed ends without a
+    traceback (``signals.early_interrupt``).
     """
     args = list(sys.argv[1:] if argv is None else argv)
     if args and args[0] in SUBCOMMANDS:
         sub, rest = args[0], args[1:]
     else:
         sub, rest = "run", args
-    if sub == "plot":
-        return _plot(rest)
-    if sub == "eval":
-        return _eval(rest)
-    return _run(rest)
+    try:
+        if sub == "plot":
+            return _plot(rest)
+        if sub == "eval":
+            return _eval(rest)
+        return _run(rest)
+    except KeyboardInterrupt:  # SIGINT before StopSignals (run), or during eval / plot: no traceback
+        status, line = early_interrupt(sub)
+        print(line, file=sys.stdout if status == 0 else sys.stderr, flush=True)
+        return status
 
 
 if __name__ == "__main__":

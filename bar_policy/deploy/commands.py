@@ -24,19 +24,21 @@ from __future__ import annotations
 
 import abc
 import csv
-import json
 import logging
 import math
 import queue
 import socket
 import sys
 import threading
+import zipfile
+import zlib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
 
+from bar_policy._files import InputError, loads_json, shorten
 from bar_policy.deploy.tasks.base import CommandSource
 from bar_policy.tasks.reach import ReachTargetConfig, sample_targets
 
@@ -63,8 +65,13 @@ COMMAND_SIZES: dict[str, int] = {"target_pos_left": 3, "target_pos_right": 3}
 _SPECS = "sampled, sampled:PERIOD, file:PATH, stream:stdin, stream:udp:PORT"
 
 
-class CommandError(ValueError):
-    """A command source is misconfigured or its input is malformed."""
+class CommandError(InputError):
+    """A command source is misconfigured or its input is malformed.
+
+    ``FileCommands`` raises only this for a malformed file (empty, truncated, not UTF-8, invalid or too
+    deeply nested JSON, wrong keys, types or shapes), naming the file; echoed values are cut to
+    ``_files.ECHO_LIMIT`` characters.
+    """
 
 
 def _check_names(names: tuple[str, ...]) -> None:
@@ -76,9 +83,9 @@ def _check_names(names: tuple[str, ...]) -> None:
 def _vector(name: str, value: Any, where: str) -> np.ndarray:
     try:
         v = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise CommandError(
-            f"{where}: {name} must be a list of {COMMAND_SIZES[name]} numbers, got {value!r}"
+            f"{where}: {name} must be a list of {COMMAND_SIZES[name]} numbers, got {shorten(repr(value))}"
         ) from None
     if v.shape != (COMMAND_SIZES[name],):
         raise CommandError(f"{where}: {name} must have {COMMAND_SIZES[name]} numbers, got shape {v.shape}")
@@ -205,9 +212,10 @@ class FileCommands(ReachSource):
 
     def _read_json(self) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         try:
-            data = json.loads(self.path.read_text())
-        except json.JSONDecodeError as e:
-            raise CommandError(f"command file {str(self.path)!r} is not valid JSON: {e}") from None
+            text = self.path.read_bytes()
+        except OSError as e:
+            raise CommandError(f"command file {str(self.path)!r} cannot be read: {e.strerror or e}") from None
+        data = loads_json(text, f"command file {str(self.path)!r}", CommandError)
         if isinstance(data, dict):
             data = data.get("commands")
         if not isinstance(data, list):
@@ -224,15 +232,22 @@ class FileCommands(ReachSource):
                 raise CommandError(f"{self._where(k)}: missing {missing}")
             try:
                 t.append(float(entry["t"]))
-            except (TypeError, ValueError):
-                raise CommandError(f"{self._where(k)}: t must be a number, got {entry['t']!r}") from None
+            except (TypeError, ValueError, OverflowError):
+                raise CommandError(
+                    f"{self._where(k)}: t must be a number, got {shorten(repr(entry['t']))}"
+                ) from None
             for n in self.names:
                 cols[n].append(_vector(n, entry[n], self._where(k)))
         return np.array(t), {n: np.array(v).reshape(-1, COMMAND_SIZES[n]) for n, v in cols.items()}
 
     def _read_csv(self) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        with self.path.open(newline="") as f:
-            rows = list(csv.DictReader(f))
+        try:
+            with self.path.open(newline="") as f:
+                rows = list(csv.DictReader(f))
+        except (OSError, UnicodeDecodeError, csv.Error) as e:
+            raise CommandError(
+                f"command file {str(self.path)!r} is not a readable CSV: {shorten(e)}"
+            ) from None
         if not rows:
             raise CommandError(f"command file {str(self.path)!r} has no rows")
         want = ["t"] + [f"{n}_{a}" for n in self.names for a in "xyz"]
@@ -251,24 +266,41 @@ class FileCommands(ReachSource):
             except (TypeError, ValueError) as e:
                 if isinstance(e, CommandError):
                     raise
-                raise CommandError(f"{self._where(k)}: not a number ({e})") from None
+                raise CommandError(f"{self._where(k)}: not a number ({shorten(e)})") from None
         return np.array(t), {n: np.array(v) for n, v in cols.items()}
 
     def _read_npz(self) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        if self.path.stat().st_size == 0:
+            raise CommandError(f"command file {str(self.path)!r} is not a readable NPZ: the file is empty")
         try:
             with np.load(self.path, allow_pickle=False) as z:
                 arrays = {k: z[k] for k in z.files}
-        except (OSError, ValueError) as e:
-            raise CommandError(f"command file {str(self.path)!r} is not a readable NPZ: {e}") from None
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, KeyError, AttributeError) as e:
+            # AttributeError: a bare .npy array (no ``files``); the rest: empty, truncated or corrupt archives
+            raise CommandError(
+                f"command file {str(self.path)!r} is not a readable NPZ: {shorten(e)}"
+            ) from None
         missing = [k for k in ("t", *self.names) if k not in arrays]
         if missing:
             raise CommandError(
-                f"command file {str(self.path)!r}: missing arrays {missing}; has {sorted(arrays)}"
+                f"command file {str(self.path)!r}: missing arrays {missing}; has {shorten(sorted(arrays))}"
             )
-        t = np.asarray(arrays["t"], dtype=np.float64).reshape(-1)
+        for k in ("t", *self.names):
+            if arrays[k].dtype.kind not in "fiu":  # complex, bool or text: not times or targets
+                raise CommandError(
+                    f"command file {str(self.path)!r}: {k} must hold real numbers, got dtype "
+                    f"{arrays[k].dtype}"
+                )
+        try:
+            t = np.asarray(arrays["t"], dtype=np.float64).reshape(-1)
+            raw = {n: np.asarray(arrays[n], dtype=np.float64) for n in self.names}
+        except (TypeError, ValueError, OverflowError) as e:
+            raise CommandError(
+                f"command file {str(self.path)!r}: arrays must be numbers ({shorten(e)})"
+            ) from None
         values = {}
         for n in self.names:
-            v = np.asarray(arrays[n], dtype=np.float64)
+            v = raw[n]
             if v.shape != (t.size, COMMAND_SIZES[n]):
                 raise CommandError(
                     f"command file {str(self.path)!r}: {n} has shape {v.shape}, expected ({t.size}, 3)"
@@ -352,15 +384,15 @@ class StreamCommands(ReachSource):
 
     def _apply(self, line: str) -> None:
         try:
-            msg = json.loads(line)
+            msg = loads_json(line, "message", CommandError)
             if not isinstance(msg, dict):
                 raise CommandError(f"expected a JSON object, got {type(msg).__name__}")
             unknown = sorted(set(msg) - set(self.names) - {"t"})
             known = [n for n in self.names if n in msg]
             if unknown or not known:
-                raise CommandError(f"keys must be among {list(self.names)}; got {sorted(msg)}")
+                raise CommandError(f"keys must be among {list(self.names)}; got {shorten(sorted(msg))}")
             update = {n: _vector(n, msg[n], "stream message") for n in known}
-        except (json.JSONDecodeError, CommandError) as e:
+        except CommandError as e:
             self.bad_messages += 1
             log.warning(
                 "ignored command message %r: %s (%d bad so far)", line.strip()[:200], e, self.bad_messages

@@ -10,13 +10,15 @@ from pathlib import Path
 
 import numpy as np
 
+from bar_policy._files import InputError
+
 __all__ = ["GAIN_RTOL", "PolicyLoadError", "diff_joints", "diff_values", "refuse"]
 
 GAIN_RTOL = 1e-6
 """Relative tolerance on Kp / Kd and on the default pose (JSON round-trips floats exactly; this is slack)."""
 
 
-class PolicyLoadError(ValueError):
+class PolicyLoadError(InputError):
     """A policy file cannot be run: unreadable, not ONNX, or its contract does not match this robot/code."""
 
 

@@ -11,12 +11,15 @@ A run directory ``<dir>/<YYYYmmdd-HHMMSS>-<target>/`` holds:
   string: run metadata, mode transitions, timing summary, end reason, the stop path's outcome). The runtime
   calls ``close()`` in ``finally``, so it is written when the run ends on a signal or an exception too.
 - ``run.json``: the metadata for humans, ``status: running`` until ``close()`` rewrites it with
-  ``status: closed`` (both writes atomic and fsync-ed).
+  ``status: closed`` (both writes atomic and fsync-ed). It is strict JSON: every NaN or infinity in the
+  metadata (a timing statistic of a run with no tick, say) is written as ``null``
+  (``_files.finite_json``, then ``json.dumps(..., allow_nan=False)``); so is ``meta_json`` in ``log.npz``.
 - ``chunks/``: while the run lasts, the NPZ spill of every ``chunk_ticks`` ticks (memory stays bounded);
   removed once ``log.npz`` is on disk.
 
 Per-tick arrays (first axis = tick): ``t`` (target clock, s), ``wall`` (s since start), ``mode`` (int8,
-``safety.Mode``), ``q``/``dq``/``tau`` (measured, (T, n)), ``obs`` (T, obs_size) float32, ``action``
+``safety.Mode``), ``q``/``dq``/``tau`` (measured, (T, n)), ``temperature`` (motor temperature, degC, (T, n);
+NaN on targets that report none), ``obs`` (T, obs_size) float32, ``action``
 (T, n_actions) float32 (NaN where the policy did not run), ``q_cmd``/``dq_cmd``/``kp``/``kd``/``tau_ff``
 (T, n), ``tau_cmd`` (host's MIT torque for the command at the measured state, capped, (T, n)),
 ``n_clipped`` (joints whose q_cmd was clipped to a limit that tick), ``n_action_clipped`` (action
@@ -40,15 +43,25 @@ import shutil
 import threading
 import time
 import zipfile
+import zlib
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
 
+from bar_policy._files import InputError, finite_json, loads_json, shorten
 from bar_policy.deploy.mcap_log import MCAP_FILE, McapRunWriter, read_mcap_log
 
-__all__ = ["FLUSH_INTERVAL", "LogDirError", "RunLog", "check_log_dir", "load_log", "log_fields"]
+__all__ = [
+    "FLUSH_INTERVAL",
+    "LogDirError",
+    "LogReadError",
+    "RunLog",
+    "check_log_dir",
+    "load_log",
+    "log_fields",
+]
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +73,10 @@ NOT_CLOSED = "not closed: the process ended without closing the log (killed or p
 
 class LogDirError(ValueError):
     """The log directory cannot be created or written."""
+
+
+class LogReadError(InputError):
+    """A run log that ``load_log`` cannot read: not a log written by ``bar-deploy``, truncated or corrupt."""
 
 
 def log_fields(
@@ -85,6 +102,7 @@ def log_fields(
         "q": (n, np.float64),
         "dq": (n, np.float64),
         "tau": (n, np.float64),
+        "temperature": (n, np.float64),
         "obs": ((obs_size,), np.float32),
         "action": ((n_actions,), np.float32),
         "q_cmd": (n, np.float64),
@@ -142,8 +160,17 @@ def _write_durable(path: Path, write: Callable[[IO[bytes]], None]) -> None:
     _fsync_dir(path.parent)
 
 
+def _json_text(meta: Mapping[str, Any], **kwargs: Any) -> str:
+    """Strict JSON of the run metadata: NaN and infinities become ``null`` (``finite_json``), never ``NaN``.
+
+    ``allow_nan=False`` makes any non-finite float that slipped through an error instead of invalid JSON.
+    """
+    return json.dumps(finite_json(meta), sort_keys=True, default=str, allow_nan=False, **kwargs)
+
+
 def _json_bytes(meta: Mapping[str, Any]) -> bytes:
-    return json.dumps(meta, indent=2, sort_keys=True, default=str).encode()
+    """``run.json``'s bytes: strict JSON (``_json_text``; non-finite floats written as ``null``), indented."""
+    return _json_text(meta, indent=2).encode()
 
 
 def check_log_dir(root: str | Path) -> Path:
@@ -384,7 +411,7 @@ class RunLog:
             self.meta["log_write_errors"] = self._write_errors[:20]
             self.meta["log_write_error_count"] = len(self._write_errors)
         arrays = _concat_chunks(self._chunk_files, self.fields)
-        meta_json = np.array(json.dumps(self.meta, sort_keys=True, default=str))
+        meta_json = np.array(_json_text(self.meta))
 
         def write_npz(f: IO[bytes]) -> None:
             np.savez(f, meta_json=meta_json, **arrays)
@@ -415,14 +442,23 @@ def _concat_chunks(
 # Reading
 # ---------------------------------------------------------------------------------------------------
 def _read_json(path: Path) -> dict[str, Any]:
+    """``run.json`` as a dict; ``{}`` when it is missing, malformed or not an object (it only informs)."""
     try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
+        value = loads_json(path.read_bytes(), str(path), LogReadError)
+    except (OSError, LogReadError):
         return {}
+    return value if isinstance(value, dict) else {}
 
 
 def _load_mcap(path: Path, run_json: dict[str, Any]) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    rec = read_mcap_log(path)
+    try:
+        rec = read_mcap_log(path)
+    except LogReadError:
+        raise
+    except (ValueError, TypeError, KeyError, RecursionError, EOFError) as e:
+        raise LogReadError(
+            f"{path} is not a run log (MCAP written by bar-deploy): {shorten(e, 500)}"
+        ) from None
     meta = run_json | rec.meta
     if not rec.complete:
         meta["status"] = "running"
@@ -446,8 +482,9 @@ def load_log(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         ``(arrays, meta)``: per-tick arrays (first axis = tick) and the run metadata.
 
     Raises:
-        FileNotFoundError: nothing readable at ``path``.
-        ValueError: the file is not a run log.
+        FileNotFoundError: nothing at ``path``.
+        LogReadError: (an ``_files.InputError``, a ``ValueError``) the file is not a run log, or a corrupt
+            one: the only error for malformed content, whatever the bytes.
     """
     path = Path(path)
     if path.is_dir():
@@ -460,15 +497,15 @@ def load_log(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
             except ValueError as e:
                 chunks = sorted((path / "chunks").glob("chunk_*.npz"))
                 if not chunks:
-                    raise ValueError(
-                        f"run {path} has no log.npz and its {MCAP_FILE} is unreadable: {e}"
+                    raise LogReadError(
+                        f"run {path} has no log.npz and its {MCAP_FILE} is unreadable: {shorten(e, 500)}"
                     ) from None
-                return _concat_chunks(chunks, None), run_json
+                return _read_chunks(path, chunks), run_json
         else:
             chunks = sorted((path / "chunks").glob("chunk_*.npz"))
             if not chunks:
                 raise FileNotFoundError(f"{path} has neither log.npz, {MCAP_FILE} nor chunks/chunk_*.npz")
-            return _concat_chunks(chunks, None), run_json
+            return _read_chunks(path, chunks), run_json
     if not path.is_file():
         raise FileNotFoundError(
             f"no run log at {path} (give a run directory, its log.npz or its {MCAP_FILE})"
@@ -476,11 +513,28 @@ def load_log(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     if path.suffix == ".mcap":
         return _load_mcap(path, _read_json(path.parent / "run.json"))
     try:
-        with np.load(path, allow_pickle=False) as z:
-            if not hasattr(z, "files"):
-                raise ValueError("a single array, not an NPZ archive")
+        if path.stat().st_size == 0:
+            raise ValueError("the file is empty")
+        z = np.load(path, allow_pickle=False)
+        if not hasattr(z, "files"):
+            raise ValueError("a single array, not an NPZ archive")
+        with z:
             arrays = {k: z[k] for k in z.files if k != "meta_json"}
-            meta = json.loads(str(z["meta_json"])) if "meta_json" in z.files else {}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
-        raise ValueError(f"{path} is not a run log (NPZ written by bar-deploy): {e}") from None
+            meta = (
+                loads_json(str(z["meta_json"]), "meta_json", LogReadError) if "meta_json" in z.files else {}
+            )
+        if not isinstance(meta, dict):
+            raise ValueError(f"meta_json is a JSON {type(meta).__name__}, not an object")
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, KeyError) as e:
+        raise LogReadError(
+            f"{path} is not a run log (NPZ written by bar-deploy): {shorten(e, 500)}"
+        ) from None
     return arrays, meta
+
+
+def _read_chunks(run: Path, chunks: list[Path]) -> dict[str, np.ndarray]:
+    """The NPZ chunks of a run that never closed, concatenated; ``LogReadError`` when one is corrupt."""
+    try:
+        return _concat_chunks(chunks, None)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, KeyError) as e:
+        raise LogReadError(f"run {run}: its NPZ chunks are unreadable: {shorten(e, 500)}") from None

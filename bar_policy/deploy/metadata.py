@@ -34,7 +34,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from bar_policy.provenance import read_record
+from bar_policy._files import InputError, loads_json, shorten
 
 __all__ = [
     "ACTION_SEMANTICS",
@@ -82,8 +82,13 @@ _HC_ABS_TOL = 1e-6
 """Absolute tolerance for the same comparison (values near 0)."""
 
 
-class MetadataError(ValueError):
-    """A policy file's metadata is missing, malformed or inconsistent."""
+class MetadataError(InputError):
+    """A policy file's metadata is missing, malformed or inconsistent (any malformed value raises this).
+
+    Every ``bar.*`` value is parsed by ``_files.loads_json``: invalid JSON and nesting deeper than
+    ``_files.MAX_JSON_DEPTH`` are refused, and values echoed in a message are cut to ``_files.ECHO_LIMIT``
+    characters.
+    """
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -146,7 +151,9 @@ class PolicyMetadata:
 
     def __post_init__(self) -> None:
         if self.dialect not in DIALECTS:
-            raise MetadataError(f"unknown metadata dialect {self.dialect!r}; valid: {list(DIALECTS)}")
+            raise MetadataError(
+                f"unknown metadata dialect {shorten(repr(self.dialect))}; valid: {list(DIALECTS)}"
+            )
         n = len(self.joint_names)
         for name in ("joint_stiffness", "joint_damping", "default_joint_pos"):
             if len(getattr(self, name)) != n:
@@ -158,7 +165,8 @@ class PolicyMetadata:
             )
         if self.action_semantics not in ACTION_SEMANTICS:
             raise MetadataError(
-                f"unknown action_semantics {self.action_semantics!r}; supported: {list(ACTION_SEMANTICS)}"
+                f"unknown action_semantics {shorten(repr(self.action_semantics))}; supported: "
+                f"{list(ACTION_SEMANTICS)}"
             )
         if not (math.isfinite(self.policy_dt) and self.policy_dt > 0):
             raise MetadataError(f"policy_dt must be a positive number of seconds, got {self.policy_dt}")
@@ -168,12 +176,14 @@ class PolicyMetadata:
         if isinstance(self.lookahead_steps, bool) or not (
             isinstance(self.lookahead_steps, int) and self.lookahead_steps >= 0
         ):
-            raise MetadataError(f"lookahead_steps must be an integer >= 0, got {self.lookahead_steps!r}")
+            raise MetadataError(
+                f"lookahead_steps must be an integer >= 0, got {shorten(repr(self.lookahead_steps))}"
+            )
         f = self.action_filter_hz
         if f is not None and not (isinstance(f, int | float) and 0 < f < 0.5 / self.policy_dt):
             raise MetadataError(
                 f"action filter cutoff must be a number of Hz in (0, {0.5 / self.policy_dt:g}) (below "
-                f"Nyquist), got {f!r}"
+                f"Nyquist), got {shorten(repr(f))}"
             )
         if any("," in n for n in self.body_names) or "," in self.dataset_repo_id:
             raise MetadataError("body_names and dataset_repo_id must not contain commas (HC's CSV form)")
@@ -251,23 +261,24 @@ class PolicyMetadata:
 
     @classmethod
     def _from_bar(cls, props: Mapping[str, str]) -> PolicyMetadata:
-        parsed: dict[str, Any] = {}
-        for k in BAR_KEYS:
-            try:
-                parsed[k] = json.loads(props[k])
-            except json.JSONDecodeError as e:
-                raise MetadataError(f"metadata key {k!r} is not valid JSON: {e}") from None
+        parsed: dict[str, Any] = {
+            k: loads_json(props[k], f"metadata key {k!r}", MetadataError) for k in BAR_KEYS
+        }
         version = parsed["bar.metadata_version"]
-        if version != METADATA_VERSION:
+        if version != METADATA_VERSION or isinstance(version, bool):
             raise MetadataError(
-                f"metadata version {version!r} is not supported; this runtime reads {METADATA_VERSION}"
+                f"metadata version {shorten(repr(version))} is not supported; this runtime reads "
+                f"{METADATA_VERSION}"
             )
 
         def floats(key: str) -> tuple[float, ...]:
             v = parsed[key]
             if not isinstance(v, list) or not all(isinstance(x, int | float) for x in v):
                 raise MetadataError(f"metadata key {key!r} must be a list of numbers")
-            return tuple(float(x) for x in v)
+            try:
+                return tuple(float(x) for x in v)
+            except OverflowError:
+                raise MetadataError(f"metadata key {key!r} holds a number out of range") from None
 
         def names(key: str) -> tuple[str, ...]:
             v = parsed[key]
@@ -275,9 +286,25 @@ class PolicyMetadata:
                 raise MetadataError(f"metadata key {key!r} must be a list of strings")
             return tuple(v)
 
-        schema = parsed["bar.obs_schema"]
-        if not isinstance(schema, dict):
-            raise MetadataError("metadata key 'bar.obs_schema' must be a JSON object")
+        def number(key: str, optional: bool = False) -> float | None:
+            v = parsed[key]
+            if v is None and optional:
+                return None
+            if isinstance(v, bool) or not isinstance(v, int | float):
+                raise MetadataError(f"metadata key {key!r} must be a number, got {shorten(repr(v))}")
+            try:
+                return float(v)
+            except OverflowError:
+                raise MetadataError(f"metadata key {key!r} is out of range: {shorten(repr(v))}") from None
+
+        def obj(key: str) -> dict[str, Any]:
+            v = parsed[key]
+            if not isinstance(v, dict):
+                raise MetadataError(f"metadata key {key!r} must be a JSON object, got {type(v).__name__}")
+            return v
+
+        schema = obj("bar.obs_schema")
+        policy_dt = number("bar.policy_dt") or 0.0  # never None (not optional); 0 is refused below
         return cls(
             task=str(parsed["bar.task"]),
             robot=str(parsed["bar.robot"]),
@@ -289,19 +316,19 @@ class PolicyMetadata:
             default_joint_pos=floats("bar.default_joint_pos"),
             action_scale=floats("bar.action_scale"),
             action_semantics=str(parsed["bar.action_semantics"]),
-            policy_dt=float(parsed["bar.policy_dt"]),
-            physics_dt=float(parsed["bar.physics_dt"]),
+            policy_dt=policy_dt,
+            physics_dt=number("bar.physics_dt", optional=True),
             obs_schema=json.dumps(schema, sort_keys=True),
             obs_fingerprint=str(parsed["bar.obs_fingerprint"]),
             command_names=names("bar.command_names"),
-            randomization=parsed["bar.randomization"],
+            randomization=obj("bar.randomization"),
             code_version=str(parsed["bar.code_version"]),
-            training=parsed["bar.training"],
+            training=obj("bar.training"),
             body_names=_csv_names(props, "body_names"),
             lookahead_steps=_int_prop(props, "lookahead_steps"),
             dataset_repo_id=props["dataset_repo_id"],
             action_filter_hz=_action_filter(props),
-            provenance=read_record(props.get("bar.provenance")),
+            provenance=_provenance(props.get("bar.provenance")),
         )
 
     @classmethod
@@ -344,20 +371,31 @@ class PolicyMetadata:
 # ---------------------------------------------------------------------------------------------------
 # The HC (comma-separated) form
 # ---------------------------------------------------------------------------------------------------
+def _provenance(text: str | None) -> dict[str, Any]:
+    """``bar.provenance`` as ``provenance.read_record`` reads it; a malformed one never refuses the file."""
+    if text is None:
+        return {}
+    try:
+        loads_json(text, "metadata key 'bar.provenance'", MetadataError)
+    except MetadataError as e:  # informs only: the problem takes the record's place
+        return {"error": str(e)}
+    from bar_policy.provenance import read_record  # imported here: bar-deploy starts (and sees SIGINT) sooner
+
+    return read_record(text)
+
+
 def _action_filter(props: Mapping[str, str]) -> float | None:
     """The optional ``bar.action_filter`` key: ``{"cutoff_hz": f}`` or null; absent in older files."""
     text = props.get("bar.action_filter")
     if text is None:
         return None
-    try:
-        v = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise MetadataError(f"metadata key 'bar.action_filter' is not valid JSON: {e}") from None
+    v = loads_json(text, "metadata key 'bar.action_filter'", MetadataError)
     if v is None:
         return None
     if not isinstance(v, dict) or set(v) != {"cutoff_hz"} or isinstance(v["cutoff_hz"], bool):
         raise MetadataError(
-            f"metadata key 'bar.action_filter' must be null or {{\"cutoff_hz\": <Hz>}}, got {text!r}"
+            "metadata key 'bar.action_filter' must be null or {\"cutoff_hz\": <Hz>}, got "
+            f"{shorten(repr(text))}"
         )
     return v["cutoff_hz"]
 
@@ -369,7 +407,9 @@ def _csv_names(props: Mapping[str, str], key: str) -> tuple[str, ...]:
         return ()
     items = tuple(x.strip() for x in text.split(","))
     if any(not x for x in items):
-        raise MetadataError(f"metadata key {key!r} has an empty name between commas: {props[key]!r}")
+        raise MetadataError(
+            f"metadata key {key!r} has an empty name between commas: {shorten(repr(props[key]))}"
+        )
     return items
 
 
@@ -380,7 +420,7 @@ def _csv_floats(props: Mapping[str, str], key: str) -> tuple[float, ...]:
             out.append(float(x))
         except ValueError:
             raise MetadataError(
-                f"metadata key {key!r} must be comma-separated numbers; {x!r} is not"
+                f"metadata key {key!r} must be comma-separated numbers; {shorten(repr(x))} is not"
             ) from None
     return tuple(out)
 
@@ -388,7 +428,7 @@ def _csv_floats(props: Mapping[str, str], key: str) -> tuple[float, ...]:
 def _csv_float(props: Mapping[str, str], key: str) -> float:
     values = _csv_floats(props, key)
     if len(values) != 1:
-        raise MetadataError(f"metadata key {key!r} must be one number, got {props[key]!r}")
+        raise MetadataError(f"metadata key {key!r} must be one number, got {shorten(repr(props[key]))}")
     return values[0]
 
 
@@ -397,7 +437,8 @@ def _check_agreement(meta: PolicyMetadata, props: Mapping[str, str]) -> None:
 
     def refuse(key: str, detail: str) -> MetadataError:
         return MetadataError(
-            f"metadata keys 'bar.{key}' and {key!r} (Humanoid Control) disagree: {detail}; Humanoid Control "
+            f"metadata keys 'bar.{key}' and {key!r} (Humanoid Control) disagree: {shorten(detail, 500)}; "
+            "Humanoid Control "
             "and bar-deploy would run this file differently, re-export it"
         )
 
@@ -438,15 +479,20 @@ def _check_agreement(meta: PolicyMetadata, props: Mapping[str, str]) -> None:
     theirs = _csv_names(props, "observation_names")
     if terms != theirs:
         raise MetadataError(
-            f"metadata keys 'bar.obs_schema' (terms {list(terms)}) and 'observation_names' "
-            f"(Humanoid Control: {list(theirs)}) disagree; Humanoid Control and bar-deploy would build "
-            "different observations, re-export it"
+            f"metadata keys 'bar.obs_schema' (terms {shorten(list(terms))}) and 'observation_names' "
+            f"(Humanoid Control: {shorten(list(theirs))}) disagree; Humanoid Control and bar-deploy would "
+            "build different observations, re-export it"
         )
 
 
 def _int_prop(props: Mapping[str, str], key: str) -> int:
     """A non-negative integer HC key (``lookahead_steps``); refuses anything else naming the key."""
     text = props[key].strip()
-    if not text.isdigit():
-        raise MetadataError(f"metadata key {key!r} must be a non-negative integer, got {props[key]!r}")
-    return int(text)
+    try:
+        if not (text.isascii() and text.isdigit()):  # "¹" is a digit to isdigit, not to int
+            raise ValueError(text)
+        return int(text)
+    except ValueError:  # also more digits than int() converts
+        raise MetadataError(
+            f"metadata key {key!r} must be a non-negative integer, got {shorten(repr(props[key]))}"
+        ) from None

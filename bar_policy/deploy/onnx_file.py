@@ -1,17 +1,19 @@
 """A policy's ONNX file: its bytes (never a pickle), the onnxruntime session, its metadata, its graph I/O.
 
 Only onnxruntime is used (never pickle, never the ``onnx`` package: the robot computer only has
-onnxruntime). Every refusal is a ``PolicyLoadError`` naming the file and the problem.
+onnxruntime). Every refusal is a ``PolicyLoadError`` (an ``_files.InputError``) naming the file and the
+problem, whatever the bytes or the metadata hold; values it echoes are cut to ``_files.ECHO_LIMIT``
+characters.
 """
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 
+from bar_policy._files import loads_json, shorten
 from bar_policy.deploy.contract import refuse
 from bar_policy.deploy.metadata import MetadataError, PolicyMetadata
 
@@ -85,9 +87,9 @@ def action_clip(path: Path, sess: object) -> float | None:
     if ACTION_CLIP_KEY not in props:
         return DEFAULT_ACTION_CLIP
     try:
-        value = json.loads(props[ACTION_CLIP_KEY])
-    except json.JSONDecodeError as e:
-        raise refuse(path, f"metadata key {ACTION_CLIP_KEY!r} is not valid JSON: {e}") from None
+        value = loads_json(props[ACTION_CLIP_KEY], f"metadata key {ACTION_CLIP_KEY!r}", MetadataError)
+    except MetadataError as e:
+        raise refuse(path, str(e)) from None
     if value is None:
         return None
     if (
@@ -95,7 +97,9 @@ def action_clip(path: Path, sess: object) -> float | None:
         or not isinstance(value, int | float)
         or not (math.isfinite(value) and value > 0)
     ):
-        raise refuse(path, f"metadata key {ACTION_CLIP_KEY!r} must be a number > 0 or null, got {value!r}")
+        raise refuse(
+            path, f"metadata key {ACTION_CLIP_KEY!r} must be a number > 0 or null, got {shorten(repr(value))}"
+        )
     return float(value)
 
 

@@ -46,6 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bar_policy._files import shorten
 from bar_policy.deploy.contract import PolicyLoadError, diff_joints, diff_values, refuse
 from bar_policy.deploy.hc_policy import HC_TERM_CLIP, check_hc_gains, complete_hc, supported_terms
 from bar_policy.deploy.inputs import RUNTIME_INPUTS
@@ -59,6 +60,7 @@ from bar_policy.deploy.onnx_file import (
     read_bytes,
     session,
 )
+from bar_policy.deploy.safety import check_action_scale
 from bar_policy.obs.manager import ObservationManager, ObservationSchema
 from bar_policy.robot.constants import MODES, RobotSpec, load_robot
 from bar_policy.robot.mjcf import PHYSICS_DT
@@ -211,7 +213,7 @@ def load_policy(
 
     # Joint set and task.
     if meta.mode not in MODES:
-        raise refuse(path, f"unknown joint set (mode) {meta.mode!r}; valid: {list(MODES)}")
+        raise refuse(path, f"unknown joint set (mode) {shorten(repr(meta.mode))}; valid: {list(MODES)}")
     if mode is not None and meta.mode != mode:
         raise refuse(
             path,
@@ -226,7 +228,9 @@ def load_policy(
     robot = load_robot(meta.mode)
     if meta.robot != robot.robot:
         raise refuse(
-            path, f"robot mismatch: the policy is for {meta.robot!r}, this code drives {robot.robot!r}"
+            path,
+            f"robot mismatch: the policy is for {shorten(repr(meta.robot))}, this code drives "
+            f"{robot.robot!r}",
         )
     msg = diff_joints("joint names", meta.joint_names, robot.joint_names)
     if msg:
@@ -235,8 +239,8 @@ def load_policy(
     # Observation schema: self-consistent, and equal to the running code's layout.
     try:
         schema = ObservationSchema.from_json(meta.obs_schema)
-    except ValueError as e:
-        raise refuse(path, f"embedded observation schema is invalid: {e}") from None
+    except (ValueError, TypeError, KeyError, AttributeError, IndexError) as e:  # any malformed schema
+        raise refuse(path, f"embedded observation schema is invalid: {shorten(e, 500)}") from None
     if schema.fingerprint != meta.obs_fingerprint:
         raise refuse(
             path,
@@ -248,8 +252,8 @@ def load_policy(
     else:
         try:
             om = ObservationManager.for_task(meta.task, meta.mode)
-        except ValueError as e:
-            raise refuse(path, str(e)) from None
+        except ValueError as e:  # an unknown task: its name is echoed, cut
+            raise refuse(path, shorten(str(e), 500)) from None
     if schema.fingerprint != om.fingerprint or schema != om.schema:
         theirs, ours = schema.to_dict(), om.schema.to_dict()
         keys = sorted(k for k in set(theirs) | set(ours) if theirs.get(k) != ours.get(k))
@@ -309,18 +313,33 @@ def load_policy(
     # Graph I/O, then one dry inference to be sure the shapes hold at run time.
     check_io(path, sess, om.size, len(meta.action_joint_names))
 
+    # Action scale against the joint ranges: default +- scale x the action range must stay within each
+    # action joint's range plus DEFAULT_REACH_MARGIN (the runtime checks again with its configured margin).
+    action_index = np.array([robot.index(n) for n in meta.action_joint_names], dtype=np.int64)
+    clip = action_clip(path, sess) if meta.dialect == "bar" else None
+    problems = check_action_scale(
+        default.astype(np.float64)[action_index],
+        np.asarray(meta.action_scale, dtype=np.float64),
+        robot.lower[action_index],
+        robot.upper[action_index],
+        list(meta.action_joint_names),
+        bound=1.0 if clip is None else float(clip),
+    )
+    if problems:
+        raise refuse(path, shorten(f"action_scale beyond the joint ranges: {'; '.join(problems)}", 1000))
+
     return OnnxPolicy(
         path=path,
         metadata=meta,
         robot=robot,
         obs_manager=om,
         session=sess,
-        action_index=np.array([robot.index(n) for n in meta.action_joint_names], dtype=np.int64),
+        action_index=action_index,
         default_joint_pos=default.astype(np.float64),
         action_scale=np.asarray(meta.action_scale, dtype=np.float64),
         kp=kp.astype(np.float64),
         kd=kd.astype(np.float64),
         # HC-only files: no clip, as Humanoid Control runs them (q_cmd is still clipped to the limits).
-        action_clip=action_clip(path, sess) if meta.dialect == "bar" else None,
+        action_clip=clip,
         task=deploy_task(meta),
     )

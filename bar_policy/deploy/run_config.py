@@ -1,4 +1,16 @@
-"""The control loop's settings (``RuntimeConfig``) and what a run did (``RunResult``)."""
+"""The control loop's settings (``RuntimeConfig``) and what a run did (``RunResult``).
+
+Exit status of a run (``RunResult.exit_status``; ``bar-deploy`` returns it):
+
+- ``EXIT_OK`` (0): ran to the end, or stopped on request, and every joint answered the stop;
+- ``EXIT_FAULT`` (1): a fault or an error during the run (the joints were damped and stopped);
+- ``EXIT_REFUSED`` (2): refused before anything moved (bad arguments, policy or target; ``bar-deploy``);
+- ``EXIT_STOP_UNCONFIRMED`` (3): the safe stop was not confirmed: some joint did not answer the damping or
+  the stop frames, or the safe stop raised (it takes precedence over 1: the motors may still be enabled).
+
+The ``end:`` line (``RunResult.end_line``) names the end reason (the first fault whenever one occurred), the
+final mode, both clip counts and the safe stop's outcome.
+"""
 
 from __future__ import annotations
 
@@ -8,11 +20,27 @@ from pathlib import Path
 from typing import Any, Literal
 
 from bar_policy.deploy.policy import DEFAULT_CONTROL_DT
-from bar_policy.deploy.safety import Mode, SafetyConfig
+from bar_policy.deploy.safety import DEFAULT_REACH_MARGIN, Mode, SafetyConfig
 from bar_policy.deploy.targets.base import JointState
 from bar_policy.deploy.timing import TimingStats
 
-__all__ = ["RunResult", "RuntimeConfig"]
+__all__ = [
+    "EXIT_FAULT",
+    "EXIT_OK",
+    "EXIT_REFUSED",
+    "EXIT_STOP_UNCONFIRMED",
+    "RunResult",
+    "RuntimeConfig",
+]
+
+EXIT_OK = 0
+"""Exit status: ran to the end or stopped on request; the stop was confirmed by every joint."""
+EXIT_FAULT = 1
+"""Exit status: a fault or an error during the run (damped, then stopped, the stop confirmed)."""
+EXIT_REFUSED = 2
+"""Exit status: refused before anything moved."""
+EXIT_STOP_UNCONFIRMED = 3
+"""Exit status: the safe stop was not confirmed (a joint did not answer, or ``safe_stop`` raised)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -42,6 +70,9 @@ class RuntimeConfig:
     length of the run; None keeps the normal scheduler. On a loaded CPU it removes most overruns."""
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     """Safety thresholds."""
+    action_reach_margin: float = DEFAULT_REACH_MARGIN
+    """The policy's reach ``default +- action_scale * action_clip`` may go this far beyond a joint's range
+    before the runtime refuses the policy, rad (``action_path.check_action_scale``)."""
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.control_dt) and self.control_dt > 0):
@@ -52,7 +83,7 @@ class RuntimeConfig:
             raise ValueError(f"RuntimeConfig.start_mode must be 'hold' or 'policy', got {self.start_mode!r}")
         if self.rt_priority is not None and not 1 <= self.rt_priority <= 99:
             raise ValueError(f"RuntimeConfig.rt_priority must be in 1..99, got {self.rt_priority}")
-        for name in ("damping_after_fault", "end_hold"):
+        for name in ("damping_after_fault", "end_hold", "action_reach_margin"):
             v = getattr(self, name)
             if not v >= 0:
                 raise ValueError(f"RuntimeConfig.{name} must be >= 0 s, got {v}")
@@ -78,9 +109,32 @@ class RunResult:
     stop_reason: str | None = None
     """Why a stop was requested (``"SIGTERM received"``), None when none was."""
     safe_stop: str = ""
-    """Outcome of ``target.safe_stop``: ``"ok"`` or the error it raised."""
+    """Outcome of ``target.safe_stop``: ``StopReport.summary()`` (``"stop confirmed (...)"``, or the joints
+    that did not answer), or ``"failed: ..."`` with the error it raised."""
+    stop_confirmed: bool = True
+    """True when every joint answered the damping and the stop frames of the safe stop."""
+    stop_unconfirmed: tuple[str, ...] = ()
+    """Joints that did not answer the damping or the stop frames (empty when confirmed or when it raised)."""
     completed: bool = False
     """True when the run ended because the commands finished (a motion clip played to its end)."""
     quality: dict[str, Any] = field(default_factory=dict)
     """Safety and smoothness of the POLICY ticks: ``{"episode": EpisodeQuality dict, "summary": ...}``."""
     extras: dict[str, Any] = field(default_factory=dict)
+    action_count: int = 0
+    """Raw action entries the policy produced (POLICY ticks x n_actions), the denominator of the clips."""
+
+    @property
+    def exit_status(self) -> int:
+        """The exit status: 3 stop not confirmed, else 1 after a fault, else 0 (module docstring)."""
+        if not self.stop_confirmed:
+            return EXIT_STOP_UNCONFIRMED
+        return EXIT_FAULT if self.fault_count else EXIT_OK
+
+    def end_line(self) -> str:
+        """The ``end:`` line: reason, final mode, q_cmd and action clip counts, the safe stop's outcome."""
+        return (
+            f"end: {self.end_reason}; final mode {self.final_mode.name}; "
+            f"q_cmd clipped {self.clip_count} joint-ticks; "
+            f"actions clipped {self.action_clip_count} of {self.action_count} entries; "
+            f"safe stop: {self.safe_stop}"
+        )

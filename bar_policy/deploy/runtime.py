@@ -21,7 +21,16 @@ Start-up: ZERO_TORQUE until the first state; a valid first state gives DAMPING t
 command source's ``hold_pose``, else the policy's rest pose ``policy.hold_pose``, over
 ``safety.ramp_time``) then POLICY, where the source's phase 0 begins (``source.begin(t)``);
 ``start_mode="policy"`` skips the ramp (evaluation). A fault latches DAMPING; the run then continues in
-DAMPING for ``damping_after_fault`` s and ends.
+DAMPING for ``damping_after_fault`` s and ends. The end reason (``RunResult.end_reason``, the log's
+``end_reason``) names the FIRST fault whenever one occurred: also when the duration runs out during the
+damping after it, or when it came during a requested stop's damping (``"fault K: ... (during the stop:
+R)"``).
+
+Actions: a non-finite action is a fault at once; a policy that keeps asking far beyond its action range
+(``SafetyConfig.action_range_factor`` x the clip bound for longer than ``action_range_time``: 4x for 0.2 s
+by default) faults with ``action_out_of_range``. The construction refuses (``PolicyLoadError``) a policy
+whose ``action_scale`` reaches beyond the joint ranges by more than ``RuntimeConfig.action_reach_margin``
+(``safety.check_action_scale``).
 
 The end of the commands: once the source is ``finished`` (a motion clip at its last frame), POLICY gives
 way to HOLD at the source's ``end_pose`` with the policy's gains (the pose ramps over half of
@@ -32,7 +41,10 @@ Stopping: SIGINT, SIGTERM and SIGHUP (``signals.StopSignals``; the caller's, or 
 the main thread) and ``request_stop`` all take one path: the next tick enters DAMPING with the reason, the
 loop keeps damping for ``damping_after_fault`` s, then ends. A requested stop is not a fault. The run
 always ends through ``finally``: DAMPING, ``target.safe_stop()`` (stop frames on every bus on the real
-target), then the log is closed with the reason and the stop path's outcome. The signal handlers stay
+target), then the log is closed with the reason and the stop path's outcome: the target's ``StopReport``
+(which joints answered the damping and the stop frames); ``RunResult.safe_stop`` says ``"stop confirmed
+(...)"`` only when every joint answered, else it names the joints that did not, and
+``RunResult.exit_status`` is ``EXIT_STOP_UNCONFIRMED`` (3; ``run_config``). The signal handlers stay
 installed until the log is closed and never raise, so a second signal cannot cut the stop frames short.
 """
 
@@ -49,14 +61,15 @@ from typing import Any
 
 import numpy as np
 
-from bar_policy.deploy.action_path import ActionPath
+from bar_policy.deploy.action_path import ActionPath, check_action_scale
+from bar_policy.deploy.contract import PolicyLoadError
 from bar_policy.deploy.inputs import StateInputs
 from bar_policy.deploy.log import RunLog, log_fields
 from bar_policy.deploy.policy import OnnxPolicy
 from bar_policy.deploy.run_config import RunResult, RuntimeConfig
 from bar_policy.deploy.safety import Mode, SafetySupervisor
 from bar_policy.deploy.signals import StopSignals
-from bar_policy.deploy.targets.base import JointState, Target, run_metadata_of
+from bar_policy.deploy.targets.base import JointState, StopReport, Target, run_metadata_of
 from bar_policy.deploy.tasks.base import CommandSource
 from bar_policy.deploy.timing import Pacer, RealtimePriority, TimingStats, sleep_until
 from bar_policy.quality import QualityMeter, summarise
@@ -117,6 +130,7 @@ class Runtime:
                 f"command source {commands.describe()} (task {commands.task!r}) does not feed {missing}, "
                 f"which the policy (task {policy.task!r}) reads; its commands: {list(commands.names)}"
             )
+        self._check_action_scale(policy)
         hold = commands.hold_pose
         self.hold_pose = policy.hold_pose if hold is None else np.asarray(hold, dtype=np.float64)
         """Where the start-up HOLD ramp goes: the source's ``hold_pose``, else the policy's, rad."""
@@ -147,6 +161,13 @@ class Runtime:
         self._end_t: float | None = None
         """Target time the run started to end (first fault or stop request), s."""
         self._end_reason = ""
+        self._first_fault: str | None = None
+        """``"fault KIND: detail"`` of the run's first fault (None: no fault)."""
+        self.stop_report: StopReport | None = None
+        """What the safe stop's frames got back (None until the run ended, or when ``safe_stop`` raised)."""
+        self.safe_stop_summary = ""
+        """The safe stop's outcome (``RunResult.safe_stop``), set also when the run ends on an exception."""
+        self._action_names = tuple(policy.metadata.action_joint_names)
         self._end_after = self.config.damping_after_fault
         """How long the run goes on after ``_end_t``: damping after a fault or stop, HOLD after the end."""
         self.completed = False
@@ -169,7 +190,31 @@ class Runtime:
         return self.actions.clip_count
 
     # -- helpers -------------------------------------------------------------------------------------
+    def _temperatures(self, n: int) -> np.ndarray:
+        """Per-joint motor temperature, degC, from a target that reports one (the real target); else NaN."""
+        read = getattr(self.target, "temperatures", None)
+        return np.full(n, np.nan) if read is None else np.asarray(read(), dtype=np.float64)
+
+    def _check_action_scale(self, policy: OnnxPolicy) -> None:
+        """Refuse (``PolicyLoadError``) an ``action_scale`` that reaches beyond the joint ranges."""
+        robot, idx = policy.robot, policy.action_index
+        problems = check_action_scale(
+            np.asarray(policy.default_joint_pos, dtype=np.float64)[idx],
+            policy.action_scale,
+            robot.lower[idx],
+            robot.upper[idx],
+            [robot.joint_names[i] for i in idx],
+            bound=1.0 if policy.action_clip is None else float(policy.action_clip),
+            margin=self.config.action_reach_margin,
+        )
+        if problems:
+            raise PolicyLoadError(
+                f"{policy.path}: action_scale beyond the joint ranges: {'; '.join(problems)}"
+            )
+
     def _fault(self, kind: str, detail: str, t: float) -> None:
+        if self._first_fault is None:
+            self._first_fault = f"fault {kind}: {detail}"
         changed = self.safety.fault(kind, detail, t)
         if changed and (self._end_t is None or self.completed):  # a fault in the final HOLD is a fault
             self._end_t, self._end_after = t, self.config.damping_after_fault
@@ -286,7 +331,9 @@ class Runtime:
             t_inf = time.perf_counter()
             action = self.policy(obs)
             infer = time.perf_counter() - t_inf
-            bad = sf.check_action(action)
+            bad = sf.check_action(action) or sf.check_action_range(
+                action, self.actions.bound, self._action_names, self.config.control_dt
+            )
             if bad is not None:
                 self._fault(*bad, t)
             else:
@@ -310,6 +357,7 @@ class Runtime:
             "q": state.q,
             "dq": state.dq,
             "tau": state.tau,
+            "temperature": self._temperatures(len(state.q)),
             "obs": obs,
             "action": np.nan if action is None else action,
             "q_cmd": cmd.q,
@@ -430,8 +478,8 @@ class Runtime:
                         self.on_tick(k, t, self)
                     k += 1
                     if self._end_t is not None and t - self._end_t >= self._end_after - 1e-9:
-                        end_reason = self._end_reason
                         break
+            end_reason = self._final_reason(end_reason)
         except BaseException as e:
             error = e
             end_reason = f"exception {type(e).__name__}: {e}"
@@ -439,7 +487,7 @@ class Runtime:
         finally:
             t_end = self.target.now() - t0_target
             timing = pacer.stats(k * dt if sync else t_end)  # the loop alone, without the safe ending
-            safe_stop = self._safe_end(end_reason, t_end)
+            safe_stop, report = self._safe_end(end_reason, t_end)
             self._log_transitions()
             log_path = None
             if runlog is not None:
@@ -451,11 +499,13 @@ class Runtime:
                         stop_signal=stop.signal_name,
                         stop_signals_received=stop.count,
                         safe_stop=safe_stop,
+                        stop_report=None if report is None else report.to_dict(),
                         exception=None if error is None else f"{type(error).__name__}: {error}",
                         transitions=[tr.to_dict() for tr in self.safety.transitions],
                         timing=timing.summary(),
                         clip_count=self.safety.clip_count,
                         action_clip_count=self.action_clip_count,
+                        action_count=self.actions.count,
                         fault_count=self.safety.fault_count,
                         command_outside_workspace=self.commands.outside_count,
                         completed=self.completed,
@@ -479,23 +529,50 @@ class Runtime:
             action_clip_count=self.action_clip_count,
             stop_reason=self._stop_reason,
             safe_stop=safe_stop,
+            stop_confirmed=report is not None and report.confirmed,
+            stop_unconfirmed=() if report is None else report.unconfirmed,
             completed=self.completed,
             quality=self.quality_record(),
+            action_count=self.actions.count,
         )
 
-    def _safe_end(self, reason: str, t: float) -> str:
+    def _final_reason(self, loop_reason: str) -> str:
+        """The end reason: the run's first fault whenever one occurred, else why the loop ended."""
+        reason = self._end_reason if self._end_t is not None else loop_reason
+        first = self._first_fault
+        if first is None or first in reason:
+            return reason
+        if self._stop_reason is not None and reason == self._end_reason:
+            return f"{first} (during the stop: {reason})"
+        return first
+
+    def _safe_end(self, reason: str, t: float) -> tuple[str, StopReport | None]:
         """DAMPING (logged with the reason), then the target's safe stop; errors here are logged only.
 
         Returns:
-            ``"ok"``, or the error ``target.safe_stop`` raised.
+            The outcome (``StopReport.summary()``, or ``"failed: ..."`` with the error ``target.safe_stop``
+            raised) and the report (None when it raised); both are also kept in ``safe_stop_summary`` and
+            ``stop_report``.
         """
         sf = self.safety
         if sf.mode in (Mode.HOLD, Mode.POLICY, Mode.ZERO_TORQUE):
             level = logging.INFO if reason == "duration reached" or self.completed else logging.WARNING
             sf.transition(Mode.DAMPING, f"run ended: {reason}", t, level=level)
         try:
-            self.target.safe_stop(sf.captured_q, sf.config.damping_kd)
+            report = self.target.safe_stop(sf.captured_q, sf.config.damping_kd)
         except Exception as e:
             log.exception("safe_stop of %s failed", type(self.target).__name__)
-            return f"failed: {type(e).__name__}: {e}"
-        return "ok"
+            self.safe_stop_summary = f"failed: {type(e).__name__}: {e}"
+            return self.safe_stop_summary, None
+        if not isinstance(report, StopReport):  # a target from before the report: it did not say
+            report = StopReport(
+                self.target.joint_names,
+                (False,) * self.target.num_joints,
+                (False,) * self.target.num_joints,
+                f"{type(self.target).__name__}.safe_stop reports no replies",
+            )
+        self.stop_report = report
+        self.safe_stop_summary = report.summary()
+        if not report.confirmed:
+            log.warning("safe stop: %s", self.safe_stop_summary)
+        return self.safe_stop_summary, report

@@ -16,7 +16,11 @@ Modes (the MIT surface of the seed; which fields are nonzero):
 Faults (each moves HOLD or POLICY to DAMPING with its reason; the first occurrence of a fault kind while
 already in DAMPING is logged too): non-finite state or action, a joint beyond its limit by more than
 ``limit_margin``, a torque demand at the cap for longer than ``saturation_time``, a state older than
-``stale_timeout``, ``max_overruns`` consecutive loop overruns, and hardware faults reported by the target.
+``stale_timeout``, ``max_overruns`` consecutive loop overruns, hardware faults reported by the target, and a
+policy that keeps asking far beyond its action range (``action_out_of_range``: some raw action entry at
+``|a| >= action_range_factor * bound`` for longer than ``action_range_time``, bound = the policy's action
+clip, else 1 action unit; with the defaults |a| >= 4x the clip for more than 0.2 s, i.e. the 11th
+consecutive tick at 50 Hz, 0.2 s after the first).
 A stop request (SIGINT / SIGTERM / SIGHUP, see ``runtime``) also ends in DAMPING, but is not a fault. Every
 transition is logged (python ``logging``) and kept in ``transitions`` for the run log.
 """
@@ -26,6 +30,7 @@ from __future__ import annotations
 import enum
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,9 +38,64 @@ import numpy as np
 from bar_policy.deploy.targets.base import JointState
 from bar_policy.robot.mit import MitCommand, mit_torque
 
-__all__ = ["CapDwell", "Mode", "SafetyConfig", "SafetySupervisor", "Transition"]
+__all__ = [
+    "DEFAULT_REACH_MARGIN",
+    "CapDwell",
+    "Mode",
+    "SafetyConfig",
+    "SafetySupervisor",
+    "Transition",
+    "check_action_scale",
+]
 
 log = logging.getLogger(__name__)
+
+
+DEFAULT_REACH_MARGIN = 0.5
+"""How far beyond a joint's range the action's reach may go, rad. The shipped policies reach up to 0.43 rad
+beyond (``lite_reach_arms``: the wrist yaw, default -+1.2 rad + 0.8 rad vs the +-1.571 rad range): q_cmd is
+clipped to the range, and the margin leaves them room while an ``action_scale`` typo (x10) is refused."""
+
+
+def check_action_scale(
+    default: np.ndarray,
+    scale: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    names: Sequence[str],
+    *,
+    bound: float = 1.0,
+    margin: float = DEFAULT_REACH_MARGIN,
+) -> list[str]:
+    """Problems of an ``action_scale`` against the joint ranges (empty: none), one per action joint.
+
+    Args:
+        default: default pose of the action joints, rad, shape (n,).
+        scale: ``action_scale``, rad per action unit, shape (n,).
+        lower: lower joint limits of the action joints, rad, shape (n,).
+        upper: upper joint limits of the action joints, rad, shape (n,).
+        names: the action joints' names.
+        bound: the action range, action units (the action clip; 1 without one).
+        margin: allowed reach beyond the range, rad.
+
+    Returns:
+        ``"NAME: action_scale S rad x +-B reaches [LO, HI] rad, beyond its range [L, U] rad by more than
+        M rad"`` (or a non-finite / negative scale) for every joint that fails.
+    """
+    d, s, lo, up = (np.asarray(x, dtype=np.float64) for x in (default, scale, lower, upper))
+    problems = []
+    for i, name in enumerate(names):
+        if not (np.isfinite(s[i]) and s[i] >= 0):
+            problems.append(f"{name}: action_scale {s[i]!r} is not a finite number >= 0 rad per action unit")
+            continue
+        reach_lo, reach_hi = d[i] - s[i] * bound, d[i] + s[i] * bound
+        if reach_lo < lo[i] - margin or reach_hi > up[i] + margin:
+            problems.append(
+                f"{name}: action_scale {s[i]:g} rad x +-{bound:g} from the default {d[i]:+.3f} rad reaches "
+                f"[{reach_lo:+.3f}, {reach_hi:+.3f}] rad, beyond its range [{lo[i]:+.3f}, {up[i]:+.3f}] rad "
+                f"by more than {margin:g} rad"
+            )
+    return problems
 
 
 class CapDwell:
@@ -96,9 +156,22 @@ class SafetyConfig:
     """A state older than this (target clock) is stale, s (Humanoid Control: 100 ms)."""
     max_overruns: int = 5
     """Consecutive loop overruns that make a fault (0 disables the check)."""
+    action_range_factor: float = 4.0
+    """A raw action entry is far out of range at ``|a| >= factor * bound`` (bound = the policy's action clip,
+    else 1 action unit), dimensionless; 0 disables the ``action_out_of_range`` fault."""
+    action_range_time: float = 0.2
+    """Time an action entry may stay far out of range (unbroken, same rule as ``CapDwell``) before the fault
+    ``action_out_of_range``, s."""
 
     def __post_init__(self) -> None:
-        for name in ("ramp_time", "limit_margin", "saturation_time", "stale_timeout"):
+        for name in (
+            "ramp_time",
+            "limit_margin",
+            "saturation_time",
+            "stale_timeout",
+            "action_range_factor",
+            "action_range_time",
+        ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"SafetyConfig.{name} must be a finite number >= 0, got {v!r}")
@@ -188,6 +261,7 @@ class SafetySupervisor:
         self.last_demand = np.zeros(n)
         """Unclipped MIT torque of the last command checked by ``check_torque``, N*m."""
         self._overruns = 0
+        self._action_dwell: CapDwell | None = None
         self._clipped_joints: set[int] = set()
         self._fault_kinds_logged: set[str] = set()
         self.last_clipped = 0
@@ -238,6 +312,7 @@ class SafetySupervisor:
             self._dwell.reset()
         elif dst == Mode.POLICY:
             self._dwell.reset()
+            self._action_dwell = None
         self.mode = dst
         tr = Transition(t=t, tick=self.tick, src=src, dst=dst, reason=reason)
         self.transitions.append(tr)
@@ -319,6 +394,38 @@ class SafetySupervisor:
         bad = np.flatnonzero(~np.isfinite(action))
         if bad.size:
             return "nonfinite_action", f"policy output non-finite at action indices {bad.tolist()}"
+        return None
+
+    def check_action_range(
+        self, action: np.ndarray, bound: float, names: tuple[str, ...], dt: float
+    ) -> tuple[str, str] | None:
+        """Track time far beyond the action range; a fault when any entry has been there too long.
+
+        Args:
+            action: the raw policy output, action units, shape (n_actions,).
+            bound: the action clip, action units (the limit is ``config.action_range_factor * bound``).
+            names: joint name of each action entry.
+            dt: control period, s.
+
+        Returns:
+            ``("action_out_of_range", detail)`` once some entry has stayed at ``|a| >= limit`` for longer than
+            ``config.action_range_time``, else None.
+        """
+        factor = self.config.action_range_factor
+        if factor <= 0:
+            return None
+        limit = factor * bound
+        a = np.asarray(action, dtype=np.float64)
+        if self._action_dwell is None or self._action_dwell.level.shape != a.shape:
+            self._action_dwell = CapDwell(np.full(a.shape, limit), self.config.action_range_time)
+        over = self._action_dwell.update(a, dt)
+        if over.size:
+            items = ", ".join(f"{names[i]} ({a[i]:.3g})" for i in over)
+            return (
+                "action_out_of_range",
+                f"raw action beyond {factor:g} x the clip bound {bound:g} (|a| >= {limit:g}) for > "
+                f"{self.config.action_range_time:g} s: {items}",
+            )
         return None
 
     def check_torque(self, cmd: MitCommand, state: JointState, dt: float) -> tuple[str, str] | None:

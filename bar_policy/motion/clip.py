@@ -31,11 +31,14 @@ from __future__ import annotations
 import csv
 import hashlib
 import math
+import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from bar_policy._files import InputError, shorten
 from bar_policy.robot.constants import MODES, RobotSpec, load_robot
 
 __all__ = [
@@ -67,8 +70,12 @@ LIMIT_TOLERANCE = 1e-6
 """Frames may pass a joint limit by this much, rad (float32 storage of a value on the limit)."""
 
 
-class ClipError(ValueError):
-    """A clip that breaks the format, the joint set, the joint limits or the speed limit."""
+class ClipError(InputError):
+    """A clip that breaks the format, the joint set, the joint limits or the speed limit.
+
+    ``load_clip`` and ``load_csv`` raise only this for a malformed file (empty, truncated, not an NPZ or
+    CSV, wrong keys or types), naming the file; echoed values are cut to ``_files.ECHO_LIMIT`` characters.
+    """
 
 
 @dataclass(frozen=True, eq=False)
@@ -166,7 +173,7 @@ def validate_clip(clip: Clip, robot: RobotSpec | None = None, *, max_speed: floa
     Raises:
         ClipError: the message names the clip, the frame (index and time) and the joint.
     """
-    name = clip.name
+    name = shorten(clip.name)
     if not (math.isfinite(clip.rate_hz) and clip.rate_hz > 0):
         raise ClipError(f"clip {name!r}: rate must be a positive number of Hz, got {clip.rate_hz!r}")
     if robot is None:
@@ -235,30 +242,41 @@ def load_clip(path: str | Path, mode: str = "arms", *, max_speed: float = MAX_JO
         ClipError: a missing or malformed key, a hash mismatch, or any ``validate_clip`` refusal.
     """
     robot = _robot(mode)
+    if Path(path).is_file() and Path(path).stat().st_size == 0:
+        raise ClipError(f"{path}: not a readable NPZ clip (the file is empty)")
     try:
         with np.load(Path(path), allow_pickle=False) as f:
             data = {k: f[k] for k in f.files}
-    except (OSError, ValueError) as e:
-        raise ClipError(f"{path}: not a readable NPZ clip ({e})") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, KeyError, AttributeError) as e:
+        # AttributeError: a bare .npy array (no ``files``); the others: empty, truncated or corrupt archives
+        raise ClipError(f"{path}: not a readable NPZ clip ({shorten(e)})") from None
     keys = ("format", "name", "rate_hz", "joint_names", "joint_pos", "content_hash")
     missing = [k for k in keys if k not in data]
     if missing:
         raise ClipError(f"{path}: clip file lacks keys {missing}; a clip has {list(keys)}")
-    if str(data["format"]) != CLIP_FORMAT:
-        raise ClipError(f"{path}: format {str(data['format'])!r}, this code reads {CLIP_FORMAT!r}")
-    q = np.array(data["joint_pos"], dtype=np.float32)
-    q.setflags(write=False)
-    clip = Clip(
-        name=str(data["name"]),
-        rate_hz=float(data["rate_hz"]),
-        joint_names=tuple(str(n) for n in data["joint_names"]),
-        joint_pos=q,
-    )
+    if data["format"].shape != () or str(data["format"]) != CLIP_FORMAT:
+        raise ClipError(
+            f"{path}: format {shorten(repr(str(data['format'])))}, this code reads {CLIP_FORMAT!r}"
+        )
+    for key in ("rate_hz", "joint_pos"):
+        if data[key].dtype.kind not in "fiu":  # complex, bool or text: not a clip's numbers
+            raise ClipError(f"{path}: {key} must hold real numbers, got dtype {data[key].dtype}")
+    try:
+        q = np.array(data["joint_pos"], dtype=np.float32)
+        q.setflags(write=False)
+        clip = Clip(
+            name=str(data["name"]),
+            rate_hz=float(data["rate_hz"]),
+            joint_names=tuple(str(n) for n in np.asarray(data["joint_names"]).reshape(-1)),
+            joint_pos=q,
+        )
+    except (TypeError, ValueError, OverflowError) as e:  # wrong dtypes or shapes
+        raise ClipError(f"{path}: malformed clip keys ({shorten(e)})") from None
     validate_clip(clip, robot, max_speed=max_speed)
     if clip.content_hash != str(data["content_hash"]):
         raise ClipError(
-            f"{path}: content hash {clip.content_hash} differs from the stored {data['content_hash']!s}; "
-            "the file was edited or corrupted"
+            f"{path}: content hash {clip.content_hash} differs from the stored "
+            f"{shorten(str(data['content_hash']))}; the file was edited or corrupted"
         )
     return clip
 
@@ -286,8 +304,12 @@ def load_csv(
     """
     robot = _robot(mode)
     path = Path(path)
-    with path.open(newline="") as f:
-        rows = list(csv.reader(f))
+    try:
+        with path.open(newline="") as f:
+            rows = list(csv.reader(f))
+    except (OSError, UnicodeDecodeError, csv.Error) as e:
+        raise ClipError(f"{path}: not a readable CSV clip ({shorten(e)})") from None
+    rows = rows[:1] + [r for r in rows[1:] if r]  # blank lines are no frames
     if len(rows) < 3:
         raise ClipError(f"{path}: needs a header row and at least two frames")
     header = [h.strip() for h in rows[0]]
@@ -297,20 +319,21 @@ def load_csv(
     if missing or unknown or len(set(cols)) != len(cols):
         raise ClipError(
             f"{path}: columns must be exactly the joints of mode {mode!r} (plus an optional 'time'); "
-            f"missing {missing}, unknown {unknown}; joints: {list(robot.joint_names)}"
+            f"missing {missing}, unknown {shorten(unknown)}; joints: {list(robot.joint_names)}"
         )
+    widths = sorted({len(r) for r in rows[1:]})
+    if widths != [len(header)]:
+        raise ClipError(f"{path}: rows have {widths} values, the header {len(header)}")
     try:
-        values = np.array([[float(x) for x in r] for r in rows[1:] if r], dtype=np.float64)
+        values = np.array([[float(x) for x in r] for r in rows[1:]], dtype=np.float64)
     except ValueError as e:
-        raise ClipError(f"{path}: not a number ({e})") from None
-    if values.shape[1] != len(header):
-        raise ClipError(f"{path}: rows have {values.shape[1]} values, the header {len(header)}")
+        raise ClipError(f"{path}: not a number ({shorten(e)})") from None
     if "time" in header:
         if rate_hz is not None:
             raise ClipError(f"{path}: give either a 'time' column or rate_hz, not both")
         t = values[:, header.index("time")]
         dt = np.diff(t)
-        if not (np.all(dt > 0) and np.ptp(dt) <= 1e-3 * dt.mean()):
+        if not (np.all(np.isfinite(t)) and np.all(dt > 0) and np.ptp(dt) <= 1e-3 * dt.mean()):
             raise ClipError(f"{path}: the 'time' column must increase uniformly (spacing varies by > 0.1 %)")
         rate_hz = 1.0 / float(dt.mean())
     elif rate_hz is None:

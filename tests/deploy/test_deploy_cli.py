@@ -166,7 +166,12 @@ class _FailingMock(MockTarget):
             TargetError("can0: no reply within 5 ms\nfrom ids [11]"),
             "target real failed during the run: can0: no reply",
         ),
-        (RuntimeError("a bug"), "the run ended on RuntimeError: a bug (damped, then stopped"),
+        # The line states the safe stop's outcome, confirmed per joint (issue 21 item 4), not a bare claim.
+        (
+            RuntimeError("a bug"),
+            "the run ended on RuntimeError: a bug (safe stop: stop confirmed (damping and stop frames "
+            "answered by all 14 joints)",
+        ),
     ],
     ids=["target-error", "bug"],
 )
@@ -184,7 +189,9 @@ def test_error_during_the_run_is_one_line_status_1_and_the_log_closed(
     assert len(err) == 1 and err[0].startswith("bar-deploy: error: ") and line in err[0]
     assert "; from ids [11]" in err[0] or isinstance(error, RuntimeError)  # a multi-line message, one line
     arrays, meta = load_log(next(runs.iterdir()))
-    assert meta["end_reason"].startswith(f"exception {type(error).__name__}") and meta["safe_stop"] == "ok"
+    assert meta["end_reason"].startswith(f"exception {type(error).__name__}") and meta[
+        "safe_stop"
+    ].startswith("stop confirmed")
     assert arrays["t"].size == 9 and meta["transitions"][-1]["to"] == "DAMPING"
 
 

@@ -54,20 +54,21 @@ def _assert_damping_after(target, tick, q_captured, kd=1.0):
 
 
 def test_policy_mode_commands_default_plus_scaled_action_clipped_and_counted(make_policy):
-    # action_scale 2.0 on left_elbow_pitch (index 3), 0.25 elsewhere.
-    # b[3] = 0.9: -1.7 + 2.0 * 0.9 = 0.1 > upper limit 0 -> q_cmd clipped to 0 (a joint-limit clip).
+    # action_scale 1.1 on left_elbow_pitch (index 3), 0.25 elsewhere (reach -1.7 -+ 1.1 = [-2.8, -0.6] rad:
+    # within 0.5 rad of the range [-2.356, 0], so the policy is not refused).
+    # b[3] = -0.9: -1.7 - 1.1 * 0.9 = -2.69 < lower limit -2.356 -> q_cmd clipped to it (a joint-limit clip).
     # b[5] = 3.0: outside the action bound +-1 -> used as 1.0 (an action clip): 0 + 0.25 * 1 = 0.25.
     scale = [0.25] * 14
-    scale[3] = 2.0
+    scale[3] = 1.1
     b = np.zeros(14)
-    b[0], b[3], b[5], b[9] = 0.4, 0.9, 3.0, -0.8
+    b[0], b[3], b[5], b[9] = 0.4, -0.9, 3.0, -0.8
     pol = load_policy(make_policy(bias=b, metadata=default_metadata(action_scale=tuple(scale))))
     target = SteppedMock()
     _, res = _run(pol, target, duration=0.2)
     assert res.ticks == 10 and res.fault_count == 0
     a = b.astype(np.float32).astype(np.float64)
     expected = DEFAULT + 0.25 * a
-    expected[3] = 0.0
+    expected[3] = load_robot("arms").lower[3]
     expected[5] = 0.25
     for c in target.commands[:10]:
         np.testing.assert_allclose(c.q, expected, rtol=0, atol=1e-12)
@@ -223,11 +224,15 @@ def test_stop_signal_goes_to_damping_and_is_not_a_fault(zero_policy, sig, tmp_pa
     assert (tr["from"], tr["to"]) == ("POLICY", "DAMPING")
     assert res.fault_count == 0 and res.stop_reason == f"{sig.name} received"
     # damping_after_fault 0.1 s = 5 ticks of damping after tick 11: ticks 0..16 ran, then the safe stop.
-    assert res.ticks == 17 and res.end_reason == f"{sig.name} received" and res.safe_stop == "ok"
+    assert (
+        res.ticks == 17
+        and res.end_reason == f"{sig.name} received"
+        and res.safe_stop.startswith("stop confirmed")
+    )
     _assert_damping_after(target, 10, DEFAULT)
     arrays, meta = load_log(res.log_path)
     assert meta["stop_signal"] == sig.name and meta["stop_signals_received"] == 1
-    assert meta["safe_stop"] == "ok" and meta["status"] == "closed"
+    assert meta["safe_stop"].startswith("stop confirmed") and meta["status"] == "closed"
     np.testing.assert_array_equal(arrays["mode"][11:], int(Mode.DAMPING))
 
 
@@ -254,7 +259,7 @@ def test_second_signal_is_counted_and_cannot_skip_the_stop(zero_policy, tmp_path
     arrays, meta = load_log(rt.log_path)
     assert arrays["t"].shape == (14,)
     assert meta["stop_signal"] == "SIGINT" and meta["stop_signals_received"] == 2
-    assert meta["safe_stop"] == "ok"
+    assert meta["safe_stop"].startswith("stop confirmed")
 
 
 def test_exception_mid_run_still_writes_the_log(zero_policy, tmp_path):

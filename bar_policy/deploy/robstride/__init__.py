@@ -3,8 +3,9 @@
 Layers (style.md item 15): ``framing`` + ``protocol`` (pure bytes <-> messages, host side) +
 ``motor_side`` (pure, what a motor sends and decodes), ``canbus`` (opening python-can buses,
 ``BusOpenError`` with a one-line fix), ``bus`` (one CAN interface, injected ``can.BusABC``) with
-``activation`` (its activation-time checks and cap writes), ``group`` (both arms as one flat joint list,
-activation and damping-then-stop), ``watchdog`` (the motors' CAN watchdog canTimeout), ``calibration``
+``activation`` (its activation-time checks and cap writes; ``StartupControl``: stop checks, retries),
+``group`` (both arms as one flat joint list, activation and damping-then-stop), ``watchdog`` (the motors'
+CAN watchdog canTimeout), ``temperature`` (per-model over-temperature thresholds), ``calibration``
 (homing offsets), ``emulator`` (MuJoCo-backed motors on a bus; imported on demand) with ``firmware`` (one
 emulated motor's state and answers), ``tools`` (``bar-bus``). The deploy target is
 ``bar_policy.deploy.targets.real.RealTarget``.
@@ -22,6 +23,7 @@ from bar_policy.deploy.robstride.errors import (
     InitializationError,
     OperationError,
     RobstrideError,
+    StopRequestedError,
     TimeoutError,
     UnexpectedDeviceError,
 )
@@ -42,6 +44,7 @@ __all__ = [
     "RobstrideBus",
     "RobstrideError",
     "RobstrideGroup",
+    "StopRequestedError",
     "TimeoutError",
     "UnexpectedDeviceError",
     "homing_offset",

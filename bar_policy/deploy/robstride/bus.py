@@ -140,6 +140,9 @@ class RobstrideBus:
         self._pending_faultbits: dict[int, int] = {}
         self.last_reading = self.empty_reading()
         """The most recent reading of this bus (NaN where replies were missing)."""
+        self.retry: activation.StartupControl | None = None
+        """Set by ``RobstrideGroup.activate`` while it runs: ``request`` (parameter reads and writes) then
+        retries a missing reply (``StartupControl.attempt``); None otherwise (tools, the control path)."""
 
     # ----------------------------------------------------------------------------------------------
     # lifecycle
@@ -205,7 +208,19 @@ class RobstrideBus:
     def request(
         self, frame: proto.Frame, match: Callable[[proto.Reply], bool], timeout: float
     ) -> proto.Reply:
-        """Send one frame; return the first reply ``match`` accepts, ``TimeoutError`` at the deadline."""
+        """Send one frame; return the first reply ``match`` accepts, ``TimeoutError`` at the deadline.
+
+        While ``retry`` is set, a missing reply is retried as it says (the frame is sent again).
+        """
+        if self.retry is not None:
+            return self.retry.attempt(
+                f"{self.interface} parameter exchange", lambda: self._request_once(frame, match, timeout)
+            )
+        return self._request_once(frame, match, timeout)
+
+    def _request_once(
+        self, frame: proto.Frame, match: Callable[[proto.Reply], bool], timeout: float
+    ) -> proto.Reply:
         self.drain()
         self.send(frame)
         deadline = time.perf_counter() + timeout

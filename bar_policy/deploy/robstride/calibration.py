@@ -32,17 +32,26 @@ from pathlib import Path
 
 import numpy as np
 
-from bar_policy._files import write_atomic
+from bar_policy._files import InputError, loads_json, shorten, write_atomic
 from bar_policy.deploy.robstride.errors import InitializationError
 from bar_policy.robot.constants import RobotSpec
 
 __all__ = [
     "Calibration",
+    "CalibrationError",
     "JointCalibration",
     "SweepRecorder",
     "SweepResult",
     "homing_offset",
 ]
+
+
+class CalibrationError(InitializationError, InputError):
+    """A calibration file is missing or malformed (an ``InitializationError`` and an ``_files.InputError``).
+
+    ``Calibration.load`` / ``from_json`` raise only this for any malformed text (not UTF-8, invalid or too
+    deeply nested JSON, wrong keys or types), with echoed values cut to ``_files.ECHO_LIMIT`` characters.
+    """
 
 
 def homing_offset(raw_min: float, raw_max: float, lower: float, upper: float, direction: int) -> float:
@@ -133,10 +142,10 @@ class Calibration:
         )
 
     @classmethod
-    def from_json(cls, text: str) -> Calibration:
-        """Parse the file text; raises ``InitializationError`` naming what is wrong."""
+    def from_json(cls, text: str | bytes) -> Calibration:
+        """Parse the file text (str or UTF-8 bytes); raises ``CalibrationError`` naming what is wrong."""
         try:
-            data = json.loads(text)
+            data = loads_json(text, "calibration file", CalibrationError)
             raw = data.get("joints", data) if isinstance(data, dict) else None
             if not isinstance(raw, dict):
                 raise TypeError("top level must be an object")
@@ -150,9 +159,11 @@ class Calibration:
                 for name, v in raw.items()
                 if name != "robot"
             }
-        except (ValueError, TypeError, KeyError, AttributeError) as exc:
-            raise InitializationError(
-                f"invalid calibration file: {exc}; expected "
+        except CalibrationError:
+            raise
+        except (ValueError, TypeError, KeyError, AttributeError, OverflowError) as exc:
+            raise CalibrationError(
+                f"invalid calibration file: {shorten(exc)}; expected "
                 '{"joints": {"<joint>": {"id": int, "direction": 1 or -1, "homing_offset": float}}}'
             ) from exc
         return cls(robot=str(data.get("robot", "lite_dummy")), joints=joints)
@@ -163,12 +174,15 @@ class Calibration:
 
     @classmethod
     def load(cls, path: str | Path) -> Calibration:
-        """Read a JSON file; ``InitializationError`` when missing or malformed."""
+        """Read a JSON file; ``CalibrationError`` (an ``InitializationError``) when missing or malformed."""
         try:
-            text = Path(path).read_text()
+            text = Path(path).read_bytes()
         except OSError as exc:
-            raise InitializationError(f"cannot read calibration file {path}: {exc}") from exc
-        return cls.from_json(text)
+            raise CalibrationError(f"cannot read calibration file {path}: {exc}") from exc
+        try:
+            return cls.from_json(text)
+        except CalibrationError as exc:
+            raise CalibrationError(f"{path}: {exc}") from None
 
 
 @dataclass(frozen=True, kw_only=True)

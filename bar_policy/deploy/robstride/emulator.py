@@ -21,9 +21,10 @@ frame-timestamp clock (``time.time``, what python-can stamps ``virtual`` and Soc
 frame that arrived in time is never counted late when the emulator thread runs late. A disabled motor is
 not affected.
 
-Fault injection (``inject``, ``silence``, ``garbage_per_round``): dropped replies, fault bits and type-21
-fault frames, replies from a wrong id, garbage frames, bus silence, active-report (0x18) chatter; at
-construction: absent motors, wrong models, unknown extra devices.
+Fault injection (``inject``, ``silence``, ``garbage_per_round``): dropped replies (all, or only the replies
+to one request type: ``drop_only``), a reported temperature per motor (``temperature``), fault bits and
+type-21 fault frames, replies from a wrong id, garbage frames, bus silence, active-report (0x18) chatter;
+at construction: absent motors, wrong models, unknown extra devices.
 """
 
 from __future__ import annotations
@@ -71,7 +72,7 @@ class RobstrideEmulator:
         models: joint name -> model actually installed (injects a wrong model); default the robot data's.
         absent: joint names whose motors are not on the bus.
         extra_ids: interface -> CAN ids of unknown devices (rs-00) that answer scans and frames.
-        temperature: reported temperature, degC.
+        temperature: reported temperature of every motor, degC (``inject(key, temperature=...)`` sets one).
         seed: seed of the garbage-frame generator.
         watchdog_tick: seconds per canTimeout tick (the reference's 50 us; 1e-6 emulates the conflicting
             microsecond reading).
@@ -342,9 +343,9 @@ class RobstrideEmulator:
             tau_raw=float(self._tau_raw[m.joint]),
         )
 
-    def _reply(self, m: EmulatedMotor, frames: Sequence[framing.Frame]) -> None:
-        """Send frames for motor ``m``, honouring drop and silence injections (lock held)."""
-        if m.interface in self._silent or fw.drop_reply(m):
+    def _reply(self, m: EmulatedMotor, frames: Sequence[framing.Frame], comm_type: int | None = None) -> None:
+        """Send ``m``'s frames answering a ``comm_type`` request, honouring drop and silence (lock held)."""
+        if m.interface in self._silent or fw.drop_reply(m, comm_type):
             return
         bus = self.buses[m.interface]
         for f in frames:
@@ -428,13 +429,13 @@ class RobstrideEmulator:
                 self._pending.append((m, b""))
                 self._maybe_complete_round()
                 return
-            self._reply(m, self._feedback_frames(m))
+            self._reply(m, self._feedback_frames(m), framing.CommType.MIT)
             if self.garbage_per_round:
                 self._garbage(m.interface)
             return
         frames = fw.handle_request(m, req, self._joint(m), self.temperature)
         if frames is not None:
-            self._reply(m, frames)
+            self._reply(m, frames, req.comm_type)
         if req.comm_type == framing.CommType.STOP:  # reset mode: this round no longer waits for this motor
             self._commanded.discard((m.interface, m.can_id))
             self._maybe_complete_round()
@@ -454,7 +455,7 @@ class RobstrideEmulator:
         pending, self._pending = self._pending, []
         self._commanded.clear()
         for m, _ in pending:
-            self._reply(m, self._feedback_frames(m))
+            self._reply(m, self._feedback_frames(m), framing.CommType.MIT)
         if self.garbage_per_round:
             for iface in {m.interface for m, _ in pending}:
                 self._garbage(iface)

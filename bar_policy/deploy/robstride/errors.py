@@ -13,12 +13,17 @@ caller can catch the whole family, or one kind:
 - ``TimeoutError``: replies missing at the deadline; also a ``builtins.TimeoutError``.
 - ``FaultError``: a motor reported fault bits (type-2 status bits or a type-21 fault frame).
 - ``FrameError``: a CAN frame is not a valid Robstride frame of the expected direction; also a ``ValueError``.
+- ``StopRequestedError``: a stop was requested (SIGINT, SIGTERM, SIGHUP) during activation; the sequence
+  ended at the next step. Nothing was enabled when it came before the enable frames; otherwise the motors
+  were damped and stopped before it was raised.
 """
 
 from __future__ import annotations
 
 import builtins
 from collections.abc import Mapping, Sequence
+
+from bar_policy._files import InputError
 
 __all__ = [
     "BusOpenError",
@@ -29,6 +34,7 @@ __all__ = [
     "InitializationError",
     "OperationError",
     "RobstrideError",
+    "StopRequestedError",
     "TimeoutError",
     "UnexpectedDeviceError",
 ]
@@ -114,5 +120,17 @@ class FaultError(RobstrideError):
         """The CAN interface name."""
 
 
-class FrameError(RobstrideError, ValueError):
+class FrameError(RobstrideError, InputError):
     """A CAN frame is not a valid Robstride frame (wrong id format, length, type or direction)."""
+
+
+class StopRequestedError(RobstrideError):
+    """A stop was requested during activation; the sequence ended at the next step (module docstring)."""
+
+    def __init__(self, message: str, *, step: str, enabled: bool = False) -> None:
+        super().__init__(message)
+        self.step = step
+        """The start-up step that did not run (``enable``, ``write caps on can0``, ...)."""
+        self.enabled = enabled
+        """Whether enable frames had gone out before the request was seen (the motors were then damped and
+        stopped)."""

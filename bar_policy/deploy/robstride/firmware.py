@@ -57,6 +57,10 @@ class Injection:
 
     drop_replies: int = 0
     """Replies to drop from now on; -1 drops all."""
+    drop_only: int | None = None
+    """Communication type (``framing.CommType``) whose replies ``drop_replies`` drops; None: every reply."""
+    temperature: float | None = None
+    """Temperature this motor reports, degC; None: the emulator's ``temperature``."""
     fault_bits: int = 0
     """Type-2 fault flags (6 bits) reported in every feedback."""
     fault_word: int = 0
@@ -174,8 +178,10 @@ def feedback_frames(m: EmulatedMotor, joint: JointReading | None, temperature: f
     Args:
         m: the motor.
         joint: its joint now; None for an extra device.
-        temperature: reported temperature, degC.
+        temperature: reported temperature, degC (an injected ``Injection.temperature`` replaces it).
     """
+    if m.inj.temperature is not None:
+        temperature = m.inj.temperature
     frames = [_feedback(m, joint, temperature)]
     if m.inj.fault_word:
         frames.append(motor_side.fault_frame(m.can_id, m.inj.fault_word))
@@ -185,9 +191,15 @@ def feedback_frames(m: EmulatedMotor, joint: JointReading | None, temperature: f
     return frames
 
 
-def drop_reply(m: EmulatedMotor) -> bool:
-    """Whether an injected ``drop_replies`` swallows the next reply; a finite count goes down by one."""
+def drop_reply(m: EmulatedMotor, comm_type: int | None = None) -> bool:
+    """Whether an injected ``drop_replies`` swallows this reply; a finite count goes down by one.
+
+    ``comm_type`` is the type of the request answered; with ``Injection.drop_only`` set, only replies to that
+    type are dropped (and counted).
+    """
     if not m.inj.drop_replies:
+        return False
+    if m.inj.drop_only is not None and comm_type != m.inj.drop_only:
         return False
     if m.inj.drop_replies > 0:
         m.inj.drop_replies -= 1

@@ -6,11 +6,16 @@ joint order. The runtime never knows which target it drives.
 Timing: a *synchronous* target (the headless sim) advances its own clock when the runtime calls
 ``advance(dt)``, so it can run faster than real time; an asynchronous target (mock at a fixed rate, the real
 bus) lives in wall-clock time and ``advance`` only returns; the runtime's deadline scheduler keeps the rate.
+
+The safe ending: ``safe_stop`` sends damping, then stop, and returns a ``StopReport``: per joint, whether the
+damping and the stop frames were answered. The real target knows whether each motor replied; the sim and mock
+targets always answer (the default ``safe_stop``).
 """
 
 from __future__ import annotations
 
 import abc
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -18,7 +23,7 @@ import numpy as np
 
 from bar_policy.robot.mit import MitCommand
 
-__all__ = ["JointState", "Target", "TargetError", "run_metadata_of"]
+__all__ = ["JointState", "StopReport", "Target", "TargetError", "run_metadata_of"]
 
 
 class TargetError(RuntimeError):
@@ -39,6 +44,74 @@ class JointState:
     """Time the reading was taken, s, on the target's clock (``time.monotonic`` for async targets)."""
     faults: tuple[str, ...] = ()
     """Active fault descriptions reported by the hardware (empty when healthy)."""
+
+
+@dataclass(frozen=True)
+class StopReport:
+    """What the safe stop's frames got back, per joint in canonical order."""
+
+    joint_names: tuple[str, ...]
+    damping_answered: tuple[bool, ...]
+    """True where the joint answered the (last) damping frame."""
+    stop_answered: tuple[bool, ...]
+    """True where the joint answered the stop frame."""
+    detail: str = ""
+    """A note for the summary (``"dry run: nothing was enabled"``), empty by default."""
+
+    def __post_init__(self) -> None:
+        n = len(self.joint_names)
+        if len(self.damping_answered) != n or len(self.stop_answered) != n:
+            raise ValueError(f"StopReport needs {n} answers per frame kind")
+
+    @classmethod
+    def all_answered(cls, joint_names: Sequence[str], detail: str = "") -> StopReport:
+        """Every joint answered both frames (targets that always answer: sim, mock)."""
+        n = len(joint_names)
+        return cls(tuple(joint_names), (True,) * n, (True,) * n, detail)
+
+    @property
+    def no_damping_reply(self) -> tuple[str, ...]:
+        """Joints that did not answer the damping frame."""
+        return tuple(n for n, ok in zip(self.joint_names, self.damping_answered, strict=True) if not ok)
+
+    @property
+    def no_stop_reply(self) -> tuple[str, ...]:
+        """Joints that did not answer the stop frame."""
+        return tuple(n for n, ok in zip(self.joint_names, self.stop_answered, strict=True) if not ok)
+
+    @property
+    def unconfirmed(self) -> tuple[str, ...]:
+        """Joints that missed the damping or the stop frame's reply, canonical order."""
+        missed = set(self.no_damping_reply) | set(self.no_stop_reply)
+        return tuple(n for n in self.joint_names if n in missed)
+
+    @property
+    def confirmed(self) -> bool:
+        """True when every joint answered both the damping and the stop frames."""
+        return not self.unconfirmed
+
+    def summary(self) -> str:
+        """``"stop confirmed"`` when every joint answered, else which joints did not answer which frames."""
+        if self.confirmed:
+            text = f"stop confirmed (damping and stop frames answered by all {len(self.joint_names)} joints)"
+        else:
+            parts = []
+            if self.no_damping_reply:
+                parts.append(f"no reply to the damping frames from {list(self.no_damping_reply)}")
+            if self.no_stop_reply:
+                parts.append(f"no reply to the stop frames from {list(self.no_stop_reply)}")
+            text = f"stop NOT confirmed for {list(self.unconfirmed)}: {'; '.join(parts)}"
+        return f"{text}; {self.detail}" if self.detail else text
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form for the run log."""
+        return {
+            "confirmed": self.confirmed,
+            "unconfirmed_joints": list(self.unconfirmed),
+            "no_damping_reply": list(self.no_damping_reply),
+            "no_stop_reply": list(self.no_stop_reply),
+            "detail": self.detail,
+        }
 
 
 class Target(abc.ABC):
@@ -75,10 +148,14 @@ class Target(abc.ABC):
 
         return time.monotonic()
 
-    def safe_stop(self, q: np.ndarray | None = None, kd: float = 1.0) -> None:
-        """Damping, then stop: the safe ending. Real hardware overrides it to also send stop frames."""
+    def safe_stop(self, q: np.ndarray | None = None, kd: float = 1.0) -> StopReport:
+        """Damping, then stop: the safe ending; returns which joints answered (here: all of them).
+
+        Real hardware overrides it to also send stop frames and to report the motors that did not reply.
+        """
         state_q = self.read_state().q if q is None else q
         self.write_command(MitCommand.damping(state_q, kd))
+        return StopReport.all_answered(self.joint_names)
 
     def run_metadata(self) -> dict[str, Any]:
         """Target settings worth keeping in the run log (JSON values), read when the run ends.

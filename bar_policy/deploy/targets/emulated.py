@@ -27,7 +27,7 @@ import numpy as np
 
 from bar_policy.deploy.robstride.emulator import RobstrideEmulator
 from bar_policy.deploy.robstride.group import RobstrideGroup
-from bar_policy.deploy.targets.base import JointState, Target
+from bar_policy.deploy.targets.base import JointState, StopReport, Target
 from bar_policy.deploy.targets.real import RealTarget
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.mit import MitCommand
@@ -109,9 +109,9 @@ class EmulatedBusTarget(Target):
         """Emulator physics time, s."""
         return self.emu.sim_time
 
-    def safe_stop(self, q: np.ndarray | None = None, kd: float = 1.0) -> None:
-        """Damping, then stop frames on the buses."""
-        self._target().safe_stop(q, kd)
+    def safe_stop(self, q: np.ndarray | None = None, kd: float = 1.0) -> StopReport:
+        """Damping, then stop frames on the buses; which motors replied (``RealTarget.safe_stop``)."""
+        return self._target().safe_stop(q, kd)
 
     def close(self) -> None:
         """Close the real target and the emulator (safe to call twice)."""

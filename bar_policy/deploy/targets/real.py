@@ -26,12 +26,15 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
+import time
 from collections.abc import Callable, Iterable, Sequence
 from typing import NoReturn, TypeVar
 
 import can
 import numpy as np
 
+from bar_policy.deploy.robstride.activation import DEFAULT_RETRIES, DEFAULT_RETRY_BACKOFF, StartupControl
 from bar_policy.deploy.robstride.bus import DEFAULT_REPLY_TIMEOUT, BusReading
 from bar_policy.deploy.robstride.calibration import Calibration
 from bar_policy.deploy.robstride.canbus import open_can_buses
@@ -43,11 +46,16 @@ from bar_policy.deploy.robstride.cli_args import (
     non_negative,
     positive,
 )
-from bar_policy.deploy.robstride.errors import CommandError, InitializationError, RobstrideError
+from bar_policy.deploy.robstride.errors import (
+    CommandError,
+    InitializationError,
+    RobstrideError,
+    StopRequestedError,
+)
 from bar_policy.deploy.robstride.framing import DEFAULT_CAN_TIMEOUT, fault_names
 from bar_policy.deploy.robstride.group import RobstrideGroup
 from bar_policy.deploy.robstride.motor_side import decode_request
-from bar_policy.deploy.targets.base import JointState, Target, TargetError
+from bar_policy.deploy.targets.base import JointState, StopReport, Target, TargetError
 from bar_policy.robot.constants import RobotSpec, load_robot
 from bar_policy.robot.mit import MitCommand
 
@@ -77,6 +85,9 @@ class RealTarget(Target):
         scan_ids: Iterable[int] = range(1, 128),
         limit_margin: float = 0.3,
         companions: Sequence[object] = (),
+        stop_requested: Callable[[], bool] | None = None,
+        activation_retries: int = DEFAULT_RETRIES,
+        retry_backoff: float = DEFAULT_RETRY_BACKOFF,
     ) -> None:
         super().__init__(robot.joint_names)
         if group.joint_names != robot.joint_names:
@@ -91,6 +102,14 @@ class RealTarget(Target):
         self.limit_margin = limit_margin
         self.companions = list(companions)
         """Objects with ``close()`` closed after the buses (the in-process emulator)."""
+        self.stop_requested = stop_requested
+        """The caller's stop request, checked between every start-up step (``start``); None: never."""
+        self.activation_retries = activation_retries
+        """Further tries of a start-up exchange whose reply is missing, before activation refuses."""
+        self.retry_backoff = retry_backoff
+        """Pause before the first such retry, s; doubled before each further one."""
+        self.startup: StartupControl | None = None
+        """The latest ``start``'s control (``retries_used``: step -> retries of a missing reply it needed)."""
         self.enabled = False
         """True between a successful enable and the stop frames."""
         self.stopped = False
@@ -104,9 +123,31 @@ class RealTarget(Target):
         """The CAN watchdog armed at ``start()``, s (0: the motors keep their own); for run metadata."""
         return min((m.can_timeout for bus in self.group.buses for m in bus.motors), default=0.0)
 
-    def run_metadata(self) -> dict[str, float]:
-        """The armed CAN watchdog (``can_timeout``, s; 0 = left to the motors) for the run log."""
-        return {"can_timeout": self.can_timeout}
+    def run_metadata(self) -> dict[str, object]:
+        """For the run log: the armed CAN watchdog (``can_timeout``, s; 0 = left to the motors).
+
+        Only when they happened: ``activation_retries`` (retries of a missing reply the start-up needed, and
+        per step in ``activation_retries_by_step``), ``temperature_warnings`` (joint -> readings at or above
+        its warning threshold) with ``max_temperature`` (joint -> highest reading, degC).
+        """
+        meta: dict[str, object] = {"can_timeout": self.can_timeout}
+        if self.startup is not None and self.startup.retries_used:
+            meta["activation_retries"] = self.startup.total_retries
+            meta["activation_retries_by_step"] = dict(self.startup.retries_used)
+        warned = self.group.temperature.counts()
+        if warned:
+            meta["temperature_warnings"] = warned
+            top = dict(zip(self.joint_names, self.group.temperature.max_seen, strict=True))
+            meta["max_temperature"] = {n: float(top[n]) for n in warned}
+        return meta
+
+    def temperatures(self) -> np.ndarray:
+        """The latest feedback temperature per joint, canonical order, degC (NaN: no reply yet).
+
+        For the run log: the state the target returns (``JointState``) has no temperature field.
+        """
+        r = self._reading
+        return np.full(self.num_joints, np.nan) if r is None else r.temperature.copy()
 
     # ----------------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -114,8 +155,18 @@ class RealTarget(Target):
 
         On failure the buses (and companions) are closed and ``TargetError`` is raised from the driver's
         ``InitializationError`` (or other ``RobstrideError``); anything enabled was damped and stopped first.
+
+        ``stop_requested`` is checked before every step (scan, model and watchdog reads, joint read, each
+        motor's cap writes, arming, enable, damping hold): once it is true the start-up ends with
+        ``TargetError`` ("start-up stopped: ...") and nothing more is written or enabled. A missing reply
+        is retried ``activation_retries`` times (backoff ``retry_backoff`` s, doubling) before refusing;
+        the retries needed are logged and kept in ``startup`` and ``run_metadata``.
         """
+        self.startup = StartupControl(
+            retries=self.activation_retries, backoff=self.retry_backoff, stop_requested=self.stop_requested
+        )
         try:
+            self.startup.check_stop("the start-up")
             reading = self.group.activate(
                 lower=self.robot.lower,
                 upper=self.robot.upper,
@@ -123,7 +174,12 @@ class RealTarget(Target):
                 limit_margin=self.limit_margin,
                 dry_run=self.dry_run,
                 damping_kd=self.damping_kd,
+                control=self.startup,
             )
+        except StopRequestedError as exc:
+            log.warning("real target: start-up stopped: %s", exc)
+            self.close()
+            raise TargetError(f"start-up stopped: {exc}") from exc
         except RobstrideError as exc:
             log.error("real target: activation failed: %s", exc)
             self.close()
@@ -177,11 +233,17 @@ class RealTarget(Target):
         return self._state(reading)
 
     def _state(self, r: BusReading) -> JointState:
+        """The joint state of a reading; its faults: fault bits, and joints at their over-temperature limit.
+
+        A temperature at or above the model's fault threshold (``robstride.temperature``) is reported in
+        ``faults`` like the firmware's fault bits, so the runtime damps and stops; the first reading of a
+        joint at or above its warning threshold is logged once (and counted, ``run_metadata``).
+        """
         faults = tuple(
             f"{name}: {', '.join(fault_names(int(bits)))}"
             for name, bits in zip(self.joint_names, r.faults, strict=True)
             if bits
-        )
+        ) + self.group.temperature.check(r.temperature)
         return JointState(q=r.q.copy(), dq=r.dq.copy(), tau=r.tau.copy(), stamp=r.stamp, faults=faults)
 
     def write_command(self, cmd: MitCommand) -> None:
@@ -208,18 +270,73 @@ class RealTarget(Target):
         self._reading = self._guarded(self.group.exchange_mit, cmd)
         self._last_cmd = cmd
 
-    def safe_stop(self, q: np.ndarray | None = None, kd: float | None = None) -> None:
-        """Damping (Kp = 0) at ``q`` (default: the last reading), then stop frames on every bus."""
+    def safe_stop(self, q: np.ndarray | None = None, kd: float | None = None) -> StopReport:
+        """Damping (Kp = 0) at ``q`` (default: the last reading), then stop frames on every bus; who replied.
+
+        The sequence of ``RobstrideGroup.damping_then_stop`` (damping repeated for ``damping_hold_s`` s at
+        most every 10 ms, then stop frames; best effort: errors are logged, the stop frames always go out),
+        with each motor's reply noted: ``damping_answered`` is the last damping round's, ``stop_answered``
+        the stop round's. A dry run sent nothing and enabled nothing: every joint counts as answered.
+        """
         if self.dry_run:
             self.stopped = True
-            return
+            return StopReport.all_answered(self.joint_names, "dry run: nothing was enabled, no frames sent")
         if q is None and self._reading is not None:
             q = self._reading.q
+        damped = np.zeros(self.num_joints, dtype=bool)
         try:
-            self.group.damping_then_stop(q, self.damping_kd if kd is None else kd, hold_s=self.damping_hold_s)
+            damped = self._damping_rounds(q, self.damping_kd if kd is None else kd)
         finally:
-            self.enabled = False
-            self.stopped = True
+            try:
+                stop_reading = self.group.stop()
+            finally:
+                self.enabled = False
+                self.stopped = True
+        stopped = np.zeros(self.num_joints, dtype=bool) if stop_reading is None else stop_reading.mode >= 0
+        report = StopReport(self.joint_names, tuple(map(bool, damped)), tuple(map(bool, stopped)))
+        if not report.confirmed:
+            log.warning("real target: %s", report.summary())
+        return report
+
+    def _damping_rounds(self, q: np.ndarray | None, kd: float) -> np.ndarray:
+        """Damping frames at ``q`` (rad; None: the last reading) for ``damping_hold_s`` s; who replied."""
+        if q is None:
+            last = self.group.last_reading
+            q = last.q if last is not None else np.zeros(self.num_joints)
+        cmd = MitCommand.damping(np.where(np.isfinite(q), q, 0.0), kd)
+        answered = np.zeros(self.num_joints, dtype=bool)
+        end = time.monotonic() + self.damping_hold_s
+        while True:
+            try:
+                frames = self.group.mit_frames(cmd)
+            except RobstrideError as exc:
+                log.error("damping frames: %s", exc)
+                break
+            answered = self._best_effort_answers(frames)
+            if time.monotonic() >= end:
+                break
+            time.sleep(min(0.01, max(0.0, end - time.monotonic())))
+        return answered
+
+    def _best_effort_answers(self, frames: Sequence[Sequence[object]]) -> np.ndarray:
+        """Send ``frames[b]`` on every bus independently, collect non-strictly; which joints replied, (n,)."""
+        index = {name: i for i, name in enumerate(self.joint_names)}
+        answered = np.zeros(self.num_joints, dtype=bool)
+        sent = []
+        for bus, bus_frames in zip(self.group.buses, frames, strict=True):
+            try:
+                sent.append((bus, bus.send_round(bus_frames)))
+            except RobstrideError as exc:
+                log.error("%s: cannot send the damping frames: %s", bus.interface, exc)
+        for bus, deadline in sent:
+            try:
+                reading = bus.collect_round(deadline, strict=False)
+            except RobstrideError as exc:
+                log.error("%s: damping replies: %s", bus.interface, exc)
+                continue
+            for motor, mode in zip(bus.motors, reading.mode, strict=True):
+                answered[index[motor.name]] = bool(mode >= 0)
+        return answered
 
     def close(self) -> None:
         """Damping then stop if still enabled, then close the buses and companions. Safe to call twice."""
@@ -230,6 +347,8 @@ class RealTarget(Target):
                 self.safe_stop()
         finally:
             self._closed = True
+            if self.group.temperature.counts():
+                log.warning("real target: temperature warnings: %s", self.group.temperature.summary())
             self.group.shutdown()
             for c in self.companions:
                 c.close()  # type: ignore[attr-defined]
@@ -266,6 +385,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="Kd of the damping fail-safe, N*m*s/rad (default 1.0)")  # fmt: skip
     add("--scan-to", type=int_range(1, 127), default=127, metavar="ID",
         help=f"{HELP['--scan-to']}, before enabling (default 127)")  # fmt: skip
+    add("--activation-retries", type=int_range(0, 20), default=DEFAULT_RETRIES, metavar="N",
+        help="start-up: tries again after a missing reply this many times (backoff "
+             f"{DEFAULT_RETRY_BACKOFF * 1e3:g} ms, doubling) before refusing "
+             f"(default {DEFAULT_RETRIES})")  # fmt: skip
 
 
 def parse_channels(spec: str | None, interfaces: Sequence[str]) -> dict[str, str]:
@@ -348,4 +471,18 @@ def _make_target(args: argparse.Namespace, mode: str) -> RealTarget:
         damping_kd=getattr(args, "damping_kd", 1.0),
         scan_ids=range(1, getattr(args, "scan_to", 127) + 1),
         companions=companions,
+        stop_requested=installed_stop_request,
+        activation_retries=getattr(args, "activation_retries", DEFAULT_RETRIES),
     )
+
+
+def installed_stop_request() -> bool:
+    """Whether the process's installed ``StopSignals`` (the SIGINT handler's owner) has a stop request.
+
+    ``bar-deploy`` installs its ``StopSignals`` before it builds the target, so ``make_target`` can check
+    it during ``start()`` without being handed it. False when no ``StopSignals`` handles SIGINT.
+    """
+    from bar_policy.deploy.signals import StopSignals
+
+    owner = getattr(signal.getsignal(signal.SIGINT), "__self__", None)
+    return isinstance(owner, StopSignals) and owner.requested
