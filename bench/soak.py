@@ -1,0 +1,152 @@
+"""Soak benchmark: the real target on the Robstride emulator for a long run with the CPU loaded.
+
+    python bench/soak.py --minutes 30 --json soak.json --markdown soak.md
+
+It starts ``--load-procs`` busy processes (a pure-Python spin each: the "second process" that competes
+for the 2 cores), then runs the real deploy command as a user would,
+``bar-deploy --policy P --target real --can-interface virtual --duration S --log DIR`` (python-can's
+``virtual`` bus to the in-process emulator in realtime mode: the CAN codec, the driver, the watchdog, the
+supervisor and both logs in the loop), and stops the load when the run ends. From the run directory it
+reports:
+
+- timing: ticks, rate, compute p50 / p99 / max, jitter p99 / max, overruns (``run.json``'s ``timing``);
+  the worst jitter p99 over any minute (from ``log.npz``'s per-tick ``jitter``);
+- faults: ``fault_count``, the end reason, the safe stop's outcome, the exit status;
+- log completeness: ticks expected (duration / dt), ticks in ``log.npz``, ``/joint_state`` messages in
+  ``run.mcap`` (``read_mcap_log``) and whether the ``mcap`` library's indexed reader opens it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bar_policy.deploy.log import load_log
+from bar_policy.deploy.mcap_log import MCAP_FILE, read_mcap_log
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _spin() -> subprocess.Popen:
+    """One busy process (pure Python, one core)."""
+    return subprocess.Popen([sys.executable, "-c", "while True:\n    pass"])
+
+
+def _indexed_ok(path: Path) -> bool:
+    """Whether the ``mcap`` library's indexed reader reads the file's summary."""
+    from mcap.reader import make_reader
+
+    try:
+        with path.open("rb") as f:
+            return make_reader(f).get_summary() is not None
+    except Exception:
+        return False
+
+
+def soak(policy: str, minutes: float, load_procs: int, log_dir: Path) -> dict:
+    """Run the soak; the figures (see the module docstring)."""
+    duration = 60.0 * minutes
+    load = [_spin() for _ in range(load_procs)]
+    t0 = time.monotonic()
+    try:
+        cmd = [
+            sys.executable, "-m", "bar_policy.deploy.cli", "--policy", policy, "--target", "real",
+            "--can-interface", "virtual", "--duration", f"{duration:g}", "--log", str(log_dir),
+        ]  # fmt: skip
+        proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+    finally:
+        for p in load:
+            p.kill()
+            p.wait()
+    wall = time.monotonic() - t0
+    run_dir = max(log_dir.iterdir(), key=lambda p: p.stat().st_mtime)
+    meta = json.loads((run_dir / "run.json").read_text())
+    arrays, _ = load_log(run_dir)
+    dt = float(meta["runtime_config"]["control_dt"])
+    jitter = np.abs(np.asarray(arrays["jitter"], dtype=np.float64))
+    per_min = max(1, round(60.0 / dt))
+    minute_p99 = [
+        1000.0 * float(np.nanpercentile(jitter[i : i + per_min], 99)) for i in range(0, jitter.size, per_min)
+    ]
+    mcap = read_mcap_log(run_dir / MCAP_FILE)
+    mcap_ticks = int(np.asarray(mcap.arrays["t"]).size)
+    timing = meta["timing"]
+    return {
+        "policy": policy,
+        "minutes": minutes,
+        "load_procs": load_procs,
+        "exit_status": proc.returncode,
+        "end_line": next((ln for ln in proc.stdout.splitlines() if ln.startswith("end:")), ""),
+        "wall_s": wall,
+        "timing": timing,
+        "worst_minute_jitter_p99_ms": max(minute_p99) if minute_p99 else float("nan"),
+        "overrun_ticks_in_log": int(np.count_nonzero(arrays["overrun"])),
+        "fault_count": meta["fault_count"],
+        "end_reason": meta["end_reason"],
+        "safe_stop": meta["safe_stop"],
+        "ticks_expected": round(duration / dt),
+        "ticks_run_json": meta["ticks"],
+        "ticks_log_npz": int(arrays["t"].size),
+        "ticks_mcap": mcap_ticks,
+        "mcap_complete": bool(mcap.complete),
+        "mcap_indexed_reader_ok": _indexed_ok(run_dir / MCAP_FILE),
+        "run_dir": str(run_dir),
+        "loadavg": os.getloadavg(),
+        "cpus": os.cpu_count(),
+    }
+
+
+def markdown(r: dict) -> str:
+    """The figures as a table."""
+    t = r["timing"]
+    rows = [
+        ("run", f"{r['minutes']:g} min, real target on the emulator (virtual CAN, realtime), "
+                f"{r['load_procs']} busy process(es) on {r['cpus']} CPUs"),
+        ("exit status / end", f"{r['exit_status']} / {r['end_reason']}"),
+        ("faults", str(r["fault_count"])),
+        ("safe stop", r["safe_stop"]),
+        ("ticks expected / run.json / log.npz / MCAP", f"{r['ticks_expected']} / {r['ticks_run_json']} / "
+                                                       f"{r['ticks_log_npz']} / {r['ticks_mcap']}"),
+        ("MCAP opens in the indexed reader", str(r["mcap_indexed_reader_ok"])),
+        ("rate", f"{t['rate_hz']:.2f} Hz"),
+        ("compute p50 / p99 / max", f"{t['compute_p50_ms']:.2f} / {t['compute_p99_ms']:.2f} / "
+                                    f"{t['compute_max_ms']:.2f} ms"),
+        ("jitter p99 / max (whole run)", f"{t.get('jitter_p99_ms', float('nan')):.3f} / "
+                                         f"{t.get('jitter_max_ms', float('nan')):.3f} ms"),
+        ("jitter p99, worst minute", f"{r['worst_minute_jitter_p99_ms']:.3f} ms"),
+        ("overruns", f"{t['overruns']} (ticks flagged in the log: {r['overrun_ticks_in_log']})"),
+    ]  # fmt: skip
+    return "\n".join(["| quantity | value |", "|---|---|", *(f"| {a} | {b} |" for a, b in rows)])
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--policy", default=str(ROOT / "checkpoints" / "lite_reach_arms.onnx"))
+    p.add_argument("--minutes", type=float, default=30.0, help="run length, min")
+    p.add_argument("--load-procs", type=int, default=1, help="busy processes competing for the CPU")
+    p.add_argument("--log", type=Path, default=None, help="run log directory (default: a temporary one)")
+    p.add_argument("--json", type=Path, default=None)
+    p.add_argument("--markdown", type=Path, default=None)
+    a = p.parse_args()
+    log_dir = a.log or Path(tempfile.mkdtemp(prefix="soak-"))
+    log_dir.mkdir(parents=True, exist_ok=True)
+    r = soak(a.policy, a.minutes, a.load_procs, log_dir)
+    md = markdown(r)
+    print(md)
+    if a.json:
+        a.json.write_text(json.dumps(r, indent=2, default=float))
+    if a.markdown:
+        a.markdown.write_text(md + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
