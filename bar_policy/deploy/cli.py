@@ -7,6 +7,7 @@ Usage::
     bar-deploy --policy track.onnx --motion NAME|PATH [...]      (ends after the clip)
     bar-deploy run ...          (same as above)
     bar-deploy plot LOG [--out DIR]
+    bar-deploy log recover RUN_DIR|run.mcap   (a run.mcap cut by a crash -> a complete, indexed MCAP)
     bar-deploy eval --policy reach.onnx [--episodes N] [--seed N]
     bar-deploy eval --policy track.onnx [--clips heldout|gestures|NAME,...] [--hold-s S]
 
@@ -61,11 +62,12 @@ MAX_ERROR_CHARS = 1000
 """Longest error line printed (the file and the problem come first; longer lines end in ``... (N chars)``)."""
 
 TARGETS = ("sim", "mock", "real")
-SUBCOMMANDS = ("run", "plot", "eval")
+SUBCOMMANDS = ("run", "plot", "eval", "log")
 _EPILOG = """subcommands:
   run   (default) run a policy:         bar-deploy --policy x.onnx --target sim --duration 10
   plot  PNG plots of a run log:          bar-deploy plot runs/deploy/20250101-120000-sim
   eval  sim2sim, the task's metric:      bar-deploy eval --policy x.onnx
+  log   recover a run.mcap cut by a crash: bar-deploy log recover runs/deploy/20250101-120000-sim
 command sources (by the policy's task):
   reach --commands sampled | sampled:PERIOD | file:PATH (.json/.csv/.npz) | stream:stdin | stream:udp:PORT
   track --motion wave | clap | reach_sweep | hanging_to_piano_ready | random-s<seed>-<index> | clip.npz | .csv
@@ -380,6 +382,30 @@ def _plot(argv: Sequence[str]) -> int:
     return 0
 
 
+def _log(argv: Sequence[str]) -> int:
+    p = _Parser(prog="bar-deploy log", description="Tools for run logs.")
+    sub = p.add_subparsers(dest="action", required=True, metavar="ACTION", parser_class=_Parser)
+    r = sub.add_parser(
+        "recover",
+        help="rewrite a run.mcap cut by a crash as a complete, indexed MCAP",
+        description="Rewrite a run.mcap cut by a crash (SIGKILL, power loss: no summary, no footer) as a "
+        "complete, indexed MCAP with every message that can be read. The original is kept beside it as "
+        "run.mcap.cut; a complete file is left as it is.",
+    )
+    r.add_argument("run", type=Path, metavar="RUN_DIR", help="run directory, or its run.mcap")
+    args = p.parse_args(argv)
+    from bar_policy.deploy.mcap_recover import recover_mcap
+
+    try:
+        report = recover_mcap(args.run)
+    except (FileNotFoundError, ValueError) as e:  # LogReadError is a ValueError
+        return _fail(e)
+    except OSError as e:
+        return _fail(f"cannot rewrite {args.run}: {e.strerror or e}: {e.filename or args.run}")
+    print(report.line())
+    return 0
+
+
 def _eval(argv: Sequence[str]) -> int:
     p = _Parser(
         prog="bar-deploy eval",
@@ -418,9 +444,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     0: ran to the end, or stopped on request (SIGINT / SIGTERM / SIGHUP), also before the start; 1: ended on
     a fault or an error during the run; 2: refused before anything moved (bad arguments, policy, motion
-    clip, commands file, log directory or target: one line naming the file and the problem); 130: ``eval``
-    or ``plot`` ended by SIGINT. A SIGINT that comes before the stop handlers are installed ends without a
-    traceback (``signals.early_interrupt``).
+    clip, commands file, log directory or target: one line naming the file and the problem; for ``log
+    recover``, a file that is not MCAP or cannot be read or rewritten); 130: ``eval``, ``plot`` or ``log``
+    ended by SIGINT. A SIGINT that comes before the stop handlers are installed ends without a traceback
+    (``signals.early_interrupt``).
     """
     args = list(sys.argv[1:] if argv is None else argv)
     if args and args[0] in SUBCOMMANDS:
@@ -432,6 +459,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _plot(rest)
         if sub == "eval":
             return _eval(rest)
+        if sub == "log":
+            return _log(rest)
         return _run(rest)
     except KeyboardInterrupt:  # SIGINT before StopSignals (run), or during eval / plot: no traceback
         status, line = early_interrupt(sub)

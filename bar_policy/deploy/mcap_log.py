@@ -34,7 +34,12 @@ JSON ``null`` (JSON has no NaN; the sign of an infinity is lost) and read back a
 
 Durability: chunks (zstd) are closed by ``flush()``; the log writer calls it every ``flush_interval`` s of
 wall time and then ``os.fsync``. A file that ends without a footer (SIGKILL, power loss) is read up to its
-last complete chunk by ``read_mcap_log``.
+last complete chunk by ``read_mcap_log``; ``mcap_recover.recover_mcap`` (``bar-deploy log recover RUN``)
+rewrites it as a complete, indexed MCAP (what the ``mcap`` library's indexed reader and Foxglove's seeking
+need), keeping the original as ``run.mcap.cut``.
+
+Metadata records hold strict JSON: every NaN or infinity is ``null`` (``_files.finite_json``, then
+``json.dumps(..., allow_nan=False)``), so any JSON parser reads them.
 """
 
 from __future__ import annotations
@@ -50,6 +55,8 @@ from typing import IO, Any
 
 import numpy as np
 
+from bar_policy._files import finite_json
+
 __all__ = [
     "FIELD_ROUTES",
     "MCAP_FILE",
@@ -59,6 +66,7 @@ __all__ = [
     "McapLog",
     "McapRunWriter",
     "read_mcap_log",
+    "strict_json",
 ]
 
 MCAP_FILE = "run.mcap"
@@ -188,6 +196,11 @@ _TRANSITION_SCHEMA = {
 }
 
 
+def strict_json(value: object, **kwargs: Any) -> str:
+    """``value`` as strict JSON: NaN and infinities become ``null`` (``finite_json``), never ``NaN``."""
+    return json.dumps(finite_json(value), default=str, allow_nan=False, **kwargs)
+
+
 def _finite_or_none(x: float) -> float | None:
     return x if math.isfinite(x) else None
 
@@ -252,8 +265,8 @@ class McapRunWriter:
                 topic=topic, message_encoding="json", schema_id=sid, metadata=chan_meta
             )
         spec = {k: [list(shape), np.dtype(dt).str] for k, (shape, dt) in self.fields.items()}
-        self._w.add_metadata("bar_deploy.run", {"json": json.dumps(meta, sort_keys=True, default=str)})
-        self._w.add_metadata("bar_deploy.fields", {"json": json.dumps(spec, sort_keys=True)})
+        self._w.add_metadata("bar_deploy.run", {"json": strict_json(meta, sort_keys=True)})
+        self._w.add_metadata("bar_deploy.fields", {"json": strict_json(spec, sort_keys=True)})
         self._seq = 0
 
     def _times(self, t: float, wall_ns: int) -> tuple[int, int]:
@@ -288,7 +301,7 @@ class McapRunWriter:
             self._channels[TRANSITION_TOPIC],
             log_time=log_ns,
             publish_time=pub_ns,
-            data=json.dumps(dict(transition), default=str).encode(),
+            data=strict_json(dict(transition)).encode(),
             sequence=self._seq,
         )
 
@@ -298,7 +311,7 @@ class McapRunWriter:
 
     def finish(self, end_meta: Mapping[str, Any]) -> None:
         """Write the ``bar_deploy.end`` metadata, the summary and the footer."""
-        self._w.add_metadata("bar_deploy.end", {"json": json.dumps(end_meta, sort_keys=True, default=str)})
+        self._w.add_metadata("bar_deploy.end", {"json": strict_json(end_meta, sort_keys=True)})
         self._w.finish()
 
 
@@ -316,7 +329,9 @@ class McapLog:
     transitions: list[dict[str, Any]] = field(default_factory=list)
     """Mode changes from ``/safety/transition``."""
     complete: bool = False
-    """True when the file has its footer (the run closed); False for a truncated file."""
+    """True when the run closed: the file has its footer and the ``bar_deploy.end`` record. False for a
+    truncated file, and for one that ``mcap_recover.recover_mcap`` rewrote (a footer, but no end record:
+    never closed)."""
     error: str = ""
     """Why reading stopped early (empty for a complete file)."""
     publish_unix: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -386,7 +401,7 @@ def read_mcap_log(path: str | Path) -> McapLog:
                     elif rec.name == "bar_deploy.end":
                         end_meta = body
                 elif isinstance(rec, Footer):
-                    complete = True
+                    complete = end_meta is not None  # a recovered file has a footer but no end record
         except InvalidMagic as e:
             if not channels and spec is None:
                 raise ValueError(f"{path} is not an MCAP file: {e}") from None
