@@ -26,6 +26,20 @@ def write_atomic(path: Path, data: bytes) -> None:
         raise
 
 
+def fsync_dir(path: Path) -> None:
+    """Make a directory's new or renamed entries durable (a no-op where a directory cannot be opened)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
 # ---------------------------------------------------------------------------------------------------
 # Malformed input: one error type, short messages, bounded JSON
 # ---------------------------------------------------------------------------------------------------
@@ -112,3 +126,12 @@ def finite_json(value: object) -> Any:
     if callable(tolist):  # numpy scalar or array
         return finite_json(tolist())
     return value
+
+
+def strict_json(value: object, **kwargs: Any) -> str:
+    """``value`` as strict JSON: NaN and infinities become ``null`` (``finite_json``), never ``NaN``.
+
+    ``allow_nan=False`` makes any non-finite float that slipped through an error instead of invalid JSON;
+    ``default=str`` writes what JSON has no type for. ``kwargs`` go to ``json.dumps`` (``indent``, ...).
+    """
+    return json.dumps(finite_json(value), default=str, allow_nan=False, **kwargs)

@@ -13,7 +13,7 @@ A run directory ``<dir>/<YYYYmmdd-HHMMSS>-<target>/`` holds:
 - ``run.json``: the metadata for humans, ``status: running`` until ``close()`` rewrites it with
   ``status: closed`` (both writes atomic and fsync-ed). It is strict JSON: every NaN or infinity in the
   metadata (a timing statistic of a run with no tick, say) is written as ``null``
-  (``_files.finite_json``, then ``json.dumps(..., allow_nan=False)``); so is ``meta_json`` in ``log.npz``.
+  (``_files.strict_json``); so is ``meta_json`` in ``log.npz``.
 - ``chunks/``: while the run lasts, the NPZ spill of every ``chunk_ticks`` ticks (memory stays bounded);
   removed once ``log.npz`` is on disk.
 
@@ -35,7 +35,6 @@ older runs).
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import os
 import queue
@@ -50,7 +49,7 @@ from typing import IO, Any
 
 import numpy as np
 
-from bar_policy._files import InputError, finite_json, loads_json, shorten
+from bar_policy._files import InputError, fsync_dir, loads_json, shorten, strict_json
 from bar_policy.deploy.mcap_log import MCAP_FILE, McapRunWriter, read_mcap_log
 
 __all__ = [
@@ -131,20 +130,6 @@ def log_fields(
 # ---------------------------------------------------------------------------------------------------
 # Durable file helpers
 # ---------------------------------------------------------------------------------------------------
-def _fsync_dir(path: Path) -> None:
-    """Make a directory's new or renamed entries durable (a no-op where a directory cannot be opened)."""
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
 def _write_durable(path: Path, write: Callable[[IO[bytes]], None]) -> None:
     """Write through ``<path>.partial``, fsync, rename over ``path``, fsync the directory."""
     tmp = path.with_name(path.name + ".partial")
@@ -157,15 +142,12 @@ def _write_durable(path: Path, write: Callable[[IO[bytes]], None]) -> None:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-    _fsync_dir(path.parent)
+    fsync_dir(path.parent)
 
 
 def _json_text(meta: Mapping[str, Any], **kwargs: Any) -> str:
-    """Strict JSON of the run metadata: NaN and infinities become ``null`` (``finite_json``), never ``NaN``.
-
-    ``allow_nan=False`` makes any non-finite float that slipped through an error instead of invalid JSON.
-    """
-    return json.dumps(finite_json(meta), sort_keys=True, default=str, allow_nan=False, **kwargs)
+    """Strict JSON of the run metadata, keys sorted (``_files.strict_json``: NaN, infinities -> ``null``)."""
+    return strict_json(meta, sort_keys=True, **kwargs)
 
 
 def _json_bytes(meta: Mapping[str, Any]) -> bytes:
@@ -257,7 +239,7 @@ class RunLog:
             self._mcap.flush()
             self._mcap_file.flush()
             os.fsync(self._mcap_file.fileno())
-            _fsync_dir(self.path)
+            fsync_dir(self.path)
         except OSError as e:
             raise LogDirError(f"cannot write the run log in {str(self.path)!r}: {e.strerror or e}") from None
         self._queue: queue.SimpleQueue[tuple[Any, ...]] = queue.SimpleQueue()
@@ -282,7 +264,7 @@ class RunLog:
                 f"cannot create a run directory under {str(root)!r}: {e.strerror or e} "
                 "(give a writable --log DIR, or --no-log)"
             ) from None
-        _fsync_dir(root)
+        fsync_dir(root)
         return path
 
     def _new_buffer(self) -> dict[str, np.ndarray]:

@@ -38,8 +38,8 @@ last complete chunk by ``read_mcap_log``; ``mcap_recover.recover_mcap`` (``bar-d
 rewrites it as a complete, indexed MCAP (what the ``mcap`` library's indexed reader and Foxglove's seeking
 need), keeping the original as ``run.mcap.cut``.
 
-Metadata records hold strict JSON: every NaN or infinity is ``null`` (``_files.finite_json``, then
-``json.dumps(..., allow_nan=False)``), so any JSON parser reads them.
+Metadata records hold strict JSON: every NaN or infinity is ``null`` (``_files.strict_json``), so any JSON
+parser reads them.
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ from typing import IO, Any
 
 import numpy as np
 
-from bar_policy._files import finite_json
+from bar_policy._files import strict_json
 
 __all__ = [
     "FIELD_ROUTES",
@@ -66,7 +66,6 @@ __all__ = [
     "McapLog",
     "McapRunWriter",
     "read_mcap_log",
-    "strict_json",
 ]
 
 MCAP_FILE = "run.mcap"
@@ -194,11 +193,6 @@ _TRANSITION_SCHEMA = {
     },
     "required": ["t", "tick", "from", "to", "reason"],
 }
-
-
-def strict_json(value: object, **kwargs: Any) -> str:
-    """``value`` as strict JSON: NaN and infinities become ``null`` (``finite_json``), never ``NaN``."""
-    return json.dumps(finite_json(value), default=str, allow_nan=False, **kwargs)
 
 
 def _finite_or_none(x: float) -> float | None:

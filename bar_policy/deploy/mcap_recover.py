@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
-from bar_policy._files import shorten
-from bar_policy.deploy.mcap_log import MCAP_FILE, strict_json
+from bar_policy._files import fsync_dir, shorten, strict_json
+from bar_policy.deploy.mcap_log import MCAP_FILE
 
 __all__ = ["CUT_SUFFIX", "RecoverReport", "recover_mcap"]
 
@@ -241,19 +241,6 @@ def _keep_original(path: Path) -> Path:
     raise FileExistsError(f"{path}{CUT_SUFFIX} and its numbered variants all exist")
 
 
-def _fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
 def recover_mcap(path: str | Path) -> RecoverReport:
     """Rewrite an MCAP file cut by a crash (no summary, no footer) as a complete, indexed one.
 
@@ -303,7 +290,7 @@ def recover_mcap(path: str | Path) -> RecoverReport:
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
-    _fsync_dir(path.parent)
+    fsync_dir(path.parent)
     return RecoverReport(
         path=path,
         complete=False,

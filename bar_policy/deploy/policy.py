@@ -60,7 +60,7 @@ from bar_policy.deploy.onnx_file import (
     read_bytes,
     session,
 )
-from bar_policy.deploy.safety import check_action_scale
+from bar_policy.deploy.safety import DEFAULT_REACH_MARGIN, check_action_scale
 from bar_policy.obs.manager import ObservationManager, ObservationSchema
 from bar_policy.robot.constants import MODES, RobotSpec, load_robot
 from bar_policy.robot.mjcf import PHYSICS_DT
@@ -73,6 +73,7 @@ __all__ = [
     "RUNTIME_INPUTS",
     "OnnxPolicy",
     "PolicyLoadError",
+    "action_reach_problems",
     "deploy_task",
     "load_policy",
     "read_metadata",
@@ -313,33 +314,41 @@ def load_policy(
     # Graph I/O, then one dry inference to be sure the shapes hold at run time.
     check_io(path, sess, om.size, len(meta.action_joint_names))
 
-    # Action scale against the joint ranges: default +- scale x the action range must stay within each
-    # action joint's range plus DEFAULT_REACH_MARGIN (the runtime checks again with its configured margin).
-    action_index = np.array([robot.index(n) for n in meta.action_joint_names], dtype=np.int64)
-    clip = action_clip(path, sess) if meta.dialect == "bar" else None
-    problems = check_action_scale(
-        default.astype(np.float64)[action_index],
-        np.asarray(meta.action_scale, dtype=np.float64),
-        robot.lower[action_index],
-        robot.upper[action_index],
-        list(meta.action_joint_names),
-        bound=1.0 if clip is None else float(clip),
-    )
-    if problems:
-        raise refuse(path, shorten(f"action_scale beyond the joint ranges: {'; '.join(problems)}", 1000))
-
-    return OnnxPolicy(
+    policy = OnnxPolicy(
         path=path,
         metadata=meta,
         robot=robot,
         obs_manager=om,
         session=sess,
-        action_index=action_index,
+        action_index=np.array([robot.index(n) for n in meta.action_joint_names], dtype=np.int64),
         default_joint_pos=default.astype(np.float64),
         action_scale=np.asarray(meta.action_scale, dtype=np.float64),
         kp=kp.astype(np.float64),
         kd=kd.astype(np.float64),
         # HC-only files: no clip, as Humanoid Control runs them (q_cmd is still clipped to the limits).
-        action_clip=clip,
+        action_clip=action_clip(path, sess) if meta.dialect == "bar" else None,
         task=deploy_task(meta),
+    )
+    # Action scale against the joint ranges (the runtime checks again with its configured margin).
+    problems = action_reach_problems(policy)
+    if problems:
+        raise refuse(path, shorten(f"action_scale beyond the joint ranges: {'; '.join(problems)}", 1000))
+    return policy
+
+
+def action_reach_problems(policy: OnnxPolicy, margin: float = DEFAULT_REACH_MARGIN) -> list[str]:
+    """``safety.check_action_scale`` of a loaded policy: one problem per joint reaching too far (empty: none).
+
+    ``default +- action_scale x bound`` (bound = the action clip, else 1 action unit) against each action
+    joint's range widened by ``margin`` rad.
+    """
+    robot, idx = policy.robot, policy.action_index
+    return check_action_scale(
+        np.asarray(policy.default_joint_pos, dtype=np.float64)[idx],
+        policy.action_scale,
+        robot.lower[idx],
+        robot.upper[idx],
+        [robot.joint_names[i] for i in idx],
+        bound=1.0 if policy.action_clip is None else float(policy.action_clip),
+        margin=margin,
     )

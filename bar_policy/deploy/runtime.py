@@ -61,11 +61,11 @@ from typing import Any
 
 import numpy as np
 
-from bar_policy.deploy.action_path import ActionPath, check_action_scale
+from bar_policy.deploy.action_path import ActionPath
 from bar_policy.deploy.contract import PolicyLoadError
 from bar_policy.deploy.inputs import StateInputs
 from bar_policy.deploy.log import RunLog, log_fields
-from bar_policy.deploy.policy import OnnxPolicy
+from bar_policy.deploy.policy import OnnxPolicy, action_reach_problems
 from bar_policy.deploy.run_config import RunResult, RuntimeConfig
 from bar_policy.deploy.safety import Mode, SafetySupervisor
 from bar_policy.deploy.signals import StopSignals
@@ -113,6 +113,8 @@ class Runtime:
         """
         self.policy = policy
         self.target = target
+        # The target's per-joint temperature reader (the real target has one), looked up once, not per tick.
+        self._read_temperatures = getattr(target, "temperatures", None)
         self.commands = commands
         self.config = config or RuntimeConfig()
         robot = policy.robot
@@ -192,21 +194,12 @@ class Runtime:
     # -- helpers -------------------------------------------------------------------------------------
     def _temperatures(self, n: int) -> np.ndarray:
         """Per-joint motor temperature, degC, from a target that reports one (the real target); else NaN."""
-        read = getattr(self.target, "temperatures", None)
+        read = self._read_temperatures
         return np.full(n, np.nan) if read is None else np.asarray(read(), dtype=np.float64)
 
     def _check_action_scale(self, policy: OnnxPolicy) -> None:
         """Refuse (``PolicyLoadError``) an ``action_scale`` that reaches beyond the joint ranges."""
-        robot, idx = policy.robot, policy.action_index
-        problems = check_action_scale(
-            np.asarray(policy.default_joint_pos, dtype=np.float64)[idx],
-            policy.action_scale,
-            robot.lower[idx],
-            robot.upper[idx],
-            [robot.joint_names[i] for i in idx],
-            bound=1.0 if policy.action_clip is None else float(policy.action_clip),
-            margin=self.config.action_reach_margin,
-        )
+        problems = action_reach_problems(policy, self.config.action_reach_margin)
         if problems:
             raise PolicyLoadError(
                 f"{policy.path}: action_scale beyond the joint ranges: {'; '.join(problems)}"

@@ -78,6 +78,29 @@ def test_shared_thresholds_match_the_env():
     assert default_config().termination_distance == task.LOST_DISTANCE
 
 
+def _env_policy(env, path, **kwargs):
+    """A deploy policy file carrying ``env``'s action filter, default pose and action scale, loaded.
+
+    ``kwargs`` go to the test policy factory (``bias``: the constant action).
+    """
+    import dataclasses
+    import sys
+    from pathlib import Path
+
+    from bar_policy.deploy.policy import load_policy
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "deploy"))
+    from policy_factory import default_metadata, make_policy_file
+
+    meta = dataclasses.replace(
+        default_metadata("arms", task="track"),
+        action_filter_hz=env.config.action_filter_hz,
+        action_scale=tuple(float(x) for x in task.track_action_scale("arms")),
+        default_joint_pos=tuple(float(x) for x in task.track_default_pose()),
+    )
+    return load_policy(make_policy_file(path, metadata=meta, **kwargs))
+
+
 def test_action_filter_parity_env_and_deploy(track_env, track_fns, tmp_path):
     """The robot's ``ActionPath`` applies the env's action filter: the same applied actions, tick by tick.
 
@@ -87,25 +110,11 @@ def test_action_filter_parity_env_and_deploy(track_env, track_fns, tmp_path):
     both are ``robot.action_filter.lowpass_step`` of the clipped action, one in float32 XLA, one in float64
     numpy rounded to float32; 1e-6 covers a few float32 ulps on |a| <= 1 (6e-8 each) over 6 ticks.
     """
-    import dataclasses
-    import sys
-    from pathlib import Path
-
     from bar_policy.deploy.action_path import ActionPath
-    from bar_policy.deploy.policy import load_policy
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "deploy"))
-    from policy_factory import default_metadata, make_policy_file
 
     _, step, reset_at = track_fns
     cfg = track_env.config
-    meta = dataclasses.replace(
-        default_metadata("arms", task="track"),
-        action_filter_hz=cfg.action_filter_hz,
-        action_scale=tuple(float(x) for x in task.track_action_scale("arms")),
-        default_joint_pos=tuple(float(x) for x in task.track_default_pose()),
-    )
-    policy = load_policy(make_policy_file(tmp_path / "p.onnx", metadata=meta))
+    policy = _env_policy(track_env, tmp_path / "p.onnx")
     path = ActionPath(policy)
     assert path.alpha == pytest.approx(filter_alpha(cfg.action_filter_hz, cfg.ctrl_dt), rel=1e-12)
     s = reset_at(jax.random.PRNGKey(3), 1, 40)
@@ -132,29 +141,15 @@ def test_first_policy_tick_after_the_hold_ramp_sees_the_env_reset_observation(
     0.5 s, so the env's reset velocity is 0 as the robot's is) and echoes each command, so the measured
     state at that tick is the frame exactly. Float32 observation rounding: 1e-6.
     """
-    import dataclasses
-    import sys
-    from pathlib import Path
-
     from bar_policy.deploy.log import load_log
-    from bar_policy.deploy.policy import load_policy
     from bar_policy.deploy.runtime import Runtime, RuntimeConfig
     from bar_policy.deploy.safety import Mode, SafetyConfig
     from bar_policy.deploy.tasks.track import reference_for
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "deploy"))
+    policy = _env_policy(track_env, tmp_path / "p.onnx", bias=0.1)  # puts tests/deploy on the path
     from fault_targets import SteppedMock
-    from policy_factory import default_metadata, make_policy_file
 
     _, _, reset_at = track_fns
-    cfg = track_env.config
-    meta = dataclasses.replace(
-        default_metadata("arms", task="track"),
-        action_filter_hz=cfg.action_filter_hz,
-        action_scale=tuple(float(x) for x in task.track_action_scale("arms")),
-        default_joint_pos=tuple(float(x) for x in task.track_default_pose()),
-    )
-    policy = load_policy(make_policy_file(tmp_path / "p.onnx", metadata=meta, bias=0.1))
     clip = track_clips[1]
     frame0 = clip.joint_pos[0].astype(np.float64)
     assert np.array_equal(clip.joint_pos[0], clip.joint_pos[1])  # the gesture rests: reset velocity 0
