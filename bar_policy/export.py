@@ -39,6 +39,7 @@ from onnx import TensorProto, helper, numpy_helper
 import bar_policy
 from bar_policy._files import write_atomic
 from bar_policy.deploy.metadata import PolicyMetadata
+from bar_policy.obs.action_prior import ActionPrior
 
 __all__ = [
     "EXTREME_TOLERANCE",
@@ -107,6 +108,9 @@ class MlpPolicy:
     """Hidden activation (not applied after the last layer)."""
     head: Head
     """``tanh_loc`` = tanh of the output (brax); ``identity`` = the output itself (rsl-rl)."""
+    prior: ActionPrior | None = None
+    """Added to the last layer's output before the head: ``atanh(prior(obs))`` for ``tanh_loc``, the
+    prior itself for ``identity`` (``bar_policy.obs.action_prior``); None: no prior."""
 
     def __post_init__(self) -> None:
         if len(self.kernels) != len(self.biases) or not self.kernels:
@@ -121,6 +125,13 @@ class MlpPolicy:
             )
         if not np.all(self.obs_std > 0):
             raise ValueError("obs_std must be > 0 everywhere")
+        if self.prior is not None:
+            if self.prior.action_size != self.kernels[-1].shape[1]:
+                raise ValueError(
+                    f"the action prior has {self.prior.action_size} actions, the last layer "
+                    f"{self.kernels[-1].shape[1]}"
+                )
+            self.prior.check_observation_size(n)
         for i, (k, b) in enumerate(zip(self.kernels, self.biases, strict=True)):
             if k.ndim != 2 or b.shape != (k.shape[1],):
                 raise ValueError(f"layer {i}: kernel {k.shape} and bias {b.shape} do not fit")
@@ -178,6 +189,11 @@ def build_onnx_model(policy: MlpPolicy, props: Mapping[str, str] | None = None) 
         if i < last:
             nodes += _activation_nodes(policy.activation, x, f"act{i}")
             x = f"act{i}"
+    if policy.prior is not None:
+        inits_p, nodes_p, prior_out = _prior_nodes(policy.prior, atanh=policy.head == "tanh_loc")
+        inits += inits_p
+        nodes += [*nodes_p, helper.make_node("Add", [x, prior_out], ["with_prior"])]
+        x = "with_prior"
     nodes.append(helper.make_node("Tanh" if policy.head == "tanh_loc" else "Identity", [x], ["actions"]))
     graph = helper.make_graph(
         nodes,
@@ -195,6 +211,27 @@ def build_onnx_model(policy: MlpPolicy, props: Mapping[str, str] | None = None) 
         helper.set_model_props(model, dict(props))
     onnx.checker.check_model(model, full_check=True)
     return model
+
+
+def _prior_nodes(prior: ActionPrior, atanh: bool) -> tuple[list[onnx.TensorProto], list[onnx.NodeProto], str]:
+    """``clip(gain * obs[:, index] + offset, -bound, bound)``, then ``Atanh``: initialisers, nodes, output."""
+    inits = [
+        numpy_helper.from_array(np.asarray(prior.index, np.int64), "prior_index"),
+        numpy_helper.from_array(np.asarray(prior.gain, np.float32), "prior_gain"),
+        numpy_helper.from_array(np.asarray(prior.offset, np.float32), "prior_offset"),
+        numpy_helper.from_array(np.asarray(-prior.bound, np.float32), "prior_low"),
+        numpy_helper.from_array(np.asarray(prior.bound, np.float32), "prior_high"),
+    ]
+    nodes = [
+        helper.make_node("Gather", ["obs", "prior_index"], ["prior_obs"], axis=1),
+        helper.make_node("Mul", ["prior_obs", "prior_gain"], ["prior_scaled"]),
+        helper.make_node("Add", ["prior_scaled", "prior_offset"], ["prior_affine"]),
+        helper.make_node("Clip", ["prior_affine", "prior_low", "prior_high"], ["prior_action"]),
+    ]
+    if not atanh:
+        return inits, nodes, "prior_action"
+    nodes.append(helper.make_node("Atanh", ["prior_action"], ["prior_pre_tanh"]))
+    return inits, nodes, "prior_pre_tanh"
 
 
 def _activation_nodes(kind: Activation, x: str, out: str) -> list[onnx.NodeProto]:
@@ -378,7 +415,10 @@ def export_policy(
 
 
 def mlp_policy_from_brax(
-    params: Sequence[Any], action_size: int, activation: Activation = "swish"
+    params: Sequence[Any],
+    action_size: int,
+    activation: Activation = "swish",
+    prior: ActionPrior | None = None,
 ) -> MlpPolicy:
     """Extract the deterministic policy from brax PPO params ``(normalizer, policy, value)``.
 
@@ -406,6 +446,7 @@ def mlp_policy_from_brax(
         biases=tuple(biases),
         activation=activation,
         head="tanh_loc",
+        prior=prior,
     )
 
 
@@ -441,6 +482,7 @@ def export_brax_policy(
     activation: Activation = "swish",
     num_parity_obs: int = 4096,
     seed: int = 0,
+    prior: ActionPrior | None = None,
 ) -> dict[str, Any]:
     """Export brax PPO params to ONNX, gated on parity with ``make_inference_fn(params, deterministic=True)``.
 
@@ -452,11 +494,12 @@ def export_brax_policy(
         activation: the networks' hidden activation.
         num_parity_obs: observations checked by the gate.
         seed: seed of those observations.
+        prior: the networks' action prior (``learner.make_networks``), None without one.
 
     Returns:
         ``export_policy``'s summary.
     """
-    policy = mlp_policy_from_brax(params, len(metadata.action_joint_names), activation)
+    policy = mlp_policy_from_brax(params, len(metadata.action_joint_names), activation, prior)
     return export_policy(
         policy,
         metadata,

@@ -53,6 +53,7 @@ from bar_policy.envs.base import MjxEnv, State
 from bar_policy.envs.robot_config import RobotEnvConfig
 from bar_policy.envs.task import TaskHooks, Transition
 from bar_policy.obs import ObservationManager
+from bar_policy.obs.action_prior import ActionPrior
 from bar_policy.robot.action_filter import filter_alpha, lowpass_step, pose_action
 from bar_policy.robot.actuators import armature_gains
 from bar_policy.robot.constants import load_robot
@@ -233,6 +234,20 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
             "action": applied,
             "signal": q_cmd if ref is None else q_cmd - ref,
         }
+
+    def action_prior(self, lead_steps: int) -> ActionPrior:
+        """The task's action prior (``bar_policy.obs.action_prior``), ``lead_steps`` control steps ahead.
+
+        A fixed map from the observation to the action the policy starts from, where the task has a
+        reference to follow.
+
+        Raises:
+            ValueError: the task has none (this default: reach has no reference to follow).
+        """
+        raise ValueError(
+            f"{type(self).__name__} has no action prior (it has no reference to follow); valid "
+            "network.action_prior values for it: none"
+        )
 
     def task_reference(self, info: dict) -> jax.Array | None:
         """The joint positions the command of this step targets, rad (n,); None for a task without one."""

@@ -48,6 +48,7 @@ from bar_policy.envs.track_config import TrackEnvConfig, default_config, heldout
 from bar_policy.motion.clip import Clip
 from bar_policy.motion.library import clip_set, clip_set_id
 from bar_policy.obs import ObservationManager
+from bar_policy.obs.action_prior import ActionPrior, reference_prior
 from bar_policy.robot.constants import FINGERTIP_SITES
 from bar_policy.tasks.track import (
     TRACK_BODY_NAMES,
@@ -105,6 +106,10 @@ class LiteTrack(LiteRobotEnv):
         and 0.0 % on the last ones (docs/tracking.md).
         """
         return LiteTrack(nominal(heldout_config(self.config)))
+
+    def action_prior(self, lead_steps: int) -> ActionPrior:
+        """The reference prior: the action whose command is the reference ``lead_steps`` frames ahead."""
+        return reference_prior(self.obs_manager, self._default, self._scale, lead_steps)
 
     def _spans(self) -> list[tuple[int, int]]:
         t = self.reference

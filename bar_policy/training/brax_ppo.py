@@ -36,9 +36,10 @@ import jax
 import numpy as np
 from jax.sharding import PartitionSpec as P
 
+from bar_policy.obs.action_prior import ActionPrior
 from bar_policy.training.best import BestIterate, BestKeeper
 from bar_policy.training.checkpoint import load_checkpoint, save_checkpoint
-from bar_policy.training.config import TrainConfig
+from bar_policy.training.config import NetworkConfig, TrainConfig
 from bar_policy.training.learner import Learner, TrainingState, make_learner, make_networks, strip_weak_type
 from bar_policy.training.parallel import AXIS, DataParallel, barrier, make_data_parallel
 from bar_policy.training.progress import RunLogger, next_would_overrun
@@ -48,6 +49,7 @@ __all__ = [
     "BraxTrainResult",
     "Programs",
     "TrainingState",
+    "action_prior",
     "epoch_iterations",
     "host_key",
     "make_networks",
@@ -96,6 +98,8 @@ class BraxTrainResult:
     best: BestIterate | None = None
     """The best evaluated iterate of this run (``bar_policy.training.best``); None when nothing was
     evaluated after training started."""
+    prior: ActionPrior | None = None
+    """The policy's action prior (``NetworkConfig.action_prior``; for export), None without one."""
 
     def at(self, params: tuple[Any, Any, Any]) -> BraxTrainResult:
         """The same result with other parameters (e.g. ``best.params``), to evaluate or export them."""
@@ -119,7 +123,16 @@ class BraxTrainResult:
         """Export the deterministic policy with the parity gate (``bar_policy.export.export_brax_policy``)."""
         from bar_policy.export import export_brax_policy
 
-        return export_brax_policy(self.params, self.make_policy, metadata, path, activation=self.activation)
+        return export_brax_policy(
+            self.params, self.make_policy, metadata, path, activation=self.activation, prior=self.prior
+        )
+
+
+def action_prior(env: Any, net: NetworkConfig) -> ActionPrior | None:
+    """The env's action prior that ``net.action_prior`` asks for (``LiteRobotEnv.action_prior``), or None."""
+    if net.action_prior == "none":
+        return None
+    return env.action_prior(net.prior_lead_steps)
 
 
 def epoch_iterations(cfg: TrainConfig) -> int:
@@ -292,7 +305,8 @@ def train_brax(
     total_iters = math.ceil(ppo.num_timesteps / steps_per_iter)
     iters_per_epoch = epoch_iterations(cfg)
 
-    learner = make_learner(env.observation_size, env.action_size, ppo, cfg.network)
+    prior = action_prior(env, cfg.network)
+    learner = make_learner(env.observation_size, env.action_size, ppo, cfg.network, prior)
     programs = make_programs(
         env, cfg, learner, dp, wrap_fn, randomizer, iters_per_epoch, eval_env, eval_randomizer
     )
@@ -448,4 +462,5 @@ def train_brax(
         num_eval_envs=cfg.eval.num_eval_envs,
         activation=cfg.network.activation,
         best=keeper.best,
+        prior=prior,
     )

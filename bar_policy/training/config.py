@@ -58,8 +58,20 @@ class NetworkConfig:
     """Hidden activation (brax's default is swish = x * sigmoid(x); rsl-rl's is elu)."""
     init_noise_std: float = 1.0
     """Initial action noise std, action units (rsl-rl backend; brax's tanh-normal head learns its own)."""
+    action_prior: Literal["none", "reference"] = "none"
+    """What the policy's mean starts from (``bar_policy.obs.action_prior``): ``none`` (the MLP gives the
+    whole action) or ``reference`` (the task's reference pose ``prior_lead_steps`` ahead, read from the
+    observation; the MLP learns the correction). Brax backend; written into the ONNX graph."""
+    prior_lead_steps: int = 5
+    """Reference frame of the ``reference`` prior, control steps ahead (1..the layout's lookahead): 5 = 100
+    ms, which the action filter's lag (53-64 ms at 2.5-3 Hz) and the PD law's need: with a zero MLP on the sim
+    target (wave, clap at 2.5 Hz) leads 1, 3, 5 gave 0.020, 0.018, 0.014 rad (docs/tracking.md)."""
 
     def __post_init__(self) -> None:
+        if self.action_prior not in ("none", "reference"):
+            raise ValueError(f"unknown action_prior {self.action_prior!r}; valid: ['none', 'reference']")
+        if self.prior_lead_steps < 1:
+            raise ValueError(f"prior_lead_steps must be >= 1 control step, got {self.prior_lead_steps}")
         if not self.policy_hidden or any(w <= 0 for w in (*self.policy_hidden, *self.value_hidden)):
             raise ValueError(
                 f"hidden layer widths must be positive and policy_hidden non-empty, got "

@@ -13,6 +13,7 @@ shuffled passes of ``num_minibatches`` Adam steps).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -22,6 +23,7 @@ import flax
 import jax
 import jax.numpy as jnp
 import optax
+from brax.training import networks as brax_networks
 from brax.training import types
 from brax.training.acme import running_statistics, specs
 from brax.training.agents.ppo import losses as ppo_losses
@@ -29,6 +31,7 @@ from brax.training.agents.ppo import networks as ppo_networks
 from flax import linen
 
 from bar_policy.envs.base import eval_ratios
+from bar_policy.obs.action_prior import ActionPrior
 from bar_policy.training import eval_quality
 from bar_policy.training.config import NetworkConfig, PPOConfig
 from bar_policy.training.parallel import AXIS
@@ -61,10 +64,53 @@ class TrainingState:
     normalizer_params: running_statistics.RunningStatisticsState
 
 
+PRIOR_INIT_SCALE = 0.01
+"""With an action prior, the initial loc kernel of the policy's output layer is brax's times this (its bias
+0): CleanRL's and Stable-Baselines3's policy-head gain of 0.01, so training starts from the prior."""
+
+
 def make_networks(
+    observation_size: int,
+    action_size: int,
+    net: NetworkConfig,
+    normalize: bool,
+    prior: ActionPrior | None = None,
+) -> ppo_networks.PPONetworks:
+    """Brax PPO networks (tanh-normal policy) with our layer sizes and activation.
+
+    With ``prior``, the policy's pre-tanh mean is the MLP's plus ``prior.pre_tanh(obs)`` of the raw
+    (unnormalised) observation, so a zero MLP output is the prior's action; the scale half is untouched.
+    """
+    networks = _brax_networks(observation_size, action_size, net, normalize)
+    if prior is None:
+        return networks
+    if prior.action_size != action_size:
+        raise ValueError(f"the action prior has {prior.action_size} actions, the env {action_size}")
+    prior.check_observation_size(observation_size)
+    base = networks.policy_network
+
+    def init(key: jax.Array) -> Any:
+        # The loc half of the output layer starts at PRIOR_INIT_SCALE of brax's init, so the first policy
+        # is the prior plus a small perturbation rather than the prior drowned in a random MLP's output.
+        params = base.init(key)
+        layers = params["params"]
+        last = max(layers, key=lambda s: int(s.rsplit("_", 1)[1]))
+        kernel, bias = layers[last]["kernel"], layers[last]["bias"]
+        kernel = kernel.at[:, :action_size].multiply(PRIOR_INIT_SCALE)
+        bias = bias.at[:action_size].set(0.0)
+        return {**params, "params": {**layers, last: {**layers[last], "kernel": kernel, "bias": bias}}}
+
+    def apply(processor_params: Any, policy_params: Any, obs: jax.Array) -> jax.Array:
+        loc, scale = jnp.split(base.apply(processor_params, policy_params, obs), 2, axis=-1)
+        return jnp.concatenate([loc + prior.pre_tanh(obs), scale], axis=-1)
+
+    policy = brax_networks.FeedForwardNetwork(init=init, apply=apply)
+    return dataclasses.replace(networks, policy_network=policy)
+
+
+def _brax_networks(
     observation_size: int, action_size: int, net: NetworkConfig, normalize: bool
 ) -> ppo_networks.PPONetworks:
-    """Brax PPO networks (tanh-normal policy) with our layer sizes and activation."""
     return ppo_networks.make_ppo_networks(
         observation_size,
         action_size,
@@ -312,13 +358,19 @@ def adapt_learning_rate(lr: jax.Array, kl: jax.Array, ppo: PPOConfig) -> jax.Arr
     return jnp.clip(lr, ppo.min_learning_rate, ppo.max_learning_rate)
 
 
-def make_learner(observation_size: int, action_size: int, ppo: PPOConfig, net: NetworkConfig) -> Learner:
+def make_learner(
+    observation_size: int,
+    action_size: int,
+    ppo: PPOConfig,
+    net: NetworkConfig,
+    prior: ActionPrior | None = None,
+) -> Learner:
     """The learner for an env's sizes: brax networks and Adam after global-norm clipping (when configured).
 
     Adam's learning rate sits in the optimizer state (``optax.inject_hyperparams``), so the adaptive schedule
     can change it between minibatch steps (``learning_rate`` / ``set_learning_rate``).
     """
-    networks = make_networks(observation_size, action_size, net, ppo.normalize_observations)
+    networks = make_networks(observation_size, action_size, net, ppo.normalize_observations, prior)
     clip = optax.clip_by_global_norm(ppo.max_grad_norm) if ppo.max_grad_norm > 0 else optax.identity()
     optimizer = optax.chain(clip, optax.inject_hyperparams(optax.adam)(learning_rate=ppo.learning_rate))
     return Learner(

@@ -282,6 +282,11 @@ def train_rsl_rl(
     from flax import serialization
     from rsl_rl.runners import OnPolicyRunner
 
+    if cfg.network.action_prior != "none":
+        raise ValueError(
+            f"network.action_prior={cfg.network.action_prior!r} is a brax-backend network; the rsl-rl "
+            "backend's actor has none (valid here: none; or --backend brax)"
+        )
     if wrap_fn is None:
         from bar_policy.envs import wrap_for_brax_training as wrap_fn
     ppo = cfg.ppo
