@@ -68,12 +68,20 @@ class RewardScales:
     """Weight of ``1 - tanh(d / fine_std)`` (mean of both hands), per step."""
     success: float = 0.5
     """Weight of the both-hands-within-3-cm indicator, per step."""
-    action_rate: float = -0.01
-    """Weight of ``sum((a_t - a_{t-1})^2)``, per step (action units)."""
+    action_rate: float = -0.1
+    """Weight of ``sum((a_t - a_{t-1})^2)`` of the applied action, per step (action units); the tracker's
+    (BeyondMimic's) -0.1; -0.01 shipped a policy at its torque caps 6 % of the time with 34 mrad of
+    chatter (docs/training.md)."""
+    action_accel: float = -0.2
+    """Weight of ``sum((a_t - 2 a_{t-1} + a_{t-2})^2)`` of the applied action, per step: chatter's own
+    penalty, as the tracker's."""
     joint_limit: float = -1.0
     """Weight of rad beyond the soft joint limits (summed over joints), per step."""
     torque: float = -0.005
     """Weight of ``sum((tau / tau_cap)^2)`` averaged over substeps, per step."""
+    torque_near_cap: float = -0.1
+    """Weight of ``sum_j clip(|tau_law_j| / tau_cap_j - 0.8, 0, 1)`` of the unclipped MIT demand averaged
+    over substeps (``Transition.near_cap``): a new target must be reached without slamming into the caps."""
     joint_vel: float = -5e-4
     """Weight of ``sum(dq^2)`` in (rad/s)^2, per step."""
 
@@ -104,6 +112,9 @@ class ReachEnvConfig(RobotEnvConfig):
 
     resample_period_s: float = 2.5
     """Targets are resampled every this many s, s (a multiple of ctrl_dt)."""
+    action_filter_hz: float | None = 3.0
+    """Cutoff of the action low-pass, Hz (``RobotEnvConfig.action_filter_hz``), the tracker's: PPO's
+    exploration noise reaches the joints smoothed, and the deploy runtime applies the same filter."""
     target: ReachTargetConfig = field(default_factory=ReachTargetConfig)
     """Target workspace (chest frame)."""
     reward: RewardConfig = field(default_factory=RewardConfig)
@@ -150,7 +161,8 @@ class LiteReach(LiteRobotEnv):
     def task_reset(self, model: mjx.Model, key: jax.Array) -> tuple[dict, jax.Array, jax.Array]:
         """New targets; start at the default pose at rest."""
         tl, tr = sample_targets(jax.random.uniform(key, (6,)), self.config.target)
-        return {"target_left": tl, "target_right": tr}, self._default, jnp.zeros(self.action_size)
+        info = {"target_left": tl, "target_right": tr, "act_prev": self.initial_action(self._default)}
+        return info, self._default, jnp.zeros(self.action_size)
 
     def task_step(self, tr: Transition) -> TaskStep:
         """Distance rewards on the true fingertips, success, and target resampling at segment ends."""
@@ -165,8 +177,10 @@ class LiteReach(LiteRobotEnv):
             "reach_fine": rewards.reach_kernel(d_l, d_r, rc.fine_std),
             "success": rewards.success(d_l, d_r, SUCCESS_RADIUS),
             "action_rate": rewards.action_rate(tr.action, info["last_act"]),
+            "action_accel": rewards.action_accel(tr.action, info["last_act"], info["act_prev"]),
             "joint_limit": rewards.joint_limit(data.qpos, self._lower, self._upper, rc.soft_limit_fraction),
             "torque": rewards.torque(tr.tau_sq),
+            "torque_near_cap": tr.near_cap,
             "joint_vel": rewards.joint_vel(data.qvel),
         }
         seg_end = (tr.step % cfg.resample_steps) == 0
@@ -182,6 +196,7 @@ class LiteReach(LiteRobotEnv):
         task_info = {
             "target_left": jnp.where(seg_end, new_l, info["target_left"]),
             "target_right": jnp.where(seg_end, new_r, info["target_right"]),
+            "act_prev": info["last_act"],
         }
         return TaskStep(terms=terms, info=task_info, metrics=metrics)
 

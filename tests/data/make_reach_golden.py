@@ -18,7 +18,10 @@ every info leaf (the wrapper's ``episode_metrics`` included), under ``<run>/<fie
 below take the jitted reset/step so the test (tests/envs/test_reach_golden.py) replays them with the
 session fixtures' compiled functions.
 
-First recorded from the unsplit env (bar_policy/envs/reach.py at commit bec536f).
+First recorded from the unsplit env (bar_policy/envs/reach.py at commit bec536f); re-recorded when the reach
+recipe changed on purpose (issue 16: the 3 Hz action filter, the ``action_accel`` and ``torque_near_cap``
+terms and ``action_rate`` -0.1, which add an info leaf and two reward metrics), on an AVX2 machine, from the
+commit after 9897af8.
 """
 
 from __future__ import annotations

@@ -104,11 +104,16 @@ def test_step_reward_metrics_and_resampling(nominal_env, nominal_fns):
     terms = {k: float(v) for k, v in s1.metrics.items() if k.startswith("reward/")}
     assert set(terms) == {f"reward/{n}" for n in env.reward_names}
     assert float(s1.reward) == pytest.approx(sum(terms.values()), rel=1e-5, abs=1e-6)
-    # action_rate from the zero action at reset: 14 * 0.25^2 = 0.875, times the weight -0.01.
-    assert terms["reward/action_rate"] == pytest.approx(-0.01 * 0.875, rel=1e-5)
-    # The previous-action slice of the obs is the action just taken.
+    # The 3 Hz action filter from the reset's zero action: applied = alpha * 0.25, alpha = 1 - exp(-2 pi 3
+    # 0.02) = 0.3141. action_rate = 14 * applied^2 (weight -0.1); action_accel has a_{t-1} = a_{t-2} = 0,
+    # so the same sum (weight -0.2).
+    assert env.config.action_filter_hz == 3.0
+    applied = (1.0 - np.exp(-2.0 * np.pi * 3.0 * 0.02)) * 0.25
+    assert terms["reward/action_rate"] == pytest.approx(-0.1 * 14 * applied**2, rel=1e-5)
+    assert terms["reward/action_accel"] == pytest.approx(-0.2 * 14 * applied**2, rel=1e-5)
+    # The previous-action slice of the obs is the action just applied (float32: 1e-7 on 0.0785).
     om = env.obs_manager
-    np.testing.assert_allclose(om.split(np.asarray(s1.obs))["actions"], 0.25)
+    np.testing.assert_allclose(om.split(np.asarray(s1.obs))["actions"], applied, atol=1e-7)
     # dist metrics = |fingertip - target| from the site positions.
     tips = np.asarray(s1.data.site_xpos)
     assert float(s1.metrics["dist_left"]) == pytest.approx(

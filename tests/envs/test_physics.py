@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from env_support import c_rollout
 
+from bar_policy.robot.action_filter import filter_alpha
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.mjcf import load_model
 
@@ -64,24 +65,38 @@ def test_explicit_damping_boundary():
     assert _final_speed(dt=0.004, n_substeps=5, damping="explicit") > 1.0
 
 
-def _sine_actions(n_steps: int, amplitude: float) -> np.ndarray:
-    t = np.arange(n_steps) * 0.02
+def _sine_actions(n_steps: int, amplitude: float, first_step: int = 0) -> np.ndarray:
+    t = (first_step + np.arange(n_steps)) * 0.02
     phase = np.linspace(0.0, 2 * np.pi, 14, endpoint=False)
     return (amplitude * np.sin(2 * np.pi * 1.0 * t[:, None] + phase[None])).astype(np.float32)
 
 
 def _parity(env, reset, step, n_steps: int = 100) -> tuple[np.ndarray, np.ndarray]:
     acts = _sine_actions(n_steps, 0.4)
+    # The env low-passes its actions (alpha = 1 without a filter): start its filter on the sine's sample at
+    # t = -20 ms and feed it the filter's inverse, raw_t = a_{t-1} + (a_t - a_{t-1}) / alpha, so the actions
+    # it applies are the sine to float32 rounding. |raw| <= 0.4 + 0.05 (2.2) < 1: the env's clip does not
+    # bite. The C side gets the commands of the actions the env applied (its ``last_act``), bit for bit:
+    # a 1e-7 rounding difference can flip a 16-bit q_cmd LSB (3.8e-4 rad) and is no physics difference.
+    s = reset(jax.random.PRNGKey(0))
+    before = _sine_actions(1, 0.4, first_step=-1)
+    alpha = filter_alpha(env.config.action_filter_hz, env.config.ctrl_dt)
+    s = s.replace(info={**s.info, "last_act": jnp.asarray(before[0])})
+    prev = np.vstack([before.astype(np.float64), acts[:-1]])
+    raw = (prev + (acts - prev) / alpha).astype(np.float32)
+    assert np.abs(raw).max() < 1.0
     q_cmds = np.asarray(jax.vmap(env.q_command)(jnp.asarray(acts)), dtype=np.float64)
     robot = load_robot("arms")
     margin = np.minimum(q_cmds - robot.lower, robot.upper - q_cmds).min()
     assert margin > 0.05  # no joint-limit contact in the commanded motion
-    s = reset(jax.random.PRNGKey(0))
-    qj, vj = [], []
-    for a in acts:
+    qj, vj, applied = [], [], []
+    for a in raw:
         s = step(s, jnp.asarray(a))
         qj.append(np.asarray(s.data.qpos))
         vj.append(np.asarray(s.data.qvel))
+        applied.append(np.asarray(s.info["last_act"]))
+    np.testing.assert_allclose(np.array(applied), acts, atol=1e-6)  # the sine, to float32 rounding
+    q_cmds = np.asarray(jax.vmap(env.q_command)(jnp.asarray(np.array(applied))), dtype=np.float64)
     qc, vc = c_rollout(q_cmds, env.default_pose.astype(np.float64), damping=env.config.actuator.damping)
     return np.abs(np.array(qj) - qc).max(axis=1), np.abs(np.array(vj) - vc).max(axis=1)
 

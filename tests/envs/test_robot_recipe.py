@@ -33,18 +33,20 @@ def test_action_filter_config_is_validated():
 
 
 def test_quality_signals_are_the_law_of_the_applied_command(nominal_env, nominal_fns):
-    """Nominal reach at its reset (q = piano_ready, dq = 0), action 0.5 on every joint: q_cmd = default +
-    0.8 * 0.5 (clipped to the limits), demand = Kp (quantised q_cmd - q) with Kp = 50."""
+    """Nominal reach at its reset (q = piano_ready, dq = 0, last action 0), action 0.5 on every joint: the 3 Hz
+    filter applies alpha * 0.5 (alpha = 1 - exp(-2 pi 3 0.02) = 0.3141), q_cmd = default + 0.8 * that
+    (clipped to the limits), demand = Kp (quantised q_cmd - q) with Kp = 50."""
     reset, _ = nominal_fns
     s = reset(jax.random.PRNGKey(0))
     sig = jax.jit(nominal_env.quality_signals)(s, jnp.full(14, 0.5, jnp.float32))
     robot = load_robot("arms")
     q = np.asarray(s.data.qpos, np.float64)
-    q_cmd = np.clip(robot.pose("piano_ready") + 0.4, robot.lower, robot.upper)
+    applied = (1.0 - math.exp(-2.0 * math.pi * 3.0 * 0.02)) * 0.5
+    q_cmd = np.clip(robot.pose("piano_ready") + 0.8 * applied, robot.lower, robot.upper)
     # The truncating 16-bit wire grid moves q_cmd by < 8 pi / 65535 = 3.8e-4 rad (Kp * that = 0.0192 N*m)
     # and Kp by < 500 / 65535 = 0.0076 N*m/rad (times |q_cmd - q| <= 0.4 rad: 0.0031 N*m).
     bound = 50 * 8 * math.pi / 65535 + 0.4 * 500 / 65535 + 1e-4
     np.testing.assert_allclose(sig["demand"], 50.0 * (q_cmd - q), atol=bound)
-    np.testing.assert_allclose(sig["action"], 0.5)
+    np.testing.assert_allclose(sig["action"], applied, atol=1e-7)  # float32 on 0.157
     np.testing.assert_allclose(sig["signal"], q_cmd, atol=1e-6)  # reach: the chatter signal is q_cmd
     np.testing.assert_allclose(sig["q"], q)
