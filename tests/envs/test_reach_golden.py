@@ -2,9 +2,10 @@
 
 ``tests/data/reach_golden.npz`` was written by ``tests/data/make_reach_golden.py`` from the unsplit env
 (commit bec536f) on a machine with AVX-512, and re-recorded on an AVX2 machine when the reach recipe changed
-on purpose (issue 16's smoothness terms and action filter; the maker's docstring). Both rollouts replay with the session fixtures' compiled
-functions (no extra compile): the nominal env unbatched, and the training config (randomisation on, 1 s
-episodes) batched through the randomised wrapper across an auto-reset.
+on purpose (issue 16's smoothness terms and action filter; the maker's docstring). Both rollouts replay
+with the session fixtures' compiled functions (no extra compile): the nominal env unbatched, and the
+training config (randomisation on, 1 s episodes) batched through the randomised wrapper across an
+auto-reset.
 
 XLA emits different CPU code for different instruction sets (SSE4.2, AVX, AVX2, AVX-512: fused
 multiply-adds, vector widths and reduction orders differ), so a float32 result can differ in its last bits

@@ -33,8 +33,8 @@ def test_action_filter_config_is_validated():
 
 
 def test_quality_signals_are_the_law_of_the_applied_command(nominal_env, nominal_fns):
-    """Nominal reach at its reset (q = piano_ready, dq = 0, last action 0), action 0.5 on every joint: the 3 Hz
-    filter applies alpha * 0.5 (alpha = 1 - exp(-2 pi 3 0.02) = 0.3141), q_cmd = default + 0.8 * that
+    """Nominal reach at its reset (q = piano_ready, dq = 0, last action 0), action 0.5 on every joint: the
+    3 Hz filter applies alpha * 0.5 (alpha = 1 - exp(-2 pi 3 0.02) = 0.3141), q_cmd = default + 0.8 * that
     (clipped to the limits), demand = Kp (quantised q_cmd - q) with Kp = 50."""
     reset, _ = nominal_fns
     s = reset(jax.random.PRNGKey(0))
