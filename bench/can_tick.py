@@ -23,11 +23,11 @@ import time
 import can
 import numpy as np
 
-from bar_policy.deploy.robstride.emulator import RobstrideEmulator
-from bar_policy.deploy.robstride.group import RobstrideGroup
-from bar_policy.deploy.robstride.watchdog import arm_can_timeout
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.mit import MitCommand
+from bar_policy.robstride.emulator import RobstrideEmulator
+from bar_policy.robstride.group import RobstrideGroup
+from bar_policy.robstride.watchdog import arm_can_timeout
 
 BITRATE = 1_000_000
 

@@ -40,3 +40,4 @@ def zero_policy(policy_path: Path) -> OnnxPolicy:
 @pytest.fixture(autouse=True)
 def _deploy_logging(caplog: pytest.LogCaptureFixture) -> None:
     caplog.set_level(logging.INFO, logger="bar_policy.deploy")
+    caplog.set_level(logging.INFO, logger="bar_policy.robstride")  # the real target's driver

@@ -137,7 +137,7 @@ def test_signal_on_sim_ends_in_damping_with_the_log_closed(sig, policy_path, tmp
 
 def _host_frames(frames_file: Path, channel: str) -> list[tuple[str, int, int | None]]:
     """Host -> motor frames on one channel as (type, motor id, raw Kp of MIT frames)."""
-    from bar_policy.deploy.robstride import protocol as proto
+    from bar_policy.robstride import protocol as proto
 
     out = []
     for ch, arb_id, data, _ in json.loads(frames_file.read_text()):

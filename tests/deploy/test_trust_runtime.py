@@ -111,8 +111,8 @@ def test_unanswered_stop_names_the_joint_and_the_exit_status_says_so(zero_policy
 
 def test_emulated_real_target_reports_the_motor_that_ignores_the_stop_frame(zero_policy):
     pytest.importorskip("can")
-    from bar_policy.deploy.robstride.framing import CommType
     from bar_policy.deploy.targets.emulated import EmulatedBusTarget
+    from bar_policy.robstride.framing import CommType
 
     target = EmulatedBusTarget("arms", DT, reply_timeout=0.2)
     try:

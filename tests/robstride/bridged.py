@@ -19,9 +19,9 @@ import bridge
 def drive(can_timeout: float) -> int:
     import can
 
-    from bar_policy.deploy.robstride.group import RobstrideGroup
     from bar_policy.robot.constants import load_robot
     from bar_policy.robot.mit import MitCommand
+    from bar_policy.robstride.group import RobstrideGroup
 
     robot = load_robot("arms")
     interfaces = dict.fromkeys(j.can_interface for j in robot.joints)
@@ -40,7 +40,7 @@ def drive(can_timeout: float) -> int:
 if __name__ == "__main__":
     bridge.install_client()
     if sys.argv[1] == "bar-bus":
-        from bar_policy.deploy.robstride.tools import main
+        from bar_policy.robstride.tools import main
 
         sys.exit(main(sys.argv[2:]))
     sys.exit(drive(float(sys.argv[2])))

@@ -12,8 +12,8 @@ import can
 import numpy as np
 import pytest
 
-from bar_policy.deploy.robstride import protocol as proto
 from bar_policy.robot.constants import load_robot
+from bar_policy.robstride import protocol as proto
 
 _counter = itertools.count()
 
@@ -57,7 +57,7 @@ def listeners(channels) -> Iterator[dict[str, Listener]]:
 
 @pytest.fixture
 def make_emulator(robot, channels):
-    from bar_policy.deploy.robstride.emulator import RobstrideEmulator
+    from bar_policy.robstride.emulator import RobstrideEmulator
 
     made = []
 

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import can
 
-from bar_policy.deploy.robstride.calibration import Calibration
-from bar_policy.deploy.robstride.group import RobstrideGroup
 from bar_policy.deploy.targets.real import RealTarget
+from bar_policy.robstride.calibration import Calibration
+from bar_policy.robstride.group import RobstrideGroup
 
 from .bridge import PORT_ENV
 

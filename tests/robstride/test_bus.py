@@ -12,12 +12,12 @@ import can
 import numpy as np
 import pytest
 
-from bar_policy.deploy.robstride import protocol as proto
-from bar_policy.deploy.robstride.bus import MotorConfig, RobstrideBus
-from bar_policy.deploy.robstride.calibration import Calibration, JointCalibration
-from bar_policy.deploy.robstride.errors import InitializationError
 from bar_policy.deploy.targets.base import TargetError
 from bar_policy.robot.mit import MitCommand
+from bar_policy.robstride import protocol as proto
+from bar_policy.robstride.bus import MotorConfig, RobstrideBus
+from bar_policy.robstride.calibration import Calibration, JointCalibration
+from bar_policy.robstride.errors import InitializationError
 
 from .helpers import make_group, make_target
 
@@ -61,7 +61,7 @@ def test_refuses_to_enable_on_wrong_scan(robot, channels, listeners, make_emulat
 def test_cap_writes_exact_frames_and_logs(robot, channels, listeners, make_emulator, caplog):
     emu = make_emulator()
     group = make_group(robot, channels)
-    caplog.set_level(logging.INFO, logger="bar_policy.deploy.robstride.bus")
+    caplog.set_level(logging.INFO, logger="bar_policy.robstride.bus")
     try:
         for bus in group.buses:
             bus.write_caps()
@@ -86,7 +86,7 @@ def test_cap_of_zero_skips_the_write(robot, channels, listeners, make_emulator, 
         MotorConfig(name="a", can_id=11, model="rs-02", torque_limit=0.0, current_limit=5.0),
         MotorConfig(name="b", can_id=12, model="rs-00", torque_limit=9.0, current_limit=0.0),
     ]
-    caplog.set_level(logging.INFO, logger="bar_policy.deploy.robstride.bus")
+    caplog.set_level(logging.INFO, logger="bar_policy.robstride.bus")
     with RobstrideBus(can.Bus(interface="virtual", channel=channels["can0"]), motors, interface="can0",
                       reply_timeout=0.2) as bus:  # fmt: skip
         written = bus.write_caps()
@@ -134,7 +134,7 @@ def test_direction_and_homing_offsets(robot, channels, make_emulator):
 
 def test_clamps_are_counted_and_logged(robot, channels, caplog):
     group = make_group(robot, channels)
-    caplog.set_level(logging.WARNING, logger="bar_policy.deploy.robstride.bus")
+    caplog.set_level(logging.WARNING, logger="bar_policy.robstride.bus")
     try:
         cmd = MitCommand.position(np.full(14, 20.0), 600.0, 0.5)  # q > 4*pi and Kp > 500 everywhere
         group.mit_frames(cmd)

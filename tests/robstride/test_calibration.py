@@ -8,13 +8,13 @@ import math
 import numpy as np
 import pytest
 
-from bar_policy.deploy.robstride.calibration import (
+from bar_policy.robstride.calibration import (
     Calibration,
     JointCalibration,
     SweepRecorder,
     homing_offset,
 )
-from bar_policy.deploy.robstride.errors import InitializationError
+from bar_policy.robstride.errors import InitializationError
 
 
 def test_homing_offset_direction_minus_one():

@@ -10,10 +10,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bar_policy.deploy.robstride import protocol as proto
-from bar_policy.deploy.robstride.errors import CommandError, FrameError, RobstrideError
 from bar_policy.robot.actuators import ROBSTRIDE_MODELS
 from bar_policy.robot.mit import encode_u16
+from bar_policy.robstride import protocol as proto
+from bar_policy.robstride.errors import CommandError, FrameError, RobstrideError
 
 PI4 = 4 * math.pi
 
@@ -292,6 +292,6 @@ def test_arbitrary_frames_raise_only_frame_errors(arb, data, ext, models):
 
 def test_errors_are_typed():
     assert issubclass(FrameError, RobstrideError) and issubclass(FrameError, ValueError)
-    from bar_policy.deploy.robstride import errors
+    from bar_policy.robstride import errors
 
     assert issubclass(errors.TimeoutError, TimeoutError) and issubclass(errors.TimeoutError, RobstrideError)

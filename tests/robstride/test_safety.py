@@ -5,15 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bar_policy.deploy.robstride.errors import (
+from bar_policy.deploy.targets.base import TargetError
+from bar_policy.robot.mit import MitCommand
+from bar_policy.robstride.errors import (
     CommandError,
     FaultError,
     OperationError,
     TimeoutError,
     UnexpectedDeviceError,
 )
-from bar_policy.deploy.targets.base import TargetError
-from bar_policy.robot.mit import MitCommand
 
 from .conftest import assert_ends_with_damping_then_stop
 from .helpers import make_target

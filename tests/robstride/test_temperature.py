@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bar_policy.deploy.robstride.temperature import TemperatureMonitor, temperature_limits
 from bar_policy.deploy.targets.base import TargetError
+from bar_policy.robstride.temperature import TemperatureMonitor, temperature_limits
 
 from .conftest import assert_ends_with_damping_then_stop
 from .helpers import make_target
@@ -32,7 +32,7 @@ def test_thresholds_per_model(model, warning, fault):
 
 def test_monitor_warns_once_per_joint_and_counts(caplog):
     mon = TemperatureMonitor(["a", "b"], ["rs-02", "rs-01"])
-    caplog.set_level(logging.WARNING, logger="bar_policy.deploy.robstride.temperature")
+    caplog.set_level(logging.WARNING, logger="bar_policy.robstride.temperature")
     for _ in range(5):
         assert mon.check(np.array([121.0, 50.0])) == ()
     assert mon.check(np.array([np.nan, 94.0])) == ()  # a missing reading is ignored
@@ -49,7 +49,7 @@ def test_warning_temperature_logs_one_warning(robot, channels, make_emulator, ca
     emu = make_emulator()
     warning = temperature_limits(emu.motor(HOT).model).warning
     emu.inject(HOT, temperature=warning + 1)
-    caplog.set_level(logging.WARNING, logger="bar_policy.deploy")
+    caplog.set_level(logging.WARNING, logger="bar_policy.robstride")
     with make_target(robot, channels) as target:
         hold = target._last_cmd
         for _ in range(10):

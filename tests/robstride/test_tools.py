@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from bar_policy.deploy.robstride.calibration import Calibration
-from bar_policy.deploy.robstride.tools import main, model_guess
+from bar_policy.robstride.calibration import Calibration
+from bar_policy.robstride.tools import main, model_guess
 
 from .conftest import swept_emulator
 

@@ -12,18 +12,18 @@ import sys
 import can
 import pytest
 
-import bar_policy.deploy.robstride as robstride
-from bar_policy.deploy.robstride import canbus
-from bar_policy.deploy.robstride.bus import RobstrideBus
-from bar_policy.deploy.robstride.errors import (
+import bar_policy.robstride as robstride
+from bar_policy.deploy.targets.base import TargetError
+from bar_policy.deploy.targets.real import add_arguments, make_target
+from bar_policy.robstride import canbus
+from bar_policy.robstride.bus import RobstrideBus
+from bar_policy.robstride.errors import (
     BusOpenError,
     InitializationError,
     OperationError,
     RobstrideError,
 )
-from bar_policy.deploy.robstride.tools import main
-from bar_policy.deploy.targets.base import TargetError
-from bar_policy.deploy.targets.real import add_arguments, make_target
+from bar_policy.robstride.tools import main
 
 UP = "sudo ip link set {} up type can bitrate 1000000"
 
@@ -85,7 +85,7 @@ def test_bad_arguments_give_one_line(argv, status, fragment, capsys):
 def test_missing_socketcan_or_interface_one_line_from_the_console():
     """A real process: whatever this machine lacks (no SocketCAN, or no interface of that name)."""
     r = subprocess.run(
-        [sys.executable, "-m", "bar_policy.deploy.robstride.tools", "discover", "--channel", "nocan7"],
+        [sys.executable, "-m", "bar_policy.robstride.tools", "discover", "--channel", "nocan7"],
         capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert r.returncode == 1 and r.stdout == ""
@@ -279,7 +279,7 @@ def test_the_shared_concepts_have_one_name_in_both_tools(capsys):
     ],
 )  # fmt: skip
 def test_deprecated_spellings_still_work_with_a_one_line_notice(old, new, value, dest, capsys):
-    from bar_policy.deploy.robstride.tools import _parser
+    from bar_policy.robstride.tools import _parser
 
     got, want = _parser().parse_args(old), _parser().parse_args(new)
     assert got == want and getattr(got, dest) == value
@@ -292,7 +292,7 @@ def test_deprecated_spellings_still_work_with_a_one_line_notice(old, new, value,
 def test_deprecated_spelling_in_a_child_process_runs_the_command():
     """The old console line still runs: one notice line, then the command's own (here: no SocketCAN)."""
     r = subprocess.run(
-        [sys.executable, "-m", "bar_policy.deploy.robstride.tools", "discover", "--iface", "nocan7"],
+        [sys.executable, "-m", "bar_policy.robstride.tools", "discover", "--iface", "nocan7"],
         capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     notice, error = r.stderr.splitlines()

@@ -10,10 +10,10 @@ import time
 import numpy as np
 import pytest
 
-from bar_policy.deploy.robstride.calibration import Calibration
-from bar_policy.deploy.robstride.errors import OperationError
-from bar_policy.deploy.robstride.group import RobstrideGroup
-from bar_policy.deploy.robstride.tools import main
+from bar_policy.robstride.calibration import Calibration
+from bar_policy.robstride.errors import OperationError
+from bar_policy.robstride.group import RobstrideGroup
+from bar_policy.robstride.tools import main
 
 from .bridge import SocketcandBridge
 from .conftest import assert_ends_with_damping_then_stop, swept_emulator

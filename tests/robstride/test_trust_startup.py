@@ -7,12 +7,12 @@ import signal
 
 import pytest
 
-from bar_policy.deploy.robstride.activation import StartupControl
-from bar_policy.deploy.robstride.errors import StopRequestedError, TimeoutError
-from bar_policy.deploy.robstride.framing import PARAM_LIMIT_TORQUE, CommType
 from bar_policy.deploy.signals import StopSignals
 from bar_policy.deploy.targets.base import TargetError
 from bar_policy.deploy.targets.real import installed_stop_request
+from bar_policy.robstride.activation import StartupControl
+from bar_policy.robstride.errors import StopRequestedError, TimeoutError
+from bar_policy.robstride.framing import PARAM_LIMIT_TORQUE, CommType
 
 from .helpers import make_target
 
@@ -179,7 +179,7 @@ def test_bar_deploy_sigint_after_the_limits_write(robot, tmp_path, monkeypatch, 
     from policy_factory import make_policy_file
 
     from bar_policy.deploy import cli
-    from bar_policy.deploy.robstride import group
+    from bar_policy.robstride import group
 
     real_write_caps, fired = group.write_caps, []
 

@@ -13,12 +13,12 @@ import can
 import numpy as np
 import pytest
 
-from bar_policy.deploy.robstride import protocol as proto
-from bar_policy.deploy.robstride.bus import MotorConfig
-from bar_policy.deploy.robstride.errors import DisabledError
-from bar_policy.deploy.robstride.tools import main
 from bar_policy.deploy.targets.base import TargetError
 from bar_policy.robot.mit import MitCommand
+from bar_policy.robstride import protocol as proto
+from bar_policy.robstride.bus import MotorConfig
+from bar_policy.robstride.errors import DisabledError
+from bar_policy.robstride.tools import main
 
 from .bridge import SocketcandBridge
 from .conftest import assert_ends_with_damping_then_stop
@@ -78,7 +78,7 @@ def _hold(robot, q):
 
 def test_activation_arms_every_motor_before_enabling(robot, channels, listeners, make_emulator, caplog):
     emu = make_emulator()
-    caplog.set_level(logging.INFO, logger="bar_policy.deploy.robstride")
+    caplog.set_level(logging.INFO, logger="bar_policy.robstride")
     with make_target(robot, channels) as target:
         target.write_command(_hold(robot, target.read_state().q))
     assert target.can_timeout == 0.2
@@ -99,7 +99,7 @@ def test_activation_arms_every_motor_before_enabling(robot, channels, listeners,
 
 def test_zero_skips_the_watchdog_entirely(robot, channels, listeners, make_emulator, caplog):
     emu = make_emulator()
-    caplog.set_level(logging.INFO, logger="bar_policy.deploy.robstride")
+    caplog.set_level(logging.INFO, logger="bar_policy.robstride")
     with make_target(robot, channels, group_kw={"can_timeout": 0.0}) as target:
         target.write_command(_hold(robot, target.read_state().q))
     assert target.can_timeout == 0.0

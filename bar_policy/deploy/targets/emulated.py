@@ -25,12 +25,12 @@ import time
 import can
 import numpy as np
 
-from bar_policy.deploy.robstride.emulator import RobstrideEmulator
-from bar_policy.deploy.robstride.group import RobstrideGroup
 from bar_policy.deploy.targets.base import JointState, StopReport, Target
 from bar_policy.deploy.targets.real import RealTarget
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.mit import MitCommand
+from bar_policy.robstride.emulator import RobstrideEmulator
+from bar_policy.robstride.group import RobstrideGroup
 
 __all__ = ["LOCKSTEP_CAN_TIMEOUT", "EmulatedBusTarget"]
 

@@ -34,11 +34,14 @@ from typing import NoReturn, TypeVar
 import can
 import numpy as np
 
-from bar_policy.deploy.robstride.activation import DEFAULT_RETRIES, DEFAULT_RETRY_BACKOFF, StartupControl
-from bar_policy.deploy.robstride.bus import DEFAULT_REPLY_TIMEOUT, BusReading
-from bar_policy.deploy.robstride.calibration import Calibration
-from bar_policy.deploy.robstride.canbus import open_can_buses
-from bar_policy.deploy.robstride.cli_args import (
+from bar_policy.deploy.targets.base import JointState, StopReport, Target, TargetError
+from bar_policy.robot.constants import RobotSpec, load_robot
+from bar_policy.robot.mit import MitCommand
+from bar_policy.robstride.activation import DEFAULT_RETRIES, DEFAULT_RETRY_BACKOFF, StartupControl
+from bar_policy.robstride.bus import DEFAULT_REPLY_TIMEOUT, BusReading
+from bar_policy.robstride.calibration import Calibration
+from bar_policy.robstride.canbus import open_can_buses
+from bar_policy.robstride.cli_args import (
     CAN_INTERFACES,
     HELP,
     can_timeout_arg,
@@ -46,18 +49,15 @@ from bar_policy.deploy.robstride.cli_args import (
     non_negative,
     positive,
 )
-from bar_policy.deploy.robstride.errors import (
+from bar_policy.robstride.errors import (
     CommandError,
     InitializationError,
     RobstrideError,
     StopRequestedError,
 )
-from bar_policy.deploy.robstride.framing import DEFAULT_CAN_TIMEOUT, fault_names
-from bar_policy.deploy.robstride.group import RobstrideGroup
-from bar_policy.deploy.robstride.motor_side import decode_request
-from bar_policy.deploy.targets.base import JointState, StopReport, Target, TargetError
-from bar_policy.robot.constants import RobotSpec, load_robot
-from bar_policy.robot.mit import MitCommand
+from bar_policy.robstride.framing import DEFAULT_CAN_TIMEOUT, fault_names
+from bar_policy.robstride.group import RobstrideGroup
+from bar_policy.robstride.motor_side import decode_request
 
 __all__ = ["RealTarget", "add_arguments", "make_target"]
 
@@ -444,7 +444,7 @@ def _make_target(args: argparse.Namespace, mode: str) -> RealTarget:
         )
     companions: list[object] = []
     if emulate != "none":
-        from bar_policy.deploy.robstride.emulator import RobstrideEmulator
+        from bar_policy.robstride.emulator import RobstrideEmulator
 
         offsets = dict(zip(robot.joint_names, calibration.offsets(robot), strict=True))
         emulator = RobstrideEmulator(

@@ -30,9 +30,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bar_policy.deploy.robstride import protocol as proto
-from bar_policy.deploy.robstride.bus import RobstrideBus
-from bar_policy.deploy.robstride.errors import InitializationError, OperationError, RobstrideError
+from bar_policy.robstride import protocol as proto
+from bar_policy.robstride.bus import RobstrideBus
+from bar_policy.robstride.errors import InitializationError, OperationError, RobstrideError
 
 __all__ = ["ProbeResult", "arm_can_timeout", "probe_watchdog", "read_can_timeouts", "verdict"]
 

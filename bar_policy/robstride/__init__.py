@@ -11,10 +11,10 @@ emulated motor's state and answers), ``tools`` (``bar-bus``). The deploy target 
 ``bar_policy.deploy.targets.real.RealTarget``.
 """
 
-from bar_policy.deploy.robstride.bus import BusReading, MotorConfig, RobstrideBus
-from bar_policy.deploy.robstride.calibration import Calibration, JointCalibration, homing_offset
-from bar_policy.deploy.robstride.canbus import open_can_bus
-from bar_policy.deploy.robstride.errors import (
+from bar_policy.robstride.bus import BusReading, MotorConfig, RobstrideBus
+from bar_policy.robstride.calibration import Calibration, JointCalibration, homing_offset
+from bar_policy.robstride.canbus import open_can_bus
+from bar_policy.robstride.errors import (
     BusOpenError,
     CommandError,
     DisabledError,
@@ -27,7 +27,7 @@ from bar_policy.deploy.robstride.errors import (
     TimeoutError,
     UnexpectedDeviceError,
 )
-from bar_policy.deploy.robstride.group import RobstrideGroup
+from bar_policy.robstride.group import RobstrideGroup
 
 __all__ = [
     "BusOpenError",

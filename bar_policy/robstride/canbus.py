@@ -21,7 +21,7 @@ from typing import Any
 
 import can
 
-from bar_policy.deploy.robstride.errors import BusOpenError
+from bar_policy.robstride.errors import BusOpenError
 
 __all__ = ["BITRATE", "bring_up_command", "down_hint", "open_can_bus", "open_can_buses"]
 

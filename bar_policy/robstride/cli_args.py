@@ -17,7 +17,7 @@ import math
 import sys
 from collections.abc import Callable
 
-from bar_policy.deploy.robstride import protocol as proto
+from bar_policy.robstride import protocol as proto
 
 __all__ = [
     "CAN_INTERFACES",

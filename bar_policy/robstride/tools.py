@@ -39,11 +39,14 @@ from typing import NoReturn
 import can
 import numpy as np
 
-from bar_policy.deploy.robstride import protocol as proto
-from bar_policy.deploy.robstride.bus import MotorConfig, RobstrideBus
-from bar_policy.deploy.robstride.calibration import Calibration, SweepRecorder
-from bar_policy.deploy.robstride.canbus import open_can_bus, open_can_buses
-from bar_policy.deploy.robstride.cli_args import (
+from bar_policy.deploy.signals import StopSignals
+from bar_policy.robot.actuators import ROBSTRIDE_MODELS
+from bar_policy.robot.constants import MODES, load_robot
+from bar_policy.robstride import protocol as proto
+from bar_policy.robstride.bus import MotorConfig, RobstrideBus
+from bar_policy.robstride.calibration import Calibration, SweepRecorder
+from bar_policy.robstride.canbus import open_can_bus, open_can_buses
+from bar_policy.robstride.cli_args import (
     CAN_INTERFACES,
     HELP,
     can_timeout_arg,
@@ -52,12 +55,9 @@ from bar_policy.deploy.robstride.cli_args import (
     int_range,
     positive,
 )
-from bar_policy.deploy.robstride.errors import InitializationError, RobstrideError
-from bar_policy.deploy.robstride.group import RobstrideGroup
-from bar_policy.deploy.robstride.watchdog import arm_can_timeout, probe_watchdog, read_can_timeouts, verdict
-from bar_policy.deploy.signals import StopSignals
-from bar_policy.robot.actuators import ROBSTRIDE_MODELS
-from bar_policy.robot.constants import MODES, load_robot
+from bar_policy.robstride.errors import InitializationError, RobstrideError
+from bar_policy.robstride.group import RobstrideGroup
+from bar_policy.robstride.watchdog import arm_can_timeout, probe_watchdog, read_can_timeouts, verdict
 
 __all__ = ["main", "model_guess"]
 
@@ -75,7 +75,7 @@ def _emulator(args: argparse.Namespace, channels: dict[str, str]) -> Iterator[No
         return
     if args.interface != "virtual":
         raise ValueError("--emulate needs --can-interface virtual")
-    from bar_policy.deploy.robstride.emulator import RobstrideEmulator
+    from bar_policy.robstride.emulator import RobstrideEmulator
 
     with RobstrideEmulator(load_robot(args.mode), channels, mode="realtime"):
         yield

@@ -28,11 +28,13 @@ from collections.abc import Iterable, Mapping, Sequence
 import can
 import numpy as np
 
-from bar_policy.deploy.robstride import protocol as proto
-from bar_policy.deploy.robstride.activation import StartupControl, verify_models, verify_scan, write_caps
-from bar_policy.deploy.robstride.bus import DEFAULT_REPLY_TIMEOUT, BusReading, MotorConfig, RobstrideBus
-from bar_policy.deploy.robstride.calibration import Calibration
-from bar_policy.deploy.robstride.errors import (
+from bar_policy.robot.constants import RobotSpec
+from bar_policy.robot.mit import MitCommand
+from bar_policy.robstride import protocol as proto
+from bar_policy.robstride.activation import StartupControl, verify_models, verify_scan, write_caps
+from bar_policy.robstride.bus import DEFAULT_REPLY_TIMEOUT, BusReading, MotorConfig, RobstrideBus
+from bar_policy.robstride.calibration import Calibration
+from bar_policy.robstride.errors import (
     CommandError,
     DisabledError,
     FaultError,
@@ -41,10 +43,8 @@ from bar_policy.deploy.robstride.errors import (
     TimeoutError,
     UnexpectedDeviceError,
 )
-from bar_policy.deploy.robstride.temperature import TemperatureMonitor
-from bar_policy.deploy.robstride.watchdog import arm_can_timeout, read_can_timeouts
-from bar_policy.robot.constants import RobotSpec
-from bar_policy.robot.mit import MitCommand
+from bar_policy.robstride.temperature import TemperatureMonitor
+from bar_policy.robstride.watchdog import arm_can_timeout, read_can_timeouts
 
 __all__ = ["RobstrideGroup"]
 

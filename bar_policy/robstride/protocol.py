@@ -29,8 +29,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bar_policy.deploy.robstride.errors import CommandError, FrameError
-from bar_policy.deploy.robstride.framing import (
+from bar_policy.robot.actuators import P_MAX, ROBSTRIDE_MODELS
+from bar_policy.robot.mit import U16_MAX, WireRanges, encode_u16, wire_ranges
+from bar_policy.robstride.errors import CommandError, FrameError
+from bar_policy.robstride.framing import (
     CAN_TIMEOUT_MAX,
     CAN_TIMEOUT_MIN,
     CAN_TIMEOUT_TICK,
@@ -67,7 +69,7 @@ from bar_policy.deploy.robstride.framing import (
     unpack_id,
     write_param_frame,
 )
-from bar_policy.deploy.robstride.motor_side import (
+from bar_policy.robstride.motor_side import (
     MitRequest,
     Request,
     SimpleRequest,
@@ -78,8 +80,6 @@ from bar_policy.deploy.robstride.motor_side import (
     feedback_frame,
     param_reply_frame,
 )
-from bar_policy.robot.actuators import P_MAX, ROBSTRIDE_MODELS
-from bar_policy.robot.mit import U16_MAX, WireRanges, encode_u16, wire_ranges
 
 __all__ = [
     # re-exported from ``framing`` and ``motor_side``

@@ -22,17 +22,17 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, TypeVar
 
-from bar_policy.deploy.robstride.errors import (
+from bar_policy.robot.actuators import robstride_spec
+from bar_policy.robstride.errors import (
     InitializationError,
     RobstrideError,
     StopRequestedError,
     TimeoutError,
 )
-from bar_policy.deploy.robstride.framing import PARAM_LIMIT_CURRENT, PARAM_LIMIT_TORQUE
-from bar_policy.robot.actuators import robstride_spec
+from bar_policy.robstride.framing import PARAM_LIMIT_CURRENT, PARAM_LIMIT_TORQUE
 
 if TYPE_CHECKING:  # bus.py imports this module (for the ``write_caps`` method): no import cycle at run time
-    from bar_policy.deploy.robstride.bus import RobstrideBus
+    from bar_policy.robstride.bus import RobstrideBus
 
 __all__ = [
     "DEFAULT_RETRIES",
@@ -44,8 +44,8 @@ __all__ = [
 ]
 
 # The cap writes and skips log on the bus's logger, as they did when they were bus methods: operators' and
-# tests' log filters select ``bar_policy.deploy.robstride.bus``.
-log = logging.getLogger("bar_policy.deploy.robstride.bus")
+# tests' log filters select ``bar_policy.robstride.bus``.
+log = logging.getLogger("bar_policy.robstride.bus")
 _T = TypeVar("_T")
 
 DEFAULT_RETRIES = 3

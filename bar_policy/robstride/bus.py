@@ -21,12 +21,12 @@ from dataclasses import dataclass
 import can
 import numpy as np
 
-from bar_policy.deploy.robstride import activation
-from bar_policy.deploy.robstride import protocol as proto
-from bar_policy.deploy.robstride.canbus import down_hint
-from bar_policy.deploy.robstride.errors import FaultError, OperationError, TimeoutError, UnexpectedDeviceError
 from bar_policy.robot.actuators import robstride_spec
 from bar_policy.robot.mit import wire_ranges
+from bar_policy.robstride import activation
+from bar_policy.robstride import protocol as proto
+from bar_policy.robstride.canbus import down_hint
+from bar_policy.robstride.errors import FaultError, OperationError, TimeoutError, UnexpectedDeviceError
 
 __all__ = ["DEFAULT_REPLY_TIMEOUT", "BusReading", "MotorConfig", "RobstrideBus"]
 

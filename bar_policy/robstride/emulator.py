@@ -39,14 +39,14 @@ import can
 import mujoco
 import numpy as np
 
-from bar_policy.deploy.robstride import firmware as fw
-from bar_policy.deploy.robstride import framing, motor_side
-from bar_policy.deploy.robstride.errors import FrameError
-from bar_policy.deploy.robstride.firmware import DEFAULT_LIMIT_CURRENT, EmulatedMotor, Injection, JointReading
 from bar_policy.robot.actuators import robstride_spec
 from bar_policy.robot.constants import RobotSpec
 from bar_policy.robot.mit import MitCommand, WireRanges, firmware_torque, wire_ranges
 from bar_policy.robot.mjcf import load_model
+from bar_policy.robstride import firmware as fw
+from bar_policy.robstride import framing, motor_side
+from bar_policy.robstride.errors import FrameError
+from bar_policy.robstride.firmware import DEFAULT_LIMIT_CURRENT, EmulatedMotor, Injection, JointReading
 
 __all__ = ["DEFAULT_LIMIT_CURRENT", "EMULATOR_MODES", "Injection", "RobstrideEmulator"]
 

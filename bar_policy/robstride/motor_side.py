@@ -19,8 +19,10 @@ import math
 import struct
 from dataclasses import dataclass
 
-from bar_policy.deploy.robstride.errors import FrameError
-from bar_policy.deploy.robstride.framing import (
+from bar_policy.robot.actuators import robstride_spec
+from bar_policy.robot.mit import U16_MAX, decode_u16
+from bar_policy.robstride.errors import FrameError
+from bar_policy.robstride.framing import (
     DEVICE_ID_REPLY_DEST,
     HOST_ID,
     CommType,
@@ -31,8 +33,6 @@ from bar_policy.deploy.robstride.framing import (
     pack_id,
     unpack_id,
 )
-from bar_policy.robot.actuators import robstride_spec
-from bar_policy.robot.mit import U16_MAX, decode_u16
 
 __all__ = [
     "MitRequest",

@@ -33,8 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from bar_policy._files import InputError, loads_json, shorten, write_atomic
-from bar_policy.deploy.robstride.errors import InitializationError
 from bar_policy.robot.constants import RobotSpec
+from bar_policy.robstride.errors import InitializationError
 
 __all__ = [
     "Calibration",

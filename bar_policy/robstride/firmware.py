@@ -22,8 +22,8 @@ import struct
 import zlib
 from dataclasses import dataclass, field
 
-from bar_policy.deploy.robstride import framing, motor_side
 from bar_policy.robot.actuators import P_MAX, robstride_spec
+from bar_policy.robstride import framing, motor_side
 
 __all__ = [
     "DEFAULT_LIMIT_CURRENT",

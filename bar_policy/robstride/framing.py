@@ -13,7 +13,7 @@ import struct
 from dataclasses import dataclass
 from enum import IntEnum
 
-from bar_policy.deploy.robstride.errors import CommandError, FrameError
+from bar_policy.robstride.errors import CommandError, FrameError
 
 __all__ = [
     "CAN_TIMEOUT_MAX",
