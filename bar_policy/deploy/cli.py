@@ -214,7 +214,7 @@ def _run(argv: Sequence[str]) -> int:
         if os.environ["MUJOCO_GL"] == "egl":
             os.environ.setdefault("EGL_PLATFORM", "surfaceless")
     _configure_logging(args.verbose)
-    from bar_policy.deploy.signals import StopSignals
+    from bar_policy.signals import StopSignals
 
     # Installed before anything moves and kept until the log is closed: every stop takes one path.
     with StopSignals() as stop:

@@ -37,7 +37,7 @@ way to HOLD at the source's ``end_pose`` with the policy's gains (the pose ramps
 ``end_hold``) for ``end_hold`` s, then the run ends as completed through the usual safe ending. The loop
 never names a task: it only knows the ``CommandSource`` interface (``deploy.tasks.base``).
 
-Stopping: SIGINT, SIGTERM and SIGHUP (``signals.StopSignals``; the caller's, or installed by ``run`` in
+Stopping: SIGINT, SIGTERM and SIGHUP (``StopSignals``; the caller's, or installed by ``run`` in
 the main thread) and ``request_stop`` all take one path: the next tick enters DAMPING with the reason, the
 loop keeps damping for ``damping_after_fault`` s, then ends. A requested stop is not a fault. The run
 always ends through ``finally``: DAMPING, ``target.safe_stop()`` (stop frames on every bus on the real
@@ -68,13 +68,13 @@ from bar_policy.deploy.log import RunLog, log_fields
 from bar_policy.deploy.policy import OnnxPolicy, action_reach_problems
 from bar_policy.deploy.run_config import RunResult, RuntimeConfig
 from bar_policy.deploy.safety import Mode, SafetySupervisor
-from bar_policy.deploy.signals import StopSignals
 from bar_policy.deploy.targets.base import JointState, StopReport, Target, run_metadata_of
 from bar_policy.deploy.tasks.base import CommandSource
 from bar_policy.deploy.timing import Pacer, RealtimePriority, TimingStats, sleep_until
 from bar_policy.quality import QualityMeter, summarise
 from bar_policy.robot.kinematics import Kinematics
 from bar_policy.robot.mit import mit_torque
+from bar_policy.signals import StopSignals
 
 __all__ = ["RunResult", "Runtime", "RuntimeConfig", "TimingStats", "sleep_until"]
 

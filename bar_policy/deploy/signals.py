@@ -1,37 +1,20 @@
-"""One stop path for every way an operator or a supervisor asks the process to end.
+"""What ``bar-deploy`` does with a SIGINT that arrives before its stop path is installed.
 
-SIGINT (Ctrl+C in a terminal), SIGTERM (``kill``, systemd, ``docker stop``) and SIGHUP (the SSH session or
-terminal went away) all mean "stop now, safely". ``StopSignals`` turns each of them into the same flag,
-which the control loop (and ``bar-bus calibrate``) polls once per tick and answers with DAMPING, then stop
-frames on every bus, then the log. The handler never raises: a second signal while the stop sequence
-runs is counted and logged, and cannot cut the stop frames short. SIGKILL cannot be caught; on the real
-robot the motors' CAN watchdog (``canTimeout``) then ends the last command (docs/can.md).
-
-Handlers can only be installed from the main thread; elsewhere ``StopSignals`` installs nothing and the
-flag can still be set with ``request`` (tests, embedding code).
-
-Before ``StopSignals`` is installed (the first fraction of a second of ``bar-deploy``: imports, argument
-parsing, loading the policy and the commands) Python's own SIGINT handler raises ``KeyboardInterrupt``;
-``bar-deploy``'s ``main`` catches it and ends quietly, without a traceback (``early_interrupt``): for a
-run, as a stop before the start (``SIGINT received before the start: nothing was started``, status 0,
-the same as a signal that arrives after the handlers but before the start); for ``eval`` and ``plot``,
-which have no stop path, with one line on stderr and ``INTERRUPT_STATUS`` (130, the shell's 128 + SIGINT).
+The stop path itself (SIGINT, SIGTERM and SIGHUP -> one flag: ``StopSignals``) is ``bar_policy.signals``,
+shared with ``bar-bus``. Before ``StopSignals`` is installed (the first fraction of a second of
+``bar-deploy``: imports, argument parsing, loading the policy and the commands) Python's own SIGINT handler
+raises ``KeyboardInterrupt``; ``bar-deploy``'s ``main`` catches it and ends quietly, without a traceback
+(``early_interrupt``): for a run, as a stop before the start (``SIGINT received before the start: nothing
+was started``, status 0, the same as a signal that arrives after the handlers but before the start); for
+``eval`` and ``plot``, which have no stop path, with one line on stderr and ``INTERRUPT_STATUS`` (130, the
+shell's 128 + SIGINT).
 """
 
 from __future__ import annotations
 
-import logging
 import signal
-import threading
-from types import FrameType
-from typing import Any
 
-__all__ = ["INTERRUPT_STATUS", "STOP_SIGNALS", "StopSignals", "early_interrupt"]
-
-log = logging.getLogger(__name__)
-
-STOP_SIGNALS: tuple[signal.Signals, ...] = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-"""Signals that request a safe stop."""
+__all__ = ["INTERRUPT_STATUS", "early_interrupt"]
 
 INTERRUPT_STATUS = 128 + signal.SIGINT
 """Exit status of a ``bar-deploy eval`` / ``plot`` ended by SIGINT (130, the shell's convention)."""
@@ -47,64 +30,3 @@ def early_interrupt(command: str) -> tuple[int, str]:
     if command == "run":
         return 0, "SIGINT received before the start: nothing was started"
     return INTERRUPT_STATUS, f"bar-deploy {command}: interrupted (SIGINT)"
-
-
-class StopSignals:
-    """Context manager: SIGINT, SIGTERM and SIGHUP set ``requested`` (the first one names the reason).
-
-    Usage::
-
-        with StopSignals() as stop:
-            while not stop.requested:
-                tick()
-        # stop.reason == "SIGTERM received" (for example), stop.count == signals seen
-    """
-
-    def __init__(self, signals: tuple[signal.Signals, ...] = STOP_SIGNALS) -> None:
-        self.signals = tuple(signals)
-        self.requested = False
-        """True once a stop signal (or ``request``) arrived."""
-        self.signal_name: str | None = None
-        """Name of the first signal, e.g. ``SIGTERM``; None before any (or after ``request``)."""
-        self.reason = ""
-        """Why the stop was requested (first request wins)."""
-        self.count = 0
-        """Stop signals received (the later ones are ignored)."""
-        self._previous: dict[signal.Signals, Any] = {}
-
-    def __enter__(self) -> StopSignals:
-        if threading.current_thread() is threading.main_thread():
-            for s in self.signals:
-                self._previous[s] = signal.signal(s, self._handle)
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        for s, previous in self._previous.items():
-            signal.signal(s, previous)
-        self._previous.clear()
-
-    @property
-    def installed(self) -> bool:
-        """Whether the handlers are installed (False outside the main thread)."""
-        return bool(self._previous)
-
-    def request(self, reason: str) -> None:
-        """Ask for a stop without a signal (the first request's reason is kept)."""
-        if not self.requested:
-            self.requested = True
-            self.reason = reason
-
-    def _handle(self, signum: int, frame: FrameType | None) -> None:
-        name = signal.Signals(signum).name
-        self.count += 1
-        if not self.requested:
-            self.signal_name = name
-            self.request(f"{name} received")
-            log.warning("%s received: stopping (DAMPING, then stop frames, then the log)", name)
-        else:
-            log.warning(
-                "%s received again (%d signals): ignored, the stop sequence finishes first "
-                "(SIGKILL would skip it; the motors' CAN watchdog then stops them)",
-                name,
-                self.count,
-            )

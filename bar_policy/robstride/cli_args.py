@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 from bar_policy.robstride import protocol as proto
 
@@ -28,6 +28,7 @@ __all__ = [
     "float_list",
     "int_range",
     "non_negative",
+    "parse_channels",
     "positive",
 ]
 
@@ -163,3 +164,23 @@ def deprecated_alias(parser: argparse.ArgumentParser, old: str, new: argparse.Ac
         default=argparse.SUPPRESS,
         help=argparse.SUPPRESS,
     )
+
+
+def parse_channels(spec: str | None, interfaces: Sequence[str]) -> dict[str, str]:
+    """Robot interface -> channel from ``--channels`` (ordered list or ``iface=channel`` pairs)."""
+    if not spec:
+        return {i: i for i in interfaces}
+    items = [s.strip() for s in spec.split(",") if s.strip()]
+    if all("=" in s for s in items):
+        mapping = dict(s.split("=", 1) for s in items)
+    elif not any("=" in s for s in items) and len(items) == len(interfaces):
+        mapping = dict(zip(interfaces, items, strict=True))
+    else:
+        raise ValueError(
+            f"--channels {spec!r}: give {len(interfaces)} channels for {list(interfaces)} in order, "
+            "or iface=channel pairs"
+        )
+    missing = [i for i in interfaces if i not in mapping]
+    if missing:
+        raise ValueError(f"--channels {spec!r} lacks interfaces {missing}")
+    return mapping

@@ -39,7 +39,6 @@ from typing import NoReturn
 import can
 import numpy as np
 
-from bar_policy.deploy.signals import StopSignals
 from bar_policy.robot.actuators import ROBSTRIDE_MODELS
 from bar_policy.robot.constants import MODES, load_robot
 from bar_policy.robstride import protocol as proto
@@ -53,11 +52,13 @@ from bar_policy.robstride.cli_args import (
     deprecated_alias,
     float_list,
     int_range,
+    parse_channels,
     positive,
 )
 from bar_policy.robstride.errors import InitializationError, RobstrideError
 from bar_policy.robstride.group import RobstrideGroup
 from bar_policy.robstride.watchdog import arm_can_timeout, probe_watchdog, read_can_timeouts, verdict
+from bar_policy.signals import StopSignals
 
 __all__ = ["main", "model_guess"]
 
@@ -82,8 +83,6 @@ def _emulator(args: argparse.Namespace, channels: dict[str, str]) -> Iterator[No
 
 
 def _robot_channels(args: argparse.Namespace) -> dict[str, str]:
-    from bar_policy.deploy.targets.real import parse_channels
-
     robot = load_robot(args.mode)
     return parse_channels(
         getattr(args, "channels", None), list(dict.fromkeys(j.can_interface for j in robot.joints))

@@ -4,7 +4,7 @@ import threading
 
 import pytest
 
-from bar_policy.deploy.signals import STOP_SIGNALS, StopSignals
+from bar_policy.signals import STOP_SIGNALS, StopSignals
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])

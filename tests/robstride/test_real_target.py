@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 
 from bar_policy.deploy.targets.base import TargetError
-from bar_policy.deploy.targets.real import RealTarget, add_arguments, make_target, parse_channels
+from bar_policy.deploy.targets.real import RealTarget, add_arguments, make_target
 from bar_policy.robot.mit import MitCommand, firmware_torque, wire_ranges
 from bar_policy.robot.mjcf import load_model
 from bar_policy.robstride.calibration import Calibration, JointCalibration
+from bar_policy.robstride.cli_args import parse_channels
 
 # Bus timing is not what these tests check: on a loaded CI host a 50 ms reply deadline or the 0.2 s CAN
 # watchdog can trip between two ticks (seen at load 4-8 on 2 cores), so the loops here get generous ones.

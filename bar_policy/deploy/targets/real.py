@@ -47,6 +47,7 @@ from bar_policy.robstride.cli_args import (
     can_timeout_arg,
     int_range,
     non_negative,
+    parse_channels,
     positive,
 )
 from bar_policy.robstride.errors import (
@@ -391,26 +392,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
              f"(default {DEFAULT_RETRIES})")  # fmt: skip
 
 
-def parse_channels(spec: str | None, interfaces: Sequence[str]) -> dict[str, str]:
-    """Robot interface -> channel from ``--channels`` (ordered list or ``iface=channel`` pairs)."""
-    if not spec:
-        return {i: i for i in interfaces}
-    items = [s.strip() for s in spec.split(",") if s.strip()]
-    if all("=" in s for s in items):
-        mapping = dict(s.split("=", 1) for s in items)
-    elif not any("=" in s for s in items) and len(items) == len(interfaces):
-        mapping = dict(zip(interfaces, items, strict=True))
-    else:
-        raise ValueError(
-            f"--channels {spec!r}: give {len(interfaces)} channels for {list(interfaces)} in order, "
-            "or iface=channel pairs"
-        )
-    missing = [i for i in interfaces if i not in mapping]
-    if missing:
-        raise ValueError(f"--channels {spec!r} lacks interfaces {missing}")
-    return mapping
-
-
 def make_target(args: argparse.Namespace, mode: str) -> Target:
     """Build the real target from parsed options (nothing is enabled before ``start()``)."""
     try:
@@ -482,7 +463,7 @@ def installed_stop_request() -> bool:
     ``bar-deploy`` installs its ``StopSignals`` before it builds the target, so ``make_target`` can check
     it during ``start()`` without being handed it. False when no ``StopSignals`` handles SIGINT.
     """
-    from bar_policy.deploy.signals import StopSignals
+    from bar_policy.signals import StopSignals
 
     owner = getattr(signal.getsignal(signal.SIGINT), "__self__", None)
     return isinstance(owner, StopSignals) and owner.requested
