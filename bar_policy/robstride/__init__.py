@@ -11,7 +11,8 @@ emulated motor's state and answers), ``tools`` (``bar-bus``). The deploy target 
 ``bar_policy.deploy.targets.real.RealTarget``.
 """
 
-from bar_policy.robstride.bus import BusReading, MotorConfig, RobstrideBus
+from bar_policy.robstride.bus import RobstrideBus
+from bar_policy.robstride.bus_types import BusReading, MotorConfig
 from bar_policy.robstride.calibration import Calibration, JointCalibration, homing_offset
 from bar_policy.robstride.canbus import open_can_bus
 from bar_policy.robstride.errors import (

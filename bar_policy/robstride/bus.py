@@ -5,97 +5,49 @@ feedback and the inverse to commands, so its callers never see motor frames. Eve
 one frame per motor out, one type-2 reply per motor back before a deadline. Late or unsolicited frames
 are drained and inspected before the next round, so a type-21 fault frame or a stranger on the bus is
 never dropped silently, and a late reply is never mistaken for a fresh one. The activation-time checks and
-cap writes (scan match, model plausibility, torque/current caps) are functions in ``activation``.
+cap writes (scan match, model plausibility, torque/current caps) are functions in ``activation``
+(over a bus; this module does not import it).
 
-Deadline: the default 3 ms covers the worst-case wire time of one round on a 1 Mbit/s bus with 7 motors
-(7 commands + 7 replies, 160 bits each with worst-case stuffing: 14 * 160 us = 2.24 ms) plus motor latency.
+Its values (``MotorConfig``, ``BusReading``) and deadlines (``DEFAULT_REPLY_TIMEOUT``: one round) are in
+``bus_types``; the activation's stop checks and retries (``retry``) are ``startup.StartupControl``.
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
 
 import can
 import numpy as np
 
-from bar_policy.robot.actuators import robstride_spec
 from bar_policy.robot.mit import wire_ranges
-from bar_policy.robstride import activation
 from bar_policy.robstride import protocol as proto
+from bar_policy.robstride.bus_params import BusParams
+from bar_policy.robstride.bus_types import (
+    DEFAULT_PARAM_TIMEOUT,
+    DEFAULT_REPLY_TIMEOUT,
+    BusReading,
+    MotorConfig,
+)
 from bar_policy.robstride.canbus import down_hint
 from bar_policy.robstride.errors import FaultError, OperationError, TimeoutError, UnexpectedDeviceError
+from bar_policy.robstride.startup import StartupControl
 
-__all__ = ["DEFAULT_REPLY_TIMEOUT", "BusReading", "MotorConfig", "RobstrideBus"]
+__all__ = ["RobstrideBus"]
 
 log = logging.getLogger(__name__)
 
-DEFAULT_REPLY_TIMEOUT = 0.003
-"""Reply deadline of one round, s (see the module docstring)."""
-DEFAULT_PARAM_TIMEOUT = 0.05
-"""Shortest deadline of a parameter exchange, s (lerobot waits 20 ms for reads; section 7)."""
 _SEND_RETRIES = 20
 _SEND_RETRY_SLEEP = 0.0002
 
 
-@dataclass(frozen=True, kw_only=True)
-class MotorConfig:
-    """One motor on a bus, with its joint mapping."""
-
-    name: str
-    """Joint name."""
-    can_id: int
-    """CAN id, 1..127."""
-    model: str
-    """Robstride model key (``rs-00`` ..)."""
-    direction: int = 1
-    """+1 or -1: joint = direction * (raw - homing_offset)."""
-    homing_offset: float = 0.0
-    """Raw position at joint zero, rad (per robot, from the calibration file)."""
-    torque_limit: float = 0.0
-    """Torque cap written to 0x700B at activation, N*m; 0 skips the write."""
-    current_limit: float = 0.0
-    """Current cap written to 0x7018 at activation, A; 0 skips the write."""
-    can_timeout: float = proto.DEFAULT_CAN_TIMEOUT
-    """CAN watchdog written to canTimeout (0x7028) at activation, s: the motor disables itself when no frame
-    reaches it for this long. 0 skips the write (the motor keeps its own setting). See ``watchdog``."""
-
-    def __post_init__(self) -> None:
-        robstride_spec(self.model)
-        proto.check_can_timeout(self.can_timeout, f"{self.name}: can_timeout")
-        if self.direction not in (-1, 1):
-            raise ValueError(f"{self.name}: direction must be +1 or -1, got {self.direction!r}")
-        if not 0 < self.can_id < 128:
-            raise ValueError(f"{self.name}: CAN id must be in 1..127, got {self.can_id}")
-
-
-@dataclass(frozen=True, kw_only=True)
-class BusReading:
-    """Joint-frame state of the motors of one bus. Arrays have shape (num_motors,); NaN where missing."""
-
-    q: np.ndarray
-    """Positions, rad."""
-    dq: np.ndarray
-    """Velocities, rad/s."""
-    tau: np.ndarray
-    """Torques, N*m."""
-    temperature: np.ndarray
-    """Temperatures, degC."""
-    mode: np.ndarray
-    """Mode state per motor (0 reset, 1 calibration, 2 run; -1 no reply)."""
-    faults: np.ndarray
-    """Type-2 fault bits per motor (0 = healthy)."""
-    stamp: float
-    """``time.monotonic()`` when the round completed, s."""
-
-
-class RobstrideBus:
+class RobstrideBus(BusParams):
     """The motors on one CAN interface, over an injected ``can.BusABC``.
 
     A context manager; ``shutdown()`` closes the CAN bus (it never sends frames: stopping motors is the
-    caller's explicit decision, see ``stop``).
+    caller's explicit decision, see ``stop``). ``scan``, ``read_param`` and ``write_param`` come from
+    ``BusParams`` (``bus_params``).
     """
 
     def __init__(
@@ -140,7 +92,7 @@ class RobstrideBus:
         self._pending_faultbits: dict[int, int] = {}
         self.last_reading = self.empty_reading()
         """The most recent reading of this bus (NaN where replies were missing)."""
-        self.retry: activation.StartupControl | None = None
+        self.retry: StartupControl | None = None
         """Set by ``RobstrideGroup.activate`` while it runs: ``request`` (parameter reads and writes) then
         retries a missing reply (``StartupControl.attempt``); None otherwise (tools, the control path)."""
 
@@ -243,82 +195,6 @@ class RobstrideBus:
             if reply is not False:
                 out.append(reply)
         return out
-
-    # ----------------------------------------------------------------------------------------------
-    # discovery and parameters
-    def scan(
-        self, ids: Iterable[int] = range(1, 128), *, timeout: float = 0.05, batch: int = 8
-    ) -> dict[int, bytes]:
-        """Ask every id in ``ids`` for its device id (type 0); returns responder id -> 64-bit MCU id.
-
-        Read-only. Queries go out ``batch`` at a time so a short SocketCAN TX queue does not overflow.
-        """
-        self.drain()
-        found: dict[int, bytes] = {}
-        id_list = list(ids)
-
-        def collect(until: float) -> None:
-            while (remaining := until - time.perf_counter()) > 0:
-                reply = self._recv(remaining)
-                if reply is None:
-                    return
-                if isinstance(reply, proto.DeviceIdReply):
-                    found[reply.motor_id] = reply.uid
-
-        for k in range(0, len(id_list), batch):
-            for can_id in id_list[k : k + batch]:
-                self.send(proto.get_id_frame(can_id, self.host_id))
-            collect(time.perf_counter() + 0.002)
-        collect(time.perf_counter() + timeout)
-        return dict(sorted(found.items()))
-
-    def read_param(
-        self, can_id: int, index: int, *, dtype: str | None = None, timeout: float | None = None
-    ) -> float | int:
-        """Read a parameter (type 17); ``OperationError`` when the motor reports failure.
-
-        The deadline is ``timeout``, or ``param_timeout`` when None.
-        """
-        frame = proto.read_param_frame(can_id, index, self.host_id)
-        reply = self.request(
-            frame,
-            lambda r: isinstance(r, proto.ParamReply) and r.motor_id == can_id and r.index == index,
-            self.param_timeout if timeout is None else timeout,
-        )
-        if not isinstance(reply, proto.ParamReply):  # pragma: no cover - guaranteed by the match
-            raise OperationError(f"unexpected reply {reply!r}")
-        if reply.status != 0:
-            raise OperationError(
-                f"{self.interface}: id {can_id} refused to read parameter {index:#06x} "
-                f"(status {reply.status})"
-            )
-        return reply.value(dtype)
-
-    def write_param(
-        self,
-        can_id: int,
-        index: int,
-        value: float | int,
-        *,
-        dtype: str | None = None,
-        timeout: float | None = None,
-    ) -> None:
-        """Write a parameter (type 18, volatile) and wait for the motor's type-2 acknowledgement.
-
-        The deadline is ``timeout``, or ``param_timeout`` when None.
-        """
-        frame = proto.write_param_frame(can_id, index, value, dtype=dtype, host_id=self.host_id)
-        self.request(
-            frame,
-            lambda r: isinstance(r, proto.Feedback) and r.motor_id == can_id,
-            self.param_timeout if timeout is None else timeout,
-        )
-
-    # ----------------------------------------------------------------------------------------------
-    # activation (the checks and cap writes live in ``activation``)
-    def write_caps(self, *, verify: bool = True) -> list[tuple[int, str, float]]:
-        """``activation.write_caps(self, verify=verify)``: torque/current caps, (id, param, value) written."""
-        return activation.write_caps(self, verify=verify)
 
     # ----------------------------------------------------------------------------------------------
     # rounds

@@ -9,7 +9,7 @@ each motor's model is plausible (``activation.verify_models``) and that its firm
 watchdog (``watchdog.read_can_timeouts``); read the joints with stop frames (the motors stay disabled) and
 refuse faults or positions outside the limits (a calibration or 2*pi wrap error); write the torque/current
 caps and arm the watchdog (``watchdog.arm_can_timeout``); enable; hold damping at the present pose.
-A ``StartupControl`` (``activation``) runs through it: the caller's stop request is checked before every
+A ``StartupControl`` (``startup``) runs through it: the caller's stop request is checked before every
 step (and before each motor's writes), so a stop during start-up ends it with ``StopRequestedError`` and
 nothing enabled; a missing reply (scan, parameter exchange, joint read, enable, first damping round) is
 retried ``retries`` times with a doubling backoff before activation refuses, and the retries are counted.
@@ -31,8 +31,9 @@ import numpy as np
 from bar_policy.robot.constants import RobotSpec
 from bar_policy.robot.mit import MitCommand
 from bar_policy.robstride import protocol as proto
-from bar_policy.robstride.activation import StartupControl, verify_models, verify_scan, write_caps
-from bar_policy.robstride.bus import DEFAULT_REPLY_TIMEOUT, BusReading, MotorConfig, RobstrideBus
+from bar_policy.robstride.activation import verify_models, verify_scan, write_caps
+from bar_policy.robstride.bus import RobstrideBus
+from bar_policy.robstride.bus_types import DEFAULT_REPLY_TIMEOUT, BusReading, MotorConfig
 from bar_policy.robstride.calibration import Calibration
 from bar_policy.robstride.errors import (
     CommandError,
@@ -43,6 +44,7 @@ from bar_policy.robstride.errors import (
     TimeoutError,
     UnexpectedDeviceError,
 )
+from bar_policy.robstride.startup import StartupControl
 from bar_policy.robstride.temperature import TemperatureMonitor
 from bar_policy.robstride.watchdog import arm_can_timeout, read_can_timeouts
 

@@ -42,7 +42,8 @@ import numpy as np
 from bar_policy.robot.actuators import ROBSTRIDE_MODELS
 from bar_policy.robot.constants import MODES, load_robot
 from bar_policy.robstride import protocol as proto
-from bar_policy.robstride.bus import MotorConfig, RobstrideBus
+from bar_policy.robstride.bus import RobstrideBus
+from bar_policy.robstride.bus_types import MotorConfig
 from bar_policy.robstride.calibration import Calibration, SweepRecorder
 from bar_policy.robstride.canbus import open_can_bus, open_can_buses
 from bar_policy.robstride.cli_args import (

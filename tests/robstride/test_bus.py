@@ -15,7 +15,9 @@ import pytest
 from bar_policy.deploy.targets.base import TargetError
 from bar_policy.robot.mit import MitCommand
 from bar_policy.robstride import protocol as proto
-from bar_policy.robstride.bus import MotorConfig, RobstrideBus
+from bar_policy.robstride.activation import write_caps
+from bar_policy.robstride.bus import RobstrideBus
+from bar_policy.robstride.bus_types import MotorConfig
 from bar_policy.robstride.calibration import Calibration, JointCalibration
 from bar_policy.robstride.errors import InitializationError
 
@@ -64,7 +66,7 @@ def test_cap_writes_exact_frames_and_logs(robot, channels, listeners, make_emula
     caplog.set_level(logging.INFO, logger="bar_policy.robstride.bus")
     try:
         for bus in group.buses:
-            bus.write_caps()
+            write_caps(bus)
     finally:
         group.shutdown()
     writes = listeners["can0"].host_frames((18,))
@@ -89,7 +91,7 @@ def test_cap_of_zero_skips_the_write(robot, channels, listeners, make_emulator, 
     caplog.set_level(logging.INFO, logger="bar_policy.robstride.bus")
     with RobstrideBus(can.Bus(interface="virtual", channel=channels["can0"]), motors, interface="can0",
                       reply_timeout=0.2) as bus:  # fmt: skip
-        written = bus.write_caps()
+        written = write_caps(bus)
     assert written == [(11, "current_limit", 5.0), (12, "torque_limit", 9.0)]
     frames = [(m.arbitration_id & 0xFF, struct.unpack("<HHf", bytes(m.data))[0]) for m in
               listeners["can0"].host_frames((18,))]  # fmt: skip

@@ -9,9 +9,9 @@ import pytest
 
 from bar_policy.deploy.targets.base import TargetError
 from bar_policy.deploy.targets.real import installed_stop_request
-from bar_policy.robstride.activation import StartupControl
 from bar_policy.robstride.errors import StopRequestedError, TimeoutError
 from bar_policy.robstride.framing import PARAM_LIMIT_TORQUE, CommType
+from bar_policy.robstride.startup import StartupControl
 from bar_policy.signals import StopSignals
 
 from .helpers import make_target

@@ -16,7 +16,7 @@ import pytest
 from bar_policy.deploy.targets.base import TargetError
 from bar_policy.robot.mit import MitCommand
 from bar_policy.robstride import protocol as proto
-from bar_policy.robstride.bus import MotorConfig
+from bar_policy.robstride.bus_types import MotorConfig
 from bar_policy.robstride.errors import DisabledError
 from bar_policy.robstride.tools import main
 

@@ -37,8 +37,7 @@ import numpy as np
 from bar_policy.deploy.targets.base import JointState, StopReport, Target, TargetError
 from bar_policy.robot.constants import RobotSpec, load_robot
 from bar_policy.robot.mit import MitCommand
-from bar_policy.robstride.activation import DEFAULT_RETRIES, DEFAULT_RETRY_BACKOFF, StartupControl
-from bar_policy.robstride.bus import DEFAULT_REPLY_TIMEOUT, BusReading
+from bar_policy.robstride.bus_types import DEFAULT_REPLY_TIMEOUT, BusReading
 from bar_policy.robstride.calibration import Calibration
 from bar_policy.robstride.canbus import open_can_buses
 from bar_policy.robstride.cli_args import (
@@ -59,6 +58,7 @@ from bar_policy.robstride.errors import (
 from bar_policy.robstride.framing import DEFAULT_CAN_TIMEOUT, fault_names
 from bar_policy.robstride.group import RobstrideGroup
 from bar_policy.robstride.motor_side import decode_request
+from bar_policy.robstride.startup import DEFAULT_RETRIES, DEFAULT_RETRY_BACKOFF, StartupControl
 
 __all__ = ["RealTarget", "add_arguments", "make_target"]
 
