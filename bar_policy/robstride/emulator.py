@@ -3,12 +3,13 @@
 Every emulated motor listens on its interface's bus (python-can ``virtual``; SocketCAN ``vcan`` where the
 kernel has it), decodes the host's frames with the protocol layer, and answers like the firmware
 (``firmware.py``: the per-motor state and its answer to one request); this module holds the buses, threads,
-physics and clock:
+physics (``emulator_physics``) and clock:
 
-- Physics: each MuJoCo step (2 ms) the MIT law of every enabled motor, ``firmware_torque`` (the one shared
-  actuator model) with the motor's ``limit_torque`` as the cap, goes into ``qfrc_applied``. Disabled motors
-  apply nothing. Joint <-> motor frames use the robot data's directions and the emulated robot's *true*
-  homing offsets (``offsets``), so a calibration error shows up as it would on hardware.
+- Physics (``emulator_physics.EmulatorPhysics``, inherited): each MuJoCo step (2 ms) the MIT law of every
+  enabled motor, ``firmware_torque`` (the one shared actuator model) with the motor's ``limit_torque`` as
+  the cap, goes into ``qfrc_applied``. Disabled motors apply nothing. Joint <-> motor frames use the
+  robot data's directions and the emulated robot's *true* homing offsets (``offsets``), so a calibration
+  error shows up as it would on hardware.
 - Time: ``mode="lockstep"`` advances ``control_dt`` of physics once every enabled motor has received a type-1
   frame (a complete command round) and only then answers that round's type-1 frames, with the post-step
   state (deterministic, faster than real time, the semantics of the synchronous sim target).
@@ -39,12 +40,11 @@ import can
 import mujoco
 import numpy as np
 
-from bar_policy.robot.actuators import robstride_spec
 from bar_policy.robot.constants import RobotSpec
-from bar_policy.robot.mit import MitCommand, WireRanges, firmware_torque, wire_ranges
 from bar_policy.robot.mjcf import load_model
 from bar_policy.robstride import firmware as fw
 from bar_policy.robstride import framing, motor_side
+from bar_policy.robstride.emulator_physics import EmulatorPhysics
 from bar_policy.robstride.errors import FrameError
 from bar_policy.robstride.firmware import DEFAULT_LIMIT_CURRENT, EmulatedMotor, Injection, JointReading
 
@@ -54,11 +54,9 @@ log = logging.getLogger(__name__)
 
 EMULATOR_MODES = ("lockstep", "realtime")
 """Physics clock modes."""
-_Static = tuple[list[EmulatedMotor], np.ndarray, np.ndarray, WireRanges, np.ndarray]
-"""Constants of the joint motors: motors, joint index, direction, wire ranges, T_max (N*m)."""
 
 
-class RobstrideEmulator:
+class RobstrideEmulator(EmulatorPhysics):
     """Emulated Robstride motors of a robot on python-can buses, backed by MuJoCo.
 
     Args:
@@ -124,7 +122,7 @@ class RobstrideEmulator:
         self._silent: set[str] = set()
         self._pending: list[tuple[EmulatedMotor, bytes]] = []
         self._commanded: set[tuple[str, int]] = set()
-        self._static_cache: _Static | None = None
+        self._static_cache = None  # EmulatorPhysics._static
 
         offsets = dict(offsets or {})
         models = dict(models or {})
@@ -250,86 +248,6 @@ class RobstrideEmulator:
         """Joint name -> enabled."""
         with self._lock:
             return {m.name: m.enabled for m in self.motors.values()}
-
-    # ----------------------------------------------------------------------------------------------
-    # physics
-    def _joint_motors(self) -> list[EmulatedMotor]:
-        return [m for m in self.motors.values() if m.joint is not None]
-
-    def _static(self) -> _Static:
-        """Per-motor constants of the joint motors (cached): motors, joint index, direction, ranges, T_max."""
-        if self._static_cache is None:
-            ms = self._joint_motors()
-            self._static_cache = (
-                ms,
-                np.array([m.joint for m in ms], dtype=np.int64),
-                np.array([m.direction for m in ms], dtype=np.float64),
-                wire_ranges([m.model for m in ms]),
-                np.array([robstride_spec(m.model).t_max for m in ms]),
-            )
-        return self._static_cache
-
-    def _law(self) -> tuple[Callable[[], np.ndarray], np.ndarray, np.ndarray]:
-        """The motors' MIT law at the present state (lock held): (torque function, joint index, direction).
-
-        The function returns the raw (motor-frame) torque of every joint motor, 0 for disabled ones.
-        """
-        ms, idx, d, ranges, t_max = self._static()
-        off = np.array([m.offset for m in ms])
-        on = np.array([m.enabled for m in ms], dtype=np.float64)
-        cmd = np.array([m.cmd for m in ms]).T
-        cap = np.clip(np.array([float(m.params[0x700B]) for m in ms]), 0.0, t_max)
-        mit = MitCommand(cmd[0], cmd[1], cmd[2], cmd[3], cmd[4])
-        qadr, dadr = self._qadr[idx], self._dadr[idx]
-
-        def torque() -> np.ndarray:
-            q_raw = d * self.data.qpos[qadr] + off
-            dq_raw = d * self.data.qvel[dadr]
-            return on * firmware_torque(mit, q_raw, dq_raw, ranges, cap, quantize_wire=False)
-
-        return torque, idx, d
-
-    def _step(self, n: int) -> None:
-        """``n`` physics steps with the latest commands (lock held)."""
-        torque, idx, d = self._law()
-        dadr = self._dadr[idx]
-        tau_raw = np.zeros(len(idx))
-        for _ in range(n):
-            tau_raw = torque()
-            self.data.qfrc_applied[:] = 0.0
-            self.data.qfrc_applied[dadr] = d * tau_raw
-            mujoco.mj_step(self.model, self.data)
-        self._tau_raw[idx] = tau_raw
-
-    def applied_torques(self) -> np.ndarray:
-        """Torque every joint motor applies at the present state, joint frame, canonical order, N*m.
-
-        Zero for a disabled motor (stopped, or tripped by its watchdog).
-        """
-        with self._lock:
-            torque, idx, d = self._law()
-            out = np.zeros(self.robot.num_joints)
-            out[idx] = d * torque()
-            return out
-
-    def _physics_loop(self) -> None:
-        """Step physics at the wall-clock rate, in chunks of the steps that are due.
-
-        It sleeps between chunks whatever the lag (so the receiver threads always get the lock), and drops
-        time rather than spiral when it falls more than 0.1 s behind (a loaded host).
-        """
-        dt = float(self.model.opt.timestep)
-        sim_wall = time.perf_counter()
-        while not self._stop.is_set():
-            due = int((time.perf_counter() - sim_wall) / dt)
-            if due > int(0.1 / dt):
-                sim_wall = time.perf_counter() - dt
-                due = 1
-            if due > 0:
-                with self._lock:
-                    self._step(due)
-                sim_wall += due * dt
-            time.sleep(max(0.0002, sim_wall + dt - time.perf_counter()))
 
     # ----------------------------------------------------------------------------------------------
     # the firmware side of the protocol

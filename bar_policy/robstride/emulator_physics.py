@@ -1,0 +1,119 @@
+"""The MuJoCo side of the emulator: every enabled motor's MIT law into ``qfrc_applied``, stepped.
+
+Each MuJoCo step (2 ms) the MIT law of every enabled motor, ``firmware_torque`` (the one shared actuator
+model) with the motor's ``limit_torque`` as the cap, goes into ``qfrc_applied``; disabled motors apply
+nothing. ``RobstrideEmulator`` (``emulator``: buses, threads, clock, the firmware side of the protocol)
+inherits this from ``EmulatorPhysics`` and owns the state it runs on (the attributes annotated below).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+
+import mujoco
+import numpy as np
+
+from bar_policy.robot.actuators import robstride_spec
+from bar_policy.robot.constants import RobotSpec
+from bar_policy.robot.mit import MitCommand, WireRanges, firmware_torque, wire_ranges
+from bar_policy.robstride.firmware import EmulatedMotor
+
+__all__ = ["EmulatorPhysics"]
+
+_Static = tuple[list[EmulatedMotor], np.ndarray, np.ndarray, WireRanges, np.ndarray]
+"""Constants of the joint motors: motors, joint index, direction, wire ranges, T_max (N*m)."""
+
+
+class EmulatorPhysics:
+    """Physics of the emulated motors' joints (the lock is the emulator's; see the module docstring)."""
+
+    robot: RobotSpec
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    motors: dict[tuple[str, int], EmulatedMotor]
+    _qadr: np.ndarray
+    _dadr: np.ndarray
+    _tau_raw: np.ndarray
+    _lock: threading.RLock
+    _stop: threading.Event
+    _static_cache: _Static | None
+
+    def _joint_motors(self) -> list[EmulatedMotor]:
+        return [m for m in self.motors.values() if m.joint is not None]
+
+    def _static(self) -> _Static:
+        """Per-motor constants of the joint motors (cached): motors, joint index, direction, ranges, T_max."""
+        if self._static_cache is None:
+            ms = self._joint_motors()
+            self._static_cache = (
+                ms,
+                np.array([m.joint for m in ms], dtype=np.int64),
+                np.array([m.direction for m in ms], dtype=np.float64),
+                wire_ranges([m.model for m in ms]),
+                np.array([robstride_spec(m.model).t_max for m in ms]),
+            )
+        return self._static_cache
+
+    def _law(self) -> tuple[Callable[[], np.ndarray], np.ndarray, np.ndarray]:
+        """The motors' MIT law at the present state (lock held): (torque function, joint index, direction).
+
+        The function returns the raw (motor-frame) torque of every joint motor, 0 for disabled ones.
+        """
+        ms, idx, d, ranges, t_max = self._static()
+        off = np.array([m.offset for m in ms])
+        on = np.array([m.enabled for m in ms], dtype=np.float64)
+        cmd = np.array([m.cmd for m in ms]).T
+        cap = np.clip(np.array([float(m.params[0x700B]) for m in ms]), 0.0, t_max)
+        mit = MitCommand(cmd[0], cmd[1], cmd[2], cmd[3], cmd[4])
+        qadr, dadr = self._qadr[idx], self._dadr[idx]
+
+        def torque() -> np.ndarray:
+            q_raw = d * self.data.qpos[qadr] + off
+            dq_raw = d * self.data.qvel[dadr]
+            return on * firmware_torque(mit, q_raw, dq_raw, ranges, cap, quantize_wire=False)
+
+        return torque, idx, d
+
+    def _step(self, n: int) -> None:
+        """``n`` physics steps with the latest commands (lock held)."""
+        torque, idx, d = self._law()
+        dadr = self._dadr[idx]
+        tau_raw = np.zeros(len(idx))
+        for _ in range(n):
+            tau_raw = torque()
+            self.data.qfrc_applied[:] = 0.0
+            self.data.qfrc_applied[dadr] = d * tau_raw
+            mujoco.mj_step(self.model, self.data)
+        self._tau_raw[idx] = tau_raw
+
+    def applied_torques(self) -> np.ndarray:
+        """Torque every joint motor applies at the present state, joint frame, canonical order, N*m.
+
+        Zero for a disabled motor (stopped, or tripped by its watchdog).
+        """
+        with self._lock:
+            torque, idx, d = self._law()
+            out = np.zeros(self.robot.num_joints)
+            out[idx] = d * torque()
+            return out
+
+    def _physics_loop(self) -> None:
+        """Step physics at the wall-clock rate, in chunks of the steps that are due.
+
+        It sleeps between chunks whatever the lag (so the receiver threads always get the lock), and drops
+        time rather than spiral when it falls more than 0.1 s behind (a loaded host).
+        """
+        dt = float(self.model.opt.timestep)
+        sim_wall = time.perf_counter()
+        while not self._stop.is_set():
+            due = int((time.perf_counter() - sim_wall) / dt)
+            if due > int(0.1 / dt):
+                sim_wall = time.perf_counter() - dt
+                due = 1
+            if due > 0:
+                with self._lock:
+                    self._step(due)
+                sim_wall += due * dt
+            time.sleep(max(0.0002, sim_wall + dt - time.perf_counter()))
