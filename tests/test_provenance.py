@@ -49,14 +49,25 @@ def test_a_file_without_provenance_loads_and_says_so():
     props = make().to_props()
     assert "bar.provenance" not in props  # nothing recorded, nothing written (the shipped files' form)
     assert PolicyMetadata.from_props(props).provenance == {}
-    # The shipped policies were exported before provenance; they load unchanged.
+    # The shipped reach policy was exported before provenance; it loads unchanged.
     from bar_policy.deploy.policy import load_policy
 
-    for name in ("lite_reach_arms", "lite_track_arms"):
-        meta = load_policy(REPO / "checkpoints" / f"{name}.onnx").metadata
-        assert meta.provenance == {}
-        (line,) = provenance.describe(meta.provenance, meta.code_version)
-        assert line.startswith("provenance: not recorded") and meta.code_version in line
+    meta = load_policy(REPO / "checkpoints" / "lite_reach_arms.onnx").metadata
+    assert meta.provenance == {}
+    (line,) = provenance.describe(meta.provenance, meta.code_version)
+    assert line.startswith("provenance: not recorded") and meta.code_version in line
+
+
+def test_the_shipped_tracker_says_what_trained_it():
+    """The tracker shipped from the H100 run of issue 16 (docs/tracking.md): its commit, a clean tree, the
+    versions and the exact training command."""
+    from bar_policy.deploy.policy import load_policy
+
+    meta = load_policy(REPO / "checkpoints" / "lite_track_arms.onnx").metadata
+    assert meta.provenance["git_commit"].startswith("9897af8") and meta.provenance["git_dirty"] is False
+    head, command = provenance.describe(meta.provenance, meta.code_version)
+    assert head.startswith("provenance: commit 9897af8 (clean tree") and "jax 0.11.2" in head
+    assert "--preset track --seed 0" in command and "--network.action-prior reference" in command
 
 
 @pytest.mark.parametrize(
