@@ -4,7 +4,8 @@ Semantics (fixed; the exported policy and the deploy runtime rely on them). Acti
 noise and the initial-state noise are the robot env's (``bar_policy.envs.robot``); the task adds:
 
 - **Action**: ``q_cmd = clip(default_pose + action_scale * a, lower, upper)`` with ``default_pose`` =
-  ``piano_ready`` (the layout's ``default_joint_pos``) and ``action_scale`` = 0.8 rad for every joint.
+  ``piano_ready`` (the layout's ``default_joint_pos``), ``action_scale`` = 0.8 rad for every joint and ``a``
+  the policy's action low-passed at ``action_filter_hz`` (3 Hz; the deploy runtime applies the same).
 - **Observation**: ``ObservationManager.for_task("reach", mode)`` (54 entries for arms): measured q, dq,
   previous action, fingertip positions by forward kinematics of the measured q (chest frame = world frame,
   the chest is the fixed root), and the two targets.
