@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # One nvidia-h200-x4 session for issue 9 (about 8 minutes): everything multi-GPU in one call.
 #
-#   phase 1 (in parallel): the pmap-reset bisect on GPUs 0,1 | training on 1 GPU (GPU 2)
+#   phase 1:               training on 1 GPU (GPU 2)
 #   phase 2 (in parallel): training on 2 GPUs (0,1)           | 2 processes, one per GPU, jax.distributed (2,3)
 #   phase 3:               training on 4 GPUs (0-3)
 #   then a results table (bench/session_summary.py) printed last.
@@ -31,13 +31,12 @@ stamp() { echo "[$(( $(date +%s) - T0 )) s] $*"; }
 if [ $SMOKE = 1 ]; then
   export JAX_PLATFORMS=cpu
   PER_DEV="--preset tiny --ppo.num-timesteps 2048 --log-every-iterations 1"
-  ENVS=16; BATCH=16; MINUTES=6; FINAL=16; BISECT="--envs-per-device 2 --stages control,sharded_reset --parallel 2"
-  T_TRAIN=900; T_BISECT=900
+  ENVS=16; BATCH=16; MINUTES=6; FINAL=16
+  T_TRAIN=900
 else
   PER_DEV="--ppo.num-timesteps 400000000 --log-every-iterations 10"
-  ENVS=4096; BATCH=512; MINUTES=2.0; FINAL=1024; BISECT="--envs-per-device 128 --parallel 6 --timeout 110 \
---stages control,put_data,forward,vmap_models,old_reset,sharded_reset"
-  T_TRAIN=170; T_BISECT=200
+  ENVS=4096; BATCH=512; MINUTES=2.0; FINAL=1024
+  T_TRAIN=170
 fi
 COMMON="--runs-dir $WORK/runs --no-export-onnx --final-eval-envs $FINAL --max-minutes $MINUTES"
 
@@ -71,7 +70,7 @@ two_process() {  # jax.distributed on localhost, one process per device
 summary() {
   tar -czf "$OUT/session_x4.tgz" -C "$WORK" --exclude='*.msgpack' --exclude='tb' . 2>/dev/null
   python3 bench/session_summary.py "$WORK/runs/g1" "$WORK/runs/g2" "$WORK/runs/g4" "$WORK/runs/dist2" \
-    --append "$WORK/bisect.md" --out "$OUT/summary.md"
+    --out "$OUT/summary.md"
 }
 
 if [ "${SHORT:-0}" = 1 ]; then  # scaling only (about 5 min): 1 GPU | 2 GPUs side by side, then 4 GPUs
@@ -87,11 +86,8 @@ if [ "${SHORT:-0}" = 1 ]; then  # scaling only (about 5 min): 1 GPU | 2 GPUs sid
   exit 0
 fi
 
-stamp "phase 1: bisect | 1 device"
-env $(gpus 0,1 2) timeout -k 10 $T_BISECT python3 bench/pmap_reset_bisect.py $BISECT \
-  --out "$WORK/bisect.md" --logs "$WORK/bisect_logs" > "$WORK/bisect.log" 2>&1 &
-train g1 2 1 &
-wait
+stamp "phase 1: 1 device"
+train g1 2 1
 stamp "phase 2: 2 devices | 2 processes"
 train g2 0,1 2 &
 two_process &
