@@ -50,12 +50,10 @@ installed until the log is closed and never raise, so a second signal cannot cut
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -64,24 +62,24 @@ import numpy as np
 from bar_policy.deploy.action_path import ActionPath
 from bar_policy.deploy.contract import PolicyLoadError
 from bar_policy.deploy.inputs import StateInputs
-from bar_policy.deploy.log import RunLog, log_fields
+from bar_policy.deploy.log import RunLog
 from bar_policy.deploy.policy import OnnxPolicy, action_reach_problems
 from bar_policy.deploy.run_config import RunResult, RuntimeConfig
+from bar_policy.deploy.run_loop import RunLoop
 from bar_policy.deploy.safety import Mode, SafetySupervisor
-from bar_policy.deploy.targets.base import JointState, StopReport, Target, run_metadata_of
+from bar_policy.deploy.targets.base import JointState, StopReport, Target
 from bar_policy.deploy.tasks.base import CommandSource
-from bar_policy.deploy.timing import Pacer, RealtimePriority, TimingStats, sleep_until
-from bar_policy.quality import QualityMeter, summarise
+from bar_policy.deploy.timing import TimingStats, sleep_until
+from bar_policy.quality import QualityMeter
 from bar_policy.robot.kinematics import Kinematics
 from bar_policy.robot.mit import mit_torque
-from bar_policy.signals import StopSignals
 
 __all__ = ["RunResult", "Runtime", "RuntimeConfig", "TimingStats", "sleep_until"]
 
 log = logging.getLogger(__name__)
 
 
-class Runtime:
+class Runtime(RunLoop):
     """Runs a policy on a target at a fixed rate under the safety supervisor."""
 
     def __init__(
@@ -244,35 +242,6 @@ class Runtime:
         self._end_t, self._end_after, self._end_reason = t, self.config.end_hold, reason
         self.completed = True
 
-    def _log_transitions(self) -> None:
-        trs = self.safety.transitions
-        if self._runlog is not None:
-            for tr in trs[self._transitions_logged :]:
-                self._runlog.transition(tr.to_dict())
-        self._transitions_logged = len(trs)
-
-    def _meta(self) -> dict[str, Any]:
-        p = self.policy
-        return {
-            "policy": str(p.path),
-            "task": p.metadata.task,
-            "mode": p.robot.mode,
-            "obs_fingerprint": p.obs_manager.fingerprint,
-            "policy_code_version": p.metadata.code_version,
-            "action_clip": p.action_clip,
-            "target": type(self.target).__name__,
-            "synchronous": self.target.synchronous,
-            "commands": self.commands.describe(),
-            "deploy_task": p.task,
-            "command_source": self.commands.metadata(),
-            "joint_names": list(p.robot.joint_names),
-            "action_joint_names": list(p.metadata.action_joint_names),
-            "mode_names": {m.name: int(m) for m in Mode},
-            "policy_dialect": p.metadata.dialect,
-            "hold_pose": self.hold_pose.tolist(),
-            "runtime_config": asdict(self.config),
-        } | self.log_meta
-
     # -- one tick ------------------------------------------------------------------------------------
     def _tick(self, k: int, t: float, stop: str | None = None) -> dict[str, Any]:
         """One control tick at target time ``t``; ``stop``: a stop request's reason (None: keep running)."""
@@ -371,201 +340,3 @@ class Runtime:
         self.safety.transition(Mode.POLICY, reason, t)
         self.actions.start(self.hold_pose)
         self.commands.begin(t)
-
-    def quality_record(self) -> dict[str, Any]:
-        """The run's POLICY ticks as one episode (``EpisodeQuality``) with its summary figures."""
-        fault = self._end_reason if self.safety.fault_count and not self._stop_reason else ""
-        rec = self.quality.finish(self.log_name, fault)
-        return {"episode": rec.to_dict(), "summary": summarise([rec]) if rec.ticks else {}}
-
-    # -- the loop ------------------------------------------------------------------------------------
-    def run(self, stop: StopSignals | None = None) -> RunResult:
-        """Run until the duration, a fault, a stop request or the end of the commands, or an exception.
-
-        A fault or a stop is followed by ``damping_after_fault`` s of damping, the end of the commands by
-        ``end_hold`` s of HOLD, before the safe ending.
-
-        Args:
-            stop: the caller's installed ``StopSignals`` (``bar-deploy`` installs them before the target
-                starts); None installs its own for the run when ``config.handle_signals``.
-
-        Returns:
-            The result with timing statistics. Exceptions propagate after the safe ending and the log.
-        """
-        if stop is None:
-            stop = StopSignals()
-            installed = stop if self.config.handle_signals else contextlib.nullcontext()
-        else:
-            installed = contextlib.nullcontext()
-        with installed:
-            return self._run(stop)
-
-    def open_log(self) -> Path | None:
-        """Create the run directory and start the log now (``run`` does it otherwise); idempotent.
-
-        ``bar-deploy`` calls it before the target starts: a log directory that cannot be written is then
-        refused before anything moves, and no file-system work (``fsync``) falls between the real target's
-        activation and the first tick, which must come within the motors' CAN watchdog.
-
-        Returns:
-            The run directory, or None without ``log_dir``.
-
-        Raises:
-            LogDirError: the run directory cannot be created or written.
-        """
-        if self._runlog is None and self.log_dir is not None:
-            self._runlog = self._make_log()
-        return None if self._runlog is None else self._runlog.path
-
-    def close_unstarted(self, reason: str) -> None:
-        """Close a log opened by ``open_log`` for a run that never started (``end_reason`` = ``reason``)."""
-        if self._runlog is not None and not self._runlog.closed:
-            self._runlog.close(end_reason=reason, transitions=[], fault_count=0)
-            self.log_path = self._runlog.path / "log.npz"
-
-    def _make_log(self) -> RunLog:
-        om = self.policy.obs_manager
-        fields = log_fields(
-            self.policy.robot.num_joints, self.policy.n_actions, om.size, self.commands.log_fields
-        )
-        return RunLog(
-            self.log_dir,
-            fields,
-            self._meta(),
-            name=self.log_name,
-            labels={"mode": {int(m): m.name for m in Mode}},
-        )
-
-    def _run(self, stop: StopSignals) -> RunResult:
-        cfg = self.config
-        dt = cfg.control_dt
-        n_ticks = None if cfg.duration is None else max(round(cfg.duration / dt), 1)
-        self.open_log()
-        runlog = self._runlog
-        sync = self.target.synchronous
-        k = 0
-        end_reason = "duration reached"
-        t0_target = self.target.now()
-        pacer = Pacer(dt, paced=not sync or cfg.realtime, spin_s=cfg.spin_s)
-        error: BaseException | None = None
-        try:
-            with RealtimePriority(cfg.rt_priority):
-                while n_ticks is None or k < n_ticks:
-                    start, lateness = pacer.wait()
-                    t = k * dt if sync else self.target.now() - t0_target
-                    if stop.requested:
-                        self.request_stop(stop.reason)
-                    rec = self._tick(k, t, self._pending_stop)
-                    overran = pacer.tick_done(lateness, rec["compute"], rec["infer"])
-                    rec.update(jitter=lateness, overrun=overran, wall=start - pacer.wall0)
-                    if runlog is not None:
-                        runlog.append(rec)
-                    if sync:
-                        self.target.advance(dt)
-                    else:
-                        ov = self.safety.note_overrun(overran)
-                        if ov is not None:
-                            self._fault(*ov, t)
-                    self._log_transitions()
-                    if self.on_tick is not None:
-                        self.on_tick(k, t, self)
-                    k += 1
-                    if self._end_t is not None and t - self._end_t >= self._end_after - 1e-9:
-                        break
-            end_reason = self._final_reason(end_reason)
-        except BaseException as e:
-            error = e
-            end_reason = f"exception {type(e).__name__}: {e}"
-            raise
-        finally:
-            t_end = self.target.now() - t0_target
-            timing = pacer.stats(k * dt if sync else t_end)  # the loop alone, without the safe ending
-            safe_stop, report = self._safe_end(end_reason, t_end)
-            self._log_transitions()
-            log_path = None
-            if runlog is not None:
-                try:
-                    log_path = runlog.close(
-                        end_reason=end_reason,
-                        target_metadata=run_metadata_of(self.target),
-                        stop_reason=self._stop_reason,
-                        stop_signal=stop.signal_name,
-                        stop_signals_received=stop.count,
-                        safe_stop=safe_stop,
-                        stop_report=None if report is None else report.to_dict(),
-                        exception=None if error is None else f"{type(error).__name__}: {error}",
-                        transitions=[tr.to_dict() for tr in self.safety.transitions],
-                        timing=timing.summary(),
-                        clip_count=self.safety.clip_count,
-                        action_clip_count=self.action_clip_count,
-                        action_count=self.actions.count,
-                        fault_count=self.safety.fault_count,
-                        command_outside_workspace=self.commands.outside_count,
-                        completed=self.completed,
-                        quality=self.quality_record(),
-                    )
-                except Exception:
-                    log.exception("could not write the run log in %s", runlog.path)
-                    if error is None:
-                        raise
-            self.log_path = log_path
-        return RunResult(
-            ticks=k,
-            final_mode=self.safety.mode,
-            transitions=[tr.to_dict() for tr in self.safety.transitions],
-            timing=timing,
-            end_reason=end_reason,
-            clip_count=self.safety.clip_count,
-            fault_count=self.safety.fault_count,
-            log_path=log_path,
-            last_state=self.last_state,
-            action_clip_count=self.action_clip_count,
-            stop_reason=self._stop_reason,
-            safe_stop=safe_stop,
-            stop_confirmed=report is not None and report.confirmed,
-            stop_unconfirmed=() if report is None else report.unconfirmed,
-            completed=self.completed,
-            quality=self.quality_record(),
-            action_count=self.actions.count,
-        )
-
-    def _final_reason(self, loop_reason: str) -> str:
-        """The end reason: the run's first fault whenever one occurred, else why the loop ended."""
-        reason = self._end_reason if self._end_t is not None else loop_reason
-        first = self._first_fault
-        if first is None or first in reason:
-            return reason
-        if self._stop_reason is not None and reason == self._end_reason:
-            return f"{first} (during the stop: {reason})"
-        return first
-
-    def _safe_end(self, reason: str, t: float) -> tuple[str, StopReport | None]:
-        """DAMPING (logged with the reason), then the target's safe stop; errors here are logged only.
-
-        Returns:
-            The outcome (``StopReport.summary()``, or ``"failed: ..."`` with the error ``target.safe_stop``
-            raised) and the report (None when it raised); both are also kept in ``safe_stop_summary`` and
-            ``stop_report``.
-        """
-        sf = self.safety
-        if sf.mode in (Mode.HOLD, Mode.POLICY, Mode.ZERO_TORQUE):
-            level = logging.INFO if reason == "duration reached" or self.completed else logging.WARNING
-            sf.transition(Mode.DAMPING, f"run ended: {reason}", t, level=level)
-        try:
-            report = self.target.safe_stop(sf.captured_q, sf.config.damping_kd)
-        except Exception as e:
-            log.exception("safe_stop of %s failed", type(self.target).__name__)
-            self.safe_stop_summary = f"failed: {type(e).__name__}: {e}"
-            return self.safe_stop_summary, None
-        if not isinstance(report, StopReport):  # a target from before the report: it did not say
-            report = StopReport(
-                self.target.joint_names,
-                (False,) * self.target.num_joints,
-                (False,) * self.target.num_joints,
-                f"{type(self.target).__name__}.safe_stop reports no replies",
-            )
-        self.stop_report = report
-        self.safe_stop_summary = report.summary()
-        if not report.confirmed:
-            log.warning("safe stop: %s", self.safe_stop_summary)
-        return self.safe_stop_summary, report
