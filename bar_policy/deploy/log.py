@@ -41,16 +41,27 @@ import queue
 import shutil
 import threading
 import time
-import zipfile
-import zlib
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping
 from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
 
-from bar_policy._files import InputError, fsync_dir, loads_json, shorten, strict_json
-from bar_policy.deploy.mcap_log import MCAP_FILE, McapRunWriter, read_mcap_log
+from bar_policy._files import fsync_dir
+from bar_policy.deploy.log_files import (
+    FLUSH_INTERVAL,
+    NOT_CLOSED,  # noqa: F401 (re-exported: callers import it from here)
+    LogDirError,
+    LogReadError,
+    _concat_chunks,
+    _json_bytes,
+    _json_text,
+    _write_durable,
+    check_log_dir,
+    log_fields,
+)
+from bar_policy.deploy.log_read import load_log
+from bar_policy.deploy.mcap_log import MCAP_FILE, McapRunWriter
 
 __all__ = [
     "FLUSH_INTERVAL",
@@ -63,116 +74,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-
-FLUSH_INTERVAL = 0.5
-"""Wall time between durable flushes of ``run.mcap``, s (the log loses at most this much on a crash)."""
-NOT_CLOSED = "not closed: the process ended without closing the log (killed or power loss)"
-"""``end_reason`` that ``load_log`` reports for a run recovered from ``run.mcap``."""
-
-
-class LogDirError(ValueError):
-    """The log directory cannot be created or written."""
-
-
-class LogReadError(InputError):
-    """A run log that ``load_log`` cannot read: not a log written by ``bar-deploy``, truncated or corrupt."""
-
-
-def log_fields(
-    n_joints: int,
-    n_actions: int,
-    obs_size: int,
-    commands: Mapping[str, tuple[tuple[int, ...], type]] | Sequence[str] = (),
-) -> dict[str, tuple[tuple[int, ...], type]]:
-    """The per-tick fields of a run log: name -> (per-tick shape, dtype).
-
-    Args:
-        n_joints: joints of the robot state.
-        n_actions: action entries.
-        obs_size: observation entries.
-        commands: the command source's fields (``CommandSource.log_fields``: name -> (shape, dtype)), or
-            command names, each a (3,) float64 vector (the reach targets).
-    """
-    n = (n_joints,)
-    fields: dict[str, tuple[tuple[int, ...], type]] = {
-        "t": ((), np.float64),
-        "wall": ((), np.float64),
-        "mode": ((), np.int8),
-        "q": (n, np.float64),
-        "dq": (n, np.float64),
-        "tau": (n, np.float64),
-        "temperature": (n, np.float64),
-        "obs": ((obs_size,), np.float32),
-        "action": ((n_actions,), np.float32),
-        "q_cmd": (n, np.float64),
-        "dq_cmd": (n, np.float64),
-        "kp": (n, np.float64),
-        "kd": (n, np.float64),
-        "tau_ff": (n, np.float64),
-        "tau_cmd": (n, np.float64),
-        "n_clipped": ((), np.int16),
-        "n_action_clipped": ((), np.int16),
-        "compute": ((), np.float64),
-        "infer": ((), np.float64),
-        "jitter": ((), np.float64),
-        "overrun": ((), np.bool_),
-    }
-    if isinstance(commands, Mapping):
-        clash = sorted(set(commands) & set(fields))
-        if clash:
-            raise ValueError(f"command source log fields {clash} collide with the run log's own fields")
-        fields.update({k: (tuple(shape), dt) for k, (shape, dt) in commands.items()})
-    else:
-        fields.update({name: ((3,), np.float64) for name in commands})
-    return fields
-
-
-# ---------------------------------------------------------------------------------------------------
-# Durable file helpers
-# ---------------------------------------------------------------------------------------------------
-def _write_durable(path: Path, write: Callable[[IO[bytes]], None]) -> None:
-    """Write through ``<path>.partial``, fsync, rename over ``path``, fsync the directory."""
-    tmp = path.with_name(path.name + ".partial")
-    try:
-        with tmp.open("wb") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    fsync_dir(path.parent)
-
-
-def _json_text(meta: Mapping[str, Any], **kwargs: Any) -> str:
-    """Strict JSON of the run metadata, keys sorted (``_files.strict_json``: NaN, infinities -> ``null``)."""
-    return strict_json(meta, sort_keys=True, **kwargs)
-
-
-def _json_bytes(meta: Mapping[str, Any]) -> bytes:
-    """``run.json``'s bytes: strict JSON (``_json_text``; non-finite floats written as ``null``), indented."""
-    return _json_text(meta, indent=2).encode()
-
-
-def check_log_dir(root: str | Path) -> Path:
-    """Create ``root`` if needed and check that a file can be written in it.
-
-    Raises:
-        LogDirError: naming the directory and the operating system's reason.
-    """
-    root = Path(root)
-    try:
-        root.mkdir(parents=True, exist_ok=True)
-        probe = root / f".bar-deploy-probe-{os.getpid()}"
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as e:
-        reason = e.strerror or str(e)
-        raise LogDirError(
-            f"cannot write run logs under {str(root)!r}: {reason} (give a writable --log DIR, or --no-log)"
-        ) from None
-    return root
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -403,120 +304,3 @@ class RunLog:
         shutil.rmtree(self.path / "chunks", ignore_errors=True)
         log.info("run log written to %s (%d ticks)", out, self.ticks)
         return out
-
-
-def _concat_chunks(
-    files: list[Path], fields: Mapping[str, tuple[tuple[int, ...], type]] | None
-) -> dict[str, np.ndarray]:
-    parts: dict[str, list[np.ndarray]] = {}
-    for f in files:
-        with np.load(f, allow_pickle=False) as z:
-            for k in z.files:
-                parts.setdefault(k, []).append(z[k])
-    if parts:
-        return {k: np.concatenate(v) for k, v in parts.items()}
-    if fields is None:
-        return {}
-    return {k: np.zeros((0, *shape), dtype=dt) for k, (shape, dt) in fields.items()}
-
-
-# ---------------------------------------------------------------------------------------------------
-# Reading
-# ---------------------------------------------------------------------------------------------------
-def _read_json(path: Path) -> dict[str, Any]:
-    """``run.json`` as a dict; ``{}`` when it is missing, malformed or not an object (it only informs)."""
-    try:
-        value = loads_json(path.read_bytes(), str(path), LogReadError)
-    except (OSError, LogReadError):
-        return {}
-    return value if isinstance(value, dict) else {}
-
-
-def _load_mcap(path: Path, run_json: dict[str, Any]) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    try:
-        rec = read_mcap_log(path)
-    except LogReadError:
-        raise
-    except (ValueError, TypeError, KeyError, RecursionError, EOFError) as e:
-        raise LogReadError(
-            f"{path} is not a run log (MCAP written by bar-deploy): {shorten(e, 500)}"
-        ) from None
-    meta = run_json | rec.meta
-    if not rec.complete:
-        meta["status"] = "running"
-        meta["end_reason"] = NOT_CLOSED
-        meta["recovered_from"] = path.name
-        if rec.error:
-            meta["recovery_stopped_at"] = rec.error
-        meta.setdefault("transitions", rec.transitions)
-    meta["ticks"] = int(rec.arrays["t"].shape[0]) if "t" in rec.arrays else 0
-    return rec.arrays, meta
-
-
-def load_log(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    """Read a run log: a run directory, its ``log.npz`` or its ``run.mcap``.
-
-    A directory is read from ``log.npz`` when the run closed, else from ``run.mcap`` (complete or cut off by
-    a crash: everything up to the last durable flush), else from NPZ chunks (logs of older versions). A run
-    recovered without ``close()`` has ``meta["status"] == "running"`` and ``meta["end_reason"]`` saying so.
-
-    Returns:
-        ``(arrays, meta)``: per-tick arrays (first axis = tick) and the run metadata.
-
-    Raises:
-        FileNotFoundError: nothing at ``path``.
-        LogReadError: (an ``_files.InputError``, a ``ValueError``) the file is not a run log, or a corrupt
-            one: the only error for malformed content, whatever the bytes.
-    """
-    path = Path(path)
-    if path.is_dir():
-        run_json = _read_json(path / "run.json")
-        if (path / "log.npz").is_file():
-            path = path / "log.npz"
-        elif (path / MCAP_FILE).is_file():
-            try:
-                return _load_mcap(path / MCAP_FILE, run_json)
-            except ValueError as e:
-                chunks = sorted((path / "chunks").glob("chunk_*.npz"))
-                if not chunks:
-                    raise LogReadError(
-                        f"run {path} has no log.npz and its {MCAP_FILE} is unreadable: {shorten(e, 500)}"
-                    ) from None
-                return _read_chunks(path, chunks), run_json
-        else:
-            chunks = sorted((path / "chunks").glob("chunk_*.npz"))
-            if not chunks:
-                raise FileNotFoundError(f"{path} has neither log.npz, {MCAP_FILE} nor chunks/chunk_*.npz")
-            return _read_chunks(path, chunks), run_json
-    if not path.is_file():
-        raise FileNotFoundError(
-            f"no run log at {path} (give a run directory, its log.npz or its {MCAP_FILE})"
-        )
-    if path.suffix == ".mcap":
-        return _load_mcap(path, _read_json(path.parent / "run.json"))
-    try:
-        if path.stat().st_size == 0:
-            raise ValueError("the file is empty")
-        z = np.load(path, allow_pickle=False)
-        if not hasattr(z, "files"):
-            raise ValueError("a single array, not an NPZ archive")
-        with z:
-            arrays = {k: z[k] for k in z.files if k != "meta_json"}
-            meta = (
-                loads_json(str(z["meta_json"]), "meta_json", LogReadError) if "meta_json" in z.files else {}
-            )
-        if not isinstance(meta, dict):
-            raise ValueError(f"meta_json is a JSON {type(meta).__name__}, not an object")
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, KeyError) as e:
-        raise LogReadError(
-            f"{path} is not a run log (NPZ written by bar-deploy): {shorten(e, 500)}"
-        ) from None
-    return arrays, meta
-
-
-def _read_chunks(run: Path, chunks: list[Path]) -> dict[str, np.ndarray]:
-    """The NPZ chunks of a run that never closed, concatenated; ``LogReadError`` when one is corrupt."""
-    try:
-        return _concat_chunks(chunks, None)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, KeyError) as e:
-        raise LogReadError(f"run {run}: its NPZ chunks are unreadable: {shorten(e, 500)}") from None
