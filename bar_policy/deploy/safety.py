@@ -27,14 +27,13 @@ transition is logged (python ``logging``) and kept in ``transitions`` for the ru
 
 from __future__ import annotations
 
-import enum
 import logging
-import math
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from bar_policy.deploy.safety_checks import DEFAULT_REACH_MARGIN, CapDwell, _smoothstep, check_action_scale
+from bar_policy.deploy.safety_config import Mode, SafetyConfig, Transition
 from bar_policy.deploy.targets.base import JointState
 from bar_policy.robot.mit import MitCommand, mit_torque
 
@@ -49,168 +48,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-
-
-DEFAULT_REACH_MARGIN = 0.5
-"""How far beyond a joint's range the action's reach may go, rad. The shipped policies reach up to 0.43 rad
-beyond (``lite_reach_arms``: the wrist yaw, default -+1.2 rad + 0.8 rad vs the +-1.571 rad range): q_cmd is
-clipped to the range, and the margin leaves them room while an ``action_scale`` typo (x10) is refused."""
-
-
-def check_action_scale(
-    default: np.ndarray,
-    scale: np.ndarray,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    names: Sequence[str],
-    *,
-    bound: float = 1.0,
-    margin: float = DEFAULT_REACH_MARGIN,
-) -> list[str]:
-    """Problems of an ``action_scale`` against the joint ranges (empty: none), one per action joint.
-
-    Args:
-        default: default pose of the action joints, rad, shape (n,).
-        scale: ``action_scale``, rad per action unit, shape (n,).
-        lower: lower joint limits of the action joints, rad, shape (n,).
-        upper: upper joint limits of the action joints, rad, shape (n,).
-        names: the action joints' names.
-        bound: the action range, action units (the action clip; 1 without one).
-        margin: allowed reach beyond the range, rad.
-
-    Returns:
-        ``"NAME: action_scale S rad x +-B reaches [LO, HI] rad, beyond its range [L, U] rad by more than
-        M rad"`` (or a non-finite / negative scale) for every joint that fails.
-    """
-    d, s, lo, up = (np.asarray(x, dtype=np.float64) for x in (default, scale, lower, upper))
-    problems = []
-    for i, name in enumerate(names):
-        if not (np.isfinite(s[i]) and s[i] >= 0):
-            problems.append(f"{name}: action_scale {s[i]!r} is not a finite number >= 0 rad per action unit")
-            continue
-        reach_lo, reach_hi = d[i] - s[i] * bound, d[i] + s[i] * bound
-        if reach_lo < lo[i] - margin or reach_hi > up[i] + margin:
-            problems.append(
-                f"{name}: action_scale {s[i]:g} rad x +-{bound:g} from the default {d[i]:+.3f} rad reaches "
-                f"[{reach_lo:+.3f}, {reach_hi:+.3f}] rad, beyond its range [{lo[i]:+.3f}, {up[i]:+.3f}] rad "
-                f"by more than {margin:g} rad"
-            )
-    return problems
-
-
-class CapDwell:
-    """Time each joint's torque demand has stayed at its cap; the supervisor's saturation rule.
-
-    A joint is at the cap when ``|demand| >= level``. Its time grows by ``dt`` per tick at the cap and
-    returns to 0 at its first tick below it, so only an unbroken run at the cap counts (a sign change
-    at the cap does not break it: a 25 Hz bang-bang between +cap and -cap counts as at the cap).
-    ``over()`` lists the joints past ``limit`` seconds. ``bench/track_fidelity.py`` applies the same rule
-    to the MJX env's torques.
-    """
-
-    def __init__(self, level: np.ndarray, limit: float) -> None:
-        """``level``: per-joint cap, N*m, shape (n,); ``limit``: allowed time at it, s."""
-        self.level = np.asarray(level, dtype=float)
-        self.limit = float(limit)
-        self.time = np.zeros_like(self.level)
-
-    def update(self, demand: np.ndarray, dt: float) -> np.ndarray:
-        """Count one tick of ``dt`` s at signed torque ``demand`` (N*m, shape (n,)); returns ``over()``."""
-        at_cap = np.abs(demand) >= self.level
-        self.time = np.where(at_cap, self.time + dt, 0.0)
-        return self.over()
-
-    def reset(self) -> None:
-        """Clear every joint's time (a mode change starts a new count)."""
-        self.time = np.zeros_like(self.level)
-
-    def over(self) -> np.ndarray:
-        """Indices of the joints at the cap for longer than ``limit``."""
-        return np.flatnonzero(self.time > self.limit + 1e-12)
-
-
-class Mode(enum.IntEnum):
-    """Controller modes, in the order of the start-up sequence."""
-
-    ZERO_TORQUE = 0
-    DAMPING = 1
-    HOLD = 2
-    POLICY = 3
-
-
-@dataclass(frozen=True, kw_only=True)
-class SafetyConfig:
-    """Thresholds of the safety supervisor."""
-
-    damping_kd: float = 1.0
-    """Kd of the DAMPING mode, N*m*s/rad (Humanoid Control's damping-controller default)."""
-    ramp_time: float = 3.0
-    """Duration of the HOLD ramp from the current pose to the default pose, s (0 = jump)."""
-    limit_margin: float = 0.1
-    """A measured joint further than this beyond its limit is a fault, rad."""
-    saturation_fraction: float = 1.0
-    """A joint is at the cap when ``|unclipped MIT torque| >= fraction * torque_cap``."""
-    saturation_time: float = 0.5
-    """Time a joint may stay at its torque cap before it is a fault, s."""
-    stale_timeout: float = 0.1
-    """A state older than this (target clock) is stale, s (Humanoid Control: 100 ms)."""
-    max_overruns: int = 5
-    """Consecutive loop overruns that make a fault (0 disables the check)."""
-    action_range_factor: float = 4.0
-    """A raw action entry is far out of range at ``|a| >= factor * bound`` (bound = the policy's action clip,
-    else 1 action unit), dimensionless; 0 disables the ``action_out_of_range`` fault."""
-    action_range_time: float = 0.2
-    """Time an action entry may stay far out of range (unbroken, same rule as ``CapDwell``) before the fault
-    ``action_out_of_range``, s."""
-
-    def __post_init__(self) -> None:
-        for name in (
-            "ramp_time",
-            "limit_margin",
-            "saturation_time",
-            "stale_timeout",
-            "action_range_factor",
-            "action_range_time",
-        ):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f"SafetyConfig.{name} must be a finite number >= 0, got {v!r}")
-        if not (math.isfinite(self.damping_kd) and self.damping_kd > 0):
-            raise ValueError(f"SafetyConfig.damping_kd must be > 0 N*m*s/rad, got {self.damping_kd!r}")
-        if not 0 < self.saturation_fraction <= 1:
-            raise ValueError(
-                f"SafetyConfig.saturation_fraction must be in (0, 1], got {self.saturation_fraction}"
-            )
-        if self.max_overruns < 0:
-            raise ValueError(f"SafetyConfig.max_overruns must be >= 0, got {self.max_overruns}")
-
-
-@dataclass(frozen=True)
-class Transition:
-    """One mode change."""
-
-    t: float
-    """Target time of the change, s."""
-    tick: int
-    """Control tick of the change."""
-    src: Mode
-    dst: Mode
-    reason: str
-
-    def to_dict(self) -> dict[str, object]:
-        """JSON form for the run log."""
-        return {
-            "t": self.t,
-            "tick": self.tick,
-            "from": self.src.name,
-            "to": self.dst.name,
-            "reason": self.reason,
-        }
-
-
-def _smoothstep(x: float) -> float:
-    x = min(max(x, 0.0), 1.0)
-    return x * x * (3.0 - 2.0 * x)
 
 
 @dataclass
