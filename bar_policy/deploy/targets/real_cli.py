@@ -1,0 +1,154 @@
+"""CLI glue of the real target for ``bar-deploy --target real``: ``add_arguments(parser)``, ``make_target``.
+
+With ``--can-interface virtual`` an in-process emulator (``RobstrideEmulator``) answers on the same channels.
+Opening a channel that cannot be used raises ``BusOpenError`` with a one-line fix (``canbus``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+
+import can
+
+from bar_policy.deploy.targets.base import Target, TargetError
+from bar_policy.deploy.targets.real_target import RealTarget
+from bar_policy.robot.constants import load_robot
+from bar_policy.robstride.bus_types import DEFAULT_REPLY_TIMEOUT
+from bar_policy.robstride.calibration import Calibration
+from bar_policy.robstride.canbus import open_can_buses
+from bar_policy.robstride.cli_args import (
+    CAN_INTERFACES,
+    HELP,
+    can_timeout_arg,
+    int_range,
+    non_negative,
+    parse_channels,
+    positive,
+)
+from bar_policy.robstride.errors import InitializationError, RobstrideError
+from bar_policy.robstride.framing import DEFAULT_CAN_TIMEOUT
+from bar_policy.robstride.group import RobstrideGroup
+from bar_policy.robstride.startup import DEFAULT_RETRIES, DEFAULT_RETRY_BACKOFF
+
+__all__ = ["VIRTUAL_REPLY_TIMEOUT", "add_arguments", "installed_stop_request", "make_target"]
+
+log = logging.getLogger("bar_policy.deploy.targets.real")  # the real target's logger, as before the split
+
+VIRTUAL_REPLY_TIMEOUT = 0.05
+"""Default reply deadline on the in-process virtual bus, s (Python thread hand-offs, not wire time)."""
+
+
+# ---------------------------------------------------------------------------------------------------
+# CLI glue
+# ---------------------------------------------------------------------------------------------------
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the real target's options to ``bar-deploy``'s parser (one argument group, units in the help).
+
+    The names and wording shared with ``bar-bus`` come from ``robstride.cli_args`` (one name per concept).
+    """
+    g = parser.add_argument_group("real target (Robstride over CAN)")
+    add = g.add_argument
+    add("--can-interface", choices=CAN_INTERFACES, default="socketcan", help=HELP["--can-interface"])
+    add("--channels", metavar="SPEC", default=None, help=HELP["--channels"])
+    add("--calibration", metavar="PATH|none", default=None,
+        help="calibration JSON written by bar-bus calibrate --calibration PATH; 'none': zero offsets "
+             "(required on socketcan)")  # fmt: skip
+    add("--dry-run", action="store_true",
+        help="scan, verify, decode and log commands; write no caps, enable nothing")  # fmt: skip
+    add("--emulate", choices=("auto", "none", "realtime", "lockstep"), default="auto",
+        help="in-process emulator: auto = realtime on virtual, none on socketcan")  # fmt: skip
+    add("--emulate-dt", type=positive("s"), default=None, metavar="S",
+        help="lockstep emulator: physics s per command round (default: --control-dt, else 0.02)")  # fmt: skip
+    add("--reply-timeout", type=positive("s"), default=None, metavar="S",
+        help=f"{HELP['--reply-timeout']} (default {DEFAULT_REPLY_TIMEOUT} socketcan, "
+             f"{VIRTUAL_REPLY_TIMEOUT} virtual)")  # fmt: skip
+    add("--can-timeout", type=can_timeout_arg, default=DEFAULT_CAN_TIMEOUT, metavar="S",
+        help="motor-side CAN watchdog canTimeout (0x7028), s: a motor that hears no frame for this long "
+             f"disables itself; 0 leaves the motors' setting (default {DEFAULT_CAN_TIMEOUT})")  # fmt: skip
+    add("--damping-kd", type=non_negative("N*m*s/rad"), default=1.0, metavar="KD",
+        help="Kd of the damping fail-safe, N*m*s/rad (default 1.0)")  # fmt: skip
+    add("--scan-to", type=int_range(1, 127), default=127, metavar="ID",
+        help=f"{HELP['--scan-to']}, before enabling (default 127)")  # fmt: skip
+    add("--activation-retries", type=int_range(0, 20), default=DEFAULT_RETRIES, metavar="N",
+        help="start-up: tries again after a missing reply this many times (backoff "
+             f"{DEFAULT_RETRY_BACKOFF * 1e3:g} ms, doubling) before refusing "
+             f"(default {DEFAULT_RETRIES})")  # fmt: skip
+
+
+def make_target(args: argparse.Namespace, mode: str) -> Target:
+    """Build the real target from parsed options (nothing is enabled before ``start()``)."""
+    try:
+        return _make_target(args, mode)
+    except (RobstrideError, ValueError, OSError, can.CanError) as exc:
+        raise TargetError(f"cannot build the real target: {exc}") from exc
+
+
+def _make_target(args: argparse.Namespace, mode: str) -> RealTarget:
+    robot = load_robot(mode)
+    interface = getattr(args, "can_interface", "socketcan")
+    interfaces = list(dict.fromkeys(j.can_interface for j in robot.joints))
+    channels = parse_channels(getattr(args, "channels", None), interfaces)
+    emulate = getattr(args, "emulate", "auto")
+    if emulate == "auto":
+        emulate = "realtime" if interface == "virtual" else "none"
+    calib_arg = getattr(args, "calibration", None)
+    if calib_arg is None and interface == "socketcan":
+        raise InitializationError("--calibration PATH is required on socketcan ('none' for zero offsets)")
+    calibration = Calibration.zeros(robot) if calib_arg in (None, "none") else Calibration.load(calib_arg)
+    timeout = getattr(args, "reply_timeout", None) or (
+        VIRTUAL_REPLY_TIMEOUT if interface == "virtual" else DEFAULT_REPLY_TIMEOUT
+    )
+    can_timeout = getattr(args, "can_timeout", DEFAULT_CAN_TIMEOUT)
+    control_dt = getattr(args, "control_dt", None)
+    if can_timeout and control_dt and can_timeout < 3 * control_dt:
+        raise InitializationError(
+            f"--can-timeout {can_timeout:g} s is shorter than 3 control periods (--control-dt "
+            f"{control_dt:g} s): one late tick would disable the motors; use a longer watchdog, or 0 to "
+            "leave the motors' own"
+        )
+    companions: list[object] = []
+    if emulate != "none":
+        from bar_policy.robstride.emulator import RobstrideEmulator
+
+        offsets = dict(zip(robot.joint_names, calibration.offsets(robot), strict=True))
+        emulator = RobstrideEmulator(
+            robot, channels, interface=interface, mode=emulate,
+            control_dt=getattr(args, "emulate_dt", None) or getattr(args, "control_dt", 0.02),
+            offsets=offsets,
+        )  # fmt: skip
+        companions.append(emulator.start())
+        log.info("started the %s Robstride emulator on %s", emulate, channels)
+    try:
+        buses = open_can_buses(interface, {i: channels[i] for i in interfaces})
+    except BaseException:
+        for c in companions:
+            c.close()  # type: ignore[attr-defined]
+        raise
+    group = RobstrideGroup.from_robot(
+        robot, buses, calibration=calibration, reply_timeout=timeout, can_timeout=can_timeout
+    )
+    return RealTarget(
+        robot,
+        group,
+        dry_run=getattr(args, "dry_run", False),
+        refresh_on_read=emulate != "lockstep",
+        damping_kd=getattr(args, "damping_kd", 1.0),
+        scan_ids=range(1, getattr(args, "scan_to", 127) + 1),
+        companions=companions,
+        stop_requested=installed_stop_request,
+        activation_retries=getattr(args, "activation_retries", DEFAULT_RETRIES),
+    )
+
+
+def installed_stop_request() -> bool:
+    """Whether the process's installed ``StopSignals`` (the SIGINT handler's owner) has a stop request.
+
+    ``bar-deploy`` installs its ``StopSignals`` before it builds the target, so ``make_target`` can check
+    it during ``start()`` without being handed it. False when no ``StopSignals`` handles SIGINT.
+    """
+    from bar_policy.signals import StopSignals
+
+    owner = getattr(signal.getsignal(signal.SIGINT), "__self__", None)
+    return isinstance(owner, StopSignals) and owner.requested
