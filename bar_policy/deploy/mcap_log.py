@@ -46,16 +46,28 @@ from __future__ import annotations
 
 import json
 import math
-import struct
-import zlib
-from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
-from pathlib import Path
+from collections.abc import Mapping
 from typing import IO, Any
 
 import numpy as np
 
 from bar_policy._files import strict_json
+from bar_policy.deploy.mcap_read import McapLog, read_mcap_log
+from bar_policy.deploy.mcap_schema import (  # noqa: F401 (COMMANDS_TOPIC: re-exported)
+    _SCHEMA_NAMES,
+    _TRANSITION_SCHEMA,
+    COMMANDS_TOPIC,
+    FIELD_ROUTES,
+    MCAP_FILE,
+    OPTIONAL_TICK_TOPICS,
+    TICK_TOPICS,
+    TRANSITION_TOPIC,
+    Fields,
+    _finite_or_none,
+    _routes,
+    _tick_schema,
+    _value,
+)
 
 __all__ = [
     "FIELD_ROUTES",
@@ -67,146 +79,6 @@ __all__ = [
     "McapRunWriter",
     "read_mcap_log",
 ]
-
-MCAP_FILE = "run.mcap"
-"""File name of the MCAP log inside a run directory."""
-
-TICK_TOPICS = ("/joint_state", "/mit_command", "/policy", "/commands", "/safety", "/timing")
-"""Topics with one message per control tick, in the order they are written."""
-OPTIONAL_TICK_TOPICS = ("/reference",)
-"""Per-tick topics written only when some field routes there (a tracking run's reference)."""
-TRANSITION_TOPIC = "/safety/transition"
-"""Topic of mode changes."""
-COMMANDS_TOPIC = "/commands"
-
-FIELD_ROUTES: dict[str, tuple[str, str]] = {
-    "q": ("/joint_state", "q"),
-    "dq": ("/joint_state", "dq"),
-    "tau": ("/joint_state", "tau"),
-    "q_cmd": ("/mit_command", "q"),
-    "dq_cmd": ("/mit_command", "dq"),
-    "kp": ("/mit_command", "kp"),
-    "kd": ("/mit_command", "kd"),
-    "tau_ff": ("/mit_command", "tau_ff"),
-    "tau_cmd": ("/mit_command", "tau_cmd"),
-    "obs": ("/policy", "obs"),
-    "action": ("/policy", "action"),
-    "mode": ("/safety", "mode"),
-    "n_clipped": ("/safety", "n_clipped"),
-    "n_action_clipped": ("/safety", "n_action_clipped"),
-    "wall": ("/timing", "wall"),
-    "compute": ("/timing", "compute"),
-    "infer": ("/timing", "infer"),
-    "jitter": ("/timing", "jitter"),
-    "overrun": ("/timing", "overrun"),
-    "ref_q": ("/reference", "q"),
-    "ref_frame": ("/reference", "frame"),
-}
-"""Per-tick field -> (topic, JSON key). ``t`` is in every message; other fields go to ``/commands``."""
-
-_SCHEMA_NAMES = {
-    "/joint_state": "bar_deploy.JointState",
-    "/mit_command": "bar_deploy.MitCommand",
-    "/policy": "bar_deploy.Policy",
-    "/commands": "bar_deploy.Commands",
-    "/safety": "bar_deploy.Safety",
-    "/timing": "bar_deploy.Timing",
-    "/reference": "bar_deploy.Reference",
-    TRANSITION_TOPIC: "bar_deploy.Transition",
-}
-_DESCRIPTIONS = {
-    "/joint_state": "Measured joint state, canonical joint order (rad, rad/s, N*m).",
-    "/mit_command": "MIT command written to the joints; tau_cmd is the host's capped MIT torque of it (N*m).",
-    "/policy": "Observation fed to the policy and its raw action (null where the policy did not run).",
-    "/commands": "Command terms fed to the observation (chest frame, m).",
-    "/safety": "Controller mode of the tick and clip counts.",
-    "/timing": "Loop timing of the tick (s).",
-    "/reference": "Motion reference the robot should be at this tick: joint positions (rad), clip frame.",
-    TRANSITION_TOPIC: "A controller mode change and its reason.",
-}
-
-Fields = Mapping[str, tuple[tuple[int, ...], Any]]
-
-
-def _json_type(dtype: Any) -> str | list[str]:
-    kind = np.dtype(dtype).kind
-    if kind == "b":
-        return "boolean"
-    if kind in "iu":
-        return "integer"
-    return ["number", "null"]
-
-
-def _property(shape: tuple[int, ...], dtype: Any) -> dict[str, Any]:
-    item: dict[str, Any] = {"type": _json_type(dtype)}
-    if not shape:
-        return item
-    if len(shape) != 1:
-        raise ValueError(f"MCAP log fields must be scalars or vectors, got shape {shape}")
-    return {"type": "array", "items": item, "minItems": shape[0], "maxItems": shape[0]}
-
-
-def _routes(fields: Fields) -> dict[str, list[tuple[str, str]]]:
-    """Topic -> [(JSON key, field)] for the per-tick fields (``t`` excluded: it is in every message).
-
-    Every ``TICK_TOPICS`` topic is present; an ``OPTIONAL_TICK_TOPICS`` topic only when a field routes there.
-    """
-    out: dict[str, list[tuple[str, str]]] = {topic: [] for topic in (*TICK_TOPICS, *OPTIONAL_TICK_TOPICS)}
-    for name in fields:
-        if name == "t":
-            continue
-        topic, key = FIELD_ROUTES.get(name, (COMMANDS_TOPIC, name))
-        out[topic].append((key, name))
-    return {topic: keys for topic, keys in out.items() if keys or topic in TICK_TOPICS}
-
-
-def _tick_schema(topic: str, keys: list[tuple[str, str]], fields: Fields, labels: Iterable[str]) -> dict:
-    props: dict[str, Any] = {
-        "tick": {"type": "integer", "description": "control tick"},
-        "t": {"type": ["number", "null"], "description": "target clock, s"},
-    }
-    for key, name in keys:
-        props[key] = _property(*fields[name])
-        if name in labels:
-            props[f"{key}_name"] = {"type": "string"}
-    return {
-        "$schema": "https://json-schema.org/draft/2020-12/schema",
-        "title": _SCHEMA_NAMES[topic],
-        "description": _DESCRIPTIONS[topic],
-        "type": "object",
-        "properties": props,
-        "required": ["tick", "t", *(k for k, _ in keys)],
-    }
-
-
-_TRANSITION_SCHEMA = {
-    "$schema": "https://json-schema.org/draft/2020-12/schema",
-    "title": _SCHEMA_NAMES[TRANSITION_TOPIC],
-    "description": _DESCRIPTIONS[TRANSITION_TOPIC],
-    "type": "object",
-    "properties": {
-        "t": {"type": "number", "description": "target clock, s"},
-        "tick": {"type": "integer"},
-        "from": {"type": "string"},
-        "to": {"type": "string"},
-        "reason": {"type": "string"},
-    },
-    "required": ["t", "tick", "from", "to", "reason"],
-}
-
-
-def _finite_or_none(x: float) -> float | None:
-    return x if math.isfinite(x) else None
-
-
-def _value(v: np.ndarray | np.generic) -> Any:
-    """A numpy scalar or vector as plain JSON values (non-finite -> None)."""
-    if np.ndim(v) == 0:
-        x = v.item()
-        return _finite_or_none(x) if isinstance(x, float) else x
-    if v.dtype.kind == "f" and not np.isfinite(v).all():
-        return [_finite_or_none(x) for x in v.tolist()]
-    return v.tolist()
 
 
 class McapRunWriter:
@@ -307,127 +179,3 @@ class McapRunWriter:
         """Write the ``bar_deploy.end`` metadata, the summary and the footer."""
         self._w.add_metadata("bar_deploy.end", {"json": strict_json(end_meta, sort_keys=True)})
         self._w.finish()
-
-
-# ---------------------------------------------------------------------------------------------------
-# Reading
-# ---------------------------------------------------------------------------------------------------
-@dataclass
-class McapLog:
-    """What ``read_mcap_log`` recovered."""
-
-    arrays: dict[str, np.ndarray]
-    """Per-tick arrays (first axis = tick), as ``load_log`` returns them."""
-    meta: dict[str, Any]
-    """Run metadata, updated with ``bar_deploy.end`` when the run closed."""
-    transitions: list[dict[str, Any]] = field(default_factory=list)
-    """Mode changes from ``/safety/transition``."""
-    complete: bool = False
-    """True when the run closed: the file has its footer and the ``bar_deploy.end`` record. False for a
-    truncated file, and for one that ``mcap_recover.recover_mcap`` rewrote (a footer, but no end record:
-    never closed)."""
-    error: str = ""
-    """Why reading stopped early (empty for a complete file)."""
-    publish_unix: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    """Wall clock when each tick started (the ``/timing`` messages' publish time), s since the epoch."""
-
-
-def _decode_column(values: list[Any], shape: tuple[int, ...], dtype: np.dtype) -> np.ndarray:
-    fill: Any = np.nan if dtype.kind == "f" else 0
-    out = np.full((len(values), *shape), fill, dtype=dtype)
-    for i, v in enumerate(values):
-        if v is None:
-            continue
-        if shape:
-            arr = np.array([np.nan if x is None else x for x in v], dtype=np.float64)
-            if arr.shape != shape:
-                continue
-            out[i] = arr
-        else:
-            out[i] = v
-    return out
-
-
-def read_mcap_log(path: str | Path) -> McapLog:
-    """Read a run's MCAP log, complete or truncated (no footer, a cut chunk: read up to the last good chunk).
-
-    Raises:
-        ValueError: the file is not an MCAP log written by ``McapRunWriter`` (bad magic, no field record).
-    """
-    from mcap.exceptions import EndOfFile, InvalidMagic, McapError
-    from mcap.records import Channel, Footer, Message, Metadata
-    from mcap.stream_reader import CRCValidationError, StreamReader
-
-    path = Path(path)
-    channels: dict[int, str] = {}
-    meta: dict[str, Any] = {}
-    end_meta: dict[str, Any] | None = None
-    spec: dict[str, Any] | None = None
-    all_topics = (*TICK_TOPICS, *OPTIONAL_TICK_TOPICS)
-    per_topic: dict[str, dict[int, dict[str, Any]]] = {topic: {} for topic in all_topics}
-    transitions: list[dict[str, Any]] = []
-    published: dict[int, int] = {}
-    complete = False
-    error = ""
-    with path.open("rb") as f:
-        reader = StreamReader(f, validate_crcs=True)
-        try:
-            for rec in reader.records:
-                if isinstance(rec, Channel):
-                    channels[rec.id] = rec.topic
-                elif isinstance(rec, Message):
-                    topic = channels.get(rec.channel_id)
-                    if topic is None:
-                        continue
-                    msg = json.loads(rec.data)
-                    if topic == TRANSITION_TOPIC:
-                        transitions.append(msg)
-                    elif topic in per_topic:
-                        per_topic[topic][int(msg["tick"])] = msg
-                        if topic == "/timing":
-                            published[int(msg["tick"])] = rec.publish_time
-                elif isinstance(rec, Metadata):
-                    body = json.loads(rec.metadata.get("json", "{}"))
-                    if rec.name == "bar_deploy.run":
-                        meta = body
-                    elif rec.name == "bar_deploy.fields":
-                        spec = body
-                    elif rec.name == "bar_deploy.end":
-                        end_meta = body
-                elif isinstance(rec, Footer):
-                    complete = end_meta is not None  # a recovered file has a footer but no end record
-        except InvalidMagic as e:
-            if not channels and spec is None:
-                raise ValueError(f"{path} is not an MCAP file: {e}") from None
-            complete = False  # the end magic is missing
-        except (EndOfFile, McapError, CRCValidationError, struct.error, zlib.error, ValueError) as e:
-            error = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__
-        except Exception as e:  # a chunk cut by a crash fails inside the decompressor with its own type
-            error = f"{type(e).__name__}: {e}"
-    if spec is None:
-        raise ValueError(
-            f"{path} is not a bar-deploy MCAP log (no bar_deploy.fields record; {error or 'ok'})"
-        )
-    fields = {k: (tuple(shape), np.dtype(dt)) for k, (shape, dt) in spec.items()}
-    routes = _routes(fields)
-    ticks = sorted(set().union(*(set(m) for m in per_topic.values())))
-    arrays: dict[str, np.ndarray] = {}
-    any_topic = {k: next((per_topic[tp][k] for tp in all_topics if k in per_topic[tp]), {}) for k in ticks}
-    if "t" in fields:
-        arrays["t"] = _decode_column([any_topic[k].get("t") for k in ticks], *fields["t"])
-    for topic in routes:
-        msgs = per_topic[topic]
-        for key, name in routes[topic]:
-            values = [msgs[k].get(key) if k in msgs else None for k in ticks]
-            arrays[name] = _decode_column(values, *fields[name])
-    if end_meta is not None:
-        meta = meta | end_meta
-    publish = np.array([published.get(k, 0) / 1e9 if k in published else np.nan for k in ticks])
-    return McapLog(
-        arrays=arrays,
-        meta=meta,
-        transitions=transitions,
-        complete=complete,
-        error=error,
-        publish_unix=publish,
-    )
