@@ -25,23 +25,38 @@ params (``bar_policy.training.best``): ``BraxTrainResult.best``.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
 import jax
 import numpy as np
-from jax.sharding import PartitionSpec as P
 
-from bar_policy.obs.action_prior import ActionPrior
-from bar_policy.training.best import BestIterate, BestKeeper
+from bar_policy.training.best import BestKeeper
+from bar_policy.training.brax_programs import (
+    _K_EPOCH,
+    _K_EVAL,
+    _K_EVAL_MODEL,
+    _K_INIT,
+    _K_MODEL,
+    _K_RESET,
+    _LINES_PER_EVAL,
+    Programs,
+    _host_params,
+    _policy_params,
+    action_prior,
+    epoch_iterations,
+    host_key,
+    make_programs,
+    slot_env,
+    slot_keys,
+)
+from bar_policy.training.brax_result import BraxTrainResult
 from bar_policy.training.checkpoint import load_checkpoint, save_checkpoint
-from bar_policy.training.config import NetworkConfig, TrainConfig
-from bar_policy.training.learner import Learner, TrainingState, make_learner, make_networks, strip_weak_type
-from bar_policy.training.parallel import AXIS, DataParallel, barrier, make_data_parallel
+from bar_policy.training.config import TrainConfig
+from bar_policy.training.learner import TrainingState, make_learner, make_networks
+from bar_policy.training.parallel import barrier, make_data_parallel
 from bar_policy.training.progress import RunLogger, next_would_overrun
 from bar_policy.training.startup import Compiler, CompileStats, StartupTimer
 
@@ -58,204 +73,6 @@ __all__ = [
     "slot_keys",
     "train_brax",
 ]
-
-_LINES_PER_EVAL = 2
-"""Progress lines (training epochs) per evaluation period."""
-
-
-def host_key(seed: int, *path: int) -> np.ndarray:
-    """A raw threefry key (uint32[2]) derived on the host from ``seed`` and a path of ints (no device op)."""
-    return np.random.default_rng([seed, *path]).integers(0, 2**32, 2, dtype=np.uint32)
-
-
-_K_INIT, _K_MODEL, _K_RESET, _K_EPOCH, _K_EVAL, _K_EVAL_MODEL = range(6)
-
-
-@dataclass(frozen=True, kw_only=True)
-class BraxTrainResult:
-    """Outcome of ``train_brax``."""
-
-    params: tuple[Any, Any, Any]
-    """``(normalizer, policy, value)`` params on the host (brax's layout)."""
-    make_policy: Callable[..., Any]
-    """brax's ``make_inference_fn(networks)``: ``make_policy(params, deterministic) -> policy(obs, key)``."""
-    env_steps: int
-    """Total env steps trained (including those before a resume)."""
-    run_env_steps: int
-    """Env steps trained in this process's run (excluding those before a resume)."""
-    train_seconds: float
-    """Wall time of the training loop in this run, s (compile and evaluations included)."""
-    evals: list[dict[str, float]] = field(default_factory=list)
-    """Evaluation records (``step``, ``time_s``, ``success_rate``, ``episode_reward``, ...)."""
-    time_to_threshold_s: float | None = None
-    """Seconds from logger start to the first evaluation at or above the success threshold."""
-    evaluator: Callable[[Any, int], dict[str, float]] | None = None
-    """``evaluator(host_params, seed)``: the run's compiled evaluation (``num_eval_envs`` episodes)."""
-    num_eval_envs: int = 0
-    """Episodes per ``evaluator`` call."""
-    activation: str = "swish"
-    """Hidden activation of the networks (for export)."""
-    best: BestIterate | None = None
-    """The best evaluated iterate of this run (``bar_policy.training.best``); None when nothing was
-    evaluated after training started."""
-    prior: ActionPrior | None = None
-    """The policy's action prior (``NetworkConfig.action_prior``; for export), None without one."""
-
-    def at(self, params: tuple[Any, Any, Any]) -> BraxTrainResult:
-        """The same result with other parameters (e.g. ``best.params``), to evaluate or export them."""
-        return dataclasses.replace(self, params=params)
-
-    def final_evaluation(self, episodes: int, seed: int) -> dict[str, float]:
-        """Evaluate on ``episodes`` fresh episodes (rounded up to whole evaluator batches).
-
-        Reuses the compiled evaluator, so no new compile; rates are averaged over equal-size batches. Under
-        ``jax.distributed`` every process must call it (the evaluation is one program over all devices).
-        """
-        if self.evaluator is None:
-            raise ValueError("this result has no evaluator")
-        rounds = max(1, math.ceil(episodes / self.num_eval_envs))
-        runs = [self.evaluator(self.params, seed + i) for i in range(rounds)]
-        out = {k: float(np.mean([r[k] for r in runs])) for k in runs[0]}
-        out["episodes"] = float(rounds * self.num_eval_envs)
-        return out
-
-    def export_onnx(self, metadata: Any, path: str | Any) -> dict[str, Any]:
-        """Export the deterministic policy with the parity gate (``bar_policy.export.export_brax_policy``)."""
-        from bar_policy.export import export_brax_policy
-
-        return export_brax_policy(
-            self.params, self.make_policy, metadata, path, activation=self.activation, prior=self.prior
-        )
-
-
-def action_prior(env: Any, net: NetworkConfig) -> ActionPrior | None:
-    """The env's action prior that ``net.action_prior`` asks for (``LiteRobotEnv.action_prior``), or None."""
-    if net.action_prior == "none":
-        return None
-    return env.action_prior(net.prior_lead_steps)
-
-
-def epoch_iterations(cfg: TrainConfig) -> int:
-    """Training iterations per compiled epoch (one progress line).
-
-    ``log_every_iterations``, or when it is 0 about ``_LINES_PER_EVAL`` lines per evaluation period.
-    """
-    total_iters = math.ceil(cfg.ppo.num_timesteps / cfg.ppo.steps_per_iteration)
-    periods = max((cfg.eval.num_evals - 1) * _LINES_PER_EVAL, 1)
-    return cfg.log_every_iterations or max(1, math.ceil(total_iters / periods))
-
-
-def slot_keys(key: jax.Array, total: int, local: int) -> jax.Array:
-    """This device's keys among ``split(key, total)``: slot ``i`` gets key ``i`` on any device count.
-
-    Per-device code (inside ``DataParallel.map``); ``local = total / n_devices``. Shape ``(local, 2)``.
-    """
-    keys = jax.random.split(key, total)
-    return jax.lax.dynamic_slice_in_dim(keys, jax.lax.axis_index(AXIS) * local, local)
-
-
-def slot_env(
-    env: Any,
-    wrap_fn: Callable[..., Any],
-    randomizer: Callable[..., Any] | None,
-    model_keys: jax.Array,
-    **kw: Any,
-) -> Any:
-    """The batched env of this device's slots, each on the model its key draws (per-device code).
-
-    The randomised model is built inside the program from the slots' keys (a traced value, sharded with
-    the slots), not closed over as a constant; ``kw`` goes to ``wrap_fn`` (e.g. ``auto_reset=False``).
-    """
-    rfn = None
-    if randomizer is not None:
-
-        def rfn(model: Any) -> Any:
-            return randomizer(model, rng=model_keys)
-
-    return wrap_fn(env, episode_length=int(env.episode_length), action_repeat=1, randomization_fn=rfn, **kw)
-
-
-@dataclass(frozen=True)
-class Programs:
-    """The four jitted data-parallel programs of a run (before compilation; see the module docstring)."""
-
-    init: Callable[..., Any]
-    reset: Callable[..., Any]
-    epoch: Callable[..., Any]
-    evaluate: Callable[..., Any]
-
-
-def make_programs(
-    env: Any,
-    cfg: TrainConfig,
-    learner: Learner,
-    dp: DataParallel,
-    wrap_fn: Callable[..., Any],
-    randomizer: Callable[..., Any] | None,
-    iters_per_epoch: int,
-    eval_env: Any | None = None,
-    eval_randomizer: Callable[..., Any] | None = None,
-) -> Programs:
-    """The run's ``init``, ``reset``, ``epoch`` and ``evaluate`` programs on the mesh of ``dp``.
-
-    ``eval_env``: the env the evaluation runs (the task's held-out variant) with ``eval_randomizer``;
-    None: ``env`` with ``randomizer``.
-    """
-    ppo = cfg.ppo
-    n = dp.n_devices
-    envs_local, eval_local = ppo.num_envs // n, cfg.eval.num_eval_envs // n
-    unrolls = ppo.batch_size * ppo.num_minibatches // ppo.num_envs
-    episode_length = int(env.episode_length)
-
-    def batch(model_keys: jax.Array, **kw: Any) -> Any:
-        return slot_env(env, wrap_fn, randomizer, model_keys, **kw)
-
-    def reset(key: jax.Array, model_key: jax.Array) -> tuple[Any, jax.Array]:
-        model_keys = slot_keys(model_key, ppo.num_envs, envs_local)
-        return batch(model_keys).reset(slot_keys(key, ppo.num_envs, envs_local)), model_keys
-
-    def epoch(ts: TrainingState, envs: tuple[Any, jax.Array], key: jax.Array) -> tuple:
-        env_state, model_keys = envs
-        env_b = batch(model_keys)
-        key = jax.random.fold_in(key, jax.lax.axis_index(AXIS))
-
-        def body(c: tuple, _: None) -> tuple:
-            ts, s, k = c
-            k, k_it = jax.random.split(k)
-            ts, s, metrics, stats = learner.iteration(ts, s, k_it, env_b, unrolls)
-            return (ts, s, k), (metrics, stats)
-
-        (ts, env_state, _), (metrics, stats) = jax.lax.scan(
-            body, (ts, env_state, key), None, length=iters_per_epoch
-        )
-        metrics = jax.lax.pmean(jax.tree.map(lambda x: x.mean(), metrics), axis_name=AXIS)
-        stats = jax.lax.psum(stats.sum(axis=0), axis_name=AXIS)
-        return strip_weak_type(ts), (env_state, model_keys), metrics, stats
-
-    def evaluate(params: Any, key: jax.Array, model_key: jax.Array) -> dict[str, jax.Array]:
-        keys = slot_keys(model_key, cfg.eval.num_eval_envs, eval_local)
-        e_env, e_rand = (env, randomizer) if eval_env is None else (eval_env, eval_randomizer)
-        env_e = slot_env(e_env, wrap_fn, e_rand, keys, auto_reset=False)
-        state = env_e.reset(slot_keys(key, cfg.eval.num_eval_envs, eval_local))
-        return learner.evaluate(params, env_e, state, key, episode_length)
-
-    rep, shard = P(), P(AXIS)
-    return Programs(
-        init=dp.map(learner.init, (rep,), rep),
-        reset=dp.map(reset, (rep, rep), shard),
-        epoch=dp.map(epoch, (rep, shard, rep), (rep, shard, rep, rep), donate_argnums=(0, 1)),
-        evaluate=dp.map(evaluate, (rep, rep, rep), rep),
-    )
-
-
-def _host_params(host: TrainingState) -> tuple[Any, Any, Any]:
-    """``(normalizer, policy, value)`` of a host copy of the training state (brax's layout)."""
-    return (host.normalizer_params, host.params.policy, host.params.value)
-
-
-def _policy_params(ts: TrainingState) -> tuple[Any, Any]:
-    """What the deterministic policy reads: ``(normalizer, policy)``."""
-    return (ts.normalizer_params, ts.params.policy)
 
 
 def train_brax(

@@ -1,0 +1,173 @@
+"""The data-parallel programs of ``train_brax`` and their pure helpers (``training.brax_ppo``).
+
+``make_programs`` builds the ``init`` / ``reset`` / ``epoch`` / ``evaluate`` programs (``training.brax_ppo``
+documents each); ``slot_keys`` / ``slot_env`` give every env slot its own key and randomised model whatever
+the device count; ``host_key`` derives keys on the host; ``epoch_iterations`` sizes an epoch.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import jax
+import numpy as np
+from jax.sharding import PartitionSpec as P
+
+from bar_policy.obs.action_prior import ActionPrior
+from bar_policy.training.config import NetworkConfig, TrainConfig
+from bar_policy.training.learner import Learner, TrainingState, strip_weak_type
+from bar_policy.training.parallel import AXIS, DataParallel
+
+__all__ = [
+    "Programs",
+    "action_prior",
+    "epoch_iterations",
+    "host_key",
+    "make_programs",
+    "slot_env",
+    "slot_keys",
+]
+
+_LINES_PER_EVAL = 2
+"""Progress lines (training epochs) per evaluation period."""
+
+
+def host_key(seed: int, *path: int) -> np.ndarray:
+    """A raw threefry key (uint32[2]) derived on the host from ``seed`` and a path of ints (no device op)."""
+    return np.random.default_rng([seed, *path]).integers(0, 2**32, 2, dtype=np.uint32)
+
+
+_K_INIT, _K_MODEL, _K_RESET, _K_EPOCH, _K_EVAL, _K_EVAL_MODEL = range(6)
+
+
+def action_prior(env: Any, net: NetworkConfig) -> ActionPrior | None:
+    """The env's action prior that ``net.action_prior`` asks for (``LiteRobotEnv.action_prior``), or None."""
+    if net.action_prior == "none":
+        return None
+    return env.action_prior(net.prior_lead_steps)
+
+
+def epoch_iterations(cfg: TrainConfig) -> int:
+    """Training iterations per compiled epoch (one progress line).
+
+    ``log_every_iterations``, or when it is 0 about ``_LINES_PER_EVAL`` lines per evaluation period.
+    """
+    total_iters = math.ceil(cfg.ppo.num_timesteps / cfg.ppo.steps_per_iteration)
+    periods = max((cfg.eval.num_evals - 1) * _LINES_PER_EVAL, 1)
+    return cfg.log_every_iterations or max(1, math.ceil(total_iters / periods))
+
+
+def slot_keys(key: jax.Array, total: int, local: int) -> jax.Array:
+    """This device's keys among ``split(key, total)``: slot ``i`` gets key ``i`` on any device count.
+
+    Per-device code (inside ``DataParallel.map``); ``local = total / n_devices``. Shape ``(local, 2)``.
+    """
+    keys = jax.random.split(key, total)
+    return jax.lax.dynamic_slice_in_dim(keys, jax.lax.axis_index(AXIS) * local, local)
+
+
+def slot_env(
+    env: Any,
+    wrap_fn: Callable[..., Any],
+    randomizer: Callable[..., Any] | None,
+    model_keys: jax.Array,
+    **kw: Any,
+) -> Any:
+    """The batched env of this device's slots, each on the model its key draws (per-device code).
+
+    The randomised model is built inside the program from the slots' keys (a traced value, sharded with
+    the slots), not closed over as a constant; ``kw`` goes to ``wrap_fn`` (e.g. ``auto_reset=False``).
+    """
+    rfn = None
+    if randomizer is not None:
+
+        def rfn(model: Any) -> Any:
+            return randomizer(model, rng=model_keys)
+
+    return wrap_fn(env, episode_length=int(env.episode_length), action_repeat=1, randomization_fn=rfn, **kw)
+
+
+@dataclass(frozen=True)
+class Programs:
+    """The four jitted data-parallel programs of a run (before compilation; see the module docstring)."""
+
+    init: Callable[..., Any]
+    reset: Callable[..., Any]
+    epoch: Callable[..., Any]
+    evaluate: Callable[..., Any]
+
+
+def make_programs(
+    env: Any,
+    cfg: TrainConfig,
+    learner: Learner,
+    dp: DataParallel,
+    wrap_fn: Callable[..., Any],
+    randomizer: Callable[..., Any] | None,
+    iters_per_epoch: int,
+    eval_env: Any | None = None,
+    eval_randomizer: Callable[..., Any] | None = None,
+) -> Programs:
+    """The run's ``init``, ``reset``, ``epoch`` and ``evaluate`` programs on the mesh of ``dp``.
+
+    ``eval_env``: the env the evaluation runs (the task's held-out variant) with ``eval_randomizer``;
+    None: ``env`` with ``randomizer``.
+    """
+    ppo = cfg.ppo
+    n = dp.n_devices
+    envs_local, eval_local = ppo.num_envs // n, cfg.eval.num_eval_envs // n
+    unrolls = ppo.batch_size * ppo.num_minibatches // ppo.num_envs
+    episode_length = int(env.episode_length)
+
+    def batch(model_keys: jax.Array, **kw: Any) -> Any:
+        return slot_env(env, wrap_fn, randomizer, model_keys, **kw)
+
+    def reset(key: jax.Array, model_key: jax.Array) -> tuple[Any, jax.Array]:
+        model_keys = slot_keys(model_key, ppo.num_envs, envs_local)
+        return batch(model_keys).reset(slot_keys(key, ppo.num_envs, envs_local)), model_keys
+
+    def epoch(ts: TrainingState, envs: tuple[Any, jax.Array], key: jax.Array) -> tuple:
+        env_state, model_keys = envs
+        env_b = batch(model_keys)
+        key = jax.random.fold_in(key, jax.lax.axis_index(AXIS))
+
+        def body(c: tuple, _: None) -> tuple:
+            ts, s, k = c
+            k, k_it = jax.random.split(k)
+            ts, s, metrics, stats = learner.iteration(ts, s, k_it, env_b, unrolls)
+            return (ts, s, k), (metrics, stats)
+
+        (ts, env_state, _), (metrics, stats) = jax.lax.scan(
+            body, (ts, env_state, key), None, length=iters_per_epoch
+        )
+        metrics = jax.lax.pmean(jax.tree.map(lambda x: x.mean(), metrics), axis_name=AXIS)
+        stats = jax.lax.psum(stats.sum(axis=0), axis_name=AXIS)
+        return strip_weak_type(ts), (env_state, model_keys), metrics, stats
+
+    def evaluate(params: Any, key: jax.Array, model_key: jax.Array) -> dict[str, jax.Array]:
+        keys = slot_keys(model_key, cfg.eval.num_eval_envs, eval_local)
+        e_env, e_rand = (env, randomizer) if eval_env is None else (eval_env, eval_randomizer)
+        env_e = slot_env(e_env, wrap_fn, e_rand, keys, auto_reset=False)
+        state = env_e.reset(slot_keys(key, cfg.eval.num_eval_envs, eval_local))
+        return learner.evaluate(params, env_e, state, key, episode_length)
+
+    rep, shard = P(), P(AXIS)
+    return Programs(
+        init=dp.map(learner.init, (rep,), rep),
+        reset=dp.map(reset, (rep, rep), shard),
+        epoch=dp.map(epoch, (rep, shard, rep), (rep, shard, rep, rep), donate_argnums=(0, 1)),
+        evaluate=dp.map(evaluate, (rep, rep, rep), rep),
+    )
+
+
+def _host_params(host: TrainingState) -> tuple[Any, Any, Any]:
+    """``(normalizer, policy, value)`` of a host copy of the training state (brax's layout)."""
+    return (host.normalizer_params, host.params.policy, host.params.value)
+
+
+def _policy_params(ts: TrainingState) -> tuple[Any, Any]:
+    """What the deterministic policy reads: ``(normalizer, policy)``."""
+    return (ts.normalizer_params, ts.params.policy)
