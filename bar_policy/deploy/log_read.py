@@ -14,7 +14,8 @@ import numpy as np
 
 from bar_policy._files import loads_json, shorten
 from bar_policy.deploy.log_files import NOT_CLOSED, LogReadError, _concat_chunks
-from bar_policy.deploy.mcap_log import MCAP_FILE, read_mcap_log
+from bar_policy.deploy.mcap_read import read_mcap_log
+from bar_policy.deploy.mcap_schema import MCAP_FILE
 
 __all__ = ["load_log"]
 
