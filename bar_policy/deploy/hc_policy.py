@@ -7,8 +7,8 @@ explicitly:
 - the observation schema, from ``observation_names`` with HC's built-in meaning (``joint_pos = (q -
   default) * 1``, ``joint_vel`` raw, ``actions`` = the previous action, every scale 1, no clip), whatever
   the ``task_type``; every term must be one the runtime can feed (``supported_terms``);
-- the deploy task, from the terms (``deploy.tasks.implied_task``): reach when it reads reach targets or
-  fingertips, ``state`` when it reads the robot state only. HC's ``task_type`` is a free label.
+- the deploy task, from the terms (``deploy.task_registry.implied_task``): reach when it reads reach
+  targets or fingertips, ``state`` when it reads the robot state only. HC's ``task_type`` is a free label.
 
 Reference-tracking terms (``motion_*``) are not fed to HC-only files: HC's anchor frame and lookahead
 convention for them are not verified against ours (``docs/tracking.md``); export trackers with bar_policy.
@@ -24,7 +24,7 @@ from pathlib import Path
 from bar_policy.deploy.contract import diff_joints, refuse
 from bar_policy.deploy.inputs import RUNTIME_INPUTS
 from bar_policy.deploy.metadata import PolicyMetadata
-from bar_policy.deploy.tasks import HC_TASKS, TASK_COMMAND_TERMS
+from bar_policy.deploy.task_registry import HC_TASKS, TASK_COMMAND_TERMS
 from bar_policy.obs.manager import ObservationSchema, ObsTerm
 from bar_policy.obs.terms import TERM_CATALOG
 from bar_policy.robot.constants import MODES, RobotSpec, load_robot

@@ -104,7 +104,7 @@ def deploy_task(meta: PolicyMetadata) -> str:
     """The deploy task of a (completed) policy's metadata: ``bar.task``, or an HC-only file's implied one."""
     if meta.dialect == "bar":
         return meta.task
-    from bar_policy.deploy.tasks import implied_task
+    from bar_policy.deploy.task_registry import implied_task
 
     return implied_task([t.name for t in ObservationSchema.from_json(meta.obs_schema).terms])
 

@@ -36,7 +36,7 @@ from bar_policy.deploy.run_config import RuntimeConfig
 from bar_policy.deploy.runtime import Runtime
 from bar_policy.deploy.safety import SafetyConfig
 from bar_policy.deploy.tasks.base import EvalReport
-from bar_policy.deploy.tasks.track import load_motion, reference_for
+from bar_policy.deploy.tasks.track_reference import load_motion, reference_for
 from bar_policy.motion.clip import Clip
 from bar_policy.motion.families import FAMILIES, family_of
 from bar_policy.motion.library import CLIP_SETS, clip_set, clip_set_id
