@@ -162,8 +162,7 @@ class LiteReach(LiteRobotEnv):
     def task_reset(self, model: mjx.Model, key: jax.Array) -> tuple[dict, jax.Array, jax.Array]:
         """New targets; start at the default pose at rest."""
         tl, tr = sample_targets(jax.random.uniform(key, (6,)), self.config.target)
-        info = {"target_left": tl, "target_right": tr, "act_prev": self.initial_action(self._default)}
-        return info, self._default, jnp.zeros(self.action_size)
+        return {"target_left": tl, "target_right": tr}, self._default, jnp.zeros(self.action_size)
 
     def task_step(self, tr: Transition) -> TaskStep:
         """Distance rewards on the true fingertips, success, and target resampling at segment ends."""
@@ -197,7 +196,6 @@ class LiteReach(LiteRobotEnv):
         task_info = {
             "target_left": jnp.where(seg_end, new_l, info["target_left"]),
             "target_right": jnp.where(seg_end, new_r, info["target_right"]),
-            "act_prev": info["last_act"],
         }
         return TaskStep(terms=terms, info=task_info, metrics=metrics)
 

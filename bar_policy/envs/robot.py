@@ -282,11 +282,13 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         kp = self._kp * jax.random.uniform(ks[3], (n,), minval=act.kp_scale[0], maxval=act.kp_scale[1])
         kd = self._kd * jax.random.uniform(ks[4], (n,), minval=act.kd_scale[0], maxval=act.kd_scale[1])
         off = jax.random.uniform(ks[5], (n,), minval=-act.encoder_offset, maxval=act.encoder_offset)
+        a_init = self.initial_action(q_init)
         info = {
             "rng": ks[6],
             "step": jnp.zeros((), jnp.int32),
             **task_info,
-            "last_act": self.initial_action(q_init),
+            "last_act": a_init,
+            "act_prev": a_init,  # a_{t-2} of the first step (``action_accel``): the filter's start state
             "act_buf": jnp.zeros((lat_hi + 1, n)),
             "latency": latency,
             "kp": kp,
@@ -334,7 +336,15 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         scales = cfg.reward.scales  # type: ignore[attr-defined]
         scaled = {k: jnp.where(finite, v * getattr(scales, k), 0.0) for k, v in task.terms.items()}
         reward = sum(scaled.values())
-        new_info = {**info, "rng": rng, "step": step, **task.info, "last_act": action, "act_buf": buf}
+        new_info = {
+            **info,
+            "rng": rng,
+            "step": step,
+            **task.info,
+            "act_prev": info["last_act"],
+            "last_act": action,
+            "act_buf": buf,
+        }
         obs = self._observe(model, data, new_info, action, k_noise)
         metrics = {f"reward/{k}": v for k, v in scaled.items()}
         metrics.update(task.metrics)

@@ -32,7 +32,8 @@ class Transition:
     data: mjx.Data
     """The state after the step; its kinematics (xpos, site_xpos) are the last substep's, 2 ms old."""
     info: dict
-    """``State.info`` before the step (the robot's keys included: ``last_act``, ``step``, ...)."""
+    """``State.info`` before the step (the robot's keys included: ``last_act``, ``act_prev`` = the action
+    before it, ``step``, ...)."""
     action: jax.Array
     """The clipped action of this step, shape (n,)."""
     tau_sq: jax.Array

@@ -180,7 +180,6 @@ class LiteTrack(LiteRobotEnv):
             "clip": clip,
             "frame": frame,
             "last_frame": start + self._clip_length[clip] - 1,
-            "act_prev": self.initial_action(q0),  # a_{t-2} of the first step: the filter's start state
         }
         return info, q0, self._ref_dq[frame]
 
@@ -236,7 +235,6 @@ class LiteTrack(LiteRobotEnv):
             "clip": info["clip"],
             "frame": frame,
             "last_frame": info["last_frame"],
-            "act_prev": info["last_act"],
         }
         return TaskStep(terms=terms, info=task_info, metrics=metrics, terminate=lost)
 
