@@ -69,9 +69,10 @@ BAR_KEYS = (
 )  # fmt: skip
 """Keys every ``bar`` file carries (``from_props`` refuses a file that lacks one)."""
 
-OPTIONAL_BAR_KEYS = ("bar.action_filter", "bar.provenance")
+OPTIONAL_BAR_KEYS = ("bar.action_filter", "bar.command_transition", "bar.provenance")
 """``bar.*`` keys a file may lack (older files): read when present, never required. ``bar.action_filter``
-is validated when present; ``bar.provenance`` informs only and is never checked."""
+and ``bar.command_transition`` are validated when present; ``bar.provenance`` informs only and is never
+checked."""
 
 DIALECTS = ("bar", "hc")
 """Metadata dialects: ``bar`` (``bar.*`` keys plus the HC keys, checked to agree), ``hc`` (HC keys only)."""
@@ -145,6 +146,9 @@ class PolicyMetadata:
     action_filter_hz: float | None = None
     """Cutoff of the first-order low-pass between the policy's output and the command, Hz
     (``bar_policy.robot.action_filter``; optional key ``bar.action_filter``); None: no filter."""
+    command_transition_s: float = 0.0
+    """Duration of the minimum-jerk move of the commanded target to each new command, s
+    (``bar_policy.tasks.reach.transition_point``; optional key ``bar.command_transition``); 0: a step."""
     provenance: Mapping[str, Any] = field(default_factory=dict)
     """``bar.provenance``: git commit and dirty flag, library versions, training command
     (``bar_policy.provenance.collect``); empty when the file has none."""
@@ -185,6 +189,9 @@ class PolicyMetadata:
                 f"action filter cutoff must be a number of Hz in (0, {0.5 / self.policy_dt:g}) (below "
                 f"Nyquist), got {shorten(repr(f))}"
             )
+        c = self.command_transition_s
+        if isinstance(c, bool) or not (isinstance(c, int | float) and math.isfinite(c) and c >= 0):
+            raise MetadataError(f"command transition must be a number of s >= 0, got {shorten(repr(c))}")
         if any("," in n for n in self.body_names) or "," in self.dataset_repo_id:
             raise MetadataError("body_names and dataset_repo_id must not contain commas (HC's CSV form)")
 
@@ -217,6 +224,8 @@ class PolicyMetadata:
             "bar.training": dict(self.training),
             **({"bar.action_filter": {"cutoff_hz": self.action_filter_hz}} if self.action_filter_hz else {}),
         }
+        if self.command_transition_s > 0:
+            bar["bar.command_transition"] = {"duration_s": self.command_transition_s, "profile": "min_jerk"}
         if self.provenance:
             bar["bar.provenance"] = dict(self.provenance)
         props = {k: json.dumps(v, sort_keys=True) for k, v in bar.items()}
@@ -328,6 +337,7 @@ class PolicyMetadata:
             lookahead_steps=_int_prop(props, "lookahead_steps"),
             dataset_repo_id=props["dataset_repo_id"],
             action_filter_hz=_action_filter(props),
+            command_transition_s=_command_transition(props),
             provenance=_provenance(props.get("bar.provenance")),
         )
 
@@ -496,3 +506,23 @@ def _int_prop(props: Mapping[str, str], key: str) -> int:
         raise MetadataError(
             f"metadata key {key!r} must be a non-negative integer, got {shorten(repr(props[key]))}"
         ) from None
+
+
+def _command_transition(props: Mapping[str, str]) -> float:
+    """Optional key ``bar.command_transition``: ``{"duration_s": s, "profile": "min_jerk"}``; absent: 0."""
+    text = props.get("bar.command_transition")
+    if text is None:
+        return 0.0
+    v = loads_json(text, "metadata key 'bar.command_transition'", MetadataError)
+    if (
+        not isinstance(v, dict)
+        or set(v) != {"duration_s", "profile"}
+        or v["profile"] != "min_jerk"
+        or isinstance(v["duration_s"], bool)
+        or not isinstance(v["duration_s"], int | float)
+    ):
+        raise MetadataError(
+            'metadata key \'bar.command_transition\' must be {"duration_s": <s>, "profile": "min_jerk"} '
+            f"(the only profile), got {shorten(repr(text))}"
+        )
+    return float(v["duration_s"])

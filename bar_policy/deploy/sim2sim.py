@@ -9,7 +9,9 @@ The protocol mirrors the LiteReach env's (``bar_policy.envs.reach``; defaults of
   (``piano_ready``) plus U(-init_noise, init_noise) per joint (clipped to the limits; 0 by default, as the
   env's nominal evaluation config), at rest;
 - the targets come from ``SampledCommands(seed + e)`` (``tasks.reach.sample_targets``, the training
-  distribution) and are resampled every ``resample_period`` = 2.5 s: two target segments per episode;
+  distribution) and are resampled every ``resample_period`` = 2.5 s: two target segments per episode; a
+  file trained with a command transition sees each new target arrive along the env's minimum-jerk path
+  (``deploy.command_transition``), starting at the default pose's fingertips;
 - success is scored at the last control tick of every target segment (after that tick's physics): both
   fingertips within ``SUCCESS_RADIUS`` (3 cm) of the segment's targets, as the env's
   ``success_end / segment_end`` metric; a segment ending after a fault fails. The success rate is
@@ -31,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from bar_policy.deploy.command_transition import with_transition
 from bar_policy.deploy.commands import SampledCommands
 from bar_policy.deploy.policy import OnnxPolicy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
@@ -179,6 +182,8 @@ def evaluate(
     kin = Kinematics(mode)
     names = policy.obs_manager.command_names
     q0 = policy.robot.pose(cfg.initial_pose)
+    tips0 = kin.fingertips(np.asarray(policy.default_joint_pos))
+    initial = {"target_pos_left": tips0[0], "target_pos_right": tips0[1]}
     rt_cfg = RuntimeConfig(
         control_dt=policy.policy_dt,
         duration=cfg.episode_length,
@@ -196,7 +201,9 @@ def evaluate(
         rng = np.random.default_rng(seed)
         q = q0 + rng.uniform(-cfg.init_noise, cfg.init_noise, q0.shape) if cfg.init_noise > 0 else q0
         sim.reset(np.clip(q, robot.lower, robot.upper))
-        commands = SampledCommands(names, seed=seed, period=seg_ticks * policy.policy_dt)
+        commands = with_transition(
+            SampledCommands(names, seed=seed, period=seg_ticks * policy.policy_dt), policy, initial
+        )
         dists: list[tuple[float, float]] = []
 
         def score(k: int, t: float, rt: Runtime, dists: list[tuple[float, float]] = dists) -> None:

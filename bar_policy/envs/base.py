@@ -116,8 +116,9 @@ class MjxEnv(abc.ABC):
     def task_metadata(self) -> dict[str, Any]:
         """Humanoid Control task keys for the policy file.
 
-        ``body_names`` (tuple of str), ``lookahead_steps`` (int) and ``dataset_repo_id`` (str); empty for
-        tasks without references.
+        ``body_names`` (tuple of str), ``lookahead_steps`` (int) and ``dataset_repo_id`` (str), empty for
+        tasks without references; ``command_transition_s`` (float, s) for tasks whose commands move along
+        ``tasks.reach.transition_point``.
         """
         return {}
 

@@ -10,9 +10,12 @@ noise and the initial-state noise are the robot env's (``bar_policy.envs.robot``
   previous action, fingertip positions by forward kinematics of the measured q (chest frame = world frame,
   the chest is the fixed root), and the two targets.
 - **Task**: targets from ``bar_policy.tasks.reach.sample_targets`` at reset and every
-  ``resample_period_s``. Success = both fingertips within ``SUCCESS_RADIUS`` (3 cm). Rewards are the named
-  terms of ``bar_policy.envs.rewards`` weighted by ``RewardScales``. The reward uses the true fingertip
-  positions from the last substep's kinematics (2 ms before the step's end, saving one FK pass).
+  ``resample_period_s``. The commanded target (observed, rewarded, scored) moves to each new target along
+  ``transition_point``'s minimum-jerk path over ``target_transition_s``, from the previous commanded target
+  (at reset: the fingertips of the default pose, where the deploy runtime's HOLD ramp leaves them).
+  Success = both fingertips within ``SUCCESS_RADIUS`` (3 cm). Rewards are the named terms of
+  ``bar_policy.envs.rewards`` weighted by ``RewardScales``. The reward uses the true fingertip positions
+  from the last substep's kinematics (2 ms before the step's end, saving one FK pass).
 - **Episodes**: the env ends an episode only when the physics state turns non-finite; the wrappers truncate
   at ``episode_length`` = ``episode_length_s / ctrl_dt`` steps.
 - **Metrics** (per step; brax sums them per episode): ``reward/<term>``, ``dist_left``, ``dist_right``
@@ -28,6 +31,7 @@ from dataclasses import dataclass, field
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 from mujoco import mjx
 
@@ -44,7 +48,7 @@ from bar_policy.envs.robot_config import (
 from bar_policy.envs.task import TaskStep, Transition
 from bar_policy.obs import ObservationManager
 from bar_policy.robot.constants import FINGERTIP_SITES
-from bar_policy.tasks.reach import SUCCESS_RADIUS, ReachTargetConfig, sample_targets
+from bar_policy.tasks.reach import SUCCESS_RADIUS, ReachTargetConfig, sample_targets, transition_point
 
 __all__ = [
     "ActuatorConfig",
@@ -116,6 +120,10 @@ class ReachEnvConfig(RobotEnvConfig):
     action_filter_hz: float | None = 3.0
     """Cutoff of the action low-pass, Hz (``RobotEnvConfig.action_filter_hz``), the tracker's: PPO's
     exploration noise reaches the joints smoothed, and the deploy runtime applies the same filter."""
+    target_transition_s: float = 1.0
+    """Duration of the commanded target's minimum-jerk move to each new target, s (0: a step, as before
+    issue 16). A step measured 14.9 mrad of chatter on q_cmd through the 3 Hz filter (docs/training.md); a 1 s
+    move leaves 1.5 s of the 2.5 s segment to settle inside the 3 cm success radius."""
     target: ReachTargetConfig = field(default_factory=ReachTargetConfig)
     """Target workspace (chest frame)."""
     reward: RewardConfig = field(default_factory=RewardConfig)
@@ -124,6 +132,11 @@ class ReachEnvConfig(RobotEnvConfig):
     def __post_init__(self) -> None:
         super().__post_init__()
         check_multiple("resample_period_s", self.resample_period_s, self.ctrl_dt)
+        if not 0.0 <= self.target_transition_s <= self.resample_period_s:
+            raise ValueError(
+                f"target_transition_s must be in [0, resample_period_s = {self.resample_period_s}] s, got "
+                f"{self.target_transition_s}"
+            )
 
     @property
     def resample_steps(self) -> int:
@@ -153,6 +166,19 @@ class LiteReach(LiteRobotEnv):
         cfg = config or default_config()
         super().__init__(cfg, ObservationManager.for_task("reach", cfg.mode))
         self._site_ids = np.array([self.mj_model.site(s).id for s in FINGERTIP_SITES])
+        self._tips0 = jnp.asarray(self._default_fingertips(), jnp.float32)
+
+    def _default_fingertips(self) -> np.ndarray:
+        """Fingertips (left, right) of the default pose by C MuJoCo's kinematics, shape (2, 3), m."""
+        data = mujoco.MjData(self.mj_model)
+        data.qpos[:] = self.mj_model.qpos0
+        data.qpos[: len(self._default)] = np.asarray(self._default)
+        mujoco.mj_kinematics(self.mj_model, data)
+        return data.site_xpos[self._site_ids].copy()
+
+    def task_metadata(self) -> dict:
+        """The command transition's duration (``bar.command_transition``), s."""
+        return {"command_transition_s": float(self.config.target_transition_s)}
 
     @property
     def metric_keys(self) -> tuple[str, ...]:
@@ -160,9 +186,19 @@ class LiteReach(LiteRobotEnv):
         return ("dist_left", "dist_right", "success", "success_end", "segment_end")
 
     def task_reset(self, model: mjx.Model, key: jax.Array) -> tuple[dict, jax.Array, jax.Array]:
-        """New targets; start at the default pose at rest."""
-        tl, tr = sample_targets(jax.random.uniform(key, (6,)), self.config.target)
-        return {"target_left": tl, "target_right": tr}, self._default, jnp.zeros(self.action_size)
+        """New goals, the commanded targets at the default fingertips; start at the default pose at rest."""
+        gl, gr = sample_targets(jax.random.uniform(key, (6,)), self.config.target)
+        info = {
+            "target_left": self._tips0[0],
+            "target_right": self._tips0[1],
+            "from_left": self._tips0[0],
+            "from_right": self._tips0[1],
+            "goal_left": gl,
+            "goal_right": gr,
+        }
+        if self.config.target_transition_s <= 0:  # a step: the goal at once
+            info["target_left"], info["target_right"] = gl, gr
+        return info, self._default, jnp.zeros(self.action_size)
 
     def task_step(self, tr: Transition) -> TaskStep:
         """Distance rewards on the true fingertips, success, and target resampling at segment ends."""
@@ -193,9 +229,18 @@ class LiteReach(LiteRobotEnv):
             "success_end": terms["success"] * seg,
             "segment_end": seg,
         }
+        goal_l = jnp.where(seg_end, new_l, info["goal_left"])
+        goal_r = jnp.where(seg_end, new_r, info["goal_right"])
+        from_l = jnp.where(seg_end, info["target_left"], info["from_left"])
+        from_r = jnp.where(seg_end, info["target_right"], info["from_right"])
+        elapsed = (tr.step % cfg.resample_steps).astype(jnp.float32) * cfg.ctrl_dt
         task_info = {
-            "target_left": jnp.where(seg_end, new_l, info["target_left"]),
-            "target_right": jnp.where(seg_end, new_r, info["target_right"]),
+            "target_left": transition_point(from_l, goal_l, elapsed, cfg.target_transition_s),
+            "target_right": transition_point(from_r, goal_r, elapsed, cfg.target_transition_s),
+            "from_left": from_l,
+            "from_right": from_r,
+            "goal_left": goal_l,
+            "goal_right": goal_r,
         }
         return TaskStep(terms=terms, info=task_info, metrics=metrics)
 

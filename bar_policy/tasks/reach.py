@@ -8,6 +8,14 @@ checks with C MuJoCo IK that every corner is reachable.
 
 ``sample_targets`` is written on uniform variates so the env draws them with ``jax.random.uniform`` and the
 deploy side with ``numpy.random.Generator.random``: same distribution, same code.
+
+**Command transition.** A new target is not shown to the policy as a step: the commanded target moves from
+where it was to the new one along a minimum-jerk path over ``transition_s`` (``transition_point``), the way
+a robot arm's setpoint generator moves between waypoints. A step asks for an infinitely fast move, and the
+policy answers with a command whose content above 5 Hz is chatter by definition (issue 16: a 0.5 rad step
+through the 3 Hz action filter alone measures 10.8 mrad; the same move as a 1 s minimum-jerk path, 0.25).
+The env (jax) and every deploy command source (numpy) call this same function; the ONNX metadata key
+``bar.command_transition`` carries the duration (absent: 0, a step, as in files made before it).
 """
 
 from __future__ import annotations
@@ -18,7 +26,7 @@ import numpy as np
 
 from bar_policy._array import Array, array_namespace
 
-__all__ = ["SUCCESS_RADIUS", "ReachTargetConfig", "sample_targets"]
+__all__ = ["SUCCESS_RADIUS", "ReachTargetConfig", "min_jerk", "sample_targets", "transition_point"]
 
 SUCCESS_RADIUS = 0.03
 """A hand has reached its target when the fingertip is within this distance, m."""
@@ -73,3 +81,28 @@ def sample_targets(u: Array, cfg: ReachTargetConfig) -> tuple[Array, Array]:
     left = lo + u[..., :3] * (hi - lo)
     right = (lo + u[..., 3:6] * (hi - lo)) * mirror
     return left, right
+
+
+def min_jerk(s: Array) -> Array:
+    """The minimum-jerk profile ``10 s^3 - 15 s^4 + 6 s^5`` of a phase ``s`` clipped to [0, 1].
+
+    0 at ``s <= 0`` and 1 at ``s >= 1``, with zero velocity and acceleration at both ends (Flash & Hogan,
+    1985); shape of ``s``, numpy or jax.
+    """
+    xp = array_namespace(s)
+    s = xp.clip(s, 0.0, 1.0)
+    return s * s * s * (10.0 + s * (-15.0 + 6.0 * s))
+
+
+def transition_point(start: Array, goal: Array, elapsed_s: Array | float, duration_s: float) -> Array:
+    """The commanded target ``elapsed_s`` s into a move from ``start`` to ``goal`` lasting ``duration_s``.
+
+    ``start + (goal - start) * min_jerk(elapsed / duration)``; ``duration_s <= 0`` is a step (``goal`` at
+    once). Shapes: ``start``/``goal`` ``(..., 3)`` m, ``elapsed_s`` scalar or ``(...)`` s (broadcast on the
+    last axis); numpy or jax like ``goal``.
+    """
+    if duration_s <= 0:
+        return goal
+    xp = array_namespace(goal)
+    s = min_jerk(xp.asarray(elapsed_s, dtype=goal.dtype) / duration_s)
+    return start + (goal - start) * s[..., None]

@@ -90,5 +90,6 @@ def policy_metadata(
         body_names=tuple(extra.get("body_names", ())),
         lookahead_steps=int(extra.get("lookahead_steps", 0)),
         dataset_repo_id=str(extra.get("dataset_repo_id", "")),
+        command_transition_s=float(extra.get("command_transition_s", 0.0)),
         provenance=_jsonable(dict(provenance) if provenance is not None else collect()),
     )

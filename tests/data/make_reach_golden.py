@@ -21,7 +21,9 @@ session fixtures' compiled functions.
 First recorded from the unsplit env (bar_policy/envs/reach.py at commit bec536f); re-recorded when the reach
 recipe changed on purpose (issue 16: the 3 Hz action filter, the ``action_accel`` and ``torque_near_cap``
 terms and ``action_rate`` -0.1, which add an info leaf and two reward metrics), on an AVX2 machine, from the
-commit after 9897af8.
+commit after 9897af8; and again for the command transition (issue 16: the commanded target moves to each new
+goal along a minimum-jerk path, adding the ``from_*`` and ``goal_*`` info leaves), on an AVX2 machine, from
+the commit after 8c508c3.
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ import numpy as np
 NOMINAL_STEPS = 30
 WRAPPED_STEPS = 55
 BATCH = 8
-DR_OVERRIDES = ("episode_length_s=1.0", "resample_period_s=0.5")
+DR_OVERRIDES = ("episode_length_s=1.0", "resample_period_s=0.5", "target_transition_s=0.2")
 GOLDEN_PATH = Path(__file__).with_name("reach_golden.npz")
 
 

@@ -32,7 +32,9 @@ def nominal_fns(nominal_env):
 @pytest.fixture(scope="session")
 def dr_env():
     """The training config (all randomisation on) with 1 s episodes so a 10 s rollout auto-resets."""
-    return envs.load("LiteReach", overrides=["episode_length_s=1.0", "resample_period_s=0.5"])
+    return envs.load(
+        "LiteReach", overrides=["episode_length_s=1.0", "resample_period_s=0.5", "target_transition_s=0.2"]
+    )
 
 
 @pytest.fixture(scope="session")

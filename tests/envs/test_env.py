@@ -120,16 +120,38 @@ def test_step_reward_metrics_and_resampling(nominal_env, nominal_fns):
         np.linalg.norm(tips[0] - np.asarray(s.info["target_left"])), abs=1e-5
     )
     assert float(s1.done) == 0.0
-    # Targets stay for resample_steps - 1 steps and change on the resample step.
-    tl0 = np.asarray(s.info["target_left"])
-    for _ in range(env.config.resample_steps - 2):
+    # The commanded target starts at the default pose's fingertips (C MuJoCo FK, tolerance as above) and
+    # moves to the segment's goal along 10 s^3 - 15 s^4 + 6 s^5, s = k dt / 1 s after step k; the goal
+    # stays for resample_steps - 1 steps and changes on the resample step, where the next move starts from
+    # the commanded target (elapsed 0: target = from exactly).
+    assert env.config.target_transition_s == 1.0
+    m = load_model("arms")
+    d = mujoco.MjData(m)
+    d.qpos[:] = load_robot("arms").pose("piano_ready")
+    mujoco.mj_kinematics(m, d)
+    tips0 = d.site(FINGERTIP_SITES[0]).xpos.copy()
+    np.testing.assert_allclose(s.info["target_left"], tips0, atol=1e-5)
+    goal = np.asarray(s.info["goal_left"], dtype=np.float64)
+    start = np.asarray(s.info["from_left"], dtype=np.float64)
+    seen = {}
+    for k in range(2, env.config.resample_steps):
         s1 = step(s1, a)
-    np.testing.assert_array_equal(s1.info["target_left"], tl0)
+        seen[k] = np.asarray(s1.info["target_left"], dtype=np.float64)
+        np.testing.assert_array_equal(s1.info["goal_left"], goal.astype(np.float32))
+    for k in (2, 10, 25, 40, 50, 80, env.config.resample_steps - 1):
+        ph = min(k * 0.02, 1.0)
+        expected = start + (goal - start) * (10 * ph**3 - 15 * ph**4 + 6 * ph**5)
+        # float32: |x| <= 0.42 m, a handful of roundings of eps32 * 0.42 = 5e-8 each: 1e-6 covers them.
+        np.testing.assert_allclose(seen[k], expected, atol=1e-6)
+    np.testing.assert_allclose(seen[25], (start + goal) / 2, atol=1e-6)  # min_jerk(1/2) = 1/2 by symmetry
     assert float(s1.metrics["segment_end"]) == 0.0
+    last = np.asarray(s1.info["target_left"])
     s1 = step(s1, a)
     assert int(s1.info["step"]) == env.config.resample_steps
     assert float(s1.metrics["segment_end"]) == 1.0
-    assert not np.allclose(s1.info["target_left"], tl0)
+    assert not np.allclose(s1.info["goal_left"], goal)
+    np.testing.assert_array_equal(s1.info["from_left"], last)
+    np.testing.assert_array_equal(s1.info["target_left"], last)
 
 
 def test_step_keeps_state_types(nominal_fns, wrapped):
@@ -175,7 +197,7 @@ def test_task_is_solvable_through_the_action_interface(nominal_env, nominal_fns)
     d = mujoco.MjData(m)
     q_star = env.default_pose.astype(np.float64)
     jac = np.zeros((3, m.nv))
-    for side, key in ((0, "target_left"), (1, "target_right")):
+    for side, key in ((0, "goal_left"), (1, "goal_right")):  # the segment goal: the target after 1 s
         idx = np.arange(7) + 7 * side
         sid = m.site(FINGERTIP_SITES[side]).id
         target = np.asarray(s.info[key], np.float64)

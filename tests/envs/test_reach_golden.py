@@ -135,7 +135,11 @@ def test_nominal_step_matches_golden(nominal_fns, golden):
 
 def test_randomised_batched_step_matches_golden(wrapped, dr_env, golden):
     # The fixture is the recorded configuration: batch, 1 s episodes, 0.5 s segments.
-    assert BATCH == MAKER.BATCH and MAKER.DR_OVERRIDES == ("episode_length_s=1.0", "resample_period_s=0.5")
+    assert BATCH == MAKER.BATCH and MAKER.DR_OVERRIDES == (
+        "episode_length_s=1.0",
+        "resample_period_s=0.5",
+        "target_transition_s=0.2",
+    )
     assert (dr_env.config.episode_length_s, dr_env.config.resample_period_s) == (1.0, 0.5)
     assert dr_env.episode_length < MAKER.WRAPPED_STEPS  # the rollout crosses an auto-reset
     _, reset, step = wrapped

@@ -12,6 +12,7 @@ import argparse
 from typing import TYPE_CHECKING
 
 from bar_policy.deploy.cli_types import count1, number, seconds, seconds0
+from bar_policy.deploy.command_transition import TransitionCommands, with_transition
 from bar_policy.deploy.commands import CommandError, ReachSource, make_command_source
 from bar_policy.deploy.tasks.base import DeployTask, EvalReport, OptionError
 
@@ -71,25 +72,25 @@ class ReachTask(DeployTask):
 
     def command_source(
         self, policy: OnnxPolicy, args: argparse.Namespace, kinematics: Kinematics | None = None
-    ) -> ReachSource:
+    ) -> ReachSource | TransitionCommands:
         """The source ``--commands`` names (default ``sampled``, seeded by ``--seed``).
 
-        Streams start at the fingertips of the default pose.
+        Streams start at the fingertips of the default pose. A file trained with a command transition
+        (``bar.command_transition``) gets its source wrapped in ``TransitionCommands``, starting there too.
         """
         from bar_policy.robot.kinematics import Kinematics
 
         kin = kinematics or Kinematics(policy.robot.mode)
         left, right = kin.fingertips(policy.default_joint_pos)
         spec = getattr(args, "commands", None) or "sampled"
+        initial = {"target_pos_left": left, "target_pos_right": right}
         try:
-            return make_command_source(
-                spec,
-                policy.obs_manager.command_names,
-                seed=getattr(args, "seed", 0) or 0,
-                initial={"target_pos_left": left, "target_pos_right": right},
+            source = make_command_source(
+                spec, policy.obs_manager.command_names, seed=getattr(args, "seed", 0) or 0, initial=initial
             )
         except CommandError as e:
             raise OptionError(str(e)) from None
+        return with_transition(source, policy, initial)
 
     def evaluate(self, policy: OnnxPolicy, args: argparse.Namespace) -> EvalReport:
         """Segment success rate on the C MuJoCo sim target (``sim2sim.evaluate``)."""
