@@ -49,13 +49,23 @@ def test_a_file_without_provenance_loads_and_says_so():
     props = make().to_props()
     assert "bar.provenance" not in props  # nothing recorded, nothing written (the shipped files' form)
     assert PolicyMetadata.from_props(props).provenance == {}
-    # The shipped reach policy was exported before provenance; it loads unchanged.
+    # A file exported before provenance (the form of every file made before it) says so, naming its version.
+    meta = PolicyMetadata.from_props(props)
+    (line,) = provenance.describe(meta.provenance, meta.code_version)
+    assert line.startswith("provenance: not recorded") and meta.code_version in line
+
+
+def test_the_shipped_reach_policy_says_what_trained_it():
+    """The reach policy shipped from the H100 run of issue 16 (docs/training.md): its commit, a clean tree,
+    the command, and the 1 s command transition it was trained with."""
     from bar_policy.deploy.policy import load_policy
 
     meta = load_policy(REPO / "checkpoints" / "lite_reach_arms.onnx").metadata
-    assert meta.provenance == {}
-    (line,) = provenance.describe(meta.provenance, meta.code_version)
-    assert line.startswith("provenance: not recorded") and meta.code_version in line
+    assert meta.provenance["git_commit"].startswith("8f95bf2") and meta.provenance["git_dirty"] is False
+    head, command = provenance.describe(meta.provenance, meta.code_version)
+    assert head.startswith("provenance: commit 8f95bf2596ce (clean tree") and "jax 0.11.2" in head
+    assert "train/ship.py --run-name reachA" in command
+    assert meta.command_transition_s == 1.0 and meta.action_filter_hz == 3.0
 
 
 def test_the_shipped_tracker_says_what_trained_it():
