@@ -189,7 +189,7 @@ COLLISION_BITS: dict[str, tuple[int, int]] = {"torso": (1, 6), "left": (2, 5), "
 
 The torso collides with both arms and the arms with each other; links of one arm do not collide with each
 other (the joint limits keep them apart). Two geoms collide when ``contype1 & conaffinity2`` or
-``contype2 & conaffinity1`` is non-zero, so a scene object with ``contype = 8, conaffinity = 2 | 4``
+``contype2 & conaffinity1`` is non-zero, so a scene object with ``contype = 0, conaffinity = 2 | 4``
 touches both arms (not the torso, not other such objects) without changing the robot's bits.
 """
 
