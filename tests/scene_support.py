@@ -16,6 +16,8 @@ KEY_JOINT = "test_key_hinge"
 KEY_SENSOR = "test_key_angle"
 KEY_SITE = "test_key_top"
 PENDULUM_JOINT = "test_pendulum_hinge"
+EXTRA_JOINTS = (PENDULUM_JOINT, KEY_JOINT)
+"""The scene's joints besides the robot's."""
 
 KEY_POS = (0.45, 0.0, 0.1)
 """Key hinge in the world (chest) frame, m: in front of the chest, clear of both arms at piano_ready."""

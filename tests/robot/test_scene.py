@@ -25,6 +25,7 @@ import mujoco
 import numpy as np
 import pytest
 from scene_support import (
+    EXTRA_JOINTS,
     KEY_DAMPING,
     KEY_HALF,
     KEY_JOINT,
@@ -85,7 +86,7 @@ def test_spec_model_equals_text_template_model(mode: str) -> None:
 
 # -- a task's scene -----------------------------------------------------------------------------------
 ROBOT = load_robot("arms")
-EXTRA = (PENDULUM_JOINT, KEY_JOINT)
+EXTRA = EXTRA_JOINTS
 _channel = itertools.count()
 
 
