@@ -1,6 +1,6 @@
-"""Which physics options cost what: raw MJX throughput of MJCF variants of the Lite, same harness.
+"""Which physics options cost what: raw MJX throughput of model variants of the Lite, same harness.
 
-Each variant edits the generated MJCF (``bar_policy.robot.mjcf.lite_xml``) and times
+Each variant edits the robot's ``MjSpec`` (``bar_policy.robot.scene.robot_spec``) and times
 ``jit(vmap(lax.scan(mjx.step) x 10))`` from random in-limit poses (so contacts occur), reporting physics
 steps/s and the static constraint-row count ``nefc`` that the solver carries for every env.
 
@@ -10,7 +10,6 @@ steps/s and the static constraint-row count ``nefc`` that the solver carries for
 from __future__ import annotations
 
 import argparse
-import re
 import time
 
 import jax
@@ -19,32 +18,30 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from bar_policy.robot.mjcf import lite_xml
-
-BASE_OPT = 'iterations="3" ls_iterations="5"'
+from bar_policy.robot.scene import compile_scene, robot_spec
 
 
-def variant_xml(name: str) -> str:
-    """The Lite MJCF with one change applied."""
-    xml = lite_xml("arms")
+def variant_model(name: str) -> mujoco.MjModel:
+    """The Lite (``arms``) with one change applied (``base``: as built; condim 1, 3 / 5 iterations)."""
+    spec = robot_spec("arms")
     if "condim3" in name or name == "first":
-        xml = xml.replace('<geom condim="1"/>', '<geom condim="3"/>')
+        for geom in spec.geoms:
+            geom.condim = 3
     if name == "first":  # the first MJCF: condim 3 and 6 Newton iterations / 8 line-search steps
-        xml = xml.replace(BASE_OPT, 'iterations="6" ls_iterations="8"')
-    if "condim1" in name:
-        xml = xml.replace("<worldbody>", '<default><geom condim="1"/></default>\n  <worldbody>', 1)
+        spec.option.iterations, spec.option.ls_iterations = 6, 8
     if "it1" in name:
-        xml = xml.replace(BASE_OPT, 'iterations="1" ls_iterations="4"')
+        spec.option.iterations, spec.option.ls_iterations = 1, 4
     if "nofric" in name:
-        xml = xml.replace('frictionloss="0.1"', 'frictionloss="0.0"')
+        for joint in spec.joints:
+            joint.frictionloss = 0.0
     if "nocontact" in name:
-        xml = re.sub(r"(<option [^>]*)/>", r'\1><flag contact="disable"/></option>', xml, count=1)
-    return xml
+        spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
+    return compile_scene(spec, "arms")
 
 
 def bench(name: str, batch: int, substeps: int, min_time: float) -> tuple[int, float, float]:
     """(nefc, compile s, physics steps/s) of one variant at one batch size."""
-    m = mujoco.MjModel.from_xml_string(variant_xml(name))
+    m = variant_model(name)
     mx = mjx.put_model(m)
     nefc = int(mjx.make_data(m)._impl.efc_J.shape[0])
     rng = np.random.default_rng(0)

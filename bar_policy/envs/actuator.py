@@ -22,7 +22,14 @@ from mujoco import mjx
 from bar_policy.robot.constants import RobotSpec
 from bar_policy.robot.mit import MitCommand, WireRanges, firmware_torque, quantize_command, wire_ranges
 
-__all__ = ["ActuatorParams", "apply_latency", "implicit_damping", "make_command", "motor_torque"]
+__all__ = [
+    "ActuatorParams",
+    "apply_latency",
+    "implicit_damping",
+    "make_command",
+    "motor_torque",
+    "robot_force",
+]
 
 
 @dataclass(frozen=True)
@@ -92,8 +99,28 @@ def motor_torque(cmd: MitCommand, q_meas: jax.Array, dq: jax.Array, params: Actu
     return firmware_torque(cmd, q_meas, dq, params.ranges, params.tau_cap, quantize_wire=False)
 
 
+def robot_force(tau: jax.Array, dof: np.ndarray | None, nv: int) -> jax.Array:
+    """A generalised force of the whole scene from the robot's joint torques.
+
+    Args:
+        tau: torque per robot joint, N*m, shape (n,).
+        dof: the robot joints' dof addresses (``RobotIndex.dof``), or None when the scene's dofs are exactly
+            the robot's in order (``RobotIndex.robot_only``): then ``tau`` itself is returned.
+        nv: the scene's dof count.
+
+    Returns:
+        Shape (nv,): ``tau`` at the robot's dofs, 0 on every other dof.
+    """
+    return tau if dof is None else jnp.zeros(nv, tau.dtype).at[dof].set(tau)
+
+
 def implicit_damping(
-    model: mjx.Model, kd: jax.Array, tau: jax.Array, dq: jax.Array, tau_cap: jax.Array
+    model: mjx.Model,
+    kd: jax.Array,
+    tau: jax.Array,
+    dq: jax.Array,
+    tau_cap: jax.Array,
+    dof: np.ndarray | None = None,
 ) -> tuple[mjx.Model, jax.Array]:
     """Let Euler integrate the law's damping implicitly without changing the applied torque.
 
@@ -102,7 +129,8 @@ def implicit_damping(
     ``tau + D dq`` through ``qfrc_applied`` keeps the force at time t exactly the firmware torque ``tau``
     while the velocity update becomes ``(M + h Kd) v' = M v + h (Kp e + ...)``: the MIT damping term is
     integrated implicitly, which is unconditionally stable for it. Saturated joints (``|tau| = cap``) get
-    no implicit damping, because their torque does not depend on dq. Any MJCF joint damping is kept.
+    no implicit damping, because their torque does not depend on dq. Any MJCF joint damping is kept, and
+    the scene's other dofs keep theirs and get no force.
 
     Args:
         model: the model of this env (possibly randomised).
@@ -110,9 +138,16 @@ def implicit_damping(
         tau: the firmware torque, N*m, shape (n,).
         dq: joint velocities, rad/s, shape (n,).
         tau_cap: the torque cap, N*m, shape (n,) (+inf when saturation is off).
+        dof: the robot joints' dof addresses in the model, shape (n,); None when the model's dofs are the
+            robot's joints in order and nothing else (``RobotIndex.robot_only``).
 
     Returns:
-        ``(model with dof_damping = MJCF damping + D, qfrc_applied = tau + D * dq)``.
+        ``(model with dof_damping = MJCF damping + D at the robot's dofs, qfrc_applied (nv,) = tau + D * dq
+        at the robot's dofs and 0 elsewhere)``.
     """
     d_law = jnp.where(jnp.abs(tau) < tau_cap, kd, 0.0)
-    return model.replace(dof_damping=model.dof_damping + d_law), tau + d_law * dq
+    qfrc = tau + d_law * dq
+    if dof is None:
+        return model.replace(dof_damping=model.dof_damping + d_law), qfrc
+    damping = model.dof_damping.at[dof].add(d_law)
+    return model.replace(dof_damping=damping), robot_force(qfrc, dof, model.nv)

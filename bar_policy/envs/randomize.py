@@ -6,6 +6,10 @@ effects (latency, Kp/Kd scale, encoder offset, observation noise, initial pose, 
 every reset by the env itself. The randomiser reads only the robot part of a config (``RobotEnvConfig``:
 ``mode`` and ``randomization``), so it is the same for every task. ``in_axes`` has the model's structure
 with ``0`` on the randomised fields and ``None`` elsewhere, for ``jax.vmap(..., in_axes=(in_axes, 0))``.
+
+In a task's scene (``bar_policy.robot.scene``) armature and friction are drawn for the robot's joints and
+written at their dof addresses (``RobotIndex``, read from the model by name); the scene's other dofs keep
+theirs. The link-mass factor applies to every body of the scene.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from mujoco import mjx
 from bar_policy.envs.robot_config import RobotEnvConfig
 from bar_policy.robot.actuators import ROBSTRIDE_MODELS
 from bar_policy.robot.constants import load_robot
+from bar_policy.robot.index import RobotIndex
 
 __all__ = ["armature_bounds", "make_randomizer"]
 
@@ -49,23 +54,29 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
     """
     rc = config.randomization
     arm_lo, arm_hi = (x.astype(np.float32) for x in armature_bounds(config.mode))
+    joint_names = load_robot(config.mode).joint_names
 
     def domain_randomize(model: mjx.Model, rng: jax.Array) -> tuple[mjx.Model, mjx.Model]:
         if rng.ndim != 2 or rng.shape[-1] != 2:
             raise ValueError(f"rng must be a batch of keys, shape (B, 2); got shape {rng.shape}")
+        index = RobotIndex.from_model(model, joint_names)
+
+        def robot_dofs(field: jax.Array, values: jax.Array) -> jax.Array:
+            """``field`` (nv,) with ``values`` (n,) at the robot's dofs (``values`` itself, robot alone)."""
+            return values if index.robot_only else field.at[index.dof].set(values)
 
         def one(key: jax.Array) -> dict[str, jax.Array]:
             k_arm, k_fric, k_mass = jax.random.split(key, 3)
             out = {}
             if rc.armature:
                 # Armature: U(description, identified) per joint (up to 7.4x for rs-00).
-                out["dof_armature"] = jax.random.uniform(k_arm, arm_lo.shape, minval=arm_lo, maxval=arm_hi)
+                arm = jax.random.uniform(k_arm, arm_lo.shape, minval=arm_lo, maxval=arm_hi)
+                out["dof_armature"] = robot_dofs(model.dof_armature, arm)
             if rc.frictionloss is not None:
                 # Joint Coulomb friction: U(frictionloss) per joint, N*m (MJCF 0.1, identified 0.16-0.31).
                 lo, hi = rc.frictionloss
-                out["dof_frictionloss"] = jax.random.uniform(
-                    k_fric, model.dof_frictionloss.shape, minval=lo, maxval=hi
-                )
+                fric = jax.random.uniform(k_fric, (index.num_joints,), minval=lo, maxval=hi)
+                out["dof_frictionloss"] = robot_dofs(model.dof_frictionloss, fric)
             if rc.link_mass_scale is not None:
                 # Link mass and inertia: *U(link_mass_scale) per body (same factor: density scaling).
                 lo, hi = rc.link_mass_scale

@@ -26,6 +26,10 @@ robot env does the rest, identically for every task:
 - **Initial state**: the task's initial pose + U(-init_noise, init_noise) per joint (clipped to the
   limits) and the task's initial velocity. Domain randomisation of the model is ``randomize.py``;
   episode bookkeeping and auto-reset are the wrappers' (``wrappers.py``).
+- **Scene**: the robot's ``MjSpec`` plus what the task's ``scene`` adds (``bar_policy.robot.scene``,
+  docs/scenes.md). Every robot quantity above is read and written at the robot joints' addresses
+  (``robot_index``; ``robot_q``, ``robot_dq``, ``with_robot_q``); the scene's other joints start at
+  ``qpos0`` at rest and move only by physics.
 
 PRNG use is fixed (reach's outputs are pinned by tests/data/reach_golden.npz): ``reset`` splits its key in 8
 (0 initial noise, 1 the task, 2 latency, 3 Kp scale, 4 Kd scale, 5 encoder offset, 6 the next step's key,
@@ -48,6 +52,7 @@ from bar_policy.envs.actuator import (
     implicit_damping,
     make_command,
     motor_torque,
+    robot_force,
 )
 from bar_policy.envs.base import MjxEnv, State
 from bar_policy.envs.robot_config import RobotEnvConfig
@@ -57,8 +62,9 @@ from bar_policy.obs.action_prior import ActionPrior
 from bar_policy.robot.action_filter import filter_alpha, lowpass_step, pose_action
 from bar_policy.robot.actuators import armature_gains
 from bar_policy.robot.constants import load_robot
+from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.mit import MitCommand, mit_torque
-from bar_policy.robot.mjcf import load_model
+from bar_policy.robot.scene import SceneEdit, load_model
 
 __all__ = ["NEAR_CAP_FRACTION", "LiteRobotEnv"]
 
@@ -72,20 +78,30 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
     """The Lite with the Robstride actuator model; tasks subclass it and fill ``TaskHooks``."""
 
     def __init__(
-        self, config: RobotEnvConfig, obs_manager: ObservationManager, default_scale: np.ndarray | None = None
+        self,
+        config: RobotEnvConfig,
+        obs_manager: ObservationManager,
+        default_scale: np.ndarray | None = None,
+        *,
+        scene: SceneEdit | None = None,
     ) -> None:
-        """The robot of ``config.mode`` with the task's observation layout.
+        """The robot of ``config.mode`` with the task's observation layout, in the task's scene.
 
         ``default_scale`` (rad, shape (n,)) is the action scale used when ``config.action_scale`` is None.
+        ``scene`` adds the task's bodies, joints, sites and sensors to the robot's ``MjSpec``
+        (``bar_policy.robot.scene``; None: the robot alone). The robot's joints are addressed by name
+        (``robot_index``), so the scene may hold other joints anywhere; they start each episode at the
+        scene's ``qpos0`` at rest and get no actuator force.
         """
         cfg = config
         self.config = cfg
         self.robot = load_robot(cfg.mode)
-        mj_model = load_model(cfg.mode)
+        mj_model = load_model(cfg.mode, scene)
         mj_model.opt.timestep = cfg.sim_dt
-        names = tuple(mj_model.joint(i).name for i in range(mj_model.njnt))
-        if names != self.robot.joint_names or mj_model.nq != mj_model.nv:
-            raise ValueError(f"MJCF joints {names} differ from the canonical order {self.robot.joint_names}")
+        self._index = RobotIndex.from_model(mj_model, self.robot.joint_names)
+        # Static dof addresses for scattering the robot's forces; None: the scene is the robot alone, whose
+        # arrays are used as they are (no gather or scatter, bit-identical to the robot-only env).
+        self._dof = None if self._index.robot_only else self._index.dof
         if obs_manager.joint_names != self.robot.joint_names:
             raise ValueError(f"layout {obs_manager.schema.name} is for mode {obs_manager.schema.mode!r}")
         self._mj_model = mj_model
@@ -126,6 +142,29 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
     def mjx_model(self) -> mjx.Model:
         """The nominal MJX model."""
         return self._mjx_model
+
+    @property
+    def robot_index(self) -> RobotIndex:
+        """Addresses of the robot's joints in the scene (qpos, dof, actuator), canonical order."""
+        return self._index
+
+    # -- the robot's state in the scene ------------------------------------------------------------
+    def robot_q(self, data: mjx.Data) -> jax.Array:
+        """The robot's true joint positions from the scene's state, rad. Shape (n,)."""
+        return self._index.q(data.qpos)
+
+    def robot_dq(self, data: mjx.Data) -> jax.Array:
+        """The robot's true joint velocities from the scene's state, rad/s. Shape (n,)."""
+        return self._index.dq(data.qvel)
+
+    def with_robot_q(self, data: mjx.Data, q: jax.Array) -> mjx.Data:
+        """``data`` with the robot's joints at ``q`` (rad, shape (n,)); the scene's other joints unchanged.
+
+        For forward kinematics of a measured pose: ``mjx.kinematics(model, env.with_robot_q(data, q))``.
+        """
+        if self._dof is None:
+            return data.replace(qpos=q)
+        return data.replace(qpos=data.qpos.at[self._index.qpos].set(q))
 
     @property
     def dt(self) -> float:
@@ -228,9 +267,10 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         applied, _, cmd = self._command(info, action)
         q_cmd = self.q_command(applied)
         ref = self.task_reference(info)
+        q, dq = self.robot_q(data), self.robot_dq(data)
         return {
-            "demand": mit_torque(cmd, data.qpos + info["encoder_offset"], data.qvel),
-            "q": data.qpos,
+            "demand": mit_torque(cmd, q + info["encoder_offset"], dq),
+            "q": q,
             "action": applied,
             "signal": q_cmd if ref is None else q_cmd - ref,
         }
@@ -275,7 +315,12 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         task_info, q_init, qvel_init = task
         noise = jax.random.uniform(ks[0], (n,), minval=-cfg.init_noise, maxval=cfg.init_noise)
         q0 = jnp.clip(q_init + noise, self._lower, self._upper)
-        data = self._init_data.replace(qpos=q0, qvel=qvel_init)
+        if self._dof is None:
+            data = self._init_data.replace(qpos=q0, qvel=qvel_init)
+        else:
+            init = self._init_data
+            qpos = init.qpos.at[self._index.qpos].set(q0)
+            data = init.replace(qpos=qpos, qvel=init.qvel.at[self._dof].set(qvel_init))
         act = cfg.actuator
         lat_lo, lat_hi = act.latency_steps
         latency = jax.random.randint(ks[2], (), lat_lo, lat_hi + 1)
@@ -312,19 +357,20 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         implicit = cfg.actuator.damping == "implicit"
 
         def substep(d: mjx.Data, _: None) -> tuple[mjx.Data, tuple[jax.Array, jax.Array]]:
-            tau = motor_torque(cmd, d.qpos + offset, d.qvel, self._act)
-            demand = jnp.abs(mit_torque(cmd, d.qpos + offset, d.qvel)) * inv_cap
+            q, dq = self.robot_q(d), self.robot_dq(d)
+            tau = motor_torque(cmd, q + offset, dq, self._act)
+            demand = jnp.abs(mit_torque(cmd, q + offset, dq)) * inv_cap
             if implicit:
-                m_sub, qfrc = implicit_damping(model, cmd.kd, tau, d.qvel, self._act.tau_cap)
+                m_sub, qfrc = implicit_damping(model, cmd.kd, tau, dq, self._act.tau_cap, self._dof)
             else:
-                m_sub, qfrc = model, tau
+                m_sub, qfrc = model, robot_force(tau, self._dof, model.nv)
             d = mjx.step(m_sub, d.replace(qfrc_applied=qfrc))
             near_cap = jnp.sum(jnp.clip(demand - NEAR_CAP_FRACTION, 0.0, 1.0))
             return d, (jnp.sum(jnp.square(tau) * inv_cap_sq), near_cap)
 
         data, (tau_sq, near_cap) = jax.lax.scan(substep, state.data, None, length=self.n_substeps)
 
-        # A non-finite state ends the episode (the wrapper resets it) and logs zeros, not NaN.
+        # A non-finite state (of the whole scene) ends the episode (the wrapper resets it) and logs zeros.
         finite = jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
         step = info["step"] + 1
         tr = Transition(model, data, info, action, jnp.mean(tau_sq), step, finite, k_task, jnp.mean(near_cap))
@@ -355,8 +401,8 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
     ) -> jax.Array:
         """Observation from the measured state: q + offset (+ noise), dq (+ noise), the task's inputs."""
         nz = self.config.obs_noise
-        q = data.qpos + info["encoder_offset"]
-        dq = data.qvel
+        q = self.robot_q(data) + info["encoder_offset"]
+        dq = self.robot_dq(data)
         kq, kv = jax.random.split(key)
         if nz.joint_pos > 0:
             q = q + jax.random.uniform(kq, q.shape, minval=-nz.joint_pos, maxval=nz.joint_pos)

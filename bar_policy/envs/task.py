@@ -9,7 +9,10 @@ A task module (``reach.py``, ``track.py``) subclasses ``LiteRobotEnv`` and imple
 - ``task_obs(model, data, q_meas, info) -> inputs``: the task's observation inputs (term name -> array);
 - ``metric_keys``: the names of the task's metrics.
 
-Hooks are pure functions of their arguments (jit- and vmap-able, unbatched).
+Hooks are pure functions of their arguments (jit- and vmap-able, unbatched). Joint vectors a hook gets or
+returns (``q_init``, ``q_meas``, ``action``) are the robot's, shape (n,), canonical order. ``data`` is the
+whole scene's state: in a task's scene (``LiteRobotEnv(..., scene=)``, docs/scenes.md) it holds the task's
+joints too, so read the robot's with ``robot_q(data)`` / ``robot_dq(data)``, not ``data.qpos``.
 """
 
 from __future__ import annotations

@@ -207,8 +207,9 @@ class LiteTrack(LiteRobotEnv):
         pos = data.xpos[self._body_ids]
         rot = data.xmat[self._body_ids].reshape(-1, 3, 3)
         tips = data.site_xpos[self._site_ids]
+        q = self.robot_q(data)
         terms = {
-            "joint_pos": rewards.joint_tracking(data.qpos, q_ref, rc.joint_std),
+            "joint_pos": rewards.joint_tracking(q, q_ref, rc.joint_std),
             "body_pos": rewards.body_pos_tracking(pos, pos_ref, rc.body_pos_std),
             "body_ori": rewards.body_ori_tracking(rot, ori_ref, rc.body_ori_std),
             "fingertip_pos": rewards.body_pos_tracking(tips, self._ref_tip[frame], rc.fingertip_std),
@@ -218,7 +219,7 @@ class LiteTrack(LiteRobotEnv):
             "torque_near_cap": tr.near_cap,
         }
         dist = jnp.linalg.norm(pos - pos_ref, axis=-1)
-        joint_err = jnp.mean(jnp.abs(data.qpos - q_ref))
+        joint_err = jnp.mean(jnp.abs(q - q_ref))
         tip_err = jnp.mean(jnp.linalg.norm(tips - self._ref_tip[frame], axis=-1))
         lost = (jnp.max(dist) > cfg.termination_distance) & (cfg.termination_distance > 0)
         ok = tr.finite

@@ -1,4 +1,8 @@
-"""What the robot is: joint table, Robstride models, MJCF and the MIT law (numpy only, no jax)."""
+"""What the robot is: joint table, Robstride models, the model's joint addresses and the MIT law (no jax).
+
+The MuJoCo model itself (``bar_policy.robot.scene``, an ``MjSpec`` a task extends) imports mujoco and is
+not re-exported here.
+"""
 
 from bar_policy.robot.actuators import ROBSTRIDE_MODELS, RobstrideSpec, robstride_spec
 from bar_policy.robot.constants import (
@@ -9,6 +13,7 @@ from bar_policy.robot.constants import (
     RobotSpec,
     load_robot,
 )
+from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.mit import MitCommand, mit_torque, quantize_command
 
 __all__ = [
@@ -18,6 +23,7 @@ __all__ = [
     "ROBSTRIDE_MODELS",
     "JointSpec",
     "MitCommand",
+    "RobotIndex",
     "RobotSpec",
     "RobstrideSpec",
     "load_robot",

@@ -5,6 +5,10 @@ the tracking task needs the poses of its tracked bodies along a motion clip (``m
 ``motion_body_ori_b``). Both come from the same MJCF the env uses, so sim, real and training build their
 observations from identical numbers. The chest is the fixed root at the world origin with the world's
 orientation, so world coordinates are chest-frame coordinates.
+
+A task's scene (``bar_policy.robot.scene``, ``scene=``) may add bodies and joints: poses are given as the
+robot's q in canonical order and written at the robot joints' addresses (``RobotIndex``); the scene's other
+joints stay at ``qpos0``.
 """
 
 from __future__ import annotations
@@ -13,8 +17,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from bar_policy.robot.constants import FINGERTIP_SITES
-from bar_policy.robot.mjcf import load_model
+from bar_policy.robot.constants import FINGERTIP_SITES, load_robot
+from bar_policy.robot.index import RobotIndex
+from bar_policy.robot.scene import SceneEdit, load_model
 
 __all__ = ["Kinematics", "rotation_to_6d"]
 
@@ -29,15 +34,20 @@ def rotation_to_6d(rot: np.ndarray) -> np.ndarray:
 
 
 class Kinematics:
-    """Forward kinematics and self-collision queries of the Lite for one mode (C MuJoCo, float64)."""
+    """Forward kinematics and collision queries of the Lite for one mode (C MuJoCo, float64)."""
 
-    def __init__(self, mode: str = "arms") -> None:
+    def __init__(self, mode: str = "arms", scene: SceneEdit | None = None) -> None:
+        """The robot of ``mode`` in the scene ``scene`` adds to (None: the robot alone)."""
         import mujoco
 
         self._mujoco = mujoco
-        self.model = load_model(mode)
+        self.model = load_model(mode, scene)
         self.data = mujoco.MjData(self.model)
+        self.index = RobotIndex.from_model(self.model, load_robot(mode).joint_names)
+        """Addresses of the robot's joints in the scene."""
         self._sites = [self.model.site(name).id for name in FINGERTIP_SITES]
+        n = self.index.num_joints
+        self._qadr = slice(0, n) if self.index.robot_only else self.index.qpos
 
     # -- ids ---------------------------------------------------------------------------------------
     def body_ids(self, names: Sequence[str]) -> list[int]:
@@ -58,9 +68,10 @@ class Kinematics:
 
     def _set(self, q: np.ndarray) -> None:
         q = np.asarray(q, dtype=np.float64)
-        if q.shape != (self.model.nq,):
-            raise ValueError(f"q has shape {q.shape}, expected ({self.model.nq},)")
-        self.data.qpos[:] = q
+        n = self.index.num_joints
+        if q.shape != (n,):
+            raise ValueError(f"q has shape {q.shape}, expected ({n},)")
+        self.data.qpos[self._qadr] = q
         self._mujoco.mj_kinematics(self.model, self.data)
 
     # -- single pose -------------------------------------------------------------------------------
@@ -91,7 +102,7 @@ class Kinematics:
         """
         q = np.asarray(q, dtype=np.float64)
         if q.ndim != 2:
-            raise ValueError(f"q must have shape (T, {self.model.nq}), got {q.shape}")
+            raise ValueError(f"q must have shape (T, {self.index.num_joints}), got {q.shape}")
         b, s = self.body_ids(bodies), self.site_ids(sites)
         pos = np.empty((len(q), len(b), 3))
         rot = np.empty((len(q), len(b), 3, 3))
@@ -106,21 +117,23 @@ class Kinematics:
     def collision_free(self, q: np.ndarray, clearance: float = 0.0) -> bool:
         """True when no two bodies the MJCF checks are closer than ``clearance`` (m) at any frame of ``q``.
 
-        ``q``: shape (num_joints,) or (T, num_joints), rad. The fast path of ``collisions``.
+        ``q``: shape (num_joints,) or (T, num_joints), rad. The fast path of ``collisions``. The whole
+        scene's geoms count (a task's bodies too, with their collision bits).
         """
         m, d, mj = self.model, self.data, self._mujoco
-        q = np.asarray(q, dtype=np.float64).reshape(-1, m.nq)
+        q = np.asarray(q, dtype=np.float64).reshape(-1, self.index.num_joints)
+        margin = m.geom_margin.copy()
         m.geom_margin[:] = clearance
         try:
             for qt in q:
-                d.qpos[:] = qt
+                d.qpos[self._qadr] = qt
                 mj.mj_kinematics(m, d)
                 mj.mj_collision(m, d)
                 if d.ncon:
                     return False
             return True
         finally:
-            m.geom_margin[:] = 0.0
+            m.geom_margin[:] = margin
 
     def collisions(self, q: np.ndarray, clearance: float = 0.0) -> list[tuple[str, str, float]]:
         """Colliding body pairs at pose ``q``: ``(body1, body2, distance m)`` per geom pair too near.
@@ -129,6 +142,7 @@ class Kinematics:
         applies (arms vs. torso and arm vs. arm; the floor collides with nothing).
         """
         m, d = self.model, self.data
+        margin = m.geom_margin.copy()
         m.geom_margin[:] = clearance
         try:
             self._set(q)
@@ -138,4 +152,4 @@ class Kinematics:
                 for c in d.contact[: d.ncon]
             ]
         finally:
-            m.geom_margin[:] = 0.0
+            m.geom_margin[:] = margin

@@ -41,7 +41,8 @@ import mujoco
 import numpy as np
 
 from bar_policy.robot.constants import RobotSpec
-from bar_policy.robot.mjcf import load_model
+from bar_policy.robot.index import RobotIndex
+from bar_policy.robot.scene import SceneEdit, load_model
 from bar_policy.robstride import firmware as fw
 from bar_policy.robstride import framing, motor_side
 from bar_policy.robstride.emulator_physics import EmulatorPhysics
@@ -75,6 +76,8 @@ class RobstrideEmulator(EmulatorPhysics):
         watchdog_tick: seconds per canTimeout tick (the reference's 50 us; 1e-6 emulates the conflicting
             microsecond reading).
         clock: the emulator's clock, s; must be the clock of the buses' frame timestamps.
+        scene: a task's additions to the robot's MuJoCo scene (``bar_policy.robot.scene``); None: the robot
+            alone. The motors act on the robot's joints by name (``RobotIndex``).
     """
 
     def __init__(
@@ -94,6 +97,7 @@ class RobstrideEmulator(EmulatorPhysics):
         seed: int = 0,
         watchdog_tick: float = framing.CAN_TIMEOUT_TICK,
         clock: Callable[[], float] = time.time,
+        scene: SceneEdit | None = None,
     ) -> None:
         if mode not in EMULATOR_MODES:
             raise ValueError(f"unknown emulator mode {mode!r}; valid: {list(EMULATOR_MODES)}")
@@ -103,7 +107,7 @@ class RobstrideEmulator(EmulatorPhysics):
             raise ValueError(f"no channel given for robot interfaces {unmapped}; channels: {dict(channels)}")
         self.robot = robot
         self.mode = mode
-        self.model = load_model(robot.mode)
+        self.model = load_model(robot.mode, scene)
         self.data = mujoco.MjData(self.model)
         self.n_substeps = max(1, round(control_dt / self.model.opt.timestep))
         self.temperature = temperature
@@ -152,9 +156,9 @@ class RobstrideEmulator(EmulatorPhysics):
                 )
                 self._add(extra)
 
-        jid = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in robot.joint_names]
-        self._qadr = np.array([self.model.jnt_qposadr[i] for i in jid])
-        self._dadr = np.array([self.model.jnt_dofadr[i] for i in jid])
+        self.index = RobotIndex.from_model(self.model, robot.joint_names)
+        """Addresses of the robot's joints in the scene."""
+        self._qadr, self._dadr = self.index.qpos, self.index.dof
         q0 = robot.pose("arms_hanging") if initial_q is None else np.asarray(initial_q, dtype=np.float64)
         self.data.qpos[self._qadr] = q0
         mujoco.mj_forward(self.model, self.data)

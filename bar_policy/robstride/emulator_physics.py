@@ -2,8 +2,10 @@
 
 Each MuJoCo step (2 ms) the MIT law of every enabled motor, ``firmware_torque`` (the one shared actuator
 model) with the motor's ``limit_torque`` as the cap, goes into ``qfrc_applied``; disabled motors apply
-nothing. ``RobstrideEmulator`` (``emulator``: buses, threads, clock, the firmware side of the protocol)
-inherits this from ``EmulatorPhysics`` and owns the state it runs on (the attributes annotated below).
+nothing. Torques go to the robot joints' dofs only (found by name, ``RobotIndex``), so a task's scene with
+more joints runs too. ``RobstrideEmulator`` (``emulator``: buses, threads, clock, the firmware side of the
+protocol) inherits this from ``EmulatorPhysics`` and owns the state it runs on (the attributes annotated
+below).
 """
 
 from __future__ import annotations
@@ -33,8 +35,8 @@ class EmulatorPhysics:
     model: mujoco.MjModel
     data: mujoco.MjData
     motors: dict[tuple[str, int], EmulatedMotor]
-    _qadr: np.ndarray
-    _dadr: np.ndarray
+    _qadr: np.ndarray  # qpos address per robot joint, canonical order (RobotIndex.qpos)
+    _dadr: np.ndarray  # dof address per robot joint (RobotIndex.dof): qvel, qfrc_applied
     _tau_raw: np.ndarray
     _lock: threading.RLock
     _stop: threading.Event

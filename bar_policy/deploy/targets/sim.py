@@ -14,6 +14,10 @@ writes the torque to ``qfrc_applied`` as is; ``implicit`` (the env's default) al
 adds ``-Kd dq``), while Euler integrates the damping term implicitly, ``(M + h Kd) dv = h f``, as the MJX
 env does.
 
+The scene may hold more than the robot (``scene=``, a task's ``bar_policy.robot.scene.SceneEdit``, the
+same one its env uses): the robot's joints are read and written at their addresses (``RobotIndex``), the
+scene's other joints move by physics only and start each run at ``qpos0``.
+
 The target is synchronous: ``advance(dt)`` runs ``dt / 0.002`` physics steps and its clock is
 ``data.time``, so a headless run goes as fast as the CPU allows. Optional: a live viewer
 (``mujoco.viewer``, on request only) and headless video through ``mujoco.Renderer`` (needs an OpenGL
@@ -34,8 +38,9 @@ import numpy as np
 
 from bar_policy.deploy.targets.base import JointState, Target, TargetError
 from bar_policy.robot.constants import load_robot
+from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.mit import MitCommand, mit_torque, quantize, wire_ranges
-from bar_policy.robot.mjcf import PHYSICS_DT, load_model
+from bar_policy.robot.scene import PHYSICS_DT, SceneEdit, load_model
 
 __all__ = ["SimConfig", "SimTarget", "VideoRecorder", "ffmpeg_available", "training_damping"]
 
@@ -158,22 +163,26 @@ class SimTarget(Target):
 
     synchronous = True
 
-    def __init__(self, mode: str = "arms", config: SimConfig | None = None) -> None:
+    def __init__(
+        self, mode: str = "arms", config: SimConfig | None = None, *, scene: SceneEdit | None = None
+    ) -> None:
+        """The robot of ``mode`` in the scene ``scene`` adds to (None: the robot alone)."""
         import mujoco
 
         self._mj = mujoco
         self.config = config or SimConfig()
         self.robot = load_robot(mode)
         super().__init__(self.robot.joint_names)
-        self.model = load_model(mode)
+        self.model = load_model(mode, scene)
         self.data = mujoco.MjData(self.model)
         if abs(self.model.opt.timestep - PHYSICS_DT) > 1e-12:
             raise TargetError(f"MJCF timestep {self.model.opt.timestep} s, expected {PHYSICS_DT} s")
-        ids = [self.model.joint(name).id for name in self.joint_names]
-        qadr = np.array([self.model.jnt_qposadr[i] for i in ids])
-        dadr = np.array([self.model.jnt_dofadr[i] for i in ids])
-        n = len(ids)
-        # Slices (views into MjData) when the joints are the first n coordinates in order, as in our MJCF.
+        self.index = RobotIndex.from_model(self.model, self.joint_names)
+        """Addresses of the robot's joints in the scene."""
+        qadr, dadr = self.index.qpos, self.index.dof
+        n = self.num_joints
+        # Slices (views into MjData) when the joints are the first n coordinates in order, as for the robot
+        # alone and for scenes whose joints all come after the robot's.
         self._qadr = slice(0, n) if np.array_equal(qadr, np.arange(n)) else qadr
         self._dadr = slice(0, n) if np.array_equal(dadr, np.arange(n)) else dadr
         self._ranges = wire_ranges(self.robot.models)
