@@ -15,12 +15,14 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+from bar_policy.deploy.foxglove_scene import RobotScene
 from bar_policy.deploy.log import RunLog, log_fields
 from bar_policy.deploy.run_config import RunResult
 from bar_policy.deploy.safety import Mode
 from bar_policy.deploy.targets.base import StopReport, run_metadata_of
 from bar_policy.deploy.timing import Pacer, RealtimePriority
 from bar_policy.quality import summarise
+from bar_policy.robot.mjcf import lite_xml
 from bar_policy.signals import StopSignals
 
 __all__ = ["RunLoop"]
@@ -113,15 +115,17 @@ class RunLoop:
 
     def _make_log(self) -> RunLog:
         om = self.policy.obs_manager
-        fields = log_fields(
-            self.policy.robot.num_joints, self.policy.n_actions, om.size, self.commands.log_fields
-        )
+        robot = self.policy.robot
+        fields = log_fields(robot.num_joints, self.policy.n_actions, om.size, self.commands.log_fields)
         return RunLog(
             self.log_dir,
             fields,
             self._meta(),
             name=self.log_name,
             labels={"mode": {int(m): m.name for m in Mode}},
+            scene=RobotScene.for_mode(robot.mode, robot.joint_names),
+            model_xml=lite_xml(robot.mode),
+            live=self.live,
         )
 
     def _run(self, stop: StopSignals) -> RunResult:
