@@ -155,7 +155,7 @@ class RobotScene:
             kind, size = int(m.geom_type[g]), np.asarray(m.geom_size[g], dtype=float)
             pos, quat = np.asarray(m.geom_pos[g], dtype=float), np.asarray(m.geom_quat[g], dtype=float)
             rgba = tuple(float(c) for c in m.geom_rgba[g])
-            prims = out.setdefault(int(m.geom_bodyid[g]), [])
+            prims: list[tuple[str, dict[str, Any]]] = []
             if kind == _BOX:
                 prims.append(("cubes", {"pos": pos, "quat": quat, "size": 2 * size, "rgba": rgba}))
             elif kind in (_SPHERE, _ELLIPSOID):
@@ -181,6 +181,8 @@ class RobotScene:
                 prims.append(("triangles", tri))
             else:
                 self.skipped += 1
+            if prims:
+                out.setdefault(int(m.geom_bodyid[g]), []).extend(prims)
         return out
 
     def scene(self, stamp_ns: int, prefix: str = "", color: tuple[float, ...] | None = None) -> bytes:

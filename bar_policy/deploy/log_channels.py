@@ -45,7 +45,9 @@ __all__ = [
     "SCENE_PERIOD",
     "SCENE_TOPIC",
     "TF_TOPIC",
+    "WELL_KNOWN_TOPICS",
     "WellKnownChannels",
+    "encode_log",
 ]
 
 JOINT_STATES_TOPIC = "/joint_states"
@@ -56,6 +58,17 @@ REF_TF_TOPIC = "/reference/tf"
 SCENE_TOPIC = "/robot/scene"
 REF_SCENE_TOPIC = "/reference/scene"
 LOG_TOPIC = "/log"
+WELL_KNOWN_TOPICS = (
+    JOINT_STATES_TOPIC,
+    JOINT_COMMANDS_TOPIC,
+    REF_JOINT_STATES_TOPIC,
+    TF_TOPIC,
+    REF_TF_TOPIC,
+    SCENE_TOPIC,
+    REF_SCENE_TOPIC,
+    LOG_TOPIC,
+)
+"""Every topic ``WellKnownChannels`` may write (the reference's only on tracking runs)."""
 SCENE_PERIOD = 1.0
 """Target time between two writes of the scenes, s."""
 
