@@ -300,3 +300,27 @@ def test_live_server_serves_the_log_channels_on_localhost(tmp_path):
         np.testing.assert_array_equal(first.position, arrays["q"][0])
     finally:
         live.stop()
+
+
+def test_shipped_layout_has_a_3d_panel_a_joint_position_plot_and_a_log_panel():
+    """``docs/foxglove_layout.json`` (Foxglove's layout file: ``configById`` + the split tree) names only
+    channels the log writes: the robot and ghost scenes, ``/joint_states.position[i]`` per joint, ``/log``."""
+    from pathlib import Path
+
+    from bar_policy.deploy.log_channels import WELL_KNOWN_TOPICS
+
+    layout = json.loads((Path(__file__).parents[2] / "docs" / "foxglove_layout.json").read_text())
+    panels = layout["configById"]
+
+    def leaves(node):
+        return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(node["second"])
+
+    assert sorted(leaves(layout["layout"])) == sorted(panels)
+    kinds = {key.split("!")[0]: cfg for key, cfg in panels.items()}
+    assert set(kinds) == {"3D", "Plot", "RosOut"}  # RosOut is the id of Foxglove's Log panel
+    assert kinds["3D"]["followTf"] == "world"
+    assert set(kinds["3D"]["topics"]) == {"/robot/scene", "/reference/scene"} <= set(WELL_KNOWN_TOPICS)
+    series = kinds["Plot"]["paths"]
+    assert [s["value"] for s in series] == [f"/joint_states.position[{i}]" for i in range(14)]
+    assert [s["label"] for s in series] == list(ROBOT.joint_names)
+    assert kinds["RosOut"]["topicToRender"] == "/log"
