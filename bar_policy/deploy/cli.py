@@ -51,6 +51,7 @@ from bar_policy.deploy.cli_types import priority as _priority
 from bar_policy.deploy.cli_types import seconds as _seconds
 from bar_policy.deploy.cli_types import seconds0 as _seconds0
 from bar_policy.deploy.live import LIVE_PORT
+from bar_policy.deploy.log_files import CAN_LOG_FILE
 from bar_policy.deploy.signals import early_interrupt
 
 # The tasks and provenance modules (numpy and more) are imported where they are used: until ``main`` runs,
@@ -338,16 +339,9 @@ def _run_session(
 
     try:
         try:
-            run_dir = rt.open_log()  # before the target starts: nothing slow between activation and tick 1
+            rt.open_log()  # before the target starts: nothing slow between activation and the first tick
         except LogDirError as e:
             return _fail(e)
-        record_can = getattr(target, "record_can", None)
-        if run_dir is not None and record_can is not None:
-            try:
-                record_can(run_dir / "run.blf")  # the raw CAN traffic, from the scan on
-            except (OSError, ValueError) as e:
-                rt.close_unstarted(f"not started: cannot record the CAN traffic: {_one_line(e)}")
-                return _fail(f"cannot record the CAN traffic in {run_dir}: {e}")
         try:
             target.start()
         except TargetError as e:
@@ -376,9 +370,8 @@ def _run_session(
         print(f"  t={tr['t']:.3f} s  {tr['from']} -> {tr['to']}: {tr['reason']}")
     if result.log_path is not None:
         print(f"log: {result.log_path}  (plot: bar-deploy plot {result.log_path.parent})")
-        blf = result.log_path.parent / "run.blf"
-        if blf.is_file():
-            print(f"raw CAN traffic: {blf}")
+        if (result.log_path.parent / CAN_LOG_FILE).is_file():
+            print(f"raw CAN traffic: {result.log_path.parent / CAN_LOG_FILE}")
     video = getattr(target, "video_path", None)
     if video is not None:
         print(f"video: {video}")

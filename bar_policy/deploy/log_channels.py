@@ -139,7 +139,8 @@ class WellKnownChannels:
         joint_schema = (JOINT_STATE_TYPE, "ros2msg", JOINT_STATE_SCHEMA.encode())
         self._joints: dict[int, tuple[str | None, ...]] = {}
         for topic, names in _JOINT_TOPICS.items():
-            if names[0] in fields and tuple(fields[names[0]][0]) == (n,):
+            given = [k for k in names if k is not None]
+            if n and all(k in fields and tuple(fields[k][0]) == (n,) for k in given):
                 self._joints[register(topic, joint_schema, "cdr")] = names
         self.has_reference = any(names[0] == "ref_q" for names in self._joints.values())
         self.scene = scene

@@ -16,7 +16,8 @@ from pathlib import Path
 from typing import Any
 
 from bar_policy.deploy.foxglove_scene import RobotScene
-from bar_policy.deploy.log import RunLog, log_fields
+from bar_policy.deploy.log import LogDirError, RunLog, log_fields
+from bar_policy.deploy.log_files import CAN_LOG_FILE
 from bar_policy.deploy.run_config import RunResult
 from bar_policy.deploy.safety import Mode
 from bar_policy.deploy.targets.base import StopReport, run_metadata_of
@@ -100,12 +101,33 @@ class RunLoop:
         Returns:
             The run directory, or None without ``log_dir``.
 
+        A target with ``record_can`` (the real one) records its raw CAN traffic to ``run.blf`` in it from
+        here on (``robstride.can_record``).
+
         Raises:
-            LogDirError: the run directory cannot be created or written.
+            LogDirError: the run directory, or the CAN log in it, cannot be created or written.
         """
         if self._runlog is None and self.log_dir is not None:
             self._runlog = self._make_log()
+            self._record_can(self._runlog)
         return None if self._runlog is None else self._runlog.path
+
+    def _record_can(self, runlog: RunLog) -> None:
+        """A target with ``record_can`` (the real one) records its raw CAN traffic to ``run.blf``.
+
+        Raises:
+            LogDirError: the file cannot be created (the log is closed as not started).
+        """
+        record = getattr(self.target, "record_can", None)
+        if record is None:
+            return
+        try:
+            record(runlog.path / CAN_LOG_FILE)
+        except (OSError, ValueError) as e:
+            reason = f"cannot record the CAN traffic in {runlog.path}: {e}"
+            runlog.close(end_reason=f"not started: {reason}", transitions=[], fault_count=0)
+            self.log_path = runlog.path / "log.npz"
+            raise LogDirError(reason) from None
 
     def close_unstarted(self, reason: str) -> None:
         """Close a log opened by ``open_log`` for a run that never started (``end_reason`` = ``reason``)."""

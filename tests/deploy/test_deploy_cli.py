@@ -257,3 +257,29 @@ def test_target_run_metadata_is_kept_in_the_log(policy_path, tmp_path, monkeypat
     assert main(argv) == 0
     _, meta = load_log(next(runs.iterdir()))
     assert meta["target_metadata"] == {"can_timeout": 0.2}
+
+
+class _UnrecordableMock(MockTarget):
+    """A target whose CAN log cannot be created (as a full disk would refuse it)."""
+
+    started = False
+
+    def record_can(self, path):
+        raise OSError(28, "No space left on device")
+
+    def start(self):
+        self.started = True
+
+
+def test_a_can_log_that_cannot_be_created_refuses_the_run_before_the_start(
+    policy_path, tmp_path, monkeypatch, capsys
+):
+    made = []
+    _fake_real(monkeypatch, lambda mode: made.append(_UnrecordableMock(mode)) or made[-1])
+    runs = tmp_path / "runs"
+    assert main(["--policy", str(policy_path), "--target", "real", "--log", str(runs)]) == 2
+    (err,) = capsys.readouterr().err.strip().splitlines()
+    assert "cannot record the CAN traffic in" in err and "No space left on device" in err
+    assert not made[0].started
+    _, meta = load_log(next(runs.iterdir()))
+    assert meta["status"] == "closed" and meta["end_reason"].startswith("not started: cannot record the CAN")
