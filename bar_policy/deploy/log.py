@@ -96,7 +96,10 @@ class _LogLines(logging.Handler):
 
     def emit(self, record: logging.LogRecord) -> None:
         """Queue the record's level, text and origin for the writer thread."""
-        self.runlog.log_line(record)
+        try:
+            self.runlog.log_line(record)
+        except Exception:  # a record whose message cannot be formatted: logging's own report
+            self.handleError(record)
 
 
 class RunLog:

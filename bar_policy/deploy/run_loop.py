@@ -98,11 +98,11 @@ class RunLoop:
         refused before anything moves, and no file-system work (``fsync``) falls between the real target's
         activation and the first tick, which must come within the motors' CAN watchdog.
 
-        Returns:
-            The run directory, or None without ``log_dir``.
-
         A target with ``record_can`` (the real one) records its raw CAN traffic to ``run.blf`` in it from
         here on (``robstride.can_record``).
+
+        Returns:
+            The run directory, or None without ``log_dir``.
 
         Raises:
             LogDirError: the run directory, or the CAN log in it, cannot be created or written.
