@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import io
 import json
+import logging
 import math
 import time
 
@@ -134,7 +135,9 @@ def _world_pose(transforms, child, prefix=""):
     return pos, rot
 
 
-def test_sim_log_reads_back_every_channel_with_a_schema_aware_decoder(tmp_path):
+def test_sim_log_reads_back_every_channel_with_a_schema_aware_decoder(tmp_path, caplog):
+    # The mode changes are INFO records of this logger (``bar-deploy eval`` quietens it in its process).
+    caplog.set_level(logging.INFO, logger="bar_policy.deploy.safety")
     rt = _run_sim_track(tmp_path)
     res = rt.run()
     arrays, meta = load_log(res.log_path)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import math
 import time
 from pathlib import Path
@@ -185,7 +186,8 @@ def test_recover_the_file_a_live_run_leaves_on_disk(tmp_path):
     assert read_mcap_log(run / MCAP_FILE).arrays["t"].size == 30
 
 
-def test_cli_recovers_a_cut_run_of_the_runtime(zero_policy, tmp_path, capsys):
+def test_cli_recovers_a_cut_run_of_the_runtime(zero_policy, tmp_path, capsys, caplog):
+    caplog.set_level(logging.INFO, logger="bar_policy.deploy.safety")  # the mode changes go to /log
     cfg = RuntimeConfig(duration=0.4, start_mode="hold", safety=SafetyConfig(ramp_time=0.2))
     rt = Runtime(
         zero_policy,
