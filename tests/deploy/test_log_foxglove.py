@@ -286,7 +286,7 @@ def test_live_server_serves_the_log_channels_on_localhost(tmp_path):
             js = advertised["/joint_states"]
             assert js["encoding"] == "cdr" and js["schemaName"] == JOINT_STATE_TYPE
             ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": js["id"]}]}))
-            time.sleep(0.3)  # the server takes the subscription before the run starts
+            time.sleep(1.0)  # the server takes the subscription before the run (the protocol has no ack)
             res = rt.run()
             data = ws.recv(timeout=5)
         with (res.log_path.parent / MCAP_FILE).open("rb") as f:
@@ -297,10 +297,14 @@ def test_live_server_serves_the_log_channels_on_localhost(tmp_path):
         # Binary message data: opcode 1, subscription id (u32), log time (u64), then the CDR message.
         assert data[0] == 1 and int.from_bytes(data[1:5], "little") == 7
         decode = generate_dynamic(JOINT_STATE_TYPE, JOINT_STATE_SCHEMA)[JOINT_STATE_TYPE]
-        arrays, _ = load_log(res.log_path)
+        arrays, meta = load_log(res.log_path)
         first = decode(data[13:])
         assert first.name == list(ROBOT.joint_names)
-        np.testing.assert_array_equal(first.position, arrays["q"][0])
+        stamp = first.header.stamp.sec * 10**9 + first.header.stamp.nanosec
+        assert stamp == int.from_bytes(data[5:13], "little")  # the message's log time, as in the file
+        ticks = np.round(meta["started_unix"] * 1e9 + arrays["t"] * 1e9)
+        (k,) = np.flatnonzero(np.abs(ticks - stamp) < 1000)  # the tick it belongs to (the first, normally)
+        np.testing.assert_array_equal(first.position, arrays["q"][k])
     finally:
         live.stop()
 
