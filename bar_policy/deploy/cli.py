@@ -3,7 +3,7 @@
 Usage::
 
     bar-deploy --policy reach.onnx [--target sim|mock|real] [--duration S|inf] [--commands SPEC] [--viewer]
-               [--video out.mp4] [--log DIR] [--seed N] [real target: --can-interface, --channels, ...]
+               [--video out.mp4] [--log DIR] [--live [PORT]] [--seed N] [real target: --can-interface, ...]
     bar-deploy --policy track.onnx --motion NAME|PATH [...]      (ends after the clip)
     bar-deploy run ...          (same as above)
     bar-deploy plot LOG [--out DIR]
@@ -46,9 +46,12 @@ from bar_policy.deploy.cli_types import count0 as _count0
 from bar_policy.deploy.cli_types import duration as _duration
 from bar_policy.deploy.cli_types import number as _number
 from bar_policy.deploy.cli_types import one_line as _one_line
+from bar_policy.deploy.cli_types import port as _port
 from bar_policy.deploy.cli_types import priority as _priority
 from bar_policy.deploy.cli_types import seconds as _seconds
 from bar_policy.deploy.cli_types import seconds0 as _seconds0
+from bar_policy.deploy.live import LIVE_PORT
+from bar_policy.deploy.log_files import CAN_LOG_FILE
 from bar_policy.deploy.signals import early_interrupt
 
 # The tasks and provenance modules (numpy and more) are imported where they are used: until ``main`` runs,
@@ -109,6 +112,10 @@ def _run_parser() -> argparse.ArgumentParser:
     p.add_argument("--log", type=Path, default=Path("runs/deploy"), metavar="DIR",
                    help="directory of run logs (default: runs/deploy)")  # fmt: skip
     p.add_argument("--no-log", action="store_true", help="record no run log")
+    p.add_argument("--live", nargs="?", const=LIVE_PORT, type=_port, metavar="PORT",
+                   help="serve the run log's channels live on 127.0.0.1:PORT for the Foxglove app (Open "
+                        f"connection -> Foxglove WebSocket -> ws://localhost:PORT; default {LIVE_PORT}; 0: "
+                        "any free port)")  # fmt: skip
     p.add_argument("--ramp-time", type=_seconds0, default=3.0, metavar="S",
                    help="HOLD ramp to the default pose, s (default 3)")  # fmt: skip
     p.add_argument(
@@ -201,6 +208,8 @@ def _run(argv: Sequence[str]) -> int:
         return _fail("--video needs --target sim")
     if args.viewer and args.target != "sim":
         return _fail("--viewer needs --target sim")
+    if args.live is not None and args.no_log:
+        return _fail("--live serves the run log's channels: drop --no-log")
     if not args.no_log:
         from bar_policy.deploy.log import LogDirError, check_log_dir
 
@@ -218,7 +227,20 @@ def _run(argv: Sequence[str]) -> int:
 
     # Installed before anything moves and kept until the log is closed: every stop takes one path.
     with StopSignals() as stop:
-        return _run_session(args, argv, real, stop)
+        live = None
+        if args.live is not None:
+            from bar_policy.deploy.live import LiveError, LiveServer
+
+            try:
+                live = LiveServer(args.live)
+            except LiveError as e:
+                return _fail(f"--live: {e}")
+            print(f"live view: {live.url} (Foxglove app: Open connection -> Foxglove WebSocket)")
+        try:
+            return _run_session(args, argv, real, stop, live)
+        finally:
+            if live is not None:
+                live.stop()
 
 
 def _policy_task(args: argparse.Namespace, which: str) -> tuple[object, object]:
@@ -240,7 +262,9 @@ def _policy_task(args: argparse.Namespace, which: str) -> tuple[object, object]:
     return policy, task
 
 
-def _run_session(args: argparse.Namespace, argv: Sequence[str], real: object, stop: object) -> int:
+def _run_session(
+    args: argparse.Namespace, argv: Sequence[str], real: object, stop: object, live: object
+) -> int:
     from bar_policy.deploy.runtime import Runtime, RuntimeConfig
     from bar_policy.deploy.safety import SafetyConfig
     from bar_policy.deploy.targets.base import TargetError
@@ -292,6 +316,7 @@ def _run_session(args: argparse.Namespace, argv: Sequence[str], real: object, st
             log_dir=None if args.no_log else args.log,
             log_meta={"argv": list(argv), "seed": args.seed},
             log_name=args.target,
+            live=live,  # type: ignore[arg-type]
             kinematics=kin,
         )
     except (TargetError, ValueError) as e:
@@ -345,6 +370,8 @@ def _run_session(args: argparse.Namespace, argv: Sequence[str], real: object, st
         print(f"  t={tr['t']:.3f} s  {tr['from']} -> {tr['to']}: {tr['reason']}")
     if result.log_path is not None:
         print(f"log: {result.log_path}  (plot: bar-deploy plot {result.log_path.parent})")
+        if (result.log_path.parent / CAN_LOG_FILE).is_file():
+            print(f"raw CAN traffic: {result.log_path.parent / CAN_LOG_FILE}")
     video = getattr(target, "video_path", None)
     if video is not None:
         print(f"video: {video}")

@@ -64,6 +64,7 @@ seconds0 = number("a time >= 0 s", lambda v: v >= 0)
 count0 = number("an integer >= 0", lambda v: v >= 0, int)
 count1 = number("an integer >= 1", lambda v: v >= 1, int)
 priority = number("an integer in 1..99", lambda v: 1 <= v <= 99, int)
+port = number("a TCP port in 0..65535", lambda v: 0 <= v <= 65535, int)
 
 
 def duration(text: str) -> float:

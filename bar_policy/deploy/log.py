@@ -6,7 +6,11 @@ A run directory ``<dir>/<YYYYmmdd-HHMMSS>-<target>/`` holds:
   background thread as the ticks arrive. Every ``flush_interval`` s of wall time (0.5 s) the chunk in
   progress is closed, written and ``fsync``-ed, so a SIGKILL or a power loss loses at most the last
   ``flush_interval`` s plus the writer's backlog (counted: ``log_max_backlog_ticks``). Foxglove and the
-  ``mcap`` CLI open it; ``read_mcap_log`` reads it back even without its footer.
+  ``mcap`` CLI open it; ``read_mcap_log`` reads it back even without its footer. Beside the JSON topics it
+  holds the same values in well-known schemas (``log_channels``): ROS 2 joint states, the robot drawn in
+  Foxglove's 3D panel (transforms and the MJCF's geometry, the tracking reference as a ghost), the run's
+  log lines as ``foxglove.Log``; with ``live``, every message also goes to the live server.
+- ``run.blf`` (real target): the raw CAN traffic of every bus (``robstride.can_record``).
 - ``log.npz``: all ticks as arrays, written (atomically, fsync-ed) by ``close()``, plus ``meta_json`` (a 0-d
   string: run metadata, mode transitions, timing summary, end reason, the stop path's outcome). The runtime
   calls ``close()`` in ``finally``, so it is written when the run ends on a signal or an exception too.
@@ -43,7 +47,7 @@ import threading
 import time
 from collections.abc import Mapping
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -63,6 +67,10 @@ from bar_policy.deploy.log_files import (
 from bar_policy.deploy.log_read import load_log
 from bar_policy.deploy.mcap_log import MCAP_FILE, McapRunWriter
 
+if TYPE_CHECKING:
+    from bar_policy.deploy.foxglove_scene import RobotScene
+    from bar_policy.deploy.live import LiveServer
+
 __all__ = [
     "FLUSH_INTERVAL",
     "LogDirError",
@@ -79,6 +87,21 @@ log = logging.getLogger(__name__)
 # ---------------------------------------------------------------------------------------------------
 # Writer
 # ---------------------------------------------------------------------------------------------------
+class _LogLines(logging.Handler):
+    """Hands the records of a logger (INFO and above) to a ``RunLog`` for ``/log``."""
+
+    def __init__(self, runlog: RunLog) -> None:
+        super().__init__(level=logging.INFO)
+        self.runlog = runlog
+
+    def emit(self, record: logging.LogRecord) -> None:
+        """Queue the record's level, text and origin for the writer thread."""
+        try:
+            self.runlog.log_line(record)
+        except Exception:  # a record whose message cannot be formatted: logging's own report
+            self.handleError(record)
+
+
 class RunLog:
     """Per-tick recorder: a durable streaming ``run.mcap``, an NPZ spill, and ``log.npz`` at close."""
 
@@ -92,6 +115,10 @@ class RunLog:
         chunk_ticks: int = 1000,
         flush_interval: float = FLUSH_INTERVAL,
         labels: Mapping[str, Mapping[int, str]] | None = None,
+        scene: RobotScene | None = None,
+        model_xml: str | None = None,
+        live: LiveServer | None = None,
+        log_lines: str | None = "bar_policy",
     ) -> None:
         """Create the run directory and start the writer thread.
 
@@ -103,6 +130,11 @@ class RunLog:
             chunk_ticks: ticks per NPZ spill chunk (bounds the memory of a long run).
             flush_interval: wall time between durable flushes of ``run.mcap``, s (> 0).
             labels: names of integer field values for the MCAP messages (``{"mode": {1: "DAMPING"}}``).
+            scene: the robot's model for the transforms and the scene in ``run.mcap`` (``foxglove_scene``).
+            model_xml: the robot's MJCF, attached to ``run.mcap``.
+            live: a live server that gets every channel of ``run.mcap`` too (``bar-deploy --live``).
+            log_lines: the logger whose records (INFO and above) are written to ``/log`` while the log is
+                open; None writes none.
 
         Raises:
             LogDirError: the run directory or its files cannot be created.
@@ -135,7 +167,14 @@ class RunLog:
             )
             self._mcap_file = (self.path / MCAP_FILE).open("wb")
             self._mcap = McapRunWriter(
-                self._mcap_file, self.fields, self.meta, start_unix_ns=start_ns, labels=labels
+                self._mcap_file,
+                self.fields,
+                self.meta,
+                start_unix_ns=start_ns,
+                labels=labels,
+                scene=scene,
+                model_xml=model_xml,
+                live=live,
             )
             self._mcap.flush()
             self._mcap_file.flush()
@@ -144,8 +183,13 @@ class RunLog:
         except OSError as e:
             raise LogDirError(f"cannot write the run log in {str(self.path)!r}: {e.strerror or e}") from None
         self._queue: queue.SimpleQueue[tuple[Any, ...]] = queue.SimpleQueue()
+        self._last_t = 0.0
         self._writer = threading.Thread(target=self._write_loop, name="bar-deploy-log", daemon=True)
         self._writer.start()
+        self._lines = _LogLines(self)
+        self._lines_logger = None if log_lines is None else logging.getLogger(log_lines)
+        if self._lines_logger is not None:
+            self._lines_logger.addHandler(self._lines)
 
     @staticmethod
     def _make_dir(root: Path, name: str) -> Path:
@@ -184,6 +228,7 @@ class RunLog:
         buf = self._buf
         for k, v in record.items():
             buf[k][i] = v
+        self._last_t = float(buf["t"][i]) if "t" in buf else self._last_t
         # Rows are never written again once appended, so the writer thread may read them at leisure.
         self._queue.put(("tick", buf, i, self.ticks, time.time_ns()))
         self._n += 1
@@ -195,6 +240,12 @@ class RunLog:
         """Record a mode change (``Transition.to_dict()``) on ``/safety/transition``."""
         if not self.closed:
             self._queue.put(("transition", dict(transition), time.time_ns()))
+
+    def log_line(self, record: logging.LogRecord) -> None:
+        """Record a log line on ``/log``, at the target time of the latest tick (any thread)."""
+        if not self.closed:
+            line = (record.levelno, record.getMessage(), record.name, record.pathname, record.lineno)
+            self._queue.put(("line", line, self._last_t, time.time_ns()))
 
     def _spill_chunk(self) -> None:
         if self._n == 0:
@@ -247,6 +298,12 @@ class RunLog:
                 except Exception as e:
                     self._error("transition to run.mcap", e)
                 dirty = True
+            elif kind == "line":
+                try:
+                    self._mcap.write_log(item[2], *item[1], wall_ns=item[3])
+                except Exception as e:
+                    self._error("log line to run.mcap", e)
+                dirty = True
             elif kind == "chunk":
                 _, path, arrays = item
                 try:
@@ -278,6 +335,8 @@ class RunLog:
         out = self.path / "log.npz"
         if self.closed:
             return out
+        if self._lines_logger is not None:
+            self._lines_logger.removeHandler(self._lines)
         self.closed = True
         self._spill_chunk()
         self.meta.update(meta)

@@ -17,6 +17,7 @@ import numpy as np
 from bar_policy._files import InputError, fsync_dir, strict_json
 
 __all__ = [
+    "CAN_LOG_FILE",
     "FLUSH_INTERVAL",
     "NOT_CLOSED",
     "LogDirError",
@@ -27,6 +28,8 @@ __all__ = [
 
 FLUSH_INTERVAL = 0.5
 """Wall time between durable flushes of ``run.mcap``, s (the log loses at most this much on a crash)."""
+CAN_LOG_FILE = "run.blf"
+"""File name of the raw CAN traffic in a run directory (targets with ``record_can``: the real one)."""
 NOT_CLOSED = "not closed: the process ended without closing the log (killed or power loss)"
 """``end_reason`` that ``load_log`` reports for a run recovered from ``run.mcap``."""
 

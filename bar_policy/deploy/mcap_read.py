@@ -84,12 +84,10 @@ def read_mcap_log(path: str | Path) -> McapLog:
                     channels[rec.id] = rec.topic
                 elif isinstance(rec, Message):
                     topic = channels.get(rec.channel_id)
-                    if topic is None:
-                        continue
-                    msg = json.loads(rec.data)
                     if topic == TRANSITION_TOPIC:
-                        transitions.append(msg)
-                    elif topic in per_topic:
+                        transitions.append(json.loads(rec.data))
+                    elif topic in per_topic:  # the JSON topics (the well-known ones repeat their values)
+                        msg = json.loads(rec.data)
                         per_topic[topic][int(msg["tick"])] = msg
                         if topic == "/timing":
                             published[int(msg["tick"])] = rec.publish_time

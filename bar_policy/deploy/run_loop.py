@@ -15,12 +15,15 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from bar_policy.deploy.log import RunLog, log_fields
+from bar_policy.deploy.foxglove_scene import RobotScene
+from bar_policy.deploy.log import LogDirError, RunLog, log_fields
+from bar_policy.deploy.log_files import CAN_LOG_FILE
 from bar_policy.deploy.run_config import RunResult
 from bar_policy.deploy.safety import Mode
 from bar_policy.deploy.targets.base import StopReport, run_metadata_of
 from bar_policy.deploy.timing import Pacer, RealtimePriority
 from bar_policy.quality import summarise
+from bar_policy.robot.mjcf import lite_xml
 from bar_policy.signals import StopSignals
 
 __all__ = ["RunLoop"]
@@ -95,15 +98,36 @@ class RunLoop:
         refused before anything moves, and no file-system work (``fsync``) falls between the real target's
         activation and the first tick, which must come within the motors' CAN watchdog.
 
+        A target with ``record_can`` (the real one) records its raw CAN traffic to ``run.blf`` in it from
+        here on (``robstride.can_record``).
+
         Returns:
             The run directory, or None without ``log_dir``.
 
         Raises:
-            LogDirError: the run directory cannot be created or written.
+            LogDirError: the run directory, or the CAN log in it, cannot be created or written.
         """
         if self._runlog is None and self.log_dir is not None:
             self._runlog = self._make_log()
+            self._record_can(self._runlog)
         return None if self._runlog is None else self._runlog.path
+
+    def _record_can(self, runlog: RunLog) -> None:
+        """A target with ``record_can`` (the real one) records its raw CAN traffic to ``run.blf``.
+
+        Raises:
+            LogDirError: the file cannot be created (the log is closed as not started).
+        """
+        record = getattr(self.target, "record_can", None)
+        if record is None:
+            return
+        try:
+            record(runlog.path / CAN_LOG_FILE)
+        except (OSError, ValueError) as e:
+            reason = f"cannot record the CAN traffic in {runlog.path}: {e}"
+            runlog.close(end_reason=f"not started: {reason}", transitions=[], fault_count=0)
+            self.log_path = runlog.path / "log.npz"
+            raise LogDirError(reason) from None
 
     def close_unstarted(self, reason: str) -> None:
         """Close a log opened by ``open_log`` for a run that never started (``end_reason`` = ``reason``)."""
@@ -113,15 +137,17 @@ class RunLoop:
 
     def _make_log(self) -> RunLog:
         om = self.policy.obs_manager
-        fields = log_fields(
-            self.policy.robot.num_joints, self.policy.n_actions, om.size, self.commands.log_fields
-        )
+        robot = self.policy.robot
+        fields = log_fields(robot.num_joints, self.policy.n_actions, om.size, self.commands.log_fields)
         return RunLog(
             self.log_dir,
             fields,
             self._meta(),
             name=self.log_name,
             labels={"mode": {int(m): m.name for m in Mode}},
+            scene=RobotScene.for_mode(robot.mode, robot.joint_names),
+            model_xml=lite_xml(robot.mode),
+            live=self.live,
         )
 
     def _run(self, stop: StopSignals) -> RunResult:

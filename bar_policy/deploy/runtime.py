@@ -62,6 +62,7 @@ import numpy as np
 from bar_policy.deploy.action_path import ActionPath
 from bar_policy.deploy.contract import PolicyLoadError
 from bar_policy.deploy.inputs import StateInputs
+from bar_policy.deploy.live import LiveServer
 from bar_policy.deploy.log import RunLog
 from bar_policy.deploy.policy import OnnxPolicy, action_reach_problems
 from bar_policy.deploy.run_config import RunResult, RuntimeConfig
@@ -94,6 +95,7 @@ class Runtime(RunLoop):
         log_name: str = "run",
         kinematics: Kinematics | None = None,
         on_tick: Callable[[int, float, Runtime], None] | None = None,
+        live: LiveServer | None = None,
     ) -> None:
         """Wire a policy, a target and a command source.
 
@@ -108,6 +110,8 @@ class Runtime(RunLoop):
             log_name: suffix of the run directory.
             kinematics: fingertip FK (built for the policy's mode when the layout has fingertips and None).
             on_tick: called after every tick with (tick, run time, runtime) (tests, evaluation).
+            live: a live server (``deploy.live``) that gets the run log's channels too (needs ``log_dir``;
+                the caller starts and stops it).
         """
         self.policy = policy
         self.target = target
@@ -149,6 +153,9 @@ class Runtime(RunLoop):
         self.log_dir = None if log_dir is None else Path(log_dir)
         self.log_meta = dict(log_meta or {})
         self.log_name = log_name
+        if live is not None and log_dir is None:
+            raise ValueError("a live view serves the run log's channels: it needs a log directory")
+        self.live = live
         self.on_tick = on_tick
         self.actions = ActionPath(policy)
         """The clip and the action filter; ``actions.last`` is the observation's ``actions`` term."""

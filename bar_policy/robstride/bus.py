@@ -30,6 +30,7 @@ from bar_policy.robstride.bus_types import (
     BusReading,
     MotorConfig,
 )
+from bar_policy.robstride.can_record import CanRecorder
 from bar_policy.robstride.canbus import down_hint
 from bar_policy.robstride.errors import FaultError, OperationError, TimeoutError, UnexpectedDeviceError
 from bar_policy.robstride.startup import StartupControl
@@ -92,6 +93,9 @@ class RobstrideBus(BusParams):
         self._pending_faultbits: dict[int, int] = {}
         self.last_reading = self.empty_reading()
         """The most recent reading of this bus (NaN where replies were missing)."""
+        self.recorder: CanRecorder | None = None
+        """Where every frame sent and received is recorded (``record_to``); None: nowhere."""
+        self._record_channel = 0
         self.retry: StartupControl | None = None
         """Set by ``RobstrideGroup.activate`` while it runs: ``request`` (parameter reads and writes) then
         retries a missing reply (``StartupControl.attempt``); None otherwise (tools, the control path)."""
@@ -110,6 +114,11 @@ class RobstrideBus(BusParams):
             self._closed = True
             self.bus.shutdown()
 
+    def record_to(self, recorder: CanRecorder | None) -> None:
+        """Record every frame this bus sends and receives from now on (None stops recording here)."""
+        self._record_channel = 0 if recorder is None else recorder.channel(self.interface)
+        self.recorder = recorder
+
     def name_of(self, can_id: int) -> str:
         """Joint name of a motor id (or ``id N``)."""
         i = self._index.get(can_id)
@@ -126,6 +135,8 @@ class RobstrideBus(BusParams):
         for attempt in range(_SEND_RETRIES):
             try:
                 self.bus.send(msg)
+                if self.recorder is not None:
+                    self.recorder.record(msg, self._record_channel, is_rx=False)
                 return
             except can.CanOperationError as exc:
                 hint = down_hint(exc.error_code, self.interface)
@@ -144,6 +155,8 @@ class RobstrideBus(BusParams):
             raise OperationError(f"{self.interface}: receive failed: {hint or exc}") from exc
         if msg is None:
             return None
+        if self.recorder is not None:
+            self.recorder.record(msg, self._record_channel, is_rx=True)
         if msg.is_error_frame or msg.is_remote_frame:
             self.ignored_frames += 1
             return False

@@ -115,6 +115,16 @@ def test_help_lists_subcommands(capsys):
     assert e.value.code == 0
     out = capsys.readouterr().out
     assert "plot" in out and "eval" in out and "stream:udp:PORT" in out
+    assert "--live [PORT]" in out and "Foxglove" in out
+
+
+def test_live_view_serves_on_localhost_and_needs_the_log(policy_path, tmp_path, capsys):
+    assert main(["--policy", str(policy_path), "--live", "--no-log"]) == 2
+    assert "--live serves the run log's channels: drop --no-log" in capsys.readouterr().err
+    argv = ["--policy", str(policy_path), "--target", "mock", "--duration", "0.1", "--live", "0"]
+    assert main([*argv, "--log", str(tmp_path / "runs")]) == 0
+    out = capsys.readouterr().out
+    assert "live view: ws://localhost:" in out and "Foxglove WebSocket" in out
 
 
 def test_real_target_on_the_virtual_bus_emulator(policy_path, tmp_path, capsys):
@@ -143,6 +153,18 @@ def test_real_target_on_the_virtual_bus_emulator(policy_path, tmp_path, capsys):
         arrays["q_cmd"][-1], [0.3, -1.0, 0.0, -1.7, -1.2, 0.0, 0.3, 0.3, 1.0, 0.0, -1.7, 1.2, 0.0, -0.3]
     )
     np.testing.assert_array_equal(arrays["kp"][-1], 50.0)
+    # The raw CAN traffic of both buses, from the scan to the stop frames, in python-can's BLF.
+    import can
+
+    run = next((tmp_path / "runs").iterdir())
+    assert f"raw CAN traffic: {run / 'run.blf'}" in out
+    with can.BLFReader(str(run / "run.blf")) as reader:
+        frames = list(reader)
+    assert {m.channel for m in frames} == {1, 2}
+    mit_sent = [m for m in frames if not m.is_rx and m.arbitration_id >> 24 == 1]  # type 1: MIT command
+    assert len(mit_sent) >= 14 * 20  # one per motor per tick at least
+    stop_sent = [m.arbitration_id & 0xFF for m in frames if not m.is_rx and m.arbitration_id >> 24 == 4]
+    assert sorted(set(stop_sent)) == [11, 12, 13, 14, 15, 16, 17, 21, 22, 23, 24, 25, 26, 27]  # type 4: stop
 
 
 class _FailingMock(MockTarget):
@@ -235,3 +257,29 @@ def test_target_run_metadata_is_kept_in_the_log(policy_path, tmp_path, monkeypat
     assert main(argv) == 0
     _, meta = load_log(next(runs.iterdir()))
     assert meta["target_metadata"] == {"can_timeout": 0.2}
+
+
+class _UnrecordableMock(MockTarget):
+    """A target whose CAN log cannot be created (as a full disk would refuse it)."""
+
+    started = False
+
+    def record_can(self, path):
+        raise OSError(28, "No space left on device")
+
+    def start(self):
+        self.started = True
+
+
+def test_a_can_log_that_cannot_be_created_refuses_the_run_before_the_start(
+    policy_path, tmp_path, monkeypatch, capsys
+):
+    made = []
+    _fake_real(monkeypatch, lambda mode: made.append(_UnrecordableMock(mode)) or made[-1])
+    runs = tmp_path / "runs"
+    assert main(["--policy", str(policy_path), "--target", "real", "--log", str(runs)]) == 2
+    (err,) = capsys.readouterr().err.strip().splitlines()
+    assert "cannot record the CAN traffic in" in err and "No space left on device" in err
+    assert not made[0].started
+    _, meta = load_log(next(runs.iterdir()))
+    assert meta["status"] == "closed" and meta["end_reason"].startswith("not started: cannot record the CAN")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import math
 import time
 from pathlib import Path
@@ -185,7 +186,8 @@ def test_recover_the_file_a_live_run_leaves_on_disk(tmp_path):
     assert read_mcap_log(run / MCAP_FILE).arrays["t"].size == 30
 
 
-def test_cli_recovers_a_cut_run_of_the_runtime(zero_policy, tmp_path, capsys):
+def test_cli_recovers_a_cut_run_of_the_runtime(zero_policy, tmp_path, capsys, caplog):
+    caplog.set_level(logging.INFO, logger="bar_policy.deploy.safety")  # the mode changes go to /log
     cfg = RuntimeConfig(duration=0.4, start_mode="hold", safety=SafetyConfig(ramp_time=0.2))
     rt = Runtime(
         zero_policy,
@@ -203,11 +205,19 @@ def test_cli_recovers_a_cut_run_of_the_runtime(zero_policy, tmp_path, capsys):
     path.write_bytes(cut)
     expected = read_mcap_log(path)
     assert expected.transitions and expected.arrays["t"].size == 20
+    streamed = _counts(_streamed(path))
+    # The JSON topics, and the well-known ones beside them (ROS 2 joint states, transforms, one scene, the
+    # log lines: one per mode change here).
+    assert {t: streamed[t] for t in (*TICK_TOPICS, "/joint_states", "/tf")} == dict.fromkeys(
+        (*TICK_TOPICS, "/joint_states", "/tf"), 20
+    )
+    assert streamed["/robot/scene"] == 1 and streamed["/log"] >= len(expected.transitions)
     capsys.readouterr()
     assert main(["log", "recover", str(run)]) == 0
     out = capsys.readouterr().out.strip().splitlines()
-    n = 20 * len(TICK_TOPICS) + len(expected.transitions)
+    n = sum(streamed.values())
     assert len(out) == 1 and f"recovered {n} messages" in out[0] and "/joint_state 20" in out[0]
+    assert "/joint_states 20" in out[0]
     assert "dropped 5 bytes" in out[0] and "run.mcap.cut" in out[0]
     assert (run / "run.mcap.cut").read_bytes() == cut
     summary, msgs = _indexed(path)

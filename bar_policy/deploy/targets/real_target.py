@@ -16,6 +16,8 @@
   a watchdog trip), ``KeyboardInterrupt`` or other exception inside a read or write sends damping then stop
   frames on every bus, then raises (``TargetError`` from the driver error). ``close()`` does the same when
   the motors are still enabled.
+- ``record_can(path)`` records the raw traffic of every bus to a BLF (or ASC) file until ``close()``
+  (``robstride.can_record``; ``bar-deploy`` writes ``run.blf`` in the run directory).
 
 The CLI glue (``add_arguments``, ``make_target``) is ``targets.real_cli``; ``targets.real`` re-exports both.
 """
@@ -25,6 +27,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
 from typing import NoReturn, TypeVar
 
 import numpy as np
@@ -33,6 +36,7 @@ from bar_policy.deploy.targets.base import JointState, StopReport, Target, Targe
 from bar_policy.robot.constants import RobotSpec
 from bar_policy.robot.mit import MitCommand
 from bar_policy.robstride.bus_types import BusReading
+from bar_policy.robstride.can_record import CanRecorder
 from bar_policy.robstride.errors import (
     CommandError,
     RobstrideError,
@@ -98,6 +102,21 @@ class RealTarget(Target):
         self._last_cmd: MitCommand | None = None
         self._reading: BusReading | None = None
         self._closed = False
+        self.can_recorder: CanRecorder | None = None
+        """The raw CAN log of every bus (``record_can``); closed by ``close()``."""
+
+    def record_can(self, path: str | Path) -> Path:
+        """Record the raw traffic of every bus to ``path`` (``.blf`` or ``.asc``) until ``close()``.
+
+        ``bar-deploy`` calls it with ``<run dir>/run.blf`` before ``start()``, so the file holds the whole
+        exchange: scan, parameter writes, enable, every control round, the damping and stop frames.
+        """
+        if self.can_recorder is not None:
+            raise RuntimeError(f"the CAN traffic is already recorded to {self.can_recorder.path}")
+        self.can_recorder = CanRecorder(path)
+        for bus in self.group.buses:
+            bus.record_to(self.can_recorder)
+        return self.can_recorder.path
 
     @property
     def can_timeout(self) -> float:
@@ -331,5 +350,7 @@ class RealTarget(Target):
             if self.group.temperature.counts():
                 log.warning("real target: temperature warnings: %s", self.group.temperature.summary())
             self.group.shutdown()
+            if self.can_recorder is not None:
+                self.can_recorder.stop()
             for c in self.companions:
                 c.close()  # type: ignore[attr-defined]
