@@ -48,6 +48,7 @@ from bar_policy.envs.robot_config import (
 from bar_policy.envs.task import TaskStep, Transition
 from bar_policy.obs import ObservationManager
 from bar_policy.robot.constants import FINGERTIP_SITES
+from bar_policy.robot.scene import SceneEdit
 from bar_policy.tasks.reach import SUCCESS_RADIUS, ReachTargetConfig, sample_targets, transition_point
 
 __all__ = [
@@ -162,17 +163,21 @@ class LiteReach(LiteRobotEnv):
 
     task_name = "reach"
 
-    def __init__(self, config: ReachEnvConfig | None = None) -> None:
+    def __init__(self, config: ReachEnvConfig | None = None, *, scene: SceneEdit | None = None) -> None:
+        """Reach of ``config`` (default: ``default_config()``) in ``scene`` (None: the robot alone).
+
+        The task reads the robot's joints through the env's addresses (``robot_q``, ``robot_dq``,
+        ``with_robot_q``), so a scene's extra joints leave it unchanged.
+        """
         cfg = config or default_config()
-        super().__init__(cfg, ObservationManager.for_task("reach", cfg.mode))
+        super().__init__(cfg, ObservationManager.for_task("reach", cfg.mode), scene=scene)
         self._site_ids = np.array([self.mj_model.site(s).id for s in FINGERTIP_SITES])
         self._tips0 = jnp.asarray(self._default_fingertips(), jnp.float32)
 
     def _default_fingertips(self) -> np.ndarray:
         """Fingertips (left, right) of the default pose by C MuJoCo's kinematics, shape (2, 3), m."""
         data = mujoco.MjData(self.mj_model)
-        data.qpos[:] = self.mj_model.qpos0
-        data.qpos[: len(self._default)] = np.asarray(self._default)
+        data.qpos[self.robot_index.qpos] = np.asarray(self._default)
         mujoco.mj_kinematics(self.mj_model, data)
         return data.site_xpos[self._site_ids].copy()
 
@@ -214,10 +219,12 @@ class LiteReach(LiteRobotEnv):
             "success": rewards.success(d_l, d_r, SUCCESS_RADIUS),
             "action_rate": rewards.action_rate(tr.action, info["last_act"]),
             "action_accel": rewards.action_accel(tr.action, info["last_act"], info["act_prev"]),
-            "joint_limit": rewards.joint_limit(data.qpos, self._lower, self._upper, rc.soft_limit_fraction),
+            "joint_limit": rewards.joint_limit(
+                self.robot_q(data), self._lower, self._upper, rc.soft_limit_fraction
+            ),
             "torque": rewards.torque(tr.tau_sq),
             "torque_near_cap": tr.near_cap,
-            "joint_vel": rewards.joint_vel(data.qvel),
+            "joint_vel": rewards.joint_vel(self.robot_dq(data)),
         }
         seg_end = (tr.step % cfg.resample_steps) == 0
         new_l, new_r = sample_targets(jax.random.uniform(tr.key, (6,)), cfg.target)
@@ -246,7 +253,7 @@ class LiteReach(LiteRobotEnv):
 
     def task_obs(self, model: mjx.Model, data: mjx.Data, q_meas: jax.Array, info: dict) -> dict:
         """Fingertips by forward kinematics of the measured q, and the two targets."""
-        tips = mjx.kinematics(model, data.replace(qpos=q_meas)).site_xpos[self._site_ids]
+        tips = mjx.kinematics(model, self.with_robot_q(data, q_meas)).site_xpos[self._site_ids]
         return {
             "fingertip_pos_left": tips[0],
             "fingertip_pos_right": tips[1],

@@ -8,6 +8,11 @@ that the MjSpec build compiles to the same model, array by array.
 
 from __future__ import annotations
 
-from bar_policy.robot.scene import PHYSICS_DT, load_model
+from bar_policy.robot.scene import PHYSICS_DT, load_model, scene_xml
 
-__all__ = ["PHYSICS_DT", "load_model"]
+__all__ = ["PHYSICS_DT", "lite_xml", "load_model"]
+
+
+def lite_xml(mode: str = "arms") -> str:
+    """MJCF text of the robot alone (``scene.scene_xml``: 6 significant digits; for logs and viewers)."""
+    return scene_xml(mode)

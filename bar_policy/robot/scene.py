@@ -46,7 +46,7 @@ from bar_policy.robot import links
 from bar_policy.robot.constants import MODES, POSE_NAMES, RobotSpec, load_robot
 from bar_policy.robot.index import RobotIndex
 
-__all__ = ["PHYSICS_DT", "SceneEdit", "compile_scene", "load_model", "robot_spec"]
+__all__ = ["PHYSICS_DT", "SceneEdit", "compile_scene", "load_model", "robot_spec", "scene_xml"]
 
 PHYSICS_DT = 0.002
 """Physics timestep, s (500 Hz)."""
@@ -239,3 +239,16 @@ def load_model(mode: str = "arms", scene: SceneEdit | None = None) -> mujoco.MjM
     spec = robot_spec(mode)
     scene(spec)
     return compile_scene(spec, mode)
+
+
+def scene_xml(mode: str = "arms", scene: SceneEdit | None = None) -> str:
+    """MJCF text of the scene (the robot plus ``scene``'s edits, keyframes included), for a log or a viewer.
+
+    Written by MuJoCo's own writer (``MjSpec.to_xml``), which prints 6 significant digits: a model compiled
+    from it differs from ``load_model``'s in the last digits, so simulate with ``load_model``.
+    """
+    spec = robot_spec(mode)
+    if scene is not None:
+        scene(spec)
+    compile_scene(spec, mode)
+    return spec.to_xml()

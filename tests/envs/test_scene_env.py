@@ -2,31 +2,22 @@
 coordinate sits between the arms'): it steps like the C MuJoCo sim target in the same scene, observes the
 robot's own joints, and the model randomiser writes only the robot's dofs.
 
-``KeyReach`` is reach's task in that scene. Reach itself (``envs/reach.py``) reads ``data.qpos`` as the
-robot's q, which holds for the robot alone only; the adapter hands it the robot's coordinates
-(``robot_q``/``robot_dq``) and computes the fingertips through ``with_robot_q``, as a task written for
-scenes does.
+``KeyReach`` is reach's task in that scene, unchanged: reach reads the robot's coordinates through the
+env's addresses (``robot_q``/``robot_dq``) and computes the fingertips through ``with_robot_q``.
 """
 
 from __future__ import annotations
-
-import dataclasses
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from mujoco import mjx
 from scene_support import EXTRA_JOINTS, key_scene
 
 from bar_policy import envs
 from bar_policy.deploy.targets.sim import SimConfig, SimTarget
 from bar_policy.envs.randomize import armature_bounds, make_randomizer
 from bar_policy.envs.reach import LiteReach, ReachEnvConfig, default_config
-from bar_policy.envs.robot import LiteRobotEnv
-from bar_policy.envs.task import TaskStep, Transition
-from bar_policy.obs import ObservationManager
-from bar_policy.robot.constants import FINGERTIP_SITES
 from bar_policy.robot.kinematics import Kinematics
 from bar_policy.robot.mit import MitCommand
 
@@ -34,25 +25,10 @@ STEPS = 15  # control steps, 0.3 s
 
 
 class KeyReach(LiteReach):
-    """LiteReach in the key scene (see the module docstring)."""
+    """LiteReach in the key scene: reach addresses the robot's joints by name; the scene is all it needs."""
 
     def __init__(self, config: ReachEnvConfig) -> None:
-        obs = ObservationManager.for_task("reach", config.mode)
-        LiteRobotEnv.__init__(self, config, obs, scene=key_scene)
-        self._site_ids = np.array([self.mj_model.site(s).id for s in FINGERTIP_SITES])
-
-    def task_step(self, tr: Transition) -> TaskStep:
-        robot = tr.data.replace(qpos=self.robot_q(tr.data), qvel=self.robot_dq(tr.data))
-        return super().task_step(dataclasses.replace(tr, data=robot))
-
-    def task_obs(self, model: mjx.Model, data: mjx.Data, q_meas: jax.Array, info: dict) -> dict:
-        tips = mjx.kinematics(model, self.with_robot_q(data, q_meas)).site_xpos[self._site_ids]
-        return {
-            "fingertip_pos_left": tips[0],
-            "fingertip_pos_right": tips[1],
-            "target_pos_left": info["target_left"],
-            "target_pos_right": info["target_right"],
-        }
+        super().__init__(config, scene=key_scene)
 
 
 @pytest.fixture(scope="module")
