@@ -35,7 +35,7 @@ declare -A VARIANT=(
   [recipe]=""
   [actuator_gains]="--env-overrides gains=actuator"
   [no_filter]="--env-overrides action_filter_hz=null"
-  [old]="--ppo.schedule fixed --matmul-precision default --env-overrides $OLD_ENV"
+  [old]="--ppo.schedule fixed --matmul-precision default --network.action-prior none --env-overrides $OLD_ENV"
   [no_sampling]="--env-overrides sampling.enabled=false"
   [fixed_lr]="--ppo.schedule fixed"
   [no_near_cap]="--env-overrides reward.scales.torque_near_cap=0.0"
