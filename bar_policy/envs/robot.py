@@ -42,6 +42,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
+from bar_policy._phases import MODEL_BUILD, phase
 from bar_policy.envs.actuator import (
     ActuatorParams,
     apply_latency,
@@ -81,7 +82,8 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         cfg = config
         self.config = cfg
         self.robot = load_robot(cfg.mode)
-        mj_model = load_model(cfg.mode)
+        with phase(MODEL_BUILD):
+            mj_model = load_model(cfg.mode)
         mj_model.opt.timestep = cfg.sim_dt
         names = tuple(mj_model.joint(i).name for i in range(mj_model.njnt))
         if names != self.robot.joint_names or mj_model.nq != mj_model.nv:
@@ -89,8 +91,9 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         if obs_manager.joint_names != self.robot.joint_names:
             raise ValueError(f"layout {obs_manager.schema.name} is for mode {obs_manager.schema.mode!r}")
         self._mj_model = mj_model
-        self._mjx_model = mjx.put_model(mj_model)
-        self._init_data = mjx.put_data(mj_model, mujoco.MjData(mj_model))
+        with phase(MODEL_BUILD):
+            self._mjx_model = mjx.put_model(mj_model)
+            self._init_data = mjx.put_data(mj_model, mujoco.MjData(mj_model))
         self.obs_manager = obs_manager
 
         n = self.robot.num_joints

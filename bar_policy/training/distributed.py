@@ -1,0 +1,100 @@
+"""Several processes through ``jax.distributed``: connect at the start, place the model, shut down in order.
+
+``init_distributed`` connects this process to the coordinator (process 0) when a run names one;
+``local_default_devices`` keeps MJX's model on this process's own device while the env is built;
+``shutdown_distributed`` ends the session on every process once the run is over, the coordinator's service
+last, so no process is left talking to a coordinator that is gone.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Iterator
+
+from bar_policy.training.config import TrainConfig
+
+__all__ = ["init_distributed", "local_default_devices", "shutdown_distributed"]
+
+SERVICE_GRACE_S = 1.0
+"""Seconds the coordinator waits, after every process passed the shutdown barrier, before it stops the
+coordination service (see ``shutdown_distributed``)."""
+
+
+def init_distributed(cfg: TrainConfig) -> None:
+    """``jax.distributed.initialize`` when a coordinator address is configured (multi-host).
+
+    Must run before anything touches a device. On CPU the cross-process collectives are gloo's (jax's
+    default ``jax_cpu_collectives_implementation``); on GPUs NCCL's.
+    """
+    d = cfg.distributed
+    if d.coordinator_address:
+        import jax
+
+        if getattr(jax.distributed, "is_initialized", lambda: False)():
+            return
+        jax.distributed.initialize(
+            coordinator_address=d.coordinator_address,
+            num_processes=d.num_processes,
+            process_id=d.process_id,
+            local_device_ids=list(d.local_device_ids) if d.local_device_ids is not None else None,
+        )
+    elif d.num_processes > 1:
+        raise ValueError(
+            f"distributed.num_processes = {d.num_processes} needs distributed.coordinator_address "
+            "(host:port of process 0)"
+        )
+
+
+@contextlib.contextmanager
+def local_default_devices() -> Iterator[None]:
+    """While building the env under ``jax.distributed``, ``jax.devices()`` lists this process's devices.
+
+    MJX's ``put_model``/``put_data`` place the model on ``jax.devices()[0]`` when given no device; with
+    several processes that is process 0's device, so every other process would hold a model it cannot read
+    (and the trainer cannot close over it). Listing the local devices first puts it on this process's first
+    device, as on one host.
+    """
+    import jax
+
+    if jax.process_count() == 1:
+        yield
+        return
+    real = jax.devices
+    jax.devices = lambda backend=None: jax.local_devices(backend=backend)  # type: ignore[assignment]
+    try:
+        yield
+    finally:
+        jax.devices = real  # type: ignore[assignment]
+
+
+def shutdown_distributed(timeout_s: float = 1800.0) -> None:
+    """End the ``jax.distributed`` session on every process, the coordinator's service last (no-op alone).
+
+    Called by ``run`` on every process after its last collective. Without it each process shuts down in
+    jax's ``atexit`` hook, in whatever order the processes happen to exit: a process still polling the
+    coordination service for errors (or still sending heartbeats) when process 0, which hosts the service,
+    exits logs gRPC ``Failed to connect`` / ``CANCELLED`` errors although the run succeeded. Here:
+
+    1. a barrier, so every process has finished its work (process 0 may still be exporting the policy);
+    2. ``jax.distributed.shutdown`` without the service: the preemption manager, then the client, whose
+       shutdown barrier (all processes) is where each client stops polling and disconnects;
+    3. process 0 only: ``SERVICE_GRACE_S`` for the other clients' disconnects to finish, then the service.
+
+    Args:
+        timeout_s: how long a process waits at the barrier for the slowest one, s.
+    """
+    import jax
+    from jax._src import distributed
+
+    state = distributed.global_state
+    if state.client is None:
+        return
+    from bar_policy.training.parallel import barrier
+
+    barrier("bar_policy: run finished", timeout_s)
+    service, state.service = state.service, None
+    jax.distributed.shutdown()
+    if service is not None:
+        time.sleep(SERVICE_GRACE_S)
+        service.shutdown()
