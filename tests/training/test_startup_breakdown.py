@@ -118,9 +118,10 @@ def test_a_run_records_its_startup_breakdown(brax_run, run_walls):
     phases = rec["phases"]
     assert set(PHASES) <= set(phases)
     assert all(v >= 0 for v in phases.values())
-    # The stand-in env is handed to run(): no model to build. Everything else of a brax start happened.
+    # The stand-in env is handed to run(): no model to build. Everything else of a brax start happened
+    # (the imports too, but in a test process they are done before, and may round to 0 ms).
     assert phases[MODEL_BUILD] == 0.0 and phases[sb.BEFORE_RUN] == 0.0
-    for name in (sb.IMPORTS, sb.RUN_RECORD, sb.PROGRAMS, sb.TRACE, sb.LOWER, sb.FIRST_EPOCH, sb.FIRST_EVAL):
+    for name in (sb.RUN_RECORD, sb.PROGRAMS, sb.TRACE, sb.LOWER, sb.FIRST_EPOCH, sb.FIRST_EVAL):
         assert phases[name] > 0, name
     # The rows add up to the total, which lies inside the wall time measured around run().
     assert sum(phases.values()) == pytest.approx(rec["total_s"], abs=ROUNDING_S)
