@@ -51,7 +51,13 @@ def summarize(run: Path, threshold: float = 0.95) -> dict[str, str]:
         f"steps at {threshold:.0%}": f"{hit['step']:,}" if hit else "-",
         "final success": f"{100 * final[-1]['success_rate']:.1f}%" if final else "-",
     }
-    if startup:
+    if startup and "phases" in startup[0]:  # the named breakdown (training.startup_breakdown)
+        s = startup[0]
+        progs = s["programs"]
+        row["compiles s"] = " ".join(f"{k}={p['compile_s']:.0f}" for k, p in progs.items()) or "-"
+        row["wait s"] = f"{next(v for k, v in s['phases'].items() if k.startswith('wait for')):.0f}"
+        row["cache hit/miss"] = f"{s['compiles']['cache_hits']:.0f}/{s['compiles']['cache_misses']:.0f}"
+    elif startup:  # runs recorded before it: flat "compile <program>" keys
         s = startup[0]
         compiles = {k: v for k, v in s.items() if k.startswith("compile ")}
         row["compiles s"] = " ".join(f"{k[8:]}={v:.0f}" for k, v in compiles.items()) or "-"

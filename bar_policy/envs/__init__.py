@@ -23,6 +23,7 @@ import dataclasses
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
+from bar_policy import _mjx_quiet  # noqa: F401 - first: mujoco.mjx without the Warp notice
 from bar_policy.envs.base import MjxEnv, State
 from bar_policy.envs.reach import LiteReach, ReachEnvConfig
 from bar_policy.envs.reach import default_config as _reach_default

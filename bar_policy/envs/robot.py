@@ -46,6 +46,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
+from bar_policy._phases import MODEL_BUILD, phase
 from bar_policy.envs.actuator import (
     ActuatorParams,
     apply_latency,
@@ -96,7 +97,8 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         cfg = config
         self.config = cfg
         self.robot = load_robot(cfg.mode)
-        mj_model = load_model(cfg.mode, scene)
+        with phase(MODEL_BUILD):
+            mj_model = load_model(cfg.mode, scene)
         mj_model.opt.timestep = cfg.sim_dt
         self._index = RobotIndex.from_model(mj_model, self.robot.joint_names)
         # Static dof addresses for scattering the robot's forces; None: the scene is the robot alone, whose
@@ -105,8 +107,9 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         if obs_manager.joint_names != self.robot.joint_names:
             raise ValueError(f"layout {obs_manager.schema.name} is for mode {obs_manager.schema.mode!r}")
         self._mj_model = mj_model
-        self._mjx_model = mjx.put_model(mj_model)
-        self._init_data = mjx.put_data(mj_model, mujoco.MjData(mj_model))
+        with phase(MODEL_BUILD):
+            self._mjx_model = mjx.put_model(mj_model)
+            self._init_data = mjx.put_data(mj_model, mujoco.MjData(mj_model))
         self.obs_manager = obs_manager
 
         n = self.robot.num_joints

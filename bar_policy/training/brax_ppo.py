@@ -33,6 +33,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from bar_policy.training import startup_breakdown as sb
 from bar_policy.training.best import BestKeeper
 from bar_policy.training.brax_programs import (
     _K_EPOCH,
@@ -110,32 +111,33 @@ def train_brax(
     t_start = time.monotonic()
     timer = timer or StartupTimer()
     stats0 = CompileStats.get().snapshot()
-    dp = make_data_parallel(cfg.distributed.max_devices_per_host)
-    dp.check_divisible(
-        **{
-            "ppo.num_envs": ppo.num_envs,
-            "ppo.batch_size": ppo.batch_size,
-            "eval.num_eval_envs": cfg.eval.num_eval_envs,
-        }
-    )
-    steps_per_iter = ppo.steps_per_iteration
-    total_iters = math.ceil(ppo.num_timesteps / steps_per_iter)
-    iters_per_epoch = epoch_iterations(cfg)
+    with timer.phase(sb.PROGRAMS):
+        dp = make_data_parallel(cfg.distributed.max_devices_per_host)
+        dp.check_divisible(
+            **{
+                "ppo.num_envs": ppo.num_envs,
+                "ppo.batch_size": ppo.batch_size,
+                "eval.num_eval_envs": cfg.eval.num_eval_envs,
+            }
+        )
+        steps_per_iter = ppo.steps_per_iteration
+        total_iters = math.ceil(ppo.num_timesteps / steps_per_iter)
+        iters_per_epoch = epoch_iterations(cfg)
 
-    prior = action_prior(env, cfg.network)
-    learner = make_learner(env.observation_size, env.action_size, ppo, cfg.network, prior)
-    programs = make_programs(
-        env, cfg, learner, dp, wrap_fn, randomizer, iters_per_epoch, eval_env, eval_randomizer
-    )
+        prior = action_prior(env, cfg.network)
+        learner = make_learner(env.observation_size, env.action_size, ppo, cfg.network, prior)
+        programs = make_programs(
+            env, cfg, learner, dp, wrap_fn, randomizer, iters_per_epoch, eval_env, eval_randomizer
+        )
+        key_abs = dp.abstract(np.zeros(2, np.uint32), sharded=False)
+        template = jax.eval_shape(learner.init, key_abs)
+        ts_abs = dp.abstract(template, sharded=False)
     seed = cfg.seed
 
     # Trace each program here and compile it on a worker thread. The reset goes first (its outputs are the
     # epoch's inputs), the epoch (the longest compile) right after it, then the small init. Nothing waits on
     # the evaluation before the first epoch ends, so it is traced on a worker too: on a warm compile cache
     # its trace is a third of what is left of the start-up, and it now overlaps the first epochs.
-    key_abs = dp.abstract(np.zeros(2, np.uint32), sharded=False)
-    template = jax.eval_shape(learner.init, key_abs)
-    ts_abs = dp.abstract(template, sharded=False)
     compiler = Compiler(timer)
     reset_lowered = compiler.submit("reset", programs.reset, key_abs, key_abs)
     envs_abs = dp.abstract(reset_lowered.out_info, sharded=True)
@@ -144,23 +146,22 @@ def train_brax(
     compiler.submit("evaluate", programs.evaluate, _policy_params(ts_abs), key_abs, key_abs, background=True)
 
     env_steps, iteration = 0, 0
-    if cfg.resume:
-        ckpt = load_checkpoint(cfg.resume, template)
-        env_steps, iteration = ckpt.env_steps, ckpt.iteration
-        ts = dp.replicate(ckpt.state)
-        logger.print(f"resumed {ckpt.path} at {env_steps} env steps (iteration {iteration})")
-    else:
-        ts = compiler.get("init")(dp.replicate(host_key(seed, _K_INIT)))
-    model_key = dp.replicate(host_key(seed, _K_MODEL))
-    t_wait = time.monotonic()
-    envs = compiler.get("reset")(dp.replicate(host_key(seed, _K_RESET, iteration)), model_key)
-    epoch = compiler.get("epoch")
-    if jax.process_count() > 1:
-        # Start together: a process still compiling in the background would reach the first collective
-        # late, and CPU (gloo) collectives give up after 30 s.
-        compiler.get("evaluate")
-        barrier("bar_policy: programs compiled")
-    timer.add("wait for compiles (init, reset, epoch)", time.monotonic() - t_wait)
+    with timer.phase(sb.WAIT):
+        if cfg.resume:
+            ckpt = load_checkpoint(cfg.resume, template)
+            env_steps, iteration = ckpt.env_steps, ckpt.iteration
+            ts = dp.replicate(ckpt.state)
+            logger.print(f"resumed {ckpt.path} at {env_steps} env steps (iteration {iteration})")
+        else:
+            ts = compiler.get("init")(dp.replicate(host_key(seed, _K_INIT)))
+        model_key = dp.replicate(host_key(seed, _K_MODEL))
+        envs = compiler.get("reset")(dp.replicate(host_key(seed, _K_RESET, iteration)), model_key)
+        epoch = compiler.get("epoch")
+        if jax.process_count() > 1:
+            # Start together: a process still compiling in the background would reach the first
+            # collective late, and CPU (gloo) collectives give up after 30 s.
+            compiler.get("evaluate")
+            barrier("bar_policy: programs compiled")
 
     eval_model_key = dp.replicate(host_key(seed, _K_EVAL_MODEL))
 
@@ -204,7 +205,7 @@ def train_brax(
         t_eval = time.monotonic()
         initial = compiler.get("init")(dp.replicate(host_key(seed, _K_INIT)))
         device_eval(_policy_params(initial), 0)
-        timer.add("eval @ 0 (first epoch end with the evaluation compiled)", time.monotonic() - t_eval)
+        timer.add(sb.FIRST_EVAL, time.monotonic() - t_eval)
 
     t_loop = time.monotonic()
     while iteration < total_iters:
@@ -225,8 +226,10 @@ def train_brax(
         logger.log(env_steps, train_metrics, kind="train")
         logger.progress(env_steps, steps_in_epoch / dt, train_metrics)
         if epochs_done == 1:
-            timer.add("first epoch (run)", dt)
-            first_epoch_end = logger.elapsed()
+            timer.add(sb.FIRST_EPOCH, dt)
+            first_epoch_end = timer.elapsed()
+        elif eval_at_start:
+            timer.add(sb.MORE_EPOCHS, dt)
         # Stop before an epoch that would end past the budget (its expected length: this epoch's, plus an
         # evaluation's when the next epoch ends with one).
         next_eval_due = (epochs_done + 1) % _LINES_PER_EVAL == 0
@@ -248,10 +251,10 @@ def train_brax(
         if startup_pending and not eval_at_start:
             startup_pending = False
             stats1 = CompileStats.get().snapshot()
-            delta = {k: stats1[k] - stats0[k] for k in stats1}
-            for line in timer.lines(first_epoch_end, delta):
+            report = timer.finish(first_epoch_end, {k: stats1[k] - stats0[k] for k in stats1})
+            for line in timer.lines(report):
                 logger.print(line)
-            logger.log(env_steps, {**timer.phases, **delta}, kind="startup")
+            logger.note("startup", {"step": env_steps, **report})
         if eval_due:
             device_eval(_policy_params(ts), env_steps)
             n_evals = epochs_done // _LINES_PER_EVAL

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import json
 import math
 import time
 from collections.abc import Callable
@@ -34,11 +33,18 @@ import numpy as np
 import torch
 
 from bar_policy.export import MlpPolicy, export_policy
+from bar_policy.training import startup_breakdown as sb
 from bar_policy.training.best import BestIterate, BestKeeper
 from bar_policy.training.checkpoint import latest_checkpoint, save_checkpoint
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.progress import RunLogger, next_would_overrun
 from bar_policy.training.rsl_rl_env import RslRlVecEnv, torch_device_for_jax
+from bar_policy.training.rsl_rl_state import (
+    load_module_state,
+    load_optimizer_state,
+    module_state,
+    optimizer_state,
+)
 from bar_policy.training.startup import Compiler, StartupTimer
 
 __all__ = [
@@ -90,41 +96,6 @@ def rsl_rl_train_cfg(cfg: TrainConfig) -> dict[str, Any]:
             "obs_normalization": ppo.normalize_observations,
         },
     }
-
-
-# ----------------------------------------------------------------------------------------------------------
-# Torch state <-> msgpack-able numpy trees (no pickle)
-# ----------------------------------------------------------------------------------------------------------
-
-
-def _module_state(module: torch.nn.Module) -> dict[str, np.ndarray]:
-    return {k: v.detach().cpu().numpy() for k, v in module.state_dict().items()}
-
-
-def _optimizer_state(opt: torch.optim.Optimizer) -> dict[str, Any]:
-    sd = opt.state_dict()
-    state = {
-        str(pid): {
-            k: (v.detach().cpu().numpy() if torch.is_tensor(v) else np.asarray(v)) for k, v in s.items()
-        }
-        for pid, s in sd["state"].items()
-    }
-    return {"state": state, "param_groups": json.dumps(sd["param_groups"])}
-
-
-def _load_optimizer_state(opt: torch.optim.Optimizer, data: dict[str, Any], device: str) -> None:
-    groups = json.loads(data["param_groups"])
-    state = {
-        int(pid): {
-            k: torch.as_tensor(np.array(v), device="cpu" if k == "step" else device) for k, v in s.items()
-        }
-        for pid, s in data["state"].items()
-    }
-    opt.load_state_dict({"state": state, "param_groups": groups})
-
-
-def _load_module_state(module: torch.nn.Module, data: dict[str, Any], device: str) -> None:
-    module.load_state_dict({k: torch.as_tensor(np.array(v), device=device) for k, v in data.items()})
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -294,6 +265,7 @@ def train_rsl_rl(
     device = torch_device_for_jax() if cfg.rsl_rl.device == "auto" else cfg.rsl_rl.device
     torch.manual_seed(cfg.seed)
     timer = timer or StartupTimer()
+    traced_before = timer.phases.get(sb.TRACE, 0.0) + timer.phases.get(sb.LOWER, 0.0)
     compiler = Compiler(timer)  # the training and evaluation steps compile side by side
     kw = {"wrap_fn": wrap_fn, "randomizer": randomizer, "device": device, "compiler": compiler}
     vec_env = RslRlVecEnv(env, ppo.num_envs, seed=cfg.seed, name="train step", **kw)
@@ -308,9 +280,9 @@ def train_rsl_rl(
         path = latest_checkpoint(cfg.resume)
         payload = serialization.msgpack_restore(path.read_bytes())
         st = payload["state"]
-        _load_module_state(alg.actor, st["actor"], device)
-        _load_module_state(alg.critic, st["critic"], device)
-        _load_optimizer_state(alg.optimizer, st["optimizer"], device)
+        load_module_state(alg.actor, st["actor"], device)
+        load_module_state(alg.critic, st["critic"], device)
+        load_optimizer_state(alg.optimizer, st["optimizer"], device)
         alg.learning_rate = float(st["learning_rate"])
         env_steps, iteration = int(payload["env_steps"]), int(payload["iteration"])
         logger.print(f"resumed {path} at {env_steps} env steps (iteration {iteration})")
@@ -337,9 +309,9 @@ def train_rsl_rl(
         if checkpoint_dir is None:
             return
         state = {
-            "actor": _module_state(alg.actor),
-            "critic": _module_state(alg.critic),
-            "optimizer": _optimizer_state(alg.optimizer),
+            "actor": module_state(alg.actor),
+            "critic": module_state(alg.critic),
+            "optimizer": optimizer_state(alg.optimizer),
             "learning_rate": np.asarray(alg.learning_rate),
         }
         save_checkpoint(checkpoint_dir, state, env_steps=step, iteration=it, extra=config_record)
@@ -349,7 +321,8 @@ def train_rsl_rl(
     obs = vec_env.get_observations().to(device)
     vec_env.take_stats()  # drop the evaluation's sums
     alg.train_mode()
-    timer.add("set-up (torch, runner, envs, eval @ 0)", time.monotonic() - t_start)
+    traced = timer.phases.get(sb.TRACE, 0.0) + timer.phases.get(sb.LOWER, 0.0) - traced_before  # own rows
+    timer.add("set-up (torch, runner, envs, eval @ 0)", time.monotonic() - t_start - traced)
     t_loop = time.monotonic()
     first = True
     while iteration < total_iters:
@@ -375,8 +348,10 @@ def train_rsl_rl(
         if first:
             first = False
             timer.add("first iteration (includes the env step compile)", dt)
-            for line in timer.lines(logger.elapsed()):
+            report = timer.finish(timer.elapsed())
+            for line in timer.lines(report):
                 logger.print(line)
+            logger.note("startup", {"step": env_steps, **report})
         logger.log(env_steps, train_metrics, kind="train")
         last = iteration >= total_iters
         over_budget = next_would_overrun(logger.elapsed(), dt, 60 * cfg.max_minutes)

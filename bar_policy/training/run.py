@@ -11,19 +11,19 @@ ONNX files as ``bar.provenance``.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import json
 import math
 import platform
 import time
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from bar_policy.training import startup_breakdown as sb
 from bar_policy.training.best import finish_best
 from bar_policy.training.config import TrainConfig, config_to_dict
+from bar_policy.training.distributed import init_distributed, local_default_devices, shutdown_distributed
 from bar_policy.training.progress import RunLogger, format_duration, format_steps
 from bar_policy.training.startup import StartupTimer, configure_compile_cache
 
@@ -58,53 +58,6 @@ class RunSummary:
     best: dict[str, Any] = dataclasses.field(default_factory=dict)
     """The best evaluated iterate (``bar_policy.training.best.finish_best``): ``step``, ``is_last``, and
     when it is not the last iterate its ``final_eval`` and ``onnx``."""
-
-
-def init_distributed(cfg: TrainConfig) -> None:
-    """``jax.distributed.initialize`` when a coordinator address is configured (multi-host).
-
-    Must run before anything touches a device. On CPU the cross-process collectives are gloo's (jax's
-    default ``jax_cpu_collectives_implementation``); on GPUs NCCL's.
-    """
-    d = cfg.distributed
-    if d.coordinator_address:
-        import jax
-
-        if getattr(jax.distributed, "is_initialized", lambda: False)():
-            return
-        jax.distributed.initialize(
-            coordinator_address=d.coordinator_address,
-            num_processes=d.num_processes,
-            process_id=d.process_id,
-            local_device_ids=list(d.local_device_ids) if d.local_device_ids is not None else None,
-        )
-    elif d.num_processes > 1:
-        raise ValueError(
-            f"distributed.num_processes = {d.num_processes} needs distributed.coordinator_address "
-            "(host:port of process 0)"
-        )
-
-
-@contextlib.contextmanager
-def _local_default_devices() -> Iterator[None]:
-    """While building the env under ``jax.distributed``, ``jax.devices()`` lists this process's devices.
-
-    MJX's ``put_model``/``put_data`` place the model on ``jax.devices()[0]`` when given no device; with
-    several processes that is process 0's device, so every other process would hold a model it cannot read
-    (and the trainer cannot close over it). Listing the local devices first puts it on this process's first
-    device, as on one host.
-    """
-    import jax
-
-    if jax.process_count() == 1:
-        yield
-        return
-    real = jax.devices
-    jax.devices = lambda backend=None: jax.local_devices(backend=backend)  # type: ignore[assignment]
-    try:
-        yield
-    finally:
-        jax.devices = real  # type: ignore[assignment]
 
 
 def _set_memory_env(cfg: TrainConfig) -> None:
@@ -159,70 +112,18 @@ def _device_record() -> dict[str, Any]:
     }
 
 
-def run(
-    cfg: TrainConfig,
-    *,
-    env_config: Any | None = None,
-    env: Any | None = None,
-    started_at: float | None = None,
-) -> RunSummary:
-    """Train, evaluate and export as configured; returns the summary (also printed as a table).
+def _open_run(cfg: TrainConfig, env: Any, is_main: bool, notes: list[str]) -> tuple[Path, RunLogger, dict]:
+    """The run directory, its logger and the config record; process 0 writes ``config.json`` and the header.
 
-    Args:
-        cfg: the resolved training config.
-        env_config: a full env config object to use instead of the registry default (overrides in
-            ``cfg.env_overrides`` still apply on top).
-        env: an env object to train on instead of ``envs.load(cfg.env_name)`` (tests use a stand-in);
-            it is trained without model randomisation.
-        started_at: ``time.monotonic()`` of the process start (the command line passes it): progress
-            times, time-to-threshold and the start-up breakdown then count from there, not from ``run``.
+    ``notes`` are printed after the run line. Returns ``(run_dir, logger, record)``; the record holds the
+    ``provenance``, the ``train`` and ``env`` configs and the ``device``.
     """
-    t0 = time.monotonic()
-    timer = StartupTimer()
-    if started_at is not None:
-        timer.add("interpreter, imports, parsing (before run)", t0 - started_at)
-    _set_memory_env(cfg)
-    if cfg.backend == "rsl-rl" and cfg.distributed.num_processes > 1:
-        raise ValueError(
-            "the rsl-rl backend runs in one process on one device; use --backend brax for several"
-        )
-    from bar_policy.training.parallel import choose_partitioner
-
-    cache_dir = configure_compile_cache(cfg.compile_cache, cfg.compile_cache_dir)
-    partitioner = choose_partitioner()
-    init_distributed(cfg)
     import jax
 
-    # Full float32 products unless asked otherwise (a TF32 policy gradient destabilised Playground's runs).
-    jax.config.update(
-        "jax_default_matmul_precision", "highest" if cfg.matmul_precision == "highest" else None
-    )
-
-    from bar_policy import envs
-
-    if cfg.backend == "brax":
-        from bar_policy.training.brax_ppo import train_brax
-    else:
-        from bar_policy.training.rsl_rl_backend import train_rsl_rl
-    timer.add("imports (jax, mujoco, mjx, brax or torch)", time.monotonic() - t0)
-
-    t_env = time.monotonic()
-    randomizer = None
-    if env is None:
-        with _local_default_devices():
-            env = envs.load(cfg.env_name, config=env_config, overrides=list(cfg.env_overrides) or None)
-        randomizer = envs.get_randomizer(cfg.env_name, env.config)
-    # The task's evaluation env (LiteTrack: held-out clips, nominal physics, as the ship gate's sim target);
-    # a distinct one is evaluated without model randomisation.
-    eval_env = env.evaluation_env() if hasattr(env, "evaluation_env") else None
-    eval_env = None if eval_env is env else eval_env
-    is_main = jax.process_index() == 0
-    run_dir = resolve_run_dir(cfg, check=is_main)
-    timer.add("env build and devices", time.monotonic() - t_env)
-    logger = RunLogger(run_dir, cfg.ppo.num_timesteps, enabled=is_main)
-    logger.t0 = t0 if started_at is None else started_at
     from bar_policy.provenance import collect, describe
 
+    run_dir = resolve_run_dir(cfg, check=is_main)
+    logger = RunLogger(run_dir, cfg.ppo.num_timesteps, enabled=is_main)
     provenance = collect()
     record = {
         "provenance": provenance,
@@ -241,12 +142,94 @@ def run(
             f"dt {env.dt} s) | backend {cfg.backend} | {record['device']['device_kind']} x "
             f"{jax.device_count()} | {format_steps(cfg.ppo.num_timesteps)} steps, {cfg.ppo.num_envs} envs"
         )
-        logger.print(
+        for line in notes:
+            logger.print(line)
+    return run_dir, logger, record
+
+
+def run(
+    cfg: TrainConfig,
+    *,
+    env_config: Any | None = None,
+    env: Any | None = None,
+    started_at: float | None = None,
+) -> RunSummary:
+    """Train, evaluate and export as configured; returns the summary (also printed as a table).
+
+    Under ``jax.distributed`` every process connects at the start and, once its part is done, shuts the
+    session down in order (``training.distributed.shutdown_distributed``).
+
+    Args:
+        cfg: the resolved training config.
+        env_config: a full env config object to use instead of the registry default (overrides in
+            ``cfg.env_overrides`` still apply on top).
+        env: an env object to train on instead of ``envs.load(cfg.env_name)`` (tests use a stand-in);
+            it is trained without model randomisation.
+        started_at: ``time.monotonic()`` of the process start (the command line passes it): progress
+            times, time-to-threshold and the start-up breakdown then count from there, not from ``run``.
+    """
+    summary = _run(cfg, env_config=env_config, env=env, started_at=started_at)
+    shutdown_distributed()
+    return summary
+
+
+def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | None) -> RunSummary:
+    """``run`` up to the distributed shutdown."""
+    t0 = time.monotonic()
+    timer = StartupTimer(t0 if started_at is None else started_at)
+    if started_at is not None:
+        timer.origin_name = "process start"
+        timer.add(sb.BEFORE_RUN, t0 - started_at)
+    with timer.phase(sb.IMPORTS):
+        _set_memory_env(cfg)
+        if cfg.backend == "rsl-rl" and cfg.distributed.num_processes > 1:
+            raise ValueError(
+                "the rsl-rl backend runs in one process on one device; use --backend brax for several"
+            )
+        from bar_policy.training.parallel import choose_partitioner
+
+        cache_dir = configure_compile_cache(cfg.compile_cache, cfg.compile_cache_dir)
+        partitioner = choose_partitioner()
+        with timer.phase(sb.DISTRIBUTED):
+            init_distributed(cfg)
+        import jax
+
+        # Full float32 products unless asked otherwise (a TF32 gradient destabilised Playground's runs).
+        jax.config.update(
+            "jax_default_matmul_precision", "highest" if cfg.matmul_precision == "highest" else None
+        )
+
+        from bar_policy import envs
+
+        if cfg.backend == "brax":
+            from bar_policy.training.brax_ppo import train_brax
+        else:
+            from bar_policy.training.rsl_rl_backend import train_rsl_rl
+
+    # The env's model build (bar_policy._phases.MODEL_BUILD) is its own row, taken out of this one.
+    with timer.active(), timer.phase(sb.ENV_BUILD):
+        randomizer = None
+        if env is None:
+            with local_default_devices():
+                env = envs.load(cfg.env_name, config=env_config, overrides=list(cfg.env_overrides) or None)
+            randomizer = envs.get_randomizer(cfg.env_name, env.config)
+        # The task's evaluation env (LiteTrack: held-out clips, nominal physics, as the ship gate's sim
+        # target); a distinct one is evaluated without model randomisation.
+        eval_env = env.evaluation_env() if hasattr(env, "evaluation_env") else None
+        eval_env = None if eval_env is env else eval_env
+    is_main = jax.process_index() == 0
+    with timer.phase(sb.RUN_RECORD):
+        cache_note = (
             f"compile cache: {cache_dir} (--no-compile-cache turns it off, --compile-cache-dir moves it)"
             if cache_dir
             else "compile cache: off"
         )
-        logger.print(f"partitioner: {partitioner} (JAX_USE_SHARDY_PARTITIONER in the environment chooses)")
+        partitioner_note = (
+            f"partitioner: {partitioner} (JAX_USE_SHARDY_PARTITIONER in the environment chooses)"
+        )
+        run_dir, logger, record = _open_run(cfg, env, is_main, [cache_note, partitioner_note])
+    logger.t0 = timer.origin
+    provenance = record["provenance"]
     ckpt_dir = str(run_dir / "checkpoints")
 
     if cfg.backend == "brax":
@@ -341,6 +324,7 @@ def run(
         "best_iterate": best,
         "provenance": provenance,
         "config": record,
+        "startup": timer.report,
     }
     (run_dir / "final_eval.json").write_text(json.dumps(final_record, indent=2, sort_keys=True))
     summary = RunSummary(

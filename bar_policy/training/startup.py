@@ -9,21 +9,23 @@ the evaluation, the reset). Three things cut it:
 - **Concurrent compiles** (``Compiler``): each program is traced in the calling thread (Python, holds the
   GIL) and handed to a thread for XLA's compile (releases the GIL), so the epoch, evaluation and reset
   compile side by side while the next program is traced.
-- **A breakdown** (``StartupTimer``): where the seconds before the first progress line went (interpreter
-  and imports, env build, each trace and compile, first epoch), printed at the top of a run so a slow start
-  is visible.
+- **A breakdown** (``StartupTimer``, ``bar_policy.training.startup_breakdown``): where the seconds before
+  training went (imports, model build, env, each trace, lowering, compile or cache load, first epoch and
+  evaluation), printed at the top of a run and kept in its record, so a slow start is visible.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from bar_policy.training.startup_breakdown import ProgramTimes, StartupTimer
 
 __all__ = [
     "CompileStats",
@@ -82,7 +84,12 @@ def configure_compile_cache(enabled: bool = True, directory: str = "") -> Path |
 
 
 class CompileStats:
-    """Counts XLA compiles and persistent-cache hits in this process (``jax.monitoring`` listeners)."""
+    """Counts XLA compiles and persistent-cache outcomes in this process (``jax.monitoring`` listeners).
+
+    The event names are jax's (0.10: ``jax/_src/compiler.py``, ``compilation_cache.py``, ``dispatch.py``).
+    A compile that runs inside ``attribute(times)`` (on any thread) also counts into that program's
+    ``ProgramTimes``: jax records the events on the thread that compiles.
+    """
 
     _instance: CompileStats | None = None
     _lock = threading.Lock()
@@ -94,6 +101,14 @@ class CompileStats:
         """Seconds spent in them (summed over threads)."""
         self.cache_hits = 0
         self.cache_misses = 0
+        """Executables compiled and written to the persistent cache."""
+        self.cache_load_s = 0.0
+        """Seconds spent loading cache hits."""
+        self.trace_s = 0.0
+        """jax's own jaxpr-trace seconds, every function (eager ones too), summed over threads."""
+        self.lower_s = 0.0
+        """jax's own jaxpr-to-MLIR seconds, summed over threads."""
+        self._local = threading.local()
 
     @classmethod
     def get(cls) -> CompileStats:
@@ -108,88 +123,107 @@ class CompileStats:
                 cls._instance = inst
             return cls._instance
 
+    @contextlib.contextmanager
+    def attribute(self, times: ProgramTimes) -> Iterator[None]:
+        """Count the cache events of compiles run by this thread in the block into ``times`` too."""
+        previous = getattr(self._local, "target", None)
+        self._local.target = times
+        try:
+            yield
+        finally:
+            self._local.target = previous
+
     def _on_event(self, event: str, **_: Any) -> None:
+        target: ProgramTimes | None = getattr(self._local, "target", None)
         if event == "/jax/compilation_cache/cache_hits":
             self.cache_hits += 1
+            if target is not None:
+                target.cache_hits += 1
         elif event == "/jax/compilation_cache/cache_misses":
             self.cache_misses += 1
+            if target is not None:
+                target.cache_misses += 1
+        elif event == "/jax/compilation_cache/compile_requests_use_cache" and target is not None:
+            target.cache_requests += 1
 
     def _on_duration(self, event: str, duration: float, **_: Any) -> None:
         if event == "/jax/core/compile/backend_compile_duration":
             self.compiles += 1
             self.compile_s += duration
+        elif event == "/jax/compilation_cache/cache_retrieval_time_sec":
+            self.cache_load_s += duration
+            target: ProgramTimes | None = getattr(self._local, "target", None)
+            if target is not None:
+                target.cache_load_s += duration
+        elif event == "/jax/core/compile/jaxpr_trace_duration":
+            self.trace_s += duration
+        elif event == "/jax/core/compile/jaxpr_to_mlir_module_duration":
+            self.lower_s += duration
 
     def snapshot(self) -> dict[str, float]:
-        """Current counts."""
+        """Current counts and seconds (subtract two snapshots for what happened in between)."""
         return {
             "compiles": self.compiles,
             "compile_s": self.compile_s,
             "cache_hits": self.cache_hits,
             "cache_misses": self.cache_misses,
+            "cache_load_s": self.cache_load_s,
+            "jax_trace_s": self.trace_s,
+            "jax_lower_s": self.lower_s,
         }
 
 
-@dataclass
-class StartupTimer:
-    """Named phases of a run's start, in seconds, printed as one block."""
-
-    phases: dict[str, float] = field(default_factory=dict)
-    """Phase -> seconds (insertion order is print order)."""
-    t_start: float = field(default_factory=time.monotonic)
-
-    def add(self, name: str, seconds: float) -> None:
-        """Record (or accumulate into) a phase."""
-        self.phases[name] = self.phases.get(name, 0.0) + seconds
-
-    def lines(self, total_s: float, stats: dict[str, float] | None = None) -> list[str]:
-        """The printed block: one line per phase, then the compile counts."""
-        width = max((len(k) for k in self.phases), default=10)
-        out = [f"start-up: {total_s:.1f} s to the end of the first epoch (compiles overlap: see 'wait')"]
-        out += [f"  {k:<{width}}  {v:7.1f} s" for k, v in self.phases.items()]
-        if stats:
-            out.append(
-                f"  XLA compiles: {stats['compiles']:.0f} ({stats['compile_s']:.1f} s summed over threads), "
-                f"persistent cache {stats['cache_hits']:.0f} hits / {stats['cache_misses']:.0f} misses"
-            )
-        return out
-
-
 class Compiler:
-    """Ahead-of-time compiles on worker threads: trace here, compile there, collect when needed.
+    """Ahead-of-time compiles on worker threads: trace and lower here, compile there, collect when needed.
 
-    ``submit(name, jitted, *args)`` lowers ``jitted`` for ``args`` (arrays or ``ShapeDtypeStruct``s) in the
-    calling thread (or, with ``background=True``, on the worker) and compiles it on a worker; ``get(name)``
-    waits for the compiled executable. The trace and compile seconds of each program go into the
-    ``StartupTimer``.
+    ``submit(name, jitted, *args)`` traces (``jitted.trace``) and lowers (``Traced.lower``) ``jitted`` for
+    ``args`` (arrays or ``ShapeDtypeStruct``s) in the calling thread (or, with ``background=True``, on the
+    worker) and compiles it on a worker; ``get(name)`` waits for the compiled executable. Each stage's
+    seconds and the program's persistent-cache outcome go into ``timer.programs[name]``; the calling
+    thread's trace and lower seconds also into the timer's ``TRACE`` and ``LOWER`` phases.
     """
 
     def __init__(self, timer: StartupTimer, max_workers: int = 4) -> None:
         self.timer = timer
         self._pool = ThreadPoolExecutor(max_workers=max_workers, thread_name_prefix="xla-compile")
         self._futures: dict[str, Future] = {}
+        self._stats = CompileStats.get()
 
     def submit(self, name: str, jitted: Callable[..., Any], *args: Any, background: bool = False) -> Any:
-        """Trace/lower now, compile in the background; returns the ``Lowered`` (its ``out_info``).
+        """Trace and lower now, compile in the background; returns the ``Lowered`` (its ``out_info``).
 
         With ``background=True`` the trace runs on the worker too and None is returned: for a program
         nothing waits on soon (the evaluation), whose trace then overlaps the first epochs instead of
         delaying them. Tracing holds the GIL, so submit it after the programs this thread traces next.
         """
+        from bar_policy.training.startup_breakdown import LOWER, TRACE
 
-        def trace() -> Any:
+        times = self.timer.program(name)
+        times.thread = "worker" if background else "main"
+
+        def trace_and_lower() -> Any:
             t0 = time.monotonic()
-            lowered = jitted.lower(*args)  # type: ignore[attr-defined]
-            self.timer.add(f"trace {name}" + (" (worker)" if background else ""), time.monotonic() - t0)
+            traced = jitted.trace(*args)  # type: ignore[attr-defined]
+            t1 = time.monotonic()
+            lowered = traced.lower()
+            t2 = time.monotonic()
+            times.trace_s, times.lower_s = t1 - t0, t2 - t1
+            if not background:
+                self.timer.add(TRACE, t1 - t0)
+                self.timer.add(LOWER, t2 - t1)
             return lowered
 
-        def compile_it(lowered: Any) -> tuple[Any, float]:
+        def compile_it(lowered: Any) -> Any:
             t = time.monotonic()
-            return lowered.compile(), time.monotonic() - t
+            with self._stats.attribute(times):
+                compiled = lowered.compile()
+            times.compile_s = time.monotonic() - t
+            return compiled
 
         if background:
-            self._futures[name] = self._pool.submit(lambda: compile_it(trace()))
+            self._futures[name] = self._pool.submit(lambda: compile_it(trace_and_lower()))
             return None
-        lowered = trace()
+        lowered = trace_and_lower()
         self._futures[name] = self._pool.submit(compile_it, lowered)
         return lowered
 
@@ -198,13 +232,8 @@ class Compiler:
         return self._futures[name].done()
 
     def get(self, name: str) -> Any:
-        """The compiled executable of ``name`` (waits for it; re-raises its compile error)."""
-        fut = self._futures[name]
-        compiled, seconds = fut.result()
-        key = f"compile {name}"
-        if key not in self.timer.phases:
-            self.timer.add(key, seconds)
-        return compiled
+        """The compiled executable of ``name`` (waits for it; re-raises its trace or compile error)."""
+        return self._futures[name].result()
 
     def close(self) -> None:
         """Release the worker threads."""

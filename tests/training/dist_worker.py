@@ -2,20 +2,22 @@
 
 Usage: ``python dist_worker.py PORT PROCESS_ID OUT_DIR [override ...] [--toy]``. Trains the tiny preset on
 LiteReach (``--toy``: the stand-in env) through ``run`` (the command line's path) with the coordinator on
-127.0.0.1:PORT, then writes ``OUT_DIR/result_<id>.npz``: every parameter leaf of the final (normaliser,
-policy, value) params, the normaliser's observation count, the step count, the devices it saw, and whether
-torch was imported.
+127.0.0.1:PORT, its start-up counted from the process start as ``bar-train`` counts it, then writes
+``OUT_DIR/result_<id>.npz``: every parameter leaf of the final (normaliser, policy, value) params, the
+normaliser's observation count, the step count, the devices it saw, and whether torch was imported.
 """
 
 from __future__ import annotations
 
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 
 from bar_policy.training.config import apply_overrides, preset
 from bar_policy.training.run import run
+from bar_policy.training.startup import process_uptime
 
 
 def _count(c: object) -> int:
@@ -45,7 +47,7 @@ def main() -> None:
         from toy_env import ToyReach
 
         env = ToyReach()
-    summary = run(cfg, env=env)
+    summary = run(cfg, env=env, started_at=time.monotonic() - process_uptime())
     import jax
 
     leaves = jax.tree_util.tree_leaves(summary.params)

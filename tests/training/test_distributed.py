@@ -1,7 +1,8 @@
 """Two processes through ``jax.distributed`` on this machine (coordinator 127.0.0.1, 2 CPU devices each).
 
 One shared run (``dist_worker.py`` x 2, gloo collectives across the processes) feeds every check: identical
-parameters on both processes, a global step count, one set of logs, and no torch in a brax run.
+parameters on both processes, a global step count, one set of logs, no torch in a brax run, a start-up
+record counted from the process start, and clean output (no gRPC errors at exit, no Warp notice at start).
 
 The workers train on the stand-in env (``toy_env.ToyReach``), not LiteReach: each process compiles its own
 programs, and two concurrent MJX compiles (epoch and evaluation, about 200 s of CPU each per process) take
@@ -23,6 +24,7 @@ import pytest
 pytestmark = pytest.mark.slow
 
 WORKER = Path(__file__).parent / "dist_worker.py"
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _free_port() -> int:
@@ -38,6 +40,8 @@ def dist_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
         **os.environ,
         "JAX_PLATFORMS": "cpu",
         "XLA_FLAGS": "--xla_force_host_platform_device_count=2",
+        # This checkout's bar_policy, whichever one is installed.
+        "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])),
     }
     port = str(_free_port())
     args = ["export_onnx=False", "--toy"]
@@ -46,7 +50,7 @@ def dist_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
             [sys.executable, str(WORKER), port, str(pid), str(out), *args],
             env=env,
             stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
+            stderr=subprocess.PIPE,
             text=True,
         )
         for pid in (0, 1)
@@ -54,14 +58,15 @@ def dist_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     logs = []
     try:
         for p in procs:
-            logs.append(p.communicate(timeout=600)[0])
+            logs.append(p.communicate(timeout=600))
     finally:
         for p in procs:
             if p.poll() is None:
                 p.kill()
-    for pid, (p, log) in enumerate(zip(procs, logs, strict=True)):
-        assert p.returncode == 0, f"process {pid} failed:\n{log[-4000:]}"
-    (out / "process0.log").write_text(logs[0])
+    for pid, (p, (stdout, stderr)) in enumerate(zip(procs, logs, strict=True)):
+        assert p.returncode == 0, f"process {pid} failed:\n{stdout[-2000:]}\n{stderr[-4000:]}"
+        (out / f"process{pid}.out").write_text(stdout)
+        (out / f"process{pid}.err").write_text(stderr)
     return out
 
 
@@ -99,3 +104,27 @@ def test_only_process_zero_writes_logs(dist_run):
 def test_brax_run_never_imports_torch(dist_run):
     for pid in (0, 1):
         assert not bool(_result(dist_run, pid)["torch_imported"])
+
+
+def test_processes_start_and_shut_down_without_error_output(dist_run):
+    """No gRPC errors from a process that outlives the coordinator (``shutdown_distributed``), and no
+    notice that the optional Warp backend of MJX is missing (``bar_policy._mjx_quiet``), on either stream."""
+    for pid in (0, 1):
+        for stream in ("out", "err"):
+            text = (dist_run / f"process{pid}.{stream}").read_text()
+            for needle in ("Failed to connect", "CANCELLED", "Failed to import warp"):
+                assert needle not in text, f"process {pid} std{stream}: {needle!r}\n{text[-3000:]}"
+
+
+def test_startup_record_counts_from_the_process_start(dist_run):
+    from bar_policy._phases import MODEL_BUILD
+    from bar_policy.training import startup_breakdown as sb
+
+    rec = json.loads((dist_run / "dist" / "final_eval.json").read_text())["startup"]
+    assert rec["origin"] == "process start"
+    phases = rec["phases"]
+    assert set(sb.PHASES) <= set(phases) and all(v >= 0 for v in phases.values())
+    # The interpreter started before run() (imports of the worker), the processes met at the coordinator,
+    # and the stand-in env builds no MuJoCo model.
+    assert phases[sb.BEFORE_RUN] > 0 and phases[sb.DISTRIBUTED] > 0 and phases[MODEL_BUILD] == 0.0
+    assert sum(phases.values()) == pytest.approx(rec["total_s"], abs=0.02)

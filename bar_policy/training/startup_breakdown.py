@@ -1,0 +1,208 @@
+"""The start-up breakdown: where the seconds before training runs went, by name, printed and recorded.
+
+Two views of the same start:
+
+- **Main-thread phases** (``PHASES``), in order and exclusive (``bar_policy._phases.PhaseClock``): from the
+  process start (or the ``run()`` call) to the end of the first evaluation, through imports, the model
+  build, the env construction, tracing and lowering, the wait for the compiles, the first epoch and the
+  first evaluation. They never overlap, so they add up to at most the wall time around them; what no
+  phase claims is the ``OTHER`` row, so the rows add up to the total.
+- **Programs**: each compiled program's trace, lower and compile (or persistent-cache load) seconds, with
+  its cache outcome. The compiles run on worker threads, overlapping each other and the phases above.
+
+``StartupTimer.finish`` makes the JSON record of both (``final_eval.json`` and ``metrics.jsonl`` keep it
+under ``startup``); ``lines`` prints it as a table.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import AbstractContextManager
+from dataclasses import dataclass, field
+from typing import Any
+
+from bar_policy._phases import MODEL_BUILD, PhaseClock
+
+__all__ = ["PHASES", "ProgramTimes", "StartupTimer"]
+
+BEFORE_RUN = "before run (interpreter, CLI imports, parsing)"
+IMPORTS = "imports (jax, mujoco.mjx, brax or torch)"
+DISTRIBUTED = "jax.distributed connect"
+ENV_BUILD = "env construction (less the model build)"
+RUN_RECORD = "run directory, provenance, logger"
+PROGRAMS = "programs (mesh, learner, abstract shapes)"
+TRACE = "trace (main thread)"
+LOWER = "lower (main thread)"
+WAIT = "wait for compiles or cache loads, init and reset"
+FIRST_EPOCH = "first epoch"
+MORE_EPOCHS = "later epochs before the evaluation was compiled"
+FIRST_EVAL = "first evaluation (step 0, with its wait)"
+OTHER = "other (between the named phases)"
+
+PHASES: tuple[str, ...] = (
+    BEFORE_RUN,
+    IMPORTS,
+    DISTRIBUTED,
+    MODEL_BUILD,
+    ENV_BUILD,
+    RUN_RECORD,
+    PROGRAMS,
+    TRACE,
+    LOWER,
+    WAIT,
+    FIRST_EPOCH,
+    MORE_EPOCHS,
+    FIRST_EVAL,
+    OTHER,
+)
+"""Every main-thread phase a brax run's record holds (0.0 when it did not happen), in print order."""
+
+
+@dataclass
+class ProgramTimes:
+    """One compiled program's start-up: seconds per stage, and what the persistent cache did."""
+
+    thread: str = "main"
+    """Where it was traced: ``main`` (on the critical path) or ``worker`` (overlapping)."""
+    trace_s: float = 0.0
+    """Python tracing to a jaxpr (``jit(...).trace``), s."""
+    lower_s: float = 0.0
+    """Lowering the jaxpr to StableHLO (``Traced.lower``), s."""
+    compile_s: float = 0.0
+    """``Lowered.compile`` on a worker thread: XLA's compile, or the persistent-cache load on a hit, s."""
+    cache_requests: int = 0
+    """Compiles that consulted the persistent cache (0: the cache was off)."""
+    cache_hits: int = 0
+    """Executables loaded from the persistent cache."""
+    cache_misses: int = 0
+    """Executables compiled and written to the cache."""
+    cache_load_s: float = 0.0
+    """Seconds spent reading hits from the cache (jax's ``cache_retrieval_time_sec``), s."""
+
+    @property
+    def cache(self) -> str:
+        """``hit``, ``miss`` (compiled, stored), ``miss, not stored`` (under the size/time floor), ``off``."""
+        if self.cache_hits:
+            return "hit"
+        if self.cache_misses:
+            return "miss"
+        return "miss, not stored" if self.cache_requests else "off"
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON form (seconds rounded to ms)."""
+        return {
+            "thread": self.thread,
+            "trace_s": round(self.trace_s, 3),
+            "lower_s": round(self.lower_s, 3),
+            "compile_s": round(self.compile_s, 3),
+            "cache": self.cache,
+            "cache_load_s": round(self.cache_load_s, 3),
+        }
+
+
+@dataclass
+class StartupTimer:
+    """A run's start-up: exclusive main-thread phases plus per-program times; see the module docstring.
+
+    Args:
+        origin: ``time.monotonic()`` that counts as 0 (the process start when the command line passes it).
+        origin_name: what ``origin`` is, for the record (``process start`` or ``run() call``).
+    """
+
+    origin: float = field(default_factory=time.monotonic)
+    origin_name: str = "run() call"
+    clock: PhaseClock = field(default_factory=PhaseClock)
+    programs: dict[str, ProgramTimes] = field(default_factory=dict)
+    report: dict[str, Any] | None = None
+    """The record ``finish`` made (None before)."""
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    @property
+    def phases(self) -> dict[str, float]:
+        """Main-thread phase -> exclusive seconds, as recorded so far."""
+        return self.clock.seconds
+
+    def phase(self, name: str) -> AbstractContextManager[None]:
+        """Time a block of the main thread as ``name`` (nested phases are taken out of it)."""
+        return self.clock.phase(name)
+
+    def add(self, name: str, seconds: float) -> None:
+        """Record ``seconds`` measured on the main thread as ``name`` (accumulates)."""
+        self.clock.add(name, seconds)
+
+    def active(self) -> AbstractContextManager[PhaseClock]:
+        """Let code below training (the env's model build, ``bar_policy._phases.phase``) record here."""
+        return self.clock.active()
+
+    def program(self, name: str) -> ProgramTimes:
+        """The times of program ``name`` (created on first use; thread-safe)."""
+        with self._lock:
+            return self.programs.setdefault(name, ProgramTimes())
+
+    def elapsed(self) -> float:
+        """Seconds since the origin."""
+        return time.monotonic() - self.origin
+
+    def finish(
+        self, first_epoch_end_s: float, stats: dict[str, float] | None = None, *, total_s: float | None = None
+    ) -> dict[str, Any]:
+        """The JSON record (also kept as ``report``): origin, totals, every phase, programs, compile counts.
+
+        ``phases`` holds every name of ``PHASES`` (0.0 when it did not happen) and any other phase recorded
+        (the rsl-rl backend's), ``OTHER`` last: the total less every other phase.
+
+        Args:
+            first_epoch_end_s: seconds from the origin to the end of the first epoch.
+            stats: this run's ``CompileStats`` counts (a difference of two snapshots).
+            total_s: seconds from the origin to the end of the start-up (default: now).
+        """
+        total = self.elapsed() if total_s is None else total_s
+        named = {k: self.phases.get(k, 0.0) for k in PHASES if k != OTHER}
+        named.update({k: v for k, v in self.phases.items() if k not in named})
+        phases = {k: round(v, 3) for k, v in named.items()}
+        phases[OTHER] = round(max(0.0, total - sum(named.values())), 3)
+        self.report = {
+            "origin": self.origin_name,
+            "total_s": round(total, 3),
+            "first_epoch_end_s": round(first_epoch_end_s, 3),
+            "phases": phases,
+            "programs": {k: p.as_dict() for k, p in self.programs.items()},
+            "compiles": {k: round(v, 3) for k, v in (stats or {}).items()},
+        }
+        return self.report
+
+    @staticmethod
+    def lines(record: dict[str, Any]) -> list[str]:
+        """The printed table of a ``record``: phases in order, then programs, then the compile counts."""
+        return list(_table(record))
+
+
+def _table(rec: dict[str, Any]) -> Iterator[str]:
+    origin = "process start" if rec["origin"] == "process start" else "run()"
+    yield (
+        f"start-up: {rec['total_s']:.1f} s from {origin} to the first evaluation "
+        f"(first epoch done at {rec['first_epoch_end_s']:.1f} s)"
+    )
+    width = max(len(k) for k in rec["phases"])
+    yield "  main thread, in order (rows add up to the total):"
+    for k, v in rec["phases"].items():
+        yield f"    {k:<{width}}  {v:7.2f} s"
+    if rec["programs"]:
+        yield "  programs (compiles run on worker threads, overlapping each other and the rows above):"
+        head = f"{'program':<10} {'traced on':<9} {'trace':>7} {'lower':>7} {'compile':>8}"
+        yield f"    {head}  persistent cache"
+        for name, p in rec["programs"].items():
+            load = f" ({p['cache_load_s']:.2f} s load)" if p["cache"] == "hit" else ""
+            yield (
+                f"    {name:<10} {p['thread']:<9} {p['trace_s']:6.2f}s {p['lower_s']:6.2f}s "
+                f"{p['compile_s']:7.2f}s  {p['cache']}{load}"
+            )
+    c = rec["compiles"]
+    if c:
+        yield (
+            f"  XLA compiles: {c['compiles']:.0f} ({c['compile_s']:.1f} s summed over threads); persistent "
+            f"cache {c['cache_hits']:.0f} hits ({c['cache_load_s']:.2f} s loading) / "
+            f"{c['cache_misses']:.0f} misses"
+        )
