@@ -46,6 +46,7 @@ __all__ = [
     "is_black",
     "key_table",
     "note_name",
+    "note_number",
     "pressed",
 ]
 
@@ -66,6 +67,19 @@ def is_black(midi: int) -> bool:
 def note_name(midi: int) -> str:
     """Scientific pitch name with sharps: 60 -> ``C4``, 61 -> ``C#4``, 21 -> ``A0``."""
     return f"{_NAMES[midi % 12]}{midi // 12 - 1}"
+
+
+def note_number(name: str) -> int:
+    """MIDI number of a pitch name with sharps: ``C4`` -> 60, ``C#4`` -> 61, ``A0`` -> 21 (``ValueError``)."""
+    pitch = name[:2] if len(name) > 2 and name[1] == "#" else name[:1]
+    try:
+        octave = int(name[len(pitch) :])
+        midi = _NAMES.index(pitch) + 12 * (octave + 1)
+    except ValueError:
+        raise ValueError(f"{name!r} is not a pitch name like C4 or F#3 (sharps only)") from None
+    if not 0 <= midi <= 127:
+        raise ValueError(f"{name!r} is outside MIDI 0..127")
+    return midi
 
 
 def _white_index(midi: int) -> int:
