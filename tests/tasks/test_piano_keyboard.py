@@ -213,3 +213,38 @@ def test_reach_sweep_sets_the_span():
     assert got == {"left": LEFT_REACH, "right": RIGHT_REACH}
     assert (CFG.lowest, CFG.highest) == (LEFT_REACH[0], RIGHT_REACH[1])
     assert LEFT_REACH[1] >= RIGHT_REACH[0]  # the hands' ranges overlap: every key is reachable
+
+
+def test_compact_config_holds_every_song():
+    from bar_policy.tasks.piano.generator import HAND_RANGES
+    from bar_policy.tasks.piano.keyboard import compact_config
+    from bar_policy.tasks.piano.song_library import SONG_NAMES, library_song
+
+    small = compact_config()
+    assert (small.lowest, small.highest, small.n_keys) == (36, 84, 49)  # C2..C6
+    assert small.front_x == CFG.front_x and small.top_z == CFG.top_z
+    # Same placement: a key keeps its position whatever the keyboard's ends.
+    assert next(k for k in key_table(small) if k.midi == 60) == _key(60)._replace(index=60 - 36)
+    keys = {n.key for name in SONG_NAMES for n in library_song(name).notes}
+    assert small.lowest <= min(keys) and max(keys) <= small.highest
+    assert HAND_RANGES["left"][0] >= small.lowest and HAND_RANGES["right"][1] <= small.highest
+
+
+PROBE = r"""
+import sys
+import bar_policy.tasks.piano as piano
+from bar_policy.tasks.piano import generator, keyboard, midi, reach, scene, song_library, songs
+piano.load_midi  # mido is imported only when a file is read
+HEAVY = ("jax", "jaxlib", "torch", "brax", "flax", "mujoco.mjx", "mido")
+print(sorted(m for m in HEAVY if m in sys.modules))
+"""
+
+
+def test_piano_imports_without_jax_or_torch():
+    import subprocess
+    import sys
+
+    out = subprocess.run(
+        [sys.executable, "-c", PROBE], capture_output=True, text=True, check=True, timeout=120
+    )
+    assert out.stdout.split()[-1] == "[]", out.stdout + out.stderr

@@ -32,7 +32,7 @@ The scene itself (hinges, boxes, sites, sensors, fingertip contact spheres) is `
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -42,6 +42,7 @@ __all__ = [
     "RIGHT_REACH",
     "Key",
     "KeyboardConfig",
+    "compact_config",
     "default_config",
     "is_black",
     "key_table",
@@ -167,6 +168,15 @@ class KeyboardConfig:
 def default_config() -> KeyboardConfig:
     """The keyboard of docs/piano.md: B0..D7 (76 keys), placed for the ``piano_ready`` pose."""
     return KeyboardConfig()
+
+
+def compact_config() -> KeyboardConfig:
+    """C2..C6 (MIDI 36..84, 49 keys): every library song and random song fits, with fewer keys to simulate.
+
+    The same placement as ``default_config()``; in MJX each key costs a degree of freedom, a joint-limit row
+    and two fingertip contact pairs (76 keys: nefc 310 instead of the robot's 82; 49 keys: 229).
+    """
+    return replace(default_config(), lowest=36, highest=84)
 
 
 class Key(NamedTuple):
