@@ -20,6 +20,7 @@ from bar_policy.tasks.piano.keyboard import (
     default_config,
     key_table,
     note_name,
+    press_thresholds,
     pressed,
 )
 from bar_policy.tasks.piano.reach import ReachChecker, sweep
@@ -173,6 +174,11 @@ def test_pressed_threshold():
     assert not got[1].any()
     with pytest.raises(ValueError, match="expected"):
         pressed(np.zeros(5), CFG)
+    thresholds = press_thresholds(CFG)
+    assert thresholds[60 - 23] == pytest.approx(0.01 / 0.15 / 2) and thresholds[61 - 23] == pytest.approx(
+        0.01 / 0.095 / 2
+    )
+    assert pressed(list(angles[0]), CFG).sum() == 2  # a plain list works too
 
 
 def test_fingertip_presses_key(model):

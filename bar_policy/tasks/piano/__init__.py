@@ -15,6 +15,7 @@ from bar_policy.tasks.piano.keyboard import (
     compact_config,
     default_config,
     key_table,
+    press_thresholds,
     pressed,
 )
 from bar_policy.tasks.piano.midi import load_midi
@@ -44,6 +45,7 @@ __all__ = [
     "library_song",
     "load_midi",
     "playable",
+    "press_thresholds",
     "pressed",
     "random_song",
     "read_song",

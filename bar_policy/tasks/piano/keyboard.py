@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -48,6 +48,7 @@ __all__ = [
     "key_table",
     "note_name",
     "note_number",
+    "press_thresholds",
     "pressed",
 ]
 
@@ -247,8 +248,16 @@ def key_table(config: KeyboardConfig) -> tuple[Key, ...]:
     return tuple(keys)
 
 
-def pressed(angles: np.ndarray, config: KeyboardConfig | None = None) -> np.ndarray:
+def press_thresholds(config: KeyboardConfig | None = None) -> np.ndarray:
+    """Angle at which each key counts as pressed (``press_fraction * angle_max``), rad, shape (n_keys,)."""
+    cfg = default_config() if config is None else config
+    return cfg.press_fraction * np.array([k.angle_max for k in key_table(cfg)])
+
+
+def pressed(angles: Any, config: KeyboardConfig | None = None) -> Any:
     """Which keys are pressed: hinge angle at or past ``press_fraction`` of each key's ``angle_max``.
+
+    Array-agnostic (numpy here, ``jnp`` in the MJX env): a comparison with ``press_thresholds(config)``.
 
     Args:
         angles: key hinge angles, rad, shape (..., n_keys), key order (the ``piano_key*_angle`` sensors).
@@ -257,9 +266,9 @@ def pressed(angles: np.ndarray, config: KeyboardConfig | None = None) -> np.ndar
     Returns:
         bool array, shape (..., n_keys).
     """
-    cfg = default_config() if config is None else config
-    angle_max = np.array([k.angle_max for k in key_table(cfg)])
-    angles = np.asarray(angles)
-    if angles.shape[-1:] != angle_max.shape:
-        raise ValueError(f"angles has shape {angles.shape}, expected (..., {len(angle_max)})")
-    return angles >= cfg.press_fraction * angle_max
+    threshold = press_thresholds(config)
+    if not hasattr(angles, "shape"):
+        angles = np.asarray(angles)
+    if angles.shape[-1:] != threshold.shape:
+        raise ValueError(f"angles has shape {angles.shape}, expected (..., {len(threshold)})")
+    return angles >= threshold
