@@ -21,6 +21,7 @@ from bar_policy.tasks.piano.songs import (
     Note,
     Song,
     SongError,
+    TempoLimits,
     goal_keys,
     playable,
     read_song,
@@ -90,6 +91,8 @@ def test_refusals_name_the_note():
         Song("s", (Note(60, 1.0, 0.5),))
     with pytest.raises(SongError, match="hand 'both'"):
         Song("s", (Note(60, 0.0, 0.5, "both"),))
+    with pytest.raises(ValueError, match=r"max_speed = 0\.0 must be positive"):
+        TempoLimits(max_speed=0.0)
 
 
 def test_either_hand_assignment():

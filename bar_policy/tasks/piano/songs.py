@@ -124,6 +124,12 @@ class TempoLimits:
     min_gap_s: float = 0.05
     """Shortest release-to-press time of one hand, s (lifting and pressing again, even on the same key)."""
 
+    def __post_init__(self) -> None:
+        """Refuse non-positive limits (``ValueError`` naming the value)."""
+        for name in ("max_speed", "min_note_s", "min_gap_s"):
+            if not getattr(self, name) > 0.0:
+                raise ValueError(f"{name} = {getattr(self, name)} must be positive")
+
 
 def key_distance(a: int, b: int, config: KeyboardConfig | None = None) -> float:
     """Distance between the aim points (key-top sites) of keys ``a`` and ``b`` (MIDI), m."""
@@ -160,7 +166,8 @@ def playable(
     """``song`` with every hand resolved to ``left`` / ``right``, or ``SongError`` naming the first bad note.
 
     The checks are the module's (keyboard, reach, note length, one key per hand, tempo); ``split`` is
-    the lowest key an ``either`` note gives to the right hand when both hands could play it.
+    the lowest key an ``either`` note gives to the right hand when both hands could play it. The reach
+    ranges are those of the default placement (``front_x``, ``top_z``, ``centre_y``), cut to the keyboard.
     """
     cfg = default_config() if config is None else config
     lim = TempoLimits() if limits is None else limits
