@@ -95,7 +95,7 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 def _run_parser() -> argparse.ArgumentParser:
     from bar_policy.deploy.tasks import all_tasks
-    from bar_policy.deploy.tasks.reach import SEED_HELP
+    from bar_policy.tasks.reach.deploy import SEED_HELP
 
     p = _Parser(
         prog="bar-deploy",
