@@ -15,7 +15,7 @@ import pytest
 from blocked_imports import BLOCK_HEAVY
 
 from bar_policy.deploy.tasks import HC_TASKS, TASK_COMMAND_TERMS, get_task, implied_task
-from bar_policy.obs import SHIPPED_LAYOUTS, ObservationManager
+from bar_policy.obs import SHIPPED_LAYOUTS, TERM_CATALOG, ObservationManager
 from bar_policy.tasks.record import EnvEntry, TaskRecord, resolve
 from bar_policy.tasks.registry import TASK_PACKAGES, TASKS, get_task_record
 from bar_policy.training.config import PRESETS, TrainConfig, preset
@@ -87,6 +87,9 @@ def test_layouts_and_command_terms_come_from_the_record(record):
         om = ObservationManager.for_task(record.name, mode)
         assert om.fingerprint == ObservationManager.golden(name).fingerprint
         assert om.command_names == record.command_terms
+    added = resolve(record.terms)
+    assert all(TERM_CATALOG[name] is kind for name, kind in added.items())  # the catalogue reads the record
+    assert set(record.command_terms) <= {n for n, k in added.items() if k.category == "command"}
     assert TASK_COMMAND_TERMS[record.name] == record.command_terms
     assert get_task(record.name).name == record.name
     assert (record.name in HC_TASKS) == record.hc_only

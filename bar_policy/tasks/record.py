@@ -62,6 +62,9 @@ class TaskRecord:
     """Its MJX training envs, in registry order."""
     layout: str
     """``"module:attr"`` of ``(mode) -> ObservationSchema``: the task's current observation layout."""
+    terms: str = ""
+    """``"module:attr"`` of the observation terms the task adds (``{name: obs.terms.TermKind}``, read into
+    ``obs.terms.TERM_CATALOG``); empty: none."""
     shipped_layouts: tuple[tuple[str, str], ...] = ()
     """Golden layouts committed under ``bar_policy/obs/schemas/``: (layout name, mode)."""
     command_terms: tuple[str, ...] = ()
@@ -86,6 +89,8 @@ class TaskRecord:
         if not self.envs:
             raise ValueError(f"task {self.name!r} registers no env")
         _check_ref(f"task {self.name!r}: layout", self.layout)
+        if self.terms:
+            _check_ref(f"task {self.name!r}: terms", self.terms)
         for preset_name, ref in self.presets:
             _check_ref(f"task {self.name!r}: preset {preset_name!r}", ref)
         if self.deploy and not re.match(r"^[A-Za-z_][\w.]*$", self.deploy):

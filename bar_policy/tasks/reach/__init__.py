@@ -5,7 +5,8 @@ blocked) and re-exports the shared definitions:
 
 ==================  =========================================================================================
 ``shared.py``       the target distribution, the success radius, the command transition (numpy and jax)
-``layout.py``       the observation layout ``lite_reach_<mode>`` (the fingertip and target terms it adds)
+``terms.py``        the observation terms it adds (the fingertip targets)
+``layout.py``       its observation layout ``lite_reach_<mode>``
 ``env.py``          ``LiteReach`` (MJX): rewards, metrics, episode, ``ReachEnvConfig``        jax
 ``preset.py``       the training presets ``gpu``, ``cpu``, ``tiny``
 ``commands.py``     deploy command sources (``--commands sampled|file:|stream:``)         numpy
@@ -43,6 +44,7 @@ RECORD = TaskRecord(
         EnvEntry(name="LiteReachNeck", env=f"{_HERE}.env:LiteReach", config=f"{_HERE}.env:neck_config"),
     ),
     layout=f"{_HERE}.layout:schema",
+    terms=f"{_HERE}.terms:TERMS",
     shipped_layouts=(("lite_reach_arms", "arms"), ("lite_reach_arms_neck", "arms_neck")),
     command_terms=("target_pos_left", "target_pos_right"),
     implied_by=("target_pos_left", "target_pos_right", "fingertip_pos_left", "fingertip_pos_right"),

@@ -5,7 +5,8 @@ with jax blocked) and re-exports the shared definitions:
 
 ==================  =========================================================================================
 ``shared.py``       the reference table with lookahead, the tracked bodies, the action box (numpy and jax)
-``layout.py``       the observation layout ``lite_track_<mode>`` (the reference terms it adds)
+``terms.py``        the observation terms it adds (the reference with lookahead)
+``layout.py``       its observation layout ``lite_track_<mode>``
 ``config.py``       ``TrackEnvConfig`` (rewards, clips, termination, adaptive start sampling)
 ``env.py``          ``LiteTrack`` (MJX): rewards, termination, metrics                      jax
 ``preset.py``       the training preset ``track``
@@ -54,6 +55,7 @@ RECORD = TaskRecord(
     summary="motion tracking",
     envs=(EnvEntry(name="LiteTrack", env=f"{_HERE}.env:LiteTrack", config=f"{_HERE}.config:default_config"),),
     layout=f"{_HERE}.layout:schema",
+    terms=f"{_HERE}.terms:TERMS",
     shipped_layouts=(("lite_track_arms", "arms"),),
     command_terms=COMMAND_TERMS,
     implied_by=COMMAND_TERMS,
