@@ -106,7 +106,7 @@ def test_graph_sees_package() -> None:
     g = graph()
     assert "bar_policy.tasks.registry" in g["bar_policy.envs"]
     assert "bar_policy.envs.wrappers" in g["bar_policy.envs"]  # imported inside a function
-    assert "bar_policy.deploy.tasks.base" in g["bar_policy.deploy.tasks"]  # under TYPE_CHECKING
+    assert "bar_policy.tasks.interfaces" in g["bar_policy.deploy.tasks"]  # under TYPE_CHECKING
     assert "bar_policy.envs" not in g["bar_policy.tasks.reach.env"]  # from bar_policy.envs import rewards
 
 

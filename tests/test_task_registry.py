@@ -164,6 +164,8 @@ def test_old_paths_reexport_the_moved_modules():
         "bar_policy.deploy.tasks.track": "bar_policy.tasks.track.deploy",
         "bar_policy.deploy.tasks.track_eval": "bar_policy.tasks.track.evaluate",
         "bar_policy.deploy.tasks.track_reference": "bar_policy.tasks.track.reference",
+        "bar_policy.deploy.tasks.base": "bar_policy.tasks.interfaces",
+        "bar_policy.deploy.cli_types": "bar_policy.tasks.cli_types",
     }
     for old, new in pairs.items():
         a, b = importlib.import_module(old), importlib.import_module(new)

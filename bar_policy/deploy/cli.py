@@ -40,19 +40,19 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from bar_policy._files import shorten
-from bar_policy.deploy.cli_types import Parser as _Parser
-from bar_policy.deploy.cli_types import asks_help as _asks_help
-from bar_policy.deploy.cli_types import count0 as _count0
-from bar_policy.deploy.cli_types import duration as _duration
-from bar_policy.deploy.cli_types import number as _number
-from bar_policy.deploy.cli_types import one_line as _one_line
-from bar_policy.deploy.cli_types import port as _port
-from bar_policy.deploy.cli_types import priority as _priority
-from bar_policy.deploy.cli_types import seconds as _seconds
-from bar_policy.deploy.cli_types import seconds0 as _seconds0
 from bar_policy.deploy.live import LIVE_PORT
 from bar_policy.deploy.log_files import CAN_LOG_FILE
 from bar_policy.deploy.signals import early_interrupt
+from bar_policy.tasks.cli_types import Parser as _Parser
+from bar_policy.tasks.cli_types import asks_help as _asks_help
+from bar_policy.tasks.cli_types import count0 as _count0
+from bar_policy.tasks.cli_types import duration as _duration
+from bar_policy.tasks.cli_types import number as _number
+from bar_policy.tasks.cli_types import one_line as _one_line
+from bar_policy.tasks.cli_types import port as _port
+from bar_policy.tasks.cli_types import priority as _priority
+from bar_policy.tasks.cli_types import seconds as _seconds
+from bar_policy.tasks.cli_types import seconds0 as _seconds0
 
 # The tasks and provenance modules (numpy and more) are imported where they are used: until ``main`` runs,
 # a SIGINT is a ``KeyboardInterrupt`` that ``main`` cannot catch, so the module itself loads in milliseconds.

@@ -18,9 +18,9 @@ from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import Mode, SafetyConfig
 from bar_policy.deploy.tasks import TASK_COMMAND_TERMS, all_tasks, get_task, implied_task
-from bar_policy.deploy.tasks.base import OptionError
 from bar_policy.motion import Clip, ClipError, save_clip
 from bar_policy.robot.constants import load_robot
+from bar_policy.tasks.interfaces import OptionError
 from bar_policy.tasks.reach.commands import SampledCommands
 from bar_policy.tasks.track.deploy import MotionReference, load_motion, reference_for
 

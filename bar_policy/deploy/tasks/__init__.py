@@ -2,7 +2,7 @@
 
 The runtime loop never names a task: it feeds the observation's state terms itself (``deploy.inputs``) and
 takes the command terms, the HOLD pose before the policy and the end of the commands from a
-``CommandSource`` (``tasks.base``). Which task a policy file runs is read from its metadata
+``CommandSource`` (``bar_policy.tasks.interfaces``). Which task a policy file runs is read from its metadata
 (``OnnxPolicy.task``): ``bar.task`` for ``bar`` files; for HC-only files the task its terms imply
 (``implied_task``), as HC's ``task_type`` is a free label.
 
@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING
 from bar_policy.deploy.task_registry import HC_TASKS, TASK_COMMAND_TERMS, TASKS, implied_task
 
 if TYPE_CHECKING:
-    from bar_policy.deploy.tasks.base import DeployTask
+    from bar_policy.tasks.interfaces import DeployTask
 
 __all__ = ["HC_TASKS", "TASKS", "TASK_COMMAND_TERMS", "all_tasks", "get_task", "implied_task"]
 

@@ -17,7 +17,8 @@ hard-coded in the runtime; the CLI picks a source with ``--commands``:
   line is logged and counted, and the previous targets stay.
 
 Targets outside the training workspace are not clipped: each is counted and logged (first time per source).
-Every source is a ``tasks.base.CommandSource`` of task ``reach``; the run log records its targets each tick.
+Every source is a ``tasks.interfaces.CommandSource`` of task ``reach``; the run log records its targets each
+tick.
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ from typing import IO, Any
 import numpy as np
 
 from bar_policy._files import InputError, loads_json, shorten
-from bar_policy.deploy.tasks.base import CommandSource
+from bar_policy.tasks.interfaces import CommandSource
 from bar_policy.tasks.reach.shared import ReachTargetConfig, sample_targets
 
 __all__ = [

@@ -1,8 +1,8 @@
 """Bimanual reach on the robot: ``--commands`` picks the fingertip targets; eval scores target segments.
 
-The command sources are ``deploy.commands`` (``sampled`` / ``sampled:PERIOD`` like training, ``file:PATH``,
+The command sources are ``commands.py`` (``sampled`` / ``sampled:PERIOD`` like training, ``file:PATH``,
 ``stream:stdin`` / ``stream:udp:PORT``), unchanged; the fingertip observation terms are state terms that the
-runtime computes (``deploy.inputs``). The evaluation is ``deploy.sim2sim`` (segment success rate).
+runtime computes (``deploy.inputs``). The evaluation is ``tasks.reach.evaluate`` (segment success rate).
 HC-only files whose terms are reach's (targets or fingertips) run here too.
 """
 
@@ -11,8 +11,8 @@ from __future__ import annotations
 import argparse
 from typing import TYPE_CHECKING
 
-from bar_policy.deploy.cli_types import count1, number, seconds, seconds0
-from bar_policy.deploy.tasks.base import DeployTask, EvalReport, OptionError
+from bar_policy.tasks.cli_types import count1, number, seconds, seconds0
+from bar_policy.tasks.interfaces import DeployTask, EvalReport, OptionError
 from bar_policy.tasks.reach.commands import CommandError, ReachSource, make_command_source
 from bar_policy.tasks.reach.transition import TransitionCommands, with_transition
 
@@ -53,7 +53,7 @@ class ReachTask(DeployTask):
         g.add_argument("--commands", metavar="SPEC", help=f"command source: {_SPECS} (default sampled)")
 
     def add_eval_arguments(self, parser: argparse.ArgumentParser) -> None:
-        """The episode protocol's options (``sim2sim.EvalConfig``)."""
+        """The episode protocol's options (``evaluate.EvalConfig``)."""
         g = parser.add_argument_group("reach policies (segment success rate)")
         g.add_argument("--episodes", type=count1, help="number of episodes (default 100)")
         g.add_argument(
@@ -93,7 +93,7 @@ class ReachTask(DeployTask):
         return with_transition(source, policy, initial)
 
     def evaluate(self, policy: OnnxPolicy, args: argparse.Namespace) -> EvalReport:
-        """Segment success rate on the C MuJoCo sim target (``sim2sim.evaluate``)."""
+        """Segment success rate on the C MuJoCo sim target (``evaluate.evaluate``)."""
         from bar_policy.tasks.reach.evaluate import EvalConfig, evaluate
 
         def given(name: str, default: float) -> float:

@@ -9,7 +9,7 @@ noise and the initial-state noise are the robot env's (``bar_policy.envs.robot``
 - **Observation**: ``ObservationManager.for_task("reach", mode)`` (54 entries for arms): measured q, dq,
   previous action, fingertip positions by forward kinematics of the measured q (chest frame = world frame,
   the chest is the fixed root), and the two targets.
-- **Task**: targets from ``bar_policy.tasks.reach.sample_targets`` at reset and every
+- **Task**: targets from ``bar_policy.tasks.reach.shared.sample_targets`` at reset and every
   ``resample_period_s``. The commanded target (observed, rewarded, scored) moves to each new target along
   ``transition_point``'s minimum-jerk path over ``target_transition_s``, from the previous commanded target
   (at reset: the fingertips of the default pose, where the deploy runtime's HOLD ramp leaves them).

@@ -1,17 +1,17 @@
 """Sim2sim evaluation of a reach policy: the ONNX policy on the C MuJoCo ``sim`` target over seeded episodes.
 
-``bar-deploy eval`` runs it for reach policies (``deploy.tasks.reach``); tracking policies have their own
-metric (``deploy.tasks.track_eval``).
+``bar-deploy eval`` runs it for reach policies (``tasks.reach.deploy``); tracking policies have their own
+metric (``tasks.track.evaluate``).
 
 The protocol mirrors the LiteReach env's (``bar_policy.tasks.reach.env``; defaults of ``ReachEnvConfig``):
 
 - an episode lasts ``episode_length`` = 5 s (250 control ticks at 50 Hz) and starts at the default pose
   (``piano_ready``) plus U(-init_noise, init_noise) per joint (clipped to the limits; 0 by default, as the
   env's nominal evaluation config), at rest;
-- the targets come from ``SampledCommands(seed + e)`` (``tasks.reach.sample_targets``, the training
+- the targets come from ``SampledCommands(seed + e)`` (``tasks.reach.shared.sample_targets``, the training
   distribution) and are resampled every ``resample_period`` = 2.5 s: two target segments per episode; a
   file trained with a command transition sees each new target arrive along the env's minimum-jerk path
-  (``deploy.command_transition``), starting at the default pose's fingertips;
+  (``tasks.reach.transition``), starting at the default pose's fingertips;
 - success is scored at the last control tick of every target segment (after that tick's physics): both
   fingertips within ``SUCCESS_RADIUS`` (3 cm) of the segment's targets, as the env's
   ``success_end / segment_end`` metric; a segment ending after a fault fails. The success rate is
@@ -37,10 +37,10 @@ from bar_policy.deploy.policy import OnnxPolicy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import SafetyConfig
 from bar_policy.deploy.targets.sim import SimConfig, SimTarget, training_damping
-from bar_policy.deploy.tasks.base import EvalReport
 from bar_policy.quality import EpisodeQuality, summarise
 from bar_policy.quality.report import quality_summary_line
 from bar_policy.robot.kinematics import Kinematics
+from bar_policy.tasks.interfaces import EvalReport
 from bar_policy.tasks.reach.commands import SampledCommands
 from bar_policy.tasks.reach.shared import SUCCESS_RADIUS
 from bar_policy.tasks.reach.transition import with_transition

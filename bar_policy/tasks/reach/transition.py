@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from bar_policy.deploy.tasks.base import CommandSource
+from bar_policy.tasks.interfaces import CommandSource
 from bar_policy.tasks.reach.shared import transition_point
 
 if TYPE_CHECKING:

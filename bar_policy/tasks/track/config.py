@@ -139,7 +139,7 @@ class TrackEnvConfig(RobotEnvConfig):
     episode_length_s: float = 10.0
     """Episode length, s (500 control steps)."""
     action_scale: float | tuple[float, ...] | None = None
-    """Rad per unit action; None: the tracking layout's per-joint scale (``tasks.track.track_action_scale``:
+    """Rad per unit action; None: the tracking layout's per-joint scale (``shared.track_action_scale``:
     half the motion box plus 0.25 rad)."""
     motion: MotionConfig = field(default_factory=MotionConfig)
     """The reference clips."""

@@ -1,7 +1,7 @@
 """Motion tracking on the robot: the ``track`` deploy task (``bar-deploy --motion NAME|PATH``).
 
-Its command source, the clip's reference with lookahead, is ``tasks.track_reference`` (``MotionReference``,
-re-exported here); its evaluation, tracking errors on held-out clips, is ``tasks.track_eval``
+Its command source, the clip's reference with lookahead, is ``tasks.track.reference`` (``MotionReference``,
+re-exported here); its evaluation, tracking errors on held-out clips, is ``tasks.track.evaluate``
 (imported when used: it loads the runtime).
 """
 
@@ -11,9 +11,9 @@ import argparse
 import math
 from typing import TYPE_CHECKING
 
-from bar_policy.deploy.cli_types import number, seconds0
-from bar_policy.deploy.tasks.base import DeployTask, EvalReport, OptionError
 from bar_policy.motion.gestures import GESTURES
+from bar_policy.tasks.cli_types import number, seconds0
+from bar_policy.tasks.interfaces import DeployTask, EvalReport, OptionError
 from bar_policy.tasks.track.reference import MotionReference, load_motion, reference_for
 
 if TYPE_CHECKING:
@@ -87,7 +87,7 @@ class TrackTask(DeployTask):
         return reference_for(policy, clip)
 
     def evaluate(self, policy: OnnxPolicy, args: argparse.Namespace) -> EvalReport:
-        """Tracking errors on the C MuJoCo sim target (``track_eval.evaluate_track``)."""
+        """Tracking errors on the C MuJoCo sim target (``evaluate.evaluate_track``)."""
         from bar_policy.tasks.track.evaluate import DEFAULT_HOLD_S, eval_clips, evaluate_track
 
         hold = DEFAULT_HOLD_S if getattr(args, "hold_s", None) is None else args.hold_s

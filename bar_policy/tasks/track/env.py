@@ -4,12 +4,12 @@ Semantics (fixed; the exported policy and the deploy side rely on them). Action,
 and the initial-pose noise are the robot env's; the task adds:
 
 - **Reference**: the frames of a clip set (``config.motion``; ``bar_policy.motion.library``) with body poses
-  from C MuJoCo forward kinematics (``bar_policy.tasks.track.ReferenceTable``), held on the device. A reset
+  from C MuJoCo forward kinematics (``shared.ReferenceTable``), held on the device. A reset
   picks a clip uniformly and a start frame uniformly in ``[0, length - 2]``; every control step advances one
   frame (clips are at the control rate); past the clip's last frame the reference holds that frame.
 - **Action**: ``q_cmd = clip(default + action_scale * a, lower, upper)``, Humanoid Control's
   ``delta_from_default`` with ``default`` = the centre of the motion box and a per-joint ``action_scale``
-  (``tasks.track.track_default_pose`` / ``track_action_scale``).
+  (``shared.track_default_pose`` / ``track_action_scale``).
 - **Observation**: ``ObservationManager.for_task("track", mode)``: the reference at the next
   ``TRACK_LOOKAHEAD_STEPS`` frames (joint positions, ``motion_body_pos_b``, ``motion_body_ori_b`` of
   ``TRACK_BODY_NAMES`` in the chest frame), then joint_pos, joint_vel, actions.
@@ -240,6 +240,6 @@ class LiteTrack(LiteRobotEnv):
         return TaskStep(terms=terms, info=task_info, metrics=metrics, terminate=lost)
 
     def task_obs(self, model: mjx.Model, data: mjx.Data, q_meas: jax.Array, info: dict) -> dict:
-        """The reference at the next ``TRACK_LOOKAHEAD_STEPS`` frames (``tasks.track.reference_inputs``)."""
+        """The reference at the next ``TRACK_LOOKAHEAD_STEPS`` frames (``shared.reference_inputs``)."""
         idx = lookahead_frames(info["frame"], info["last_frame"], TRACK_LOOKAHEAD_STEPS)
         return reference_inputs(self._ref_q, self._ref_pos, self._ref_ori, idx)

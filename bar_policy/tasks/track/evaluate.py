@@ -35,7 +35,6 @@ import numpy as np
 from bar_policy.deploy.run_config import RuntimeConfig
 from bar_policy.deploy.runtime import Runtime
 from bar_policy.deploy.safety import SafetyConfig
-from bar_policy.deploy.tasks.base import EvalReport
 from bar_policy.motion.clip import Clip
 from bar_policy.motion.families import FAMILIES, family_of
 from bar_policy.motion.library import CLIP_SETS, clip_set, clip_set_id
@@ -44,6 +43,7 @@ from bar_policy.quality import summarise as summarise_quality
 from bar_policy.quality.report import quality_summary_line
 from bar_policy.robot.constants import FINGERTIP_SITES
 from bar_policy.robot.kinematics import Kinematics
+from bar_policy.tasks.interfaces import EvalReport
 from bar_policy.tasks.track.reference import load_motion, reference_for
 from bar_policy.tasks.track.shared import (
     LOST_DISTANCE,

@@ -1,7 +1,7 @@
 """The track task's command source: ``--motion NAME|PATH`` streams a clip's reference with lookahead.
 
-The reference is built exactly as the MJX env builds it (``bar_policy.tasks.track.env``), from the same code:
-``tasks.track.ReferenceTable.build`` (the clip resampled to the control rate, tracked-body poses and 6-D
+The reference is built exactly as the MJX env builds it (``env.py``), from the same code:
+``shared.ReferenceTable.build`` (the clip resampled to the control rate, tracked-body poses and 6-D
 orientations by C MuJoCo forward kinematics of the same MJCF), then each tick
 ``reference_inputs(table, lookahead_frames(frame, last, K))``: the next K = ``lookahead_steps`` frames,
 frames past the clip's end repeating its last (the past-the-end hold).
@@ -32,9 +32,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from bar_policy.deploy.tasks.base import CommandSource, OptionError
 from bar_policy.motion.clip import Clip, ClipError, load_clip, load_csv
 from bar_policy.motion.library import library_clip
+from bar_policy.tasks.interfaces import CommandSource, OptionError
 from bar_policy.tasks.track.shared import COMMAND_TERMS, ReferenceTable, lookahead_frames, reference_inputs
 
 if TYPE_CHECKING:
@@ -112,7 +112,7 @@ class MotionReference(CommandSource):
         self.lookahead_steps = int(lookahead_steps)
         self.control_dt = float(control_dt)
         self.table = ReferenceTable.build([clip], body_names, rate_hz=1.0 / control_dt, kinematics=kinematics)
-        """The clip's frames at the control rate with their kinematics (``tasks.track``)."""
+        """The clip's frames at the control rate with their kinematics (``tasks.track.shared``)."""
         self.last = self.table.num_frames - 1
         """Index of the clip's last frame."""
         self.tail_ticks = round(tail_s / control_dt)
