@@ -95,8 +95,8 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 def _run_parser() -> argparse.ArgumentParser:
     from bar_policy.deploy.tasks import all_tasks
-    from bar_policy.tasks.reach.deploy import SEED_HELP
 
+    seed_help = "; ".join(t.seed_help for t in all_tasks() if t.seed_help) or "seed of the task's commands"
     p = _Parser(
         prog="bar-deploy",
         description="Run an ONNX policy at its policy rate on a target, under the safety supervisor.",
@@ -108,7 +108,7 @@ def _run_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=_duration, metavar="S|inf",
                    help="run length in s, or 'inf' until stopped (default: 10 s; track policies: until the "
                         "clip ends)")  # fmt: skip
-    p.add_argument("--seed", type=int, default=0, metavar="N", help=f"{SEED_HELP} (default 0)")
+    p.add_argument("--seed", type=int, default=0, metavar="N", help=f"{seed_help} (default 0)")
     p.add_argument("--log", type=Path, default=Path("runs/deploy"), metavar="DIR",
                    help="directory of run logs (default: runs/deploy)")  # fmt: skip
     p.add_argument("--no-log", action="store_true", help="record no run log")

@@ -144,6 +144,8 @@ class DeployTask(abc.ABC):
     """``bar-deploy eval`` options of this task: (option string, argparse dest)."""
     default_duration: ClassVar[float | None] = 10.0
     """Run length when ``--duration`` is not given, s (None: until the commands end or a stop)."""
+    seed_help: ClassVar[str] = ""
+    """What ``bar-deploy --seed`` seeds in this task (empty: nothing); the CLI's help joins them."""
 
     def add_run_arguments(self, parser: argparse.ArgumentParser) -> None:  # noqa: B027 - optional
         """Add the run options (every default None: ``check_options`` tells given from not given)."""

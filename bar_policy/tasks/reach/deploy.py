@@ -46,6 +46,7 @@ class ReachTask(DeployTask):
         ("--init-noise", "init_noise"),
     )
     default_duration = 10.0
+    seed_help = SEED_HELP
 
     def add_run_arguments(self, parser: argparse.ArgumentParser) -> None:
         """``--commands``."""
