@@ -27,13 +27,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "deploy"))
 
-from bar_policy.deploy.commands import SampledCommands
 from bar_policy.deploy.log import log_fields
 from bar_policy.deploy.mcap_log import McapRunWriter
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import Mode, SafetyConfig
 from bar_policy.deploy.targets.mock import MockTarget
+from bar_policy.tasks.reach.commands import SampledCommands
 
 
 def bench_writer(ticks: int) -> dict[str, float]:

@@ -27,12 +27,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "deploy"))
 
-from bar_policy.deploy.commands import SampledCommands
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import SafetyConfig
 from bar_policy.deploy.targets.mock import MockTarget
 from bar_policy.deploy.targets.sim import SimTarget
+from bar_policy.tasks.reach.commands import SampledCommands
 
 
 def _policy_files(args: argparse.Namespace, tmp: Path) -> tuple[Path, Path]:

@@ -2,8 +2,8 @@
 
     python bench/reach_emulator.py --policy x.onnx [--episodes 20] [--seed 0]
 
-Both runs use the deploy team's sim2sim protocol (``bar_policy.deploy.sim2sim.evaluate``: seeded targets,
-5 s episodes, success = both fingertips within 3 cm at each segment end). The "real" run drives
+Both runs use the deploy team's sim2sim protocol (``bar_policy.tasks.reach.evaluate``: seeded targets, 5 s
+episodes, success = both fingertips within 3 cm at each segment end). The "real" run drives
 ``RealTarget`` over two python-can virtual buses to a *lockstep* ``RobstrideEmulator``
 (``bar_policy.deploy.targets.emulated.EmulatedBusTarget``): every command round advances one control period
 of MuJoCo physics, so the episode runs faster than real time and the state the policy sees went through the
@@ -19,8 +19,8 @@ import time
 import numpy as np
 
 from bar_policy.deploy.policy import load_policy
-from bar_policy.deploy.sim2sim import EvalConfig, evaluate
 from bar_policy.deploy.targets.emulated import EmulatedBusTarget
+from bar_policy.tasks.reach.evaluate import EvalConfig, evaluate
 
 
 def main() -> None:

@@ -5,7 +5,7 @@ Issue 10 item 5: the tracking error of one policy on the same clips in three pla
 - ``mjx``: the training env (``LiteTrack`` on exactly these clips, a batch stepped in lockstep, nominal
   physics unless ``--randomize``), the policy's own ONNX graph (onnxruntime);
 - ``sim``: the deploy code path (``Runtime``: observation manager, action clip, safety supervisor) on the C
-  MuJoCo sim target (``bar_policy.deploy.tasks.track_eval``, as ``bar-deploy eval``);
+  MuJoCo sim target (``bar_policy.tasks.track.evaluate``, as ``bar-deploy eval``);
 - ``bus``: the same through ``RealTarget`` and the python-can ``virtual`` bus to the in-process Robstride
   emulator in lockstep (``bar-deploy --target real --can-interface virtual --emulate lockstep``; the
   ``EmulatedBusTarget``): the CAN codec, the 16-bit feedback and the motors' firmware law in the loop.
@@ -40,13 +40,13 @@ import numpy as np
 
 from bar_policy.deploy.policy import OnnxPolicy, load_policy
 from bar_policy.deploy.safety import CapDwell, SafetyConfig
-from bar_policy.deploy.tasks.track_eval import METRICS, ClipResult, evaluate_track, groups
 from bar_policy.motion import Clip, clip_set
 from bar_policy.motion.families import family_of
 from bar_policy.quality import EpisodeQuality, QualityMeter
 from bar_policy.quality import summarise as summarise_quality
 from bar_policy.robot.action_filter import filter_alpha, lowpass_step
 from bar_policy.robot.mit import MitCommand, mit_torque
+from bar_policy.tasks.track.evaluate import METRICS, ClipResult, evaluate_track, groups
 
 Column = Callable[[OnnxPolicy, Sequence[Clip], argparse.Namespace], list[ClipResult]]
 """A target: runs every clip with the policy and returns one result per clip, in order."""

@@ -12,10 +12,10 @@ import json
 import numpy as np
 import pytest
 
-from bar_policy.deploy.command_transition import TransitionCommands
-from bar_policy.deploy.commands import FileCommands, SampledCommands
 from bar_policy.deploy.metadata import MetadataError, PolicyMetadata
 from bar_policy.tasks.reach import min_jerk, transition_point
+from bar_policy.tasks.reach.commands import FileCommands, SampledCommands
+from bar_policy.tasks.reach.transition import TransitionCommands
 from tests.test_metadata import make
 
 NAMES = ("target_pos_left", "target_pos_right")

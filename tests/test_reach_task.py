@@ -8,10 +8,10 @@ import mujoco
 import numpy as np
 import pytest
 
-from bar_policy.envs.reach import default_config
 from bar_policy.robot.constants import FINGERTIP_SITES, load_robot
 from bar_policy.robot.mjcf import load_model
 from bar_policy.tasks.reach import ReachTargetConfig, sample_targets
+from bar_policy.tasks.reach.env import default_config
 
 GRAVITY_SAG_MARGIN = 0.15
 """rad kept in reserve: with Kp = 50 N m/rad the shoulders sag ~0.05 rad under gravity, so the policy must be

@@ -40,19 +40,19 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from bar_policy._files import shorten
-from bar_policy.deploy.cli_types import Parser as _Parser
-from bar_policy.deploy.cli_types import asks_help as _asks_help
-from bar_policy.deploy.cli_types import count0 as _count0
-from bar_policy.deploy.cli_types import duration as _duration
-from bar_policy.deploy.cli_types import number as _number
-from bar_policy.deploy.cli_types import one_line as _one_line
-from bar_policy.deploy.cli_types import port as _port
-from bar_policy.deploy.cli_types import priority as _priority
-from bar_policy.deploy.cli_types import seconds as _seconds
-from bar_policy.deploy.cli_types import seconds0 as _seconds0
 from bar_policy.deploy.live import LIVE_PORT
 from bar_policy.deploy.log_files import CAN_LOG_FILE
 from bar_policy.deploy.signals import early_interrupt
+from bar_policy.tasks.cli_types import Parser as _Parser
+from bar_policy.tasks.cli_types import asks_help as _asks_help
+from bar_policy.tasks.cli_types import count0 as _count0
+from bar_policy.tasks.cli_types import duration as _duration
+from bar_policy.tasks.cli_types import number as _number
+from bar_policy.tasks.cli_types import one_line as _one_line
+from bar_policy.tasks.cli_types import port as _port
+from bar_policy.tasks.cli_types import priority as _priority
+from bar_policy.tasks.cli_types import seconds as _seconds
+from bar_policy.tasks.cli_types import seconds0 as _seconds0
 
 # The tasks and provenance modules (numpy and more) are imported where they are used: until ``main`` runs,
 # a SIGINT is a ``KeyboardInterrupt`` that ``main`` cannot catch, so the module itself loads in milliseconds.
@@ -95,8 +95,8 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 def _run_parser() -> argparse.ArgumentParser:
     from bar_policy.deploy.tasks import all_tasks
-    from bar_policy.deploy.tasks.reach import SEED_HELP
 
+    seed_help = "; ".join(t.seed_help for t in all_tasks() if t.seed_help) or "seed of the task's commands"
     p = _Parser(
         prog="bar-deploy",
         description="Run an ONNX policy at its policy rate on a target, under the safety supervisor.",
@@ -108,7 +108,7 @@ def _run_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=_duration, metavar="S|inf",
                    help="run length in s, or 'inf' until stopped (default: 10 s; track policies: until the "
                         "clip ends)")  # fmt: skip
-    p.add_argument("--seed", type=int, default=0, metavar="N", help=f"{SEED_HELP} (default 0)")
+    p.add_argument("--seed", type=int, default=0, metavar="N", help=f"{seed_help} (default 0)")
     p.add_argument("--log", type=Path, default=Path("runs/deploy"), metavar="DIR",
                    help="directory of run logs (default: runs/deploy)")  # fmt: skip
     p.add_argument("--no-log", action="store_true", help="record no run log")

@@ -9,6 +9,7 @@ characters.
 from __future__ import annotations
 
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -92,15 +93,14 @@ def action_clip(path: Path, sess: object) -> float | None:
         raise refuse(path, str(e)) from None
     if value is None:
         return None
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, int | float)
-        or not (math.isfinite(value) and value > 0)
-    ):
+    number = isinstance(value, int | float) and not isinstance(value, bool)
+    # An int past the float range (JSON allows any) is refused like inf, not an OverflowError.
+    clip = float(value) if number and abs(value) <= sys.float_info.max else math.nan
+    if not (math.isfinite(clip) and clip > 0):
         raise refuse(
             path, f"metadata key {ACTION_CLIP_KEY!r} must be a number > 0 or null, got {shorten(repr(value))}"
         )
-    return float(value)
+    return clip
 
 
 def _io_shape_ok(shape: list, size: int) -> bool:

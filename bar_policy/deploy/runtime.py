@@ -35,7 +35,7 @@ whose ``action_scale`` reaches beyond the joint ranges by more than ``RuntimeCon
 The end of the commands: once the source is ``finished`` (a motion clip at its last frame), POLICY gives
 way to HOLD at the source's ``end_pose`` with the policy's gains (the pose ramps over half of
 ``end_hold``) for ``end_hold`` s, then the run ends as completed through the usual safe ending. The loop
-never names a task: it only knows the ``CommandSource`` interface (``deploy.tasks.base``).
+never names a task: it only knows the ``CommandSource`` interface (``bar_policy.tasks.interfaces``).
 
 Stopping: SIGINT, SIGTERM and SIGHUP (``StopSignals``; the caller's, or installed by ``run`` in
 the main thread) and ``request_stop`` all take one path: the next tick enters DAMPING with the reason, the
@@ -69,11 +69,11 @@ from bar_policy.deploy.run_config import RunResult, RuntimeConfig
 from bar_policy.deploy.run_loop import RunLoop
 from bar_policy.deploy.safety import Mode, SafetySupervisor
 from bar_policy.deploy.targets.base import JointState, StopReport, Target
-from bar_policy.deploy.tasks.base import CommandSource
 from bar_policy.deploy.timing import TimingStats, sleep_until
 from bar_policy.quality import QualityMeter
 from bar_policy.robot.kinematics import Kinematics
 from bar_policy.robot.mit import mit_torque
+from bar_policy.tasks.interfaces import CommandSource
 
 __all__ = ["RunResult", "Runtime", "RuntimeConfig", "TimingStats", "sleep_until"]
 

@@ -2,9 +2,11 @@
 
 Every env is a task on the Lite robot env (``robot.py``: actuator model, latency, quantisation, noise,
 substeps, action map, initial state; ``robot_config.py``: its config), plugged in through the hooks of
-``task.py``: ``LiteReach`` / ``LiteReachNeck`` (``reach.py``) and ``LiteTrack`` (``track.py``,
-``track_config.py``). Domain randomisation (``randomize.py``) and the batched wrappers (``wrappers.py``)
-are shared by every task.
+``task.py``. The tasks live in their folders (``bar_policy/tasks/<task>/env.py``) and register their envs in
+their ``TaskRecord`` (``bar_policy.tasks.registry``), which this registry reads: ``LiteReach`` /
+``LiteReachNeck`` (reach) and ``LiteTrack`` (track). Domain randomisation (``randomize.py``) and the batched
+wrappers (``wrappers.py``) are shared by every task. A task's public MJX names (``envs.LiteReach``,
+``envs.TrackEnvConfig``, ...) are found in its env modules on first use.
 
 Usage::
 
@@ -19,31 +21,24 @@ randomization_fn=envs.get_randomizer("LiteReach", env.config), episode_length=en
 
 from __future__ import annotations
 
-import dataclasses
+import importlib
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from bar_policy import _mjx_quiet  # noqa: F401 - first: mujoco.mjx without the Warp notice
 from bar_policy.envs.base import MjxEnv, State
-from bar_policy.envs.reach import LiteReach, ReachEnvConfig
-from bar_policy.envs.reach import default_config as _reach_default
 from bar_policy.envs.robot import LiteRobotEnv
 from bar_policy.envs.robot_config import RobotEnvConfig, nominal
-from bar_policy.envs.track import LiteTrack
-from bar_policy.envs.track_config import TrackEnvConfig
-from bar_policy.envs.track_config import default_config as _track_default
 from bar_policy.overrides import apply_overrides
+from bar_policy.tasks.record import resolve
+from bar_policy.tasks.registry import env_entries
 
 __all__ = [
     "ALL_ENVS",
-    "LiteReach",
     "LiteRobotEnv",
-    "LiteTrack",
     "MjxEnv",
-    "ReachEnvConfig",
     "RobotEnvConfig",
     "State",
-    "TrackEnvConfig",
     "apply_overrides",
     "default_config",
     "get_randomizer",
@@ -60,23 +55,16 @@ def _randomizer(config: Any) -> Callable:
     return make_randomizer(config)
 
 
-def _reach_neck_default() -> ReachEnvConfig:
-    return dataclasses.replace(_reach_default(), mode="arms_neck")
+_ENTRIES = {name: entry for name, (_, entry) in env_entries().items()}
+ALL_ENVS: tuple[str, ...] = tuple(_ENTRIES)
+"""Registered env names (the task records' ``envs``, in registry order)."""
 
 
-_REGISTRY: dict[str, tuple[type[MjxEnv], Callable[[], Any], Callable[[Any], Callable]]] = {
-    "LiteReach": (LiteReach, _reach_default, _randomizer),
-    "LiteReachNeck": (LiteReach, _reach_neck_default, _randomizer),
-    "LiteTrack": (LiteTrack, _track_default, _randomizer),
-}
-ALL_ENVS: tuple[str, ...] = tuple(_REGISTRY)
-"""Registered env names."""
-
-
-def _entry(name: str) -> tuple:
-    if name not in _REGISTRY:
+def _entry(name: str) -> tuple[type[MjxEnv], Callable[[], Any], Callable[[Any], Callable]]:
+    if name not in _ENTRIES:
         raise ValueError(f"unknown env {name!r}; available envs: {list(ALL_ENVS)}")
-    return _REGISTRY[name]
+    entry = _ENTRIES[name]
+    return resolve(entry.env), resolve(entry.config), _randomizer
 
 
 def default_config(name: str = "LiteReach") -> Any:
@@ -89,7 +77,7 @@ def nominal_config(base: RobotEnvConfig | None = None) -> Any:
 
     Works for any task's config (``robot_config.nominal``); quantisation and torque saturation stay on.
     """
-    return nominal(base if base is not None else _reach_default())
+    return nominal(base if base is not None else default_config())
 
 
 def load(
@@ -134,3 +122,16 @@ def wrap_for_brax_training(*args: Any, **kwargs: Any) -> Any:
     from bar_policy.envs.wrappers import wrap_for_brax_training as _wrap
 
     return _wrap(*args, **kwargs)
+
+
+def __getattr__(name: str) -> Any:
+    """A registered task's public MJX name (``envs.LiteTrack``, ``envs.ReachEnvConfig``).
+
+    Found in the first env module of the registry whose ``__all__`` lists it (imported on first use).
+    """
+    for entry in _ENTRIES.values():
+        for ref in (entry.env, entry.config):
+            module = importlib.import_module(ref.partition(":")[0])
+            if name in getattr(module, "__all__", ()):
+                return getattr(module, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

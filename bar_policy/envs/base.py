@@ -118,7 +118,7 @@ class MjxEnv(abc.ABC):
 
         ``body_names`` (tuple of str), ``lookahead_steps`` (int) and ``dataset_repo_id`` (str), empty for
         tasks without references; ``command_transition_s`` (float, s) for tasks whose commands move along
-        ``tasks.reach.transition_point``.
+        ``tasks.reach.shared.transition_point``.
         """
         return {}
 

@@ -4,7 +4,7 @@ Pure functions over a table of bins (``StartBins``): each clip's possible start 
 cut into bins of ``bin_frames``. The batched wrapper (``wrappers.BatchedEnv``) keeps per device a
 ``(2, B)`` array of decaying counts, row 0 the episodes that failed in each bin (ended by the task's
 termination there) and row 1 the env steps spent in it (``update_counts``), and draws each reset's start
-bin from ``start_probabilities`` of those counts (``AdaptiveSamplingConfig`` in ``track_config.py`` gives
+bin from ``start_probabilities`` of those counts (``tasks/track/config.py``'s ``AdaptiveSamplingConfig`` gives
 the rule and its parameters). ``pack``/``unpack`` spread the counts over the env axis, so that every leaf
 of the batched state keeps its leading batch axis (the trainer shards env states along it) while the
 counts cost a few numbers per env instead of a copy of all of them.

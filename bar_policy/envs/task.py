@@ -1,6 +1,6 @@
 """The contract between the robot env (``robot.py``) and a task: the hooks a task fills and what they see.
 
-A task module (``reach.py``, ``track.py``) subclasses ``LiteRobotEnv`` and implements ``TaskHooks``:
+A task's env module (``tasks/<task>/env.py``) subclasses ``LiteRobotEnv`` and implements ``TaskHooks``:
 
 - ``task_reset(model, key) -> (info, q_init, qvel_init)``: the task's entries of ``State.info`` for a new
   episode and the initial joint state (the robot env adds the initial-pose noise);

@@ -23,7 +23,8 @@ import numpy as np
 from bar_policy._array import Array, array_namespace
 from bar_policy.obs.terms import LOOKAHEAD_RULES, TERM_CATALOG
 from bar_policy.robot.constants import MODES, load_robot
-from bar_policy.tasks.track import TRACK_BODY_NAMES, TRACK_LOOKAHEAD_STEPS, track_default_pose
+from bar_policy.tasks.record import resolve
+from bar_policy.tasks.registry import TASKS, get_task_record
 
 __all__ = ["SCHEMA_FORMAT", "SHIPPED_LAYOUTS", "ObsTerm", "ObservationManager", "ObservationSchema"]
 
@@ -31,11 +32,10 @@ SCHEMA_FORMAT = "bar_policy.obs/1"
 """Format tag of the schema JSON itself (not the layout version)."""
 
 SHIPPED_LAYOUTS: dict[str, tuple[str, str]] = {
-    "lite_reach_arms": ("reach", "arms"),
-    "lite_reach_arms_neck": ("reach", "arms_neck"),
-    "lite_track_arms": ("track", "arms"),
+    name: (record.name, mode) for record in TASKS for name, mode in record.shipped_layouts
 }
-"""Golden layouts committed under ``bar_policy/obs/schemas/``: name -> (task, mode)."""
+"""Golden layouts committed under ``bar_policy/obs/schemas/``: name -> (task, mode), from the task records
+(``TaskRecord.shipped_layouts``)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -229,62 +229,6 @@ def _validate(s: ObservationSchema) -> None:
             raise ValueError(f"term {t.name!r}: scale must be finite and clip finite and > 0")
 
 
-def _reach_schema(mode: str) -> ObservationSchema:
-    """Version 1 of the bimanual reach layout."""
-    robot = load_robot(mode)
-    n = robot.num_joints
-    return ObservationSchema(
-        name=f"lite_reach_{mode}",
-        version=1,
-        robot=robot.robot,
-        mode=mode,
-        joint_names=robot.joint_names,
-        action_joint_names=robot.joint_names,
-        default_joint_pos=tuple(float(x) for x in robot.pose("piano_ready")),
-        terms=(
-            ObsTerm(name="joint_pos", size=n, scale=1.0, clip=100.0),
-            ObsTerm(name="joint_vel", size=n, scale=0.1, clip=100.0),
-            ObsTerm(name="actions", size=n, scale=1.0, clip=100.0),
-            ObsTerm(name="fingertip_pos_left", size=3, scale=1.0, clip=100.0),
-            ObsTerm(name="fingertip_pos_right", size=3, scale=1.0, clip=100.0),
-            ObsTerm(name="target_pos_left", size=3, scale=1.0, clip=100.0),
-            ObsTerm(name="target_pos_right", size=3, scale=1.0, clip=100.0),
-        ),
-    )
-
-
-def _track_schema(mode: str) -> ObservationSchema:
-    """Version 1 of the motion tracking layout (``bar_policy.tasks.track``).
-
-    The reference at the next ``TRACK_LOOKAHEAD_STEPS`` frames (joint positions, then Humanoid Control's
-    ``motion_body_pos_b`` / ``motion_body_ori_b``), then the robot's own state in Humanoid Control's order.
-    """
-    robot = load_robot(mode)
-    n, k, b = robot.num_joints, TRACK_LOOKAHEAD_STEPS, len(TRACK_BODY_NAMES)
-    return ObservationSchema(
-        name=f"lite_track_{mode}",
-        version=1,
-        robot=robot.robot,
-        mode=mode,
-        joint_names=robot.joint_names,
-        action_joint_names=robot.joint_names,
-        default_joint_pos=tuple(float(x) for x in track_default_pose(mode)),
-        terms=(
-            ObsTerm(name="motion_joint_pos", size=k * n, scale=1.0, clip=100.0),
-            ObsTerm(name="motion_body_pos_b", size=k * b * 3, scale=1.0, clip=100.0),
-            ObsTerm(name="motion_body_ori_b", size=k * b * 6, scale=1.0, clip=100.0),
-            ObsTerm(name="joint_pos", size=n, scale=1.0, clip=100.0),
-            ObsTerm(name="joint_vel", size=n, scale=0.1, clip=100.0),
-            ObsTerm(name="actions", size=n, scale=1.0, clip=100.0),
-        ),
-        body_names=TRACK_BODY_NAMES,
-        lookahead_steps=k,
-    )
-
-
-_TASK_BUILDERS = {"reach": _reach_schema, "track": _track_schema}
-
-
 class ObservationManager:
     """Builds observations from named input arrays according to a frozen ``ObservationSchema``.
 
@@ -313,10 +257,12 @@ class ObservationManager:
     # -- construction ------------------------------------------------------------------------------
     @classmethod
     def for_task(cls, task: str = "reach", mode: str = "arms") -> ObservationManager:
-        """The current layout of a task for a joint set."""
-        if task not in _TASK_BUILDERS:
-            raise ValueError(f"unknown task {task!r}; valid tasks: {sorted(_TASK_BUILDERS)}")
-        return cls(_TASK_BUILDERS[task](mode))
+        """The current layout of a task for a joint set (the task's ``TaskRecord.layout`` builder).
+
+        Raises:
+            ValueError: an unknown task (the message lists the tasks) or mode.
+        """
+        return cls(resolve(get_task_record(task).layout)(mode))
 
     @classmethod
     def from_json(cls, text: str) -> ObservationManager:

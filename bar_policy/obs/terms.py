@@ -4,16 +4,22 @@ A term reads one named input array and contributes ``clip((input - offset) * sca
 Sizes are fixed by the term (3 for a position) or by the joint set (``"joints"``: one per joint,
 ``"actions"``: one per action joint), or, for the reference terms of the tracking task, by the schema's
 ``lookahead_steps`` K and ``body_names`` (B bodies): ``"lookahead_joints"`` = K * joints,
-``"lookahead_body_pos"`` = K * B * 3, ``"lookahead_body_ori"`` = K * B * 6. Adding a term here is an API
+``"lookahead_body_pos"`` = K * B * 3, ``"lookahead_body_ori"`` = K * B * 6. Adding a term is an API
 change: schemas that use it get a new version, existing golden schemas stay valid.
+
+The robot's own terms (``ROBOT_TERMS``: joint state, the last action, the fingertips that the runtime
+computes, the IMU) are defined here; a task adds its own (its commands) in its folder and names them in its
+record (``TaskRecord.terms``, e.g. ``bar_policy/tasks/track/terms.py``). ``TERM_CATALOG`` is both, read
+from the task registry on first use.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Literal
 
-__all__ = ["LOOKAHEAD_RULES", "TERM_CATALOG", "TermKind"]
+__all__ = ["LOOKAHEAD_RULES", "ROBOT_TERMS", "TERM_CATALOG", "TermKind"]
 
 SizeRule = int | Literal["joints", "actions", "lookahead_joints", "lookahead_body_pos", "lookahead_body_ori"]
 
@@ -36,7 +42,7 @@ class TermKind:
     doc: str = ""
 
 
-TERM_CATALOG: dict[str, TermKind] = {
+ROBOT_TERMS: dict[str, TermKind] = {
     "joint_pos": TermKind(
         size="joints", category="state", offset_default_pose=True, unit="rad",
         doc="q - default_joint_pos, canonical joint order",
@@ -49,28 +55,46 @@ TERM_CATALOG: dict[str, TermKind] = {
     "fingertip_pos_right": TermKind(
         size=3, category="state", unit="m", doc="right finger2_tip site in the chest frame"
     ),
-    "target_pos_left": TermKind(
-        size=3, category="command", unit="m", doc="left fingertip target in the chest frame"
-    ),
-    "target_pos_right": TermKind(
-        size=3, category="command", unit="m", doc="right fingertip target in the chest frame"
-    ),
-    "motion_joint_pos": TermKind(
-        size="lookahead_joints", category="command", unit="rad",
-        doc="reference joint positions at the next lookahead_steps frames, frame-major, canonical order",
-    ),
-    "motion_body_pos_b": TermKind(
-        size="lookahead_body_pos", category="command", unit="m",
-        doc="reference positions of body_names in the chest (torso) frame at the next lookahead_steps "
-        "frames; frame-major, then body, then xyz (Humanoid Control's name)",
-    ),
-    "motion_body_ori_b": TermKind(
-        size="lookahead_body_ori", category="command", unit="1",
-        doc="reference orientations of body_names in the chest frame as 6-D (rotation matrix columns 0-1, "
-        "row-major) at the next lookahead_steps frames; frame-major, then body (Humanoid Control's name)",
-    ),
     "projected_gravity": TermKind(size=3, category="imu", unit="1", doc="gravity direction, IMU frame"),
     "imu_quaternion": TermKind(size=4, category="imu", unit="1", doc="orientation (w, x, y, z)"),
     "imu_angular_velocity": TermKind(size=3, category="imu", unit="rad/s", doc="gyroscope"),
     "imu_linear_acceleration": TermKind(size=3, category="imu", unit="m/s^2", doc="accelerometer"),
 }  # fmt: skip
+"""The robot's terms: what the runtime computes from the robot's state (or the policy's last action)."""
+
+
+class _Catalog(Mapping[str, TermKind]):
+    """``ROBOT_TERMS`` plus every registered task's terms, read from the registry on first use.
+
+    Lazy because a task's terms module imports ``TermKind`` from here.
+    """
+
+    def __init__(self) -> None:
+        self._terms: dict[str, TermKind] | None = None
+
+    def _load(self) -> dict[str, TermKind]:
+        if self._terms is None:
+            from bar_policy.tasks.record import resolve
+            from bar_policy.tasks.registry import TASKS
+
+            terms = dict(ROBOT_TERMS)
+            for record in TASKS:
+                for name, kind in (resolve(record.terms) if record.terms else {}).items():
+                    if name in terms and terms[name] != kind:
+                        raise ValueError(f"task {record.name!r} redefines the observation term {name!r}")
+                    terms[name] = kind
+            self._terms = terms
+        return self._terms
+
+    def __getitem__(self, name: str) -> TermKind:
+        return self._load()[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._load())
+
+    def __len__(self) -> int:
+        return len(self._load())
+
+
+TERM_CATALOG: Mapping[str, TermKind] = _Catalog()
+"""Every term name a schema may use: ``ROBOT_TERMS``, then each registered task's (registry order)."""

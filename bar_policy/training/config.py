@@ -1,8 +1,8 @@
 """Typed training configuration: one frozen dataclass tree shared by both PPO backends.
 
-``TrainConfig`` is the root. ``preset(name)`` builds the tuned variants (``gpu``, ``cpu``, ``tiny``, and
-``track`` for LiteTrack on the GPU) as
-functions of the base with ``dataclasses.replace``; ``apply_overrides`` (``bar_policy.overrides``, the same
+``TrainConfig`` is the root. ``preset(name)`` builds the tuned variants that the tasks register (reach:
+``gpu``, ``cpu``, ``tiny``; track: ``track`` for LiteTrack on the GPU; ``TaskRecord.presets``) as dotted-path
+overrides of the base; ``apply_overrides`` (``bar_policy.overrides``, the same
 syntax as the env's ``--env-overrides``) applies dotted-path overrides (``"ppo.learning_rate=1e-3"``) to any
 config. The CLI (``bar_policy.training.cli``) turns every field into a flag with tyro, whose ``--help``
 shows each field's docstring below (units included).
@@ -16,12 +16,15 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Annotated, Any, Literal
 
 import tyro
 
 from bar_policy.overrides import apply_overrides, split_override
+from bar_policy.tasks.record import resolve
+from bar_policy.tasks.registry import TASKS
 
 __all__ = [
     "PRESETS",
@@ -40,10 +43,10 @@ __all__ = [
 ]
 
 
-EnvName = Literal["LiteReach", "LiteReachNeck", "LiteTrack"]
-"""Registered env names (``bar_policy.envs.ALL_ENVS``; spelled out here so that ``--help`` imports no jax)."""
-PresetName = Literal["gpu", "cpu", "tiny", "track"]
-"""Preset names (``PRESETS``)."""
+EnvName = Literal[tuple(e.name for r in TASKS for e in r.envs)]  # type: ignore[valid-type]
+"""Registered env names (``bar_policy.envs.ALL_ENVS``, from the task records: ``--help`` imports no jax)."""
+PresetName = Literal[tuple(name for r in TASKS for name, _ in r.presets)]  # type: ignore[valid-type]
+"""Preset names (``PRESETS``, read from the task records)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -283,109 +286,18 @@ class TrainConfig:
 # ----------------------------------------------------------------------------------------------------------
 
 
-def _gpu() -> TrainConfig:
-    """Default, for one H100: 40 M steps, 4096 envs, 81,920 env steps and 128 SGD steps per iteration.
+def _task_preset(ref: str) -> Callable[[], TrainConfig]:
+    def make() -> TrainConfig:
+        return apply_overrides(TrainConfig(), resolve(ref))
 
-    Budget: about 5 minutes including compile if the batched env runs at >= 200 k steps/s. Evaluations
-    every 2 M steps (21 over the run), so that the time to a success threshold is resolved to ~15 s.
-    """
-    base = TrainConfig(preset="gpu")
-    return dataclasses.replace(base, eval=dataclasses.replace(base.eval, num_evals=21))
+    return make
 
 
-def _cpu() -> TrainConfig:
-    """A few minutes on a laptop CPU: small batches, short run."""
-    base = TrainConfig()
-    return dataclasses.replace(
-        base,
-        preset="cpu",
-        ppo=dataclasses.replace(
-            base.ppo,
-            num_timesteps=1_000_000,
-            num_envs=128,
-            unroll_length=10,
-            batch_size=64,
-            num_minibatches=8,
-            num_updates_per_batch=4,
-        ),
-        network=dataclasses.replace(base.network, policy_hidden=(64, 64), value_hidden=(128, 128)),
-        eval=dataclasses.replace(base.eval, num_evals=6, num_eval_envs=128),
-        final_eval_envs=256,
-    )
-
-
-def _tiny() -> TrainConfig:
-    """Seconds of training on a CPU, for tests and smoke runs (not expected to solve the task)."""
-    base = TrainConfig()
-    return dataclasses.replace(
-        base,
-        preset="tiny",
-        ppo=dataclasses.replace(
-            base.ppo,
-            num_timesteps=4 * 16 * 8 * 4,
-            num_envs=16,
-            unroll_length=8,
-            batch_size=16,
-            num_minibatches=4,
-            num_updates_per_batch=2,
-            learning_rate=1e-3,
-        ),
-        network=dataclasses.replace(base.network, policy_hidden=(32, 32), value_hidden=(32, 32)),
-        eval=dataclasses.replace(base.eval, num_evals=3, num_eval_envs=16),
-        final_eval_envs=32,
-    )
-
-
-def _track() -> TrainConfig:
-    """LiteTrack on one H100, aimed at <= 10 min including compile (``--preset track``).
-
-    8192 envs x 20-step unrolls (327,680 env steps and 64 SGD steps per iteration): tracking rewards are
-    dense but precise tracking needs long, low-noise gradients, so twice reach's batch, a lower entropy
-    cost, and rsl-rl's KL-adaptive learning rate (a fixed 3e-4 climbed to 92 % success and collapsed to 6 %
-    in the same run, docs/tracking.md) with target KL 0.02, floored at 1e-4 (the fixed rate that learned
-    without collapse in a probe): with 64 minibatch steps per iteration, target 0.01 held the rate at the
-    floor from the first epoch on (KL 0.013-0.042), docs/tracking.md; larger networks for the 292-entry
-    observation, on the reference action prior (the policy's mean starts at the reference pose 100 ms
-    ahead and the MLP learns the correction: held-out fingertip error 1.03 -> 0.65 cm in MJX, 1.17 -> 0.83
-    on the sim target, docs/tracking.md); gamma 0.98 (a 1 s horizon covers the 100 ms lookahead and the
-    latency). ``max_minutes``
-    = 8.9 starts no epoch that would end past 534 s, leaving the final evaluation and export (about 20 s)
-    inside 10 min; evaluations run on the held-out clips.
-    """
-    base = TrainConfig()
-    return dataclasses.replace(
-        base,
-        preset="track",
-        env_name="LiteTrack",
-        max_minutes=8.9,
-        ppo=dataclasses.replace(
-            base.ppo,
-            num_timesteps=120_000_000,
-            num_envs=8192,
-            unroll_length=20,
-            batch_size=1024,
-            num_minibatches=16,
-            num_updates_per_batch=4,
-            learning_rate=3e-4,
-            schedule="adaptive",
-            desired_kl=0.02,
-            min_learning_rate=1e-4,
-            entropy_cost=1e-3,
-            discounting=0.98,
-        ),
-        network=dataclasses.replace(
-            base.network,
-            policy_hidden=(256, 256, 128),
-            value_hidden=(512, 256, 256),
-            action_prior="reference",
-        ),
-        eval=dataclasses.replace(base.eval, num_evals=9, num_eval_envs=1024),
-        final_eval_envs=2048,
-    )
-
-
-PRESETS = {"gpu": _gpu, "cpu": _cpu, "tiny": _tiny, "track": _track}
-"""Preset name -> factory."""
+PRESETS: dict[str, Callable[[], TrainConfig]] = {
+    name: _task_preset(ref) for record in TASKS for name, ref in record.presets
+}
+"""Preset name -> factory: each task's presets (``TaskRecord.presets``: ``{dotted.path: value}`` mappings on
+``TrainConfig()``, e.g. ``bar_policy/tasks/track/preset.py``), in registry order."""
 
 
 def preset(name: str) -> TrainConfig:

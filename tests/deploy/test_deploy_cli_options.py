@@ -8,8 +8,8 @@ import re
 import numpy as np
 import pytest
 
-from bar_policy.deploy import sim2sim
 from bar_policy.deploy.cli import main
+from bar_policy.tasks.reach import evaluate as sim2sim
 
 REAL_OPTIONS = {
     # option: a fragment of its help that states the unit or the form of the value

@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from bar_policy.deploy.commands import (
+from bar_policy.tasks.reach.commands import (
     CommandError,
     FileCommands,
     SampledCommands,

@@ -15,12 +15,12 @@ from fault_targets import SteppedMock
 from policy_factory import default_metadata, hc_props, make_hc_policy_file, make_policy_file
 
 from bar_policy.deploy.cli import main
-from bar_policy.deploy.commands import SampledCommands
 from bar_policy.deploy.log import load_log
 from bar_policy.deploy.policy import PolicyLoadError, load_policy, read_metadata
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import SafetyConfig
 from bar_policy.obs.terms import TERM_CATALOG
+from bar_policy.tasks.reach.commands import SampledCommands
 
 D = np.array([0.3, -1.0, 0.0, -1.7, -1.2, 0.0, 0.3, 0.3, 1.0, 0.0, -1.7, 1.2, 0.0, -0.3])
 """piano_ready, rad (canonical order: 7 left-arm joints, then 7 right-arm joints)."""

@@ -13,14 +13,14 @@ import numpy as np
 import pytest
 from policy_factory import default_metadata, make_policy_file
 
-from bar_policy.deploy.commands import SampledCommands
 from bar_policy.deploy.log import RunLog, load_log, log_fields
 from bar_policy.deploy.plot import plot_log
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig, sleep_until
 from bar_policy.deploy.safety import Mode, SafetyConfig
-from bar_policy.deploy.sim2sim import EvalConfig, evaluate
 from bar_policy.deploy.targets.mock import MockTarget
+from bar_policy.tasks.reach.commands import SampledCommands
+from bar_policy.tasks.reach.evaluate import EvalConfig, evaluate
 
 
 def test_mock_echoes_commands_into_the_state():
@@ -177,7 +177,7 @@ def test_deploy_never_imports_jax_torch_or_onnx():
     code = (
         "import sys\n"
         "import bar_policy.deploy.cli, bar_policy.deploy.runtime, bar_policy.deploy.policy\n"
-        "import bar_policy.deploy.sim2sim, bar_policy.deploy.plot, bar_policy.deploy.commands\n"
+        "import bar_policy.tasks.reach.evaluate, bar_policy.deploy.plot, bar_policy.tasks.reach.commands\n"
         "import bar_policy.deploy.targets.sim, bar_policy.deploy.targets.mock\n"
         "print(sorted(m for m in ('jax', 'torch', 'onnx') if m in sys.modules))\n"
     )

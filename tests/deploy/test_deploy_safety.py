@@ -11,13 +11,13 @@ import pytest
 from fault_targets import SlowMock, SteppedMock
 from policy_factory import default_metadata, make_policy_file
 
-from bar_policy.deploy.commands import SampledCommands
 from bar_policy.deploy.log import load_log
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import CapDwell, Mode, SafetyConfig, SafetySupervisor
 from bar_policy.deploy.targets.base import JointState, TargetError
 from bar_policy.robot.constants import load_robot
+from bar_policy.tasks.reach.commands import SampledCommands
 
 DEFAULT = np.array([0.3, -1.0, 0.0, -1.7, -1.2, 0.0, 0.3, 0.3, 1.0, 0.0, -1.7, 1.2, 0.0, -0.3])
 """piano_ready, the default pose of the reach layout, rad."""

@@ -10,7 +10,6 @@ import textwrap
 import numpy as np
 import pytest
 
-from bar_policy.deploy.commands import SampledCommands
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import SafetyConfig
@@ -18,6 +17,7 @@ from bar_policy.deploy.targets.base import TargetError
 from bar_policy.deploy.targets.sim import SimConfig, SimTarget
 from bar_policy.robot.kinematics import Kinematics
 from bar_policy.robot.mit import MitCommand, firmware_torque, wire_ranges
+from bar_policy.tasks.reach.commands import SampledCommands
 
 DEFAULT = np.array([0.3, -1.0, 0.0, -1.7, -1.2, 0.0, 0.3, 0.3, 1.0, 0.0, -1.7, 1.2, 0.0, -0.3])
 # Per-joint Robstride models of the arms (lite-model.md 2): rs-02 shoulder pitch, rs-00, rs-05 wrists.

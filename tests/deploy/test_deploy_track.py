@@ -12,17 +12,17 @@ from fault_targets import SteppedMock
 from policy_factory import default_metadata, make_hc_policy_file, make_policy_file
 
 from bar_policy.deploy.cli import main
-from bar_policy.deploy.commands import SampledCommands
 from bar_policy.deploy.log import load_log
 from bar_policy.deploy.mcap_log import MCAP_FILE, read_mcap_log
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import Mode, SafetyConfig
 from bar_policy.deploy.tasks import TASK_COMMAND_TERMS, all_tasks, get_task, implied_task
-from bar_policy.deploy.tasks.base import OptionError
-from bar_policy.deploy.tasks.track import MotionReference, load_motion, reference_for
 from bar_policy.motion import Clip, ClipError, save_clip
 from bar_policy.robot.constants import load_robot
+from bar_policy.tasks.interfaces import OptionError
+from bar_policy.tasks.reach.commands import SampledCommands
+from bar_policy.tasks.track.deploy import MotionReference, load_motion, reference_for
 
 ROBOT = load_robot("arms")
 PIANO = ROBOT.pose("piano_ready")

@@ -16,11 +16,11 @@ from bar_policy.deploy.log import load_log
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import SafetyConfig
-from bar_policy.deploy.tasks.track import reference_for
-from bar_policy.deploy.tasks.track_eval import ClipResult, evaluate_track, summarise
 from bar_policy.motion import Clip, save_clip
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.mjcf import load_model
+from bar_policy.tasks.track.deploy import reference_for
+from bar_policy.tasks.track.evaluate import ClipResult, evaluate_track, summarise
 
 ROBOT = load_robot("arms")
 BODIES = ("left_elbow_pitch", "left_hand", "right_elbow_pitch", "right_hand")

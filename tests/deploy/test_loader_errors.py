@@ -22,13 +22,13 @@ from policy_factory import default_metadata, make_policy_file
 from bar_policy._files import ECHO_LIMIT, InputError, shorten
 from bar_policy.deploy import cli
 from bar_policy.deploy.cli import main
-from bar_policy.deploy.commands import CommandError, FileCommands
 from bar_policy.deploy.contract import PolicyLoadError
 from bar_policy.deploy.log import RunLog, log_fields
 from bar_policy.deploy.metadata import MetadataError, PolicyMetadata
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.signals import INTERRUPT_STATUS, early_interrupt
 from bar_policy.motion.clip import ClipError, load_clip
+from bar_policy.tasks.reach.commands import CommandError, FileCommands
 
 REPO = Path(__file__).resolve().parents[2]
 DEEP = 5000

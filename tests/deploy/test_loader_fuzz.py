@@ -24,7 +24,6 @@ from hypothesis.extra import numpy as hnp
 from policy_factory import default_metadata, make_policy_file
 
 from bar_policy._files import InputError
-from bar_policy.deploy.commands import FileCommands, StreamCommands
 from bar_policy.deploy.log import load_log
 from bar_policy.deploy.metadata import PolicyMetadata
 from bar_policy.deploy.policy import load_policy
@@ -32,6 +31,7 @@ from bar_policy.motion.clip import Clip, load_clip, load_csv, save_clip
 from bar_policy.robstride.calibration import Calibration
 from bar_policy.robstride.errors import FrameError
 from bar_policy.robstride.protocol import decode_reply
+from bar_policy.tasks.reach.commands import FileCommands, StreamCommands
 
 FAST = settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 """Loaders that take a millisecond or less."""

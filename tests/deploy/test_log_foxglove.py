@@ -26,10 +26,10 @@ from bar_policy.deploy.ros2_schema import JOINT_STATE_SCHEMA, JOINT_STATE_TYPE, 
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import SafetyConfig
 from bar_policy.deploy.targets.sim import SimTarget
-from bar_policy.deploy.tasks.track import reference_for
 from bar_policy.motion import Clip
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.mjcf import lite_xml, load_model
+from bar_policy.tasks.track.deploy import reference_for
 
 mcap_ros2 = pytest.importorskip("mcap_ros2")
 pytest.importorskip("foxglove")

@@ -9,10 +9,13 @@ whose mean the shipped tracker holds at 0.056 rad: see docs/tracking.md).
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import onnx
 import pytest
+from blocked_imports import BLOCK_HEAVY
 
 from bar_policy.deploy.cli import main
 from bar_policy.motion import clip_set
@@ -59,3 +62,35 @@ def test_shipped_tracker_follows_the_gestures_on_the_sim_target(tmp_path):
 @pytest.mark.parametrize("path", [REACH, TRACK])
 def test_shipped_files_are_small(path):
     assert path.stat().st_size < 1_000_000
+
+
+RUN_ARGS = {"reach": ["--commands", "sampled"], "track": ["--motion", "wave"]}
+"""Each shipped task's command source for the mock run below."""
+
+
+def test_every_shipped_policy_runs_on_the_mock_target_with_jax_and_torch_blocked(tmp_path):
+    """The deploy side of every task (its command source, the runtime, the log) needs no training stack."""
+    files = sorted(CHECKPOINTS.glob("*.onnx"))
+    tasks = {str(p): json.loads(_metadata(p)["bar.task"]) for p in files}
+    assert set(tasks.values()) <= set(RUN_ARGS), tasks
+    script = BLOCK_HEAVY + (
+        "import json, sys\n"
+        "from bar_policy.deploy.cli import main\n"
+        "runs = json.loads(sys.argv[1])\n"
+        "for i, (path, args) in enumerate(runs.items()):\n"
+        "    argv = ['run', '--policy', path, '--target', 'mock', '--duration', '0.3',\n"
+        "            '--ramp-time', '0.1', '--max-overruns', '0', '--log', f'{sys.argv[2]}/{i}', *args]\n"
+        "    assert main(argv) == 0, path\n"
+        "print('jax' in sys.modules, 'torch' in sys.modules)\n"
+    )
+    runs = {path: RUN_ARGS[task] for path, task in tasks.items()}
+    out = subprocess.run(
+        [sys.executable, "-c", script, json.dumps(runs), str(tmp_path / "runs")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-4000:]
+    assert out.stdout.split("\n")[-2] == "False False"
+    assert len(list((tmp_path / "runs").glob("*/*/run.mcap"))) == len(files)  # one run log each

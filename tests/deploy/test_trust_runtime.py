@@ -13,7 +13,6 @@ from fault_targets import SteppedMock
 from policy_factory import default_metadata
 
 from bar_policy.deploy.action_path import check_action_scale
-from bar_policy.deploy.commands import SampledCommands
 from bar_policy.deploy.contract import PolicyLoadError
 from bar_policy.deploy.log import load_log
 from bar_policy.deploy.policy import load_policy
@@ -21,6 +20,7 @@ from bar_policy.deploy.run_config import EXIT_FAULT, EXIT_OK, EXIT_STOP_UNCONFIR
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import Mode, SafetyConfig
 from bar_policy.deploy.targets.base import StopReport
+from bar_policy.tasks.reach.commands import SampledCommands
 
 DT = 0.02
 TARGET_FAULT = "fault target: target reports faults ['MOTOR_FAULT id 13']"

@@ -11,9 +11,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bar_policy.deploy.command_transition import TransitionCommands
-from bar_policy.deploy.commands import SampledCommands
 from bar_policy.robot.kinematics import Kinematics
+from bar_policy.tasks.reach.commands import SampledCommands
+from bar_policy.tasks.reach.transition import TransitionCommands
 
 NAMES = ("target_pos_left", "target_pos_right")
 

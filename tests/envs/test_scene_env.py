@@ -17,9 +17,9 @@ from scene_support import EXTRA_JOINTS, key_scene
 from bar_policy import envs
 from bar_policy.deploy.targets.sim import SimConfig, SimTarget
 from bar_policy.envs.randomize import armature_bounds, make_randomizer
-from bar_policy.envs.reach import LiteReach, ReachEnvConfig, default_config
 from bar_policy.robot.kinematics import Kinematics
 from bar_policy.robot.mit import MitCommand
+from bar_policy.tasks.reach.env import LiteReach, ReachEnvConfig, default_config
 
 STEPS = 15  # control steps, 0.3 s
 

@@ -6,13 +6,13 @@ import mujoco
 import numpy as np
 import pytest
 
-from bar_policy.deploy.tasks.track_eval import ClipResult, groups
 from bar_policy.motion.families import FAMILIES, HOLD_POSES_LEFT, NOISE_RAD, family_clips, family_of
 from bar_policy.motion.generator import MIRROR, RandomMotionConfig, motion_box, random_clip
 from bar_policy.motion.library import clip_set, library_clip
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.kinematics import Kinematics
 from bar_policy.robot.mjcf import load_model
+from bar_policy.tasks.track.evaluate import ClipResult, groups
 
 
 @pytest.fixture(scope="module")

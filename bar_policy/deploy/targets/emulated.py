@@ -2,7 +2,7 @@
 
 ``EmulatedBusTarget`` is what ``bar-deploy --target real --can-interface virtual --emulate lockstep`` builds
 (``RealTarget`` on python-can ``virtual`` buses + an in-process ``RobstrideEmulator``), presented as a
-synchronous, resettable target for the evaluations (``deploy.sim2sim``, ``deploy.tasks.track_eval``) and
+synchronous, resettable target for the evaluations (``tasks.reach.evaluate``, ``tasks.track.evaluate``) and
 the benchmarks (``bench/reach_emulator.py``, ``bench/track_fidelity.py``):
 
 - every command round (``write_command``: one MIT frame and one reply per motor on both buses) advances one

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from bar_policy.deploy.tasks.base import CommandSource, DeployTask
+from bar_policy.tasks.interfaces import CommandSource, DeployTask
 
 if TYPE_CHECKING:
     from bar_policy.deploy.policy import OnnxPolicy

@@ -38,6 +38,7 @@ from bar_policy.robot.kinematics import Kinematics, rotation_to_6d
 
 __all__ = [
     "ACTION_MARGIN",
+    "COMMAND_TERMS",
     "LOST_DISTANCE",
     "SUCCESS_FINGERTIP_M",
     "SUCCESS_JOINT_RAD",
@@ -56,6 +57,9 @@ its orientation the forearm's) and the hand (origin = wrist centre, orientation 
 
 TRACK_LOOKAHEAD_STEPS = 5
 """Reference frames in the observation (Humanoid Control's ``lookahead_steps``): 5 x 20 ms = 100 ms."""
+
+COMMAND_TERMS = ("motion_joint_pos", "motion_body_pos_b", "motion_body_ori_b")
+"""The observation terms the reference feeds (the deploy command source's, ``reference_inputs``'s keys)."""
 
 ACTION_MARGIN = 0.25
 """Action range beyond the motion box on each side, rad (gravity compensation and lead)."""

@@ -1,0 +1,202 @@
+"""What a deploy task gives the runtime and the CLI: a command source, its options, its evaluation.
+
+``CommandSource`` is everything the loop knows of a task. Each tick the runtime calls ``source(t)`` for the
+observation's command terms (``names``), logs ``source.record()`` (fields ``source.log_fields``), and
+follows the source's schedule:
+
+- ``hold_pose``: the pose the start-up HOLD ramp goes to before the policy (None: the policy's hold pose);
+- ``begin(t)``: called on the tick POLICY starts (the source's phase 0, e.g. a motion clip's first frame);
+- ``finished(t)``: a reason once the commands are over (a motion clip's last frame); the runtime then
+  enters HOLD at ``end_pose`` (gains kept) and ends the run as completed after ``RuntimeConfig.end_hold``.
+
+A source feeds the terms of exactly one task (``task``); a policy of another task refuses it (the
+runtime's message names both tasks). ``DeployTask`` is one task's entry for ``bar-deploy``: its
+``run`` / ``eval`` options, the command source built from them, and its evaluation with its own metric.
+
+These are the interfaces a task's deploy part implements (``bar_policy/tasks/<task>/deploy.py``), so they
+live here, below the runtime that calls them (``deploy.runtime``, ``deploy.cli``), not inside it.
+"""
+
+from __future__ import annotations
+
+import abc
+import argparse
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from bar_policy.deploy.policy import OnnxPolicy
+    from bar_policy.robot.kinematics import Kinematics
+
+__all__ = ["CommandSource", "DeployTask", "EvalReport", "OptionError"]
+
+LogFields = dict[str, tuple[tuple[int, ...], type]]
+
+
+class OptionError(ValueError):
+    """A ``bar-deploy`` option that does not fit the policy's task (or is malformed)."""
+
+
+class CommandSource(abc.ABC):
+    """Feeds one task's command terms, one dict per control tick, and states the task's schedule."""
+
+    task: ClassVar[str] = ""
+    """The deploy task whose command terms this source feeds."""
+
+    names: tuple[str, ...] = ()
+    """Command terms fed to the observation, in the layout's order."""
+    outside_count: int = 0
+    """Commands seen outside the training distribution (counted and logged, never clipped)."""
+
+    @abc.abstractmethod
+    def __call__(self, t: float) -> dict[str, np.ndarray]:
+        """The command terms at run time ``t`` (s): one float array per name."""
+
+    # -- logging -------------------------------------------------------------------------------------
+    @property
+    def log_fields(self) -> LogFields:
+        """Per-tick values the run log records: name -> (shape, dtype). Default: nothing beyond the obs."""
+        return {}
+
+    def record(self) -> dict[str, Any]:
+        """The ``log_fields`` values of the last call."""
+        return {}
+
+    def metadata(self) -> dict[str, Any]:
+        """JSON description for the run log (the clip, the file, the seed)."""
+        return {"task": self.task, "describe": self.describe()}
+
+    # -- schedule ------------------------------------------------------------------------------------
+    @property
+    def hold_pose(self) -> np.ndarray | None:
+        """Where the start-up HOLD ramp goes (rad, canonical order); None: the policy's hold pose."""
+        return None
+
+    @property
+    def end_pose(self) -> np.ndarray | None:
+        """Where HOLD goes once ``finished`` (rad); None: the pose the robot is in."""
+        return None
+
+    def begin(self, t: float) -> None:  # noqa: B027 - optional hook
+        """POLICY starts at run time ``t`` (s): the commands' phase 0."""
+
+    def target_q(self) -> np.ndarray | None:
+        """Joint positions the last call's command targets, rad (canonical order); None: no reference.
+
+        Chatter is measured on ``q_cmd`` minus it (tracking), or on ``q_cmd`` itself when it is None.
+        """
+        return None
+
+    def finished(self, t: float) -> str | None:
+        """Why the commands are over at run time ``t`` (a completed run), or None while they last."""
+        return None
+
+    # -- misc ----------------------------------------------------------------------------------------
+    def describe(self) -> str:
+        """One line for logs."""
+        return type(self).__name__
+
+    def close(self) -> None:  # noqa: B027 - optional hook
+        """Release threads and sockets."""
+
+
+class EvalReport(abc.ABC):
+    """A task's evaluation result: printed by ``bar-deploy eval`` and written with ``--json``."""
+
+    @abc.abstractmethod
+    def format(self) -> str:
+        """Summary lines."""
+
+    @abc.abstractmethod
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form (with ``gate_report()`` under ``"gate_report"``)."""
+
+    @abc.abstractmethod
+    def gate_report(self) -> dict[str, Any]:
+        """The held-out report the ship gate reads (``bar_policy.quality.gate``).
+
+        ``{"task", "quality", "episodes", <the task's accuracy figures>}``.
+        """
+
+    def gate_lines(self) -> list[str]:
+        """The gate's thresholds, then PASS or one line per miss."""
+        from bar_policy.quality import check, thresholds_text
+
+        rep = self.gate_report()
+        misses = check(rep["task"], rep)
+        verdict = ["gate: PASS"] if not misses else [f"gate: MISS {m}" for m in misses]
+        return [thresholds_text(rep["task"]), *verdict]
+
+
+class DeployTask(abc.ABC):
+    """One task's entry in ``bar-deploy``: options, command source, evaluation."""
+
+    name: ClassVar[str]
+    """Task name (``bar.task``)."""
+    summary: ClassVar[str]
+    """What its policies do, a few words (messages)."""
+    usage: ClassVar[str]
+    """How to give its commands on the command line (messages)."""
+    run_options: ClassVar[tuple[tuple[str, str], ...]] = ()
+    """``bar-deploy run`` options of this task: (option string, argparse dest)."""
+    eval_options: ClassVar[tuple[tuple[str, str], ...]] = ()
+    """``bar-deploy eval`` options of this task: (option string, argparse dest)."""
+    default_duration: ClassVar[float | None] = 10.0
+    """Run length when ``--duration`` is not given, s (None: until the commands end or a stop)."""
+    seed_help: ClassVar[str] = ""
+    """What ``bar-deploy --seed`` seeds in this task (empty: nothing); the CLI's help joins them."""
+
+    def add_run_arguments(self, parser: argparse.ArgumentParser) -> None:  # noqa: B027 - optional
+        """Add the run options (every default None: ``check_options`` tells given from not given)."""
+
+    def add_eval_arguments(self, parser: argparse.ArgumentParser) -> None:  # noqa: B027 - optional
+        """Add the eval options (defaults None, as above)."""
+
+    @abc.abstractmethod
+    def command_source(
+        self, policy: OnnxPolicy, args: argparse.Namespace, kinematics: Kinematics | None = None
+    ) -> CommandSource:
+        """The command source the run options ask for.
+
+        Raises:
+            OptionError: a malformed option (the message names it and the valid choices).
+        """
+
+    def evaluate(self, policy: OnnxPolicy, args: argparse.Namespace) -> EvalReport:
+        """Sim2sim evaluation with this task's metric (C MuJoCo sim target)."""
+        raise OptionError(
+            f"{policy.path} is a {self.name!r} policy ({self.summary}): there is no task metric to evaluate; "
+            "bar-deploy eval evaluates reach and track policies"
+        )
+
+    def check_options(self, policy_path: object, args: argparse.Namespace, others: tuple[DeployTask, ...],
+                      which: str = "run") -> None:  # fmt: skip
+        """Refuse options of other tasks given for a policy of this task (the message says so).
+
+        Args:
+            policy_path: the policy file (for the message).
+            args: the parsed options.
+            others: the other tasks.
+            which: ``run`` or ``eval`` (whose options to check).
+        """
+        for other in others:
+            options = other.run_options if which == "run" else other.eval_options
+            mine = {dest for _, dest in (self.run_options if which == "run" else self.eval_options)}
+            for flag, dest in options:
+                value = getattr(args, dest, None)
+                if value is None or dest in mine:
+                    continue
+                shown = f"{flag} {value}" if not isinstance(value, bool) else flag
+                hint = self.usage if which == "run" else self.eval_usage
+                raise OptionError(
+                    f"{shown} is for {other.name!r} policies ({other.summary}), but {policy_path} is a "
+                    f"{self.name!r} policy ({self.summary}); {hint}"
+                )
+
+    @property
+    def eval_usage(self) -> str:
+        """How to evaluate this task's policies (messages)."""
+        if not self.eval_options:
+            return "its policies have no evaluation"
+        return "its evaluation options: " + ", ".join(flag for flag, _ in self.eval_options)

@@ -1,0 +1,268 @@
+"""LiteReach: each fingertip of the Lite to its own target (a task on the robot env, ``robot.py``).
+
+Semantics (fixed; the exported policy and the deploy runtime rely on them). Action, control, latency,
+noise and the initial-state noise are the robot env's (``bar_policy.envs.robot``); the task adds:
+
+- **Action**: ``q_cmd = clip(default_pose + action_scale * a, lower, upper)`` with ``default_pose`` =
+  ``piano_ready`` (the layout's ``default_joint_pos``), ``action_scale`` = 0.8 rad for every joint and ``a``
+  the policy's action low-passed at ``action_filter_hz`` (3 Hz; the deploy runtime applies the same).
+- **Observation**: ``ObservationManager.for_task("reach", mode)`` (54 entries for arms): measured q, dq,
+  previous action, fingertip positions by forward kinematics of the measured q (chest frame = world frame,
+  the chest is the fixed root), and the two targets.
+- **Task**: targets from ``bar_policy.tasks.reach.shared.sample_targets`` at reset and every
+  ``resample_period_s``. The commanded target (observed, rewarded, scored) moves to each new target along
+  ``transition_point``'s minimum-jerk path over ``target_transition_s``, from the previous commanded target
+  (at reset: the fingertips of the default pose, where the deploy runtime's HOLD ramp leaves them).
+  Success = both fingertips within ``SUCCESS_RADIUS`` (3 cm). Rewards are the named terms of
+  ``bar_policy.envs.rewards`` weighted by ``RewardScales``. The reward uses the true fingertip positions
+  from the last substep's kinematics (2 ms before the step's end, saving one FK pass).
+- **Episodes**: the env ends an episode only when the physics state turns non-finite; the wrappers truncate
+  at ``episode_length`` = ``episode_length_s / ctrl_dt`` steps.
+- **Metrics** (per step; brax sums them per episode): ``reward/<term>``, ``dist_left``, ``dist_right``
+  (m), ``success`` (both hands in 3 cm now), ``segment_end`` (1 on the last step of a target segment) and
+  ``success_end`` (success on that step). Success rate = sum(success_end) / sum(segment_end).
+- **Initial state**: default pose + U(-init_noise, init_noise) per joint (clipped to the limits), zero
+  velocity.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco import mjx
+
+from bar_policy.envs import rewards
+from bar_policy.envs.robot import LiteRobotEnv
+from bar_policy.envs.robot_config import (
+    ActuatorConfig,
+    ModelRandomizationConfig,
+    ObsNoiseConfig,
+    RobotEnvConfig,
+    check_multiple,
+    nominal,
+)
+from bar_policy.envs.task import TaskStep, Transition
+from bar_policy.obs import ObservationManager
+from bar_policy.robot.constants import FINGERTIP_SITES
+from bar_policy.robot.scene import SceneEdit
+from bar_policy.tasks.reach.shared import SUCCESS_RADIUS, ReachTargetConfig, sample_targets, transition_point
+
+__all__ = [
+    "ActuatorConfig",
+    "LiteReach",
+    "ModelRandomizationConfig",
+    "ObsNoiseConfig",
+    "ReachEnvConfig",
+    "RewardConfig",
+    "RewardScales",
+    "default_config",
+    "neck_config",
+    "nominal_config",
+]
+
+
+@dataclass(frozen=True, kw_only=True)
+class RewardScales:
+    """Weights of the reward terms (positive: reward, negative: cost). 0 drops a term's effect."""
+
+    reach_coarse: float = 1.0
+    """Weight of ``1 - tanh(d / coarse_std)`` (mean of both hands), per step."""
+    reach_fine: float = 1.0
+    """Weight of ``1 - tanh(d / fine_std)`` (mean of both hands), per step."""
+    success: float = 0.5
+    """Weight of the both-hands-within-3-cm indicator, per step."""
+    action_rate: float = -0.1
+    """Weight of ``sum((a_t - a_{t-1})^2)`` of the applied action, per step (action units); the tracker's
+    (BeyondMimic's) -0.1; -0.01 shipped a policy at its torque caps 6 % of the time with 34 mrad of
+    chatter (docs/training.md)."""
+    action_accel: float = -0.2
+    """Weight of ``sum((a_t - 2 a_{t-1} + a_{t-2})^2)`` of the applied action, per step: chatter's own
+    penalty, as the tracker's."""
+    joint_limit: float = -1.0
+    """Weight of rad beyond the soft joint limits (summed over joints), per step."""
+    torque: float = -0.005
+    """Weight of ``sum((tau / tau_cap)^2)`` averaged over substeps, per step."""
+    torque_near_cap: float = -0.1
+    """Weight of ``sum_j clip(|tau_law_j| / tau_cap_j - 0.8, 0, 1)`` of the unclipped MIT demand averaged
+    over substeps (``Transition.near_cap``): a new target must be reached without slamming into the caps."""
+    joint_vel: float = -5e-4
+    """Weight of ``sum(dq^2)`` in (rad/s)^2, per step."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class RewardConfig:
+    """Reward shaping."""
+
+    scales: RewardScales = field(default_factory=RewardScales)
+    """Term weights."""
+    coarse_std: float = 0.15
+    """Length scale of the coarse distance kernel, m."""
+    fine_std: float = 0.03
+    """Length scale of the fine distance kernel, m (the success radius)."""
+    soft_limit_fraction: float = 0.95
+    """Fraction of each joint's range inside which the joint-limit cost is zero."""
+
+    def __post_init__(self) -> None:
+        if not (self.coarse_std > 0 and self.fine_std > 0):
+            raise ValueError(f"kernel stds must be > 0 m, got {self.coarse_std}, {self.fine_std}")
+        if not 0 < self.soft_limit_fraction <= 1:
+            raise ValueError(f"soft_limit_fraction must be in (0, 1], got {self.soft_limit_fraction}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ReachEnvConfig(RobotEnvConfig):
+    """Everything LiteReach needs. Build with ``default_config()``; derive with ``dataclasses.replace``."""
+
+    resample_period_s: float = 2.5
+    """Targets are resampled every this many s, s (a multiple of ctrl_dt)."""
+    action_filter_hz: float | None = 3.0
+    """Cutoff of the action low-pass, Hz (``RobotEnvConfig.action_filter_hz``), the tracker's: PPO's
+    exploration noise reaches the joints smoothed, and the deploy runtime applies the same filter."""
+    target_transition_s: float = 1.0
+    """Duration of the commanded target's minimum-jerk move to each new target, s (0: a step, as before
+    issue 16). A step measured 14.9 mrad of chatter on q_cmd through the 3 Hz filter (docs/training.md); a 1 s
+    move leaves 1.5 s of the 2.5 s segment to settle inside the 3 cm success radius."""
+    target: ReachTargetConfig = field(default_factory=ReachTargetConfig)
+    """Target workspace (chest frame)."""
+    reward: RewardConfig = field(default_factory=RewardConfig)
+    """Reward terms and weights."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_multiple("resample_period_s", self.resample_period_s, self.ctrl_dt)
+        if not 0.0 <= self.target_transition_s <= self.resample_period_s:
+            raise ValueError(
+                f"target_transition_s must be in [0, resample_period_s = {self.resample_period_s}] s, got "
+                f"{self.target_transition_s}"
+            )
+
+    @property
+    def resample_steps(self) -> int:
+        """Target resampling period in control steps."""
+        return round(self.resample_period_s / self.ctrl_dt)
+
+
+def default_config() -> ReachEnvConfig:
+    """The training configuration: every actuator effect and randomisation on."""
+    return ReachEnvConfig()
+
+
+def neck_config() -> ReachEnvConfig:
+    """``LiteReachNeck``'s training configuration: ``default_config()`` on the arms and the neck."""
+    return replace(default_config(), mode="arms_neck")
+
+
+def nominal_config(base: ReachEnvConfig | None = None) -> ReachEnvConfig:
+    """``base`` (default: ``default_config()``) with every randomisation and noise off.
+
+    See ``robot_config.nominal``: wire quantisation and torque saturation stay on.
+    """
+    return nominal(base or default_config())
+
+
+class LiteReach(LiteRobotEnv):
+    """Bimanual reach on the Lite upper body (see the module docstring for the exact semantics)."""
+
+    task_name = "reach"
+
+    def __init__(self, config: ReachEnvConfig | None = None, *, scene: SceneEdit | None = None) -> None:
+        """Reach of ``config`` (default: ``default_config()``) in ``scene`` (None: the robot alone).
+
+        The task reads the robot's joints through the env's addresses (``robot_q``, ``robot_dq``,
+        ``with_robot_q``), so a scene's extra joints leave it unchanged.
+        """
+        cfg = config or default_config()
+        super().__init__(cfg, ObservationManager.for_task("reach", cfg.mode), scene=scene)
+        self._site_ids = np.array([self.mj_model.site(s).id for s in FINGERTIP_SITES])
+        self._tips0 = jnp.asarray(self._default_fingertips(), jnp.float32)
+
+    def _default_fingertips(self) -> np.ndarray:
+        """Fingertips (left, right) of the default pose by C MuJoCo's kinematics, shape (2, 3), m."""
+        data = mujoco.MjData(self.mj_model)
+        data.qpos[self.robot_index.qpos] = np.asarray(self._default)
+        mujoco.mj_kinematics(self.mj_model, data)
+        return data.site_xpos[self._site_ids].copy()
+
+    def task_metadata(self) -> dict:
+        """The command transition's duration (``bar.command_transition``), s."""
+        return {"command_transition_s": float(self.config.target_transition_s)}
+
+    @property
+    def metric_keys(self) -> tuple[str, ...]:
+        """``dist_left``, ``dist_right``, ``success``, ``success_end``, ``segment_end``."""
+        return ("dist_left", "dist_right", "success", "success_end", "segment_end")
+
+    def task_reset(self, model: mjx.Model, key: jax.Array) -> tuple[dict, jax.Array, jax.Array]:
+        """New goals, the commanded targets at the default fingertips; start at the default pose at rest."""
+        gl, gr = sample_targets(jax.random.uniform(key, (6,)), self.config.target)
+        info = {
+            "target_left": self._tips0[0],
+            "target_right": self._tips0[1],
+            "from_left": self._tips0[0],
+            "from_right": self._tips0[1],
+            "goal_left": gl,
+            "goal_right": gr,
+        }
+        if self.config.target_transition_s <= 0:  # a step: the goal at once
+            info["target_left"], info["target_right"] = gl, gr
+        return info, self._default, jnp.zeros(self.action_size)
+
+    def task_step(self, tr: Transition) -> TaskStep:
+        """Distance rewards on the true fingertips, success, and target resampling at segment ends."""
+        cfg = self.config
+        data, info, finite = tr.data, tr.info, tr.finite
+        tips = data.site_xpos[self._site_ids]
+        d_l = jnp.linalg.norm(tips[0] - info["target_left"])
+        d_r = jnp.linalg.norm(tips[1] - info["target_right"])
+        rc = cfg.reward
+        terms = {
+            "reach_coarse": rewards.reach_kernel(d_l, d_r, rc.coarse_std),
+            "reach_fine": rewards.reach_kernel(d_l, d_r, rc.fine_std),
+            "success": rewards.success(d_l, d_r, SUCCESS_RADIUS),
+            "action_rate": rewards.action_rate(tr.action, info["last_act"]),
+            "action_accel": rewards.action_accel(tr.action, info["last_act"], info["act_prev"]),
+            "joint_limit": rewards.joint_limit(
+                self.robot_q(data), self._lower, self._upper, rc.soft_limit_fraction
+            ),
+            "torque": rewards.torque(tr.tau_sq),
+            "torque_near_cap": tr.near_cap,
+            "joint_vel": rewards.joint_vel(self.robot_dq(data)),
+        }
+        seg_end = (tr.step % cfg.resample_steps) == 0
+        new_l, new_r = sample_targets(jax.random.uniform(tr.key, (6,)), cfg.target)
+        seg = seg_end.astype(jnp.float32)
+        metrics = {
+            "dist_left": jnp.where(finite, d_l, 0.0),
+            "dist_right": jnp.where(finite, d_r, 0.0),
+            "success": terms["success"],
+            "success_end": terms["success"] * seg,
+            "segment_end": seg,
+        }
+        goal_l = jnp.where(seg_end, new_l, info["goal_left"])
+        goal_r = jnp.where(seg_end, new_r, info["goal_right"])
+        from_l = jnp.where(seg_end, info["target_left"], info["from_left"])
+        from_r = jnp.where(seg_end, info["target_right"], info["from_right"])
+        elapsed = (tr.step % cfg.resample_steps).astype(jnp.float32) * cfg.ctrl_dt
+        task_info = {
+            "target_left": transition_point(from_l, goal_l, elapsed, cfg.target_transition_s),
+            "target_right": transition_point(from_r, goal_r, elapsed, cfg.target_transition_s),
+            "from_left": from_l,
+            "from_right": from_r,
+            "goal_left": goal_l,
+            "goal_right": goal_r,
+        }
+        return TaskStep(terms=terms, info=task_info, metrics=metrics)
+
+    def task_obs(self, model: mjx.Model, data: mjx.Data, q_meas: jax.Array, info: dict) -> dict:
+        """Fingertips by forward kinematics of the measured q, and the two targets."""
+        tips = mjx.kinematics(model, self.with_robot_q(data, q_meas)).site_xpos[self._site_ids]
+        return {
+            "fingertip_pos_left": tips[0],
+            "fingertip_pos_right": tips[1],
+            "target_pos_left": info["target_left"],
+            "target_pos_right": info["target_right"],
+        }

@@ -1,0 +1,49 @@
+"""The reach training presets: ``{dotted.path: value}`` on ``TrainConfig()`` (``training.config.preset``).
+
+Sizes follow brax's PPO (``training.config``): an iteration collects ``batch_size * num_minibatches``
+unrolls of ``unroll_length`` steps over ``num_envs`` envs. Plain data: this module imports nothing.
+"""
+
+from __future__ import annotations
+
+__all__ = ["CPU", "GPU", "TINY"]
+
+GPU = {"preset": "gpu", "eval.num_evals": 21}
+"""Default, for one H100: 40 M steps, 4096 envs, 81,920 env steps and 128 SGD steps per iteration.
+
+Budget: about 5 minutes including compile if the batched env runs at >= 200 k steps/s. Evaluations every
+2 M steps (21 over the run), so that the time to a success threshold is resolved to ~15 s.
+"""
+
+CPU = {
+    "preset": "cpu",
+    "ppo.num_timesteps": 1_000_000,
+    "ppo.num_envs": 128,
+    "ppo.unroll_length": 10,
+    "ppo.batch_size": 64,
+    "ppo.num_minibatches": 8,
+    "ppo.num_updates_per_batch": 4,
+    "network.policy_hidden": (64, 64),
+    "network.value_hidden": (128, 128),
+    "eval.num_evals": 6,
+    "eval.num_eval_envs": 128,
+    "final_eval_envs": 256,
+}
+"""A few minutes on a laptop CPU: small batches, short run."""
+
+TINY = {
+    "preset": "tiny",
+    "ppo.num_timesteps": 4 * 16 * 8 * 4,
+    "ppo.num_envs": 16,
+    "ppo.unroll_length": 8,
+    "ppo.batch_size": 16,
+    "ppo.num_minibatches": 4,
+    "ppo.num_updates_per_batch": 2,
+    "ppo.learning_rate": 1e-3,
+    "network.policy_hidden": (32, 32),
+    "network.value_hidden": (32, 32),
+    "eval.num_evals": 3,
+    "eval.num_eval_envs": 16,
+    "final_eval_envs": 32,
+}
+"""Seconds of training on a CPU, for tests and smoke runs (not expected to solve the task)."""

@@ -1,0 +1,97 @@
+"""A task's registration record: what the rest of the package needs to know about a task, as data.
+
+The env registry, the observation layouts, the training presets and ``bar-deploy`` read it.
+
+Every code reference is a ``"module:attr"`` string, imported only when used (``resolve``), so reading the
+records imports no jax, no torch and no deploy runtime: the MJX env, the layout, the presets and the
+deploy task of a task are loaded by whoever needs them. A task declares its record as ``RECORD`` in its
+package's ``__init__.py`` (``bar_policy/tasks/reach/__init__.py`` is the example) and is listed once in
+``bar_policy.tasks.registry``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import re
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = ["EnvEntry", "TaskRecord", "resolve"]
+
+_REF = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
+"""``package.module:attribute``."""
+
+
+def _check_ref(label: str, ref: str) -> None:
+    if not _REF.match(ref):
+        raise ValueError(f"{label} must be a 'package.module:attribute' string, got {ref!r}")
+
+
+def resolve(ref: str) -> Any:
+    """The object a ``"module:attr"`` string names (imports the module)."""
+    module, _, attr = ref.partition(":")
+    return getattr(importlib.import_module(module), attr)
+
+
+@dataclass(frozen=True, kw_only=True)
+class EnvEntry:
+    """One MJX training env of a task (an entry of ``bar_policy.envs.ALL_ENVS``)."""
+
+    name: str
+    """Registered env name, e.g. ``LiteReach`` (``bar_policy.envs.load(name)``, ``bar-train --env``)."""
+    env: str
+    """The env class, ``"module:attr"``; called as ``cls(config)``."""
+    config: str
+    """Zero-argument factory of the env's default (training) config, ``"module:attr"``."""
+
+    def __post_init__(self) -> None:
+        _check_ref(f"env {self.name!r}: env", self.env)
+        _check_ref(f"env {self.name!r}: config", self.config)
+
+
+@dataclass(frozen=True, kw_only=True)
+class TaskRecord:
+    """Everything outside a task's folder needs to know about the task."""
+
+    name: str
+    """Task name: the layout's task (``ObservationManager.for_task``), the env's ``task_name``, the ONNX
+    file's ``bar.task`` and the ``bar-deploy`` task."""
+    summary: str
+    """One line for listings."""
+    envs: tuple[EnvEntry, ...]
+    """Its MJX training envs, in registry order."""
+    layout: str
+    """``"module:attr"`` of ``(mode) -> ObservationSchema``: the task's current observation layout."""
+    terms: str = ""
+    """``"module:attr"`` of the observation terms the task adds (``{name: obs.terms.TermKind}``, read into
+    ``obs.terms.TERM_CATALOG``); empty: none."""
+    shipped_layouts: tuple[tuple[str, str], ...] = ()
+    """Golden layouts committed under ``bar_policy/obs/schemas/``: (layout name, mode)."""
+    command_terms: tuple[str, ...] = ()
+    """Observation terms its deploy command source feeds (category ``command`` in ``obs.terms``)."""
+    implied_by: tuple[str, ...] = ()
+    """Observation terms that make an HC-only file this task's (``deploy.task_registry.implied_task``)."""
+    hc_only: bool = False
+    """Whether an HC-only file (no ``bar.*`` keys) may run as this task."""
+    metadata_keys: tuple[str, ...] = ()
+    """Keys of the env's ``task_metadata()`` (written into the ONNX file by the export)."""
+    metric: str = ""
+    """What ``bar-deploy eval`` reports for it (one line)."""
+    presets: tuple[tuple[str, str], ...] = ()
+    """Training presets: (name, ``"module:attr"`` of a ``{dotted.path: value}`` mapping applied to
+    ``TrainConfig()``, see ``training.config.preset``)."""
+    deploy: str = ""
+    """Module of its deploy task (a ``TASK`` attribute, a ``DeployTask``); imports neither jax nor torch."""
+
+    def __post_init__(self) -> None:
+        if not re.match(r"^[a-z][a-z0-9_]*$", self.name):
+            raise ValueError(f"task name must be lower_snake_case, got {self.name!r}")
+        if not self.envs:
+            raise ValueError(f"task {self.name!r} registers no env")
+        _check_ref(f"task {self.name!r}: layout", self.layout)
+        if self.terms:
+            _check_ref(f"task {self.name!r}: terms", self.terms)
+        for preset_name, ref in self.presets:
+            _check_ref(f"task {self.name!r}: preset {preset_name!r}", ref)
+        if self.deploy and not re.match(r"^[A-Za-z_][\w.]*$", self.deploy):
+            raise ValueError(f"task {self.name!r}: deploy must be a module path, got {self.deploy!r}")

@@ -1,0 +1,56 @@
+"""The registration list: one line per task.
+
+Adding a task = a folder under ``bar_policy/tasks/`` with a ``RECORD`` (``record.TaskRecord``) in its
+``__init__.py``, plus its line in ``TASK_PACKAGES`` (``docs/tasks.md``).
+
+Everything that needs the tasks reads them here: the env registry (``bar_policy.envs``), the observation
+layouts (``ObservationManager.for_task``, ``SHIPPED_LAYOUTS``), the training presets
+(``training.config.PRESETS``) and ``bar-deploy``'s task table (``deploy.task_registry``). Reading the records
+imports each task package's ``__init__`` (its shared numpy definitions) and nothing heavier.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from bar_policy.tasks.record import EnvEntry, TaskRecord
+
+__all__ = ["TASKS", "TASK_PACKAGES", "env_entries", "get_task_record"]
+
+TASK_PACKAGES: tuple[str, ...] = (
+    "bar_policy.tasks.reach",
+    "bar_policy.tasks.track",
+)
+"""The task packages, in registry order (each defines ``RECORD``)."""
+
+
+def _load(package: str) -> TaskRecord:
+    record = getattr(importlib.import_module(package), "RECORD", None)
+    if not isinstance(record, TaskRecord):
+        raise TypeError(
+            f"task package {package} must define RECORD, a TaskRecord; got {type(record).__name__}"
+        )
+    return record
+
+
+TASKS: tuple[TaskRecord, ...] = tuple(_load(p) for p in TASK_PACKAGES)
+"""Every registered task's record."""
+
+_BY_NAME = {r.name: r for r in TASKS}
+if len(_BY_NAME) != len(TASKS):
+    raise ValueError(f"two task packages register the same name: {[r.name for r in TASKS]}")
+_ENV_NAMES = [e.name for r in TASKS for e in r.envs]
+if len(set(_ENV_NAMES)) != len(_ENV_NAMES):
+    raise ValueError(f"two tasks register the same env name: {_ENV_NAMES}")
+
+
+def get_task_record(name: str) -> TaskRecord:
+    """The record of task ``name``; raises ``ValueError`` listing the tasks."""
+    if name not in _BY_NAME:
+        raise ValueError(f"unknown task {name!r}; valid tasks: {sorted(_BY_NAME)}")
+    return _BY_NAME[name]
+
+
+def env_entries() -> dict[str, tuple[TaskRecord, EnvEntry]]:
+    """Env name -> (its task's record, its entry), in registry order."""
+    return {e.name: (r, e) for r in TASKS for e in r.envs}
