@@ -39,13 +39,14 @@ from pathlib import Path
 from typing import Any
 
 from bar_policy.quality.gate import Miss, check, gate_for, thresholds_text
+from bar_policy.tasks.registry import TASKS
 from bar_policy.training.cli import parse_config
 from bar_policy.training.publish import ITERATES, choose_iterate, publish
 
 SHIPPED, TARGET_MISSED, NOT_EVALUATED, REFUSED = 0, 1, 2, 3
 """Exit codes (see the module docstring)."""
 
-ENV_TASKS: dict[str, str] = {"LiteReach": "reach", "LiteReachNeck": "reach", "LiteTrack": "track"}
+ENV_TASKS: dict[str, str] = {e.name: r.name for r in TASKS for e in r.envs}
 """A run's env name -> the task of its policies (the env's ``task_name``, the file's ``bar.task``)."""
 
 

@@ -5,12 +5,12 @@ Completion, torque caps, joint limits, action rate and chatter are defined once 
 """
 
 from bar_policy.quality.gate import (
-    GATES,
     GateThresholds,
     Miss,
     check,
     excess,
     gate_for,
+    gates,
     score,
     thresholds_text,
 )
@@ -33,7 +33,6 @@ __all__ = [
     "CAP_DWELL_S",
     "CAP_FRACTION",
     "CHATTER_CUTOFF_HZ",
-    "GATES",
     "LIMIT_MARGIN_RAD",
     "EpisodeQuality",
     "GateThresholds",
@@ -47,6 +46,7 @@ __all__ = [
     "dwell_exceeded",
     "excess",
     "gate_for",
+    "gates",
     "highpass_rms",
     "near_limit",
     "score",

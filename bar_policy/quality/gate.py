@@ -14,9 +14,10 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
+from functools import cache
 from typing import Any
 
-__all__ = ["GATES", "GateThresholds", "Miss", "check", "excess", "gate_for", "score", "thresholds_text"]
+__all__ = ["GateThresholds", "Miss", "check", "excess", "gate_for", "gates", "score", "thresholds_text"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -37,11 +38,31 @@ class GateThresholds:
     """Task success, % (reach: target segments reached)."""
 
 
-GATES: dict[str, GateThresholds] = {
-    "track": GateThresholds(max_joint_error_rad=0.02, max_fingertip_error_cm=1.0),
-    "reach": GateThresholds(min_success_pct=95.0),
-}
-"""Task name -> its gate."""
+@cache
+def gates() -> dict[str, GateThresholds]:
+    """Task name -> its gate: each registered task's ``TaskRecord.gate`` (``bar_policy.tasks.registry``).
+
+    Each task keeps its thresholds in its own folder (``tasks/<task>/gate.py``); the records are read on
+    first use, so importing this module imports no task.
+    """
+    from bar_policy.tasks.record import resolve
+    from bar_policy.tasks.registry import TASKS
+
+    out = {}
+    for r in TASKS:
+        if r.gate:
+            g = resolve(r.gate)
+            if not isinstance(g, GateThresholds):
+                raise TypeError(f"task {r.name!r}: gate {r.gate} is a {type(g).__name__}, not GateThresholds")
+            out[r.name] = g
+    return out
+
+
+def __getattr__(name: str) -> Any:
+    """``GATES``: ``gates()`` (the name earlier code imported)."""
+    if name == "GATES":
+        return gates()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 @dataclass(frozen=True)
@@ -61,9 +82,10 @@ class Miss:
 
 def gate_for(task: str) -> GateThresholds:
     """The gate of a task; ``ValueError`` naming the tasks that have one."""
-    if task not in GATES:
-        raise ValueError(f"no ship gate for task {task!r}; tasks with a gate: {sorted(GATES)}")
-    return GATES[task]
+    table = gates()
+    if task not in table:
+        raise ValueError(f"no ship gate for task {task!r}; tasks with a gate: {sorted(table)}")
+    return table[task]
 
 
 def thresholds_text(task: str) -> str:
@@ -92,7 +114,7 @@ def check(task: str, report: Mapping[str, Any]) -> list[Miss]:
     """Every way ``report`` misses the task's gate (empty: it passes).
 
     Args:
-        task: a task of ``GATES``.
+        task: a task of ``gates()``.
         report: ``{"quality": summarise(...), "episodes": [EpisodeQuality.to_dict(), ...], <accuracy>}``.
     """
     g = gate_for(task)

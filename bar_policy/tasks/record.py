@@ -80,6 +80,9 @@ class TaskRecord:
     presets: tuple[tuple[str, str], ...] = ()
     """Training presets: (name, ``"module:attr"`` of a ``{dotted.path: value}`` mapping applied to
     ``TrainConfig()``, see ``training.config.preset``)."""
+    gate: str = ""
+    """``"module:attr"`` of its ship gate (a ``quality.gate.GateThresholds``: what a file must reach on
+    held-out data to ship); empty: no gate, so no file of the task ships."""
     deploy: str = ""
     """Module of its deploy task (a ``TASK`` attribute, a ``DeployTask``); imports neither jax nor torch."""
 
@@ -93,5 +96,7 @@ class TaskRecord:
             _check_ref(f"task {self.name!r}: terms", self.terms)
         for preset_name, ref in self.presets:
             _check_ref(f"task {self.name!r}: preset {preset_name!r}", ref)
+        if self.gate:
+            _check_ref(f"task {self.name!r}: gate", self.gate)
         if self.deploy and not re.match(r"^[A-Za-z_][\w.]*$", self.deploy):
             raise ValueError(f"task {self.name!r}: deploy must be a module path, got {self.deploy!r}")

@@ -20,6 +20,7 @@ __all__ = ["TASKS", "TASK_PACKAGES", "env_entries", "get_task_record"]
 TASK_PACKAGES: tuple[str, ...] = (
     "bar_policy.tasks.reach",
     "bar_policy.tasks.track",
+    "bar_policy.tasks.piano",
 )
 """The task packages, in registry order (each defines ``RECORD``)."""
 

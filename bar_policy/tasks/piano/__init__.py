@@ -22,12 +22,14 @@ from bar_policy.tasks.piano.midi import load_midi
 from bar_policy.tasks.piano.scene import FINGERTIP_BIT, FINGERTIP_GEOMS, keyboard_scene
 from bar_policy.tasks.piano.song_library import HELDOUT, TRAIN, library_song
 from bar_policy.tasks.piano.songs import Note, Song, SongError, TempoLimits, goal_keys, playable, read_song
+from bar_policy.tasks.record import EnvEntry, TaskRecord
 
 __all__ = [
     "FINGERTIP_BIT",
     "FINGERTIP_GEOMS",
     "HELDOUT",
     "LEFT_REACH",
+    "RECORD",
     "RIGHT_REACH",
     "TRAIN",
     "TRAIN_TEMPO_BPM",
@@ -50,3 +52,23 @@ __all__ = [
     "random_song",
     "read_song",
 ]
+
+_HERE = "bar_policy.tasks.piano"
+
+RECORD = TaskRecord(
+    name="piano",
+    summary="play the keyboard",
+    envs=(EnvEntry(name="LitePiano", env=f"{_HERE}.env:LitePiano", config=f"{_HERE}.env:default_config"),),
+    layout=f"{_HERE}.layout:schema",
+    terms=f"{_HERE}.terms:TERMS",
+    shipped_layouts=(("lite_piano_arms", "arms"),),
+    command_terms=("target_keys", "progress", "key_pressed"),
+    implied_by=("target_keys", "key_pressed"),
+    hc_only=False,
+    metadata_keys=("dataset_repo_id",),
+    metric="key-press precision, recall and F1 over the song's steps (RoboPianist's)",
+    presets=(("piano", f"{_HERE}.preset:PIANO"),),
+    gate=f"{_HERE}.gate:GATE",
+    deploy="",
+)
+"""The piano task's registration (``bar_policy.tasks.registry``); its deploy side comes with issue 18.4."""

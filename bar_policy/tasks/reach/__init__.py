@@ -52,6 +52,7 @@ RECORD = TaskRecord(
     metadata_keys=("command_transition_s",),
     metric="segment success rate (both fingertips within 3 cm at a segment's end)",
     presets=tuple((p, f"{_HERE}.preset:{p.upper()}") for p in ("gpu", "cpu", "tiny")),
+    gate=f"{_HERE}.gate:GATE",
     deploy=f"{_HERE}.deploy",
 )
 """The reach task's registration (``bar_policy.tasks.registry``)."""

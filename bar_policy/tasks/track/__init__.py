@@ -63,6 +63,7 @@ RECORD = TaskRecord(
     metadata_keys=("body_names", "lookahead_steps", "dataset_repo_id"),
     metric="joint, tracked-body and fingertip errors on held-out clips",
     presets=(("track", f"{_HERE}.preset:TRACK"),),
+    gate=f"{_HERE}.gate:GATE",
     deploy=f"{_HERE}.deploy",
 )
 """The track task's registration (``bar_policy.tasks.registry``)."""

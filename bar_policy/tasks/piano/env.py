@@ -1,0 +1,220 @@
+"""LitePiano: the Lite plays the keyboard (a task on the robot env in the keyboard's scene).
+
+Semantics (fixed; the exported policy and the deploy runtime rely on them). Action, control, latency, noise
+and the initial-state noise are the robot env's (``bar_policy.envs.robot``); the task adds:
+
+- **Scene**: the keyboard of ``config.keyboard`` (``keyboard_scene``: spring-loaded hinge keys that only the
+  two fingertip spheres touch) on the robot's ``MjSpec``. The robot's joints are addressed by name; the keys'
+  hinge angles are read from their own ``qpos`` addresses.
+- **Songs**: a bank built once (``bank.song_bank``): the training library's songs and ``songs`` random
+  playable ones (``generator.random_song``, tempos ~ U(``tempo_bpm``)), each cut or padded to the episode.
+  Each episode plays one song, drawn uniformly, from its start.
+- **Observation**: ``ObservationManager.for_task("piano", mode)``: ``target_keys`` (the goal keys at the
+  current control step and the next ``TARGET_FRAMES - 1``), ``progress`` (steps / episode steps),
+  ``key_pressed`` (the keys past their press threshold now), then q, dq and the last action.
+- **Step ``t``** (the ``t``-th control step of the episode, ``t = step - 1``): the goal is the bank's row
+  ``t`` (what ``target_keys`` showed as current when the action was chosen); it is compared with the keys
+  down after the step. Rewards are the named terms of ``rewards`` weighted by ``RewardScales``; metrics
+  count true positives, false positives and false negatives of that comparison (``metrics``), so the
+  evaluation's precision, recall and F1 are RoboPianist's episode-level sums.
+- **Episodes**: the env ends an episode only when the physics turns non-finite; the wrappers truncate at
+  ``episode_length_s``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from mujoco import mjx
+
+from bar_policy.envs import rewards as robot_rewards
+from bar_policy.envs.robot import LiteRobotEnv
+from bar_policy.envs.robot_config import RobotEnvConfig, nominal
+from bar_policy.envs.task import TaskStep, Transition
+from bar_policy.obs import ObservationManager
+from bar_policy.robot.constants import FINGERTIP_SITES
+from bar_policy.tasks.piano import metrics as piano_metrics
+from bar_policy.tasks.piano import rewards
+from bar_policy.tasks.piano.bank import song_bank, training_songs
+from bar_policy.tasks.piano.keyboard import KeyboardConfig, compact_config, key_table, press_thresholds
+from bar_policy.tasks.piano.scene import keyboard_scene
+from bar_policy.tasks.piano.song_library import TRAIN
+from bar_policy.tasks.piano.terms import PIANO_KEYS, TARGET_FRAMES
+
+__all__ = ["LitePiano", "PianoEnvConfig", "RewardConfig", "RewardScales", "default_config", "nominal_config"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class RewardScales:
+    """Weights of the reward terms (positive: reward, negative: cost), per step. 0 drops a term."""
+
+    key_press: float = 1.0
+    """Goal keys pressed (``rewards.key_press``: mean over the goal keys of their depression kernel)."""
+    wrong_keys: float = -0.5
+    """Keys down that are not goal keys (``rewards.wrong_keys``: their share of the keyboard's keys)."""
+    fingertip_near: float = 0.5
+    """Fingertips near the current goal keys (``rewards.fingertip_near``: kernel on the distance to the
+    nearest fingertip, mean over goal keys)."""
+    energy: float = -2e-3
+    """Mechanical power ``sum |tau dq|``, W, at the step's end (``tau``: the motor torque the last substep
+    applied, without the share of Kd that the implicit damping integrates)."""
+    action_rate: float = -0.1
+    """``sum((a_t - a_{t-1})^2)`` of the applied action (the tracker's and reach's)."""
+    action_accel: float = -0.2
+    """``sum((a_t - 2 a_{t-1} + a_{t-2})^2)`` of the applied action: chatter's own penalty."""
+    torque_near_cap: float = -0.1
+    """``sum_j clip(|tau_law_j| / tau_cap_j - 0.8, 0, 1)`` averaged over substeps."""
+    joint_limit: float = -1.0
+    """rad beyond the soft joint limits, summed over joints."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class RewardConfig:
+    """Reward shaping."""
+
+    scales: RewardScales = field(default_factory=RewardScales)
+    """Term weights."""
+    near_std: float = 0.01
+    """Length scale of the fingertip-to-key kernel, m (``rewards.fingertip_near``)."""
+    soft_limit_fraction: float = 0.95
+    """Fraction of each joint's range inside which the joint-limit cost is zero."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class PianoEnvConfig(RobotEnvConfig):
+    """Everything LitePiano needs. Build with ``default_config()``; derive with ``dataclasses.replace``."""
+
+    episode_length_s: float = 10.0
+    """Episode length, s (500 control steps): the random songs' length."""
+    action_filter_hz: float | None = 3.0
+    """Cutoff of the action low-pass, Hz (the tracker's and reach's; the deploy runtime applies the same)."""
+    keyboard: KeyboardConfig = field(default_factory=compact_config)
+    """The keyboard (must have ``PIANO_KEYS`` keys: the layout's sizes)."""
+    songs: int = 256
+    """Random songs in the bank (besides the training library's)."""
+    library: tuple[str, ...] = TRAIN
+    """Library songs in the bank (``song_library``; the held-out ones are never trained on)."""
+    tempo_bpm: tuple[float, float] = (60.0, 120.0)
+    """Tempo range of the random songs, beats per minute (a beat = one short note)."""
+    song_seed: int = 0
+    """Seed of the random songs."""
+    reward: RewardConfig = field(default_factory=RewardConfig)
+    """Reward terms and weights."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.keyboard.n_keys != PIANO_KEYS:
+            raise ValueError(
+                f"keyboard has {self.keyboard.n_keys} keys; the piano layout is for {PIANO_KEYS} "
+                "(keyboard.compact_config(): MIDI 36..84)"
+            )
+        if self.songs < 0 or (self.songs == 0 and not self.library):
+            raise ValueError(f"the bank needs a song: songs = {self.songs}, library = {self.library}")
+        lo, hi = self.tempo_bpm
+        if not 30.0 <= lo <= hi:
+            raise ValueError(f"tempo_bpm must be (low, high) with 30 <= low <= high, got {self.tempo_bpm}")
+
+
+def default_config() -> PianoEnvConfig:
+    """The training configuration: every actuator effect and randomisation on."""
+    return PianoEnvConfig()
+
+
+def nominal_config(base: PianoEnvConfig | None = None) -> PianoEnvConfig:
+    """``base`` (default: ``default_config()``) with every randomisation and noise off."""
+    return nominal(base or default_config())
+
+
+class LitePiano(LiteRobotEnv):
+    """The Lite at the keyboard (see the module docstring for the exact semantics)."""
+
+    task_name = "piano"
+
+    def __init__(self, config: PianoEnvConfig | None = None) -> None:
+        cfg = config or default_config()
+        super().__init__(
+            cfg, ObservationManager.for_task("piano", cfg.mode), scene=keyboard_scene(cfg.keyboard)
+        )
+        kb = cfg.keyboard
+        m = self.mj_model
+        keys = key_table(kb)
+        self._key_qpos = np.array([m.jnt_qposadr[m.joint(f"piano_key{k.midi}").id] for k in keys])
+        self._key_sites = np.array([m.site(f"piano_key{k.midi}_top").id for k in keys])
+        self._tip_sites = np.array([m.site(s).id for s in FINGERTIP_SITES])
+        self._threshold = jnp.asarray(press_thresholds(kb), jnp.float32)
+        self._angle_max = jnp.asarray([k.angle_max for k in keys], jnp.float32)
+        songs = training_songs(kb, cfg.songs, cfg.episode_length_s, cfg.tempo_bpm, cfg.song_seed, cfg.library)
+        self.bank = song_bank(songs, kb, cfg.ctrl_dt, self.episode_length, TARGET_FRAMES - 1)
+        self._down = jnp.asarray(self.bank.down)
+
+    @property
+    def metric_keys(self) -> tuple[str, ...]:
+        """``true_pos``, ``false_pos``, ``false_neg`` (key counts), ``goal_keys``, ``keys_down``."""
+        return ("true_pos", "false_pos", "false_neg", "goal_keys", "keys_down")
+
+    def eval_ratios(self, metrics: dict[str, jax.Array]) -> dict[str, tuple[jax.Array, jax.Array]]:
+        """Episode-level precision, recall and F1 (``metrics.f1_counts``); ``success_rate`` is the F1."""
+        tp, fp, fn = metrics["true_pos"], metrics["false_pos"], metrics["false_neg"]
+        f1 = (2.0 * tp, 2.0 * tp + fp + fn)
+        return {"success_rate": f1, "f1": f1, "precision": (tp, tp + fp), "recall": (tp, tp + fn)}
+
+    def task_metadata(self) -> dict:
+        """The song set's id (``dataset_repo_id``): the bank's recipe."""
+        c = self.config
+        lib = "+".join(c.library) if c.library else "none"
+        return {"dataset_repo_id": f"bar_policy.piano:random{c.songs}-seed{c.song_seed}-{lib}"}
+
+    # -- hooks -------------------------------------------------------------------------------------
+    def key_angles(self, data: mjx.Data) -> jax.Array:
+        """The keys' hinge angles, rad, shape (n_keys,), keyboard order."""
+        return data.qpos[self._key_qpos]
+
+    def task_reset(self, model: mjx.Model, key: jax.Array) -> tuple[dict, jax.Array, jax.Array]:
+        """A song from the bank, played from its start; the robot at the default pose, at rest."""
+        song = jax.random.randint(key, (), 0, self._down.shape[0])
+        return {"song": song}, jnp.asarray(self._default), jnp.zeros(self.action_size)
+
+    def task_step(self, tr: Transition) -> TaskStep:
+        """Key rewards against the goal row of this step, the robot's costs, and the key counts."""
+        cfg = self.config
+        data, info = tr.data, tr.info
+        goal = self._down[info["song"], tr.step - 1]
+        angles = self.key_angles(data)
+        down = angles >= self._threshold
+        tips = data.site_xpos[self._tip_sites]
+        key_pos = data.site_xpos[self._key_sites]
+        q, dq = self.robot_q(data), self.robot_dq(data)
+        rc = cfg.reward
+        terms = {
+            "key_press": rewards.key_press(angles, goal, self._threshold, self._angle_max),
+            "wrong_keys": rewards.wrong_keys(down, goal),
+            "fingertip_near": rewards.fingertip_near(tips, key_pos, goal, rc.near_std),
+            "energy": rewards.energy(data.qfrc_applied[self.robot_index.dof], dq),
+            "action_rate": robot_rewards.action_rate(tr.action, info["last_act"]),
+            "action_accel": robot_rewards.action_accel(tr.action, info["last_act"], info["act_prev"]),
+            "torque_near_cap": tr.near_cap,
+            "joint_limit": robot_rewards.joint_limit(q, self._lower, self._upper, rc.soft_limit_fraction),
+        }
+        tp, fp, fn = piano_metrics.step_counts(down, goal > 0.5)
+        metrics = {
+            "true_pos": tp,
+            "false_pos": fp,
+            "false_neg": fn,
+            "goal_keys": jnp.sum(goal),
+            "keys_down": jnp.sum(down.astype(jnp.float32)),
+        }
+        return TaskStep(terms=terms, info={}, metrics=metrics)
+
+    def task_obs(self, model: mjx.Model, data: mjx.Data, q_meas: jax.Array, info: dict) -> dict:
+        """Goal keys of the next ``TARGET_FRAMES`` steps, progress, and the keys down now."""
+        step = info["step"]
+        window = jax.lax.dynamic_slice_in_dim(self._down[info["song"]], step, TARGET_FRAMES, axis=0)
+        down = (self.key_angles(data) >= self._threshold).astype(jnp.float32)
+        return {
+            "target_keys": window.reshape(-1),
+            "progress": jnp.reshape(step / self.episode_length, (1,)).astype(jnp.float32),
+            "key_pressed": down,
+        }

@@ -1,0 +1,36 @@
+"""The piano training preset: ``{dotted.path: value}`` on ``TrainConfig()`` (``training.config.preset``).
+
+Plain data: this module imports nothing.
+"""
+
+from __future__ import annotations
+
+__all__ = ["PIANO"]
+
+PIANO = {
+    "preset": "piano",
+    "env_name": "LitePiano",
+    "max_minutes": 8.9,
+    "ppo.num_timesteps": 120_000_000,
+    "ppo.num_envs": 4096,
+    "ppo.unroll_length": 20,
+    "ppo.batch_size": 512,
+    "ppo.num_minibatches": 16,
+    "ppo.num_updates_per_batch": 4,
+    "ppo.learning_rate": 3e-4,
+    "ppo.schedule": "adaptive",
+    "ppo.desired_kl": 0.02,
+    "ppo.min_learning_rate": 1e-4,
+    "ppo.entropy_cost": 1e-3,
+    "ppo.discounting": 0.98,
+    "network.policy_hidden": (512, 256, 128),
+    "network.value_hidden": (512, 256, 256),
+    "eval.num_evals": 9,
+    "eval.num_eval_envs": 1024,
+    "final_eval_envs": 2048,
+}
+"""LitePiano on one H100 (``--preset piano``): the tracker's optimiser (KL-adaptive learning rate, target
+0.02, floor 1e-4; docs/tracking.md), 4096 envs (the keyboard's 49 keys add 147 constraint rows per env:
+reach's 82 become 229, docs/piano.md), a wider first layer for the 631-entry observation. Untrained: the
+figures come from the first GPU run.
+"""

@@ -1,0 +1,113 @@
+"""LitePiano in MJX: the bank, the observation, the key counts and the evaluation's F1, worked out by hand.
+
+One small env (2 random songs, no library songs, nominal physics) compiled once for the module. Its keys
+are damped 50x critical, so a key pushed down stays down through a 20 ms step (the slow pole of the
+overdamped hinge, ~omega / (2 * 50) with omega ~ 86 rad/s for a white key, moves it by ~2 % in 20 ms):
+the counts of a step are then known by hand.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bar_policy.tasks.piano.bank import song_bank
+from bar_policy.tasks.piano.env import LitePiano, nominal_config
+from bar_policy.tasks.piano.keyboard import compact_config, press_thresholds
+from bar_policy.tasks.piano.songs import Note, Song
+from bar_policy.tasks.piano.terms import PIANO_KEYS, TARGET_FRAMES
+
+
+def test_bank_rows_by_hand() -> None:
+    kb = compact_config()
+    # C4 (60) from 0.10 to 0.30 s and E4 (64) from 0.30 to 0.50 s at dt 0.02: rows 5..14 and 15..24.
+    song = Song(
+        "two", (Note(60, 0.10, 0.30, "right"), Note(64, 0.30, 0.50, "right"), Note(62, 9.0, 9.2, "right"))
+    )
+    bank = song_bank([song], kb, 0.02, steps=40, lookahead=10)
+    assert bank.down.shape == (1, 40 + 10 + 1, 49)
+    c4, e4 = 60 - kb.lowest, 64 - kb.lowest
+    np.testing.assert_array_equal(np.flatnonzero(bank.down[0, :, c4]), np.arange(5, 15))
+    np.testing.assert_array_equal(np.flatnonzero(bank.down[0, :, e4]), np.arange(15, 25))
+    assert bank.down.sum() == 20  # the note at 9 s starts after step 40: cut, and counted
+    assert bank.cut_notes == 1 and bank.steps[0] == 25
+
+
+@pytest.fixture(scope="module")
+def env() -> LitePiano:
+    kb = dataclasses.replace(compact_config(), damping_ratio=50.0)
+    cfg = dataclasses.replace(nominal_config(), songs=2, library=(), keyboard=kb)
+    return LitePiano(cfg)
+
+
+@pytest.fixture(scope="module")
+def fns(env: LitePiano):
+    return jax.jit(env.reset), jax.jit(env.step)
+
+
+def test_layout_and_sizes(env: LitePiano) -> None:
+    om = env.obs_manager
+    assert (
+        om.schema.name == "lite_piano_arms"
+        and om.size == TARGET_FRAMES * PIANO_KEYS + 1 + PIANO_KEYS + 3 * 14
+    )
+    assert om.fingerprint == type(om).golden("lite_piano_arms").fingerprint
+    assert env.mj_model.nq == 14 + PIANO_KEYS  # the robot's joints, then one hinge per key
+    np.testing.assert_array_equal(env.robot_index.qpos, np.arange(14))
+
+
+def test_observation_counts_and_f1(env: LitePiano, fns) -> None:
+    reset, step = fns
+    s = reset(jax.random.PRNGKey(0))
+    song = int(s.info["song"])
+    parts = env.obs_manager.split(np.asarray(s.obs))
+    # target_keys at reset: the bank's rows 0..10 of the episode's song; progress 0; no key down.
+    np.testing.assert_array_equal(parts["target_keys"], env.bank.down[song, :TARGET_FRAMES].reshape(-1))
+    assert parts["progress"][0] == 0.0 and not parts["key_pressed"].any()
+    a = jnp.zeros(14, jnp.float32)
+    s1 = step(s, a)
+    parts = env.obs_manager.split(np.asarray(s1.obs))
+    np.testing.assert_array_equal(
+        parts["target_keys"], env.bank.down[song, 1 : 1 + TARGET_FRAMES].reshape(-1)
+    )
+    assert parts["progress"][0] == pytest.approx(1 / env.episode_length)
+    # Counts of step 0: no key down, so tp = fp = 0 and fn = the goal keys of row 0.
+    goal0 = env.bank.down[song, 0]
+    assert float(s1.metrics["true_pos"]) == 0 and float(s1.metrics["false_pos"]) == 0
+    assert float(s1.metrics["false_neg"]) == goal0.sum() == float(s1.metrics["goal_keys"])
+    # Push two keys past their thresholds: one goal key of row 1 (if any) and one that is not a goal.
+    goal1 = env.bank.down[song, 1]
+    thr = press_thresholds(env.config.keyboard)
+    angles = np.zeros(PIANO_KEYS, np.float32)
+    wrong = int(np.flatnonzero(goal1 == 0)[0])
+    angles[wrong] = 1.5 * thr[wrong]
+    hit = np.flatnonzero(goal1 > 0)
+    if hit.size:
+        angles[hit[0]] = 1.5 * thr[hit[0]]
+    qpos = s1.data.qpos.at[env._key_qpos].set(jnp.asarray(angles))
+    s1 = s1.replace(data=s1.data.replace(qpos=qpos, qvel=jnp.zeros_like(s1.data.qvel)))
+    s2 = step(s1, a)
+    after = np.asarray(env.key_angles(s2.data)) >= thr
+    goal = goal1 > 0.5
+    expected = np.zeros(PIANO_KEYS, bool)
+    expected[wrong] = True
+    expected[hit[:1]] = True
+    np.testing.assert_array_equal(after, expected)  # the pushed keys, and only they, are still down
+    assert float(s2.metrics["false_pos"]) == 1 and float(s2.metrics["true_pos"]) == min(hit.size, 1)
+    assert float(s2.metrics["true_pos"]) == np.sum(after & goal)
+    assert float(s2.metrics["false_pos"]) == np.sum(after & ~goal)
+    assert float(s2.metrics["false_neg"]) == np.sum(~after & goal)
+    np.testing.assert_array_equal(
+        env.obs_manager.split(np.asarray(s2.obs))["key_pressed"], after.astype(np.float32)
+    )
+    # F1 as RoboPianist's episode sum: 2 tp / (2 tp + fp + fn), by hand from the two steps' counts.
+    m = {k: jnp.stack([s1.metrics[k], s2.metrics[k]]) for k in ("true_pos", "false_pos", "false_neg")}
+    ratios = env.eval_ratios(m)
+    tp, fp, fn = (float(np.sum(np.asarray(m[k]))) for k in ("true_pos", "false_pos", "false_neg"))
+    num, den = (float(np.sum(np.asarray(x))) for x in ratios["f1"])
+    assert (num, den) == (2 * tp, 2 * tp + fp + fn)
+    assert ratios["success_rate"] is ratios["f1"]
