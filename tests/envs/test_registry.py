@@ -17,12 +17,14 @@ EXPECTED = {
     "LiteReach": ("reach", 54, 14),
     "LiteReachNeck": ("reach", 63, 17),
     "LiteTrack": ("track", 292, 14),
+    "LitePiano": ("piano", 11 * 49 + 1 + 49 + 3 * 14, 14),  # target_keys, progress, key_pressed, q, dq, a
 }
 
 
 def test_registry_names():
     assert tuple(EXPECTED) == envs.ALL_ENVS
-    with pytest.raises(ValueError, match=r"available envs: \['LiteReach', 'LiteReachNeck', 'LiteTrack'\]"):
+    names = r"\['LiteReach', 'LiteReachNeck', 'LiteTrack', 'LitePiano'\]"
+    with pytest.raises(ValueError, match=r"available envs: " + names):
         envs.load("LiteDance")
 
 
