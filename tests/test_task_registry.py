@@ -90,7 +90,7 @@ def test_layouts_and_command_terms_come_from_the_record(record):
     added = resolve(record.terms)
     assert all(TERM_CATALOG[name] is kind for name, kind in added.items())  # the catalogue reads the record
     assert set(record.command_terms) <= {n for n, k in added.items() if k.category == "command"}
-    if not record.deploy:  # a task without its deploy side yet (piano): bar-deploy lists it nowhere
+    if not record.deploy:  # a task without a deploy side: bar-deploy lists it nowhere
         assert record.name not in TASK_COMMAND_TERMS and record.name not in HC_TASKS
         return
     assert TASK_COMMAND_TERMS[record.name] == record.command_terms
@@ -128,7 +128,7 @@ def test_shared_and_deploy_parts_import_with_jax_and_torch_blocked():
         [sys.executable, "-c", script], capture_output=True, text=True, timeout=120, check=False
     )
     assert out.returncode == 0, out.stderr
-    assert out.stdout.split("\n")[-2] == "['reach', 'track', 'state']"
+    assert out.stdout.split("\n")[-2] == "['reach', 'track', 'piano', 'state']"
 
 
 def test_the_blocker_blocks():

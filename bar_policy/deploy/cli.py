@@ -301,7 +301,7 @@ def _run_session(
                 video_path=str(args.video) if args.video else None,
                 damping=training_damping(policy.metadata.randomization),
             )
-            target = SimTarget(args.mode, sim_cfg)
+            target = SimTarget(args.mode, sim_cfg, scene=task.scene(policy))  # type: ignore[attr-defined]
         elif args.target == "mock":
             from bar_policy.deploy.targets.mock import MockTarget
 

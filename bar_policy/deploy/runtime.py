@@ -118,6 +118,7 @@ class Runtime(RunLoop):
         # The target's per-joint temperature reader (the real target has one), looked up once, not per tick.
         self._read_temperatures = getattr(target, "temperatures", None)
         self.commands = commands
+        commands.attach(target)
         self.config = config or RuntimeConfig()
         robot = policy.robot
         if tuple(target.joint_names) != robot.joint_names:
@@ -287,6 +288,7 @@ class Runtime(RunLoop):
             if done is not None:
                 self._finish(done, t)
 
+        self.commands.observe(state.q, state.dq)
         cmds = self.commands(t)
         self.last_commands = cmds
         inputs = self.inputs(state.q, state.dq, self.last_action)

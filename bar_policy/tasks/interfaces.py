@@ -28,6 +28,7 @@ import numpy as np
 if TYPE_CHECKING:
     from bar_policy.deploy.policy import OnnxPolicy
     from bar_policy.robot.kinematics import Kinematics
+    from bar_policy.robot.scene import SceneEdit
 
 __all__ = ["CommandSource", "DeployTask", "EvalReport", "OptionError"]
 
@@ -80,6 +81,13 @@ class CommandSource(abc.ABC):
 
     def begin(self, t: float) -> None:  # noqa: B027 - optional hook
         """POLICY starts at run time ``t`` (s): the commands' phase 0."""
+
+    # -- the robot's side ------------------------------------------------------------------------------
+    def attach(self, target: Any) -> None:  # noqa: B027 - optional hook
+        """The runtime's target, given once before the first tick (a source that reads the sim's scene)."""
+
+    def observe(self, q: np.ndarray, dq: np.ndarray) -> None:  # noqa: B027 - optional hook
+        """The measured joint state (rad, rad/s, canonical order), each tick before ``__call__``."""
 
     def target_q(self) -> np.ndarray | None:
         """Joint positions the last call's command targets, rad (canonical order); None: no reference.
@@ -152,6 +160,10 @@ class DeployTask(abc.ABC):
 
     def add_eval_arguments(self, parser: argparse.ArgumentParser) -> None:  # noqa: B027 - optional
         """Add the eval options (defaults None, as above)."""
+
+    def scene(self, policy: OnnxPolicy) -> SceneEdit | None:
+        """What the task adds to the sim target's scene (``robot.scene.SceneEdit``); None: the robot alone."""
+        return None
 
     @abc.abstractmethod
     def command_source(

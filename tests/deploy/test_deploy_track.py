@@ -229,13 +229,16 @@ def test_state_only_hc_policy_takes_no_command_source(tmp_path, capsys):
 
 
 def test_registry_terms_and_implied_tasks(track_policy, policy_path):
-    assert [t.name for t in all_tasks()] == ["reach", "track", "state"]
+    assert [t.name for t in all_tasks()] == ["reach", "track", "piano", "state"]
     assert load_policy(track_policy).obs_manager.command_names == TASK_COMMAND_TERMS["track"]
     assert load_policy(policy_path).obs_manager.command_names == TASK_COMMAND_TERMS["reach"]
     assert implied_task(["joint_pos", "joint_vel", "actions"]) == "state"
     assert implied_task(["joint_pos", "fingertip_pos_left"]) == "reach"
     assert implied_task(["motion_body_pos_b", "joint_pos"]) == "track"
-    with pytest.raises(ValueError, match=r"no deploy task 'dance'; tasks: \['reach', 'state', 'track'\]"):
+    assert implied_task(["target_keys", "joint_pos"]) == "piano"
+    with pytest.raises(
+        ValueError, match=r"no deploy task 'dance'; tasks: \['piano', 'reach', 'state', 'track'\]"
+    ):
         get_task("dance")
 
 

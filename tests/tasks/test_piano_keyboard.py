@@ -41,10 +41,10 @@ def _key(midi: int):
 
 def test_key_table_by_hand():
     keys = key_table(CFG)
-    # B0 (23) .. D7 (98): 76 keys; white: B0, 6 full octaves C1..B6 (42), C7, D7 -> 45; black 31.
-    assert len(keys) == CFG.n_keys == 76
-    assert [k.midi for k in keys] == list(range(23, 99))
-    assert sum(not k.black for k in keys) == 45
+    # B0 (23) .. C7 (96): 74 keys; white: B0, 6 full octaves C1..B6 (42), C7 -> 44; black 30.
+    assert len(keys) == CFG.n_keys == 74
+    assert [k.midi for k in keys] == list(range(23, 97))
+    assert sum(not k.black for k in keys) == 44
     assert [note_name(m) for m in (21, 23, 60, 61, 69, 98)] == ["A0", "B0", "C4", "C#4", "A4", "D7"]
     # Middle C on the midline; higher notes to the right (-y), one white key every 23.5 mm.
     assert _key(60).y == 0.0
@@ -76,9 +76,9 @@ def test_config_refuses_black_end_keys():
 def test_robot_unchanged(model):
     alone = load_model("arms")
     index = RobotIndex.from_model(model, ROBOT.joint_names)
-    # Keys hang from the world after the chest: the robot keeps qpos 0..13; 76 key hinges follow.
+    # Keys hang from the world after the chest: the robot keeps qpos 0..13; 74 key hinges follow.
     np.testing.assert_array_equal(index.qpos, np.arange(14))
-    assert (model.nq, model.nv, model.nsensor) == (90, 90, 76)
+    assert (model.nq, model.nv, model.nsensor) == (88, 88, 74)
     # Robot bodies: same masses and inertias (the fingertip spheres are massless, inertia is explicit).
     for b in range(alone.nbody):
         other = model.body(alone.body(b).name).id
@@ -107,7 +107,7 @@ def test_contact_bits(model):
     # Keys: contype 0, conaffinity 8; fingertip spheres: contype 8, conaffinity 0. A key therefore
     # touches a fingertip (8 & 8) and nothing else: not the robot (bits 1, 2, 4), not another key (0 & 8).
     tips = [model.geom(n).id for n in FINGERTIP_GEOMS]
-    keys = [model.geom(f"piano_key{m}").id for m in range(23, 99)]
+    keys = [model.geom(f"piano_key{m}").id for m in range(23, 97)]
     assert FINGERTIP_BIT == 8
     assert set(model.geom_contype[tips]) == {8} and set(model.geom_conaffinity[tips]) == {0}
     assert set(model.geom_contype[keys]) == {0} and set(model.geom_conaffinity[keys]) == {8}
@@ -124,9 +124,28 @@ def test_placement_at_piano_ready(model):
     assert d.ncon == 0  # nothing touches at rest
     for site, midi in (("left_finger2_tip", 48), ("right_finger2_tip", 72)):
         tip, key = d.site(site).xpos, _key(midi)
-        assert tip[2] - 0.006 - key.top_z == pytest.approx(0.005, abs=0.001)  # sphere ~5 mm above
+        # The exact pose: 5 mm plus the 19.7 mm the held pose sags (next test) above the keys.
+        assert tip[2] - 0.006 - key.top_z == pytest.approx(0.0247, abs=0.001)
         assert tip[0] - key.front_x == pytest.approx(0.025, abs=0.001)  # ~25 mm behind the front
         assert abs(tip[1] - key.y) < (0.0235 - 0.001) / 2  # over C3 / C5
+
+
+def test_the_held_pose_presses_nothing():
+    """The robot holds piano_ready at its gains on the sim target (gravity on): its fingertip spheres settle
+    ~5 mm above C3 and C5 (the sag is what the placement allows for) and no key goes down."""
+    from bar_policy.deploy.targets.sim import SimConfig, SimTarget
+    from bar_policy.robot.mit import MitCommand
+
+    sim = SimTarget("arms", SimConfig(), scene=keyboard_scene(CFG))
+    q0 = ROBOT.pose("piano_ready")
+    sim.reset(q0)
+    z = np.zeros(14)
+    sim.write_command(MitCommand(q0, z, np.asarray(ROBOT.kp, float), np.asarray(ROBOT.kd, float), z))
+    sim.advance(2.0)
+    for site, midi in (("left_finger2_tip", 48), ("right_finger2_tip", 72)):
+        gap = sim.data.site(site).xpos[2] - 0.006 - _key(midi).top_z
+        assert gap == pytest.approx(0.005, abs=0.0015), site
+    assert not pressed(sim.data.sensordata[: CFG.n_keys], CFG).any()
 
 
 def _settle(model, midi: int, force: float, seconds: float = 1.0) -> float:
@@ -169,7 +188,7 @@ def test_pressed_threshold():
     angles[0, 60 - 23], angles[0, 61 - 23] = 0.0334, 0.0527  # just past
     angles[1, 60 - 23], angles[1, 61 - 23] = 0.0333, 0.0526  # just short
     got = pressed(angles, CFG)
-    assert got.shape == (2, 76)
+    assert got.shape == (2, 74)
     assert got[0].sum() == 2 and got[0, 60 - 23] and got[0, 61 - 23]
     assert not got[1].any()
     with pytest.raises(ValueError, match="expected"):
@@ -203,7 +222,7 @@ def test_fingertip_presses_key(model):
         d.qvel[:14] = (q_dn - q_up) / (n_move * dt) if i < n_move else 0.0
         mujoco.mj_step(model, d)
         touched |= {model.geom(c.geom2 if c.geom1 == tip else c.geom1).name for c in d.contact[: d.ncon]}
-    angles = d.sensordata[:76]
+    angles = d.sensordata[:74]
     assert touched == {"piano_key72"}
     assert 0.045 < angles[72 - 23] <= key.angle_max * 1.02
     assert pressed(angles, CFG)[72 - 23]

@@ -31,7 +31,7 @@ from bar_policy.tasks.piano.songs import (
     write_song,
 )
 
-CFG = default_config()  # B0 (23) .. D7 (98): key index = MIDI - 23
+CFG = default_config()  # B0 (23) .. C7 (96): key index = MIDI - 23
 
 
 def test_goal_keys_two_notes():
@@ -39,7 +39,7 @@ def test_goal_keys_two_notes():
     # its first step up), E4 at steps 5..7 (round(0.16 / 0.02) = 8).
     song = Song("two", (Note(60, 0.0, 0.1, "right"), Note(64, 0.1, 0.16, "right")))
     g = goal_keys(song, dt=0.02, steps=10, lookahead=2, config=CFG)
-    assert g.shape == (10, 3, 76)
+    assert g.shape == (10, 3, 74)
     c4, e4 = 60 - 23, 64 - 23
     assert [t for t in range(10) if g[t, 0, c4]] == [0, 1, 2, 3, 4]
     assert [t for t in range(10) if g[t, 0, e4]] == [5, 6, 7]
@@ -68,7 +68,7 @@ def _refusal(*notes: Note) -> str:
 
 def test_refusals_name_the_note():
     msg = _refusal(Note(60, 0.0, 0.5, "right"), Note(108, 1.0, 1.5, "right"))
-    assert msg == "song 's', note 1 (C8 (108) at 1.000-1.500 s, right): off the keyboard (B0..D7)"
+    assert msg == "song 's', note 1 (C8 (108) at 1.000-1.500 s, right): off the keyboard (B0..C7)"
     msg = _refusal(Note(60, 0.0, 1.0, "right"), Note(62, 0.5, 1.5, "right"))
     assert msg == (
         "song 's', note 1 (D4 (62) at 0.500-1.500 s, right): it overlaps C4 (60) at 0.000-1.000 s, "

@@ -69,6 +69,6 @@ RECORD = TaskRecord(
     metric="key-press precision, recall and F1 over the song's steps (RoboPianist's)",
     presets=(("piano", f"{_HERE}.preset:PIANO"),),
     gate=f"{_HERE}.gate:GATE",
-    deploy="",
+    deploy=f"{_HERE}.deploy",
 )
-"""The piano task's registration (``bar_policy.tasks.registry``); its deploy side comes with issue 18.4."""
+"""The piano task's registration (``bar_policy.tasks.registry``)."""

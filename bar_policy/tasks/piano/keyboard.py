@@ -16,12 +16,14 @@ Geometry (``KeyboardConfig``; sources in docs/piano.md):
 
 Frames: the world is the chest frame (x forward, y left, z up), m. Higher notes lie to the robot's right
 (-y). Middle C (C4, MIDI 60) is centred on y = 0. The keyboard's front edge and surface are placed from the
-fingertips at the ``piano_ready`` pose (left (0.361, 0.159, 0.210), right (0.361, -0.159, 0.210)): each
-fingertip's contact sphere rests ~5 mm above the white keys, ~25 mm behind their front edge, the left over
-C3 and the right over C5 (both 5.5 mm off the key's centre line).
+fingertips at the ``piano_ready`` pose as the robot holds it: under gravity at its gains (Kp 50, Kd 2) the
+arms sag and the fingertips sit 19.7 mm below the exact pose's (left (0.357, 0.157, 0.191), right
+(0.357, -0.157, 0.191) on the sim target, against (0.361, +-0.159, 0.210)). Each fingertip's contact
+sphere then rests ~5 mm above the white keys, ~25 mm behind their front edge, the left over C3 and the
+right over C5 (both ~5 mm off the key's centre line), so the held pose presses nothing.
 
-Span: MIDI 23..98 (B0..D7, 76 keys), the union of what the two fingertips reach: the sweep of ``reach.py``
-(docs/piano.md) puts the left fingertip on B0..F#4 and the right on F#3..D7 (``LEFT_REACH``,
+Span: MIDI 23..96 (B0..C7, 74 keys), the union of what the two fingertips reach: the sweep of ``reach.py``
+(docs/piano.md) puts the left fingertip on B0..F#4 and the right on F#3..C7 (``LEFT_REACH``,
 ``RIGHT_REACH``); both reach F#3..F#4, and only one arm reaches each key outside it. The far ends need
 an arm stretched sideways (B0 is 0.52 m left of the midline).
 
@@ -54,8 +56,8 @@ __all__ = [
 
 LEFT_REACH: tuple[int, int] = (23, 66)
 """MIDI range the left fingertip reaches (B0..F#4), from the sweep of ``reach.py`` (docs/piano.md)."""
-RIGHT_REACH: tuple[int, int] = (54, 98)
-"""MIDI range the right fingertip reaches (F#3..D7)."""
+RIGHT_REACH: tuple[int, int] = (54, 96)
+"""MIDI range the right fingertip reaches (F#3..C7)."""
 
 _BLACK_PITCH_CLASSES = frozenset({1, 3, 6, 8, 10})
 _NAMES = ("C", "C#", "D", "D#", "E", "F", "F#", "G", "G#", "A", "A#", "B")
@@ -96,16 +98,17 @@ class KeyboardConfig:
 
     lowest: int = 23
     """MIDI number of the lowest key (B0: the left fingertip's reach); must be white."""
-    highest: int = 98
-    """MIDI number of the highest key (D7: the right fingertip's reach); must be white."""
+    highest: int = 96
+    """MIDI number of the highest key (C7: the right fingertip's reach); must be white."""
     centre_note: int = 60
     """The white key centred on ``centre_y`` (middle C)."""
     centre_y: float = 0.0
     """y of ``centre_note``'s centre line, m."""
     front_x: float = 0.336
     """x of the white keys' front edge, m (~25 mm in front of the fingertips at ``piano_ready``)."""
-    top_z: float = 0.199
-    """z of the white keys' top surface at rest, m (~5 mm below the fingertip spheres at ``piano_ready``)."""
+    top_z: float = 0.180
+    """z of the white keys' top surface at rest, m (~5 mm below the fingertip spheres in the held
+    ``piano_ready`` pose, which sags 19.7 mm under gravity; 24.7 mm below the exact pose's spheres)."""
     white_pitch: float = 0.0235
     """Centre-to-centre distance of adjacent white keys, m (standard octave 164.5 mm / 7)."""
     white_gap: float = 0.001
@@ -167,7 +170,7 @@ class KeyboardConfig:
 
 
 def default_config() -> KeyboardConfig:
-    """The keyboard of docs/piano.md: B0..D7 (76 keys), placed for the ``piano_ready`` pose."""
+    """The keyboard of docs/piano.md: B0..C7 (74 keys), placed for the held ``piano_ready`` pose."""
     return KeyboardConfig()
 
 
@@ -175,7 +178,7 @@ def compact_config() -> KeyboardConfig:
     """C2..C6 (MIDI 36..84, 49 keys): every library song and random song fits, with fewer keys to simulate.
 
     The same placement as ``default_config()``; in MJX each key costs a degree of freedom, a joint-limit row
-    and two fingertip contact pairs (76 keys: nefc 310 instead of the robot's 82; 49 keys: 229).
+    and two fingertip contact pairs (49 keys: nefc 229 instead of the robot's 82).
     """
     return replace(default_config(), lowest=36, highest=84)
 

@@ -1,0 +1,130 @@
+"""The piano on the robot: ``--song NAME|PATH`` picks the song, ``--keys`` where the keys down come from.
+
+``bar-deploy --policy piano.onnx --song ode_to_joy`` plays a library song (``song_library``), a song file
+(``.json``, ``songs.read_song``) or a standard MIDI file (``.mid``/``.midi``, ``midi.load_midi``), each
+checked for playability (the loader's refusal names the note). The sim target carries the keyboard
+(``scene``), and ``--keys`` defaults to its simulated keys there; on the mock and real targets the default is
+the fingertips' kinematics, or ``--keys midi:PORT`` reads a MIDI keyboard. ``bar-deploy eval`` plays every
+held-out song on the sim target and reports precision, recall and F1 per song (``evaluate.py``).
+No jax, no torch.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from bar_policy.tasks.interfaces import DeployTask, EvalReport, OptionError
+from bar_policy.tasks.piano.keyboard import compact_config
+from bar_policy.tasks.piano.keys import KEY_SOURCES, KeySource, KinematicKeys, MidiKeys
+from bar_policy.tasks.piano.scene import keyboard_scene
+from bar_policy.tasks.piano.song_library import HELDOUT, SONG_NAMES, library_song
+from bar_policy.tasks.piano.songs import Song, SongError, read_song
+from bar_policy.tasks.piano.source import SongCommands
+
+if TYPE_CHECKING:
+    from bar_policy.deploy.policy import OnnxPolicy
+    from bar_policy.robot.kinematics import Kinematics
+    from bar_policy.robot.scene import SceneEdit
+
+__all__ = ["TASK", "PianoTask", "resolve_song"]
+
+
+def resolve_song(spec: str) -> Song:
+    """A library song by name, or a song file (``.json``) / MIDI file (``.mid``, ``.midi``), checked.
+
+    Raises ``OptionError`` naming the valid choices, or the loader's ``SongError`` naming the bad note.
+    """
+    kb = compact_config()
+    if spec in SONG_NAMES:
+        return library_song(spec)
+    path = Path(spec)
+    suffix = path.suffix.lower()
+    if suffix not in (".json", ".mid", ".midi"):
+        raise OptionError(
+            f"--song {spec!r} is neither a library song ({', '.join(SONG_NAMES)}) nor a .json / .mid file"
+        )
+    if not path.is_file():
+        raise OptionError(f"--song: file {spec!r} does not exist")
+    try:
+        if suffix == ".json":
+            return read_song(path, kb)
+        from bar_policy.tasks.piano.midi import load_midi
+
+        return load_midi(path, kb)
+    except SongError as e:
+        raise OptionError(f"--song {spec}: {e}") from None
+
+
+def key_source(spec: str | None, target: str, kinematics: Kinematics) -> KeySource | None:
+    """The ``--keys`` source: None for ``sim`` (the runtime attaches the sim target's keys)."""
+    kb = compact_config()
+    spec = spec or ("sim" if target == "sim" else "kinematic")
+    if spec == "sim":
+        if target != "sim":
+            raise OptionError(f"--keys sim needs --target sim (the {target} target has no simulated keys)")
+        return None
+    if spec == "kinematic":
+        return KinematicKeys(kb, kinematics.fingertips)
+    kind, _, port = spec.partition(":")
+    if kind == "midi":
+        try:
+            return MidiKeys(kb, port or None)
+        except ValueError as e:
+            raise OptionError(f"--keys {spec}: {e}") from None
+    raise OptionError(f"unknown --keys {spec!r}; valid: {', '.join(KEY_SOURCES)}")
+
+
+class PianoTask(DeployTask):
+    """``piano``: ``--song NAME|PATH``, ``--keys``; eval: F1 per held-out song on the sim target."""
+
+    name = "piano"
+    summary = "play the keyboard"
+    usage = "give --song NAME|PATH (a library song, a song .json or a .mid file)"
+    run_options = (("--song", "song"), ("--keys", "keys"))
+    eval_options = (("--songs", "songs"),)
+    default_duration = None
+
+    def add_run_arguments(self, parser: argparse.ArgumentParser) -> None:
+        """``--song`` and ``--keys``."""
+        g = parser.add_argument_group("piano policies (songs)")
+        songs = ", ".join(SONG_NAMES)
+        g.add_argument("--song", metavar="NAME|PATH", help=f"song to play: {songs}, or a .json song file "
+                       "or a .mid file (default: the first held-out song)")  # fmt: skip
+        g.add_argument("--keys", metavar="SOURCE", help="where key_pressed comes from: sim (the sim target's "
+                       "keys, its default), midi[:PORT] (a MIDI keyboard), kinematic (the fingertips; the "
+                       "mock and real targets' default)")  # fmt: skip
+
+    def add_eval_arguments(self, parser: argparse.ArgumentParser) -> None:
+        """``--songs``."""
+        g = parser.add_argument_group("piano policies (key-press F1)")
+        g.add_argument("--songs", metavar="NAME[,NAME...]", help=f"songs to play (default the held-out "
+                       f"ones: {', '.join(HELDOUT)})")  # fmt: skip
+
+    def scene(self, policy: OnnxPolicy) -> SceneEdit | None:
+        """The keyboard the policy was trained at (``compact_config()``)."""
+        return keyboard_scene(compact_config())
+
+    def command_source(
+        self, policy: OnnxPolicy, args: argparse.Namespace, kinematics: Kinematics | None = None
+    ) -> SongCommands:
+        """The song ``--song`` names, with the ``--keys`` source."""
+        from bar_policy.robot.kinematics import Kinematics
+
+        kin = kinematics or Kinematics(policy.robot.mode)
+        song = resolve_song(getattr(args, "song", None) or HELDOUT[0])
+        keys = key_source(getattr(args, "keys", None), getattr(args, "target", "sim"), kin)
+        return SongCommands(song, compact_config(), policy.policy_dt, keys)
+
+    def evaluate(self, policy: OnnxPolicy, args: argparse.Namespace) -> EvalReport:
+        """Key-press precision, recall and F1 per song on the C MuJoCo sim target (``evaluate.py``)."""
+        from bar_policy.tasks.piano.evaluate import evaluate
+
+        names = getattr(args, "songs", None)
+        songs = [resolve_song(s) for s in names.split(",")] if names else [library_song(n) for n in HELDOUT]
+        return evaluate(policy, songs)
+
+
+TASK = PianoTask()
+"""The ``piano`` deploy task."""

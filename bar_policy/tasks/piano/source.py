@@ -1,0 +1,141 @@
+"""The piano's command source on the robot: the song's goal keys, the progress, and the keys down.
+
+``SongCommands`` feeds the three piano terms each control tick, as the env builds them (``env.py``):
+
+- ``target_keys``: rows ``s .. s + TARGET_FRAMES - 1`` of the song's goal keys (``bank.song_bank``, the env's
+  rounding of note times to steps), ``s`` the control step since POLICY began (0 before it);
+- ``progress``: ``s / max(EPISODE_STEPS, song steps)``: the env's ``step / 500`` for a song of up to 10 s
+  (a longer song runs to 1 at its end instead of beyond it);
+- ``key_pressed``: the key source's reading (``keys.py``: the simulated keys, a MIDI keyboard, or the
+  fingertips' kinematics), named in the log.
+
+The run finishes ``END_HOLD_S`` after the song's last note. The log records the goal keys of the step, the
+keys down and the step, so a run can be drawn as a piano roll and scored (``step_counts``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from bar_policy.tasks.interfaces import CommandSource
+from bar_policy.tasks.piano.bank import song_bank
+from bar_policy.tasks.piano.keyboard import KeyboardConfig
+from bar_policy.tasks.piano.keys import KeySource, SimKeys
+from bar_policy.tasks.piano.songs import Song
+from bar_policy.tasks.piano.terms import PIANO_KEYS, TARGET_FRAMES
+
+__all__ = ["END_HOLD_S", "EPISODE_STEPS", "SongCommands"]
+
+EPISODE_STEPS = 500
+"""The env's episode, control steps (``PianoEnvConfig.episode_length_s`` 10 s at 50 Hz): progress's scale."""
+END_HOLD_S = 0.5
+"""The run goes on this long after the song's last note ends, s (the last key is released)."""
+
+
+class SongCommands(CommandSource):
+    """A song's goal keys and progress, and a key source's keys down (see the module docstring)."""
+
+    task = "piano"
+    names = ("target_keys", "progress", "key_pressed")
+
+    def __init__(self, song: Song, keyboard: KeyboardConfig, dt: float, keys: KeySource | None) -> None:
+        """Play ``song`` on ``keyboard`` at control period ``dt`` s, reading keys from ``keys``.
+
+        ``keys`` None: the simulated keys of the target the runtime attaches (``attach``; the sim target
+        in the keyboard's scene). Raises ``ValueError`` for a keyboard of another size than the layout's.
+        """
+        if keyboard.n_keys != PIANO_KEYS:
+            raise ValueError(f"the piano layout has {PIANO_KEYS} keys; the keyboard has {keyboard.n_keys}")
+        self.song = song
+        self.keyboard = keyboard
+        self.dt = dt
+        last = max((n.end_s for n in song.notes), default=0.0)
+        self.song_steps = round(last / dt)
+        bank = song_bank([song], keyboard, dt, self.song_steps, TARGET_FRAMES - 1)
+        self.down = bank.down[0]
+        """Goal keys, 0/1 float32, shape (song steps + TARGET_FRAMES, n_keys)."""
+        self.scale = max(EPISODE_STEPS, self.song_steps)
+        self.keys = keys
+        self._t0: float | None = None
+        self._step = 0
+        self._pressed = np.zeros(PIANO_KEYS, bool)
+        self._q: np.ndarray | None = None
+
+    # -- the robot's side --------------------------------------------------------------------------
+    def attach(self, target: Any) -> None:
+        """With no key source given: the target's simulated keys (a sim target in the keyboard's scene)."""
+        if self.keys is None:
+            model, data = getattr(target, "model", None), getattr(target, "data", None)
+            if model is None or data is None:
+                raise ValueError(
+                    f"{type(target).__name__} has no simulated keys: give a key source (--keys "
+                    "midi[:PORT] or --keys kinematic)"
+                )
+            self.keys = SimKeys(self.keyboard, model, data)
+
+    def observe(self, q: np.ndarray, dq: np.ndarray) -> None:
+        """Keep the measured q for a kinematic key source."""
+        self._q = np.asarray(q)
+
+    def begin(self, t: float) -> None:
+        """The song's step 0 is POLICY's first tick."""
+        self._t0 = t
+
+    # -- each tick ---------------------------------------------------------------------------------
+    def step_at(self, t: float) -> int:
+        """Control steps since POLICY began (0 before it)."""
+        return 0 if self._t0 is None else max(round((t - self._t0) / self.dt), 0)
+
+    def __call__(self, t: float) -> dict[str, np.ndarray]:
+        """The three piano terms at run time ``t`` (float32 arrays of the layout's sizes)."""
+        s = min(self.step_at(t), self.song_steps)
+        self._step = s
+        assert self.keys is not None, "attach() gives the sim target's keys before the first tick"
+        self._pressed = np.asarray(self.keys.read(self._q), bool)
+        return {
+            "target_keys": self.down[s : s + TARGET_FRAMES].reshape(-1).astype(np.float32),
+            "progress": np.array([s / self.scale], np.float32),
+            "key_pressed": self._pressed.astype(np.float32),
+        }
+
+    def goal_now(self) -> np.ndarray:
+        """The goal keys of the last call's step, bool (n_keys,)."""
+        return self.down[self._step] > 0.5
+
+    def finished(self, t: float) -> str | None:
+        """``END_HOLD_S`` after the song's last note."""
+        if self._t0 is not None and t - self._t0 >= self.song_steps * self.dt + END_HOLD_S - 1e-9:
+            return f"song {self.song.name!r} finished"
+        return None
+
+    # -- logging -----------------------------------------------------------------------------------
+    @property
+    def log_fields(self) -> dict[str, tuple[tuple[int, ...], type]]:
+        """The song step, its goal keys and the keys down (the piano roll)."""
+        return {
+            "song_step": ((), np.int64),
+            "goal_keys": ((PIANO_KEYS,), np.bool_),
+            "keys_down": ((PIANO_KEYS,), np.bool_),
+        }
+
+    def record(self) -> dict[str, Any]:
+        """The last call's step, goal keys and keys down."""
+        return {"song_step": self._step, "goal_keys": self.goal_now(), "keys_down": self._pressed.copy()}
+
+    def metadata(self) -> dict[str, Any]:
+        """The song, its length and the key source."""
+        keys = "sim (attached)" if self.keys is None else self.keys.describe()
+        return {**super().metadata(), "song": self.song.name, "song_steps": self.song_steps, "keys": keys}
+
+    def describe(self) -> str:
+        """One line for logs."""
+        keys = "the sim's keys" if self.keys is None else self.keys.describe()
+        length = self.song_steps * self.dt
+        return f"song {self.song.name!r} ({len(self.song.notes)} notes, {length:g} s), keys {keys}"
+
+    def close(self) -> None:
+        """Close the key source."""
+        if self.keys is not None:
+            self.keys.close()

@@ -1,0 +1,161 @@
+"""The piano on the robot: the key sources (MIDI fed in memory, kinematics, the sim's keys), the song source's
+terms worked out by hand, and ``--song`` on the mock and sim targets with a policy file made here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import sys
+from pathlib import Path
+
+import mido
+import mujoco
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parents[1] / "deploy"))
+from policy_factory import default_metadata, make_policy_file
+
+from bar_policy.deploy.cli import main
+from bar_policy.deploy.log import load_log
+from bar_policy.robot.scene import load_model
+from bar_policy.tasks.interfaces import OptionError
+from bar_policy.tasks.piano.deploy import key_source, resolve_song
+from bar_policy.tasks.piano.keyboard import compact_config, key_table, press_thresholds
+from bar_policy.tasks.piano.keys import KinematicKeys, MidiKeys, SimKeys
+from bar_policy.tasks.piano.scene import keyboard_scene
+from bar_policy.tasks.piano.songs import Note, Song, write_song
+from bar_policy.tasks.piano.source import END_HOLD_S, SongCommands
+from bar_policy.tasks.piano.terms import PIANO_KEYS, TARGET_FRAMES
+
+KB = compact_config()
+KEYS = key_table(KB)
+
+
+def test_midi_keys_from_messages_in_memory(caplog) -> None:
+    keys = MidiKeys(KB)
+    c4, e4 = 60 - KB.lowest, 64 - KB.lowest
+    keys.feed([mido.Message("note_on", note=60, velocity=64), mido.Message("note_on", note=64, velocity=10)])
+    down = keys.read(None)
+    assert down.shape == (PIANO_KEYS,) and set(np.flatnonzero(down)) == {c4, e4}
+    # velocity 0 is a release (running status), as is note_off; a control change changes nothing.
+    keys.feed(
+        [mido.Message("note_on", note=60, velocity=0), mido.Message("control_change", control=64, value=127)]
+    )
+    assert set(np.flatnonzero(keys.read(None))) == {e4}
+    keys.feed([mido.Message("note_off", note=64)])
+    assert not keys.read(None).any() and keys.messages == 4
+    # Off the keyboard (C2..C6): counted and logged once, the keys down unchanged.
+    with caplog.at_level(logging.WARNING, logger="bar_policy.tasks.piano.keys"):
+        keys.feed(
+            [mido.Message("note_on", note=21, velocity=80), mido.Message("note_on", note=100, velocity=80)]
+        )
+        assert not keys.read(None).any()
+    assert keys.off_keyboard == 2
+    assert sum("off the keyboard" in r.getMessage() for r in caplog.records) == 1
+    assert keys.describe() == "midi(in memory)"
+
+
+def test_kinematic_keys_by_hand() -> None:
+    white = next(k for k in KEYS if k.midi == 60)  # C4
+    black = next(k for k in KEYS if k.midi == 61)  # C#4
+    r = KB.fingertip_radius
+    press_z = KB.top_z - KB.press_fraction * KB.travel  # the threshold's depth under the white key top
+    tip = {"p": np.zeros(3)}
+    keys = KinematicKeys(KB, lambda q: (tip["p"], np.array([0.0, -1.0, 1.0])))  # right hand far away
+    x_front = white.front_x + 0.01  # 1 cm behind C4's front edge: in front of the black keys
+    tip["p"] = np.array([x_front, white.y, press_z + r - 0.001])  # sphere bottom 1 mm past the threshold
+    assert list(np.flatnonzero(keys.read(np.zeros(14)))) == [white.index]
+    tip["p"] = np.array([x_front, white.y, press_z + r + 0.001])  # 1 mm short of it
+    assert not keys.read(np.zeros(14)).any()
+    # Over C#4's footprint (between C4 and D4, behind the black key's front edge): the black key.
+    tip["p"] = np.array([black.front_x + 0.02, black.y, black.top_z - KB.press_fraction * KB.travel])
+    assert list(np.flatnonzero(keys.read(np.zeros(14)))) == [black.index]
+    assert not keys.read(None).any()  # no measured q yet: nothing down
+
+
+def test_sim_keys_read_the_scene() -> None:
+    model = load_model("arms", keyboard_scene(KB))
+    data = mujoco.MjData(model)
+    keys = SimKeys(KB, model, data)
+    thr = press_thresholds(KB)
+    k = 60 - KB.lowest
+    data.qpos[model.jnt_qposadr[model.joint("piano_key60").id]] = thr[k] * 1.01
+    assert list(np.flatnonzero(keys.read(None))) == [k]
+    data.qpos[model.jnt_qposadr[model.joint("piano_key60").id]] = thr[k] * 0.99
+    assert not keys.read(None).any()
+    with pytest.raises(ValueError, match="no piano key joint"):
+        SimKeys(KB, load_model("arms"), mujoco.MjData(load_model("arms")))
+
+
+def test_song_source_terms_by_hand() -> None:
+    # C4 from 0.10 to 0.30 s at dt 0.02: steps 5..14; the song is 15 steps long.
+    song = Song("one", (Note(60, 0.10, 0.30, "right"),))
+    keys = MidiKeys(KB)
+    src = SongCommands(song, KB, 0.02, keys)
+    assert src.song_steps == 15 and src.scale == 500
+    c4 = 60 - KB.lowest
+    before = src(0.0)  # before POLICY: step 0
+    assert before["progress"][0] == 0.0
+    src.begin(1.0)
+    out = src(1.0 + 3 * 0.02)  # step 3: frames 3..13, C4 down in frames 5..13 (window rows 2..10)
+    tk = out["target_keys"].reshape(TARGET_FRAMES, PIANO_KEYS)
+    np.testing.assert_array_equal(np.flatnonzero(tk[:, c4]), np.arange(2, 11))
+    assert tk.sum() == 9 and out["progress"][0] == pytest.approx(3 / 500)
+    keys.feed([mido.Message("note_on", note=60, velocity=50)])
+    out = src(1.0 + 6 * 0.02)
+    assert out["key_pressed"][c4] == 1.0 and out["key_pressed"].sum() == 1.0
+    assert src.goal_now()[c4] and src.record()["song_step"] == 6
+    assert src.finished(1.0 + 15 * 0.02 + END_HOLD_S - 0.02) is None
+    assert src.finished(1.0 + 15 * 0.02 + END_HOLD_S) == "song 'one' finished"
+    with pytest.raises(ValueError, match="has no simulated keys"):
+        SongCommands(song, KB, 0.02, None).attach(object())
+
+
+def test_song_and_key_options(tmp_path) -> None:
+    assert resolve_song("ode_to_joy").name == "ode_to_joy"
+    path = tmp_path / "s.json"
+    write_song(path, Song("mine", (Note(60, 0.0, 0.5, "right"),)))
+    assert resolve_song(str(path)).notes[0].key == 60
+    with pytest.raises(OptionError, match="neither a library song"):
+        resolve_song("nocturne")
+    off = tmp_path / "off.json"
+    write_song(off, Song("off", (Note(100, 0.0, 0.5, "right"),)))
+    with pytest.raises(OptionError, match="off the keyboard"):
+        resolve_song(str(off))
+    with pytest.raises(OptionError, match="--keys sim needs --target sim"):
+        key_source("sim", "mock", None)  # type: ignore[arg-type]
+    with pytest.raises(OptionError, match=r"unknown --keys 'usb'; valid: sim, midi, midi:PORT, kinematic"):
+        key_source("usb", "sim", None)  # type: ignore[arg-type]
+
+
+@pytest.fixture(scope="module")
+def piano_policy(tmp_path_factory) -> Path:
+    meta = dataclasses.replace(default_metadata(task="piano"), action_filter_hz=3.0)
+    return make_policy_file(tmp_path_factory.mktemp("piano") / "piano.onnx", metadata=meta)
+
+
+@pytest.mark.parametrize("target", ["mock", "sim"])
+def test_song_on_the_mock_and_sim_targets(piano_policy, tmp_path, target) -> None:
+    rc = main(["--policy", str(piano_policy), "--target", target, "--song", "twinkle_twinkle",
+               "--duration", "1.5", "--ramp-time", "0.5", "--log", str(tmp_path)])  # fmt: skip
+    assert rc == 0
+    (run,) = tmp_path.iterdir()
+    log, meta = load_log(run)
+    assert meta["command_source"]["keys"] == ("kinematic" if target == "mock" else "sim")
+    steps = np.asarray(log["song_step"])
+    goal = np.asarray(log["goal_keys"])
+    # The zero policy holds the default pose. On the sim target the run starts at the exact pose, which
+    # sags 19.7 mm under gravity: the first drop overshoots onto C3 and C5 for a few ticks, then the
+    # fingertips settle ~5 mm above the keys (tests/tasks/test_piano_keyboard.py): nothing is down in the
+    # last second. The mock target's kinematic keys see the commanded pose, never below the keys.
+    down = np.asarray(log["keys_down"])
+    assert not down[-50:].any()
+    if target == "mock":
+        assert not down.any()
+    else:
+        assert set(np.flatnonzero(down.any(axis=0)) + KB.lowest) <= {48, 72}
+    # The log's goal rows are the song's (twinkle: C4 first, from POLICY's first tick, song step 0).
+    first = int(np.argmax(steps > 0)) - 1
+    assert goal[first, 60 - KB.lowest]
