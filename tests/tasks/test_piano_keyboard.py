@@ -135,6 +135,7 @@ def test_the_held_pose_presses_nothing():
     ~5 mm above C3 and C5 (the sag is what the placement allows for) and no key goes down."""
     from bar_policy.deploy.targets.sim import SimConfig, SimTarget
     from bar_policy.robot.mit import MitCommand
+    from bar_policy.tasks.piano.held import held_pose
 
     sim = SimTarget("arms", SimConfig(), scene=keyboard_scene(CFG))
     q0 = ROBOT.pose("piano_ready")
@@ -146,6 +147,9 @@ def test_the_held_pose_presses_nothing():
         gap = sim.data.site(site).xpos[2] - 0.006 - _key(midi).top_z
         assert gap == pytest.approx(0.005, abs=0.0015), site
     assert not pressed(sim.data.sensordata[: CFG.n_keys], CFG).any()
+    # held_pose solves the same balance statically: within the 2 mrad of play that joint friction
+    # (0.1 N m / Kp 50) leaves around it.
+    np.testing.assert_allclose(sim.read_state().q, held_pose(q0), atol=2e-3)
 
 
 def _settle(model, midi: int, force: float, seconds: float = 1.0) -> float:

@@ -17,6 +17,9 @@ and the initial-state noise are the robot env's (``bar_policy.envs.robot``); the
   down after the step. Rewards are the named terms of ``rewards`` weighted by ``RewardScales``; metrics
   count true positives, false positives and false negatives of that comparison (``metrics``), so the
   evaluation's precision, recall and F1 are RoboPianist's episode-level sums.
+- **Initial state**: the default pose as the robot holds it (``held.held_pose``: sagged under gravity at
+  Kp, where the keyboard is placed) plus the robot env's noise, at rest; so no episode starts with the hands
+  falling onto the keys.
 - **Episodes**: the env ends an episode only when the physics turns non-finite; the wrappers truncate at
   ``episode_length_s``.
 """
@@ -39,6 +42,7 @@ from bar_policy.robot.constants import FINGERTIP_SITES
 from bar_policy.tasks.piano import metrics as piano_metrics
 from bar_policy.tasks.piano import rewards
 from bar_policy.tasks.piano.bank import song_bank, training_songs
+from bar_policy.tasks.piano.held import held_pose
 from bar_policy.tasks.piano.keyboard import KeyboardConfig, compact_config, key_table, press_thresholds
 from bar_policy.tasks.piano.scene import keyboard_scene
 from bar_policy.tasks.piano.song_library import TRAIN
@@ -149,6 +153,7 @@ class LitePiano(LiteRobotEnv):
         songs = training_songs(kb, cfg.songs, cfg.episode_length_s, cfg.tempo_bpm, cfg.song_seed, cfg.library)
         self.bank = song_bank(songs, kb, cfg.ctrl_dt, self.episode_length, TARGET_FRAMES - 1)
         self._down = jnp.asarray(self.bank.down)
+        self._held = jnp.asarray(held_pose(np.asarray(self._default), cfg.mode), jnp.float32)
 
     @property
     def metric_keys(self) -> tuple[str, ...]:
@@ -173,9 +178,9 @@ class LitePiano(LiteRobotEnv):
         return data.qpos[self._key_qpos]
 
     def task_reset(self, model: mjx.Model, key: jax.Array) -> tuple[dict, jax.Array, jax.Array]:
-        """A song from the bank, played from its start; the robot at the default pose, at rest."""
+        """A song from the bank, played from its start; the robot at rest in the held default pose."""
         song = jax.random.randint(key, (), 0, self._down.shape[0])
-        return {"song": song}, jnp.asarray(self._default), jnp.zeros(self.action_size)
+        return {"song": song}, self._held, jnp.zeros(self.action_size)
 
     def task_step(self, tr: Transition) -> TaskStep:
         """Key rewards against the goal row of this step, the robot's costs, and the key counts."""

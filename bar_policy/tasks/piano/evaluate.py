@@ -1,13 +1,14 @@
 """``bar-deploy eval`` for piano policies: each song on the C MuJoCo sim target, scored as RoboPianist does.
 
-Each song runs from the default pose with the policy from the first tick (no ramp), through the deploy
-code path (``Runtime``, the safety supervisor, the firmware MIT law in the sim), in the keyboard's scene
-with the simulated keys. At every policy tick the goal keys of the song's step are compared with the keys
-down (``SongCommands.goal_now``, ``keys_down``): true positives, false positives and false negatives are
-summed over the song (ticks before the first and after the last note included, as the env counts every
-step), giving precision ``tp / (tp + fp)``, recall ``tp / (tp + fn)`` and F1 ``2 tp / (2 tp + fp + fn)``.
-The ship gate reads the F1 over every song (``success_pct`` = 100 x F1) and the songs' safety and
-smoothness (chatter on q_cmd itself: the piano has no joint reference).
+Each song runs from the held default pose (``held.held_pose``, as the env starts), with the policy from
+the first tick (no ramp), through the deploy code path (``Runtime``, the safety supervisor, the firmware
+MIT law in the sim), in the keyboard's scene with the simulated keys. At every policy tick the goal keys of
+the song's step are compared with the keys down (``SongCommands.goal_now``, ``keys_down``): true
+positives, false positives and false negatives are summed over the song (ticks before the first and after
+the last note included, as the env counts every step), giving precision ``tp / (tp + fp)``, recall
+``tp / (tp + fn)`` and F1 ``2 tp / (2 tp + fp + fn)``. The ship gate reads the F1 over every song
+(``success_pct`` = 100 x F1) and the songs' safety and smoothness (chatter on q_cmd itself: the piano has
+no joint reference).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from bar_policy.deploy.safety_config import Mode
 from bar_policy.deploy.targets.sim import SimConfig, SimTarget, training_damping
 from bar_policy.quality.report import EpisodeQuality, quality_summary_line, summarise
 from bar_policy.tasks.interfaces import EvalReport
+from bar_policy.tasks.piano.held import held_pose
 from bar_policy.tasks.piano.keyboard import compact_config
 from bar_policy.tasks.piano.scene import keyboard_scene
 from bar_policy.tasks.piano.songs import Song
@@ -120,7 +122,7 @@ def evaluate(policy: OnnxPolicy, songs: list[Song], target: SimTarget | None = N
     kb = compact_config()
     damping = training_damping(policy.metadata.randomization)
     sim = target or SimTarget(policy.robot.mode, SimConfig(damping=damping), scene=keyboard_scene(kb))
-    q0 = policy.robot.pose("piano_ready")
+    q0 = held_pose(policy.robot.pose("piano_ready"), policy.robot.mode)  # as the env starts
     results = []
     for song in songs:
         sim.reset(q0)

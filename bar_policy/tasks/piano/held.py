@@ -1,0 +1,41 @@
+"""The pose the robot holds when it is told to hold ``piano_ready``: the arms sag under gravity at Kp.
+
+With the MIT law and no feed-forward torque, a joint commanded to ``q0`` at rest settles where its spring
+carries the gravity torque: ``Kp (q0 - q) = g(q)`` (``g``: MuJoCo's ``qfrc_bias`` at zero velocity). At the
+Lite's Kp of 50 N m/rad the fingertips end 19.7 mm below the exact pose (docs/piano.md): the keyboard is
+placed for this pose, the piano env starts its episodes in it and the sim evaluation starts its songs in
+it, so no episode begins with the hands falling onto the keys. Friction (0.1 N m) leaves up to 2 mrad of
+play around it, which a fixed-point solve does not model.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from bar_policy.robot.constants import load_robot
+from bar_policy.robot.index import RobotIndex
+from bar_policy.robot.scene import load_model
+
+__all__ = ["held_pose"]
+
+
+def held_pose(q0: np.ndarray, mode: str = "arms", iterations: int = 50) -> np.ndarray:
+    """Joint positions (rad, canonical order, shape (n,)) where the robot's springs at ``q0`` hold gravity.
+
+    Fixed-point iteration ``q <- q0 - g(q) / Kp`` on the robot-alone model (a contraction: the gravity
+    torque's slope is well below Kp for these arms); joint limits clip the result.
+    """
+    robot = load_robot(mode)
+    model = load_model(mode)
+    data = mujoco.MjData(model)
+    idx = RobotIndex.from_model(model, robot.joint_names)
+    kp = np.asarray(robot.kp, np.float64)
+    q0 = np.asarray(q0, np.float64)
+    q = q0.copy()
+    for _ in range(iterations):
+        data.qpos[idx.qpos] = q
+        data.qvel[:] = 0.0
+        mujoco.mj_forward(model, data)
+        q = np.clip(q0 - data.qfrc_bias[idx.dof] / kp, robot.lower, robot.upper)
+    return q
