@@ -158,4 +158,10 @@ def plot_log(path: str | Path, out_dir: str | Path | None = None) -> list[Path]:
     axes[1].legend(fontsize=7)
     mode_axis(axes[2])
     written.append(_save(fig, out / "timing.png", f"timing - {title}"))
+    task_name = meta.get("deploy_task")
+    if isinstance(task_name, str):  # the task's own plots (the piano roll)
+        from bar_policy.deploy.tasks import TASKS, get_task
+
+        if task_name in TASKS:
+            written.extend(get_task(task_name).plot(arrays, meta, out))
     return written

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import abc
 import argparse
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
@@ -174,6 +175,10 @@ class DeployTask(abc.ABC):
         Raises:
             OptionError: a malformed option (the message names it and the valid choices).
         """
+
+    def plot(self, arrays: dict[str, np.ndarray], meta: dict[str, Any], out: Path) -> list[Path]:
+        """The task's own PNGs of a run log (``bar-deploy plot``) written under ``out``; default none."""
+        return []
 
     def evaluate(self, policy: OnnxPolicy, args: argparse.Namespace) -> EvalReport:
         """Sim2sim evaluation with this task's metric (C MuJoCo sim target)."""

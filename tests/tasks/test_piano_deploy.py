@@ -159,3 +159,7 @@ def test_song_on_the_mock_and_sim_targets(piano_policy, tmp_path, target) -> Non
     # The log's goal rows are the song's (twinkle: C4 first, from POLICY's first tick, song step 0).
     first = int(np.argmax(steps > 0)) - 1
     assert goal[first, 60 - KB.lowest]
+    # bar-deploy plot draws the piano roll from those two arrays.
+    from bar_policy.deploy.plot import plot_log
+
+    assert "piano_roll.png" in {p.name for p in plot_log(run)}

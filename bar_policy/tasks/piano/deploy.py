@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from bar_policy.tasks.interfaces import DeployTask, EvalReport, OptionError
 from bar_policy.tasks.piano.keyboard import compact_config
@@ -116,6 +118,12 @@ class PianoTask(DeployTask):
         song = resolve_song(getattr(args, "song", None) or HELDOUT[0])
         keys = key_source(getattr(args, "keys", None), getattr(args, "target", "sim"), kin)
         return SongCommands(song, compact_config(), policy.policy_dt, keys)
+
+    def plot(self, arrays: dict[str, np.ndarray], meta: dict[str, Any], out: Path) -> list[Path]:
+        """The piano roll (``plot.piano_roll``)."""
+        from bar_policy.tasks.piano.plot import piano_roll
+
+        return piano_roll(arrays, meta, out)
 
     def evaluate(self, policy: OnnxPolicy, args: argparse.Namespace) -> EvalReport:
         """Key-press precision, recall and F1 per song on the C MuJoCo sim target (``evaluate.py``)."""
