@@ -4,10 +4,11 @@ Two families of keys are written:
 
 - ``bar.*`` keys, JSON-valued: everything ``bar-deploy`` checks before it runs a policy (observation schema
   and fingerprint, joint order, gains, default pose, action scale and semantics, rates, training
-  randomisation ranges, code version). Optional keys (``OPTIONAL_BAR_KEYS``): ``bar.action_filter``, and
-  ``bar.provenance``: the git commit and dirty flag, the library versions and the training command
-  (``bar_policy.provenance``), which informs and is never checked (older files load without it, a
-  malformed one with the problem in its place, ``provenance.read_record``).
+  randomisation ranges, code version). Optional keys (``OPTIONAL_BAR_KEYS``): ``bar.action_filter``,
+  ``bar.command_transition`` (``metadata_fields`` parses them), and ``bar.provenance``: the git commit
+  and dirty flag, the library versions and the training command (``bar_policy.provenance``), which
+  informs and is never checked (older files load without it, a malformed one with the problem in its
+  place, ``provenance.read_record``).
 - The 13 keys that Berkeley Humanoids' Humanoid Control runner requires (task_type, joint_names, ...), in
   the comma-separated form that mjlab's exporter writes, so our files also load there.
 
@@ -34,7 +35,18 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from bar_policy._files import InputError, loads_json, shorten
+from bar_policy._files import loads_json, shorten
+from bar_policy.deploy.metadata_fields import (
+    MetadataError,
+    action_filter_key,
+    check_agreement,
+    command_transition_key,
+    csv_float,
+    csv_floats,
+    csv_names,
+    int_prop,
+    provenance_key,
+)
 
 __all__ = [
     "ACTION_SEMANTICS",
@@ -76,20 +88,6 @@ checked."""
 
 DIALECTS = ("bar", "hc")
 """Metadata dialects: ``bar`` (``bar.*`` keys plus the HC keys, checked to agree), ``hc`` (HC keys only)."""
-
-_HC_REL_TOL = 1e-5
-"""Relative tolerance between a ``bar.*`` number and its HC copy (written with ``%.6g``)."""
-_HC_ABS_TOL = 1e-6
-"""Absolute tolerance for the same comparison (values near 0)."""
-
-
-class MetadataError(InputError):
-    """A policy file's metadata is missing, malformed or inconsistent (any malformed value raises this).
-
-    Every ``bar.*`` value is parsed by ``_files.loads_json``: invalid JSON and nesting deeper than
-    ``_files.MAX_JSON_DEPTH`` are refused, and values echoed in a message are cut to ``_files.ECHO_LIMIT``
-    characters.
-    """
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -265,7 +263,7 @@ class PolicyMetadata:
                 "(train/ppo.py writes every key)"
             )
         meta = cls._from_bar(props)
-        _check_agreement(meta, props)
+        check_agreement(meta, props)
         return meta
 
     @classmethod
@@ -333,12 +331,12 @@ class PolicyMetadata:
             randomization=obj("bar.randomization"),
             code_version=str(parsed["bar.code_version"]),
             training=obj("bar.training"),
-            body_names=_csv_names(props, "body_names"),
-            lookahead_steps=_int_prop(props, "lookahead_steps"),
+            body_names=csv_names(props, "body_names"),
+            lookahead_steps=int_prop(props, "lookahead_steps"),
             dataset_repo_id=props["dataset_repo_id"],
-            action_filter_hz=_action_filter(props),
-            command_transition_s=_command_transition(props),
-            provenance=_provenance(props.get("bar.provenance")),
+            action_filter_hz=action_filter_key(props),
+            command_transition_s=command_transition_key(props),
+            provenance=provenance_key(props.get("bar.provenance")),
         )
 
     @classmethod
@@ -351,7 +349,7 @@ class PolicyMetadata:
                 f"needs all 13 HC keys {list(HC_KEYS)} (as mjlab writes them), or the bar.* keys as well "
                 "(export with bar_policy)"
             )
-        joints = _csv_names(props, "joint_names")
+        joints = csv_names(props, "joint_names")
         if not joints:
             raise MetadataError("metadata key 'joint_names' is empty")
         return cls(
@@ -359,170 +357,20 @@ class PolicyMetadata:
             robot="",
             mode="",
             joint_names=joints,
-            action_joint_names=_csv_names(props, "action_joint_names"),
-            joint_stiffness=_csv_floats(props, "joint_stiffness"),
-            joint_damping=_csv_floats(props, "joint_damping"),
-            default_joint_pos=_csv_floats(props, "default_joint_pos"),
-            action_scale=_csv_floats(props, "action_scale"),
+            action_joint_names=csv_names(props, "action_joint_names"),
+            joint_stiffness=csv_floats(props, "joint_stiffness"),
+            joint_damping=csv_floats(props, "joint_damping"),
+            default_joint_pos=csv_floats(props, "default_joint_pos"),
+            action_scale=csv_floats(props, "action_scale"),
             action_semantics="delta_from_default",
-            policy_dt=_csv_float(props, "policy_dt"),
+            policy_dt=csv_float(props, "policy_dt"),
             physics_dt=None,
             obs_schema="",
             obs_fingerprint="",
-            command_names=_csv_names(props, "command_names"),
-            body_names=_csv_names(props, "body_names"),
-            lookahead_steps=_int_prop(props, "lookahead_steps"),
+            command_names=csv_names(props, "command_names"),
+            body_names=csv_names(props, "body_names"),
+            lookahead_steps=int_prop(props, "lookahead_steps"),
             dataset_repo_id=props["dataset_repo_id"].strip(),
-            observation_names=_csv_names(props, "observation_names"),
+            observation_names=csv_names(props, "observation_names"),
             dialect="hc",
         )
-
-
-# ---------------------------------------------------------------------------------------------------
-# The HC (comma-separated) form
-# ---------------------------------------------------------------------------------------------------
-def _provenance(text: str | None) -> dict[str, Any]:
-    """``bar.provenance`` as ``provenance.read_record`` reads it; a malformed one never refuses the file."""
-    if text is None:
-        return {}
-    try:
-        loads_json(text, "metadata key 'bar.provenance'", MetadataError)
-    except MetadataError as e:  # informs only: the problem takes the record's place
-        return {"error": str(e)}
-    from bar_policy.provenance import read_record  # imported here: bar-deploy starts (and sees SIGINT) sooner
-
-    return read_record(text)
-
-
-def _action_filter(props: Mapping[str, str]) -> float | None:
-    """The optional ``bar.action_filter`` key: ``{"cutoff_hz": f}`` or null; absent in older files."""
-    text = props.get("bar.action_filter")
-    if text is None:
-        return None
-    v = loads_json(text, "metadata key 'bar.action_filter'", MetadataError)
-    if v is None:
-        return None
-    if not isinstance(v, dict) or set(v) != {"cutoff_hz"} or isinstance(v["cutoff_hz"], bool):
-        raise MetadataError(
-            "metadata key 'bar.action_filter' must be null or {\"cutoff_hz\": <Hz>}, got "
-            f"{shorten(repr(text))}"
-        )
-    return v["cutoff_hz"]
-
-
-def _csv_names(props: Mapping[str, str], key: str) -> tuple[str, ...]:
-    """Comma-separated names (``""`` -> ``()``); empty items between commas are refused."""
-    text = props[key].strip()
-    if not text:
-        return ()
-    items = tuple(x.strip() for x in text.split(","))
-    if any(not x for x in items):
-        raise MetadataError(
-            f"metadata key {key!r} has an empty name between commas: {shorten(repr(props[key]))}"
-        )
-    return items
-
-
-def _csv_floats(props: Mapping[str, str], key: str) -> tuple[float, ...]:
-    out = []
-    for x in _csv_names(props, key):
-        try:
-            out.append(float(x))
-        except ValueError:
-            raise MetadataError(
-                f"metadata key {key!r} must be comma-separated numbers; {shorten(repr(x))} is not"
-            ) from None
-    return tuple(out)
-
-
-def _csv_float(props: Mapping[str, str], key: str) -> float:
-    values = _csv_floats(props, key)
-    if len(values) != 1:
-        raise MetadataError(f"metadata key {key!r} must be one number, got {shorten(repr(props[key]))}")
-    return values[0]
-
-
-def _check_agreement(meta: PolicyMetadata, props: Mapping[str, str]) -> None:
-    """Refuse a file whose ``bar.*`` keys and HC keys disagree (naming both keys and the first difference)."""
-
-    def refuse(key: str, detail: str) -> MetadataError:
-        return MetadataError(
-            f"metadata keys 'bar.{key}' and {key!r} (Humanoid Control) disagree: {shorten(detail, 500)}; "
-            "Humanoid Control "
-            "and bar-deploy would run this file differently, re-export it"
-        )
-
-    def names(key: str, ours: tuple[str, ...], theirs: tuple[str, ...]) -> None:
-        if ours == theirs:
-            return
-        if len(ours) != len(theirs):
-            raise refuse(key, f"{len(ours)} names {list(ours)} vs {len(theirs)} names {list(theirs)}")
-        i = next(i for i, (a, b) in enumerate(zip(ours, theirs, strict=True)) if a != b)
-        raise refuse(key, f"index {i} is {ours[i]!r} vs {theirs[i]!r}")
-
-    def numbers(key: str, ours: tuple[float, ...], labels: tuple[str, ...]) -> None:
-        theirs = _csv_floats(props, key)
-        if len(ours) != len(theirs):
-            raise refuse(key, f"{len(ours)} values vs {len(theirs)}")
-        bad = [
-            f"{labels[i]}: {a:g} vs {b:g}"
-            for i, (a, b) in enumerate(zip(ours, theirs, strict=True))
-            if not math.isclose(a, b, rel_tol=_HC_REL_TOL, abs_tol=_HC_ABS_TOL)
-        ]
-        if bad:
-            raise refuse(key, ", ".join(bad[:4]) + (f" (and {len(bad) - 4} more)" if len(bad) > 4 else ""))
-
-    names("joint_names", meta.joint_names, _csv_names(props, "joint_names"))
-    names("action_joint_names", meta.action_joint_names, _csv_names(props, "action_joint_names"))
-    numbers("joint_stiffness", meta.joint_stiffness, meta.joint_names)
-    numbers("joint_damping", meta.joint_damping, meta.joint_names)
-    numbers("default_joint_pos", meta.default_joint_pos, meta.joint_names)
-    numbers("action_scale", meta.action_scale, meta.action_joint_names)
-    numbers("policy_dt", (meta.policy_dt,), ("policy_dt",))
-    names("command_names", meta.command_names, _csv_names(props, "command_names"))
-    schema_terms = json.loads(meta.obs_schema).get("terms", [])
-    terms = (
-        tuple(t.get("name") for t in schema_terms if isinstance(t, dict))
-        if isinstance(schema_terms, list)
-        else ()
-    )
-    theirs = _csv_names(props, "observation_names")
-    if terms != theirs:
-        raise MetadataError(
-            f"metadata keys 'bar.obs_schema' (terms {shorten(list(terms))}) and 'observation_names' "
-            f"(Humanoid Control: {shorten(list(theirs))}) disagree; Humanoid Control and bar-deploy would "
-            "build different observations, re-export it"
-        )
-
-
-def _int_prop(props: Mapping[str, str], key: str) -> int:
-    """A non-negative integer HC key (``lookahead_steps``); refuses anything else naming the key."""
-    text = props[key].strip()
-    try:
-        if not (text.isascii() and text.isdigit()):  # "¹" is a digit to isdigit, not to int
-            raise ValueError(text)
-        return int(text)
-    except ValueError:  # also more digits than int() converts
-        raise MetadataError(
-            f"metadata key {key!r} must be a non-negative integer, got {shorten(repr(props[key]))}"
-        ) from None
-
-
-def _command_transition(props: Mapping[str, str]) -> float:
-    """Optional key ``bar.command_transition``: ``{"duration_s": s, "profile": "min_jerk"}``; absent: 0."""
-    text = props.get("bar.command_transition")
-    if text is None:
-        return 0.0
-    v = loads_json(text, "metadata key 'bar.command_transition'", MetadataError)
-    if (
-        not isinstance(v, dict)
-        or set(v) != {"duration_s", "profile"}
-        or v["profile"] != "min_jerk"
-        or isinstance(v["duration_s"], bool)
-        or not isinstance(v["duration_s"], int | float)
-    ):
-        raise MetadataError(
-            'metadata key \'bar.command_transition\' must be {"duration_s": <s>, "profile": "min_jerk"} '
-            f"(the only profile), got {shorten(repr(text))}"
-        )
-    return float(v["duration_s"])
