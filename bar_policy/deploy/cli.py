@@ -39,7 +39,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from bar_policy._files import shorten
+from bar_policy.deploy.cli_tools import fail, log_command, plot_command
 from bar_policy.deploy.live import LIVE_PORT
 from bar_policy.deploy.log_files import CAN_LOG_FILE
 from bar_policy.deploy.signals import early_interrupt
@@ -60,9 +60,6 @@ from bar_policy.tasks.cli_types import seconds0 as _seconds0
 __all__ = ["main"]
 
 log = logging.getLogger("bar_policy.deploy.cli")
-
-MAX_ERROR_CHARS = 1000
-"""Longest error line printed (the file and the problem come first; longer lines end in ``... (N chars)``)."""
 
 TARGETS = ("sim", "mock", "real")
 SUBCOMMANDS = ("run", "plot", "eval", "log")
@@ -166,8 +163,7 @@ def _configure_logging(verbose: bool) -> None:
 
 
 def _fail(msg: object, status: int = 2) -> int:
-    print(f"bar-deploy: error: {shorten(_one_line(msg), MAX_ERROR_CHARS)}", file=sys.stderr)
-    return status
+    return fail(msg, status)
 
 
 def _with_action_clip(policy: object, args: argparse.Namespace) -> object:
@@ -391,48 +387,6 @@ def _after_exception(rt: object) -> int:
     return EXIT_FAULT if report is not None and report.confirmed else EXIT_STOP_UNCONFIRMED
 
 
-def _plot(argv: Sequence[str]) -> int:
-    p = _Parser(prog="bar-deploy plot", description="Write PNG plots of a run log.")
-    p.add_argument("log", type=Path, help="run directory, its log.npz or its run.mcap")
-    p.add_argument("--out", type=Path, help="output directory (default: the run directory)")
-    args = p.parse_args(argv)
-    from bar_policy.deploy.plot import plot_log
-
-    try:
-        files = plot_log(args.log, args.out)
-    except (FileNotFoundError, ValueError) as e:
-        return _fail(e)
-    except OSError as e:
-        return _fail(f"cannot write the plots: {e.strerror or e}: {e.filename or args.out}")
-    for f in files:
-        print(f)
-    return 0
-
-
-def _log(argv: Sequence[str]) -> int:
-    p = _Parser(prog="bar-deploy log", description="Tools for run logs.")
-    sub = p.add_subparsers(dest="action", required=True, metavar="ACTION", parser_class=_Parser)
-    r = sub.add_parser(
-        "recover",
-        help="rewrite a run.mcap cut by a crash as a complete, indexed MCAP",
-        description="Rewrite a run.mcap cut by a crash (SIGKILL, power loss: no summary, no footer) as a "
-        "complete, indexed MCAP with every message that can be read. The original is kept beside it as "
-        "run.mcap.cut; a complete file is left as it is.",
-    )
-    r.add_argument("run", type=Path, metavar="RUN_DIR", help="run directory, or its run.mcap")
-    args = p.parse_args(argv)
-    from bar_policy.deploy.mcap_recover import recover_mcap
-
-    try:
-        report = recover_mcap(args.run)
-    except (FileNotFoundError, ValueError) as e:  # LogReadError is a ValueError
-        return _fail(e)
-    except OSError as e:
-        return _fail(f"cannot rewrite {args.run}: {e.strerror or e}: {e.filename or args.run}")
-    print(report.line())
-    return 0
-
-
 def _eval(argv: Sequence[str]) -> int:
     p = _Parser(
         prog="bar-deploy eval",
@@ -483,11 +437,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         sub, rest = "run", args
     try:
         if sub == "plot":
-            return _plot(rest)
+            return plot_command(rest)
         if sub == "eval":
             return _eval(rest)
         if sub == "log":
-            return _log(rest)
+            return log_command(rest)
         return _run(rest)
     except KeyboardInterrupt:  # SIGINT before StopSignals (run), or during eval / plot: no traceback
         status, line = early_interrupt(sub)

@@ -20,7 +20,7 @@ import pytest
 from policy_factory import default_metadata, make_policy_file
 
 from bar_policy._files import ECHO_LIMIT, InputError, shorten
-from bar_policy.deploy import cli
+from bar_policy.deploy import cli, cli_tools
 from bar_policy.deploy.cli import main
 from bar_policy.deploy.contract import PolicyLoadError
 from bar_policy.deploy.log import RunLog, log_fields
@@ -149,7 +149,7 @@ def test_huge_metadata_value_is_truncated(tmp_path, capsys):
     assert len(msg) < 1000 and f"({len(json.dumps(huge)) + 2} chars)" in msg, msg[:300]
     assert _status(["--policy", str(path), "--log", str(tmp_path / "runs")]) == 2
     line = _one_error_line(capsys)
-    assert len(line) <= cli.MAX_ERROR_CHARS + 100 and str(path) in line
+    assert len(line) <= cli_tools.MAX_ERROR_CHARS + 100 and str(path) in line
 
 
 def test_huge_task_name_is_cut(tmp_path, capsys):
@@ -159,7 +159,7 @@ def test_huge_task_name_is_cut(tmp_path, capsys):
     assert len(str(err.value)) < 1000 and "chars)" in str(err.value)
     assert _status(["--policy", str(path), "--log", str(tmp_path / "runs")]) == 2
     line = _one_error_line(capsys)
-    assert len(line) <= cli.MAX_ERROR_CHARS + 100 and str(path) in line
+    assert len(line) <= cli_tools.MAX_ERROR_CHARS + 100 and str(path) in line
 
 
 def test_shorten():
