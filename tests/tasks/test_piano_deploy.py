@@ -5,12 +5,11 @@ terms worked out by hand, and ``--song`` on the mock and sim targets with a poli
 from __future__ import annotations
 
 import dataclasses
-import logging
+import queue
 import sys
 from pathlib import Path
 
 import mido
-import mujoco
 import numpy as np
 import pytest
 
@@ -19,42 +18,17 @@ from policy_factory import default_metadata, make_policy_file
 
 from bar_policy.deploy.cli import main
 from bar_policy.deploy.log import load_log
-from bar_policy.robot.scene import load_model
 from bar_policy.tasks.interfaces import OptionError
 from bar_policy.tasks.piano.deploy import key_source, resolve_song
-from bar_policy.tasks.piano.keyboard import compact_config, key_table, press_thresholds
-from bar_policy.tasks.piano.keys import KinematicKeys, MidiKeys, SimKeys
-from bar_policy.tasks.piano.scene import keyboard_scene
+from bar_policy.tasks.piano.key_input import MidiKeys
+from bar_policy.tasks.piano.keyboard import compact_config, key_table
+from bar_policy.tasks.piano.keys import KinematicKeys
 from bar_policy.tasks.piano.songs import Note, Song, write_song
 from bar_policy.tasks.piano.source import END_HOLD_S, SongCommands
 from bar_policy.tasks.piano.terms import PIANO_KEYS, TARGET_FRAMES
 
 KB = compact_config()
 KEYS = key_table(KB)
-
-
-def test_midi_keys_from_messages_in_memory(caplog) -> None:
-    keys = MidiKeys(KB)
-    c4, e4 = 60 - KB.lowest, 64 - KB.lowest
-    keys.feed([mido.Message("note_on", note=60, velocity=64), mido.Message("note_on", note=64, velocity=10)])
-    down = keys.read(None)
-    assert down.shape == (PIANO_KEYS,) and set(np.flatnonzero(down)) == {c4, e4}
-    # velocity 0 is a release (running status), as is note_off; a control change changes nothing.
-    keys.feed(
-        [mido.Message("note_on", note=60, velocity=0), mido.Message("control_change", control=64, value=127)]
-    )
-    assert set(np.flatnonzero(keys.read(None))) == {e4}
-    keys.feed([mido.Message("note_off", note=64)])
-    assert not keys.read(None).any() and keys.messages == 4
-    # Off the keyboard (C2..C6): counted and logged once, the keys down unchanged.
-    with caplog.at_level(logging.WARNING, logger="bar_policy.tasks.piano.keys"):
-        keys.feed(
-            [mido.Message("note_on", note=21, velocity=80), mido.Message("note_on", note=100, velocity=80)]
-        )
-        assert not keys.read(None).any()
-    assert keys.off_keyboard == 2
-    assert sum("off the keyboard" in r.getMessage() for r in caplog.records) == 1
-    assert keys.describe() == "midi(in memory)"
 
 
 def test_kinematic_keys_by_hand() -> None:
@@ -64,35 +38,23 @@ def test_kinematic_keys_by_hand() -> None:
     press_z = KB.top_z - KB.press_fraction * KB.travel  # the threshold's depth under the white key top
     tip = {"p": np.zeros(3)}
     keys = KinematicKeys(KB, lambda q: (tip["p"], np.array([0.0, -1.0, 1.0])))  # right hand far away
+    assert not keys.read(0.0).any()  # no measured q yet: nothing down
+    keys.observe(np.zeros(14))
     x_front = white.front_x + 0.01  # 1 cm behind C4's front edge: in front of the black keys
     tip["p"] = np.array([x_front, white.y, press_z + r - 0.001])  # sphere bottom 1 mm past the threshold
-    assert list(np.flatnonzero(keys.read(np.zeros(14)))) == [white.index]
+    assert list(np.flatnonzero(keys.read(0.0))) == [white.index]
     tip["p"] = np.array([x_front, white.y, press_z + r + 0.001])  # 1 mm short of it
-    assert not keys.read(np.zeros(14)).any()
+    assert not keys.read(0.0).any()
     # Over C#4's footprint (between C4 and D4, behind the black key's front edge): the black key.
     tip["p"] = np.array([black.front_x + 0.02, black.y, black.top_z - KB.press_fraction * KB.travel])
-    assert list(np.flatnonzero(keys.read(np.zeros(14)))) == [black.index]
-    assert not keys.read(None).any()  # no measured q yet: nothing down
-
-
-def test_sim_keys_read_the_scene() -> None:
-    model = load_model("arms", keyboard_scene(KB))
-    data = mujoco.MjData(model)
-    keys = SimKeys(KB, model, data)
-    thr = press_thresholds(KB)
-    k = 60 - KB.lowest
-    data.qpos[model.jnt_qposadr[model.joint("piano_key60").id]] = thr[k] * 1.01
-    assert list(np.flatnonzero(keys.read(None))) == [k]
-    data.qpos[model.jnt_qposadr[model.joint("piano_key60").id]] = thr[k] * 0.99
-    assert not keys.read(None).any()
-    with pytest.raises(ValueError, match="no piano key joint"):
-        SimKeys(KB, load_model("arms"), mujoco.MjData(load_model("arms")))
+    assert list(np.flatnonzero(keys.read(0.0))) == [black.index]
 
 
 def test_song_source_terms_by_hand() -> None:
     # C4 from 0.10 to 0.30 s at dt 0.02: steps 5..14; the song is 15 steps long.
     song = Song("one", (Note(60, 0.10, 0.30, "right"),))
-    keys = MidiKeys(KB)
+    q: queue.Queue = queue.Queue()
+    keys = MidiKeys(q, KB)
     src = SongCommands(song, KB, 0.02, keys)
     assert src.song_steps == 15 and src.scale == 500
     c4 = 60 - KB.lowest
@@ -103,7 +65,7 @@ def test_song_source_terms_by_hand() -> None:
     tk = out["target_keys"].reshape(TARGET_FRAMES, PIANO_KEYS)
     np.testing.assert_array_equal(np.flatnonzero(tk[:, c4]), np.arange(2, 11))
     assert tk.sum() == 9 and out["progress"][0] == pytest.approx(3 / 500)
-    keys.feed([mido.Message("note_on", note=60, velocity=50)])
+    q.put(mido.Message("note_on", note=60, velocity=50))
     out = src(1.0 + 6 * 0.02)
     assert out["key_pressed"][c4] == 1.0 and out["key_pressed"].sum() == 1.0
     assert src.goal_now()[c4] and src.record()["song_step"] == 6

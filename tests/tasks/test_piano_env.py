@@ -104,10 +104,17 @@ def test_observation_counts_and_f1(env: LitePiano, fns) -> None:
     np.testing.assert_array_equal(
         env.obs_manager.split(np.asarray(s2.obs))["key_pressed"], after.astype(np.float32)
     )
-    # F1 as RoboPianist's episode sum: 2 tp / (2 tp + fp + fn), by hand from the two steps' counts.
-    m = {k: jnp.stack([s1.metrics[k], s2.metrics[k]]) for k in ("true_pos", "false_pos", "false_neg")}
+    # The evaluation's F1 is RoboPianist's: the mean over steps of each step's 2 tp / (2 tp + fp + fn)
+    # (1 for a step with nothing asked and nothing down); the pooled F1 sums the counts first. By hand from
+    # the two steps' counts:
+    keys = ("true_pos", "false_pos", "false_neg", "precision", "recall", "f1")
+    m = {k: jnp.stack([s1.metrics[k], s2.metrics[k]]) for k in keys}
     ratios = env.eval_ratios(m)
-    tp, fp, fn = (float(np.sum(np.asarray(m[k]))) for k in ("true_pos", "false_pos", "false_neg"))
+    counts = [tuple(float(s.metrics[k]) for k in keys[:3]) for s in (s1, s2)]
+    per_step = [2 * tp / (2 * tp + fp + fn) if 2 * tp + fp + fn else 1.0 for tp, fp, fn in counts]
     num, den = (float(np.sum(np.asarray(x))) for x in ratios["f1"])
+    assert den == 2 and num == pytest.approx(sum(per_step), abs=1e-6)
+    tp, fp, fn = (sum(c[i] for c in counts) for i in range(3))
+    num, den = (float(np.sum(np.asarray(x))) for x in ratios["f1_pooled"])
     assert (num, den) == (2 * tp, 2 * tp + fp + fn)
     assert ratios["success_rate"] is ratios["f1"]

@@ -30,6 +30,9 @@ class SongBank:
     """Song names, bank order."""
     down: np.ndarray
     """0/1 float32, shape (S, T + L + 1, n_keys): key down at each control step (silence from step T)."""
+    hands: np.ndarray
+    """0/1 uint8, shape (S, 2, T + L + 1, n_keys): ``down`` split by the hand that plays each note (left,
+    right; the songs' hands resolved by ``songs.playable``), for the fingertip reward."""
     steps: np.ndarray
     """int32, shape (S,): each song's length in control steps, at most T (its last note's end)."""
     cut_notes: int
@@ -47,6 +50,7 @@ def song_bank(
         raise ValueError("a song bank needs at least one song")
     rows = steps + lookahead + 1
     down = np.zeros((len(songs), rows, keyboard.n_keys), np.float32)
+    hands = np.zeros((len(songs), 2, rows, keyboard.n_keys), np.uint8)
     lengths = np.zeros(len(songs), np.int32)
     cut = 0
     for i, song in enumerate(songs):
@@ -55,8 +59,13 @@ def song_bank(
         if kept:
             down[i] = goal_keys(Song(song.name, kept), dt, rows, 0, keyboard)[:, 0]
             down[i, steps:] = 0.0  # the episode ends at T: nothing is asked after it
+            for h, hand in enumerate(("left", "right")):
+                mine = tuple(n for n in kept if n.hand == hand)
+                if mine:
+                    hands[i, h] = goal_keys(Song(song.name, mine), dt, rows, 0, keyboard)[:, 0] > 0.5
+            hands[i, :, steps:] = 0
             lengths[i] = min(max(round(n.end_s / dt) for n in kept), steps)
-    return SongBank(tuple(s.name for s in songs), down, lengths, cut)
+    return SongBank(tuple(s.name for s in songs), down, hands, lengths, cut)
 
 
 def training_songs(

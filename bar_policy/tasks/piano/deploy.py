@@ -18,8 +18,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from bar_policy.tasks.interfaces import DeployTask, EvalReport, OptionError
+from bar_policy.tasks.piano.key_input import KeySource, MidiKeys
 from bar_policy.tasks.piano.keyboard import compact_config
-from bar_policy.tasks.piano.keys import KEY_SOURCES, KeySource, KinematicKeys, MidiKeys
+from bar_policy.tasks.piano.keys import KinematicKeys
 from bar_policy.tasks.piano.scene import keyboard_scene
 from bar_policy.tasks.piano.song_library import HELDOUT, SONG_NAMES, library_song
 from bar_policy.tasks.piano.songs import Song, SongError, read_song
@@ -30,7 +31,10 @@ if TYPE_CHECKING:
     from bar_policy.robot.kinematics import Kinematics
     from bar_policy.robot.scene import SceneEdit
 
-__all__ = ["TASK", "PianoTask", "resolve_song"]
+__all__ = ["KEY_SOURCES", "TASK", "PianoTask", "key_source", "resolve_song"]
+
+KEY_SOURCES = ("sim", "midi", "midi:PORT", "kinematic")
+"""The ``--keys`` choices."""
 
 
 def resolve_song(spec: str) -> Song:
@@ -71,10 +75,15 @@ def key_source(spec: str | None, target: str, kinematics: Kinematics) -> KeySour
         return KinematicKeys(kb, kinematics.fingertips)
     kind, _, port = spec.partition(":")
     if kind == "midi":
+        import mido  # a deploy extra, imported when a keyboard is asked for
+
+        names = mido.get_input_names()
+        if not port and not names:
+            raise OptionError("--keys midi: no MIDI input is connected; give --keys midi:PORT or kinematic")
         try:
-            return MidiKeys(kb, port or None)
-        except ValueError as e:
-            raise OptionError(f"--keys {spec}: {e}") from None
+            return MidiKeys(port or names[0], kb)
+        except (OSError, ValueError) as e:
+            raise OptionError(f"--keys {spec}: cannot open MIDI input ({e}); inputs: {names}") from None
     raise OptionError(f"unknown --keys {spec!r}; valid: {', '.join(KEY_SOURCES)}")
 
 

@@ -15,8 +15,8 @@ and the initial-state noise are the robot env's (``bar_policy.envs.robot``); the
 - **Step ``t``** (the ``t``-th control step of the episode, ``t = step - 1``): the goal is the bank's row
   ``t`` (what ``target_keys`` showed as current when the action was chosen); it is compared with the keys
   down after the step. Rewards are the named terms of ``rewards`` weighted by ``RewardScales``; metrics
-  count true positives, false positives and false negatives of that comparison (``metrics``), so the
-  evaluation's precision, recall and F1 are RoboPianist's episode-level sums.
+  are the step's true positives, false positives and false negatives and its precision, recall and F1
+  (``metrics``), so the evaluation reports RoboPianist's step means and the pooled F1 beside them.
 - **Initial state**: the default pose as the robot holds it (``held.held_pose``: sagged under gravity at
   Kp, where the keyboard is placed) plus the robot env's noise, at rest; so no episode starts with the hands
   falling onto the keys.
@@ -56,12 +56,12 @@ class RewardScales:
     """Weights of the reward terms (positive: reward, negative: cost), per step. 0 drops a term."""
 
     key_press: float = 1.0
-    """Goal keys pressed (``rewards.key_press``: mean over the goal keys of their depression kernel)."""
+    """Goal keys pressed (``rewards.goal_keys_pressed``: mean over the goal keys of a kernel on how far each
+    is from the bottom of its travel; RoboPianist's 0.5 x, here with the whole key weight)."""
     wrong_keys: float = -0.5
-    """Keys down that are not goal keys (``rewards.wrong_keys``: their share of the keyboard's keys)."""
+    """Keys down that are not goal keys (``rewards.wrong_keys_pressed``: their count)."""
     fingertip_near: float = 0.5
-    """Fingertips near the current goal keys (``rewards.fingertip_near``: kernel on the distance to the
-    nearest fingertip, mean over goal keys)."""
+    """Each hand's fingertip near its next goal key (``rewards.fingertip_to_goal``: 1 within 1 cm)."""
     energy: float = -2e-3
     """Mechanical power ``sum |tau dq|``, W, at the step's end (``tau``: the motor torque the last substep
     applied, without the share of Kd that the implicit damping integrates)."""
@@ -81,8 +81,6 @@ class RewardConfig:
 
     scales: RewardScales = field(default_factory=RewardScales)
     """Term weights."""
-    near_std: float = 0.01
-    """Length scale of the fingertip-to-key kernel, m (``rewards.fingertip_near``)."""
     soft_limit_fraction: float = 0.95
     """Fraction of each joint's range inside which the joint-limit cost is zero."""
 
@@ -149,22 +147,30 @@ class LitePiano(LiteRobotEnv):
         self._key_sites = np.array([m.site(f"piano_key{k.midi}_top").id for k in keys])
         self._tip_sites = np.array([m.site(s).id for s in FINGERTIP_SITES])
         self._threshold = jnp.asarray(press_thresholds(kb), jnp.float32)
-        self._angle_max = jnp.asarray([k.angle_max for k in keys], jnp.float32)
+        self._angle_max = jnp.asarray(rewards.angle_max(kb), jnp.float32)
         songs = training_songs(kb, cfg.songs, cfg.episode_length_s, cfg.tempo_bpm, cfg.song_seed, cfg.library)
         self.bank = song_bank(songs, kb, cfg.ctrl_dt, self.episode_length, TARGET_FRAMES - 1)
         self._down = jnp.asarray(self.bank.down)
+        self._hands = jnp.asarray(self.bank.hands)
         self._held = jnp.asarray(held_pose(np.asarray(self._default), cfg.mode), jnp.float32)
 
     @property
     def metric_keys(self) -> tuple[str, ...]:
-        """``true_pos``, ``false_pos``, ``false_neg`` (key counts), ``goal_keys``, ``keys_down``."""
-        return ("true_pos", "false_pos", "false_neg", "goal_keys", "keys_down")
+        """The step's key counts, its ``precision``, ``recall``, ``f1``, ``goal_keys`` and ``keys_down``."""
+        return ("true_pos", "false_pos", "false_neg", "precision", "recall", "f1", "goal_keys", "keys_down")
 
     def eval_ratios(self, metrics: dict[str, jax.Array]) -> dict[str, tuple[jax.Array, jax.Array]]:
-        """Episode-level precision, recall and F1 (``metrics.f1_counts``); ``success_rate`` is the F1."""
+        """RoboPianist's step means (``f1``, ``precision``, ``recall``), the pooled F1; success_rate = F1."""
+        one = jnp.ones_like(metrics["f1"])
         tp, fp, fn = metrics["true_pos"], metrics["false_pos"], metrics["false_neg"]
-        f1 = (2.0 * tp, 2.0 * tp + fp + fn)
-        return {"success_rate": f1, "f1": f1, "precision": (tp, tp + fp), "recall": (tp, tp + fn)}
+        f1 = (metrics["f1"], one)
+        return {
+            "success_rate": f1,
+            "f1": f1,
+            "precision": (metrics["precision"], one),
+            "recall": (metrics["recall"], one),
+            "f1_pooled": (2.0 * tp, 2.0 * tp + fp + fn),
+        }
 
     def task_metadata(self) -> dict:
         """The song set's id (``dataset_repo_id``): the bank's recipe."""
@@ -186,28 +192,34 @@ class LitePiano(LiteRobotEnv):
         """Key rewards against the goal row of this step, the robot's costs, and the key counts."""
         cfg = self.config
         data, info = tr.data, tr.info
-        goal = self._down[info["song"], tr.step - 1]
+        s = tr.step - 1
+        goal = self._down[info["song"], s]
         angles = self.key_angles(data)
         down = angles >= self._threshold
         tips = data.site_xpos[self._tip_sites]
         key_pos = data.site_xpos[self._key_sites]
         q, dq = self.robot_q(data), self.robot_dq(data)
+        windows = jax.lax.dynamic_slice_in_dim(self._hands[info["song"]], s, TARGET_FRAMES, axis=1)
         rc = cfg.reward
         terms = {
-            "key_press": rewards.key_press(angles, goal, self._threshold, self._angle_max),
-            "wrong_keys": rewards.wrong_keys(down, goal),
-            "fingertip_near": rewards.fingertip_near(tips, key_pos, goal, rc.near_std),
+            "key_press": rewards.goal_keys_pressed(rewards.key_depression(angles, self._angle_max), goal),
+            "wrong_keys": rewards.wrong_keys_pressed(down, goal),
+            "fingertip_near": rewards.fingertip_to_goal(tips, key_pos, rewards.next_goal(windows)),
             "energy": rewards.energy(data.qfrc_applied[self.robot_index.dof], dq),
             "action_rate": robot_rewards.action_rate(tr.action, info["last_act"]),
             "action_accel": robot_rewards.action_accel(tr.action, info["last_act"], info["act_prev"]),
             "torque_near_cap": tr.near_cap,
             "joint_limit": robot_rewards.joint_limit(q, self._lower, self._upper, rc.soft_limit_fraction),
         }
-        tp, fp, fn = piano_metrics.step_counts(down, goal > 0.5)
+        counts = piano_metrics.step_counts(down, goal)
+        step = piano_metrics.scores(counts)
         metrics = {
-            "true_pos": tp,
-            "false_pos": fp,
-            "false_neg": fn,
+            "true_pos": counts.tp.astype(jnp.float32),
+            "false_pos": counts.fp.astype(jnp.float32),
+            "false_neg": counts.fn.astype(jnp.float32),
+            "precision": step.precision,
+            "recall": step.recall,
+            "f1": step.f1,
             "goal_keys": jnp.sum(goal),
             "keys_down": jnp.sum(down.astype(jnp.float32)),
         }

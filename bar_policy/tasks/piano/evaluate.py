@@ -4,11 +4,11 @@ Each song runs from the held default pose (``held.held_pose``, as the env starts
 the first tick (no ramp), through the deploy code path (``Runtime``, the safety supervisor, the firmware
 MIT law in the sim), in the keyboard's scene with the simulated keys. At every policy tick the goal keys of
 the song's step are compared with the keys down (``SongCommands.goal_now``, ``keys_down``): true
-positives, false positives and false negatives are summed over the song (ticks before the first and after
-the last note included, as the env counts every step), giving precision ``tp / (tp + fp)``, recall
-``tp / (tp + fn)`` and F1 ``2 tp / (2 tp + fp + fn)``. The ship gate reads the F1 over every song
-(``success_pct`` = 100 x F1) and the songs' safety and smoothness (chatter on q_cmd itself: the piano has
-no joint reference).
+positives, false positives and false negatives give each tick's precision, recall and F1 (``metrics``;
+ticks before the first and after the last note included, as the env counts every step). A song's figures
+are the means over its ticks (RoboPianist's), with the F1 of the summed counts beside them (pooled). The
+ship gate reads the mean F1 over every song's ticks (``success_pct`` = 100 x F1) and the songs' safety
+and smoothness (chatter on q_cmd itself: the piano has no joint reference).
 """
 
 from __future__ import annotations
@@ -27,19 +27,12 @@ from bar_policy.quality.report import EpisodeQuality, quality_summary_line, summ
 from bar_policy.tasks.interfaces import EvalReport
 from bar_policy.tasks.piano.held import held_pose
 from bar_policy.tasks.piano.keyboard import compact_config
+from bar_policy.tasks.piano.metrics import Counts, episode_scores, scores, step_counts
 from bar_policy.tasks.piano.scene import keyboard_scene
 from bar_policy.tasks.piano.songs import Song
 from bar_policy.tasks.piano.source import END_HOLD_S, SongCommands
 
-__all__ = ["PianoEval", "SongResult", "evaluate", "f1_of"]
-
-
-def f1_of(tp: int, fp: int, fn: int) -> tuple[float, float, float]:
-    """(precision, recall, F1) of summed counts; a ratio with a zero denominator is 1 (nothing to miss)."""
-    p = tp / (tp + fp) if tp + fp else 1.0
-    r = tp / (tp + fn) if tp + fn else 1.0
-    f = 2 * tp / (2 * tp + fp + fn) if 2 * tp + fp + fn else 1.0
-    return p, r, f
+__all__ = ["PianoEval", "SongResult", "evaluate"]
 
 
 @dataclass(frozen=True)
@@ -48,18 +41,26 @@ class SongResult:
 
     song: str
     ticks: int
+    scored: int
+    """Policy ticks scored (the hold after the song is not)."""
     true_pos: int
     false_pos: int
     false_neg: int
+    precision: float
+    """Mean over the song's policy ticks of each tick's precision (RoboPianist's; ``metrics``)."""
+    recall: float
+    """Mean of each tick's recall."""
+    f1: float
+    """Mean of each tick's F1: the headline figure."""
     faulted: bool
     end_reason: str
     quality: dict[str, Any] = field(default_factory=dict)
     """The run's safety and smoothness (``EpisodeQuality.to_dict``)."""
 
     @property
-    def scores(self) -> tuple[float, float, float]:
-        """(precision, recall, F1)."""
-        return f1_of(self.true_pos, self.false_pos, self.false_neg)
+    def f1_pooled(self) -> float:
+        """F1 of the counts summed over the song, ``2 tp / (2 tp + fp + fn)`` (1 when all are 0)."""
+        return float(scores(Counts(self.true_pos, self.false_pos, self.false_neg)).f1)
 
 
 @dataclass(frozen=True)
@@ -70,11 +71,15 @@ class PianoEval(EvalReport):
     policy: str
     fingerprint: str
 
-    def totals(self) -> tuple[float, float, float]:
-        """(precision, recall, F1) of the counts summed over the songs."""
-        return f1_of(
-            *(sum(getattr(s, k) for s in self.songs) for k in ("true_pos", "false_pos", "false_neg"))
-        )
+    def f1(self) -> float:
+        """The headline: the mean over every song's ticks of each tick's F1 (RoboPianist's)."""
+        ticks = sum(s.scored for s in self.songs)
+        return sum(s.f1 * s.scored for s in self.songs) / ticks if ticks else float("nan")
+
+    def f1_pooled(self) -> float:
+        """F1 of the counts summed over every song."""
+        c = Counts(*(sum(getattr(s, k) for s in self.songs) for k in ("true_pos", "false_pos", "false_neg")))
+        return float(scores(c).f1)
 
     def gate_report(self) -> dict[str, Any]:
         """F1 % over the songs, and their safety and smoothness (the ship gate's input)."""
@@ -83,22 +88,17 @@ class PianoEval(EvalReport):
             "task": "piano",
             "quality": summarise(records),
             "episodes": [r.to_dict() for r in records],
-            "success_pct": 100.0 * self.totals()[2],
+            "success_pct": 100.0 * self.f1(),
         }
 
     def to_dict(self) -> dict[str, Any]:
         """JSON form."""
-        p, r, f = self.totals()
         return {
             "policy": self.policy,
             "obs_fingerprint": self.fingerprint,
-            "precision": p,
-            "recall": r,
-            "f1": f,
-            "songs": [
-                {**asdict(s), "precision": s.scores[0], "recall": s.scores[1], "f1": s.scores[2]}
-                for s in self.songs
-            ],
+            "f1": self.f1(),
+            "f1_pooled": self.f1_pooled(),
+            "songs": [{**asdict(s), "f1_pooled": s.f1_pooled} for s in self.songs],
             "gate_report": self.gate_report(),
         }
 
@@ -106,12 +106,14 @@ class PianoEval(EvalReport):
         """Summary lines: one per song, the totals, the quality line and the gate."""
         lines = [f"piano on the C MuJoCo sim target: policy {self.policy} [{self.fingerprint}]"]
         for s in self.songs:
-            p, r, f = s.scores
             end = "faulted" if s.faulted else "completed"
-            scores = f"precision {p:.3f} recall {r:.3f} F1 {f:.3f}"
-            lines.append(f"  {s.song:28s} {scores} ({s.ticks} ticks, {end})")
-        p, r, f = self.totals()
-        lines.append(f"all songs: precision {p:.3f}, recall {r:.3f}, F1 {f:.3f}")
+            figs = (
+                f"precision {s.precision:.3f} recall {s.recall:.3f} F1 {s.f1:.3f} (pooled {s.f1_pooled:.3f})"
+            )
+            lines.append(f"  {s.song:26s} {figs}, {s.scored} ticks, {end}")
+        lines.append(
+            f"all songs: F1 {self.f1():.3f} (step mean, RoboPianist's), pooled {self.f1_pooled():.3f}"
+        )
         lines.append(quality_summary_line(self.gate_report()["quality"]))
         lines.extend(self.gate_lines())
         return "\n".join(lines)
@@ -127,13 +129,16 @@ def evaluate(policy: OnnxPolicy, songs: list[Song], target: SimTarget | None = N
     for song in songs:
         sim.reset(q0)
         commands = SongCommands(song, kb, policy.policy_dt, keys=None)
-        counts = np.zeros(3, np.int64)
+        downs: list[np.ndarray] = []
+        goals: list[np.ndarray] = []
 
-        def score(k: int, t: float, rt: Runtime, c: SongCommands = commands, n: np.ndarray = counts) -> None:
+        def score(
+            k: int, t: float, rt: Runtime, c: SongCommands = commands, d: list = downs, g: list = goals
+        ) -> None:
             if rt.safety.mode != Mode.POLICY:  # the hold after the song's end is not scored
                 return
-            down, goal = c.record()["keys_down"], c.goal_now()
-            n += (int(np.sum(down & goal)), int(np.sum(down & ~goal)), int(np.sum(~down & goal)))
+            d.append(c.record()["keys_down"])
+            g.append(c.goal_now())
 
         cfg = RuntimeConfig(
             control_dt=policy.policy_dt,
@@ -144,13 +149,21 @@ def evaluate(policy: OnnxPolicy, songs: list[Song], target: SimTarget | None = N
             safety=SafetyConfig(ramp_time=0.0),
         )
         res = Runtime(policy, sim, commands, cfg, on_tick=score).run()
+        down = np.array(downs, bool).reshape(-1, kb.n_keys)
+        goal = np.array(goals, bool).reshape(-1, kb.n_keys)
+        counts = step_counts(down, goal)
+        ep = episode_scores(down, goal)
         results.append(
             SongResult(
                 song=song.name,
                 ticks=int(res.ticks),
-                true_pos=int(counts[0]),
-                false_pos=int(counts[1]),
-                false_neg=int(counts[2]),
+                scored=len(downs),
+                true_pos=int(np.sum(counts.tp)),
+                false_pos=int(np.sum(counts.fp)),
+                false_neg=int(np.sum(counts.fn)),
+                precision=float(ep.precision),
+                recall=float(ep.recall),
+                f1=float(ep.f1),
                 faulted=res.fault_count > 0,
                 end_reason=res.end_reason,
                 quality={**res.quality["episode"], "name": song.name},

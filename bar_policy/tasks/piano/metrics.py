@@ -1,14 +1,152 @@
-"""Key-press counts of a step (placeholder until the reviewed module lands)."""
+"""Key-press precision, recall and F1 of the piano task, counted as RoboPianist counts them.
+
+Per control step: ``G`` the goal keys (the keys the song holds down then: ``songs.goal_keys(...)[:, 0]``),
+``P`` the pressed keys (``keyboard.pressed`` of the key angles, or a deploy ``KeySource``). Then
+``TP = |P & G|``, ``FP = |P - G|``, ``FN = |G - P|`` and
+
+- precision ``TP / (TP + FP)``, recall ``TP / (TP + FN)``, F1 ``2 TP / (2 TP + FP + FN)`` (the same as
+  ``2 P R / (P + R)`` where ``P + R > 0``, and 0 where both are 0);
+- an empty denominator scores **1**: RoboPianist computes every step with scikit-learn's
+  ``precision_recall_fscore_support(average="binary", zero_division=1)`` (Zakka et al. 2023,
+  ``robopianist/wrappers/evaluation.py``, ``MidiEvaluationWrapper._compute_key_press_metrics``). So a step
+  with no goal key and no key pressed (a rest played as a rest) scores P = R = F1 = 1; no goal key but a key
+  pressed scores P = 0, R = 1, F1 = 0; goal keys with none pressed score P = 1, R = 0, F1 = 0.
+
+Over an episode there are two aggregations (``episode_scores`` gives both):
+
+- **step mean** (``precision``, ``recall``, ``f1``): the mean over the episode's steps of the per-step
+  values. This is the figure RoboPianist reports (``np.mean`` of the per-step values; an episode ended early
+  counts only the steps it ran). Rests played as rests count 1, so songs with many rests score higher.
+- **pooled** (``*_pooled``): TP, FP and FN summed over the steps, then divided (a micro average, as
+  frame-level transcription metrics are pooled); a rest counts only through its false presses.
+  ``0 / 0`` scores 1 here too (an episode of rests with nothing pressed).
+
+The headline figure of this project is the step mean ``f1``, for comparison with RoboPianist's published
+numbers; the pooled figures are reported beside it because rests do not inflate them.
+
+Every function is plain array arithmetic (``array_namespace``): numpy in, numpy out; jax in, jax out, safe
+under ``jit`` and ``vmap`` (no Python branch on a value, only on static shapes).
+"""
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 from bar_policy._array import Array, array_namespace
 
-__all__ = ["step_counts"]
+__all__ = ["Counts", "EpisodeScores", "Scores", "episode_scores", "scores", "step_counts", "step_scores"]
 
 
-def step_counts(down: Array, goal: Array) -> tuple[Array, Array, Array]:
-    """(true positives, false positives, false negatives) of bool (n_keys,) key states, as float32."""
-    xp = array_namespace(down)
-    d, g = down.astype(xp.float32), goal.astype(xp.float32)
-    return xp.sum(d * g), xp.sum(d * (1.0 - g)), xp.sum((1.0 - d) * g)
+class Counts(NamedTuple):
+    """Key counts of a step (or summed over steps), integer arrays of one shape."""
+
+    tp: Array
+    """Keys pressed that are goal keys."""
+    fp: Array
+    """Keys pressed that are not goal keys."""
+    fn: Array
+    """Goal keys not pressed."""
+
+
+class Scores(NamedTuple):
+    """Precision, recall and F1 in [0, 1], float arrays of one shape."""
+
+    precision: Array
+    recall: Array
+    f1: Array
+
+
+class EpisodeScores(NamedTuple):
+    """An episode's scores, both aggregations (the module docstring); float arrays of the batch shape."""
+
+    precision: Array
+    """Mean over steps of the per-step precision (RoboPianist's)."""
+    recall: Array
+    """Mean over steps of the per-step recall (RoboPianist's)."""
+    f1: Array
+    """Mean over steps of the per-step F1 (RoboPianist's; the headline figure)."""
+    precision_pooled: Array
+    """Precision of the summed counts."""
+    recall_pooled: Array
+    """Recall of the summed counts."""
+    f1_pooled: Array
+    """F1 of the summed counts."""
+
+
+def _keys(x: Array) -> Array:
+    """Bool of a bool or 0/1 array (``songs.goal_keys`` is float32 0/1)."""
+    return x > 0.5
+
+
+def step_counts(pressed: Array, goal: Array) -> Counts:
+    """TP, FP and FN of each step.
+
+    Args:
+        pressed: keys down, bool or 0/1, shape ``(..., n_keys)`` (keyboard order, lowest first).
+        goal: goal keys, bool or 0/1, shape ``(..., n_keys)`` (broadcast against ``pressed``).
+
+    Returns:
+        ``Counts`` of integer arrays, shape ``(...)`` (the broadcast batch shape).
+    """
+    if pressed.shape[-1:] != goal.shape[-1:]:
+        raise ValueError(f"pressed {pressed.shape} and goal {goal.shape} must end in the same n_keys")
+    xp = array_namespace(pressed, goal)
+    p, g = _keys(pressed), _keys(goal)
+    return Counts(
+        tp=xp.sum(p & g, axis=-1),
+        fp=xp.sum(p & ~g, axis=-1),
+        fn=xp.sum(~p & g, axis=-1),
+    )
+
+
+def _ratio(num: Array, den: Array) -> Array:
+    """``num / den``, and 1 where ``den`` is 0 (scikit-learn's ``zero_division=1``)."""
+    xp = array_namespace(num, den)
+    return xp.where(den > 0, num / xp.maximum(den, 1), 1.0)
+
+
+def scores(counts: Counts) -> Scores:
+    """Precision, recall and F1 of counts (one step's, or pooled), elementwise; ``0 / 0`` scores 1.
+
+    ``F1 = 2 TP / (2 TP + FP + FN)``. Shapes: those of the counts.
+    """
+    tp, fp, fn = counts
+    return Scores(_ratio(tp, tp + fp), _ratio(tp, tp + fn), _ratio(2 * tp, 2 * tp + fp + fn))
+
+
+def step_scores(pressed: Array, goal: Array) -> Scores:
+    """Per-step precision, recall and F1 (``scores(step_counts(pressed, goal))``), shape ``(...)``."""
+    return scores(step_counts(pressed, goal))
+
+
+def episode_scores(pressed: Array, goal: Array, valid: Array | None = None) -> EpisodeScores:
+    """Both episode aggregations of ``T`` steps (the module docstring).
+
+    Args:
+        pressed: keys down per step, bool or 0/1, shape ``(..., T, n_keys)``.
+        goal: goal keys per step, bool or 0/1, shape ``(..., T, n_keys)``.
+        valid: which steps count, bool, shape ``(..., T)`` (default: all): a batch of episodes of different
+            lengths (ended early, or padded) masks the steps after each one's end.
+
+    Returns:
+        ``EpisodeScores``, each of shape ``(...)``; NaN for an episode with no valid step.
+    """
+    xp = array_namespace(pressed, goal, *(() if valid is None else (valid,)))
+    counts = step_counts(pressed, goal)
+    per_step = scores(counts)
+    w = xp.ones(counts.tp.shape, dtype=bool) if valid is None else xp.broadcast_to(valid, counts.tp.shape)
+    n = xp.sum(w, axis=-1)
+    nan = float("nan")
+
+    def mean(x: Array) -> Array:
+        return xp.where(n > 0, xp.sum(xp.where(w, x, 0.0), axis=-1) / xp.maximum(n, 1), nan)
+
+    pooled = scores(Counts(*(xp.sum(xp.where(w, c, 0), axis=-1) for c in counts)))
+    return EpisodeScores(
+        precision=mean(per_step.precision),
+        recall=mean(per_step.recall),
+        f1=mean(per_step.f1),
+        precision_pooled=xp.where(n > 0, pooled.precision, nan),
+        recall_pooled=xp.where(n > 0, pooled.recall, nan),
+        f1_pooled=xp.where(n > 0, pooled.f1, nan),
+    )

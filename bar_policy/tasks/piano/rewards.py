@@ -1,39 +1,198 @@
-"""Piano reward terms (placeholder until the reviewed module lands): pure jax/numpy functions."""
+"""Reward terms of the piano task: small pure functions, each a non-negative reward or cost.
+
+As in ``bar_policy.envs.rewards`` the sign lives only in the weight (the task's ``reward.scales``: rewards
+positive, costs negative). The terms follow RoboPianist (Zakka et al. 2023,
+``robopianist/suite/tasks/piano_with_shadow_hands.py``), which uses dm_control's ``tolerance`` with a
+Gaussian sigmoid (``tolerance`` here):
+
+- ``goal_keys_pressed`` (reward, [0, 1]): for each goal key, ``tolerance(1 - depression)`` with full
+  reward within ``KEY_CLOSE`` of the bottom, averaged over the goal keys; 0 at a step with no goal key
+  (RoboPianist: 0.5 x this).
+- ``wrong_keys_pressed`` (cost, a count): pressed keys that are not goal keys. RoboPianist takes the
+  other 0.5 of its key reward away when *any* is pressed; a count also tells one wrong key from five.
+- ``fingertip_to_goal`` (reward, [0, 1]): per hand, ``tolerance`` of the distance from its fingertip to
+  the nearest of its goal keys' top sites, averaged over the hands that have one (RoboPianist's
+  fingering reward, with one finger per hand); 0 when no hand has.
+- ``energy`` (cost, W): ``sum |tau * dq|`` (RoboPianist: ``5e-3 x`` this).
+- ``action_rate`` (cost): ``sum (a_t - a_{t-1})^2``, the same as ``bar_policy.envs.rewards.action_rate``
+  (redefined here so numpy can call it: that module imports jax).
+
+Every function is plain array arithmetic (``array_namespace``): numpy or jax, unbatched or with leading
+batch axes, safe under ``jit`` and ``vmap``. ``angle_max`` is numpy (the keyboard's constants).
+"""
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
+
 from bar_policy._array import Array, array_namespace
+from bar_policy.tasks.piano.keyboard import KeyboardConfig, default_config, key_table
 
-__all__ = ["energy", "fingertip_near", "key_press", "wrong_keys"]
+__all__ = [
+    "FINGER_CLOSE",
+    "FINGER_MARGIN",
+    "KEY_CLOSE",
+    "KEY_MARGIN",
+    "VALUE_AT_MARGIN",
+    "action_rate",
+    "angle_max",
+    "energy",
+    "fingertip_distance",
+    "fingertip_to_goal",
+    "goal_keys_pressed",
+    "key_depression",
+    "next_goal",
+    "tolerance",
+    "wrong_keys_pressed",
+]
+
+KEY_CLOSE = 0.05
+"""A goal key within this fraction of its travel from the bottom scores 1 (RoboPianist's
+``_KEY_CLOSE_ENOUGH_TO_PRESSED``)."""
+KEY_MARGIN = 0.5
+"""Fraction of travel beyond ``KEY_CLOSE`` at which a goal key scores ``VALUE_AT_MARGIN`` (RoboPianist:
+``10 * KEY_CLOSE``). At the press threshold (half travel) a goal key scores ``0.1**0.81 = 0.155``."""
+FINGER_CLOSE = 0.01
+"""A fingertip within this distance of its goal key's top site scores 1, m (RoboPianist's
+``_FINGER_CLOSE_ENOUGH_TO_KEY``). The fingertip sphere (6 mm) resting on the key is 6 mm away."""
+FINGER_MARGIN = 0.1
+"""Distance beyond ``FINGER_CLOSE`` at which a fingertip scores ``VALUE_AT_MARGIN``, m (RoboPianist:
+``10 * FINGER_CLOSE``)."""
+VALUE_AT_MARGIN = 0.1
+"""``tolerance`` at ``margin`` outside the bounds (dm_control's default)."""
 
 
-def key_press(angles: Array, goal: Array, threshold: Array, angle_max: Array) -> Array:
-    """Mean over goal keys of ``clip(angle / threshold, 0, 1)``; 0 when no key is a goal. Shapes (n_keys,)."""
-    xp = array_namespace(angles)
-    depth = xp.clip(angles / threshold, 0.0, 1.0)
-    n = xp.sum(goal)
-    return xp.where(n > 0, xp.sum(depth * goal) / xp.maximum(n, 1.0), 0.0)
+def tolerance(
+    x: Array, lower: float, upper: float, margin: float, value_at_margin: float = VALUE_AT_MARGIN
+) -> Array:
+    """dm_control's ``tolerance`` with the Gaussian sigmoid: 1 inside ``[lower, upper]``, falling outside.
 
-
-def wrong_keys(down: Array, goal: Array) -> Array:
-    """Share of the keyboard's keys that are down and not goals. Shapes (n_keys,)."""
-    xp = array_namespace(goal)
-    return xp.mean(down.astype(goal.dtype) * (1.0 - goal))
-
-
-def fingertip_near(tips: Array, key_pos: Array, goal: Array, std: float) -> Array:
-    """Mean over goal keys of ``1 - tanh(d / std)``, d the distance to the nearest fingertip, m.
-
-    Shapes: ``tips`` (2, 3), ``key_pos`` (n_keys, 3), ``goal`` (n_keys,). 0 when no key is a goal.
+    Outside, with ``d`` the distance to the nearer bound over ``margin``:
+    ``exp(-(d s)^2 / 2)``, ``s = sqrt(-2 ln value_at_margin)``, i.e. ``value_at_margin ** (d^2)``: 0.1 at
+    ``d = 1``, 1e-4 at ``d = 2``; 0 at an infinite ``x``. Elementwise, the shape of ``x``; the bounds,
+    ``margin`` and ``value_at_margin`` are Python floats (static under ``jit``).
     """
-    xp = array_namespace(key_pos)
-    d = xp.min(xp.linalg.norm(key_pos[:, None, :] - tips[None, :, :], axis=-1), axis=1)
-    k = 1.0 - xp.tanh(d / std)
-    n = xp.sum(goal)
-    return xp.where(n > 0, xp.sum(k * goal) / xp.maximum(n, 1.0), 0.0)
+    if margin <= 0.0 or not 0.0 < value_at_margin < 1.0:
+        raise ValueError(f"need margin > 0 and 0 < value_at_margin < 1; got {margin}, {value_at_margin}")
+    xp = array_namespace(x)
+    d = xp.where(x < lower, lower - x, x - upper) / margin
+    scale = math.sqrt(-2.0 * math.log(value_at_margin))
+    outside = xp.exp(-0.5 * (d * scale) ** 2)
+    return xp.where((x >= lower) & (x <= upper), 1.0, outside)
+
+
+def angle_max(config: KeyboardConfig | None = None) -> np.ndarray:
+    """Each key's hinge angle at full travel, rad, shape (n_keys,) (keyboard order; numpy)."""
+    cfg = default_config() if config is None else config
+    return np.array([k.angle_max for k in key_table(cfg)])
+
+
+def key_depression(angles: Array, full: Array) -> Array:
+    """Fraction of its travel each key is down: ``clip(angle / angle_max, 0, 1)``, shape of ``angles``.
+
+    ``angles``: key hinge angles, rad, ``(..., n_keys)`` (the ``piano_key*_angle`` sensors, or the keys'
+    ``qpos``); ``full``: ``angle_max(config)``, rad, ``(n_keys,)``. MuJoCo's joint limits are soft, so an
+    angle may pass them slightly: clipped (as RoboPianist does).
+    """
+    xp = array_namespace(angles, full)
+    return xp.clip(angles / full, 0.0, 1.0)
+
+
+def goal_keys_pressed(
+    depression: Array, goal: Array, close: float = KEY_CLOSE, margin: float = KEY_MARGIN
+) -> Array:
+    """Reward in [0, 1]: mean over the goal keys of ``tolerance(1 - depression, 0, close, margin)``.
+
+    Args:
+        depression: ``key_depression``, in [0, 1], shape ``(..., n_keys)``.
+        goal: goal keys now, bool or 0/1, shape ``(..., n_keys)`` (``songs.goal_keys(...)[t, 0]``).
+        close: fraction of travel from the bottom that scores 1.
+        margin: fraction of travel beyond ``close`` that scores ``VALUE_AT_MARGIN``.
+
+    Returns:
+        Shape ``(...)``; 0 at a step without a goal key (RoboPianist's).
+    """
+    xp = array_namespace(depression, goal)
+    g = goal > 0.5
+    per_key = tolerance(1.0 - depression, 0.0, close, margin)
+    n = xp.sum(g, axis=-1)
+    return xp.sum(xp.where(g, per_key, 0.0), axis=-1) / xp.maximum(n, 1)
+
+
+def wrong_keys_pressed(pressed: Array, goal: Array) -> Array:
+    """Cost: the number of pressed keys that are not goal keys, float, shape ``(...)``.
+
+    ``pressed`` (``keyboard.pressed``) and ``goal``: bool or 0/1, shape ``(..., n_keys)``.
+    """
+    xp = array_namespace(pressed, goal)
+    return xp.sum((pressed > 0.5) & ~(goal > 0.5), axis=-1) * 1.0
+
+
+def fingertip_distance(fingertips: Array, key_sites: Array, hand_goal: Array) -> Array:
+    """Distance from each hand's fingertip to the nearest of that hand's goal keys, m; inf for none.
+
+    Args:
+        fingertips: fingertip site positions (left, right), m, shape ``(..., 2, 3)``.
+        key_sites: the keys' top sites (``piano_key{m}_top``, moving with the key, or at rest:
+            ``Key.site``), m, shape ``(..., n_keys, 3)`` or ``(n_keys, 3)``.
+        hand_goal: each hand's goal keys, bool or 0/1, shape ``(..., 2, n_keys)`` (``next_goal`` of each
+            hand's own goal window).
+
+    Returns:
+        Shape ``(..., 2)``.
+    """
+    xp = array_namespace(fingertips, key_sites, hand_goal)
+    diff = fingertips[..., :, None, :] - key_sites[..., None, :, :]  # (..., 2, n_keys, 3)
+    dist = xp.sqrt(xp.sum(diff * diff, axis=-1))
+    return xp.min(xp.where(hand_goal > 0.5, dist, xp.inf), axis=-1)
+
+
+def fingertip_to_goal(
+    fingertips: Array,
+    key_sites: Array,
+    hand_goal: Array,
+    close: float = FINGER_CLOSE,
+    margin: float = FINGER_MARGIN,
+) -> Array:
+    """Reward in [0, 1]: ``tolerance(fingertip_distance, 0, close, margin)``, mean over hands with a goal.
+
+    Arguments as ``fingertip_distance``; ``close`` and ``margin`` in m. Returns shape ``(...)``; 0 when
+    neither hand has a goal key (RoboPianist's).
+    """
+    xp = array_namespace(fingertips, key_sites, hand_goal)
+    has = xp.any(hand_goal > 0.5, axis=-1)  # (..., 2)
+    per_hand = tolerance(fingertip_distance(fingertips, key_sites, hand_goal), 0.0, close, margin)
+    return xp.sum(xp.where(has, per_hand, 0.0), axis=-1) / xp.maximum(xp.sum(has, axis=-1), 1)
+
+
+def next_goal(window: Array) -> Array:
+    """The keys of the first step of a goal window that has any: where a hand should be, or be heading.
+
+    ``window``: one hand's goal keys now and ahead, bool or 0/1, shape ``(..., L + 1, n_keys)``
+    (``songs.goal_keys`` of the hand's own notes). Returns bool ``(..., n_keys)``: row ``j`` of the window
+    for the smallest ``j`` with a key down; all False when no key is down in the window.
+    """
+    xp = array_namespace(window)
+    w = window > 0.5
+    has = xp.any(w, axis=-1)  # (..., L + 1)
+    first = xp.argmax(has, axis=-1)  # the first True (0 when none)
+    pick = xp.arange(w.shape[-2]) == first[..., None]  # (..., L + 1)
+    return xp.any(w & pick[..., None], axis=-2)
 
 
 def energy(tau: Array, dq: Array) -> Array:
-    """``sum |tau * dq|``, W. Shapes (n,)."""
-    xp = array_namespace(tau)
-    return xp.sum(xp.abs(tau * dq))
+    """Cost: mechanical power ``sum |tau * dq|`` over joints, W.
+
+    ``tau``: joint torques, N*m; ``dq``: joint velocities, rad/s; both ``(..., n_joints)``. Returns ``(...)``.
+    """
+    xp = array_namespace(tau, dq)
+    return xp.sum(xp.abs(tau * dq), axis=-1)
+
+
+def action_rate(action: Array, last_action: Array) -> Array:
+    """Cost: ``sum (a_t - a_{t-1})^2`` over joints, action units (actions in [-1, 1]); shape ``(...)``."""
+    xp = array_namespace(action, last_action)
+    d = action - last_action
+    return xp.sum(d * d, axis=-1)

@@ -15,18 +15,21 @@ keys down and the step, so a run can be drawn as a piano roll and scored (``step
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 import numpy as np
 
 from bar_policy.tasks.interfaces import CommandSource
 from bar_policy.tasks.piano.bank import song_bank
+from bar_policy.tasks.piano.key_input import KeySource, SimKeys
 from bar_policy.tasks.piano.keyboard import KeyboardConfig
-from bar_policy.tasks.piano.keys import KeySource, SimKeys
 from bar_policy.tasks.piano.songs import Song
 from bar_policy.tasks.piano.terms import PIANO_KEYS, TARGET_FRAMES
 
 __all__ = ["END_HOLD_S", "EPISODE_STEPS", "SongCommands"]
+
+log = logging.getLogger(__name__)
 
 EPISODE_STEPS = 500
 """The env's episode, control steps (``PianoEnvConfig.episode_length_s`` 10 s at 50 Hz): progress's scale."""
@@ -61,7 +64,6 @@ class SongCommands(CommandSource):
         self._t0: float | None = None
         self._step = 0
         self._pressed = np.zeros(PIANO_KEYS, bool)
-        self._q: np.ndarray | None = None
 
     # -- the robot's side --------------------------------------------------------------------------
     def attach(self, target: Any) -> None:
@@ -73,11 +75,12 @@ class SongCommands(CommandSource):
                     f"{type(target).__name__} has no simulated keys: give a key source (--keys "
                     "midi[:PORT] or --keys kinematic)"
                 )
-            self.keys = SimKeys(self.keyboard, model, data)
+            self.keys = SimKeys(model, data, self.keyboard, via="qpos")  # the hinge now, not 2 ms ago
 
     def observe(self, q: np.ndarray, dq: np.ndarray) -> None:
-        """Keep the measured q for a kinematic key source."""
-        self._q = np.asarray(q)
+        """Hand the measured q to a key source that estimates from it (``keys.KinematicKeys``)."""
+        if hasattr(self.keys, "observe"):
+            self.keys.observe(q)
 
     def begin(self, t: float) -> None:
         """The song's step 0 is POLICY's first tick."""
@@ -93,7 +96,7 @@ class SongCommands(CommandSource):
         s = min(self.step_at(t), self.song_steps)
         self._step = s
         assert self.keys is not None, "attach() gives the sim target's keys before the first tick"
-        self._pressed = np.asarray(self.keys.read(self._q), bool)
+        self._pressed = np.asarray(self.keys.read(t), bool)
         return {
             "target_keys": self.down[s : s + TARGET_FRAMES].reshape(-1).astype(np.float32),
             "progress": np.array([s / self.scale], np.float32),
@@ -126,16 +129,25 @@ class SongCommands(CommandSource):
 
     def metadata(self) -> dict[str, Any]:
         """The song, its length and the key source."""
-        keys = "sim (attached)" if self.keys is None else self.keys.describe()
+        keys = "sim (attached)" if self.keys is None else _describe(self.keys)
         return {**super().metadata(), "song": self.song.name, "song_steps": self.song_steps, "keys": keys}
 
     def describe(self) -> str:
         """One line for logs."""
-        keys = "the sim's keys" if self.keys is None else self.keys.describe()
+        keys = "the sim's keys" if self.keys is None else _describe(self.keys)
         length = self.song_steps * self.dt
         return f"song {self.song.name!r} ({len(self.song.notes)} notes, {length:g} s), keys {keys}"
 
     def close(self) -> None:
-        """Close the key source."""
+        """Close the key source and log what it could not use (``KeySource.counts``)."""
         if self.keys is not None:
+            if self.keys.counts:
+                log.warning("key source %s: %s", _describe(self.keys), dict(self.keys.counts))
             self.keys.close()
+
+
+def _describe(keys: KeySource) -> str:
+    """``sim``, ``midi``, ``scheduled``, ``kinematic``: the source's kind, for the log."""
+    name = type(keys).__name__.removesuffix("Keys").lower()
+    port = getattr(keys, "port_name", None)
+    return f"{name}({port})" if port else name
