@@ -223,7 +223,12 @@ class LitePiano(LiteRobotEnv):
             "goal_keys": jnp.sum(goal),
             "keys_down": jnp.sum(down.astype(jnp.float32)),
         }
-        return TaskStep(terms=terms, info={}, metrics=metrics)
+        f32 = {
+            k: jnp.asarray(v).astype(jnp.float32) for k, v in metrics.items()
+        }  # strong float32, as reset's
+        return TaskStep(
+            terms={k: jnp.asarray(v).astype(jnp.float32) for k, v in terms.items()}, info={}, metrics=f32
+        )
 
     def task_obs(self, model: mjx.Model, data: mjx.Data, q_meas: jax.Array, info: dict) -> dict:
         """Goal keys of the next ``TARGET_FRAMES`` steps, progress, and the keys down now."""
