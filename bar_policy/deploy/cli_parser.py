@@ -1,0 +1,109 @@
+"""The ``bar-deploy`` argument parser: the run options, the options ``run`` and ``eval`` share.
+
+``cli.py`` holds the program (``main``); the real target adds its own group (``cli._add_real_help``).
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from pathlib import Path
+
+from bar_policy.deploy.live import LIVE_PORT
+from bar_policy.tasks.cli_types import Parser as _Parser
+from bar_policy.tasks.cli_types import count0 as _count0
+from bar_policy.tasks.cli_types import duration as _duration
+from bar_policy.tasks.cli_types import number as _number
+from bar_policy.tasks.cli_types import port as _port
+from bar_policy.tasks.cli_types import priority as _priority
+from bar_policy.tasks.cli_types import seconds as _seconds
+from bar_policy.tasks.cli_types import seconds0 as _seconds0
+
+__all__ = ["SUBCOMMANDS", "TARGETS", "common_options", "run_parser", "target_of"]
+
+TARGETS = ("sim", "mock", "real")
+SUBCOMMANDS = ("run", "plot", "eval", "log")
+_EPILOG = """subcommands:
+  run   (default) run a policy:         bar-deploy --policy x.onnx --target sim --duration 10
+  plot  PNG plots of a run log:          bar-deploy plot runs/deploy/20250101-120000-sim
+  eval  sim2sim, the task's metric:      bar-deploy eval --policy x.onnx
+  log   recover a run.mcap cut by a crash: bar-deploy log recover runs/deploy/20250101-120000-sim
+command sources (by the policy's task):
+  reach --commands sampled | sampled:PERIOD | file:PATH (.json/.csv/.npz) | stream:stdin | stream:udp:PORT
+  track --motion wave | clap | reach_sweep | hanging_to_piano_ready | random-s<seed>-<index> | clip.npz | .csv
+real target options: the group above (also listed by bar-deploy --target real --help)
+stopping: SIGINT (Ctrl+C), SIGTERM, SIGHUP -> DAMPING, stop frames, log closed; a second signal is ignored
+exit status: 0 done or stopped on request, 1 fault or error during the run, 2 refused before the start,
+3 the safe stop was not confirmed by every joint
+"""
+
+
+def common_options(p: argparse.ArgumentParser) -> None:
+    """The options ``run`` and ``eval`` share (policy, mode, control period, action clip, verbosity)."""
+    p.add_argument("--policy", required=True, type=Path, metavar="PATH",
+                   help="ONNX policy file (bar_policy's, or one with the Humanoid Control keys)")  # fmt: skip
+    p.add_argument("--mode", default="arms", choices=("arms", "arms_neck"), help="joint set of the robot")
+    p.add_argument("--control-dt", type=_seconds, default=0.02, metavar="S",
+                   help="control period, s: the policy's dt (default 0.02)")  # fmt: skip
+    p.add_argument("--action-clip", type=_number("a number >= 0", lambda v: v >= 0), metavar="A",
+                   help="clip raw actions to +-A, action units (default: the file's bar.action_clip, else "
+                        "1.0 as in training; 0: none)")  # fmt: skip
+    p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+
+
+def run_parser() -> argparse.ArgumentParser:
+    """The parser of ``bar-deploy [run]``: every option once, each task's in its own group."""
+    from bar_policy.deploy.tasks import all_tasks
+
+    seed_help = "; ".join(t.seed_help for t in all_tasks() if t.seed_help) or "seed of the task's commands"
+    p = _Parser(
+        prog="bar-deploy",
+        description="Run an ONNX policy at its policy rate on a target, under the safety supervisor.",
+        epilog=_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    common_options(p)
+    p.add_argument("--target", default="sim", choices=TARGETS, help="where to run (default: sim)")
+    p.add_argument("--duration", type=_duration, metavar="S|inf",
+                   help="run length in s, or 'inf' until stopped (default: 10 s; track policies: until the "
+                        "clip ends)")  # fmt: skip
+    p.add_argument("--seed", type=int, default=0, metavar="N", help=f"{seed_help} (default 0)")
+    p.add_argument("--log", type=Path, default=Path("runs/deploy"), metavar="DIR",
+                   help="directory of run logs (default: runs/deploy)")  # fmt: skip
+    p.add_argument("--no-log", action="store_true", help="record no run log")
+    p.add_argument("--live", nargs="?", const=LIVE_PORT, type=_port, metavar="PORT",
+                   help="serve the run log's channels live on 127.0.0.1:PORT for the Foxglove app (Open "
+                        f"connection -> Foxglove WebSocket -> ws://localhost:PORT; default {LIVE_PORT}; 0: "
+                        "any free port)")  # fmt: skip
+    p.add_argument("--ramp-time", type=_seconds0, default=3.0, metavar="S",
+                   help="HOLD ramp to the default pose, s (default 3)")  # fmt: skip
+    p.add_argument(
+        "--start", default="hold", choices=("hold", "policy"), help="start with the ramp or the policy"
+    )
+    p.add_argument("--max-overruns", type=_count0, default=5, metavar="N",
+                   help="consecutive overrun ticks that trip damping (0: off; default 5)")  # fmt: skip
+    p.add_argument("--stale-timeout", type=_seconds, default=0.1, metavar="S",
+                   help="state age that trips damping, s (default 0.1)")  # fmt: skip
+    p.add_argument("--damping-time", type=_seconds0, default=1.0, metavar="S",
+                   help="after a fault or a stop signal, damp this long before the stop frames, s "
+                        "(default 1)")  # fmt: skip
+    p.add_argument("--end-hold", type=_seconds0, default=1.0, metavar="S",
+                   help="after the commands end (a motion clip's last frame), HOLD that pose this long, s "
+                        "(default 1)")  # fmt: skip
+    p.add_argument("--rt-priority", type=_priority, metavar="1-99",
+                   help="run the loop under SCHED_FIFO at this priority (root or CAP_SYS_NICE)")  # fmt: skip
+    p.add_argument("--viewer", action="store_true", help="sim: live MuJoCo viewer (runs at real time)")
+    p.add_argument("--realtime", action="store_true", help="sim: pace at wall-clock rate")
+    p.add_argument("--video", type=Path, metavar="PATH",
+                   help="sim: write a video (.mp4, or .gif without ffmpeg)")  # fmt: skip
+    for task in all_tasks():
+        task.add_run_arguments(p)
+    return p
+
+
+def target_of(argv: Sequence[str]) -> str | None:
+    """The ``--target`` value in ``argv`` (None when absent), before the full parser exists."""
+    pre = _Parser(prog="bar-deploy", add_help=False)
+    pre.add_argument("--target")
+    known, _ = pre.parse_known_args(argv)
+    return known.target
