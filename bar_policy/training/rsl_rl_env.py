@@ -12,7 +12,19 @@ as for the brax backend, and ``reset``/``step`` are jitted once. Each ``step(act
 Nothing in a step waits for the device: the logged sums (reward, the task's ``eval_ratios``) stay on the
 device until ``take_stats`` reads them once per iteration or evaluation. The jax state is never donated,
 so the torch views of its buffers stay valid until rsl-rl copies them into its rollout storage. Torch must
-run on the device jax uses (``cuda`` for a GPU jax, else ``cpu``).
+run on the device jax uses (``cuda`` for a GPU jax, else ``cpu``). Every crossing goes through
+``bar_policy.training.torch_bridge`` (a copy there is counted and logged, never silent); the per-step path
+has no numpy and no ``device_get``.
+
+rsl-rl 5.x ``VecEnv`` contract (``rsl_rl/env/vec_env.py``): ``get_observations() -> TensorDict``;
+``step(actions) -> (obs TensorDict, rewards (N,), dones (N,), extras)`` with ``extras["time_outs"]``
+(bootstrapped by ``PPO.process_env_step``) and ``extras["log"]`` (``rsl_rl.utils.logger.Logger`` averages
+each entry over the iteration's steps and envs; a key with a ``/`` is written as is). ``extras["log"]``
+holds ``Metrics/<name>``: the env's per-step metrics (reward terms, distances, success), as zero-copy
+tensors, so ``OnPolicyRunner.learn`` on this env logs them as its users know; the episode return and
+length come from rsl-rl's own logger (``Train/mean_reward``, ``Train/mean_episode_length``).
+``episode_length_buf`` is the wrapper's step counter (read and written through the bridge), so the
+runner's ``init_at_random_ep_len`` works.
 """
 
 from __future__ import annotations
@@ -30,22 +42,9 @@ from tensordict import TensorDict
 
 from bar_policy.envs.base import eval_ratios
 from bar_policy.training.startup import Compiler
+from bar_policy.training.torch_bridge import jax_to_torch, torch_device_for_jax, torch_to_jax
 
 __all__ = ["RslRlVecEnv", "torch_device_for_jax"]
-
-
-def torch_device_for_jax() -> str:
-    """The torch device that shares memory with jax's default device (``cuda:N`` or ``cpu``)."""
-    dev = jax.local_devices()[0]
-    return f"cuda:{dev.id}" if dev.platform == "gpu" else "cpu"
-
-
-def _to_torch(x: jax.Array) -> torch.Tensor:
-    return torch.from_dlpack(x)
-
-
-def _to_jax(t: torch.Tensor) -> jax.Array:
-    return jax.dlpack.from_dlpack(t.detach().contiguous())
 
 
 class RslRlVecEnv(VecEnv):
@@ -61,6 +60,8 @@ class RslRlVecEnv(VecEnv):
         compiler: compile the batched step ahead of time on this ``startup.Compiler``'s threads (as
             ``name``), instead of at the first ``step``.
         name: the step program's name in ``compiler``.
+        log_metrics: put the env's per-step metrics in ``extras["log"]`` (``Metrics/<name>``); off for
+            an evaluation env, whose steps no rsl-rl logger reads.
 
     Observations are returned as ``TensorDict({"policy": obs})`` (shape ``(num_envs, obs)``); extras carry
     ``time_outs`` (truncations) for rsl-rl's bootstrapping.
@@ -82,6 +83,7 @@ class RslRlVecEnv(VecEnv):
         device: str | None = None,
         compiler: Compiler | None = None,
         name: str = "env step",
+        log_metrics: bool = True,
     ) -> None:
         self.num_envs = int(num_envs)
         self.task = env
@@ -91,6 +93,7 @@ class RslRlVecEnv(VecEnv):
         self.max_episode_length = int(env.episode_length)
         self.device = device or torch_device_for_jax()
         self.cfg = getattr(env, "config", {})
+        self.log_metrics = log_metrics
         key = jax.random.PRNGKey(seed)
         k_rand, self._key = jax.random.split(key)
         rfn = None
@@ -102,7 +105,6 @@ class RslRlVecEnv(VecEnv):
         self._reset = jax.jit(self._reset_fn)
         self.stats: dict[str, Any] = {}
         self.state = self.reset_all()
-        self.episode_length_buf = torch.zeros(self.num_envs, dtype=torch.long, device=self.device)
         step = jax.jit(self._step_fn)
         self._step: Callable[..., Any] = step
         if compiler is not None:
@@ -156,8 +158,20 @@ class RslRlVecEnv(VecEnv):
     def get_observations(self) -> TensorDict:
         """Current observations, ``{"policy": (num_envs, obs)}``."""
         return TensorDict(
-            {"policy": _to_torch(self.state.obs)}, batch_size=[self.num_envs], device=self.device
+            {"policy": jax_to_torch(self.state.obs)}, batch_size=[self.num_envs], device=self.device
         )
+
+    @property
+    def episode_length_buf(self) -> torch.Tensor:
+        """Control steps into each env's episode, (num_envs,) float32: a view of the wrapper's ``steps``."""
+        return jax_to_torch(self.state.info["steps"])
+
+    @episode_length_buf.setter
+    def episode_length_buf(self, value: torch.Tensor) -> None:
+        # OnPolicyRunner.learn(init_at_random_ep_len=True) assigns random lengths: the wrapper's counter
+        # takes them (as float32, its dtype), so time-outs come spread over the first episode.
+        steps = torch_to_jax(value.to(torch.float32))
+        self.state = self.state.replace(info={**self.state.info, "steps": steps})
 
     @property
     def metrics(self) -> dict[str, jax.Array]:
@@ -166,11 +180,14 @@ class RslRlVecEnv(VecEnv):
 
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
         """Step every env with ``actions`` (num_envs, num_actions); returns obs, reward, done, extras."""
-        self.state, self.stats = self._step(self.state, _to_jax(actions.to(torch.float32)), self.stats)
+        self.state, self.stats = self._step(self.state, torch_to_jax(actions.to(torch.float32)), self.stats)
         obs = self.get_observations()
-        reward = _to_torch(self.state.reward)
-        done = _to_torch(self.state.done)
-        extras = {"time_outs": _to_torch(self.state.info["truncation"]), "log": {}}
+        reward = jax_to_torch(self.state.reward)
+        done = jax_to_torch(self.state.done)
+        log = {}
+        if self.log_metrics:
+            log = {f"Metrics/{k}": jax_to_torch(v) for k, v in self.state.metrics.items()}
+        extras = {"time_outs": jax_to_torch(self.state.info["truncation"]), "log": log}
         return obs, reward, done, extras
 
     def take_stats(self) -> dict[str, Any]:
@@ -191,4 +208,4 @@ class RslRlVecEnv(VecEnv):
 
     def jax_actions(self, actions: torch.Tensor) -> jax.Array:
         """The zero-copy jax view of a torch action batch (exposed for tests)."""
-        return _to_jax(actions)
+        return torch_to_jax(actions)
