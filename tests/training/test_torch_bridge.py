@@ -46,7 +46,7 @@ def test_jax_to_torch_shares_the_buffer(shape, jdt, tdt):
 @pytest.mark.parametrize("shape", SHAPES)
 @pytest.mark.parametrize(("jdt", "tdt"), DTYPES)
 def test_torch_to_jax_shares_the_buffer(shape, jdt, tdt):
-    t = torch.from_numpy(np.array(_sample(shape, jdt)))
+    t = torch.tensor(np.asarray(_sample(shape, jdt)))  # torch-allocated (aligned) memory
     x = torch_to_jax(t, copy=False)  # copy=False: raises rather than copy
     assert x.dtype == jdt and x.shape == shape
     np.testing.assert_array_equal(np.asarray(x), t.numpy())
