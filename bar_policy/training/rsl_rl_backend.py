@@ -38,7 +38,8 @@ from bar_policy.training.best import BestIterate, BestKeeper
 from bar_policy.training.checkpoint import latest_checkpoint, save_checkpoint
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.progress import RunLogger, next_would_overrun
-from bar_policy.training.rsl_rl_env import RslRlVecEnv, torch_device_for_jax
+from bar_policy.training.rsl_rl_config import rsl_rl_train_cfg
+from bar_policy.training.rsl_rl_env import RslRlVecEnv
 from bar_policy.training.rsl_rl_state import (
     load_module_state,
     load_optimizer_state,
@@ -46,6 +47,7 @@ from bar_policy.training.rsl_rl_state import (
     optimizer_state,
 )
 from bar_policy.training.startup import Compiler, StartupTimer
+from bar_policy.training.torch_bridge import COPIES, torch_device_for_jax
 
 __all__ = [
     "RslRlTrainResult",
@@ -55,48 +57,6 @@ __all__ = [
     "torch_policy_reference",
     "train_rsl_rl",
 ]
-
-_ACT = {"swish": "swish", "elu": "elu", "relu": "relu", "tanh": "tanh"}
-
-
-def rsl_rl_train_cfg(cfg: TrainConfig) -> dict[str, Any]:
-    """rsl-rl 5.x ``train_cfg`` dict for ``OnPolicyRunner`` from our config."""
-    ppo, net, r = cfg.ppo, cfg.network, cfg.rsl_rl
-    dist = {"class_name": "GaussianDistribution", "init_std": net.init_noise_std, "std_type": "scalar"}
-    return {
-        "num_steps_per_env": ppo.steps_per_iteration // ppo.num_envs,
-        "save_interval": 10**9,
-        "obs_groups": {"actor": ["policy"], "critic": ["policy"]},
-        "check_for_nan": True,
-        "algorithm": {
-            "class_name": "PPO",
-            "num_learning_epochs": ppo.num_updates_per_batch,
-            "num_mini_batches": ppo.num_minibatches,
-            "clip_param": ppo.clipping_epsilon,
-            "gamma": ppo.discounting,
-            "lam": ppo.gae_lambda,
-            "value_loss_coef": r.value_loss_coef,
-            "entropy_coef": ppo.entropy_cost,
-            "learning_rate": ppo.learning_rate,
-            "max_grad_norm": ppo.max_grad_norm if ppo.max_grad_norm > 0 else 1e9,
-            "schedule": r.schedule,
-            "desired_kl": r.desired_kl,
-        },
-        "actor": {
-            "class_name": "MLPModel",
-            "hidden_dims": list(net.policy_hidden),
-            "activation": _ACT[net.activation],
-            "obs_normalization": ppo.normalize_observations,
-            "distribution_cfg": dist,
-        },
-        "critic": {
-            "class_name": "MLPModel",
-            "hidden_dims": list(net.value_hidden),
-            "activation": _ACT[net.activation],
-            "obs_normalization": ppo.normalize_observations,
-        },
-    }
-
 
 # ----------------------------------------------------------------------------------------------------------
 # Policy extraction, reference and evaluation
@@ -268,6 +228,8 @@ def train_rsl_rl(
     traced_before = timer.phases.get(sb.TRACE, 0.0) + timer.phases.get(sb.LOWER, 0.0)
     compiler = Compiler(timer)  # the training and evaluation steps compile side by side
     kw = {"wrap_fn": wrap_fn, "randomizer": randomizer, "device": device, "compiler": compiler}
+    # Our loop records its own sums on the device (take_stats); extras["log"] is for OnPolicyRunner.learn.
+    kw["log_metrics"] = False
     vec_env = RslRlVecEnv(env, ppo.num_envs, seed=cfg.seed, name="train step", **kw)
     eval_env = RslRlVecEnv(env, cfg.eval.num_eval_envs, seed=cfg.seed + 1, name="eval step", **kw)
     runner = OnPolicyRunner(vec_env, rsl_rl_train_cfg(cfg), log_dir=None, device=device)
@@ -325,6 +287,7 @@ def train_rsl_rl(
     timer.add("set-up (torch, runner, envs, eval @ 0)", time.monotonic() - t_start - traced)
     t_loop = time.monotonic()
     first = True
+    copies_seen = COPIES.count
     while iteration < total_iters:
         t0 = time.monotonic()
         with torch.inference_mode():
@@ -335,6 +298,9 @@ def train_rsl_rl(
             alg.compute_returns(obs)
         losses = alg.update()
         stats = vec_env.take_stats()
+        if COPIES.count > copies_seen:  # never silent: a torch->jax crossing that could not share
+            copies_seen = COPIES.count
+            logger.print(f"  torch->jax bridge copies so far: {dict(COPIES.by_reason)}")
         iteration += 1
         env_steps += steps_per_iter
         dt = time.monotonic() - t0
