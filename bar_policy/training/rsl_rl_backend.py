@@ -120,10 +120,11 @@ def evaluate_torch_policy(
 ) -> dict[str, float]:
     """Deterministic evaluation on ``vec_env`` (one episode per env from a fresh reset with ``seed``).
 
-    Reports ``episode_reward`` (mean and std over envs) and one ratio per entry of the task's
+    Reports ``episode_reward`` (mean and std over envs), one ratio per entry of the task's
     ``eval_ratios`` (``success_rate`` always): sums of numerators over steps and envs / sums of
-    denominators. As in the brax evaluator, a slot counts until its episode's first ``done``. The sums
-    accumulate on the device; the host reads them once at the end.
+    denominators, and, on a ``quality`` env, the ``quality/<figure>`` safety and smoothness figures. As in
+    the brax evaluator, a slot counts until its episode's first ``done``. The sums accumulate on the
+    device; the host reads them once at the end.
     """
     vec_env.reset_all(seed=seed)
     obs = vec_env.get_observations()
@@ -134,6 +135,7 @@ def evaluate_torch_policy(
     ret = stats["return"]
     out = {"episode_reward": float(np.mean(ret)), "episode_reward_std": float(np.std(ret))}
     out.update({k: n / max(d, 1.0) for k, (n, d) in stats["ratios"].items()})
+    out.update(stats.get("quality", {}))  # quality/<figure>, as the brax evaluator's (eval_quality)
     return out
 
 
@@ -231,7 +233,9 @@ def train_rsl_rl(
     # Our loop records its own sums on the device (take_stats); extras["log"] is for OnPolicyRunner.learn.
     kw["log_metrics"] = False
     vec_env = RslRlVecEnv(env, ppo.num_envs, seed=cfg.seed, name="train step", **kw)
-    eval_env = RslRlVecEnv(env, cfg.eval.num_eval_envs, seed=cfg.seed + 1, name="eval step", **kw)
+    eval_env = RslRlVecEnv(
+        env, cfg.eval.num_eval_envs, seed=cfg.seed + 1, name="eval step", quality=True, **kw
+    )
     runner = OnPolicyRunner(vec_env, rsl_rl_train_cfg(cfg), log_dir=None, device=device)
     alg = runner.alg
     steps_per_env = ppo.steps_per_iteration // ppo.num_envs
@@ -249,7 +253,7 @@ def train_rsl_rl(
         env_steps, iteration = int(payload["env_steps"]), int(payload["iteration"])
         logger.print(f"resumed {path} at {env_steps} env steps (iteration {iteration})")
     start_steps = env_steps
-    keeper = BestKeeper(start_steps)
+    keeper = BestKeeper(start_steps, getattr(env, "task_name", None))  # ranked as brax ranks
     # Copied before any forward pass: later the Gaussian head holds non-leaf tensors deepcopy refuses.
     spare_actor = copy.deepcopy(alg.actor)
     periods = max((cfg.eval.num_evals - 1), 1)

@@ -41,6 +41,8 @@ from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
 from bar_policy.envs.base import eval_ratios
+from bar_policy.training import eval_quality
+from bar_policy.training.parallel import AXIS
 from bar_policy.training.startup import Compiler
 from bar_policy.training.torch_bridge import jax_to_torch, torch_device_for_jax, torch_to_jax
 
@@ -62,6 +64,10 @@ class RslRlVecEnv(VecEnv):
         name: the step program's name in ``compiler``.
         log_metrics: put the env's per-step metrics in ``extras["log"]`` (``Metrics/<name>``); off for
             an evaluation env, whose steps no rsl-rl logger reads.
+        quality: also measure the evaluation's safety and smoothness figures (``eval_quality``, as the
+            brax evaluator does: ``quality/<figure>`` in ``take_stats()["quality"]``) on each slot's first
+            episode; for an evaluation env (it keeps every step's chatter signal, episode_length x
+            num_envs x joints).
 
     Observations are returned as ``TensorDict({"policy": obs})`` (shape ``(num_envs, obs)``); extras carry
     ``time_outs`` (truncations) for rsl-rl's bootstrapping.
@@ -84,6 +90,7 @@ class RslRlVecEnv(VecEnv):
         compiler: Compiler | None = None,
         name: str = "env step",
         log_metrics: bool = True,
+        quality: bool = False,
     ) -> None:
         self.num_envs = int(num_envs)
         self.task = env
@@ -94,6 +101,7 @@ class RslRlVecEnv(VecEnv):
         self.device = device or torch_device_for_jax()
         self.cfg = getattr(env, "config", {})
         self.log_metrics = log_metrics
+        self.quality = quality
         key = jax.random.PRNGKey(seed)
         k_rand, self._key = jax.random.split(key)
         rfn = None
@@ -103,6 +111,7 @@ class RslRlVecEnv(VecEnv):
             env, episode_length=self.max_episode_length, action_repeat=1, randomization_fn=rfn
         )
         self._reset = jax.jit(self._reset_fn)
+        self._quality = jax.jit(self._quality_fn)
         self.stats: dict[str, Any] = {}
         self.state = self.reset_all()
         step = jax.jit(self._step_fn)
@@ -125,9 +134,15 @@ class RslRlVecEnv(VecEnv):
             "return": zeros,
             "ratios": {k: (zeros, zeros) for k in ratios},
         }
+        if self.quality:
+            n = self.num_actions
+            stats["quality"] = eval_quality.init(self.num_envs, n)
+            stats["signals"] = jnp.zeros((self.max_episode_length, self.num_envs, n))
+            stats["t"] = jnp.zeros((), jnp.int32)
         return state, stats
 
     def _step_fn(self, state: Any, actions: jax.Array, stats: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
+        stats_in = stats
         ns = self._env.step(state, actions)
         ratios = eval_ratios(self.task, ns.metrics)
         num, den = ratios["success_rate"]
@@ -142,7 +157,28 @@ class RslRlVecEnv(VecEnv):
                 for k, (n, d) in ratios.items()
             },
         }
+        if self.quality:  # as Learner.evaluate: the applied action's signals, before the step
+            t, task, f32 = stats_in["t"], self.task, lambda x: jnp.asarray(x, jnp.float32)
+            sig = jax.vmap(task.quality_signals)(state, actions)
+            robot = task.robot
+            limits = {"cap": f32(robot.torque_cap), "lower": f32(robot.lower), "upper": f32(robot.upper)}
+            terminated = ns.done * (1.0 - ns.info["truncation"])
+            first = t == 0
+            qc, _ = eval_quality.update(
+                stats_in["quality"], sig, alive, terminated, first, dt=task.dt, **limits
+            )
+            last = self.max_episode_length - 1
+            stats["quality"] = qc
+            stats["signals"] = stats_in["signals"].at[jnp.minimum(t, last)].set(sig["signal"])
+            stats["t"] = t + 1
         return ns, stats
+
+    def _quality_fn(self, qc: dict[str, jax.Array], signals: jax.Array) -> dict[str, jax.Array]:
+        # eval_quality.finish reduces over the mesh axis: a vmap of size 1 names it (the sums are this
+        # device's). Chatter is measured over every tick of ``signals``: an evaluation steps all of them.
+        one = jax.tree.map(lambda x: x[None], (qc, signals))
+        out = jax.vmap(lambda q, s: eval_quality.finish(q, s, self.task.dt), axis_name=AXIS)(*one)
+        return jax.tree.map(lambda x: x[0], out)
 
     # -- VecEnv -----------------------------------------------------------------------------------
     def reset_all(self, seed: int | None = None) -> Any:
@@ -195,16 +231,24 @@ class RslRlVecEnv(VecEnv):
 
         Returns:
             ``{"reward": float, "success": (num, den), "return": np.ndarray (num_envs,), "ratios":
-            {name: (num, den)}}``: sums as described in the class docstring.
+            {name: (num, den)}}``: sums as described in the class docstring; with ``quality``, also
+            ``"quality": {"quality/<figure>": float}`` (``eval_quality.finish``'s figures).
         """
-        host = jax.device_get(self.stats)
+        dev = dict(self.stats)
+        if self.quality:
+            dev.pop("t")
+            dev["quality"] = self._quality(dev["quality"], dev.pop("signals"))
+        host = jax.device_get(dev)
         self.stats = self._fresh_stats
-        return {
+        out = {
             "reward": float(host["reward"]),
             "success": (float(host["success"][0]), float(host["success"][1])),
             "return": np.asarray(host["return"]),
             "ratios": {k: (float(np.sum(n)), float(np.sum(d))) for k, (n, d) in host["ratios"].items()},
         }
+        if self.quality:
+            out["quality"] = {k: float(v) for k, v in host["quality"].items()}
+        return out
 
     def jax_actions(self, actions: torch.Tensor) -> jax.Array:
         """The zero-copy jax view of a torch action batch (exposed for tests)."""
