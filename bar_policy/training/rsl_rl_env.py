@@ -187,7 +187,11 @@ class RslRlVecEnv(VecEnv):
             self._key, k = jax.random.split(self._key)
         else:
             k = jax.random.PRNGKey(seed)
-        self.state, self.stats = self._reset(jax.random.split(k, self.num_envs))
+        # Committed to jax's device (as the step's outputs are: its actions come from torch, committed):
+        # the step then sees one signature from the first call on (an uncommitted reset state compiled
+        # the jitted step a second time on the second call).
+        keys = jax.device_put(jax.random.split(k, self.num_envs), jax.local_devices()[0])
+        self.state, self.stats = self._reset(keys)
         self._fresh_stats = self.stats  # immutable device arrays: reused as the zero point
         return self.state
 

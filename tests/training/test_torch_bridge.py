@@ -124,3 +124,28 @@ def test_vec_env_step_crosses_without_copies(toy_env):
     for _ in range(3):
         _, _, done, extras = env.step(actions)
     assert done.tolist() == [1.0] + [0.0] * 7 and extras["time_outs"][0] == 1.0
+
+
+@pytest.mark.slow
+def test_vec_env_steps_make_no_host_round_trip(toy_env, monkeypatch):
+    # After the first step, 25 steps (one auto-reset at 20) with every host crossing made to fail: jax's
+    # transfer guard refuses host->device transfers, and reading a jax array's value on the host (numpy,
+    # float(), device_get) goes through ArrayImpl._value, replaced by a trap.
+    from jax._src.array import ArrayImpl
+
+    env = RslRlVecEnv(toy_env, 8, wrap_fn=wrap_for_brax_training, seed=0, device="cpu", quality=True)
+    actions = torch.full((8, 14), 0.1)
+    env.step(actions)
+
+    def trap(self):
+        raise AssertionError("a jax array was read on the host during a step")
+
+    monkeypatch.setattr(ArrayImpl, "_value", property(trap))
+    with jax.transfer_guard("disallow"):
+        for _ in range(25):
+            _, _, done, _ = env.step(actions)
+    monkeypatch.undo()
+    assert done.sum() == 0 and env.take_stats()["success"][1] > 0  # the steps did run
+    # One signature throughout: the reset's state is committed to the device as the step's outputs are,
+    # so the jitted step compiled once (a second compile would have read constants on the host, above).
+    assert env._step._cache_size() == 1
