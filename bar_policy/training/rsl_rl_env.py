@@ -9,6 +9,11 @@ as for the brax backend, and ``reset``/``step`` are jitted once. Each ``step(act
 3. hands ``obs``, ``reward``, ``done`` and ``truncation`` back with ``torch.from_dlpack`` (zero copy; torch's
    stream waits on jax's).
 
+Buffer lifetimes on a GPU: a torch view keeps its jax buffer alive (the DLPack capsule holds it), and
+when the view is dropped jax may reuse the memory for later work on its stream. That later work is
+ordered after torch's reads: every jitted step waits (on the device) for the torch stream that produced
+its actions, and those come after rsl-rl's storage copied the previous observations on the same stream.
+
 Nothing in a step waits for the device: the logged sums (reward, the task's ``eval_ratios``) stay on the
 device until ``take_stats`` reads them once per iteration or evaluation. The jax state is never donated,
 so the torch views of its buffers stay valid until rsl-rl copies them into its rollout storage. Torch must
