@@ -12,7 +12,12 @@ the ``batch_size * num_minibatches / num_envs`` segments of ``unroll_length`` th
 back to back), and updates on them as brax does: num_learning_epochs = num_updates_per_batch passes of
 num_mini_batches = num_minibatches minibatches (``batch_size * unroll_length`` samples each);
 gamma = discounting, lam = gae_lambda, clip_param = clipping_epsilon, entropy_coef = entropy_cost,
-learning_rate, max_grad_norm.
+learning_rate, max_grad_norm. The field's rsl-rl values for arm reach/manipulation (Isaac Lab's Franka
+reach and lift, mjlab's YAM lift; table and sources in ``rsl_rl_config``): num_steps_per_env 24,
+learning_rate 1e-3 adaptive (desired_kl 0.01), clip 0.2, entropy 0.005, gamma 0.99, lam 0.95, 5 epochs
+of 4 minibatches, max_grad_norm 1.0, value_loss_coef 1.0, init_noise_std 1.0, actor = critic
+[256, 128, 64] elu with observation normalisation; ``rsl_rl_config.field_hyperparameters(cfg)`` applies
+them (``field_cli_flags`` gives the ``bar-train`` flags).
 
 Speed: nothing in the rollout waits for the device. Actions and observations cross by DLPack on the
 device; the logged sums accumulate on the device (``RslRlVecEnv.take_stats`` reads them once per
