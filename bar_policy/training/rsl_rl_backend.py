@@ -12,7 +12,12 @@ the ``batch_size * num_minibatches / num_envs`` segments of ``unroll_length`` th
 back to back), and updates on them as brax does: num_learning_epochs = num_updates_per_batch passes of
 num_mini_batches = num_minibatches minibatches (``batch_size * unroll_length`` samples each);
 gamma = discounting, lam = gae_lambda, clip_param = clipping_epsilon, entropy_coef = entropy_cost,
-learning_rate, max_grad_norm.
+learning_rate, max_grad_norm. The field's rsl-rl values for arm reach/manipulation (Isaac Lab's Franka
+reach and lift, mjlab's YAM lift; table and sources in ``rsl_rl_config``): num_steps_per_env 24,
+learning_rate 1e-3 adaptive (desired_kl 0.01), clip 0.2, entropy 0.005, gamma 0.99, lam 0.95, 5 epochs
+of 4 minibatches, max_grad_norm 1.0, value_loss_coef 1.0, init_noise_std 1.0, actor = critic
+[256, 128, 64] elu with observation normalisation; ``rsl_rl_config.field_hyperparameters(cfg)`` applies
+them (``field_cli_flags`` gives the ``bar-train`` flags).
 
 Speed: nothing in the rollout waits for the device. Actions and observations cross by DLPack on the
 device; the logged sums accumulate on the device (``RslRlVecEnv.take_stats`` reads them once per
@@ -38,7 +43,8 @@ from bar_policy.training.best import BestIterate, BestKeeper
 from bar_policy.training.checkpoint import latest_checkpoint, save_checkpoint
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.progress import RunLogger, next_would_overrun
-from bar_policy.training.rsl_rl_env import RslRlVecEnv, torch_device_for_jax
+from bar_policy.training.rsl_rl_config import rsl_rl_train_cfg
+from bar_policy.training.rsl_rl_env import RslRlVecEnv
 from bar_policy.training.rsl_rl_state import (
     load_module_state,
     load_optimizer_state,
@@ -46,6 +52,7 @@ from bar_policy.training.rsl_rl_state import (
     optimizer_state,
 )
 from bar_policy.training.startup import Compiler, StartupTimer
+from bar_policy.training.torch_bridge import COPIES, torch_device_for_jax
 
 __all__ = [
     "RslRlTrainResult",
@@ -55,48 +62,6 @@ __all__ = [
     "torch_policy_reference",
     "train_rsl_rl",
 ]
-
-_ACT = {"swish": "swish", "elu": "elu", "relu": "relu", "tanh": "tanh"}
-
-
-def rsl_rl_train_cfg(cfg: TrainConfig) -> dict[str, Any]:
-    """rsl-rl 5.x ``train_cfg`` dict for ``OnPolicyRunner`` from our config."""
-    ppo, net, r = cfg.ppo, cfg.network, cfg.rsl_rl
-    dist = {"class_name": "GaussianDistribution", "init_std": net.init_noise_std, "std_type": "scalar"}
-    return {
-        "num_steps_per_env": ppo.steps_per_iteration // ppo.num_envs,
-        "save_interval": 10**9,
-        "obs_groups": {"actor": ["policy"], "critic": ["policy"]},
-        "check_for_nan": True,
-        "algorithm": {
-            "class_name": "PPO",
-            "num_learning_epochs": ppo.num_updates_per_batch,
-            "num_mini_batches": ppo.num_minibatches,
-            "clip_param": ppo.clipping_epsilon,
-            "gamma": ppo.discounting,
-            "lam": ppo.gae_lambda,
-            "value_loss_coef": r.value_loss_coef,
-            "entropy_coef": ppo.entropy_cost,
-            "learning_rate": ppo.learning_rate,
-            "max_grad_norm": ppo.max_grad_norm if ppo.max_grad_norm > 0 else 1e9,
-            "schedule": r.schedule,
-            "desired_kl": r.desired_kl,
-        },
-        "actor": {
-            "class_name": "MLPModel",
-            "hidden_dims": list(net.policy_hidden),
-            "activation": _ACT[net.activation],
-            "obs_normalization": ppo.normalize_observations,
-            "distribution_cfg": dist,
-        },
-        "critic": {
-            "class_name": "MLPModel",
-            "hidden_dims": list(net.value_hidden),
-            "activation": _ACT[net.activation],
-            "obs_normalization": ppo.normalize_observations,
-        },
-    }
-
 
 # ----------------------------------------------------------------------------------------------------------
 # Policy extraction, reference and evaluation
@@ -160,10 +125,11 @@ def evaluate_torch_policy(
 ) -> dict[str, float]:
     """Deterministic evaluation on ``vec_env`` (one episode per env from a fresh reset with ``seed``).
 
-    Reports ``episode_reward`` (mean and std over envs) and one ratio per entry of the task's
+    Reports ``episode_reward`` (mean and std over envs), one ratio per entry of the task's
     ``eval_ratios`` (``success_rate`` always): sums of numerators over steps and envs / sums of
-    denominators. As in the brax evaluator, a slot counts until its episode's first ``done``. The sums
-    accumulate on the device; the host reads them once at the end.
+    denominators, and, on a ``quality`` env, the ``quality/<figure>`` safety and smoothness figures. As in
+    the brax evaluator, a slot counts until its episode's first ``done``. The sums accumulate on the
+    device; the host reads them once at the end.
     """
     vec_env.reset_all(seed=seed)
     obs = vec_env.get_observations()
@@ -174,6 +140,7 @@ def evaluate_torch_policy(
     ret = stats["return"]
     out = {"episode_reward": float(np.mean(ret)), "episode_reward_std": float(np.std(ret))}
     out.update({k: n / max(d, 1.0) for k, (n, d) in stats["ratios"].items()})
+    out.update(stats.get("quality", {}))  # quality/<figure>, as the brax evaluator's (eval_quality)
     return out
 
 
@@ -268,8 +235,12 @@ def train_rsl_rl(
     traced_before = timer.phases.get(sb.TRACE, 0.0) + timer.phases.get(sb.LOWER, 0.0)
     compiler = Compiler(timer)  # the training and evaluation steps compile side by side
     kw = {"wrap_fn": wrap_fn, "randomizer": randomizer, "device": device, "compiler": compiler}
+    # Our loop records its own sums on the device (take_stats); extras["log"] is for OnPolicyRunner.learn.
+    kw["log_metrics"] = False
     vec_env = RslRlVecEnv(env, ppo.num_envs, seed=cfg.seed, name="train step", **kw)
-    eval_env = RslRlVecEnv(env, cfg.eval.num_eval_envs, seed=cfg.seed + 1, name="eval step", **kw)
+    eval_env = RslRlVecEnv(
+        env, cfg.eval.num_eval_envs, seed=cfg.seed + 1, name="eval step", quality=True, **kw
+    )
     runner = OnPolicyRunner(vec_env, rsl_rl_train_cfg(cfg), log_dir=None, device=device)
     alg = runner.alg
     steps_per_env = ppo.steps_per_iteration // ppo.num_envs
@@ -287,7 +258,7 @@ def train_rsl_rl(
         env_steps, iteration = int(payload["env_steps"]), int(payload["iteration"])
         logger.print(f"resumed {path} at {env_steps} env steps (iteration {iteration})")
     start_steps = env_steps
-    keeper = BestKeeper(start_steps)
+    keeper = BestKeeper(start_steps, getattr(env, "task_name", None))  # ranked as brax ranks
     # Copied before any forward pass: later the Gaussian head holds non-leaf tensors deepcopy refuses.
     spare_actor = copy.deepcopy(alg.actor)
     periods = max((cfg.eval.num_evals - 1), 1)
@@ -325,6 +296,7 @@ def train_rsl_rl(
     timer.add("set-up (torch, runner, envs, eval @ 0)", time.monotonic() - t_start - traced)
     t_loop = time.monotonic()
     first = True
+    copies_seen = COPIES.count
     while iteration < total_iters:
         t0 = time.monotonic()
         with torch.inference_mode():
@@ -335,6 +307,9 @@ def train_rsl_rl(
             alg.compute_returns(obs)
         losses = alg.update()
         stats = vec_env.take_stats()
+        if COPIES.count > copies_seen:  # never silent: a torch->jax crossing that could not share
+            copies_seen = COPIES.count
+            logger.print(f"  torch->jax bridge copies so far: {dict(COPIES.by_reason)}")
         iteration += 1
         env_steps += steps_per_iter
         dt = time.monotonic() - t0

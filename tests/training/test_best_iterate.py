@@ -60,9 +60,9 @@ def test_best_onnx_path_sits_next_to_the_policy(tmp_path):
 
 
 def _expected_best_step(evals: list[dict], first_step: int) -> int:
-    """The documented order: with quality figures (brax's evaluation), the least total excess beyond the
-    reach gate (quality.gate.excess, tested by hand in tests/quality), then success; without them (rsl-rl's
-    evaluation), success then reward. The first of equal ones."""
+    """The documented order: with quality figures (both backends' evaluations), the least total excess
+    beyond the reach gate (quality.gate.excess, tested by hand in tests/quality), then success; without
+    them, success then reward. The first of equal ones."""
     cands = [e for e in evals if e["step"] > first_step]
 
     def key(e: dict) -> tuple:

@@ -111,3 +111,63 @@ def test_rsl_rl_parity_gate_refuses_a_corrupted_actor(toy_env, tmp_path):
             torch_policy_reference(actor),
         )
     assert not (tmp_path / "bad.onnx").exists()
+
+
+def test_rsl_rls_own_runner_learns_and_logs_on_the_adapter(toy_env, tmp_path):
+    # rsl-rl as its users run it: OnPolicyRunner.learn on our VecEnv, rsl-rl's logger writing TensorBoard.
+    from rsl_rl.runners import OnPolicyRunner
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from bar_policy.training.rsl_rl_config import rsl_rl_train_cfg
+
+    cfg = toy_config(tmp_path, "own-runner", TOY_RSL)
+    env = RslRlVecEnv(toy_env, cfg.ppo.num_envs, wrap_fn=wrap_for_brax_training, seed=0, device="cpu")
+    runner = OnPolicyRunner(env, rsl_rl_train_cfg(cfg), log_dir=str(tmp_path / "tb"), device="cpu")
+    # Random initial episode lengths (written into the wrapper's step counter): episodes end within the
+    # 2 x 8 steps, so rsl-rl's own episode statistics have entries.
+    runner.learn(2, init_at_random_ep_len=True)
+    acc = EventAccumulator(str(tmp_path / "tb"))
+    acc.Reload()
+    tags = set(acc.Tags()["scalars"])
+    assert {"Train/mean_reward", "Train/mean_episode_length", "Loss/learning_rate", "Perf/total_fps"} <= tags
+    assert {f"Metrics/{k}" for k in env.state.metrics} <= tags  # extras["log"], averaged by rsl-rl
+    assert len(acc.Scalars("Metrics/dist_left")) == 2
+
+
+def test_both_backends_write_the_same_run_record(brax_run, rsl_run):
+    (_, brax), (_, rsl) = brax_run, rsl_run
+
+    def kinds(summary) -> dict[str, set[str]]:
+        out: dict[str, set[str]] = {}
+        for line in (summary.run_dir / "metrics.jsonl").read_text().splitlines():
+            rec = json.loads(line)
+            keys = {k for k in rec.get("metrics", rec) if not k.startswith("loss/")}
+            out.setdefault(rec["kind"], set()).update(keys)
+        return out
+
+    assert kinds(brax).keys() == kinds(rsl).keys()
+    for kind in kinds(brax):
+        assert kinds(brax)[kind] <= kinds(rsl)[kind], kind
+    # The files, but the best iterate's ONNX, written only when an earlier iterate ranked higher.
+    files = lambda s: {p.name for p in s.run_dir.iterdir()} - {"policy_best.onnx"}  # noqa: E731
+    assert files(brax) == files(rsl)
+    fb, fr = (json.loads((s.run_dir / "final_eval.json").read_text()) for s in (brax, rsl))
+    assert fb.keys() == fr.keys() and fb["final_eval"].keys() == fr["final_eval"].keys()
+    q = fr["final_eval"]  # the rsl-rl evaluation's quality figures are real counts, as brax's
+    assert q["quality/episodes"] == 32 and 0 <= q["quality/completion_pct"] <= 100
+    assert {p.key for p in onnx.load(str(brax.onnx_path)).metadata_props} == {
+        p.key for p in onnx.load(str(rsl.onnx_path)).metadata_props
+    }
+
+
+def test_vec_env_quality_figures_by_hand(toy_env):
+    # Actions alternating +-0.3 on every joint: each tick after the first moves 0.6 on 14 joints, so the
+    # action rate is 14 * 0.6^2 = 5.04 per tick; the toy never terminates, so all 8 episodes complete.
+    env = RslRlVecEnv(toy_env, 8, wrap_fn=wrap_for_brax_training, seed=0, device="cpu", quality=True)
+    env.reset_all(seed=3)
+    for t in range(env.max_episode_length):
+        env.step(torch.full((8, 14), 0.3 if t % 2 == 0 else -0.3))
+    q = env.take_stats()["quality"]
+    assert q["quality/episodes"] == 8 and q["quality/completion_pct"] == 100.0
+    assert q["quality/action_rate"] == pytest.approx(14 * 0.6**2, rel=1e-5)
+    assert q["quality/chatter_unmeasured"] == 0 and q["quality/chatter_max_mrad"] > 0

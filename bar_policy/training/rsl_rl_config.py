@@ -1,0 +1,171 @@
+"""rsl-rl's ``train_cfg`` from our ``TrainConfig``, and the field's reach/manipulation hyperparameters.
+
+``rsl_rl_train_cfg(cfg)`` maps the shared ``PPOConfig`` so that one rsl-rl iteration is one brax iteration
+(see ``RslRlConfig``). ``field_hyperparameters(cfg)`` sets those shared fields to the values the rsl-rl
+community trains arm reach and manipulation tasks with (``FIELD_RSL_RL_PPO``), so that
+``bar-train --backend rsl-rl`` can run rsl-rl as its users know it; ``field_cli_flags`` spells the same
+as ``bar-train`` flags.
+
+Sources (the rsl-rl ``OnPolicyRunner`` configs of the field, read 2026-11):
+
+===================== ========== ============== ============ =========
+(rsl-rl name)         IL reach   IL lift        mjlab lift   **ours**
+===================== ========== ============== ============ =========
+num_steps_per_env     24         24             24           **24**
+learning_rate         1e-3       1e-4           1e-3         **1e-3**
+schedule, desired_kl  adapt 0.01 adapt 0.01     adapt 0.01   **adapt 0.01**
+clip_param            0.2        0.2            0.2          **0.2**
+entropy_coef          0.001      0.006          0.005        **0.005**
+gamma, lam            0.99, 0.95 0.98, 0.95     0.99, 0.95   **0.99, 0.95**
+num_learning_epochs   8          5              5            **5**
+num_mini_batches      4          4              4            **4**
+max_grad_norm         1.0        1.0            1.0          **1.0**
+value_loss_coef       1.0        1.0            1.0          **1.0**
+init_noise_std        1.0        1.0            1.0          **1.0**
+hidden dims (a = c)   64, 64     256, 128, 64   512, 256, 128 **256, 128, 64**
+activation            elu        elu            elu          **elu**
+obs normalization     off        off            on           **on**
+===================== ========== ============== ============ =========
+
+- IL reach: ``isaac-sim/IsaacLab:source/isaaclab_tasks/isaaclab_tasks/manager_based/manipulation/reach/
+  config/franka/agents/rsl_rl_ppo_cfg.py`` (``FrankaReachPPORunnerCfg``).
+- IL lift: ``isaac-sim/IsaacLab:.../manipulation/lift/config/franka/agents/rsl_rl_ppo_cfg.py``
+  (``LiftCubePPORunnerCfg``).
+- mjlab lift: ``mujocolab/mjlab:src/mjlab/tasks/manipulation/config/yam/rl_cfg.py``
+  (``yam_lift_cube_ppo_runner_cfg``).
+
+Ours is mjlab's YAM lift (the one MuJoCo arm-manipulation config of the three, and the consensus row but
+for the width), with Isaac Lab lift's [256, 128, 64] networks (a 14-joint arm pair's policy, between the
+reach and the lift sizes). Observation normalisation is on as in mjlab (our exporter folds it into the ONNX
+graph). Both use rsl-rl's clipped value loss (its default).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from bar_policy.training.config import TrainConfig, apply_overrides
+
+__all__ = [
+    "FIELD_RSL_RL_PPO",
+    "field_cli_flags",
+    "field_hyperparameters",
+    "field_overrides",
+    "rsl_rl_train_cfg",
+]
+
+_ACT = {"swish": "swish", "elu": "elu", "relu": "relu", "tanh": "tanh"}
+
+FIELD_RSL_RL_PPO: dict[str, Any] = {
+    "num_steps_per_env": 24,
+    "learning_rate": 1e-3,
+    "schedule": "adaptive",
+    "desired_kl": 0.01,
+    "clip_param": 0.2,
+    "entropy_coef": 0.005,
+    "gamma": 0.99,
+    "lam": 0.95,
+    "num_learning_epochs": 5,
+    "num_mini_batches": 4,
+    "max_grad_norm": 1.0,
+    "value_loss_coef": 1.0,
+    "init_noise_std": 1.0,
+    "hidden_dims": (256, 128, 64),
+    "activation": "elu",
+    "obs_normalization": True,
+}
+"""The field's rsl-rl PPO hyperparameters for arm reach/manipulation, rsl-rl's names (module docstring)."""
+
+
+def field_overrides(num_envs: int) -> dict[str, Any]:
+    """``FIELD_RSL_RL_PPO`` as overrides of our config's fields, for ``num_envs`` parallel envs.
+
+    ``num_steps_per_env`` = ``batch_size * num_minibatches * unroll_length / num_envs`` in our mapping: 24
+    with ``unroll_length=24``, ``num_minibatches=4``, ``batch_size=num_envs/4`` (the minibatch is
+    ``num_envs * 24 / 4`` samples, as rsl-rl's).
+
+    Raises:
+        ValueError: ``num_envs`` does not divide by ``num_mini_batches`` (4).
+    """
+    f = FIELD_RSL_RL_PPO
+    if num_envs <= 0 or num_envs % f["num_mini_batches"]:
+        raise ValueError(f"num_envs must be a positive multiple of {f['num_mini_batches']}, got {num_envs}")
+    return {
+        "ppo.unroll_length": f["num_steps_per_env"],
+        "ppo.num_minibatches": f["num_mini_batches"],
+        "ppo.batch_size": num_envs // f["num_mini_batches"],
+        "ppo.num_updates_per_batch": f["num_learning_epochs"],
+        "ppo.learning_rate": f["learning_rate"],
+        "ppo.entropy_cost": f["entropy_coef"],
+        "ppo.discounting": f["gamma"],
+        "ppo.gae_lambda": f["lam"],
+        "ppo.clipping_epsilon": f["clip_param"],
+        "ppo.max_grad_norm": f["max_grad_norm"],
+        "ppo.normalize_observations": f["obs_normalization"],
+        "rsl_rl.schedule": f["schedule"],
+        "rsl_rl.desired_kl": f["desired_kl"],
+        "rsl_rl.value_loss_coef": f["value_loss_coef"],
+        "network.policy_hidden": f["hidden_dims"],
+        "network.value_hidden": f["hidden_dims"],
+        "network.activation": f["activation"],
+        "network.init_noise_std": f["init_noise_std"],
+    }
+
+
+def field_hyperparameters(cfg: TrainConfig) -> TrainConfig:
+    """``cfg`` with the field's rsl-rl hyperparameters (``field_overrides(cfg.ppo.num_envs)``)."""
+    return apply_overrides(cfg, field_overrides(cfg.ppo.num_envs))
+
+
+def field_cli_flags(num_envs: int) -> list[str]:
+    """``field_overrides`` as ``bar-train`` flags: ``["--ppo.unroll-length", "24", ...]``."""
+    out = []
+    for path, value in field_overrides(num_envs).items():
+        group, name = path.split(".")
+        flag = f"--{group.replace('_', '-')}.{name.replace('_', '-')}"
+        if isinstance(value, bool):
+            out.append(flag if value else f"--{group.replace('_', '-')}.no-{name.replace('_', '-')}")
+        elif isinstance(value, tuple):
+            out += [flag, *(str(v) for v in value)]
+        else:
+            out += [flag, str(value)]
+    return out
+
+
+def rsl_rl_train_cfg(cfg: TrainConfig) -> dict[str, Any]:
+    """rsl-rl 5.x ``train_cfg`` dict for ``OnPolicyRunner`` from our config (mapping: ``RslRlConfig``)."""
+    ppo, net, r = cfg.ppo, cfg.network, cfg.rsl_rl
+    dist = {"class_name": "GaussianDistribution", "init_std": net.init_noise_std, "std_type": "scalar"}
+    return {
+        "num_steps_per_env": ppo.steps_per_iteration // ppo.num_envs,
+        "save_interval": 10**9,
+        "obs_groups": {"actor": ["policy"], "critic": ["policy"]},
+        "check_for_nan": True,
+        "algorithm": {
+            "class_name": "PPO",
+            "num_learning_epochs": ppo.num_updates_per_batch,
+            "num_mini_batches": ppo.num_minibatches,
+            "clip_param": ppo.clipping_epsilon,
+            "gamma": ppo.discounting,
+            "lam": ppo.gae_lambda,
+            "value_loss_coef": r.value_loss_coef,
+            "entropy_coef": ppo.entropy_cost,
+            "learning_rate": ppo.learning_rate,
+            "max_grad_norm": ppo.max_grad_norm if ppo.max_grad_norm > 0 else 1e9,
+            "schedule": r.schedule,
+            "desired_kl": r.desired_kl,
+        },
+        "actor": {
+            "class_name": "MLPModel",
+            "hidden_dims": list(net.policy_hidden),
+            "activation": _ACT[net.activation],
+            "obs_normalization": ppo.normalize_observations,
+            "distribution_cfg": dist,
+        },
+        "critic": {
+            "class_name": "MLPModel",
+            "hidden_dims": list(net.value_hidden),
+            "activation": _ACT[net.activation],
+            "obs_normalization": ppo.normalize_observations,
+        },
+    }

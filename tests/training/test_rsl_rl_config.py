@@ -1,0 +1,55 @@
+"""The rsl-rl ``train_cfg``: the field's reach/manipulation hyperparameters reach rsl-rl as stated."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from bar_policy.training.cli import parse_config
+from bar_policy.training.config import preset
+from bar_policy.training.rsl_rl_config import (
+    FIELD_RSL_RL_PPO,
+    field_cli_flags,
+    field_hyperparameters,
+    field_overrides,
+    rsl_rl_train_cfg,
+)
+
+
+def test_field_hyperparameters_reach_rsl_rl_unchanged():
+    f = FIELD_RSL_RL_PPO
+    cfg = field_hyperparameters(dataclasses.replace(preset("gpu"), backend="rsl-rl"))
+    train = rsl_rl_train_cfg(cfg)
+    # 4096 envs: batch_size 1024 x 4 minibatches x unroll 24 = 98,304 env steps = 24 per env.
+    assert cfg.ppo.num_envs == 4096 and cfg.ppo.steps_per_iteration == 4096 * 24
+    assert train["num_steps_per_env"] == f["num_steps_per_env"] == 24
+    alg = train["algorithm"]
+    for name in ("learning_rate", "schedule", "desired_kl", "clip_param", "entropy_coef", "gamma", "lam"):
+        assert alg[name] == f[name], name
+    for name in ("num_learning_epochs", "num_mini_batches", "max_grad_norm", "value_loss_coef"):
+        assert alg[name] == f[name], name
+    for model in ("actor", "critic"):
+        assert train[model]["hidden_dims"] == [256, 128, 64]
+        assert train[model]["activation"] == "elu" and train[model]["obs_normalization"] is True
+    assert train["actor"]["distribution_cfg"]["init_std"] == 1.0
+
+
+def test_field_cli_flags_parse_to_the_same_config():
+    flags = field_cli_flags(4096)
+    assert flags[:2] == ["--ppo.unroll-length", "24"]
+    parsed = parse_config(["--backend", "rsl-rl", *flags])
+    want = field_hyperparameters(preset("gpu"))
+    assert (parsed.ppo, parsed.network, parsed.rsl_rl) == (want.ppo, want.network, want.rsl_rl)
+
+
+@pytest.mark.parametrize("num_envs", [0, 6, 4098])
+def test_field_overrides_refuse_env_counts_the_minibatches_do_not_divide(num_envs):
+    with pytest.raises(ValueError, match="multiple of 4"):
+        field_overrides(num_envs)
+
+
+def test_field_overrides_keep_24_steps_per_env_at_any_batch():
+    for n in (32, 1024, 8192):
+        o = field_overrides(n)
+        assert o["ppo.batch_size"] * o["ppo.num_minibatches"] * o["ppo.unroll_length"] == 24 * n
