@@ -56,6 +56,7 @@ from bar_policy.envs.actuator import (
     robot_force,
 )
 from bar_policy.envs.base import MjxEnv, State
+from bar_policy.envs.quality_signals import quality_signals
 from bar_policy.envs.robot_config import RobotEnvConfig
 from bar_policy.envs.task import TaskHooks, Transition
 from bar_policy.obs import ObservationManager
@@ -259,30 +260,11 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         return action, buf, make_command(self.q_command(delayed), info["kp"], info["kd"], self._act)
 
     def quality_signals(self, state: State, action: jax.Array) -> dict[str, jax.Array]:
-        """What the safety and smoothness metrics (``bar_policy.quality``) see at this tick, unbatched.
-
-        Returns ``demand`` (the unclipped MIT torque of the command this step applies, at the measured
-        state: the supervisor's saturation test on the robot, N*m), ``q`` (true positions, rad),
-        ``action`` (the applied action) and ``signal`` (the chatter signal: ``q_cmd - q_ref`` when the task
-        has a reference, else ``q_cmd``, rad), each shape (n,).
-        """
-        info, data = state.info, state.data
-        applied, _, cmd = self._command(info, action)
-        q_cmd = self.q_command(applied)
-        ref = self.task_reference(info)
-        q, dq = self.robot_q(data), self.robot_dq(data)
-        return {
-            "demand": mit_torque(cmd, q + info["encoder_offset"], dq),
-            "q": q,
-            "action": applied,
-            "signal": q_cmd if ref is None else q_cmd - ref,
-        }
+        """What the safety and smoothness metrics see at this tick, unbatched (``envs.quality_signals``)."""
+        return quality_signals(self, state, action)
 
     def action_prior(self, lead_steps: int) -> ActionPrior:
-        """The task's action prior (``bar_policy.obs.action_prior``), ``lead_steps`` control steps ahead.
-
-        A fixed map from the observation to the action the policy starts from, where the task has a
-        reference to follow.
+        """The task's action prior (``obs.action_prior``), ``lead_steps`` control steps ahead.
 
         Raises:
             ValueError: the task has none (this default: reach has no reference to follow).
