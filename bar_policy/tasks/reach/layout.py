@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from bar_policy.obs.manager import ObservationSchema, ObsTerm
+from bar_policy.obs.manager import ObservationSchema
+from bar_policy.obs.robot_layout import robot_schema, state_terms, term
 from bar_policy.robot.constants import load_robot
 
 __all__ = ["schema"]
@@ -10,23 +11,6 @@ __all__ = ["schema"]
 
 def schema(mode: str) -> ObservationSchema:
     """Version 1 of the bimanual reach layout: q, dq, the last action, both fingertips, both targets."""
-    robot = load_robot(mode)
-    n = robot.num_joints
-    return ObservationSchema(
-        name=f"lite_reach_{mode}",
-        version=1,
-        robot=robot.robot,
-        mode=mode,
-        joint_names=robot.joint_names,
-        action_joint_names=robot.joint_names,
-        default_joint_pos=tuple(float(x) for x in robot.pose("piano_ready")),
-        terms=(
-            ObsTerm(name="joint_pos", size=n, scale=1.0, clip=100.0),
-            ObsTerm(name="joint_vel", size=n, scale=0.1, clip=100.0),
-            ObsTerm(name="actions", size=n, scale=1.0, clip=100.0),
-            ObsTerm(name="fingertip_pos_left", size=3, scale=1.0, clip=100.0),
-            ObsTerm(name="fingertip_pos_right", size=3, scale=1.0, clip=100.0),
-            ObsTerm(name="target_pos_left", size=3, scale=1.0, clip=100.0),
-            ObsTerm(name="target_pos_right", size=3, scale=1.0, clip=100.0),
-        ),
-    )
+    n = load_robot(mode).num_joints
+    pos = ("fingertip_pos_left", "fingertip_pos_right", "target_pos_left", "target_pos_right")
+    return robot_schema(f"lite_reach_{mode}", 1, mode, (*state_terms(n), *(term(p, 3) for p in pos)))
