@@ -214,7 +214,8 @@ def _run_session(
 
             target = MockTarget(args.mode)
         else:
-            target = real.make_target(args, args.mode)  # type: ignore[attr-defined]
+            scene = task.scene(policy)  # type: ignore[attr-defined]
+            target = real.make_target(args, args.mode, scene)  # type: ignore[attr-defined]
         rt = Runtime(
             policy,
             target,

@@ -86,8 +86,11 @@ def test_song_and_key_options(tmp_path) -> None:
     write_song(off, Song("off", (Note(100, 0.0, 0.5, "right"),)))
     with pytest.raises(OptionError, match="off the keyboard"):
         resolve_song(str(off))
-    with pytest.raises(OptionError, match="--keys sim needs --target sim"):
+    with pytest.raises(OptionError, match="--keys sim needs --target sim or the emulated bus"):
         key_source("sim", "mock", None)  # type: ignore[arg-type]
+    with pytest.raises(OptionError, match="--keys sim needs --target sim or the emulated bus"):
+        key_source("sim", "real", None)  # type: ignore[arg-type] - a real bus: no simulated keys
+    assert key_source(None, "real", None, emulated=True) is None  # type: ignore[arg-type] - the emulator's keys
     with pytest.raises(OptionError, match=r"unknown --keys 'usb'; valid: sim, midi, midi:PORT, kinematic"):
         key_source("usb", "sim", None)  # type: ignore[arg-type]
 
@@ -98,13 +101,17 @@ def piano_policy(tmp_path_factory) -> Path:
     return make_policy_file(tmp_path_factory.mktemp("piano") / "piano.onnx", metadata=meta)
 
 
-@pytest.mark.parametrize("target", ["mock", "sim"])
-def test_song_on_the_mock_and_sim_targets(piano_policy, tmp_path, target) -> None:
-    rc = main(["--policy", str(piano_policy), "--target", target, "--song", "twinkle_twinkle",
+@pytest.mark.parametrize("target", ["mock", "sim", "emulated"])
+def test_song_on_the_mock_sim_and_emulated_targets(piano_policy, tmp_path, target) -> None:
+    where = (
+        ["--target", "real", "--can-interface", "virtual"] if target == "emulated" else ["--target", target]
+    )
+    rc = main(["--policy", str(piano_policy), *where, "--song", "twinkle_twinkle",
                "--duration", "1.5", "--ramp-time", "0.5", "--log", str(tmp_path)])  # fmt: skip
     assert rc == 0
     (run,) = tmp_path.iterdir()
     log, meta = load_log(run)
+    # The sim target and the bus emulator carry the keyboard: their keys; the mock has none: kinematics.
     assert meta["command_source"]["keys"] == ("kinematic" if target == "mock" else "sim")
     steps = np.asarray(log["song_step"])
     goal = np.asarray(log["goal_keys"])
@@ -116,7 +123,7 @@ def test_song_on_the_mock_and_sim_targets(piano_policy, tmp_path, target) -> Non
     assert not down[-50:].any()
     if target == "mock":
         assert not down.any()
-    else:
+    else:  # the emulator starts at the ramp's start pose, the sim at the exact pose: C3 / C5 at most
         assert set(np.flatnonzero(down.any(axis=0)) + KB.lowest) <= {48, 72}
     # The log's goal rows are the song's (twinkle: C4 first, from POLICY's first tick, song step 0).
     first = int(np.argmax(steps > 0)) - 1

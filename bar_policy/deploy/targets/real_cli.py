@@ -15,6 +15,7 @@ import can
 from bar_policy.deploy.targets.base import Target, TargetError
 from bar_policy.deploy.targets.real_target import RealTarget
 from bar_policy.robot.constants import load_robot
+from bar_policy.robot.scene import SceneEdit
 from bar_policy.robstride.bus_types import DEFAULT_REPLY_TIMEOUT
 from bar_policy.robstride.calibration import Calibration
 from bar_policy.robstride.canbus import open_can_buses
@@ -77,15 +78,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
              f"(default {DEFAULT_RETRIES})")  # fmt: skip
 
 
-def make_target(args: argparse.Namespace, mode: str) -> Target:
-    """Build the real target from parsed options (nothing is enabled before ``start()``)."""
+def make_target(args: argparse.Namespace, mode: str, scene: SceneEdit | None = None) -> Target:
+    """Build the real target from parsed options (nothing is enabled before ``start()``).
+
+    ``scene``: the task's additions to the MuJoCo scene of the in-process emulator (``--can-interface
+    virtual``; the piano's keyboard), None for the robot alone; a real bus ignores it.
+    """
     try:
-        return _make_target(args, mode)
+        return _make_target(args, mode, scene)
     except (RobstrideError, ValueError, OSError, can.CanError) as exc:
         raise TargetError(f"cannot build the real target: {exc}") from exc
 
 
-def _make_target(args: argparse.Namespace, mode: str) -> RealTarget:
+def _make_target(args: argparse.Namespace, mode: str, scene: SceneEdit | None = None) -> RealTarget:
     robot = load_robot(mode)
     interface = getattr(args, "can_interface", "socketcan")
     interfaces = list(dict.fromkeys(j.can_interface for j in robot.joints))
@@ -116,7 +121,7 @@ def _make_target(args: argparse.Namespace, mode: str) -> RealTarget:
         emulator = RobstrideEmulator(
             robot, channels, interface=interface, mode=emulate,
             control_dt=getattr(args, "emulate_dt", None) or getattr(args, "control_dt", 0.02),
-            offsets=offsets,
+            offsets=offsets, scene=scene,
         )  # fmt: skip
         companions.append(emulator.start())
         log.info("started the %s Robstride emulator on %s", emulate, channels)

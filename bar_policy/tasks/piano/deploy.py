@@ -63,13 +63,23 @@ def resolve_song(spec: str) -> Song:
         raise OptionError(f"--song {spec}: {e}") from None
 
 
-def key_source(spec: str | None, target: str, kinematics: Kinematics) -> KeySource | None:
-    """The ``--keys`` source: None for ``sim`` (the runtime attaches the sim target's keys)."""
+def key_source(
+    spec: str | None, target: str, kinematics: Kinematics, emulated: bool = False
+) -> KeySource | None:
+    """The ``--keys`` source: None for ``sim`` (the runtime attaches the simulated keys of the target).
+
+    ``emulated``: the real target runs on the in-process bus emulator (``--can-interface virtual``), whose
+    scene has the keyboard, so ``sim`` keys (its default there) exist.
+    """
     kb = compact_config()
-    spec = spec or ("sim" if target == "sim" else "kinematic")
+    simulated = target == "sim" or (target == "real" and emulated)
+    spec = spec or ("sim" if simulated else "kinematic")
     if spec == "sim":
-        if target != "sim":
-            raise OptionError(f"--keys sim needs --target sim (the {target} target has no simulated keys)")
+        if not simulated:
+            raise OptionError(
+                f"--keys sim needs --target sim or the emulated bus (the {target} target has no "
+                "simulated keys)"
+            )
         return None
     if spec == "kinematic":
         return KinematicKeys(kb, kinematics.fingertips)
@@ -125,7 +135,8 @@ class PianoTask(DeployTask):
 
         kin = kinematics or Kinematics(policy.robot.mode)
         song = resolve_song(getattr(args, "song", None) or HELDOUT[0])
-        keys = key_source(getattr(args, "keys", None), getattr(args, "target", "sim"), kin)
+        emulated = getattr(args, "can_interface", None) == "virtual"
+        keys = key_source(getattr(args, "keys", None), getattr(args, "target", "sim"), kin, emulated)
         return SongCommands(song, compact_config(), policy.policy_dt, keys)
 
     def plot(self, arrays: dict[str, np.ndarray], meta: dict[str, Any], out: Path) -> list[Path]:

@@ -67,9 +67,14 @@ class SongCommands(CommandSource):
 
     # -- the robot's side --------------------------------------------------------------------------
     def attach(self, target: Any) -> None:
-        """With no key source given: the target's simulated keys (a sim target in the keyboard's scene)."""
+        """With no key source given: the simulated keys of the target's scene.
+
+        The sim target's, or the real target's in-process bus emulator's (each in the keyboard's scene).
+        """
         if self.keys is None:
-            model, data = getattr(target, "model", None), getattr(target, "data", None)
+            sims = [target, *getattr(target, "companions", ())]
+            sim = next((s for s in sims if hasattr(s, "model") and hasattr(s, "data")), None)
+            model, data = (sim.model, sim.data) if sim is not None else (None, None)
             if model is None or data is None:
                 raise ValueError(
                     f"{type(target).__name__} has no simulated keys: give a key source (--keys "
