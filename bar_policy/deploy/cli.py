@@ -215,7 +215,8 @@ def _run_session(
             target = MockTarget(args.mode)
         else:
             scene = task.scene(policy)  # type: ignore[attr-defined]
-            target = real.make_target(args, args.mode, scene)  # type: ignore[attr-defined]
+            extra = () if scene is None else (scene,)  # the robot alone: the two-argument contract
+            target = real.make_target(args, args.mode, *extra)  # type: ignore[attr-defined]
         rt = Runtime(
             policy,
             target,
