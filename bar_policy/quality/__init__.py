@@ -11,6 +11,7 @@ from bar_policy.quality.gate import (
     excess,
     gate_for,
     gates,
+    register_gate,
     score,
     thresholds_text,
 )
@@ -49,6 +50,7 @@ __all__ = [
     "gates",
     "highpass_rms",
     "near_limit",
+    "register_gate",
     "score",
     "summarise",
     "thresholds_text",

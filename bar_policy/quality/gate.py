@@ -14,10 +14,19 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
-from functools import cache
 from typing import Any
 
-__all__ = ["GateThresholds", "Miss", "check", "excess", "gate_for", "gates", "score", "thresholds_text"]
+__all__ = [
+    "GateThresholds",
+    "Miss",
+    "check",
+    "excess",
+    "gate_for",
+    "gates",
+    "register_gate",
+    "score",
+    "thresholds_text",
+]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -38,24 +47,25 @@ class GateThresholds:
     """Task success, % (reach: target segments reached)."""
 
 
-@cache
-def gates() -> dict[str, GateThresholds]:
-    """Task name -> its gate: each registered task's ``TaskRecord.gate`` (``bar_policy.tasks.registry``).
+_GATES: dict[str, GateThresholds] = {}
+"""Task name -> its gate, filled by ``register_gate`` (the task registry registers every task's)."""
 
-    Each task keeps its thresholds in its own folder (``tasks/<task>/gate.py``); the records are read on
-    first use, so importing this module imports no task.
+
+def register_gate(task: str, thresholds: GateThresholds) -> None:
+    """Make ``thresholds`` the gate of ``task``.
+
+    ``bar_policy.tasks.registry`` calls it for every task whose record names a gate (``TaskRecord.gate``,
+    the task's ``gate.py``), so each task keeps its thresholds in its own folder and this module imports
+    no task. Raises ``TypeError`` for anything but a ``GateThresholds``.
     """
-    from bar_policy.tasks.record import resolve
-    from bar_policy.tasks.registry import TASKS
+    if not isinstance(thresholds, GateThresholds):
+        raise TypeError(f"task {task!r}: the gate is a {type(thresholds).__name__}, not GateThresholds")
+    _GATES[task] = thresholds
 
-    out = {}
-    for r in TASKS:
-        if r.gate:
-            g = resolve(r.gate)
-            if not isinstance(g, GateThresholds):
-                raise TypeError(f"task {r.name!r}: gate {r.gate} is a {type(g).__name__}, not GateThresholds")
-            out[r.name] = g
-    return out
+
+def gates() -> dict[str, GateThresholds]:
+    """Task name -> its gate, as registered."""
+    return dict(_GATES)
 
 
 def __getattr__(name: str) -> Any:
@@ -82,10 +92,12 @@ class Miss:
 
 def gate_for(task: str) -> GateThresholds:
     """The gate of a task; ``ValueError`` naming the tasks that have one."""
-    table = gates()
-    if task not in table:
-        raise ValueError(f"no ship gate for task {task!r}; tasks with a gate: {sorted(table)}")
-    return table[task]
+    if task not in _GATES:
+        raise ValueError(
+            f"no ship gate for task {task!r}; tasks with a gate: {sorted(_GATES)} (importing "
+            "bar_policy.tasks.registry registers every task's)"
+        )
+    return _GATES[task]
 
 
 def thresholds_text(task: str) -> str:

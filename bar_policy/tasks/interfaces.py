@@ -130,6 +130,7 @@ class EvalReport(abc.ABC):
 
     def gate_lines(self) -> list[str]:
         """The gate's thresholds, then PASS or one line per miss."""
+        import bar_policy.tasks.registry  # noqa: F401 - registers every task's gate
         from bar_policy.quality import check, thresholds_text
 
         rep = self.gate_report()

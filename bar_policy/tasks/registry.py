@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import importlib
 
-from bar_policy.tasks.record import EnvEntry, TaskRecord
+from bar_policy.quality.gate import register_gate
+from bar_policy.tasks.record import EnvEntry, TaskRecord, resolve
 
 __all__ = ["TASKS", "TASK_PACKAGES", "env_entries", "get_task_record"]
 
@@ -40,6 +41,9 @@ TASKS: tuple[TaskRecord, ...] = tuple(_load(p) for p in TASK_PACKAGES)
 _BY_NAME = {r.name: r for r in TASKS}
 if len(_BY_NAME) != len(TASKS):
     raise ValueError(f"two task packages register the same name: {[r.name for r in TASKS]}")
+for _r in TASKS:  # each task's ship gate, from its folder, into the one gate table
+    if _r.gate:
+        register_gate(_r.name, resolve(_r.gate))
 _ENV_NAMES = [e.name for r in TASKS for e in r.envs]
 if len(set(_ENV_NAMES)) != len(_ENV_NAMES):
     raise ValueError(f"two tasks register the same env name: {_ENV_NAMES}")

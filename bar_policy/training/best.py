@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import bar_policy.tasks.registry  # noqa: F401 - registers every task's gate
 from bar_policy.quality import gate
 
 __all__ = [

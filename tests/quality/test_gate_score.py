@@ -6,6 +6,7 @@ import math
 
 import pytest
 
+import bar_policy.tasks.registry  # noqa: F401 - registers every task's gate
 from bar_policy.quality.gate import excess, score
 
 

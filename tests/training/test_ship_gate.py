@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+import bar_policy.tasks.registry  # noqa: F401 - registers every task's gate
 from bar_policy.quality.gate import check, thresholds_text
 
 ROOT = Path(__file__).resolve().parents[2]
