@@ -40,7 +40,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from bar_policy.deploy import cli_parser
-from bar_policy.deploy.cli_tools import fail, log_command, plot_command
+from bar_policy.deploy.cli_tools import fail as _fail
+from bar_policy.deploy.cli_tools import log_command, plot_command
 from bar_policy.deploy.log_files import CAN_LOG_FILE
 from bar_policy.deploy.signals import early_interrupt
 from bar_policy.tasks.cli_types import Parser as _Parser
@@ -71,10 +72,6 @@ def _configure_logging(verbose: bool) -> None:
         level=logging.DEBUG if verbose else logging.INFO,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
-
-
-def _fail(msg: object, status: int = 2) -> int:
-    return fail(msg, status)
 
 
 def _with_action_clip(policy: object, args: argparse.Namespace) -> object:

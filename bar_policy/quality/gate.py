@@ -68,13 +68,6 @@ def gates() -> dict[str, GateThresholds]:
     return dict(_GATES)
 
 
-def __getattr__(name: str) -> Any:
-    """``GATES``: ``gates()`` (the name earlier code imported)."""
-    if name == "GATES":
-        return gates()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 @dataclass(frozen=True)
 class Miss:
     """One way a report misses the gate."""

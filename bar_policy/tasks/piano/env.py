@@ -214,9 +214,9 @@ class LitePiano(LiteRobotEnv):
         counts = piano_metrics.step_counts(down, goal)
         step = piano_metrics.scores(counts)
         metrics = {
-            "true_pos": counts.tp.astype(jnp.float32),
-            "false_pos": counts.fp.astype(jnp.float32),
-            "false_neg": counts.fn.astype(jnp.float32),
+            "true_pos": counts.tp,
+            "false_pos": counts.fp,
+            "false_neg": counts.fn,
             "precision": step.precision,
             "recall": step.recall,
             "f1": step.f1,

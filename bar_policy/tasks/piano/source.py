@@ -153,6 +153,4 @@ class SongCommands(CommandSource):
 
 def _describe(keys: KeySource) -> str:
     """``sim``, ``midi``, ``scheduled``, ``kinematic``: the source's kind, for the log."""
-    name = type(keys).__name__.removesuffix("Keys").lower()
-    port = getattr(keys, "port_name", None)
-    return f"{name}({port})" if port else name
+    return type(keys).__name__.removesuffix("Keys").lower()

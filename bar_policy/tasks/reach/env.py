@@ -31,7 +31,6 @@ from dataclasses import dataclass, field, replace
 
 import jax
 import jax.numpy as jnp
-import mujoco
 import numpy as np
 from mujoco import mjx
 
@@ -48,6 +47,7 @@ from bar_policy.envs.robot_config import (
 from bar_policy.envs.task import TaskStep, Transition
 from bar_policy.obs import ObservationManager
 from bar_policy.robot.constants import FINGERTIP_SITES
+from bar_policy.robot.kinematics import Kinematics
 from bar_policy.robot.scene import SceneEdit
 from bar_policy.tasks.reach.shared import SUCCESS_RADIUS, ReachTargetConfig, sample_targets, transition_point
 
@@ -178,14 +178,9 @@ class LiteReach(LiteRobotEnv):
         cfg = config or default_config()
         super().__init__(cfg, ObservationManager.for_task("reach", cfg.mode), scene=scene)
         self._site_ids = np.array([self.mj_model.site(s).id for s in FINGERTIP_SITES])
-        self._tips0 = jnp.asarray(self._default_fingertips(), jnp.float32)
-
-    def _default_fingertips(self) -> np.ndarray:
-        """Fingertips (left, right) of the default pose by C MuJoCo's kinematics, shape (2, 3), m."""
-        data = mujoco.MjData(self.mj_model)
-        data.qpos[self.robot_index.qpos] = np.asarray(self._default)
-        mujoco.mj_kinematics(self.mj_model, data)
-        return data.site_xpos[self._site_ids].copy()
+        # The fingertips of the default pose, where each episode's commanded targets start (the deploy
+        # side's ``TransitionCommands`` starts from the same ``Kinematics``), shape (2, 3), m.
+        self._tips0 = jnp.asarray(Kinematics(cfg.mode).fingertips(np.asarray(self._default)), jnp.float32)
 
     def task_metadata(self) -> dict:
         """The command transition's duration (``bar.command_transition``), s."""
