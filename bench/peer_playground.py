@@ -48,7 +48,6 @@ import json
 import math
 import os
 import platform
-import subprocess
 import tarfile
 import tempfile
 import time
@@ -61,6 +60,7 @@ import jax
 import mujoco
 
 from bar_policy import envs
+from bar_policy.provenance import collect, commit_text
 
 DEFAULT_PEERS = ("BerkeleyHumanoidJoystickFlatTerrain",)
 MENAGERIE_ROBOTS = {"BerkeleyHumanoid": "berkeley_humanoid"}
@@ -306,14 +306,6 @@ def train_row(side: Side, cfg: dict[str, Any], args: argparse.Namespace) -> dict
 # ---------------------------------------------------------------------------------------------------
 # Report
 # ---------------------------------------------------------------------------------------------------
-def _commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                              check=True, cwd=Path(__file__).parent).stdout.strip()  # fmt: skip
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
 def ratios(result: dict[str, Any]) -> list[dict[str, Any]]:
     """Ours / peer for every peer: physics, per joint, env, training (steady and end to end)."""
     phys = {(r["side"], r["env"]): r for r in result["physics"]}
@@ -430,7 +422,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "mujoco": mujoco.__version__,
         "playground": importlib.metadata.version("playground"),
         "brax": importlib.metadata.version("brax"),
-        "commit": _commit(),
+        "commit": commit_text(collect()),  # git, or BAR_POLICY_GIT_COMMIT on the GPU copy
         "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
         "ours": args.ours,
         "peers": peers,
