@@ -1,0 +1,61 @@
+"""Raw MJX env throughput per registered env, side by side in one process (issue 18: the piano beside reach).
+
+Each env runs ``steps`` control steps of zero actions under one ``jit(scan)`` at the given batch, through
+the training wrappers and the env's domain randomiser (``training.throughput``), the best of 3 timed calls.
+Physics steps/s = env steps/s x the env's ``n_substeps``.
+
+    python3 bench/env_throughput.py --envs LiteReach,LitePiano --batch 8192       # one GPU
+    python3 bench/env_throughput.py --envs LitePiano --batch 4 --steps 2          # CPU smoke
+
+Prints a markdown table (and writes it to ``--out``).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--envs", default="LiteReach,LitePiano", help="comma-separated registered env names")
+    p.add_argument("--batch", type=int, default=8192, help="envs per batch")
+    p.add_argument("--steps", type=int, default=100, help="control steps per timed call")
+    p.add_argument("--out", type=Path, default=None, help="also write the table here")
+    a = p.parse_args()
+
+    import jax
+
+    from bar_policy import envs
+    from bar_policy.provenance import git_state
+    from bar_policy.training.throughput import raw_env_steps_per_second
+
+    rows = [
+        f"device {jax.devices()[0].device_kind}, batch {a.batch}, {a.steps} control steps per call, "
+        f"commit {git_state()[0]}",
+        "",
+        "| env | substeps | env steps/s | physics steps/s | compile s |",
+        "|---|---|---|---|---|",
+    ]
+    for name in a.envs.split(","):
+        env = envs.load(name)
+        r = raw_env_steps_per_second(
+            env,
+            envs.wrap_for_brax_training,
+            num_envs=a.batch,
+            steps=a.steps,
+            randomizer=envs.get_randomizer(name, env.config),
+        )
+        sps = r["env_steps_per_s"]
+        rows.append(
+            f"| {name} | {env.n_substeps} | {sps:,.0f} | {sps * env.n_substeps:,.0f} | {r['compile_s']:.1f} |"
+        )
+        print(rows[-1], flush=True)
+    text = "\n".join(rows) + "\n"
+    print(text)
+    if a.out:
+        a.out.write_text(text)
+
+
+if __name__ == "__main__":
+    main()
