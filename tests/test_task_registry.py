@@ -16,7 +16,7 @@ from blocked_imports import BLOCK_HEAVY
 
 from bar_policy.deploy.tasks import HC_TASKS, TASK_COMMAND_TERMS, get_task, implied_task
 from bar_policy.obs import SHIPPED_LAYOUTS, TERM_CATALOG, ObservationManager
-from bar_policy.tasks.record import EnvEntry, TaskRecord, resolve
+from bar_policy.task_records import EnvEntry, TaskRecord, resolve
 from bar_policy.tasks.registry import TASK_PACKAGES, TASKS, get_task_record
 from bar_policy.training.config import PRESETS, TrainConfig, preset
 

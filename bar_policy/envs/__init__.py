@@ -2,11 +2,12 @@
 
 Every env is a task on the Lite robot env (``robot.py``: actuator model, latency, quantisation, noise,
 substeps, action map, initial state; ``robot_config.py``: its config), plugged in through the hooks of
-``task.py``. The tasks live in their folders (``bar_policy/tasks/<task>/env.py``) and register their envs in
-their ``TaskRecord`` (``bar_policy.tasks.registry``), which this registry reads: ``LiteReach`` /
-``LiteReachNeck`` (reach) and ``LiteTrack`` (track). Domain randomisation (``randomize.py``) and the batched
-wrappers (``wrappers.py``) are shared by every task. A task's public MJX names (``envs.LiteReach``,
-``envs.TrackEnvConfig``, ...) are found in its env modules on first use.
+``task.py``. The tasks live in their folders (``bar_policy/tasks/<task>/env.py``) and name their envs in
+their ``TaskRecord``, which this registry reads from the published records (``bar_policy.task_records``):
+``LiteReach`` / ``LiteReachNeck`` (reach), ``LiteTrack`` (track), ``LitePiano`` (piano). Domain
+randomisation (``randomize.py``) and the batched wrappers (``wrappers.py``) are shared by every task. A
+task's public MJX names (``envs.LiteReach``, ``envs.TrackEnvConfig``, ...) are found in its env modules on
+first use.
 
 Usage::
 
@@ -30,8 +31,7 @@ from bar_policy.envs.base import MjxEnv, State
 from bar_policy.envs.robot import LiteRobotEnv
 from bar_policy.envs.robot_config import RobotEnvConfig, nominal
 from bar_policy.overrides import apply_overrides
-from bar_policy.tasks.record import resolve
-from bar_policy.tasks.registry import env_entries
+from bar_policy.task_records import records, resolve
 
 __all__ = [
     "ALL_ENVS",
@@ -55,7 +55,7 @@ def _randomizer(config: Any) -> Callable:
     return make_randomizer(config)
 
 
-_ENTRIES = {name: entry for name, (_, entry) in env_entries().items()}
+_ENTRIES = {entry.name: entry for record in records() for entry in record.envs}
 ALL_ENVS: tuple[str, ...] = tuple(_ENTRIES)
 """Registered env names (the task records' ``envs``, in registry order)."""
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import asdict, dataclass, field
 from importlib import resources
 from typing import Any
@@ -23,19 +23,33 @@ import numpy as np
 from bar_policy._array import Array, array_namespace
 from bar_policy.obs.terms import LOOKAHEAD_RULES, TERM_CATALOG
 from bar_policy.robot.constants import MODES, load_robot
-from bar_policy.tasks.record import resolve
-from bar_policy.tasks.registry import TASKS, get_task_record
+from bar_policy.task_records import get_record, records, resolve
 
 __all__ = ["SCHEMA_FORMAT", "SHIPPED_LAYOUTS", "ObsTerm", "ObservationManager", "ObservationSchema"]
 
 SCHEMA_FORMAT = "bar_policy.obs/1"
 """Format tag of the schema JSON itself (not the layout version)."""
 
-SHIPPED_LAYOUTS: dict[str, tuple[str, str]] = {
-    name: (record.name, mode) for record in TASKS for name, mode in record.shipped_layouts
-}
-"""Golden layouts committed under ``bar_policy/obs/schemas/``: name -> (task, mode), from the task records
-(``TaskRecord.shipped_layouts``)."""
+
+class _ShippedLayouts(Mapping[str, tuple[str, str]]):
+    """Layout name -> (task, mode) of every registered task's golden layouts, read on first use."""
+
+    def _load(self) -> dict[str, tuple[str, str]]:
+        return {name: (r.name, mode) for r in records() for name, mode in r.shipped_layouts}
+
+    def __getitem__(self, name: str) -> tuple[str, str]:
+        return self._load()[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._load())
+
+    def __len__(self) -> int:
+        return len(self._load())
+
+
+SHIPPED_LAYOUTS: Mapping[str, tuple[str, str]] = _ShippedLayouts()
+"""Golden layouts committed under ``bar_policy/obs/schemas/``: name -> (task, mode), from the registered
+task records (``TaskRecord.shipped_layouts``, ``bar_policy.task_records``)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -262,7 +276,7 @@ class ObservationManager:
         Raises:
             ValueError: an unknown task (the message lists the tasks) or mode.
         """
-        return cls(resolve(get_task_record(task).layout)(mode))
+        return cls(resolve(get_record(task).layout)(mode))
 
     @classmethod
     def from_json(cls, text: str) -> ObservationManager:

@@ -10,7 +10,7 @@ change: schemas that use it get a new version, existing golden schemas stay vali
 The robot's own terms (``ROBOT_TERMS``: joint state, the last action, the fingertips that the runtime
 computes, the IMU) are defined here; a task adds its own (its commands) in its folder and names them in its
 record (``TaskRecord.terms``, e.g. ``bar_policy/tasks/track/terms.py``). ``TERM_CATALOG`` is both, read
-from the task registry on first use.
+from the registered task records (``bar_policy.task_records``) on first use.
 """
 
 from __future__ import annotations
@@ -18,6 +18,8 @@ from __future__ import annotations
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Literal
+
+from bar_policy.task_records import records, resolve
 
 __all__ = ["LOOKAHEAD_RULES", "ROBOT_TERMS", "TERM_CATALOG", "TermKind"]
 
@@ -64,7 +66,7 @@ ROBOT_TERMS: dict[str, TermKind] = {
 
 
 class _Catalog(Mapping[str, TermKind]):
-    """``ROBOT_TERMS`` plus every registered task's terms, read from the registry on first use.
+    """``ROBOT_TERMS`` plus every registered task's terms, read from the task records on first use.
 
     Lazy because a task's terms module imports ``TermKind`` from here.
     """
@@ -74,11 +76,8 @@ class _Catalog(Mapping[str, TermKind]):
 
     def _load(self) -> dict[str, TermKind]:
         if self._terms is None:
-            from bar_policy.tasks.record import resolve
-            from bar_policy.tasks.registry import TASKS
-
             terms = dict(ROBOT_TERMS)
-            for record in TASKS:
+            for record in records():
                 for name, kind in (resolve(record.terms) if record.terms else {}).items():
                     if name in terms and terms[name] != kind:
                         raise ValueError(f"task {record.name!r} redefines the observation term {name!r}")

@@ -3,10 +3,12 @@
 Adding a task = a folder under ``bar_policy/tasks/`` with a ``RECORD`` (``record.TaskRecord``) in its
 ``__init__.py``, plus its line in ``TASK_PACKAGES`` (``docs/tasks.md``).
 
-Everything that needs the tasks reads them here: the env registry (``bar_policy.envs``), the observation
-layouts (``ObservationManager.for_task``, ``SHIPPED_LAYOUTS``), the training presets
-(``training.config.PRESETS``) and ``bar-deploy``'s task table (``deploy.task_registry``). Reading the records
-imports each task package's ``__init__`` (its shared numpy definitions) and nothing heavier.
+Importing it loads every task's record and publishes them to ``bar_policy.task_records`` (where the layers
+below the tasks read them: the env registry ``bar_policy.envs``, the observation layouts
+``ObservationManager.for_task`` and ``SHIPPED_LAYOUTS``), and registers each task's ship gate
+(``quality.gate``). The layers above read the records here: the training presets (``training.config.PRESETS``)
+and ``bar-deploy``'s task table (``deploy.task_registry``). Reading the records imports each task package's
+``__init__`` (its shared numpy definitions) and nothing heavier.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ from __future__ import annotations
 import importlib
 
 from bar_policy.quality.gate import register_gate
-from bar_policy.tasks.record import EnvEntry, TaskRecord, resolve
+from bar_policy.task_records import EnvEntry, TaskRecord, get_record, publish, resolve
 
 __all__ = ["TASKS", "TASK_PACKAGES", "env_entries", "get_task_record"]
 
@@ -38,22 +40,13 @@ def _load(package: str) -> TaskRecord:
 TASKS: tuple[TaskRecord, ...] = tuple(_load(p) for p in TASK_PACKAGES)
 """Every registered task's record."""
 
-_BY_NAME = {r.name: r for r in TASKS}
-if len(_BY_NAME) != len(TASKS):
-    raise ValueError(f"two task packages register the same name: {[r.name for r in TASKS]}")
+publish(TASKS)  # checks the task and env names are unique
 for _r in TASKS:  # each task's ship gate, from its folder, into the one gate table
     if _r.gate:
         register_gate(_r.name, resolve(_r.gate))
-_ENV_NAMES = [e.name for r in TASKS for e in r.envs]
-if len(set(_ENV_NAMES)) != len(_ENV_NAMES):
-    raise ValueError(f"two tasks register the same env name: {_ENV_NAMES}")
 
-
-def get_task_record(name: str) -> TaskRecord:
-    """The record of task ``name``; raises ``ValueError`` listing the tasks."""
-    if name not in _BY_NAME:
-        raise ValueError(f"unknown task {name!r}; valid tasks: {sorted(_BY_NAME)}")
-    return _BY_NAME[name]
+get_task_record = get_record
+"""The record of task ``name``; raises ``ValueError`` listing the tasks (``task_records.get_record``)."""
 
 
 def env_entries() -> dict[str, tuple[TaskRecord, EnvEntry]]:

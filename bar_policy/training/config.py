@@ -23,7 +23,7 @@ from typing import Annotated, Any, Literal
 import tyro
 
 from bar_policy.overrides import apply_overrides, split_override
-from bar_policy.tasks.record import resolve
+from bar_policy.task_records import resolve
 from bar_policy.tasks.registry import TASKS
 
 __all__ = [

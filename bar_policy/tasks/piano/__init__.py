@@ -6,6 +6,7 @@
 made here). numpy, mujoco and ``bar_policy.robot`` only: no jax, no torch. See docs/piano.md.
 """
 
+from bar_policy.task_records import EnvEntry, TaskRecord
 from bar_policy.tasks.piano.generator import TRAIN_TEMPO_BPM, random_song
 from bar_policy.tasks.piano.keyboard import (
     LEFT_REACH,
@@ -22,7 +23,6 @@ from bar_policy.tasks.piano.midi import load_midi
 from bar_policy.tasks.piano.scene import FINGERTIP_BIT, FINGERTIP_GEOMS, keyboard_scene
 from bar_policy.tasks.piano.song_library import HELDOUT, TRAIN, library_song
 from bar_policy.tasks.piano.songs import Note, Song, SongError, TempoLimits, goal_keys, playable, read_song
-from bar_policy.tasks.record import EnvEntry, TaskRecord
 
 __all__ = [
     "FINGERTIP_BIT",

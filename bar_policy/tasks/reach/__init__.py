@@ -16,6 +16,7 @@ blocked) and re-exports the shared definitions:
 ==================  =========================================================================================
 """
 
+from bar_policy.task_records import EnvEntry, TaskRecord
 from bar_policy.tasks.reach.shared import (
     SUCCESS_RADIUS,
     ReachTargetConfig,
@@ -23,7 +24,6 @@ from bar_policy.tasks.reach.shared import (
     sample_targets,
     transition_point,
 )
-from bar_policy.tasks.record import EnvEntry, TaskRecord
 
 __all__ = [
     "RECORD",

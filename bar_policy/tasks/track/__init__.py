@@ -16,7 +16,7 @@ with jax blocked) and re-exports the shared definitions:
 ==================  =========================================================================================
 """
 
-from bar_policy.tasks.record import EnvEntry, TaskRecord
+from bar_policy.task_records import EnvEntry, TaskRecord
 from bar_policy.tasks.track.shared import (
     ACTION_MARGIN,
     COMMAND_TERMS,

@@ -1,22 +1,28 @@
-"""A task's registration record: what the rest of the package needs to know about a task, as data.
+"""What a task registers, and the registered tasks: the records every layer reads.
 
-The env registry, the observation layouts, the training presets and ``bar-deploy`` read it.
+A task's record (``TaskRecord``) says, as data, what the rest of the package needs to know about it: its
+MJX envs, its observation terms and layout, its training presets, its ship gate and its deploy part. Every
+code reference is a ``"module:attr"`` string, imported only when used (``resolve``), so reading the records
+imports no jax, no torch and no deploy runtime. A task declares its record as ``RECORD`` in its package's
+``__init__.py`` (``bar_policy/tasks/reach/__init__.py`` is the example) and is listed once in
+``bar_policy.tasks.registry``, which publishes the records here (``publish``) when it is imported.
 
-Every code reference is a ``"module:attr"`` string, imported only when used (``resolve``), so reading the
-records imports no jax, no torch and no deploy runtime: the MJX env, the layout, the presets and the
-deploy task of a task are loaded by whoever needs them. A task declares its record as ``RECORD`` in its
-package's ``__init__.py`` (``bar_policy/tasks/reach/__init__.py`` is the example) and is listed once in
-``bar_policy.tasks.registry``.
+This module sits at the ground, below everything that reads the records: the observation contract
+(``obs``: a task's terms and layouts), the env registry (``envs``), training and ``bar-deploy``. It names no
+task and imports nothing of the package. The first read (``records``, ``get_record``) before the registry
+was imported calls the loader that the package's ``__init__`` installs (``install_loader``: it imports
+the registry), so ``from bar_policy.obs import ObservationManager`` alone knows the shipped layouts.
 """
 
 from __future__ import annotations
 
 import importlib
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["EnvEntry", "TaskRecord", "resolve"]
+__all__ = ["EnvEntry", "TaskRecord", "get_record", "install_loader", "publish", "records", "resolve"]
 
 _REF = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
 """``package.module:attribute``."""
@@ -100,3 +106,47 @@ class TaskRecord:
             _check_ref(f"task {self.name!r}: gate", self.gate)
         if self.deploy and not re.match(r"^[A-Za-z_][\w.]*$", self.deploy):
             raise ValueError(f"task {self.name!r}: deploy must be a module path, got {self.deploy!r}")
+
+
+_RECORDS: tuple[TaskRecord, ...] | None = None
+"""The published records, in registry order (None until ``publish``)."""
+_LOADER: Callable[[], None] | None = None
+"""Imports the task registry, which publishes (``install_loader``)."""
+
+
+def install_loader(loader: Callable[[], None]) -> None:
+    """Make ``loader`` what the first read calls when nothing is published yet (``bar_policy/__init__``)."""
+    global _LOADER
+    _LOADER = loader
+
+
+def publish(tasks: tuple[TaskRecord, ...]) -> None:
+    """Make ``tasks`` the registered records (``bar_policy.tasks.registry`` calls it once).
+
+    Raises ``ValueError`` when two records share a task name or an env name.
+    """
+    global _RECORDS
+    names = [r.name for r in tasks]
+    if len(set(names)) != len(names):
+        raise ValueError(f"two task packages register the same name: {names}")
+    env_names = [e.name for r in tasks for e in r.envs]
+    if len(set(env_names)) != len(env_names):
+        raise ValueError(f"two tasks register the same env name: {env_names}")
+    _RECORDS = tuple(tasks)
+
+
+def records() -> tuple[TaskRecord, ...]:
+    """Every registered task's record, in registry order (loads the registry on the first read)."""
+    if _RECORDS is None and _LOADER is not None:
+        _LOADER()
+    if _RECORDS is None:
+        raise RuntimeError("no task records are published: import bar_policy.tasks.registry")
+    return _RECORDS
+
+
+def get_record(name: str) -> TaskRecord:
+    """The record of task ``name``; raises ``ValueError`` listing the tasks."""
+    by_name = {r.name: r for r in records()}
+    if name not in by_name:
+        raise ValueError(f"unknown task {name!r}; valid tasks: {sorted(by_name)}")
+    return by_name[name]
