@@ -18,6 +18,7 @@ import time
 
 import numpy as np
 
+from bar_policy.deploy.episodes import SimEpisodes
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.targets.emulated import EmulatedBusTarget
 from bar_policy.tasks.reach.evaluate import EvalConfig, evaluate
@@ -32,11 +33,12 @@ def main() -> None:
     policy = load_policy(args.policy)
     cfg = EvalConfig(episodes=args.episodes, seed=args.seed)
     t0 = time.perf_counter()
-    sim = evaluate(policy, cfg)
+    runner = SimEpisodes(policy)
+    sim = evaluate(policy, cfg, runner=runner)
     t1 = time.perf_counter()
     target = EmulatedBusTarget(policy.robot.mode, policy.policy_dt)
     try:
-        real = evaluate(policy, cfg, target=target)  # type: ignore[arg-type]
+        real = evaluate(policy, cfg, target=target, runner=runner)
     finally:
         target.close()
     t2 = time.perf_counter()

@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bar_policy.deploy.episodes import SimEpisodes
 from bar_policy.deploy.policy import OnnxPolicy, load_policy
 from bar_policy.deploy.safety import CapDwell, SafetyConfig
 from bar_policy.motion import Clip, clip_set
@@ -151,8 +152,8 @@ def _safety(args: argparse.Namespace) -> SafetyConfig:
 def run_sim(policy: OnnxPolicy, clips: Sequence[Clip], args: argparse.Namespace) -> list[ClipResult]:
     """The deploy path on the C MuJoCo sim target (training's damping integration), nominal physics."""
     res = evaluate_track(
-        policy, clips, hold_s=args.hold_s, on_clip=_progress("sim") if args.verbose else None,
-        safety=_safety(args),
+        policy, clips, runner=SimEpisodes(policy, _safety(args)), hold_s=args.hold_s,
+        on_clip=_progress("sim") if args.verbose else None,
     )  # fmt: skip
     return res.clips
 
@@ -164,8 +165,8 @@ def run_bus(policy: OnnxPolicy, clips: Sequence[Clip], args: argparse.Namespace)
     target = EmulatedBusTarget(policy.robot.mode, policy.policy_dt)
     try:
         res = evaluate_track(
-            policy, clips, hold_s=args.hold_s, target=target,
-            on_clip=_progress("bus") if args.verbose else None, safety=_safety(args),
+            policy, clips, runner=SimEpisodes(policy, _safety(args)), hold_s=args.hold_s, target=target,
+            on_clip=_progress("bus") if args.verbose else None,
         )  # fmt: skip
     finally:
         target.close()

@@ -84,12 +84,13 @@ def held_out_evaluation(onnx: str | Path, task: str, options: Mapping[str, Any] 
         options: ``bar-deploy eval`` options by argparse dest (``episodes``, ``clips``, ``hold_s``, ...);
             None: the eval's defaults, the gate's held-out data. Tests pass smaller ones.
     """
+    from bar_policy.deploy.episodes import SimEpisodes
     from bar_policy.deploy.policy import load_policy
     from bar_policy.deploy.tasks import get_task
 
     logging.getLogger("bar_policy.deploy.safety").setLevel(logging.WARNING)  # as bar-deploy eval
     policy = load_policy(onnx, task=task)
-    return get_task(task).evaluate(policy, argparse.Namespace(**dict(options or {})))
+    return get_task(task).evaluate(policy, argparse.Namespace(**dict(options or {})), SimEpisodes(policy))
 
 
 def gate_record(task: str, report: Mapping[str, Any], misses: list[Miss]) -> dict[str, Any]:

@@ -304,6 +304,7 @@ def _eval(argv: Sequence[str]) -> int:
         "success rate over seeded episodes; track, the joint / tracked-body / fingertip errors on held-out "
         "clips.",
     )
+    from bar_policy.deploy.episodes import SimEpisodes
     from bar_policy.deploy.tasks import all_tasks
 
     _common(p)
@@ -317,7 +318,7 @@ def _eval(argv: Sequence[str]) -> int:
     logging.getLogger("bar_policy.deploy.safety").setLevel(logging.WARNING)
     try:
         policy, task = _policy_task(args, "eval")
-        result = task.evaluate(policy, args)
+        result = task.evaluate(policy, args, SimEpisodes(policy))
     except ValueError as e:  # PolicyLoadError, OptionError, bad settings
         return _fail(e)
     print(result.format())

@@ -11,7 +11,8 @@ follows the source's schedule:
 
 A source feeds the terms of exactly one task (``task``); a policy of another task refuses it (the
 runtime's message names both tasks). ``DeployTask`` is one task's entry for ``bar-deploy``: its
-``run`` / ``eval`` options, the command source built from them, and its evaluation with its own metric.
+``run`` / ``eval`` options, the command source built from them, and its evaluation with its own metric
+(run by the ``tasks.episodes.EpisodeRunner`` the runtime hands in).
 
 These are the interfaces a task's deploy part implements (``bar_policy/tasks/<task>/deploy.py``), so they
 live here, below the runtime that calls them (``deploy.runtime``, ``deploy.cli``), not inside it.
@@ -27,9 +28,9 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 if TYPE_CHECKING:
-    from bar_policy.deploy.policy import OnnxPolicy
     from bar_policy.robot.kinematics import Kinematics
     from bar_policy.robot.scene import SceneEdit
+    from bar_policy.tasks.episodes import EpisodeRunner, Policy
 
 __all__ = ["CommandSource", "DeployTask", "EvalReport", "OptionError"]
 
@@ -163,13 +164,13 @@ class DeployTask(abc.ABC):
     def add_eval_arguments(self, parser: argparse.ArgumentParser) -> None:  # noqa: B027 - optional
         """Add the eval options (defaults None, as above)."""
 
-    def scene(self, policy: OnnxPolicy) -> SceneEdit | None:
+    def scene(self, policy: Policy) -> SceneEdit | None:
         """What the task adds to the sim target's scene (``robot.scene.SceneEdit``); None: the robot alone."""
         return None
 
     @abc.abstractmethod
     def command_source(
-        self, policy: OnnxPolicy, args: argparse.Namespace, kinematics: Kinematics | None = None
+        self, policy: Policy, args: argparse.Namespace, kinematics: Kinematics | None = None
     ) -> CommandSource:
         """The command source the run options ask for.
 
@@ -181,8 +182,12 @@ class DeployTask(abc.ABC):
         """The task's own PNGs of a run log (``bar-deploy plot``) written under ``out``; default none."""
         return []
 
-    def evaluate(self, policy: OnnxPolicy, args: argparse.Namespace) -> EvalReport:
-        """Sim2sim evaluation with this task's metric (C MuJoCo sim target)."""
+    def evaluate(self, policy: Policy, args: argparse.Namespace, runner: EpisodeRunner) -> EvalReport:
+        """Sim2sim evaluation with this task's metric, its episodes run by ``runner``.
+
+        ``bar-deploy eval`` hands in the runtime's runner (``deploy.episodes.SimEpisodes``: the C MuJoCo sim
+        target, the deploy code path), so the task never imports the runtime.
+        """
         raise OptionError(
             f"{policy.path} is a {self.name!r} policy ({self.summary}): there is no task metric to evaluate; "
             "bar-deploy eval evaluates reach and track policies"

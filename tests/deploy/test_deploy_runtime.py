@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from policy_factory import default_metadata, make_policy_file
 
+from bar_policy.deploy.episodes import SimEpisodes
 from bar_policy.deploy.log import RunLog, load_log, log_fields
 from bar_policy.deploy.plot import plot_log
 from bar_policy.deploy.policy import load_policy
@@ -149,8 +150,11 @@ def test_plot_refuses_missing_log(tmp_path):
 
 def test_sim2sim_success_definition_and_seeds(zero_policy):
     # The zero policy holds the default pose; fingertips are then 0.05-0.25 m from sampled targets.
-    far = evaluate(zero_policy, EvalConfig(episodes=3, seed=11, episode_length=0.2))
-    near = evaluate(zero_policy, EvalConfig(episodes=3, seed=11, episode_length=0.2, success_radius=1.0))
+    runner = SimEpisodes(zero_policy)
+    far = evaluate(zero_policy, EvalConfig(episodes=3, seed=11, episode_length=0.2), runner=runner)
+    near = evaluate(
+        zero_policy, EvalConfig(episodes=3, seed=11, episode_length=0.2, success_radius=1.0), runner=runner
+    )
     assert far.success_rate == 0.0 and near.success_rate == 1.0
     assert [e.seed for e in far.episodes] == [11, 12, 13]
     # Same seeds, same episodes: distances reproduce exactly.
@@ -165,6 +169,7 @@ def test_sim2sim_scores_every_target_segment(zero_policy):
     res = evaluate(
         zero_policy,
         EvalConfig(episodes=2, seed=0, episode_length=0.2, resample_period=0.1, success_radius=1.0),
+        runner=SimEpisodes(zero_policy),
     )
     assert res.segments == 4 and res.success_rate == 1.0
     e = res.episodes[0]

@@ -12,6 +12,7 @@ from fault_targets import SteppedMock
 from policy_factory import default_metadata, make_policy_file
 
 from bar_policy.deploy.cli import main
+from bar_policy.deploy.episodes import SimEpisodes
 from bar_policy.deploy.log import load_log
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
@@ -61,7 +62,14 @@ def test_tracking_metrics_by_hand(track_policy):
     piano = ROBOT.pose("piano_ready")
     clips = [Clip.make("near", 50.0, q_c + 0.01 * np.arange(4)[:, None]),
              Clip.make("far", 50.0, piano + 0.01 * np.arange(4)[:, None])]  # fmt: skip
-    res = evaluate_track(track_policy, clips, hold_s=0.04, target=ResettableMock(), label="mock")
+    res = evaluate_track(
+        track_policy,
+        clips,
+        runner=SimEpisodes(track_policy),
+        hold_s=0.04,
+        target=ResettableMock(),
+        label="mock",
+    )
     pos_c, tips_c = fk(q_c)
     for clip, r in zip(clips, res.clips, strict=True):
         assert r.clip == clip.name and r.steps == 5 and not r.faulted
@@ -119,7 +127,7 @@ def test_eval_cli_reports_the_tracking_metric(track_policy, tmp_path, capsys):
     data = json.loads(out_json.read_text())
     assert [c["clip"] for c in data["clips"]] == ["tiny"] and data["clips"][0]["steps"] == 3 + 5
     # The same protocol in process (the sim is deterministic): the CLI printed and wrote these numbers.
-    direct = evaluate_track(track_policy, [clip], hold_s=0.1)
+    direct = evaluate_track(track_policy, [clip], runner=SimEpisodes(track_policy), hold_s=0.1)
     g = direct.summary
     assert data["groups"][0]["joint_error_rad"] == pytest.approx(g["joint_error_rad"], rel=1e-12)
     want = (
@@ -172,10 +180,13 @@ def test_emulated_bus_column_follows_the_sim(track_policy):
 
     piano = ROBOT.pose("piano_ready")
     clip = Clip.make("tiny", 50.0, piano + 0.01 * np.arange(4)[:, None])
-    sim = evaluate_track(track_policy, [clip], hold_s=0.2).clips[0]
+    runner = SimEpisodes(track_policy)
+    sim = evaluate_track(track_policy, [clip], runner=runner, hold_s=0.2).clips[0]
     bus_target = EmulatedBusTarget("arms", 0.02)
     try:
-        bus = evaluate_track(track_policy, [clip], hold_s=0.2, target=bus_target, label="bus").clips[0]
+        bus = evaluate_track(
+            track_policy, [clip], runner=runner, hold_s=0.2, target=bus_target, label="bus"
+        ).clips[0]
     finally:
         bus_target.close()
     assert sim.steps == bus.steps == 3 + 10 and not sim.faulted and not bus.faulted

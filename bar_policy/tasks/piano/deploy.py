@@ -27,9 +27,9 @@ from bar_policy.tasks.piano.songs import Song, SongError, read_song
 from bar_policy.tasks.piano.source import SongCommands
 
 if TYPE_CHECKING:
-    from bar_policy.deploy.policy import OnnxPolicy
     from bar_policy.robot.kinematics import Kinematics
     from bar_policy.robot.scene import SceneEdit
+    from bar_policy.tasks.episodes import EpisodeRunner, Policy
 
 __all__ = ["KEY_SOURCES", "TASK", "PianoTask", "key_source", "resolve_song"]
 
@@ -123,12 +123,12 @@ class PianoTask(DeployTask):
         g.add_argument("--songs", metavar="NAME[,NAME...]", help=f"songs to play (default the held-out "
                        f"ones: {', '.join(HELDOUT)})")  # fmt: skip
 
-    def scene(self, policy: OnnxPolicy) -> SceneEdit | None:
+    def scene(self, policy: Policy) -> SceneEdit | None:
         """The keyboard the policy was trained at (``compact_config()``)."""
         return keyboard_scene(compact_config())
 
     def command_source(
-        self, policy: OnnxPolicy, args: argparse.Namespace, kinematics: Kinematics | None = None
+        self, policy: Policy, args: argparse.Namespace, kinematics: Kinematics | None = None
     ) -> SongCommands:
         """The song ``--song`` names, with the ``--keys`` source."""
         from bar_policy.robot.kinematics import Kinematics
@@ -145,13 +145,13 @@ class PianoTask(DeployTask):
 
         return piano_roll(arrays, meta, out)
 
-    def evaluate(self, policy: OnnxPolicy, args: argparse.Namespace) -> EvalReport:
+    def evaluate(self, policy: Policy, args: argparse.Namespace, runner: EpisodeRunner) -> EvalReport:
         """Key-press precision, recall and F1 per song on the C MuJoCo sim target (``evaluate.py``)."""
         from bar_policy.tasks.piano.evaluate import evaluate
 
         names = getattr(args, "songs", None)
         songs = [resolve_song(s) for s in names.split(",")] if names else [library_song(n) for n in HELDOUT]
-        return evaluate(policy, songs)
+        return evaluate(policy, songs, runner=runner)
 
 
 TASK = PianoTask()

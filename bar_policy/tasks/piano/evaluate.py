@@ -1,8 +1,9 @@
 """``bar-deploy eval`` for piano policies: each song on the C MuJoCo sim target, scored as RoboPianist does.
 
 Each song runs from the held default pose (``held.held_pose``, as the env starts), with the policy from
-the first tick (no ramp), through the deploy code path (``Runtime``, the safety supervisor, the firmware
-MIT law in the sim), in the keyboard's scene with the simulated keys. At every policy tick the goal keys of
+the first tick (no ramp), through the deploy code path (the runner ``bar-deploy eval`` hands in,
+``tasks.episodes.EpisodeRunner``: ``Runtime``, the safety supervisor, the firmware MIT law in the sim), in
+the keyboard's scene with the simulated keys. At every policy tick the goal keys of
 the song's step are compared with the keys down (``SongCommands.goal_now``, ``keys_down``): true
 positives, false positives and false negatives give each tick's precision, recall and F1 (``metrics``;
 ticks before the first and after the last note included, as the env counts every step). A song's figures
@@ -18,12 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from bar_policy.deploy.policy import OnnxPolicy
-from bar_policy.deploy.runtime import Runtime, RuntimeConfig
-from bar_policy.deploy.safety import SafetyConfig
-from bar_policy.deploy.safety_config import Mode
-from bar_policy.deploy.targets.sim import SimConfig, SimTarget, training_damping
 from bar_policy.quality.report import EpisodeQuality, quality_summary_line, summarise
+from bar_policy.tasks.episodes import EpisodeRunner, Policy
 from bar_policy.tasks.interfaces import EvalReport
 from bar_policy.tasks.piano.held import held_pose
 from bar_policy.tasks.piano.keyboard import compact_config
@@ -119,11 +116,10 @@ class PianoEval(EvalReport):
         return "\n".join(lines)
 
 
-def evaluate(policy: OnnxPolicy, songs: list[Song], target: SimTarget | None = None) -> PianoEval:
-    """Play each song once (see the module docstring)."""
+def evaluate(policy: Policy, songs: list[Song], target: Any = None, *, runner: EpisodeRunner) -> PianoEval:
+    """Play each song once on ``target`` (default: ``runner``'s in the keyboard's scene; module docstring)."""
     kb = compact_config()
-    damping = training_damping(policy.metadata.randomization)
-    sim = target or SimTarget(policy.robot.mode, SimConfig(damping=damping), scene=keyboard_scene(kb))
+    sim = target or runner.target(scene=keyboard_scene(kb))
     q0 = held_pose(policy.robot.pose("piano_ready"), policy.robot.mode)  # as the env starts
     results = []
     for song in songs:
@@ -133,22 +129,15 @@ def evaluate(policy: OnnxPolicy, songs: list[Song], target: SimTarget | None = N
         goals: list[np.ndarray] = []
 
         def score(
-            k: int, t: float, rt: Runtime, c: SongCommands = commands, d: list = downs, g: list = goals
+            k: int, t: float, rt: Any, c: SongCommands = commands, d: list = downs, g: list = goals
         ) -> None:
-            if rt.safety.mode != Mode.POLICY:  # the hold after the song's end is not scored
+            if rt.safety.mode != runner.policy_mode:  # the hold after the song's end is not scored
                 return
             d.append(c.record()["keys_down"])
             g.append(c.goal_now())
 
-        cfg = RuntimeConfig(
-            control_dt=policy.policy_dt,
-            duration=commands.song_steps * policy.policy_dt + END_HOLD_S + 1.0,
-            start_mode="policy",
-            damping_after_fault=0.0,
-            handle_signals=False,
-            safety=SafetyConfig(ramp_time=0.0),
-        )
-        res = Runtime(policy, sim, commands, cfg, on_tick=score).run()
+        duration = commands.song_steps * policy.policy_dt + END_HOLD_S + 1.0
+        res = runner.run(sim, commands, duration, on_tick=score)
         down = np.array(downs, bool).reshape(-1, kb.n_keys)
         goal = np.array(goals, bool).reshape(-1, kb.n_keys)
         counts = step_counts(down, goal)

@@ -17,8 +17,8 @@ from bar_policy.tasks.reach.commands import CommandError, ReachSource, make_comm
 from bar_policy.tasks.reach.transition import TransitionCommands, with_transition
 
 if TYPE_CHECKING:
-    from bar_policy.deploy.policy import OnnxPolicy
     from bar_policy.robot.kinematics import Kinematics
+    from bar_policy.tasks.episodes import EpisodeRunner, Policy
 
 __all__ = ["SEED_HELP", "TASK", "ReachTask"]
 
@@ -72,7 +72,7 @@ class ReachTask(DeployTask):
                        help="initial joint noise half-width, rad (default 0)")  # fmt: skip
 
     def command_source(
-        self, policy: OnnxPolicy, args: argparse.Namespace, kinematics: Kinematics | None = None
+        self, policy: Policy, args: argparse.Namespace, kinematics: Kinematics | None = None
     ) -> ReachSource | TransitionCommands:
         """The source ``--commands`` names (default ``sampled``, seeded by ``--seed``).
 
@@ -93,7 +93,7 @@ class ReachTask(DeployTask):
             raise OptionError(str(e)) from None
         return with_transition(source, policy, initial)
 
-    def evaluate(self, policy: OnnxPolicy, args: argparse.Namespace) -> EvalReport:
+    def evaluate(self, policy: Policy, args: argparse.Namespace, runner: EpisodeRunner) -> EvalReport:
         """Segment success rate on the C MuJoCo sim target (``evaluate.evaluate``)."""
         from bar_policy.tasks.reach.evaluate import EvalConfig, evaluate
 
@@ -109,7 +109,7 @@ class ReachTask(DeployTask):
             resample_period=period if period > 0 else None,
             init_noise=given("init_noise", 0.0),
         )
-        return evaluate(policy, cfg)
+        return evaluate(policy, cfg, runner=runner)
 
 
 TASK = ReachTask()

@@ -17,10 +17,11 @@ The protocol mirrors the LiteReach env's (``bar_policy.tasks.reach.env``; defaul
   ``success_end / segment_end`` metric; a segment ending after a fault fails. The success rate is
   ``successful segments / segments``.
 
-The sim integrates the law's damping as the policy was trained (``training_damping``: implicit unless the
-file's randomisation record says explicit). The policy runs from the first tick (no ramp) through exactly
-the deploy code path: ``Runtime`` with the
-observation manager, the action clip, the safety supervisor and the firmware MIT law in the sim. The env's
+The episodes run on the runner ``bar-deploy eval`` hands in (``tasks.episodes.EpisodeRunner``; the runtime's
+``deploy.episodes.SimEpisodes``): the sim integrates the law's damping as the policy was trained (implicit
+unless the file's randomisation record says explicit), and the policy runs from the first tick (no ramp)
+through exactly the deploy code path: ``Runtime`` with the observation manager, the action clip, the safety
+supervisor and the firmware MIT law in the sim. The env's
 randomisation (latency, gains, encoder offset, observation noise) is not modelled here: compare with the MJX
 evaluation of the nominal config.
 """
@@ -33,13 +34,10 @@ from typing import Any
 
 import numpy as np
 
-from bar_policy.deploy.policy import OnnxPolicy
-from bar_policy.deploy.runtime import Runtime, RuntimeConfig
-from bar_policy.deploy.safety import SafetyConfig
-from bar_policy.deploy.targets.sim import SimConfig, SimTarget, training_damping
 from bar_policy.quality import EpisodeQuality, summarise
 from bar_policy.quality.report import quality_summary_line
 from bar_policy.robot.kinematics import Kinematics
+from bar_policy.tasks.episodes import EpisodeRunner, Policy
 from bar_policy.tasks.interfaces import EvalReport
 from bar_policy.tasks.reach.commands import SampledCommands
 from bar_policy.tasks.reach.shared import SUCCESS_RADIUS
@@ -172,26 +170,16 @@ class EvalResult(EvalReport):
 
 
 def evaluate(
-    policy: OnnxPolicy, config: EvalConfig | None = None, target: SimTarget | None = None
+    policy: Policy, config: EvalConfig | None = None, target: Any = None, *, runner: EpisodeRunner
 ) -> EvalResult:
-    """Run the episodes; see the module docstring for the protocol."""
+    """Run the episodes on ``target`` (default: ``runner.target()``); see the module docstring."""
     cfg = config or EvalConfig()
-    mode = policy.robot.mode
-    damping = training_damping(policy.metadata.randomization)
-    sim = target or SimTarget(mode, SimConfig(initial_pose=cfg.initial_pose, damping=damping))
-    kin = Kinematics(mode)
+    sim = target or runner.target(initial_pose=cfg.initial_pose)
+    kin = Kinematics(policy.robot.mode)
     names = policy.obs_manager.command_names
     q0 = policy.robot.pose(cfg.initial_pose)
     tips0 = kin.fingertips(np.asarray(policy.default_joint_pos))
     initial = {"target_pos_left": tips0[0], "target_pos_right": tips0[1]}
-    rt_cfg = RuntimeConfig(
-        control_dt=policy.policy_dt,
-        duration=cfg.episode_length,
-        start_mode="policy",
-        damping_after_fault=0.0,
-        handle_signals=False,
-        safety=SafetyConfig(ramp_time=0.0),
-    )
     n_ticks = round(cfg.episode_length / policy.policy_dt)
     seg_ticks = n_ticks if cfg.resample_period is None else round(cfg.resample_period / policy.policy_dt)
     robot = policy.robot
@@ -206,7 +194,7 @@ def evaluate(
         )
         dists: list[tuple[float, float]] = []
 
-        def score(k: int, t: float, rt: Runtime, dists: list[tuple[float, float]] = dists) -> None:
+        def score(k: int, t: float, rt: Any, dists: list[tuple[float, float]] = dists) -> None:
             if (k + 1) % seg_ticks == 0 or k + 1 == n_ticks:
                 left, right = kin.fingertips(sim.read_state().q)
                 dl = float(np.linalg.norm(left - rt.last_commands["target_pos_left"]))
@@ -214,8 +202,7 @@ def evaluate(
                 faulted = rt.safety.fault_count > 0
                 dists.append((dl, dr) if not faulted else (math.inf, math.inf))
 
-        rt = Runtime(policy, sim, commands, rt_cfg, kinematics=kin, on_tick=score)
-        res = rt.run()
+        res = runner.run(sim, commands, cfg.episode_length, kinematics=kin, on_tick=score)
         faulted = res.fault_count > 0
         n_segments = n_ticks // seg_ticks + (1 if n_ticks % seg_ticks else 0)
         dists += [(math.inf, math.inf)] * (n_segments - len(dists))  # segments cut short by a fault fail

@@ -24,7 +24,7 @@ from bar_policy.tasks.interfaces import CommandSource
 from bar_policy.tasks.reach.shared import transition_point
 
 if TYPE_CHECKING:
-    from bar_policy.deploy.policy import OnnxPolicy
+    from bar_policy.tasks.episodes import Policy
 
 __all__ = ["TransitionCommands", "with_transition"]
 
@@ -138,7 +138,7 @@ class TransitionCommands(CommandSource):
 
 
 def with_transition(
-    source: CommandSource, policy: OnnxPolicy, initial: Mapping[str, np.ndarray]
+    source: CommandSource, policy: Policy, initial: Mapping[str, np.ndarray]
 ) -> CommandSource:
     """``source`` in ``TransitionCommands`` when ``policy`` was trained with a transition, else itself.
 

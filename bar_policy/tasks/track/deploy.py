@@ -17,8 +17,8 @@ from bar_policy.tasks.interfaces import DeployTask, EvalReport, OptionError
 from bar_policy.tasks.track.reference import MotionReference, load_motion, reference_for
 
 if TYPE_CHECKING:
-    from bar_policy.deploy.policy import OnnxPolicy
     from bar_policy.robot.kinematics import Kinematics
+    from bar_policy.tasks.episodes import EpisodeRunner, Policy
 
 __all__ = ["TASK", "MotionReference", "TrackTask", "load_motion", "reference_for"]
 
@@ -73,7 +73,7 @@ class TrackTask(DeployTask):
         )
 
     def command_source(
-        self, policy: OnnxPolicy, args: argparse.Namespace, kinematics: Kinematics | None = None
+        self, policy: Policy, args: argparse.Namespace, kinematics: Kinematics | None = None
     ) -> MotionReference:
         """The reference of ``--motion`` for the policy."""
         spec = getattr(args, "motion", None)
@@ -86,7 +86,7 @@ class TrackTask(DeployTask):
             raise OptionError(f"--motion {spec}: {e}") from None
         return reference_for(policy, clip)
 
-    def evaluate(self, policy: OnnxPolicy, args: argparse.Namespace) -> EvalReport:
+    def evaluate(self, policy: Policy, args: argparse.Namespace, runner: EpisodeRunner) -> EvalReport:
         """Tracking errors on the C MuJoCo sim target (``evaluate.evaluate_track``)."""
         from bar_policy.tasks.track.evaluate import DEFAULT_HOLD_S, eval_clips, evaluate_track
 
@@ -97,7 +97,7 @@ class TrackTask(DeployTask):
             set_id, clips = eval_clips(getattr(args, "clips", None) or "heldout", policy.robot.mode)
         except ValueError as e:
             raise OptionError(f"--clips: {e}") from None
-        return evaluate_track(policy, clips, hold_s=hold, clip_set=set_id)
+        return evaluate_track(policy, clips, runner=runner, hold_s=hold, clip_set=set_id)
 
 
 TASK = TrackTask()

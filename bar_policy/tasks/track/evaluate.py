@@ -1,7 +1,9 @@
 """Sim2sim tracking errors of a tracking policy (``bar-deploy eval``, ``bench/track_fidelity.py``).
 
 The protocol is the fidelity bench's MJX column (``bench/track_fidelity.py``), through exactly the deploy
-code path (``Runtime``: observation manager, action clip, safety supervisor, the target's MIT law):
+code path (the runner the caller hands in, ``tasks.episodes.EpisodeRunner``; the runtime's is
+``deploy.episodes.SimEpisodes``: ``Runtime`` with the observation manager, action clip, safety supervisor,
+the target's MIT law):
 
 - each clip runs once: the target is reset on the clip's first frame at the reference velocity (the env's
   reset at phase 0; a target whose ``reset`` takes no velocity starts at rest), the policy runs from the
@@ -14,8 +16,8 @@ code path (``Runtime``: observation manager, action clip, safety supervisor, the
   body more than 0.25 m off); body poses by C MuJoCo kinematics (``robot.kinematics``);
 - a fault ends the clip (counted in ``faults``; its steps so far are kept, so the means of a clip that
   faulted cover less of it). The supervisor's torque-saturation fault (a joint at its cap for > 0.5 s) has
-  no counterpart in the env, which only clips at the cap: ``safety`` can relax it for a physics-only
-  comparison (``bench/track_fidelity.py --saturation-time``).
+  no counterpart in the env, which only clips at the cap: the runner's safety config can relax it for a
+  physics-only comparison (``bench/track_fidelity.py --saturation-time``).
 
 Means are frame-weighted over all steps (``summarise``), for all clips and for the random clips, the named
 gestures and each clip family (``motion.families``) apart.
@@ -25,16 +27,12 @@ with the MJX column on nominal physics.
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from bar_policy.deploy.run_config import RuntimeConfig
-from bar_policy.deploy.runtime import Runtime
-from bar_policy.deploy.safety import SafetyConfig
 from bar_policy.motion.clip import Clip
 from bar_policy.motion.families import FAMILIES, family_of
 from bar_policy.motion.library import CLIP_SETS, clip_set, clip_set_id
@@ -43,6 +41,7 @@ from bar_policy.quality import summarise as summarise_quality
 from bar_policy.quality.report import quality_summary_line
 from bar_policy.robot.constants import FINGERTIP_SITES
 from bar_policy.robot.kinematics import Kinematics
+from bar_policy.tasks.episodes import EpisodeRunner, Policy
 from bar_policy.tasks.interfaces import EvalReport
 from bar_policy.tasks.track.reference import load_motion, reference_for
 from bar_policy.tasks.track.shared import (
@@ -51,10 +50,6 @@ from bar_policy.tasks.track.shared import (
     SUCCESS_JOINT_RAD,
     ReferenceTable,
 )
-
-if TYPE_CHECKING:
-    from bar_policy.deploy.policy import OnnxPolicy
-    from bar_policy.deploy.targets.base import Target
 
 __all__ = [
     "DEFAULT_HOLD_S",
@@ -251,34 +246,32 @@ def eval_clips(spec: str, mode: str = "arms") -> tuple[str, list[Clip]]:
 
 
 def evaluate_track(
-    policy: OnnxPolicy,
+    policy: Policy,
     clips: Sequence[Clip],
     *,
+    runner: EpisodeRunner,
     hold_s: float = DEFAULT_HOLD_S,
-    target: Target | None = None,
+    target: Any = None,
     clip_set: str = "",
     label: str = "",
     on_clip: Callable[[ClipResult], None] | None = None,
-    safety: SafetyConfig | None = None,
 ) -> TrackEvalResult:
-    """Run every clip on ``target`` (default: a C MuJoCo ``SimTarget`` with the training damping).
+    """Run every clip on ``target`` (default: ``runner.target()``, the C MuJoCo sim target).
 
     Args:
         policy: a tracking policy.
         clips: the motions.
+        runner: runs each clip through the deploy code path (``deploy.episodes.SimEpisodes``; its safety
+            config holds the supervisor's thresholds, the ramp always 0).
         hold_s: s of tracking the held last frame after each clip.
         target: a synchronous target with ``reset(q, dq)`` (``SimTarget``; the emulated bus starts at rest).
         clip_set: the clips' set id (for the report).
         label: the target's name in the report (default: its class name).
         on_clip: called with each clip's result as it finishes (progress).
-        safety: the supervisor's thresholds (default ``SafetyConfig()``; the ramp is always 0).
     """
-    from bar_policy.deploy.targets.sim import SimConfig, SimTarget, training_damping
-
-    mode = policy.robot.mode
-    sim = target or SimTarget(mode, SimConfig(damping=training_damping(policy.metadata.randomization)))
+    sim = target or runner.target()
     dt = policy.policy_dt
-    kin = Kinematics(mode)
+    kin = Kinematics(policy.robot.mode)
     results = []
     for clip in clips:
         ref = reference_for(policy, clip, tail_s=hold_s, kinematics=kin)
@@ -287,7 +280,7 @@ def evaluate_track(
         sums = dict.fromkeys(METRICS, 0.0)
         steps = [0]
 
-        def meter(k: int, t: float, rt: Runtime, table: ReferenceTable = table, last: int = last,
+        def meter(k: int, t: float, rt: Any, table: ReferenceTable = table, last: int = last,
                   sums: dict[str, float] = sums, steps: list[int] = steps) -> None:  # fmt: skip
             if rt.safety.fault_count:
                 return
@@ -297,15 +290,7 @@ def evaluate_track(
 
         dq0 = np.gradient(table.joint_pos[: min(last + 1, 3)].astype(np.float64), dt, axis=0)[0]
         sim.reset(table.joint_pos[0].astype(np.float64), dq0)  # type: ignore[attr-defined]
-        cfg = RuntimeConfig(
-            control_dt=dt,
-            duration=n_ticks * dt,
-            start_mode="policy",
-            damping_after_fault=0.0,
-            handle_signals=False,
-            safety=dataclasses.replace(safety or SafetyConfig(), ramp_time=0.0),
-        )
-        res = Runtime(policy, sim, ref, cfg, kinematics=kin, on_tick=meter).run()
+        res = runner.run(sim, ref, n_ticks * dt, kinematics=kin, on_tick=meter)
         quality = {**res.quality["episode"], "name": clip.name}
         result = ClipResult(clip.name, steps[0], sums, res.fault_count > 0, res.end_reason, quality=quality)
         results.append(result)

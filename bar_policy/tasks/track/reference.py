@@ -38,8 +38,8 @@ from bar_policy.tasks.interfaces import CommandSource, OptionError
 from bar_policy.tasks.track.shared import COMMAND_TERMS, ReferenceTable, lookahead_frames, reference_inputs
 
 if TYPE_CHECKING:
-    from bar_policy.deploy.policy import OnnxPolicy
     from bar_policy.robot.kinematics import Kinematics
+    from bar_policy.tasks.episodes import Policy
 
 __all__ = ["MotionReference", "load_motion", "reference_for"]
 
@@ -197,7 +197,7 @@ class MotionReference(CommandSource):
 
 
 def reference_for(
-    policy: OnnxPolicy, clip: Clip, *, tail_s: float = 0.0, kinematics: Kinematics | None = None
+    policy: Policy, clip: Clip, *, tail_s: float = 0.0, kinematics: Kinematics | None = None
 ) -> MotionReference:
     """The ``MotionReference`` of ``clip`` for a tracking policy's layout (bodies, K, command terms).
 

@@ -1,0 +1,67 @@
+"""The runtime's episode runner for a task's evaluation (``tasks.episodes.EpisodeRunner``).
+
+``bar-deploy eval`` (and ``train/ship.py``) builds one for the loaded policy and hands it to the task's
+``DeployTask.evaluate``, so the task runs its episodes through the deploy code path (``Runtime``: the
+observation manager, the action clip, the safety supervisor, the target's MIT law) without importing the
+runtime: every episode starts in POLICY with no ramp, a fault damps nothing, no signal handlers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING
+
+from bar_policy.deploy.run_config import RunResult, RuntimeConfig
+from bar_policy.deploy.runtime import Runtime
+from bar_policy.deploy.safety import SafetyConfig
+from bar_policy.deploy.safety_config import Mode
+
+if TYPE_CHECKING:
+    from bar_policy.deploy.policy import OnnxPolicy
+    from bar_policy.deploy.targets.base import Target
+    from bar_policy.deploy.targets.sim import SimTarget
+    from bar_policy.robot.kinematics import Kinematics
+    from bar_policy.robot.scene import SceneEdit
+    from bar_policy.tasks.episodes import TickHook
+    from bar_policy.tasks.interfaces import CommandSource
+
+__all__ = ["SimEpisodes"]
+
+
+class SimEpisodes:
+    """Episodes of ``policy`` on the C MuJoCo sim target (or a target the caller passes to ``run``)."""
+
+    policy_mode = Mode.POLICY
+
+    def __init__(self, policy: OnnxPolicy, safety: SafetyConfig | None = None) -> None:
+        """``safety``: the supervisor's thresholds (default ``SafetyConfig()``; the ramp is always 0)."""
+        self.policy = policy
+        self.safety = dataclasses.replace(safety or SafetyConfig(), ramp_time=0.0)
+
+    def target(self, *, initial_pose: str | None = None, scene: SceneEdit | None = None) -> SimTarget:
+        """A sim target integrating the law's damping as the policy was trained (``training_damping``)."""
+        from bar_policy.deploy.targets.sim import SimConfig, SimTarget, training_damping
+
+        damping = training_damping(self.policy.metadata.randomization)
+        pose = {} if initial_pose is None else {"initial_pose": initial_pose}
+        return SimTarget(self.policy.robot.mode, SimConfig(damping=damping, **pose), scene=scene)
+
+    def run(
+        self,
+        target: Target,
+        commands: CommandSource,
+        duration: float,
+        *,
+        kinematics: Kinematics | None = None,
+        on_tick: TickHook | None = None,
+    ) -> RunResult:
+        """One episode of ``duration`` s on ``target`` (already reset), the policy from the first tick."""
+        cfg = RuntimeConfig(
+            control_dt=self.policy.policy_dt,
+            duration=duration,
+            start_mode="policy",
+            damping_after_fault=0.0,
+            handle_signals=False,
+            safety=self.safety,
+        )
+        return Runtime(self.policy, target, commands, cfg, kinematics=kinematics, on_tick=on_tick).run()
