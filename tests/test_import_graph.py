@@ -122,3 +122,38 @@ def test_no_import_cycles() -> None:
         for m in comp:
             print(f"  {m} -> {sorted(d for d in g[m] if d in comp)}")
     assert not found, found
+
+
+LAYERS: tuple[tuple[str, ...], ...] = (
+    ("bar_policy.robot", "bar_policy.task_records", "bar_policy._", "bar_policy.overrides",
+     "bar_policy.provenance", "bar_policy.signals", "bar_policy.quality"),
+    ("bar_policy.obs", "bar_policy.envs", "bar_policy.robstride", "bar_policy.motion"),
+    ("bar_policy.tasks",),
+    ("bar_policy.training", "bar_policy.deploy", "bar_policy.export", "bar_policy.export_"),
+)  # fmt: skip
+"""From the ground up: the robot (and the task records, the helpers, the quality metrics); the observation
+contract, the robot env, the driver and the motions; the tasks; training, the deploy runtime and the export.
+The package's ``__init__`` sits above them all (it installs the task records' loader)."""
+
+
+def _layer(mod: str) -> int | None:
+    for i, prefixes in enumerate(LAYERS):
+        if any(mod == p or mod.startswith(p if p.endswith("_") else p + ".") for p in prefixes):
+            return i
+    return None
+
+
+def test_layers_cover_the_package() -> None:
+    assert [m for m in MODULES if m != PKG and _layer(m) is None] == []
+
+
+def test_no_import_points_up() -> None:
+    """No module imports a module of a higher layer (``LAYERS``), counting lazy and TYPE_CHECKING imports."""
+    up = sorted(
+        f"{m} -> {d}"
+        for m, deps in graph().items()
+        if m != PKG
+        for d in deps
+        if d != PKG and _layer(d) > _layer(m)  # type: ignore[operator]
+    )
+    assert not up, up

@@ -156,11 +156,22 @@ def test_every_env_module_is_a_task_module():
             assert not any(o + "." in text or o + " " in text for o in others), path
 
 
+def test_env_names_of_the_moved_modules_stay_on_envs():
+    """The old ``bar_policy.envs.reach`` / ``.track`` / ``.track_config`` paths are gone (an env module
+    importing a task would point up); their public names are still ``bar_policy.envs.<name>``."""
+    import bar_policy.envs as envs
+
+    for old, new in {"reach": "bar_policy.tasks.reach.env", "track": "bar_policy.tasks.track.env",
+                     "track_config": "bar_policy.tasks.track.config"}.items():  # fmt: skip
+        assert not (Path(envs.__file__).parent / f"{old}.py").exists(), old
+        module = importlib.import_module(new)
+        for name in ("LiteReach", "ReachEnvConfig", "LiteTrack", "TrackEnvConfig"):
+            if name in module.__all__:
+                assert getattr(envs, name) is getattr(module, name), name
+
+
 def test_old_paths_reexport_the_moved_modules():
     pairs = {
-        "bar_policy.envs.reach": "bar_policy.tasks.reach.env",
-        "bar_policy.envs.track": "bar_policy.tasks.track.env",
-        "bar_policy.envs.track_config": "bar_policy.tasks.track.config",
         "bar_policy.deploy.commands": "bar_policy.tasks.reach.commands",
         "bar_policy.deploy.command_transition": "bar_policy.tasks.reach.transition",
         "bar_policy.deploy.sim2sim": "bar_policy.tasks.reach.evaluate",

@@ -74,7 +74,7 @@ REACH_M = 0.75
 
 def _kernel_gains() -> dict[str, float]:
     """Slope bound ``|w| REACH_M / std`` of each kernel reward leaf, from the env's own weights and widths."""
-    from bar_policy.envs.reach import RewardConfig
+    from bar_policy.tasks.reach.env import RewardConfig
 
     rc = RewardConfig()
     fine = abs(rc.scales.reach_fine) * REACH_M / rc.fine_std

@@ -16,11 +16,11 @@ import pytest
 
 from bar_policy.deploy.inputs import StateInputs
 from bar_policy.deploy.tasks.track import MotionReference
-from bar_policy.envs.track import SUCCESS_FINGERTIP_M, SUCCESS_JOINT_RAD
-from bar_policy.envs.track_config import default_config
 from bar_policy.obs import ObservationManager
 from bar_policy.robot.action_filter import filter_alpha, lowpass_step, pose_action
 from bar_policy.tasks import track as task
+from bar_policy.tasks.track.config import default_config
+from bar_policy.tasks.track.env import SUCCESS_FINGERTIP_M, SUCCESS_JOINT_RAD
 
 pytestmark = pytest.mark.numerics  # compares XLA floats with another implementation / a recording
 
