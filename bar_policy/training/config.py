@@ -24,7 +24,7 @@ import tyro
 
 from bar_policy.overrides import apply_overrides, split_override
 from bar_policy.task_records import resolve
-from bar_policy.tasks.registry import TASKS
+from bar_policy.tasks.registry import TASKS, get_task_record
 
 __all__ = [
     "PRESETS",
@@ -45,6 +45,8 @@ __all__ = [
 
 EnvName = Literal[tuple(e.name for r in TASKS for e in r.envs)]  # type: ignore[valid-type]
 """Registered env names (``bar_policy.envs.ALL_ENVS``, from the task records: ``--help`` imports no jax)."""
+DEFAULT_ENV: str = get_task_record("reach").envs[0].name
+"""The default ``--env``: reach's first registered env (``LiteReach``, from its task record)."""
 PresetName = Literal[tuple(name for r in TASKS for name, _ in r.presets)]  # type: ignore[valid-type]
 """Preset names (``PRESETS``, read from the task records)."""
 
@@ -222,7 +224,7 @@ class DistributedConfig:
 class TrainConfig:
     """Root configuration of ``python train/ppo.py``."""
 
-    env_name: Annotated[EnvName, tyro.conf.arg(aliases=("--env",))] = "LiteReach"
+    env_name: Annotated[EnvName, tyro.conf.arg(aliases=("--env",))] = DEFAULT_ENV
     """Registered environment (``bar_policy.envs.load``); ``--env`` is short for it."""
     env_overrides: tuple[str, ...] = ()
     """Env/reward settings, ``path=value`` in the env config's units: ``reward.scales.action_rate=-0.1``."""
