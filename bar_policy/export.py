@@ -53,7 +53,7 @@ from bar_policy.export_parity import (
     parity_observations,
     parity_sigmas,
 )
-from bar_policy.obs.action_prior import ActionPrior
+from bar_policy.obs.action_prior import Prior
 
 __all__ = [
     "EXTREME_TOLERANCE",
@@ -162,7 +162,7 @@ def mlp_policy_from_brax(
     params: Sequence[Any],
     action_size: int,
     activation: Activation = "swish",
-    prior: ActionPrior | None = None,
+    prior: Prior | None = None,
 ) -> MlpPolicy:
     """Extract the deterministic policy from brax PPO params ``(normalizer, policy, value)``.
 
@@ -226,7 +226,7 @@ def export_brax_policy(
     activation: Activation = "swish",
     num_parity_obs: int = 4096,
     seed: int = 0,
-    prior: ActionPrior | None = None,
+    prior: Prior | None = None,
 ) -> dict[str, Any]:
     """Export brax PPO params to ONNX, gated on parity with ``make_inference_fn(params, deterministic=True)``.
 

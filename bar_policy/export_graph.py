@@ -15,7 +15,7 @@ import onnx
 from onnx import TensorProto, helper, numpy_helper
 
 import bar_policy
-from bar_policy.obs.action_prior import ActionPrior
+from bar_policy.obs.action_prior import ActionPrior, BlendPrior, Prior
 
 __all__ = ["OPSET", "Activation", "Head", "MlpPolicy", "build_onnx_model"]
 
@@ -45,7 +45,7 @@ class MlpPolicy:
     """Hidden activation (not applied after the last layer)."""
     head: Head
     """``tanh_loc`` = tanh of the output (brax); ``identity`` = the output itself (rsl-rl)."""
-    prior: ActionPrior | None = None
+    prior: Prior | None = None
     """Added to the last layer's output before the head: ``atanh(prior(obs))`` for ``tanh_loc``, the
     prior itself for ``identity`` (``bar_policy.obs.action_prior``); None: no prior."""
 
@@ -150,8 +150,17 @@ def build_onnx_model(policy: MlpPolicy, props: Mapping[str, str] | None = None) 
     return model
 
 
-def _prior_nodes(prior: ActionPrior, atanh: bool) -> tuple[list[onnx.TensorProto], list[onnx.NodeProto], str]:
-    """``clip(gain * obs[:, index] + offset, -bound, bound)``, then ``Atanh``: initialisers, nodes, output."""
+def _prior_nodes(prior: Prior, atanh: bool) -> tuple[list[onnx.TensorProto], list[onnx.NodeProto], str]:
+    """The prior's nodes (affine or blend), then ``Atanh``: initialisers, nodes, output."""
+    inits, nodes = _blend_nodes(prior) if isinstance(prior, BlendPrior) else _affine_nodes(prior)
+    if not atanh:
+        return inits, nodes, "prior_action"
+    nodes.append(helper.make_node("Atanh", ["prior_action"], ["prior_pre_tanh"]))
+    return inits, nodes, "prior_pre_tanh"
+
+
+def _affine_nodes(prior: ActionPrior) -> tuple[list[onnx.TensorProto], list[onnx.NodeProto]]:
+    """``prior_action = clip(gain * obs[:, index] + offset, -bound, bound)``."""
     inits = [
         numpy_helper.from_array(np.asarray(prior.index, np.int64), "prior_index"),
         numpy_helper.from_array(np.asarray(prior.gain, np.float32), "prior_gain"),
@@ -165,10 +174,49 @@ def _prior_nodes(prior: ActionPrior, atanh: bool) -> tuple[list[onnx.TensorProto
         helper.make_node("Add", ["prior_scaled", "prior_offset"], ["prior_affine"]),
         helper.make_node("Clip", ["prior_affine", "prior_low", "prior_high"], ["prior_action"]),
     ]
-    if not atanh:
-        return inits, nodes, "prior_action"
-    nodes.append(helper.make_node("Atanh", ["prior_action"], ["prior_pre_tanh"]))
-    return inits, nodes, "prior_pre_tanh"
+    return inits, nodes
+
+
+def _blend_nodes(prior: BlendPrior) -> tuple[list[onnx.TensorProto], list[onnx.NodeProto]]:
+    """``prior_action = clip(sum_i (x @ numer[i] + numer_bias[i]) / (x @ denom[i] + denom_bias[i]), -b, b)``.
+
+    ``x = max(obs[:, start:stop], 0)``: Slice, Relu, then per blend two MatMuls and a Div (``BlendPrior``).
+    """
+    f32 = np.float32
+    inits = [
+        numpy_helper.from_array(np.asarray([prior.start], np.int64), "prior_start"),
+        numpy_helper.from_array(np.asarray([prior.stop], np.int64), "prior_stop"),
+        numpy_helper.from_array(np.asarray([1], np.int64), "prior_axis"),
+        numpy_helper.from_array(np.asarray(-prior.bound, f32), "prior_low"),
+        numpy_helper.from_array(np.asarray(prior.bound, f32), "prior_high"),
+    ]
+    nodes = [
+        helper.make_node("Slice", ["obs", "prior_start", "prior_stop", "prior_axis"], ["prior_sel"]),
+        helper.make_node("Relu", ["prior_sel"], ["prior_x"]),
+    ]
+    total = ""
+    for i in range(np.shape(prior.numer)[0]):
+        b = f"prior{i}"
+        inits += [
+            numpy_helper.from_array(np.asarray(prior.numer[i], f32), f"{b}_numer"),
+            numpy_helper.from_array(np.asarray(prior.denom[i], f32), f"{b}_denom"),
+            numpy_helper.from_array(np.asarray(prior.numer_bias[i], f32), f"{b}_numer_bias"),
+            numpy_helper.from_array(np.asarray(prior.denom_bias[i], f32), f"{b}_denom_bias"),
+        ]
+        nodes += [
+            helper.make_node("MatMul", ["prior_x", f"{b}_numer"], [f"{b}_num_mm"]),
+            helper.make_node("Add", [f"{b}_num_mm", f"{b}_numer_bias"], [f"{b}_num"]),
+            helper.make_node("MatMul", ["prior_x", f"{b}_denom"], [f"{b}_den_mm"]),
+            helper.make_node("Add", [f"{b}_den_mm", f"{b}_denom_bias"], [f"{b}_den"]),
+            helper.make_node("Div", [f"{b}_num", f"{b}_den"], [f"{b}_blend"]),
+        ]
+        if total:
+            nodes.append(helper.make_node("Add", [total, f"{b}_blend"], [f"{b}_sum"]))
+            total = f"{b}_sum"
+        else:
+            total = f"{b}_blend"
+    nodes.append(helper.make_node("Clip", [total, "prior_low", "prior_high"], ["prior_action"]))
+    return inits, nodes
 
 
 def _activation_nodes(kind: Activation, x: str, out: str) -> list[onnx.NodeProto]:

@@ -99,7 +99,7 @@ case "$PART" in
     set_names=$SETS_A
     [ "$ARG" = B ] && set_names=$SETS_B
     [ "$PART" = ablate ] && SIZE="--ppo.num-envs 4096 --ppo.batch-size 512 --final-eval-envs 1024"
-    export XLA_PYTHON_CLIENT_MEM_FRACTION=0.22
+    export XLA_PYTHON_CLIENT_MEM_FRACTION=${MEM:-0.22}
     for v in $set_names; do
       # shellcheck disable=SC2086
       run_one "$v" 0 ${VARIANT[$v]} &

@@ -60,7 +60,7 @@ from bar_policy.envs.quality_signals import quality_signals
 from bar_policy.envs.robot_config import RobotEnvConfig
 from bar_policy.envs.task import TaskHooks, Transition
 from bar_policy.obs import ObservationManager
-from bar_policy.obs.action_prior import ActionPrior
+from bar_policy.obs.action_prior import Prior
 from bar_policy.robot.action_filter import filter_alpha, lowpass_step, pose_action
 from bar_policy.robot.actuators import armature_gains
 from bar_policy.robot.constants import load_robot
@@ -263,7 +263,9 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         """What the safety and smoothness metrics see at this tick, unbatched (``envs.quality_signals``)."""
         return quality_signals(self, state, action)
 
-    def action_prior(self, lead_steps: int) -> ActionPrior:
+    action_prior_kind: str | None = None  # the NetworkConfig.action_prior value served (None: no prior)
+
+    def action_prior(self, lead_steps: int) -> Prior:
         """The task's action prior (``obs.action_prior``), ``lead_steps`` control steps ahead.
 
         Raises:

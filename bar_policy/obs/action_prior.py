@@ -20,6 +20,7 @@ The prior has no parameters: it is part of the network's structure, written into
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -29,7 +30,7 @@ import numpy as np
 from bar_policy._array import Array, array_namespace
 from bar_policy.obs.manager import ObservationManager
 
-__all__ = ["PRIOR_BOUND", "ActionPrior", "reference_prior"]
+__all__ = ["PRIOR_BOUND", "ActionPrior", "BlendPrior", "Prior", "reference_prior"]
 
 PRIOR_BOUND = 0.99
 """Bound of the prior, action units: atanh(0.99) = 2.65 keeps the squash's slope at 2 % rather than 0, so
@@ -94,6 +95,110 @@ class ActionPrior:
             "offset": list(self.offset),
             "bound": self.bound,
         }
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class BlendPrior:
+    """Weighted means of poses that observation entries select (the piano's key-pose prior).
+
+    With ``x = max(obs[..., start:start + n], 0)`` (shape ``(..., n)``: selector entries, e.g. goal keys)
+    and ``m`` blends ``i`` (arrays stacked on a first axis)
+
+        prior(obs) = clip(sum_i (x @ numer[i] + numer_bias[i]) / (x @ denom[i] + denom_bias[i]), -b, b)
+
+    (``b`` = ``bound``). Column ``a`` of ``numer[i]`` holds ``w * pose[a]`` per entry and of ``denom[i]``
+    its weight ``w >= 0``: each blend is the mean of the poses of the entries that are on, weighted, and of a
+    rest pose ``numer_bias / denom_bias`` of weight ``denom_bias > 0``, which also keeps the division finite
+    (``x`` is clipped at 0 for that reason: negative selectors still give a finite prior). Actions of
+    different groups (a hand's joints) read different entries through their columns; blends add.
+    """
+
+    start: int
+    """First observation entry read."""
+    numer: np.ndarray
+    """Weighted poses, action units, shape (m, n, A)."""
+    denom: np.ndarray
+    """Weights, >= 0, shape (m, n, A)."""
+    numer_bias: np.ndarray
+    """The rest poses times their weights, action units, shape (m, A)."""
+    denom_bias: np.ndarray
+    """The rest poses' weights, > 0, shape (m, A)."""
+    bound: float = PRIOR_BOUND
+    """Symmetric clip of the prior, action units, in (0, 1)."""
+    label: str = ""
+    """What it is and how it was built (run records)."""
+
+    def __post_init__(self) -> None:
+        m, n, a = np.shape(self.numer)
+        shapes = [np.shape(v) for v in (self.denom, self.numer_bias, self.denom_bias)]
+        if shapes != [(m, n, a), (m, a), (m, a)]:
+            raise ValueError(
+                f"numer {np.shape(self.numer)}, denom, numer_bias and denom_bias {shapes} must be (m, n, A), "
+                "(m, n, A), (m, A), (m, A)"
+            )
+        if self.start < 0:
+            raise ValueError(f"start must be >= 0, got {self.start}")
+        if np.any(np.asarray(self.denom) < 0) or not np.all(np.asarray(self.denom_bias) > 0):
+            raise ValueError("denom must be >= 0 and denom_bias > 0 (weights)")
+        if not all(
+            np.all(np.isfinite(v)) for v in (self.numer, self.denom, self.numer_bias, self.denom_bias)
+        ):
+            raise ValueError("numer, denom and the biases must be finite")
+        if not 0.0 < self.bound < 1.0:
+            raise ValueError(f"bound must be in (0, 1) action units, got {self.bound}")
+
+    @property
+    def action_size(self) -> int:
+        """Number of actions A."""
+        return int(np.shape(self.numer)[2])
+
+    @property
+    def stop(self) -> int:
+        """One past the last observation entry read."""
+        return self.start + int(np.shape(self.numer)[1])
+
+    def check_observation_size(self, obs_size: int) -> None:
+        """``ValueError`` unless the entries read lie inside an observation of ``obs_size`` entries."""
+        if self.stop > obs_size:
+            raise ValueError(
+                f"the prior reads observation entries up to {self.stop - 1}, the observation has {obs_size}"
+            )
+
+    def apply(self, obs: Array) -> Array:
+        """The prior action, shape ``(..., A)``, for observations of shape ``(..., obs)`` (numpy or jax)."""
+        xp = array_namespace(obs)
+        x = xp.maximum(obs[..., self.start : self.stop], 0.0)
+        f32 = np.float32
+        total = 0.0
+        for i in range(np.shape(self.numer)[0]):
+            num = x @ np.asarray(self.numer[i], f32) + np.asarray(self.numer_bias[i], f32)
+            den = x @ np.asarray(self.denom[i], f32) + np.asarray(self.denom_bias[i], f32)
+            total = total + num / den
+        return xp.clip(total, -self.bound, self.bound)
+
+    def pre_tanh(self, obs: Array) -> Array:
+        """``atanh(prior(obs))``: what is added to a tanh-squashed policy's mean, shape ``(..., A)``."""
+        return array_namespace(obs).arctanh(self.apply(obs))
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary (run configs and reports): the label, the span read and the arrays' digest."""
+        digest = hashlib.sha256()
+        for v in (self.numer, self.denom, self.numer_bias, self.denom_bias):
+            digest.update(np.ascontiguousarray(v, np.float32).tobytes())
+        return {
+            "kind": "blend",
+            "label": self.label,
+            "start": self.start,
+            "stop": self.stop,
+            "blends": int(np.shape(self.numer)[0]),
+            "actions": self.action_size,
+            "bound": self.bound,
+            "sha256": digest.hexdigest(),
+        }
+
+
+Prior = ActionPrior | BlendPrior
+"""Any action prior: what the learner adds before the squash and the exporter writes into the graph."""
 
 
 def reference_prior(

@@ -16,7 +16,7 @@ import jax
 import numpy as np
 from jax.sharding import PartitionSpec as P
 
-from bar_policy.obs.action_prior import ActionPrior
+from bar_policy.obs.action_prior import Prior
 from bar_policy.training.config import NetworkConfig, TrainConfig
 from bar_policy.training.learner import Learner, TrainingState, strip_weak_type
 from bar_policy.training.parallel import AXIS, DataParallel
@@ -43,10 +43,17 @@ def host_key(seed: int, *path: int) -> np.ndarray:
 _K_INIT, _K_MODEL, _K_RESET, _K_EPOCH, _K_EVAL, _K_EVAL_MODEL = range(6)
 
 
-def action_prior(env: Any, net: NetworkConfig) -> ActionPrior | None:
+def action_prior(env: Any, net: NetworkConfig) -> Prior | None:
     """The env's action prior that ``net.action_prior`` asks for (``LiteRobotEnv.action_prior``), or None."""
     if net.action_prior == "none":
         return None
+    kind = getattr(env, "action_prior_kind", None)
+    if net.action_prior != kind:
+        valid = ["none"] + ([kind] if kind else [])
+        raise ValueError(
+            f"network.action_prior={net.action_prior!r}: {type(env).__name__} has "
+            f"{'the ' + repr(kind) + ' prior' if kind else 'no action prior'}; valid values for it: {valid}"
+        )
     return env.action_prior(net.prior_lead_steps)
 
 

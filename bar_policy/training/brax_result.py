@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from bar_policy.obs.action_prior import ActionPrior
+from bar_policy.obs.action_prior import Prior
 from bar_policy.training.best import BestIterate
 
 __all__ = ["BraxTrainResult"]
@@ -43,7 +43,7 @@ class BraxTrainResult:
     best: BestIterate | None = None
     """The best evaluated iterate of this run (``bar_policy.training.best``); None when nothing was
     evaluated after training started."""
-    prior: ActionPrior | None = None
+    prior: Prior | None = None
     """The policy's action prior (``NetworkConfig.action_prior``; for export), None without one."""
 
     def at(self, params: tuple[Any, Any, Any]) -> BraxTrainResult:

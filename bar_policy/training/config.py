@@ -27,6 +27,7 @@ from bar_policy.task_records import resolve
 from bar_policy.tasks.registry import TASKS, get_task_record
 
 __all__ = [
+    "ACTION_PRIORS",
     "PRESETS",
     "DistributedConfig",
     "EnvName",
@@ -47,6 +48,8 @@ EnvName = Literal[tuple(e.name for r in TASKS for e in r.envs)]  # type: ignore[
 """Registered env names (``bar_policy.envs.ALL_ENVS``, from the task records: ``--help`` imports no jax)."""
 DEFAULT_ENV: str = get_task_record("reach").envs[0].name
 """The default ``--env``: reach's first registered env (``LiteReach``, from its task record)."""
+ACTION_PRIORS: tuple[str, ...] = ("none", "reference", "key_pose")
+"""``NetworkConfig.action_prior`` values (an env serves the one its ``action_prior_kind`` names)."""
 PresetName = Literal[tuple(name for r in TASKS for name, _ in r.presets)]  # type: ignore[valid-type]
 """Preset names (``PRESETS``, read from the task records)."""
 
@@ -63,18 +66,20 @@ class NetworkConfig:
     """Hidden activation (brax's default is swish = x * sigmoid(x); rsl-rl's is elu)."""
     init_noise_std: float = 1.0
     """Initial action noise std, action units (rsl-rl backend; brax's tanh-normal head learns its own)."""
-    action_prior: Literal["none", "reference"] = "none"
+    action_prior: Literal["none", "reference", "key_pose"] = "none"
     """What the policy's mean starts from (``bar_policy.obs.action_prior``): ``none`` (the MLP gives the
-    whole action) or ``reference`` (the task's reference pose ``prior_lead_steps`` ahead, read from the
-    observation; the MLP learns the correction). Brax backend; written into the ONNX graph."""
+    whole action), ``reference`` (the tracker: its reference pose ``prior_lead_steps`` ahead, read from the
+    observation) or ``key_pose`` (the piano: the poses that hover over and press the goal keys,
+    ``tasks/piano/prior.py``); the MLP learns the correction. Brax backend; written into the ONNX graph."""
     prior_lead_steps: int = 5
     """Reference frame of the ``reference`` prior, control steps ahead (1..the layout's lookahead): 5 = 100
     ms, which the action filter's lag (53-64 ms at 2.5-3 Hz) and the PD law's need: with a zero MLP on the sim
-    target (wave, clap at 2.5 Hz) leads 1, 3, 5 gave 0.020, 0.018, 0.014 rad (docs/tracking.md)."""
+    target (wave, clap at 2.5 Hz) leads 1, 3, 5 gave 0.020, 0.018, 0.014 rad (docs/tracking.md). For
+    ``key_pose``: the goal-key frames 0..this that press (0..10; the piano preset's 2)."""
 
     def __post_init__(self) -> None:
-        if self.action_prior not in ("none", "reference"):
-            raise ValueError(f"unknown action_prior {self.action_prior!r}; valid: ['none', 'reference']")
+        if self.action_prior not in ACTION_PRIORS:
+            raise ValueError(f"unknown action_prior {self.action_prior!r}; valid: {list(ACTION_PRIORS)}")
         if self.prior_lead_steps < 1:
             raise ValueError(f"prior_lead_steps must be >= 1 control step, got {self.prior_lead_steps}")
         if not self.policy_hidden or any(w <= 0 for w in (*self.policy_hidden, *self.value_hidden)):

@@ -31,7 +31,7 @@ from brax.training.agents.ppo import networks as ppo_networks
 from flax import linen
 
 from bar_policy.envs.base import eval_ratios
-from bar_policy.obs.action_prior import ActionPrior
+from bar_policy.obs.action_prior import Prior
 from bar_policy.training import eval_quality
 from bar_policy.training.config import NetworkConfig, PPOConfig
 from bar_policy.training.parallel import AXIS
@@ -74,7 +74,7 @@ def make_networks(
     action_size: int,
     net: NetworkConfig,
     normalize: bool,
-    prior: ActionPrior | None = None,
+    prior: Prior | None = None,
 ) -> ppo_networks.PPONetworks:
     """Brax PPO networks (tanh-normal policy) with our layer sizes and activation.
 
@@ -363,7 +363,7 @@ def make_learner(
     action_size: int,
     ppo: PPOConfig,
     net: NetworkConfig,
-    prior: ActionPrior | None = None,
+    prior: Prior | None = None,
 ) -> Learner:
     """The learner for an env's sizes: brax networks and Adam after global-norm clipping (when configured).
 

@@ -38,12 +38,14 @@ from bar_policy.envs.robot import LiteRobotEnv
 from bar_policy.envs.robot_config import RobotEnvConfig, nominal
 from bar_policy.envs.task import TaskStep, Transition
 from bar_policy.obs import ObservationManager
+from bar_policy.obs.action_prior import BlendPrior
 from bar_policy.robot.constants import FINGERTIP_SITES
 from bar_policy.tasks.piano import metrics as piano_metrics
 from bar_policy.tasks.piano import rewards
 from bar_policy.tasks.piano.bank import song_bank, training_songs
 from bar_policy.tasks.piano.held import held_pose
 from bar_policy.tasks.piano.keyboard import KeyboardConfig, compact_config, key_table, press_thresholds
+from bar_policy.tasks.piano.prior import KeyPosePriorConfig, key_pose_prior
 from bar_policy.tasks.piano.scene import keyboard_scene
 from bar_policy.tasks.piano.song_library import TRAIN
 from bar_policy.tasks.piano.terms import PIANO_KEYS, TARGET_FRAMES
@@ -105,6 +107,8 @@ class PianoEnvConfig(RobotEnvConfig):
     """Seed of the random songs."""
     reward: RewardConfig = field(default_factory=RewardConfig)
     """Reward terms and weights."""
+    prior: KeyPosePriorConfig = field(default_factory=KeyPosePriorConfig)
+    """The key-pose action prior (``network.action_prior=key_pose``; ``prior.py``)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -134,6 +138,7 @@ class LitePiano(LiteRobotEnv):
     """The Lite at the keyboard (see the module docstring for the exact semantics)."""
 
     task_name = "piano"
+    action_prior_kind = "key_pose"
 
     def __init__(self, config: PianoEnvConfig | None = None) -> None:
         cfg = config or default_config()
@@ -153,6 +158,11 @@ class LitePiano(LiteRobotEnv):
         self._down = jnp.asarray(self.bank.down)
         self._hands = jnp.asarray(self.bank.hands)
         self._held = jnp.asarray(held_pose(np.asarray(self._default), cfg.mode), jnp.float32)
+
+    def action_prior(self, lead_steps: int) -> BlendPrior:
+        """The key-pose prior (``prior.py``): goal-key frames ``0..lead_steps`` press, later ones hover."""
+        c = self.config
+        return key_pose_prior(self.obs_manager, c.keyboard, self._default, self._scale, lead_steps, c.prior)
 
     @property
     def metric_keys(self) -> tuple[str, ...]:

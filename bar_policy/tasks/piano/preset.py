@@ -24,6 +24,8 @@ PIANO = {
     "ppo.entropy_cost": 1e-3,
     "ppo.discounting": 0.98,
     "network.policy_hidden": (512, 256, 128),
+    "network.action_prior": "key_pose",
+    "network.prior_lead_steps": 2,
     "network.value_hidden": (512, 256, 256),
     "eval.num_evals": 9,
     "eval.num_eval_envs": 1024,

@@ -1,0 +1,222 @@
+"""The key-pose prior: the piano policy starts from the arm poses that hover over and press the goal keys.
+
+A piano policy must turn 539 goal-key bits into arm poses that put a fingertip on a 22.5 mm key and press
+it 10 mm at the right 20 ms step: an inverse-kinematics table that plain PPO would have to learn from
+scratch (the first 7-minute GPU run learnt only not to press: F1 0.21, recall 0.21, docs/piano.md). With
+the prior, the policy's mean is ``mlp(obs) + atanh(prior(obs))`` (``obs.action_prior.BlendPrior``) and the
+network learns the correction: timing, the press depth, the arm's dynamics.
+
+**Tables** (``key_poses``, C MuJoCo, no jax): per key, the hand that plays it (keys below ``split_midi``:
+left; the random songs and the library's two-hand pieces keep to this split) and two commands for that
+hand's 7 joints, from damped least-squares IK (``reach.ReachChecker``, the span's own solver):
+
+- *hover*: the fingertip sphere ``hover_m`` above the key's aim point (``piano_key{m}_top``);
+- *press*: the sphere ``press_below_m`` below the aim point at full travel, holding ``press_force_n`` up
+  from the key;
+
+each with the gravity (and key) torque folded into the command, ``q_cmd = q + (g(q) - J^T f) / Kp``, so
+the MIT law's spring holds the pose rather than sagging 20 mm (``held.py``).
+
+**Blends** (``key_pose_prior``, two ``BlendPrior`` blends that add): goal-key frame ``j`` (0 = this step's
+goal; ``target_keys``) and key ``k`` act on the hand of ``k``:
+
+- *place*: the mean of hover(k) over the goal keys in view, weighted ``decay ** j`` (the nearest note
+  leads: a held note outweighs the next note until it ends), and of the default pose (``piano_ready``,
+  action 0) at weight ``rest_weight``, so a hand with no goal key in view rests;
+- *press*: the mean of press(k) - hover(k) over the goal keys in frames ``j <= lead_steps``, and of 0 at
+  weight ``press_rest``: the fingertip goes down ``lead_steps`` steps before the note (ahead of the action
+  filter's and the arm's lag) and up ``lead_steps`` steps before its end, and moves sideways only in the air.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from bar_policy.obs.action_prior import BlendPrior
+from bar_policy.obs.manager import ObservationManager
+from bar_policy.robot.constants import load_robot
+from bar_policy.robot.index import RobotIndex
+from bar_policy.robot.scene import load_model
+from bar_policy.tasks.piano.keyboard import KeyboardConfig, key_table
+from bar_policy.tasks.piano.reach import TILTS, ReachChecker
+from bar_policy.tasks.piano.terms import TARGET_FRAMES
+
+__all__ = ["KeyPosePriorConfig", "KeyPoses", "key_pose_prior", "key_poses"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class KeyPosePriorConfig:
+    """How the key poses are solved and blended (see the module docstring)."""
+
+    hover_m: float = 0.03
+    """Fingertip sphere above the key top when hovering, m (prior alone on the held-out songs, sim target:
+    mean F1 0.60 at 15 mm, 0.79 at 30 mm, 0.72 at 40 mm, lead 2; docs/piano.md)."""
+    press_below_m: float = 0.004
+    """Press target below the aim point's full-travel depth, m (the key's stop takes the rest)."""
+    press_force_n: float = 1.5
+    """Upward key force the press command holds, N (full travel takes 1.2 N at a white key's aim point)."""
+    decay: float = 0.6
+    """Weight ratio of successive goal-key frames (< 1: the nearest note leads)."""
+    rest_weight: float = 0.05
+    """Weight of the default pose, always in the place blend (a hand with no goal key in view rests)."""
+    split_midi: int = 60
+    """Keys below this MIDI number are the left hand's, the others the right's (middle C)."""
+
+    def __post_init__(self) -> None:
+        if (
+            not 0.0 < self.decay <= 1.0
+            or self.rest_weight <= 0.0
+            or self.hover_m < 0.0
+            or self.press_force_n < 0
+        ):
+            raise ValueError(
+                f"need 0 < decay <= 1, rest_weight > 0, hover_m >= 0, press_force_n >= 0; got {self}"
+            )
+
+
+@dataclass(frozen=True)
+class KeyPoses:
+    """Commands per key for the hand that plays it (the other arm's columns hold the default pose)."""
+
+    hover: np.ndarray
+    """q_cmd hovering over each key, rad, shape (n_keys, n_joints)."""
+    press: np.ndarray
+    """q_cmd pressing each key, rad, shape (n_keys, n_joints)."""
+    hand: np.ndarray
+    """0 left, 1 right, per key, shape (n_keys,)."""
+    ik_error_m: np.ndarray
+    """IK's remaining fingertip error, m, shape (n_keys, 2) (hover, press)."""
+
+
+@functools.lru_cache(maxsize=4)
+def key_poses(
+    keyboard: KeyboardConfig, mode: str = "arms", config: KeyPosePriorConfig | None = None
+) -> KeyPoses:
+    """The hover and press commands of every key of ``keyboard`` (see the module docstring).
+
+    Raises:
+        ValueError: IK finds no valid pose (joint limits, self-contact, the keyboard's case) for a key.
+    """
+    pc = config or KeyPosePriorConfig()
+    checker = ReachChecker(keyboard)
+    keys = key_table(keyboard)
+    robot = load_robot(mode)
+    kp = np.asarray(robot.kp, np.float64)
+    q_ready = np.asarray(robot.pose("piano_ready"), np.float64)
+    hand = np.array([0 if k.midi < pc.split_midi else 1 for k in keys])
+    hover, press = np.tile(q_ready, (len(keys), 1)), np.tile(q_ready, (len(keys), 1))
+    err = np.zeros((len(keys), 2))
+    gravity = _Gravity(mode)
+    r = keyboard.fingertip_radius
+    for h, name in enumerate(("left", "right")):
+        mine = [i for i in range(len(keys)) if hand[i] == h]
+        tip = checker.fingertip(q_ready, name)
+        start = min(mine, key=lambda i: abs(keys[i].y - tip[1]))
+        order = sorted(mine, key=lambda i: (abs(i - start), i))  # outward from the key under the fingertip
+        q_prev = q_ready
+        for i in order:
+            k = keys[i]
+            down = (k.lever - keyboard.press_depth) * k.angle_max
+            site = np.asarray(k.site)
+            targets = (
+                site + np.array([0, 0, r + pc.hover_m]),
+                site + np.array([0, 0, r - down - pc.press_below_m]),
+            )
+            found = None
+            for q0, tilt in ((s, t) for s in (q_prev, q_ready) for t in TILTS):
+                qh, eh = checker.solve(name, targets[0], q0, tilt)
+                qp, ep = checker.solve(name, targets[1], qh, tilt)
+                if max(eh, ep) <= 0.002 and checker.valid(qh, name):
+                    found = (qh, qp, eh, ep)
+                    break
+            if found is None:
+                raise ValueError(f"no IK pose for key {k.midi} with the {name} hand (keyboard {keyboard})")
+            qh, qp, eh, ep = found
+            q_prev = qh
+            arm = np.arange(7) + 7 * h
+            hover[i, arm] = (qh + gravity.torque(qh, name, 0.0) / kp)[arm]
+            press[i, arm] = (qp + gravity.torque(qp, name, pc.press_force_n) / kp)[arm]
+            err[i] = (eh, ep)
+    return KeyPoses(hover=hover, press=press, hand=hand, ik_error_m=err)
+
+
+class _Gravity:
+    """Joint torques holding a pose still on the robot-alone model: gravity, and a key pushing up."""
+
+    def __init__(self, mode: str) -> None:
+        from bar_policy.robot.constants import FINGERTIP_SITES
+
+        self.model = load_model(mode)
+        self.data = mujoco.MjData(self.model)
+        self.index = RobotIndex.from_model(self.model, load_robot(mode).joint_names)
+        self.sites = {
+            h: self.model.site(s).id for h, s in zip(("left", "right"), FINGERTIP_SITES, strict=True)
+        }
+
+    def torque(self, q: np.ndarray, hand: str, up_force: float) -> np.ndarray:
+        """``g(q) - J^T (0, 0, up_force)`` at the ``hand``'s fingertip, N m, shape (n,)."""
+        m, d = self.model, self.data
+        d.qpos[self.index.qpos] = q
+        d.qvel[:] = 0.0
+        mujoco.mj_forward(m, d)
+        jac = np.zeros((3, m.nv))
+        mujoco.mj_jacSite(m, d, jac, None, self.sites[hand])
+        return d.qfrc_bias[self.index.dof] - up_force * jac[2, self.index.dof]
+
+
+def key_pose_prior(
+    manager: ObservationManager,
+    keyboard: KeyboardConfig,
+    default: np.ndarray,
+    scale: np.ndarray,
+    lead_steps: int,
+    config: KeyPosePriorConfig | None = None,
+) -> BlendPrior:
+    """The piano's prior over the ``target_keys`` entries of ``manager``'s layout (module docstring).
+
+    Args:
+        manager: the piano layout (``target_keys``: ``TARGET_FRAMES`` frames x the keyboard's keys).
+        keyboard: the trained keyboard (its key order is the observation's).
+        default: q_cmd at action 0, rad, shape (n,).
+        scale: rad per action unit, shape (n,), > 0.
+        lead_steps: goal-key frames 0..lead_steps get the press pose, 0..``TARGET_FRAMES - 1``.
+        config: the poses' and the blend's settings.
+    """
+    pc = config or KeyPosePriorConfig()
+    if "target_keys" not in manager.term_names:
+        raise ValueError(f"layout {manager.schema.name} has no target_keys term: no key-pose prior")
+    if not 0 <= lead_steps < TARGET_FRAMES:
+        raise ValueError(
+            f"lead_steps must be in 0..{TARGET_FRAMES - 1} (the goal-key frames), got {lead_steps}"
+        )
+    poses = key_poses(keyboard, manager.schema.mode, pc)
+    n_keys = len(poses.hand)
+    sl = manager.term_slice("target_keys")
+    if sl.stop - sl.start != TARGET_FRAMES * n_keys:
+        raise ValueError(
+            f"target_keys has {sl.stop - sl.start} entries, {TARGET_FRAMES} x {n_keys} keys expected"
+        )
+    term = next(t for t in manager.schema.terms if t.name == "target_keys")
+    default, scale = np.asarray(default, np.float64), np.asarray(scale, np.float64)
+    n = default.shape[0]
+    numer = np.zeros((1, TARGET_FRAMES * n_keys, n))
+    denom = np.zeros_like(numer)
+    for j in range(TARGET_FRAMES):
+        pose = poses.press if j <= lead_steps else poses.hover
+        w = pc.decay**j / term.scale  # per unit of the observation entry (obs = term.scale * goal)
+        for k in range(n_keys):
+            arm = np.arange(7) + 7 * poses.hand[k]
+            numer[0, j * n_keys + k, arm] = w * (pose[k, arm] - default[arm]) / scale[arm]
+            denom[0, j * n_keys + k, arm] = w
+    return BlendPrior(
+        start=sl.start,
+        numer=numer,
+        denom=denom,
+        numer_bias=np.zeros((1, n)),
+        denom_bias=np.full((1, n), pc.rest_weight),
+        label=f"piano key poses, lead {lead_steps}, {pc}",
+    )
