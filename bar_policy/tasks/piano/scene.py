@@ -51,10 +51,6 @@ def keyboard_scene(config: KeyboardConfig | None = None) -> SceneEdit:
     cfg = default_config() if config is None else config
 
     def edit(spec: mujoco.MjSpec) -> None:
-        # The keys' hinges take nv from 14 to 14 + n_keys (63 for the compact keyboard); at nv >= 60 MJX's
-        # AUTO picks sparse matrices, which suit TPUs, while GPUs run the dense ones faster (MJX's
-        # support.is_sparse). C MuJoCo computes the same dynamics either way.
-        spec.option.jacobian = mujoco.mjtJacobian.mjJAC_DENSE
         for geom, site in zip(FINGERTIP_GEOMS, FINGERTIP_SITES, strict=True):
             spec.body(site.split("_")[0] + "_hand").add_geom(
                 name=geom,
