@@ -77,7 +77,16 @@ class NetworkConfig:
     target (wave, clap at 2.5 Hz) leads 1, 3, 5 gave 0.020, 0.018, 0.014 rad (docs/tracking.md). For
     ``key_pose``: the goal-key frames 0..this that press (0..10; the piano preset's 2)."""
 
+    prior_noise_std: float | None = None
+    """With an action prior: the policy's initial action noise std, pre-tanh action units (None: brax's
+    init, softplus(0) = 0.69). The piano's 0.1 keeps the first policies on the keys (0.69 moves a fingertip
+    several key widths)."""
+
     def __post_init__(self) -> None:
+        if self.prior_noise_std is not None and not self.prior_noise_std > 0.001:
+            raise ValueError(
+                f"prior_noise_std must be > 0.001 (brax's minimum std), got {self.prior_noise_std}"
+            )
         if self.action_prior not in ACTION_PRIORS:
             raise ValueError(f"unknown action_prior {self.action_prior!r}; valid: {list(ACTION_PRIORS)}")
         if self.prior_lead_steps < 1:

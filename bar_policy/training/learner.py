@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -69,6 +70,10 @@ PRIOR_INIT_SCALE = 0.01
 0): CleanRL's and Stable-Baselines3's policy-head gain of 0.01, so training starts from the prior."""
 
 
+BRAX_MIN_STD = 0.001
+"""brax's ``NormalTanhDistribution`` minimum std: its scale is ``softplus(raw) + BRAX_MIN_STD``."""
+
+
 def make_networks(
     observation_size: int,
     action_size: int,
@@ -98,6 +103,11 @@ def make_networks(
         kernel, bias = layers[last]["kernel"], layers[last]["bias"]
         kernel = kernel.at[:, :action_size].multiply(PRIOR_INIT_SCALE)
         bias = bias.at[:action_size].set(0.0)
+        if net.prior_noise_std is not None:
+            # brax's tanh-normal std is softplus(raw) + 0.001: a near-zero kernel and this bias start every
+            # action's std at prior_noise_std, rather than softplus(0) = 0.69, which hides the prior's pose.
+            kernel = kernel.at[:, action_size:].multiply(PRIOR_INIT_SCALE)
+            bias = bias.at[action_size:].set(math.log(math.expm1(net.prior_noise_std - BRAX_MIN_STD)))
         return {**params, "params": {**layers, last: {**layers[last], "kernel": kernel, "bias": bias}}}
 
     def apply(processor_params: Any, policy_params: Any, obs: jax.Array) -> jax.Array:
