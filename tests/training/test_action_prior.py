@@ -181,3 +181,33 @@ def test_reach_has_no_prior_and_rsl_rl_refuses_one():
     cfg = TrainConfig(network=NetworkConfig(action_prior="reference"))
     with pytest.raises(ValueError, match=r"brax-backend network.*valid here: none"):
         train_rsl_rl(None, cfg, None, randomizer=None, checkpoint_dir=None)
+
+
+def test_prior_noise_std_sets_the_initial_std(layout, pose_scale):
+    """With prior_noise_std, brax's tanh-normal std (softplus(raw) + 0.001) starts at that value for every
+    action: the kernel is 0.01 x brax's (lecun-uniform entries <= sqrt(3 / 32) = 0.31 on 32 swish features
+    of order 0.1-1), so the raw output moves by a few 1e-3 at most and softplus (slope < 1) passes less:
+    5e-3. Without it, brax's softplus of a random output, about 0.69."""
+    default, scale = pose_scale
+    prior = reference_prior(layout, default, scale, 5)
+    obs = np.stack([_obs(layout, default + 0 * np.ones((K, N)), np.random.default_rng(i)) for i in range(4)])
+    for std in (0.1, 0.3):
+        cfg = NetworkConfig(
+            policy_hidden=(32,), value_hidden=(8,), action_prior="reference", prior_noise_std=std
+        )
+        net = make_networks(layout.size, N, cfg, False, prior)
+        out = np.asarray(net.policy_network.apply(None, net.policy_network.init(jax.random.PRNGKey(0)), obs))
+        np.testing.assert_allclose(np.log1p(np.exp(out[:, N:])) + 0.001, std, atol=5e-3)
+    with pytest.raises(ValueError, match=r"prior_noise_std must be > 0.001"):
+        NetworkConfig(prior_noise_std=0.0)
+
+
+def test_env_serves_only_its_own_prior():
+    """network.action_prior must name the prior the env serves: the message names the valid values."""
+    from bar_policy import envs
+    from bar_policy.training.brax_programs import action_prior
+
+    reach = envs.load("LiteReach", config=envs.nominal_config())
+    with pytest.raises(ValueError, match=r"LiteReach has no action prior; valid values for it: \['none'\]"):
+        action_prior(reach, NetworkConfig(action_prior="key_pose"))
+    assert action_prior(reach, NetworkConfig()) is None
