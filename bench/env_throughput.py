@@ -27,12 +27,12 @@ def main() -> None:
     import jax
 
     from bar_policy import envs
-    from bar_policy.provenance import git_state
+    from bar_policy.provenance import collect, commit_text
     from bar_policy.training.throughput import raw_env_steps_per_second
 
     rows = [
         f"device {jax.devices()[0].device_kind}, batch {a.batch}, {a.steps} control steps per call, "
-        f"commit {git_state()[0]}",
+        f"commit {commit_text(collect())}",
         "",
         "| env | substeps | env steps/s | physics steps/s | compile s |",
         "|---|---|---|---|---|",

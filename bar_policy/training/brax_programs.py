@@ -47,7 +47,7 @@ def action_prior(env: Any, net: NetworkConfig) -> Prior | None:
     """The env's action prior that ``net.action_prior`` asks for (``LiteRobotEnv.action_prior``), or None."""
     if net.action_prior == "none":
         return None
-    kind = getattr(env, "action_prior_kind", None)
+    kind = env.action_prior_kind
     if net.action_prior != kind:
         valid = ["none"] + ([kind] if kind else [])
         raise ValueError(

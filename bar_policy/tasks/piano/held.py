@@ -13,11 +13,36 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from bar_policy.robot.constants import load_robot
+from bar_policy.robot.constants import FINGERTIP_SITES, load_robot
 from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.scene import load_model
 
-__all__ = ["held_pose"]
+__all__ = ["HoldingTorque", "held_pose"]
+
+
+class HoldingTorque:
+    """Joint torques holding a pose still on the robot-alone model: gravity, and a key pushing a tip up."""
+
+    def __init__(self, mode: str = "arms") -> None:
+        self.model = load_model(mode)
+        self.data = mujoco.MjData(self.model)
+        self.index = RobotIndex.from_model(self.model, load_robot(mode).joint_names)
+        self.sites = {
+            h: self.model.site(s).id for h, s in zip(("left", "right"), FINGERTIP_SITES, strict=True)
+        }
+
+    def __call__(self, q: np.ndarray, hand: str | None = None, up_force: float = 0.0) -> np.ndarray:
+        """``g(q) - J^T (0, 0, up_force)`` at ``hand``'s fingertip (None: gravity alone), N m, shape (n,)."""
+        m, d = self.model, self.data
+        d.qpos[self.index.qpos] = q
+        d.qvel[:] = 0.0
+        mujoco.mj_forward(m, d)
+        tau = d.qfrc_bias[self.index.dof].copy()
+        if hand is not None and up_force:
+            jac = np.zeros((3, m.nv))
+            mujoco.mj_jacSite(m, d, jac, None, self.sites[hand])
+            tau -= up_force * jac[2, self.index.dof]
+        return tau
 
 
 def held_pose(q0: np.ndarray, mode: str = "arms", iterations: int = 50) -> np.ndarray:
@@ -27,15 +52,10 @@ def held_pose(q0: np.ndarray, mode: str = "arms", iterations: int = 50) -> np.nd
     torque's slope is well below Kp for these arms); joint limits clip the result.
     """
     robot = load_robot(mode)
-    model = load_model(mode)
-    data = mujoco.MjData(model)
-    idx = RobotIndex.from_model(model, robot.joint_names)
+    gravity = HoldingTorque(mode)
     kp = np.asarray(robot.kp, np.float64)
     q0 = np.asarray(q0, np.float64)
     q = q0.copy()
     for _ in range(iterations):
-        data.qpos[idx.qpos] = q
-        data.qvel[:] = 0.0
-        mujoco.mj_forward(model, data)
-        q = np.clip(q0 - data.qfrc_bias[idx.dof] / kp, robot.lower, robot.upper)
+        q = np.clip(q0 - gravity(q) / kp, robot.lower, robot.upper)
     return q

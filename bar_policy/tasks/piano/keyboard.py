@@ -40,6 +40,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 __all__ = [
+    "HAND_SPLIT_MIDI",
     "LEFT_REACH",
     "RIGHT_REACH",
     "Key",
@@ -61,6 +62,10 @@ RIGHT_REACH: tuple[int, int] = (54, 96)
 
 _BLACK_PITCH_CLASSES = frozenset({1, 3, 6, 8, 10})
 _NAMES = ("C", "C#", "D", "D#", "E", "F", "F#", "G", "G#", "A", "A#", "B")
+
+
+HAND_SPLIT_MIDI = 60
+"""Middle C: where a song's hands split when it does not say (below: the left hand's)."""
 
 
 def is_black(midi: int) -> bool:

@@ -13,13 +13,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from bar_policy.tasks.piano.keyboard import KeyboardConfig, note_name
+from bar_policy.tasks.piano.keyboard import HAND_SPLIT_MIDI, KeyboardConfig, note_name
 from bar_policy.tasks.piano.songs import Note, Song, SongError, TempoLimits, playable
 
 __all__ = ["load_midi", "midi_notes"]
 
 
-def midi_notes(path: str | Path, split: int = 60) -> list[Note]:
+def midi_notes(path: str | Path, split: int = HAND_SPLIT_MIDI) -> list[Note]:
     """The notes of a standard MIDI file, hands by ``split``, times in s; not checked against the arms.
 
     ``SongError`` for a file ``mido`` cannot read, a key pressed again while held, or a key never released.
@@ -58,7 +58,7 @@ def load_midi(
     path: str | Path,
     config: KeyboardConfig | None = None,
     limits: TempoLimits | None = None,
-    split: int = 60,
+    split: int = HAND_SPLIT_MIDI,
     name: str | None = None,
 ) -> Song:
     """A standard MIDI file as a checked song (``playable``); ``name`` defaults to the file's stem."""

@@ -33,15 +33,13 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass
 
-import mujoco
 import numpy as np
 
 from bar_policy.obs.action_prior import BlendPrior
 from bar_policy.obs.manager import ObservationManager
 from bar_policy.robot.constants import load_robot
-from bar_policy.robot.index import RobotIndex
-from bar_policy.robot.scene import load_model
-from bar_policy.tasks.piano.keyboard import KeyboardConfig, key_table
+from bar_policy.tasks.piano.held import HoldingTorque
+from bar_policy.tasks.piano.keyboard import HAND_SPLIT_MIDI, KeyboardConfig, key_table
 from bar_policy.tasks.piano.reach import TILTS, ReachChecker
 from bar_policy.tasks.piano.terms import TARGET_FRAMES
 
@@ -63,7 +61,7 @@ class KeyPosePriorConfig:
     """Weight ratio of successive goal-key frames (< 1: the nearest note leads)."""
     rest_weight: float = 0.05
     """Weight of the default pose, always in the place blend (a hand with no goal key in view rests)."""
-    split_midi: int = 60
+    split_midi: int = HAND_SPLIT_MIDI
     """Keys below this MIDI number are the left hand's, the others the right's (middle C)."""
 
     def __post_init__(self) -> None:
@@ -88,8 +86,6 @@ class KeyPoses:
     """q_cmd pressing each key, rad, shape (n_keys, n_joints)."""
     hand: np.ndarray
     """0 left, 1 right, per key, shape (n_keys,)."""
-    ik_error_m: np.ndarray
-    """IK's remaining fingertip error, m, shape (n_keys, 2) (hover, press)."""
 
 
 @functools.lru_cache(maxsize=4)
@@ -109,8 +105,7 @@ def key_poses(
     q_ready = np.asarray(robot.pose("piano_ready"), np.float64)
     hand = np.array([0 if k.midi < pc.split_midi else 1 for k in keys])
     hover, press = np.tile(q_ready, (len(keys), 1)), np.tile(q_ready, (len(keys), 1))
-    err = np.zeros((len(keys), 2))
-    gravity = _Gravity(mode)
+    hold = HoldingTorque(mode)
     r = keyboard.fingertip_radius
     for h, name in enumerate(("left", "right")):
         mine = [i for i in range(len(keys)) if hand[i] == h]
@@ -131,41 +126,16 @@ def key_poses(
                 qh, eh = checker.solve(name, targets[0], q0, tilt)
                 qp, ep = checker.solve(name, targets[1], qh, tilt)
                 if max(eh, ep) <= 0.002 and checker.valid(qh, name):
-                    found = (qh, qp, eh, ep)
+                    found = (qh, qp)
                     break
             if found is None:
                 raise ValueError(f"no IK pose for key {k.midi} with the {name} hand (keyboard {keyboard})")
-            qh, qp, eh, ep = found
+            qh, qp = found
             q_prev = qh
             arm = np.arange(7) + 7 * h
-            hover[i, arm] = (qh + gravity.torque(qh, name, 0.0) / kp)[arm]
-            press[i, arm] = (qp + gravity.torque(qp, name, pc.press_force_n) / kp)[arm]
-            err[i] = (eh, ep)
-    return KeyPoses(hover=hover, press=press, hand=hand, ik_error_m=err)
-
-
-class _Gravity:
-    """Joint torques holding a pose still on the robot-alone model: gravity, and a key pushing up."""
-
-    def __init__(self, mode: str) -> None:
-        from bar_policy.robot.constants import FINGERTIP_SITES
-
-        self.model = load_model(mode)
-        self.data = mujoco.MjData(self.model)
-        self.index = RobotIndex.from_model(self.model, load_robot(mode).joint_names)
-        self.sites = {
-            h: self.model.site(s).id for h, s in zip(("left", "right"), FINGERTIP_SITES, strict=True)
-        }
-
-    def torque(self, q: np.ndarray, hand: str, up_force: float) -> np.ndarray:
-        """``g(q) - J^T (0, 0, up_force)`` at the ``hand``'s fingertip, N m, shape (n,)."""
-        m, d = self.model, self.data
-        d.qpos[self.index.qpos] = q
-        d.qvel[:] = 0.0
-        mujoco.mj_forward(m, d)
-        jac = np.zeros((3, m.nv))
-        mujoco.mj_jacSite(m, d, jac, None, self.sites[hand])
-        return d.qfrc_bias[self.index.dof] - up_force * jac[2, self.index.dof]
+            hover[i, arm] = (qh + hold(qh) / kp)[arm]
+            press[i, arm] = (qp + hold(qp, name, pc.press_force_n) / kp)[arm]
+    return KeyPoses(hover=hover, press=press, hand=hand)
 
 
 def key_pose_prior(

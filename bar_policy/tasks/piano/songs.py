@@ -28,6 +28,7 @@ import numpy as np
 
 from bar_policy._files import InputError, loads_json, shorten, strict_json
 from bar_policy.tasks.piano.keyboard import (
+    HAND_SPLIT_MIDI,
     LEFT_REACH,
     RIGHT_REACH,
     KeyboardConfig,
@@ -161,7 +162,10 @@ def _reach(hand: str, cfg: KeyboardConfig) -> tuple[int, int]:
 
 
 def playable(
-    song: Song, config: KeyboardConfig | None = None, limits: TempoLimits | None = None, split: int = 60
+    song: Song,
+    config: KeyboardConfig | None = None,
+    limits: TempoLimits | None = None,
+    split: int = HAND_SPLIT_MIDI,
 ) -> Song:
     """``song`` with every hand resolved to ``left`` / ``right``, or ``SongError`` naming the first bad note.
 
