@@ -4,9 +4,13 @@
 #
 #   bash bench/track_recipe.sh ablate A   (~9.5 min) four variants side by side on the one GPU, 4096 envs each,
 #                                          the same wall-clock budget; set A: recipe, actuator gains, no
-#                                          filter, the old (shipped) recipe
+#                                          filter, the first shipped tracker's action-rate weight (-0.005)
+#                                          (`old`, the whole first recipe, is in VARIANT but in no set)
 #   bash bench/track_recipe.sh ablate B   (~9.5 min) the recipe without adaptive sampling, with a fixed
 #                                          learning rate, without the near-cap term, TF32 products
+#   GPUS="0 1 2 3" bash bench/track_recipe.sh ablate A|B
+#                                         (~9.5 min, nvidia-h100-x4) the same sets, one variant per GPU at the
+#                                          recipe's own size (the controlled single-change ablation of record)
 #   bash bench/track_recipe.sh train SEED (~9.5 min) `--preset track --seed SEED` alone on the GPU: the
 #                                          figure of record (10 min on one H100, compile included)
 #                                          (EXTRA="--env-overrides k=v ..." adds arguments: a candidate)
@@ -35,13 +39,14 @@ declare -A VARIANT=(
   [recipe]=""
   [actuator_gains]="--env-overrides gains=actuator"
   [no_filter]="--env-overrides action_filter_hz=null"
+  [weak_action_rate]="--env-overrides reward.scales.action_rate=-0.005"
   [old]="--ppo.schedule fixed --matmul-precision default --network.action-prior none --env-overrides $OLD_ENV"
   [no_sampling]="--env-overrides sampling.enabled=false"
   [fixed_lr]="--ppo.schedule fixed"
   [no_near_cap]="--env-overrides reward.scales.torque_near_cap=0.0"
   [tf32]="--matmul-precision default"
 )
-SETS_A="recipe actuator_gains no_filter old"
+SETS_A="recipe actuator_gains no_filter weak_action_rate"
 SETS_B="no_sampling fixed_lr no_near_cap tf32"
 
 SIZE=""
@@ -55,11 +60,13 @@ if [ "$PART" = smoke ]; then
   SETS_A="recipe old"
 fi
 
-run_one() {  # run_one NAME SEED EXTRA...
+run_one() {  # run_one NAME SEED EXTRA...  (GPU=<index> pins it to one card)
   local name=$1 seed=$2; shift 2
-  stamp "start $name (seed $seed): $*"
+  stamp "start $name (seed $seed, GPU ${GPU:-shared}): $*"
+  local pin=""
+  [ -n "${GPU:-}" ] && pin="CUDA_VISIBLE_DEVICES=$GPU"
   # shellcheck disable=SC2086
-  timeout -k 5 585 python3 train/ppo.py --preset track --seed "$seed" --run-name "$name" --runs-dir "$RUNS" \
+  env $pin timeout -k 5 ${RUN_TIMEOUT:-585} python3 train/ppo.py --preset track --seed "$seed" --run-name "$name" --runs-dir "$RUNS" \
     --compile-cache-dir "$CACHE" --max-minutes "$MINUTES" $SIZE "$@" > "$WORK/$name.log" 2>&1
   stamp "end $name: exit $?"
 }
@@ -91,18 +98,25 @@ EOF
     [ -d "$d" ] && ls -1 "$d"/step_*.msgpack 2>/dev/null | head -n -1 | sed 's/.msgpack$//' | \
       while read -r old; do rm -f "$old.msgpack" "$old.json"; done
   done
-  (cd "$WORK" && tar czf "$OUT/runs.tgz" runs ./*.log 2>/dev/null)
+  (cd "$WORK" && tar czf "$OUT/runs.tgz" ${NO_CKPT:+--exclude=checkpoints} runs ./*.log 2>/dev/null)
 }
 
 case "$PART" in
   ablate|smoke)
     set_names=$SETS_A
     [ "$ARG" = B ] && set_names=$SETS_B
-    [ "$PART" = ablate ] && SIZE="--ppo.num-envs 4096 --ppo.batch-size 512 --final-eval-envs 1024"
-    export XLA_PYTHON_CLIENT_MEM_FRACTION=${MEM:-0.22}
+    read -r -a gpus <<< "${GPUS:-}"
+    if [ "${#gpus[@]}" -gt 0 ]; then  # one variant per GPU, each at the recipe's size
+      [ "$PART" = ablate ] && SIZE="--final-eval-envs 1024"
+    else  # side by side on one GPU
+      [ "$PART" = ablate ] && SIZE="--ppo.num-envs 4096 --ppo.batch-size 512 --final-eval-envs 1024"
+      export XLA_PYTHON_CLIENT_MEM_FRACTION=${MEM:-0.22}
+    fi
+    i=0
     for v in $set_names; do
       # shellcheck disable=SC2086
-      run_one "$v" 0 ${VARIANT[$v]} &
+      GPU=${gpus[$i]:-} run_one "$v" 0 ${VARIANT[$v]} &
+      i=$((i + 1))
       sleep 2
     done
     wait
