@@ -49,10 +49,18 @@ class EnvEntry:
     """The env class, ``"module:attr"``; called as ``cls(config)``."""
     config: str
     """Zero-argument factory of the env's default (training) config, ``"module:attr"``."""
+    action_prior: str = ""
+    """The ``network.action_prior`` value this env serves besides ``none`` (its ``action_prior(lead_steps)``
+    builds it), ``""`` for none. ``bar-train`` reads its valid values here without importing the env."""
 
     def __post_init__(self) -> None:
         _check_ref(f"env {self.name!r}: env", self.env)
         _check_ref(f"env {self.name!r}: config", self.config)
+        if self.action_prior and (not self.action_prior.isidentifier() or self.action_prior == "none"):
+            raise ValueError(
+                f"env {self.name!r}: action_prior must be an identifier other than 'none' (or '' for no "
+                f"prior), got {self.action_prior!r}"
+            )
 
 
 @dataclass(frozen=True, kw_only=True)

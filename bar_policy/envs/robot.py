@@ -263,8 +263,6 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         """What the safety and smoothness metrics see at this tick, unbatched (``envs.quality_signals``)."""
         return quality_signals(self, state, action)
 
-    action_prior_kind: str | None = None  # the NetworkConfig.action_prior value served (None: no prior)
-
     def action_prior(self, lead_steps: int) -> Prior:
         """The task's action prior (``obs.action_prior``), ``lead_steps`` control steps ahead.
 

@@ -124,7 +124,7 @@ def train_brax(
         total_iters = math.ceil(ppo.num_timesteps / steps_per_iter)
         iters_per_epoch = epoch_iterations(cfg)
 
-        prior = action_prior(env, cfg.network)
+        prior = action_prior(env, cfg.network, cfg.env_name)
         learner = make_learner(env.observation_size, env.action_size, ppo, cfg.network, prior)
         programs = make_programs(
             env, cfg, learner, dp, wrap_fn, randomizer, iters_per_epoch, eval_env, eval_randomizer

@@ -17,6 +17,7 @@ import numpy as np
 from jax.sharding import PartitionSpec as P
 
 from bar_policy.obs.action_prior import Prior
+from bar_policy.tasks.registry import env_entries
 from bar_policy.training.config import NetworkConfig, TrainConfig
 from bar_policy.training.learner import Learner, TrainingState, strip_weak_type
 from bar_policy.training.parallel import AXIS, DataParallel
@@ -43,11 +44,15 @@ def host_key(seed: int, *path: int) -> np.ndarray:
 _K_INIT, _K_MODEL, _K_RESET, _K_EPOCH, _K_EVAL, _K_EVAL_MODEL = range(6)
 
 
-def action_prior(env: Any, net: NetworkConfig) -> Prior | None:
-    """The env's action prior that ``net.action_prior`` asks for (``LiteRobotEnv.action_prior``), or None."""
+def action_prior(env: Any, net: NetworkConfig, env_name: str) -> Prior | None:
+    """The env's action prior that ``net.action_prior`` asks for (``LiteRobotEnv.action_prior``), or None.
+
+    ``env_name`` is the env's registered name: its task record's ``EnvEntry.action_prior`` names the prior
+    it serves.
+    """
     if net.action_prior == "none":
         return None
-    kind = env.action_prior_kind
+    kind = env_entries()[env_name][1].action_prior
     if net.action_prior != kind:
         valid = ["none"] + ([kind] if kind else [])
         raise ValueError(

@@ -48,8 +48,14 @@ EnvName = Literal[tuple(e.name for r in TASKS for e in r.envs)]  # type: ignore[
 """Registered env names (``bar_policy.envs.ALL_ENVS``, from the task records: ``--help`` imports no jax)."""
 DEFAULT_ENV: str = get_task_record("reach").envs[0].name
 """The default ``--env``: reach's first registered env (``LiteReach``, from its task record)."""
-ACTION_PRIORS: tuple[str, ...] = ("none", "reference", "key_pose")
-"""``NetworkConfig.action_prior`` values (an env serves the one its ``action_prior_kind`` names)."""
+ACTION_PRIORS: tuple[str, ...] = (
+    "none",
+    *dict.fromkeys(e.action_prior for r in TASKS for e in r.envs if e.action_prior),
+)
+"""``NetworkConfig.action_prior`` values: ``none`` and each registered env's own prior
+(``EnvEntry.action_prior`` in its task record), in registry order."""
+ActionPriorName = Literal[ACTION_PRIORS]  # type: ignore[valid-type]
+"""The ``--network.action-prior`` choices (``ACTION_PRIORS``)."""
 PresetName = Literal[tuple(name for r in TASKS for name, _ in r.presets)]  # type: ignore[valid-type]
 """Preset names (``PRESETS``, read from the task records)."""
 
@@ -66,21 +72,21 @@ class NetworkConfig:
     """Hidden activation (brax's default is swish = x * sigmoid(x); rsl-rl's is elu)."""
     init_noise_std: float = 1.0
     """Initial action noise std, action units (rsl-rl backend; brax's tanh-normal head learns its own)."""
-    action_prior: Literal["none", "reference", "key_pose"] = "none"
+    action_prior: ActionPriorName = "none"
     """What the policy's mean starts from (``bar_policy.obs.action_prior``): ``none`` (the MLP gives the
-    whole action), ``reference`` (the tracker: its reference pose ``prior_lead_steps`` ahead, read from the
-    observation) or ``key_pose`` (the piano: the poses that hover over and press the goal keys,
-    ``tasks/piano/prior.py``); the MLP learns the correction. Brax backend; written into the ONNX graph."""
+    whole action) or the prior the env serves (its record's ``EnvEntry.action_prior``, built by the env's
+    ``action_prior``; e.g. the tracker's ``reference``, its reference pose ``prior_lead_steps`` ahead, read
+    from the observation); the MLP learns the correction. Brax backend; written into the ONNX graph."""
     prior_lead_steps: int = 5
     """Reference frame of the ``reference`` prior, control steps ahead (1..the layout's lookahead): 5 = 100
     ms, which the action filter's lag (53-64 ms at 2.5-3 Hz) and the PD law's need: with a zero MLP on the sim
-    target (wave, clap at 2.5 Hz) leads 1, 3, 5 gave 0.020, 0.018, 0.014 rad (docs/tracking.md). For
-    ``key_pose``: the goal-key frames 0..this that press (0..10; the piano preset's 2)."""
+    target (wave, clap at 2.5 Hz) leads 1, 3, 5 gave 0.020, 0.018, 0.014 rad (docs/tracking.md). Each
+    task's prior states what its lead means (its env's ``action_prior``)."""
 
     prior_noise_std: float | None = None
     """With an action prior: the policy's initial action noise std, pre-tanh action units (None: brax's
-    init, softplus(0) = 0.69). The piano's 0.1 keeps the first policies on the keys (0.69 moves a fingertip
-    several key widths)."""
+    init, softplus(0) = 0.69). A small one keeps the first policies near the prior (the piano preset's 0.1:
+    0.69 moves a fingertip several key widths)."""
 
     def __post_init__(self) -> None:
         if self.prior_noise_std is not None and not self.prior_noise_std > 0.001:

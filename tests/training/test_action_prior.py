@@ -209,5 +209,26 @@ def test_env_serves_only_its_own_prior():
 
     reach = envs.load("LiteReach", config=envs.nominal_config())
     with pytest.raises(ValueError, match=r"LiteReach has no action prior; valid values for it: \['none'\]"):
-        action_prior(reach, NetworkConfig(action_prior="key_pose"))
-    assert action_prior(reach, NetworkConfig()) is None
+        action_prior(reach, NetworkConfig(action_prior="key_pose"), "LiteReach")
+    assert action_prior(reach, NetworkConfig(), "LiteReach") is None
+
+
+def test_action_prior_choices_come_from_the_task_records():
+    """The valid ``network.action_prior`` values are ``none`` plus what the records' env entries serve.
+
+    By hand from the three task folders in registry order: reach serves none, track ``reference``, piano
+    ``key_pose``; so no task name is written in training/config.py.
+    """
+    from bar_policy.task_records import EnvEntry
+    from bar_policy.tasks.registry import env_entries
+    from bar_policy.training.config import ACTION_PRIORS
+
+    served = {name: entry.action_prior for name, (_, entry) in env_entries().items()}
+    assert served == {"LiteReach": "", "LiteReachNeck": "", "LiteTrack": "reference", "LitePiano": "key_pose"}
+    assert ACTION_PRIORS == ("none", "reference", "key_pose")
+    with pytest.raises(
+        ValueError, match=r"unknown action_prior 'bogus'; valid: \['none', 'reference', 'key_pose'\]"
+    ):
+        NetworkConfig(action_prior="bogus")
+    with pytest.raises(ValueError, match=r"env 'X': action_prior must be an identifier other than 'none'"):
+        EnvEntry(name="X", env="m:A", config="m:f", action_prior="none")

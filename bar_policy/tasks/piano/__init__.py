@@ -58,7 +58,14 @@ _HERE = "bar_policy.tasks.piano"
 RECORD = TaskRecord(
     name="piano",
     summary="play the keyboard",
-    envs=(EnvEntry(name="LitePiano", env=f"{_HERE}.env:LitePiano", config=f"{_HERE}.env:default_config"),),
+    envs=(
+        EnvEntry(
+            name="LitePiano",
+            env=f"{_HERE}.env:LitePiano",
+            config=f"{_HERE}.env:default_config",
+            action_prior="key_pose",
+        ),
+    ),
     layout=f"{_HERE}.layout:schema",
     terms=f"{_HERE}.terms:TERMS",
     shipped_layouts=(("lite_piano_arms", "arms"),),

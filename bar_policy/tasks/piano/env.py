@@ -138,7 +138,6 @@ class LitePiano(LiteRobotEnv):
     """The Lite at the keyboard (see the module docstring for the exact semantics)."""
 
     task_name = "piano"
-    action_prior_kind = "key_pose"
 
     def __init__(self, config: PianoEnvConfig | None = None) -> None:
         cfg = config or default_config()

@@ -53,7 +53,14 @@ _HERE = "bar_policy.tasks.track"
 RECORD = TaskRecord(
     name="track",
     summary="motion tracking",
-    envs=(EnvEntry(name="LiteTrack", env=f"{_HERE}.env:LiteTrack", config=f"{_HERE}.config:default_config"),),
+    envs=(
+        EnvEntry(
+            name="LiteTrack",
+            env=f"{_HERE}.env:LiteTrack",
+            config=f"{_HERE}.config:default_config",
+            action_prior="reference",
+        ),
+    ),
     layout=f"{_HERE}.layout:schema",
     terms=f"{_HERE}.terms:TERMS",
     shipped_layouts=(("lite_track_arms", "arms"),),

@@ -107,8 +107,6 @@ class LiteTrack(LiteRobotEnv):
         """
         return LiteTrack(nominal(heldout_config(self.config)))
 
-    action_prior_kind = "reference"
-
     def action_prior(self, lead_steps: int) -> ActionPrior:
         """The reference prior: the action whose command is the reference ``lead_steps`` frames ahead."""
         return reference_prior(self.obs_manager, self._default, self._scale, lead_steps)
