@@ -124,6 +124,32 @@ def piano_policy(tmp_path_factory) -> Path:
     return make_policy_file(tmp_path_factory.mktemp("piano") / "piano.onnx", metadata=meta)
 
 
+def test_eval_through_the_emulated_bus(piano_policy) -> None:
+    """``bar-deploy eval``'s piano code on the lockstep bus emulator in the keyboard's scene
+    (``EmulatedBusTarget(scene=...)``, as ``bench/piano_prior.py --eval bus``): ``reset`` puts a key left
+    down back at rest, and the song source reads the emulator's keys (``companions``). The zero policy holds
+    the held pose and presses nothing: C4's 15 goal ticks (0.5-0.8 s after the count-in) are all misses."""
+    from bar_policy.deploy.episodes import SimEpisodes
+    from bar_policy.deploy.policy import load_policy
+    from bar_policy.deploy.targets.emulated import EmulatedBusTarget
+    from bar_policy.tasks.piano.evaluate import evaluate
+    from bar_policy.tasks.piano.scene import keyboard_scene
+
+    policy = load_policy(str(piano_policy))
+    target = EmulatedBusTarget("arms", policy.policy_dt, scene=keyboard_scene(KB))
+    try:
+        emu = target.emu
+        c4 = emu.model.jnt_qposadr[emu.model.joint("piano_key60").id]
+        emu.data.qpos[c4] = 0.1  # past the press threshold (0.033 rad)
+        target.reset()
+        assert emu.data.qpos[c4] == 0.0 and target.companions == (emu,)
+        song = Song("one", (Note(60, 0.0, 0.3, "right"),))
+        (res,) = evaluate(policy, [song], target, runner=SimEpisodes(policy)).songs
+    finally:
+        target.close()
+    assert not res.faulted and (res.true_pos, res.false_pos, res.false_neg) == (0, 0, 15)
+
+
 @pytest.mark.parametrize("target", ["mock", "sim", "emulated"])
 def test_song_on_the_mock_sim_and_emulated_targets(piano_policy, tmp_path, target) -> None:
     where = (
