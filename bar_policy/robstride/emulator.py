@@ -241,9 +241,15 @@ class RobstrideEmulator(EmulatorPhysics):
         with self._lock:
             return self.data.qpos[self._qadr].copy()
 
-    def set_joint_positions(self, q: Sequence[float]) -> None:
-        """Teleport the joints (e.g. to play a hand sweep for calibration), zero velocity."""
+    def set_joint_positions(self, q: Sequence[float], *, scene_at_rest: bool = False) -> None:
+        """Teleport the joints (e.g. to play a hand sweep for calibration), zero velocity.
+
+        ``scene_at_rest``: also put the scene's other joints (a task's, e.g. the piano's keys) back at
+        ``qpos0``, as a fresh episode starts them.
+        """
         with self._lock:
+            if scene_at_rest:
+                self.data.qpos[:] = self.model.qpos0
             self.data.qpos[self._qadr] = np.asarray(q, dtype=np.float64)
             self.data.qvel[:] = 0.0
             mujoco.mj_forward(self.model, self.data)

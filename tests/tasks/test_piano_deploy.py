@@ -19,6 +19,7 @@ from policy_factory import default_metadata, make_policy_file
 from bar_policy.deploy.cli import main
 from bar_policy.deploy.log import load_log
 from bar_policy.tasks.interfaces import OptionError
+from bar_policy.tasks.piano.bank import PlaybackConfig
 from bar_policy.tasks.piano.deploy import key_source, resolve_song
 from bar_policy.tasks.piano.key_input import MidiKeys
 from bar_policy.tasks.piano.keyboard import compact_config, key_table
@@ -51,11 +52,11 @@ def test_kinematic_keys_by_hand() -> None:
 
 
 def test_song_source_terms_by_hand() -> None:
-    # C4 from 0.10 to 0.30 s at dt 0.02: steps 5..14; the song is 15 steps long.
+    # C4 from 0.10 to 0.30 s at dt 0.02 without a count-in: steps 5..14; the song is 15 steps long.
     song = Song("one", (Note(60, 0.10, 0.30, "right"),))
     q: queue.Queue = queue.Queue()
     keys = MidiKeys(q, KB)
-    src = SongCommands(song, KB, 0.02, keys)
+    src = SongCommands(song, KB, 0.02, keys, PlaybackConfig(count_in_s=0.0))
     assert src.song_steps == 15 and src.scale == 500
     c4 = 60 - KB.lowest
     before = src(0.0)  # before POLICY: step 0
@@ -73,6 +74,28 @@ def test_song_source_terms_by_hand() -> None:
     assert src.finished(1.0 + 15 * 0.02 + END_HOLD_S) == "song 'one' finished"
     with pytest.raises(ValueError, match="has no simulated keys"):
         SongCommands(song, KB, 0.02, None).attach(object())
+
+
+def test_song_source_count_in_by_hand() -> None:
+    # The default count-in, 0.5 s: C4 0.10-0.30 s plays at 0.50-0.70 s, steps 25..34; the song is 35 steps
+    # long (its end, count-in included), the run ends END_HOLD_S after it. The lookahead (frames 0..10)
+    # shows C4 from step 15 on; progress counts from POLICY's first tick, the count-in's start.
+    song = Song("one", (Note(60, 0.10, 0.30, "right"),))
+    src = SongCommands(song, KB, 0.02, MidiKeys(queue.Queue(), KB))
+    assert src.playback == PlaybackConfig() and src.playback.count_in_s == 0.5
+    assert src.song_steps == 35 and src.down.shape == (35 + TARGET_FRAMES, PIANO_KEYS)
+    assert src.song.notes[0].start_s == 0.10  # the song as written; its times are not changed
+    c4 = 60 - KB.lowest
+    src.begin(1.0)
+    for step, frames in ((0, []), (14, []), (15, [10]), (20, [5, 6, 7, 8, 9, 10]), (30, [0, 1, 2, 3, 4])):
+        out = src(1.0 + step * 0.02)
+        tk = out["target_keys"].reshape(TARGET_FRAMES, PIANO_KEYS)
+        assert np.flatnonzero(tk[:, c4]).tolist() == frames and tk.sum() == len(frames), f"step {step}"
+        assert out["progress"][0] == pytest.approx(step / 500)
+        assert src.goal_now()[c4] == (25 <= step < 35)
+    assert src.finished(1.0 + 35 * 0.02 + END_HOLD_S - 0.02) is None
+    assert src.finished(1.0 + 35 * 0.02 + END_HOLD_S) == "song 'one' finished"
+    assert src.metadata()["count_in_s"] == 0.5 and "0.5 s count-in" in src.describe()
 
 
 def test_song_and_key_options(tmp_path) -> None:
@@ -101,6 +124,32 @@ def piano_policy(tmp_path_factory) -> Path:
     return make_policy_file(tmp_path_factory.mktemp("piano") / "piano.onnx", metadata=meta)
 
 
+def test_eval_through_the_emulated_bus(piano_policy) -> None:
+    """``bar-deploy eval``'s piano code on the lockstep bus emulator in the keyboard's scene
+    (``EmulatedBusTarget(scene=...)``, as ``bench/piano_prior.py --eval bus``): ``reset`` puts a key left
+    down back at rest, and the song source reads the emulator's keys (``companions``). The zero policy holds
+    the held pose and presses nothing: C4's 15 goal ticks (0.5-0.8 s after the count-in) are all misses."""
+    from bar_policy.deploy.episodes import SimEpisodes
+    from bar_policy.deploy.policy import load_policy
+    from bar_policy.deploy.targets.emulated import EmulatedBusTarget
+    from bar_policy.tasks.piano.evaluate import evaluate
+    from bar_policy.tasks.piano.scene import keyboard_scene
+
+    policy = load_policy(str(piano_policy))
+    target = EmulatedBusTarget("arms", policy.policy_dt, scene=keyboard_scene(KB))
+    try:
+        emu = target.emu
+        c4 = emu.model.jnt_qposadr[emu.model.joint("piano_key60").id]
+        emu.data.qpos[c4] = 0.1  # past the press threshold (0.033 rad)
+        target.reset()
+        assert emu.data.qpos[c4] == 0.0 and target.companions == (emu,)
+        song = Song("one", (Note(60, 0.0, 0.3, "right"),))
+        (res,) = evaluate(policy, [song], target, runner=SimEpisodes(policy)).songs
+    finally:
+        target.close()
+    assert not res.faulted and (res.true_pos, res.false_pos, res.false_neg) == (0, 0, 15)
+
+
 @pytest.mark.parametrize("target", ["mock", "sim", "emulated"])
 def test_song_on_the_mock_sim_and_emulated_targets(piano_policy, tmp_path, target) -> None:
     where = (
@@ -125,9 +174,11 @@ def test_song_on_the_mock_sim_and_emulated_targets(piano_policy, tmp_path, targe
         assert not down.any()
     else:  # the emulator starts at the ramp's start pose, the sim at the exact pose: C3 / C5 at most
         assert set(np.flatnonzero(down.any(axis=0)) + KB.lowest) <= {48, 72}
-    # The log's goal rows are the song's (twinkle: C4 first, from POLICY's first tick, song step 0).
-    first = int(np.argmax(steps > 0)) - 1
-    assert goal[first, 60 - KB.lowest]
+    # The log's goal rows are the song's as played: twinkle's C4 and C3 at 0 s in the file sound after the
+    # 0.5 s count-in, from song step 25 (POLICY's first tick is song step 0); no goal key before it.
+    assert not goal[steps < 25].any()
+    first = int(np.argmax(goal.any(axis=1)))
+    assert steps[first] == 25 and set(np.flatnonzero(goal[first]) + KB.lowest) == {48, 60}
     # bar-deploy plot draws the piano roll from those two arrays.
     from bar_policy.deploy.plot import plot_log
 

@@ -9,17 +9,23 @@ the counts of a step are then known by hand.
 from __future__ import annotations
 
 import dataclasses
+import queue
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from bar_policy.tasks.piano.bank import song_bank
-from bar_policy.tasks.piano.env import LitePiano, nominal_config
+from bar_policy.tasks.piano.bank import PlaybackConfig, song_bank
+from bar_policy.tasks.piano.env import LitePiano, PianoEnvConfig, nominal_config
+from bar_policy.tasks.piano.key_input import MidiKeys
 from bar_policy.tasks.piano.keyboard import compact_config, press_thresholds
 from bar_policy.tasks.piano.songs import Note, Song
+from bar_policy.tasks.piano.source import SongCommands
 from bar_policy.tasks.piano.terms import PIANO_KEYS, TARGET_FRAMES
+
+NO_COUNT_IN = PlaybackConfig(count_in_s=0.0)
 
 
 def test_bank_rows_by_hand() -> None:
@@ -28,13 +34,79 @@ def test_bank_rows_by_hand() -> None:
     song = Song(
         "two", (Note(60, 0.10, 0.30, "right"), Note(64, 0.30, 0.50, "right"), Note(62, 9.0, 9.2, "right"))
     )
-    bank = song_bank([song], kb, 0.02, steps=40, lookahead=10)
+    bank = song_bank([song], kb, 0.02, steps=40, lookahead=10, playback=NO_COUNT_IN)
     assert bank.down.shape == (1, 40 + 10 + 1, 49)
     c4, e4 = 60 - kb.lowest, 64 - kb.lowest
     np.testing.assert_array_equal(np.flatnonzero(bank.down[0, :, c4]), np.arange(5, 15))
     np.testing.assert_array_equal(np.flatnonzero(bank.down[0, :, e4]), np.arange(15, 25))
     assert bank.down.sum() == 20  # the note at 9 s starts after step 40: cut, and counted
     assert bank.cut_notes == 1 and bank.steps[0] == 25
+
+
+def test_bank_count_in_and_lookahead_by_hand() -> None:
+    """Count-in 0.5 s at dt 0.02 on C4 0.10-0.30 s and E4 0.30-0.50 s: the song moves by 0.4 s, so C4 is
+    down at steps 25..34 (0.50-0.70 s) and E4 at 35..44 (0.70-0.90 s); the song is 45 steps long. With 10
+    frames of lookahead, step t's window holds steps t..t+10: C4 enters it at step 15 (frame 10), so the
+    count-in shows the first note 0.2 s before it sounds, and nothing before step 15."""
+    kb = compact_config()
+    c4, e4 = 60 - kb.lowest, 64 - kb.lowest
+    song = Song("two", (Note(60, 0.10, 0.30, "right"), Note(64, 0.30, 0.50, "right")))
+    bank = song_bank([song], kb, 0.02, steps=60, lookahead=10, playback=PlaybackConfig(count_in_s=0.5))
+    down = bank.down[0]
+    np.testing.assert_array_equal(np.flatnonzero(down[:, c4]), np.arange(25, 35))
+    np.testing.assert_array_equal(np.flatnonzero(down[:, e4]), np.arange(35, 45))
+    assert down.sum() == 20 and bank.steps[0] == 45 and bank.cut_notes == 0
+    np.testing.assert_array_equal(np.flatnonzero(bank.hands[0, 1].any(axis=1)), np.arange(25, 45))
+    assert not bank.hands[0, 0].any()  # no left-hand note
+    # The env's target_keys at step t: down[t : t + 11], frame-major.
+    windows = {t: down[t : t + TARGET_FRAMES] for t in (0, 14, 15, 20, 25, 30)}
+    assert not windows[0].any() and not windows[14].any()  # the count-in's first 0.3 s: nothing in view
+    frames = {
+        t: (np.flatnonzero(w[:, c4]).tolist(), np.flatnonzero(w[:, e4]).tolist()) for t, w in windows.items()
+    }
+    assert frames[15] == ([10], [])  # C4 at step 25 = frame 10
+    assert frames[20] == ([5, 6, 7, 8, 9, 10], [])  # steps 25..30
+    assert frames[25] == (list(range(10)), [10])  # C4 now (steps 25..34), E4 from step 35
+    assert frames[30] == ([0, 1, 2, 3, 4], [5, 6, 7, 8, 9, 10])
+    # A song already starting after the count-in is played as written: C4 at 0.80 s -> steps 40..49.
+    late = Song("late", (Note(60, 0.80, 1.00, "right"),))
+    bank = song_bank([late], kb, 0.02, steps=60, lookahead=10)  # the default count-in, 0.5 s
+    np.testing.assert_array_equal(np.flatnonzero(bank.down[0, :, c4]), np.arange(40, 50))
+
+
+def test_count_in_refusals() -> None:
+    with pytest.raises(ValueError, match=r"count_in_s = -0\.5"):
+        PlaybackConfig(count_in_s=-0.5)
+    with pytest.raises(ValueError, match=r"leaves no song in an episode of 10\.0 s"):
+        PianoEnvConfig(playback=PlaybackConfig(count_in_s=10.0))
+
+
+def test_env_and_song_commands_play_songs_alike() -> None:
+    """Parity: for every song of a small env's bank (a library song and a random one), ``SongCommands`` (the
+    robot's side) gives the env's ``target_keys`` and ``progress`` (``LitePiano.task_obs``) at every step of
+    the episode, count-in included; the songs start no earlier than the count-in on both sides."""
+    cfg = dataclasses.replace(nominal_config(), songs=1, library=("c_major_arpeggio_right",))
+    env = LitePiano(cfg)
+    count_in = cfg.playback.count_in_s
+    assert count_in == PlaybackConfig().count_in_s == 0.5
+    data = SimpleNamespace(qpos=jnp.zeros(env.mj_model.nq))  # keys at rest: key_pressed all 0
+    obs = jax.jit(lambda step, song: env.task_obs(None, data, None, {"step": step, "song": song}))
+    for i, song in enumerate(env.songs):
+        src = SongCommands(song, cfg.keyboard, env.dt, MidiKeys(queue.Queue(), cfg.keyboard))
+        assert song.duration_s + count_in <= cfg.episode_length_s  # the random song fits after the count-in
+        first = round(max(count_in, song.notes[0].start_s) / env.dt)
+        assert np.flatnonzero(env.bank.down[i].any(axis=1))[0] == first
+        assert np.flatnonzero(src.down.any(axis=1))[0] == first
+        assert first >= round(count_in / env.dt) == 25
+        src.begin(0.0)
+        for t in range(env.episode_length + 1):
+            want = obs(jnp.int32(t), jnp.int32(i))
+            got = src(t * env.dt)
+            np.testing.assert_array_equal(got["target_keys"], np.asarray(want["target_keys"]), f"step {t}")
+            # Within a float32 ulp (the jitted division may round the other way): 1e-7; a step is 0.002.
+            np.testing.assert_allclose(got["progress"], np.asarray(want["progress"]), rtol=0, atol=1e-7)
+            if t >= src.song_steps:
+                break
 
 
 @pytest.fixture(scope="module")

@@ -22,6 +22,7 @@ from bar_policy.tasks.piano.songs import (
     Song,
     SongError,
     TempoLimits,
+    count_in,
     goal_keys,
     playable,
     read_song,
@@ -48,6 +49,22 @@ def test_goal_keys_two_notes():
     assert g[3, 2, e4] == 1 and g[3, 2, c4] == 0 and g[3, 1, c4] == 1
     assert g[9].sum() == 0  # steps 9..11: after the song
     np.testing.assert_array_equal(g[1:, 0], g[:-1, 1])  # row t+1's now is row t's next
+
+
+def test_count_in_shifts_the_whole_song():
+    # First note at 0.10 s, count-in 0.5 s: every note moves by 0.5 - 0.1 = 0.4 s, keeping its key, hand
+    # and length (C4 0.10-0.30 -> 0.50-0.70, G2 0.20-1.00 -> 0.60-1.40).
+    song = Song("s", (Note(60, 0.10, 0.30, "right"), Note(43, 0.20, 1.00, "left")))
+    got = count_in(song, 0.5)
+    assert [(n.key, n.hand) for n in got.notes] == [(60, "right"), (43, "left")]
+    np.testing.assert_allclose([(n.start_s, n.end_s) for n in got.notes], [(0.5, 0.7), (0.6, 1.4)])
+    assert got.name == "s" and song.notes[0].start_s == 0.10  # the song itself keeps its times
+    # A song already starting at or after the count-in, or empty, comes back as it is: applying the
+    # count-in twice is applying it once.
+    assert count_in(got, 0.5) is got and count_in(got, 0.3) is got
+    assert count_in(Song("empty"), 0.5).notes == ()
+    with pytest.raises(ValueError, match=r"count_in_s = -0\.1"):
+        count_in(song, -0.1)
 
 
 def test_required_gap_by_hand():

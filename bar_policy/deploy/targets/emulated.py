@@ -9,9 +9,13 @@ the benchmarks (``bench/reach_emulator.py``, ``bench/track_fidelity.py``):
   control period of the emulator's MuJoCo physics, so a run goes faster than real time and is repeatable;
 - the state the policy sees went through the 16-bit feedback codec (``read_state`` returns the replies of
   the last round: the post-step state; ``refresh_on_read`` is off);
-- ``reset(q)`` teleports the emulated joints to ``q`` at rest and starts a fresh ``RealTarget`` on them:
-  scan, cap writes, watchdog, enable and one damping round (20 ms of physics: the only difference in the
-  initial condition from the sim target, which also starts at the reference velocity when given one).
+- ``reset(q)`` teleports the emulated joints to ``q`` at rest (and a task scene's joints, the piano's keys,
+  to their rest) and starts a fresh ``RealTarget`` on them: scan, cap writes, watchdog, enable and one
+  damping round (20 ms of physics: the only difference in the initial condition from the sim target, which
+  also starts at the reference velocity when given one);
+- ``scene``: a task's additions to the emulator's MuJoCo scene (the piano's keyboard), whose simulated
+  parts a command source reads through ``companions`` (the emulator: ``model``, ``data``), as on
+  ``--target real --can-interface virtual``.
 
 The emulator applies the MIT law with explicit damping (``qfrc_applied``), the firmware's law as is; the
 sim target and the MJX env integrate the Kd term implicitly by default (``targets.sim``). Channels are
@@ -29,6 +33,7 @@ from bar_policy.deploy.targets.base import JointState, StopReport, Target
 from bar_policy.deploy.targets.real import RealTarget
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.mit import MitCommand
+from bar_policy.robot.scene import SceneEdit
 from bar_policy.robstride.emulator import RobstrideEmulator
 from bar_policy.robstride.group import RobstrideGroup
 
@@ -52,6 +57,7 @@ class EmulatedBusTarget(Target):
         *,
         reply_timeout: float = 0.2,
         can_timeout: float = LOCKSTEP_CAN_TIMEOUT,
+        scene: SceneEdit | None = None,
     ) -> None:
         """Start the emulator (the real target starts on ``reset``).
 
@@ -60,6 +66,7 @@ class EmulatedBusTarget(Target):
             control_dt: physics per command round, s (the policy's period).
             reply_timeout: reply deadline per round on the virtual bus, s.
             can_timeout: the motors' CAN watchdog armed at start (wall clock), s.
+            scene: a task's additions to the emulator's scene (None: the robot alone).
         """
         self.robot = load_robot(mode)
         super().__init__(self.robot.joint_names)
@@ -69,7 +76,7 @@ class EmulatedBusTarget(Target):
         self.reply_timeout = reply_timeout
         self.can_timeout = can_timeout
         self.emu = RobstrideEmulator(
-            self.robot, self.channels, mode="lockstep", control_dt=control_dt
+            self.robot, self.channels, mode="lockstep", control_dt=control_dt, scene=scene
         ).start()
         self.inner: RealTarget | None = None
 
@@ -81,7 +88,8 @@ class EmulatedBusTarget(Target):
         if self.inner is not None:
             self.inner.close()
             self.inner = None
-        self.emu.set_joint_positions(self.robot.pose("piano_ready") if q is None else np.asarray(q, float))
+        q0 = self.robot.pose("piano_ready") if q is None else np.asarray(q, float)
+        self.emu.set_joint_positions(q0, scene_at_rest=True)
         buses = {i: can.Bus(interface="virtual", channel=c) for i, c in self.channels.items()}
         group = RobstrideGroup.from_robot(
             self.robot, buses, reply_timeout=self.reply_timeout, can_timeout=self.can_timeout
@@ -90,6 +98,11 @@ class EmulatedBusTarget(Target):
             self.robot, group, refresh_on_read=False, damping_hold_s=0.0, scan_ids=range(1, 33)
         )
         self.inner.start()
+
+    @property
+    def companions(self) -> tuple[RobstrideEmulator, ...]:
+        """The emulator: its ``model`` and ``data`` hold the scene's simulated parts (the piano's keys)."""
+        return (self.emu,)
 
     def _target(self) -> RealTarget:
         if self.inner is None:

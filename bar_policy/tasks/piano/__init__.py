@@ -2,11 +2,13 @@
 
 ``keyboard`` (geometry, key table, press test), ``scene`` (the keys in the robot's ``MjSpec``), ``reach``
 (which keys each fingertip reaches), ``songs`` (notes, the song format, playability, goal keys), ``midi``
-(standard MIDI files, through mido), ``generator`` (random playable songs) and ``song_library`` (the songs
-made here). numpy, mujoco and ``bar_policy.robot`` only: no jax, no torch. See docs/piano.md.
+(standard MIDI files, through mido), ``generator`` (random playable songs), ``song_library`` (the songs
+made here) and ``bank`` (songs as played: the count-in, the goal keys per control step). numpy, mujoco and
+``bar_policy.robot`` only: no jax, no torch. See docs/piano.md.
 """
 
 from bar_policy.task_records import EnvEntry, TaskRecord
+from bar_policy.tasks.piano.bank import PlaybackConfig
 from bar_policy.tasks.piano.generator import TRAIN_TEMPO_BPM, random_song
 from bar_policy.tasks.piano.keyboard import (
     LEFT_REACH,
@@ -22,7 +24,16 @@ from bar_policy.tasks.piano.keyboard import (
 from bar_policy.tasks.piano.midi import load_midi
 from bar_policy.tasks.piano.scene import FINGERTIP_BIT, FINGERTIP_GEOMS, keyboard_scene
 from bar_policy.tasks.piano.song_library import HELDOUT, TRAIN, library_song
-from bar_policy.tasks.piano.songs import Note, Song, SongError, TempoLimits, goal_keys, playable, read_song
+from bar_policy.tasks.piano.songs import (
+    Note,
+    Song,
+    SongError,
+    TempoLimits,
+    count_in,
+    goal_keys,
+    playable,
+    read_song,
+)
 
 __all__ = [
     "FINGERTIP_BIT",
@@ -36,10 +47,12 @@ __all__ = [
     "Key",
     "KeyboardConfig",
     "Note",
+    "PlaybackConfig",
     "Song",
     "SongError",
     "TempoLimits",
     "compact_config",
+    "count_in",
     "default_config",
     "goal_keys",
     "key_table",

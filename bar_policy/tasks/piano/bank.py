@@ -1,14 +1,19 @@
-"""The songs of a training run as one array: what the MJX env indexes per episode.
+"""Songs as played: the count-in, and the songs as one array, what the MJX env and ``SongCommands`` index.
 
-``song_bank`` turns songs into ``down`` (S, T + L + 1, n_keys) of 0/1 (key ``k`` down at control step ``t``
-of song ``s``, ``songs.goal_keys``'s rounding) with the song's length in steps; the env reads the window
-``down[s, t : t + L + 1]`` as ``target_keys`` for ``t = 0..T`` (the state after the last step included).
-A song is cut at T steps (its notes starting at or after ``T * dt`` are dropped, counted in ``cut_notes``)
-and a shorter one is padded with silence (no key down). numpy only: built once when the env is made.
+``song_bank`` plays each song with the count-in of ``PlaybackConfig`` (``songs.count_in``: the whole song
+delayed so that its first note starts no earlier than ``count_in_s``; a song file's times stay as written,
+the count-in is playback) and turns it into ``down`` (S, T + L + 1, n_keys) of 0/1 (key ``k`` down at
+control step ``t`` of song ``s``, ``songs.goal_keys``'s rounding) with the song's length in steps; the env
+reads the window ``down[s, t : t + L + 1]`` as ``target_keys`` for ``t = 0..T`` (the state after the last
+step included), and the deploy side's ``SongCommands`` reads the same rows of a bank of its one song, so
+training and the robot play every song with the same count-in. A song is cut at T steps (its notes starting
+at or after ``T * dt`` are dropped, counted in ``cut_notes``) and a shorter one is padded with silence (no
+key down). numpy only: built once when the env is made.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -17,9 +22,29 @@ import numpy as np
 from bar_policy.tasks.piano.generator import random_song
 from bar_policy.tasks.piano.keyboard import KeyboardConfig
 from bar_policy.tasks.piano.song_library import library_song
-from bar_policy.tasks.piano.songs import Song, goal_keys
+from bar_policy.tasks.piano.songs import Song, count_in, goal_keys
 
-__all__ = ["SongBank", "song_bank", "training_songs"]
+__all__ = ["PlaybackConfig", "SongBank", "song_bank", "training_songs"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class PlaybackConfig:
+    """How songs are played, in training (the env's bank) and on the robot (``SongCommands``) alike."""
+
+    count_in_s: float = 0.5
+    """Count-in, s: the first note of every song starts no earlier than this after the song's step 0 (the
+    episode's start; POLICY's first tick on the robot), the whole song delayed by the difference
+    (``songs.count_in``). The goal keys' lookahead (``TARGET_FRAMES - 1`` = 10 steps, 0.2 s) shows the first
+    note in the count-in's last 0.2 s, so the hand reaches its first key in the air instead of travelling
+    while pressing. Measured with the key-pose prior alone on the held-out songs, sim target
+    (docs/piano.md, "Count-in"): without a count-in frere_jacques faults at 0.56 s (its first note at 0 s,
+    85 mm from the resting hand); from 0.25 s to 1.5 s no song faults and the pooled F1 is flat (0.84-0.90
+    per song). 0.5 s leaves 0.3 s before the first note comes into view and takes 5 % of a 10 s episode."""
+
+    def __post_init__(self) -> None:
+        """Refuse a negative or non-finite count-in (``ValueError`` naming the value)."""
+        if not (math.isfinite(self.count_in_s) and self.count_in_s >= 0.0):
+            raise ValueError(f"count_in_s = {self.count_in_s} must be a finite number of seconds >= 0")
 
 
 @dataclass(frozen=True)
@@ -40,14 +65,23 @@ class SongBank:
 
 
 def song_bank(
-    songs: Sequence[Song], keyboard: KeyboardConfig, dt: float, steps: int, lookahead: int
+    songs: Sequence[Song],
+    keyboard: KeyboardConfig,
+    dt: float,
+    steps: int,
+    lookahead: int,
+    playback: PlaybackConfig | None = None,
 ) -> SongBank:
     """The bank of ``songs`` for episodes of ``steps`` control steps of ``dt`` s and ``lookahead`` frames.
 
-    Raises ``ValueError`` for an empty list (the env needs a song to play).
+    Each song is played with ``playback``'s count-in (default ``PlaybackConfig()``): its rows, hands and
+    length are those of ``songs.count_in(song, playback.count_in_s)``. Raises ``ValueError`` for an empty
+    list (the env needs a song to play).
     """
     if not songs:
         raise ValueError("a song bank needs at least one song")
+    pb = PlaybackConfig() if playback is None else playback
+    songs = [count_in(song, pb.count_in_s) for song in songs]
     rows = steps + lookahead + 1
     down = np.zeros((len(songs), rows, keyboard.n_keys), np.float32)
     hands = np.zeros((len(songs), 2, rows, keyboard.n_keys), np.uint8)

@@ -7,10 +7,13 @@ and the initial-state noise are the robot env's (``bar_policy.envs.robot``); the
   two fingertip spheres touch) on the robot's ``MjSpec``. The robot's joints are addressed by name; the keys'
   hinge angles are read from their own ``qpos`` addresses.
 - **Songs**: a bank built once (``bank.song_bank``): the training library's songs and ``songs`` random
-  playable ones (``generator.random_song``, tempos ~ U(``tempo_bpm``)), each cut or padded to the episode.
-  Each episode plays one song, drawn uniformly, from its start.
+  playable ones (``generator.random_song``, tempos ~ U(``tempo_bpm``), written to end by
+  ``episode_length_s - count_in_s``), each played with ``playback``'s count-in (the first note no earlier
+  than ``count_in_s``; ``SongCommands`` plays songs on the robot with the same) and cut or padded to the
+  episode. Each episode plays one song, drawn uniformly, from its start (the count-in's).
 - **Observation**: ``ObservationManager.for_task("piano", mode)``: ``target_keys`` (the goal keys at the
-  current control step and the next ``TARGET_FRAMES - 1``), ``progress`` (steps / episode steps),
+  current control step and the next ``TARGET_FRAMES - 1``), ``progress`` (steps / episode steps, from the
+  episode's start: the count-in's ticks count, as on the robot),
   ``key_pressed`` (the keys past their press threshold now), then q, dq and the last action.
 - **Step ``t``** (the ``t``-th control step of the episode, ``t = step - 1``): the goal is the bank's row
   ``t`` (what ``target_keys`` showed as current when the action was chosen); it is compared with the keys
@@ -42,7 +45,7 @@ from bar_policy.obs.action_prior import BlendPrior
 from bar_policy.robot.constants import FINGERTIP_SITES
 from bar_policy.tasks.piano import metrics as piano_metrics
 from bar_policy.tasks.piano import rewards
-from bar_policy.tasks.piano.bank import song_bank, training_songs
+from bar_policy.tasks.piano.bank import PlaybackConfig, song_bank, training_songs
 from bar_policy.tasks.piano.held import held_pose
 from bar_policy.tasks.piano.keyboard import KeyboardConfig, compact_config, key_table, press_thresholds
 from bar_policy.tasks.piano.prior import KeyPosePriorConfig, key_pose_prior
@@ -105,6 +108,9 @@ class PianoEnvConfig(RobotEnvConfig):
     """Tempo range of the random songs, beats per minute (a beat = one short note)."""
     song_seed: int = 0
     """Seed of the random songs."""
+    playback: PlaybackConfig = field(default_factory=PlaybackConfig)
+    """How the songs are played: the count-in before the first note (``SongCommands`` plays with the
+    default on the robot)."""
     reward: RewardConfig = field(default_factory=RewardConfig)
     """Reward terms and weights."""
     prior: KeyPosePriorConfig = field(default_factory=KeyPosePriorConfig)
@@ -119,6 +125,11 @@ class PianoEnvConfig(RobotEnvConfig):
             )
         if self.songs < 0 or (self.songs == 0 and not self.library):
             raise ValueError(f"the bank needs a song: songs = {self.songs}, library = {self.library}")
+        if not self.playback.count_in_s < self.episode_length_s:
+            raise ValueError(
+                f"playback.count_in_s = {self.playback.count_in_s} s leaves no song in an episode of "
+                f"{self.episode_length_s} s"
+            )
         lo, hi = self.tempo_bpm
         if not 30.0 <= lo <= hi:
             raise ValueError(f"tempo_bpm must be (low, high) with 30 <= low <= high, got {self.tempo_bpm}")
@@ -152,8 +163,11 @@ class LitePiano(LiteRobotEnv):
         self._tip_sites = np.array([m.site(s).id for s in FINGERTIP_SITES])
         self._threshold = jnp.asarray(press_thresholds(kb), jnp.float32)
         self._angle_max = jnp.asarray(rewards.angle_max(kb), jnp.float32)
-        songs = training_songs(kb, cfg.songs, cfg.episode_length_s, cfg.tempo_bpm, cfg.song_seed, cfg.library)
-        self.bank = song_bank(songs, kb, cfg.ctrl_dt, self.episode_length, TARGET_FRAMES - 1)
+        length_s = cfg.episode_length_s - cfg.playback.count_in_s  # the random songs fit after the count-in
+        songs = training_songs(kb, cfg.songs, length_s, cfg.tempo_bpm, cfg.song_seed, cfg.library)
+        self.songs = tuple(songs)
+        """The bank's songs as written (the bank holds them as played)."""
+        self.bank = song_bank(songs, kb, cfg.ctrl_dt, self.episode_length, TARGET_FRAMES - 1, cfg.playback)
         self._down = jnp.asarray(self.bank.down)
         self._hands = jnp.asarray(self.bank.hands)
         self._held = jnp.asarray(held_pose(np.asarray(self._default), cfg.mode), jnp.float32)
@@ -182,10 +196,11 @@ class LitePiano(LiteRobotEnv):
         }
 
     def task_metadata(self) -> dict:
-        """The song set's id (``dataset_repo_id``): the bank's recipe."""
+        """The song set's id (``dataset_repo_id``): the bank's recipe, count-in included."""
         c = self.config
         lib = "+".join(c.library) if c.library else "none"
-        return {"dataset_repo_id": f"bar_policy.piano:random{c.songs}-seed{c.song_seed}-{lib}"}
+        count_in = f"countin{c.playback.count_in_s:g}s"
+        return {"dataset_repo_id": f"bar_policy.piano:random{c.songs}-seed{c.song_seed}-{count_in}-{lib}"}
 
     # -- hooks -------------------------------------------------------------------------------------
     def key_angles(self, data: mjx.Data) -> jax.Array:

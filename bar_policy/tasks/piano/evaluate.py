@@ -3,13 +3,14 @@
 Each song runs from the held default pose (``held.held_pose``, as the env starts), with the policy from
 the first tick (no ramp), through the deploy code path (the runner ``bar-deploy eval`` hands in,
 ``tasks.episodes.EpisodeRunner``: ``Runtime``, the safety supervisor, the firmware MIT law in the sim), in
-the keyboard's scene with the simulated keys. At every policy tick the goal keys of
-the song's step are compared with the keys down (``SongCommands.goal_now``, ``keys_down``): true
-positives, false positives and false negatives give each tick's precision, recall and F1 (``metrics``;
-ticks before the first and after the last note included, as the env counts every step). A song's figures
-are the means over its ticks (RoboPianist's), with the F1 of the summed counts beside them (pooled). The
-ship gate reads the mean F1 over every song's ticks (``success_pct`` = 100 x F1) and the songs' safety
-and smoothness (chatter on q_cmd itself: the piano has no joint reference).
+the keyboard's scene with the simulated keys, each song with the env's count-in (``bank.PlaybackConfig``).
+At every policy tick the goal keys of the song's step are compared with the keys down
+(``SongCommands.goal_now``, ``keys_down``): true positives, false positives and false negatives give each
+tick's precision, recall and F1 (``metrics``; the count-in's ticks and those after the last note included,
+as the env counts every step: each such tick with no key down scores 1, which the pooled F1 ignores). A
+song's figures are the means over its ticks (RoboPianist's), with the F1 of the summed counts beside them
+(pooled). The ship gate reads the mean F1 over every song's ticks (``success_pct`` = 100 x F1) and the
+songs' safety and smoothness (chatter on q_cmd itself: the piano has no joint reference).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import numpy as np
 from bar_policy.quality.report import EpisodeQuality, quality_summary_line, summarise
 from bar_policy.tasks.episodes import EpisodeRunner, Policy
 from bar_policy.tasks.interfaces import EvalReport
+from bar_policy.tasks.piano.bank import PlaybackConfig
 from bar_policy.tasks.piano.held import held_pose
 from bar_policy.tasks.piano.keyboard import compact_config
 from bar_policy.tasks.piano.metrics import Counts, episode_scores, scores, step_counts
@@ -116,15 +118,25 @@ class PianoEval(EvalReport):
         return "\n".join(lines)
 
 
-def evaluate(policy: Policy, songs: list[Song], target: Any = None, *, runner: EpisodeRunner) -> PianoEval:
-    """Play each song once on ``target`` (default: ``runner``'s in the keyboard's scene; module docstring)."""
+def evaluate(
+    policy: Policy,
+    songs: list[Song],
+    target: Any = None,
+    *,
+    runner: EpisodeRunner,
+    playback: PlaybackConfig | None = None,
+) -> PianoEval:
+    """Play each song once on ``target`` (default: ``runner``'s in the keyboard's scene; module docstring).
+
+    ``playback``: the count-in (default ``PlaybackConfig()``, the env's and ``bar-deploy``'s).
+    """
     kb = compact_config()
     sim = target or runner.target(scene=keyboard_scene(kb))
     q0 = held_pose(policy.robot.pose("piano_ready"), policy.robot.mode)  # as the env starts
     results = []
     for song in songs:
         sim.reset(q0)
-        commands = SongCommands(song, kb, policy.policy_dt, keys=None)
+        commands = SongCommands(song, kb, policy.policy_dt, keys=None, playback=playback)
         downs: list[np.ndarray] = []
         goals: list[np.ndarray] = []
 

@@ -17,15 +17,15 @@ hand's 7 joints, from damped least-squares IK (``reach.ReachChecker``, the span'
 each with the gravity (and key) torque folded into the command, ``q_cmd = q + (g(q) - J^T f) / Kp``, so
 the MIT law's spring holds the pose rather than sagging 20 mm (``held.py``).
 
-**Blends** (``key_pose_prior``, two ``BlendPrior`` blends that add): goal-key frame ``j`` (0 = this step's
-goal; ``target_keys``) and key ``k`` act on the hand of ``k``:
-
-- *place*: the mean of hover(k) over the goal keys in view, weighted ``decay ** j`` (the nearest note
-  leads: a held note outweighs the next note until it ends), and of the default pose (``piano_ready``,
-  action 0) at weight ``rest_weight``, so a hand with no goal key in view rests;
-- *press*: the mean of press(k) - hover(k) over the goal keys in frames ``j <= lead_steps``, and of 0 at
-  weight ``press_rest``: the fingertip goes down ``lead_steps`` steps before the note (ahead of the action
-  filter's and the arm's lag) and up ``lead_steps`` steps before its end, and moves sideways only in the air.
+**Blend** (``key_pose_prior``, one ``BlendPrior``): goal-key frame ``j`` (0 = this step's goal;
+``target_keys``) and key ``k`` act on the hand of ``k``, each hand's command the weighted mean of the
+press pose press(k) of the goal keys in frames ``j <= lead_steps``, the hover pose hover(k) of those in the
+later frames, each at weight ``decay ** j`` (the nearest note leads: a held note outweighs the next note
+until it ends), and the default pose (``piano_ready``, action 0) at weight ``rest_weight``, so a hand with
+no goal key in view rests. The fingertip goes down ``lead_steps`` steps before the note (ahead of the
+action filter's and the arm's lag) and up ``lead_steps`` steps before its end; because the later frames'
+hover poses stay in the mean, the blended press stops short of the press pose (``press_below_m``). A
+second blend for the press depth, apart from the place, scored lower (docs/piano.md).
 """
 
 from __future__ import annotations
@@ -52,9 +52,14 @@ class KeyPosePriorConfig:
 
     hover_m: float = 0.03
     """Fingertip sphere above the key top when hovering, m (prior alone on the held-out songs, sim target:
-    mean F1 0.60 at 15 mm, 0.79 at 30 mm, 0.72 at 40 mm, lead 2; docs/piano.md)."""
-    press_below_m: float = 0.004
-    """Press target below the aim point's full-travel depth, m (the key's stop takes the rest)."""
+    mean F1 0.60 at 15 mm, 0.79 at 30 mm, 0.72 at 40 mm, lead 2; with the count-in and an 8 mm press,
+    0.74 at 15 mm, 0.78 at 20 mm, 0.80 at 25 mm, 0.82 at 30 mm; docs/piano.md)."""
+    press_below_m: float = 0.008
+    """Press target below the aim point's full-travel depth, m (the key's stop takes the rest). Deeper than
+    the key needs because the place blend mixes the press pose with the hover poses of the later frames:
+    8 mm puts the blended fingertip past the press threshold sooner. Prior alone, held-out songs with the
+    0.5 s count-in, sim target: mean F1 0.793 at 4 mm, 0.808 at 6, 0.817 at 8, 0.821 at 9, 0.812 at 10,
+    0.813 at 12; training songs 0.773 at 4 mm, 0.800 at 8, 0.776 at 9 (docs/piano.md, "Count-in")."""
     press_force_n: float = 1.5
     """Upward key force the press command holds, N (full travel takes 1.2 N at a white key's aim point)."""
     decay: float = 0.6

@@ -44,6 +44,7 @@ __all__ = [
     "Song",
     "SongError",
     "TempoLimits",
+    "count_in",
     "goal_keys",
     "key_distance",
     "playable",
@@ -213,6 +214,23 @@ def playable(
         last[hand] = resolved
         out.append(resolved)
     return Song(song.name, tuple(out))
+
+
+def count_in(song: Song, count_in_s: float) -> Song:
+    """``song`` delayed so that its first note starts no earlier than ``count_in_s`` s (a count-in).
+
+    Every note moves by ``max(0, count_in_s - first start)``: a song that already starts at or after
+    ``count_in_s`` comes back unchanged (so applying it twice is applying it once), and the notes keep
+    their keys, lengths, hands and spacing. An empty song comes back unchanged. Playback, not the file:
+    song files keep their times as written (``bank.PlaybackConfig``).
+    """
+    if not (math.isfinite(count_in_s) and count_in_s >= 0.0):
+        raise ValueError(f"count_in_s = {count_in_s} must be a finite number of seconds >= 0")
+    shift = max(0.0, count_in_s - min((n.start_s for n in song.notes), default=count_in_s))
+    if shift == 0.0:
+        return song
+    notes = tuple(replace(n, start_s=n.start_s + shift, end_s=n.end_s + shift) for n in song.notes)
+    return Song(song.name, notes)
 
 
 def goal_keys(

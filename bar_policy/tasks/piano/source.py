@@ -3,25 +3,29 @@
 ``SongCommands`` feeds the three piano terms each control tick, as the env builds them (``env.py``):
 
 - ``target_keys``: rows ``s .. s + TARGET_FRAMES - 1`` of the song's goal keys (``bank.song_bank``, the env's
-  rounding of note times to steps), ``s`` the control step since POLICY began (0 before it);
+  count-in and rounding of note times to steps), ``s`` the control step since POLICY began (0 before it);
 - ``progress``: ``s / max(EPISODE_STEPS, song steps)``: the env's ``step / 500`` for a song of up to 10 s
-  (a longer song runs to 1 at its end instead of beyond it);
+  with its count-in (a longer song runs to 1 at its end instead of beyond it). Both count from the song's
+  step 0, the count-in's start, as the env counts from the episode's start;
 - ``key_pressed``: the key source's reading (``keys.py``: the simulated keys, a MIDI keyboard, or the
   fingertips' kinematics), named in the log.
 
-The run finishes ``END_HOLD_S`` after the song's last note. The log records the goal keys of the step, the
+The song plays with the count-in of ``playback`` (``bank.PlaybackConfig``, the env's default): its first
+note no earlier than ``count_in_s`` after POLICY's first tick. The run finishes ``END_HOLD_S`` after the
+song's last note. The log records the goal keys of the step, the
 keys down and the step, so a run can be drawn as a piano roll and scored (``step_counts``).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 from typing import Any
 
 import numpy as np
 
 from bar_policy.tasks.interfaces import CommandSource
-from bar_policy.tasks.piano.bank import song_bank
+from bar_policy.tasks.piano.bank import PlaybackConfig, song_bank
 from bar_policy.tasks.piano.key_input import KeySource, SimKeys
 from bar_policy.tasks.piano.keyboard import KeyboardConfig
 from bar_policy.tasks.piano.songs import Song
@@ -43,21 +47,33 @@ class SongCommands(CommandSource):
     task = "piano"
     names = ("target_keys", "progress", "key_pressed")
 
-    def __init__(self, song: Song, keyboard: KeyboardConfig, dt: float, keys: KeySource | None) -> None:
+    def __init__(
+        self,
+        song: Song,
+        keyboard: KeyboardConfig,
+        dt: float,
+        keys: KeySource | None,
+        playback: PlaybackConfig | None = None,
+    ) -> None:
         """Play ``song`` on ``keyboard`` at control period ``dt`` s, reading keys from ``keys``.
 
         ``keys`` None: the simulated keys of the target the runtime attaches (``attach``; the sim target
-        in the keyboard's scene). Raises ``ValueError`` for a keyboard of another size than the layout's.
+        in the keyboard's scene). ``playback``: the count-in (default ``PlaybackConfig()``, the env's).
+        Raises ``ValueError`` for a keyboard of another size than the layout's.
         """
         if keyboard.n_keys != PIANO_KEYS:
             raise ValueError(f"the piano layout has {PIANO_KEYS} keys; the keyboard has {keyboard.n_keys}")
         self.song = song
+        """The song as given (its file's times); ``down`` holds it as played, after the count-in."""
         self.keyboard = keyboard
         self.dt = dt
-        last = max((n.end_s for n in song.notes), default=0.0)
-        self.song_steps = round(last / dt)
-        bank = song_bank([song], keyboard, dt, self.song_steps, TARGET_FRAMES - 1)
-        self.down = bank.down[0]
+        self.playback = PlaybackConfig() if playback is None else playback
+        # Room for the song after any count-in: the bank plays it (count-in, rounding) and gives its length.
+        room = math.ceil((song.duration_s + self.playback.count_in_s) / dt) + 1
+        bank = song_bank([song], keyboard, dt, room, TARGET_FRAMES - 1, self.playback)
+        self.song_steps = int(bank.steps[0])
+        """The song's length as played, control steps: its last note's end, count-in included."""
+        self.down = bank.down[0, : self.song_steps + TARGET_FRAMES]
         """Goal keys, 0/1 float32, shape (song steps + TARGET_FRAMES, n_keys)."""
         self.scale = max(EPISODE_STEPS, self.song_steps)
         self.keys = keys
@@ -135,13 +151,20 @@ class SongCommands(CommandSource):
     def metadata(self) -> dict[str, Any]:
         """The song, its length and the key source."""
         keys = "sim (attached)" if self.keys is None else _describe(self.keys)
-        return {**super().metadata(), "song": self.song.name, "song_steps": self.song_steps, "keys": keys}
+        return {
+            **super().metadata(),
+            "song": self.song.name,
+            "song_steps": self.song_steps,
+            "count_in_s": self.playback.count_in_s,
+            "keys": keys,
+        }
 
     def describe(self) -> str:
         """One line for logs."""
         keys = "the sim's keys" if self.keys is None else _describe(self.keys)
-        length = self.song_steps * self.dt
-        return f"song {self.song.name!r} ({len(self.song.notes)} notes, {length:g} s), keys {keys}"
+        length, c = self.song_steps * self.dt, self.playback.count_in_s
+        notes = len(self.song.notes)
+        return f"song {self.song.name!r} ({notes} notes, {length:g} s with a {c:g} s count-in), keys {keys}"
 
     def close(self) -> None:
         """Close the key source and log what it could not use (``KeySource.counts``)."""
