@@ -69,15 +69,16 @@ def test_the_shipped_reach_policy_says_what_trained_it():
 
 
 def test_the_shipped_tracker_says_what_trained_it():
-    """The tracker shipped from the H100 run of issue 16 (docs/tracking.md): its commit, a clean tree, the
-    versions and the exact training command."""
+    """The tracker shipped from the ablation's fixed-LR run of issue 16 (docs/tracking.md, an H100 of an
+    x4 host): its commit, a clean tree, the versions and the exact training command."""
     from bar_policy.deploy.policy import load_policy
 
     meta = load_policy(REPO / "checkpoints" / "lite_track_arms.onnx").metadata
-    assert meta.provenance["git_commit"].startswith("9897af8") and meta.provenance["git_dirty"] is False
+    assert meta.provenance["git_commit"].startswith("218165f") and meta.provenance["git_dirty"] is False
     head, command = provenance.describe(meta.provenance, meta.code_version)
-    assert head.startswith("provenance: commit 9897af8 (clean tree") and "jax 0.11.2" in head
-    assert "--preset track --seed 0" in command and "--network.action-prior reference" in command
+    assert head.startswith("provenance: commit 218165fafa95 (clean tree, as given by BAR_POLICY_GIT_COMMIT)")
+    assert "jax 0.11.2" in head
+    assert "--preset track --seed 0" in command and "--ppo.schedule fixed" in command
 
 
 @pytest.mark.parametrize(

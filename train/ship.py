@@ -129,8 +129,9 @@ def main(argv: list[str] | None = None, *, eval_options: Mapping[str, Any] | Non
     pre.add_argument(
         "--raw-throughput",
         type=int,
-        default=4096,
-        help="after training, time the batched env alone at this batch size (0 = skip); recorded in the JSON",
+        default=None,
+        help="after training, time the batched env alone at this batch size (0 = skip); recorded in the JSON "
+        "(default: 4096 after training here, 0 with --from-run: the machine that trained is not this one)",
     )
     pre.add_argument("--checkpoints-dir", default="checkpoints", help="where the ONNX and JSON go")
     pre.add_argument("--docs-dir", default="docs", help="where the reach curve and training.md results go")
@@ -178,6 +179,8 @@ def main(argv: list[str] | None = None, *, eval_options: Mapping[str, Any] | Non
         extra={"ship_gate": gate_record(task, report, misses)},
     )
     final = json.loads(paths["json"].read_text())
+    if known.raw_throughput is None:
+        known.raw_throughput = 0 if known.from_run is not None else 4096
     if known.raw_throughput:
         from bar_policy import envs
         from bar_policy.training.throughput import raw_env_steps_per_second
