@@ -35,6 +35,7 @@ from bar_policy.task_records import records, resolve
 
 __all__ = [
     "ALL_ENVS",
+    "DEFAULT_ENV",
     "LiteRobotEnv",
     "MjxEnv",
     "RobotEnvConfig",
@@ -58,6 +59,8 @@ def _randomizer(config: Any) -> Callable:
 _ENTRIES = {entry.name: entry for record in records() for entry in record.envs}
 ALL_ENVS: tuple[str, ...] = tuple(_ENTRIES)
 """Registered env names (the task records' ``envs``, in registry order)."""
+DEFAULT_ENV: str = ALL_ENVS[0]
+"""The env the helpers below build when no name is given: the registry's first (reach's ``LiteReach``)."""
 
 
 def _entry(name: str) -> tuple[type[MjxEnv], Callable[[], Any], Callable[[Any], Callable]]:
@@ -67,13 +70,13 @@ def _entry(name: str) -> tuple[type[MjxEnv], Callable[[], Any], Callable[[Any], 
     return resolve(entry.env), resolve(entry.config), _randomizer
 
 
-def default_config(name: str = "LiteReach") -> Any:
+def default_config(name: str = DEFAULT_ENV) -> Any:
     """The default (training) config of a registered env."""
     return _entry(name)[1]()
 
 
 def nominal_config(base: RobotEnvConfig | None = None) -> Any:
-    """``base`` (default: LiteReach's default config) with every randomisation and noise off.
+    """``base`` (default: ``DEFAULT_ENV``'s default config) with every randomisation and noise off.
 
     Works for any task's config (``robot_config.nominal``); quantisation and torque saturation stay on.
     """
@@ -81,7 +84,7 @@ def nominal_config(base: RobotEnvConfig | None = None) -> Any:
 
 
 def load(
-    name: str = "LiteReach",
+    name: str = DEFAULT_ENV,
     config: Any | None = None,
     overrides: Iterable[str] | Mapping[str, Any] | None = None,
 ) -> MjxEnv:
@@ -100,7 +103,7 @@ def load(
     return cls(cfg)
 
 
-def get_randomizer(name: str = "LiteReach", config: Any | None = None) -> Callable:
+def get_randomizer(name: str = DEFAULT_ENV, config: Any | None = None) -> Callable:
     """The model-level domain randomiser ``(model, rng) -> (batched_model, in_axes)`` of an env.
 
     ``rng`` is a batch of keys, shape (num_envs, 2) (what brax PPO passes). Pass the env's config so the

@@ -28,6 +28,15 @@ def test_registry_names():
         envs.load("LiteDance")
 
 
+def test_default_env_is_the_registry_first_not_a_literal():
+    """No name given: the first registered env (reach is the registration list's first task, LiteReach its
+    first env), the same as bar-train's default --env."""
+    from bar_policy.training.config import DEFAULT_ENV
+
+    assert envs.DEFAULT_ENV == "LiteReach" == DEFAULT_ENV
+    assert type(envs.default_config()) is type(envs.default_config("LiteReach"))
+
+
 @pytest.mark.parametrize("name", envs.ALL_ENVS)
 def test_every_env_traces_and_keeps_the_trainer_contract(name):
     task, obs_size, act_size = EXPECTED[name]
