@@ -181,6 +181,7 @@ class Learner:
             vf_coefficient=ppo.vf_loss_coefficient,
         )
         grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
+        warmup_steps = ppo.actor_warmup_iterations * ppo.num_updates_per_batch * ppo.num_minibatches
 
         # One permutation for every leaf: the same order as brax's per-leaf
         # ``jax.random.permutation(k_perm, x)`` (which draws these indices for each leaf again).
@@ -197,6 +198,9 @@ class Learner:
                 o = set_learning_rate(o, adapt_learning_rate(learning_rate(o), kl, ppo))
             (_, metrics), grads = grad_fn(p, normalizer, mb, k_loss)
             grads = jax.lax.pmean(grads, axis_name=AXIS)
+            if warmup_steps:  # critic warm-up: zero policy gradients leave Adam's update exactly 0
+                frozen = adam_count(o) < warmup_steps
+                grads = grads.replace(policy=jax.tree.map(lambda g: jnp.where(frozen, 0.0, g), grads.policy))
             updates, o = self.optimizer.update(grads, o, p)
             metrics = {**metrics, "kl": kl, "learning_rate": learning_rate(o)}
             return (o, optax.apply_updates(p, updates), kk), metrics
@@ -353,6 +357,11 @@ class Learner:
 def learning_rate(opt_state: Any) -> jax.Array:
     """The learning rate held in ``make_learner``'s optimizer state (scalar)."""
     return opt_state[1].hyperparams["learning_rate"]
+
+
+def adam_count(opt_state: Any) -> jax.Array:
+    """Adam steps taken so far (int32 scalar; ``make_learner``'s optimizer state), one per minibatch."""
+    return opt_state[1].inner_state[0].count
 
 
 def set_learning_rate(opt_state: Any, lr: jax.Array) -> Any:

@@ -225,6 +225,11 @@ def train_rsl_rl(
             f"network.action_prior={cfg.network.action_prior!r} is a brax-backend network; the rsl-rl "
             "backend's actor has none (valid here: none; or --backend brax)"
         )
+    if cfg.ppo.actor_warmup_iterations:
+        raise ValueError(
+            f"ppo.actor_warmup_iterations={cfg.ppo.actor_warmup_iterations} is a brax-backend option; the "
+            "rsl-rl backend's PPO has no critic warm-up (valid here: 0; or --backend brax)"
+        )
     if wrap_fn is None:
         from bar_policy.envs import wrap_for_brax_training as wrap_fn
     ppo = cfg.ppo
