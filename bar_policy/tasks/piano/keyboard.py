@@ -183,7 +183,8 @@ def compact_config() -> KeyboardConfig:
     """C2..C6 (MIDI 36..84, 49 keys): every library song and random song fits, with fewer keys to simulate.
 
     The same placement as ``default_config()``; in MJX each key costs a degree of freedom, a joint-limit row
-    and two fingertip contact pairs (49 keys: nefc 229 instead of the robot's 82).
+    and two fingertip contact pairs (49 keys: nefc 229 instead of the robot's 82; 137 under the scene's MJX
+    contact caps, ``scene.MAX_GEOM_PAIRS`` and ``scene.MAX_CONTACT_POINTS``).
     """
     return replace(default_config(), lowest=36, highest=84)
 
