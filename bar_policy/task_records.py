@@ -22,7 +22,16 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["EnvEntry", "TaskRecord", "get_record", "install_loader", "publish", "records", "resolve"]
+__all__ = [
+    "EnvEntry",
+    "TaskRecord",
+    "default_env",
+    "get_record",
+    "install_loader",
+    "publish",
+    "records",
+    "resolve",
+]
 
 _REF = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
 """``package.module:attribute``."""
@@ -150,6 +159,11 @@ def records() -> tuple[TaskRecord, ...]:
     if _RECORDS is None:
         raise RuntimeError("no task records are published: import bar_policy.tasks.registry")
     return _RECORDS
+
+
+def default_env() -> str:
+    """The env a caller gets when it names none: the first registered task's first env (``LiteReach``)."""
+    return records()[0].envs[0].name
 
 
 def get_record(name: str) -> TaskRecord:

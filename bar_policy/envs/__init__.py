@@ -31,7 +31,7 @@ from bar_policy.envs.base import MjxEnv, State
 from bar_policy.envs.robot import LiteRobotEnv
 from bar_policy.envs.robot_config import RobotEnvConfig, nominal
 from bar_policy.overrides import apply_overrides
-from bar_policy.task_records import records, resolve
+from bar_policy.task_records import default_env, records, resolve
 
 __all__ = [
     "ALL_ENVS",
@@ -59,7 +59,7 @@ def _randomizer(config: Any) -> Callable:
 _ENTRIES = {entry.name: entry for record in records() for entry in record.envs}
 ALL_ENVS: tuple[str, ...] = tuple(_ENTRIES)
 """Registered env names (the task records' ``envs``, in registry order)."""
-DEFAULT_ENV: str = ALL_ENVS[0]
+DEFAULT_ENV: str = default_env()
 """The env the helpers below build when no name is given: the registry's first (reach's ``LiteReach``)."""
 
 

@@ -23,8 +23,8 @@ from typing import Annotated, Any, Literal
 import tyro
 
 from bar_policy.overrides import apply_overrides, split_override
-from bar_policy.task_records import resolve
-from bar_policy.tasks.registry import TASKS, get_task_record
+from bar_policy.task_records import default_env, resolve
+from bar_policy.tasks.registry import TASKS
 
 __all__ = [
     "ACTION_PRIORS",
@@ -46,8 +46,9 @@ __all__ = [
 
 EnvName = Literal[tuple(e.name for r in TASKS for e in r.envs)]  # type: ignore[valid-type]
 """Registered env names (``bar_policy.envs.ALL_ENVS``, from the task records: ``--help`` imports no jax)."""
-DEFAULT_ENV: str = get_task_record("reach").envs[0].name
-"""The default ``--env``: reach's first registered env (``LiteReach``, from its task record)."""
+DEFAULT_ENV: str = default_env()
+"""The default ``--env``: the first registered task's first env (``LiteReach``, ``task_records.default_env``;
+the same as ``bar_policy.envs.DEFAULT_ENV``)."""
 ACTION_PRIORS: tuple[str, ...] = (
     "none",
     *dict.fromkeys(e.action_prior for r in TASKS for e in r.envs if e.action_prior),

@@ -13,7 +13,6 @@ key down). numpy only: built once when the env is made.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -22,7 +21,7 @@ import numpy as np
 from bar_policy.tasks.piano.generator import random_song
 from bar_policy.tasks.piano.keyboard import KeyboardConfig
 from bar_policy.tasks.piano.song_library import library_song
-from bar_policy.tasks.piano.songs import Song, count_in, goal_keys
+from bar_policy.tasks.piano.songs import Song, check_count_in, count_in, goal_keys
 
 __all__ = ["PlaybackConfig", "SongBank", "song_bank", "training_songs"]
 
@@ -42,9 +41,8 @@ class PlaybackConfig:
     per song). 0.5 s leaves 0.3 s before the first note comes into view and takes 5 % of a 10 s episode."""
 
     def __post_init__(self) -> None:
-        """Refuse a negative or non-finite count-in (``ValueError`` naming the value)."""
-        if not (math.isfinite(self.count_in_s) and self.count_in_s >= 0.0):
-            raise ValueError(f"count_in_s = {self.count_in_s} must be a finite number of seconds >= 0")
+        """Refuse a negative or non-finite count-in (``songs.check_count_in``)."""
+        check_count_in(self.count_in_s)
 
 
 @dataclass(frozen=True)

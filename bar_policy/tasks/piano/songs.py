@@ -216,6 +216,12 @@ def playable(
     return Song(song.name, tuple(out))
 
 
+def check_count_in(count_in_s: float) -> None:
+    """Refuse a negative or non-finite count-in (``ValueError`` naming the value)."""
+    if not (math.isfinite(count_in_s) and count_in_s >= 0.0):
+        raise ValueError(f"count_in_s = {count_in_s} must be a finite number of seconds >= 0")
+
+
 def count_in(song: Song, count_in_s: float) -> Song:
     """``song`` delayed so that its first note starts no earlier than ``count_in_s`` s (a count-in).
 
@@ -224,8 +230,7 @@ def count_in(song: Song, count_in_s: float) -> Song:
     their keys, lengths, hands and spacing. An empty song comes back unchanged. Playback, not the file:
     song files keep their times as written (``bank.PlaybackConfig``).
     """
-    if not (math.isfinite(count_in_s) and count_in_s >= 0.0):
-        raise ValueError(f"count_in_s = {count_in_s} must be a finite number of seconds >= 0")
+    check_count_in(count_in_s)
     shift = max(0.0, count_in_s - min((n.start_s for n in song.notes), default=count_in_s))
     if shift == 0.0:
         return song
