@@ -98,6 +98,14 @@ def test_song_source_count_in_by_hand() -> None:
     assert src.metadata()["count_in_s"] == 0.5 and "0.5 s count-in" in src.describe()
 
 
+def test_the_piano_is_a_deploy_task_implied_by_its_target_keys() -> None:
+    """An HC-only file reading the goal keys runs as the piano (``TaskRecord.implied_by``)."""
+    from bar_policy.deploy.tasks import all_tasks, implied_task
+
+    assert "piano" in [t.name for t in all_tasks()]
+    assert implied_task(["target_keys", "joint_pos"]) == "piano"
+
+
 def test_song_and_key_options(tmp_path) -> None:
     assert resolve_song("ode_to_joy").name == "ode_to_joy"
     path = tmp_path / "s.json"

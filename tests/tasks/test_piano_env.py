@@ -132,6 +132,16 @@ def test_layout_and_sizes(env: LitePiano) -> None:
     np.testing.assert_array_equal(env.robot_index.qpos, np.arange(14))
 
 
+def test_registered_env_sizes() -> None:
+    """LitePiano as the env registry builds it: the piano task, 11 frames of the 49 target keys, progress, 49
+    key_pressed, q, dq, a (tests/envs/test_registry.py traces it; its sizes are pinned here)."""
+    from bar_policy import envs
+
+    env = envs.load("LitePiano")
+    assert env.task_name == "piano"
+    assert (env.observation_size, env.action_size) == (11 * 49 + 1 + 49 + 3 * 14, 14)
+
+
 def test_observation_counts_and_f1(env: LitePiano, fns) -> None:
     reset, step = fns
     s = reset(jax.random.PRNGKey(0))

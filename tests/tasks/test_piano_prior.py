@@ -1,8 +1,9 @@
-"""The key-pose prior: the blend by hand, its ONNX graph, and its poses on the C MuJoCo keyboard.
+"""The key-pose prior: its blend of the key poses, and its poses on the C MuJoCo keyboard.
 
-Expected values: the blend's means are worked by hand from its definition (``obs.action_prior.BlendPrior``);
-the poses are checked against the keyboard's geometry (the fingertip sphere ``hover_m`` above a key's aim
-point, or the key at the bottom of its travel with no other key down) in C MuJoCo with the MIT law.
+Expected values: the blend's means are worked by hand from its definition (``obs.action_prior.BlendPrior``,
+tested on its own in tests/training/test_action_prior.py); the poses are checked against the keyboard's
+geometry (the fingertip sphere ``hover_m`` above a key's aim point, or the key at the bottom of its travel
+with no other key down) in C MuJoCo with the MIT law.
 """
 
 from __future__ import annotations
@@ -11,10 +12,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from bar_policy.export import _run_onnx, build_onnx_model
-from bar_policy.export_graph import MlpPolicy
 from bar_policy.obs import ObservationManager
-from bar_policy.obs.action_prior import PRIOR_BOUND, BlendPrior
+from bar_policy.obs.action_prior import PRIOR_BOUND
 from bar_policy.robot.constants import FINGERTIP_SITES, load_robot
 from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.scene import load_model
@@ -28,59 +27,6 @@ ROBOT = load_robot("arms")
 DEFAULT = np.asarray(ROBOT.pose("piano_ready"))
 SCALE = np.full(14, 0.8)
 KB = compact_config()
-
-
-def _tiny_blend() -> BlendPrior:
-    """Two selector entries, two actions, one blend: entry 0 -> pose (0.4, -0.2) at weight 2, entry 1 ->
-    pose (0.1, 0.3) at weight 1 (action 1 reads entry 0 only), rest 0 at weight 0.5."""
-    numer = np.array([[[2 * 0.4, 2 * -0.2], [1 * 0.1, 0.0]]])
-    denom = np.array([[[2.0, 2.0], [1.0, 0.0]]])
-    return BlendPrior(
-        start=1, numer=numer, denom=denom, numer_bias=np.zeros((1, 2)), denom_bias=np.full((1, 2), 0.5)
-    )
-
-
-def test_blend_by_hand() -> None:
-    """obs[1:3] = (1, 1): action 0 = (2*0.4 + 0.1) / (2 + 1 + 0.5) = 0.9 / 3.5; action 1 = -0.4 / 2.5.
-    obs[1:3] = (0, 0): the rest, 0. Negative selectors count as 0. float32 arithmetic: 1e-6."""
-    p = _tiny_blend()
-    obs = np.array([[9.0, 1.0, 1.0, 9.0], [9.0, 0.0, 0.0, 9.0], [9.0, -3.0, 1.0, 9.0]], np.float32)
-    want = np.array([[0.9 / 3.5, -0.4 / 2.5], [0.0, 0.0], [0.1 / 1.5, 0.0]])
-    np.testing.assert_allclose(p.apply(obs), want, atol=1e-6)
-    np.testing.assert_allclose(np.tanh(p.pre_tanh(obs)), want, atol=1e-6)
-    assert p.stop == 3 and p.action_size == 2 and p.to_dict()["blends"] == 1
-
-
-def test_blend_refuses_bad_arrays() -> None:
-    p = _tiny_blend()
-    with pytest.raises(ValueError, match="must be"):
-        BlendPrior(
-            start=0, numer=p.numer, denom=p.denom[:, :1], numer_bias=p.numer_bias, denom_bias=p.denom_bias
-        )
-    with pytest.raises(ValueError, match="denom_bias > 0"):
-        BlendPrior(
-            start=0, numer=p.numer, denom=p.denom, numer_bias=p.numer_bias, denom_bias=0 * p.denom_bias
-        )
-    with pytest.raises(ValueError, match="entries up to 2"):
-        p.check_observation_size(2)
-
-
-def test_onnx_graph_computes_the_blend() -> None:
-    """A zero MLP plus the blend: the ONNX file's action is tanh(atanh(prior(obs))) = prior(obs) (float32
-    through onnxruntime's MatMul and Div: 1e-6), on random observations with negative selectors too."""
-    p = _tiny_blend()
-    pol = MlpPolicy(
-        obs_mean=np.zeros(4, np.float32),
-        obs_std=np.ones(4, np.float32),
-        kernels=(np.zeros((4, 2), np.float32),),
-        biases=(np.zeros(2, np.float32),),
-        activation="swish",
-        head="tanh_loc",
-        prior=p,
-    )
-    obs = np.random.default_rng(0).uniform(-2, 2, (64, 4)).astype(np.float32)
-    got = _run_onnx(build_onnx_model(pol).SerializeToString(), obs)
-    np.testing.assert_allclose(got, p.apply(obs), atol=1e-6)
 
 
 @pytest.fixture(scope="module")
@@ -148,3 +94,13 @@ def test_poses_hover_over_and_press_their_key(poses) -> None:
                 assert down.size == 0, f"hovering over {midi} presses {down}"
             else:
                 assert down.tolist() == [midi], f"pressing {midi} holds {down} down"
+
+
+def test_litepiano_serves_the_key_pose_prior() -> None:
+    """The piano's env serves ``key_pose`` (its ``EnvEntry.action_prior``), a ``--network.action-prior``
+    choice read from the record (tests/training/test_action_prior.py)."""
+    from bar_policy.tasks.registry import env_entries
+    from bar_policy.training.config import ACTION_PRIORS
+
+    assert env_entries()["LitePiano"][1].action_prior == "key_pose"
+    assert "key_pose" in ACTION_PRIORS

@@ -1,10 +1,13 @@
-"""The action prior: its map from a tracking observation, the brax network around it, and the ONNX graph.
+"""The action prior: its map from a tracking observation, the brax network around it, and the ONNX graph;
+the blend prior (weighted means of poses) by hand and through its ONNX graph.
 
 Expected values are worked out from the layout by hand: the reference prior at lead L reads frame L of
 ``motion_joint_pos`` and gives ``(q_ref - default) / scale``, the action whose command is that pose.
 """
 
 from __future__ import annotations
+
+import re
 
 import jax
 import jax.numpy as jnp
@@ -14,8 +17,9 @@ from brax.training.acme import running_statistics, specs
 from brax.training.agents.ppo import networks as ppo_networks
 
 from bar_policy.export import _run_onnx, build_onnx_model, export_brax_policy, mlp_policy_from_brax
+from bar_policy.export_graph import MlpPolicy
 from bar_policy.obs import ObservationManager
-from bar_policy.obs.action_prior import PRIOR_BOUND, ActionPrior, reference_prior
+from bar_policy.obs.action_prior import PRIOR_BOUND, ActionPrior, BlendPrior, reference_prior
 from bar_policy.tasks.track import track_action_scale, track_default_pose
 from bar_policy.training.config import NetworkConfig
 from bar_policy.training.learner import PRIOR_INIT_SCALE, make_networks
@@ -209,26 +213,87 @@ def test_env_serves_only_its_own_prior():
 
     reach = envs.load("LiteReach", config=envs.nominal_config())
     with pytest.raises(ValueError, match=r"LiteReach has no action prior; valid values for it: \['none'\]"):
-        action_prior(reach, NetworkConfig(action_prior="key_pose"), "LiteReach")
+        action_prior(reach, NetworkConfig(action_prior="reference"), "LiteReach")
     assert action_prior(reach, NetworkConfig(), "LiteReach") is None
 
 
 def test_action_prior_choices_come_from_the_task_records():
-    """The valid ``network.action_prior`` values are ``none`` plus what the records' env entries serve.
+    """The valid ``network.action_prior`` values are ``none`` plus what the records' env entries serve, in
+    registry order; so no task name is written in training/config.py.
 
-    By hand from the three task folders in registry order: reach serves none, track ``reference``, piano
-    ``key_pose``; so no task name is written in training/config.py.
+    By hand for reach (serves none) and track (``reference``); another task pins its env's prior in its own
+    tests.
     """
     from bar_policy.task_records import EnvEntry
     from bar_policy.tasks.registry import env_entries
     from bar_policy.training.config import ACTION_PRIORS
 
     served = {name: entry.action_prior for name, (_, entry) in env_entries().items()}
-    assert served == {"LiteReach": "", "LiteReachNeck": "", "LiteTrack": "reference", "LitePiano": "key_pose"}
-    assert ACTION_PRIORS == ("none", "reference", "key_pose")
-    with pytest.raises(
-        ValueError, match=r"unknown action_prior 'bogus'; valid: \['none', 'reference', 'key_pose'\]"
-    ):
+    assert {k: served[k] for k in ("LiteReach", "LiteReachNeck", "LiteTrack")} == {
+        "LiteReach": "",
+        "LiteReachNeck": "",
+        "LiteTrack": "reference",
+    }
+    assert ("none", *dict.fromkeys(p for p in served.values() if p)) == ACTION_PRIORS
+    assert ACTION_PRIORS[:2] == ("none", "reference")
+    valid = re.escape(str(list(ACTION_PRIORS)))
+    with pytest.raises(ValueError, match=rf"unknown action_prior 'bogus'; valid: {valid}"):
         NetworkConfig(action_prior="bogus")
     with pytest.raises(ValueError, match=r"env 'X': action_prior must be an identifier other than 'none'"):
         EnvEntry(name="X", env="m:A", config="m:f", action_prior="none")
+
+
+# ---------------------------------------------------------------------------------------------------
+# The blend prior (obs.action_prior.BlendPrior): weighted means of poses that observation entries select
+# ---------------------------------------------------------------------------------------------------
+def _tiny_blend() -> BlendPrior:
+    """Two selector entries, two actions, one blend: entry 0 -> pose (0.4, -0.2) at weight 2, entry 1 ->
+    pose (0.1, 0.3) at weight 1 (action 1 reads entry 0 only), rest 0 at weight 0.5."""
+    numer = np.array([[[2 * 0.4, 2 * -0.2], [1 * 0.1, 0.0]]])
+    denom = np.array([[[2.0, 2.0], [1.0, 0.0]]])
+    return BlendPrior(
+        start=1, numer=numer, denom=denom, numer_bias=np.zeros((1, 2)), denom_bias=np.full((1, 2), 0.5)
+    )
+
+
+def test_blend_by_hand() -> None:
+    """obs[1:3] = (1, 1): action 0 = (2*0.4 + 0.1) / (2 + 1 + 0.5) = 0.9 / 3.5; action 1 = -0.4 / 2.5.
+    obs[1:3] = (0, 0): the rest, 0. Negative selectors count as 0. float32 arithmetic: 1e-6."""
+    p = _tiny_blend()
+    obs = np.array([[9.0, 1.0, 1.0, 9.0], [9.0, 0.0, 0.0, 9.0], [9.0, -3.0, 1.0, 9.0]], np.float32)
+    want = np.array([[0.9 / 3.5, -0.4 / 2.5], [0.0, 0.0], [0.1 / 1.5, 0.0]])
+    np.testing.assert_allclose(p.apply(obs), want, atol=1e-6)
+    np.testing.assert_allclose(np.tanh(p.pre_tanh(obs)), want, atol=1e-6)
+    assert p.stop == 3 and p.action_size == 2 and p.to_dict()["blends"] == 1
+
+
+def test_blend_refuses_bad_arrays() -> None:
+    p = _tiny_blend()
+    with pytest.raises(ValueError, match="must be"):
+        BlendPrior(
+            start=0, numer=p.numer, denom=p.denom[:, :1], numer_bias=p.numer_bias, denom_bias=p.denom_bias
+        )
+    with pytest.raises(ValueError, match="denom_bias > 0"):
+        BlendPrior(
+            start=0, numer=p.numer, denom=p.denom, numer_bias=p.numer_bias, denom_bias=0 * p.denom_bias
+        )
+    with pytest.raises(ValueError, match="entries up to 2"):
+        p.check_observation_size(2)
+
+
+def test_onnx_graph_computes_the_blend() -> None:
+    """A zero MLP plus the blend: the ONNX file's action is tanh(atanh(prior(obs))) = prior(obs) (float32
+    through onnxruntime's MatMul and Div: 1e-6), on random observations with negative selectors too."""
+    p = _tiny_blend()
+    pol = MlpPolicy(
+        obs_mean=np.zeros(4, np.float32),
+        obs_std=np.ones(4, np.float32),
+        kernels=(np.zeros((4, 2), np.float32),),
+        biases=(np.zeros(2, np.float32),),
+        activation="swish",
+        head="tanh_loc",
+        prior=p,
+    )
+    obs = np.random.default_rng(0).uniform(-2, 2, (64, 4)).astype(np.float32)
+    got = _run_onnx(build_onnx_model(pol).SerializeToString(), obs)
+    np.testing.assert_allclose(got, p.apply(obs), atol=1e-6)
