@@ -1,11 +1,11 @@
-"""Raw MJX env throughput per registered env, side by side in one process (issue 18: the piano beside reach).
+"""Raw MJX env throughput per registered env, side by side in one process (issue 18).
 
 Each env runs ``steps`` control steps of zero actions under one ``jit(scan)`` at the given batch, through
 the training wrappers and the env's domain randomiser (``training.throughput``), the best of 3 timed calls.
 Physics steps/s = env steps/s x the env's ``n_substeps``.
 
-    python3 bench/env_throughput.py --envs LiteReach,LitePiano --batch 8192       # one GPU
-    python3 bench/env_throughput.py --envs LitePiano --batch 4 --steps 2          # CPU smoke
+    python3 bench/env_throughput.py --envs LiteReach,LiteTrack --batch 8192       # one GPU
+    python3 bench/env_throughput.py --batch 4 --steps 2                           # CPU smoke, every env
 
 Prints a markdown table (and writes it to ``--out``).
 """
@@ -18,7 +18,9 @@ from pathlib import Path
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--envs", default="LiteReach,LitePiano", help="comma-separated registered env names")
+    p.add_argument(
+        "--envs", default="", help="comma-separated registered env names (default: every registered env)"
+    )
     p.add_argument("--batch", type=int, default=8192, help="envs per batch")
     p.add_argument("--steps", type=int, default=100, help="control steps per timed call")
     p.add_argument("--out", type=Path, default=None, help="also write the table here")
@@ -37,7 +39,7 @@ def main() -> None:
         "| env | substeps | env steps/s | physics steps/s | compile s |",
         "|---|---|---|---|---|",
     ]
-    for name in a.envs.split(","):
+    for name in a.envs.split(",") if a.envs else envs.ALL_ENVS:
         env = envs.load(name)
         r = raw_env_steps_per_second(
             env,

@@ -4,8 +4,8 @@ Every env is a task on the Lite robot env (``robot.py``: actuator model, latency
 substeps, action map, initial state; ``robot_config.py``: its config), plugged in through the hooks of
 ``task.py``. The tasks live in their folders (``bar_policy/tasks/<task>/env.py``) and name their envs in
 their ``TaskRecord``, which this registry reads from the published records (``bar_policy.task_records``):
-``LiteReach`` / ``LiteReachNeck`` (reach), ``LiteTrack`` (track), ``LitePiano`` (piano). Domain
-randomisation (``randomize.py``) and the batched wrappers (``wrappers.py``) are shared by every task. A
+``ALL_ENVS``, in registry order (e.g. ``LiteReach`` / ``LiteReachNeck`` of reach, ``LiteTrack`` of track).
+Domain randomisation (``randomize.py``) and the batched wrappers (``wrappers.py``) are shared by every task. A
 task's public MJX names (``envs.LiteReach``, ``envs.TrackEnvConfig``, ...) are found in its env modules on
 first use.
 
