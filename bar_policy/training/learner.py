@@ -183,8 +183,7 @@ class Learner:
         grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
         warmup_steps = ppo.actor_warmup_iterations * ppo.num_updates_per_batch * ppo.num_minibatches
 
-        # One permutation for every leaf: the same order as brax's per-leaf
-        # ``jax.random.permutation(k_perm, x)`` (which draws these indices for each leaf again).
+        # One permutation for every leaf: brax's per-leaf ``jax.random.permutation(k_perm, x)`` order.
         perm = jax.random.permutation(k_perm, jax.tree.leaves(data)[0].shape[0])
 
         def shuffle(x: jax.Array) -> jax.Array:
