@@ -5,8 +5,8 @@
 checked for playability (the loader's refusal names the note). The sim target carries the keyboard
 (``scene``), and ``--keys`` defaults to its simulated keys there; on the mock and real targets the default is
 the fingertips' kinematics, or ``--keys midi:PORT`` reads a MIDI keyboard. ``bar-deploy eval`` plays every
-held-out song on the sim target and reports precision, recall and F1 per song (``evaluate.py``).
-No jax, no torch.
+held-out song on the sim target and reports precision, recall and F1 per song (``evaluate.py``). Both
+measure chatter against the song's key-pose reference (``reference.py``). No jax, no torch.
 """
 
 from __future__ import annotations
@@ -130,14 +130,20 @@ class PianoTask(DeployTask):
     def command_source(
         self, policy: Policy, args: argparse.Namespace, kinematics: Kinematics | None = None
     ) -> SongCommands:
-        """The song ``--song`` names, with the ``--keys`` source."""
+        """The song ``--song`` names, with the ``--keys`` source and the policy's key-pose reference.
+
+        The reference (``reference.KeyPoseReference``, from the policy's metadata) is what the run's chatter
+        is measured against (``SongCommands.target_q``).
+        """
         from bar_policy.robot.kinematics import Kinematics
+        from bar_policy.tasks.piano.reference import KeyPoseReference
 
         kin = kinematics or Kinematics(policy.robot.mode)
         song = resolve_song(getattr(args, "song", None) or HELDOUT[0])
         emulated = getattr(args, "can_interface", None) == "virtual"
         keys = key_source(getattr(args, "keys", None), getattr(args, "target", "sim"), kin, emulated)
-        return SongCommands(song, compact_config(), policy.policy_dt, keys)
+        reference = KeyPoseReference.for_policy(policy)
+        return SongCommands(song, compact_config(), policy.policy_dt, keys, reference=reference)
 
     def plot(self, arrays: dict[str, np.ndarray], meta: dict[str, Any], out: Path) -> list[Path]:
         """The piano roll (``plot.piano_roll``)."""

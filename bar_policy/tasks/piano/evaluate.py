@@ -10,16 +10,26 @@ tick's precision, recall and F1 (``metrics``; the count-in's ticks and those aft
 as the env counts every step: each such tick with no key down scores 1, which the pooled F1 ignores). A
 song's figures are the means over its ticks (RoboPianist's), with the F1 of the summed counts beside them
 (pooled). The ship gate reads the mean F1 over every song's ticks (``success_pct`` = 100 x F1) and the
-songs' safety and smoothness (chatter on q_cmd itself: the piano has no joint reference).
+songs' safety and smoothness.
+
+Chatter: the gate's is measured on ``q_cmd`` minus the song's key-pose reference (``reference.py``: the
+key-pose prior's command for the tick's goal keys, through the policy's action filter; the source's
+``target_q``), as the tracker's is on ``q_cmd`` minus its clip. The key-pose prior alone (a zero MLP)
+commands the reference exactly and scores ~0; on ``q_cmd`` itself it scores 6-10 mrad, its keystrokes'
+harmonics at 5-8 Hz. Each song's line also prints the chatter of ``q_cmd`` itself (``chatter_raw_mrad``,
+not gated; both in ``--json``), and a line after the quality line gives its worst and mean over the
+songs that completed (docs/piano.md, "Chatter against the key-pose reference").
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
 
+from bar_policy.quality.metrics import chatter_mrad
 from bar_policy.quality.report import EpisodeQuality, quality_summary_line, summarise
 from bar_policy.tasks.episodes import EpisodeRunner, Policy
 from bar_policy.tasks.interfaces import EvalReport
@@ -27,6 +37,7 @@ from bar_policy.tasks.piano.bank import PlaybackConfig
 from bar_policy.tasks.piano.held import held_pose
 from bar_policy.tasks.piano.keyboard import compact_config
 from bar_policy.tasks.piano.metrics import Counts, episode_scores, scores, step_counts
+from bar_policy.tasks.piano.reference import KeyPoseReference
 from bar_policy.tasks.piano.scene import keyboard_scene
 from bar_policy.tasks.piano.songs import Song
 from bar_policy.tasks.piano.source import END_HOLD_S, SongCommands
@@ -54,7 +65,14 @@ class SongResult:
     faulted: bool
     end_reason: str
     quality: dict[str, Any] = field(default_factory=dict)
-    """The run's safety and smoothness (``EpisodeQuality.to_dict``)."""
+    """The run's safety and smoothness (``EpisodeQuality.to_dict``); its chatter is against the reference."""
+    chatter_raw_mrad: float | None = None
+    """Chatter of ``q_cmd`` itself over the policy ticks, mrad (not gated; None: too short to measure)."""
+
+    @property
+    def chatter_mrad(self) -> float | None:
+        """Chatter of ``q_cmd`` minus the key-pose reference, mrad (the gate's; None: not measured)."""
+        return self.quality.get("chatter_mrad")
 
     @property
     def f1_pooled(self) -> float:
@@ -90,14 +108,28 @@ class PianoEval(EvalReport):
             "success_pct": 100.0 * self.f1(),
         }
 
+    def raw_chatter_line(self) -> str:
+        """The chatter of ``q_cmd`` itself over the songs that completed (not gated), one line."""
+        done = [s for s in self.songs if not s.faulted and s.chatter_raw_mrad is not None]
+        if not done:
+            return "chatter of q_cmd itself (not gated): n/a"
+        worst = max(done, key=lambda s: s.chatter_raw_mrad or 0.0)
+        mean = float(np.mean([s.chatter_raw_mrad for s in done]))
+        return (
+            f"chatter of q_cmd itself (not gated; the gate's is against the key-pose reference): "
+            f"mean {mean:.2f} mrad, worst {worst.chatter_raw_mrad:.2f} mrad ({worst.song})"
+        )
+
     def to_dict(self) -> dict[str, Any]:
-        """JSON form."""
+        """JSON form (each song's ``chatter_mrad``, against the reference, beside ``chatter_raw_mrad``)."""
         return {
             "policy": self.policy,
             "obs_fingerprint": self.fingerprint,
             "f1": self.f1(),
             "f1_pooled": self.f1_pooled(),
-            "songs": [{**asdict(s), "f1_pooled": s.f1_pooled} for s in self.songs],
+            "songs": [
+                {**asdict(s), "f1_pooled": s.f1_pooled, "chatter_mrad": s.chatter_mrad} for s in self.songs
+            ],
             "gate_report": self.gate_report(),
         }
 
@@ -109,11 +141,12 @@ class PianoEval(EvalReport):
             figs = (
                 f"precision {s.precision:.3f} recall {s.recall:.3f} F1 {s.f1:.3f} (pooled {s.f1_pooled:.3f})"
             )
-            lines.append(f"  {s.song:26s} {figs}, {s.scored} ticks, {end}")
+            lines.append(f"  {s.song:26s} {figs}, {s.scored} ticks, {end}, {_chatter_text(s)}")
         lines.append(
             f"all songs: F1 {self.f1():.3f} (step mean, RoboPianist's), pooled {self.f1_pooled():.3f}"
         )
         lines.append(quality_summary_line(self.gate_report()["quality"]))
+        lines.append(self.raw_chatter_line())
         lines.extend(self.gate_lines())
         return "\n".join(lines)
 
@@ -133,20 +166,31 @@ def evaluate(
     kb = compact_config()
     sim = target or runner.target(scene=keyboard_scene(kb))
     q0 = held_pose(policy.robot.pose("piano_ready"), policy.robot.mode)  # as the env starts
+    reference = KeyPoseReference.for_policy(policy, kb)
+    robot = policy.robot
     results = []
     for song in songs:
         sim.reset(q0)
-        commands = SongCommands(song, kb, policy.policy_dt, keys=None, playback=playback)
+        commands = SongCommands(song, kb, policy.policy_dt, keys=None, playback=playback, reference=reference)
         downs: list[np.ndarray] = []
         goals: list[np.ndarray] = []
+        q_cmds: list[np.ndarray] = []
 
         def score(
-            k: int, t: float, rt: Any, c: SongCommands = commands, d: list = downs, g: list = goals
+            k: int,
+            t: float,
+            rt: Any,
+            c: SongCommands = commands,
+            d: list = downs,
+            g: list = goals,
+            qc: list = q_cmds,
         ) -> None:
             if rt.safety.mode != runner.policy_mode:  # the hold after the song's end is not scored
                 return
             d.append(c.record()["keys_down"])
             g.append(c.goal_now())
+            # The tick's q_cmd as the supervisor sent it: the applied action's command, clipped to the limits.
+            qc.append(np.clip(rt.policy.q_command(rt.last_action), robot.lower, robot.upper))
 
         duration = commands.song_steps * policy.policy_dt + END_HOLD_S + 1.0
         res = runner.run(sim, commands, duration, on_tick=score)
@@ -154,6 +198,7 @@ def evaluate(
         goal = np.array(goals, bool).reshape(-1, kb.n_keys)
         counts = step_counts(down, goal)
         ep = episode_scores(down, goal)
+        raw = chatter_mrad(np.array(q_cmds), policy.policy_dt) if q_cmds else math.nan
         results.append(
             SongResult(
                 song=song.name,
@@ -168,6 +213,23 @@ def evaluate(
                 faulted=res.fault_count > 0,
                 end_reason=res.end_reason,
                 quality={**res.quality["episode"], "name": song.name},
+                chatter_raw_mrad=_finite(raw),
             )
         )
     return PianoEval(songs=results, policy=str(policy.path), fingerprint=policy.obs_manager.fingerprint)
+
+
+def _finite(x: float) -> float | None:
+    """``x`` as a float, None for NaN (a window too short to measure)."""
+    x = float(x)
+    return None if np.isnan(x) else x
+
+
+def _chatter_text(s: SongResult) -> str:
+    """``chatter X mrad vs the key-pose reference (q_cmd itself Y)`` for one song's line."""
+
+    def mrad(x: float | None) -> str:
+        return "n/a" if x is None else f"{x:.2f}"
+
+    raw = mrad(s.chatter_raw_mrad)
+    return f"chatter {mrad(s.chatter_mrad)} mrad vs the key-pose reference (q_cmd itself {raw})"

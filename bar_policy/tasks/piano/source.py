@@ -14,13 +14,21 @@ The song plays with the count-in of ``playback`` (``bank.PlaybackConfig``, the e
 note no earlier than ``count_in_s`` after POLICY's first tick. The run finishes ``END_HOLD_S`` after the
 song's last note. The log records the goal keys of the step, the
 keys down and the step, so a run can be drawn as a piano roll and scored (``step_counts``).
+
+With a ``reference`` (``reference.KeyPoseReference``, which ``bar-deploy`` and ``bar-deploy eval`` give),
+the source also keeps the song's joint-space reference: the key-pose prior's command for each tick's
+``target_keys``, through the policy's action filter, one filter step per POLICY tick from ``begin`` on
+(before it: the filter's start). ``target_q`` returns it, so the runtime measures chatter on ``q_cmd``
+minus it, as the tracker's on ``q_cmd`` minus its clip (docs/piano.md, "Chatter against the key-pose
+reference"), and the log records it as ``ref_q`` (``bar-deploy plot`` draws it). Without one, ``target_q``
+is None: chatter of ``q_cmd`` itself.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -30,6 +38,9 @@ from bar_policy.tasks.piano.key_input import KeySource, SimKeys
 from bar_policy.tasks.piano.keyboard import KeyboardConfig
 from bar_policy.tasks.piano.songs import Song
 from bar_policy.tasks.piano.terms import PIANO_KEYS, TARGET_FRAMES
+
+if TYPE_CHECKING:
+    from bar_policy.tasks.piano.reference import KeyPoseReference
 
 __all__ = ["END_HOLD_S", "EPISODE_STEPS", "SongCommands"]
 
@@ -54,11 +65,13 @@ class SongCommands(CommandSource):
         dt: float,
         keys: KeySource | None,
         playback: PlaybackConfig | None = None,
+        reference: KeyPoseReference | None = None,
     ) -> None:
         """Play ``song`` on ``keyboard`` at control period ``dt`` s, reading keys from ``keys``.
 
         ``keys`` None: the simulated keys of the target the runtime attaches (``attach``; the sim target
         in the keyboard's scene). ``playback``: the count-in (default ``PlaybackConfig()``, the env's).
+        ``reference``: the key-pose reference ``target_q`` returns (None: no reference; module docstring).
         Raises ``ValueError`` for a keyboard of another size than the layout's.
         """
         if keyboard.n_keys != PIANO_KEYS:
@@ -80,6 +93,8 @@ class SongCommands(CommandSource):
         self._t0: float | None = None
         self._step = 0
         self._pressed = np.zeros(PIANO_KEYS, bool)
+        self.reference = reference
+        self._ref_state = None if reference is None else reference.start
 
     # -- the robot's side --------------------------------------------------------------------------
     def attach(self, target: Any) -> None:
@@ -104,8 +119,10 @@ class SongCommands(CommandSource):
             self.keys.observe(q)
 
     def begin(self, t: float) -> None:
-        """The song's step 0 is POLICY's first tick."""
+        """The song's step 0 is POLICY's first tick; the reference's filter starts (as the runtime's)."""
         self._t0 = t
+        if self.reference is not None:
+            self._ref_state = self.reference.start
 
     # -- each tick ---------------------------------------------------------------------------------
     def step_at(self, t: float) -> int:
@@ -118,8 +135,11 @@ class SongCommands(CommandSource):
         self._step = s
         assert self.keys is not None, "attach() gives the sim target's keys before the first tick"
         self._pressed = np.asarray(self.keys.read(t), bool)
+        target = self.down[s : s + TARGET_FRAMES].reshape(-1).astype(np.float32)
+        if self.reference is not None and self._t0 is not None:  # one filter step per POLICY tick
+            self._ref_state = self.reference.filtered(self._ref_state, target)
         return {
-            "target_keys": self.down[s : s + TARGET_FRAMES].reshape(-1).astype(np.float32),
+            "target_keys": target,
             "progress": np.array([s / self.scale], np.float32),
             "key_pressed": self._pressed.astype(np.float32),
         }
@@ -127,6 +147,12 @@ class SongCommands(CommandSource):
     def goal_now(self) -> np.ndarray:
         """The goal keys of the last call's step, bool (n_keys,)."""
         return self.down[self._step] > 0.5
+
+    def target_q(self) -> np.ndarray | None:
+        """The key-pose reference of the last call's tick, rad (canonical order); None without one."""
+        if self.reference is None:
+            return None
+        return self.reference.q(self._ref_state)
 
     def finished(self, t: float) -> str | None:
         """``END_HOLD_S`` after the song's last note."""
@@ -137,16 +163,26 @@ class SongCommands(CommandSource):
     # -- logging -----------------------------------------------------------------------------------
     @property
     def log_fields(self) -> dict[str, tuple[tuple[int, ...], type]]:
-        """The song step, its goal keys and the keys down (the piano roll)."""
-        return {
+        """The song step, its goal keys and the keys down (the piano roll); ``ref_q`` with a reference."""
+        fields: dict[str, tuple[tuple[int, ...], type]] = {
             "song_step": ((), np.int64),
             "goal_keys": ((PIANO_KEYS,), np.bool_),
             "keys_down": ((PIANO_KEYS,), np.bool_),
         }
+        if self.reference is not None:
+            fields["ref_q"] = ((len(self.reference.default_joint_pos),), np.float64)
+        return fields
 
     def record(self) -> dict[str, Any]:
-        """The last call's step, goal keys and keys down."""
-        return {"song_step": self._step, "goal_keys": self.goal_now(), "keys_down": self._pressed.copy()}
+        """The last call's step, goal keys and keys down, and its reference (``target_q``) as ``ref_q``."""
+        rec: dict[str, Any] = {
+            "song_step": self._step,
+            "goal_keys": self.goal_now(),
+            "keys_down": self._pressed.copy(),
+        }
+        if self.reference is not None:
+            rec["ref_q"] = self.target_q()
+        return rec
 
     def metadata(self) -> dict[str, Any]:
         """The song, its length and the key source."""
@@ -157,6 +193,7 @@ class SongCommands(CommandSource):
             "song_steps": self.song_steps,
             "count_in_s": self.playback.count_in_s,
             "keys": keys,
+            "reference": None if self.reference is None else self.reference.prior.label,
         }
 
     def describe(self) -> str:
