@@ -1,0 +1,94 @@
+#!/usr/bin/env bash
+# The piano's training runs (issue 18): named variants of `--preset piano`, one per GPU, each returned as
+# one archive (a device call returns at most 8 files: session 29 lost a run's policy to that limit).
+# Run from the repository root after the pip prefix of shared/gpu/README.md.
+#
+#   GPUS="0 1" bash bench/piano_recipe.sh preset accel   (~9 min, nvidia-h100-x2) the named variants side
+#                                                        by side, one per GPU, each at the preset's size
+#   bash bench/piano_recipe.sh preset                    (~9 min, one GPU) one variant
+#   bash bench/piano_recipe.sh smoke                     CPU check of the script with tiny sizes
+#
+# Variants (on top of `--preset piano`, i.e. fixed LR 1e-4 after 10 iterations of critic warm-up):
+#   preset   the preset alone (seed 0)         seed1    the preset, seed 1
+#   accel    action_accel -0.5, near-cap -1.0 (session 29's nc1)
+#   lr3e-4   learning rate 3e-4 (session 29's wA)
+# EXTRA="..." adds arguments to every run; MINUTES (default 7.2) is each run's training budget.
+#
+# $OUT gets <variant>.tgz (config, metrics.jsonl, final_eval.json, ONNX files, log; no checkpoints) and
+# summary.md (MJX F1, precision, recall, caps, chatter at the end). Score the files here on the sim target
+# and the emulated bus: `bar-deploy eval --policy <run>/policy.onnx` and
+# `python bench/piano_prior.py --out <run>/policy.onnx --no-write --eval sim bus`.
+set -u
+OUT=${OUT:-/tmp/piano_recipe_out}
+WORK=${WORK:-/tmp/piano_recipe}
+mkdir -p "$OUT" "$WORK"
+export PYTHONUNBUFFERED=1
+RUNS=$WORK/runs
+T0=$(date +%s)
+stamp() { echo "[$(( $(date +%s) - T0 )) s] $*"; }
+
+declare -A VARIANT=(
+  [preset]=""
+  [seed1]="--seed 1"
+  [accel]="--env-overrides reward.scales.action_accel=-0.5 reward.scales.torque_near_cap=-1.0"
+  [lr3e-4]="--ppo.learning-rate 3e-4"
+)
+MINUTES=${MINUTES:-7.2}
+SIZE="--final-eval-envs 512"
+names=("$@")
+if [ "${1:-smoke}" = smoke ]; then
+  export JAX_PLATFORMS=cpu
+  SIZE="--ppo.num-envs 8 --ppo.batch-size 8 --ppo.num-minibatches 2 --ppo.unroll-length 4"
+  SIZE="$SIZE --ppo.num-updates-per-batch 1 --ppo.num-timesteps 128 --ppo.actor-warmup-iterations 1"
+  SIZE="$SIZE --eval.num-eval-envs 4 --eval.num-evals 2 --final-eval-envs 4"
+  SIZE="$SIZE --network.policy-hidden 16 16 --network.value-hidden 16 16"
+  MINUTES=0
+  names=(preset)
+fi
+for v in "${names[@]}"; do
+  [ -n "${VARIANT[$v]+x}" ] || { echo "unknown variant $v (${!VARIANT[*]}, or smoke)"; exit 2; }
+done
+
+run_one() {  # run_one NAME EXTRA...  (GPU=<index> pins it to one card)
+  local name=$1; shift
+  stamp "start $name (GPU ${GPU:-all}): $*"
+  local pin=""
+  [ -n "${GPU:-}" ] && pin="CUDA_VISIBLE_DEVICES=$GPU"
+  # shellcheck disable=SC2086
+  env $pin timeout -k 5 "${RUN_TIMEOUT:-575}" python3 train/ppo.py --preset piano --run-name "$name" \
+    --runs-dir "$RUNS" --max-minutes "$MINUTES" $SIZE "$@" ${EXTRA:-} > "$WORK/$name.log" 2>&1
+  stamp "end $name: exit $?"
+  mkdir -p "$RUNS/$name" && cp "$WORK/$name.log" "$RUNS/$name/log.txt"
+  (cd "$RUNS" && tar czf "$OUT/$name.tgz" --exclude=checkpoints --exclude=tb "$name")
+}
+
+read -r -a gpus <<< "${GPUS:-}"
+i=0
+for v in "${names[@]}"; do
+  # shellcheck disable=SC2086
+  GPU=${gpus[$i]:-} run_one "$v" ${VARIANT[$v]} &
+  i=$((i + 1))
+  sleep 2
+done
+wait
+
+python3 - "$RUNS" > "$OUT/summary.md" <<'EOF'
+import json, sys
+from pathlib import Path
+keys = ("f1", "precision", "recall", "quality/completion_pct", "quality/cap_share_pct",
+        "quality/chatter_max_mrad")
+print("| run | env steps | wall s | " + " | ".join(k.split("/")[-1] for k in keys) + " | best iterate |")
+print("|---" * (len(keys) + 4) + "|")
+for run in sorted(Path(sys.argv[1]).iterdir()):
+    f = run / "final_eval.json"
+    if not f.exists():
+        print(f"| {run.name} | (no final_eval.json) |")
+        continue
+    r = json.loads(f.read_text())
+    fe, best = r["final_eval"], r.get("best_iterate", {})
+    b = "last" if best.get("is_last", True) else f"{best['step']:,}: f1 {best['final_eval'].get('f1', float('nan')):.4g}"
+    print(f"| {run.name} | {r['env_steps']:,} | {r['wall_s']:.0f} | "
+          + " | ".join(f"{fe.get(k, float('nan')):.4g}" for k in keys) + f" | {b} |")
+EOF
+cat "$OUT/summary.md"
+stamp done
