@@ -14,6 +14,7 @@ import pytest
 
 from bar_policy.obs import ObservationManager
 from bar_policy.obs.action_prior import PRIOR_BOUND
+from bar_policy.robot.action_filter import filter_alpha
 from bar_policy.robot.constants import FINGERTIP_SITES, load_robot
 from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.scene import load_model
@@ -104,3 +105,38 @@ def test_litepiano_serves_the_key_pose_prior() -> None:
 
     assert env_entries()["LitePiano"][1].action_prior == "key_pose"
     assert "key_pose" in ACTION_PRIORS
+
+
+def test_key_switches_stay_under_the_caps(poses) -> None:
+    """The cap ticks of 2026-11-26: IK put the right hand's C4 at a 40 degree finger tilt (at tilt 0 the
+    wrist met the chest) and C#4, D#4 (left: G#3, A#3) at 20 degrees (the case), beside 0 for D4, E4: a
+    C4 <-> D4 switch of the blend stepped the right wrist pitch's target by 0.49 rad, of which the 3 Hz
+    action filter passes alpha = 1 - exp(-2 pi 3 Hz 0.02 s) = 0.314 in one tick:
+    kp 50 x 0.314 x 0.49 = 7.7 N*m on a 4 N*m wrist.
+
+    Now every key is solved at the flattest tilt (0), other null-space postures tried first. Checked here:
+    each hover command's finger points within 10 degrees of horizontal (the IK's 0, and up to 6 from the
+    gravity fold-in; 20 and 40 degrees before), and a full switch of the blend between two keys of one
+    hand a fifth apart or less, or from a key to the rest pose (piano_ready), demands less than the cap on
+    every joint in the filter's first tick, ``kp alpha |press(a) - press(b)|``."""
+    alpha = 1.0 - np.exp(-2.0 * np.pi * 3.0 * 0.02)
+    assert alpha == pytest.approx(0.3141, abs=1e-4)
+    assert filter_alpha(3.0, 0.02) == pytest.approx(alpha)  # the env's and the deploy side's filter
+    model = load_model("arms", keyboard_scene(KB))
+    data = mujoco.MjData(model)
+    idx = RobotIndex.from_model(model, ROBOT.joint_names)
+    hold = held_pose(DEFAULT)
+    for k in range(KB.n_keys):
+        h = poses.hand[k]
+        name = ("left", "right")[h]
+        arm = np.arange(7) + 7 * h
+        data.qpos[idx.qpos] = poses.hover[k]  # the command (IK pose + gravity fold-in)
+        mujoco.mj_kinematics(model, data)
+        finger = data.xmat[model.body(f"{name}_hand").id].reshape(3, 3)[:, 1] * (1.0 if h == 0 else -1.0)
+        tilt = np.degrees(np.arcsin(-finger[2]))
+        assert abs(tilt) < 10.0, f"key {k + KB.lowest}: finger {tilt:.1f} deg below horizontal"
+        for other in [hold] + [
+            poses.press[j] for j in range(KB.n_keys) if poses.hand[j] == h and abs(j - k) <= 7
+        ]:
+            demand = ROBOT.kp[arm] * alpha * np.abs(poses.press[k, arm] - other[arm])
+            assert np.all(demand < ROBOT.torque_cap[arm]), f"key {k + KB.lowest}: {demand.round(2)} N*m"

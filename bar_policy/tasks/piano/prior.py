@@ -14,6 +14,10 @@ hand's 7 joints, from damped least-squares IK (``reach.ReachChecker``, the span'
 - *press*: the sphere ``press_below_m`` below the aim point at full travel, holding ``press_force_n`` up
   from the key;
 
+each at the flattest finger tilt that has a valid pose (``reach.TILTS``): first with the null space pulled to
+``piano_ready``, then to other postures (``POSTURE_OFFSETS``; the one nearest the neighbouring key's pose),
+and only then steeper, so that neighbouring keys share the wrist posture (a 40 degree C4 beside a flat D4
+stepped the wrist past its torque cap at every switch; docs/piano.md, "Cap ticks");
 each with the gravity (and key) torque folded into the command, ``q_cmd = q + (g(q) - J^T f) / Kp``, so
 the MIT law's spring holds the pose rather than sagging 20 mm (``held.py``).
 
@@ -107,6 +111,7 @@ def key_poses(
     keys = key_table(keyboard)
     robot = load_robot(mode)
     kp = np.asarray(robot.kp, np.float64)
+    cap = np.asarray(robot.torque_cap, np.float64)
     q_ready = np.asarray(robot.pose("piano_ready"), np.float64)
     hand = np.array([0 if k.midi < pc.split_midi else 1 for k in keys])
     hover, press = np.tile(q_ready, (len(keys), 1)), np.tile(q_ready, (len(keys), 1))
@@ -118,6 +123,8 @@ def key_poses(
         start = min(mine, key=lambda i: abs(keys[i].y - tip[1]))
         order = sorted(mine, key=lambda i: (abs(i - start), i))  # outward from the key under the fingertip
         q_prev = q_ready
+        solved: dict[int, np.ndarray] = {}  # IK hover pose per key
+        arm = np.arange(7) + 7 * h
         for i in order:
             k = keys[i]
             down = (k.lever - keyboard.press_depth) * k.angle_max
@@ -126,21 +133,61 @@ def key_poses(
                 site + np.array([0, 0, r + pc.hover_m]),
                 site + np.array([0, 0, r - down - pc.press_below_m]),
             )
+            # the key one step nearer the start key, solved before this one (the start key: piano_ready)
+            near = solved.get(i + (1 if i < start else -1), q_ready)
             found = None
-            for q0, tilt in ((s, t) for s in (q_prev, q_ready) for t in TILTS):
-                qh, eh = checker.solve(name, targets[0], q0, tilt)
-                qp, ep = checker.solve(name, targets[1], qh, tilt)
-                if max(eh, ep) <= 0.002 and checker.valid(qh, name):
-                    found = (qh, qp)
+            for tilt in TILTS:
+                for q0 in (q_prev, q_ready):  # the usual posture, piano_ready
+                    qh, eh = checker.solve(name, targets[0], q0, tilt)
+                    qp, ep = checker.solve(name, targets[1], qh, tilt)
+                    if max(eh, ep) <= 0.002 and checker.valid(qh, name):
+                        found = (qh, qp)
+                        break
+                if found is None:
+                    found = _other_posture(checker, name, targets, near, q_ready, arm, cap, tilt)
+                if found is not None:
                     break
             if found is None:
                 raise ValueError(f"no IK pose for key {k.midi} with the {name} hand (keyboard {keyboard})")
             qh, qp = found
-            q_prev = qh
-            arm = np.arange(7) + 7 * h
+            q_prev = solved[i] = qh
             hover[i, arm] = (qh + hold(qh) / kp)[arm]
             press[i, arm] = (qp + hold(qp, name, pc.press_force_n) / kp)[arm]
     return KeyPoses(hover=hover, press=press, hand=hand)
+
+
+POSTURE_OFFSETS: tuple[float, ...] = (-0.2, 0.2, -0.4, 0.4)
+"""Offsets, rad, of one arm joint from ``piano_ready`` that make the other postures ``key_poses`` tries."""
+
+
+def _other_posture(
+    checker: ReachChecker,
+    name: str,
+    targets: tuple[np.ndarray, np.ndarray],
+    near: np.ndarray,
+    q_ready: np.ndarray,
+    arm: np.ndarray,
+    cap: np.ndarray,
+    tilt: float,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Hover and press IK poses at finger ``tilt`` with the null space pulled to another posture.
+
+    The postures are ``piano_ready`` with one of the arm's joints moved by each of ``POSTURE_OFFSETS``;
+    of the valid poses, the one nearest ``near`` (the neighbouring key's hover pose) in torque-cap units
+    (``max |q - near| / cap`` over the arm: the blend steps between the two poses), None when none is valid.
+    """
+    best, best_cost = None, np.inf
+    for j in arm:
+        for dv in POSTURE_OFFSETS:
+            posture = q_ready.copy()
+            posture[j] += dv
+            qh, eh = checker.solve(name, targets[0], near, tilt, posture=posture)
+            qp, ep = checker.solve(name, targets[1], qh, tilt, posture=posture)
+            if max(eh, ep) <= 0.002 and checker.valid(qh, name):
+                cost = float(np.max(np.abs(qh - near)[arm] / cap[arm]))
+                if cost < best_cost:
+                    best, best_cost = (qh, qp), cost
+    return best
 
 
 def key_pose_prior(

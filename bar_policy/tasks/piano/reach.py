@@ -92,11 +92,13 @@ class ReachChecker:
         tilt: float = 0.0,
         iters: int = 300,
         damping: float = 0.02,
+        posture: np.ndarray | None = None,
     ) -> tuple[np.ndarray, float]:
         """Move ``hand``'s 7 joints from ``q0`` (14,) to put its fingertip site on ``target`` (3,), m.
 
         Damped least squares with joint clipping; in its null space, the finger turns toward pointing
-        forward (+x) and ``tilt`` rad down, and the joints are pulled weakly toward ``piano_ready``.
+        forward (+x) and ``tilt`` rad down, and the joints are pulled weakly toward ``posture`` (14,)
+        (default ``piano_ready``).
         Returns the pose (14,), rad, and the remaining position error, m.
         """
         m, d = self.model, self.data
@@ -108,6 +110,7 @@ class ReachChecker:
         body = m.body(f"{hand}_hand").id
         sign = 1.0 if hand == "left" else -1.0  # the finger is the hand's +y (left) or -y (right)
         aim = np.array([np.cos(tilt), 0.0, -np.sin(tilt)])
+        rest = self.q_ready if posture is None else np.asarray(posture, dtype=np.float64)
         err = np.inf
         for _ in range(iters):
             d.qpos[self.index.qpos] = q
@@ -125,7 +128,7 @@ class ReachChecker:
             finger = sign * d.xmat[body].reshape(3, 3)[:, 1]
             turn = np.cross(finger, aim)  # angular velocity turning the finger onto ``aim``
             second = Jr.T @ np.linalg.solve(Jr @ Jr.T + damping * np.eye(3), turn)
-            step += null @ (0.5 * second + 0.05 * (self.q_ready[arm] - q[arm]))
+            step += null @ (0.5 * second + 0.05 * (rest[arm] - q[arm]))
             q[arm] = np.clip(q[arm] + np.clip(step, -0.2, 0.2), self.lower[arm], self.upper[arm])
         return q, err
 
