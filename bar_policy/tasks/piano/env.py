@@ -25,10 +25,22 @@ and the initial-state noise are the robot env's (``bar_policy.envs.robot``); the
   falling onto the keys.
 - **Episodes**: the env ends an episode only when the physics turns non-finite; the wrappers truncate at
   ``episode_length_s``.
+- **Reference** (``task_reference``: the chatter signal ``q_cmd - q_ref`` of the MJX evaluation,
+  ``envs.quality_signals``): the key-pose reference of the deploy side (``reference.KeyPoseReference``,
+  docs/piano.md "Chatter against the key-pose reference"), the key-pose prior (``KeyPosePriorConfig()``
+  defaults, lead ``reference.LEAD_STEPS``, the config's keyboard; not ``config.prior``: a fixed yardstick)
+  on the step's ``target_keys`` (the goal-key window the observation shows), through this env's action
+  path: clip to [-1, 1], the action filter, ``q_ref = default + scale * f``. The filter state ``f`` is
+  ``info["ref_act"]`` (n,); a reset sets it where it sets the policy's own filter (``initial_action`` of
+  the held pose, not the deploy side's action 0: each side starts the reference where it starts the
+  policy's filter), each step advances it once. It feeds nothing else: the observation, rewards and
+  metrics are those of an env without it.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 from dataclasses import dataclass, field
 
 import jax
@@ -49,6 +61,7 @@ from bar_policy.tasks.piano.bank import PlaybackConfig, song_bank, training_song
 from bar_policy.tasks.piano.held import held_pose
 from bar_policy.tasks.piano.keyboard import KeyboardConfig, compact_config, key_table, press_thresholds
 from bar_policy.tasks.piano.prior import KeyPosePriorConfig, key_pose_prior
+from bar_policy.tasks.piano.reference import LEAD_STEPS
 from bar_policy.tasks.piano.scene import keyboard_scene
 from bar_policy.tasks.piano.song_library import TRAIN
 from bar_policy.tasks.piano.terms import PIANO_KEYS, TARGET_FRAMES
@@ -177,6 +190,51 @@ class LitePiano(LiteRobotEnv):
         c = self.config
         return key_pose_prior(self.obs_manager, c.keyboard, self._default, self._scale, lead_steps, c.prior)
 
+    @functools.cached_property
+    def reference_prior(self) -> BlendPrior:
+        """The reference's key-pose prior (``KeyPosePriorConfig()``, lead ``LEAD_STEPS``) on ``target_keys``.
+
+        As ``KeyPoseReference.for_policy`` builds it (the deploy side), over this env's keyboard, default
+        pose and action scale; built on first use (the key poses' IK takes ~2 s, cached per keyboard).
+        """
+        c = self.config
+        return key_pose_prior(
+            self.obs_manager, c.keyboard, self._default, self._scale, LEAD_STEPS, KeyPosePriorConfig()
+        )
+
+    @functools.cached_property
+    def _reference_blend(self) -> tuple[BlendPrior, float, float]:
+        """``(reference_prior reading the term alone (start 0), the term's scale, its clip)``."""
+        term = next(t for t in self.obs_manager.schema.terms if t.name == "target_keys")
+        return dataclasses.replace(self.reference_prior, start=0), float(term.scale), float(term.clip)
+
+    def reference_action(self, target_keys: jax.Array) -> jax.Array:
+        """The key-pose prior's action for one ``target_keys`` window (goal keys 0/1, frame-major), float32.
+
+        The term as the observation carries it (``clip(scale * goal, -clip, clip)``), then the blend
+        (``BlendPrior.apply``, jnp); not yet clipped to the action range.
+        """
+        prior, scale, clip = self._reference_blend
+        x = jnp.clip(jnp.asarray(target_keys, jnp.float32).reshape(-1) * scale, -clip, clip)
+        return prior.apply(x)
+
+    def reference_state(self, info: dict) -> jax.Array:
+        """The reference's filter state after the step of ``info``: one step of the env's action path.
+
+        ``filtered_action(info["ref_act"], reference_action(window))`` with the window of ``info["step"]``
+        (the observation's ``target_keys`` when the step's action was chosen), shape (n,).
+        """
+        window = jax.lax.dynamic_slice_in_dim(self._down[info["song"]], info["step"], TARGET_FRAMES, axis=0)
+        return self.filtered_action(info["ref_act"], self.reference_action(window))
+
+    def task_reference(self, info: dict) -> jax.Array:
+        """The key-pose reference of the step of ``info``: ``default + scale * reference_state(info)``, rad.
+
+        What the step's command targets (``envs.quality_signals``: the chatter signal is ``q_cmd`` minus it);
+        not clipped to the joint limits (the deploy side's neither; the prior's poses are inside them).
+        """
+        return self._default + self._scale * self.reference_state(info)
+
     @property
     def metric_keys(self) -> tuple[str, ...]:
         """The step's key counts, its ``precision``, ``recall``, ``f1``, ``goal_keys`` and ``keys_down``."""
@@ -208,12 +266,20 @@ class LitePiano(LiteRobotEnv):
         return data.qpos[self._key_qpos]
 
     def task_reset(self, model: mjx.Model, key: jax.Array) -> tuple[dict, jax.Array, jax.Array]:
-        """A song from the bank, played from its start; the robot at rest in the held default pose."""
+        """A song from the bank, played from its start; the robot at rest in the held default pose.
+
+        The reference's filter starts where the robot env starts the policy's: ``initial_action`` of the
+        pose before the noise.
+        """
         song = jax.random.randint(key, (), 0, self._down.shape[0])
-        return {"song": song}, self._held, jnp.zeros(self.action_size)
+        info = {"song": song, "ref_act": self.initial_action(self._held)}
+        return info, self._held, jnp.zeros(self.action_size)
 
     def task_step(self, tr: Transition) -> TaskStep:
-        """Key rewards against the goal row of this step, the robot's costs, and the key counts."""
+        """Key rewards against the goal row of this step, the robot's costs, and the key counts.
+
+        The task's info: the reference's filter state advanced one step (``reference_state``).
+        """
         cfg = self.config
         data, info = tr.data, tr.info
         s = tr.step - 1
@@ -251,7 +317,9 @@ class LitePiano(LiteRobotEnv):
             k: jnp.asarray(v).astype(jnp.float32) for k, v in metrics.items()
         }  # strong float32, as reset's
         return TaskStep(
-            terms={k: jnp.asarray(v).astype(jnp.float32) for k, v in terms.items()}, info={}, metrics=f32
+            terms={k: jnp.asarray(v).astype(jnp.float32) for k, v in terms.items()},
+            info={"ref_act": self.reference_state(info)},
+            metrics=f32,
         )
 
     def task_obs(self, model: mjx.Model, data: mjx.Data, q_meas: jax.Array, info: dict) -> dict:
