@@ -10,7 +10,8 @@ with the MLP's output at exactly zero (training starts it at ``PRIOR_INIT_SCALE`
 ``actions = tanh(0 + atanh(prior(obs))) = prior(obs)``, the prior written into the graph
 (``obs.action_prior.BlendPrior``), the env's metadata (``training.metadata.policy_metadata`` of
 ``LitePiano``: action scale, 3 Hz filter, observation schema), the export's parity gate against the
-prior's numpy ``apply``. ``--prior FIELD=VALUE`` changes ``KeyPosePriorConfig`` fields, ``--lead`` the
+prior's numpy ``apply``. ``--prior FIELD=VALUE`` changes ``KeyPosePriorConfig`` fields (the per-frame
+ones as comma-separated lists: ``frame_weights=1,.6,...``, 11 values), ``--lead`` the
 pressing frames (the preset's 2), ``--filter-hz`` the action filter written into the metadata.
 
 ``--eval sim bus`` plays the songs (``--songs``, default the held-out ones) through ``bar-deploy eval``'s
@@ -42,14 +43,19 @@ from bar_policy.tasks.piano.song_library import HELDOUT, library_song
 
 
 def _prior_config(items: list[str]) -> KeyPosePriorConfig:
-    """``FIELD=VALUE`` pairs on ``KeyPosePriorConfig()`` (numbers)."""
+    """``FIELD=VALUE`` pairs on ``KeyPosePriorConfig()`` (numbers; ``frame_weights=W0,W1,...``)."""
     fields = {f.name for f in dataclasses.fields(KeyPosePriorConfig)}
     changes = {}
     for item in items:
         name, _, value = item.partition("=")
         if name not in fields or not value:
             raise SystemExit(f"--prior {item!r}: need FIELD=VALUE with FIELD one of {sorted(fields)}")
-        changes[name] = type(getattr(KeyPosePriorConfig(), name))(float(value))
+        if name in ("frame_weights", "edge_weights"):
+            changes[name] = tuple(float(v) for v in value.split(","))
+        elif getattr(KeyPosePriorConfig(), name) is None:
+            changes[name] = float(value)
+        else:
+            changes[name] = type(getattr(KeyPosePriorConfig(), name))(float(value))
     return KeyPosePriorConfig(**changes)
 
 

@@ -42,8 +42,10 @@ def prior():
 
 def test_one_goal_key_gives_its_press_pose(prior, poses) -> None:
     """Goal key k in frame 0 only: its hand's actions are w / (w + rest) of the press pose's action, with
-    w = decay**0 = 1 and rest 0.05; the other hand rests (action 0). Hands: left below middle C."""
+    w = decay**0 = 1 and rest 0.05, plus the edge blend's lift, -0.45 of (press - hover) (frame 0: the
+    note's last step); the other hand rests (action 0). Hands: left below middle C."""
     pc = KeyPosePriorConfig()
+    assert pc.edge_gain == 0.45 and pc.rest_weight == 0.05
     manager = ObservationManager.for_task("piano", "arms")
     for midi, hand in ((48, 0), (61, 1)):
         k = midi - KB.lowest
@@ -53,15 +55,98 @@ def test_one_goal_key_gives_its_press_pose(prior, poses) -> None:
         obs[manager.term_slice("target_keys")] = target.reshape(-1)
         want = np.zeros(14)
         arm = np.arange(7) + 7 * hand
-        want[arm] = (1.0 / (1.0 + pc.rest_weight)) * (poses.press[k, arm] - DEFAULT[arm]) / SCALE[arm]
+        want[arm] = (1.0 / 1.05) * (poses.press[k, arm] - DEFAULT[arm]) / SCALE[arm] - 0.45 * (
+            poses.press[k, arm] - poses.hover[k, arm]
+        ) / SCALE[arm]
         np.testing.assert_allclose(prior.apply(obs), np.clip(want, -PRIOR_BOUND, PRIOR_BOUND), atol=1e-5)
-        # The same key 5 frames ahead (past the lead of 2): its hover pose, weight 0.6**5.
+        # The same key 5 frames ahead (past the lead of 2): its hover pose, weight 0.6**5 (no edge term).
         target[:] = 0.0
         target[5, k] = 1.0
         obs[manager.term_slice("target_keys")] = target.reshape(-1)
         w = pc.decay**5
         want[arm] = w / (w + pc.rest_weight) * (poses.hover[k, arm] - DEFAULT[arm]) / SCALE[arm]
         np.testing.assert_allclose(prior.apply(obs), want, atol=1e-5)
+
+
+def test_edge_blend_pushes_before_a_note_and_lifts_before_its_end(prior, poses) -> None:
+    """A 20-step note of one key (E4, right hand) at steps 30..49, the window at step t holding it in the
+    frames j with 30 <= t + j < 50. The place blend, per the module docstring: press weights 0.6**j for
+    j <= 2, hover weights 0.6**j later, rest 0.05. The edge blend adds c_j (press - hover) per frame the key
+    is in, c_0 = -0.45, c_2 = +0.45: worked out per step,
+
+    - t = 28 (frames 2..10): place (0.36 press + H hover) / (0.36 + H + 0.05), H = sum 0.6**j, j = 3..10;
+      edge +0.45 (pushed: frame 2 on, frame 0 off);
+    - t = 35 (frames 0..10, held): place (1.96 press + H hover) / (1.96 + H + 0.05); edge 0;
+    - t = 48 (frames 0, 1): place 1.6 press / 1.65; edge -0.45 (lifted: frame 0 on, frame 2 off);
+    - t = 50 (gone): 0; the left arm stays at 0 throughout."""
+    manager = ObservationManager.for_task("piano", "arms")
+    k = 64 - KB.lowest
+    arm = np.arange(7, 14)
+    press = (poses.press[k, arm] - DEFAULT[arm]) / SCALE[arm]
+    hover = (poses.hover[k, arm] - DEFAULT[arm]) / SCALE[arm]
+    h = sum(0.6**j for j in range(3, 11))
+    assert h == pytest.approx(0.216 * (1 - 0.6**8) / 0.4) == pytest.approx(0.53093, abs=1e-5)
+    cases = {
+        28: (0.36 * press + h * hover) / (0.36 + h + 0.05) + 0.45 * (press - hover),
+        35: (1.96 * press + h * hover) / (1.96 + h + 0.05),
+        48: 1.6 * press / 1.65 - 0.45 * (press - hover),
+        50: np.zeros(7),
+    }
+    for t, right in cases.items():
+        target = np.zeros((TARGET_FRAMES, PIANO_KEYS), np.float32)
+        for j in range(TARGET_FRAMES):
+            target[j, k] = 1.0 if 30 <= t + j < 50 else 0.0
+        obs = np.zeros(manager.size, np.float32)
+        obs[manager.term_slice("target_keys")] = target.reshape(-1)
+        want = np.concatenate([np.zeros(7), right])
+        np.testing.assert_allclose(prior.apply(obs), np.clip(want, -PRIOR_BOUND, PRIOR_BOUND), atol=1e-5)
+    # The edge blend is the BlendPrior's second blend, linear: no weight per entry, weight 1 at rest pose 0.
+    assert prior.numer.shape[0] == 2 and not np.any(prior.denom[1])
+    np.testing.assert_array_equal(prior.denom_bias[1], np.ones(14))
+    np.testing.assert_array_equal(prior.numer_bias[1], np.zeros(14))
+
+
+def test_edge_gain_zero_is_the_single_place_blend(poses) -> None:
+    """``edge_gain=0``: one blend, the prior before the edge blend (key k in frame 0: press / 1.05)."""
+    manager = ObservationManager.for_task("piano", "arms")
+    plain = key_pose_prior(manager, KB, DEFAULT, SCALE, 2, KeyPosePriorConfig(edge_gain=0.0))
+    assert plain.numer.shape[0] == 1
+    k = 64 - KB.lowest
+    target = np.zeros((TARGET_FRAMES, PIANO_KEYS), np.float32)
+    target[0, k] = 1.0
+    obs = np.zeros(manager.size, np.float32)
+    obs[manager.term_slice("target_keys")] = target.reshape(-1)
+    want = np.zeros(14)
+    want[7:] = (poses.press[k, 7:] - DEFAULT[7:]) / SCALE[7:] / 1.05
+    np.testing.assert_allclose(plain.apply(obs), want, atol=1e-5)
+
+
+def test_frame_weights_and_edge_factors() -> None:
+    """The blend's weight per frame (lead 2) and the edge factors, worked by hand for each setting."""
+    pc = KeyPosePriorConfig()
+    assert [pc.frame_weight(j, 2) for j in (0, 1, 2, 3, 10)] == pytest.approx([1, 0.6, 0.36, 0.216, 0.6**10])
+    np.testing.assert_allclose(pc.edge_factors(2), [-0.45, 0, 0.45] + [0] * 8)
+    np.testing.assert_allclose(pc.edge_factors(3), [-0.45, 0, 0, 0.45] + [0] * 7)
+    assert pc.edge_factors(0) is None and KeyPosePriorConfig(edge_gain=0).edge_factors(2) is None
+    g = KeyPosePriorConfig(press_gain=2.0)
+    assert [g.frame_weight(j, 2) for j in (0, 2, 3)] == pytest.approx([2.0, 0.72, 0.216])
+    hd = KeyPosePriorConfig(hover_decay=0.5)
+    assert [hd.frame_weight(j, 2) for j in (2, 3, 4)] == pytest.approx([0.36, 0.18, 0.09])
+    fw = KeyPosePriorConfig(frame_weights=tuple(range(11)))
+    assert fw.frame_weight(7, 2) == 7.0
+    ew = KeyPosePriorConfig(edge_weights=(0.1,) + (0.0,) * 10)
+    np.testing.assert_allclose(ew.edge_factors(2), [0.1] + [0] * 10)
+    bad_settings = (
+        {"frame_weights": (1.0,) * 10},
+        {"edge_weights": (0.0,) * 12},
+        {"edge_gain": -0.1},
+        {"press_gain": 0.0},
+        {"hover_decay": 1.5},
+        {"frame_weights": (-1.0,) + (1.0,) * 10},
+    )
+    for bad in bad_settings:
+        with pytest.raises(ValueError):
+            KeyPosePriorConfig(**bad)
 
 
 def test_poses_hover_over_and_press_their_key(poses) -> None:

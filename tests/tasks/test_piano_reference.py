@@ -8,7 +8,8 @@ Expected values, each worked apart from the code under test:
   chatter against the reference is ~0 while its ``q_cmd`` itself has the keystrokes' 6-10 mrad;
 - for a hand-made goal-key window, the reference is the blend computed here from the key poses
   (``prior.key_poses``: press in frames 0..2, hover later, weight ``decay ** frame``, the rest pose at
-  ``rest_weight``), through the first-order filter written out by hand;
+  ``rest_weight``; plus the edge blend, -0.45 of press - hover for a key in frame 0 and +0.45 in frame 2),
+  through the first-order filter written out by hand;
 - a sine of amplitude A on a DFT bin below Nyquist added to ``q_cmd`` shows as A / sqrt(2) of chatter
   against the reference (the metric's exactness, tests/quality/test_metrics.py), so a policy oscillating on
   top of the reference still fails the 5 mrad gate.
@@ -162,11 +163,15 @@ def _hand_blend(frames: dict[int, list[int]], default: np.ndarray) -> np.ndarray
     """The key-pose blend of goal keys ``{frame: [midi, ...]}`` worked out here, action units (14,).
 
     Per arm: sum_j w_j (pose_j - default) / scale over its keys / (sum_j w_j + rest), w_j = decay ** frame,
-    pose = press for frames 0..lead, hover later; a hand is left below middle C. Clipped to +-0.99.
+    pose = press for frames 0..lead, hover later; a hand is left below middle C. Plus the edge blend: per
+    key, c_j (press - hover) / scale with c_0 = -0.45 and c_2 (the lead) = +0.45, the other frames 0.
+    Clipped to +-0.99.
     """
     pc = KeyPosePriorConfig()
+    edge = {0: -0.45, 2: 0.45}
+    assert pc.edge_gain == 0.45 and pc.edge_weights is None
     poses = key_poses(KB)
-    num, den = np.zeros(14), np.full(14, pc.rest_weight)
+    num, den, lin = np.zeros(14), np.full(14, pc.rest_weight), np.zeros(14)
     for j, midis in frames.items():
         for m in midis:
             k = m - KB.lowest
@@ -175,14 +180,16 @@ def _hand_blend(frames: dict[int, list[int]], default: np.ndarray) -> np.ndarray
             w = pc.decay**j
             num[arm] += w * (pose[arm] - default[arm]) / SCALE
             den[arm] += w
-    return np.clip(num / den, -0.99, 0.99)
+            lin[arm] += edge.get(j, 0.0) * (poses.press[k, arm] - poses.hover[k, arm]) / SCALE
+    return np.clip(num / den + lin, -0.99, 0.99)
 
 
 def test_reference_of_a_hand_made_window(prior_file) -> None:
     """Two ticks of hand-made goal keys: the reference is the hand blend through the filter from action 0.
 
-    Tick 1: C3 (left hand) in frame 0 (press, weight 1), C4 (right) in frame 3 (hover, 0.216). Tick 2: C3
-    gone, C4 in frame 2 (press, 0.36), E4 in frame 5 (hover, 0.078). f1 = alpha a1, f2 = f1 + alpha (a2 - f1),
+    Tick 1: C3 (left hand) in frame 0 (press, weight 1; edge: lifted by 0.45 of press - hover), C4 (right)
+    in frame 3 (hover, 0.216). Tick 2: C3 gone, C4 in frame 2 (press, 0.36; edge: pushed by 0.45 of
+    press - hover), E4 in frame 5 (hover, 0.078). f1 = alpha a1, f2 = f1 + alpha (a2 - f1),
     q = default + 0.8 f."""
     from bar_policy.deploy.policy import load_policy
 

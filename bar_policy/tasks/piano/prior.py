@@ -30,6 +30,14 @@ no goal key in view rests. The fingertip goes down ``lead_steps`` steps before t
 action filter's and the arm's lag) and up ``lead_steps`` steps before its end; because the later frames'
 hover poses stay in the mean, the blended press stops short of the press pose (``press_below_m``). A
 second blend for the press depth, apart from the place, scored lower (docs/piano.md).
+
+**Edge blend** (``edge_gain``, the ``BlendPrior``'s second blend, linear: no weight per entry, the rest
+pose 0 at weight 1): per goal key ``k`` in frame ``j``, ``c_j (press(k) - hover(k))`` is added to the place
+blend, with ``c_0 = -edge_gain`` and ``c_lead = +edge_gain``. While a note is held both frames are on and
+the terms cancel; over the ``lead`` steps before a note (frame ``lead`` on, frame 0 not yet) the key is
+pushed down, over the ``lead`` steps before its end (frame 0 on, frame ``lead`` off) lifted: the command
+reaches the press sooner and leaves it sooner, where the weighted mean alone went down 3-9 steps late and
+came up 1-5 late (docs/piano.md, "Edge blend").
 """
 
 from __future__ import annotations
@@ -72,6 +80,27 @@ class KeyPosePriorConfig:
     """Weight of the default pose, always in the place blend (a hand with no goal key in view rests)."""
     split_midi: int = HAND_SPLIT_MIDI
     """Keys below this MIDI number are the left hand's, the others the right's (middle C)."""
+    press_gain: float = 1.0
+    """Factor on the weights of the press frames (0..lead) against the hover frames and the rest pose."""
+    hover_decay: float | None = None
+    """Weight ratio of successive hover frames (after the lead): frame ``j > lead`` weighs
+    ``decay**lead * hover_decay**(j - lead)``; None: ``decay`` (one geometric series)."""
+    frame_weights: tuple[float, ...] | None = None
+    """Explicit weight per goal-key frame (``TARGET_FRAMES`` of them, >= 0), in place of ``decay``,
+    ``hover_decay`` and ``press_gain``; None: those."""
+    edge_gain: float = 0.45
+    """The edge blend's factor ``a`` (``edge_weights``: ``c_0 = -a``, ``c_lead = +a``, the other frames 0):
+    a key is pushed ``a`` of the way from its hover to its press command over the ``lead`` steps before
+    its note and lifted as much over the ``lead`` steps before the note's end; 0: no edge blend (the prior
+    before 2026-11-26's change). Prior alone, sim target, 8 training songs: mean F1 0.796 at 0, 0.829 at
+    0.4, 0.839 at 0.45, 0.835 at 0.5, 0.808 at 0.6; held-out songs 0.816 at 0, 0.869 at 0.45
+    (docs/piano.md, "Edge blend")."""
+    edge_weights: tuple[float, ...] | None = None
+    """Explicit factors ``c_j`` of the edge blend, one per goal-key frame (``TARGET_FRAMES``), in place of
+    ``edge_gain``'s. The edge blend is a second, linear blend added to the place blend: per goal key ``k``
+    of frame ``j``, ``c_j (press(k) - hover(k))``. With ``c_0 = -a`` and ``c_P = a`` it pushes a key down
+    the ``P`` steps before its note, lifts it the ``P`` steps before the note's end and adds nothing while
+    the note is held."""
 
     def __post_init__(self) -> None:
         if (
@@ -79,10 +108,38 @@ class KeyPosePriorConfig:
             or self.rest_weight <= 0.0
             or self.hover_m < 0.0
             or self.press_force_n < 0
+            or self.press_gain <= 0.0
+            or (self.hover_decay is not None and not 0.0 <= self.hover_decay <= 1.0)
+            or (self.frame_weights is not None and min(self.frame_weights) < 0.0)
+            or self.edge_gain < 0.0
         ):
             raise ValueError(
-                f"need 0 < decay <= 1, rest_weight > 0, hover_m >= 0, press_force_n >= 0; got {self}"
+                "need 0 < decay <= 1, rest_weight > 0, hover_m >= 0, press_force_n >= 0, press_gain > 0, "
+                f"0 <= hover_decay <= 1, frame_weights >= 0, edge_gain >= 0; got {self}"
             )
+        for name in ("frame_weights", "edge_weights"):
+            v = getattr(self, name)
+            if v is not None and len(v) != TARGET_FRAMES:
+                raise ValueError(f"{name} needs {TARGET_FRAMES} values (one per goal-key frame), got {v}")
+
+    def frame_weight(self, j: int, lead_steps: int) -> float:
+        """The blend's weight of goal-key frame ``j`` (pressing frames ``0..lead_steps``)."""
+        if self.frame_weights is not None:
+            return float(self.frame_weights[j])
+        if j <= lead_steps:
+            return self.press_gain * self.decay**j
+        hd = self.decay if self.hover_decay is None else self.hover_decay
+        return self.decay**lead_steps * hd ** (j - lead_steps)
+
+    def edge_factors(self, lead_steps: int) -> np.ndarray | None:
+        """The edge blend's ``c_j`` per goal-key frame, None when there is none (all 0)."""
+        if self.edge_weights is not None:
+            c = np.asarray(self.edge_weights, np.float64)
+        else:
+            c = np.zeros(TARGET_FRAMES)
+            if lead_steps > 0:
+                c[0], c[lead_steps] = -self.edge_gain, self.edge_gain
+        return c if np.any(c != 0.0) else None
 
 
 @dataclass(frozen=True)
@@ -225,20 +282,26 @@ def key_pose_prior(
     term = next(t for t in manager.schema.terms if t.name == "target_keys")
     default, scale = np.asarray(default, np.float64), np.asarray(scale, np.float64)
     n = default.shape[0]
-    numer = np.zeros((1, TARGET_FRAMES * n_keys, n))
+    edge = pc.edge_factors(lead_steps)
+    m = 1 if edge is None else 2
+    numer = np.zeros((m, TARGET_FRAMES * n_keys, n))
     denom = np.zeros_like(numer)
     for j in range(TARGET_FRAMES):
         pose = poses.press if j <= lead_steps else poses.hover
-        w = pc.decay**j / term.scale  # per unit of the observation entry (obs = term.scale * goal)
+        # per unit of the observation entry (obs = term.scale * goal)
+        w = pc.frame_weight(j, lead_steps) / term.scale
         for k in range(n_keys):
             arm = np.arange(7) + 7 * poses.hand[k]
             numer[0, j * n_keys + k, arm] = w * (pose[k, arm] - default[arm]) / scale[arm]
             denom[0, j * n_keys + k, arm] = w
+            if edge is not None:  # the edge blend, linear: weight 0 per entry, rest pose 0 at weight 1
+                c = edge[j] / term.scale
+                numer[1, j * n_keys + k, arm] = c * (poses.press[k, arm] - poses.hover[k, arm]) / scale[arm]
     return BlendPrior(
         start=sl.start,
         numer=numer,
         denom=denom,
-        numer_bias=np.zeros((1, n)),
-        denom_bias=np.full((1, n), pc.rest_weight),
+        numer_bias=np.zeros((m, n)),
+        denom_bias=np.full((m, n), pc.rest_weight) if m == 1 else np.array([[pc.rest_weight] * n, [1.0] * n]),
         label=f"piano key poses, lead {lead_steps}, {pc}",
     )
