@@ -57,13 +57,16 @@ P_MAX = 0.75
 def blend_tol(k: int) -> float:
     """Bound on the float32 blend's error against the exact one, action units, ``k`` goal entries on.
 
-    Per action: ``num = sum_i x_i N_i + b``, ``den = sum_i x_i D_i + r`` over the ``k`` entries on (the
-    others add exact zeros), each stored entry rounded once (u), each product and sum once more:
-    ``|d num| <= (k + 2) u sum|x_i N_i| <= (k + 2) u P den`` (``N_i = w_i p_i``, ``|p_i| <= P``, the
+    The place blend, per action: ``num = sum_i x_i N_i + b``, ``den = sum_i x_i D_i + r`` over the ``k``
+    entries on (the others add exact zeros), each stored entry rounded once (u), each product and sum once
+    more: ``|d num| <= (k + 2) u sum|x_i N_i| <= (k + 2) u P den`` (``N_i = w_i p_i``, ``|p_i| <= P``, the
     weights ``w_i >= 0``) and ``|d den| <= (k + 2) u den``; the quotient ``a = num / den`` (``|a| <= P``)
-    adds u: ``|d a| <= 2 (k + 2) u P + u``.
+    adds u: ``|d a| <= 2 (k + 2) u P + u``. The edge blend (linear, its denominator exactly 1): at most
+    two entries per action are non-zero (a hand's key in frame 0 and in the lead frame), each
+    ``|c (p_press - p_hover)| <= 0.45 * 2 P``, so ``|d e| <= (k + 2) u 1.8 P``; adding it to ``a``
+    (``|a + e| <= 2.8 P``) rounds once more, ``2.8 u P``.
     """
-    return 2.0 * (k + 2) * U * P_MAX + U
+    return 2.0 * (k + 2) * U * P_MAX + U + (k + 2) * U * 1.8 * P_MAX + 2.8 * U * P_MAX
 
 
 def q_tol(k: int, inputs: float) -> float:
@@ -139,11 +142,15 @@ def _hand_blend(frames: dict[int, list[int]], default: np.ndarray, kb) -> np.nda
     """The key-pose blend of goal keys ``{frame: [midi, ...]}`` worked out here, action units (14,), float64.
 
     Per arm: sum_j w_j (pose_j - default) / scale over its keys / (sum_j w_j + rest), w_j = decay ** frame,
-    pose = press for frames 0..2, hover later; a hand is left below middle C. Clipped to +-0.99.
+    pose = press for frames 0..2, hover later; a hand is left below middle C. Plus the edge blend: per
+    key, c_j (press - hover) / scale with c_0 = -0.45 and c_2 (the lead) = +0.45, the other frames 0.
+    Clipped to +-0.99.
     """
     pc = KeyPosePriorConfig()
+    edge = {0: -0.45, 2: 0.45}
+    assert pc.edge_gain == 0.45 and pc.edge_weights is None
     poses = key_poses(kb)
-    num, den = np.zeros(14), np.full(14, pc.rest_weight)
+    num, den, lin = np.zeros(14), np.full(14, pc.rest_weight), np.zeros(14)
     for j, midis in frames.items():
         for m in midis:
             k = m - kb.lowest
@@ -152,7 +159,8 @@ def _hand_blend(frames: dict[int, list[int]], default: np.ndarray, kb) -> np.nda
             w = pc.decay**j
             num[arm] += w * (pose[arm] - default[arm]) / SCALE
             den[arm] += w
-    return np.clip(num / den, -0.99, 0.99)
+            lin[arm] += edge.get(j, 0.0) * (poses.press[k, arm] - poses.hover[k, arm]) / SCALE
+    return np.clip(num / den + lin, -0.99, 0.99)
 
 
 def _frames(window: np.ndarray, kb) -> dict[int, list[int]]:
