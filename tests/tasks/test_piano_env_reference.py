@@ -105,10 +105,12 @@ def rollout(env: LitePiano):
 
     Per step ``t`` (from the state before the step): ``q_cmd`` (this step's command), ``ref``
     (``task_reference``), ``signal`` (``quality_signals``' chatter signal), ``target_keys`` (the observation's
-    term), and after the step ``obs``, ``reward``, ``metrics``, ``qpos``, ``ref_act``.
+    term), ``key_pressed`` (the observation's keys down, which the prior's release blend reads), and after
+    the step ``obs``, ``reward``, ``metrics``, ``qpos``, ``ref_act``.
     """
     prior = env.action_prior(LEAD_STEPS)
     sl = env.obs_manager.term_slice("target_keys")
+    kp = env.obs_manager.term_slice("key_pressed")
 
     def body(s, _):
         a = jnp.tanh(0.0 + prior.pre_tanh(s.obs))  # a zero MLP under the tanh_loc head
@@ -117,6 +119,7 @@ def rollout(env: LitePiano):
             "ref": env.task_reference(s.info),
             "signal": env.quality_signals(s, a)["signal"],
             "target_keys": s.obs[sl],
+            "key_pressed": s.obs[kp],
         }
         ns = env.step(s, a)
         out.update(
@@ -254,14 +257,16 @@ def _deploy_reference(env: LitePiano) -> KeyPoseReference:
     return KeyPoseReference.for_policy(policy, env.config.keyboard)  # type: ignore[arg-type]
 
 
-class _NoKeys:
-    """A key source with nothing down."""
+class _EnvKeys:
+    """A key source replaying the env's observed keys down, one row per control step."""
 
-    def __init__(self) -> None:
+    def __init__(self, rows: np.ndarray) -> None:
         self.counts: dict = {}
+        self.rows = np.asarray(rows) > 0.5
+        assert self.rows.shape[1] == PIANO_KEYS
 
     def read(self, t: float) -> np.ndarray:
-        return np.zeros(PIANO_KEYS, bool)
+        return self.rows[min(round(t / DT), len(self.rows) - 1)]
 
     def close(self) -> None:
         pass
@@ -277,7 +282,8 @@ def test_parity_with_the_deploy_reference(env, prior_run, start, k_max) -> None:
     assert ref.alpha == pytest.approx(ALPHA, rel=1e-12)
     assert ref.prior.label == env.reference_prior.label
     (song,) = env.songs
-    src = SongCommands(song, env.config.keyboard, DT, _NoKeys(), env.config.playback, reference=ref)  # type: ignore[arg-type]
+    keys = _EnvKeys(prior_run["key_pressed"])
+    src = SongCommands(song, env.config.keyboard, DT, keys, env.config.playback, reference=ref)  # type: ignore[arg-type]
     src.begin(0.0)
     f0 = np.asarray(start.info["ref_act"])
     state = f0
@@ -286,7 +292,8 @@ def test_parity_with_the_deploy_reference(env, prior_run, start, k_max) -> None:
     for t in range(T):
         terms = src(t * DT)
         np.testing.assert_array_equal(terms["target_keys"], prior_run["target_keys"][t], f"step {t}")
-        state = ref.filtered(state, terms["target_keys"])
+        np.testing.assert_array_equal(terms["key_pressed"], prior_run["key_pressed"][t], f"step {t}")
+        state = ref.filtered(state, terms["target_keys"], terms["key_pressed"])
         env_ref = prior_run["ref"][t]
         worst = max(worst, np.abs(ref.q(state) - env_ref).max())
         decay = -SCALE * (1.0 - ALPHA) ** (t + 1) * f0.astype(np.float64)
@@ -315,7 +322,7 @@ def test_reference_feeds_nothing_else(env, rollout, prior_run, start) -> None:
         out["ref"] - prior_run["ref"], np.repeat(shift[:, None], 14, 1), rtol=0, atol=1e-6
     )
     assert set(start.info) == {
-        "rng", "step", "song", "ref_act", "last_act", "act_prev", "act_buf", "latency", "kp", "kd",
-        "encoder_offset",
+        "rng", "step", "song", "ref_act", "ref_keys", "last_act", "act_prev", "act_buf", "latency", "kp",
+        "kd", "encoder_offset",
     }  # fmt: skip
     np.testing.assert_array_equal(start.info["ref_act"], start.info["last_act"])  # started with the policy's

@@ -100,16 +100,20 @@ def test_edge_blend_pushes_before_a_note_and_lifts_before_its_end(prior, poses) 
         obs[manager.term_slice("target_keys")] = target.reshape(-1)
         want = np.concatenate([np.zeros(7), right])
         np.testing.assert_allclose(prior.apply(obs), np.clip(want, -PRIOR_BOUND, PRIOR_BOUND), atol=1e-5)
-    # The edge blend is the BlendPrior's second blend, linear: no weight per entry, weight 1 at rest pose 0.
-    assert prior.numer.shape[0] == 2 and not np.any(prior.denom[1])
+    # The edge blend is the BlendPrior's second blend, linear: no weight per entry, weight 1 at rest pose 0
+    # (then the release blends: 25, one per key rank of the larger hand; test_release_blend_...).
+    assert prior.numer.shape[0] == 2 + 25 and not np.any(prior.denom[1])
     np.testing.assert_array_equal(prior.denom_bias[1], np.ones(14))
     np.testing.assert_array_equal(prior.numer_bias[1], np.zeros(14))
 
 
 def test_edge_gain_zero_is_the_single_place_blend(poses) -> None:
-    """``edge_gain=0``: one blend, the prior before the edge blend (key k in frame 0: press / 1.05)."""
+    """``edge_gain=0`` (and no release blend): one blend, the prior before the edge blend (key k in frame 0:
+    press / 1.05)."""
     manager = ObservationManager.for_task("piano", "arms")
-    plain = key_pose_prior(manager, KB, DEFAULT, SCALE, 2, KeyPosePriorConfig(edge_gain=0.0))
+    plain = key_pose_prior(
+        manager, KB, DEFAULT, SCALE, 2, KeyPosePriorConfig(edge_gain=0.0, release_gain=0.0)
+    )
     assert plain.numer.shape[0] == 1
     k = 64 - KB.lowest
     target = np.zeros((TARGET_FRAMES, PIANO_KEYS), np.float32)
@@ -143,10 +147,68 @@ def test_frame_weights_and_edge_factors() -> None:
         {"press_gain": 0.0},
         {"hover_decay": 1.5},
         {"frame_weights": (-1.0,) + (1.0,) * 10},
+        {"release_gain": -0.1},
+        {"release_block": 0.0},
     )
     for bad in bad_settings:
         with pytest.raises(ValueError):
             KeyPosePriorConfig(**bad)
+
+
+def test_release_blend_lifts_a_key_held_down_off_its_goal(prior, poses) -> None:
+    """The release blend (feedback from ``key_pressed``): a key observed down adds
+    ``0.2 (hover(k) - press(k))`` to its hand, divided by ``1 + 100 goal_0(k)`` (its own frame-0 goal bit).
+    Worked per case (right arm; actions in units of SCALE; place and edge blends as in the tests above):
+
+    - E4 down, no goal key: place 0 (rest pose only), edge 0, release 0.2 (hover_E4 - press_E4);
+    - E4 down and E4 the goal (frame 0 only): press_E4 / 1.05 - 0.45 (press_E4 - hover_E4) + the release
+      term / 101 (blocked by its goal);
+    - E4 down and D4 the goal (frame 0 only; the finger held against D4's side, docs/piano.md "Release
+      blend"): press_D4 / 1.05 - 0.45 (press_D4 - hover_D4) + 0.2 (hover_E4 - press_E4), unblocked (D4's
+      goal bit is not E4's);
+    - C3 (left, rank 12 of the left hand's keys) down and C5 (right, rank 12: the same blend) the goal:
+      the left arm gets C3's full release term, the right arm C5's press and lift only."""
+    pc = KeyPosePriorConfig()
+    assert pc.release_gain == 0.2 and pc.release_block == 100.0
+    manager = ObservationManager.for_task("piano", "arms")
+    scale = {t.name: t.scale for t in manager.schema.terms}
+
+    def action(goal: dict[int, int], down: list[int]) -> np.ndarray:
+        target = np.zeros((TARGET_FRAMES, PIANO_KEYS), np.float32)
+        for midi, frame in goal.items():
+            target[frame, midi - KB.lowest] = 1.0
+        pressed = np.zeros(PIANO_KEYS, np.float32)
+        pressed[[m - KB.lowest for m in down]] = 1.0
+        obs = np.zeros(manager.size, np.float32)
+        obs[manager.term_slice("target_keys")] = scale["target_keys"] * target.reshape(-1)
+        obs[manager.term_slice("key_pressed")] = scale["key_pressed"] * pressed
+        return prior.apply(obs)
+
+    def unit(pose: np.ndarray, k: int, arm: np.ndarray) -> np.ndarray:
+        return (pose[k - KB.lowest, arm] - DEFAULT[arm]) / SCALE[arm]
+
+    right, left = np.arange(7, 14), np.arange(7)
+    p_e, h_e = unit(poses.press, 64, right), unit(poses.hover, 64, right)
+    p_d, h_d = unit(poses.press, 62, right), unit(poses.hover, 62, right)
+    release_e = 0.2 * (h_e - p_e)
+    cases = [
+        (({}, [64]), release_e),
+        (({64: 0}, [64]), p_e / 1.05 - 0.45 * (p_e - h_e) + release_e / 101),
+        (({62: 0}, [64]), p_d / 1.05 - 0.45 * (p_d - h_d) + release_e),
+    ]
+    for (goal, down), want in cases:
+        got = action(goal, down)
+        np.testing.assert_allclose(got[right], np.clip(want, -PRIOR_BOUND, PRIOR_BOUND), atol=1e-5)
+        np.testing.assert_allclose(got[left], np.zeros(7), atol=1e-6)
+    got = action({72: 0}, [48])
+    p_c5, h_c5 = unit(poses.press, 72, right), unit(poses.hover, 72, right)
+    want_left = 0.2 * (unit(poses.hover, 48, left) - unit(poses.press, 48, left))
+    np.testing.assert_allclose(got[left], np.clip(want_left, -PRIOR_BOUND, PRIOR_BOUND), atol=1e-5)
+    want_right = p_c5 / 1.05 - 0.45 * (p_c5 - h_c5)
+    np.testing.assert_allclose(got[right], np.clip(want_right, -PRIOR_BOUND, PRIOR_BOUND), atol=1e-5)
+    # open_loop(): the goal keys' part alone (the reference's): no release blend, 2 blends.
+    open_prior = key_pose_prior(manager, KB, DEFAULT, SCALE, 2, pc.open_loop())
+    assert open_prior.numer.shape[0] == 2 and open_prior.stop == manager.term_slice("target_keys").stop
 
 
 def test_poses_hover_over_and_press_their_key(poses) -> None:

@@ -29,12 +29,13 @@ and the initial-state noise are the robot env's (``bar_policy.envs.robot``); the
   ``envs.quality_signals``): the key-pose reference of the deploy side (``reference.KeyPoseReference``,
   docs/piano.md "Chatter against the key-pose reference"), the key-pose prior (``KeyPosePriorConfig()``
   defaults, lead ``reference.LEAD_STEPS``, the config's keyboard; not ``config.prior``: a fixed yardstick)
-  on the step's ``target_keys`` (the goal-key window the observation shows), through this env's action
-  path: clip to [-1, 1], the action filter, ``q_ref = default + scale * f``. The filter state ``f`` is
-  ``info["ref_act"]`` (n,); a reset sets it where it sets the policy's own filter (``initial_action`` of
-  the held pose, not the deploy side's action 0: each side starts the reference where it starts the
-  policy's filter), each step advances it once. It feeds nothing else: the observation, rewards and
-  metrics are those of an env without it.
+  on the step's ``target_keys`` (the goal-key window the observation shows) and ``key_pressed`` (the keys
+  down it shows, which the prior's release blend reads; kept as ``info["ref_keys"]``, 0 at a reset), through
+  this env's action path: clip to [-1, 1], the action filter, ``q_ref = default + scale * f``. The filter
+  state ``f`` is ``info["ref_act"]`` (n,); a reset sets it where it sets the policy's own filter
+  (``initial_action`` of the held pose, not the deploy side's action 0: each side starts the reference where
+  it starts the policy's filter), each step advances it once. It feeds nothing else: the observation,
+  rewards and metrics are those of an env without it.
 """
 
 from __future__ import annotations
@@ -203,29 +204,43 @@ class LitePiano(LiteRobotEnv):
         )
 
     @functools.cached_property
-    def _reference_blend(self) -> tuple[BlendPrior, float, float]:
-        """``(reference_prior reading the term alone (start 0), the term's scale, its clip)``."""
-        term = next(t for t in self.obs_manager.schema.terms if t.name == "target_keys")
-        return dataclasses.replace(self.reference_prior, start=0), float(term.scale), float(term.clip)
+    def _reference_blend(self) -> tuple[BlendPrior, tuple[float, float], tuple[float, float]]:
+        """``(reference_prior from target_keys' first entry (start 0), its (scale, clip), key_pressed's)``."""
+        terms = {t.name: t for t in self.obs_manager.schema.terms}
+        tk, kp = terms["target_keys"], terms["key_pressed"]
+        prior = dataclasses.replace(self.reference_prior, start=0)
+        return prior, (float(tk.scale), float(tk.clip)), (float(kp.scale), float(kp.clip))
 
-    def reference_action(self, target_keys: jax.Array) -> jax.Array:
-        """The key-pose prior's action for one ``target_keys`` window (goal keys 0/1, frame-major), float32.
+    def reference_action(self, target_keys: jax.Array, key_pressed: jax.Array | None = None) -> jax.Array:
+        """The key-pose prior's action for one ``target_keys`` window and the keys down, float32.
 
-        The term as the observation carries it (``clip(scale * goal, -clip, clip)``), then the blend
-        (``BlendPrior.apply``, jnp); not yet clipped to the action range.
+        ``target_keys``: goal keys 0/1, frame-major; ``key_pressed``: keys down 0/1 (None: none), which the
+        release blend reads. The terms as the observation carries them (``clip(scale * goal, -clip, clip)``),
+        then the blend (``BlendPrior.apply``, jnp); not yet clipped to the action range.
         """
-        prior, scale, clip = self._reference_blend
+        prior, (scale, clip), (k_scale, k_clip) = self._reference_blend
         x = jnp.clip(jnp.asarray(target_keys, jnp.float32).reshape(-1) * scale, -clip, clip)
+        n_in = prior.stop
+        if n_in > x.shape[0]:  # progress (not read) and key_pressed
+            n_keys = self.config.keyboard.n_keys
+            k = (
+                jnp.zeros(n_keys, jnp.float32)
+                if key_pressed is None
+                else jnp.asarray(key_pressed, jnp.float32)
+            )
+            k = jnp.clip(k * k_scale, -k_clip, k_clip)
+            x = jnp.concatenate([x, jnp.zeros(n_in - x.shape[0] - n_keys, jnp.float32), k])
         return prior.apply(x)
 
     def reference_state(self, info: dict) -> jax.Array:
         """The reference's filter state after the step of ``info``: one step of the env's action path.
 
-        ``filtered_action(info["ref_act"], reference_action(window))`` with the window of ``info["step"]``
-        (the observation's ``target_keys`` when the step's action was chosen), shape (n,).
+        ``filtered_action(info["ref_act"], reference_action(window, info["ref_keys"]))`` with the window of
+        ``info["step"]`` and the keys down (the observation's ``target_keys`` and ``key_pressed`` when the
+        step's action was chosen), shape (n,).
         """
         window = jax.lax.dynamic_slice_in_dim(self._down[info["song"]], info["step"], TARGET_FRAMES, axis=0)
-        return self.filtered_action(info["ref_act"], self.reference_action(window))
+        return self.filtered_action(info["ref_act"], self.reference_action(window, info.get("ref_keys")))
 
     def task_reference(self, info: dict) -> jax.Array:
         """The key-pose reference of the step of ``info``: ``default + scale * reference_state(info)``, rad.
@@ -272,7 +287,11 @@ class LitePiano(LiteRobotEnv):
         pose before the noise.
         """
         song = jax.random.randint(key, (), 0, self._down.shape[0])
-        info = {"song": song, "ref_act": self.initial_action(self._held)}
+        info = {
+            "song": song,
+            "ref_act": self.initial_action(self._held),
+            "ref_keys": jnp.zeros(self.config.keyboard.n_keys, jnp.float32),  # the held pose presses none
+        }
         return info, self._held, jnp.zeros(self.action_size)
 
     def task_step(self, tr: Transition) -> TaskStep:
@@ -318,7 +337,7 @@ class LitePiano(LiteRobotEnv):
         }  # strong float32, as reset's
         return TaskStep(
             terms={k: jnp.asarray(v).astype(jnp.float32) for k, v in terms.items()},
-            info={"ref_act": self.reference_state(info)},
+            info={"ref_act": self.reference_state(info), "ref_keys": down.astype(jnp.float32)},
             metrics=f32,
         )
 

@@ -38,10 +38,20 @@ the terms cancel; over the ``lead`` steps before a note (frame ``lead`` on, fram
 pushed down, over the ``lead`` steps before its end (frame 0 on, frame ``lead`` off) lifted: the command
 reaches the press sooner and leaves it sooner, where the weighted mean alone went down 3-9 steps late and
 came up 1-5 late (docs/piano.md, "Edge blend").
+
+**Release blend** (``release_gain``, feedback: the blends after the edge blend read ``key_pressed`` too):
+a key observed down adds ``release_gain (hover(k) - press(k))`` to its hand, divided by
+``1 + release_block goal_0(k)``, so it lifts a key held down while it is not this step's goal and nothing
+while it is. It frees a finger caught against the neighbouring key's side: leaving E4 for D4 two steps
+later, the fingertip met D4's side 1.3 mm below its top (a horizontal contact normal), and the push of
+D4's press held it there, E4 down, through the whole D4 note (docs/piano.md, "Release blend"). One blend
+per key rank (a left and a right key share one: they drive different arms), each a ratio whose
+denominator holds that key's goal bit. ``open_loop()``: the same settings without it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass
 
@@ -102,6 +112,16 @@ class KeyPosePriorConfig:
     the ``P`` steps before its note, lifts it the ``P`` steps before the note's end and adds nothing while
     the note is held."""
 
+    release_gain: float = 0.2
+    """The release blend's factor: a key observed down (``key_pressed``) while it is not this step's goal
+    adds ``release_gain (hover(k) - press(k))`` to its hand (lifts the fingertip where it is); 0: none
+    (the prior before 2026-11-26's second change). Prior alone, sim target, 8 training songs: mean F1 0.839
+    at 0, 0.863 at 0.15, 0.865 at 0.2, 0.864 at 0.3, 0.861 at 0.4, 0.858 at 0.6; held-out songs 0.871 at 0,
+    0.882 at 0.2 (docs/piano.md, "Release blend")."""
+    release_block: float = 100.0
+    """Weight of a key's own frame-0 goal bit in its release blend's denominator: the lift is
+    ``1 / (1 + release_block)`` of itself while the key is the goal."""
+
     def __post_init__(self) -> None:
         if (
             not 0.0 < self.decay <= 1.0
@@ -112,15 +132,22 @@ class KeyPosePriorConfig:
             or (self.hover_decay is not None and not 0.0 <= self.hover_decay <= 1.0)
             or (self.frame_weights is not None and min(self.frame_weights) < 0.0)
             or self.edge_gain < 0.0
+            or self.release_gain < 0.0
+            or self.release_block <= 0.0
         ):
             raise ValueError(
                 "need 0 < decay <= 1, rest_weight > 0, hover_m >= 0, press_force_n >= 0, press_gain > 0, "
-                f"0 <= hover_decay <= 1, frame_weights >= 0, edge_gain >= 0; got {self}"
+                "0 <= hover_decay <= 1, frame_weights >= 0, edge_gain >= 0, release_gain >= 0, "
+                f"release_block > 0; got {self}"
             )
         for name in ("frame_weights", "edge_weights"):
             v = getattr(self, name)
             if v is not None and len(v) != TARGET_FRAMES:
                 raise ValueError(f"{name} needs {TARGET_FRAMES} values (one per goal-key frame), got {v}")
+
+    def open_loop(self) -> KeyPosePriorConfig:
+        """These settings without the release blend: the prior of the goal keys alone (the reference's)."""
+        return dataclasses.replace(self, release_gain=0.0)
 
     def frame_weight(self, j: int, lead_steps: int) -> float:
         """The blend's weight of goal-key frame ``j`` (pressing frames ``0..lead_steps``)."""
@@ -284,7 +311,18 @@ def key_pose_prior(
     n = default.shape[0]
     edge = pc.edge_factors(lead_steps)
     m = 1 if edge is None else 2
-    numer = np.zeros((m, TARGET_FRAMES * n_keys, n))
+    m_place = m
+    n_in = TARGET_FRAMES * n_keys
+    if pc.release_gain > 0:
+        kp_sl = manager.term_slice("key_pressed")
+        kp_term = next(t for t in manager.schema.terms if t.name == "key_pressed")
+        n_in = kp_sl.stop - sl.start
+        rank = np.zeros(n_keys, int)
+        for h in (0, 1):
+            idx = np.flatnonzero(poses.hand == h)
+            rank[idx] = np.arange(len(idx))
+        m += int(rank.max()) + 1
+    numer = np.zeros((m, n_in, n))
     denom = np.zeros_like(numer)
     for j in range(TARGET_FRAMES):
         pose = poses.press if j <= lead_steps else poses.hover
@@ -297,11 +335,22 @@ def key_pose_prior(
             if edge is not None:  # the edge blend, linear: weight 0 per entry, rest pose 0 at weight 1
                 c = edge[j] / term.scale
                 numer[1, j * n_keys + k, arm] = c * (poses.press[k, arm] - poses.hover[k, arm]) / scale[arm]
+    denom_bias = np.ones((m, n))
+    denom_bias[0] = pc.rest_weight
+    if pc.release_gain > 0:
+        for k in range(n_keys):
+            arm = np.arange(7) + 7 * poses.hand[k]
+            b = m_place + rank[k]
+            row = kp_sl.start - sl.start + k
+            numer[b, row, arm] = (
+                pc.release_gain / kp_term.scale * (poses.hover[k, arm] - poses.press[k, arm]) / scale[arm]
+            )
+            denom[b, k, arm] = pc.release_block / term.scale
     return BlendPrior(
         start=sl.start,
         numer=numer,
         denom=denom,
         numer_bias=np.zeros((m, n)),
-        denom_bias=np.full((m, n), pc.rest_weight) if m == 1 else np.array([[pc.rest_weight] * n, [1.0] * n]),
+        denom_bias=denom_bias,
         label=f"piano key poses, lead {lead_steps}, {pc}",
     )

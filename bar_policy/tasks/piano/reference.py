@@ -7,20 +7,21 @@ counts the keystrokes: the key-pose prior alone (a scripted player, no network) 
 So the piano's reference is the command of that scripted player for the song (docs/piano.md, "Chatter
 against the key-pose reference"):
 
-    a_ref[k] = clip(prior(target_keys[k]), -c, c)                    (action units, the prior's blend)
+    a_ref[k] = clip(prior(target_keys[k], key_pressed[k]), -c, c)     (action units, the prior's blend)
     f[k]     = f[k-1] + alpha * (a_ref[k] - f[k-1]),  f[-1] = the action the runtime starts its filter at
     q_ref[k] = default + scale * f[k]                                 (rad, the joints the policy drives)
 
-with ``prior`` the key-pose prior (``prior.key_pose_prior``: ``KeyPosePriorConfig()`` defaults, the
-preset's ``network.prior_lead_steps``) over the policy's layout, evaluated in numpy
-(``BlendPrior.apply``) on the tick's ``target_keys`` observation term, ``c`` the policy's action clip,
-``alpha`` the policy file's action filter (``robot.action_filter``, cutoff ``bar.action_filter``; 1
-without one), ``default`` and ``scale`` its ``default_joint_pos`` and ``action_scale``: the path a policy's
-action takes (``deploy.action_path``, ``OnnxPolicy.q_command``), the applied action kept in float32 as
-there. The runtime starts its filter at the action of its HOLD target, the command source's ``hold_pose``
-or else the policy's (``q_command(0)``: action 0); the song source names none, so ``f[-1] = 0``. Joints the
-policy does not drive are at 0, as ``q_command`` pins them. Not clipped to the joint limits (the
-supervisor clips ``q_cmd``; the prior's poses are inside them).
+with ``prior`` the key-pose prior (``prior.key_pose_prior``: ``KeyPosePriorConfig()`` defaults, the preset's
+``network.prior_lead_steps``) over the policy's layout, evaluated in numpy (``BlendPrior.apply``) on the
+tick's ``target_keys`` and ``key_pressed`` observation terms (the prior's release blend lifts a key held
+down off its goal: the reference reads the keys the policy reads), ``c`` the policy's action clip, ``alpha``
+the policy file's action filter (``robot.action_filter``, cutoff ``bar.action_filter``; 1 without one),
+``default`` and ``scale`` its ``default_joint_pos`` and ``action_scale``: the path a policy's action takes
+(``deploy.action_path``, ``OnnxPolicy.q_command``), the applied action kept in float32 as there. The runtime
+starts its filter at the action of its HOLD target, the command source's ``hold_pose`` or else the policy's
+(``q_command(0)``: action 0); the song source names none, so ``f[-1] = 0``. Joints the policy does not drive
+are at 0, as ``q_command`` pins them. Not clipped to the joint limits (the supervisor clips ``q_cmd``; the
+prior's poses are inside them).
 
 The reference is the same for every policy of a layout, whatever prior a policy was trained with: a
 fixed yardstick, not the file's own prior. A zero-MLP policy (``bench/piano_prior.py``) commands it exactly,
@@ -74,6 +75,10 @@ class KeyPoseReference:
     """The action filter's factor (``filter_alpha`` of the file's cutoff; 1: no filter)."""
     action_clip: float | None
     """The raw action's clip (the policy's ``action_clip``; None: not clipped)."""
+    keys_scale: float = 1.0
+    """``key_pressed``' observation scale."""
+    keys_clip: float = 1.0
+    """``key_pressed``' observation clip."""
 
     @classmethod
     def for_policy(
@@ -94,6 +99,7 @@ class KeyPoseReference:
             manager, keyboard or compact_config(), default[index], scale, LEAD_STEPS, config
         )
         term = next(t for t in manager.schema.terms if t.name == "target_keys")
+        keys = next(t for t in manager.schema.terms if t.name == "key_pressed")
         clip = getattr(policy, "action_clip", None)
         return cls(
             prior=prior,
@@ -104,6 +110,8 @@ class KeyPoseReference:
             action_scale=scale,
             alpha=filter_alpha(meta.action_filter_hz, policy.policy_dt),
             action_clip=None if clip is None else float(clip),
+            keys_scale=float(keys.scale),
+            keys_clip=float(keys.clip),
         )
 
     @property
@@ -111,21 +119,32 @@ class KeyPoseReference:
         """The filter's state when POLICY begins: action 0 (the policy's hold pose), float32 (n_actions,)."""
         return np.zeros(len(self.action_index), np.float32)
 
-    def action(self, target_keys: np.ndarray) -> np.ndarray:
-        """The prior's action for one ``target_keys`` term (goal keys, frame-major), clipped, float32."""
+    def action(self, target_keys: np.ndarray, key_pressed: np.ndarray | None = None) -> np.ndarray:
+        """The prior's action for one ``target_keys`` term and the tick's ``key_pressed``, clipped, float32.
+
+        ``target_keys``: goal keys, frame-major; ``key_pressed``: keys down, 0/1 (None: none), which the
+        release blend reads.
+        """
         x = np.clip(
             np.asarray(target_keys, np.float32) * np.float32(self.term_scale), -self.term_clip, self.term_clip
         )
         obs = np.zeros(self.prior.stop, np.float32)
-        obs[self.prior.start :] = x
+        obs[self.prior.start : self.prior.start + x.size] = x
+        if key_pressed is not None and self.prior.stop > self.prior.start + x.size:
+            k = np.asarray(key_pressed, np.float32)
+            obs[self.prior.stop - k.size :] = np.clip(
+                k * np.float32(self.keys_scale), -self.keys_clip, self.keys_clip
+            )
         a = np.asarray(self.prior.apply(obs), np.float32)
         if self.action_clip is not None:
             a = np.minimum(np.maximum(a, np.float32(-self.action_clip)), np.float32(self.action_clip))
         return a
 
-    def filtered(self, state: np.ndarray, target_keys: np.ndarray) -> np.ndarray:
-        """One filter step from ``state`` towards ``action(target_keys)``, float32 (as ``ActionPath``)."""
-        a = self.action(target_keys)
+    def filtered(
+        self, state: np.ndarray, target_keys: np.ndarray, key_pressed: np.ndarray | None = None
+    ) -> np.ndarray:
+        """One filter step from ``state`` towards ``action(target_keys, key_pressed)`` (as ``ActionPath``)."""
+        a = self.action(target_keys, key_pressed)
         if self.alpha == 1.0:
             return a
         return lowpass_step(state.astype(np.float64), a.astype(np.float64), self.alpha).astype(np.float32)

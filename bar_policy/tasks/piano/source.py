@@ -137,7 +137,7 @@ class SongCommands(CommandSource):
         self._pressed = np.asarray(self.keys.read(t), bool)
         target = self.down[s : s + TARGET_FRAMES].reshape(-1).astype(np.float32)
         if self.reference is not None and self._t0 is not None:  # one filter step per POLICY tick
-            self._ref_state = self.reference.filtered(self._ref_state, target)
+            self._ref_state = self.reference.filtered(self._ref_state, target, self._pressed)
         return {
             "target_keys": target,
             "progress": np.array([s / self.scale], np.float32),
