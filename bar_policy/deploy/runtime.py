@@ -72,7 +72,7 @@ from bar_policy.deploy.targets.base import JointState, StopReport, Target
 from bar_policy.deploy.timing import TimingStats, sleep_until
 from bar_policy.quality import QualityMeter
 from bar_policy.robot.kinematics import Kinematics
-from bar_policy.robot.mit import mit_torque
+from bar_policy.robot.mit import MitCommand, mit_torque
 from bar_policy.tasks.interfaces import CommandSource
 
 __all__ = ["RunResult", "Runtime", "RuntimeConfig", "TimingStats", "sleep_until"]
@@ -166,6 +166,8 @@ class Runtime(RunLoop):
         """Safety and smoothness of the POLICY ticks (``bar_policy.quality``)."""
         self.last_state: JointState | None = None
         self.last_commands: dict[str, np.ndarray] = {}
+        self.last_command: MitCommand | None = None
+        """The MIT command the last tick wrote (after the supervisor's clip and any fault's damping)."""
         self._end_t: float | None = None
         """Target time the run started to end (first fault or stop request), s."""
         self._end_reason = ""
@@ -321,6 +323,7 @@ class Runtime(RunLoop):
             cmd = sf.command(t, q_policy)
             demand = mit_torque(cmd, state.q, state.dq)
         self.target.write_command(cmd)
+        self.last_command = cmd
         compute = time.perf_counter() - t_start
         return {
             "t": t,

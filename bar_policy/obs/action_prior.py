@@ -166,8 +166,12 @@ class BlendPrior:
 
     def apply(self, obs: Array) -> Array:
         """The prior action, shape ``(..., A)``, for observations of shape ``(..., obs)`` (numpy or jax)."""
-        xp = array_namespace(obs)
-        x = xp.maximum(obs[..., self.start : self.stop], 0.0)
+        return self.blend(obs[..., self.start : self.stop])
+
+    def blend(self, entries: Array) -> Array:
+        """The prior action, shape ``(..., A)``, of the entries it reads: ``obs[..., start:stop]``."""
+        xp = array_namespace(entries)
+        x = xp.maximum(entries, 0.0)
         f32 = np.float32
         total = 0.0
         for i in range(np.shape(self.numer)[0]):
@@ -227,7 +231,7 @@ def reference_prior(
     scale = np.asarray(scale, np.float64).reshape(n)
     if not np.all(scale > 0):
         raise ValueError("scale must be > 0 rad per action unit")
-    term = next(t for t in manager.schema.terms if t.name == "motion_joint_pos")
+    term = manager.term("motion_joint_pos")
     start = manager.term_slice("motion_joint_pos").start + (lead_steps - 1) * n
     # obs = term.scale * q_ref (no default offset on this term)  =>  a = (obs / term.scale - default) / scale
     return ActionPrior(

@@ -261,6 +261,7 @@ class ObservationManager:
         self.schema = schema
         self._default = np.asarray(schema.default_joint_pos, dtype=np.float32)
         slices = {}
+        self._terms = {t.name: t for t in schema.terms}
         start = 0
         for t in schema.terms:
             slices[t.name] = slice(start, start + t.size)
@@ -319,9 +320,14 @@ class ObservationManager:
 
     def term_slice(self, name: str) -> slice:
         """Where a term sits in the observation vector."""
-        if name not in self._slices:
-            raise ValueError(f"no term {name!r} in layout {self.schema.name}; terms: {list(self._slices)}")
+        self.term(name)
         return self._slices[name]
+
+    def term(self, name: str) -> ObsTerm:
+        """A term of the layout by name (its size, scale, clip, offset)."""
+        if name not in self._terms:
+            raise ValueError(f"no term {name!r} in layout {self.schema.name}; terms: {list(self._terms)}")
+        return self._terms[name]
 
     def to_json(self) -> str:
         """Schema JSON."""

@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from piano_blend import hand_blend
 
 from bar_policy.quality.metrics import chatter_mrad
 from bar_policy.tasks.piano.env import LitePiano, nominal_config
@@ -141,31 +142,6 @@ def prior_run(rollout, start) -> dict:
     return jax.tree.map(np.asarray, out)
 
 
-def _hand_blend(frames: dict[int, list[int]], default: np.ndarray, kb) -> np.ndarray:
-    """The key-pose blend of goal keys ``{frame: [midi, ...]}`` worked out here, action units (14,), float64.
-
-    Per arm: sum_j w_j (pose_j - default) / scale over its keys / (sum_j w_j + rest), w_j = decay ** frame,
-    pose = press for frames 0..2, hover later; a hand is left below middle C. Plus the edge blend: per
-    key, c_j (press - hover) / scale with c_0 = -0.45 and c_2 (the lead) = +0.45, the other frames 0.
-    Clipped to +-0.99.
-    """
-    pc = KeyPosePriorConfig()
-    edge = {0: -0.45, 2: 0.45}
-    assert pc.edge_gain == 0.45 and pc.edge_weights is None
-    poses = key_poses(kb)
-    num, den, lin = np.zeros(14), np.full(14, pc.rest_weight), np.zeros(14)
-    for j, midis in frames.items():
-        for m in midis:
-            k = m - kb.lowest
-            arm = np.arange(7) + (0 if m < 60 else 7)
-            pose = poses.press[k] if j <= 2 else poses.hover[k]
-            w = pc.decay**j
-            num[arm] += w * (pose[arm] - default[arm]) / SCALE
-            den[arm] += w
-            lin[arm] += edge.get(j, 0.0) * (poses.press[k, arm] - poses.hover[k, arm]) / SCALE
-    return np.clip(num / den + lin, -0.99, 0.99)
-
-
 def _frames(window: np.ndarray, kb) -> dict[int, list[int]]:
     """``{frame: [midi, ...]}`` of a (TARGET_FRAMES, keys) goal window."""
     w = np.asarray(window).reshape(TARGET_FRAMES, PIANO_KEYS)
@@ -214,7 +190,7 @@ def test_reference_of_hand_made_windows(env, start) -> None:
     action = jax.jit(env.reference_action)
     f = np.asarray(start.info["ref_act"], np.float64)  # the env's start: pose_action of the held pose
     for frames in ({0: [48], 3: [60]}, {2: [60], 5: [64]}):
-        a = _hand_blend(frames, default, kb)
+        a = hand_blend(frames, default, kb, SCALE)
         np.testing.assert_allclose(np.asarray(action(window(frames))), a, rtol=0, atol=blend_tol(2))
         f = f + ALPHA * (a - f)
     assert np.abs(f * SCALE)[:7].max() > 1e-3 and np.abs(f * SCALE)[7:].max() > 1e-3  # both arms moved
@@ -233,7 +209,7 @@ def test_reference_hook_on_the_songs_windows(env, start, k_max) -> None:
     for t in steps:
         f = rng.uniform(-0.5, 0.5, 14).astype(np.float32)
         info = {**start.info, "step": jnp.int32(t), "ref_act": jnp.asarray(f)}
-        a = _hand_blend(_frames(env.bank.down[0, t : t + TARGET_FRAMES], kb), default, kb)
+        a = hand_blend(_frames(env.bank.down[0, t : t + TARGET_FRAMES], kb), default, kb, SCALE)
         want = default + SCALE * (f + ALPHA * (a - f))
         tol = q_tol(k_max, blend_tol(k_max))
         np.testing.assert_allclose(np.asarray(hook(info)), want, rtol=0, atol=tol, err_msg=f"step {t}")

@@ -26,6 +26,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parents[1] / "deploy"))
+from piano_blend import hand_blend
 from policy_factory import default_metadata
 
 from bar_policy.deploy.cli import main
@@ -37,7 +38,7 @@ from bar_policy.quality.metrics import chatter_mrad
 from bar_policy.robot.constants import load_robot
 from bar_policy.tasks.piano.bank import PlaybackConfig
 from bar_policy.tasks.piano.keyboard import compact_config
-from bar_policy.tasks.piano.prior import KeyPosePriorConfig, key_pose_prior, key_poses
+from bar_policy.tasks.piano.prior import key_pose_prior
 from bar_policy.tasks.piano.reference import LEAD_STEPS, KeyPoseReference
 from bar_policy.tasks.piano.songs import Note, Song
 from bar_policy.tasks.piano.source import SongCommands
@@ -159,31 +160,6 @@ def test_a_nyquist_alternation_is_its_amplitude() -> None:
     )
 
 
-def _hand_blend(frames: dict[int, list[int]], default: np.ndarray) -> np.ndarray:
-    """The key-pose blend of goal keys ``{frame: [midi, ...]}`` worked out here, action units (14,).
-
-    Per arm: sum_j w_j (pose_j - default) / scale over its keys / (sum_j w_j + rest), w_j = decay ** frame,
-    pose = press for frames 0..lead, hover later; a hand is left below middle C. Plus the edge blend: per
-    key, c_j (press - hover) / scale with c_0 = -0.45 and c_2 (the lead) = +0.45, the other frames 0.
-    Clipped to +-0.99.
-    """
-    pc = KeyPosePriorConfig()
-    edge = {0: -0.45, 2: 0.45}
-    assert pc.edge_gain == 0.45 and pc.edge_weights is None
-    poses = key_poses(KB)
-    num, den, lin = np.zeros(14), np.full(14, pc.rest_weight), np.zeros(14)
-    for j, midis in frames.items():
-        for m in midis:
-            k = m - KB.lowest
-            arm = np.arange(7) + (0 if m < 60 else 7)
-            pose = poses.press[k] if j <= 2 else poses.hover[k]
-            w = pc.decay**j
-            num[arm] += w * (pose[arm] - default[arm]) / SCALE
-            den[arm] += w
-            lin[arm] += edge.get(j, 0.0) * (poses.press[k, arm] - poses.hover[k, arm]) / SCALE
-    return np.clip(num / den + lin, -0.99, 0.99)
-
-
 def test_reference_of_a_hand_made_window(prior_file) -> None:
     """Two ticks of hand-made goal keys: the reference is the hand blend through the filter from action 0.
 
@@ -208,7 +184,7 @@ def test_reference_of_a_hand_made_window(prior_file) -> None:
     f = np.zeros(14)
     state = ref.start
     for frames in ticks:
-        a = _hand_blend(frames, default)
+        a = hand_blend(frames, default, KB, SCALE)
         np.testing.assert_allclose(ref.action(window(frames)), a, rtol=0, atol=1e-6)
         f = f + ALPHA * (a - f)
         state = ref.filtered(state, window(frames))
@@ -250,7 +226,7 @@ def test_song_source_steps_the_reference_once_per_policy_tick(prior_file) -> Non
     f = np.zeros(14)
     for s in range(4):
         frames = {j: [60] for j in range(max(1 - s, 0), 10 - s)}
-        f = f + ALPHA * (_hand_blend(frames, default) - f)
+        f = f + ALPHA * (hand_blend(frames, default, KB, SCALE) - f)
         src(1.0 + s * DT)
         np.testing.assert_allclose(src.target_q(), default + SCALE * f, rtol=0, atol=1e-6)
         np.testing.assert_array_equal(src.record()["ref_q"], src.target_q())

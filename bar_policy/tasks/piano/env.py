@@ -40,7 +40,6 @@ and the initial-state noise are the robot env's (``bar_policy.envs.robot``); the
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from dataclasses import dataclass, field
 
@@ -62,7 +61,7 @@ from bar_policy.tasks.piano.bank import PlaybackConfig, song_bank, training_song
 from bar_policy.tasks.piano.held import held_pose
 from bar_policy.tasks.piano.keyboard import KeyboardConfig, compact_config, key_table, press_thresholds
 from bar_policy.tasks.piano.prior import KeyPosePriorConfig, key_pose_prior
-from bar_policy.tasks.piano.reference import LEAD_STEPS
+from bar_policy.tasks.piano.reference import LEAD_STEPS, prior_entries
 from bar_policy.tasks.piano.scene import keyboard_scene
 from bar_policy.tasks.piano.song_library import TRAIN
 from bar_policy.tasks.piano.terms import PIANO_KEYS, TARGET_FRAMES
@@ -204,33 +203,23 @@ class LitePiano(LiteRobotEnv):
         )
 
     @functools.cached_property
-    def _reference_blend(self) -> tuple[BlendPrior, tuple[float, float], tuple[float, float]]:
-        """``(reference_prior from target_keys' first entry (start 0), its (scale, clip), key_pressed's)``."""
-        terms = {t.name: t for t in self.obs_manager.schema.terms}
-        tk, kp = terms["target_keys"], terms["key_pressed"]
-        prior = dataclasses.replace(self.reference_prior, start=0)
-        return prior, (float(tk.scale), float(tk.clip)), (float(kp.scale), float(kp.clip))
+    def _reference_terms(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """``(scale, clip)`` of ``target_keys`` and of ``key_pressed`` (``reference.prior_entries``)."""
+        tk, kp = self.obs_manager.term("target_keys"), self.obs_manager.term("key_pressed")
+        return (float(tk.scale), float(tk.clip)), (float(kp.scale), float(kp.clip))
 
     def reference_action(self, target_keys: jax.Array, key_pressed: jax.Array | None = None) -> jax.Array:
         """The key-pose prior's action for one ``target_keys`` window and the keys down, float32.
 
         ``target_keys``: goal keys 0/1, frame-major; ``key_pressed``: keys down 0/1 (None: none), which the
-        release blend reads. The terms as the observation carries them (``clip(scale * goal, -clip, clip)``),
-        then the blend (``BlendPrior.apply``, jnp); not yet clipped to the action range.
+        release blend reads. The terms as the observation carries them (``reference.prior_entries``, the
+        deploy side's assembly), then the blend (``BlendPrior.blend``, jnp); not yet clipped to the action
+        range.
         """
-        prior, (scale, clip), (k_scale, k_clip) = self._reference_blend
-        x = jnp.clip(jnp.asarray(target_keys, jnp.float32).reshape(-1) * scale, -clip, clip)
-        n_in = prior.stop
-        if n_in > x.shape[0]:  # progress (not read) and key_pressed
-            n_keys = self.config.keyboard.n_keys
-            k = (
-                jnp.zeros(n_keys, jnp.float32)
-                if key_pressed is None
-                else jnp.asarray(key_pressed, jnp.float32)
-            )
-            k = jnp.clip(k * k_scale, -k_clip, k_clip)
-            x = jnp.concatenate([x, jnp.zeros(n_in - x.shape[0] - n_keys, jnp.float32), k])
-        return prior.apply(x)
+        prior = self.reference_prior
+        target, keys = self._reference_terms
+        x = prior_entries(jnp.asarray(target_keys), key_pressed, prior.stop - prior.start, target, keys)
+        return prior.blend(x)
 
     def reference_state(self, info: dict) -> jax.Array:
         """The reference's filter state after the step of ``info``: one step of the env's action path.

@@ -167,7 +167,6 @@ def evaluate(
     sim = target or runner.target(scene=keyboard_scene(kb))
     q0 = held_pose(policy.robot.pose("piano_ready"), policy.robot.mode)  # as the env starts
     reference = KeyPoseReference.for_policy(policy, kb)
-    robot = policy.robot
     results = []
     for song in songs:
         sim.reset(q0)
@@ -189,8 +188,7 @@ def evaluate(
                 return
             d.append(c.record()["keys_down"])
             g.append(c.goal_now())
-            # The tick's q_cmd as the supervisor sent it: the applied action's command, clipped to the limits.
-            qc.append(np.clip(rt.policy.q_command(rt.last_action), robot.lower, robot.upper))
+            qc.append(rt.last_command.q)  # the tick's q_cmd as the supervisor wrote it
 
         duration = commands.song_steps * policy.policy_dt + END_HOLD_S + 1.0
         res = runner.run(sim, commands, duration, on_tick=score)

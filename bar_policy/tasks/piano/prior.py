@@ -222,10 +222,8 @@ def key_poses(
             found = None
             for tilt in TILTS:
                 for q0 in (q_prev, q_ready):  # the usual posture, piano_ready
-                    qh, eh = checker.solve(name, targets[0], q0, tilt)
-                    qp, ep = checker.solve(name, targets[1], qh, tilt)
-                    if max(eh, ep) <= 0.002 and checker.valid(qh, name):
-                        found = (qh, qp)
+                    found = _pose_pair(checker, name, targets, q0, tilt)
+                    if found is not None:
                         break
                 if found is None:
                     found = _other_posture(checker, name, targets, near, q_ready, arm, cap, tilt)
@@ -242,6 +240,23 @@ def key_poses(
 
 POSTURE_OFFSETS: tuple[float, ...] = (-0.2, 0.2, -0.4, 0.4)
 """Offsets, rad, of one arm joint from ``piano_ready`` that make the other postures ``key_poses`` tries."""
+
+
+def _pose_pair(
+    checker: ReachChecker,
+    name: str,
+    targets: tuple[np.ndarray, np.ndarray],
+    q0: np.ndarray,
+    tilt: float,
+    posture: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Hover, then press IK poses from ``q0`` at finger ``tilt`` (None: no valid pair).
+
+    Valid: both reach within 2 mm and the hover pose passes ``ReachChecker.valid``.
+    """
+    qh, eh = checker.solve(name, targets[0], q0, tilt, posture=posture)
+    qp, ep = checker.solve(name, targets[1], qh, tilt, posture=posture)
+    return (qh, qp) if max(eh, ep) <= 0.002 and checker.valid(qh, name) else None
 
 
 def _other_posture(
@@ -265,12 +280,11 @@ def _other_posture(
         for dv in POSTURE_OFFSETS:
             posture = q_ready.copy()
             posture[j] += dv
-            qh, eh = checker.solve(name, targets[0], near, tilt, posture=posture)
-            qp, ep = checker.solve(name, targets[1], qh, tilt, posture=posture)
-            if max(eh, ep) <= 0.002 and checker.valid(qh, name):
-                cost = float(np.max(np.abs(qh - near)[arm] / cap[arm]))
+            pair = _pose_pair(checker, name, targets, near, tilt, posture)
+            if pair is not None:
+                cost = float(np.max(np.abs(pair[0] - near)[arm] / cap[arm]))
                 if cost < best_cost:
-                    best, best_cost = (qh, qp), cost
+                    best, best_cost = pair, cost
     return best
 
 
@@ -306,7 +320,7 @@ def key_pose_prior(
         raise ValueError(
             f"target_keys has {sl.stop - sl.start} entries, {TARGET_FRAMES} x {n_keys} keys expected"
         )
-    term = next(t for t in manager.schema.terms if t.name == "target_keys")
+    term = manager.term("target_keys")
     default, scale = np.asarray(default, np.float64), np.asarray(scale, np.float64)
     n = default.shape[0]
     edge = pc.edge_factors(lead_steps)
@@ -315,7 +329,7 @@ def key_pose_prior(
     n_in = TARGET_FRAMES * n_keys
     if pc.release_gain > 0:
         kp_sl = manager.term_slice("key_pressed")
-        kp_term = next(t for t in manager.schema.terms if t.name == "key_pressed")
+        kp_term = manager.term("key_pressed")
         n_in = kp_sl.stop - sl.start
         rank = np.zeros(n_keys, int)
         for h in (0, 1):

@@ -12,10 +12,11 @@ against the key-pose reference"):
     q_ref[k] = default + scale * f[k]                                 (rad, the joints the policy drives)
 
 with ``prior`` the key-pose prior (``prior.key_pose_prior``: ``KeyPosePriorConfig()`` defaults, the preset's
-``network.prior_lead_steps``) over the policy's layout, evaluated in numpy (``BlendPrior.apply``) on the
-tick's ``target_keys`` and ``key_pressed`` observation terms (the prior's release blend lifts a key held
-down off its goal: the reference reads the keys the policy reads), ``c`` the policy's action clip, ``alpha``
-the policy file's action filter (``robot.action_filter``, cutoff ``bar.action_filter``; 1 without one),
+``network.prior_lead_steps``) over the policy's layout, evaluated in numpy (``BlendPrior.blend`` of
+``prior_entries``) on the tick's ``target_keys`` and ``key_pressed`` observation terms (the prior's
+release blend lifts a key held down off its goal: the reference reads the keys the policy reads), ``c``
+the policy's action clip, ``alpha`` the policy file's action filter (``robot.action_filter``, cutoff
+``bar.action_filter``; 1 without one),
 ``default`` and ``scale`` its ``default_joint_pos`` and ``action_scale``: the path a policy's action takes
 (``deploy.action_path``, ``OnnxPolicy.q_command``), the applied action kept in float32 as there. The runtime
 starts its filter at the action of its HOLD target, the command source's ``hold_pose`` or else the policy's
@@ -36,6 +37,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from bar_policy._array import Array, array_namespace
 from bar_policy.robot.action_filter import filter_alpha, lowpass_step
 from bar_policy.tasks.piano.keyboard import KeyboardConfig, compact_config
 from bar_policy.tasks.piano.preset import PIANO
@@ -45,10 +47,39 @@ if TYPE_CHECKING:
     from bar_policy.obs.action_prior import BlendPrior
     from bar_policy.tasks.episodes import Policy
 
-__all__ = ["LEAD_STEPS", "KeyPoseReference"]
+__all__ = ["LEAD_STEPS", "KeyPoseReference", "prior_entries"]
 
 LEAD_STEPS = int(PIANO["network.prior_lead_steps"])  # type: ignore[call-overload]
 """Goal-key frames ``0..LEAD_STEPS`` press in the reference: the preset's ``network.prior_lead_steps``."""
+
+
+def prior_entries(
+    target_keys: Array,
+    key_pressed: Array | None,
+    n_entries: int,
+    target_term: tuple[float, float],
+    keys_term: tuple[float, float],
+) -> Array:
+    """The observation entries the key-pose prior reads (``obs[prior.start:prior.stop]``), float32.
+
+    ``target_keys`` (goal keys 0/1, frame-major) first, as the observation carries it
+    (``clip(scale * goal, -clip, clip)``, ``target_term`` = its ``(scale, clip)``); when the prior reads
+    more (``n_entries`` beyond it: the release blend), zeros for the terms between (``progress``, not read)
+    and ``key_pressed`` (keys down 0/1, ``keys_term`` its ``(scale, clip)``; None: none down) last.
+    numpy or jax, shape ``(n_entries,)``: the one assembly for the deploy side (``KeyPoseReference``) and
+    the env (``LitePiano.reference_action``).
+    """
+    xp = array_namespace(target_keys) if key_pressed is None else array_namespace(target_keys, key_pressed)
+    scale, clip = target_term
+    x = xp.clip(xp.reshape(xp.asarray(target_keys, dtype=xp.float32), (-1,)) * scale, -clip, clip)
+    if n_entries == x.shape[0]:
+        return x
+    if key_pressed is None:
+        return xp.concatenate([x, xp.zeros(n_entries - x.shape[0], xp.float32)])
+    k_scale, k_clip = keys_term
+    k = xp.clip(xp.reshape(xp.asarray(key_pressed, dtype=xp.float32), (-1,)) * k_scale, -k_clip, k_clip)
+    gap = xp.zeros(n_entries - x.shape[0] - k.shape[0], xp.float32)
+    return xp.concatenate([x, gap, k])
 
 
 @dataclass(frozen=True)
@@ -98,8 +129,8 @@ class KeyPoseReference:
         prior = key_pose_prior(
             manager, keyboard or compact_config(), default[index], scale, LEAD_STEPS, config
         )
-        term = next(t for t in manager.schema.terms if t.name == "target_keys")
-        keys = next(t for t in manager.schema.terms if t.name == "key_pressed")
+        term = manager.term("target_keys")
+        keys = manager.term("key_pressed")
         clip = getattr(policy, "action_clip", None)
         return cls(
             prior=prior,
@@ -125,17 +156,14 @@ class KeyPoseReference:
         ``target_keys``: goal keys, frame-major; ``key_pressed``: keys down, 0/1 (None: none), which the
         release blend reads.
         """
-        x = np.clip(
-            np.asarray(target_keys, np.float32) * np.float32(self.term_scale), -self.term_clip, self.term_clip
+        x = prior_entries(
+            np.asarray(target_keys),
+            None if key_pressed is None else np.asarray(key_pressed),
+            self.prior.stop - self.prior.start,
+            (self.term_scale, self.term_clip),
+            (self.keys_scale, self.keys_clip),
         )
-        obs = np.zeros(self.prior.stop, np.float32)
-        obs[self.prior.start : self.prior.start + x.size] = x
-        if key_pressed is not None and self.prior.stop > self.prior.start + x.size:
-            k = np.asarray(key_pressed, np.float32)
-            obs[self.prior.stop - k.size :] = np.clip(
-                k * np.float32(self.keys_scale), -self.keys_clip, self.keys_clip
-            )
-        a = np.asarray(self.prior.apply(obs), np.float32)
+        a = np.asarray(self.prior.blend(x), np.float32)
         if self.action_clip is not None:
             a = np.minimum(np.maximum(a, np.float32(-self.action_clip)), np.float32(self.action_clip))
         return a
