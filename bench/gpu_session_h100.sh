@@ -6,8 +6,9 @@
 #                      -> where an iteration's time goes (bench/train_breakdown.py)
 #   rsl      (~8 min): the rsl-rl backend, --max-minutes 5, same env and config, then where an rsl-rl
 #                      iteration's time goes (bench/rsl_rl_profile.py)
-#   flags    (~3 min, optional): a cold start with XLA_FLAGS=$FLAGS (default --xla_gpu_autotune_level=0),
-#                      to compare compile times with the startup part's cold run
+#   flags    (~4 min): two cold starts in one call (compile time varies between hosts by ~25 s, so the
+#                      baseline runs beside the variant): XLA's defaults, then XLA_FLAGS=$FLAGS (default: no
+#                      autotuning, the LLVM module split over 16 threads); then bench/rsl_rl_profile.py
 #   smoke             : CPU logic check of startup and rsl with tiny sizes (not for the GPU)
 #
 # Every training run is `python3 train/ppo.py` with the default (gpu) preset, a wall-clock budget
@@ -83,11 +84,21 @@ rsl() {
 }
 
 flags() {
-  export XLA_FLAGS="${FLAGS:---xla_gpu_autotune_level=0}"
-  rm -rf "$WORK/jaxcache_flags"
-  ppo "cold_flags" 200 --compile-cache-dir "$WORK/jaxcache_flags" --max-minutes "${COLD_MIN:-2.2}"
-  echo "XLA_FLAGS=$XLA_FLAGS" > "$WORK/flags.md"
-  finish flags "$RUNS/cold_flags" --append "$WORK/flags.md"
+  local par="--xla_gpu_enable_llvm_module_compilation_parallelism=true --xla_gpu_force_compilation_parallelism=16"
+  rm -rf "$WORK/jaxcache_base" "$WORK/jaxcache_flags"
+  ppo "cold_base" 200 --compile-cache-dir "$WORK/jaxcache_base" --max-minutes "${COLD_MIN:-1.8}"
+  finish flags "$RUNS/cold_base" > /dev/null
+  XLA_FLAGS="${FLAGS:---xla_gpu_autotune_level=0 $par}" \
+    ppo "cold_flags" 200 --compile-cache-dir "$WORK/jaxcache_flags" --max-minutes "${COLD_MIN:-1.8}"
+  echo "XLA_FLAGS=${FLAGS:---xla_gpu_autotune_level=0 $par} (cold_flags; cold_base: none)" > "$WORK/flags.md"
+  finish flags "$RUNS/cold_base" "$RUNS/cold_flags" --append "$WORK/flags.md" > /dev/null
+  stamp "rsl-rl profile"
+  local pr=""
+  [ -n "$SMOKE" ] && pr="--preset tiny --iters 1"
+  JAX_COMPILATION_CACHE_DIR=$WORK/jaxcache_base timeout -k 10 $((190 * TS)) python3 bench/rsl_rl_profile.py $pr \
+    --out "$WORK/rsl_profile.md" > "$WORK/rsl_profile.log" 2>&1
+  stamp "rsl-rl profile exit $?"
+  finish flags "$RUNS/cold_base" "$RUNS/cold_flags" --append "$WORK/flags.md" "$WORK/rsl_profile.md"
 }
 
 finish() {  # finish PART RUN_DIRS... [--append FILES...]
