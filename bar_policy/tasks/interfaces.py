@@ -155,6 +155,9 @@ class DeployTask(abc.ABC):
     """``bar-deploy eval`` options of this task: (option string, argparse dest)."""
     default_duration: ClassVar[float | None] = 10.0
     """Run length when ``--duration`` is not given, s (None: until the commands end or a stop)."""
+    example_run: ClassVar[tuple[str, ...]] = ()
+    """``bar-deploy run`` options of a short demonstration run (the shipped files' mock-target test runs each
+    shipped file with its task's)."""
     seed_help: ClassVar[str] = ""
     """What ``bar-deploy --seed`` seeds in this task (empty: nothing); the CLI's help joins them."""
 

@@ -18,6 +18,7 @@ import pytest
 from blocked_imports import BLOCK_HEAVY
 
 from bar_policy.deploy.cli import main
+from bar_policy.deploy.tasks import get_task
 from bar_policy.motion import clip_set
 from bar_policy.obs import ObservationManager
 
@@ -64,15 +65,12 @@ def test_shipped_files_are_small(path):
     assert path.stat().st_size < 1_000_000
 
 
-RUN_ARGS = {"reach": ["--commands", "sampled"], "track": ["--motion", "wave"]}
-"""Each shipped task's command source for the mock run below."""
-
-
 def test_every_shipped_policy_runs_on_the_mock_target_with_jax_and_torch_blocked(tmp_path):
     """The deploy side of every task (its command source, the runtime, the log) needs no training stack."""
     files = sorted(CHECKPOINTS.glob("*.onnx"))
     tasks = {str(p): json.loads(_metadata(p)["bar.task"]) for p in files}
-    assert set(tasks.values()) <= set(RUN_ARGS), tasks
+    examples = {name: list(get_task(name).example_run) for name in set(tasks.values())}
+    assert all(examples.values()), examples  # every shipped task names its demonstration run
     script = BLOCK_HEAVY + (
         "import json, sys\n"
         "from bar_policy.deploy.cli import main\n"
@@ -83,7 +81,7 @@ def test_every_shipped_policy_runs_on_the_mock_target_with_jax_and_torch_blocked
         "    assert main(argv) == 0, path\n"
         "print('jax' in sys.modules, 'torch' in sys.modules)\n"
     )
-    runs = {path: RUN_ARGS[task] for path, task in tasks.items()}
+    runs = {path: examples[task] for path, task in tasks.items()}
     out = subprocess.run(
         [sys.executable, "-c", script, json.dumps(runs), str(tmp_path / "runs")],
         capture_output=True,

@@ -104,6 +104,7 @@ class PianoTask(DeployTask):
     summary = "play the keyboard"
     usage = "give --song NAME|PATH (a library song, a song .json or a .mid file)"
     run_options = (("--song", "song"), ("--keys", "keys"))
+    example_run = ("--song", "ode_to_joy")
     eval_options = (("--songs", "songs"),)
     default_duration = None
 

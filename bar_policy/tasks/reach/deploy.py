@@ -38,6 +38,7 @@ class ReachTask(DeployTask):
     summary = "fingertip targets"
     usage = f"give --commands {_SPECS} (default sampled)"
     run_options = (("--commands", "commands"),)
+    example_run = ("--commands", "sampled")
     eval_options = (
         ("--episodes", "episodes"),
         ("--seed", "eval_seed"),

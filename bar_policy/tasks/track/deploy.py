@@ -33,6 +33,7 @@ class TrackTask(DeployTask):
         "random-s<seed>-<index>; or an .npz / .csv clip file)"
     )
     run_options = (("--motion", "motion"), ("--motion-rate", "motion_rate"))
+    example_run = ("--motion", "wave")
     eval_options = (("--clips", "clips"), ("--hold-s", "hold_s"))
     default_duration = None
 
