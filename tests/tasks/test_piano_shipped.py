@@ -1,5 +1,5 @@
-"""The shipped piano policy, ``checkpoints/lite_piano_arms.onnx``: what it declares, and what it plays on the C
-MuJoCo sim target with the held-out songs (the path ``bar-deploy eval`` runs).
+"""The shipped piano policy, ``checkpoints/lite_piano_arms.onnx``: what it declares, and what it plays on the
+C MuJoCo sim target with the held-out songs (the path ``bar-deploy eval`` runs).
 
 The thresholds are issue 18's targets: F1 >= 0.9 on the held-out songs on the sim target (RoboPianist's step
 mean over all ticks), and the piano's ship gate (``bar_policy.tasks.piano.gate``: every song completed, at
