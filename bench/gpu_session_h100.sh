@@ -4,8 +4,9 @@
 #   startup  (~7 min, 9.7 at worst): cold start on an empty compilation cache -> the same command again (warm) ->
 #                      raw env throughput at the training batch (bench/mjx_throughput.py, harness c, 4096)
 #                      -> where an iteration's time goes (bench/train_breakdown.py)
-#   rsl      (~8 min): the rsl-rl backend, --max-minutes 5, same env and config, then where an rsl-rl
-#                      iteration's time goes (bench/rsl_rl_profile.py)
+#   rsl      (~8 min): the rsl-rl backend, --max-minutes 5, same env at the field's rsl-rl values
+#                      (--preset rsl; RSL_PRESET=gpu for brax's), then where an rsl-rl iteration's time
+#                      goes (bench/rsl_rl_profile.py, same preset)
 #   flags    (~4 min): two cold starts in one call (compile time varies between hosts by ~25 s, so the
 #                      baseline runs beside the variant): XLA's defaults, then XLA_FLAGS=$FLAGS (default: no
 #                      autotuning, the LLVM module split over 16 threads); then bench/rsl_rl_profile.py
@@ -71,13 +72,14 @@ startup() {
 }
 
 rsl() {
-  ppo rsl 450 --compile-cache-dir "$CACHE" --backend rsl-rl --max-minutes "${RSL_MIN:-5}"
+  # --preset rsl: the gpu preset at the field's rsl-rl values (RSL_PRESET=gpu: brax's values on rsl-rl)
+  ppo rsl 450 --compile-cache-dir "$CACHE" --preset "${RSL_PRESET:-rsl}" --backend rsl-rl --max-minutes "${RSL_MIN:-5}"
   grep -v "^WARNING" "$WORK/rsl.log" | grep "steps/s" | tail -n 3
   finish rsl "$RUNS/rsl" > /dev/null
   stamp "rsl-rl profile"
-  local pr=""
+  local pr="--preset ${RSL_PRESET:-rsl}"
   [ -n "$SMOKE" ] && pr="--preset tiny --iters 1"
-  JAX_COMPILATION_CACHE_DIR=$CACHE timeout -k 10 $((100 * TS)) python3 bench/rsl_rl_profile.py $pr \
+  JAX_COMPILATION_CACHE_DIR=$CACHE timeout -k 10 $((150 * TS)) python3 bench/rsl_rl_profile.py $pr \
     --out "$WORK/rsl_profile.md" > "$WORK/rsl_profile.log" 2>&1
   stamp "rsl-rl profile exit $?"
   finish rsl "$RUNS/rsl" --append "$WORK/rsl_profile.md"
@@ -112,6 +114,6 @@ case "$PART" in
   startup) startup ;;
   rsl) rsl ;;
   flags) flags ;;
-  smoke) COLD_MIN=8 WARM_MIN=8 startup; RSL_MIN=0.5 rsl ;;
+  smoke) COLD_MIN=8 WARM_MIN=8 startup; RSL_MIN=0.5 RSL_PRESET=tiny rsl ;;
   *) echo "unknown part $PART; parts: startup, rsl, flags, smoke"; exit 2 ;;
 esac

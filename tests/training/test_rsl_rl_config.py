@@ -53,3 +53,17 @@ def test_field_overrides_keep_24_steps_per_env_at_any_batch():
     for n in (32, 1024, 8192):
         o = field_overrides(n)
         assert o["ppo.batch_size"] * o["ppo.num_minibatches"] * o["ppo.unroll_length"] == 24 * n
+
+
+def test_rsl_preset_is_the_gpu_preset_at_the_fields_values():
+    """``--preset rsl`` (reach on rsl-rl as its users train it) = the gpu preset with ``FIELD_RSL_RL_PPO``."""
+    cfg = preset("rsl")
+    assert cfg.backend == "rsl-rl" and cfg.env_name == preset("gpu").env_name
+    assert dataclasses.replace(cfg, preset="gpu", backend="brax") == field_hyperparameters(preset("gpu"))
+    assert parse_config(["--preset", "rsl"]) == cfg
+    # rsl-rl's iteration: 4096 envs x 24 steps, 5 passes of 4 minibatches (FIELD_RSL_RL_PPO's values).
+    train_cfg = rsl_rl_train_cfg(cfg)
+    assert train_cfg["num_steps_per_env"] == 24
+    alg = train_cfg["algorithm"]
+    assert (alg["num_learning_epochs"], alg["num_mini_batches"]) == (5, 4)
+    assert train_cfg["actor"]["hidden_dims"] == [256, 128, 64] and train_cfg["actor"]["activation"] == "elu"
