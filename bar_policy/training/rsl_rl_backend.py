@@ -238,8 +238,13 @@ def train_rsl_rl(
     checkpoint_dir: str | None,
     config_record: dict[str, Any] | None = None,
     timer: StartupTimer | None = None,
+    eval_env: Any | None = None,
 ) -> RslRlTrainResult:
-    """Train with rsl-rl-lib's PPO on ``env``; same arguments and outputs as ``train_brax``."""
+    """Train with rsl-rl-lib's PPO on ``env``; same arguments and outputs as ``train_brax``.
+
+    ``eval_env``: the env the evaluations run (the task's held-out variant) on its nominal model, as brax's;
+    None: ``env`` with ``randomizer``.
+    """
     from flax import serialization
     from rsl_rl.runners import OnPolicyRunner
 
@@ -263,8 +268,9 @@ def train_rsl_rl(
     # Our loop records its own sums on the device (take_stats); extras["log"] is for OnPolicyRunner.learn.
     kw["log_metrics"] = False
     vec_env = RslRlVecEnv(env, ppo.num_envs, seed=cfg.seed, name="train step", **kw)
-    eval_env = RslRlVecEnv(
-        env, cfg.eval.num_eval_envs, seed=cfg.seed + 1, name="eval step", quality=True, **kw
+    e_env, e_kw = (env, kw) if eval_env is None else (eval_env, {**kw, "randomizer": None})
+    eval_vec = RslRlVecEnv(
+        e_env, cfg.eval.num_eval_envs, seed=cfg.seed + 1, name="eval step", quality=True, **e_kw
     )
     runner = OnPolicyRunner(vec_env, rsl_rl_train_cfg(cfg), log_dir=None, device=device)
     alg = runner.alg
@@ -297,7 +303,7 @@ def train_rsl_rl(
     def run_eval(step: int) -> None:
         alg.eval_mode()
         module = alg.actor.as_onnx(verbose=False).to(device).eval()
-        m = evaluate_torch_policy(lambda o: module(o), eval_env, episode_length, seed=cfg.seed + 1000 + step)
+        m = evaluate_torch_policy(lambda o: module(o), eval_vec, episode_length, seed=cfg.seed + 1000 + step)
         logger.record_eval(step, m, evals, ttt, cfg.eval.success_threshold)
         if keeper.offer(step, m, lambda: {k: v.detach().clone() for k, v in alg.actor.state_dict().items()}):
             logger.print(f"  best so far: the actor at {step:,} steps is kept")
@@ -376,7 +382,7 @@ def train_rsl_rl(
     alg.eval_mode()
     return RslRlTrainResult(
         actor=alg.actor,
-        eval_env=eval_env,
+        eval_env=eval_vec,
         episode_length=episode_length,
         env_steps=env_steps,
         run_env_steps=env_steps - start_steps,

@@ -237,6 +237,7 @@ def test_tiny_track_run_trains_and_exports_the_reference_prior(tmp_path):
     summary = run(toy_config(tmp_path, "track-rsl", TINY_TRACK_RSL), env=env)
     result = summary.result
     assert summary.env_steps == 64 and result.prior is not None and result.eval_env.prior is result.prior
+    assert result.eval_env.task is not env  # evaluated on the held-out clips (evaluation_env), as brax
     assert summary.export["max_abs_error"] <= 1e-5  # the gate: torch actor + numpy prior vs the file
 
     layout = env.obs_manager
