@@ -77,7 +77,8 @@ class NetworkConfig:
     """What the policy's mean starts from (``bar_policy.obs.action_prior``): ``none`` (the MLP gives the
     whole action) or the prior the env serves (its record's ``EnvEntry.action_prior``, built by the env's
     ``action_prior``; e.g. the tracker's ``reference``, its reference pose ``prior_lead_steps`` ahead, read
-    from the observation); the MLP learns the correction. Brax backend; written into the ONNX graph."""
+    from the observation); the MLP learns the correction. Both backends (rsl-rl: the env adds the prior to
+    the Gaussian actor's action, ``training.rsl_rl_prior``); written into the ONNX graph."""
     prior_lead_steps: int = 5
     """Reference frame of the ``reference`` prior, control steps ahead (1..the layout's lookahead): 5 = 100
     ms, which the action filter's lag (53-64 ms at 2.5-3 Hz) and the PD law's need: with a zero MLP on the sim
@@ -87,7 +88,8 @@ class NetworkConfig:
     prior_noise_std: float | None = None
     """With an action prior: the policy's initial action noise std, pre-tanh action units (None: brax's
     init, softplus(0) = 0.69). A small one keeps the first policies near the prior (the piano preset's 0.1:
-    0.69 moves a fingertip several key widths)."""
+    0.69 moves a fingertip several key widths). rsl-rl backend: the Gaussian's initial std, action units
+    (replacing ``init_noise_std``)."""
 
     def __post_init__(self) -> None:
         if self.prior_noise_std is not None and not self.prior_noise_std > 0.001:

@@ -19,6 +19,12 @@ of 4 minibatches, max_grad_norm 1.0, value_loss_coef 1.0, init_noise_std 1.0, ac
 [256, 128, 64] elu with observation normalisation; ``rsl_rl_config.field_hyperparameters(cfg)`` applies
 them (``field_cli_flags`` gives the ``bar-train`` flags).
 
+Action prior (``network.action_prior``, e.g. the tracker's ``reference``): the env commands
+``prior(obs) + actor's action`` (``rsl_rl_prior`` gives the design and why rsl-rl's PPO is unchanged), the
+evaluations step envs with the same prior, and the exported file carries it in its graph (``MlpPolicy``'s
+``identity`` head plus the prior); the parity gate's reference adds it in numpy.
+``ppo.actor_warmup_iterations`` stays a brax-backend option.
+
 Speed: nothing in the rollout waits for the device. Actions and observations cross by DLPack on the
 device; the logged sums accumulate on the device (``RslRlVecEnv.take_stats`` reads them once per
 iteration). rsl-rl's own ``update`` still reads its losses and KL with ``.item()`` once per minibatch.
@@ -38,6 +44,7 @@ import numpy as np
 import torch
 
 from bar_policy.export import MlpPolicy, export_policy
+from bar_policy.obs.action_prior import Prior
 from bar_policy.training import startup_breakdown as sb
 from bar_policy.training.best import BestIterate, BestKeeper
 from bar_policy.training.checkpoint import latest_checkpoint, save_checkpoint
@@ -45,6 +52,7 @@ from bar_policy.training.config import TrainConfig
 from bar_policy.training.progress import RunLogger, next_would_overrun
 from bar_policy.training.rsl_rl_config import rsl_rl_train_cfg
 from bar_policy.training.rsl_rl_env import RslRlVecEnv
+from bar_policy.training.rsl_rl_prior import rsl_rl_prior, start_actor_at_prior
 from bar_policy.training.rsl_rl_state import (
     load_module_state,
     load_optimizer_state,
@@ -68,12 +76,13 @@ __all__ = [
 # ----------------------------------------------------------------------------------------------------------
 
 
-def mlp_policy_from_rsl_rl(actor: torch.nn.Module) -> MlpPolicy:
+def mlp_policy_from_rsl_rl(actor: torch.nn.Module, prior: Prior | None = None) -> MlpPolicy:
     """The deterministic policy of an rsl-rl ``MLPModel`` actor as an ``MlpPolicy``.
 
     Folds ``EmpiricalNormalization`` (``(x - mean) / (std + eps)``) into (mean, std + eps); reads the
     ``Linear`` layers of ``actor.mlp`` (kernel = weight.T); the Gaussian head's deterministic output is the
-    MLP output itself (``identity``).
+    MLP output itself (``identity``). ``prior``: the action prior the env added to the actor's actions in
+    training (``rsl_rl_prior``); the graph then outputs ``mlp(obs) + prior(obs)``, shape (batch, A).
     """
     norm = actor.obs_normalizer
     n = actor.obs_dim
@@ -106,16 +115,26 @@ def mlp_policy_from_rsl_rl(actor: torch.nn.Module) -> MlpPolicy:
         biases=tuple(biases),
         activation=acts.pop(),  # type: ignore[arg-type]
         head="identity",
+        prior=prior,
     )
 
 
-def torch_policy_reference(actor: torch.nn.Module) -> Callable[[np.ndarray], np.ndarray]:
-    """rsl-rl's own deterministic export module (``actor.as_onnx``) as a CPU float32 numpy function."""
+def torch_policy_reference(
+    actor: torch.nn.Module, prior: Prior | None = None
+) -> Callable[[np.ndarray], np.ndarray]:
+    """rsl-rl's own deterministic export module (``actor.as_onnx``) as a CPU float32 numpy function.
+
+    With ``prior``, adds ``prior.apply(obs)`` (numpy float32, independent of the ONNX graph's nodes): the
+    commanded action, (n, obs) -> (n, A), that the parity gate compares the file with.
+    """
     module = actor.as_onnx(verbose=False).to("cpu").eval()
 
     def fn(obs: np.ndarray) -> np.ndarray:
         with torch.inference_mode():
-            return module(torch.as_tensor(obs, dtype=torch.float32)).numpy()
+            out = module(torch.as_tensor(obs, dtype=torch.float32)).numpy()
+        if prior is not None:
+            out = out + prior.apply(np.asarray(obs, np.float32))
+        return out
 
     return fn
 
@@ -124,6 +143,8 @@ def evaluate_torch_policy(
     policy: Callable[[torch.Tensor], torch.Tensor], vec_env: RslRlVecEnv, episode_length: int, seed: int
 ) -> dict[str, float]:
     """Deterministic evaluation on ``vec_env`` (one episode per env from a fresh reset with ``seed``).
+
+    ``policy`` gives the actor's actions; an env with a ``prior`` adds it (prior + residual, as in training).
 
     Reports ``episode_reward`` (mean and std over envs), one ratio per entry of the task's
     ``eval_ratios`` (``success_rate`` always): sums of numerators over steps and envs / sums of
@@ -168,6 +189,8 @@ class RslRlTrainResult:
     """The best evaluated iterate of this run (its ``params`` is a copy of the actor's state dict)."""
     spare_actor: torch.nn.Module | None = None
     """An actor of the same structure that ``at`` loads other parameters into (the trained one is kept)."""
+    prior: Prior | None = None
+    """The action prior the envs add to the actor's actions (``rsl_rl_prior``; exported), None without one."""
 
     def at(self, state: dict[str, torch.Tensor]) -> RslRlTrainResult:
         """The same result with the actor parameters ``state`` (e.g. ``best.params``), to evaluate or export.
@@ -182,7 +205,7 @@ class RslRlTrainResult:
         return dataclasses.replace(self, actor=self.spare_actor)
 
     def policy_fn(self) -> Callable[[torch.Tensor], torch.Tensor]:
-        """Deterministic torch policy on the env's device."""
+        """Deterministic torch policy on the env's device: the actor's action (the env adds any prior)."""
         module = self.actor.as_onnx(verbose=False).to(self.eval_env.device).eval()
         return lambda obs: module(obs)
 
@@ -198,10 +221,10 @@ class RslRlTrainResult:
         return out
 
     def export_onnx(self, metadata: Any, path: str | Any) -> dict[str, Any]:
-        """Export with the parity gate against rsl-rl's own deterministic module."""
-        actor_cpu = self.actor
+        """Export with the parity gate against rsl-rl's own deterministic module (plus the prior)."""
+        actor, prior = self.actor, self.prior
         return export_policy(
-            mlp_policy_from_rsl_rl(actor_cpu), metadata, path, torch_policy_reference(actor_cpu)
+            mlp_policy_from_rsl_rl(actor, prior), metadata, path, torch_policy_reference(actor, prior)
         )
 
 
@@ -215,21 +238,22 @@ def train_rsl_rl(
     checkpoint_dir: str | None,
     config_record: dict[str, Any] | None = None,
     timer: StartupTimer | None = None,
+    eval_env: Any | None = None,
 ) -> RslRlTrainResult:
-    """Train with rsl-rl-lib's PPO on ``env``; same arguments and outputs as ``train_brax``."""
+    """Train with rsl-rl-lib's PPO on ``env``; same arguments and outputs as ``train_brax``.
+
+    ``eval_env``: the env the evaluations run (the task's held-out variant) on its nominal model, as brax's;
+    None: ``env`` with ``randomizer``.
+    """
     from flax import serialization
     from rsl_rl.runners import OnPolicyRunner
 
-    if cfg.network.action_prior != "none":
-        raise ValueError(
-            f"network.action_prior={cfg.network.action_prior!r} is a brax-backend network; the rsl-rl "
-            "backend's actor has none (valid here: none; or --backend brax)"
-        )
     if cfg.ppo.actor_warmup_iterations:
         raise ValueError(
             f"ppo.actor_warmup_iterations={cfg.ppo.actor_warmup_iterations} is a brax-backend option; the "
             "rsl-rl backend's PPO has no critic warm-up (valid here: 0; or --backend brax)"
         )
+    prior = rsl_rl_prior(env, cfg)  # refuses a prior the env does not serve, before any set-up
     if wrap_fn is None:
         from bar_policy.envs import wrap_for_brax_training as wrap_fn
     ppo = cfg.ppo
@@ -240,14 +264,18 @@ def train_rsl_rl(
     traced_before = timer.phases.get(sb.TRACE, 0.0) + timer.phases.get(sb.LOWER, 0.0)
     compiler = Compiler(timer)  # the training and evaluation steps compile side by side
     kw = {"wrap_fn": wrap_fn, "randomizer": randomizer, "device": device, "compiler": compiler}
+    kw["prior"] = prior  # both envs add it to the actor's actions
     # Our loop records its own sums on the device (take_stats); extras["log"] is for OnPolicyRunner.learn.
     kw["log_metrics"] = False
     vec_env = RslRlVecEnv(env, ppo.num_envs, seed=cfg.seed, name="train step", **kw)
-    eval_env = RslRlVecEnv(
-        env, cfg.eval.num_eval_envs, seed=cfg.seed + 1, name="eval step", quality=True, **kw
+    e_env, e_kw = (env, kw) if eval_env is None else (eval_env, {**kw, "randomizer": None})
+    eval_vec = RslRlVecEnv(
+        e_env, cfg.eval.num_eval_envs, seed=cfg.seed + 1, name="eval step", quality=True, **e_kw
     )
     runner = OnPolicyRunner(vec_env, rsl_rl_train_cfg(cfg), log_dir=None, device=device)
     alg = runner.alg
+    if prior is not None:
+        start_actor_at_prior(alg.actor)  # a resume loads its own parameters over it
     steps_per_env = ppo.steps_per_iteration // ppo.num_envs
     steps_per_iter = ppo.num_envs * steps_per_env
     total_iters = math.ceil(ppo.num_timesteps / steps_per_iter)
@@ -275,7 +303,7 @@ def train_rsl_rl(
     def run_eval(step: int) -> None:
         alg.eval_mode()
         module = alg.actor.as_onnx(verbose=False).to(device).eval()
-        m = evaluate_torch_policy(lambda o: module(o), eval_env, episode_length, seed=cfg.seed + 1000 + step)
+        m = evaluate_torch_policy(lambda o: module(o), eval_vec, episode_length, seed=cfg.seed + 1000 + step)
         logger.record_eval(step, m, evals, ttt, cfg.eval.success_threshold)
         if keeper.offer(step, m, lambda: {k: v.detach().clone() for k, v in alg.actor.state_dict().items()}):
             logger.print(f"  best so far: the actor at {step:,} steps is kept")
@@ -354,7 +382,7 @@ def train_rsl_rl(
     alg.eval_mode()
     return RslRlTrainResult(
         actor=alg.actor,
-        eval_env=eval_env,
+        eval_env=eval_vec,
         episode_length=episode_length,
         env_steps=env_steps,
         run_env_steps=env_steps - start_steps,
@@ -363,4 +391,5 @@ def train_rsl_rl(
         time_to_threshold_s=ttt[0] if ttt else None,
         best=keeper.best,
         spare_actor=spare_actor,
+        prior=prior,
     )

@@ -135,7 +135,11 @@ def field_cli_flags(num_envs: int) -> list[str]:
 def rsl_rl_train_cfg(cfg: TrainConfig) -> dict[str, Any]:
     """rsl-rl 5.x ``train_cfg`` dict for ``OnPolicyRunner`` from our config (mapping: ``RslRlConfig``)."""
     ppo, net, r = cfg.ppo, cfg.network, cfg.rsl_rl
-    dist = {"class_name": "GaussianDistribution", "init_std": net.init_noise_std, "std_type": "scalar"}
+    # With an action prior, network.prior_noise_std (when set) is the initial std, as on brax (rsl_rl_prior).
+    std = net.init_noise_std
+    if net.action_prior != "none" and net.prior_noise_std is not None:
+        std = net.prior_noise_std
+    dist = {"class_name": "GaussianDistribution", "init_std": std, "std_type": "scalar"}
     return {
         "num_steps_per_env": ppo.steps_per_iteration // ppo.num_envs,
         "save_interval": 10**9,

@@ -30,6 +30,11 @@ tensors, so ``OnPolicyRunner.learn`` on this env logs them as its users know; th
 length come from rsl-rl's own logger (``Train/mean_reward``, ``Train/mean_episode_length``).
 ``episode_length_buf`` is the wrapper's step counter (read and written through the bridge), so the
 runner's ``init_at_random_ep_len`` works.
+
+With an action prior (``prior=``), the actions ``step`` is given are the actor's residual: the jitted step
+commands ``prior(obs) + residual`` (``rsl_rl_prior.commanded_action``, on the device, from the observation
+the actor saw), and the quality figures see that commanded action. ``rsl_rl_prior`` explains why PPO is
+unchanged by it.
 """
 
 from __future__ import annotations
@@ -46,8 +51,10 @@ from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
 from bar_policy.envs.base import eval_ratios
+from bar_policy.obs.action_prior import Prior
 from bar_policy.training import eval_quality
 from bar_policy.training.parallel import AXIS
+from bar_policy.training.rsl_rl_prior import commanded_action
 from bar_policy.training.startup import Compiler
 from bar_policy.training.torch_bridge import jax_to_torch, torch_device_for_jax, torch_to_jax
 
@@ -73,6 +80,8 @@ class RslRlVecEnv(VecEnv):
             brax evaluator does: ``quality/<figure>`` in ``take_stats()["quality"]``) on each slot's first
             episode; for an evaluation env (it keeps every step's chatter signal, episode_length x
             num_envs x joints).
+        prior: the action prior, or None: ``step``'s actions are then residuals added to ``prior(obs)``
+            of the current observations (``commanded_action``).
 
     Observations are returned as ``TensorDict({"policy": obs})`` (shape ``(num_envs, obs)``); extras carry
     ``time_outs`` (truncations) for rsl-rl's bootstrapping.
@@ -96,6 +105,7 @@ class RslRlVecEnv(VecEnv):
         name: str = "env step",
         log_metrics: bool = True,
         quality: bool = False,
+        prior: Prior | None = None,
     ) -> None:
         self.num_envs = int(num_envs)
         self.task = env
@@ -107,6 +117,14 @@ class RslRlVecEnv(VecEnv):
         self.cfg = getattr(env, "config", {})
         self.log_metrics = log_metrics
         self.quality = quality
+        if prior is not None:
+            if prior.action_size != self.num_actions:
+                raise ValueError(
+                    f"the action prior has {prior.action_size} actions, the env {self.num_actions}"
+                )
+            prior.check_observation_size(self.num_obs)
+        self.prior = prior
+        """The action prior added to ``step``'s actions, or None."""
         key = jax.random.PRNGKey(seed)
         k_rand, self._key = jax.random.split(key)
         rfn = None
@@ -148,6 +166,7 @@ class RslRlVecEnv(VecEnv):
 
     def _step_fn(self, state: Any, actions: jax.Array, stats: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
         stats_in = stats
+        actions = commanded_action(self.prior, state.obs, actions)  # the observation the actor saw
         ns = self._env.step(state, actions)
         ratios = eval_ratios(self.task, ns.metrics)
         num, den = ratios["success_rate"]
@@ -224,7 +243,10 @@ class RslRlVecEnv(VecEnv):
         return self.state.metrics
 
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
-        """Step every env with ``actions`` (num_envs, num_actions); returns obs, reward, done, extras."""
+        """Step every env with ``actions`` (num_envs, num_actions); returns obs, reward, done, extras.
+
+        With ``prior``, ``actions`` are residuals: the env is commanded ``prior(obs) + actions``.
+        """
         self.state, self.stats = self._step(self.state, torch_to_jax(actions.to(torch.float32)), self.stats)
         obs = self.get_observations()
         reward = jax_to_torch(self.state.reward)

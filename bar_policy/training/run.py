@@ -254,6 +254,7 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
             checkpoint_dir=ckpt_dir,
             config_record=record,
             timer=timer,
+            eval_env=eval_env,
         )
 
     # Every process evaluates (the brax evaluation is one program over all devices); process 0 reports.

@@ -174,6 +174,7 @@ def test_onnx_graph_carries_the_prior(prior_net, layout, tmp_path, toy_track_met
 
 
 def test_reach_has_no_prior_and_rsl_rl_refuses_one():
+    """rsl-rl takes the env's prior as brax does: reach serves none, so the message names ``none``."""
     from bar_policy import envs
 
     reach = envs.load("LiteReach", config=envs.nominal_config())
@@ -182,9 +183,9 @@ def test_reach_has_no_prior_and_rsl_rl_refuses_one():
     from bar_policy.training.config import TrainConfig
     from bar_policy.training.rsl_rl_backend import train_rsl_rl
 
-    cfg = TrainConfig(network=NetworkConfig(action_prior="reference"))
-    with pytest.raises(ValueError, match=r"brax-backend network.*valid here: none"):
-        train_rsl_rl(None, cfg, None, randomizer=None, checkpoint_dir=None)
+    cfg = TrainConfig(env_name="LiteReach", network=NetworkConfig(action_prior="reference"))
+    with pytest.raises(ValueError, match=r"LiteReach has no action prior; valid values for it: \['none'\]"):
+        train_rsl_rl(reach, cfg, None, randomizer=None, checkpoint_dir=None)
 
 
 def test_prior_noise_std_sets_the_initial_std(layout, pose_scale):
