@@ -9,7 +9,8 @@
 #                      goes (bench/rsl_rl_profile.py, same preset)
 #   flags    (~4 min): two cold starts in one call (compile time varies between hosts by ~25 s, so the
 #                      baseline runs beside the variant): XLA's defaults, then XLA_FLAGS=$FLAGS (default: no
-#                      autotuning, the LLVM module split over 16 threads); then bench/rsl_rl_profile.py
+#                      autotuning, compilation over 16 threads; flags XLA refuses are left out); then
+#                      bench/rsl_rl_profile.py (NO_PROFILE=1: not)
 #   smoke             : CPU logic check of startup and rsl with tiny sizes (not for the GPU)
 #
 # Every training run is `python3 train/ppo.py` with the default (gpu) preset, a wall-clock budget
@@ -86,14 +87,24 @@ rsl() {
 }
 
 flags() {
-  local par="--xla_gpu_enable_llvm_module_compilation_parallelism=true --xla_gpu_force_compilation_parallelism=16"
+  # Session 30: jax 0.11.2 aborts on --xla_gpu_enable_llvm_module_compilation_parallelism (unknown flag), so
+  # each candidate is tried on a one-line program first and only the ones XLA accepts are kept.
+  local par="" f
+  for f in ${FLAGS:---xla_gpu_autotune_level=0 --xla_gpu_force_compilation_parallelism=16}; do
+    if XLA_FLAGS="$f" python3 -c "import jax.numpy as n; n.ones(2).block_until_ready()" > /dev/null 2>&1; then
+      par="$par $f"
+    else
+      stamp "XLA refuses $f: left out"
+    fi
+  done
+  FLAGS="${par# }"
   rm -rf "$WORK/jaxcache_base" "$WORK/jaxcache_flags"
   ppo "cold_base" 200 --compile-cache-dir "$WORK/jaxcache_base" --max-minutes "${COLD_MIN:-1.8}"
   finish flags "$RUNS/cold_base" > /dev/null
-  XLA_FLAGS="${FLAGS:---xla_gpu_autotune_level=0 $par}" \
-    ppo "cold_flags" 200 --compile-cache-dir "$WORK/jaxcache_flags" --max-minutes "${COLD_MIN:-1.8}"
-  echo "XLA_FLAGS=${FLAGS:---xla_gpu_autotune_level=0 $par} (cold_flags; cold_base: none)" > "$WORK/flags.md"
+  XLA_FLAGS="$FLAGS" ppo "cold_flags" 200 --compile-cache-dir "$WORK/jaxcache_flags" --max-minutes "${COLD_MIN:-1.8}"
+  echo "XLA_FLAGS=$FLAGS (cold_flags; cold_base: none)" > "$WORK/flags.md"
   finish flags "$RUNS/cold_base" "$RUNS/cold_flags" --append "$WORK/flags.md" > /dev/null
+  [ -n "${NO_PROFILE:-}" ] && return
   stamp "rsl-rl profile"
   local pr=""
   [ -n "$SMOKE" ] && pr="--preset tiny --iters 1"

@@ -56,7 +56,8 @@ def summarize(run: Path, threshold: float = 0.95) -> dict[str, str]:
         progs = s["programs"]
         row["compiles s"] = " ".join(f"{k}={p['compile_s']:.0f}" for k, p in progs.items()) or "-"
         row["wait s"] = f"{next(v for k, v in s['phases'].items() if k.startswith('wait for')):.0f}"
-        row["cache hit/miss"] = f"{s['compiles']['cache_hits']:.0f}/{s['compiles']['cache_misses']:.0f}"
+        c = s.get("compiles", {})  # an rsl-rl run's record has no cache counts
+        row["cache hit/miss"] = f"{c['cache_hits']:.0f}/{c['cache_misses']:.0f}" if "cache_hits" in c else "-"
     elif startup:  # runs recorded before it: flat "compile <program>" keys
         s = startup[0]
         compiles = {k: v for k, v in s.items() if k.startswith("compile ")}
