@@ -3,7 +3,8 @@
 #
 #   startup  (~7 min, 9.7 at worst): cold start on an empty compilation cache -> the same command again (warm) ->
 #                      raw env throughput at the training batch (bench/mjx_throughput.py, harness c, 4096)
-#                      -> where an iteration's time goes (bench/train_breakdown.py)
+#                      -> where an iteration's time goes (bench/train_breakdown.py); COLD_WARM_ONLY=1
+#                      stops after the warm run (~4.5 min)
 #   rsl      (~8 min): the rsl-rl backend, --max-minutes 5, same env at the field's rsl-rl values
 #                      (--preset rsl; RSL_PRESET=gpu for brax's), then where an rsl-rl iteration's time
 #                      goes (bench/rsl_rl_profile.py, same preset)
@@ -55,6 +56,7 @@ startup() {
   finish startup "${runs[@]}" "${app[@]}" > /dev/null  # after every step: a killed call still returns it
   ppo warm 120 --compile-cache-dir "$CACHE" --max-minutes "${WARM_MIN:-1.4}"
   finish startup "${runs[@]}" "${app[@]}" > /dev/null
+  if [ -n "${COLD_WARM_ONLY:-}" ]; then finish startup "${runs[@]}"; return; fi
   stamp "raw env throughput (harness c, training batch)"
   local b=4096 extra=""
   [ -n "$SMOKE" ] && b=16 && extra="--min-time 1 --min-iters 2"
