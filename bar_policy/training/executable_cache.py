@@ -34,6 +34,7 @@ Off with ``--no-executable-cache`` or ``--no-compile-cache``, and under multi-pr
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import hashlib
 import json
@@ -46,6 +47,8 @@ from collections.abc import Mapping
 from importlib import metadata
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 __all__ = [
     "FORMAT",
@@ -171,13 +174,61 @@ def _sharding(s: Any) -> Any:
     return [repr(s), ids, getattr(s, "memory_kind", None)]
 
 
+def _name(t: type) -> str:
+    return f"{t.__module__}.{t.__qualname__}"
+
+
+def _stable(x: Any, depth: int = 0) -> Any:
+    """A description of ``x`` that is the same in every process for equal content (a tree's static data).
+
+    Containers, numpy arrays (by content), dataclasses and objects (by their fields) are described by
+    value; whatever else falls back to ``repr``, which may hold an address: then the key differs in every
+    run (a miss each time), it never matches a program built for other content.
+    """
+    if x is None or isinstance(x, bool | int | float | complex | str | bytes):
+        return repr(x)
+    if isinstance(x, np.generic):
+        return f"{type(x).__name__}({x!r})"
+    if isinstance(x, np.ndarray):
+        digest = hashlib.sha256(np.ascontiguousarray(x).tobytes()).hexdigest()
+        return ["ndarray", list(x.shape), str(x.dtype), digest]
+    if isinstance(x, type):
+        return _name(x)
+    if depth > 12:
+        return repr(x)
+    if isinstance(x, tuple | list):
+        return [type(x).__name__, [_stable(v, depth + 1) for v in x]]
+    if isinstance(x, dict):
+        return ["dict", [[_stable(k, depth + 1), _stable(v, depth + 1)] for k, v in x.items()]]
+    if isinstance(x, set | frozenset):
+        return [type(x).__name__, sorted(json.dumps(_stable(v, depth + 1), default=repr) for v in x)]
+    if dataclasses.is_dataclass(x):
+        state = {f.name: getattr(x, f.name, None) for f in dataclasses.fields(x)}
+    elif hasattr(x, "__dict__") and not callable(x):
+        state = dict(vars(x))
+    elif getattr(type(x), "__slots__", None):
+        state = {k: getattr(x, k, None) for k in type(x).__slots__}
+    else:
+        return repr(x)
+    return [_name(type(x)), _stable(state, depth + 1)]
+
+
+def _tree(tree: Any) -> Any:
+    """``tree`` (a ``PyTreeDef``) described with ``_stable`` node data (``str`` of it shows addresses)."""
+    node = tree.node_data()
+    if node is None:
+        return "*"
+    kind, aux = node
+    return [_name(kind), _stable(aux), [_tree(c) for c in tree.children()]]
+
+
 def _leaf(x: Any) -> list[Any]:
     if hasattr(x, "shape") and hasattr(x, "dtype"):
         weak = getattr(x, "weak_type", None)
         if weak is None:
             weak = getattr(getattr(x, "aval", None), "weak_type", False)
         return [list(x.shape), str(x.dtype), bool(weak), _sharding(getattr(x, "sharding", None))]
-    return ["static", f"{type(x).__module__}.{type(x).__qualname__}", repr(x)]
+    return ["static", _name(type(x)), _stable(x)]
 
 
 def signature(args: Any) -> dict[str, Any]:
@@ -185,7 +236,7 @@ def signature(args: Any) -> dict[str, Any]:
     import jax
 
     leaves, tree = jax.tree_util.tree_flatten(args)
-    return {"tree": str(tree), "leaves": [_leaf(x) for x in leaves]}
+    return {"tree": _tree(tree), "leaves": [_leaf(x) for x in leaves]}
 
 
 class ExecutableCache:

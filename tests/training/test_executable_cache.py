@@ -1,0 +1,217 @@
+"""The executable cache: a hit skips the trace and serves the same program; anything else is a miss.
+
+Toy programs through the trainer's own ``Compiler``, each cache in an empty directory. A miss traces (the
+Python function runs) and stores; a hit loads without tracing and computes bit for bit what the freshly
+compiled program did. A changed config, package content, jax version or argument signature is another key;
+a corrupt entry is logged, deleted and replaced; the off switch writes and reads nothing.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bar_policy.training import executable_cache as ec
+from bar_policy.training.config import apply_overrides, preset
+from bar_policy.training.executable_cache import ExecutableCache, executable_cache_for
+from bar_policy.training.startup import Compiler, StartupTimer
+
+X = jnp.linspace(-2.0, 3.0, 24, dtype=jnp.float32).reshape(4, 6)
+CONTEXT = {"train": {"seed": 0, "ppo": {"learning_rate": 1e-3}}, "env": {"gain": 0.3}}
+
+
+class Toy:
+    """A program closing over a config value (as the trainer's close over the env and PPO configs), with a
+    count of its traces."""
+
+    def __init__(self, gain: float = 0.3) -> None:
+        self.gain = gain
+        self.traces = 0
+
+    def program(self, x: jax.Array) -> dict[str, jax.Array]:
+        self.traces += 1
+        y = jnp.tanh(x @ x.T * self.gain) + jnp.sin(x).sum()
+        return {"y": y, "norm": jnp.sqrt((y * y).sum())}
+
+
+def _run(cache: ExecutableCache | None, toy: Toy, *args: object, name: str = "toy", background: bool = False):
+    """Submit ``toy.program`` through a fresh ``Compiler`` (jax's in-memory caches cleared); returns the
+    outputs as numpy and the program's ``ProgramTimes``."""
+    jax.clear_caches()
+    timer = StartupTimer()
+    compiler = Compiler(timer, executable_cache=cache)
+    compiler.submit(name, jax.jit(toy.program), *(args or (X,)), background=background)
+    out = jax.tree.map(np.asarray, compiler.get(name)(*(args or (X,))))
+    compiler.close()
+    return out, timer.programs[name]
+
+
+def _entries(directory: Path) -> set[str]:
+    return {p.name for p in directory.glob("*.bin")}
+
+
+def test_same_key_hits_without_tracing_bit_for_bit(tmp_path):
+    toy = Toy()
+    fresh, first = _run(ExecutableCache(tmp_path, CONTEXT), toy)
+    assert toy.traces == 1 and first.executable == "stored" and first.trace_s > 0
+    (entry,) = _entries(tmp_path)
+    assert (tmp_path / entry.replace(".bin", ".json")).is_file()  # the sidecar, for humans
+
+    for background in (False, True):  # loaded on the calling thread, or on the worker
+        loaded, again = _run(ExecutableCache(tmp_path, dict(CONTEXT)), toy, background=background)
+        assert toy.traces == 1  # not traced again
+        assert again.executable == "hit" and again.cache == "exec cache hit" and again.exec_load_s > 0
+        assert again.trace_s == again.lower_s == again.compile_s == 0.0
+        for k in fresh:
+            np.testing.assert_array_equal(loaded[k], fresh[k])  # bit for bit
+    assert _entries(tmp_path) == {entry}
+    timer = StartupTimer()
+    timer.programs["toy"] = again
+    rec = timer.finish(1.0, total_s=1.0)
+    assert rec["programs"]["toy"]["executable"] == "hit"  # the run record keeps it
+    lines = StartupTimer.lines(rec)
+    assert any("exec cache hit" in line and "trace, lower, compile skipped" in line for line in lines)
+
+
+def test_a_changed_config_is_not_served_the_stale_program(tmp_path):
+    first, _ = _run(ExecutableCache(tmp_path, CONTEXT), Toy(0.3))
+    changed = {**CONTEXT, "env": {"gain": 0.6}}
+    toy = Toy(0.6)
+    out, second = _run(ExecutableCache(tmp_path, changed), toy)
+    assert toy.traces == 1 and second.executable == "stored"  # a miss: traced, compiled, stored
+    assert len(_entries(tmp_path)) == 2
+    expected, _ = _run(None, Toy(0.6))  # what the changed config computes, no cache involved
+    np.testing.assert_array_equal(out["y"], expected["y"])
+    assert not np.allclose(out["y"], first["y"])  # and not the 0.3 program's
+
+
+def test_changed_package_content_or_jax_version_misses(tmp_path, monkeypatch):
+    _run(ExecutableCache(tmp_path, CONTEXT), Toy())
+    monkeypatch.setattr(ec, "package_hash", lambda: "0" * 64)
+    toy = Toy()
+    _, edited = _run(ExecutableCache(tmp_path, CONTEXT), toy)
+    assert toy.traces == 1 and edited.executable == "stored"
+    versions = {**ec.library_versions(), "jax": "0.0.0-other"}
+    monkeypatch.setattr(ec, "library_versions", lambda: versions)
+    _, other_jax = _run(ExecutableCache(tmp_path, CONTEXT), toy)
+    assert toy.traces == 2 and other_jax.executable == "stored"
+    assert len(_entries(tmp_path)) == 3
+
+
+def test_changed_argument_shape_or_dtype_misses(tmp_path):
+    toy = Toy()
+    cache = ExecutableCache(tmp_path, CONTEXT)
+    _run(cache, toy, X)
+    _run(cache, toy, X[:3])  # another shape
+    out, times = _run(cache, toy, X.astype(jnp.bfloat16))  # another dtype
+    assert toy.traces == 3 and times.executable == "stored" and out["y"].dtype == jnp.bfloat16
+    assert len(_entries(tmp_path)) == 3
+    _run(cache, toy, X[:3])
+    assert toy.traces == 3  # each signature has its own entry
+
+
+def test_a_corrupt_entry_is_logged_deleted_and_replaced(tmp_path, caplog):
+    fresh, _ = _run(ExecutableCache(tmp_path, CONTEXT), Toy())
+    (entry,) = tmp_path.glob("*.bin")
+    entry.write_bytes(entry.read_bytes()[:100])  # truncated
+    toy = Toy()
+    with caplog.at_level(logging.WARNING, logger=ec.__name__):
+        out, times = _run(ExecutableCache(tmp_path, CONTEXT), toy)
+    (line,) = [r.getMessage() for r in caplog.records if r.name == ec.__name__]
+    assert entry.name in line and "compiling afresh" in line
+    assert toy.traces == 1 and times.executable == "bad entry replaced, stored"
+    np.testing.assert_array_equal(out["y"], fresh["y"])
+    _, again = _run(ExecutableCache(tmp_path, CONTEXT), toy)  # the replacement loads
+    assert again.executable == "hit" and toy.traces == 1
+
+
+def test_an_entry_under_another_key_is_refused(tmp_path, caplog):
+    cache = ExecutableCache(tmp_path, CONTEXT)
+    _run(cache, Toy())
+    (entry,) = tmp_path.glob("*.bin")
+    entry.rename(tmp_path / ("f" * 64 + ".bin"))
+    assert cache.load("f" * 64, "toy") is None and not (tmp_path / ("f" * 64 + ".bin")).exists()
+
+
+def test_off_switch_writes_and_reads_nothing(tmp_path):
+    cfg = apply_overrides(preset("tiny"), [])
+    record = {"train": {"seed": 0}, "env": {}}
+    assert executable_cache_for(cfg, tmp_path, record, Toy()) is not None  # on with the compile cache
+    off = apply_overrides(preset("tiny"), ["executable_cache=False"])
+    assert executable_cache_for(off, tmp_path, record, Toy()) is None
+    assert executable_cache_for(cfg, None, record, Toy()) is None  # --no-compile-cache
+    several = apply_overrides(preset("tiny"), ["distributed.num_processes=2"])
+    assert executable_cache_for(several, tmp_path, record, Toy()) is None  # jax.distributed runs
+
+    _run(ExecutableCache(tmp_path / "on", CONTEXT), Toy())  # an entry the off run could have read
+    before = {p: p.stat().st_mtime_ns for p in (tmp_path / "on").iterdir()}
+    toy = Toy()
+    _, times = _run(None, toy)
+    assert toy.traces == 1 and times.executable == "off" and times.cache != "exec cache hit"
+    assert {p: p.stat().st_mtime_ns for p in (tmp_path / "on").iterdir()} == before
+
+
+def test_key_covers_config_code_versions_platform_and_signature():
+    cache = ExecutableCache.__new__(ExecutableCache)
+    cache.context = CONTEXT
+    key, inputs = cache.key("toy", jax.jit(Toy().program), (X,))
+    assert len(key) == 64 and inputs["context"] == CONTEXT and inputs["package"] == ec.package_hash()
+    assert {"jax", "jaxlib", "mujoco", "mujoco-mjx", "brax", "flax", "optax"} <= set(inputs["libraries"])
+    assert inputs["platform"]["backend"] == jax.default_backend() and inputs["platform"]["process_count"] == 1
+    assert "jax_default_matmul_precision" in inputs["flags"]
+    assert inputs["args"]["leaves"][0][:2] == [[4, 6], "float32"]
+    assert cache.key("toy", jax.jit(Toy().program), (X,))[0] == key  # deterministic
+    assert cache.key("other", jax.jit(Toy().program), (X,))[0] != key  # the name is part of it
+
+
+class Wrapped:
+    """Static tree data as MJX keeps it (``_NumPyArrayHashWrapper``): a numpy array, repr with an address."""
+
+    __slots__ = ("array",)
+
+    def __init__(self, array: np.ndarray) -> None:
+        self.array = array
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Wrapped) and np.array_equal(self.array, other.array)
+
+    def __hash__(self) -> int:
+        return hash(self.array.tobytes())
+
+
+@jax.tree_util.register_pytree_node_class
+class Node:
+    def __init__(self, x: jax.Array, meta: Wrapped) -> None:
+        self.x, self.meta = x, meta
+
+    def tree_flatten(self) -> tuple:
+        return (self.x,), self.meta
+
+    @classmethod
+    def tree_unflatten(cls, meta: Wrapped, children: tuple) -> Node:
+        return cls(children[0], meta)
+
+
+def test_signature_describes_static_tree_data_by_content_not_address():
+    """A tree's static data is described by content: equal in every process, changed with the content
+    (``str(treedef)`` shows the wrapper's address, which made every rerun of the epoch a miss)."""
+    a = ec.signature((Node(X, Wrapped(np.arange(3))),))
+    assert ec.signature((Node(X, Wrapped(np.arange(3))),)) == a
+    assert ec.signature((Node(X, Wrapped(np.arange(4))),)) != a
+    assert " at 0x" not in str(a)
+
+
+def test_cli_switch():
+    from bar_policy.training.cli import parse_config
+
+    assert parse_config(["--preset", "tiny"]).executable_cache is True
+    assert parse_config(["--preset", "tiny", "--no-executable-cache"]).executable_cache is False
+
+
+if __name__ == "__main__":  # pragma: no cover
+    pytest.main([__file__, "-q"])
