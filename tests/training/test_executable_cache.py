@@ -215,3 +215,53 @@ def test_cli_switch():
 
 if __name__ == "__main__":  # pragma: no cover
     pytest.main([__file__, "-q"])
+
+
+def _startup(run_dir: Path) -> dict:
+    """The run's start-up record (``metrics.jsonl``)."""
+    import json
+
+    recs = [json.loads(x) for x in (Path(run_dir) / "metrics.jsonl").read_text().splitlines()]
+    return next(r for r in recs if r["kind"] == "startup")
+
+
+SMALL_BRAX = [
+    "ppo.num_envs=16",
+    "ppo.batch_size=16",
+    "ppo.num_minibatches=2",
+    "ppo.unroll_length=4",
+    "ppo.num_updates_per_batch=1",
+    "ppo.num_timesteps=128",
+    "eval.num_evals=2",
+    "eval.num_eval_envs=16",
+    "export_onnx=False",
+    "seed=0",
+]
+"""The smallest brax run on the stand-in env: two iterations of 64 env steps, two evaluations."""
+
+
+def test_a_rerun_loads_every_program_and_trains_the_same(tmp_path, toy_env, restore_cache_config):
+    """End to end: the second run of one config traces nothing and ends with the same parameters."""
+    from jax.experimental.compilation_cache import compilation_cache as cc
+    from toy_configs import toy_config
+
+    from bar_policy.training import startup_breakdown as sb
+    from bar_policy.training.run import run
+
+    cache = tmp_path / "jax"
+    # No run name: each run gets its own directory, the config (part of the key) stays the same.
+    cfg = toy_config(tmp_path / "runs", "", [*SMALL_BRAX, f"compile_cache_dir={cache}"])
+    cc.reset_cache()  # jax opens its cache once per process: close the suite's
+    try:
+        first = run(cfg, env=toy_env)
+        jax.clear_caches()
+        second = run(cfg, env=toy_env)
+    finally:
+        cc.reset_cache()
+    cold, warm = (_startup(s.run_dir) for s in (first, second))
+    assert {p["executable"] for p in cold["programs"].values()} == {"stored"}
+    assert {p["executable"] for p in warm["programs"].values()} == {"hit"}, warm["programs"]
+    assert warm["phases"][sb.TRACE] == warm["phases"][sb.LOWER] == 0.0
+    assert len(list((cache / "executables").glob("*.bin"))) == len(cold["programs"])
+    for a, b in zip(jax.tree.leaves(first.params), jax.tree.leaves(second.params), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
