@@ -34,6 +34,7 @@ Off with ``--no-executable-cache`` or ``--no-compile-cache``, and under multi-pr
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import hashlib
@@ -64,6 +65,10 @@ __all__ = [
 
 FORMAT = 1
 """Layout of a stored entry; part of the key, bumped when the layout changes."""
+
+MAX_BYTES = 4 << 30
+"""Size the entries may total before the least recently used go (4 GiB; a GPU run's four programs are
+tens of MB)."""
 
 LIBRARIES = (
     "jax",
@@ -248,8 +253,9 @@ class ExecutableCache:
             env config and class (JSON-able; ``repr`` for the rest).
     """
 
-    def __init__(self, directory: str | Path, context: Mapping[str, Any]) -> None:
+    def __init__(self, directory: str | Path, context: Mapping[str, Any], max_bytes: int = MAX_BYTES) -> None:
         self.directory = Path(directory)
+        self.max_bytes = max_bytes
         self.directory.mkdir(parents=True, exist_ok=True)
         self.context = dict(context)
         self.rejected: set[str] = set()
@@ -286,7 +292,9 @@ class ExecutableCache:
             entry = pickle.loads(path.read_bytes())
             if not isinstance(entry, dict) or entry.get("format") != FORMAT or entry.get("key") != key:
                 raise ValueError("not an entry of this format for this key")
-            return deserialize_and_load(entry["executable"], entry["in_tree"], entry["out_tree"])
+            compiled = deserialize_and_load(entry["executable"], entry["in_tree"], entry["out_tree"])
+            os.utime(path)  # recently used: evicted last
+            return compiled
         except Exception as e:  # any failure means: compile afresh
             _log.warning(
                 "executable cache: entry %s of program %r unusable (%s: %s); deleted, compiling afresh",
@@ -314,7 +322,24 @@ class ExecutableCache:
         side = {"key": key, "bytes": len(blob), "written": time.strftime("%Y-%m-%dT%H:%M:%S"), **inputs}
         _write_atomic(self._path(key), blob)
         _write_atomic(self.directory / f"{key}.json", json.dumps(side, indent=1, default=repr).encode())
+        self.evict(keep=key)
         return "stored"
+
+    def evict(self, keep: str = "") -> None:
+        """Delete the least recently used entries but ``keep`` (oldest mtime first) while over the limit."""
+        entries = []
+        for p in self.directory.glob("*.bin"):
+            with contextlib.suppress(OSError):
+                st = p.stat()
+                entries.append((st.st_mtime, st.st_size, p.stem))
+        total = sum(size for _, size, _ in entries)
+        for _, size, key in sorted(entries):
+            if total <= self.max_bytes:
+                break
+            if key == keep:
+                continue
+            self.delete(key)
+            total -= size
 
     def delete(self, key: str) -> None:
         """Remove ``key``'s entry and sidecar (absent ones are fine)."""

@@ -9,6 +9,7 @@ a corrupt entry is logged, deleted and replaced; the off switch writes and reads
 from __future__ import annotations
 
 import logging
+import os
 from pathlib import Path
 
 import jax
@@ -265,3 +266,14 @@ def test_a_rerun_loads_every_program_and_trains_the_same(tmp_path, toy_env, rest
     assert len(list((cache / "executables").glob("*.bin"))) == len(cold["programs"])
     for a, b in zip(jax.tree.leaves(first.params), jax.tree.leaves(second.params), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_least_recently_used_entries_go_over_the_size_limit(tmp_path):
+    cache = ExecutableCache(tmp_path, CONTEXT)
+    _run(cache, Toy(), X)
+    (old,) = tmp_path.glob("*.bin")
+    os.utime(old, (1, 1))  # long unused
+    cache.max_bytes = old.stat().st_size * 3 // 2  # room for one entry
+    _run(cache, Toy(), X[:2])
+    assert not old.exists() and not old.with_suffix(".json").exists()
+    assert len(_entries(tmp_path)) == 1
