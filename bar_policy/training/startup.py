@@ -1,11 +1,15 @@
 """Cold start: the persistent compilation cache, concurrent ahead-of-time compiles, a start-up breakdown.
 
 Most of a short run's wall time is XLA compiling the MJX programs (the env step inside the training epoch,
-the evaluation, the reset). Three things cut it:
+the evaluation, the reset). Four things cut it:
 
 - **Persistent cache** (``configure_compile_cache``): on by default in ``$XDG_CACHE_HOME/bar_policy/jax``
   (``~/.cache/bar_policy/jax``), every program cached whatever its compile time, so a rerun of the same
   command loads executables instead of compiling them.
+- **Executable cache** (``bar_policy.training.executable_cache``, handed to ``Compiler``): jax's cache is
+  keyed on the lowered program, so a warm run still traces and lowers every program; this one stores the
+  serialised executable under a key of everything that determines it (config, package content, library
+  versions, devices, argument signature), so a rerun loads it without tracing (``docs/startup.md``).
 - **Concurrent compiles** (``Compiler``): each program is traced in the calling thread (Python, holds the
   GIL) and handed to a thread for XLA's compile (releases the GIL), so the epoch, evaluation and reset
   compile side by side while the next program is traced.
