@@ -258,6 +258,7 @@ def train_brax(
             for line in timer.lines(report):
                 logger.print(line)
             logger.note("startup", {"step": env_steps, **report})
+            compiler.confirm()  # the loaded programs ran: not suspects of a crash
         if eval_due:
             device_eval(_policy_params(ts), env_steps)
             n_evals = epochs_done // _LINES_PER_EVAL

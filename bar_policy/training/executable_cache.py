@@ -12,8 +12,8 @@ submits; ``docs/startup.md`` has the measurements.
 - the run's context, passed in explicitly (``run.py``: the full training config ``config_to_dict(cfg)``,
   the env config, the env's class and, for an env class outside ``bar_policy``, its source file's hash);
   the seed and every randomisation setting the programs close over live in those configs;
-- ``package_hash()``: the content of every file under ``bar_policy/`` (code, XML, JSON, meshes), once per
-  process;
+- ``package_hash()`` (these helpers live in ``executable_key``): the content of every file under
+  ``bar_policy/`` (code, XML, JSON, meshes), once per process;
 - ``library_versions()``: jax, jaxlib, the PJRT plugins, mujoco, mujoco-mjx, brax, flax, optax, numpy;
 - ``platform()``: the backend, its version, every device's id and kind, the process count and index;
 - ``runtime_flags()``: every jax config value (the matmul precision, x64, the partitioner...) but the
@@ -34,9 +34,8 @@ Off with ``--no-executable-cache`` or ``--no-compile-cache``, and under multi-pr
 
 from __future__ import annotations
 
+import atexit
 import contextlib
-import dataclasses
-import functools
 import hashlib
 import json
 import logging
@@ -45,23 +44,12 @@ import pickle
 import tempfile
 import time
 from collections.abc import Mapping
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-import numpy as np
+from bar_policy.training import executable_key as ek
 
-__all__ = [
-    "FORMAT",
-    "ExecutableCache",
-    "executable_cache_for",
-    "library_versions",
-    "package_hash",
-    "platform",
-    "runtime_flags",
-    "signature",
-    "source_hash",
-]
+__all__ = ["CPU_ENV", "FORMAT", "MAX_BYTES", "ExecutableCache", "executable_cache_for"]
 
 FORMAT = 1
 """Layout of a stored entry; part of the key, bumped when the layout changes."""
@@ -70,178 +58,11 @@ MAX_BYTES = 4 << 30
 """Size the entries may total before the least recently used go (4 GiB; a GPU run's four programs are
 tens of MB)."""
 
-LIBRARIES = (
-    "jax",
-    "jaxlib",
-    "jax-cuda12-plugin",
-    "jax-cuda12-pjrt",
-    "jax-cuda13-plugin",
-    "jax-cuda13-pjrt",
-    "libtpu",
-    "mujoco",
-    "mujoco-mjx",
-    "brax",
-    "flax",
-    "optax",
-    "numpy",
-)
-"""Distributions whose version is part of the key (None when not installed)."""
+CPU_ENV = "BAR_POLICY_EXECUTABLE_CACHE_ON_CPU"
+"""Set to 1 to use the cache on the CPU backend: off there by default, since a deserialised CPU executable
+of the brax epoch crashed jaxlib 0.10.2 (segfault) when run (``docs/startup.md``)."""
 
-_PACKAGE_ROOT = Path(__file__).resolve().parent.parent
 _log = logging.getLogger(__name__)
-
-
-@functools.cache
-def package_hash() -> str:
-    """SHA-256 of every file under ``bar_policy/`` (paths and contents; ``__pycache__`` left out)."""
-    h = hashlib.sha256()
-    for p in sorted(_PACKAGE_ROOT.rglob("*")):
-        if p.is_file() and "__pycache__" not in p.parts and p.suffix != ".pyc":
-            h.update(p.relative_to(_PACKAGE_ROOT).as_posix().encode() + b"\0")
-            h.update(hashlib.sha256(p.read_bytes()).digest())
-    return h.hexdigest()
-
-
-def source_hash(obj: Any) -> str | None:
-    """SHA-256 of the source file defining ``obj``'s class.
-
-    None when the file lies in ``bar_policy`` (``package_hash`` covers it) or there is none.
-    """
-    import inspect
-
-    cls = obj if isinstance(obj, type) else type(obj)
-    try:
-        path = Path(inspect.getfile(cls)).resolve()
-    except (TypeError, OSError):
-        return None
-    if path.is_relative_to(_PACKAGE_ROOT) or not path.is_file():
-        return None
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-@functools.cache
-def library_versions() -> dict[str, str | None]:
-    """Installed versions of ``LIBRARIES`` (``jax.__version__``/``jaxlib.__version__`` for those two)."""
-    import jax
-    import jaxlib
-
-    out: dict[str, str | None] = {}
-    for name in LIBRARIES:
-        try:
-            out[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            out[name] = None
-    out["jax"], out["jaxlib"] = jax.__version__, jaxlib.__version__
-    return out
-
-
-def platform() -> dict[str, Any]:
-    """The default backend and its devices, the process count and index."""
-    import jax
-
-    devices = jax.devices()
-    return {
-        "backend": jax.default_backend(),
-        "platform_version": devices[0].client.platform_version,
-        "devices": [[d.id, d.device_kind, d.process_index] for d in devices],
-        "local_devices": [d.id for d in jax.local_devices()],
-        "process_count": jax.process_count(),
-        "process_index": jax.process_index(),
-    }
-
-
-def runtime_flags() -> dict[str, str]:
-    """Every jax config value but the compilation cache's own, and the XLA/JAX/LIBTPU environment."""
-    import jax
-
-    flags = {
-        k: repr(v)
-        for k, v in jax.config.values.items()
-        if "compilation_cache" not in k and "persistent_cache" not in k
-    }
-    env = {
-        k: v
-        for k, v in os.environ.items()
-        if k.startswith(("XLA_", "JAX_", "LIBTPU_")) and "COMPILATION_CACHE" not in k
-    }
-    return {**flags, **{f"env:{k}": v for k, v in env.items()}}
-
-
-def _sharding(s: Any) -> Any:
-    if s is None:
-        return None
-    mesh = getattr(s, "mesh", None)
-    devices = getattr(mesh, "devices", None)
-    if devices is not None:
-        ids = [int(d.id) for d in devices.flat]
-    else:
-        ids = sorted(int(d.id) for d in getattr(s, "device_set", ()))
-    return [repr(s), ids, getattr(s, "memory_kind", None)]
-
-
-def _name(t: type) -> str:
-    return f"{t.__module__}.{t.__qualname__}"
-
-
-def _stable(x: Any, depth: int = 0) -> Any:
-    """A description of ``x`` that is the same in every process for equal content (a tree's static data).
-
-    Containers, numpy arrays (by content), dataclasses and objects (by their fields) are described by
-    value; whatever else falls back to ``repr``, which may hold an address: then the key differs in every
-    run (a miss each time), it never matches a program built for other content.
-    """
-    if x is None or isinstance(x, bool | int | float | complex | str | bytes):
-        return repr(x)
-    if isinstance(x, np.generic):
-        return f"{type(x).__name__}({x!r})"
-    if isinstance(x, np.ndarray):
-        digest = hashlib.sha256(np.ascontiguousarray(x).tobytes()).hexdigest()
-        return ["ndarray", list(x.shape), str(x.dtype), digest]
-    if isinstance(x, type):
-        return _name(x)
-    if depth > 12:
-        return repr(x)
-    if isinstance(x, tuple | list):
-        return [type(x).__name__, [_stable(v, depth + 1) for v in x]]
-    if isinstance(x, dict):
-        return ["dict", [[_stable(k, depth + 1), _stable(v, depth + 1)] for k, v in x.items()]]
-    if isinstance(x, set | frozenset):
-        return [type(x).__name__, sorted(json.dumps(_stable(v, depth + 1), default=repr) for v in x)]
-    if dataclasses.is_dataclass(x):
-        state = {f.name: getattr(x, f.name, None) for f in dataclasses.fields(x)}
-    elif hasattr(x, "__dict__") and not callable(x):
-        state = dict(vars(x))
-    elif getattr(type(x), "__slots__", None):
-        state = {k: getattr(x, k, None) for k in type(x).__slots__}
-    else:
-        return repr(x)
-    return [_name(type(x)), _stable(state, depth + 1)]
-
-
-def _tree(tree: Any) -> Any:
-    """``tree`` (a ``PyTreeDef``) described with ``_stable`` node data (``str`` of it shows addresses)."""
-    node = tree.node_data()
-    if node is None:
-        return "*"
-    kind, aux = node
-    return [_name(kind), _stable(aux), [_tree(c) for c in tree.children()]]
-
-
-def _leaf(x: Any) -> list[Any]:
-    if hasattr(x, "shape") and hasattr(x, "dtype"):
-        weak = getattr(x, "weak_type", None)
-        if weak is None:
-            weak = getattr(getattr(x, "aval", None), "weak_type", False)
-        return [list(x.shape), str(x.dtype), bool(weak), _sharding(getattr(x, "sharding", None))]
-    return ["static", _name(type(x)), _stable(x)]
-
-
-def signature(args: Any) -> dict[str, Any]:
-    """The abstract signature of ``args``: its tree and each leaf's shape, dtype, weak type, sharding."""
-    import jax
-
-    leaves, tree = jax.tree_util.tree_flatten(args)
-    return {"tree": _tree(tree), "leaves": [_leaf(x) for x in leaves]}
 
 
 class ExecutableCache:
@@ -260,6 +81,29 @@ class ExecutableCache:
         self.context = dict(context)
         self.rejected: set[str] = set()
         """Keys whose entry was bad and deleted (in this process)."""
+        self._loaded: list[str] = []
+        self._inflight = self.directory / f"inflight-{os.getpid()}.json"
+        self._ban_dead_processes_loads()
+
+    def _ban_dead_processes_loads(self) -> None:
+        """Entries a process loaded and then died running (a crash, no ``confirm``): deleted and banned."""
+        for record in self.directory.glob("inflight-*.json"):
+            pid = int(record.stem.split("-")[1]) if record.stem.split("-")[1].isdigit() else 0
+            if pid == os.getpid() or _alive(pid):
+                continue
+            with contextlib.suppress(OSError, ValueError):
+                for key in json.loads(record.read_text()):
+                    self.delete(key)
+                    (self.directory / f"{key}.banned").touch()
+                    _log.warning(
+                        "executable cache: process %d died running programs loaded from entry %s; "
+                        "deleted, never stored again", pid, key,
+                    )  # fmt: skip
+            record.unlink(missing_ok=True)
+
+    def confirm(self) -> None:
+        """The loaded programs ran (the first epoch and evaluation): drop this process's in-flight record."""
+        self._inflight.unlink(missing_ok=True)
 
     def key(self, name: str, jitted: Any, args: tuple[Any, ...]) -> tuple[str, dict[str, Any]]:
         """``(hex key, inputs)`` of program ``name``: ``jitted`` for ``args``; inputs is what was hashed."""
@@ -269,11 +113,11 @@ class ExecutableCache:
             "name": name,
             "function": f"{getattr(fn, '__module__', '?')}.{getattr(fn, '__qualname__', repr(fn))}",
             "context": self.context,
-            "package": package_hash(),
-            "libraries": library_versions(),
-            "platform": platform(),
-            "flags": runtime_flags(),
-            "args": signature(args),
+            "package": ek.package_hash(),
+            "libraries": ek.library_versions(),
+            "platform": ek.platform(),
+            "flags": ek.runtime_flags(),
+            "args": ek.signature(args),
         }
         text = json.dumps(inputs, sort_keys=True, default=repr)
         return hashlib.sha256(text.encode()).hexdigest(), inputs
@@ -294,6 +138,9 @@ class ExecutableCache:
                 raise ValueError("not an entry of this format for this key")
             compiled = deserialize_and_load(entry["executable"], entry["in_tree"], entry["out_tree"])
             os.utime(path)  # recently used: evicted last
+            self._loaded.append(key)  # until confirm(): a crash bans it (jaxlib 0.10.2 CPU, docs/startup.md)
+            _write_atomic(self._inflight, json.dumps(self._loaded).encode())
+            atexit.register(self.confirm)  # an exception or Ctrl-C is not the program's fault
             return compiled
         except Exception as e:  # any failure means: compile afresh
             _log.warning(
@@ -311,6 +158,8 @@ class ExecutableCache:
         """
         from jax.experimental.serialize_executable import serialize
 
+        if (self.directory / f"{key}.banned").exists():
+            return "not stored: a process crashed running it"
         try:
             executable, in_tree, out_tree = serialize(compiled)
             entry = {"format": FORMAT, "key": key, "executable": executable}
@@ -347,6 +196,16 @@ class ExecutableCache:
             p.unlink(missing_ok=True)
 
 
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError):
+        return pid > 0
+    return pid > 0
+
+
 def _write_atomic(path: Path, data: bytes) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
@@ -378,11 +237,13 @@ def executable_cache_for(
         return None
     if cfg.distributed.num_processes > 1 or jax.process_count() > 1:
         return None
+    if jax.default_backend() == "cpu" and os.environ.get(CPU_ENV) != "1":
+        return None
     cls = type(env)
     context = {
         "train": record["train"],
         "env": record["env"] or repr(getattr(env, "config", None)),
         "env_class": f"{cls.__module__}.{cls.__qualname__}",
-        "env_source": source_hash(env),
+        "env_source": ek.source_hash(env),
     }
     return ExecutableCache(Path(cache_dir) / "executables", context)

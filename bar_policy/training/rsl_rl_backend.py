@@ -363,6 +363,7 @@ def train_rsl_rl(
             for line in timer.lines(report):
                 logger.print(line)
             logger.note("startup", {"step": env_steps, **report})
+            compiler.confirm()
         logger.log(env_steps, train_metrics, kind="train")
         last = iteration >= total_iters
         over_budget = next_would_overrun(logger.elapsed(), dt, 60 * cfg.max_minutes)

@@ -231,7 +231,9 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
         run_dir, logger, record = _open_run(cfg, env, is_main, [cache_note, partitioner_note])
         exec_cache = executable_cache_for(cfg, cache_dir, record, env)
         if is_main and cache_dir:
-            logger.print(f"executable cache: {exec_cache.directory if exec_cache else 'off'}")
+            logger.print(
+                f"executable cache: {exec_cache.directory if exec_cache else 'off'} (docs/startup.md)"
+            )
     logger.t0 = timer.origin
     provenance = record["provenance"]
     ckpt_dir = str(run_dir / "checkpoints")

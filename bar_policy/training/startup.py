@@ -275,6 +275,11 @@ class Compiler:
         """The compiled executable of ``name`` (waits for it; re-raises its trace or compile error)."""
         return self._futures[name].result()
 
+    def confirm(self) -> None:
+        """The programs loaded from the executable cache ran: they are no longer suspects of a crash."""
+        if self.executable_cache is not None:
+            self.executable_cache.confirm()
+
     def close(self) -> None:
         """Release the worker threads."""
         self._pool.shutdown(wait=False)

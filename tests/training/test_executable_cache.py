@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from bar_policy.training import executable_cache as ec
+from bar_policy.training import executable_key as ek
 from bar_policy.training.config import apply_overrides, preset
 from bar_policy.training.executable_cache import ExecutableCache, executable_cache_for
 from bar_policy.training.startup import Compiler, StartupTimer
@@ -93,12 +94,12 @@ def test_a_changed_config_is_not_served_the_stale_program(tmp_path):
 
 def test_changed_package_content_or_jax_version_misses(tmp_path, monkeypatch):
     _run(ExecutableCache(tmp_path, CONTEXT), Toy())
-    monkeypatch.setattr(ec, "package_hash", lambda: "0" * 64)
+    monkeypatch.setattr(ek, "package_hash", lambda: "0" * 64)
     toy = Toy()
     _, edited = _run(ExecutableCache(tmp_path, CONTEXT), toy)
     assert toy.traces == 1 and edited.executable == "stored"
-    versions = {**ec.library_versions(), "jax": "0.0.0-other"}
-    monkeypatch.setattr(ec, "library_versions", lambda: versions)
+    versions = {**ek.library_versions(), "jax": "0.0.0-other"}
+    monkeypatch.setattr(ek, "library_versions", lambda: versions)
     _, other_jax = _run(ExecutableCache(tmp_path, CONTEXT), toy)
     assert toy.traces == 2 and other_jax.executable == "stored"
     assert len(_entries(tmp_path)) == 3
@@ -131,6 +132,31 @@ def test_a_corrupt_entry_is_logged_deleted_and_replaced(tmp_path, caplog):
     assert again.executable == "hit" and toy.traces == 1
 
 
+def test_entries_a_crashed_process_loaded_are_deleted_and_banned(tmp_path, caplog):
+    import subprocess
+    import sys
+
+    cache = ExecutableCache(tmp_path, CONTEXT)
+    _run(cache, Toy())
+    _, hit = _run(ExecutableCache(tmp_path, CONTEXT), Toy())
+    assert hit.executable == "hit" and (tmp_path / f"inflight-{os.getpid()}.json").exists()
+    ExecutableCache(tmp_path, CONTEXT).confirm()  # ran fine: no longer in flight
+    assert not list(tmp_path.glob("inflight-*"))
+
+    # A process that loaded the entry and died before confirming (what a segfault leaves behind).
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True)
+    (key,) = (p.stem for p in tmp_path.glob("*.bin"))
+    (tmp_path / f"inflight-{int(dead.stdout)}.json").write_text(f'["{key}"]')
+    with caplog.at_level(logging.WARNING, logger=ec.__name__):
+        cache = ExecutableCache(tmp_path, CONTEXT)
+    assert any("died running programs" in r.getMessage() for r in caplog.records)
+    assert not _entries(tmp_path) and not list(tmp_path.glob("inflight-*"))
+    toy = Toy()
+    _, again = _run(cache, toy)
+    assert toy.traces == 1 and again.executable == "not stored: a process crashed running it"
+    assert not _entries(tmp_path)
+
+
 def test_an_entry_under_another_key_is_refused(tmp_path, caplog):
     cache = ExecutableCache(tmp_path, CONTEXT)
     _run(cache, Toy())
@@ -139,9 +165,12 @@ def test_an_entry_under_another_key_is_refused(tmp_path, caplog):
     assert cache.load("f" * 64, "toy") is None and not (tmp_path / ("f" * 64 + ".bin")).exists()
 
 
-def test_off_switch_writes_and_reads_nothing(tmp_path):
+def test_off_switch_writes_and_reads_nothing(tmp_path, monkeypatch):
     cfg = apply_overrides(preset("tiny"), [])
     record = {"train": {"seed": 0}, "env": {}}
+    monkeypatch.delenv(ec.CPU_ENV, raising=False)
+    assert executable_cache_for(cfg, tmp_path, record, Toy()) is None  # off on CPUs unless asked for
+    monkeypatch.setenv(ec.CPU_ENV, "1")
     assert executable_cache_for(cfg, tmp_path, record, Toy()) is not None  # on with the compile cache
     off = apply_overrides(preset("tiny"), ["executable_cache=False"])
     assert executable_cache_for(off, tmp_path, record, Toy()) is None
@@ -161,7 +190,7 @@ def test_key_covers_config_code_versions_platform_and_signature():
     cache = ExecutableCache.__new__(ExecutableCache)
     cache.context = CONTEXT
     key, inputs = cache.key("toy", jax.jit(Toy().program), (X,))
-    assert len(key) == 64 and inputs["context"] == CONTEXT and inputs["package"] == ec.package_hash()
+    assert len(key) == 64 and inputs["context"] == CONTEXT and inputs["package"] == ek.package_hash()
     assert {"jax", "jaxlib", "mujoco", "mujoco-mjx", "brax", "flax", "optax"} <= set(inputs["libraries"])
     assert inputs["platform"]["backend"] == jax.default_backend() and inputs["platform"]["process_count"] == 1
     assert "jax_default_matmul_precision" in inputs["flags"]
@@ -201,9 +230,9 @@ class Node:
 def test_signature_describes_static_tree_data_by_content_not_address():
     """A tree's static data is described by content: equal in every process, changed with the content
     (``str(treedef)`` shows the wrapper's address, which made every rerun of the epoch a miss)."""
-    a = ec.signature((Node(X, Wrapped(np.arange(3))),))
-    assert ec.signature((Node(X, Wrapped(np.arange(3))),)) == a
-    assert ec.signature((Node(X, Wrapped(np.arange(4))),)) != a
+    a = ek.signature((Node(X, Wrapped(np.arange(3))),))
+    assert ek.signature((Node(X, Wrapped(np.arange(3))),)) == a
+    assert ek.signature((Node(X, Wrapped(np.arange(4))),)) != a
     assert " at 0x" not in str(a)
 
 
@@ -241,8 +270,11 @@ SMALL_BRAX = [
 """The smallest brax run on the stand-in env: two iterations of 64 env steps, two evaluations."""
 
 
-def test_a_rerun_loads_every_program_and_trains_the_same(tmp_path, toy_env, restore_cache_config):
+def test_a_rerun_loads_every_program_and_trains_the_same(
+    tmp_path, toy_env, restore_cache_config, monkeypatch
+):
     """End to end: the second run of one config traces nothing and ends with the same parameters."""
+    monkeypatch.setenv(ec.CPU_ENV, "1")  # the stand-in env's programs load and run on a CPU
     from jax.experimental.compilation_cache import compilation_cache as cc
     from toy_configs import toy_config
 
