@@ -93,6 +93,7 @@ class ExecutableCache:
                 continue
             with contextlib.suppress(OSError, ValueError):
                 for key in json.loads(record.read_text()):
+                    _crashed_marker(self.directory).touch()
                     self.delete(key)
                     (self.directory / f"{key}.banned").touch()
                     _log.warning(
@@ -246,4 +247,19 @@ def executable_cache_for(
         "env_class": f"{cls.__module__}.{cls.__qualname__}",
         "env_source": ek.source_hash(env),
     }
-    return ExecutableCache(Path(cache_dir) / "executables", context)
+    cache = ExecutableCache(Path(cache_dir) / "executables", context)
+    if _crashed_marker(cache.directory).exists():
+        _log.warning(
+            "executable cache: off, a run crashed after loading from it on this backend and jaxlib (delete "
+            "%s to try again)", _crashed_marker(cache.directory),
+        )  # fmt: skip
+        return None
+    return cache
+
+
+def _crashed_marker(directory: Path) -> Path:
+    """Left when a process died running loaded programs: the cache stays off for this backend and jaxlib."""
+    import jax
+    import jaxlib
+
+    return directory / f"crashed-{jax.default_backend()}-jaxlib-{jaxlib.__version__}"

@@ -155,6 +155,16 @@ def test_entries_a_crashed_process_loaded_are_deleted_and_banned(tmp_path, caplo
     _, again = _run(cache, toy)
     assert toy.traces == 1 and again.executable == "not stored: a process crashed running it"
     assert not _entries(tmp_path)
+    # And the trainer's cache stays off on this backend and jaxlib from then on (one crashed run, not one
+    # per config), until the marker is deleted.
+    (marker,) = tmp_path.glob("crashed-*")
+    cfg = apply_overrides(preset("tiny"), [])
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv(ec.CPU_ENV, "1")
+        run_cache = tmp_path / "run"
+        assert executable_cache_for(cfg, run_cache, {"train": {}, "env": {}}, Toy()) is not None
+        marker.rename(run_cache / "executables" / marker.name)
+        assert executable_cache_for(cfg, run_cache, {"train": {}, "env": {}}, Toy()) is None
 
 
 def test_an_entry_under_another_key_is_refused(tmp_path, caplog):
