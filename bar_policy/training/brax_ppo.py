@@ -56,6 +56,7 @@ from bar_policy.training.brax_programs import (
 from bar_policy.training.brax_result import BraxTrainResult
 from bar_policy.training.checkpoint import load_checkpoint, save_checkpoint
 from bar_policy.training.config import TrainConfig
+from bar_policy.training.executable_cache import ExecutableCache
 from bar_policy.training.learner import TrainingState, make_learner, make_networks
 from bar_policy.training.parallel import barrier, make_data_parallel
 from bar_policy.training.progress import RunLogger, next_would_overrun
@@ -88,6 +89,7 @@ def train_brax(
     timer: StartupTimer | None = None,
     eval_env: Any | None = None,
     eval_randomizer: Callable[..., Any] | None = None,
+    executable_cache: ExecutableCache | None = None,
 ) -> BraxTrainResult:
     """Train with brax PPO pieces on every device; see the module docstring.
 
@@ -103,6 +105,7 @@ def train_brax(
         eval_env: the env every evaluation runs (the task's held-out variant, ``evaluation_env()``) with
             ``eval_randomizer``; None: ``env`` with ``randomizer``.
         eval_randomizer: the model randomiser of ``eval_env`` (None: its nominal model).
+        executable_cache: load and store the programs' executables here (None: compile every run).
 
     Returns:
         The trained params and a record of the run.
@@ -138,7 +141,7 @@ def train_brax(
     # epoch's inputs), the epoch (the longest compile) right after it, then the small init. Nothing waits on
     # the evaluation before the first epoch ends, so it is traced on a worker too: on a warm compile cache
     # its trace is a third of what is left of the start-up, and it now overlaps the first epochs.
-    compiler = Compiler(timer)
+    compiler = Compiler(timer, executable_cache=executable_cache)
     reset_lowered = compiler.submit("reset", programs.reset, key_abs, key_abs)
     envs_abs = dp.abstract(reset_lowered.out_info, sharded=True)
     compiler.submit("epoch", programs.epoch, ts_abs, envs_abs, key_abs)
@@ -255,6 +258,7 @@ def train_brax(
             for line in timer.lines(report):
                 logger.print(line)
             logger.note("startup", {"step": env_steps, **report})
+            compiler.confirm()  # the loaded programs ran: not suspects of a crash
         if eval_due:
             device_eval(_policy_params(ts), env_steps)
             n_evals = epochs_done // _LINES_PER_EVAL

@@ -293,6 +293,9 @@ class TrainConfig:
     """Persistent XLA compilation cache (a rerun of the same command loads programs instead of compiling)."""
     compile_cache_dir: str = ""
     """Cache directory (empty: $JAX_COMPILATION_CACHE_DIR, else $XDG_CACHE_HOME/bar_policy/jax)."""
+    executable_cache: bool = True
+    """Executable cache in <cache directory>/executables, on whenever the compile cache is (one process): a
+    rerun of the same command and code loads each program without tracing, lowering or compiling it."""
     ppo: PPOConfig = field(default_factory=PPOConfig)
     network: NetworkConfig = field(default_factory=NetworkConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)

@@ -49,6 +49,7 @@ from bar_policy.training import startup_breakdown as sb
 from bar_policy.training.best import BestIterate, BestKeeper
 from bar_policy.training.checkpoint import latest_checkpoint, save_checkpoint
 from bar_policy.training.config import TrainConfig
+from bar_policy.training.executable_cache import ExecutableCache
 from bar_policy.training.progress import RunLogger, next_would_overrun
 from bar_policy.training.rsl_rl_config import rsl_rl_train_cfg
 from bar_policy.training.rsl_rl_env import RslRlVecEnv
@@ -239,6 +240,7 @@ def train_rsl_rl(
     config_record: dict[str, Any] | None = None,
     timer: StartupTimer | None = None,
     eval_env: Any | None = None,
+    executable_cache: ExecutableCache | None = None,
 ) -> RslRlTrainResult:
     """Train with rsl-rl-lib's PPO on ``env``; same arguments and outputs as ``train_brax``.
 
@@ -262,7 +264,8 @@ def train_rsl_rl(
     torch.manual_seed(cfg.seed)
     timer = timer or StartupTimer()
     traced_before = timer.phases.get(sb.TRACE, 0.0) + timer.phases.get(sb.LOWER, 0.0)
-    compiler = Compiler(timer)  # the training and evaluation steps compile side by side
+    # The training and evaluation steps compile side by side.
+    compiler = Compiler(timer, executable_cache=executable_cache)
     kw = {"wrap_fn": wrap_fn, "randomizer": randomizer, "device": device, "compiler": compiler}
     kw["prior"] = prior  # both envs add it to the actor's actions
     # Our loop records its own sums on the device (take_stats); extras["log"] is for OnPolicyRunner.learn.
@@ -360,6 +363,7 @@ def train_rsl_rl(
             for line in timer.lines(report):
                 logger.print(line)
             logger.note("startup", {"step": env_steps, **report})
+            compiler.confirm()
         logger.log(env_steps, train_metrics, kind="train")
         last = iteration >= total_iters
         over_budget = next_would_overrun(logger.elapsed(), dt, 60 * cfg.max_minutes)

@@ -24,6 +24,7 @@ from bar_policy.training import startup_breakdown as sb
 from bar_policy.training.best import finish_best
 from bar_policy.training.config import TrainConfig, config_to_dict
 from bar_policy.training.distributed import init_distributed, local_default_devices, shutdown_distributed
+from bar_policy.training.executable_cache import executable_cache_for
 from bar_policy.training.progress import RunLogger, format_duration, format_steps
 from bar_policy.training.startup import StartupTimer, configure_compile_cache
 
@@ -228,6 +229,11 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
             f"partitioner: {partitioner} (JAX_USE_SHARDY_PARTITIONER in the environment chooses)"
         )
         run_dir, logger, record = _open_run(cfg, env, is_main, [cache_note, partitioner_note])
+        exec_cache = executable_cache_for(cfg, cache_dir, record, env)
+        if is_main and cache_dir:
+            logger.print(
+                f"executable cache: {exec_cache.directory if exec_cache else 'off'} (docs/startup.md)"
+            )
     logger.t0 = timer.origin
     provenance = record["provenance"]
     ckpt_dir = str(run_dir / "checkpoints")
@@ -244,6 +250,7 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
             timer=timer,
             eval_env=eval_env,
             eval_randomizer=None,
+            executable_cache=exec_cache,
         )
     else:
         result = train_rsl_rl(
@@ -255,6 +262,7 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
             config_record=record,
             timer=timer,
             eval_env=eval_env,
+            executable_cache=exec_cache,
         )
 
     # Every process evaluates (the brax evaluation is one program over all devices); process 0 reports.

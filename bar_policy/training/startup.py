@@ -1,11 +1,15 @@
 """Cold start: the persistent compilation cache, concurrent ahead-of-time compiles, a start-up breakdown.
 
 Most of a short run's wall time is XLA compiling the MJX programs (the env step inside the training epoch,
-the evaluation, the reset). Three things cut it:
+the evaluation, the reset). Four things cut it:
 
 - **Persistent cache** (``configure_compile_cache``): on by default in ``$XDG_CACHE_HOME/bar_policy/jax``
   (``~/.cache/bar_policy/jax``), every program cached whatever its compile time, so a rerun of the same
   command loads executables instead of compiling them.
+- **Executable cache** (``bar_policy.training.executable_cache``, handed to ``Compiler``): jax's cache is
+  keyed on the lowered program, so a warm run still traces and lowers every program; this one stores the
+  serialised executable under a key of everything that determines it (config, package content, library
+  versions, devices, argument signature), so a rerun loads it without tracing (``docs/startup.md``).
 - **Concurrent compiles** (``Compiler``): each program is traced in the calling thread (Python, holds the
   GIL) and handed to a thread for XLA's compile (releases the GIL), so the epoch, evaluation and reset
   compile side by side while the next program is traced.
@@ -23,9 +27,12 @@ import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bar_policy.training.startup_breakdown import ProgramTimes, StartupTimer
+
+if TYPE_CHECKING:
+    from bar_policy.training.executable_cache import ExecutableCache
 
 __all__ = [
     "CompileStats",
@@ -181,10 +188,17 @@ class Compiler:
     worker) and compiles it on a worker; ``get(name)`` waits for the compiled executable. Each stage's
     seconds and the program's persistent-cache outcome go into ``timer.programs[name]``; the calling
     thread's trace and lower seconds also into the timer's ``TRACE`` and ``LOWER`` phases.
+
+    With an ``executable_cache`` (``bar_policy.training.executable_cache``) a program whose key is stored
+    is loaded instead (in the calling thread, or on the worker with ``background=True``): no trace, no
+    lowering, no compile; a miss is compiled as above and its executable stored.
     """
 
-    def __init__(self, timer: StartupTimer, max_workers: int = 4) -> None:
+    def __init__(
+        self, timer: StartupTimer, max_workers: int = 4, executable_cache: ExecutableCache | None = None
+    ) -> None:
         self.timer = timer
+        self.executable_cache = executable_cache
         self._pool = ThreadPoolExecutor(max_workers=max_workers, thread_name_prefix="xla-compile")
         self._futures: dict[str, Future] = {}
         self._stats = CompileStats.get()
@@ -195,11 +209,23 @@ class Compiler:
         With ``background=True`` the trace runs on the worker too and None is returned: for a program
         nothing waits on soon (the evaluation), whose trace then overlaps the first epochs instead of
         delaying them. Tracing holds the GIL, so submit it after the programs this thread traces next.
+        On an executable-cache hit the loaded ``Compiled`` is returned instead (it has ``out_info`` too).
         """
-        from bar_policy.training.startup_breakdown import LOWER, TRACE
+        from bar_policy.training.startup_breakdown import EXEC_LOAD, LOWER, TRACE
 
         times = self.timer.program(name)
         times.thread = "worker" if background else "main"
+        cache = self.executable_cache
+        key, inputs = cache.key(name, jitted, args) if cache is not None else ("", {})
+
+        def load() -> Any:
+            t = time.monotonic()
+            compiled = cache.load(key, name) if cache is not None else None
+            if compiled is not None:
+                times.executable, times.exec_load_s = "hit", time.monotonic() - t
+                if not background:
+                    self.timer.add(EXEC_LOAD, times.exec_load_s)
+            return compiled
 
         def trace_and_lower() -> Any:
             t0 = time.monotonic()
@@ -218,11 +244,25 @@ class Compiler:
             with self._stats.attribute(times):
                 compiled = lowered.compile()
             times.compile_s = time.monotonic() - t
+            if cache is not None:
+                stored = cache.store(key, inputs, compiled)
+                times.executable = f"bad entry replaced, {stored}" if key in cache.rejected else stored
             return compiled
 
         if background:
-            self._futures[name] = self._pool.submit(lambda: compile_it(trace_and_lower()))
+
+            def everything() -> Any:
+                compiled = load()
+                return compiled if compiled is not None else compile_it(trace_and_lower())
+
+            self._futures[name] = self._pool.submit(everything)
             return None
+        compiled = load()
+        if compiled is not None:
+            done: Future = Future()
+            done.set_result(compiled)
+            self._futures[name] = done
+            return compiled
         lowered = trace_and_lower()
         self._futures[name] = self._pool.submit(compile_it, lowered)
         return lowered
@@ -234,6 +274,11 @@ class Compiler:
     def get(self, name: str) -> Any:
         """The compiled executable of ``name`` (waits for it; re-raises its trace or compile error)."""
         return self._futures[name].result()
+
+    def confirm(self) -> None:
+        """The programs loaded from the executable cache ran: they are no longer suspects of a crash."""
+        if self.executable_cache is not None:
+            self.executable_cache.confirm()
 
     def close(self) -> None:
         """Release the worker threads."""

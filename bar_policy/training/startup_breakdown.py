@@ -35,6 +35,7 @@ RUN_RECORD = "run directory, provenance, logger"
 PROGRAMS = "programs (mesh, learner, abstract shapes)"
 TRACE = "trace (main thread)"
 LOWER = "lower (main thread)"
+EXEC_LOAD = "executable cache load (main thread)"
 WAIT = "wait for compiles or cache loads, init and reset"
 FIRST_EPOCH = "first epoch"
 MORE_EPOCHS = "later epochs before the evaluation was compiled"
@@ -51,6 +52,7 @@ PHASES: tuple[str, ...] = (
     PROGRAMS,
     TRACE,
     LOWER,
+    EXEC_LOAD,
     WAIT,
     FIRST_EPOCH,
     MORE_EPOCHS,
@@ -80,10 +82,20 @@ class ProgramTimes:
     """Executables compiled and written to the cache."""
     cache_load_s: float = 0.0
     """Seconds spent reading hits from the cache (jax's ``cache_retrieval_time_sec``), s."""
+    executable: str = "off"
+    """The executable cache (``executable_cache``): ``hit`` (loaded: no trace, lower or compile), ``stored``
+    (compiled, then stored), ``not stored: <why>``, ``bad entry replaced, ...`` or ``off``."""
+    exec_load_s: float = 0.0
+    """Seconds loading the executable on a hit (``deserialize_and_load``), s."""
 
     @property
     def cache(self) -> str:
-        """``hit``, ``miss`` (compiled, stored), ``miss, not stored`` (under the size/time floor), ``off``."""
+        """The persistent cache's outcome: ``hit``, ``miss`` (compiled, stored), ``miss, not stored``.
+
+        Also ``off`` (no lookup) and ``exec cache hit`` (loaded from the executable cache: no lookup).
+        """
+        if self.executable == "hit":
+            return "exec cache hit"
         if self.cache_hits:
             return "hit"
         if self.cache_misses:
@@ -99,6 +111,8 @@ class ProgramTimes:
             "compile_s": round(self.compile_s, 3),
             "cache": self.cache,
             "cache_load_s": round(self.cache_load_s, 3),
+            "executable": self.executable,
+            "exec_load_s": round(self.exec_load_s, 3),
         }
 
 
@@ -192,12 +206,15 @@ def _table(rec: dict[str, Any]) -> Iterator[str]:
     if rec["programs"]:
         yield "  programs (compiles run on worker threads, overlapping each other and the rows above):"
         head = f"{'program':<10} {'traced on':<9} {'trace':>7} {'lower':>7} {'compile':>8}"
-        yield f"    {head}  persistent cache"
+        yield f"    {head}  persistent cache; executable cache"
         for name, p in rec["programs"].items():
             load = f" ({p['cache_load_s']:.2f} s load)" if p["cache"] == "hit" else ""
+            exe = p.get("executable", "off")
+            if exe == "hit":
+                load, exe = f" ({p.get('exec_load_s', 0.0):.2f} s load)", "trace, lower, compile skipped"
             yield (
                 f"    {name:<10} {p['thread']:<9} {p['trace_s']:6.2f}s {p['lower_s']:6.2f}s "
-                f"{p['compile_s']:7.2f}s  {p['cache']}{load}"
+                f"{p['compile_s']:7.2f}s  {p['cache']}{load}; {exe}"
             )
     c = rec["compiles"]
     if c:

@@ -1,0 +1,321 @@
+"""The executable cache: a hit skips the trace and serves the same program; anything else is a miss.
+
+Toy programs through the trainer's own ``Compiler``, each cache in an empty directory. A miss traces (the
+Python function runs) and stores; a hit loads without tracing and computes bit for bit what the freshly
+compiled program did. A changed config, package content, jax version or argument signature is another key;
+a corrupt entry is logged, deleted and replaced; the off switch writes and reads nothing.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bar_policy.training import executable_cache as ec
+from bar_policy.training import executable_key as ek
+from bar_policy.training.config import apply_overrides, preset
+from bar_policy.training.executable_cache import ExecutableCache, executable_cache_for
+from bar_policy.training.startup import Compiler, StartupTimer
+
+X = jnp.linspace(-2.0, 3.0, 24, dtype=jnp.float32).reshape(4, 6)
+CONTEXT = {"train": {"seed": 0, "ppo": {"learning_rate": 1e-3}}, "env": {"gain": 0.3}}
+
+
+class Toy:
+    """A program closing over a config value (as the trainer's close over the env and PPO configs), with a
+    count of its traces."""
+
+    def __init__(self, gain: float = 0.3) -> None:
+        self.gain = gain
+        self.traces = 0
+
+    def program(self, x: jax.Array) -> dict[str, jax.Array]:
+        self.traces += 1
+        y = jnp.tanh(x @ x.T * self.gain) + jnp.sin(x).sum()
+        return {"y": y, "norm": jnp.sqrt((y * y).sum())}
+
+
+def _run(cache: ExecutableCache | None, toy: Toy, *args: object, name: str = "toy", background: bool = False):
+    """Submit ``toy.program`` through a fresh ``Compiler`` (jax's in-memory caches cleared); returns the
+    outputs as numpy and the program's ``ProgramTimes``."""
+    jax.clear_caches()
+    timer = StartupTimer()
+    compiler = Compiler(timer, executable_cache=cache)
+    compiler.submit(name, jax.jit(toy.program), *(args or (X,)), background=background)
+    out = jax.tree.map(np.asarray, compiler.get(name)(*(args or (X,))))
+    compiler.close()
+    return out, timer.programs[name]
+
+
+def _entries(directory: Path) -> set[str]:
+    return {p.name for p in directory.glob("*.bin")}
+
+
+def test_same_key_hits_without_tracing_bit_for_bit(tmp_path):
+    toy = Toy()
+    fresh, first = _run(ExecutableCache(tmp_path, CONTEXT), toy)
+    assert toy.traces == 1 and first.executable == "stored" and first.trace_s > 0
+    (entry,) = _entries(tmp_path)
+    assert (tmp_path / entry.replace(".bin", ".json")).is_file()  # the sidecar, for humans
+
+    for background in (False, True):  # loaded on the calling thread, or on the worker
+        loaded, again = _run(ExecutableCache(tmp_path, dict(CONTEXT)), toy, background=background)
+        assert toy.traces == 1  # not traced again
+        assert again.executable == "hit" and again.cache == "exec cache hit" and again.exec_load_s > 0
+        assert again.trace_s == again.lower_s == again.compile_s == 0.0
+        for k in fresh:
+            np.testing.assert_array_equal(loaded[k], fresh[k])  # bit for bit
+    assert _entries(tmp_path) == {entry}
+    timer = StartupTimer()
+    timer.programs["toy"] = again
+    rec = timer.finish(1.0, total_s=1.0)
+    assert rec["programs"]["toy"]["executable"] == "hit"  # the run record keeps it
+    lines = StartupTimer.lines(rec)
+    assert any("exec cache hit" in line and "trace, lower, compile skipped" in line for line in lines)
+
+
+def test_a_changed_config_is_not_served_the_stale_program(tmp_path):
+    first, _ = _run(ExecutableCache(tmp_path, CONTEXT), Toy(0.3))
+    changed = {**CONTEXT, "env": {"gain": 0.6}}
+    toy = Toy(0.6)
+    out, second = _run(ExecutableCache(tmp_path, changed), toy)
+    assert toy.traces == 1 and second.executable == "stored"  # a miss: traced, compiled, stored
+    assert len(_entries(tmp_path)) == 2
+    expected, _ = _run(None, Toy(0.6))  # what the changed config computes, no cache involved
+    np.testing.assert_array_equal(out["y"], expected["y"])
+    assert not np.allclose(out["y"], first["y"])  # and not the 0.3 program's
+
+
+def test_changed_package_content_or_jax_version_misses(tmp_path, monkeypatch):
+    _run(ExecutableCache(tmp_path, CONTEXT), Toy())
+    monkeypatch.setattr(ek, "package_hash", lambda: "0" * 64)
+    toy = Toy()
+    _, edited = _run(ExecutableCache(tmp_path, CONTEXT), toy)
+    assert toy.traces == 1 and edited.executable == "stored"
+    versions = {**ek.library_versions(), "jax": "0.0.0-other"}
+    monkeypatch.setattr(ek, "library_versions", lambda: versions)
+    _, other_jax = _run(ExecutableCache(tmp_path, CONTEXT), toy)
+    assert toy.traces == 2 and other_jax.executable == "stored"
+    assert len(_entries(tmp_path)) == 3
+
+
+def test_changed_argument_shape_or_dtype_misses(tmp_path):
+    toy = Toy()
+    cache = ExecutableCache(tmp_path, CONTEXT)
+    _run(cache, toy, X)
+    _run(cache, toy, X[:3])  # another shape
+    out, times = _run(cache, toy, X.astype(jnp.bfloat16))  # another dtype
+    assert toy.traces == 3 and times.executable == "stored" and out["y"].dtype == jnp.bfloat16
+    assert len(_entries(tmp_path)) == 3
+    _run(cache, toy, X[:3])
+    assert toy.traces == 3  # each signature has its own entry
+
+
+def test_a_corrupt_entry_is_logged_deleted_and_replaced(tmp_path, caplog):
+    fresh, _ = _run(ExecutableCache(tmp_path, CONTEXT), Toy())
+    (entry,) = tmp_path.glob("*.bin")
+    entry.write_bytes(entry.read_bytes()[:100])  # truncated
+    toy = Toy()
+    with caplog.at_level(logging.WARNING, logger=ec.__name__):
+        out, times = _run(ExecutableCache(tmp_path, CONTEXT), toy)
+    (line,) = [r.getMessage() for r in caplog.records if r.name == ec.__name__]
+    assert entry.name in line and "compiling afresh" in line
+    assert toy.traces == 1 and times.executable == "bad entry replaced, stored"
+    np.testing.assert_array_equal(out["y"], fresh["y"])
+    _, again = _run(ExecutableCache(tmp_path, CONTEXT), toy)  # the replacement loads
+    assert again.executable == "hit" and toy.traces == 1
+
+
+def test_entries_a_crashed_process_loaded_are_deleted_and_banned(tmp_path, caplog):
+    import subprocess
+    import sys
+
+    cache = ExecutableCache(tmp_path, CONTEXT)
+    _run(cache, Toy())
+    _, hit = _run(ExecutableCache(tmp_path, CONTEXT), Toy())
+    assert hit.executable == "hit" and (tmp_path / f"inflight-{os.getpid()}.json").exists()
+    ExecutableCache(tmp_path, CONTEXT).confirm()  # ran fine: no longer in flight
+    assert not list(tmp_path.glob("inflight-*"))
+
+    # A process that loaded the entry and died before confirming (what a segfault leaves behind).
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True)
+    (key,) = (p.stem for p in tmp_path.glob("*.bin"))
+    (tmp_path / f"inflight-{int(dead.stdout)}.json").write_text(f'["{key}"]')
+    with caplog.at_level(logging.WARNING, logger=ec.__name__):
+        cache = ExecutableCache(tmp_path, CONTEXT)
+    assert any("died running programs" in r.getMessage() for r in caplog.records)
+    assert not _entries(tmp_path) and not list(tmp_path.glob("inflight-*"))
+    toy = Toy()
+    _, again = _run(cache, toy)
+    assert toy.traces == 1 and again.executable == "not stored: a process crashed running it"
+    assert not _entries(tmp_path)
+    # And the trainer's cache stays off on this backend and jaxlib from then on (one crashed run, not one
+    # per config), until the marker is deleted.
+    (marker,) = tmp_path.glob("crashed-*")
+    cfg = apply_overrides(preset("tiny"), [])
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv(ec.CPU_ENV, "1")
+        run_cache = tmp_path / "run"
+        assert executable_cache_for(cfg, run_cache, {"train": {}, "env": {}}, Toy()) is not None
+        marker.rename(run_cache / "executables" / marker.name)
+        assert executable_cache_for(cfg, run_cache, {"train": {}, "env": {}}, Toy()) is None
+
+
+def test_an_entry_under_another_key_is_refused(tmp_path, caplog):
+    cache = ExecutableCache(tmp_path, CONTEXT)
+    _run(cache, Toy())
+    (entry,) = tmp_path.glob("*.bin")
+    entry.rename(tmp_path / ("f" * 64 + ".bin"))
+    assert cache.load("f" * 64, "toy") is None and not (tmp_path / ("f" * 64 + ".bin")).exists()
+
+
+def test_off_switch_writes_and_reads_nothing(tmp_path, monkeypatch):
+    cfg = apply_overrides(preset("tiny"), [])
+    record = {"train": {"seed": 0}, "env": {}}
+    monkeypatch.delenv(ec.CPU_ENV, raising=False)
+    assert executable_cache_for(cfg, tmp_path, record, Toy()) is None  # off on CPUs unless asked for
+    monkeypatch.setenv(ec.CPU_ENV, "1")
+    assert executable_cache_for(cfg, tmp_path, record, Toy()) is not None  # on with the compile cache
+    off = apply_overrides(preset("tiny"), ["executable_cache=False"])
+    assert executable_cache_for(off, tmp_path, record, Toy()) is None
+    assert executable_cache_for(cfg, None, record, Toy()) is None  # --no-compile-cache
+    several = apply_overrides(preset("tiny"), ["distributed.num_processes=2"])
+    assert executable_cache_for(several, tmp_path, record, Toy()) is None  # jax.distributed runs
+
+    _run(ExecutableCache(tmp_path / "on", CONTEXT), Toy())  # an entry the off run could have read
+    before = {p: p.stat().st_mtime_ns for p in (tmp_path / "on").iterdir()}
+    toy = Toy()
+    _, times = _run(None, toy)
+    assert toy.traces == 1 and times.executable == "off" and times.cache != "exec cache hit"
+    assert {p: p.stat().st_mtime_ns for p in (tmp_path / "on").iterdir()} == before
+
+
+def test_key_covers_config_code_versions_platform_and_signature():
+    cache = ExecutableCache.__new__(ExecutableCache)
+    cache.context = CONTEXT
+    key, inputs = cache.key("toy", jax.jit(Toy().program), (X,))
+    assert len(key) == 64 and inputs["context"] == CONTEXT and inputs["package"] == ek.package_hash()
+    assert {"jax", "jaxlib", "mujoco", "mujoco-mjx", "brax", "flax", "optax"} <= set(inputs["libraries"])
+    assert inputs["platform"]["backend"] == jax.default_backend() and inputs["platform"]["process_count"] == 1
+    assert "jax_default_matmul_precision" in inputs["flags"]
+    assert inputs["args"]["leaves"][0][:2] == [[4, 6], "float32"]
+    assert cache.key("toy", jax.jit(Toy().program), (X,))[0] == key  # deterministic
+    assert cache.key("other", jax.jit(Toy().program), (X,))[0] != key  # the name is part of it
+
+
+class Wrapped:
+    """Static tree data as MJX keeps it (``_NumPyArrayHashWrapper``): a numpy array, repr with an address."""
+
+    __slots__ = ("array",)
+
+    def __init__(self, array: np.ndarray) -> None:
+        self.array = array
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Wrapped) and np.array_equal(self.array, other.array)
+
+    def __hash__(self) -> int:
+        return hash(self.array.tobytes())
+
+
+@jax.tree_util.register_pytree_node_class
+class Node:
+    def __init__(self, x: jax.Array, meta: Wrapped) -> None:
+        self.x, self.meta = x, meta
+
+    def tree_flatten(self) -> tuple:
+        return (self.x,), self.meta
+
+    @classmethod
+    def tree_unflatten(cls, meta: Wrapped, children: tuple) -> Node:
+        return cls(children[0], meta)
+
+
+def test_signature_describes_static_tree_data_by_content_not_address():
+    """A tree's static data is described by content: equal in every process, changed with the content
+    (``str(treedef)`` shows the wrapper's address, which made every rerun of the epoch a miss)."""
+    a = ek.signature((Node(X, Wrapped(np.arange(3))),))
+    assert ek.signature((Node(X, Wrapped(np.arange(3))),)) == a
+    assert ek.signature((Node(X, Wrapped(np.arange(4))),)) != a
+    assert " at 0x" not in str(a)
+
+
+def test_cli_switch():
+    from bar_policy.training.cli import parse_config
+
+    assert parse_config(["--preset", "tiny"]).executable_cache is True
+    assert parse_config(["--preset", "tiny", "--no-executable-cache"]).executable_cache is False
+
+
+if __name__ == "__main__":  # pragma: no cover
+    pytest.main([__file__, "-q"])
+
+
+def _startup(run_dir: Path) -> dict:
+    """The run's start-up record (``metrics.jsonl``)."""
+    import json
+
+    recs = [json.loads(x) for x in (Path(run_dir) / "metrics.jsonl").read_text().splitlines()]
+    return next(r for r in recs if r["kind"] == "startup")
+
+
+SMALL_BRAX = [
+    "ppo.num_envs=16",
+    "ppo.batch_size=16",
+    "ppo.num_minibatches=2",
+    "ppo.unroll_length=4",
+    "ppo.num_updates_per_batch=1",
+    "ppo.num_timesteps=128",
+    "eval.num_evals=2",
+    "eval.num_eval_envs=16",
+    "export_onnx=False",
+    "seed=0",
+]
+"""The smallest brax run on the stand-in env: two iterations of 64 env steps, two evaluations."""
+
+
+def test_a_rerun_loads_every_program_and_trains_the_same(
+    tmp_path, toy_env, restore_cache_config, monkeypatch
+):
+    """End to end: the second run of one config traces nothing and ends with the same parameters."""
+    monkeypatch.setenv(ec.CPU_ENV, "1")  # the stand-in env's programs load and run on a CPU
+    from jax.experimental.compilation_cache import compilation_cache as cc
+    from toy_configs import toy_config
+
+    from bar_policy.training import startup_breakdown as sb
+    from bar_policy.training.run import run
+
+    cache = tmp_path / "jax"
+    # No run name: each run gets its own directory, the config (part of the key) stays the same.
+    cfg = toy_config(tmp_path / "runs", "", [*SMALL_BRAX, f"compile_cache_dir={cache}"])
+    cc.reset_cache()  # jax opens its cache once per process: close the suite's
+    try:
+        first = run(cfg, env=toy_env)
+        jax.clear_caches()
+        second = run(cfg, env=toy_env)
+    finally:
+        cc.reset_cache()
+    cold, warm = (_startup(s.run_dir) for s in (first, second))
+    assert {p["executable"] for p in cold["programs"].values()} == {"stored"}
+    assert {p["executable"] for p in warm["programs"].values()} == {"hit"}, warm["programs"]
+    assert warm["phases"][sb.TRACE] == warm["phases"][sb.LOWER] == 0.0
+    assert len(list((cache / "executables").glob("*.bin"))) == len(cold["programs"])
+    for a, b in zip(jax.tree.leaves(first.params), jax.tree.leaves(second.params), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_least_recently_used_entries_go_over_the_size_limit(tmp_path):
+    cache = ExecutableCache(tmp_path, CONTEXT)
+    _run(cache, Toy(), X)
+    (old,) = tmp_path.glob("*.bin")
+    os.utime(old, (1, 1))  # long unused
+    cache.max_bytes = old.stat().st_size * 3 // 2  # room for one entry
+    _run(cache, Toy(), X[:2])
+    assert not old.exists() and not old.with_suffix(".json").exists()
+    assert len(_entries(tmp_path)) == 1
