@@ -293,9 +293,10 @@ class TrainConfig:
     """Persistent XLA compilation cache (a rerun of the same command loads programs instead of compiling)."""
     compile_cache_dir: str = ""
     """Cache directory (empty: $JAX_COMPILATION_CACHE_DIR, else $XDG_CACHE_HOME/bar_policy/jax)."""
-    executable_cache: bool = True
-    """Executable cache in <cache directory>/executables, on whenever the compile cache is (one process): a
-    rerun of the same command and code loads each program without tracing, lowering or compiling it."""
+    executable_cache: bool = False
+    """Executable cache in <cache directory>/executables (opt-in, one process, with the compile cache): a
+    rerun of the same command and code loads each program without tracing, lowering or compiling it. Off by
+    default: a deserialised CPU epoch crashed jaxlib 0.10.2; unmeasured on GPUs (docs/startup.md)."""
     ppo: PPOConfig = field(default_factory=PPOConfig)
     network: NetworkConfig = field(default_factory=NetworkConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)

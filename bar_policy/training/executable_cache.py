@@ -28,7 +28,7 @@ recorded (``ProgramTimes.executable``). **A bad entry** (unreadable, corrupt, an
 does not match, a failed ``deserialize_and_load``) logs one warning line, is deleted and the program is
 compiled normally (and stored afresh): a stale or broken program is never served.
 
-Off with ``--no-executable-cache`` or ``--no-compile-cache``, and under multi-process ``jax.distributed``
+Opt-in (``--executable-cache``); off with ``--no-compile-cache``, and under multi-process ``jax.distributed``
 (each process would load its own executable with no check that all loaded the same program).
 """
 

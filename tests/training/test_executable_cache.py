@@ -158,7 +158,7 @@ def test_entries_a_crashed_process_loaded_are_deleted_and_banned(tmp_path, caplo
     # And the trainer's cache stays off on this backend and jaxlib from then on (one crashed run, not one
     # per config), until the marker is deleted.
     (marker,) = tmp_path.glob("crashed-*")
-    cfg = apply_overrides(preset("tiny"), [])
+    cfg = apply_overrides(preset("tiny"), ["executable_cache=True"])
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv(ec.CPU_ENV, "1")
         run_cache = tmp_path / "run"
@@ -176,7 +176,8 @@ def test_an_entry_under_another_key_is_refused(tmp_path, caplog):
 
 
 def test_off_switch_writes_and_reads_nothing(tmp_path, monkeypatch):
-    cfg = apply_overrides(preset("tiny"), [])
+    assert apply_overrides(preset("tiny"), []).executable_cache is False  # opt-in (docs/startup.md)
+    cfg = apply_overrides(preset("tiny"), ["executable_cache=True"])
     record = {"train": {"seed": 0}, "env": {}}
     monkeypatch.delenv(ec.CPU_ENV, raising=False)
     assert executable_cache_for(cfg, tmp_path, record, Toy()) is None  # off on CPUs unless asked for
@@ -249,8 +250,8 @@ def test_signature_describes_static_tree_data_by_content_not_address():
 def test_cli_switch():
     from bar_policy.training.cli import parse_config
 
-    assert parse_config(["--preset", "tiny"]).executable_cache is True
-    assert parse_config(["--preset", "tiny", "--no-executable-cache"]).executable_cache is False
+    assert parse_config(["--preset", "tiny"]).executable_cache is False
+    assert parse_config(["--preset", "tiny", "--executable-cache"]).executable_cache is True
 
 
 if __name__ == "__main__":  # pragma: no cover
@@ -275,6 +276,7 @@ SMALL_BRAX = [
     "eval.num_evals=2",
     "eval.num_eval_envs=16",
     "export_onnx=False",
+    "executable_cache=True",
     "seed=0",
 ]
 """The smallest brax run on the stand-in env: two iterations of 64 env steps, two evaluations."""
