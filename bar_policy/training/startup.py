@@ -244,7 +244,11 @@ class Compiler:
             with self._stats.attribute(times):
                 compiled = lowered.compile()
             times.compile_s = time.monotonic() - t
-            if cache is not None:
+            if cache is not None and times.cache_hits:
+                # An executable jax's persistent cache served does not re-serialise whole on a CPU (jaxlib
+                # 0.10.2: its reload misses the fused functions, "Function ... not found"): not stored.
+                times.executable = "not stored: served by jax's persistent cache"
+            elif cache is not None:
                 stored = cache.store(key, inputs, compiled)
                 times.executable = f"bad entry replaced, {stored}" if key in cache.rejected else stored
             return compiled

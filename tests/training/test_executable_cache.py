@@ -24,6 +24,20 @@ from bar_policy.training.executable_cache import ExecutableCache, executable_cac
 from bar_policy.training.startup import Compiler, StartupTimer
 
 X = jnp.linspace(-2.0, 3.0, 24, dtype=jnp.float32).reshape(4, 6)
+
+
+@pytest.fixture(autouse=True)
+def no_persistent_cache(restore_cache_config):
+    """Every toy program compiles afresh: the suite's shared persistent cache (tests/conftest.py) may hold it
+    from an earlier run, and an executable it serves is not stored (the last test here)."""
+    from jax.experimental.compilation_cache import compilation_cache as cc
+
+    jax.config.update("jax_enable_compilation_cache", False)
+    cc.reset_cache()  # jax decides once per process whether the cache is used: decide again
+    yield
+    cc.reset_cache()
+
+
 CONTEXT = {"train": {"seed": 0, "ppo": {"learning_rate": 1e-3}}, "env": {"gain": 0.3}}
 
 
@@ -252,6 +266,25 @@ def test_cli_switch():
 
     assert parse_config(["--preset", "tiny"]).executable_cache is False
     assert parse_config(["--preset", "tiny", "--executable-cache"]).executable_cache is True
+
+
+def test_an_executable_the_persistent_cache_served_is_not_stored(tmp_path):
+    """On a CPU an executable jax's persistent cache loaded re-serialises without its fused functions (the
+    reload fails, "Function ... not found"), so the executable cache leaves it out; a fresh compile of the
+    same program is stored."""
+    from jax.experimental.compilation_cache import compilation_cache as cc
+
+    jax.config.update("jax_enable_compilation_cache", True)
+    jax.config.update("jax_compilation_cache_dir", str(tmp_path / "jax"))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+    cc.reset_cache()
+    fresh, first = _run(ExecutableCache(tmp_path / "a", CONTEXT), Toy())  # compiled: into both caches
+    assert first.cache_hits == 0 and first.executable == "stored"
+    served, second = _run(ExecutableCache(tmp_path / "b", CONTEXT), Toy())  # from jax's cache
+    assert second.cache_hits == 1 and second.executable == "not stored: served by jax's persistent cache"
+    assert not _entries(tmp_path / "b")
+    np.testing.assert_array_equal(served["y"], fresh["y"])
 
 
 if __name__ == "__main__":  # pragma: no cover
