@@ -41,12 +41,12 @@ import json
 import logging
 import os
 import pickle
-import tempfile
 import time
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from bar_policy._files import write_atomic
 from bar_policy.training import executable_key as ek
 
 __all__ = ["CPU_ENV", "FORMAT", "MAX_BYTES", "ExecutableCache", "executable_cache_for"]
@@ -140,7 +140,7 @@ class ExecutableCache:
             compiled = deserialize_and_load(entry["executable"], entry["in_tree"], entry["out_tree"])
             os.utime(path)  # recently used: evicted last
             self._loaded.append(key)  # until confirm(): a crash bans it (jaxlib 0.10.2 CPU, docs/startup.md)
-            _write_atomic(self._inflight, json.dumps(self._loaded).encode())
+            write_atomic(self._inflight, json.dumps(self._loaded).encode())
             atexit.register(self.confirm)  # an exception or Ctrl-C is not the program's fault
             return compiled
         except Exception as e:  # any failure means: compile afresh
@@ -170,8 +170,8 @@ class ExecutableCache:
         except Exception as e:  # not serialisable: run it, do not store it
             return f"not stored: {type(e).__name__}: {str(e)[:120]}"
         side = {"key": key, "bytes": len(blob), "written": time.strftime("%Y-%m-%dT%H:%M:%S"), **inputs}
-        _write_atomic(self._path(key), blob)
-        _write_atomic(self.directory / f"{key}.json", json.dumps(side, indent=1, default=repr).encode())
+        write_atomic(self._path(key), blob)
+        write_atomic(self.directory / f"{key}.json", json.dumps(side, indent=1, default=repr).encode())
         self.evict(keep=key)
         return "stored"
 
@@ -205,17 +205,6 @@ def _alive(pid: int) -> bool:
     except (PermissionError, OSError):
         return pid > 0
     return pid > 0
-
-
-def _write_atomic(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def executable_cache_for(
