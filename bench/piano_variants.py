@@ -7,6 +7,9 @@ Each variant is the keyboard scene of ``LitePiano`` (``compact_config()``, 49 ke
     uncapped    the caps off: the scene before them (commit 218165f)
     nolimit     the keys' travel stops off (no joint-limit rows; a press past 1 N goes past the stop)
     cg          MuJoCo's CG solver instead of Newton
+    dense       dense mass matrix and Jacobian (MJX's AUTO picks sparse at nv >= 60, the keyboard's 63, while
+                MJX says GPUs are usually faster dense; unmeasured: on the 2-core CPU its compile had not
+                finished after 4 min at batch 32, against 16 s for ``capped``)
     itN, lsN    N solver / line-search iterations (the robot's scene: 3 and 5)
 
 Per variant: nv, constraint rows (nefc), contact rows, the narrow-phase pairs MJX tests each step (and the
@@ -60,12 +63,14 @@ def _edit(part: str) -> Callable[[mujoco.MjSpec], None]:
                 j.limited = mujoco.mjtLimited.mjLIMITED_FALSE
         elif part == "cg":
             spec.option.solver = mujoco.mjtSolver.mjSOL_CG
+        elif part == "dense":
+            spec.option.jacobian = mujoco.mjtJacobian.mjJAC_DENSE
         elif part.startswith("it"):
             spec.option.iterations = int(part[2:])
         elif part.startswith("ls"):
             spec.option.ls_iterations = int(part[2:])
         elif part != "capped":
-            raise ValueError(f"unknown edit {part!r}; valid: capped, uncapped, nolimit, cg, itN, lsN")
+            raise ValueError(f"unknown edit {part!r}; valid: capped, uncapped, nolimit, cg, dense, itN, lsN")
 
     return apply
 
