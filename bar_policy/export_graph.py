@@ -15,7 +15,7 @@ import onnx
 from onnx import TensorProto, helper, numpy_helper
 
 import bar_policy
-from bar_policy.obs.action_prior import ActionPrior, BlendPrior, Prior
+from bar_policy.obs.action_prior import ActionPrior, BlendPrior, Prior, check_fits
 
 __all__ = ["OPSET", "Activation", "Head", "MlpPolicy", "build_onnx_model"]
 
@@ -63,12 +63,7 @@ class MlpPolicy:
         if not np.all(self.obs_std > 0):
             raise ValueError("obs_std must be > 0 everywhere")
         if self.prior is not None:
-            if self.prior.action_size != self.kernels[-1].shape[1]:
-                raise ValueError(
-                    f"the action prior has {self.prior.action_size} actions, the last layer "
-                    f"{self.kernels[-1].shape[1]}"
-                )
-            self.prior.check_observation_size(n)
+            check_fits(self.prior, n, self.kernels[-1].shape[1], holder="the last layer")
         for i, (k, b) in enumerate(zip(self.kernels, self.biases, strict=True)):
             if k.ndim != 2 or b.shape != (k.shape[1],):
                 raise ValueError(f"layer {i}: kernel {k.shape} and bias {b.shape} do not fit")

@@ -72,23 +72,7 @@ for v in "${names[@]}"; do
 done
 wait
 
-python3 - "$RUNS" > "$OUT/summary.md" <<'EOF'
-import json, sys
-from pathlib import Path
-keys = ("f1", "precision", "recall", "quality/completion_pct", "quality/cap_share_pct",
-        "quality/chatter_max_mrad")
-print("| run | env steps | wall s | " + " | ".join(k.split("/")[-1] for k in keys) + " | best iterate |")
-print("|---" * (len(keys) + 4) + "|")
-for run in sorted(Path(sys.argv[1]).iterdir()):
-    f = run / "final_eval.json"
-    if not f.exists():
-        print(f"| {run.name} | (no final_eval.json) |")
-        continue
-    r = json.loads(f.read_text())
-    fe, best = r["final_eval"], r.get("best_iterate", {})
-    b = "last" if best.get("is_last", True) else f"{best['step']:,}: f1 {best['final_eval'].get('f1', float('nan')):.4g}"
-    print(f"| {run.name} | {r['env_steps']:,} | {r['wall_s']:.0f} | "
-          + " | ".join(f"{fe.get(k, float('nan')):.4g}" for k in keys) + f" | {b} |")
-EOF
+python3 bench/recipe_summary.py "$RUNS" > "$OUT/summary.md" --keys f1 precision recall \
+  quality/completion_pct quality/cap_share_pct quality/chatter_max_mrad --best f1
 cat "$OUT/summary.md"
 stamp done

@@ -72,26 +72,10 @@ run_one() {  # run_one NAME SEED EXTRA...  (GPU=<index> pins it to one card)
 }
 
 summary() {
-  python3 - "$RUNS" > "$OUT/summary.md" <<'EOF'
-import json, sys
-from pathlib import Path
-keys = ("success_rate", "joint_error_rad", "fingertip_error_cm", "quality/completion_pct",
-        "quality/cap_share_pct", "quality/chatter_max_mrad", "quality/chatter_mean_mrad", "quality/action_rate")
-print("| run | env steps | wall s | " + " | ".join(k.split("/")[-1] for k in keys) + " | best iterate |")
-print("|---" * (len(keys) + 4) + "|")
-for run in sorted(Path(sys.argv[1]).iterdir()):
-    f = run / "final_eval.json"
-    if not f.exists():
-        print(f"| {run.name} | (no final_eval.json) |")
-        continue
-    r = json.loads(f.read_text())
-    fe = r["final_eval"]
-    best = r.get("best_iterate", {})
-    b = "last" if best.get("is_last", True) else f"{best['step']:,}: " + ", ".join(
-        f"{k.split('/')[-1]} {best['final_eval'].get(k, float('nan')):.4g}" for k in keys[1:6])
-    print(f"| {run.name} | {r['env_steps']:,} | {r['wall_s']:.0f} | "
-          + " | ".join(f"{fe.get(k, float('nan')):.4g}" for k in keys) + f" | {b} |")
-EOF
+  python3 bench/recipe_summary.py "$RUNS" > "$OUT/summary.md" --keys success_rate joint_error_rad \
+    fingertip_error_cm quality/completion_pct quality/cap_share_pct quality/chatter_max_mrad \
+    quality/chatter_mean_mrad quality/action_rate --best joint_error_rad fingertip_error_cm \
+    quality/completion_pct quality/cap_share_pct quality/chatter_max_mrad
   cat "$OUT/summary.md"
   # Keep each run's newest checkpoint (a failed export must not lose the trained parameters).
   for d in "$RUNS"/*/checkpoints; do

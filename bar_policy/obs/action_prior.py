@@ -30,7 +30,7 @@ import numpy as np
 from bar_policy._array import Array, array_namespace
 from bar_policy.obs.manager import ObservationManager
 
-__all__ = ["PRIOR_BOUND", "ActionPrior", "BlendPrior", "Prior", "reference_prior"]
+__all__ = ["PRIOR_BOUND", "ActionPrior", "BlendPrior", "Prior", "check_fits", "reference_prior"]
 
 PRIOR_BOUND = 0.99
 """Bound of the prior, action units: atanh(0.99) = 2.65 keeps the squash's slope at 2 % rather than 0, so
@@ -203,6 +203,16 @@ class BlendPrior:
 
 Prior = ActionPrior | BlendPrior
 """Any action prior: what the learner adds before the squash and the exporter writes into the graph."""
+
+
+def check_fits(prior: Prior, obs_size: int, action_size: int, holder: str = "the env") -> None:
+    """``ValueError`` unless ``prior`` gives ``action_size`` actions and reads inside ``obs_size`` entries.
+
+    ``holder`` names what has ``action_size`` actions in the message (the env, a network's last layer).
+    """
+    if prior.action_size != action_size:
+        raise ValueError(f"the action prior has {prior.action_size} actions, {holder} {action_size}")
+    prior.check_observation_size(obs_size)
 
 
 def reference_prior(

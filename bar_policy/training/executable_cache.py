@@ -88,12 +88,15 @@ class ExecutableCache:
     def _ban_dead_processes_loads(self) -> None:
         """Entries a process loaded and then died running (a crash, no ``confirm``): deleted and banned."""
         for record in self.directory.glob("inflight-*.json"):
-            pid = int(record.stem.split("-")[1]) if record.stem.split("-")[1].isdigit() else 0
+            tail = record.stem.removeprefix("inflight-")
+            pid = int(tail) if tail.isdigit() else 0
             if pid == os.getpid() or _alive(pid):
                 continue
             with contextlib.suppress(OSError, ValueError):
-                for key in json.loads(record.read_text()):
+                keys = json.loads(record.read_text())
+                if keys:
                     _crashed_marker(self.directory).touch()
+                for key in keys:
                     self.delete(key)
                     (self.directory / f"{key}.banned").touch()
                     _log.warning(
@@ -139,9 +142,10 @@ class ExecutableCache:
                 raise ValueError("not an entry of this format for this key")
             compiled = deserialize_and_load(entry["executable"], entry["in_tree"], entry["out_tree"])
             os.utime(path)  # recently used: evicted last
+            if not self._loaded:  # an exception or Ctrl-C after loading is not the program's fault
+                atexit.register(self.confirm)
             self._loaded.append(key)  # until confirm(): a crash bans it (jaxlib 0.10.2 CPU, docs/startup.md)
             write_atomic(self._inflight, json.dumps(self._loaded).encode())
-            atexit.register(self.confirm)  # an exception or Ctrl-C is not the program's fault
             return compiled
         except Exception as e:  # any failure means: compile afresh
             _log.warning(

@@ -32,7 +32,7 @@ from brax.training.agents.ppo import networks as ppo_networks
 from flax import linen
 
 from bar_policy.envs.base import eval_ratios
-from bar_policy.obs.action_prior import Prior
+from bar_policy.obs.action_prior import Prior, check_fits
 from bar_policy.training import eval_quality
 from bar_policy.training.config import NetworkConfig, PPOConfig
 from bar_policy.training.parallel import AXIS
@@ -89,9 +89,7 @@ def make_networks(
     networks = _brax_networks(observation_size, action_size, net, normalize)
     if prior is None:
         return networks
-    if prior.action_size != action_size:
-        raise ValueError(f"the action prior has {prior.action_size} actions, the env {action_size}")
-    prior.check_observation_size(observation_size)
+    check_fits(prior, observation_size, action_size)
     base = networks.policy_network
 
     def init(key: jax.Array) -> Any:

@@ -266,10 +266,10 @@ def train_rsl_rl(
     traced_before = timer.phases.get(sb.TRACE, 0.0) + timer.phases.get(sb.LOWER, 0.0)
     # The training and evaluation steps compile side by side.
     compiler = Compiler(timer, executable_cache=executable_cache)
-    kw = {"wrap_fn": wrap_fn, "randomizer": randomizer, "device": device, "compiler": compiler}
-    kw["prior"] = prior  # both envs add it to the actor's actions
-    # Our loop records its own sums on the device (take_stats); extras["log"] is for OnPolicyRunner.learn.
-    kw["log_metrics"] = False
+    # Both envs add the prior to the actor's actions. Our loop records its own sums on the device
+    # (take_stats); extras["log"] is for OnPolicyRunner.learn.
+    kw = {"wrap_fn": wrap_fn, "randomizer": randomizer, "device": device, "compiler": compiler,
+          "prior": prior, "log_metrics": False}  # fmt: skip
     vec_env = RslRlVecEnv(env, ppo.num_envs, seed=cfg.seed, name="train step", **kw)
     e_env, e_kw = (env, kw) if eval_env is None else (eval_env, {**kw, "randomizer": None})
     eval_vec = RslRlVecEnv(

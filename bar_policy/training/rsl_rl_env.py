@@ -51,7 +51,7 @@ from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
 from bar_policy.envs.base import eval_ratios
-from bar_policy.obs.action_prior import Prior
+from bar_policy.obs.action_prior import Prior, check_fits
 from bar_policy.training import eval_quality
 from bar_policy.training.parallel import AXIS
 from bar_policy.training.rsl_rl_prior import commanded_action
@@ -118,11 +118,7 @@ class RslRlVecEnv(VecEnv):
         self.log_metrics = log_metrics
         self.quality = quality
         if prior is not None:
-            if prior.action_size != self.num_actions:
-                raise ValueError(
-                    f"the action prior has {prior.action_size} actions, the env {self.num_actions}"
-                )
-            prior.check_observation_size(self.num_obs)
+            check_fits(prior, self.num_obs, self.num_actions)
         self.prior = prior
         """The action prior added to ``step``'s actions, or None."""
         key = jax.random.PRNGKey(seed)

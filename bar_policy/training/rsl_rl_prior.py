@@ -34,7 +34,7 @@ from typing import Any
 import jax
 import torch
 
-from bar_policy.obs.action_prior import Prior
+from bar_policy.obs.action_prior import Prior, check_fits
 from bar_policy.training.brax_programs import action_prior
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.learner import PRIOR_INIT_SCALE
@@ -53,9 +53,7 @@ def rsl_rl_prior(env: Any, cfg: TrainConfig) -> Prior | None:
     prior = action_prior(env, cfg.network, cfg.env_name)
     if prior is None:
         return None
-    if prior.action_size != int(env.action_size):
-        raise ValueError(f"the action prior has {prior.action_size} actions, the env {env.action_size}")
-    prior.check_observation_size(int(env.observation_size))
+    check_fits(prior, int(env.observation_size), int(env.action_size))
     return prior
 
 
