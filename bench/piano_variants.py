@@ -10,6 +10,8 @@ Each variant is the keyboard scene of ``LitePiano`` (``compact_config()``, 49 ke
     dense       dense mass matrix and Jacobian (MJX's AUTO picks sparse at nv >= 60, the keyboard's 63, while
                 MJX says GPUs are usually faster dense; unmeasured: on the 2-core CPU its compile had not
                 finished after 4 min at batch 32, against 16 s for ``capped``)
+    nocon       no constraint solve at all (mjDSBL_CONSTRAINT: no contacts, limits or friction loss): not
+                physics for the task, the ceiling a cheaper solver could reach
     itN, lsN    N solver / line-search iterations (the robot's scene: 3 and 5)
 
 Per variant: nv, constraint rows (nefc), contact rows, the narrow-phase pairs MJX tests each step (and the
@@ -65,12 +67,16 @@ def _edit(part: str) -> Callable[[mujoco.MjSpec], None]:
             spec.option.solver = mujoco.mjtSolver.mjSOL_CG
         elif part == "dense":
             spec.option.jacobian = mujoco.mjtJacobian.mjJAC_DENSE
+        elif part == "nocon":
+            spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
         elif part.startswith("it"):
             spec.option.iterations = int(part[2:])
         elif part.startswith("ls"):
             spec.option.ls_iterations = int(part[2:])
         elif part != "capped":
-            raise ValueError(f"unknown edit {part!r}; valid: capped, uncapped, nolimit, cg, dense, itN, lsN")
+            raise ValueError(
+                f"unknown edit {part!r}; valid: capped, uncapped, nolimit, cg, dense, nocon, itN, lsN"
+            )
 
     return apply
 
