@@ -12,6 +12,9 @@ Each variant is the keyboard scene of ``LitePiano`` (``compact_config()``, 49 ke
                 finished after 4 min at batch 32, against 16 s for ``capped``)
     nocon       no constraint solve at all (mjDSBL_CONSTRAINT: no contacts, limits or friction loss): not
                 physics for the task, the ceiling a cheaper solver could reach
+    leaf        --level physics: the step through ``envs.leaf_newton`` (MJX's Newton, the keys' dofs
+                factored as an arrowhead); at --level env the env's default, so there it changes nothing
+    mjxsolve    --level env: the env on ``mjx.step``'s own dense Newton (``leaf_newton.leaf_split`` off)
     itN, lsN    N solver / line-search iterations (the robot's scene: 3 and 5)
 
 Per variant: nv, constraint rows (nefc), contact rows, the narrow-phase pairs MJX tests each step (and the
@@ -43,6 +46,7 @@ import numpy as np
 from mujoco import mjx
 from mujoco.mjx._src import collision_driver
 
+from bar_policy.envs import leaf_newton
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.scene import SceneEdit, compile_scene, robot_spec
@@ -69,14 +73,15 @@ def _edit(part: str) -> Callable[[mujoco.MjSpec], None]:
             spec.option.jacobian = mujoco.mjtJacobian.mjJAC_DENSE
         elif part == "nocon":
             spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
+        elif part in ("leaf", "mjxsolve"):
+            pass  # not a scene edit: the step function (``physics``, ``env_level``)
         elif part.startswith("it"):
             spec.option.iterations = int(part[2:])
         elif part.startswith("ls"):
             spec.option.ls_iterations = int(part[2:])
         elif part != "capped":
-            raise ValueError(
-                f"unknown edit {part!r}; valid: capped, uncapped, nolimit, cg, dense, nocon, itN, lsN"
-            )
+            valid = "capped, uncapped, nolimit, cg, dense, nocon, leaf, mjxsolve, itN, lsN"
+            raise ValueError(f"unknown edit {part!r}; valid: {valid}")
 
     return apply
 
@@ -110,8 +115,11 @@ def counts(m: mujoco.MjModel) -> dict[str, int]:
     }
 
 
-def physics(m: mujoco.MjModel, batch: int, min_time: float, substeps: int = 10) -> tuple[float, float]:
-    """(compile s, physics steps/s) of raw ``mjx.step`` from the held pose plus noise."""
+def physics(
+    m: mujoco.MjModel, batch: int, min_time: float, substeps: int = 10, leaf: bool = False
+) -> tuple[float, float]:
+    """(compile s, physics steps/s) of raw ``mjx.step`` (``leaf``: ``leaf_newton.step``) from the held pose
+    plus noise."""
     robot = load_robot("arms")
     idx = RobotIndex.from_model(m, robot.joint_names)
     q = np.array(m.qpos0)
@@ -121,8 +129,12 @@ def physics(m: mujoco.MjModel, batch: int, min_time: float, substeps: int = 10) 
     mx, d0 = mjx.put_model(m), mjx.make_data(m)
     d = jax.jit(jax.vmap(lambda qq: d0.replace(qpos=qq)))(jnp.asarray(qs, jnp.float32))
 
+    split = leaf_newton.leaf_split(m) if leaf else None
+    if leaf and split is None:
+        raise ValueError("variant leaf: the scene has no leaf dofs (leaf_newton.leaf_split)")
+
     def roll(m_: mjx.Model, d_: mjx.Data) -> mjx.Data:
-        return jax.lax.scan(lambda c, _: (mjx.step(m_, c), None), d_, None, length=substeps)[0]
+        return jax.lax.scan(lambda c, _: (leaf_newton.step(m_, c, split), None), d_, None, length=substeps)[0]
 
     f = jax.jit(jax.vmap(roll, in_axes=(None, 0)))
     t = time.perf_counter()
@@ -144,7 +156,11 @@ def env_level(variant: str, batch: int, steps: int) -> tuple[mujoco.MjModel, flo
     from bar_policy.training.throughput import raw_env_steps_per_second
 
     name = "LiteReach" if variant == "robot" else "LitePiano"
-    with mock.patch.object(piano_env, "keyboard_scene", lambda _kb: variant_scene(variant)):
+    split = (lambda _m: None) if "mjxsolve" in variant.split("+") else leaf_newton.leaf_split
+    with (
+        mock.patch.object(piano_env, "keyboard_scene", lambda _kb: variant_scene(variant)),
+        mock.patch.object(leaf_newton, "leaf_split", split),
+    ):
         env = envs.load(name)
     r = raw_env_steps_per_second(
         env,
@@ -180,7 +196,7 @@ def main() -> None:
             if v != "robot":
                 variant_scene(v)(spec)
             m = compile_scene(spec, "arms")
-            c, sps = physics(m, a.batch, a.min_time)
+            c, sps = physics(m, a.batch, a.min_time, leaf="leaf" in v.split("+"))
         k = counts(m)
         pairs = f"{k['pairs']} ({k['allowed']})"
         rows.append(f"| {v} | {k['nv']} | {k['nefc']} | {k['ncon']} | {pairs} | {c:.1f} | {sps:,.0f} |")
