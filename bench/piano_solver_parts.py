@@ -1,0 +1,164 @@
+"""Where a piano physics step's time goes: MJX's step pieces timed alone, batched, one process.
+
+From states in contact (the held pose plus 0.03 rad noise, 50 physics steps on), each piece runs
+``--reps`` times in a ``fori_loop`` under ``jit(vmap)`` at ``--batch`` envs, its output fed back so XLA cannot
+hoist it; best of 3 calls; reported as microseconds per env-step (call time / batch / reps) and as a share
+of the whole step. The pieces (``mujoco.mjx._src``, as ``forward.py`` and ``solver.py`` call them):
+
+    step           the whole physics step (leaf_newton.step: the env's)
+    fwd_position   kinematics .. factor_m, collision, make_constraint, transmission
+    collision      collision_driver.collision alone
+    make_constraint  constraint rows (efc_J, efc_D, efc_aref) alone
+    fwd_vel_acc    fwd_velocity, fwd_actuation, fwd_acceleration
+    ctx_create     solver.Context.create(grad=False) (the warm start builds two, the solve one more)
+    linesearch     solver._linesearch (one per Newton iteration)
+    update_constraint  solver._update_constraint (one per iteration)
+    grad_leaf      the arrowhead Newton direction (leaf_newton._gradient; one per iteration + 1)
+    grad_dense     MJX's dense Newton direction (solver._update_gradient)
+    mul_m          support.mul_m (sparse M times a vector)
+    euler          the integrator
+
+    python bench/piano_solver_parts.py --batch 8192          # GPU
+    python bench/piano_solver_parts.py --batch 32 --reps 2   # CPU check
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from mujoco import mjx
+from mujoco.mjx._src import collision_driver, constraint, solver, support
+from mujoco.mjx._src import forward as mjx_forward
+
+from bar_policy.envs import leaf_newton
+from bar_policy.robot.constants import load_robot
+from bar_policy.robot.index import RobotIndex
+from bar_policy.robot.scene import compile_scene, robot_spec
+from bar_policy.tasks.piano.held import held_pose
+from bar_policy.tasks.piano.keyboard import compact_config
+from bar_policy.tasks.piano.scene import keyboard_scene
+
+
+def _states(batch: int) -> tuple[mjx.Model, mjx.Data, leaf_newton.LeafSplit]:
+    spec = robot_spec("arms")
+    keyboard_scene(compact_config())(spec)
+    m = compile_scene(spec, "arms")
+    split = leaf_newton.leaf_split(m)
+    robot = load_robot("arms")
+    idx = RobotIndex.from_model(m, robot.joint_names)
+    q = np.array(m.qpos0)
+    q[idx.qpos] = held_pose(np.asarray(robot.pose("piano_ready")))
+    qs = np.tile(q, (batch, 1))
+    qs[:, idx.qpos] += np.random.default_rng(0).normal(0.0, 0.03, (batch, len(idx.qpos)))
+    mx, d0 = mjx.put_model(m), mjx.make_data(m)
+
+    def settle(qq: jax.Array) -> mjx.Data:
+        d = d0.replace(qpos=qq)
+        return jax.lax.fori_loop(0, 50, lambda _, x: leaf_newton.step(mx, x, split), d)
+
+    d = jax.jit(jax.vmap(settle))(jnp.asarray(qs, jnp.float32))
+    # The data as the solver sees it: positions, velocities and accelerations done, rows built.
+    pre = jax.jit(
+        jax.vmap(
+            lambda x: mjx_forward.fwd_acceleration(
+                mx,
+                mjx_forward.fwd_actuation(mx, mjx_forward.fwd_velocity(mx, mjx_forward.fwd_position(mx, x))),
+            )
+        )
+    )(d)
+    return mx, jax.block_until_ready(pre), split
+
+
+def _time(f: Callable[[mjx.Data], mjx.Data], d: mjx.Data, batch: int, reps: int, min_time: float) -> float:
+    """Microseconds per env and call of ``f`` (fed back ``reps`` times), best of 3."""
+    g = jax.jit(jax.vmap(lambda x: jax.lax.fori_loop(0, reps, lambda _, y: f(y), x)))
+    out = jax.block_until_ready(g(d))
+    best = np.inf
+    for _ in range(3):
+        n, t = 0, time.perf_counter()
+        while n < 2 or time.perf_counter() - t < min_time:
+            out = jax.block_until_ready(g(d))
+            n += 1
+        best = min(best, (time.perf_counter() - t) / n)
+    del out
+    return best / batch / reps * 1e6
+
+
+def pieces(m: mjx.Model, split: leaf_newton.LeafSplit) -> dict[str, Callable[[mjx.Data], mjx.Data]]:
+    """Each piece as data -> data (a nudge of qacc or qpos carries the result on)."""
+
+    def via_ctx(fn: Callable[[solver.Context, mjx.Data], solver.Context]) -> Callable[[mjx.Data], mjx.Data]:
+        def run(d: mjx.Data) -> mjx.Data:
+            ctx = solver.Context.create(m, d, grad=False)
+            ctx = ctx.replace(search=-ctx.grad + 1e-3)  # a fixed direction when grad is not computed
+            return d.replace(qacc=fn(ctx, d).qacc)
+
+        return run
+
+    def grad_leaf(ctx: solver.Context, d: mjx.Data) -> solver.Context:
+        m_rr, m_kk = leaf_newton._mass_parts(m, d, split)
+        out = leaf_newton._gradient(m, d, ctx, split, m_rr, m_kk)
+        return out.replace(qacc=ctx.qacc + 1e-6 * out.Mgrad)
+
+    def grad_dense(ctx: solver.Context, d: mjx.Data) -> solver.Context:
+        out = solver._update_gradient(m, d, ctx)
+        return out.replace(qacc=ctx.qacc + 1e-6 * out.Mgrad)
+
+    def update_constraint(ctx: solver.Context, d: mjx.Data) -> solver.Context:
+        return ctx.replace(qacc=ctx.qacc + 1e-6 * solver._update_constraint(m, d, ctx).qfrc_constraint)
+
+    return {
+        "step": lambda d: leaf_newton.step(m, d, split),
+        "fwd_position": lambda d: mjx_forward.fwd_position(m, d),
+        "collision": lambda d: collision_driver.collision(m, d),
+        "make_constraint": lambda d: constraint.make_constraint(m, d),
+        "fwd_vel_acc": lambda d: mjx_forward.fwd_acceleration(
+            m, mjx_forward.fwd_actuation(m, mjx_forward.fwd_velocity(m, d))
+        ),
+        "ctx_create": lambda d: d.replace(qacc=solver.Context.create(m, d, grad=False).Ma * 1e-6 + d.qacc),
+        "linesearch": via_ctx(lambda c, d: solver._linesearch(m, d, c)),
+        "update_constraint": via_ctx(update_constraint),
+        "grad_leaf": via_ctx(grad_leaf),
+        "grad_dense": via_ctx(grad_dense),
+        "mul_m": lambda d: d.replace(qacc=support.mul_m(m, d, d.qacc) * 1e-3),
+        "euler": lambda d: mjx_forward.euler(m, d).replace(qpos=d.qpos, qvel=d.qvel),
+    }
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--batch", type=int, default=8192)
+    p.add_argument("--reps", type=int, default=10, help="calls of a piece per timed program")
+    p.add_argument("--min-time", type=float, default=1.0, help="seconds per timing")
+    p.add_argument("--pieces", default=None, help="comma-separated subset (default: all)")
+    p.add_argument("--out", type=Path, default=None)
+    a = p.parse_args()
+    m, d, split = _states(a.batch)
+    fns = pieces(m, split)
+    names = a.pieces.split(",") if a.pieces else list(fns)
+    rows = [
+        f"device {jax.devices()[0].device_kind}, batch {a.batch}, {a.reps} calls per program",
+        "",
+        "| piece | us per env-step | share of step |",
+        "|---|---:|---:|",
+    ]
+    print("\n".join(rows), flush=True)
+    whole = None
+    for name in names:
+        us = _time(fns[name], d, a.batch, a.reps, a.min_time)
+        whole = us if name == "step" else whole
+        share = f"{100 * us / whole:.0f} %" if whole else "-"
+        rows.append(f"| {name} | {us:.4f} | {share} |")
+        print(rows[-1], flush=True)
+    if a.out:
+        a.out.write_text("\n".join(rows) + "\n")
+
+
+if __name__ == "__main__":
+    main()
