@@ -5,10 +5,12 @@ From states in contact (the held pose plus 0.03 rad noise, 50 physics steps on),
 hoist it; best of 3 calls; reported as microseconds per env-step (call time / batch / reps) and as a share
 of the whole step. The pieces (``mujoco.mjx._src``, as ``forward.py`` and ``solver.py`` call them):
 
-    step           the whole physics step (leaf_newton.step: the env's)
-    fwd_position   kinematics .. factor_m, collision, make_constraint, transmission
+    step           the whole physics step (physics_step.step: the env's)
+    mjx_step       mjx.step itself
+    fwd_position   kinematics .. factor_m, collision, make_constraint, transmission (physics_step's)
     collision      collision_driver.collision alone
-    make_constraint  constraint rows (efc_J, efc_D, efc_aref) alone
+    make_constraint  constraint rows (efc_J, efc_D, efc_aref) alone (contact_rows': static masks)
+    mjx_make_constraint  MJX's own
     fwd_vel_acc    fwd_velocity, fwd_actuation, fwd_acceleration
     ctx_create     solver.Context.create(grad=False) (the warm start builds two, the solve one more)
     linesearch     solver._linesearch (one per Newton iteration)
@@ -36,7 +38,7 @@ from mujoco import mjx
 from mujoco.mjx._src import collision_driver, constraint, solver, support
 from mujoco.mjx._src import forward as mjx_forward
 
-from bar_policy.envs import leaf_newton
+from bar_policy.envs import contact_rows, leaf_newton, physics_step
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.scene import compile_scene, robot_spec
@@ -45,11 +47,11 @@ from bar_policy.tasks.piano.keyboard import compact_config
 from bar_policy.tasks.piano.scene import keyboard_scene
 
 
-def _states(batch: int) -> tuple[mjx.Model, mjx.Data, leaf_newton.LeafSplit]:
+def _states(batch: int) -> tuple[mjx.Model, mjx.Data, physics_step.StepPlan]:
     spec = robot_spec("arms")
     keyboard_scene(compact_config())(spec)
     m = compile_scene(spec, "arms")
-    split = leaf_newton.leaf_split(m)
+    plan = physics_step.plan(m)
     robot = load_robot("arms")
     idx = RobotIndex.from_model(m, robot.joint_names)
     q = np.array(m.qpos0)
@@ -60,7 +62,7 @@ def _states(batch: int) -> tuple[mjx.Model, mjx.Data, leaf_newton.LeafSplit]:
 
     def settle(qq: jax.Array) -> mjx.Data:
         d = d0.replace(qpos=qq)
-        return jax.lax.fori_loop(0, 50, lambda _, x: leaf_newton.step(mx, x, split), d)
+        return jax.lax.fori_loop(0, 50, lambda _, x: physics_step.step(mx, x, plan), d)
 
     d = jax.jit(jax.vmap(settle))(jnp.asarray(qs, jnp.float32))
     # The data as the solver sees it: positions, velocities and accelerations done, rows built.
@@ -72,7 +74,7 @@ def _states(batch: int) -> tuple[mjx.Model, mjx.Data, leaf_newton.LeafSplit]:
             )
         )
     )(d)
-    return mx, jax.block_until_ready(pre), split
+    return mx, jax.block_until_ready(pre), plan
 
 
 def _time(f: Callable[[mjx.Data], mjx.Data], d: mjx.Data, batch: int, reps: int, min_time: float) -> float:
@@ -90,8 +92,9 @@ def _time(f: Callable[[mjx.Data], mjx.Data], d: mjx.Data, batch: int, reps: int,
     return best / batch / reps * 1e6
 
 
-def pieces(m: mjx.Model, split: leaf_newton.LeafSplit) -> dict[str, Callable[[mjx.Data], mjx.Data]]:
+def pieces(m: mjx.Model, plan: physics_step.StepPlan) -> dict[str, Callable[[mjx.Data], mjx.Data]]:
     """Each piece as data -> data (a nudge of qacc or qpos carries the result on)."""
+    split = plan.split
 
     def via_ctx(fn: Callable[[solver.Context, mjx.Data], solver.Context]) -> Callable[[mjx.Data], mjx.Data]:
         def run(d: mjx.Data) -> mjx.Data:
@@ -114,10 +117,12 @@ def pieces(m: mjx.Model, split: leaf_newton.LeafSplit) -> dict[str, Callable[[mj
         return ctx.replace(qacc=ctx.qacc + 1e-6 * solver._update_constraint(m, d, ctx).qfrc_constraint)
 
     return {
-        "step": lambda d: leaf_newton.step(m, d, split),
-        "fwd_position": lambda d: mjx_forward.fwd_position(m, d),
+        "step": lambda d: physics_step.step(m, d, plan),
+        "mjx_step": lambda d: mjx.step(m, d),
+        "fwd_position": lambda d: physics_step.fwd_position(m, d, plan),
         "collision": lambda d: collision_driver.collision(m, d),
-        "make_constraint": lambda d: constraint.make_constraint(m, d),
+        "make_constraint": lambda d: contact_rows.make_constraint(m, d, plan.ancestors),
+        "mjx_make_constraint": lambda d: constraint.make_constraint(m, d),
         "fwd_vel_acc": lambda d: mjx_forward.fwd_acceleration(
             m, mjx_forward.fwd_actuation(m, mjx_forward.fwd_velocity(m, d))
         ),
@@ -139,8 +144,8 @@ def main() -> None:
     p.add_argument("--pieces", default=None, help="comma-separated subset (default: all)")
     p.add_argument("--out", type=Path, default=None)
     a = p.parse_args()
-    m, d, split = _states(a.batch)
-    fns = pieces(m, split)
+    m, d, plan = _states(a.batch)
+    fns = pieces(m, plan)
     names = a.pieces.split(",") if a.pieces else list(fns)
     rows = [
         f"device {jax.devices()[0].device_kind}, batch {a.batch}, {a.reps} calls per program",

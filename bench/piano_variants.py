@@ -12,9 +12,9 @@ Each variant is the keyboard scene of ``LitePiano`` (``compact_config()``, 49 ke
                 finished after 4 min at batch 32, against 16 s for ``capped``)
     nocon       no constraint solve at all (mjDSBL_CONSTRAINT: no contacts, limits or friction loss): not
                 physics for the task, the ceiling a cheaper solver could reach
-    leaf        --level physics: the step through ``envs.leaf_newton`` (MJX's Newton, the keys' dofs
-                factored as an arrowhead); at --level env the env's default, so there it changes nothing
-    mjxsolve    --level env: the env on ``mjx.step``'s own dense Newton (``leaf_newton.leaf_split`` off)
+    leaf        --level physics: the step through ``envs.physics_step`` (static contact-row masks, the keys'
+                dofs factored as an arrowhead in MJX's Newton); at --level env the env's default
+    mjxsolve    --level env: the env on ``mjx.step`` itself (``physics_step.plan`` off)
     itN, lsN    N solver / line-search iterations (the robot's scene: 3 and 5)
 
 Per variant: nv, constraint rows (nefc), contact rows, the narrow-phase pairs MJX tests each step (and the
@@ -46,7 +46,7 @@ import numpy as np
 from mujoco import mjx
 from mujoco.mjx._src import collision_driver
 
-from bar_policy.envs import leaf_newton
+from bar_policy.envs import physics_step
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.scene import SceneEdit, compile_scene, robot_spec
@@ -129,12 +129,12 @@ def physics(
     mx, d0 = mjx.put_model(m), mjx.make_data(m)
     d = jax.jit(jax.vmap(lambda qq: d0.replace(qpos=qq)))(jnp.asarray(qs, jnp.float32))
 
-    split = leaf_newton.leaf_split(m) if leaf else None
-    if leaf and split is None:
+    plan = physics_step.plan(m) if leaf else None
+    if leaf and (plan is None or plan.split is None):
         raise ValueError("variant leaf: the scene has no leaf dofs (leaf_newton.leaf_split)")
 
     def roll(m_: mjx.Model, d_: mjx.Data) -> mjx.Data:
-        return jax.lax.scan(lambda c, _: (leaf_newton.step(m_, c, split), None), d_, None, length=substeps)[0]
+        return jax.lax.scan(lambda c, _: (physics_step.step(m_, c, plan), None), d_, None, length=substeps)[0]
 
     f = jax.jit(jax.vmap(roll, in_axes=(None, 0)))
     t = time.perf_counter()
@@ -156,10 +156,10 @@ def env_level(variant: str, batch: int, steps: int) -> tuple[mujoco.MjModel, flo
     from bar_policy.training.throughput import raw_env_steps_per_second
 
     name = "LiteReach" if variant == "robot" else "LitePiano"
-    split = (lambda _m: None) if "mjxsolve" in variant.split("+") else leaf_newton.leaf_split
+    plan = (lambda _m: None) if "mjxsolve" in variant.split("+") else physics_step.plan
     with (
         mock.patch.object(piano_env, "keyboard_scene", lambda _kb: variant_scene(variant)),
-        mock.patch.object(leaf_newton, "leaf_split", split),
+        mock.patch.object(physics_step, "plan", plan),
     ):
         env = envs.load(name)
     r = raw_env_steps_per_second(

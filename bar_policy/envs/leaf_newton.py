@@ -20,7 +20,7 @@ diagonal (no row touches two leaves). ``H x = g`` is then solved exactly through
 That is the same Newton step as MJX's, in ``nr^2 nefc + nr nk nefc`` multiply-adds for the products and an
 ``nr x nr`` factorisation instead of ``nv^2 nefc`` and an ``nv x nv`` one (for the piano: ~0.13M instead of
 ~0.63M per factorisation). Everything else -- constraint rows, line search, warm start, iterations,
-tolerance, the integrator -- is MJX's own code, called as MJX calls it.
+tolerance -- is MJX's own code, called as MJX calls it; ``physics_step`` puts it in the step.
 
 Shapes: ``split.robot`` (nr,) and ``split.leaf`` (nk,) dof indices; ``efc_J`` (nefc, nv).
 Pinned to ``mujoco-mjx`` 3.17 (it calls ``mujoco.mjx._src`` functions); ``tests/envs/test_leaf_newton.py``
@@ -36,9 +36,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from mujoco import mjx
-from mujoco.mjx._src import constraint, sensor, solver, support
-from mujoco.mjx._src import forward as mjx_forward
-from mujoco.mjx._src.types import ConeType, DisableBit, IntegratorType, SolverType
+from mujoco.mjx._src import constraint, solver, support
+from mujoco.mjx._src.types import ConeType, DisableBit, SolverType
 
 _ONE_DOF = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
 
@@ -202,32 +201,4 @@ def solve(m: mjx.Model, d: mjx.Data, split: LeafSplit) -> mjx.Data:
     ctx = body(ctx) if m.opt.iterations == 1 else jax.lax.while_loop(cond, body, ctx)
     return d.tree_replace(
         {"qfrc_constraint": ctx.qfrc_constraint, "qacc": ctx.qacc, "_impl.efc_force": ctx.efc_force}
-    )
-
-
-def forward(m: mjx.Model, d: mjx.Data, split: LeafSplit) -> mjx.Data:
-    """``mjx.forward`` with :func:`solve` in place of MJX's constraint solve."""
-    d = mjx_forward.fwd_position(m, d)
-    d = sensor.sensor_pos(m, d)
-    d = mjx_forward.fwd_velocity(m, d)
-    d = sensor.sensor_vel(m, d)
-    d = mjx_forward.fwd_actuation(m, d)
-    d = mjx_forward.fwd_acceleration(m, d)
-    if d._impl.efc_J.size == 0:
-        return d.replace(qacc=d.qacc_smooth)
-    d = solve(m, d, split)
-    return sensor.sensor_acc(m, d)
-
-
-def step(m: mjx.Model, d: mjx.Data, split: LeafSplit | None) -> mjx.Data:
-    """``mjx.step`` with the arrowhead Newton solve where ``split`` is given (None: ``mjx.step`` itself)."""
-    if split is None:
-        return mjx.step(m, d)
-    d = forward(m, d, split)
-    if m.opt.integrator == IntegratorType.EULER:
-        return mjx_forward.euler(m, d)
-    if m.opt.integrator == IntegratorType.IMPLICITFAST:
-        return mjx_forward.implicit(m, d)
-    raise ValueError(
-        f"leaf_newton.step integrates with Euler or implicitfast; the model has {m.opt.integrator}"
     )

@@ -47,7 +47,7 @@ import numpy as np
 from mujoco import mjx
 
 from bar_policy._phases import MODEL_BUILD, phase
-from bar_policy.envs import leaf_newton
+from bar_policy.envs import physics_step
 from bar_policy.envs.actuator import (
     ActuatorParams,
     apply_latency,
@@ -109,8 +109,8 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         if obs_manager.joint_names != self.robot.joint_names:
             raise ValueError(f"layout {obs_manager.schema.name} is for mode {obs_manager.schema.mode!r}")
         self._mj_model = mj_model
-        # The keys of a keyboard scene are leaf dofs: MJX's Newton step factored as an arrowhead (same step).
-        self._leaf = leaf_newton.leaf_split(mj_model)
+        # mjx.step with exact speed-ups the model's structure allows (physics_step: contact rows, the keys).
+        self._step_plan = physics_step.plan(mj_model)
         with phase(MODEL_BUILD):
             self._mjx_model = mjx.put_model(mj_model)
             self._init_data = mjx.put_data(mj_model, mujoco.MjData(mj_model))
@@ -352,7 +352,7 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
                 m_sub, qfrc = implicit_damping(model, cmd.kd, tau, dq, self._act.tau_cap, self._dof)
             else:
                 m_sub, qfrc = model, robot_force(tau, self._dof, model.nv)
-            d = leaf_newton.step(m_sub, d.replace(qfrc_applied=qfrc), self._leaf)
+            d = physics_step.step(m_sub, d.replace(qfrc_applied=qfrc), self._step_plan)
             near_cap = jnp.sum(jnp.clip(demand - NEAR_CAP_FRACTION, 0.0, 1.0))
             return d, (jnp.sum(jnp.square(tau) * inv_cap_sq), near_cap)
 

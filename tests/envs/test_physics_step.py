@@ -1,0 +1,142 @@
+"""The env's physics step (``envs.physics_step``) is ``mjx.step``: the same computation rearranged.
+
+Expected values come from MJX itself (``mjx.step``, ``mjx.forward``) and from the model's structure worked
+out by hand. The comparisons run in float64 (``jax.enable_x64``), where the rearranged sums differ from
+MJX's only by rounding: relative 1e-12 is ~5000 float64 ulps, far above the differences seen (<= 4e-15
+relative) and far below any physical difference (a missed contact row or a wrong mask changes qacc by
+O(1)).
+"""
+
+from __future__ import annotations
+
+import copy
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+from mujoco import mjx
+
+from bar_policy.envs import contact_rows, leaf_newton, physics_step
+from bar_policy.robot.constants import load_robot
+from bar_policy.robot.scene import load_model
+from bar_policy.tasks.piano.keyboard import compact_config
+from bar_policy.tasks.piano.scene import keyboard_scene
+
+ROBOT = load_robot("arms")
+RTOL = 1e-12
+
+
+@pytest.fixture(scope="module")
+def piano() -> mujoco.MjModel:
+    return load_model("arms", keyboard_scene(compact_config()))
+
+
+def _press_states(m: mujoco.MjModel, n: int = 6) -> list[mujoco.MjData]:
+    """C MuJoCo states with both hands on the keys: piano_ready with both elbows (joint 3 of each arm)
+    commanded 0.25 rad further, held by the MIT law at Kp 50, Kd 2, sampled every 40 ms."""
+    d = mujoco.MjData(m)
+    q_ref = np.asarray(ROBOT.pose("piano_ready")) + np.tile([0.0, 0.0, 0.0, 0.25, 0.0, 0.0, 0.0], 2)
+    d.qpos[:14] = ROBOT.pose("piano_ready")
+    out = []
+    for i in range(n * 20):
+        d.qfrc_applied[:14] = 50.0 * (q_ref - d.qpos[:14]) - 2.0 * d.qvel[:14]
+        mujoco.mj_step(m, d)
+        if i % 20 == 19:
+            out.append(copy.copy(d))
+    return out
+
+
+def test_leaf_split_by_hand(piano) -> None:
+    # The robot's 14 arm dofs come first (qpos order of the MJCF), then the 49 keys: each hinged to the
+    # world, the only dof of its body, touching only the fingertips.
+    split = leaf_newton.leaf_split(piano)
+    np.testing.assert_array_equal(split.robot, np.arange(14))
+    np.testing.assert_array_equal(split.leaf, np.arange(14, 63))
+    # Rows: 14 friction loss + 63 limits, then 60 contacts (MAX_CONTACT_POINTS): contacts start at 77.
+    assert split.contact_rows == (77, 137)
+    # The robot alone has no leaf (every dof with no parent dof has children), nor does a CG scene.
+    assert leaf_newton.leaf_split(load_model("arms")) is None
+    cg = copy.deepcopy(piano)
+    cg.opt.solver = mujoco.mjtSolver.mjSOL_CG
+    assert leaf_newton.leaf_split(cg) is None
+
+
+def test_keys_that_touch_each_other_are_not_leaves(piano) -> None:
+    # Give C4's key (midi 60) conaffinity with the keys' contype... keys have contype 0, so make C4 and D4
+    # collide with each other through a shared bit: both lose their leaf status, the others keep it.
+    m = copy.deepcopy(piano)
+    kb = compact_config()
+    c4, d4 = (m.geom(f"piano_key{k}").id for k in (60, 62))
+    m.geom_contype[c4] = 16
+    m.geom_conaffinity[d4] = m.geom_conaffinity[d4] | 16
+    split = leaf_newton.leaf_split(m)
+    lost = {14 + 60 - kb.lowest, 14 + 62 - kb.lowest}
+    assert set(split.robot.tolist()) == set(range(14)) | lost
+    assert len(split.leaf) == 47
+
+
+def test_ancestor_mask_by_hand() -> None:
+    m = load_model("arms")
+    anc = contact_rows.ancestor_dofs(m)
+    # The world and the fixed torso move with no dof; a body 3 joints down the left arm moves with 3.
+    for b in range(m.nbody):
+        chain, a = set(), b
+        while a > 0:
+            chain |= set(range(m.body_dofadr[a], m.body_dofadr[a] + m.body_dofnum[a]))
+            a = m.body_parentid[a]
+        assert set(np.flatnonzero(anc[b]).tolist()) == chain
+    assert anc[0].sum() == 0
+    # The last link of each arm is moved by its 7 joints and only those.
+    wrists = [b for b in range(m.nbody) if anc[b].sum() == 7]
+    assert len(wrists) == 2
+    assert sorted(np.flatnonzero(anc[wrists[0]] | anc[wrists[1]]).tolist()) == list(range(14))
+
+
+def _compare(m: mujoco.MjModel, states: list[mujoco.MjData]) -> int:
+    """physics_step.forward/step against mjx.forward/step from each state, float64; returns the largest
+    number of active contact rows seen (to show the states are in contact)."""
+    plan = physics_step.plan(m)
+    most = 0
+    with jax.enable_x64(True):
+        mx = mjx.put_model(m)
+        ours_f = jax.jit(lambda d: physics_step.forward(mx, d, plan))
+        ours_s = jax.jit(lambda d: physics_step.step(mx, d, plan))
+        ref_f, ref_s = jax.jit(lambda d: mjx.forward(mx, d)), jax.jit(lambda d: mjx.step(mx, d))
+        for s in states:
+            d = mjx.put_data(m, s)
+            a, b = ref_f(d), ours_f(d)
+            assert a.qacc.dtype == jnp.float64
+            np.testing.assert_allclose(b._impl.efc_J, a._impl.efc_J, rtol=RTOL, atol=RTOL)
+            np.testing.assert_allclose(b._impl.efc_aref, a._impl.efc_aref, rtol=RTOL, atol=RTOL * 1e2)
+            scale = float(np.abs(a.qacc).max())
+            np.testing.assert_allclose(b.qacc, a.qacc, rtol=0, atol=RTOL * scale)
+            np.testing.assert_allclose(b.qfrc_constraint, a.qfrc_constraint, rtol=0, atol=RTOL * scale)
+            a, b = ref_s(d), ours_s(d)
+            np.testing.assert_allclose(b.qpos, a.qpos, rtol=0, atol=RTOL)
+            np.testing.assert_allclose(b.qvel, a.qvel, rtol=0, atol=RTOL * scale)
+            active = np.asarray(a._impl.efc_D) * (np.asarray(a._impl.efc_pos) < 0)
+            most = max(most, int((active[-60:] > 0).sum()))
+    return most
+
+
+def test_piano_step_equals_mjx_step_in_contact(piano) -> None:
+    states = _press_states(piano)
+    # The states push keys down (> 0.01 rad; a key's full travel is 0.067-0.105 rad) in C MuJoCo.
+    assert max(np.abs(s.qpos[14:]).max() for s in states) > 0.01
+    assert _compare(piano, states) >= 2  # both fingertips on keys (contact rows active)
+
+
+def test_reach_step_equals_mjx_step() -> None:
+    m = load_model("arms")
+    rng = np.random.default_rng(3)
+    states = []
+    for _ in range(4):
+        d = mujoco.MjData(m)
+        d.qpos[:] = np.asarray(ROBOT.pose("piano_ready")) + rng.normal(0, 0.3, m.nq)
+        d.qvel[:] = rng.normal(0, 1.0, m.nv)
+        mujoco.mj_forward(m, d)
+        states.append(d)
+    assert physics_step.plan(m).split is None
+    _compare(m, states)
