@@ -5,8 +5,9 @@ per contact side (its own TODO: "statically construct mask"). The piano scene ha
 bodies, and on an H100 ``make_constraint`` was 31 % of a physics step (``bench/piano_solver_parts.py``). The
 mask depends only on the model, so :func:`ancestor_dofs` builds it once (``(nbody, nv)``: dof ``j`` moves
 body ``b`` when ``j`` belongs to ``b`` or to one of its ancestors) and :func:`make_constraint` reads a row
-of it. Everything else is MJX's code, in MJX's row order; frictionless contacts (condim 1, every contact
-of the Lite's scenes) take the static mask, other condims MJX's own rows.
+of it, and projects the Jacobian on the contact normal directly (the only row a frictionless contact
+has). Everything else is MJX's code, in MJX's row order; frictionless contacts (condim 1, every contact
+of the Lite's scenes) take this path, other condims MJX's own rows.
 
 Pinned to ``mujoco-mjx`` 3.17 (``mujoco.mjx._src``); ``tests/envs/test_physics_step.py`` holds the rows
 equal to MJX's.
@@ -35,15 +36,21 @@ def ancestor_dofs(m: mujoco.MjModel) -> np.ndarray:
     return out
 
 
-def _jac(d: mjx.Data, anc: jax.Array, point: jax.Array, body: jax.Array, rootid: jax.Array) -> jax.Array:
-    """(nv, 3) translational Jacobian of ``point`` on ``body``: ``support.jac``'s, with the static mask."""
+def _normal_row(
+    d: mjx.Data, anc: jax.Array, point: jax.Array, normal: jax.Array, body: jax.Array, rootid: jax.Array
+) -> jax.Array:
+    """(nv,) ``normal . J(point on body)``, without forming the (nv, 3) Jacobian.
+
+    ``J`` is ``support.jac``'s translational Jacobian with the static mask.
+    ``J_j = cdof_j[3:] + cdof_j[:3] x offset``, so ``n . J_j = cdof_j[3:] . n + cdof_j[:3] . (offset x n)``:
+    one (nv, 6) @ (6,) product per side instead of nv cross products and a (3, 3) @ (3, nv) product.
+    """
     offset = point - d.subtree_com[rootid[body]]
-    jacp = jax.vmap(lambda a: a[3:] + jnp.cross(a[:3], offset))(d.cdof)
-    return jacp * anc[body][:, None]
+    return (d.cdof @ jnp.concatenate([jnp.cross(offset, normal), normal])) * anc[body]
 
 
 def _frictionless(m: mjx.Model, d: mjx.Data, anc: jax.Array) -> constraint._Efc | None:
-    """``constraint._efc_contact_frictionless`` with :func:`_jac`."""
+    """``constraint._efc_contact_frictionless`` with :func:`_normal_row` (the row is ``frame[0] . J``)."""
     con_id = np.nonzero(d._impl.contact.dim == 1)[0]
     if con_id.size == 0:
         return None
@@ -55,9 +62,8 @@ def _frictionless(m: mjx.Model, d: mjx.Data, anc: jax.Array) -> constraint._Efc 
         pos = c.dist - c.includemargin
         active = pos < 0
         body1, body2 = geom_body[c.geom]
-        jac1 = _jac(d, anc, c.pos, body1, rootid)
-        jac2 = _jac(d, anc, c.pos, body2, rootid)
-        j = (c.frame @ (jac2 - jac1).T)[0]
+        n = c.frame[0]
+        j = _normal_row(d, anc, c.pos, n, body2, rootid) - _normal_row(d, anc, c.pos, n, body1, rootid)
         invweight = m.body_invweight0[body1, 0] + m.body_invweight0[body2, 0]
         return constraint._row(
             j * active, pos * active, pos, invweight, c.solref, c.solimp, c.includemargin, jnp.zeros_like(pos)
