@@ -49,7 +49,7 @@ from typing import Any
 from bar_policy._files import write_atomic
 from bar_policy.training import executable_key as ek
 
-__all__ = ["CPU_ENV", "FORMAT", "MAX_BYTES", "ExecutableCache", "executable_cache_for"]
+__all__ = ["CPU_ENV", "FORMAT", "MAX_BYTES", "OUTSIDE_PROGRAMS", "ExecutableCache", "executable_cache_for"]
 
 FORMAT = 1
 """Layout of a stored entry; part of the key, bumped when the layout changes."""
@@ -211,6 +211,22 @@ def _alive(pid: int) -> bool:
     return pid > 0
 
 
+OUTSIDE_PROGRAMS = (
+    "run_name",
+    "runs_dir",
+    "resume",
+    "max_minutes",
+    "export_onnx",
+    "onnx_path",
+    "compile_cache",
+    "compile_cache_dir",
+    "executable_cache",
+)
+"""Training-config fields no compiled program reads (where the run is written, when it stops, what is
+exported, where caches live): left out of the key, so a rerun under another run name or wall-clock
+budget is served. Until stop 31 they were in it, and the GPU's warm runs missed (docs/startup.md)."""
+
+
 def executable_cache_for(
     cfg: Any, cache_dir: Path | None, record: Mapping[str, Any], env: Any
 ) -> ExecutableCache | None:
@@ -235,7 +251,7 @@ def executable_cache_for(
         return None
     cls = type(env)
     context = {
-        "train": record["train"],
+        "train": {k: v for k, v in record["train"].items() if k not in OUTSIDE_PROGRAMS},
         "env": record["env"] or repr(getattr(env, "config", None)),
         "env_class": f"{cls.__module__}.{cls.__qualname__}",
         "env_source": ek.source_hash(env),

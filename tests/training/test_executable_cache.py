@@ -19,7 +19,7 @@ import pytest
 
 from bar_policy.training import executable_cache as ec
 from bar_policy.training import executable_key as ek
-from bar_policy.training.config import apply_overrides, preset
+from bar_policy.training.config import apply_overrides, config_to_dict, preset
 from bar_policy.training.executable_cache import ExecutableCache, executable_cache_for
 from bar_policy.training.startup import Compiler, StartupTimer
 
@@ -209,6 +209,41 @@ def test_off_switch_writes_and_reads_nothing(tmp_path, monkeypatch):
     _, times = _run(None, toy)
     assert toy.traces == 1 and times.executable == "off" and times.cache != "exec cache hit"
     assert {p: p.stat().st_mtime_ns for p in (tmp_path / "on").iterdir()} == before
+
+
+def test_run_name_budget_and_paths_stay_out_of_the_key(tmp_path, monkeypatch):
+    """A rerun under another run name, runs directory, wall-clock budget, export path or cache directory
+    compiles the same programs: the same context. A changed PPO value does not (a different context)."""
+    monkeypatch.setenv(ec.CPU_ENV, "1")
+    cfg = apply_overrides(preset("tiny"), ["executable_cache=True"])
+    base = config_to_dict(cfg)
+    moved = config_to_dict(
+        apply_overrides(
+            cfg,
+            [
+                "run_name=warm",
+                "runs_dir=/elsewhere",
+                "max_minutes=1.0",
+                "onnx_path=x.onnx",
+                "export_onnx=False",
+            ],
+        )
+    )
+    tuned = config_to_dict(apply_overrides(cfg, ["ppo.learning_rate=0.000123"]))
+    assert {k for k in base if base[k] != moved[k]} == {
+        "run_name",
+        "runs_dir",
+        "max_minutes",
+        "onnx_path",
+        "export_onnx",
+    }
+    ctx = [
+        executable_cache_for(cfg, tmp_path, {"train": t, "env": {}}, Toy()).context
+        for t in (base, moved, tuned)
+    ]
+    assert ctx[0] == ctx[1]
+    assert ctx[0] != ctx[2]
+    assert set(ec.OUTSIDE_PROGRAMS) <= set(base)  # every name left out is a real field
 
 
 def test_key_covers_config_code_versions_platform_and_signature():
