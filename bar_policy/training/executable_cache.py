@@ -9,8 +9,9 @@ submits; ``docs/startup.md`` has the measurements.
 **The key** (``ExecutableCache.key``): a SHA-256 over a JSON document of
 
 - the program's name and the jitted function's module and qualified name;
-- the run's context, passed in explicitly (``run.py``: the full training config ``config_to_dict(cfg)``,
-  the env config, the env's class and, for an env class outside ``bar_policy``, its source file's hash);
+- the run's context, passed in explicitly (``run.py``: the training config ``config_to_dict(cfg)`` less
+  ``OUTSIDE_PROGRAMS``, the env config, the env's class and, for an env class outside ``bar_policy``, its
+  source file's hash);
   the seed and every randomisation setting the programs close over live in those configs;
 - ``package_hash()`` (these helpers live in ``executable_key``): the content of every file under
   ``bar_policy/`` (code, XML, JSON, meshes), once per process;
