@@ -32,17 +32,14 @@ from collections.abc import Callable
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from mujoco import mjx
 from mujoco.mjx._src import collision_driver, constraint, solver, support
 from mujoco.mjx._src import forward as mjx_forward
+from piano_variants import held_batch  # bench/ is on sys.path when run as a script
 
 from bar_policy.envs import contact_rows, leaf_newton, physics_step
-from bar_policy.robot.constants import load_robot
-from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.scene import compile_scene, robot_spec
-from bar_policy.tasks.piano.held import held_pose
 from bar_policy.tasks.piano.keyboard import compact_config
 from bar_policy.tasks.piano.scene import keyboard_scene
 
@@ -52,19 +49,12 @@ def _states(batch: int) -> tuple[mjx.Model, mjx.Data, physics_step.StepPlan]:
     keyboard_scene(compact_config())(spec)
     m = compile_scene(spec, "arms")
     plan = physics_step.plan(m)
-    robot = load_robot("arms")
-    idx = RobotIndex.from_model(m, robot.joint_names)
-    q = np.array(m.qpos0)
-    q[idx.qpos] = held_pose(np.asarray(robot.pose("piano_ready")))
-    qs = np.tile(q, (batch, 1))
-    qs[:, idx.qpos] += np.random.default_rng(0).normal(0.0, 0.03, (batch, len(idx.qpos)))
-    mx, d0 = mjx.put_model(m), mjx.make_data(m)
+    mx, d = held_batch(m, batch)
 
-    def settle(qq: jax.Array) -> mjx.Data:
-        d = d0.replace(qpos=qq)
-        return jax.lax.fori_loop(0, 50, lambda _, x: physics_step.step(mx, x, plan), d)
+    def settle(x: mjx.Data) -> mjx.Data:
+        return jax.lax.fori_loop(0, 50, lambda _, y: physics_step.step(mx, y, plan), x)
 
-    d = jax.jit(jax.vmap(settle))(jnp.asarray(qs, jnp.float32))
+    d = jax.jit(jax.vmap(settle))(d)
     # The data as the solver sees it: positions, velocities and accelerations done, rows built.
     pre = jax.jit(
         jax.vmap(

@@ -115,11 +115,8 @@ def counts(m: mujoco.MjModel) -> dict[str, int]:
     }
 
 
-def physics(
-    m: mujoco.MjModel, batch: int, min_time: float, substeps: int = 10, leaf: bool = False
-) -> tuple[float, float]:
-    """(compile s, physics steps/s) of raw ``mjx.step`` (``leaf``: ``leaf_newton.step``) from the held pose
-    plus noise."""
+def held_batch(m: mujoco.MjModel, batch: int) -> tuple[mjx.Model, mjx.Data]:
+    """``m`` on the device and ``batch`` states: the held ``piano_ready`` pose + 0.03 rad noise (seed 0)."""
     robot = load_robot("arms")
     idx = RobotIndex.from_model(m, robot.joint_names)
     q = np.array(m.qpos0)
@@ -127,7 +124,15 @@ def physics(
     qs = np.tile(q, (batch, 1))
     qs[:, idx.qpos] += np.random.default_rng(0).normal(0.0, 0.03, (batch, len(idx.qpos)))
     mx, d0 = mjx.put_model(m), mjx.make_data(m)
-    d = jax.jit(jax.vmap(lambda qq: d0.replace(qpos=qq)))(jnp.asarray(qs, jnp.float32))
+    return mx, jax.jit(jax.vmap(lambda qq: d0.replace(qpos=qq)))(jnp.asarray(qs, jnp.float32))
+
+
+def physics(
+    m: mujoco.MjModel, batch: int, min_time: float, substeps: int = 10, leaf: bool = False
+) -> tuple[float, float]:
+    """(compile s, physics steps/s) of raw ``mjx.step`` (``leaf``: ``leaf_newton.step``) from the held pose
+    plus noise."""
+    mx, d = held_batch(m, batch)
 
     plan = physics_step.plan(m) if leaf else None
     if leaf and (plan is None or plan.split is None):
