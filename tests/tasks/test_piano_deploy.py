@@ -5,6 +5,7 @@ terms worked out by hand, and ``--song`` on the mock and sim targets with a poli
 from __future__ import annotations
 
 import dataclasses
+import json
 import queue
 import sys
 from pathlib import Path
@@ -20,8 +21,8 @@ from bar_policy.deploy.cli import main
 from bar_policy.deploy.log import load_log
 from bar_policy.tasks.interfaces import OptionError
 from bar_policy.tasks.piano.bank import PlaybackConfig
-from bar_policy.tasks.piano.deploy import key_source, resolve_song
-from bar_policy.tasks.piano.key_input import MidiKeys
+from bar_policy.tasks.piano.deploy import eval_key_source, key_source, resolve_song
+from bar_policy.tasks.piano.key_input import MidiKeys, ScheduledKeys
 from bar_policy.tasks.piano.keyboard import compact_config, key_table
 from bar_policy.tasks.piano.keys import KinematicKeys
 from bar_policy.tasks.piano.songs import Note, Song, write_song
@@ -74,6 +75,65 @@ def test_song_source_terms_by_hand() -> None:
     assert src.finished(1.0 + 15 * 0.02 + END_HOLD_S) == "song 'one' finished"
     with pytest.raises(ValueError, match="has no simulated keys"):
         SongCommands(song, KB, 0.02, None).attach(object())
+
+
+def test_song_source_scores_the_truth_beside_the_source() -> None:
+    """With a ``truth`` (``bar-deploy eval --keys kinematic``), ``key_pressed`` is the source's reading and
+    ``scored_keys`` the truth's, read at the same tick; without one, ``scored_keys`` is ``key_pressed``."""
+    song = Song("one", (Note(60, 0.10, 0.30, "right"),))
+    q: queue.Queue = queue.Queue()
+    truth = ScheduledKeys([(0.0, 62, True)], KB)  # D4 really down
+    src = SongCommands(song, KB, 0.02, MidiKeys(q, KB), PlaybackConfig(count_in_s=0.0), truth=truth)
+    q.put(mido.Message("note_on", note=60, velocity=50))  # the source says C4
+    out = src(0.0)
+    assert np.flatnonzero(out["key_pressed"]).tolist() == [60 - KB.lowest]
+    assert np.flatnonzero(src.scored_keys()).tolist() == [62 - KB.lowest]
+    assert np.flatnonzero(src.record()["keys_down"]).tolist() == [60 - KB.lowest]  # the log: the source's
+    alone = SongCommands(song, KB, 0.02, MidiKeys(q, KB), PlaybackConfig(count_in_s=0.0))
+    q.put(mido.Message("note_on", note=64, velocity=50))
+    alone(0.0)
+    assert np.flatnonzero(alone.scored_keys()).tolist() == [64 - KB.lowest]
+
+
+def test_sim_midi_keys_send_the_simulated_keys_as_messages() -> None:
+    """``SimMidiKeys``: the simulated keys' presses and releases go through ``MidiKeys`` as note messages."""
+    import mujoco
+
+    from bar_policy.robot.scene import load_model
+    from bar_policy.tasks.piano.evaluate import SimMidiKeys
+    from bar_policy.tasks.piano.key_input import SimKeys
+    from bar_policy.tasks.piano.scene import keyboard_scene
+
+    model = load_model("arms", keyboard_scene(KB))
+    data = mujoco.MjData(model)
+    keys = SimMidiKeys(SimKeys(model, data, KB, via="qpos"), KB)
+    c4, e4 = (data.joint(f"piano_key{m}") for m in (60, 64))
+    assert not keys.read(0.0).any()
+    c4.qpos[0] = 0.05  # past the white key's threshold (0.0333 rad)
+    assert np.flatnonzero(keys.read(0.02)).tolist() == [60 - KB.lowest]
+    c4.qpos[0], e4.qpos[0] = 0.0, 0.05
+    assert np.flatnonzero(keys.read(0.04)).tolist() == [64 - KB.lowest]  # C4's note_off, E4's note_on
+    e4.qpos[0] = 0.0
+    assert not keys.read(0.06).any() and not keys.counts  # every message was a usable note
+
+
+def test_eval_key_option(piano_policy, tmp_path, capsys) -> None:
+    """``bar-deploy eval --keys``: refused with the valid choices, or given to the evaluation (its JSON)."""
+    assert eval_key_source(None) == "sim" and eval_key_source("kinematic") == "kinematic"
+    with pytest.raises(OptionError, match=r"unknown eval --keys 'midi:USB'; valid: sim, kinematic, sim-midi"):
+        eval_key_source("midi:USB")  # a real keyboard's keys are not the simulated ones the score counts
+    assert main(["eval", "--policy", str(piano_policy), "--keys", "usb"]) == 2
+    assert "valid: sim, kinematic, sim-midi" in capsys.readouterr().err
+    song = tmp_path / "short.json"
+    write_song(song, Song("short", (Note(60, 0.0, 0.2, "right"),)))
+    out = tmp_path / "eval.json"
+    args = ["eval", "--policy", str(piano_policy), "--songs", str(song), "--json", str(out)]
+    assert main([*args, "--keys", "kinematic"]) == 0
+    assert "key_pressed from kinematic; scored against the simulated keys" in capsys.readouterr().out
+    (res,) = json.loads(out.read_text())["songs"]
+    # The zero policy holds the held pose above the keys: neither source nor simulated keys go down.
+    assert res["keys"] == "kinematic" and res["false_neg"] == 10  # C4's 10 goal ticks missed
+    assert (res["keys_extra"], res["keys_missed"]) == (0, 0)
 
 
 def test_song_source_count_in_by_hand() -> None:

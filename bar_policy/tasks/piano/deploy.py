@@ -5,7 +5,8 @@
 checked for playability (the loader's refusal names the note). The sim target carries the keyboard
 (``scene``), and ``--keys`` defaults to its simulated keys there; on the mock and real targets the default is
 the fingertips' kinematics, or ``--keys midi:PORT`` reads a MIDI keyboard. ``bar-deploy eval`` plays every
-held-out song on the sim target and reports precision, recall and F1 per song (``evaluate.py``). Both
+held-out song on the sim target and reports precision, recall and F1 per song (``evaluate.py``), its
+``--keys`` (``EVAL_KEY_SOURCES``) feeding ``key_pressed`` while the score counts the simulated keys. Both
 measure chatter against the song's key-pose reference (``reference.py``). No jax, no torch.
 """
 
@@ -31,7 +32,7 @@ if TYPE_CHECKING:
     from bar_policy.robot.scene import SceneEdit
     from bar_policy.tasks.episodes import EpisodeRunner, Policy
 
-__all__ = ["KEY_SOURCES", "TASK", "PianoTask", "key_source", "resolve_song"]
+__all__ = ["KEY_SOURCES", "TASK", "PianoTask", "eval_key_source", "key_source", "resolve_song"]
 
 KEY_SOURCES = ("sim", "midi", "midi:PORT", "kinematic")
 """The ``--keys`` choices."""
@@ -97,6 +98,20 @@ def key_source(
     raise OptionError(f"unknown --keys {spec!r}; valid: {', '.join(KEY_SOURCES)}")
 
 
+def eval_key_source(spec: str | None) -> str:
+    """``bar-deploy eval --keys``: ``sim`` when not given; ``OptionError`` naming the valid choices.
+
+    Only sources the sim target can drive: a MIDI keyboard's keys would not be the simulated ones the score
+    counts, so ``midi[:PORT]`` is refused (``sim-midi`` sends the simulated keys through the MIDI path).
+    """
+    from bar_policy.tasks.piano.evaluate import EVAL_KEY_SOURCES
+
+    spec = spec or "sim"
+    if spec not in EVAL_KEY_SOURCES:
+        raise OptionError(f"unknown eval --keys {spec!r}; valid: {', '.join(EVAL_KEY_SOURCES)}")
+    return spec
+
+
 class PianoTask(DeployTask):
     """``piano``: ``--song NAME|PATH``, ``--keys``; eval: F1 per held-out song on the sim target."""
 
@@ -105,7 +120,7 @@ class PianoTask(DeployTask):
     usage = "give --song NAME|PATH (a library song, a song .json or a .mid file)"
     run_options = (("--song", "song"), ("--keys", "keys"))
     example_run = ("--song", "ode_to_joy")
-    eval_options = (("--songs", "songs"),)
+    eval_options = (("--songs", "songs"), ("--keys", "keys"))
     default_duration = None
 
     def add_run_arguments(self, parser: argparse.ArgumentParser) -> None:
@@ -119,10 +134,14 @@ class PianoTask(DeployTask):
                        "mock and real targets' default)")  # fmt: skip
 
     def add_eval_arguments(self, parser: argparse.ArgumentParser) -> None:
-        """``--songs``."""
+        """``--songs``, and ``--keys``: the policy's ``key_pressed`` source (the score counts the sim's)."""
         g = parser.add_argument_group("piano policies (key-press F1)")
         g.add_argument("--songs", metavar="NAME[,NAME...]", help=f"songs to play (default the held-out "
                        f"ones: {', '.join(HELDOUT)})")  # fmt: skip
+        g.add_argument("--keys", metavar="SOURCE", help="where the policy's key_pressed comes from: sim "
+                       "(the simulated keys, default), kinematic (the fingertips, as on the mock and real "
+                       "targets), sim-midi (the simulated keys sent as MIDI messages in memory); F1 always "
+                       "counts the simulated keys")  # fmt: skip
 
     def scene(self, policy: Policy) -> SceneEdit | None:
         """The keyboard the policy was trained at (``compact_config()``)."""
@@ -156,9 +175,10 @@ class PianoTask(DeployTask):
         """Key-press precision, recall and F1 per song on the C MuJoCo sim target (``evaluate.py``)."""
         from bar_policy.tasks.piano.evaluate import evaluate
 
+        keys = eval_key_source(getattr(args, "keys", None))  # refused before any song plays
         names = getattr(args, "songs", None)
         songs = [resolve_song(s) for s in names.split(",")] if names else [library_song(n) for n in HELDOUT]
-        return evaluate(policy, songs, runner=runner)
+        return evaluate(policy, songs, runner=runner, keys=keys)
 
 
 TASK = PianoTask()

@@ -19,11 +19,19 @@ commands the reference exactly and scores ~0; on ``q_cmd`` itself it scores 6-10
 harmonics at 5-8 Hz. Each song's line also prints the chatter of ``q_cmd`` itself (``chatter_raw_mrad``,
 not gated; both in ``--json``), and a line after the quality line gives its worst and mean over the
 songs that completed (docs/piano.md, "Chatter against the key-pose reference").
+
+Key sources (``keys``, ``bar-deploy eval --keys``): the policy's ``key_pressed`` comes from ``sim`` (the
+simulated keys, the default), ``kinematic`` (the fingertips' forward kinematics of the measured q, what the
+mock and real targets use without a keyboard) or ``sim-midi`` (the simulated keys' presses and releases
+turned into ``mido`` note messages and fed in memory to ``MidiKeys``: the MIDI path end to end, without a
+port). The score always counts the simulated keys, the keys that really went down (``SongCommands``'s
+``truth``); each song also counts the ticks' keys where the source and the simulated keys disagree.
 """
 
 from __future__ import annotations
 
 import math
+import queue
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -35,14 +43,49 @@ from bar_policy.tasks.episodes import EpisodeRunner, Policy
 from bar_policy.tasks.interfaces import EvalReport
 from bar_policy.tasks.piano.bank import PlaybackConfig
 from bar_policy.tasks.piano.held import held_pose
-from bar_policy.tasks.piano.keyboard import compact_config
+from bar_policy.tasks.piano.key_input import KeySource, MidiKeys, SimKeys
+from bar_policy.tasks.piano.keyboard import KeyboardConfig, compact_config
+from bar_policy.tasks.piano.keys import KinematicKeys
 from bar_policy.tasks.piano.metrics import Counts, episode_scores, scores, step_counts
 from bar_policy.tasks.piano.reference import KeyPoseReference
 from bar_policy.tasks.piano.scene import keyboard_scene
 from bar_policy.tasks.piano.songs import Song
 from bar_policy.tasks.piano.source import END_HOLD_S, SongCommands
 
-__all__ = ["PianoEval", "SongResult", "evaluate"]
+__all__ = ["EVAL_KEY_SOURCES", "PianoEval", "SimMidiKeys", "SongResult", "evaluate"]
+
+EVAL_KEY_SOURCES = ("sim", "kinematic", "sim-midi")
+"""Where the policy's ``key_pressed`` can come from in the evaluation (module docstring)."""
+
+
+class SimMidiKeys(MidiKeys):
+    """The simulated keys played into ``MidiKeys`` as ``mido`` note messages, in memory.
+
+    Each ``read`` turns the simulated keys' changes since the previous read into ``note_on`` (velocity 64) and
+    ``note_off`` messages, queues them and reads them back through ``MidiKeys``, so the notes' numbering, the
+    latch and the message handling are those of a MIDI keyboard. A change is seen at a control tick: a tap
+    shorter than a tick between two reads is not sent.
+    """
+
+    def __init__(self, sim: SimKeys, config: KeyboardConfig) -> None:
+        """``sim``: the simulated keys of the sim target, on ``config``."""
+        import mido  # a deploy extra, imported when this source is asked for
+
+        self._queue: queue.Queue = queue.Queue()
+        super().__init__(self._queue, config)
+        self._message = mido.Message
+        self._sim = sim
+        self._was = np.zeros(self.n_keys, bool)
+
+    def read(self, t_s: float) -> np.ndarray:
+        """Send the simulated keys' presses and releases since the last read, then read them as MIDI."""
+        now = self._sim.read(t_s)
+        for i in np.flatnonzero(now != self._was):
+            note = self.config.lowest + int(i)
+            kind = "note_on" if now[i] else "note_off"
+            self._queue.put(self._message(kind, note=note, velocity=64 if now[i] else 0))
+        self._was = now
+        return super().read(t_s)
 
 
 @dataclass(frozen=True)
@@ -68,6 +111,14 @@ class SongResult:
     """The run's safety and smoothness (``EpisodeQuality.to_dict``); its chatter is against the reference."""
     chatter_raw_mrad: float | None = None
     """Chatter of ``q_cmd`` itself over the policy ticks, mrad (not gated; None: too short to measure)."""
+    keys: str = "sim"
+    """Where the policy's ``key_pressed`` came from (``EVAL_KEY_SOURCES``)."""
+    keys_extra: int = 0
+    """Key-ticks (scored ticks x keys) the source read down while the simulated key was up."""
+    keys_missed: int = 0
+    """Key-ticks the simulated key was down and the source read up."""
+    keys_down: int = 0
+    """Key-ticks the simulated key was down (the scale of ``keys_missed``)."""
 
     @property
     def chatter_mrad(self) -> float | None:
@@ -136,12 +187,20 @@ class PianoEval(EvalReport):
     def format(self) -> str:
         """Summary lines: one per song, the totals, the quality line and the gate."""
         lines = [f"piano on the C MuJoCo sim target: policy {self.policy} [{self.fingerprint}]"]
+        keys = sorted({s.keys for s in self.songs} - {"sim"})
+        if keys:
+            lines.append(f"key_pressed from {', '.join(keys)}; scored against the simulated keys")
         for s in self.songs:
             end = "faulted" if s.faulted else "completed"
             figs = (
                 f"precision {s.precision:.3f} recall {s.recall:.3f} F1 {s.f1:.3f} (pooled {s.f1_pooled:.3f})"
             )
             lines.append(f"  {s.song:26s} {figs}, {s.scored} ticks, {end}, {_chatter_text(s)}")
+            if s.keys != "sim":
+                lines.append(
+                    f"    key_pressed ({s.keys}) against the simulated keys: {s.keys_extra} key-ticks down "
+                    f"extra, {s.keys_missed} of {s.keys_down} missed"
+                )
         lines.append(
             f"all songs: F1 {self.f1():.3f} (step mean, RoboPianist's), pooled {self.f1_pooled():.3f}"
         )
@@ -158,11 +217,16 @@ def evaluate(
     *,
     runner: EpisodeRunner,
     playback: PlaybackConfig | None = None,
+    keys: str = "sim",
 ) -> PianoEval:
     """Play each song once on ``target`` (default: ``runner``'s in the keyboard's scene; module docstring).
 
-    ``playback``: the count-in (default ``PlaybackConfig()``, the env's and ``bar-deploy``'s).
+    ``playback``: the count-in (default ``PlaybackConfig()``, the env's and ``bar-deploy``'s). ``keys``: where
+    the policy's ``key_pressed`` comes from, one of ``EVAL_KEY_SOURCES`` (the score counts the simulated
+    keys whatever it is). Raises ``ValueError`` for another ``keys``, naming the valid ones.
     """
+    if keys not in EVAL_KEY_SOURCES:
+        raise ValueError(f"keys = {keys!r}; valid: {', '.join(EVAL_KEY_SOURCES)}")
     kb = compact_config()
     sim = target or runner.target(scene=keyboard_scene(kb))
     q0 = held_pose(policy.robot.pose("piano_ready"), policy.robot.mode)  # as the env starts
@@ -170,8 +234,10 @@ def evaluate(
     results = []
     for song in songs:
         sim.reset(q0)
-        commands = SongCommands(song, kb, policy.policy_dt, keys=None, playback=playback, reference=reference)
+        source, truth = _key_sources(keys, sim, kb, policy)
+        commands = SongCommands(song, kb, policy.policy_dt, source, playback, reference, truth=truth)
         downs: list[np.ndarray] = []
+        reads: list[np.ndarray] = []
         goals: list[np.ndarray] = []
         q_cmds: list[np.ndarray] = []
 
@@ -181,18 +247,22 @@ def evaluate(
             rt: Any,
             c: SongCommands = commands,
             d: list = downs,
+            r: list = reads,
             g: list = goals,
             qc: list = q_cmds,
         ) -> None:
             if rt.safety.mode != runner.policy_mode:  # the hold after the song's end is not scored
                 return
-            d.append(c.record()["keys_down"])
+            d.append(c.scored_keys())  # the simulated keys, whatever fed key_pressed
+            r.append(c.record()["keys_down"])  # what fed key_pressed
             g.append(c.goal_now())
             qc.append(rt.last_command.q)  # the tick's q_cmd as the supervisor wrote it
 
         duration = commands.song_steps * policy.policy_dt + END_HOLD_S + 1.0
         res = runner.run(sim, commands, duration, on_tick=score)
+        commands.close()
         down = np.array(downs, bool).reshape(-1, kb.n_keys)
+        read = np.array(reads, bool).reshape(-1, kb.n_keys)
         goal = np.array(goals, bool).reshape(-1, kb.n_keys)
         counts = step_counts(down, goal)
         ep = episode_scores(down, goal)
@@ -212,9 +282,33 @@ def evaluate(
                 end_reason=res.end_reason,
                 quality={**res.quality["episode"], "name": song.name},
                 chatter_raw_mrad=_finite(raw),
+                keys=keys,
+                keys_extra=int(np.sum(read & ~down)),
+                keys_missed=int(np.sum(down & ~read)),
+                keys_down=int(np.sum(down)),
             )
         )
     return PianoEval(songs=results, policy=str(policy.path), fingerprint=policy.obs_manager.fingerprint)
+
+
+def _key_sources(
+    keys: str, sim: Any, kb: KeyboardConfig, policy: Policy
+) -> tuple[KeySource | None, KeySource | None]:
+    """The song's ``key_pressed`` source and the simulated keys it is scored against (``truth``).
+
+    ``sim``: (None, None): the runtime attaches the simulated keys, which both feed and score. Otherwise the
+    truth is the sim target's keys read as ``attach`` reads them (the hinge now), so the scores compare.
+    """
+    if keys == "sim":
+        return None, None
+    # The sim target, or the bus emulator among the target's companions (as SongCommands.attach finds it).
+    found = next(s for s in (sim, *getattr(sim, "companions", ())) if hasattr(s, "model"))
+    truth = SimKeys(found.model, found.data, kb, via="qpos")
+    if keys == "sim-midi":
+        return SimMidiKeys(SimKeys(found.model, found.data, kb, via="qpos"), kb), truth
+    from bar_policy.robot.kinematics import Kinematics
+
+    return KinematicKeys(kb, Kinematics(policy.robot.mode).fingertips), truth
 
 
 def _finite(x: float) -> float | None:

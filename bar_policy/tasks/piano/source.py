@@ -10,6 +10,10 @@
 - ``key_pressed``: the key source's reading (``keys.py``: the simulated keys, a MIDI keyboard, or the
   fingertips' kinematics), named in the log.
 
+With a ``truth`` source (``bar-deploy eval --keys kinematic``), the keys that really went down are read at
+the same instant as ``key_pressed`` (``scored_keys``): the policy sees the chosen source, the score counts
+the simulated keys.
+
 The song plays with the count-in of ``playback`` (``bank.PlaybackConfig``, the env's default): its first
 note no earlier than ``count_in_s`` after POLICY's first tick. The run finishes ``END_HOLD_S`` after the
 song's last note. The log records the goal keys of the step, the
@@ -66,12 +70,15 @@ class SongCommands(CommandSource):
         keys: KeySource | None,
         playback: PlaybackConfig | None = None,
         reference: KeyPoseReference | None = None,
+        truth: KeySource | None = None,
     ) -> None:
         """Play ``song`` on ``keyboard`` at control period ``dt`` s, reading keys from ``keys``.
 
         ``keys`` None: the simulated keys of the target the runtime attaches (``attach``; the sim target
         in the keyboard's scene). ``playback``: the count-in (default ``PlaybackConfig()``, the env's).
         ``reference``: the key-pose reference ``target_q`` returns (None: no reference; module docstring).
+        ``truth``: the keys a tick is scored against (``scored_keys``), read just before ``keys`` so both
+        see one state; None: ``keys`` itself (the simulated keys, where they feed the policy).
         Raises ``ValueError`` for a keyboard of another size than the layout's.
         """
         if keyboard.n_keys != PIANO_KEYS:
@@ -93,6 +100,8 @@ class SongCommands(CommandSource):
         self._t0: float | None = None
         self._step = 0
         self._pressed = np.zeros(PIANO_KEYS, bool)
+        self.truth = truth
+        self._true = self._pressed
         self.reference = reference
         self._ref_state = None if reference is None else reference.start
 
@@ -134,7 +143,11 @@ class SongCommands(CommandSource):
         s = min(self.step_at(t), self.song_steps)
         self._step = s
         assert self.keys is not None, "attach() gives the sim target's keys before the first tick"
+        if self.truth is not None:  # the same state as the source's (no physics step between)
+            self._true = np.asarray(self.truth.read(t), bool)
         self._pressed = np.asarray(self.keys.read(t), bool)
+        if self.truth is None:
+            self._true = self._pressed
         target = self.down[s : s + TARGET_FRAMES].reshape(-1).astype(np.float32)
         if self.reference is not None and self._t0 is not None:  # one filter step per POLICY tick
             self._ref_state = self.reference.filtered(self._ref_state, target, self._pressed)
@@ -147,6 +160,10 @@ class SongCommands(CommandSource):
     def goal_now(self) -> np.ndarray:
         """The goal keys of the last call's step, bool (n_keys,)."""
         return self.down[self._step] > 0.5
+
+    def scored_keys(self) -> np.ndarray:
+        """The keys down at the last call by ``truth`` (without one: ``key_pressed``'s), bool (n_keys,)."""
+        return self._true.copy()
 
     def target_q(self) -> np.ndarray | None:
         """The key-pose reference of the last call's tick, rad (canonical order); None without one."""
@@ -209,6 +226,8 @@ class SongCommands(CommandSource):
             if self.keys.counts:
                 log.warning("key source %s: %s", _describe(self.keys), dict(self.keys.counts))
             self.keys.close()
+        if self.truth is not None:
+            self.truth.close()
 
 
 def _describe(keys: KeySource) -> str:
