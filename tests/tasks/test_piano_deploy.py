@@ -37,15 +37,15 @@ def test_kinematic_keys_by_hand() -> None:
     white = next(k for k in KEYS if k.midi == 60)  # C4
     black = next(k for k in KEYS if k.midi == 61)  # C#4
     r = KB.fingertip_radius
-    press_z = KB.top_z - KB.press_fraction * KB.travel  # the threshold's depth under the white key top
+    press_z = KB.top_z - KB.press_fraction * KB.travel  # the front edge's threshold depth (5 mm)
     tip = {"p": np.zeros(3)}
     keys = KinematicKeys(KB, lambda q: (tip["p"], np.array([0.0, -1.0, 1.0])))  # right hand far away
     assert not keys.read(0.0).any()  # no measured q yet: nothing down
     keys.observe(np.zeros(14))
-    x_front = white.front_x + 0.01  # 1 cm behind C4's front edge: in front of the black keys
-    tip["p"] = np.array([x_front, white.y, press_z + r - 0.001])  # sphere bottom 1 mm past the threshold
+    x_front = white.front_x + 0.01  # 1 cm behind C4's front edge (threshold 4.67 mm), before the black keys
+    tip["p"] = np.array([x_front, white.y, press_z + r - 0.001])  # bottom 6 mm down: past 4.67 mm
     assert list(np.flatnonzero(keys.read(0.0))) == [white.index]
-    tip["p"] = np.array([x_front, white.y, press_z + r + 0.001])  # 1 mm short of it
+    tip["p"] = np.array([x_front, white.y, press_z + r + 0.001])  # 4 mm down: short of it
     assert not keys.read(0.0).any()
     # Over C#4's footprint (between C4 and D4, behind the black key's front edge): the black key.
     tip["p"] = np.array([black.front_x + 0.02, black.y, black.top_z - KB.press_fraction * KB.travel])

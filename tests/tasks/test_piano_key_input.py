@@ -1,4 +1,5 @@
-"""Key sources of the deploy side (bar_policy/tasks/piano/key_input.py): MIDI messages, schedules, the sim.
+"""Key sources of the deploy side (bar_policy/tasks/piano/key_input.py): MIDI messages, schedules, the sim;
+and the fingertip estimate's geometry (bar_policy/tasks/piano/keys.py, ``kinematic_pressed``).
 
 MIDI messages are fed in memory (``mido.Message`` through mido's in-memory ``EchoPort``, a ``queue.Queue``
 or a list); no real port is opened. Expected key sets are read off the messages by hand. The compact
@@ -19,7 +20,8 @@ from mido.ports import EchoPort
 
 from bar_policy.robot.scene import load_model
 from bar_policy.tasks.piano.key_input import MidiKeys, ScheduledKeys, SimKeys
-from bar_policy.tasks.piano.keyboard import KeyboardConfig, compact_config, default_config
+from bar_policy.tasks.piano.keyboard import KeyboardConfig, compact_config, default_config, key_table
+from bar_policy.tasks.piano.keys import kinematic_pressed
 from bar_policy.tasks.piano.metrics import episode_scores
 from bar_policy.tasks.piano.songs import Note, Song, goal_keys
 
@@ -177,3 +179,89 @@ def test_sim_keys_refuse_a_model_without_the_keys(scene: tuple[mujoco.MjModel, m
         SimKeys(model, data, KeyboardConfig(lowest=21), via="qpos")
     with pytest.raises(ValueError, match="via"):
         SimKeys(model, data, via="ctrl")
+
+
+# The fingertip estimate (keys.kinematic_pressed), worked by hand on the default keyboard's C4 (MIDI 60) and
+# D4 (62): white keys centred on y = 0 and y = -0.0235, 22.5 mm wide (edges at +-0.01125 and -0.01225 ..
+# -0.03475: the gap is y in [-0.01225, -0.01125]), tops at z = 0.180, hinges at x = 0.336 + 0.150 = 0.486.
+# Threshold t = 0.5 * 0.010 / 0.150 = 1/30 rad: sin t = 0.0333272, cos t = 0.9994445. Sphere radius
+# r = 0.006. At the aim point, u = 0.125 m in front of the hinge (x = 0.361), the key top at threshold is
+# u sin t = 4.1659 mm below rest, and a centre dz above the rest top is p_z = u sin t + dz cos t above it.
+DEFAULT = default_config()
+X_AIM = 0.486 - 0.125
+SIN_T, COS_T = 0.0333272, 0.9994445
+
+
+def _pressed_midi(*centres: tuple[float, float, float]) -> list[int]:
+    return _down(kinematic_pressed(np.array(centres), DEFAULT), 23)
+
+
+def test_kinematic_threshold_at_the_finger_x_by_hand() -> None:
+    """Over C4 at the aim point, the sphere touches the key top at threshold when p_z = r:
+    dz = (r - u sin t) / cos t = (0.006 - 0.0041659) / 0.9994445 = 0.0018351 m, the sphere's bottom 4.165 mm
+    below the rest top. The old rule needed the front edge's 5 mm (a bottom at 0.175, centre at 0.181).
+    """
+    dz = (0.006 - 0.125 * SIN_T) / COS_T
+    assert dz == pytest.approx(0.0018351, abs=1e-7)
+    assert _pressed_midi((X_AIM, 0.0, 0.180 + dz - 1e-5)) == [60]  # 10 um past the boundary
+    assert _pressed_midi((X_AIM, 0.0, 0.180 + dz + 1e-5)) == []  # 10 um short of it
+    assert _pressed_midi((X_AIM, 0.0, 0.1815)) == [60]  # 4.5 mm down: pressed here, not at the front edge
+    # At the front edge (u = 0.150) the threshold is the full 5 mm: dz = (0.006 - 0.150 sin t) / cos t
+    # = (0.006 - 0.0049991) / 0.9994445 = 0.0010015 m; there 4.5 mm down is not enough.
+    x_front = 0.336 + 1e-4
+    dz_front = (0.006 - (0.150 - 1e-4) * SIN_T) / COS_T
+    assert _pressed_midi((x_front, 0.0, 0.180 + dz_front - 1e-5)) == [60]
+    assert _pressed_midi((x_front, 0.0, 0.1815)) == []
+
+
+def test_kinematic_sphere_over_the_gap_presses_both_neighbours() -> None:
+    """Centre over the middle of the C4 / D4 gap (y = -0.01175): 0.5 mm past each key's edge in y, so the
+    sphere overlaps both tops at threshold while p_z <= sqrt(r^2 - 0.5^2 mm^2) = 5.979 mm, and touches them
+    from above while p_z >= 0.5 mm. p_z = 3 mm: dz = (0.003 - 0.0041659) / 0.9994445 = -1.1666 mm (the
+    centre below the rest top, the sphere's rim holding both keys 2 mm past their threshold): both pressed.
+    The old rule (the centre over a key's footprint) pressed neither.
+    """
+    y_gap = -0.01175
+    dz = (0.003 - 0.125 * SIN_T) / COS_T
+    assert _pressed_midi((X_AIM, y_gap, 0.180 + dz)) == [60, 62]
+    dz_far = (0.00599 - 0.125 * SIN_T) / COS_T  # p_z = 5.99 mm > 5.979: the rims miss both
+    assert _pressed_midi((X_AIM, y_gap, 0.180 + dz_far)) == []
+    # In x: centre 3 mm in front of C4's front edge, u = 0.153. p_z = 4 mm: dz = (0.004 - 0.153 sin t) / cos t
+    # = -1.0997 mm; p_x = -0.153 cos t + dz sin t = -0.15295, e_x = 2.95 mm: overlap (8.7 + 16 <= 36 mm^2),
+    # from above (4 >= 2.95 mm): pressed by the rim over the front edge.
+    x_ahead = 0.336 - 0.003
+    dz = (0.004 - 0.153 * SIN_T) / COS_T
+    assert _pressed_midi((x_ahead, 0.0, 0.180 + dz)) == [60]
+
+
+def test_kinematic_a_resting_or_sidelong_finger_presses_nothing() -> None:
+    """A resting finger: the held piano_ready pose's spheres (docs: left (0.357, 0.157, 0.191), right
+    (0.357, -0.157, 0.191), bottoms 5 mm above the white tops) press nothing; nor does a sphere just resting
+    on C4's top (bottom at 0.180: at threshold the top is 4.17 mm lower, p_z = r + 4.17 mm > r).
+
+    Sidelong: centre 5 mm past C4's edge toward D4 (y = -0.01625), 3 mm below the rest top: for C4,
+    p_z = 0.0041659 - 0.003 * 0.9994445 = 1.1676 mm; e_y = 5 mm, overlap (25 + 1.36 <= 36 mm^2) but the
+    contact normal is 77 degrees off the key's (1.17 mm up for 5 mm across: it pushes C4 sideways, not down):
+    not pressed. D4, under the centre (p_z = 1.17 mm <= r), is.
+    """
+    assert _pressed_midi((0.357, 0.157, 0.191), (0.357, -0.157, 0.191)) == []
+    assert _pressed_midi((X_AIM, 0.0, 0.180 + 0.006)) == []
+    assert _pressed_midi((X_AIM, -0.01625, 0.177)) == [62]
+
+
+def test_kinematic_geometry_is_the_scene_s(scene: tuple[mujoco.MjModel, mujoco.MjData]) -> None:
+    """The hand-worked boundary point over C4 is r from C4's box in the compiled scene with the key at its
+    threshold (MuJoCo's hinge, axis and box, not the estimate's own formulas).
+    """
+    model, data = scene
+    mujoco.mj_resetData(model, data)
+    c4 = next(k for k in key_table(DEFAULT) if k.midi == 60)
+    data.qpos[model.joint("piano_key60").qposadr[0]] = 0.5 * c4.angle_max
+    mujoco.mj_kinematics(model, data)
+    geom = model.geom("piano_key60")
+    for x, dz in ((X_AIM, (0.006 - 0.125 * SIN_T) / COS_T), (0.3361, (0.006 - 0.1499 * SIN_T) / COS_T)):
+        local = data.geom_xmat[geom.id].reshape(3, 3).T @ (
+            np.array([x, 0.0, 0.180 + dz]) - data.geom_xpos[geom.id]
+        )
+        gap = np.maximum(np.abs(local) - model.geom_size[geom.id], 0.0)
+        assert np.linalg.norm(gap) == pytest.approx(0.006, abs=1e-6)
