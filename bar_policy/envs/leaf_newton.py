@@ -17,13 +17,14 @@ an *arrowhead* matrix::
 because ``M_RK = 0`` and ``M_KK`` is diagonal (no leaf has ancestor or descendant dofs) and ``J_K^T D J_K`` is
 diagonal (no row touches two leaves). ``H x = g`` is then solved exactly through the Schur complement
 ``S = A - B diag(1/c) B^T`` (``nr x nr``): ``x_R = S^-1 (g_R - B (g_K / c))``, ``x_K = (g_K - B^T x_R) / c``.
-That is the same Newton step as MJX's, in ``nr^2 nefc + nr nk nefc`` multiply-adds for the products and an
-``nr x nr`` factorisation instead of ``nv^2 nefc`` and an ``nv x nv`` one (for the piano: ~0.13M instead of
-~0.63M per factorisation). Everything else -- constraint rows, line search, warm start, iterations,
-tolerance -- is MJX's own code, called as MJX calls it; ``physics_step`` puts it in the step.
+That is the same Newton step as MJX's, in ``nr^2 nefc + nr nk ncon + nk nefc`` multiply-adds for the products
+(``B`` needs the ``ncon`` contact rows only) and an ``nr x nr`` factorisation, instead of ``nv^2 nefc`` and an
+``nv x nv`` one (for the piano: ~0.08M instead of ~0.63M per direction, four directions a step).
+Everything else -- constraint rows, line search, warm start, iterations, tolerance -- is MJX's own code,
+called as MJX calls it; ``physics_step`` puts it in the step.
 
 Shapes: ``split.robot`` (nr,) and ``split.leaf`` (nk,) dof indices; ``efc_J`` (nefc, nv).
-Pinned to ``mujoco-mjx`` 3.17 (it calls ``mujoco.mjx._src`` functions); ``tests/envs/test_leaf_newton.py``
+Pinned to ``mujoco-mjx`` 3.17 (it calls ``mujoco.mjx._src`` functions); ``tests/envs/test_physics_step.py``
 holds it equal to MJX's solve.
 """
 
