@@ -13,10 +13,24 @@ import mido
 import numpy as np
 import pytest
 
-from bar_policy.tasks.piano.generator import HAND_RANGES, TRAIN_TEMPO_BPM, max_tempo_bpm, random_song
-from bar_policy.tasks.piano.keyboard import default_config, note_number
+from bar_policy.tasks.piano.generator import (
+    HAND_RANGES,
+    TRAIN_TEMPO_BPM,
+    articulate,
+    max_tempo_bpm,
+    random_song,
+)
+from bar_policy.tasks.piano.keyboard import HAND_SPLIT_MIDI, default_config, note_number
 from bar_policy.tasks.piano.midi import load_midi
-from bar_policy.tasks.piano.song_library import HELDOUT, SONG_NAMES, TRAIN, library_song
+from bar_policy.tasks.piano.song_library import (
+    HELDOUT,
+    RETIRED,
+    SONG_NAMES,
+    TRAIN,
+    _part,
+    _scale,
+    library_song,
+)
 from bar_policy.tasks.piano.songs import (
     Note,
     Song,
@@ -207,6 +221,35 @@ def test_random_songs_are_playable(seed):
             assert all(a.end_s <= b.start_s for a, b in itertools.pairwise(mine))  # one key at a time
 
 
+def split_clashes(song: Song, split: int = HAND_SPLIT_MIDI) -> list[tuple[Note, Note]]:
+    """Pairs of notes sounding at once that the key-pose prior's hand split (``prior.py``) puts on one arm."""
+    return [
+        (a, b)
+        for a, b in itertools.combinations(song.notes, 2)
+        if (a.key >= split) == (b.key >= split) and a.start_s < b.end_s and b.start_s < a.end_s
+    ]
+
+
+def test_library_keeps_to_the_prior_hand_split():
+    # The prior drives one arm per key (left below middle C, right from it), whatever the song's hand says:
+    # two notes at once on one arm blend two key poses into a pose over neither.
+    for name in set(SONG_NAMES) - set(RETIRED):
+        assert split_clashes(library_song(name)) == [], name
+    # The retired two-hand scales (left from C3, right from C5, 90 bpm: a beat is 2/3 s): the left's
+    # C4 (beat 7) and the right's C6 (beat 7) both go to the right arm, from 7 * 2/3 = 4.667 s to the next
+    # note's start less the 0.05 s gap (23.5 mm to B3 / B5 at 0.5 m/s is 0.047 s): 5.333 - 0.05 = 5.283 s.
+    notes = _part("left", _scale(3), 90) + _part("right", _scale(5), 90)
+    old = playable(Song("old", articulate(tuple(notes))), CFG)
+    assert old.notes == library_song("c_major_scales_two_hands").notes  # kept as it was
+    [(a, b)] = split_clashes(old)
+    assert (a.key, a.hand, b.key, b.hand) == (60, "left", 84, "right")
+    assert a.start_s == b.start_s == pytest.approx(4.666667) and a.end_s == b.end_s == pytest.approx(5.283333)
+    # Its successor: the left from C2 (36) to C3 (48), the right unchanged (C5 72 .. C6 84).
+    new = library_song("c_major_scales_two_octaves").notes
+    assert {n.key for n in new if n.hand == "left"} == {36, 38, 40, 41, 43, 45, 47, 48}
+    assert [n.key for n in new if n.hand == "right"] == [n.key for n in notes if n.hand == "right"]
+
+
 def test_random_song_tempo_limits():
     assert max_tempo_bpm() == pytest.approx(300.0)  # 60 / (0.15 + 0.05)
     with pytest.raises(ValueError, match="tempo_bpm = 301"):
@@ -216,8 +259,10 @@ def test_random_song_tempo_limits():
 
 
 def test_library():
-    assert set(TRAIN).isdisjoint(HELDOUT) and set(TRAIN) | set(HELDOUT) == set(SONG_NAMES)
-    assert len(SONG_NAMES) == 11 and {"ode_to_joy", "frere_jacques"} <= set(HELDOUT)
+    assert set(TRAIN).isdisjoint(HELDOUT) and set(TRAIN).isdisjoint(RETIRED)
+    assert set(TRAIN) | set(HELDOUT) | set(RETIRED) == set(SONG_NAMES)
+    assert len(SONG_NAMES) == 12 and "c_major_scales_two_octaves" in TRAIN
+    assert {"ode_to_joy", "frere_jacques"} <= set(HELDOUT)
     for name in SONG_NAMES:
         song = library_song(name)
         assert playable(song, CFG) == song  # hands given, every note playable
