@@ -296,7 +296,8 @@ class TrainConfig:
     executable_cache: bool = False
     """Executable cache in <cache directory>/executables (opt-in, one process, with the compile cache): a
     rerun of the same command and code loads each program without tracing, lowering or compiling it. Off by
-    default: a deserialised CPU epoch crashed jaxlib 0.10.2; unmeasured on GPUs (docs/startup.md)."""
+    default: unmeasured on GPUs; a loaded CPU epoch crashed until LAPACK was initialised on load
+    (docs/startup.md)."""
     ppo: PPOConfig = field(default_factory=PPOConfig)
     network: NetworkConfig = field(default_factory=NetworkConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)

@@ -61,7 +61,8 @@ tens of MB)."""
 
 CPU_ENV = "BAR_POLICY_EXECUTABLE_CACHE_ON_CPU"
 """Set to 1 to use the cache on the CPU backend: off there by default, since a deserialised CPU executable
-of the brax epoch crashed jaxlib 0.10.2 (segfault) when run (``docs/startup.md``)."""
+of the brax epoch crashed jaxlib 0.10.2 (segfault) when run; the cause (LAPACK not initialised in a process
+that lowered nothing) is fixed by ``_init_lazy_kernels`` (``docs/startup.md``)."""
 
 _log = logging.getLogger(__name__)
 
@@ -141,6 +142,7 @@ class ExecutableCache:
             entry = pickle.loads(path.read_bytes())
             if not isinstance(entry, dict) or entry.get("format") != FORMAT or entry.get("key") != key:
                 raise ValueError("not an entry of this format for this key")
+            _init_lazy_kernels()
             compiled = deserialize_and_load(entry["executable"], entry["in_tree"], entry["out_tree"])
             os.utime(path)  # recently used: evicted last
             if not self._loaded:  # an exception or Ctrl-C after loading is not the program's fault
@@ -200,6 +202,29 @@ class ExecutableCache:
         """Remove ``key``'s entry and sidecar (absent ones are fine)."""
         for p in (self._path(key), self.directory / f"{key}.json"):
             p.unlink(missing_ok=True)
+
+
+def _init_lazy_kernels() -> None:
+    """Fill in the kernel tables jax fills only while *lowering* a program that calls them.
+
+    jaxlib's CPU LAPACK kernels (Cholesky, triangular solve, LU, QR, eigen-, SVD, ...) call LAPACK through
+    function pointers that ``jaxlib.lapack._lapack.initialize()`` takes from scipy; jax calls it from the
+    lowering rule of each linalg primitive (``lapack.prepare_lapack_call``), not at import. A process that
+    loads an executable instead of lowering it never calls it, and the first LAPACK call of the loaded
+    program jumps to address 0: the segfault of the brax epoch (MJX's solver factorises with
+    ``potrf``) on a CPU with jaxlib 0.10.2 (docs/startup.md). The GPU's hybrid (host LAPACK) kernels are
+    initialised the same lazy way (``gpu_solver.initialize_hybrid_kernels``). Both calls are idempotent;
+    the first loads scipy (about 0.15 s).
+    """
+    with contextlib.suppress(Exception):  # no LAPACK module: nothing a program could call
+        from jax._src.lib import lapack
+
+        lapack._lapack.initialize()
+    with contextlib.suppress(Exception):  # no GPU plugin
+        from jax._src.lib import gpu_solver
+
+        if gpu_solver is not None and hasattr(gpu_solver, "initialize_hybrid_kernels"):
+            gpu_solver.initialize_hybrid_kernels()
 
 
 def _alive(pid: int) -> bool:

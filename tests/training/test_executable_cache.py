@@ -389,3 +389,46 @@ def test_least_recently_used_entries_go_over_the_size_limit(tmp_path):
     _run(cache, Toy(), X[:2])
     assert not old.exists() and not old.with_suffix(".json").exists()
     assert len(_entries(tmp_path)) == 1
+
+
+LAPACK_CHILD = """
+import sys
+import jax, jax.numpy as jnp, numpy as np
+jax.config.update("jax_enable_compilation_cache", False)
+from bar_policy.training.executable_cache import ExecutableCache
+
+def program(a):  # a Cholesky factorisation and a triangular solve: LAPACK potrf and trsm on a CPU
+    c = jnp.linalg.cholesky(a)
+    return c, jax.scipy.linalg.solve_triangular(c, jnp.ones(a.shape[0], a.dtype), lower=True)
+
+a = jnp.asarray(np.eye(5) * 2 + 0.1, jnp.float32)
+cache = ExecutableCache(sys.argv[2], {"test": "lapack"})
+jitted = jax.jit(program)
+key, inputs = cache.key("chol", jitted, (a,))
+if sys.argv[1] == "store":
+    print(cache.store(key, inputs, jitted.lower(a).compile()))
+else:  # this process lowers nothing: it only loads and runs
+    compiled = cache.load(key, "chol")
+    assert compiled is not None, "entry not loaded"
+    c, x = compiled(a)
+    np.testing.assert_allclose(np.asarray(c), np.linalg.cholesky(np.asarray(a)), rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(c) @ np.asarray(x), np.ones(5), rtol=1e-4)
+    cache.confirm()
+    print("ran")
+"""
+
+
+def test_a_loaded_lapack_program_runs_in_a_process_that_lowered_none(tmp_path):
+    """The CPU epoch crash: jaxlib fills its LAPACK function pointers only while lowering a linalg op, so a
+    process that only loaded an executable calling LAPACK jumped to address 0 (exit -11). Each step in its
+    own process, so a segfault fails this test instead of killing pytest."""
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    env |= {"JAX_PLATFORMS": "cpu", "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
+    for step, expected in (("store", "stored"), ("load", "ran")):
+        argv = [sys.executable, "-c", LAPACK_CHILD, step, str(tmp_path)]
+        child = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=120)
+        assert child.returncode == 0, (step, child.returncode, child.stderr[-2000:])
+        assert child.stdout.split()[-1:] == [expected], (step, child.stdout[-500:])
