@@ -15,6 +15,9 @@ Each variant is the keyboard scene of ``LitePiano`` (``compact_config()``, 49 ke
     leaf        --level physics: the step through ``envs.physics_step`` (static contact-row masks, the keys'
                 dofs factored as an arrowhead in MJX's Newton); at --level env the env's default
     mjxsolve    --level env: the env on ``mjx.step`` itself (``physics_step.plan`` off)
+    lswhile     the line search's fixed ``ls_iterations`` scan (a cond per step: under vmap every step runs)
+                as a ``while_loop`` that stops once every env's search is done: the same values (the scan's
+                late steps are no-ops), without reverse-mode autodiff; an experiment, patched while tracing
     itN, lsN    N solver / line-search iterations (the robot's scene: 3 and 5)
 
 Per variant: nv, constraint rows (nefc), contact rows, the narrow-phase pairs MJX tests each step (and the
@@ -34,9 +37,11 @@ Prints a markdown table (and writes it to ``--out``).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 from unittest import mock
 
 import jax
@@ -44,7 +49,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from mujoco import mjx
-from mujoco.mjx._src import collision_driver
+from mujoco.mjx._src import collision_driver, solver
 
 from bar_policy.envs import physics_step
 from bar_policy.robot.constants import load_robot
@@ -73,14 +78,14 @@ def _edit(part: str) -> Callable[[mujoco.MjSpec], None]:
             spec.option.jacobian = mujoco.mjtJacobian.mjJAC_DENSE
         elif part == "nocon":
             spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
-        elif part in ("leaf", "mjxsolve"):
+        elif part in ("leaf", "mjxsolve", "lswhile"):
             pass  # not a scene edit: the step function (``physics``, ``env_level``)
         elif part.startswith("it"):
             spec.option.iterations = int(part[2:])
         elif part.startswith("ls"):
             spec.option.ls_iterations = int(part[2:])
         elif part != "capped":
-            valid = "capped, uncapped, nolimit, cg, dense, nocon, leaf, mjxsolve, itN, lsN"
+            valid = "capped, uncapped, nolimit, cg, dense, nocon, leaf, mjxsolve, lswhile, itN, lsN"
             raise ValueError(f"unknown edit {part!r}; valid: {valid}")
 
     return apply
@@ -155,6 +160,27 @@ def physics(
     return compile_s, best
 
 
+def _while_loop(cond_fun: Callable, body_fun: Callable, init_val: object, max_iter: int) -> object:
+    """``solver._while_loop_scan`` (at most ``max_iter`` bodies while ``cond_fun``) as a while loop."""
+
+    def cond(carry: tuple[object, jax.Array]) -> jax.Array:
+        val, it = carry
+        return (it < max_iter) & cond_fun(val)
+
+    def body(carry: tuple[object, jax.Array]) -> tuple[object, jax.Array]:
+        val, it = carry
+        return body_fun(val), it + 1
+
+    return jax.lax.while_loop(cond, body, (init_val, jnp.int32(0)))[0]
+
+
+def _patches(variant: str) -> list[Any]:
+    """The patches a variant's step needs while tracing (``lswhile``)."""
+    if "lswhile" in variant.split("+"):
+        return [mock.patch.object(solver, "_while_loop_scan", _while_loop)]
+    return []
+
+
 def env_level(variant: str, batch: int, steps: int) -> tuple[mujoco.MjModel, float, float]:
     """(model, compile s, physics steps/s) of LitePiano in ``variant``'s scene (``robot``: LiteReach)."""
     from bar_policy import envs
@@ -167,13 +193,16 @@ def env_level(variant: str, batch: int, steps: int) -> tuple[mujoco.MjModel, flo
         mock.patch.object(physics_step, "plan", plan),
     ):
         env = envs.load(name)
-    r = raw_env_steps_per_second(
-        env,
-        envs.wrap_for_brax_training,
-        num_envs=batch,
-        steps=steps,
-        randomizer=envs.get_randomizer(name, env.config),
-    )
+    with contextlib.ExitStack() as stack:
+        for patch in _patches(variant):
+            stack.enter_context(patch)
+        r = raw_env_steps_per_second(
+            env,
+            envs.wrap_for_brax_training,
+            num_envs=batch,
+            steps=steps,
+            randomizer=envs.get_randomizer(name, env.config),
+        )
     return env.mj_model, r["compile_s"], r["env_steps_per_s"] * env.n_substeps
 
 
@@ -201,7 +230,10 @@ def main() -> None:
             if v != "robot":
                 variant_scene(v)(spec)
             m = compile_scene(spec, "arms")
-            c, sps = physics(m, a.batch, a.min_time, leaf="leaf" in v.split("+"))
+            with contextlib.ExitStack() as stack:
+                for patch in _patches(v):
+                    stack.enter_context(patch)
+                c, sps = physics(m, a.batch, a.min_time, leaf="leaf" in v.split("+"))
         k = counts(m)
         pairs = f"{k['pairs']} ({k['allowed']})"
         rows.append(f"| {v} | {k['nv']} | {k['nefc']} | {k['ncon']} | {pairs} | {c:.1f} | {sps:,.0f} |")
