@@ -11,6 +11,9 @@ of the whole step. The pieces (``mujoco.mjx._src``, as ``forward.py`` and ``solv
     collision      collision_driver.collision alone
     make_constraint  constraint rows (efc_J, efc_D, efc_aref) alone (contact_rows': static masks)
     mjx_make_constraint  MJX's own
+    friction_rows, limit_rows, contact_rows  make_constraint's row groups alone (the rest of it is the
+                   impedance and reference acceleration of every row)
+    linesearch_while  the line search as a while_loop (``piano_variants.py``'s ``lswhile``)
     fwd_vel_acc    fwd_velocity, fwd_actuation, fwd_acceleration
     ctx_create     solver.Context.create(grad=False) (the warm start builds two, the solve one more)
     linesearch     solver._linesearch (one per Newton iteration)
@@ -30,13 +33,15 @@ import argparse
 import time
 from collections.abc import Callable
 from pathlib import Path
+from unittest import mock
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from mujoco import mjx
 from mujoco.mjx._src import collision_driver, constraint, solver, support
 from mujoco.mjx._src import forward as mjx_forward
-from piano_variants import held_batch  # bench/ is on sys.path when run as a script
+from piano_variants import held_batch, while_loop_capped  # bench/ is on sys.path when run as a script
 
 from bar_policy.envs import contact_rows, leaf_newton, physics_step
 from bar_policy.robot.scene import compile_scene, robot_spec
@@ -103,6 +108,17 @@ def pieces(m: mjx.Model, plan: physics_step.StepPlan) -> dict[str, Callable[[mjx
         out = solver._update_gradient(m, d, ctx)
         return out.replace(qacc=ctx.qacc + 1e-6 * out.Mgrad)
 
+    def rows(fn: Callable[[mjx.Data], object]) -> Callable[[mjx.Data], mjx.Data]:
+        def run(d: mjx.Data) -> mjx.Data:
+            efc = fn(d)
+            return d.replace(qacc=d.qacc + 1e-9 * efc.J.sum(0) + 1e-9 * efc.pos_aref.sum())
+
+        return run
+
+    def linesearch_while(ctx: solver.Context, d: mjx.Data) -> solver.Context:
+        with mock.patch.object(solver, "_while_loop_scan", while_loop_capped):
+            return solver._linesearch(m, d, ctx)
+
     def update_constraint(ctx: solver.Context, d: mjx.Data) -> solver.Context:
         return ctx.replace(qacc=ctx.qacc + 1e-6 * solver._update_constraint(m, d, ctx).qfrc_constraint)
 
@@ -113,11 +129,15 @@ def pieces(m: mjx.Model, plan: physics_step.StepPlan) -> dict[str, Callable[[mjx
         "collision": lambda d: collision_driver.collision(m, d),
         "make_constraint": lambda d: contact_rows.make_constraint(m, d, plan.ancestors),
         "mjx_make_constraint": lambda d: constraint.make_constraint(m, d),
+        "friction_rows": rows(lambda d: constraint._efc_friction(m, d)),
+        "limit_rows": rows(lambda d: constraint._efc_limit_slide_hinge(m, d)),
+        "contact_rows": rows(lambda d: contact_rows._frictionless(m, d, jnp.asarray(plan.ancestors))),
         "fwd_vel_acc": lambda d: mjx_forward.fwd_acceleration(
             m, mjx_forward.fwd_actuation(m, mjx_forward.fwd_velocity(m, d))
         ),
         "ctx_create": lambda d: d.replace(qacc=solver.Context.create(m, d, grad=False).Ma * 1e-6 + d.qacc),
         "linesearch": via_ctx(lambda c, d: solver._linesearch(m, d, c)),
+        "linesearch_while": via_ctx(linesearch_while),
         "update_constraint": via_ctx(update_constraint),
         "grad_leaf": via_ctx(grad_leaf),
         "grad_dense": via_ctx(grad_dense),

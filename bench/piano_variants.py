@@ -160,7 +160,7 @@ def physics(
     return compile_s, best
 
 
-def _while_loop(cond_fun: Callable, body_fun: Callable, init_val: object, max_iter: int) -> object:
+def while_loop_capped(cond_fun: Callable, body_fun: Callable, init_val: object, max_iter: int) -> object:
     """``solver._while_loop_scan`` (at most ``max_iter`` bodies while ``cond_fun``) as a while loop."""
 
     def cond(carry: tuple[object, jax.Array]) -> jax.Array:
@@ -177,7 +177,7 @@ def _while_loop(cond_fun: Callable, body_fun: Callable, init_val: object, max_it
 def _patches(variant: str) -> list[Any]:
     """The patches a variant's step needs while tracing (``lswhile``)."""
     if "lswhile" in variant.split("+"):
-        return [mock.patch.object(solver, "_while_loop_scan", _while_loop)]
+        return [mock.patch.object(solver, "_while_loop_scan", while_loop_capped)]
     return []
 
 
