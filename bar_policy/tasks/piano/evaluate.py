@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 import queue
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -52,7 +53,7 @@ from bar_policy.tasks.piano.scene import keyboard_scene
 from bar_policy.tasks.piano.songs import Song
 from bar_policy.tasks.piano.source import END_HOLD_S, SongCommands
 
-__all__ = ["EVAL_KEY_SOURCES", "PianoEval", "SimMidiKeys", "SongResult", "evaluate"]
+__all__ = ["EVAL_KEY_SOURCES", "PianoEval", "SimMidiKeys", "SongResult", "SongTicks", "evaluate"]
 
 EVAL_KEY_SOURCES = ("sim", "kinematic", "sim-midi")
 """Where the policy's ``key_pressed`` can come from in the evaluation (module docstring)."""
@@ -129,6 +130,25 @@ class SongResult:
     def f1_pooled(self) -> float:
         """F1 of the counts summed over the song, ``2 tp / (2 tp + fp + fn)`` (1 when all are 0)."""
         return float(scores(Counts(self.true_pos, self.false_pos, self.false_neg)).f1)
+
+
+@dataclass(frozen=True)
+class SongTicks:
+    """One song's scored ticks as arrays (``evaluate``'s ``on_song``).
+
+    ``SongResult``'s counts are those of ``down`` against ``goal``.
+    """
+
+    song: Song
+    """The song as given (its file's times; ``steps`` index it as played, after the count-in)."""
+    steps: np.ndarray
+    """int, shape (ticks,): each scored tick's song step (``SongCommands``'s ``song_step``)."""
+    down: np.ndarray
+    """bool, shape (ticks, n_keys): the simulated keys down (what is scored)."""
+    goal: np.ndarray
+    """bool, shape (ticks, n_keys): the goal keys of the tick's step."""
+    count_in_s: float
+    """The count-in the song was played with (``bank.PlaybackConfig``)."""
 
 
 @dataclass(frozen=True)
@@ -218,12 +238,15 @@ def evaluate(
     runner: EpisodeRunner,
     playback: PlaybackConfig | None = None,
     keys: str = "sim",
+    on_song: Callable[[SongResult, SongTicks], None] | None = None,
 ) -> PianoEval:
     """Play each song once on ``target`` (default: ``runner``'s in the keyboard's scene; module docstring).
 
     ``playback``: the count-in (default ``PlaybackConfig()``, the env's and ``bar-deploy``'s). ``keys``: where
     the policy's ``key_pressed`` comes from, one of ``EVAL_KEY_SOURCES`` (the score counts the simulated
-    keys whatever it is). Raises ``ValueError`` for another ``keys``, naming the valid ones.
+    keys whatever it is). ``on_song``: called after each song with its result and its scored ticks as arrays
+    (``SongTicks``), for analyses beyond the means. Raises ``ValueError`` for another ``keys``, naming the
+    valid ones.
     """
     if keys not in EVAL_KEY_SOURCES:
         raise ValueError(f"keys = {keys!r}; valid: {', '.join(EVAL_KEY_SOURCES)}")
@@ -231,6 +254,7 @@ def evaluate(
     sim = target or runner.target(scene=keyboard_scene(kb))
     q0 = held_pose(policy.robot.pose("piano_ready"), policy.robot.mode)  # as the env starts
     reference = KeyPoseReference.for_policy(policy, kb)
+    pb = PlaybackConfig() if playback is None else playback
     results = []
     for song in songs:
         sim.reset(q0)
@@ -240,6 +264,7 @@ def evaluate(
         reads: list[np.ndarray] = []
         goals: list[np.ndarray] = []
         q_cmds: list[np.ndarray] = []
+        steps: list[int] = []
 
         def score(
             k: int,
@@ -250,11 +275,14 @@ def evaluate(
             r: list = reads,
             g: list = goals,
             qc: list = q_cmds,
+            st: list = steps,
         ) -> None:
             if rt.safety.mode != runner.policy_mode:  # the hold after the song's end is not scored
                 return
             d.append(c.scored_keys())  # the simulated keys, whatever fed key_pressed
-            r.append(c.record()["keys_down"])  # what fed key_pressed
+            rec = c.record()
+            r.append(rec["keys_down"])  # what fed key_pressed
+            st.append(rec["song_step"])
             g.append(c.goal_now())
             qc.append(rt.last_command.q)  # the tick's q_cmd as the supervisor wrote it
 
@@ -267,27 +295,28 @@ def evaluate(
         counts = step_counts(down, goal)
         ep = episode_scores(down, goal)
         raw = chatter_mrad(np.array(q_cmds), policy.policy_dt) if q_cmds else math.nan
-        results.append(
-            SongResult(
-                song=song.name,
-                ticks=int(res.ticks),
-                scored=len(downs),
-                true_pos=int(np.sum(counts.tp)),
-                false_pos=int(np.sum(counts.fp)),
-                false_neg=int(np.sum(counts.fn)),
-                precision=float(ep.precision),
-                recall=float(ep.recall),
-                f1=float(ep.f1),
-                faulted=res.fault_count > 0,
-                end_reason=res.end_reason,
-                quality={**res.quality["episode"], "name": song.name},
-                chatter_raw_mrad=_finite(raw),
-                keys=keys,
-                keys_extra=int(np.sum(read & ~down)),
-                keys_missed=int(np.sum(down & ~read)),
-                keys_down=int(np.sum(down)),
-            )
+        result = SongResult(
+            song=song.name,
+            ticks=int(res.ticks),
+            scored=len(downs),
+            true_pos=int(np.sum(counts.tp)),
+            false_pos=int(np.sum(counts.fp)),
+            false_neg=int(np.sum(counts.fn)),
+            precision=float(ep.precision),
+            recall=float(ep.recall),
+            f1=float(ep.f1),
+            faulted=res.fault_count > 0,
+            end_reason=res.end_reason,
+            quality={**res.quality["episode"], "name": song.name},
+            chatter_raw_mrad=_finite(raw),
+            keys=keys,
+            keys_extra=int(np.sum(read & ~down)),
+            keys_missed=int(np.sum(down & ~read)),
+            keys_down=int(np.sum(down)),
         )
+        results.append(result)
+        if on_song is not None:
+            on_song(result, SongTicks(song, np.array(steps, int), down, goal, pb.count_in_s))
     return PianoEval(songs=results, policy=str(policy.path), fingerprint=policy.obs_manager.fingerprint)
 
 
