@@ -20,7 +20,7 @@ from bar_policy.tasks.piano.generator import (
     max_tempo_bpm,
     random_song,
 )
-from bar_policy.tasks.piano.keyboard import HAND_SPLIT_MIDI, default_config, note_number
+from bar_policy.tasks.piano.keyboard import HAND_SPLIT_MIDI, default_config, is_black, note_number
 from bar_policy.tasks.piano.midi import load_midi
 from bar_policy.tasks.piano.song_library import (
     HELDOUT,
@@ -261,7 +261,7 @@ def test_random_song_tempo_limits():
 def test_library():
     assert set(TRAIN).isdisjoint(HELDOUT) and set(TRAIN).isdisjoint(RETIRED)
     assert set(TRAIN) | set(HELDOUT) | set(RETIRED) == set(SONG_NAMES)
-    assert len(SONG_NAMES) == 12 and "c_major_scales_two_octaves" in TRAIN
+    assert len(SONG_NAMES) == 16 and "c_major_scales_two_octaves" in TRAIN
     assert {"ode_to_joy", "frere_jacques"} <= set(HELDOUT)
     for name in SONG_NAMES:
         song = library_song(name)
@@ -274,3 +274,46 @@ def test_library():
     assert scale[-1].end_s == pytest.approx(15 * 0.6 + 0.6)  # 14 one-beat notes, a two-beat C4
     with pytest.raises(ValueError, match="unknown song 'x'; songs: \\['c_major_scale_right'"):
         library_song("x")
+
+
+NEW_BLACK = (
+    "d_major_scale_right",
+    "e_major_scale_left",
+    "b_flat_e_flat_arpeggios_two_hands",
+    "london_bridge",
+)
+
+
+def test_library_trains_on_black_keys_in_both_hands():
+    # Session 31: no training song had a black key. The four songs added then hold black keys in each
+    # hand, every one of the five (C#, D#, F#, G#, A#), each hand on its side of the split.
+    assert set(NEW_BLACK) <= set(TRAIN)
+    notes = [n for name in TRAIN for n in library_song(name).notes]
+    assert {n.key for n in notes if is_black(n.key) and n.hand == "left"}
+    assert {n.key for n in notes if is_black(n.key) and n.hand == "right"}
+    assert {n.key % 12 for n in notes if is_black(n.key)} == {1, 3, 6, 8, 10}
+    old = [n for name in TRAIN if name not in NEW_BLACK for n in library_song(name).notes]
+    assert not [n for n in old if is_black(n.key)]  # before: none
+    for name in NEW_BLACK:
+        song = library_song(name).notes
+        assert all((n.key >= HAND_SPLIT_MIDI) == (n.hand == "right") for n in song), name
+    # The D major scale, right hand, 100 bpm (a beat is 0.6 s): D4 E4 F#4 G4 = 62 64 66 67. D4 -> E4 needs
+    # the 0.05 s floor: D4 ends at 0.55 s. E4 -> F#4 needs 0.13284 s (test_required_gap_by_hand): E4 ends
+    # at 1.2 - 0.13284 = 1.06716 s. F#4 -> G4: dy = 4 * 23.5 - 3.5 * 23.5 = 11.75 mm, dx = 55, dz = 12:
+    # sqrt(11.75^2 + 55^2 + 12^2) = 57.507 mm -> 0.11501 s, F#4 ends at 1.8 - 0.11501 = 1.68499 s.
+    # G4 -> A4: the floor, 2.35 s.
+    d = library_song("d_major_scale_right").notes
+    assert [n.key for n in d[:8]] == [62, 64, 66, 67, 69, 71, 73, 74]  # ... A4 B4 C#5 D5
+    np.testing.assert_allclose(
+        [(n.start_s, n.end_s) for n in d[:4]],
+        [(0.0, 0.55), (0.6, 1.06716), (1.2, 1.68499), (1.8, 2.35)],
+        atol=1e-5,
+    )
+    assert len(d) == 15 and d[-1].key == 62 and d[-1].end_s == pytest.approx(14 * 0.6 + 1.2)
+    # The two-hand arpeggios, 90 bpm (a beat is 2/3 s): A#2 (46) and A#4 (70) together at 0 s, then D3
+    # (50) and D5 (74) at 0.667 s. A#4 -> D5: dy = 8 * 23.5 - 5.5 * 23.5 = 58.75 mm, dx = 55, dz = 12:
+    # 81.367 mm -> 0.16273 s; both end at 0.66667 - 0.16273 = 0.50393 s (the left's octave below alike).
+    arp = sorted(library_song("b_flat_e_flat_arpeggios_two_hands").notes, key=lambda n: (n.start_s, n.key))
+    assert [(n.key, n.hand) for n in arp[:4]] == [(46, "left"), (70, "right"), (50, "left"), (74, "right")]
+    np.testing.assert_allclose([n.start_s for n in arp[:4]], [0.0, 0.0, 2 / 3, 2 / 3], atol=1e-6)
+    np.testing.assert_allclose([n.end_s for n in arp[:2]], [0.50393, 0.50393], atol=1e-5)

@@ -5,7 +5,11 @@ for one hand; ``articulate`` then ends every note just early enough for the hand
 (``songs.required_gap``). Every song is checked by ``songs.playable`` (tests/tasks/test_piano_songs.py).
 Melodies: "Ode to Joy" (Beethoven, Symphony No. 9, 1824), "Twinkle, Twinkle, Little Star", "Mary Had a
 Little Lamb", "Frere Jacques" and "Au clair de la lune" (traditional): all public domain, written out here
-from the well-known tunes in C major.
+from the well-known tunes in C major. "London Bridge Is Falling Down" (traditional English nursery rhyme,
+printed since the 18th century: public domain), written out here from the well-known tune transposed to
+F major, its B-flats as A#4 (the note names have sharps only).
+Black keys (session 31: no training song had one): the D major and E major scales, the B-flat and E-flat
+major arpeggios and London Bridge.
 
 ``TRAIN`` songs are for training; ``HELDOUT`` songs are never trained on (evaluation only); ``RETIRED``
 songs are no longer trained on but stay defined for the files that were. numpy only.
@@ -42,6 +46,12 @@ def _scale(o: int) -> str:
     return f"{_SCALE_UP} {_SCALE_DOWN}".format(o=o, p=o + 1)
 
 
+def _up_and_down(up: str) -> str:
+    """A scale as ``_scale`` plays it from its 8 notes up: up, back down, the last note two beats."""
+    notes = up.split()
+    return " ".join([*notes, *notes[-2:0:-1], f"{notes[0]}:2"])
+
+
 _SONGS: dict[str, tuple[float, dict[str, str]]] = {
     # name: (bpm, {hand: tokens})
     "c_major_scale_right": (100, {"right": _scale(4)}),
@@ -66,6 +76,26 @@ _SONGS: dict[str, tuple[float, dict[str, str]]] = {
         {"right": "E4 D4 C4 D4 E4 E4 E4:2 D4 D4 D4:2 E4 G4 G4:2 E4 D4 C4 D4 E4 E4 E4 E4 D4 D4 E4 D4 C4:4"},
     ),
     "au_clair_de_la_lune": (100, {"right": "C4 C4 C4 D4 E4:2 D4:2 C4 E4 D4 D4 C4:4"}),
+    # Black keys (the sharps of D and E major, B-flat and E-flat as A# and D#); each hand on its own side
+    # of middle C (the prior's hand split).
+    "d_major_scale_right": (100, {"right": _up_and_down("D4 E4 F#4 G4 A4 B4 C#5 D5")}),
+    "e_major_scale_left": (100, {"left": _up_and_down("E2 F#2 G#2 A2 B2 C#3 D#3 E3")}),
+    # B-flat major's arpeggio, then E-flat major's, in octaves: the left from A#2 (B-flat 2), the right
+    # from A#4.
+    "b_flat_e_flat_arpeggios_two_hands": (
+        90,
+        {
+            "left": "A#2 D3 F3 A#3 F3 D3 A#2:2 D#3 G3 A#3 G3 D#3:2",
+            "right": "A#4 D5 F5 A#5 F5 D5 A#4:2 D#5 G5 A#5 G5 D#5:2",
+        },
+    ),
+    "london_bridge": (
+        100,
+        {
+            "right": "C5:1.5 D5:0.5 C5 A#4 A4 A#4 C5:2 G4 A4 A#4:2 A4 A#4 C5:2 "
+            "C5:1.5 D5:0.5 C5 A#4 A4 A#4 C5:2 G4:2 C5:2 A4 F4:3"
+        },
+    ),
     # held out
     "ode_to_joy": (
         100,
