@@ -39,8 +39,8 @@ import numpy as np
 
 from bar_policy.deploy.episodes import SimEpisodes
 from bar_policy.deploy.policy import load_policy
+from bar_policy.tasks.piano.bank import random_songs
 from bar_policy.tasks.piano.evaluate import SongResult, SongTicks, evaluate
-from bar_policy.tasks.piano.generator import random_song
 from bar_policy.tasks.piano.keyboard import compact_config, is_black
 from bar_policy.tasks.piano.prior import KeyPosePriorConfig
 from bar_policy.tasks.piano.songs import Note, Song, count_in
@@ -72,14 +72,8 @@ class Tally:
 def draw_songs(
     seed: int, count: int, tempo: tuple[float, float], duration_s: float
 ) -> list[tuple[Song, float]]:
-    """``count`` random songs and their tempos, drawn as ``bank.training_songs`` draws them."""
-    rng = np.random.default_rng(seed)
-    kb = compact_config()
-    out = []
-    for i in range(count):
-        bpm = float(rng.uniform(*tempo))
-        out.append((random_song(rng, kb, duration_s, bpm, name=f"random-{seed}-{i:04d}"), bpm))
-    return out
+    """``count`` random songs and their tempos, as the training bank draws them (``bank.random_songs``)."""
+    return random_songs(compact_config(), count, duration_s, tempo, seed)
 
 
 def _bin(x: float, edges: tuple[float, ...], unit: str) -> str:

@@ -72,7 +72,7 @@ class LeafSplit:
 
 
 def _can_collide(m: mujoco.MjModel, g1: int, g2: int) -> bool:
-    """Whether MuJoCo's broad phase may pair geoms ``g1`` and ``g2`` (bit filter or an explicit pair)."""
+    """Whether the contype/conaffinity bit filter lets geoms ``g1`` and ``g2`` collide (not ``<pair>``s)."""
     bits = (m.geom_contype[g1] & m.geom_conaffinity[g2]) or (m.geom_contype[g2] & m.geom_conaffinity[g1])
     return bool(bits)
 
@@ -81,15 +81,14 @@ def leaf_split(m: mujoco.MjModel) -> LeafSplit | None:
     """The leaf dofs of ``m`` (module docstring), or None where it has none or the solve is not Newton.
 
     None also where the factorisation would not be MJX's Newton step: CG, an elliptic cone, equality
-    constraints or tendons (rows this check does not follow), or the RK4 integrator (it calls MJX's own
-    ``forward``).
+    constraints or tendons (rows this check does not follow), no constraints at all. Which integrators can
+    carry it is ``physics_step.plan``'s concern.
     """
     if (
         m.opt.solver != mujoco.mjtSolver.mjSOL_NEWTON
         or m.opt.cone == mujoco.mjtCone.mjCONE_ELLIPTIC
         or m.neq
         or m.ntendon
-        or m.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4
         or m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
     ):
         return None

@@ -23,7 +23,7 @@ from bar_policy.tasks.piano.keyboard import KeyboardConfig
 from bar_policy.tasks.piano.song_library import library_song
 from bar_policy.tasks.piano.songs import Song, check_count_in, count_in, goal_keys
 
-__all__ = ["PlaybackConfig", "SongBank", "song_bank", "training_songs"]
+__all__ = ["PlaybackConfig", "SongBank", "random_songs", "song_bank", "training_songs"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -105,9 +105,21 @@ def training_songs(
     library: Sequence[str] = (),
 ) -> list[Song]:  # fmt: skip
     """``library`` songs (by name) then ``count`` random playable songs, tempos ~ U(``tempo_bpm``) bpm."""
+    drawn = random_songs(keyboard, count, duration_s, tempo_bpm, seed)
+    return [library_song(name) for name in library] + [song for song, _ in drawn]
+
+
+def random_songs(
+    keyboard: KeyboardConfig, count: int, duration_s: float, tempo_bpm: tuple[float, float], seed: int
+) -> list[tuple[Song, float]]:
+    """``training_songs``' random songs, each with its tempo in bpm.
+
+    Per song a tempo ~ ``U(tempo_bpm)``, then ``generator.random_song``, both from one ``default_rng(seed)``;
+    named ``random-SEED-NNNN``.
+    """
     rng = np.random.default_rng(seed)
-    songs = [library_song(name) for name in library]
+    out = []
     for i in range(count):
         tempo = float(rng.uniform(*tempo_bpm))
-        songs.append(random_song(rng, keyboard, duration_s, tempo, name=f"random-{seed}-{i:04d}"))
-    return songs
+        out.append((random_song(rng, keyboard, duration_s, tempo, name=f"random-{seed}-{i:04d}"), tempo))
+    return out

@@ -51,7 +51,7 @@ from bar_policy.tasks.piano.metrics import Counts, episode_scores, scores, step_
 from bar_policy.tasks.piano.reference import KeyPoseReference
 from bar_policy.tasks.piano.scene import keyboard_scene
 from bar_policy.tasks.piano.songs import Song
-from bar_policy.tasks.piano.source import END_HOLD_S, SongCommands
+from bar_policy.tasks.piano.source import END_HOLD_S, SongCommands, sim_keys
 
 __all__ = ["EVAL_KEY_SOURCES", "PianoEval", "SimMidiKeys", "SongResult", "SongTicks", "evaluate"]
 
@@ -255,10 +255,15 @@ def evaluate(
     q0 = held_pose(policy.robot.pose("piano_ready"), policy.robot.mode)  # as the env starts
     reference = KeyPoseReference.for_policy(policy, kb)
     pb = PlaybackConfig() if playback is None else playback
+    fingertips = None
+    if keys == "kinematic":  # one model build for every song
+        from bar_policy.robot.kinematics import Kinematics
+
+        fingertips = Kinematics(policy.robot.mode).fingertips
     results = []
     for song in songs:
         sim.reset(q0)
-        source, truth = _key_sources(keys, sim, kb, policy)
+        source, truth = _key_sources(keys, sim, kb, fingertips)
         commands = SongCommands(song, kb, policy.policy_dt, source, playback, reference, truth=truth)
         downs: list[np.ndarray] = []
         reads: list[np.ndarray] = []
@@ -321,23 +326,21 @@ def evaluate(
 
 
 def _key_sources(
-    keys: str, sim: Any, kb: KeyboardConfig, policy: Policy
+    keys: str, sim: Any, kb: KeyboardConfig, fingertips: Callable[[np.ndarray], Any] | None
 ) -> tuple[KeySource | None, KeySource | None]:
     """The song's ``key_pressed`` source and the simulated keys it is scored against (``truth``).
 
     ``sim``: (None, None): the runtime attaches the simulated keys, which both feed and score. Otherwise the
     truth is the sim target's keys read as ``attach`` reads them (the hinge now), so the scores compare.
+    ``fingertips``: the robot's forward kinematics, for ``kinematic`` (built once per evaluation).
     """
     if keys == "sim":
         return None, None
-    # The sim target, or the bus emulator among the target's companions (as SongCommands.attach finds it).
-    found = next(s for s in (sim, *getattr(sim, "companions", ())) if hasattr(s, "model"))
-    truth = SimKeys(found.model, found.data, kb, via="qpos")
-    if keys == "sim-midi":
-        return SimMidiKeys(SimKeys(found.model, found.data, kb, via="qpos"), kb), truth
-    from bar_policy.robot.kinematics import Kinematics
-
-    return KinematicKeys(kb, Kinematics(policy.robot.mode).fingertips), truth
+    truth = sim_keys(sim, kb)
+    if keys == "sim-midi":  # its own reader: each SimKeys counts what it reads
+        return SimMidiKeys(sim_keys(sim, kb), kb), truth
+    assert fingertips is not None, "kinematic keys need the robot's fingertips"
+    return KinematicKeys(kb, fingertips), truth
 
 
 def _finite(x: float) -> float | None:

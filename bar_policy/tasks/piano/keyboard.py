@@ -48,6 +48,7 @@ __all__ = [
     "compact_config",
     "default_config",
     "is_black",
+    "key_size",
     "key_table",
     "note_name",
     "note_number",
@@ -255,6 +256,13 @@ def key_table(config: KeyboardConfig) -> tuple[Key, ...]:
             )
         )
     return tuple(keys)
+
+
+def key_size(config: KeyboardConfig, key: Key) -> tuple[float, float]:
+    """Width and thickness of ``key``'s box, m (the scene's collision geom; the kinematic key estimate's)."""
+    if key.black:
+        return config.black_width, config.black_thickness
+    return config.white_pitch - config.white_gap, config.white_thickness
 
 
 def press_thresholds(config: KeyboardConfig | None = None) -> np.ndarray:

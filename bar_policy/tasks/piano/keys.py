@@ -20,7 +20,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from bar_policy.tasks.piano.key_input import KeySource
-from bar_policy.tasks.piano.keyboard import KeyboardConfig, key_table
+from bar_policy.tasks.piano.keyboard import KeyboardConfig, key_size, key_table, press_thresholds
 
 __all__ = ["KinematicKeys", "kinematic_pressed"]
 
@@ -48,18 +48,17 @@ class _Boxes(NamedTuple):
 
 @lru_cache(maxsize=8)
 def _boxes(config: KeyboardConfig) -> _Boxes:
-    """The keys' boxes of ``config`` as ``scene.keyboard_scene`` builds them (``_key_size``), at threshold."""
-    c = config
-    keys = key_table(c)
-    black = np.array([k.black for k in keys])
-    threshold = c.press_fraction * np.array([k.angle_max for k in keys])  # keyboard.press_thresholds
+    """The keys' boxes of ``config`` as ``scene.keyboard_scene`` builds them (``key_size``), at threshold."""
+    keys = key_table(config)
+    width, thickness = np.array([key_size(config, k) for k in keys]).T
+    threshold = press_thresholds(config)
     return _Boxes(
-        hinge_x=np.full(len(keys), c.back_x),
+        hinge_x=np.full(len(keys), config.back_x),
         y=np.array([k.y for k in keys]),
         top_z=np.array([k.top_z for k in keys]),
         lever=np.array([k.lever for k in keys]),
-        half_width=np.where(black, c.black_width, c.white_pitch - c.white_gap) / 2.0,
-        thickness=np.where(black, c.black_thickness, c.white_thickness),
+        half_width=width / 2.0,
+        thickness=thickness,
         cos=np.cos(threshold),
         sin=np.sin(threshold),
     )

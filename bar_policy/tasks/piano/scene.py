@@ -31,7 +31,7 @@ import mujoco
 from bar_policy.robot.constants import FINGERTIP_SITES
 from bar_policy.robot.links import FINGERTIP_SITE_POS
 from bar_policy.robot.scene import SceneEdit
-from bar_policy.tasks.piano.keyboard import Key, KeyboardConfig, default_config, key_table
+from bar_policy.tasks.piano.keyboard import KeyboardConfig, default_config, key_size, key_table
 
 __all__ = ["FINGERTIP_BIT", "FINGERTIP_GEOMS", "MAX_CONTACT_POINTS", "MAX_GEOM_PAIRS", "keyboard_scene"]
 
@@ -50,13 +50,6 @@ condim 1): the robot's 54 (``arms``; 46 in ``arms_neck``) + 3 keys per fingertip
 _WHITE_RGBA = (0.92, 0.92, 0.9, 1.0)
 _BLACK_RGBA = (0.08, 0.08, 0.1, 1.0)
 _TIP_RGBA = (0.9, 0.5, 0.2, 1.0)
-
-
-def _key_size(config: KeyboardConfig, key: Key) -> tuple[float, float]:
-    """Width and thickness of a key's box, m."""
-    if key.black:
-        return config.black_width, config.black_thickness
-    return config.white_pitch - config.white_gap, config.white_thickness
 
 
 def keyboard_scene(config: KeyboardConfig | None = None) -> SceneEdit:
@@ -90,7 +83,7 @@ def keyboard_scene(config: KeyboardConfig | None = None) -> SceneEdit:
             )
         for key in key_table(cfg):
             name = f"piano_key{key.midi}"
-            width, thick = _key_size(cfg, key)
+            width, thick = key_size(cfg, key)
             body = spec.worldbody.add_body(name=name, pos=[cfg.back_x, key.y, key.top_z])
             body.explicitinertial = True
             mass = cfg.black_mass if key.black else cfg.white_mass

@@ -46,7 +46,7 @@ from bar_policy.tasks.piano.terms import PIANO_KEYS, TARGET_FRAMES
 if TYPE_CHECKING:
     from bar_policy.tasks.piano.reference import KeyPoseReference
 
-__all__ = ["END_HOLD_S", "EPISODE_STEPS", "SongCommands"]
+__all__ = ["END_HOLD_S", "EPISODE_STEPS", "SongCommands", "sim_keys"]
 
 log = logging.getLogger(__name__)
 
@@ -112,15 +112,7 @@ class SongCommands(CommandSource):
         The sim target's, or the real target's in-process bus emulator's (each in the keyboard's scene).
         """
         if self.keys is None:
-            sims = [target, *getattr(target, "companions", ())]
-            sim = next((s for s in sims if hasattr(s, "model") and hasattr(s, "data")), None)
-            model, data = (sim.model, sim.data) if sim is not None else (None, None)
-            if model is None or data is None:
-                raise ValueError(
-                    f"{type(target).__name__} has no simulated keys: give a key source (--keys "
-                    "midi[:PORT] or --keys kinematic)"
-                )
-            self.keys = SimKeys(model, data, self.keyboard, via="qpos")  # the hinge now, not 2 ms ago
+            self.keys = sim_keys(target, self.keyboard)
 
     def observe(self, q: np.ndarray, dq: np.ndarray) -> None:
         """Hand the measured q to a key source that estimates from it (``keys.KinematicKeys``)."""
@@ -228,6 +220,23 @@ class SongCommands(CommandSource):
             self.keys.close()
         if self.truth is not None:
             self.truth.close()
+
+
+def sim_keys(target: Any, keyboard: KeyboardConfig) -> SimKeys:
+    """The simulated keys of ``target``'s scene: the sim target's, or its in-process bus emulator's.
+
+    Read from the hinges' ``qpos`` (the keys now, not as the last step's sensors wrote them). Raises
+    ``ValueError`` for a target with no simulated keys, naming the key sources to give instead.
+    """
+    sims = [target, *getattr(target, "companions", ())]
+    sim = next((s for s in sims if hasattr(s, "model") and hasattr(s, "data")), None)
+    model, data = (sim.model, sim.data) if sim is not None else (None, None)
+    if model is None or data is None:
+        raise ValueError(
+            f"{type(target).__name__} has no simulated keys: give a key source (--keys midi[:PORT] or --keys "
+            "kinematic)"
+        )
+    return SimKeys(model, data, keyboard, via="qpos")
 
 
 def _describe(keys: KeySource) -> str:
