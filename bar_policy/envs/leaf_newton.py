@@ -190,13 +190,16 @@ def solve(m: mjx.Model, d: mjx.Data, split: LeafSplit) -> mjx.Data:
         ctx = gradient(ctx)
         return ctx.replace(search=-ctx.Mgrad, solver_niter=ctx.solver_niter + 1)
 
-    qacc = d.qacc_smooth
-    if not m.opt.disableflags & DisableBit.WARMSTART:
+    if m.opt.disableflags & DisableBit.WARMSTART:
+        start = solver.Context.create(m, d.replace(qacc=d.qacc_smooth), grad=False)
+    else:
+        # MJX builds the chosen start's context a third time; it is the cheaper of these two, so pick it.
         warm = solver.Context.create(m, d.replace(qacc=d.qacc_warmstart), grad=False)
         smooth = solver.Context.create(m, d.replace(qacc=d.qacc_smooth), grad=False)
-        qacc = jnp.where(warm.cost < smooth.cost, d.qacc_warmstart, d.qacc_smooth)
-    d = d.replace(qacc=qacc)
-    ctx = gradient(solver.Context.create(m, d, grad=False))
+        use_warm = warm.cost < smooth.cost
+        start = jax.tree_util.tree_map(lambda w, s: jnp.where(use_warm, w, s), warm, smooth)
+    d = d.replace(qacc=start.qacc)
+    ctx = gradient(start)
     ctx = ctx.replace(search=-ctx.Mgrad)
     ctx = body(ctx) if m.opt.iterations == 1 else jax.lax.while_loop(cond, body, ctx)
     return d.tree_replace(
