@@ -18,6 +18,8 @@ Each variant is the keyboard scene of ``LitePiano`` (``compact_config()``, 49 ke
     lswhile     the line search's fixed ``ls_iterations`` scan (a cond per step: under vmap every step runs)
                 as a ``while_loop`` that stops once every env's search is done: the same values (the scan's
                 late steps are no-ops), without reverse-mode autodiff; an experiment, patched while tracing
+    libchol     the arrowhead's 14 x 14 solve through jax's Cholesky (``cho_factor``/``cho_solve``: a batched
+                ``potrf`` and triangular solves on a GPU) instead of ``leaf_newton.spd_solve``'s unrolled one
     itN, lsN    N solver / line-search iterations (the robot's scene: 3 and 5)
 
 Per variant: nv, constraint rows (nefc), contact rows, the narrow-phase pairs MJX tests each step (and the
@@ -51,7 +53,7 @@ import numpy as np
 from mujoco import mjx
 from mujoco.mjx._src import collision_driver, solver
 
-from bar_policy.envs import physics_step
+from bar_policy.envs import leaf_newton, physics_step
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.scene import SceneEdit, compile_scene, robot_spec
@@ -78,14 +80,14 @@ def _edit(part: str) -> Callable[[mujoco.MjSpec], None]:
             spec.option.jacobian = mujoco.mjtJacobian.mjJAC_DENSE
         elif part == "nocon":
             spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
-        elif part in ("leaf", "mjxsolve", "lswhile"):
+        elif part in ("leaf", "mjxsolve", "lswhile", "libchol"):
             pass  # not a scene edit: the step function (``physics``, ``env_level``)
         elif part.startswith("it"):
             spec.option.iterations = int(part[2:])
         elif part.startswith("ls"):
             spec.option.ls_iterations = int(part[2:])
         elif part != "capped":
-            valid = "capped, uncapped, nolimit, cg, dense, nocon, leaf, mjxsolve, lswhile, itN, lsN"
+            valid = "capped, uncapped, nolimit, cg, dense, nocon, leaf, mjxsolve, lswhile, libchol, itN, lsN"
             raise ValueError(f"unknown edit {part!r}; valid: {valid}")
 
     return apply
@@ -176,9 +178,18 @@ def while_loop_capped(cond_fun: Callable, body_fun: Callable, init_val: object, 
 
 def _patches(variant: str) -> list[Any]:
     """The patches a variant's step needs while tracing (``lswhile``)."""
-    if "lswhile" in variant.split("+"):
-        return [mock.patch.object(solver, "_while_loop_scan", while_loop_capped)]
-    return []
+    parts = variant.split("+")
+    patches = []
+    if "lswhile" in parts:
+        patches.append(mock.patch.object(solver, "_while_loop_scan", while_loop_capped))
+    if "libchol" in parts:
+        patches.append(mock.patch.object(leaf_newton, "spd_solve", library_spd_solve))
+    return patches
+
+
+def library_spd_solve(a: jax.Array, y: jax.Array) -> jax.Array:
+    """``a^-1 y`` through jax's Cholesky (``libchol``): what ``leaf_newton`` did before ``spd_solve``."""
+    return jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(a), y)
 
 
 def env_level(variant: str, batch: int, steps: int) -> tuple[mujoco.MjModel, float, float]:
