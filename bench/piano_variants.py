@@ -20,6 +20,8 @@ Each variant is the keyboard scene of ``LitePiano`` (``compact_config()``, 49 ke
                 late steps are no-ops), without reverse-mode autodiff; an experiment, patched while tracing
     libchol     the arrowhead's 14 x 14 solve through jax's Cholesky (``cho_factor``/``cho_solve``: a batched
                 ``potrf`` and triangular solves on a GPU) instead of ``leaf_newton.spd_solve``'s unrolled one
+    newtonfor   the Newton loop written out (``leaf_newton.unrolled_newton_loop``) instead of a while_loop
+    lsunroll    the line search's scan unrolled (``unroll=True``: the same values, straight-line code)
     itN, lsN    N solver / line-search iterations (the robot's scene: 3 and 5)
 
 Per variant: nv, constraint rows (nefc), contact rows, the narrow-phase pairs MJX tests each step (and the
@@ -80,14 +82,17 @@ def _edit(part: str) -> Callable[[mujoco.MjSpec], None]:
             spec.option.jacobian = mujoco.mjtJacobian.mjJAC_DENSE
         elif part == "nocon":
             spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
-        elif part in ("leaf", "mjxsolve", "lswhile", "libchol"):
+        elif part in ("leaf", "mjxsolve", "lswhile", "libchol", "newtonfor", "lsunroll"):
             pass  # not a scene edit: the step function (``physics``, ``env_level``)
         elif part.startswith("it"):
             spec.option.iterations = int(part[2:])
         elif part.startswith("ls"):
             spec.option.ls_iterations = int(part[2:])
         elif part != "capped":
-            valid = "capped, uncapped, nolimit, cg, dense, nocon, leaf, mjxsolve, lswhile, libchol, itN, lsN"
+            valid = (
+                "capped, uncapped, nolimit, cg, dense, nocon, leaf, mjxsolve, lswhile, libchol, newtonfor, "
+                "lsunroll, itN, lsN"
+            )
             raise ValueError(f"unknown edit {part!r}; valid: {valid}")
 
     return apply
@@ -182,9 +187,25 @@ def _patches(variant: str) -> list[Any]:
     patches = []
     if "lswhile" in parts:
         patches.append(mock.patch.object(solver, "_while_loop_scan", while_loop_capped))
+    if "lsunroll" in parts:
+        patches.append(mock.patch.object(solver, "_while_loop_scan", scan_unrolled))
+    if "newtonfor" in parts:
+        patches.append(mock.patch.object(leaf_newton, "newton_loop", leaf_newton.unrolled_newton_loop))
     if "libchol" in parts:
         patches.append(mock.patch.object(leaf_newton, "spd_solve", library_spd_solve))
     return patches
+
+
+def scan_unrolled(cond_fun: Callable, body_fun: Callable, init_val: object, max_iter: int) -> object:
+    """``solver._while_loop_scan`` with its scan unrolled (``lsunroll``): the same steps, no loop."""
+
+    def step(carry: tuple[object, jax.Array], _: None) -> tuple[tuple[object, jax.Array], None]:
+        val, go = carry
+        new = body_fun(val)
+        val = jax.tree_util.tree_map(lambda a, b: jnp.where(go, a, b), new, val)
+        return (val, go & cond_fun(val)), None
+
+    return jax.lax.scan(step, (init_val, cond_fun(init_val)), None, length=max_iter, unroll=True)[0][0]
 
 
 def library_spd_solve(a: jax.Array, y: jax.Array) -> jax.Array:

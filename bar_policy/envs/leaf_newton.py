@@ -30,6 +30,8 @@ holds it equal to MJX's solve.
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import jax
@@ -195,6 +197,37 @@ def _gradient(
     return ctx.replace(grad=grad, Mgrad=mgrad)
 
 
+def newton_loop(
+    cond: Callable[[solver.Context], jax.Array],
+    body: Callable[[solver.Context], solver.Context],
+    ctx: solver.Context,
+    iterations: int,
+) -> solver.Context:
+    """MJX's Newton loop, ``while cond: ctx = body(ctx)``, as a ``jax.lax.while_loop``.
+
+    ``cond`` is False once ``ctx.solver_niter`` reaches ``iterations``, so the loop runs at most that often.
+    """
+    del iterations
+    return jax.lax.while_loop(cond, body, ctx)
+
+
+def unrolled_newton_loop(
+    cond: Callable[[solver.Context], jax.Array],
+    body: Callable[[solver.Context], solver.Context],
+    ctx: solver.Context,
+    iterations: int,
+) -> solver.Context:
+    """:func:`newton_loop` written out: ``iterations`` bodies, each kept only where ``cond`` held before it.
+
+    The same values: once ``cond`` is False the context no longer changes, so it stays False. Under ``vmap``
+    a ``while_loop`` already runs every env until the last one is done, selecting per env; written out,
+    the GPU needs no host round trip per iteration for the predicate, and XLA can fuse across iterations.
+    """
+    for _ in range(iterations):
+        ctx = jax.tree_util.tree_map(functools.partial(jnp.where, cond(ctx)), body(ctx), ctx)
+    return ctx
+
+
 def solve(m: mjx.Model, d: mjx.Data, split: LeafSplit) -> mjx.Data:
     """MJX's ``solver.solve`` (Newton) with the arrowhead factorisation; same warm start, loop and exits."""
     if m.opt.solver != SolverType.NEWTON or m.opt.cone != ConeType.PYRAMIDAL:
@@ -232,7 +265,7 @@ def solve(m: mjx.Model, d: mjx.Data, split: LeafSplit) -> mjx.Data:
     d = d.replace(qacc=start.qacc)
     ctx = gradient(start)
     ctx = ctx.replace(search=-ctx.Mgrad)
-    ctx = body(ctx) if m.opt.iterations == 1 else jax.lax.while_loop(cond, body, ctx)
+    ctx = body(ctx) if m.opt.iterations == 1 else newton_loop(cond, body, ctx, m.opt.iterations)
     return d.tree_replace(
         {"qfrc_constraint": ctx.qfrc_constraint, "qacc": ctx.qacc, "_impl.efc_force": ctx.efc_force}
     )

@@ -155,3 +155,10 @@ def test_spd_solve_against_numpy() -> None:
         for m in (a, upper_garbage):
             x = np.asarray(jax.jit(leaf_newton.spd_solve)(jnp.asarray(m), jnp.asarray(y)))
             np.testing.assert_allclose(x, expected, rtol=1e-10, atol=0)
+
+
+def test_unrolled_newton_loop_equals_while_loop(piano, monkeypatch) -> None:
+    # Written out, the Newton loop keeps a body's result only where the loop's condition held before it:
+    # the same values as the while_loop (compared at the module's float64 tolerance, _compare).
+    monkeypatch.setattr(leaf_newton, "newton_loop", leaf_newton.unrolled_newton_loop)
+    assert _compare(piano, _press_states(piano, n=3)) >= 2
