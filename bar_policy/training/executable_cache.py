@@ -29,10 +29,11 @@ recorded (``ProgramTimes.executable``). **A bad entry** (unreadable, corrupt, an
 does not match, a failed ``deserialize_and_load``) logs one warning line, is deleted and the program is
 compiled normally (and stored afresh): a stale or broken program is never served.
 
-Opt-in (``--executable-cache``); off with ``--no-compile-cache``, and under multi-process ``jax.distributed``
-(each process would load its own executable with no check that all loaded the same program); on a CPU only
-with ``BAR_POLICY_EXECUTABLE_CACHE_ON_CPU=1``, on GPUs only (other backends unmeasured). ``off_reason`` says
-which.
+On by default on GPU backends (``--no-executable-cache`` turns it off): on one H100 two warm runs loaded all
+four programs and reached the first evaluation at 22.0 s and 25.0 s instead of 35-41 s (session 32). Off on
+a CPU unless ``BAR_POLICY_EXECUTABLE_CACHE_ON_CPU=1``, on other backends (unmeasured), with
+``--no-compile-cache``, and under multi-process ``jax.distributed`` (each process would load its own
+executable with no check that all loaded the same program). ``off_reason`` says which.
 """
 
 from __future__ import annotations
