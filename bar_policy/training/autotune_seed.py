@@ -196,7 +196,7 @@ def _seed(cache_dir: Path | None, enabled: bool, seeds_dir: Path) -> SeedOutcome
         return SeedOutcome(reason="compile cache off")
     backend, kind, jaxlib_version = local_platform()
     if backend != "gpu":
-        return SeedOutcome(reason=f"{backend} backend; XLA autotunes on GPUs only")
+        return SeedOutcome(reason=f"{backend.upper()} backend; XLA autotunes on GPUs only")
     flag = _xla_caches_flag()
     if flag != "all" and AUTOTUNE_DIR not in flag:
         return SeedOutcome(

@@ -84,7 +84,7 @@ def test_never_overwrites_an_entry_xla_wrote(tmp_path, gpu):
     [
         (("gpu", "NVIDIA Other", "9.9.9"), AUTOTUNE_DIR, True, "c", "no seed for device 'NVIDIA Other'"),
         (("gpu", KIND, "9.9.8"), AUTOTUNE_DIR, True, "c", "made with jaxlib ['9.9.9'], this is 9.9.8"),
-        (("cpu", "cpu", "9.9.9"), AUTOTUNE_DIR, True, "c", "cpu backend; XLA autotunes on GPUs only"),
+        (("cpu", "cpu", "9.9.9"), AUTOTUNE_DIR, True, "c", "CPU backend; XLA autotunes on GPUs only"),
         (("gpu", KIND, "9.9.9"), "xla_gpu_kernel_cache_file", True, "c", "leaves out"),
         (("gpu", KIND, "9.9.9"), AUTOTUNE_DIR, True, None, "compile cache off"),
         (("gpu", KIND, "9.9.9"), AUTOTUNE_DIR, False, "c", "switched off, --no-autotune-seed"),
@@ -108,7 +108,7 @@ def test_all_xla_caches_includes_the_autotune_dir(tmp_path, monkeypatch):
 
 def test_the_real_cpu_backend_is_not_seeded(tmp_path):
     out = ats.seed_autotune_cache(tmp_path / "c")
-    assert out.reason == "cpu backend; XLA autotunes on GPUs only" and not (tmp_path / "c").exists()
+    assert out.reason == "CPU backend; XLA autotunes on GPUs only" and not (tmp_path / "c").exists()
 
 
 def test_a_tampered_archive_or_member_is_refused_and_counted(tmp_path, gpu):
