@@ -4,7 +4,8 @@
 #   startup  (~7 min, 9.7 at worst): cold start on an empty compilation cache -> the same command again (warm) ->
 #                      raw env throughput at the training batch (bench/mjx_throughput.py, harness c, 4096)
 #                      -> where an iteration's time goes (bench/train_breakdown.py); COLD_WARM_ONLY=1
-#                      stops after the warm run (~4.5 min)
+#                      stops after the warm run (~4.5 min). Since session 32 the cold run gets the shipped
+#                      autotune seed and the warm one the executable cache (both defaults on a GPU)
 #   rsl      (~8 min): the rsl-rl backend, --max-minutes 5, same env at the field's rsl-rl values
 #                      (--preset rsl; RSL_PRESET=gpu for brax's), then where an rsl-rl iteration's time
 #                      goes (bench/rsl_rl_profile.py, same preset)
@@ -101,9 +102,11 @@ flags() {
   done
   FLAGS="${par# }"
   rm -rf "$WORK/jaxcache_base" "$WORK/jaxcache_flags"
-  ppo "cold_base" 200 --compile-cache-dir "$WORK/jaxcache_base" --max-minutes "${COLD_MIN:-1.8}"
+  # No autotune seed in either: the comparison is XLA's own autotuning against none.
+  ppo "cold_base" 200 --compile-cache-dir "$WORK/jaxcache_base" --max-minutes "${COLD_MIN:-1.8}" --no-autotune-seed
   finish flags "$RUNS/cold_base" > /dev/null
-  XLA_FLAGS="$FLAGS" ppo "cold_flags" 200 --compile-cache-dir "$WORK/jaxcache_flags" --max-minutes "${COLD_MIN:-1.8}"
+  XLA_FLAGS="$FLAGS" ppo "cold_flags" 200 --compile-cache-dir "$WORK/jaxcache_flags" --max-minutes "${COLD_MIN:-1.8}" \
+    --no-autotune-seed
   echo "XLA_FLAGS=$FLAGS (cold_flags; cold_base: none)" > "$WORK/flags.md"
   finish flags "$RUNS/cold_base" "$RUNS/cold_flags" --append "$WORK/flags.md" > /dev/null
   [ -n "${NO_PROFILE:-}" ] && return

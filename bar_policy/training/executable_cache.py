@@ -29,8 +29,11 @@ recorded (``ProgramTimes.executable``). **A bad entry** (unreadable, corrupt, an
 does not match, a failed ``deserialize_and_load``) logs one warning line, is deleted and the program is
 compiled normally (and stored afresh): a stale or broken program is never served.
 
-Opt-in (``--executable-cache``); off with ``--no-compile-cache``, and under multi-process ``jax.distributed``
-(each process would load its own executable with no check that all loaded the same program).
+On by default on GPU backends (``--no-executable-cache`` turns it off): on one H100 two warm runs loaded all
+four programs and reached the first evaluation at 22.0 s and 25.0 s instead of 35-41 s (session 32). Off on
+a CPU unless ``BAR_POLICY_EXECUTABLE_CACHE_ON_CPU=1``, on other backends (unmeasured), with
+``--no-compile-cache``, and under multi-process ``jax.distributed`` (each process would load its own
+executable with no check that all loaded the same program). ``off_reason`` says which.
 """
 
 from __future__ import annotations
@@ -50,7 +53,16 @@ from typing import Any
 from bar_policy._files import write_atomic
 from bar_policy.training import executable_key as ek
 
-__all__ = ["CPU_ENV", "FORMAT", "MAX_BYTES", "OUTSIDE_PROGRAMS", "ExecutableCache", "executable_cache_for"]
+__all__ = [
+    "CPU_ENV",
+    "FORMAT",
+    "MAX_BYTES",
+    "OUTSIDE_PROGRAMS",
+    "ExecutableCache",
+    "executable_cache_for",
+    "executable_cache_line",
+    "off_reason",
+]
 
 FORMAT = 1
 """Layout of a stored entry; part of the key, bumped when the layout changes."""
@@ -247,10 +259,13 @@ OUTSIDE_PROGRAMS = (
     "compile_cache",
     "compile_cache_dir",
     "executable_cache",
+    "autotune_seed",
 )
 """Training-config fields no compiled program reads (where the run is written, when it stops, what is
-exported, where caches live): left out of the key, so a rerun under another run name or wall-clock
-budget is served. Until stop 31 they were in it, and the GPU's warm runs missed (docs/startup.md)."""
+exported, where caches live, whether XLA's autotune cache is seeded: that changes which implementation
+XLA picks for a fusion, never what the program computes): left out of the key, so a rerun under another
+run name or wall-clock budget is served. Until stop 31 they were in it, and the GPU's warm runs missed
+(docs/startup.md)."""
 
 
 def executable_cache_for(
@@ -258,8 +273,8 @@ def executable_cache_for(
 ) -> ExecutableCache | None:
     """The run's cache in ``<cache_dir>/executables``.
 
-    None when ``cfg.executable_cache`` is off, the compile cache is off (``cache_dir`` None) or the run
-    spans several processes.
+    None when ``off_reason`` gives one (switched off, no compile cache, several processes, a CPU without
+    the opt-in, a backend other than a GPU) or a run crashed after loading from it (a warning line).
 
     Args:
         cfg: the run's ``TrainConfig``.
@@ -269,11 +284,7 @@ def executable_cache_for(
     """
     import jax
 
-    if not cfg.executable_cache or cache_dir is None:
-        return None
-    if cfg.distributed.num_processes > 1 or jax.process_count() > 1:
-        return None
-    if jax.default_backend() == "cpu" and os.environ.get(CPU_ENV) != "1":
+    if off_reason(cfg, cache_dir, jax.default_backend(), jax.process_count()):
         return None
     cls = type(env)
     context = {
@@ -298,3 +309,33 @@ def _crashed_marker(directory: Path) -> Path:
     import jaxlib
 
     return directory / f"crashed-{jax.default_backend()}-jaxlib-{jaxlib.__version__}"
+
+
+def off_reason(cfg: Any, cache_dir: Path | None, backend: str, process_count: int) -> str:
+    """Why the run gets no executable cache, '' when it gets one (the default decision, docs/startup.md).
+
+    Args:
+        cfg: the run's ``TrainConfig`` (``executable_cache``, ``distributed.num_processes``).
+        cache_dir: jax's persistent cache directory, None when ``--no-compile-cache``.
+        backend: ``jax.default_backend()``: ``gpu`` (CUDA or ROCm), ``cpu``, ``tpu``...
+        process_count: ``jax.process_count()``.
+    """
+    if not cfg.executable_cache:
+        return "switched off, --no-executable-cache"
+    if cache_dir is None:
+        return "compile cache off"
+    if cfg.distributed.num_processes > 1 or process_count > 1:
+        return "multi-process run"
+    if backend == "cpu":
+        return "" if os.environ.get(CPU_ENV) == "1" else f"CPU backend; {CPU_ENV}=1 turns it on"
+    return "" if backend == "gpu" else f"{backend} backend, unmeasured there"
+
+
+def executable_cache_line(cfg: Any, cache_dir: Path | None, cache: ExecutableCache | None) -> str:
+    """The run's log line: ``executable cache: <dir> (docs/startup.md)`` or ``... off (<why>)``."""
+    if cache is not None:
+        return f"executable cache: {cache.directory} (docs/startup.md)"
+    import jax
+
+    why = off_reason(cfg, cache_dir, jax.default_backend(), jax.process_count())
+    return f"executable cache: off ({why or 'a run crashed after loading from it: see the warning above'})"

@@ -21,10 +21,11 @@ from pathlib import Path
 from typing import Any
 
 from bar_policy.training import startup_breakdown as sb
+from bar_policy.training.autotune_seed import seed_autotune_cache
 from bar_policy.training.best import finish_best
 from bar_policy.training.config import TrainConfig, config_to_dict
 from bar_policy.training.distributed import init_distributed, local_default_devices, shutdown_distributed
-from bar_policy.training.executable_cache import executable_cache_for
+from bar_policy.training.executable_cache import executable_cache_for, executable_cache_line
 from bar_policy.training.progress import RunLogger, format_duration, format_steps
 from bar_policy.training.startup import StartupTimer, configure_compile_cache
 
@@ -193,6 +194,7 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
         partitioner = choose_partitioner()
         with timer.phase(sb.DISTRIBUTED):
             init_distributed(cfg)
+        timer.autotune_seed = seed = seed_autotune_cache(cache_dir, enabled=cfg.autotune_seed)
         import jax
 
         # Full float32 products unless asked otherwise (a TF32 gradient destabilised Playground's runs).
@@ -230,10 +232,9 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
         )
         run_dir, logger, record = _open_run(cfg, env, is_main, [cache_note, partitioner_note])
         exec_cache = executable_cache_for(cfg, cache_dir, record, env)
-        if is_main and cache_dir:
-            logger.print(
-                f"executable cache: {exec_cache.directory if exec_cache else 'off'} (docs/startup.md)"
-            )
+        if is_main:
+            logger.print(executable_cache_line(cfg, cache_dir, exec_cache))
+            logger.print(seed.line())
     logger.t0 = timer.origin
     provenance = record["provenance"]
     ckpt_dir = str(run_dir / "checkpoints")

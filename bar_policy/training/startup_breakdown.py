@@ -10,6 +10,9 @@ Two views of the same start:
 - **Programs**: each compiled program's trace, lower and compile (or persistent-cache load) seconds, with
   its cache outcome. The compiles run on worker threads, overlapping each other and the phases above.
 
+The record also says what seeding XLA's autotune cache did (``autotune_seed``, one ``autotune seed: ...``
+line in the table), since a cold GPU compile is about 30 s shorter with it.
+
 ``StartupTimer.finish`` makes the JSON record of both (``final_eval.json`` and ``metrics.jsonl`` keep it
 under ``startup``); ``lines`` prints it as a table.
 """
@@ -21,9 +24,12 @@ import time
 from collections.abc import Iterator
 from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bar_policy._phases import MODEL_BUILD, PhaseClock
+
+if TYPE_CHECKING:
+    from bar_policy.training.autotune_seed import SeedOutcome
 
 __all__ = ["PHASES", "ProgramTimes", "StartupTimer"]
 
@@ -131,6 +137,8 @@ class StartupTimer:
     programs: dict[str, ProgramTimes] = field(default_factory=dict)
     report: dict[str, Any] | None = None
     """The record ``finish`` made (None before)."""
+    autotune_seed: SeedOutcome | None = None
+    """What seeding XLA's autotune cache did (``autotune_seed.seed_autotune_cache``; None: not tried)."""
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
     @property
@@ -185,6 +193,8 @@ class StartupTimer:
             "programs": {k: p.as_dict() for k, p in self.programs.items()},
             "compiles": {k: round(v, 3) for k, v in (stats or {}).items()},
         }
+        if self.autotune_seed is not None:
+            self.report["autotune_seed"] = self.autotune_seed.as_dict()
         return self.report
 
     @staticmethod
@@ -223,3 +233,7 @@ def _table(rec: dict[str, Any]) -> Iterator[str]:
             f"cache {c['cache_hits']:.0f} hits ({c['cache_load_s']:.2f} s loading) / "
             f"{c['cache_misses']:.0f} misses"
         )
+    if rec.get("autotune_seed"):
+        from bar_policy.training.autotune_seed import SeedOutcome
+
+        yield f"  {SeedOutcome(**rec['autotune_seed']).line()}"

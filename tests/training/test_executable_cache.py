@@ -189,8 +189,41 @@ def test_an_entry_under_another_key_is_refused(tmp_path, caplog):
     assert cache.load("f" * 64, "toy") is None and not (tmp_path / ("f" * 64 + ".bin")).exists()
 
 
+def test_default_is_on_for_gpus_off_on_cpus_and_several_processes(tmp_path, monkeypatch):
+    """The default decision (docs/startup.md, "Switches"), backend and process count given explicitly."""
+    cfg = preset("tiny")
+    assert cfg.executable_cache is True and preset("gpu").executable_cache is True
+    monkeypatch.delenv(ec.CPU_ENV, raising=False)
+    assert ec.off_reason(cfg, tmp_path, "gpu", 1) == ""  # on
+    assert ec.off_reason(cfg, tmp_path, "cpu", 1) == f"CPU backend; {ec.CPU_ENV}=1 turns it on"
+    assert ec.off_reason(cfg, tmp_path, "tpu", 1) == "tpu backend, unmeasured there"
+    assert ec.off_reason(cfg, tmp_path, "gpu", 2) == "multi-process run"
+    several = apply_overrides(cfg, ["distributed.num_processes=2"])
+    assert ec.off_reason(several, tmp_path, "gpu", 1) == "multi-process run"
+    assert ec.off_reason(cfg, None, "gpu", 1) == "compile cache off"
+    off = apply_overrides(cfg, ["executable_cache=False"])
+    assert ec.off_reason(off, tmp_path, "gpu", 1) == "switched off, --no-executable-cache"
+    monkeypatch.setenv(ec.CPU_ENV, "1")
+    assert ec.off_reason(cfg, tmp_path, "cpu", 1) == ""  # the CPU opt-in
+    assert ec.off_reason(cfg, tmp_path, "cpu", 2) == "multi-process run"  # still off there
+    # The run's log line names the reason (this process is a CPU).
+    monkeypatch.delenv(ec.CPU_ENV)
+    line = ec.executable_cache_line(cfg, tmp_path, None)
+    assert line == f"executable cache: off (CPU backend; {ec.CPU_ENV}=1 turns it on)"
+    record = {"train": {"seed": 0}, "env": {}}
+    assert executable_cache_for(cfg, tmp_path, record, Toy()) is None  # this CPU, no opt-in
+    import jax
+
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")  # what run.py asks: a GPU gets one
+    cache = executable_cache_for(cfg, tmp_path, record, Toy())
+    assert cache is not None and cache.directory == tmp_path / "executables"
+    assert (
+        ec.executable_cache_line(cfg, tmp_path, cache)
+        == f"executable cache: {cache.directory} (docs/startup.md)"
+    )
+
+
 def test_off_switch_writes_and_reads_nothing(tmp_path, monkeypatch):
-    assert apply_overrides(preset("tiny"), []).executable_cache is False  # opt-in (docs/startup.md)
     cfg = apply_overrides(preset("tiny"), ["executable_cache=True"])
     record = {"train": {"seed": 0}, "env": {}}
     monkeypatch.delenv(ec.CPU_ENV, raising=False)
@@ -226,6 +259,7 @@ def test_run_name_budget_and_paths_stay_out_of_the_key(tmp_path, monkeypatch):
                 "max_minutes=1.0",
                 "onnx_path=x.onnx",
                 "export_onnx=False",
+                "autotune_seed=False",  # changes XLA's choice of implementation, not what is computed
             ],
         )
     )
@@ -236,6 +270,7 @@ def test_run_name_budget_and_paths_stay_out_of_the_key(tmp_path, monkeypatch):
         "max_minutes",
         "onnx_path",
         "export_onnx",
+        "autotune_seed",
     }
     ctx = [
         executable_cache_for(cfg, tmp_path, {"train": t, "env": {}}, Toy()).context
@@ -299,8 +334,11 @@ def test_signature_describes_static_tree_data_by_content_not_address():
 def test_cli_switch():
     from bar_policy.training.cli import parse_config
 
-    assert parse_config(["--preset", "tiny"]).executable_cache is False
+    assert parse_config(["--preset", "tiny"]).executable_cache is True  # used where off_reason allows
+    assert parse_config(["--preset", "tiny", "--no-executable-cache"]).executable_cache is False
     assert parse_config(["--preset", "tiny", "--executable-cache"]).executable_cache is True
+    assert parse_config(["--preset", "tiny"]).autotune_seed is True
+    assert parse_config(["--preset", "tiny", "--no-autotune-seed"]).autotune_seed is False
 
 
 def test_an_executable_the_persistent_cache_served_is_not_stored(tmp_path):

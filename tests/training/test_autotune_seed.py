@@ -1,0 +1,221 @@
+"""Seeding XLA's per-fusion autotune cache from the shipped results (``training.autotune_seed``).
+
+CPU only: the device kind, backend and jaxlib version are monkeypatched (``local_platform``), so a fake
+H100 gets the seed and the real CPU backend does not. Expected counts are worked out from the files made
+here (three entries) or read from the shipped manifest (868 entries of 95 bytes on average).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import subprocess
+import sys
+import tarfile
+from pathlib import Path
+
+import pytest
+
+from bar_policy.training import autotune_seed as ats
+from bar_policy.training.autotune_seed import AUTOTUNE_DIR, SEED_DIR, SeedManifest, pack_seed, shipped_seeds
+
+REPO = Path(__file__).resolve().parents[2]
+KIND = "NVIDIA Fake 80GB"
+SUBDIR = "0123456789abcdef"
+ENTRIES = {"aa.pb": b"\x0a\x01a", "bb.pb": b"\x0a\x01b", "cc.pb": b"\x0a\x01c"}
+
+
+def _autotune_cache(root: Path, entries: dict[str, bytes] = ENTRIES) -> Path:
+    """A compile cache dir holding ``AUTOTUNE_DIR/SUBDIR/<entries>``, as XLA leaves it."""
+    d = root / AUTOTUNE_DIR / SUBDIR
+    d.mkdir(parents=True)
+    for name, data in entries.items():
+        (d / name).write_bytes(data)
+    return root
+
+
+def _seeds(tmp_path: Path, jaxlib: str = "9.9.9") -> Path:
+    out = tmp_path / "seeds"
+    pack_seed(
+        _autotune_cache(tmp_path / "made"),
+        out,
+        name="fake",
+        device_kind=KIND,
+        jax_version=jaxlib,
+        jaxlib_version=jaxlib,
+        commit="abc1234",
+        programs=("reset", "epoch"),
+        made_with="a test",
+    )
+    return out
+
+
+@pytest.fixture
+def gpu(monkeypatch):
+    """This process looks like a fake GPU with jaxlib 9.9.9 and jax's default XLA-caches flag."""
+    monkeypatch.setattr(ats, "local_platform", lambda: ("gpu", KIND, "9.9.9"))
+    monkeypatch.setattr(ats, "_xla_caches_flag", lambda: AUTOTUNE_DIR)
+
+
+def test_seeds_an_empty_cache_then_skips_what_is_there(tmp_path, gpu):
+    seeds, cache = _seeds(tmp_path), tmp_path / "cache"
+    first = ats.seed_autotune_cache(cache, seeds_dir=seeds)
+    assert (first.seeded, first.present, first.refused, first.reason) == (3, 0, 0, "")
+    assert first.source == "fake.tar.gz"
+    target = cache / AUTOTUNE_DIR / SUBDIR
+    assert {p.name: p.read_bytes() for p in target.iterdir()} == ENTRIES  # no temporary files left
+    assert first.line().startswith("autotune seed: 3 entries seeded, 0 already present, from fake.tar.gz")
+    again = ats.seed_autotune_cache(cache, seeds_dir=seeds)
+    assert (again.seeded, again.present) == (0, 3)
+
+
+def test_never_overwrites_an_entry_xla_wrote(tmp_path, gpu):
+    seeds, cache = _seeds(tmp_path), tmp_path / "cache"
+    mine = cache / AUTOTUNE_DIR / SUBDIR / "bb.pb"
+    mine.parent.mkdir(parents=True)
+    mine.write_bytes(b"XLA's own result")
+    out = ats.seed_autotune_cache(cache, seeds_dir=seeds)
+    assert (out.seeded, out.present) == (2, 1)  # aa, cc copied; bb kept
+    assert mine.read_bytes() == b"XLA's own result"
+
+
+@pytest.mark.parametrize(
+    ("platform", "flag", "enabled", "cache", "reason"),
+    [
+        (("gpu", "NVIDIA Other", "9.9.9"), AUTOTUNE_DIR, True, "c", "no seed for device 'NVIDIA Other'"),
+        (("gpu", KIND, "9.9.8"), AUTOTUNE_DIR, True, "c", "made with jaxlib ['9.9.9'], this is 9.9.8"),
+        (("cpu", "cpu", "9.9.9"), AUTOTUNE_DIR, True, "c", "CPU backend; XLA autotunes on GPUs only"),
+        (("gpu", KIND, "9.9.9"), "xla_gpu_kernel_cache_file", True, "c", "leaves out"),
+        (("gpu", KIND, "9.9.9"), AUTOTUNE_DIR, True, None, "compile cache off"),
+        (("gpu", KIND, "9.9.9"), AUTOTUNE_DIR, False, "c", "switched off, --no-autotune-seed"),
+    ],
+)
+def test_does_nothing_and_says_why(tmp_path, monkeypatch, platform, flag, enabled, cache, reason):
+    seeds = _seeds(tmp_path)
+    monkeypatch.setattr(ats, "local_platform", lambda: platform)
+    monkeypatch.setattr(ats, "_xla_caches_flag", lambda: flag)
+    out = ats.seed_autotune_cache(cache and tmp_path / cache, enabled=enabled, seeds_dir=seeds)
+    assert out.seeded == 0 and reason in out.reason
+    assert out.line().startswith("autotune seed: not used (")
+    assert not (tmp_path / "c").exists()
+
+
+def test_all_xla_caches_includes_the_autotune_dir(tmp_path, monkeypatch):
+    monkeypatch.setattr(ats, "local_platform", lambda: ("gpu", KIND, "9.9.9"))
+    monkeypatch.setattr(ats, "_xla_caches_flag", lambda: "all")
+    assert ats.seed_autotune_cache(tmp_path / "c", seeds_dir=_seeds(tmp_path)).seeded == 3
+
+
+def test_the_real_cpu_backend_is_not_seeded(tmp_path):
+    out = ats.seed_autotune_cache(tmp_path / "c")
+    assert out.reason == "CPU backend; XLA autotunes on GPUs only" and not (tmp_path / "c").exists()
+
+
+def test_a_tampered_archive_or_member_is_refused_and_counted(tmp_path, gpu):
+    seeds = _seeds(tmp_path)
+    archive = seeds / "fake.tar.gz"
+    archive.write_bytes(archive.read_bytes() + b"\0")
+    assert (
+        "does not match its manifest's sha256"
+        in ats.seed_autotune_cache(tmp_path / "c", seeds_dir=seeds).reason
+    )
+    # An archive with a member outside the subdir (and its manifest's hash updated): that member is refused.
+    with tarfile.open(archive, "w:gz") as tar:
+        tar.add(_autotune_cache(tmp_path / "m2") / AUTOTUNE_DIR / SUBDIR / "aa.pb", f"{SUBDIR}/aa.pb")
+        tar.add(tmp_path / "m2" / AUTOTUNE_DIR / SUBDIR / "bb.pb", "../escape.pb")
+    manifest = json.loads((seeds / "fake.json").read_text())
+    manifest["sha256"] = hashlib.sha256(archive.read_bytes()).hexdigest()
+    (seeds / "fake.json").write_text(json.dumps(manifest))
+    out = ats.seed_autotune_cache(tmp_path / "c", seeds_dir=seeds)
+    assert (out.seeded, out.refused) == (1, 1) and "1 malformed members refused" in out.line()
+    assert (
+        not (tmp_path / "escape.pb").exists() and not (tmp_path / "c" / AUTOTUNE_DIR / "escape.pb").exists()
+    )
+
+
+def test_the_shipped_seed_matches_its_manifest():
+    seeds = shipped_seeds()
+    assert [m.device_kind for _, m in seeds] == ["NVIDIA H100 80GB HBM3"]
+    path, m = seeds[0]
+    assert (m.jax, m.jaxlib, m.commit, m.subdir) == ("0.11.2", "0.11.2", "c61072c", "699b92c0fb30cb16")
+    assert m.programs == ("reset", "epoch", "init", "evaluate")
+    archive = path.parent / m.archive
+    assert hashlib.sha256(archive.read_bytes()).hexdigest() == m.sha256
+    with tarfile.open(archive) as tar:
+        names = [t.name for t in tar if t.isfile()]
+    assert len(names) == m.entries == 868
+    assert all(n.startswith(f"{m.subdir}/") and n.endswith(".pb") for n in names)
+    assert archive.stat().st_size < 64 * 1024  # it ships in the wheel: keep it small
+
+
+def test_the_shipped_seed_is_package_data():
+    text = (REPO / "pyproject.toml").read_text()
+    rel = SEED_DIR.relative_to(REPO / "bar_policy").as_posix()
+    assert f'"{rel}/*.json"' in text and f'"{rel}/*.tar.gz"' in text
+
+
+def test_the_shipped_seed_applies_on_its_own_device(tmp_path, monkeypatch):
+    monkeypatch.setattr(ats, "local_platform", lambda: ("gpu", "NVIDIA H100 80GB HBM3", "0.11.2"))
+    monkeypatch.setattr(ats, "_xla_caches_flag", lambda: AUTOTUNE_DIR)
+    out = ats.seed_autotune_cache(tmp_path)
+    assert (out.seeded, out.present, out.refused) == (868, 0, 0)
+    assert len(list((tmp_path / AUTOTUNE_DIR / "699b92c0fb30cb16").iterdir())) == 868
+
+
+def test_pack_script_round_trips(tmp_path):
+    """bench/autotune_seed.py packs a cache; seeding another cache from it gives the same files back."""
+    _autotune_cache(tmp_path / "made")
+    cmd = [sys.executable, str(REPO / "bench" / "autotune_seed.py"), "--from", str(tmp_path / "made")]
+    flags = ["--out", str(tmp_path / "s"), "--name", "fake", "--device-kind", KIND, "--jax", "9.9.9"]
+    flags += ["--jaxlib", "9.9.9", "--commit", "abc1234"]
+    run = subprocess.run([*cmd, *flags], capture_output=True, text=True, cwd=REPO, timeout=120)
+    assert run.returncode == 0, run.stderr
+    m = SeedManifest.read(tmp_path / "s" / "fake.json")
+    assert (m.device_kind, m.subdir, m.entries, m.archive) == (KIND, SUBDIR, 3, "fake.tar.gz")
+    assert m.programs == ("reset", "epoch", "init", "evaluate")
+    first = (tmp_path / "s" / "fake.tar.gz").read_bytes()
+    # Reproducible: packing again gives the same bytes.
+    pack_seed(tmp_path / "made" / AUTOTUNE_DIR, tmp_path / "s2", name="fake", device_kind=KIND,
+              jax_version="9.9.9", jaxlib_version="9.9.9", commit="abc1234", programs=m.programs,
+              made_with=m.made_with)  # fmt: skip
+    assert (tmp_path / "s2" / "fake.tar.gz").read_bytes() == first
+
+
+def test_round_trip_through_the_seeder(tmp_path, gpu):
+    out = ats.seed_autotune_cache(tmp_path / "c", seeds_dir=_seeds(tmp_path))
+    back = {p.name: p.read_bytes() for p in (tmp_path / "c" / AUTOTUNE_DIR / SUBDIR).iterdir()}
+    assert out.seeded == 3 and back == ENTRIES
+
+
+def test_pack_refuses_an_ambiguous_or_empty_source(tmp_path):
+    two = _autotune_cache(tmp_path / "two")
+    (two / AUTOTUNE_DIR / "fedcba9876543210").mkdir()
+    kw = dict(
+        name="x", device_kind=KIND, jax_version="1", jaxlib_version="1", commit="c", programs=(), made_with=""
+    )
+    with pytest.raises(
+        ValueError, match=r"expected one subdirectory.*'0123456789abcdef', 'fedcba9876543210'"
+    ):
+        pack_seed(two, tmp_path / "o", **kw)
+    with pytest.raises(ValueError, match=r"no \.pb entries"):
+        pack_seed(two, tmp_path / "o", subdir="fedcba9876543210", **kw)
+
+
+def test_a_manifest_with_missing_fields_names_them(tmp_path):
+    (tmp_path / "bad.json").write_text(json.dumps({"device_kind": KIND}))
+    with pytest.raises(ValueError, match=r"fields missing.*'jaxlib'"):
+        shipped_seeds(tmp_path)
+
+
+def test_seed_outcome_is_in_the_startup_record_and_table():
+    from bar_policy.training.startup_breakdown import StartupTimer
+
+    timer = StartupTimer()
+    timer.autotune_seed = ats.SeedOutcome(seeded=868, source="h100.tar.gz", seconds=0.0123)
+    rec = timer.finish(1.0)
+    assert rec["autotune_seed"] == {
+        "seeded": 868, "present": 0, "refused": 0, "source": "h100.tar.gz", "reason": "", "seconds": 0.012,
+    }  # fmt: skip
+    lines = StartupTimer.lines(rec)
+    assert lines[-1].startswith("  autotune seed: 868 entries seeded, 0 already present, from h100.tar.gz")
+    assert "autotune_seed" not in StartupTimer().finish(1.0)  # not tried: not recorded
