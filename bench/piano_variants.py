@@ -20,7 +20,8 @@ Each variant is the keyboard scene of ``LitePiano`` (``compact_config()``, 49 ke
                 late steps are no-ops), without reverse-mode autodiff; an experiment, patched while tracing
     libchol     the arrowhead's 14 x 14 solve through jax's Cholesky (``cho_factor``/``cho_solve``: a batched
                 ``potrf`` and triangular solves on a GPU) instead of ``leaf_newton.spd_solve``'s unrolled one
-    newtonfor   the Newton loop written out (``leaf_newton.unrolled_newton_loop``) instead of a while_loop
+    newtonwhile the Newton loop as MJX's while_loop (``leaf_newton.while_newton_loop``) instead of written out
+                (``newton_loop``, the env's since session 32; ``newtonfor`` before it)
     lsunroll    the line search's scan unrolled (``unroll=True``: the same values, straight-line code)
     itN, lsN    N solver / line-search iterations (the robot's scene: 3 and 5)
 
@@ -82,7 +83,7 @@ def _edit(part: str) -> Callable[[mujoco.MjSpec], None]:
             spec.option.jacobian = mujoco.mjtJacobian.mjJAC_DENSE
         elif part == "nocon":
             spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
-        elif part in ("leaf", "mjxsolve", "lswhile", "libchol", "newtonfor", "lsunroll"):
+        elif part in ("leaf", "mjxsolve", "lswhile", "libchol", "newtonwhile", "lsunroll"):
             pass  # not a scene edit: the step function (``physics``, ``env_level``)
         elif part.startswith("it"):
             spec.option.iterations = int(part[2:])
@@ -90,7 +91,7 @@ def _edit(part: str) -> Callable[[mujoco.MjSpec], None]:
             spec.option.ls_iterations = int(part[2:])
         elif part != "capped":
             valid = (
-                "capped, uncapped, nolimit, cg, dense, nocon, leaf, mjxsolve, lswhile, libchol, newtonfor, "
+                "capped, uncapped, nolimit, cg, dense, nocon, leaf, mjxsolve, lswhile, libchol, newtonwhile, "
                 "lsunroll, itN, lsN"
             )
             raise ValueError(f"unknown edit {part!r}; valid: {valid}")
@@ -189,8 +190,8 @@ def _patches(variant: str) -> list[Any]:
         patches.append(mock.patch.object(solver, "_while_loop_scan", while_loop_capped))
     if "lsunroll" in parts:
         patches.append(mock.patch.object(solver, "_while_loop_scan", scan_unrolled))
-    if "newtonfor" in parts:
-        patches.append(mock.patch.object(leaf_newton, "newton_loop", leaf_newton.unrolled_newton_loop))
+    if "newtonwhile" in parts:
+        patches.append(mock.patch.object(leaf_newton, "newton_loop", leaf_newton.while_newton_loop))
     if "libchol" in parts:
         patches.append(mock.patch.object(leaf_newton, "spd_solve", library_spd_solve))
     return patches

@@ -203,29 +203,30 @@ def newton_loop(
     ctx: solver.Context,
     iterations: int,
 ) -> solver.Context:
-    """MJX's Newton loop, ``while cond: ctx = body(ctx)``, as a ``jax.lax.while_loop``.
+    """MJX's Newton loop ``while cond: ctx = body(ctx)`` written out: each body kept where ``cond`` held.
 
-    ``cond`` is False once ``ctx.solver_niter`` reaches ``iterations``, so the loop runs at most that often.
+    ``iterations`` bodies, each kept only where ``cond`` held before it. The same values as the ``while_loop``
+    (:func:`while_newton_loop`): ``cond`` is False once ``ctx.solver_niter`` reaches ``iterations``, and once
+    False the context no longer changes, so it stays False. Under ``vmap`` a ``while_loop`` already runs every
+    env until the last one is done, selecting per env, so the work is the same; written out, the GPU needs no
+    host round trip per iteration for the predicate and XLA fuses across iterations. The piano env at 8192
+    envs on one H100: 1.057M physics steps/s against 0.931M with the ``while_loop``, in one call
+    (docs/benchmarks.md, session 32).
     """
-    del iterations
-    return jax.lax.while_loop(cond, body, ctx)
+    for _ in range(iterations):
+        ctx = jax.tree_util.tree_map(functools.partial(jnp.where, cond(ctx)), body(ctx), ctx)
+    return ctx
 
 
-def unrolled_newton_loop(
+def while_newton_loop(
     cond: Callable[[solver.Context], jax.Array],
     body: Callable[[solver.Context], solver.Context],
     ctx: solver.Context,
     iterations: int,
 ) -> solver.Context:
-    """:func:`newton_loop` written out: ``iterations`` bodies, each kept only where ``cond`` held before it.
-
-    The same values: once ``cond`` is False the context no longer changes, so it stays False. Under ``vmap``
-    a ``while_loop`` already runs every env until the last one is done, selecting per env; written out,
-    the GPU needs no host round trip per iteration for the predicate, and XLA can fuse across iterations.
-    """
-    for _ in range(iterations):
-        ctx = jax.tree_util.tree_map(functools.partial(jnp.where, cond(ctx)), body(ctx), ctx)
-    return ctx
+    """:func:`newton_loop` as MJX runs it, a ``jax.lax.while_loop`` (kept for the tests and benchmarks)."""
+    del iterations
+    return jax.lax.while_loop(cond, body, ctx)
 
 
 def solve(m: mjx.Model, d: mjx.Data, split: LeafSplit) -> mjx.Data:

@@ -157,8 +157,8 @@ def test_spd_solve_against_numpy() -> None:
             np.testing.assert_allclose(x, expected, rtol=1e-10, atol=0)
 
 
-def test_unrolled_newton_loop_equals_while_loop(piano, monkeypatch) -> None:
-    # Written out, the Newton loop keeps a body's result only where the loop's condition held before it:
-    # the same values as the while_loop (compared at the module's float64 tolerance, _compare).
-    monkeypatch.setattr(leaf_newton, "newton_loop", leaf_newton.unrolled_newton_loop)
+def test_while_newton_loop_gives_the_same_step(piano, monkeypatch) -> None:
+    # The env's Newton loop is written out, keeping a body's result only where the loop's condition held
+    # before it; MJX's while_loop gives the same step (compared at the module's float64 tolerance, _compare).
+    monkeypatch.setattr(leaf_newton, "newton_loop", leaf_newton.while_newton_loop)
     assert _compare(piano, _press_states(piano, n=3)) >= 2
