@@ -229,17 +229,33 @@ def while_newton_loop(
     return jax.lax.while_loop(cond, body, ctx)
 
 
-def solve(m: mjx.Model, d: mjx.Data, split: LeafSplit) -> mjx.Data:
-    """MJX's ``solver.solve`` (Newton) with the arrowhead factorisation; same warm start, loop and exits."""
-    if m.opt.solver != SolverType.NEWTON or m.opt.cone != ConeType.PYRAMIDAL:
+def is_newton_pyramidal(m: mjx.Model) -> bool:
+    """Whether :func:`solve` applies: MJX's Newton solver on the pyramidal cone (static model options)."""
+    return m.opt.solver == SolverType.NEWTON and m.opt.cone == ConeType.PYRAMIDAL
+
+
+def solve(m: mjx.Model, d: mjx.Data, split: LeafSplit | None) -> mjx.Data:
+    """MJX's ``solver.solve`` (Newton): the same warm start, direction, line search and exits.
+
+    Two changes, neither to the values: the Newton loop is written out (:func:`newton_loop`), and where the
+    scene has leaves (``split``) the direction comes from the arrowhead factorisation (:func:`_gradient`);
+    without, it is MJX's own (``solver._update_gradient``: the dense Hessian's Cholesky).
+    """
+    if not is_newton_pyramidal(m):
         raise ValueError(
             f"leaf_newton.solve needs the Newton solver and the pyramidal cone; the model has "
             f"{m.opt.solver} and {m.opt.cone} (use mjx.step)"
         )
-    m_rr, m_kk = _mass_parts(m, d, split)
+    if split is None:
 
-    def gradient(ctx: solver.Context) -> solver.Context:
-        return _gradient(m, d, ctx, split, m_rr, m_kk)
+        def gradient(ctx: solver.Context) -> solver.Context:
+            return solver._update_gradient(m, d, ctx)
+
+    else:
+        m_rr, m_kk = _mass_parts(m, d, split)
+
+        def gradient(ctx: solver.Context) -> solver.Context:
+            return _gradient(m, d, ctx, split, m_rr, m_kk)
 
     def cond(ctx: solver.Context) -> jax.Array:
         improvement = solver._rescale(m, d, ctx.prev_cost - ctx.cost)

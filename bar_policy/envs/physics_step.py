@@ -1,12 +1,14 @@
-"""The env's physics step: ``mjx.step``, with two exact speed-ups that the model's structure allows.
+"""The env's physics step: ``mjx.step``, with exact speed-ups that the model's structure allows.
 
 1. Contact rows with a static Jacobian mask (``contact_rows``): every scene.
 2. The Newton solve factored as an arrowhead where the scene has leaf dofs (``leaf_newton``): the piano's
    keys.
+3. The Newton loop written out instead of a ``while_loop`` (``leaf_newton.newton_loop``): every Newton
+   scene on the pyramidal cone.
 
-Neither changes the physics: each is MJX's computation rearranged (tests: ``tests/envs/test_physics_step.py``,
+None changes the physics: each is MJX's computation rearranged (tests: ``tests/envs/test_physics_step.py``,
 equal to ``mjx.step`` to float64 rounding). The sequence below is ``mujoco.mjx._src.forward``'s
-``fwd_position``, ``forward`` and ``step`` (mujoco-mjx 3.17) with those two calls swapped in.
+``fwd_position``, ``forward`` and ``step`` (mujoco-mjx 3.17) with those calls swapped in.
 """
 
 from __future__ import annotations
@@ -58,7 +60,10 @@ def fwd_position(m: mjx.Model, d: mjx.Data, p: StepPlan) -> mjx.Data:
 
 
 def forward(m: mjx.Model, d: mjx.Data, p: StepPlan) -> mjx.Data:
-    """``mjx.forward`` with :func:`fwd_position` and, where there are leaves, ``leaf_newton.solve``."""
+    """``mjx.forward`` with :func:`fwd_position` and, on Newton's pyramidal cone, ``leaf_newton.solve``.
+
+    That solve writes the Newton loop out, and factors the arrowhead where there are leaves.
+    """
     d = fwd_position(m, d, p)
     d = sensor.sensor_pos(m, d)
     d = mjx_forward.fwd_velocity(m, d)
@@ -67,7 +72,7 @@ def forward(m: mjx.Model, d: mjx.Data, p: StepPlan) -> mjx.Data:
     d = mjx_forward.fwd_acceleration(m, d)
     if d._impl.efc_J.size == 0:
         return d.replace(qacc=d.qacc_smooth)
-    d = solver.solve(m, d) if p.split is None else leaf_newton.solve(m, d, p.split)
+    d = leaf_newton.solve(m, d, p.split) if leaf_newton.is_newton_pyramidal(m) else solver.solve(m, d)
     return sensor.sensor_acc(m, d)
 
 
