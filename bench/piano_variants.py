@@ -215,11 +215,12 @@ def library_spd_solve(a: jax.Array, y: jax.Array) -> jax.Array:
 
 
 def env_level(variant: str, batch: int, steps: int) -> tuple[mujoco.MjModel, float, float]:
-    """(model, compile s, physics steps/s) of LitePiano in ``variant``'s scene (``robot``: LiteReach)."""
+    """(model, compile s, physics steps/s) of LitePiano in ``variant``'s scene (``robot``: LiteReach, whose
+    step takes the step-function variants: ``robot+newtonwhile``, ``robot+mjxsolve``)."""
     from bar_policy import envs
     from bar_policy.training.throughput import raw_env_steps_per_second
 
-    name = "LiteReach" if variant == "robot" else "LitePiano"
+    name = "LiteReach" if variant.split("+")[0] == "robot" else "LitePiano"
     plan = (lambda _m: None) if "mjxsolve" in variant.split("+") else physics_step.plan
     with (
         mock.patch.object(piano_env, "keyboard_scene", lambda _kb: variant_scene(variant)),
