@@ -3,8 +3,8 @@
 1. Contact rows with a static Jacobian mask (``contact_rows``): every scene.
 2. The Newton solve factored as an arrowhead where the scene has leaf dofs (``leaf_newton``): the piano's
    keys.
-3. The Newton loop written out instead of a ``while_loop`` (``leaf_newton.newton_loop``): every Newton
-   scene on the pyramidal cone.
+3. Where there are leaves, the Newton loop written out instead of a ``while_loop``
+   (``leaf_newton.newton_loop``); every Newton scene on the pyramidal cone builds its start once, not twice.
 
 None changes the physics: each is MJX's computation rearranged (tests: ``tests/envs/test_physics_step.py``,
 equal to ``mjx.step`` to float64 rounding). The sequence below is ``mujoco.mjx._src.forward``'s
@@ -62,7 +62,7 @@ def fwd_position(m: mjx.Model, d: mjx.Data, p: StepPlan) -> mjx.Data:
 def forward(m: mjx.Model, d: mjx.Data, p: StepPlan) -> mjx.Data:
     """``mjx.forward`` with :func:`fwd_position` and, on Newton's pyramidal cone, ``leaf_newton.solve``.
 
-    That solve writes the Newton loop out, and factors the arrowhead where there are leaves.
+    Where there are leaves, that solve factors the arrowhead and writes the Newton loop out.
     """
     d = fwd_position(m, d, p)
     d = sensor.sensor_pos(m, d)
