@@ -216,14 +216,30 @@ def _seed(cache_dir: Path | None, enabled: bool, seeds_dir: Path) -> SeedOutcome
             )
         kinds = sorted({m.device_kind for _, m in seeds})
         return SeedOutcome(reason=f"no seed for device {kind!r}; shipped: {kinds}")
-    path, manifest = match[0]
-    archive = path.parent / manifest.archive
-    try:
-        if hashlib.sha256(archive.read_bytes()).hexdigest() != manifest.sha256:
-            return SeedOutcome(reason=f"{archive.name} does not match its manifest's sha256")
-        return _extract(archive, manifest, Path(cache_dir) / AUTOTUNE_DIR)
-    except (OSError, tarfile.TarError) as e:
-        return SeedOutcome(reason=f"{manifest.archive} unreadable: {type(e).__name__}: {e}")
+    # Every matching seed is applied (one per task or backend whose programs were compiled cold): entries
+    # of one fusion are the same file name in every seed, and the first copy wins.
+    total, failures = SeedOutcome(), []
+    for path, manifest in match:
+        archive = path.parent / manifest.archive
+        try:
+            if hashlib.sha256(archive.read_bytes()).hexdigest() != manifest.sha256:
+                failures.append(f"{archive.name} does not match its manifest's sha256")
+                continue
+            one = _extract(archive, manifest, Path(cache_dir) / AUTOTUNE_DIR)
+        except (OSError, tarfile.TarError) as e:
+            failures.append(f"{manifest.archive} unreadable: {type(e).__name__}: {e}")
+            continue
+        total.seeded, total.present, total.refused = (
+            total.seeded + one.seeded,
+            total.present + one.present,
+            total.refused + one.refused,
+        )
+        total.source = f"{total.source}, {one.source}" if total.source else one.source
+    for failure in failures:
+        _log.warning("autotune seed: %s; not used", failure)
+    if not total.source:
+        return SeedOutcome(reason="; ".join(failures))
+    return total
 
 
 def _extract(archive: Path, manifest: SeedManifest, autotune_dir: Path) -> SeedOutcome:

@@ -219,3 +219,28 @@ def test_seed_outcome_is_in_the_startup_record_and_table():
     lines = StartupTimer.lines(rec)
     assert lines[-1].startswith("  autotune seed: 868 entries seeded, 0 already present, from h100.tar.gz")
     assert "autotune_seed" not in StartupTimer().finish(1.0)  # not tried: not recorded
+
+
+def test_every_matching_seed_is_applied_and_a_bad_one_is_skipped(tmp_path, gpu, caplog):
+    # Two seeds of the same device and jaxlib (e.g. two tasks' programs), sharing one fusion (bb): the
+    # first seed copies aa, bb, cc (3); the second brings dd and finds bb there (1 seeded, 1 present).
+    seeds = _seeds(tmp_path)
+    pack_seed(
+        _autotune_cache(tmp_path / "made2", {"bb.pb": b"\x0a\x01b", "dd.pb": b"\x0a\x01d"}),
+        seeds,
+        name="other",
+        device_kind=KIND,
+        jax_version="9.9.9",
+        jaxlib_version="9.9.9",
+        commit="abc1234",
+        programs=("train step",),
+        made_with="a test",
+    )
+    out = ats.seed_autotune_cache(tmp_path / "cache", seeds_dir=seeds)
+    assert (out.seeded, out.present, out.reason) == (4, 1, "")
+    assert out.source == "fake.tar.gz, other.tar.gz"  # the manifests in name order
+    # The second archive tampered with: it is skipped with a warning, the first still applies.
+    (seeds / "other.tar.gz").write_bytes(b"not the packed bytes")
+    out = ats.seed_autotune_cache(tmp_path / "cache2", seeds_dir=seeds)
+    assert (out.seeded, out.present, out.source) == (3, 0, "fake.tar.gz")
+    assert "other.tar.gz does not match its manifest's sha256" in caplog.text
