@@ -13,7 +13,8 @@ env steps/s, noise).
 
 This module ships such directories (``autotune/<name>.tar.gz``, each with a ``<name>.json`` manifest
 naming the device kind, the jax/jaxlib versions and the commit it was made with) and, at start-up, copies
-the one matching this machine into the compile cache (``seed_autotune_cache``). It never overwrites a file
+every one matching this machine into the compile cache (``seed_autotune_cache``; one seed per task or
+backend whose programs were compiled cold). It never overwrites a file
 already there (XLA's own results win) and counts what it skipped.
 
 **Why a seed cannot give a wrong program.** An entry's file name and content hold the key of one fusion
@@ -168,7 +169,7 @@ def shipped_seeds(directory: Path = SEED_DIR) -> list[tuple[Path, SeedManifest]]
 def seed_autotune_cache(
     cache_dir: Path | None, *, enabled: bool = True, seeds_dir: Path = SEED_DIR
 ) -> SeedOutcome:
-    """Copy the shipped autotune entries matching this machine into ``<cache_dir>/AUTOTUNE_DIR/<subdir>/``.
+    """Copy every shipped seed matching this machine into ``<cache_dir>/AUTOTUNE_DIR/<subdir>/``.
 
     Does nothing (and says why in ``reason``) when switched off, without a compile cache, on a backend
     other than a GPU, when jax's ``jax_persistent_cache_enable_xla_caches`` leaves the per-fusion cache
