@@ -20,6 +20,7 @@ Writes ``<out>/<name>.tar.gz`` and ``<out>/<name>.json`` (``--out`` defaults to 
 from __future__ import annotations
 
 import argparse
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -31,6 +32,10 @@ PROGRAMS = ("reset", "epoch", "init", "evaluate")
 
 
 def _commit() -> str:
+    """``git rev-parse --short HEAD``, else ``BAR_POLICY_GIT_COMMIT`` (the GPU machine's copy has no .git)."""
+    given = os.environ.get("BAR_POLICY_GIT_COMMIT", "")
+    if given:
+        return given[:7]
     try:
         cmd = ["git", "rev-parse", "--short", "HEAD"]
         out = subprocess.run(cmd, capture_output=True, text=True, check=True)

@@ -13,6 +13,11 @@
 #                      baseline runs beside the variant): XLA's defaults, then XLA_FLAGS=$FLAGS (default: no
 #                      autotuning, compilation over 16 threads; flags XLA refuses are left out); then
 #                      bench/rsl_rl_profile.py (NO_PROFILE=1: not)
+#   seeds    (~3.5 min a preset): XLA autotune seeds for more presets (training.autotune_seed): per preset in
+#                      $SEED_PRESETS (default "rsl track"; piano in a call of its own), a cold run on its own
+#                      empty cache without the shipped seed, then bench/autotune_seed.py packs that cache's
+#                      autotune results into $OUT (<gpu>-jaxlib-<v>-<preset>.tar.gz/.json: copy both to
+#                      bar_policy/training/autotune/)
 #   smoke             : CPU logic check of startup and rsl with tiny sizes (not for the GPU)
 #
 # Every training run is `python3 train/ppo.py` with the default (gpu) preset, a wall-clock budget
@@ -119,6 +124,24 @@ flags() {
   finish flags "$RUNS/cold_base" "$RUNS/cold_flags" --append "$WORK/flags.md" "$WORK/rsl_profile.md"
 }
 
+seeds() {
+  local p name
+  name=$(python3 -c "import re, jax, jaxlib
+k = re.sub('[^a-z0-9]+', '-', jax.local_devices()[0].device_kind.lower().replace('nvidia', '')).strip('-')
+print(f'{k}-jaxlib-{jaxlib.__version__}')")
+  for p in ${SEED_PRESETS:-rsl track}; do
+    rm -rf "$WORK/seedcache_$p"
+    ppo "seed_$p" 240 --preset "$p" --compile-cache-dir "$WORK/seedcache_$p" --no-autotune-seed \
+      --max-minutes "${SEED_MIN:-2.5}"
+    local plist=(reset epoch init evaluate)
+    [ "$p" = rsl ] && plist=("train step" "eval step")
+    python3 bench/autotune_seed.py --from "$WORK/seedcache_$p" --name "$name-$p" --out "$OUT" \
+      --programs "${plist[@]}" --made-with "python3 train/ppo.py --preset $p, empty compile cache, --no-autotune-seed"
+    stamp "seed $p exit $?"
+  done
+  finish seeds "$RUNS"/seed_* > /dev/null
+}
+
 finish() {  # finish PART RUN_DIRS... [--append FILES...]
   local part=$1; shift
   tar -czf "$OUT/h100_$part.tgz" -C "$WORK" --exclude='*.msgpack' --exclude='tb' --exclude='jaxcache*' . 2>/dev/null
@@ -130,6 +153,7 @@ case "$PART" in
   startup) startup ;;
   rsl) rsl ;;
   flags) flags ;;
+  seeds) seeds ;;
   smoke) COLD_MIN=8 WARM_MIN=8 startup; RSL_MIN=0.5 RSL_PRESET=tiny rsl ;;
-  *) echo "unknown part $PART; parts: startup, rsl, flags, smoke"; exit 2 ;;
+  *) echo "unknown part $PART; parts: startup, rsl, flags, seeds, smoke"; exit 2 ;;
 esac
