@@ -212,10 +212,17 @@ def test_eval_through_the_emulated_bus(piano_policy) -> None:
         target.reset()
         assert emu.data.qpos[c4] == 0.0 and target.companions == (emu,)
         song = Song("one", (Note(60, 0.0, 0.3, "right"),))
-        (res,) = evaluate(policy, [song], target, runner=SimEpisodes(policy)).songs
+        report = evaluate(policy, [song], target, runner=SimEpisodes(policy))
+        (res,) = report.songs
     finally:
         target.close()
     assert not res.faulted and (res.true_pos, res.false_pos, res.false_neg) == (0, 0, 15)
+    # Per colour: C4 is white, so the 15 misses are white goal key-ticks and there is no black one. Pooled
+    # recall: white 0 / 15 = 0; black 0 / 0 scores 1 (``metrics``: zero_division=1), printed as "- of 0".
+    assert (res.true_pos_white, res.false_neg_white, res.true_pos_black, res.false_neg_black) == (0, 15, 0, 0)
+    assert (res.recall_white, res.recall_black) == (0.0, 1.0)
+    assert "recall of goal key-ticks (pooled): black - of 0, white 0.000 of 15" in report.format()
+    assert report.to_dict()["songs"][0]["recall_white"] == 0.0
 
 
 @pytest.mark.parametrize("target", ["mock", "sim", "emulated"])

@@ -1,4 +1,5 @@
-"""LitePiano in MJX: the bank, the observation, the key counts and the evaluation's F1, worked out by hand.
+"""LitePiano in MJX: the bank, the observation, the key counts and the evaluation's F1 and per-colour recall,
+worked out by hand.
 
 One small env (2 random songs, no library songs, nominal physics) compiled once for the module. Its keys
 are damped 50x critical, so a key pushed down stays down through a 20 ms step (the slow pole of the
@@ -20,7 +21,7 @@ import pytest
 from bar_policy.tasks.piano.bank import PlaybackConfig, song_bank
 from bar_policy.tasks.piano.env import LitePiano, PianoEnvConfig, nominal_config
 from bar_policy.tasks.piano.key_input import MidiKeys
-from bar_policy.tasks.piano.keyboard import compact_config, press_thresholds
+from bar_policy.tasks.piano.keyboard import black_keys, compact_config, press_thresholds
 from bar_policy.tasks.piano.songs import Note, Song
 from bar_policy.tasks.piano.source import SongCommands
 from bar_policy.tasks.piano.terms import PIANO_KEYS, TARGET_FRAMES
@@ -190,7 +191,7 @@ def test_observation_counts_and_f1(env: LitePiano, fns) -> None:
     # (1 for a step with nothing asked and nothing down); the pooled F1 sums the counts first. By hand from
     # the two steps' counts:
     keys = ("true_pos", "false_pos", "false_neg", "precision", "recall", "f1")
-    m = {k: jnp.stack([s1.metrics[k], s2.metrics[k]]) for k in keys}
+    m = {k: jnp.stack([s1.metrics[k], s2.metrics[k]]) for k in env.metric_keys}
     ratios = env.eval_ratios(m)
     counts = [tuple(float(s.metrics[k]) for k in keys[:3]) for s in (s1, s2)]
     per_step = [2 * tp / (2 * tp + fp + fn) if 2 * tp + fp + fn else 1.0 for tp, fp, fn in counts]
@@ -200,3 +201,53 @@ def test_observation_counts_and_f1(env: LitePiano, fns) -> None:
     num, den = (float(np.sum(np.asarray(x))) for x in ratios["f1_pooled"])
     assert (num, den) == (2 * tp, 2 * tp + fp + fn)
     assert ratios["success_rate"] is ratios["f1"]
+
+
+def test_key_counts_and_recall_per_colour(env: LitePiano, fns) -> None:
+    """The step's TP and FN over the black and over the white goal keys, and the evaluation's pooled
+    ``recall_black`` / ``recall_white`` of them (the observation is untouched: a metric, not an input)."""
+    reset, step = fns
+    black = black_keys(env.config.keyboard)
+    s = reset(jax.random.PRNGKey(0))
+    song = int(s.info["song"])
+    rows = env.bank.down[song] > 0.5
+    # A step whose goal row holds black and white keys (the random songs have them from the count-in's
+    # end, row 25), with nb black and nw white goal keys.
+    t = int(np.flatnonzero((rows & black).any(1) & (rows & ~black).any(1))[0])
+    goal = rows[t]
+    nb, nw = int(np.sum(goal & black)), int(np.sum(goal & ~black))
+    thr = press_thresholds(env.config.keyboard)
+    a = jnp.zeros(14, jnp.float32)
+
+    def step_with_down(key: int) -> dict[str, float]:
+        """Row ``t``'s step from the reset state with ``key`` pushed past its threshold (and held down)."""
+        angles = np.zeros(PIANO_KEYS, np.float32)
+        angles[key] = 1.5 * thr[key]
+        qpos = s.data.qpos.at[env._key_qpos].set(jnp.asarray(angles))
+        s0 = s.replace(data=s.data.replace(qpos=qpos), info={**s.info, "step": jnp.int32(t)})
+        out = step(s0, a)
+        assert np.flatnonzero(np.asarray(env.key_angles(out.data)) >= thr).tolist() == [key]
+        return {k: float(v) for k, v in out.metrics.items()}
+
+    # Step A: the lowest black goal key down: black TP 1, FN nb - 1; white TP 0, FN nw.
+    ma = step_with_down(int(np.flatnonzero(goal & black)[0]))
+    assert (ma["true_pos_black"], ma["false_neg_black"]) == (1, nb - 1)
+    assert (ma["true_pos_white"], ma["false_neg_white"]) == (0, nw)
+    # Step B: the lowest white goal key down: black TP 0, FN nb; white TP 1, FN nw - 1.
+    mb = step_with_down(int(np.flatnonzero(goal & ~black)[0]))
+    assert (mb["true_pos_black"], mb["false_neg_black"]) == (0, nb)
+    assert (mb["true_pos_white"], mb["false_neg_white"]) == (1, nw - 1)
+    for m in (ma, mb):  # the colours split the keyboard's counts
+        assert m["true_pos_black"] + m["true_pos_white"] == m["true_pos"] == 1
+        assert m["false_neg_black"] + m["false_neg_white"] == m["false_neg"] == nb + nw - 1
+    # Pooled over both steps (sums, then one division): recall_black = 1 / (2 nb), recall_white = 1 / (2 nw),
+    # recall_pooled = 2 / (2 nb + 2 nw).
+    ratios = env.eval_ratios({k: jnp.asarray([ma[k], mb[k]]) for k in env.metric_keys})
+    sums = {k: tuple(float(np.sum(np.asarray(x))) for x in v) for k, v in ratios.items()}
+    assert sums["recall_black"] == (1, 2 * nb) and sums["recall_white"] == (1, 2 * nw)
+    assert sums["recall_pooled"] == (2, 2 * nb + 2 * nw)
+    # The reset's metrics (zeros, as a count-in step with nothing asked): no goal key of either colour. The
+    # evaluators divide sum(num) / max(sum(den), 1): 0, not NaN (Learner.evaluate, evaluate_torch_policy).
+    for k in ("recall_black", "recall_white"):
+        num, den = (float(np.sum(np.asarray(x))) for x in env.eval_ratios(s.metrics)[k])
+        assert (num, den) == (0, 0) and num / max(den, 1.0) == 0.0

@@ -19,7 +19,9 @@ and the initial-state noise are the robot env's (``bar_policy.envs.robot``); the
   ``t`` (what ``target_keys`` showed as current when the action was chosen); it is compared with the keys
   down after the step. Rewards are the named terms of ``rewards`` weighted by ``RewardScales``; metrics
   are the step's true positives, false positives and false negatives and its precision, recall and F1
-  (``metrics``), so the evaluation reports RoboPianist's step means and the pooled F1 beside them.
+  (``metrics``), so the evaluation reports RoboPianist's step means and the pooled F1 beside them; and the
+  true positives and false negatives over the black keys and over the white keys (``colour_counts``), so
+  it reports the pooled recall of each colour's goal key-ticks (``recall_black``, ``recall_white``).
 - **Initial state**: the default pose as the robot holds it (``held.held_pose``: sagged under gravity at
   Kp, where the keyboard is placed) plus the robot env's noise, at rest; so no episode starts with the hands
   falling onto the keys.
@@ -59,7 +61,13 @@ from bar_policy.tasks.piano import metrics as piano_metrics
 from bar_policy.tasks.piano import rewards
 from bar_policy.tasks.piano.bank import PlaybackConfig, song_bank, training_songs
 from bar_policy.tasks.piano.held import held_pose
-from bar_policy.tasks.piano.keyboard import KeyboardConfig, compact_config, key_table, press_thresholds
+from bar_policy.tasks.piano.keyboard import (
+    KeyboardConfig,
+    black_keys,
+    compact_config,
+    key_table,
+    press_thresholds,
+)
 from bar_policy.tasks.piano.prior import KeyPosePriorConfig, key_pose_prior
 from bar_policy.tasks.piano.reference import LEAD_STEPS, prior_entries
 from bar_policy.tasks.piano.scene import keyboard_scene
@@ -175,6 +183,7 @@ class LitePiano(LiteRobotEnv):
         self._key_sites = np.array([m.site(f"piano_key{k.midi}_top").id for k in keys])
         self._tip_sites = np.array([m.site(s).id for s in FINGERTIP_SITES])
         self._threshold = jnp.asarray(press_thresholds(kb), jnp.float32)
+        self._black = black_keys(kb)  # numpy: a static mask in the jitted step
         self._angle_max = jnp.asarray(rewards.angle_max(kb), jnp.float32)
         length_s = cfg.episode_length_s - cfg.playback.count_in_s  # the random songs fit after the count-in
         songs = training_songs(kb, cfg.songs, length_s, cfg.tempo_bpm, cfg.song_seed, cfg.library)
@@ -241,13 +250,34 @@ class LitePiano(LiteRobotEnv):
 
     @property
     def metric_keys(self) -> tuple[str, ...]:
-        """The step's key counts, its ``precision``, ``recall``, ``f1``, ``goal_keys`` and ``keys_down``."""
-        return ("true_pos", "false_pos", "false_neg", "precision", "recall", "f1", "goal_keys", "keys_down")
+        """The step's key counts, precision, recall, F1, goal keys, keys down; TP and FN per key colour."""
+        return (
+            "true_pos",
+            "false_pos",
+            "false_neg",
+            "precision",
+            "recall",
+            "f1",
+            "goal_keys",
+            "keys_down",
+            "true_pos_black",
+            "false_neg_black",
+            "true_pos_white",
+            "false_neg_white",
+        )
 
     def eval_ratios(self, metrics: dict[str, jax.Array]) -> dict[str, tuple[jax.Array, jax.Array]]:
-        """RoboPianist's step means (``f1``, ``precision``, ``recall``), the pooled F1; success_rate = F1."""
+        """RoboPianist's step means (``f1``, ``precision``, ``recall``), pooled figures; success_rate = F1.
+
+        Pooled (the evaluators sum numerators and denominators over steps and envs, then divide):
+        ``f1_pooled``; ``recall_pooled`` (every goal key-tick), ``recall_black`` and ``recall_white`` (the
+        goal key-ticks of one colour: ``TP / (TP + FN)`` of that colour's summed counts). The evaluators
+        divide by ``max(denominator, 1)``, so an evaluation without a goal key of a colour reads 0 for it,
+        never NaN (as every pooled ratio there).
+        """
         one = jnp.ones_like(metrics["f1"])
         tp, fp, fn = metrics["true_pos"], metrics["false_pos"], metrics["false_neg"]
+        tp_b, tp_w = metrics["true_pos_black"], metrics["true_pos_white"]
         f1 = (metrics["f1"], one)
         return {
             "success_rate": f1,
@@ -255,6 +285,9 @@ class LitePiano(LiteRobotEnv):
             "precision": (metrics["precision"], one),
             "recall": (metrics["recall"], one),
             "f1_pooled": (2.0 * tp, 2.0 * tp + fp + fn),
+            "recall_pooled": (tp, tp + fn),
+            "recall_black": (tp_b, tp_b + metrics["false_neg_black"]),
+            "recall_white": (tp_w, tp_w + metrics["false_neg_white"]),
         }
 
     def task_metadata(self) -> dict:
@@ -311,6 +344,7 @@ class LitePiano(LiteRobotEnv):
         }
         counts = piano_metrics.step_counts(down, goal)
         step = piano_metrics.scores(counts)
+        colour = piano_metrics.colour_counts(down, goal, self._black)
         metrics = {
             "true_pos": counts.tp,
             "false_pos": counts.fp,
@@ -320,6 +354,10 @@ class LitePiano(LiteRobotEnv):
             "f1": step.f1,
             "goal_keys": jnp.sum(goal),
             "keys_down": jnp.sum(down.astype(jnp.float32)),
+            "true_pos_black": colour.black.tp,
+            "false_neg_black": colour.black.fn,
+            "true_pos_white": colour.white.tp,
+            "false_neg_white": colour.white.fn,
         }
         f32 = {
             k: jnp.asarray(v).astype(jnp.float32) for k, v in metrics.items()

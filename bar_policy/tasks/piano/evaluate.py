@@ -9,7 +9,9 @@ At every policy tick the goal keys of the song's step are compared with the keys
 tick's precision, recall and F1 (``metrics``; the count-in's ticks and those after the last note included,
 as the env counts every step: each such tick with no key down scores 1, which the pooled F1 ignores). A
 song's figures are the means over its ticks (RoboPianist's), with the F1 of the summed counts beside them
-(pooled). The ship gate reads the mean F1 over every song's ticks (``success_pct`` = 100 x F1) and the
+(pooled), and the recall of its black and of its white goal key-ticks (pooled, as the MJX evaluation's
+``recall_black`` / ``recall_white``; 1 in the JSON, ``-`` in the lines, for a song without a goal key of
+that colour). The ship gate reads the mean F1 over every song's ticks (``success_pct`` = 100 x F1) and the
 songs' safety and smoothness.
 
 Chatter: the gate's is measured on ``q_cmd`` minus the song's key-pose reference (``reference.py``: the
@@ -45,9 +47,9 @@ from bar_policy.tasks.interfaces import EvalReport
 from bar_policy.tasks.piano.bank import PlaybackConfig
 from bar_policy.tasks.piano.held import held_pose
 from bar_policy.tasks.piano.key_input import KeySource, MidiKeys, SimKeys
-from bar_policy.tasks.piano.keyboard import KeyboardConfig, compact_config
+from bar_policy.tasks.piano.keyboard import KeyboardConfig, black_keys, compact_config
 from bar_policy.tasks.piano.keys import KinematicKeys
-from bar_policy.tasks.piano.metrics import Counts, episode_scores, scores, step_counts
+from bar_policy.tasks.piano.metrics import Counts, colour_counts, episode_scores, scores, step_counts
 from bar_policy.tasks.piano.reference import KeyPoseReference
 from bar_policy.tasks.piano.scene import keyboard_scene
 from bar_policy.tasks.piano.songs import Song
@@ -57,6 +59,8 @@ __all__ = ["EVAL_KEY_SOURCES", "PianoEval", "SimMidiKeys", "SongResult", "SongTi
 
 EVAL_KEY_SOURCES = ("sim", "kinematic", "sim-midi")
 """Where the policy's ``key_pressed`` can come from in the evaluation (module docstring)."""
+COLOUR_COUNTS = ("true_pos_black", "false_neg_black", "true_pos_white", "false_neg_white")
+"""``SongResult``'s per-colour counts (the env's metrics of the same names)."""
 
 
 class SimMidiKeys(MidiKeys):
@@ -120,6 +124,14 @@ class SongResult:
     """Key-ticks the simulated key was down and the source read up."""
     keys_down: int = 0
     """Key-ticks the simulated key was down (the scale of ``keys_missed``)."""
+    true_pos_black: int = 0
+    """Black goal key-ticks pressed (``metrics.colour_counts``)."""
+    false_neg_black: int = 0
+    """Black goal key-ticks missed."""
+    true_pos_white: int = 0
+    """White goal key-ticks pressed."""
+    false_neg_white: int = 0
+    """White goal key-ticks missed."""
 
     @property
     def chatter_mrad(self) -> float | None:
@@ -130,6 +142,30 @@ class SongResult:
     def f1_pooled(self) -> float:
         """F1 of the counts summed over the song, ``2 tp / (2 tp + fp + fn)`` (1 when all are 0)."""
         return float(scores(Counts(self.true_pos, self.false_pos, self.false_neg)).f1)
+
+    @property
+    def recall_black(self) -> float:
+        """Recall of the song's black goal key-ticks, ``tp / (tp + fn)`` pooled (1 when it has none)."""
+        return float(scores(Counts(self.true_pos_black, 0, self.false_neg_black)).recall)
+
+    @property
+    def recall_white(self) -> float:
+        """Recall of the song's white goal key-ticks, pooled (1 when it has none)."""
+        return float(scores(Counts(self.true_pos_white, 0, self.false_neg_white)).recall)
+
+
+def _colour_text(c: dict[str, int]) -> str:
+    """``recall of goal key-ticks (pooled): black 0.512 of 41, white ...`` of ``true_pos_black``... counts.
+
+    A colour without goal key-ticks reads ``- of 0``.
+    """
+
+    def recall(tp: int, fn: int) -> str:
+        return f"{tp / (tp + fn):.3f} of {tp + fn}" if tp + fn else "- of 0"
+
+    black = recall(c["true_pos_black"], c["false_neg_black"])
+    white = recall(c["true_pos_white"], c["false_neg_white"])
+    return f"recall of goal key-ticks (pooled): black {black}, white {white}"
 
 
 @dataclass(frozen=True)
@@ -169,6 +205,20 @@ class PianoEval(EvalReport):
         c = Counts(*(sum(getattr(s, k) for s in self.songs) for k in ("true_pos", "false_pos", "false_neg")))
         return float(scores(c).f1)
 
+    def colour_totals(self) -> dict[str, int]:
+        """Every song's ``COLOUR_COUNTS`` (TP and FN of each key colour's goal key-ticks) summed."""
+        return {k: sum(getattr(s, k) for s in self.songs) for k in COLOUR_COUNTS}
+
+    def recall_black(self) -> float:
+        """Recall of every song's black goal key-ticks, pooled (1 when there are none)."""
+        t = self.colour_totals()
+        return float(scores(Counts(t["true_pos_black"], 0, t["false_neg_black"])).recall)
+
+    def recall_white(self) -> float:
+        """Recall of every song's white goal key-ticks, pooled (1 when there are none)."""
+        t = self.colour_totals()
+        return float(scores(Counts(t["true_pos_white"], 0, t["false_neg_white"])).recall)
+
     def gate_report(self) -> dict[str, Any]:
         """F1 % over the songs, and their safety and smoothness (the ship gate's input)."""
         records = [EpisodeQuality.from_dict(s.quality) for s in self.songs if s.quality]
@@ -198,8 +248,17 @@ class PianoEval(EvalReport):
             "obs_fingerprint": self.fingerprint,
             "f1": self.f1(),
             "f1_pooled": self.f1_pooled(),
+            "recall_black": self.recall_black(),
+            "recall_white": self.recall_white(),
             "songs": [
-                {**asdict(s), "f1_pooled": s.f1_pooled, "chatter_mrad": s.chatter_mrad} for s in self.songs
+                {
+                    **asdict(s),
+                    "f1_pooled": s.f1_pooled,
+                    "recall_black": s.recall_black,
+                    "recall_white": s.recall_white,
+                    "chatter_mrad": s.chatter_mrad,
+                }
+                for s in self.songs
             ],
             "gate_report": self.gate_report(),
         }
@@ -216,13 +275,15 @@ class PianoEval(EvalReport):
                 f"precision {s.precision:.3f} recall {s.recall:.3f} F1 {s.f1:.3f} (pooled {s.f1_pooled:.3f})"
             )
             lines.append(f"  {s.song:26s} {figs}, {s.scored} ticks, {end}, {_chatter_text(s)}")
+            lines.append(f"    {_colour_text({k: getattr(s, k) for k in COLOUR_COUNTS})}")
             if s.keys != "sim":
                 lines.append(
                     f"    key_pressed ({s.keys}) against the simulated keys: {s.keys_extra} key-ticks down "
                     f"extra, {s.keys_missed} of {s.keys_down} missed"
                 )
         lines.append(
-            f"all songs: F1 {self.f1():.3f} (step mean, RoboPianist's), pooled {self.f1_pooled():.3f}"
+            f"all songs: F1 {self.f1():.3f} (step mean, RoboPianist's), pooled {self.f1_pooled():.3f}; "
+            f"{_colour_text(self.colour_totals())}"
         )
         lines.append(quality_summary_line(self.gate_report()["quality"]))
         lines.append(self.raw_chatter_line())
@@ -298,6 +359,7 @@ def evaluate(
         read = np.array(reads, bool).reshape(-1, kb.n_keys)
         goal = np.array(goals, bool).reshape(-1, kb.n_keys)
         counts = step_counts(down, goal)
+        colour = colour_counts(down, goal, black_keys(kb))
         ep = episode_scores(down, goal)
         raw = chatter_mrad(np.array(q_cmds), policy.policy_dt) if q_cmds else math.nan
         result = SongResult(
@@ -318,6 +380,10 @@ def evaluate(
             keys_extra=int(np.sum(read & ~down)),
             keys_missed=int(np.sum(down & ~read)),
             keys_down=int(np.sum(down)),
+            true_pos_black=int(np.sum(colour.black.tp)),
+            false_neg_black=int(np.sum(colour.black.fn)),
+            true_pos_white=int(np.sum(colour.white.tp)),
+            false_neg_white=int(np.sum(colour.white.fn)),
         )
         results.append(result)
         if on_song is not None:

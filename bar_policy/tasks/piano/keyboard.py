@@ -45,6 +45,7 @@ __all__ = [
     "RIGHT_REACH",
     "Key",
     "KeyboardConfig",
+    "black_keys",
     "compact_config",
     "default_config",
     "is_black",
@@ -263,6 +264,12 @@ def key_size(config: KeyboardConfig, key: Key) -> tuple[float, float]:
     if key.black:
         return config.black_width, config.black_thickness
     return config.white_pitch - config.white_gap, config.white_thickness
+
+
+def black_keys(config: KeyboardConfig | None = None) -> np.ndarray:
+    """Which keys are black, bool, shape (n_keys,), keyboard order (``metrics.colour_counts``' mask)."""
+    cfg = default_config() if config is None else config
+    return np.array([k.black for k in key_table(cfg)], dtype=bool)
 
 
 def press_thresholds(config: KeyboardConfig | None = None) -> np.ndarray:

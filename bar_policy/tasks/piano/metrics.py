@@ -24,6 +24,11 @@ Over an episode there are two aggregations (``episode_scores`` gives both):
 The headline figure of this project is the step mean ``f1``, for comparison with RoboPianist's published
 numbers; the pooled figures are reported beside it because rests do not inflate them.
 
+**Per key colour** (``colour_counts``; ``keys`` of ``step_counts`` and ``episode_scores``): the same counts
+restricted to a subset of the keys (``keyboard.black_keys`` and its complement): a goal key, a pressed key
+and a miss count only where the key is in the subset. The per-colour recall is pooled (``TP / (TP + FN)`` of
+the summed counts): most steps have no black goal key, so a step mean would be mostly empty steps scored 1.
+
 Every function is plain array arithmetic (``array_namespace``): numpy in, numpy out; jax in, jax out, safe
 under ``jit`` and ``vmap`` (no Python branch on a value, only on static shapes).
 """
@@ -34,7 +39,17 @@ from typing import NamedTuple
 
 from bar_policy._array import Array, array_namespace
 
-__all__ = ["Counts", "EpisodeScores", "Scores", "episode_scores", "scores", "step_counts", "step_scores"]
+__all__ = [
+    "ColourCounts",
+    "Counts",
+    "EpisodeScores",
+    "Scores",
+    "colour_counts",
+    "episode_scores",
+    "scores",
+    "step_counts",
+    "step_scores",
+]
 
 
 class Counts(NamedTuple):
@@ -46,6 +61,15 @@ class Counts(NamedTuple):
     """Keys pressed that are not goal keys."""
     fn: Array
     """Goal keys not pressed."""
+
+
+class ColourCounts(NamedTuple):
+    """Key counts of a step restricted to the black keys and to the white keys (``colour_counts``)."""
+
+    black: Counts
+    """Counts over the black keys only."""
+    white: Counts
+    """Counts over the white keys only."""
 
 
 class Scores(NamedTuple):
@@ -78,25 +102,48 @@ def _keys(x: Array) -> Array:
     return x > 0.5
 
 
-def step_counts(pressed: Array, goal: Array) -> Counts:
-    """TP, FP and FN of each step.
+def step_counts(pressed: Array, goal: Array, keys: Array | None = None) -> Counts:
+    """TP, FP and FN of each step, over every key or over the keys of ``keys``.
 
     Args:
         pressed: keys down, bool or 0/1, shape ``(..., n_keys)`` (keyboard order, lowest first).
         goal: goal keys, bool or 0/1, shape ``(..., n_keys)`` (broadcast against ``pressed``).
+        keys: which keys count, bool or 0/1, shape ``(n_keys,)`` (default: all), e.g.
+            ``keyboard.black_keys(config)``: a static mask, so the function stays jit- and vmap-safe.
 
     Returns:
         ``Counts`` of integer arrays, shape ``(...)`` (the broadcast batch shape).
     """
     if pressed.shape[-1:] != goal.shape[-1:]:
         raise ValueError(f"pressed {pressed.shape} and goal {goal.shape} must end in the same n_keys")
+    if keys is not None and keys.shape != goal.shape[-1:]:
+        raise ValueError(f"keys {keys.shape} must be (n_keys,) = {goal.shape[-1:]}")
     xp = array_namespace(pressed, goal)
     p, g = _keys(pressed), _keys(goal)
+    if keys is not None:
+        k = xp.asarray(_keys(keys))
+        p, g = p & k, g & k
     return Counts(
         tp=xp.sum(p & g, axis=-1),
         fp=xp.sum(p & ~g, axis=-1),
         fn=xp.sum(~p & g, axis=-1),
     )
+
+
+def colour_counts(pressed: Array, goal: Array, black: Array) -> ColourCounts:
+    """TP, FP and FN of each step over the black keys and over the white keys (``step_counts``).
+
+    Args:
+        pressed: keys down, bool or 0/1, shape ``(..., n_keys)``.
+        goal: goal keys, bool or 0/1, shape ``(..., n_keys)``.
+        black: which keys are black, bool, shape ``(n_keys,)`` (``keyboard.black_keys(config)``).
+
+    Returns:
+        ``ColourCounts``; each count of shape ``(...)``. ``black + white`` is ``step_counts(pressed, goal)``.
+    """
+    xp = array_namespace(pressed, goal)
+    b = xp.asarray(_keys(black))
+    return ColourCounts(black=step_counts(pressed, goal, b), white=step_counts(pressed, goal, ~b))
 
 
 def _ratio(num: Array, den: Array) -> Array:
@@ -119,20 +166,24 @@ def step_scores(pressed: Array, goal: Array) -> Scores:
     return scores(step_counts(pressed, goal))
 
 
-def episode_scores(pressed: Array, goal: Array, valid: Array | None = None) -> EpisodeScores:
-    """Both episode aggregations of ``T`` steps (the module docstring).
+def episode_scores(
+    pressed: Array, goal: Array, valid: Array | None = None, keys: Array | None = None
+) -> EpisodeScores:
+    """Both episode aggregations of ``T`` steps (the module docstring), over every key or over ``keys``.
 
     Args:
         pressed: keys down per step, bool or 0/1, shape ``(..., T, n_keys)``.
         goal: goal keys per step, bool or 0/1, shape ``(..., T, n_keys)``.
         valid: which steps count, bool, shape ``(..., T)`` (default: all): a batch of episodes of different
             lengths (ended early, or padded) masks the steps after each one's end.
+        keys: which keys count, bool, shape ``(n_keys,)`` (default: all; ``step_counts``): with
+            ``keyboard.black_keys(config)``, ``recall_pooled`` is the black goal key-ticks' recall.
 
     Returns:
         ``EpisodeScores``, each of shape ``(...)``; NaN for an episode with no valid step.
     """
     xp = array_namespace(pressed, goal, *(() if valid is None else (valid,)))
-    counts = step_counts(pressed, goal)
+    counts = step_counts(pressed, goal, keys)
     per_step = scores(counts)
     w = xp.ones(counts.tp.shape, dtype=bool) if valid is None else xp.broadcast_to(valid, counts.tp.shape)
     n = xp.sum(w, axis=-1)
