@@ -44,6 +44,7 @@ from bar_policy.quality.metrics import chatter_mrad
 from bar_policy.quality.report import EpisodeQuality, quality_summary_line, summarise
 from bar_policy.tasks.episodes import EpisodeRunner, Policy
 from bar_policy.tasks.interfaces import EvalReport
+from bar_policy.tasks.piano import colour
 from bar_policy.tasks.piano.bank import PlaybackConfig
 from bar_policy.tasks.piano.held import held_pose
 from bar_policy.tasks.piano.key_input import KeySource, MidiKeys, SimKeys
@@ -59,8 +60,6 @@ __all__ = ["EVAL_KEY_SOURCES", "PianoEval", "SimMidiKeys", "SongResult", "SongTi
 
 EVAL_KEY_SOURCES = ("sim", "kinematic", "sim-midi")
 """Where the policy's ``key_pressed`` can come from in the evaluation (module docstring)."""
-COLOUR_COUNTS = ("true_pos_black", "false_neg_black", "true_pos_white", "false_neg_white")
-"""``SongResult``'s per-colour counts (the env's metrics of the same names)."""
 
 
 class SimMidiKeys(MidiKeys):
@@ -145,27 +144,13 @@ class SongResult:
 
     @property
     def recall_black(self) -> float:
-        """Recall of the song's black goal key-ticks, ``tp / (tp + fn)`` pooled (1 when it has none)."""
-        return float(scores(Counts(self.true_pos_black, 0, self.false_neg_black)).recall)
+        """Recall of the song's black goal key-ticks, pooled (``colour.recalls``: 1 when it has none)."""
+        return colour.recalls(colour.counts_of(self))["recall_black"]
 
     @property
     def recall_white(self) -> float:
         """Recall of the song's white goal key-ticks, pooled (1 when it has none)."""
-        return float(scores(Counts(self.true_pos_white, 0, self.false_neg_white)).recall)
-
-
-def _colour_text(c: dict[str, int]) -> str:
-    """``recall of goal key-ticks (pooled): black 0.512 of 41, white ...`` of ``true_pos_black``... counts.
-
-    A colour without goal key-ticks reads ``- of 0``.
-    """
-
-    def recall(tp: int, fn: int) -> str:
-        return f"{tp / (tp + fn):.3f} of {tp + fn}" if tp + fn else "- of 0"
-
-    black = recall(c["true_pos_black"], c["false_neg_black"])
-    white = recall(c["true_pos_white"], c["false_neg_white"])
-    return f"recall of goal key-ticks (pooled): black {black}, white {white}"
+        return colour.recalls(colour.counts_of(self))["recall_white"]
 
 
 @dataclass(frozen=True)
@@ -206,18 +191,8 @@ class PianoEval(EvalReport):
         return float(scores(c).f1)
 
     def colour_totals(self) -> dict[str, int]:
-        """Every song's ``COLOUR_COUNTS`` (TP and FN of each key colour's goal key-ticks) summed."""
-        return {k: sum(getattr(s, k) for s in self.songs) for k in COLOUR_COUNTS}
-
-    def recall_black(self) -> float:
-        """Recall of every song's black goal key-ticks, pooled (1 when there are none)."""
-        t = self.colour_totals()
-        return float(scores(Counts(t["true_pos_black"], 0, t["false_neg_black"])).recall)
-
-    def recall_white(self) -> float:
-        """Recall of every song's white goal key-ticks, pooled (1 when there are none)."""
-        t = self.colour_totals()
-        return float(scores(Counts(t["true_pos_white"], 0, t["false_neg_white"])).recall)
+        """Every song's ``colour.COLOUR_COUNTS`` (TP and FN of each key colour's goal key-ticks) summed."""
+        return {k: sum(getattr(s, k) for s in self.songs) for k in colour.COLOUR_COUNTS}
 
     def gate_report(self) -> dict[str, Any]:
         """F1 % over the songs, and their safety and smoothness (the ship gate's input)."""
@@ -248,14 +223,12 @@ class PianoEval(EvalReport):
             "obs_fingerprint": self.fingerprint,
             "f1": self.f1(),
             "f1_pooled": self.f1_pooled(),
-            "recall_black": self.recall_black(),
-            "recall_white": self.recall_white(),
+            **colour.recalls(self.colour_totals()),
             "songs": [
                 {
                     **asdict(s),
                     "f1_pooled": s.f1_pooled,
-                    "recall_black": s.recall_black,
-                    "recall_white": s.recall_white,
+                    **colour.recalls(colour.counts_of(s)),
                     "chatter_mrad": s.chatter_mrad,
                 }
                 for s in self.songs
@@ -275,7 +248,7 @@ class PianoEval(EvalReport):
                 f"precision {s.precision:.3f} recall {s.recall:.3f} F1 {s.f1:.3f} (pooled {s.f1_pooled:.3f})"
             )
             lines.append(f"  {s.song:26s} {figs}, {s.scored} ticks, {end}, {_chatter_text(s)}")
-            lines.append(f"    {_colour_text({k: getattr(s, k) for k in COLOUR_COUNTS})}")
+            lines.append(f"    {colour.text(colour.counts_of(s))}")
             if s.keys != "sim":
                 lines.append(
                     f"    key_pressed ({s.keys}) against the simulated keys: {s.keys_extra} key-ticks down "
@@ -283,7 +256,7 @@ class PianoEval(EvalReport):
                 )
         lines.append(
             f"all songs: F1 {self.f1():.3f} (step mean, RoboPianist's), pooled {self.f1_pooled():.3f}; "
-            f"{_colour_text(self.colour_totals())}"
+            f"{colour.text(self.colour_totals())}"
         )
         lines.append(quality_summary_line(self.gate_report()["quality"]))
         lines.append(self.raw_chatter_line())
@@ -359,7 +332,7 @@ def evaluate(
         read = np.array(reads, bool).reshape(-1, kb.n_keys)
         goal = np.array(goals, bool).reshape(-1, kb.n_keys)
         counts = step_counts(down, goal)
-        colour = colour_counts(down, goal, black_keys(kb))
+        by_colour = colour_counts(down, goal, black_keys(kb))
         ep = episode_scores(down, goal)
         raw = chatter_mrad(np.array(q_cmds), policy.policy_dt) if q_cmds else math.nan
         result = SongResult(
@@ -380,10 +353,10 @@ def evaluate(
             keys_extra=int(np.sum(read & ~down)),
             keys_missed=int(np.sum(down & ~read)),
             keys_down=int(np.sum(down)),
-            true_pos_black=int(np.sum(colour.black.tp)),
-            false_neg_black=int(np.sum(colour.black.fn)),
-            true_pos_white=int(np.sum(colour.white.tp)),
-            false_neg_white=int(np.sum(colour.white.fn)),
+            true_pos_black=int(np.sum(by_colour.black.tp)),
+            false_neg_black=int(np.sum(by_colour.black.fn)),
+            true_pos_white=int(np.sum(by_colour.white.tp)),
+            false_neg_white=int(np.sum(by_colour.white.fn)),
         )
         results.append(result)
         if on_song is not None:
