@@ -418,6 +418,108 @@ def test_a_rerun_loads_every_program_and_trains_the_same(
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
+MESH_CHILD = """
+import json, sys
+sys.path.insert(0, sys.argv[1])
+import jax, numpy as np
+from toy_configs import toy_config
+from toy_env import ToyReach
+from bar_policy.training.run import run
+
+runs, cache, n, overrides = sys.argv[2], sys.argv[3], int(sys.argv[4]), json.loads(sys.argv[5])
+assert jax.local_device_count() == n, jax.devices()
+s = run(toy_config(runs, "", [*overrides, f"compile_cache_dir={cache}"]), env=ToyReach())
+np.savez(f"{runs}/params.npz", *(np.asarray(x) for x in jax.tree.leaves(s.params)))
+print("RUN_DIR", s.run_dir)
+"""
+
+
+def _mesh_run(tmp_path: Path, name: str, devices: int) -> Path:
+    """A fresh process of the smallest brax run on ``devices`` forced CPU devices (the mesh spans all of
+    them), on the cache in ``tmp_path/jax``; returns its run directory (``params.npz`` one level up)."""
+    import json
+    import subprocess
+    import sys
+
+    runs = tmp_path / name
+    runs.mkdir()
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    env |= {"JAX_PLATFORMS": "cpu", ec.CPU_ENV: "1", "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
+    if devices > 1:  # the device count is fixed when jax starts: hence a process per run
+        env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}"
+    tests = str(Path(__file__).parent)
+    argv = [sys.executable, "-c", MESH_CHILD, tests, str(runs), str(tmp_path / "jax"), str(devices)]
+    child = subprocess.run(
+        [*argv, json.dumps(SMALL_BRAX)], env=env, capture_output=True, text=True, timeout=300
+    )
+    assert child.returncode == 0, (name, child.returncode, child.stderr[-3000:])
+    return Path(child.stdout.split("RUN_DIR", 1)[1].split()[0])
+
+
+def _curves(run_dir: Path) -> list[dict]:
+    """The run's train, evaluation and final records less their wall-clock fields."""
+    import json
+
+    recs = [json.loads(x) for x in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    drop = {"time_s", "sps"}
+    return [
+        {k: v for k, v in r.items() if k not in drop} for r in recs if r["kind"] in ("train", "eval", "final")
+    ]
+
+
+@pytest.mark.slow
+def test_a_two_device_mesh_program_is_stored_loaded_in_a_fresh_process_and_trains_the_same(tmp_path):
+    """Issue 19's two GPUs of one host, on 2 forced CPU devices: the data-parallel programs (arguments
+    sharded over the 2-device mesh) are stored by one process and loaded by the next, which traces nothing
+    and trains bit for bit the same; a 1-device run on the same cache misses every entry and compiles.
+
+    Three processes of the smallest brax run (about 20 s on 2 cores: two compiling runs, one loading)."""
+    import json
+
+    from bar_policy.training import startup_breakdown as sb
+
+    first = _mesh_run(tmp_path, "first", 2)
+    second = _mesh_run(tmp_path, "second", 2)
+    assert len(json.loads((first / "config.json").read_text())["device"]["devices"]) == 2  # a 2-device mesh
+    cold, warm = _startup(first), _startup(second)
+    assert {p["executable"] for p in cold["programs"].values()} == {"stored"}, cold["programs"]
+    assert {p["cache"] for p in warm["programs"].values()} == {"exec cache hit"}, warm["programs"]
+    assert {p["executable"] for p in warm["programs"].values()} == {"hit"}
+    assert warm["phases"][sb.TRACE] == warm["phases"][sb.LOWER] == 0.0
+    entries = tmp_path / "jax" / "executables"
+    assert len(list(entries.glob("*.bin"))) == len(cold["programs"])
+    # The same computation, not merely a loadable one: same parameters and curves bit for bit (the loaded
+    # executable is the stored one, run on the same devices with the same inputs).
+    a, b = np.load(tmp_path / "first" / "params.npz"), np.load(tmp_path / "second" / "params.npz")
+    assert a.files == b.files and a.files
+    for k in a.files:
+        np.testing.assert_array_equal(a[k], b[k])
+    assert _curves(first) == _curves(second) and _curves(first)
+
+    single = _startup(_mesh_run(tmp_path, "single", 1))
+    assert {p["executable"] for p in single["programs"].values()} == {"stored"}, single["programs"]
+    assert single["phases"][sb.TRACE] > 0  # traced and compiled, not served a 2-device program
+    # Every program now has two entries, with the same argument tree, shapes and dtypes: they differ in the
+    # device list and in each argument's sharding (its mesh and device ids), not only in XLA_FLAGS.
+    sides = [json.loads(p.read_text()) for p in entries.glob("*.json")]
+    assert len(sides) == 2 * len(cold["programs"])
+    for name in cold["programs"]:
+        two, one = sorted(
+            (s for s in sides if s["name"] == name), key=lambda s: -len(s["platform"]["devices"])
+        )
+        assert len(two["platform"]["devices"]) == 2 and len(one["platform"]["devices"]) == 1
+        assert two["args"]["tree"] == one["args"]["tree"]
+        arrays = [
+            (leaf2, leaf1)
+            for leaf2, leaf1 in zip(two["args"]["leaves"], one["args"]["leaves"], strict=True)
+            if leaf2[0] != "static"  # [shape, dtype, weak type, sharding]; static leaves are described apart
+        ]
+        assert arrays, name
+        for leaf2, leaf1 in arrays:
+            assert leaf2[:3] == leaf1[:3]
+            assert (leaf2[3][1], leaf1[3][1]) == ([0, 1], [0])  # each sharding's device ids
+
+
 def test_least_recently_used_entries_go_over_the_size_limit(tmp_path):
     cache = ExecutableCache(tmp_path, CONTEXT)
     _run(cache, Toy(), X)
