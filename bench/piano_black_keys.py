@@ -49,7 +49,7 @@ from bar_policy.deploy.policy import OnnxPolicy, load_policy
 from bar_policy.robot.constants import FINGERTIP_SITES
 from bar_policy.tasks.piano.bank import random_songs
 from bar_policy.tasks.piano.evaluate import SongResult, SongTicks, evaluate
-from bar_policy.tasks.piano.keyboard import Key, compact_config, is_black, key_table
+from bar_policy.tasks.piano.keyboard import Key, black_keys, compact_config, is_black, key_table
 from bar_policy.tasks.piano.prior import KeyPosePriorConfig
 from bar_policy.tasks.piano.reference import KeyPoseReference
 from bar_policy.tasks.piano.scene import FINGERTIP_GEOMS
@@ -117,8 +117,7 @@ class RecordingEpisodes(SimEpisodes):
         self._jac = np.zeros((3, m.nv))
         kb = compact_config()
         self._targets = self.recording.obs_manager.term_slice("target_keys")
-        black = np.array([is_black(kb.lowest + i) for i in range(kb.n_keys)])
-        self._black = np.flatnonzero(black)
+        self._black = np.flatnonzero(black_keys(kb))
 
     def target(self, **kwargs: Any) -> Any:
         """The sim target, its ids looked up once."""

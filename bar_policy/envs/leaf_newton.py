@@ -203,9 +203,9 @@ def newton_loop(
     ctx: solver.Context,
     iterations: int,
 ) -> solver.Context:
-    """MJX's Newton loop ``while cond: ctx = body(ctx)`` written out: each body kept where ``cond`` held.
+    """MJX's Newton loop ``while cond: ctx = body(ctx)`` written out as ``iterations`` bodies.
 
-    ``iterations`` bodies, each kept only where ``cond`` held before it. The same values as the ``while_loop``
+    Each body is kept only where ``cond`` held before it. The same values as the ``while_loop``
     (:func:`while_newton_loop`): ``cond`` is False once ``ctx.solver_niter`` reaches ``iterations``, and once
     False the context no longer changes, so it stays False. Under ``vmap`` a ``while_loop`` already runs every
     env until the last one is done, selecting per env, so the work is the same; written out, the GPU needs no
@@ -224,7 +224,7 @@ def while_newton_loop(
     ctx: solver.Context,
     iterations: int,
 ) -> solver.Context:
-    """:func:`newton_loop` as MJX runs it, a ``jax.lax.while_loop`` (kept for the tests and benchmarks)."""
+    """:func:`newton_loop` as MJX runs it, a ``jax.lax.while_loop``: :func:`solve`'s loop without leaves."""
     del iterations
     return jax.lax.while_loop(cond, body, ctx)
 
@@ -279,7 +279,7 @@ def solve(m: mjx.Model, d: mjx.Data, split: LeafSplit | None) -> mjx.Data:
         warm = solver.Context.create(m, d.replace(qacc=d.qacc_warmstart), grad=False)
         smooth = solver.Context.create(m, d.replace(qacc=d.qacc_smooth), grad=False)
         use_warm = warm.cost < smooth.cost
-        start = jax.tree_util.tree_map(lambda w, s: jnp.where(use_warm, w, s), warm, smooth)
+        start = jax.tree_util.tree_map(functools.partial(jnp.where, use_warm), warm, smooth)
     d = d.replace(qacc=start.qacc)
     ctx = gradient(start)
     ctx = ctx.replace(search=-ctx.Mgrad)

@@ -221,20 +221,18 @@ def _seed(cache_dir: Path | None, enabled: bool, seeds_dir: Path) -> SeedOutcome
     # of one fusion are the same file name in every seed, and the first copy wins.
     total, failures = SeedOutcome(), []
     for path, manifest in match:
-        archive = path.parent / manifest.archive
         try:
-            if hashlib.sha256(archive.read_bytes()).hexdigest() != manifest.sha256:
-                failures.append(f"{archive.name} does not match its manifest's sha256")
+            blob = (path.parent / manifest.archive).read_bytes()  # verified, then extracted from these bytes
+            if hashlib.sha256(blob).hexdigest() != manifest.sha256:
+                failures.append(f"{manifest.archive} does not match its manifest's sha256")
                 continue
-            one = _extract(archive, manifest, Path(cache_dir) / AUTOTUNE_DIR)
+            one = _extract(blob, manifest, Path(cache_dir) / AUTOTUNE_DIR)
         except (OSError, tarfile.TarError) as e:
             failures.append(f"{manifest.archive} unreadable: {type(e).__name__}: {e}")
             continue
-        total.seeded, total.present, total.refused = (
-            total.seeded + one.seeded,
-            total.present + one.present,
-            total.refused + one.refused,
-        )
+        total.seeded += one.seeded
+        total.present += one.present
+        total.refused += one.refused
         total.source = f"{total.source}, {one.source}" if total.source else one.source
     for failure in failures:
         _log.warning("autotune seed: %s; not used", failure)
@@ -243,12 +241,12 @@ def _seed(cache_dir: Path | None, enabled: bool, seeds_dir: Path) -> SeedOutcome
     return total
 
 
-def _extract(archive: Path, manifest: SeedManifest, autotune_dir: Path) -> SeedOutcome:
-    """Copy the archive's ``<subdir>/<name>.pb`` members under ``autotune_dir``, never overwriting."""
-    out = SeedOutcome(source=archive.name)
+def _extract(blob: bytes, manifest: SeedManifest, autotune_dir: Path) -> SeedOutcome:
+    """Copy the archive ``blob``'s ``<subdir>/<name>.pb`` members into ``autotune_dir``, never overwriting."""
+    out = SeedOutcome(source=manifest.archive)
     target = autotune_dir / manifest.subdir
     target.mkdir(parents=True, exist_ok=True)
-    with tarfile.open(archive, "r:gz") as tar:
+    with tarfile.open(fileobj=io.BytesIO(blob), mode="r:gz") as tar:
         for member in tar:
             if member.isdir() and member.name.rstrip("/") == manifest.subdir:
                 continue
