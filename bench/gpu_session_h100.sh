@@ -144,7 +144,7 @@ print(f'{k}-jaxlib-{jaxlib.__version__}')")
 
 finish() {  # finish PART RUN_DIRS... [--append FILES...]
   local part=$1; shift
-  tar -czf "$OUT/h100_$part.tgz" -C "$WORK" --exclude='*.msgpack' --exclude='tb' --exclude='jaxcache*' . 2>/dev/null
+  tar -czf "$OUT/h100_$part.tgz" -C "$WORK" --exclude='*.msgpack' --exclude='tb' --exclude='jaxcache*' --exclude='seedcache*' . 2>/dev/null
   stamp "part $part done"
   python3 bench/session_summary.py "$@" --out "$OUT/summary_$part.md"
 }
