@@ -8,7 +8,7 @@
 #                      autotune seed and the warm one the executable cache (both defaults on a GPU)
 #   rsl      (~8 min): the rsl-rl backend, --max-minutes 5, same env at the field's rsl-rl values
 #                      (--preset rsl; RSL_PRESET=gpu for brax's), then where an rsl-rl iteration's time
-#                      goes (bench/rsl_rl_profile.py, same preset)
+#                      goes (bench/rsl_rl_profile.py, same preset; NO_PROFILE=1: not)
 #   flags    (~4 min): two cold starts in one call (compile time varies between hosts by ~25 s, so the
 #                      baseline runs beside the variant): XLA's defaults, then XLA_FLAGS=$FLAGS (default: no
 #                      autotuning, compilation over 16 threads; flags XLA refuses are left out); then
@@ -85,6 +85,7 @@ rsl() {
   ppo rsl 450 --compile-cache-dir "$CACHE" --preset "${RSL_PRESET:-rsl}" --backend rsl-rl --max-minutes "${RSL_MIN:-5}"
   grep -v "^WARNING" "$WORK/rsl.log" | grep "steps/s" | tail -n 3
   finish rsl "$RUNS/rsl" > /dev/null
+  [ -n "${NO_PROFILE:-}" ] && { finish rsl "$RUNS/rsl"; return; }
   stamp "rsl-rl profile"
   local pr="--preset ${RSL_PRESET:-rsl}"
   [ -n "$SMOKE" ] && pr="--preset tiny --iters 1"
