@@ -25,6 +25,12 @@ evaluations step envs with the same prior, and the exported file carries it in i
 ``identity`` head plus the prior); the parity gate's reference adds it in numpy.
 ``ppo.actor_warmup_iterations`` stays a brax-backend option.
 
+Start-up (``startup_breakdown``'s rows): the training and evaluation steps compile on worker threads
+(``startup.Compiler``) and training starts once the training step is ready. As in the brax backend, the
+step-0 evaluation (of the initial actor, copied before training) runs after the first iteration where the
+evaluation step is compiled, or before the first periodic evaluation, whichever comes first; the start-up
+report is printed and recorded after it.
+
 Speed: nothing in the rollout waits for the device. Actions and observations cross by DLPack on the
 device; the logged sums accumulate on the device (``RslRlVecEnv.take_stats`` reads them once per
 iteration). rsl-rl's own ``update`` still reads its losses and KL with ``.item()`` once per minibatch.
@@ -43,7 +49,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from bar_policy.export import MlpPolicy, export_policy
+from bar_policy.export import export_policy
 from bar_policy.obs.action_prior import Prior
 from bar_policy.training import startup_breakdown as sb
 from bar_policy.training.best import BestIterate, BestKeeper
@@ -53,6 +59,12 @@ from bar_policy.training.executable_cache import ExecutableCache
 from bar_policy.training.progress import RunLogger, next_would_overrun
 from bar_policy.training.rsl_rl_config import rsl_rl_train_cfg
 from bar_policy.training.rsl_rl_env import RslRlVecEnv
+from bar_policy.training.rsl_rl_policy import (
+    deterministic_module,
+    evaluate_torch_policy,
+    mlp_policy_from_rsl_rl,
+    torch_policy_reference,
+)
 from bar_policy.training.rsl_rl_prior import rsl_rl_prior, start_actor_at_prior
 from bar_policy.training.rsl_rl_state import (
     load_module_state,
@@ -71,99 +83,6 @@ __all__ = [
     "torch_policy_reference",
     "train_rsl_rl",
 ]
-
-# ----------------------------------------------------------------------------------------------------------
-# Policy extraction, reference and evaluation
-# ----------------------------------------------------------------------------------------------------------
-
-
-def mlp_policy_from_rsl_rl(actor: torch.nn.Module, prior: Prior | None = None) -> MlpPolicy:
-    """The deterministic policy of an rsl-rl ``MLPModel`` actor as an ``MlpPolicy``.
-
-    Folds ``EmpiricalNormalization`` (``(x - mean) / (std + eps)``) into (mean, std + eps); reads the
-    ``Linear`` layers of ``actor.mlp`` (kernel = weight.T); the Gaussian head's deterministic output is the
-    MLP output itself (``identity``). ``prior``: the action prior the env added to the actor's actions in
-    training (``rsl_rl_prior``); the graph then outputs ``mlp(obs) + prior(obs)``, shape (batch, A).
-    """
-    norm = actor.obs_normalizer
-    n = actor.obs_dim
-    if isinstance(norm, torch.nn.Identity):
-        mean, std = np.zeros(n, np.float32), np.ones(n, np.float32)
-    else:
-        mean = norm._mean.detach().cpu().numpy().reshape(-1).astype(np.float32)
-        std = (norm._std.detach().cpu().numpy().reshape(-1) + norm.eps).astype(np.float32)
-    kernels, biases, acts = [], [], set()
-    names = {torch.nn.ELU: "elu", torch.nn.SiLU: "swish", torch.nn.ReLU: "relu", torch.nn.Tanh: "tanh"}
-    for layer in actor.mlp:
-        if isinstance(layer, torch.nn.Linear):
-            kernels.append(layer.weight.detach().cpu().numpy().T.copy())
-            biases.append(layer.bias.detach().cpu().numpy().copy())
-        elif type(layer) in names:
-            if isinstance(layer, torch.nn.ELU) and layer.alpha != 1.0:
-                raise ValueError(f"ELU alpha {layer.alpha} is not exportable (only 1.0)")
-            acts.add(names[type(layer)])
-        else:
-            raise ValueError(f"cannot export layer {layer!r}; supported: Linear, {sorted(names.values())}")
-    if len(acts) != 1:
-        raise ValueError(f"expected one hidden activation, found {sorted(acts)}")
-    dist = getattr(actor, "distribution", None)
-    if dist is not None and type(dist).__name__ != "GaussianDistribution":
-        raise ValueError(f"only the Gaussian head exports (identity mean), got {type(dist).__name__}")
-    return MlpPolicy(
-        obs_mean=mean,
-        obs_std=std,
-        kernels=tuple(kernels),
-        biases=tuple(biases),
-        activation=acts.pop(),  # type: ignore[arg-type]
-        head="identity",
-        prior=prior,
-    )
-
-
-def torch_policy_reference(
-    actor: torch.nn.Module, prior: Prior | None = None
-) -> Callable[[np.ndarray], np.ndarray]:
-    """rsl-rl's own deterministic export module (``actor.as_onnx``) as a CPU float32 numpy function.
-
-    With ``prior``, adds ``prior.apply(obs)`` (numpy float32, independent of the ONNX graph's nodes): the
-    commanded action, (n, obs) -> (n, A), that the parity gate compares the file with.
-    """
-    module = actor.as_onnx(verbose=False).to("cpu").eval()
-
-    def fn(obs: np.ndarray) -> np.ndarray:
-        with torch.inference_mode():
-            out = module(torch.as_tensor(obs, dtype=torch.float32)).numpy()
-        if prior is not None:
-            out = out + prior.apply(np.asarray(obs, np.float32))
-        return out
-
-    return fn
-
-
-def evaluate_torch_policy(
-    policy: Callable[[torch.Tensor], torch.Tensor], vec_env: RslRlVecEnv, episode_length: int, seed: int
-) -> dict[str, float]:
-    """Deterministic evaluation on ``vec_env`` (one episode per env from a fresh reset with ``seed``).
-
-    ``policy`` gives the actor's actions; an env with a ``prior`` adds it (prior + residual, as in training).
-
-    Reports ``episode_reward`` (mean and std over envs), one ratio per entry of the task's
-    ``eval_ratios`` (``success_rate`` always): sums of numerators over steps and envs / sums of
-    denominators, and, on a ``quality`` env, the ``quality/<figure>`` safety and smoothness figures. As in
-    the brax evaluator, a slot counts until its episode's first ``done``. The sums accumulate on the
-    device; the host reads them once at the end.
-    """
-    vec_env.reset_all(seed=seed)
-    obs = vec_env.get_observations()
-    with torch.inference_mode():
-        for _ in range(episode_length):
-            obs, _, _, _ = vec_env.step(policy(obs["policy"]))
-    stats = vec_env.take_stats()
-    ret = stats["return"]
-    out = {"episode_reward": float(np.mean(ret)), "episode_reward_std": float(np.std(ret))}
-    out.update({k: n / max(d, 1.0) for k, (n, d) in stats["ratios"].items()})
-    out.update(stats.get("quality", {}))  # quality/<figure>, as the brax evaluator's (eval_quality)
-    return out
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -207,7 +126,7 @@ class RslRlTrainResult:
 
     def policy_fn(self) -> Callable[[torch.Tensor], torch.Tensor]:
         """Deterministic torch policy on the env's device: the actor's action (the env adds any prior)."""
-        module = self.actor.as_onnx(verbose=False).to(self.eval_env.device).eval()
+        module = deterministic_module(self.actor, self.eval_env.device)
         return lambda obs: module(obs)
 
     def final_evaluation(self, episodes: int, seed: int) -> dict[str, float]:
@@ -263,54 +182,61 @@ def train_rsl_rl(
     device = torch_device_for_jax() if cfg.rsl_rl.device == "auto" else cfg.rsl_rl.device
     torch.manual_seed(cfg.seed)
     timer = timer or StartupTimer()
-    traced_before = timer.phases.get(sb.TRACE, 0.0) + timer.phases.get(sb.LOWER, 0.0)
-    # The training and evaluation steps compile side by side.
+    # The training and evaluation steps compile side by side (their traces and lowerings are the
+    # Compiler's TRACE and LOWER rows, taken out of the envs' row).
     compiler = Compiler(timer, executable_cache=executable_cache)
-    # Both envs add the prior to the actor's actions. Our loop records its own sums on the device
-    # (take_stats); extras["log"] is for OnPolicyRunner.learn.
-    kw = {"wrap_fn": wrap_fn, "randomizer": randomizer, "device": device, "compiler": compiler,
-          "prior": prior, "log_metrics": False}  # fmt: skip
-    vec_env = RslRlVecEnv(env, ppo.num_envs, seed=cfg.seed, name="train step", **kw)
-    e_env, e_kw = (env, kw) if eval_env is None else (eval_env, {**kw, "randomizer": None})
-    eval_vec = RslRlVecEnv(
-        e_env, cfg.eval.num_eval_envs, seed=cfg.seed + 1, name="eval step", quality=True, **e_kw
-    )
-    runner = OnPolicyRunner(vec_env, rsl_rl_train_cfg(cfg), log_dir=None, device=device)
-    alg = runner.alg
-    if prior is not None:
-        start_actor_at_prior(alg.actor)  # a resume loads its own parameters over it
+    with timer.phase(sb.RSL_ENVS):
+        # Both envs add the prior to the actor's actions. Our loop records its own sums on the device
+        # (take_stats); extras["log"] is for OnPolicyRunner.learn.
+        kw = {"wrap_fn": wrap_fn, "randomizer": randomizer, "device": device, "compiler": compiler,
+              "prior": prior, "log_metrics": False}  # fmt: skip
+        vec_env = RslRlVecEnv(env, ppo.num_envs, seed=cfg.seed, name="train step", **kw)
+        e_env, e_kw = (env, kw) if eval_env is None else (eval_env, {**kw, "randomizer": None})
+        eval_vec = RslRlVecEnv(
+            e_env, cfg.eval.num_eval_envs, seed=cfg.seed + 1, name="eval step", quality=True, **e_kw
+        )
     steps_per_env = ppo.steps_per_iteration // ppo.num_envs
     steps_per_iter = ppo.num_envs * steps_per_env
     total_iters = math.ceil(ppo.num_timesteps / steps_per_iter)
     env_steps = iteration = 0
-    if cfg.resume:
-        path = latest_checkpoint(cfg.resume)
-        payload = serialization.msgpack_restore(path.read_bytes())
-        st = payload["state"]
-        load_module_state(alg.actor, st["actor"], device)
-        load_module_state(alg.critic, st["critic"], device)
-        load_optimizer_state(alg.optimizer, st["optimizer"], device)
-        alg.learning_rate = float(st["learning_rate"])
-        env_steps, iteration = int(payload["env_steps"]), int(payload["iteration"])
-        logger.print(f"resumed {path} at {env_steps} env steps (iteration {iteration})")
+    with timer.phase(sb.RSL_RUNNER):
+        runner = OnPolicyRunner(vec_env, rsl_rl_train_cfg(cfg), log_dir=None, device=device)
+        alg = runner.alg
+        if prior is not None:
+            start_actor_at_prior(alg.actor)  # a resume loads its own parameters over it
+        # The untrained actor, for the step-0 evaluation after the first iterations (copied before any
+        # forward pass, as spare_actor below); frozen in eval mode.
+        initial_actor = copy.deepcopy(alg.actor).eval()
+        if cfg.resume:
+            path = latest_checkpoint(cfg.resume)
+            payload = serialization.msgpack_restore(path.read_bytes())
+            st = payload["state"]
+            load_module_state(alg.actor, st["actor"], device)
+            load_module_state(alg.critic, st["critic"], device)
+            load_optimizer_state(alg.optimizer, st["optimizer"], device)
+            alg.learning_rate = float(st["learning_rate"])
+            env_steps, iteration = int(payload["env_steps"]), int(payload["iteration"])
+            logger.print(f"resumed {path} at {env_steps} env steps (iteration {iteration})")
+        # Copied before any forward pass: later the Gaussian head holds non-leaf tensors deepcopy refuses.
+        spare_actor = copy.deepcopy(alg.actor)
     start_steps = env_steps
     keeper = BestKeeper(start_steps, getattr(env, "task_name", None))  # ranked as brax ranks
-    # Copied before any forward pass: later the Gaussian head holds non-leaf tensors deepcopy refuses.
-    spare_actor = copy.deepcopy(alg.actor)
     periods = max((cfg.eval.num_evals - 1), 1)
     iters_per_eval = max(1, math.ceil(total_iters / periods))
     evals: list[dict[str, float]] = []
     ttt: list[float] = []
     episode_length = int(env.episode_length)
 
-    def run_eval(step: int) -> None:
-        alg.eval_mode()
-        module = alg.actor.as_onnx(verbose=False).to(device).eval()
+    def run_eval(step: int, actor: torch.nn.Module) -> None:
+        """Evaluate ``actor`` (the current one, or the initial one at step 0) and offer it to the keeper."""
+        training = actor.training
+        actor.eval()
+        module = deterministic_module(actor, device)
         m = evaluate_torch_policy(lambda o: module(o), eval_vec, episode_length, seed=cfg.seed + 1000 + step)
         logger.record_eval(step, m, evals, ttt, cfg.eval.success_threshold)
-        if keeper.offer(step, m, lambda: {k: v.detach().clone() for k, v in alg.actor.state_dict().items()}):
+        if keeper.offer(step, m, lambda: {k: v.detach().clone() for k, v in actor.state_dict().items()}):
             logger.print(f"  best so far: the actor at {step:,} steps is kept")
-        alg.train_mode()
+        actor.train(training)
 
     def checkpoint(step: int, it: int) -> None:
         if checkpoint_dir is None:
@@ -323,15 +249,24 @@ def train_rsl_rl(
         }
         save_checkpoint(checkpoint_dir, state, env_steps=step, iteration=it, extra=config_record)
 
-    if iteration == 0:
-        run_eval(0)
-    obs = vec_env.get_observations().to(device)
-    vec_env.take_stats()  # drop the evaluation's sums
+    # As the brax backend: the step-0 evaluation (of the initial actor; a resume has none) runs after the
+    # first iteration where the evaluation step is compiled, or before the first periodic evaluation, so
+    # training waits only for the training step. The start-up report is finished once it ran.
+    eval_at_start = iteration == 0
+    startup_pending = True
+    first_epoch_end = 0.0
+
+    def eval_at_zero() -> None:
+        t_eval = time.monotonic()
+        run_eval(0, initial_actor)
+        timer.add(sb.FIRST_EVAL, time.monotonic() - t_eval)
+
+    with timer.phase(sb.WAIT):
+        compiler.get("train step")
+        obs = vec_env.get_observations().to(device)
     alg.train_mode()
-    traced = timer.phases.get(sb.TRACE, 0.0) + timer.phases.get(sb.LOWER, 0.0) - traced_before  # own rows
-    timer.add("set-up (torch, runner, envs, eval @ 0)", time.monotonic() - t_start - traced)
     t_loop = time.monotonic()
-    first = True
+    iterations_run = 0
     copies_seen = COPIES.count
     while iteration < total_iters:
         t0 = time.monotonic()
@@ -347,8 +282,14 @@ def train_rsl_rl(
             copies_seen = COPIES.count
             logger.print(f"  torch->jax bridge copies so far: {dict(COPIES.by_reason)}")
         iteration += 1
+        iterations_run += 1
         env_steps += steps_per_iter
         dt = time.monotonic() - t0
+        if iterations_run == 1:
+            timer.add(sb.FIRST_EPOCH, dt)  # the first iteration
+            first_epoch_end = timer.elapsed()
+        elif eval_at_start:
+            timer.add(sb.MORE_EPOCHS, dt)
         train_metrics = {
             **{f"loss/{k}": float(v) for k, v in losses.items()},
             "episode_reward": stats["reward"] / steps_per_iter * episode_length,
@@ -356,21 +297,24 @@ def train_rsl_rl(
             "sps": steps_per_iter / dt,
             "learning_rate": float(alg.learning_rate),
         }
-        if first:
-            first = False
-            timer.add("first iteration (includes the env step compile)", dt)
-            report = timer.finish(timer.elapsed())
-            for line in timer.lines(report):
-                logger.print(line)
-            logger.note("startup", {"step": env_steps, **report})
-            compiler.confirm()
         logger.log(env_steps, train_metrics, kind="train")
         last = iteration >= total_iters
         over_budget = next_would_overrun(logger.elapsed(), dt, 60 * cfg.max_minutes)
         if iteration % max(1, iters_per_eval // 2) == 0 or last or over_budget:
             logger.progress(env_steps, steps_per_iter / dt, train_metrics)
-        if iteration % iters_per_eval == 0 or last or over_budget:
-            run_eval(env_steps)
+        eval_due = iteration % iters_per_eval == 0 or last or over_budget
+        if eval_at_start and (eval_due or compiler.done("eval step")):
+            eval_at_start = False
+            eval_at_zero()  # always before a periodic evaluation: the first record is step 0's
+        if startup_pending and not eval_at_start:
+            startup_pending = False
+            report = timer.finish(first_epoch_end)
+            for line in timer.lines(report):
+                logger.print(line)
+            logger.note("startup", {"step": env_steps, **report})
+            compiler.confirm()  # the loaded programs ran: not suspects of a crash
+        if eval_due:
+            run_eval(env_steps, alg.actor)
             if (
                 last
                 or over_budget
@@ -380,6 +324,8 @@ def train_rsl_rl(
         if over_budget and not last:
             logger.print(f"stopping: wall-clock budget of {cfg.max_minutes} min reached")
             break
+    if eval_at_start:  # no iteration ran (nothing to train): the untrained actor is still evaluated
+        eval_at_zero()
     logger.print(
         f"trained {env_steps - start_steps:,} env steps in {time.monotonic() - t_loop:.1f} s of loop"
     )

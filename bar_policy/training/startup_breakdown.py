@@ -47,6 +47,11 @@ FIRST_EPOCH = "first epoch"
 MORE_EPOCHS = "later epochs before the evaluation was compiled"
 FIRST_EVAL = "first evaluation (step 0, with its wait)"
 OTHER = "other (between the named phases)"
+RSL_ENVS = "rsl-rl envs (resets compiled on the main thread, steps traced)"
+RSL_RUNNER = "rsl-rl runner (OnPolicyRunner: actor, critic, storage; a resume's load)"
+"""The rsl-rl backend's own rows (its record holds ``PHASES`` too: ``WAIT`` is its wait for the training step,
+``FIRST_EPOCH`` its first iteration, ``MORE_EPOCHS`` the iterations before the evaluation step was compiled,
+``FIRST_EVAL`` its step-0 evaluation)."""
 
 PHASES: tuple[str, ...] = (
     BEFORE_RUN,
@@ -66,6 +71,14 @@ PHASES: tuple[str, ...] = (
     OTHER,
 )
 """Every main-thread phase a brax run's record holds (0.0 when it did not happen), in print order."""
+
+_ORDER: tuple[str, ...] = (
+    *PHASES[: PHASES.index(TRACE)],
+    RSL_ENVS,
+    RSL_RUNNER,
+    *PHASES[PHASES.index(TRACE) :],
+)
+"""Print order of every known row; a backend's rows that are not in it go after them, before ``OTHER``."""
 
 
 @dataclass
@@ -173,7 +186,8 @@ class StartupTimer:
         """The JSON record (also kept as ``report``): origin, totals, every phase, programs, compile counts.
 
         ``phases`` holds every name of ``PHASES`` (0.0 when it did not happen) and any other phase recorded
-        (the rsl-rl backend's), ``OTHER`` last: the total less every other phase.
+        (the rsl-rl backend's ``RSL_ENVS`` and ``RSL_RUNNER``, printed after ``PROGRAMS``; unknown ones
+        after every known row), ``OTHER`` last: the total less every other phase.
 
         Args:
             first_epoch_end_s: seconds from the origin to the end of the first epoch.
@@ -183,6 +197,8 @@ class StartupTimer:
         total = self.elapsed() if total_s is None else total_s
         named = {k: self.phases.get(k, 0.0) for k in PHASES if k != OTHER}
         named.update({k: v for k, v in self.phases.items() if k not in named})
+        rank = {k: i for i, k in enumerate(_ORDER[:-1])}  # known rows in their place, others after (stable)
+        named = dict(sorted(named.items(), key=lambda kv: rank.get(kv[0], len(rank))))
         phases = {k: round(v, 3) for k, v in named.items()}
         phases[OTHER] = round(max(0.0, total - sum(named.values())), 3)
         self.report = {

@@ -13,8 +13,10 @@ from toy_configs import TOY_RSL, toy_config
 from bar_policy.deploy.metadata import BAR_KEYS, HC_KEYS, PolicyMetadata
 from bar_policy.envs import wrap_for_brax_training
 from bar_policy.export import ParityError, export_policy
+from bar_policy.training import startup_breakdown as sb
 from bar_policy.training.rsl_rl_backend import mlp_policy_from_rsl_rl, torch_policy_reference
 from bar_policy.training.rsl_rl_env import RslRlVecEnv
+from bar_policy.training.rsl_rl_policy import evaluate_torch_policy
 
 pytestmark = pytest.mark.slow
 
@@ -75,6 +77,38 @@ def test_rsl_rl_resume_continues_the_step_count(rsl_run, toy_env, tmp_path):
         if json.loads(x)["kind"] == "train"
     ]
     assert steps == [first.env_steps + 256, first.env_steps + 512]
+    # A resume evaluates no untrained actor: its only evaluation is the last one, and the start-up report
+    # (finished after the first iteration) has no step-0 evaluation in it.
+    assert [e["step"] for e in resumed.result.evals] == [first.env_steps + 512]
+    startup = json.loads((resumed.run_dir / "final_eval.json").read_text())["startup"]
+    assert startup["phases"][sb.FIRST_EVAL] == 0.0 and startup["phases"][sb.FIRST_EPOCH] > 0
+
+
+def test_rsl_rl_evaluates_the_initial_actor_at_step_0(rsl_run):
+    # The step-0 evaluation runs after the first iterations (once the eval step is compiled), on a copy of
+    # the actor taken before training. Expected: rsl-rl's deterministic module of a freshly built initial
+    # actor (torch seeded with the run's seed, as train_rsl_rl seeds it before building its runner),
+    # evaluated on the step-0 seeds (cfg.seed + 1000).
+    from rsl_rl.runners import OnPolicyRunner
+
+    from bar_policy.training.rsl_rl_config import rsl_rl_train_cfg
+
+    cfg, summary = rsl_run
+    res = summary.result
+    steps = [e["step"] for e in res.evals]
+    assert steps[0] == 0 and steps == sorted(steps) and steps.count(0) == 1
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(cfg.seed)
+        runner = OnPolicyRunner(res.eval_env, rsl_rl_train_cfg(cfg), log_dir=None, device="cpu")
+    module = runner.alg.actor.as_onnx(verbose=False).eval()
+    seed0 = cfg.seed + 1000
+    initial = evaluate_torch_policy(lambda o: module(o), res.eval_env, res.episode_length, seed=seed0)
+    trained = evaluate_torch_policy(res.policy_fn(), res.eval_env, res.episode_length, seed=seed0)
+    for k in ("episode_reward", "episode_reward_std", "success_rate", "quality/action_rate"):
+        assert res.evals[0][k] == pytest.approx(initial[k], rel=1e-5, abs=1e-7), k
+    # ... and not the trained actor's (nor one after the first iteration, which would differ as well).
+    assert trained["episode_reward"] != pytest.approx(initial["episode_reward"], rel=1e-3)
+    assert trained["quality/action_rate"] != pytest.approx(initial["quality/action_rate"], rel=1e-3)
 
 
 def test_rsl_rl_parity_gate_refuses_a_corrupted_actor(toy_env, tmp_path):

@@ -139,3 +139,34 @@ def test_a_run_records_its_startup_breakdown(brax_run, run_walls):
     assert 4 <= rec["compiles"]["compiles"] <= 8
     # The step-0 evaluation is still the first one recorded.
     assert next(r for r in recs if r["kind"] == "eval")["step"] == 0
+
+
+def test_an_rsl_rl_run_records_its_startup_breakdown(rsl_run):
+    _, summary = rsl_run
+    run_dir = Path(summary.run_dir)
+    recs = [json.loads(x) for x in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    (logged,) = [r for r in recs if r["kind"] == "startup"]
+    rec = json.loads((run_dir / "final_eval.json").read_text())["startup"]
+    assert {k: logged[k] for k in rec} == rec
+    phases = rec["phases"]
+    assert set(PHASES) <= set(phases) and all(v >= 0 for v in phases.values())
+    # Where an rsl-rl start goes: its envs (resets compiled, both steps traced and lowered: the TRACE and
+    # LOWER rows, taken out of the envs' row), its runner, the wait for the training step, the first
+    # iteration (the FIRST_EPOCH row), and the step-0 evaluation, after it. No brax program is built.
+    for name in (sb.RSL_ENVS, sb.RSL_RUNNER, sb.TRACE, sb.LOWER, sb.FIRST_EPOCH, sb.FIRST_EVAL):
+        assert phases[name] > 0, name
+    assert phases[sb.PROGRAMS] == 0.0
+    assert set(rec["programs"]) == {"train step", "eval step"}
+    order = list(logged["phases"])  # metrics.jsonl keeps the print order (final_eval.json sorts its keys)
+    assert order.index(sb.PROGRAMS) < order.index(sb.RSL_ENVS) < order.index(sb.RSL_RUNNER)
+    assert order.index(sb.RSL_RUNNER) < order.index(sb.TRACE) and order[-1] == sb.OTHER
+    # The rows add up to the total: each row is rounded to 1 ms (ROUNDING_S allows a few ms over all of
+    # them). The report is finished after the step-0 evaluation, which follows the first iteration.
+    assert sum(phases.values()) == pytest.approx(rec["total_s"], abs=ROUNDING_S)
+    assert 0 < rec["first_epoch_end_s"] <= rec["total_s"]
+    assert rec["total_s"] - rec["first_epoch_end_s"] >= phases[sb.FIRST_EVAL] - ROUNDING_S
+    # In the record: the first iteration, then the step-0 evaluation (the first one), then the report.
+    kinds = [r["kind"] for r in recs]
+    first_eval = kinds.index("eval")
+    assert recs[first_eval]["step"] == 0
+    assert kinds.index("train") < first_eval < recs.index(logged)
