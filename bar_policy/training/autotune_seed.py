@@ -40,6 +40,7 @@ import os
 import tarfile
 import tempfile
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -52,6 +53,7 @@ __all__ = [
     "local_platform",
     "pack_seed",
     "seed_autotune_cache",
+    "seed_in_background",
     "shipped_seeds",
 ]
 
@@ -188,6 +190,22 @@ def seed_autotune_cache(
     if out.refused:
         _log.warning("autotune seed: %d malformed members of %s refused", out.refused, out.source)
     return out
+
+
+def seed_in_background(
+    cache_dir: Path | None, *, enabled: bool = True, seeds_dir: Path = SEED_DIR
+) -> Future[SeedOutcome]:
+    """``seed_autotune_cache`` on a thread of its own; wait for its result before compiling anything.
+
+    The copy (about 2 s for 2,729 small files on the H100 machine, session 33) then overlaps the imports
+    and the env build. A fusion that XLA times before its entry is copied keeps XLA's own file
+    (``_write_new`` never overwrites), so an early compile is never served a half-written entry.
+    """
+    pool = ThreadPoolExecutor(1, thread_name_prefix="autotune-seed")
+    try:
+        return pool.submit(seed_autotune_cache, cache_dir, enabled=enabled, seeds_dir=seeds_dir)
+    finally:
+        pool.shutdown(wait=False)
 
 
 def _seed(cache_dir: Path | None, enabled: bool, seeds_dir: Path) -> SeedOutcome:

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from bar_policy.training import startup_breakdown as sb
-from bar_policy.training.autotune_seed import seed_autotune_cache
+from bar_policy.training.autotune_seed import seed_in_background
 from bar_policy.training.best import finish_best
 from bar_policy.training.config import TrainConfig, config_to_dict
 from bar_policy.training.distributed import init_distributed, local_default_devices, shutdown_distributed
@@ -194,7 +194,7 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
         partitioner = choose_partitioner()
         with timer.phase(sb.DISTRIBUTED):
             init_distributed(cfg)
-        timer.autotune_seed = seed = seed_autotune_cache(cache_dir, enabled=cfg.autotune_seed)
+        seeded = seed_in_background(cache_dir, enabled=cfg.autotune_seed)  # waited for before compiling
         import jax
 
         # Full float32 products unless asked otherwise (a TF32 gradient destabilised Playground's runs).
@@ -222,6 +222,7 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
         eval_env = None if eval_env is env else eval_env
     is_main = jax.process_index() == 0
     with timer.phase(sb.RUN_RECORD):
+        timer.autotune_seed = seed = seeded.result()
         cache_note = (
             f"compile cache: {cache_dir} (--no-compile-cache turns it off, --compile-cache-dir moves it)"
             if cache_dir
