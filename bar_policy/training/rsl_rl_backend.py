@@ -25,8 +25,12 @@ evaluations step envs with the same prior, and the exported file carries it in i
 ``identity`` head plus the prior); the parity gate's reference adds it in numpy.
 ``ppo.actor_warmup_iterations`` stays a brax-backend option.
 
-Start-up (``startup_breakdown``'s rows): the training and evaluation steps compile on worker threads
-(``startup.Compiler``) and training starts once the training step is ready. As in the brax backend, the
+Start-up (``startup_breakdown``'s rows): the envs' jax programs (train reset and step, eval reset, step
+and quality; ``rsl_rl_programs``) are traced, lowered and submitted to a ``startup.Compiler`` before this
+module (torch, rsl_rl, tensordict) is imported (``run`` calls ``prepare_rsl_rl`` first; a direct call
+without ``programs`` prepares them here), so the imports run while XLA compiles on worker threads. The
+training env's first reset waits for its program, the runner reads its observations, and training starts
+once the training step is ready. As in the brax backend, the
 step-0 evaluation (of the initial actor, copied before training) runs after the first iteration where the
 evaluation step is compiled, or before the first periodic evaluation, whichever comes first; the start-up
 report is printed and recorded after it.
@@ -65,14 +69,15 @@ from bar_policy.training.rsl_rl_policy import (
     mlp_policy_from_rsl_rl,
     torch_policy_reference,
 )
-from bar_policy.training.rsl_rl_prior import rsl_rl_prior, start_actor_at_prior
+from bar_policy.training.rsl_rl_prior import start_actor_at_prior
+from bar_policy.training.rsl_rl_programs import RslRlPrograms, check_rsl_rl_config, prepare_rsl_rl
 from bar_policy.training.rsl_rl_state import (
     load_module_state,
     load_optimizer_state,
     module_state,
     optimizer_state,
 )
-from bar_policy.training.startup import Compiler, StartupTimer
+from bar_policy.training.startup import StartupTimer
 from bar_policy.training.torch_bridge import COPIES, torch_device_for_jax
 
 __all__ = [
@@ -160,46 +165,44 @@ def train_rsl_rl(
     timer: StartupTimer | None = None,
     eval_env: Any | None = None,
     executable_cache: ExecutableCache | None = None,
+    programs: RslRlPrograms | None = None,
 ) -> RslRlTrainResult:
     """Train with rsl-rl-lib's PPO on ``env``; same arguments and outputs as ``train_brax``.
 
     ``eval_env``: the env the evaluations run (the task's held-out variant) on its nominal model, as brax's;
-    None: ``env`` with ``randomizer``.
+    None: ``env`` with ``randomizer``. ``programs``: the envs' jax programs already submitted
+    (``rsl_rl_programs.prepare_rsl_rl`` on the same arguments, as ``run`` does before importing this
+    module); None: prepared here (``wrap_fn``, ``randomizer``, ``eval_env``, ``executable_cache``).
     """
     from flax import serialization
     from rsl_rl.runners import OnPolicyRunner
 
-    if cfg.ppo.actor_warmup_iterations:
-        raise ValueError(
-            f"ppo.actor_warmup_iterations={cfg.ppo.actor_warmup_iterations} is a brax-backend option; the "
-            "rsl-rl backend's PPO has no critic warm-up (valid here: 0; or --backend brax)"
-        )
-    prior = rsl_rl_prior(env, cfg)  # refuses a prior the env does not serve, before any set-up
-    if wrap_fn is None:
-        from bar_policy.envs import wrap_for_brax_training as wrap_fn
+    check_rsl_rl_config(cfg)
     ppo = cfg.ppo
     t_start = time.monotonic()
+    timer = timer or StartupTimer()
+    if programs is None:
+        # The training and evaluation programs compile side by side (their traces and lowerings are the
+        # Compiler's TRACE and LOWER rows, taken out of this one).
+        with timer.phase(sb.RSL_PROGRAMS):
+            programs = prepare_rsl_rl(
+                env, cfg, wrap_fn=wrap_fn, randomizer=randomizer, eval_env=eval_env, timer=timer,
+                executable_cache=executable_cache,
+            )  # fmt: skip
+    compiler, prior = programs.compiler, programs.prior
     device = torch_device_for_jax() if cfg.rsl_rl.device == "auto" else cfg.rsl_rl.device
     torch.manual_seed(cfg.seed)
-    timer = timer or StartupTimer()
-    # The training and evaluation steps compile side by side (their traces and lowerings are the
-    # Compiler's TRACE and LOWER rows, taken out of the envs' row).
-    compiler = Compiler(timer, executable_cache=executable_cache)
-    with timer.phase(sb.RSL_ENVS):
-        # Both envs add the prior to the actor's actions. Our loop records its own sums on the device
-        # (take_stats); extras["log"] is for OnPolicyRunner.learn.
-        kw = {"wrap_fn": wrap_fn, "randomizer": randomizer, "device": device, "compiler": compiler,
-              "prior": prior, "log_metrics": False}  # fmt: skip
-        vec_env = RslRlVecEnv(env, ppo.num_envs, seed=cfg.seed, name="train step", **kw)
-        e_env, e_kw = (env, kw) if eval_env is None else (eval_env, {**kw, "randomizer": None})
-        eval_vec = RslRlVecEnv(
-            e_env, cfg.eval.num_eval_envs, seed=cfg.seed + 1, name="eval step", quality=True, **e_kw
-        )
     steps_per_env = ppo.steps_per_iteration // ppo.num_envs
     steps_per_iter = ppo.num_envs * steps_per_env
     total_iters = math.ceil(ppo.num_timesteps / steps_per_iter)
     env_steps = iteration = 0
     with timer.phase(sb.RSL_RUNNER):
+        # Both envs add the prior to the actor's actions. Our loop records its own sums on the device
+        # (take_stats); extras["log"] is for OnPolicyRunner.learn.
+        vec_env = RslRlVecEnv(programs=programs.train, device=device, log_metrics=False)
+        eval_vec = RslRlVecEnv(programs=programs.eval, device=device, log_metrics=False)
+        with timer.phase(sb.RSL_RESET):  # the runner reads the first observations
+            vec_env.get_observations()
         runner = OnPolicyRunner(vec_env, rsl_rl_train_cfg(cfg), log_dir=None, device=device)
         alg = runner.alg
         if prior is not None:

@@ -1,7 +1,9 @@
 """rsl-rl ``VecEnv`` over a batched MJX env: JAX steps under jit, tensors cross by DLPack (no host copies).
 
-The jax env is wrapped for training (batch, episode truncation, auto-reset, domain randomisation) exactly
-as for the brax backend, and ``reset``/``step`` are jitted once. Each ``step(actions)``:
+The jax side (the env wrapped for training exactly as for the brax backend, the jitted ``reset``, ``step``
+and quality reduction, the reset keys) is ``rsl_rl_programs.EnvPrograms``, torch-free, so that it can be
+built and its programs submitted to the compiler before torch is imported; this class is the torch side
+over it (built from one, or building its own). Each ``step(actions)``:
 
 1. turns the torch action tensor into a jax array with ``jax.dlpack.from_dlpack`` (zero copy, same device;
    jax's stream waits on torch's through an event, the host does not),
@@ -39,22 +41,17 @@ unchanged by it.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable
 from typing import Any
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
-from bar_policy.envs.base import eval_ratios
-from bar_policy.obs.action_prior import Prior, check_fits
-from bar_policy.training import eval_quality
-from bar_policy.training.parallel import AXIS
-from bar_policy.training.rsl_rl_prior import commanded_action
+from bar_policy.obs.action_prior import Prior
+from bar_policy.training.rsl_rl_programs import EnvPrograms
 from bar_policy.training.startup import Compiler
 from bar_policy.training.torch_bridge import jax_to_torch, torch_device_for_jax, torch_to_jax
 
@@ -65,15 +62,16 @@ class RslRlVecEnv(VecEnv):
     """A batch of ``num_envs`` copies of a ``bar_policy.envs`` env as an rsl-rl ``VecEnv``.
 
     Args:
-        env: the unwrapped jax env.
-        num_envs: batch size.
+        env: the unwrapped jax env (None with ``programs``).
+        num_envs: batch size (None with ``programs``).
         wrap_fn: ``wrap_for_brax_training(env, episode_length=, action_repeat=, randomization_fn=)``.
         randomizer: ``(model, rng) -> (model, in_axes)``, or None for the nominal model.
         seed: seed of the randomisation and of the resets.
         device: torch device; must be where jax's arrays live (``torch_device_for_jax()``).
-        compiler: compile the batched step ahead of time on this ``startup.Compiler``'s threads (as
-            ``name``), instead of at the first ``step``.
-        name: the step program's name in ``compiler``.
+        compiler: compile the batched reset, step (and quality reduction) ahead of time on this
+            ``startup.Compiler``'s threads (as ``<name> reset``, ``<name> step``, ``<name> quality``),
+            instead of at their first call.
+        name: the programs' name prefix in ``compiler``.
         log_metrics: put the env's per-step metrics in ``extras["log"]`` (``Metrics/<name>``); off for
             an evaluation env, whose steps no rsl-rl logger reads.
         quality: also measure the evaluation's safety and smoothness figures (``eval_quality``, as the
@@ -82,6 +80,11 @@ class RslRlVecEnv(VecEnv):
             num_envs x joints).
         prior: the action prior, or None: ``step``'s actions are then residuals added to ``prior(obs)``
             of the current observations (``commanded_action``).
+        programs: the env's jax side already built (``rsl_rl_programs.EnvPrograms``, e.g. submitted by
+            ``prepare_rsl_rl`` before torch was imported); ``env`` to ``prior`` are then not given.
+
+    The first reset runs when the state is first needed (``state``, ``get_observations``, ``step``), from
+    the keys drawn at construction; a ``reset_all`` before it replaces it.
 
     Observations are returned as ``TensorDict({"policy": obs})`` (shape ``(num_envs, obs)``); extras carry
     ``time_outs`` (truncations) for rsl-rl's bootstrapping.
@@ -94,126 +97,80 @@ class RslRlVecEnv(VecEnv):
 
     def __init__(
         self,
-        env: Any,
-        num_envs: int,
+        env: Any = None,
+        num_envs: int | None = None,
         *,
-        wrap_fn: Callable[..., Any],
+        wrap_fn: Callable[..., Any] | None = None,
         randomizer: Callable[..., Any] | None = None,
         seed: int = 0,
         device: str | None = None,
         compiler: Compiler | None = None,
-        name: str = "env step",
+        name: str = "env",
         log_metrics: bool = True,
         quality: bool = False,
         prior: Prior | None = None,
+        programs: EnvPrograms | None = None,
     ) -> None:
-        self.num_envs = int(num_envs)
-        self.task = env
+        if programs is None:
+            if env is None or num_envs is None or wrap_fn is None:
+                raise ValueError("RslRlVecEnv needs env, num_envs and wrap_fn, or programs")
+            programs = EnvPrograms(
+                env, num_envs, wrap_fn=wrap_fn, randomizer=randomizer, seed=seed, quality=quality,
+                prior=prior, compiler=compiler, name=name,
+            )  # fmt: skip
+        self.programs = programs
+        """The jax side: wrapped env, reset/step/quality programs, the reset keys."""
+        self.num_envs = programs.num_envs
+        self.task = programs.task
         """The unwrapped env (its ``eval_ratios`` define the evaluation)."""
-        self.num_actions = int(env.action_size)
-        self.num_obs = int(env.observation_size)
-        self.max_episode_length = int(env.episode_length)
+        self.num_actions = programs.num_actions
+        self.num_obs = programs.num_obs
+        self.max_episode_length = programs.max_episode_length
         self.device = device or torch_device_for_jax()
-        self.cfg = getattr(env, "config", {})
+        self.cfg = getattr(self.task, "config", {})
         self.log_metrics = log_metrics
-        self.quality = quality
-        if prior is not None:
-            check_fits(prior, self.num_obs, self.num_actions)
-        self.prior = prior
+        self.quality = programs.quality
+        self.prior = programs.prior
         """The action prior added to ``step``'s actions, or None."""
-        key = jax.random.PRNGKey(seed)
-        k_rand, self._key = jax.random.split(key)
-        rfn = None
-        if randomizer is not None:
-            rfn = functools.partial(randomizer, rng=jax.random.split(k_rand, self.num_envs))
-        self._env = wrap_fn(
-            env, episode_length=self.max_episode_length, action_repeat=1, randomization_fn=rfn
-        )
-        self._reset = jax.jit(self._reset_fn)
-        self._quality = jax.jit(self._quality_fn)
-        self.stats: dict[str, Any] = {}
-        self.state = self.reset_all()
-        step = jax.jit(self._step_fn)
-        self._step: Callable[..., Any] = step
-        if compiler is not None:
-            # Traced now, compiled on a worker thread: several envs' steps compile side by side.
-            actions = jax.ShapeDtypeStruct((self.num_envs, self.num_actions), jnp.float32)
-            compiler.submit(name, step, self.state, actions, self.stats)
-            self._step = lambda *args: compiler.get(name)(*args)
+        self._state: Any = None
+        self._stats: dict[str, Any] = {}
 
-    # -- jitted pure functions ---------------------------------------------------------------------
-    def _reset_fn(self, keys: jax.Array) -> tuple[Any, dict[str, Any]]:
-        state = self._env.reset(keys)
-        ratios = eval_ratios(self.task, state.metrics)  # a reset's metrics have the step's keys
-        zeros = jnp.zeros(self.num_envs)
-        stats = {
-            "reward": jnp.zeros(()),
-            "success": (jnp.zeros(()), jnp.zeros(())),
-            "alive": zeros + 1.0,
-            "return": zeros,
-            "ratios": {k: (zeros, zeros) for k in ratios},
-        }
-        if self.quality:
-            n = self.num_actions
-            stats["quality"] = eval_quality.init(self.num_envs, n)
-            stats["signals"] = jnp.zeros((self.max_episode_length, self.num_envs, n))
-            stats["t"] = jnp.zeros((), jnp.int32)
-        return state, stats
+    @property
+    def _step(self) -> Callable[..., Any]:
+        """The batched step (jitted, or the compiler's executable; exposed for tests)."""
+        return self.programs.step
 
-    def _step_fn(self, state: Any, actions: jax.Array, stats: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
-        stats_in = stats
-        actions = commanded_action(self.prior, state.obs, actions)  # the observation the actor saw
-        ns = self._env.step(state, actions)
-        ratios = eval_ratios(self.task, ns.metrics)
-        num, den = ratios["success_rate"]
-        alive = stats["alive"]
-        stats = {
-            "reward": stats["reward"] + ns.reward.sum(),
-            "success": (stats["success"][0] + num.sum(), stats["success"][1] + den.sum()),
-            "alive": alive * (1.0 - ns.done),
-            "return": stats["return"] + ns.reward * alive,
-            "ratios": {
-                k: (stats["ratios"][k][0] + n * alive, stats["ratios"][k][1] + d * alive)
-                for k, (n, d) in ratios.items()
-            },
-        }
-        if self.quality:  # as Learner.evaluate: the applied action's signals, before the step
-            t, task, f32 = stats_in["t"], self.task, lambda x: jnp.asarray(x, jnp.float32)
-            sig = jax.vmap(task.quality_signals)(state, actions)
-            robot = task.robot
-            limits = {"cap": f32(robot.torque_cap), "lower": f32(robot.lower), "upper": f32(robot.upper)}
-            terminated = ns.done * (1.0 - ns.info["truncation"])
-            first = t == 0
-            qc, _ = eval_quality.update(
-                stats_in["quality"], sig, alive, terminated, first, dt=task.dt, **limits
-            )
-            last = self.max_episode_length - 1
-            stats["quality"] = qc
-            stats["signals"] = stats_in["signals"].at[jnp.minimum(t, last)].set(sig["signal"])
-            stats["t"] = t + 1
-        return ns, stats
+    @property
+    def state(self) -> Any:
+        """The batched env state (the first reset runs here, when first needed)."""
+        if self._state is None:
+            self._set_reset(self.programs.first_keys)
+        return self._state
 
-    def _quality_fn(self, qc: dict[str, jax.Array], signals: jax.Array) -> dict[str, jax.Array]:
-        # eval_quality.finish reduces over the mesh axis: a vmap of size 1 names it (the sums are this
-        # device's). Chatter is measured over every tick of ``signals``: an evaluation steps all of them.
-        one = jax.tree.map(lambda x: x[None], (qc, signals))
-        out = jax.vmap(lambda q, s: eval_quality.finish(q, s, self.task.dt), axis_name=AXIS)(*one)
-        return jax.tree.map(lambda x: x[0], out)
+    @state.setter
+    def state(self, value: Any) -> None:
+        self._state = value
+
+    @property
+    def stats(self) -> dict[str, Any]:
+        """The device-side accumulators (see the class docstring)."""
+        if self._state is None:
+            self._set_reset(self.programs.first_keys)
+        return self._stats
+
+    @stats.setter
+    def stats(self, value: dict[str, Any]) -> None:
+        self._stats = value
+
+    def _set_reset(self, keys: jax.Array) -> None:
+        self._state, self._stats = self.programs.reset(keys)
+        self._fresh_stats = self._stats  # immutable device arrays: reused as the zero point
 
     # -- VecEnv -----------------------------------------------------------------------------------
     def reset_all(self, seed: int | None = None) -> Any:
         """Reset every env (fresh keys; ``seed`` picks them explicitly) and the accumulators."""
-        if seed is None:
-            self._key, k = jax.random.split(self._key)
-        else:
-            k = jax.random.PRNGKey(seed)
-        # Committed to jax's device (as the step's outputs are: its actions come from torch, committed):
-        # the step then sees one signature from the first call on (an uncommitted reset state compiled
-        # the jitted step a second time on the second call).
-        keys = jax.device_put(jax.random.split(k, self.num_envs), jax.local_devices()[0])
-        self.state, self.stats = self._reset(keys)
-        self._fresh_stats = self.stats  # immutable device arrays: reused as the zero point
-        return self.state
+        self._set_reset(self.programs.next_keys(seed))
+        return self._state
 
     def get_observations(self) -> TensorDict:
         """Current observations, ``{"policy": (num_envs, obs)}``."""
@@ -264,7 +221,7 @@ class RslRlVecEnv(VecEnv):
         dev = dict(self.stats)
         if self.quality:
             dev.pop("t")
-            dev["quality"] = self._quality(dev["quality"], dev.pop("signals"))
+            dev["quality"] = self.programs.finish_quality(dev["quality"], dev.pop("signals"))
         host = jax.device_get(dev)
         self.stats = self._fresh_stats
         out = {

@@ -25,19 +25,24 @@ during training, before the same [-1, 1] clip (the runtime's).
 As brax does (``learner.PRIOR_INIT_SCALE``), a fresh actor's output layer starts at 0.01 of its init with a
 zero bias (``start_actor_at_prior``), so the first policy's mean is within a few 1e-3 of the prior; and
 ``network.prior_noise_std``, when set, is the initial action noise std (``rsl_rl_config.rsl_rl_train_cfg``).
+
+Torch-free at import (torch only inside ``start_actor_at_prior``): ``rsl_rl_programs`` builds the envs'
+programs with ``rsl_rl_prior`` and ``commanded_action`` before torch is imported.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
-import torch
 
 from bar_policy.obs.action_prior import Prior, check_fits
 from bar_policy.training.brax_programs import action_prior
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.learner import PRIOR_INIT_SCALE
+
+if TYPE_CHECKING:
+    import torch
 
 __all__ = ["commanded_action", "rsl_rl_prior", "start_actor_at_prior"]
 
@@ -79,6 +84,8 @@ def start_actor_at_prior(actor: torch.nn.Module, scale: float = PRIOR_INIT_SCALE
     With a prior, the first mean is then ``prior(obs)`` plus a few 1e-3 rather than the prior drowned in a
     random MLP's output (brax's ``make_networks`` does the same to its loc half).
     """
+    import torch  # here, not at the top: ``commanded_action`` and ``rsl_rl_prior`` serve torch-free code
+
     last = [m for m in actor.mlp if isinstance(m, torch.nn.Linear)][-1]
     with torch.no_grad():
         last.weight.mul_(scale)

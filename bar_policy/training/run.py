@@ -206,8 +206,8 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
 
         if cfg.backend == "brax":
             from bar_policy.training.brax_ppo import train_brax
-        else:
-            from bar_policy.training.rsl_rl_backend import train_rsl_rl
+        else:  # torch-free: rsl_rl_backend (torch) is imported once its programs are compiling
+            from bar_policy.training.rsl_rl_programs import prepare_rsl_rl
 
     # The env's model build (bar_policy._phases.MODEL_BUILD) is its own row, taken out of this one.
     with timer.active(), timer.phase(sb.ENV_BUILD):
@@ -255,17 +255,18 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
             executable_cache=exec_cache,
         )
     else:
+        # The jax programs first (traced, lowered, compiling on worker threads), then torch's imports.
+        with timer.phase(sb.RSL_PROGRAMS):
+            programs = prepare_rsl_rl(
+                env, cfg, wrap_fn=envs.wrap_for_brax_training, randomizer=randomizer, eval_env=eval_env,
+                timer=timer, executable_cache=exec_cache,
+            )  # fmt: skip
+        with timer.phase(sb.RSL_IMPORTS):
+            from bar_policy.training.rsl_rl_backend import train_rsl_rl
         result = train_rsl_rl(
-            env,
-            cfg,
-            logger,
-            randomizer=randomizer,
-            checkpoint_dir=ckpt_dir,
-            config_record=record,
-            timer=timer,
-            eval_env=eval_env,
-            executable_cache=exec_cache,
-        )
+            env, cfg, logger, randomizer=randomizer, checkpoint_dir=ckpt_dir, config_record=record,
+            timer=timer, eval_env=eval_env, programs=programs,
+        )  # fmt: skip
 
     # Every process evaluates (the brax evaluation is one program over all devices); process 0 reports.
     final = result.final_evaluation(cfg.final_eval_envs, seed=cfg.seed + 10_000)

@@ -47,11 +47,17 @@ FIRST_EPOCH = "first epoch"
 MORE_EPOCHS = "later epochs before the evaluation was compiled"
 FIRST_EVAL = "first evaluation (step 0, with its wait)"
 OTHER = "other (between the named phases)"
-RSL_ENVS = "rsl-rl envs (resets compiled on the main thread, steps traced)"
-RSL_RUNNER = "rsl-rl runner (OnPolicyRunner: actor, critic, storage; a resume's load)"
-"""The rsl-rl backend's own rows (its record holds ``PHASES`` too: ``WAIT`` is its wait for the training step,
-``FIRST_EPOCH`` its first iteration, ``MORE_EPOCHS`` the iterations before the evaluation step was compiled,
-``FIRST_EVAL`` its step-0 evaluation)."""
+RSL_PROGRAMS = "rsl-rl programs (envs wrapped; resets, steps, quality submitted)"
+RSL_IMPORTS = "torch, rsl-rl imports (overlapping the compiles)"
+RSL_RESET = "wait for the train reset (compile or cache load) and its run"
+RSL_RUNNER = "rsl-rl runner (VecEnv adapters, OnPolicyRunner: actor, critic, storage; a resume's load)"
+"""The rsl-rl backend's own rows, in the order they happen: its jax programs are traced, lowered (the
+``TRACE`` and ``LOWER`` rows, taken out of ``RSL_PROGRAMS``) and submitted before torch, rsl_rl and
+tensordict are imported (``RSL_IMPORTS``), which then runs while XLA compiles on the workers; the training
+env's first reset waits for its program (``RSL_RESET``, taken out of ``RSL_RUNNER``: the runner reads the
+first observations). Its record holds ``PHASES`` too: ``WAIT`` is its wait for the training step,
+``FIRST_EPOCH`` its first iteration, ``MORE_EPOCHS`` the iterations before the evaluation step was
+compiled, ``FIRST_EVAL`` its step-0 evaluation."""
 
 PHASES: tuple[str, ...] = (
     BEFORE_RUN,
@@ -74,9 +80,12 @@ PHASES: tuple[str, ...] = (
 
 _ORDER: tuple[str, ...] = (
     *PHASES[: PHASES.index(TRACE)],
-    RSL_ENVS,
+    RSL_PROGRAMS,
+    *PHASES[PHASES.index(TRACE) : PHASES.index(WAIT)],
+    RSL_IMPORTS,
+    RSL_RESET,
     RSL_RUNNER,
-    *PHASES[PHASES.index(TRACE) :],
+    *PHASES[PHASES.index(WAIT) :],
 )
 """Print order of every known row; a backend's rows that are not in it go after them, before ``OTHER``."""
 
@@ -186,8 +195,9 @@ class StartupTimer:
         """The JSON record (also kept as ``report``): origin, totals, every phase, programs, compile counts.
 
         ``phases`` holds every name of ``PHASES`` (0.0 when it did not happen) and any other phase recorded
-        (the rsl-rl backend's ``RSL_ENVS`` and ``RSL_RUNNER``, printed after ``PROGRAMS``; unknown ones
-        after every known row), ``OTHER`` last: the total less every other phase.
+        (the rsl-rl backend's rows, printed where they happen: ``RSL_PROGRAMS`` before ``TRACE``, the
+        others before ``WAIT``; unknown ones after every known row), ``OTHER`` last: the total less every
+        other phase.
 
         Args:
             first_epoch_end_s: seconds from the origin to the end of the first epoch.
@@ -231,7 +241,8 @@ def _table(rec: dict[str, Any]) -> Iterator[str]:
         yield f"    {k:<{width}}  {v:7.2f} s"
     if rec["programs"]:
         yield "  programs (compiles run on worker threads, overlapping each other and the rows above):"
-        head = f"{'program':<10} {'traced on':<9} {'trace':>7} {'lower':>7} {'compile':>8}"
+        w = max(10, *map(len, rec["programs"]))
+        head = f"{'program':<{w}} {'traced on':<9} {'trace':>7} {'lower':>7} {'compile':>8}"
         yield f"    {head}  persistent cache; executable cache"
         for name, p in rec["programs"].items():
             load = f" ({p['cache_load_s']:.2f} s load)" if p["cache"] == "hit" else ""
@@ -239,7 +250,7 @@ def _table(rec: dict[str, Any]) -> Iterator[str]:
             if exe == "hit":
                 load, exe = f" ({p.get('exec_load_s', 0.0):.2f} s load)", "trace, lower, compile skipped"
             yield (
-                f"    {name:<10} {p['thread']:<9} {p['trace_s']:6.2f}s {p['lower_s']:6.2f}s "
+                f"    {name:<{w}} {p['thread']:<9} {p['trace_s']:6.2f}s {p['lower_s']:6.2f}s "
                 f"{p['compile_s']:7.2f}s  {p['cache']}{load}; {exe}"
             )
     c = rec["compiles"]

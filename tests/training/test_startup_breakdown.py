@@ -150,16 +150,30 @@ def test_an_rsl_rl_run_records_its_startup_breakdown(rsl_run):
     assert {k: logged[k] for k in rec} == rec
     phases = rec["phases"]
     assert set(PHASES) <= set(phases) and all(v >= 0 for v in phases.values())
-    # Where an rsl-rl start goes: its envs (resets compiled, both steps traced and lowered: the TRACE and
-    # LOWER rows, taken out of the envs' row), its runner, the wait for the training step, the first
-    # iteration (the FIRST_EPOCH row), and the step-0 evaluation, after it. No brax program is built.
-    for name in (sb.RSL_ENVS, sb.RSL_RUNNER, sb.TRACE, sb.LOWER, sb.FIRST_EPOCH, sb.FIRST_EVAL):
+    # Where an rsl-rl start goes: its jax programs (both envs' resets and steps and the evaluation's quality
+    # reduction, traced and lowered on this thread: the TRACE and LOWER rows, taken out of the programs
+    # row), then torch's imports (done before in a test process: the row is there, maybe 0 ms), the wait
+    # for the training reset and its run, the runner, the first iteration (the FIRST_EPOCH row), and the
+    # step-0 evaluation, after it. No brax program is built.
+    for name in (
+        sb.RSL_PROGRAMS,
+        sb.RSL_RESET,
+        sb.RSL_RUNNER,
+        sb.TRACE,
+        sb.LOWER,
+        sb.FIRST_EPOCH,
+        sb.FIRST_EVAL,
+    ):
         assert phases[name] > 0, name
-    assert phases[sb.PROGRAMS] == 0.0
-    assert set(rec["programs"]) == {"train step", "eval step"}
+    assert sb.RSL_IMPORTS in phases and phases[sb.PROGRAMS] == 0.0
+    progs = rec["programs"]
+    assert set(progs) == {"train reset", "train step", "eval reset", "eval step", "eval quality"}
+    assert all(p["thread"] == "main" for p in progs.values())
+    assert sum(p["trace_s"] for p in progs.values()) == pytest.approx(phases[sb.TRACE], abs=ROUNDING_S)
     order = list(logged["phases"])  # metrics.jsonl keeps the print order (final_eval.json sorts its keys)
-    assert order.index(sb.PROGRAMS) < order.index(sb.RSL_ENVS) < order.index(sb.RSL_RUNNER)
-    assert order.index(sb.RSL_RUNNER) < order.index(sb.TRACE) and order[-1] == sb.OTHER
+    happened = [sb.PROGRAMS, sb.RSL_PROGRAMS, sb.TRACE, sb.LOWER, sb.RSL_IMPORTS, sb.RSL_RESET, sb.RSL_RUNNER]
+    assert [order.index(k) for k in happened] == sorted(order.index(k) for k in happened)
+    assert order.index(sb.RSL_RUNNER) < order.index(sb.WAIT) and order[-1] == sb.OTHER
     # The rows add up to the total: each row is rounded to 1 ms (ROUNDING_S allows a few ms over all of
     # them). The report is finished after the step-0 evaluation, which follows the first iteration.
     assert sum(phases.values()) == pytest.approx(rec["total_s"], abs=ROUNDING_S)
