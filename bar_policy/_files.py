@@ -1,7 +1,9 @@
-"""File helpers shared by the exporter and the checkpoint writer, and the error type of malformed input."""
+"""File helpers shared by the exporter, the checkpoint writer and the caches; the error type of bad input."""
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import json
 import math
 import os
@@ -9,6 +11,23 @@ import tempfile
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
+
+_PACKAGE_ROOT = Path(__file__).resolve().parent
+
+
+@functools.cache
+def package_hash() -> str:
+    """SHA-256 of every file under ``bar_policy/`` (paths and contents; ``__pycache__`` left out).
+
+    The content the caches key on (``training.executable_key``, ``_array_cache``): any edit to the package's
+    code, model files or shipped data changes it. Computed once per process (8 ms here).
+    """
+    h = hashlib.sha256()
+    for p in sorted(_PACKAGE_ROOT.rglob("*")):
+        if p.is_file() and "__pycache__" not in p.parts and p.suffix != ".pyc":
+            h.update(p.relative_to(_PACKAGE_ROOT).as_posix().encode() + b"\0")
+            h.update(hashlib.sha256(p.read_bytes()).digest())
+    return h.hexdigest()
 
 
 def write_atomic(path: Path, data: bytes) -> None:

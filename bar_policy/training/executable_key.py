@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from bar_policy._files import package_hash
+
 __all__ = ["library_versions", "package_hash", "platform", "runtime_flags", "signature", "source_hash"]
 
 LIBRARIES = (
@@ -41,17 +43,6 @@ LIBRARIES = (
 """Distributions whose version is part of the key (None when not installed)."""
 
 _PACKAGE_ROOT = Path(__file__).resolve().parent.parent
-
-
-@functools.cache
-def package_hash() -> str:
-    """SHA-256 of every file under ``bar_policy/`` (paths and contents; ``__pycache__`` left out)."""
-    h = hashlib.sha256()
-    for p in sorted(_PACKAGE_ROOT.rglob("*")):
-        if p.is_file() and "__pycache__" not in p.parts and p.suffix != ".pyc":
-            h.update(p.relative_to(_PACKAGE_ROOT).as_posix().encode() + b"\0")
-            h.update(hashlib.sha256(p.read_bytes()).digest())
-    return h.hexdigest()
 
 
 def source_hash(obj: Any) -> str | None:

@@ -57,6 +57,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bar_policy._array_cache import cached_arrays
 from bar_policy.obs.action_prior import BlendPrior
 from bar_policy.obs.manager import ObservationManager
 from bar_policy.robot.constants import load_robot
@@ -187,10 +188,21 @@ def key_poses(
 ) -> KeyPoses:
     """The hover and press commands of every key of ``keyboard`` (see the module docstring).
 
+    The IK takes about 11 s, so the result is kept on disk (``bar_policy._array_cache``), keyed on the
+    keyboard, the mode, the prior config and the package's files; a rerun loads it bit for bit.
+
     Raises:
         ValueError: IK finds no valid pose (joint limits, self-contact, the keyboard's case) for a key.
     """
     pc = config or KeyPosePriorConfig()
+    parts = {"keyboard": repr(keyboard), "mode": mode, "config": repr(pc)}
+    solve = lambda: vars(_solve_key_poses(keyboard, mode, pc))  # noqa: E731
+    arrays = cached_arrays("piano_key_poses", parts, ("hover", "press", "hand"), solve)
+    return KeyPoses(hover=arrays["hover"], press=arrays["press"], hand=arrays["hand"])
+
+
+def _solve_key_poses(keyboard: KeyboardConfig, mode: str, pc: KeyPosePriorConfig) -> KeyPoses:
+    """``key_poses`` without the cache: IK for every key, outward from the keys under the fingertips."""
     checker = ReachChecker(keyboard)
     keys = key_table(keyboard)
     robot = load_robot(mode)
