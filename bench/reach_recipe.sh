@@ -1,0 +1,78 @@
+#!/usr/bin/env bash
+# Reach recipes for issue 19's time to a policy: named variants of the gpu preset side by side, one per GPU,
+# each a cold run (its own empty compile cache; the shipped autotune seeds apply on an H100) with an
+# evaluation every 1.15M env steps (--eval.num-evals 41), so that the env steps to 95 % are resolved finely.
+# Run from the repository root after the pip prefix of shared/gpu/README.md.
+#
+#   GPUS="0 1 2 3" bash bench/reach_recipe.sh base envs8192 lr1e-3 upd4   (~3 min, nvidia-h100-x4)
+#   bash bench/reach_recipe.sh base                                       (~3 min, one GPU)
+#   bash bench/reach_recipe.sh smoke                                      CPU check of the script
+#
+# Why: a warm start spends about 12 s before learning (imports, model, executable loads) and 3 s per
+# evaluation; the rest is env steps to 95 % over the training speed (session 33: 4.26M at 145k/s, 52 s
+# warm). A 20 s warm start needs 95 % within about one epoch of learning. Each variant is judged by its
+# env steps at 95 % and its steady env steps/s (bench/session_summary.py's table, summary.md in $OUT).
+#
+# Variants (on top of the gpu preset):
+#   base       the preset                          envs8192  8192 envs, batch_size 1024 (2x the data per iteration)
+#   lr1e-3     learning rate 1e-3                  upd4      4 passes over each batch instead of 8
+#   mb8        8 minibatches of 1024 (fewer, larger SGD steps)
+#   unroll20   20-step unrolls (2x the data per iteration)
+# EXTRA="..." adds arguments to every run; MINUTES (default 2.2) is each run's budget from process start.
+set -u
+OUT=${OUT:-/tmp/reach_recipe_out}
+WORK=${WORK:-/tmp/reach_recipe}
+mkdir -p "$OUT" "$WORK"
+export PYTHONUNBUFFERED=1
+RUNS=$WORK/runs
+T0=$(date +%s)
+stamp() { echo "[$(( $(date +%s) - T0 )) s] $*"; }
+
+declare -A VARIANT=(
+  [base]=""
+  [envs8192]="--ppo.num-envs 8192 --ppo.batch-size 1024"
+  [lr1e-3]="--ppo.learning-rate 1e-3"
+  [upd4]="--ppo.num-updates-per-batch 4"
+  [mb8]="--ppo.num-minibatches 8 --ppo.batch-size 1024"
+  [unroll20]="--ppo.unroll-length 20"
+)
+MINUTES=${MINUTES:-2.2}
+SIZE="--eval.num-evals 41 --final-eval-envs 1024 --no-export-onnx"
+names=("$@")
+if [ "${1:-smoke}" = smoke ]; then
+  export JAX_PLATFORMS=cpu
+  SIZE="--preset tiny --ppo.num-timesteps 1024 --final-eval-envs 16 --no-export-onnx"
+  MINUTES=0
+  names=(base)
+fi
+for v in "${names[@]}"; do
+  [ -n "${VARIANT[$v]+x}" ] || { echo "unknown variant $v (${!VARIANT[*]}, or smoke)"; exit 2; }
+done
+
+run_one() {  # run_one NAME EXTRA...  (GPU=<index> pins it to one card)
+  local name=$1; shift
+  stamp "start $name (GPU ${GPU:-all}): $*"
+  local pin=""
+  [ -n "${GPU:-}" ] && pin="CUDA_VISIBLE_DEVICES=$GPU"
+  # shellcheck disable=SC2086
+  env $pin timeout -k 5 "${RUN_TIMEOUT:-240}" python3 train/ppo.py --run-name "$name" --runs-dir "$RUNS" \
+    --compile-cache-dir "$WORK/cache_$name" --max-minutes "$MINUTES" $SIZE "$@" ${EXTRA:-} > "$WORK/$name.log" 2>&1
+  stamp "end $name: exit $?"
+}
+
+rm -rf "$WORK"/cache_*
+read -r -a gpus <<< "${GPUS:-}"
+i=0
+for v in "${names[@]}"; do
+  # shellcheck disable=SC2086
+  GPU=${gpus[$i]:-} run_one "$v" ${VARIANT[$v]} &
+  i=$((i + 1))
+  sleep 2
+done
+wait
+
+tar -czf "$OUT/reach_recipe.tgz" -C "$WORK" --exclude='*.msgpack' --exclude='tb' --exclude='cache_*' . 2>/dev/null
+runs=()
+for v in "${names[@]}"; do runs+=("$RUNS/$v"); done
+python3 bench/session_summary.py "${runs[@]}" --out "$OUT/summary.md"
+stamp done
