@@ -18,7 +18,13 @@
 #                      empty cache without the shipped seed, then bench/autotune_seed.py packs that cache's
 #                      autotune results into $OUT (<gpu>-jaxlib-<v>-<preset>.tar.gz/.json: copy both to
 #                      bar_policy/training/autotune/)
-#   smoke             : CPU logic check of startup and rsl with tiny sizes (not for the GPU)
+#   loadflags (~6 min): what XLA flags do to a warm start's executable loads: a cold and a warm run on XLA's
+#                      defaults, then a cold and a warm run with XLA_FLAGS=$LOAD_FLAGS (default
+#                      --xla_gpu_experimental_aot_compiled_thunks=true: the serialised executable holds its
+#                      thunks, so a load need not regenerate them), each pair on its own empty cache; flags
+#                      XLA refuses are left out, as in flags
+#   smoke             : CPU logic check of startup and rsl with tiny sizes (not for the GPU); smoke-loadflags:
+#                      the same for loadflags
 #
 # Every training run is `python3 train/ppo.py` with the default (gpu) preset, a wall-clock budget
 # (--max-minutes, from process start) and no ONNX export; time to 95 % is counted from process start.
@@ -40,7 +46,7 @@ CACHE=$WORK/jaxcache
 RUNS=$WORK/runs
 SMOKE=""
 TS=1  # timeout scale: a CPU compiles the same programs several times slower
-if [ "$PART" = smoke ]; then
+if [ "$PART" = smoke ] || [ "${PART#smoke-}" != "$PART" ]; then  # smoke-<part>: one part, tiny sizes
   export JAX_PLATFORMS=cpu
   SMOKE="--preset tiny --ppo.num-timesteps 2048 --final-eval-envs 16"
   TS=6
@@ -125,6 +131,26 @@ flags() {
   finish flags "$RUNS/cold_base" "$RUNS/cold_flags" --append "$WORK/flags.md" "$WORK/rsl_profile.md"
 }
 
+loadflags() {
+  local par="" f
+  for f in ${LOAD_FLAGS:---xla_gpu_experimental_aot_compiled_thunks=true}; do
+    if XLA_FLAGS="$f" python3 -c "import jax.numpy as n; n.ones(2).block_until_ready()" > /dev/null 2>&1; then
+      par="$par $f"
+    else
+      stamp "XLA refuses $f: left out"
+    fi
+  done
+  local runs=("$RUNS/lf_base_cold" "$RUNS/lf_base_warm" "$RUNS/lf_flags_cold" "$RUNS/lf_flags_warm")
+  rm -rf "$WORK/jaxcache_lfb" "$WORK/jaxcache_lff"
+  ppo lf_base_cold 200 --compile-cache-dir "$WORK/jaxcache_lfb" --max-minutes "${COLD_MIN:-1.3}"
+  ppo lf_base_warm 120 --compile-cache-dir "$WORK/jaxcache_lfb" --max-minutes "${WARM_MIN:-0.8}"
+  finish loadflags "${runs[@]}" > /dev/null
+  XLA_FLAGS="${par# }" ppo lf_flags_cold 200 --compile-cache-dir "$WORK/jaxcache_lff" --max-minutes "${COLD_MIN:-1.3}"
+  XLA_FLAGS="${par# }" ppo lf_flags_warm 120 --compile-cache-dir "$WORK/jaxcache_lff" --max-minutes "${WARM_MIN:-0.8}"
+  echo "XLA_FLAGS=${par# } (lf_flags_*; lf_base_*: none)" > "$WORK/loadflags.md"
+  finish loadflags "${runs[@]}" --append "$WORK/loadflags.md"
+}
+
 seeds() {
   local p name
   name=$(python3 -c "import re, jax, jaxlib
@@ -154,7 +180,9 @@ case "$PART" in
   startup) startup ;;
   rsl) rsl ;;
   flags) flags ;;
+  loadflags) loadflags ;;
   seeds) seeds ;;
   smoke) COLD_MIN=8 WARM_MIN=8 startup; RSL_MIN=0.5 RSL_PRESET=tiny rsl ;;
-  *) echo "unknown part $PART; parts: startup, rsl, flags, seeds, smoke"; exit 2 ;;
+  smoke-loadflags) COLD_MIN=8 WARM_MIN=8 loadflags ;;
+  *) echo "unknown part $PART; parts: startup, rsl, flags, loadflags, seeds, smoke"; exit 2 ;;
 esac
