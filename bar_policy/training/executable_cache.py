@@ -45,6 +45,7 @@ import json
 import logging
 import os
 import pickle
+import threading
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -96,6 +97,7 @@ class ExecutableCache:
         self.rejected: set[str] = set()
         """Keys whose entry was bad and deleted (in this process)."""
         self._loaded: list[str] = []
+        self._lock = threading.Lock()
         self._inflight = self.directory / f"inflight-{os.getpid()}.json"
         self._ban_dead_processes_loads()
 
@@ -118,6 +120,18 @@ class ExecutableCache:
                         "deleted, never stored again", pid, key,
                     )  # fmt: skip
             record.unlink(missing_ok=True)
+
+    def _record_loaded(self, key: str) -> None:
+        """Add ``key`` to this process's in-flight record (until ``confirm``, a crash bans it).
+
+        The crash guard of jaxlib 0.10.2's CPU loads (docs/startup.md). Programs load on several threads
+        (the evaluation's on a worker), so the list and its file are updated under a lock.
+        """
+        with self._lock:  # one writer at a time: a record written from a stale list would lose a key
+            if not self._loaded:  # an exception or Ctrl-C after loading is not the program's fault
+                atexit.register(self.confirm)
+            self._loaded.append(key)
+            write_atomic(self._inflight, json.dumps(self._loaded).encode())
 
     def confirm(self) -> None:
         """The loaded programs ran (the first epoch and evaluation): drop this process's in-flight record."""
@@ -157,10 +171,7 @@ class ExecutableCache:
             _init_lazy_kernels()
             compiled = deserialize_and_load(entry["executable"], entry["in_tree"], entry["out_tree"])
             os.utime(path)  # recently used: evicted last
-            if not self._loaded:  # an exception or Ctrl-C after loading is not the program's fault
-                atexit.register(self.confirm)
-            self._loaded.append(key)  # until confirm(): a crash bans it (jaxlib 0.10.2 CPU, docs/startup.md)
-            write_atomic(self._inflight, json.dumps(self._loaded).encode())
+            self._record_loaded(key)
             return compiled
         except Exception as e:  # any failure means: compile afresh
             _log.warning(
