@@ -144,7 +144,7 @@ def train_brax(
     compiler = Compiler(timer, executable_cache=executable_cache)
     reset_lowered = compiler.submit("reset", programs.reset, key_abs, key_abs)
     envs_abs = dp.abstract(reset_lowered.out_info, sharded=True)
-    compiler.submit("epoch", programs.epoch, ts_abs, envs_abs, key_abs)
+    compiler.submit("epoch", programs.epoch, ts_abs, envs_abs, key_abs, load_in_background=True)
     compiler.submit("init", programs.init, key_abs)
     compiler.submit("evaluate", programs.evaluate, _policy_params(ts_abs), key_abs, key_abs, background=True)
 

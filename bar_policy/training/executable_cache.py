@@ -157,6 +157,10 @@ class ExecutableCache:
     def _path(self, key: str) -> Path:
         return self.directory / f"{key}.bin"
 
+    def has(self, key: str) -> bool:
+        """Whether an entry is stored under ``key`` (``load`` may still find it unusable)."""
+        return self._path(key).exists()
+
     def load(self, key: str, name: str) -> Any | None:
         """The ``jax.stages.Compiled`` stored under ``key``, or None (absent, or bad: logged, deleted)."""
         path = self._path(key)

@@ -127,7 +127,7 @@ class EnvPrograms:
             out.out_info,
         )
         actions = jax.ShapeDtypeStruct((self.num_envs, self.num_actions), jnp.float32)
-        compiler.submit(step_name, self.step_jit, state, actions, stats)
+        compiler.submit(step_name, self.step_jit, state, actions, stats, load_in_background=True)
         self.reset = lambda *args: compiler.get(reset_name)(*args)
         self.step = lambda *args: compiler.get(step_name)(*args)
         if self.quality:

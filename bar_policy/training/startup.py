@@ -207,20 +207,33 @@ class Compiler:
         self._futures: dict[str, Future] = {}
         self._stats = CompileStats.get()
 
-    def submit(self, name: str, jitted: Callable[..., Any], *args: Any, background: bool = False) -> Any:
+    def submit(
+        self,
+        name: str,
+        jitted: Callable[..., Any],
+        *args: Any,
+        background: bool = False,
+        load_in_background: bool = False,
+    ) -> Any:
         """Trace and lower now, compile in the background; returns the ``Lowered`` (its ``out_info``).
 
         With ``background=True`` the trace runs on the worker too and None is returned: for a program
         nothing waits on soon (the evaluation), whose trace then overlaps the first epochs instead of
         delaying them. Tracing holds the GIL, so submit it after the programs this thread traces next.
         On an executable-cache hit the loaded ``Compiled`` is returned instead (it has ``out_info`` too).
+        With ``load_in_background=True`` a stored program is loaded on a worker (None is returned, as with
+        ``background``; an unusable entry is then traced and compiled there) while a program to compile is
+        still traced here: for a program whose result the caller does not read (a warm start's epoch or
+        rsl-rl step, whose seconds of loading then overlap what this thread does next).
         """
         from bar_policy.training.startup_breakdown import EXEC_LOAD, LOWER, TRACE
 
-        times = self.timer.program(name)
-        times.thread = "worker" if background else "main"
         cache = self.executable_cache
         key, inputs = cache.key(name, jitted, args) if cache is not None else ("", {})
+        if load_in_background and cache is not None and cache.has(key):
+            background = True
+        times = self.timer.program(name)
+        times.thread = "worker" if background else "main"
 
         def load() -> Any:
             t = time.monotonic()

@@ -94,6 +94,27 @@ def test_same_key_hits_without_tracing_bit_for_bit(tmp_path):
     assert any("exec cache hit" in line and "trace, lower, compile skipped" in line for line in lines)
 
 
+def test_load_in_background_loads_a_hit_on_a_worker_and_traces_a_miss_here(tmp_path):
+    """``load_in_background``: a stored program loads on a worker (``submit`` returns at once, None); one
+    to compile is still traced on the calling thread (its trace holds the GIL either way)."""
+    toy = Toy()
+    fresh, _ = _run(None, toy)
+    cache = ExecutableCache(tmp_path, CONTEXT)
+    for expected_thread, expected_exe, traces in (("main", "stored", 2), ("worker", "hit", 2)):
+        jax.clear_caches()
+        timer = StartupTimer()
+        compiler = Compiler(timer, executable_cache=cache)
+        returned = compiler.submit("toy", jax.jit(toy.program), X, load_in_background=True)
+        out = jax.tree.map(np.asarray, compiler.get("toy")(X))
+        compiler.close()
+        times = timer.programs["toy"]
+        assert (times.thread, times.executable, toy.traces) == (expected_thread, expected_exe, traces)
+        assert (returned is None) == (expected_thread == "worker")
+        for k in fresh:
+            np.testing.assert_array_equal(out[k], fresh[k])
+        cache = ExecutableCache(tmp_path, dict(CONTEXT))  # a second process's view of the same store
+
+
 def test_a_changed_config_is_not_served_the_stale_program(tmp_path):
     first, _ = _run(ExecutableCache(tmp_path, CONTEXT), Toy(0.3))
     changed = {**CONTEXT, "env": {"gain": 0.6}}
