@@ -45,9 +45,9 @@ if [ "${1:-smoke}" = smoke ]; then
   MINUTES=0
   names=(preset)
 fi
-for v in "${names[@]}"; do
-  [ -n "${VARIANT[$v]+x}" ] || { echo "unknown variant $v (${!VARIANT[*]}, or smoke)"; exit 2; }
-done
+# shellcheck source=bench/recipe_lib.sh
+source "$(dirname "$0")/recipe_lib.sh"
+check_variants "${names[@]}"
 
 run_one() {  # run_one NAME EXTRA...  (GPU=<index> pins it to one card)
   local name=$1; shift
@@ -62,15 +62,7 @@ run_one() {  # run_one NAME EXTRA...  (GPU=<index> pins it to one card)
   (cd "$RUNS" && tar czf "$OUT/$name.tgz" --exclude=checkpoints --exclude=tb "$name")
 }
 
-read -r -a gpus <<< "${GPUS:-}"
-i=0
-for v in "${names[@]}"; do
-  # shellcheck disable=SC2086
-  GPU=${gpus[$i]:-} run_one "$v" ${VARIANT[$v]} &
-  i=$((i + 1))
-  sleep 2
-done
-wait
+run_variants "${names[@]}"
 
 python3 bench/recipe_summary.py "$RUNS" > "$OUT/summary.md" --keys f1 precision recall \
   quality/completion_pct quality/cap_share_pct quality/chatter_max_mrad --best f1

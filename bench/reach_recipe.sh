@@ -45,9 +45,9 @@ if [ "${1:-smoke}" = smoke ]; then
   MINUTES=0
   names=(base)
 fi
-for v in "${names[@]}"; do
-  [ -n "${VARIANT[$v]+x}" ] || { echo "unknown variant $v (${!VARIANT[*]}, or smoke)"; exit 2; }
-done
+# shellcheck source=bench/recipe_lib.sh
+source "$(dirname "$0")/recipe_lib.sh"
+check_variants "${names[@]}"
 
 run_one() {  # run_one NAME EXTRA...  (GPU=<index> pins it to one card)
   local name=$1; shift
@@ -60,16 +60,8 @@ run_one() {  # run_one NAME EXTRA...  (GPU=<index> pins it to one card)
   stamp "end $name: exit $?"
 }
 
-rm -rf "$WORK"/cache_*
-read -r -a gpus <<< "${GPUS:-}"
-i=0
-for v in "${names[@]}"; do
-  # shellcheck disable=SC2086
-  GPU=${gpus[$i]:-} run_one "$v" ${VARIANT[$v]} &
-  i=$((i + 1))
-  sleep 2
-done
-wait
+rm -rf "$WORK"/cache_* "$RUNS"  # a rerun starts afresh (a used run name is refused)
+run_variants "${names[@]}"
 
 tar -czf "$OUT/reach_recipe.tgz" -C "$WORK" --exclude='*.msgpack' --exclude='tb' --exclude='cache_*' . 2>/dev/null
 runs=()
