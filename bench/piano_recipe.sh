@@ -19,13 +19,9 @@
 # and the emulated bus: `bar-deploy eval --policy <run>/policy.onnx` and
 # `python bench/piano_prior.py --out <run>/policy.onnx --no-write --eval sim bus`.
 set -u
-OUT=${OUT:-/tmp/piano_recipe_out}
-WORK=${WORK:-/tmp/piano_recipe}
-mkdir -p "$OUT" "$WORK"
-export PYTHONUNBUFFERED=1
-RUNS=$WORK/runs
-T0=$(date +%s)
-stamp() { echo "[$(( $(date +%s) - T0 )) s] $*"; }
+# shellcheck source=bench/recipe_lib.sh
+source "$(dirname "$0")/recipe_lib.sh"
+recipe_setup piano_recipe
 
 declare -A VARIANT=(
   [preset]=""
@@ -45,17 +41,13 @@ if [ "${1:-smoke}" = smoke ]; then
   MINUTES=0
   names=(preset)
 fi
-# shellcheck source=bench/recipe_lib.sh
-source "$(dirname "$0")/recipe_lib.sh"
 check_variants "${names[@]}"
 
 run_one() {  # run_one NAME EXTRA...  (GPU=<index> pins it to one card)
   local name=$1; shift
   stamp "start $name (GPU ${GPU:-all}): $*"
-  local pin=""
-  [ -n "${GPU:-}" ] && pin="CUDA_VISIBLE_DEVICES=$GPU"
-  # shellcheck disable=SC2086
-  env $pin timeout -k 5 "${RUN_TIMEOUT:-575}" python3 train/ppo.py --preset piano --run-name "$name" \
+  # shellcheck disable=SC2046,SC2086
+  env $(gpu_pin) timeout -k 5 "${RUN_TIMEOUT:-575}" python3 train/ppo.py --preset piano --run-name "$name" \
     --runs-dir "$RUNS" --max-minutes "$MINUTES" $SIZE "$@" ${EXTRA:-} > "$WORK/$name.log" 2>&1
   stamp "end $name: exit $?"
   mkdir -p "$RUNS/$name" && cp "$WORK/$name.log" "$RUNS/$name/log.txt"

@@ -20,13 +20,9 @@
 #   unroll20   20-step unrolls (2x the data per iteration)
 # EXTRA="..." adds arguments to every run; MINUTES (default 2.2) is each run's budget from process start.
 set -u
-OUT=${OUT:-/tmp/reach_recipe_out}
-WORK=${WORK:-/tmp/reach_recipe}
-mkdir -p "$OUT" "$WORK"
-export PYTHONUNBUFFERED=1
-RUNS=$WORK/runs
-T0=$(date +%s)
-stamp() { echo "[$(( $(date +%s) - T0 )) s] $*"; }
+# shellcheck source=bench/recipe_lib.sh
+source "$(dirname "$0")/recipe_lib.sh"
+recipe_setup reach_recipe
 
 declare -A VARIANT=(
   [base]=""
@@ -45,17 +41,13 @@ if [ "${1:-smoke}" = smoke ]; then
   MINUTES=0
   names=(base)
 fi
-# shellcheck source=bench/recipe_lib.sh
-source "$(dirname "$0")/recipe_lib.sh"
 check_variants "${names[@]}"
 
 run_one() {  # run_one NAME EXTRA...  (GPU=<index> pins it to one card)
   local name=$1; shift
   stamp "start $name (GPU ${GPU:-all}): $*"
-  local pin=""
-  [ -n "${GPU:-}" ] && pin="CUDA_VISIBLE_DEVICES=$GPU"
-  # shellcheck disable=SC2086
-  env $pin timeout -k 5 "${RUN_TIMEOUT:-240}" python3 train/ppo.py --run-name "$name" --runs-dir "$RUNS" \
+  # shellcheck disable=SC2046,SC2086
+  env $(gpu_pin) timeout -k 5 "${RUN_TIMEOUT:-240}" python3 train/ppo.py --run-name "$name" --runs-dir "$RUNS" \
     --compile-cache-dir "$WORK/cache_$name" --max-minutes "$MINUTES" $SIZE "$@" ${EXTRA:-} > "$WORK/$name.log" 2>&1
   stamp "end $name: exit $?"
 }

@@ -1,7 +1,22 @@
 #!/usr/bin/env bash
 # Sourced by bench/piano_recipe.sh and bench/reach_recipe.sh: the variant check and the side-by-side runs.
-# The sourcing script defines VARIANT (an associative array: name -> extra arguments) and
-# run_one NAME EXTRA... (GPU=<index> pins it to one card).
+# The sourcing script calls recipe_setup first, then defines VARIANT (an associative array: name -> extra
+# arguments) and run_one NAME EXTRA... (GPU=<index> pins it to one card).
+
+recipe_setup() {  # recipe_setup NAME: OUT (default /tmp/NAME_out), WORK (/tmp/NAME), RUNS=$WORK/runs, the clock
+  OUT=${OUT:-/tmp/$1_out}
+  WORK=${WORK:-/tmp/$1}
+  RUNS=$WORK/runs
+  mkdir -p "$OUT" "$WORK"
+  export PYTHONUNBUFFERED=1
+  T0=$(date +%s)
+}
+
+stamp() { echo "[$(( $(date +%s) - T0 )) s] $*"; }
+
+gpu_pin() {  # the environment assignment that pins a run to $GPU (nothing when GPU is unset)
+  if [ -n "${GPU:-}" ]; then echo "CUDA_VISIBLE_DEVICES=$GPU"; fi
+}
 
 check_variants() {  # check_variants NAME...: exit 2 naming the valid variants if one is unknown
   local v
