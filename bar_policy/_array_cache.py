@@ -33,10 +33,10 @@ import json
 import logging
 import os
 from collections.abc import Callable, Mapping
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+import mujoco
 import numpy as np
 
 from bar_policy._files import package_hash, write_atomic
@@ -57,13 +57,6 @@ def cache_dir() -> Path:
     return Path(base) / "bar_policy" / "arrays"
 
 
-def _version(dist: str) -> str | None:
-    try:
-        return metadata.version(dist)
-    except metadata.PackageNotFoundError:
-        return None
-
-
 def cache_key(name: str, parts: Mapping[str, Any]) -> str:
     """SHA-256 (hex) of ``name``, ``parts`` (as JSON), the package hash and the numpy and mujoco versions."""
     record = {
@@ -71,7 +64,7 @@ def cache_key(name: str, parts: Mapping[str, Any]) -> str:
         "parts": parts,
         "package": package_hash(),
         "numpy": np.__version__,
-        "mujoco": _version("mujoco"),
+        "mujoco": mujoco.__version__,
     }
     return hashlib.sha256(json.dumps(record, sort_keys=True).encode()).hexdigest()
 

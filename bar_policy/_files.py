@@ -12,7 +12,8 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-_PACKAGE_ROOT = Path(__file__).resolve().parent
+PACKAGE_ROOT = Path(__file__).resolve().parent
+"""The ``bar_policy/`` directory (what ``package_hash`` reads)."""
 
 
 @functools.cache
@@ -23,9 +24,9 @@ def package_hash() -> str:
     code, model files or shipped data changes it. Computed once per process (8 ms here).
     """
     h = hashlib.sha256()
-    for p in sorted(_PACKAGE_ROOT.rglob("*")):
+    for p in sorted(PACKAGE_ROOT.rglob("*")):
         if p.is_file() and "__pycache__" not in p.parts and p.suffix != ".pyc":
-            h.update(p.relative_to(_PACKAGE_ROOT).as_posix().encode() + b"\0")
+            h.update(p.relative_to(PACKAGE_ROOT).as_posix().encode() + b"\0")
             h.update(hashlib.sha256(p.read_bytes()).digest())
     return h.hexdigest()
 

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from bar_policy._files import package_hash
+from bar_policy._files import PACKAGE_ROOT, package_hash
 
 __all__ = ["library_versions", "package_hash", "platform", "runtime_flags", "signature", "source_hash"]
 
@@ -42,8 +42,6 @@ LIBRARIES = (
 )
 """Distributions whose version is part of the key (None when not installed)."""
 
-_PACKAGE_ROOT = Path(__file__).resolve().parent.parent
-
 
 def source_hash(obj: Any) -> str | None:
     """SHA-256 of the source file defining ``obj``'s class.
@@ -57,7 +55,7 @@ def source_hash(obj: Any) -> str | None:
         path = Path(inspect.getfile(cls)).resolve()
     except (TypeError, OSError):
         return None
-    if path.is_relative_to(_PACKAGE_ROOT) or not path.is_file():
+    if path.is_relative_to(PACKAGE_ROOT) or not path.is_file():
         return None
     return hashlib.sha256(path.read_bytes()).hexdigest()
 

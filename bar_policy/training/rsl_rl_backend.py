@@ -70,7 +70,7 @@ from bar_policy.training.rsl_rl_policy import (
     torch_policy_reference,
 )
 from bar_policy.training.rsl_rl_prior import start_actor_at_prior
-from bar_policy.training.rsl_rl_programs import RslRlPrograms, check_rsl_rl_config, prepare_rsl_rl
+from bar_policy.training.rsl_rl_programs import RslRlPrograms, prepare_rsl_rl
 from bar_policy.training.rsl_rl_state import (
     load_module_state,
     load_optimizer_state,
@@ -177,7 +177,6 @@ def train_rsl_rl(
     from flax import serialization
     from rsl_rl.runners import OnPolicyRunner
 
-    check_rsl_rl_config(cfg)
     ppo = cfg.ppo
     t_start = time.monotonic()
     timer = timer or StartupTimer()

@@ -143,8 +143,7 @@ class RslRlVecEnv(VecEnv):
     @property
     def state(self) -> Any:
         """The batched env state (the first reset runs here, when first needed)."""
-        if self._state is None:
-            self._set_reset(self.programs.first_keys)
+        self._start()
         return self._state
 
     @state.setter
@@ -154,13 +153,17 @@ class RslRlVecEnv(VecEnv):
     @property
     def stats(self) -> dict[str, Any]:
         """The device-side accumulators (see the class docstring)."""
-        if self._state is None:
-            self._set_reset(self.programs.first_keys)
+        self._start()
         return self._stats
 
     @stats.setter
     def stats(self, value: dict[str, Any]) -> None:
         self._stats = value
+
+    def _start(self) -> None:
+        """Run the first reset (from the keys drawn at construction) unless a reset already ran."""
+        if self._state is None:
+            self._set_reset(self.programs.first_keys)
 
     def _set_reset(self, keys: jax.Array) -> None:
         self._state, self._stats = self.programs.reset(keys)

@@ -33,7 +33,7 @@ from bar_policy.training.parallel import AXIS
 from bar_policy.training.rsl_rl_prior import commanded_action, rsl_rl_prior
 from bar_policy.training.startup import Compiler, StartupTimer
 
-__all__ = ["EnvPrograms", "RslRlPrograms", "check_rsl_rl_config", "prepare_rsl_rl"]
+__all__ = ["EnvPrograms", "RslRlPrograms", "prepare_rsl_rl"]
 
 
 class EnvPrograms:
@@ -208,19 +208,6 @@ class RslRlPrograms:
     """The action prior both envs add (``rsl_rl_prior``), or None."""
 
 
-def check_rsl_rl_config(cfg: TrainConfig) -> None:
-    """Refuse what the rsl-rl backend does not do, before any set-up.
-
-    Raises:
-        ValueError: ``ppo.actor_warmup_iterations`` is set (a brax-backend option).
-    """
-    if cfg.ppo.actor_warmup_iterations:
-        raise ValueError(
-            f"ppo.actor_warmup_iterations={cfg.ppo.actor_warmup_iterations} is a brax-backend option; the "
-            "rsl-rl backend's PPO has no critic warm-up (valid here: 0; or --backend brax)"
-        )
-
-
 def prepare_rsl_rl(
     env: Any,
     cfg: TrainConfig,
@@ -241,9 +228,14 @@ def prepare_rsl_rl(
     None: ``env`` with ``randomizer``. Seeds: ``cfg.seed`` for training, ``cfg.seed + 1`` for evaluation.
 
     Raises:
-        ValueError: as ``check_rsl_rl_config``, or a prior the env does not serve (``rsl_rl_prior``).
+        ValueError: ``ppo.actor_warmup_iterations`` is set (a brax-backend option), or a prior the env does
+            not serve (``rsl_rl_prior``).
     """
-    check_rsl_rl_config(cfg)
+    if cfg.ppo.actor_warmup_iterations:
+        raise ValueError(
+            f"ppo.actor_warmup_iterations={cfg.ppo.actor_warmup_iterations} is a brax-backend option; the "
+            "rsl-rl backend's PPO has no critic warm-up (valid here: 0; or --backend brax)"
+        )
     prior = rsl_rl_prior(env, cfg)  # refuses a prior the env does not serve, before any set-up
     if wrap_fn is None:
         from bar_policy.envs import wrap_for_brax_training as wrap_fn

@@ -188,17 +188,19 @@ def key_poses(
 ) -> KeyPoses:
     """The hover and press commands of every key of ``keyboard`` (see the module docstring).
 
-    The IK takes about 11 s, so the result is kept on disk (``bar_policy._array_cache``), keyed on the
-    keyboard, the mode, the prior config and the package's files; a rerun loads it bit for bit.
+    The IK takes about 6 s on the 2-core CPU (10-16 s on the H100 machine's), so the result is kept on
+    disk (``bar_policy._array_cache``), keyed on the keyboard, the mode, the prior config and the package's
+    files; a rerun loads it bit for bit.
 
     Raises:
         ValueError: IK finds no valid pose (joint limits, self-contact, the keyboard's case) for a key.
     """
     pc = config or KeyPosePriorConfig()
     parts = {"keyboard": repr(keyboard), "mode": mode, "config": repr(pc)}
+    names = tuple(f.name for f in dataclasses.fields(KeyPoses))
     solve = lambda: vars(_solve_key_poses(keyboard, mode, pc))  # noqa: E731
-    arrays = cached_arrays("piano_key_poses", parts, ("hover", "press", "hand"), solve)
-    return KeyPoses(hover=arrays["hover"], press=arrays["press"], hand=arrays["hand"])
+    arrays = cached_arrays("piano_key_poses", parts, names, solve)
+    return KeyPoses(**arrays)
 
 
 def _solve_key_poses(keyboard: KeyboardConfig, mode: str, pc: KeyPosePriorConfig) -> KeyPoses:
