@@ -18,6 +18,10 @@
 #   lr1e-3     learning rate 1e-3                  upd4      4 passes over each batch instead of 8
 #   mb8        8 minibatches of 1024 (fewer, larger SGD steps)
 #   unroll20   20-step unrolls (2x the data per iteration)
+#   seed1      the preset on seed 1 (how far two seeds differ)
+#   ent1e-3    entropy cost 1e-3 instead of 5e-3
+# Two runs per GPU (GPUS="0 1 2 3 0 1 2 3") need XLA_PYTHON_CLIENT_MEM_FRACTION=0.45: then only the env
+# steps to 95 % compare, not the env steps/s.
 # EXTRA="..." adds arguments to every run; MINUTES (default 2.2) is each run's budget from process start.
 set -u
 # shellcheck source=bench/recipe_lib.sh
@@ -31,6 +35,8 @@ declare -A VARIANT=(
   [upd4]="--ppo.num-updates-per-batch 4"
   [mb8]="--ppo.num-minibatches 8 --ppo.batch-size 1024"
   [unroll20]="--ppo.unroll-length 20"
+  [seed1]="--seed 1"
+  [ent1e-3]="--ppo.entropy-cost 1e-3"
 )
 MINUTES=${MINUTES:-2.2}
 SIZE="--eval.num-evals 41 --final-eval-envs 1024 --no-export-onnx"
