@@ -35,7 +35,10 @@ def summarize(run: Path, threshold: float = 0.95) -> dict[str, str]:
     final = [r for r in recs if r["kind"] == "final"]
     startup = [r for r in recs if r["kind"] == "startup"]
     sps = [r["sps"] for r in train[1:]] or [r["sps"] for r in train]
-    ordered = sorted(evals, key=lambda e: e["step"])
+    # As the run's own time to threshold: an evaluation of an earlier step than one before it in the file
+    # (the step-0 evaluation after training, eval.initial=end) ran late and does not count.
+    ran = [e for i, e in enumerate(evals) if all(e["step"] >= x["step"] for x in evals[:i])]
+    ordered = sorted(ran, key=lambda e: e["step"])
     hit = next((e for e in ordered if e.get("success_rate", 0) >= threshold), None)
     dev = cfg.get("device", {})
     n_dev = len(dev.get("devices", [])) * int(dev.get("process_count", 1) or 1)

@@ -25,9 +25,11 @@ KEYS = (
 
 
 def evaluations(run: Path) -> list[dict[str, Any]]:
-    """The run's evaluation records (``kind`` eval, then final), in order."""
+    """The run's evaluation records (``kind`` eval in step order, then final, in order)."""
     rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines() if line.strip()]
-    return [r for r in rows if r.get("kind") in ("eval", "final")]
+    rows = [r for r in rows if r.get("kind") in ("eval", "final")]
+    # The step-0 evaluation may have been written last (eval.initial=end); a stable sort keeps the finals.
+    return sorted(rows, key=lambda r: (r["kind"] == "final", r["step"] if r["kind"] == "eval" else 0))
 
 
 def markdown(runs: list[Path]) -> str:

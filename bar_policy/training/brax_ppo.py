@@ -17,10 +17,13 @@ learner state replicated), each compiled once, ahead of time and concurrently (`
 - ``evaluate(params, key, model_key) -> metrics``: one deterministic episode in each of ``num_eval_envs``
   slots (sharded too), without the in-step reset; every process takes part.
 
-The evaluation is traced and compiled on a worker thread, and the evaluation at step 0 (on the initial
-params, re-created) runs at the first epoch end where it is ready, so the training start waits for neither
-its trace nor its compile. Each evaluation that ranks above every earlier one keeps a host copy of its
-params (``bar_policy.training.best``): ``BraxTrainResult.best``.
+The evaluation is traced and compiled on a worker thread, so the training start waits for neither its
+trace nor its compile. The evaluation at step 0, of the initial params (re-created by ``init`` from the same
+key), runs as ``eval.initial`` says: ``end`` (default) after the last periodic evaluation, so it costs
+nothing on the way to the first trained policy; ``start`` at the first epoch end where the evaluation is
+ready; ``off`` never. Either way it is recorded as step 0, first in ``BraxTrainResult.evals``. Each
+evaluation that ranks above every earlier one keeps a host copy of its params
+(``bar_policy.training.best``): ``BraxTrainResult.best``.
 """
 
 from __future__ import annotations
@@ -186,6 +189,7 @@ def train_brax(
         logger.record_eval(step, m, evals, time_to_threshold, cfg.eval.success_threshold)
         if keeper.offer(step, m, lambda: _host_params(dp.to_host(ts))):
             logger.print(f"  best so far: the parameters at {step:,} steps are kept")
+        compiler.confirm()  # every loaded program has run: none is a suspect of a crash
 
     is_main = jax.process_index() == 0
     evals: list[dict[str, float]] = []
@@ -198,7 +202,10 @@ def train_brax(
 
     start_steps = env_steps
     keeper = BestKeeper(start_steps, getattr(env, "task_name", None))
-    eval_at_start = iteration == 0
+    # The step-0 evaluation: none after a resume. Every process decides alike (config and checkpoint), so
+    # under jax.distributed all of them run it, collectively, at the same point.
+    eval_at_start = iteration == 0 and cfg.eval.initial == "start"
+    eval_at_end = iteration == 0 and cfg.eval.initial == "end"
     epochs_done = 0
     first_epoch_end = 0.0
     startup_pending = True
@@ -208,7 +215,8 @@ def train_brax(
         t_eval = time.monotonic()
         initial = compiler.get("init")(dp.replicate(host_key(seed, _K_INIT)))
         device_eval(_policy_params(initial), 0)
-        timer.add(sb.FIRST_EVAL, time.monotonic() - t_eval)
+        if startup_pending:
+            timer.add(sb.FIRST_EVAL, time.monotonic() - t_eval)
 
     t_loop = time.monotonic()
     while iteration < total_iters:
@@ -234,31 +242,32 @@ def train_brax(
         elif eval_at_start:
             timer.add(sb.MORE_EPOCHS, dt)
         # Stop before an epoch that would end past the budget (its expected length: this epoch's, plus an
-        # evaluation's when the next epoch ends with one).
+        # evaluation's when the next epoch ends with one), keeping room for one more evaluation when the
+        # step-0 one runs after training.
         next_eval_due = (epochs_done + 1) % _LINES_PER_EVAL == 0
-        over_budget = next_would_overrun(
-            logger.elapsed(), dt + (last_eval_s if next_eval_due else 0.0), 60 * cfg.max_minutes
-        )
+        evals_s = (last_eval_s if next_eval_due else 0.0) + (last_eval_s if eval_at_end else 0.0)
+        over_budget = next_would_overrun(logger.elapsed(), dt + evals_s, 60 * cfg.max_minutes)
         if jax.process_count() > 1:
             from jax.experimental import multihost_utils
 
             over_budget = bool(multihost_utils.broadcast_one_to_all(np.asarray(over_budget)))
         last = iteration >= total_iters or over_budget
         eval_due = last or epochs_done % _LINES_PER_EVAL == 0
-        # The step-0 evaluation runs at the first epoch end where the evaluation program is ready, and
-        # always before the first periodic one (so it is the first record). Under jax.distributed it was
+        # eval.initial=start: the step-0 evaluation runs at the first epoch end where the evaluation
+        # program is ready, and always before the first periodic one. Under jax.distributed it was
         # compiled before the start on every process, so every process takes the same branch.
-        if eval_at_start and (eval_due or compiler.done("evaluate")):
+        step0_now = eval_at_start and (eval_due or compiler.done("evaluate"))
+        if step0_now:
             eval_at_start = False
             eval_at_zero()
-        if startup_pending and not eval_at_start:
+        if startup_pending and not eval_at_start:  # the start-up ends here: printed and recorded
             startup_pending = False
             stats1 = CompileStats.get().snapshot()
-            report = timer.finish(first_epoch_end, {k: stats1[k] - stats0[k] for k in stats1})
+            until = sb.UNTIL_EVAL if step0_now else sb.UNTIL_EPOCH
+            report = timer.finish(first_epoch_end, {k: stats1[k] - stats0[k] for k in stats1}, until=until)
             for line in timer.lines(report):
                 logger.print(line)
             logger.note("startup", {"step": env_steps, **report})
-            compiler.confirm()  # the loaded programs ran: not suspects of a crash
         if eval_due:
             device_eval(_policy_params(ts), env_steps)
             n_evals = epochs_done // _LINES_PER_EVAL
@@ -268,10 +277,14 @@ def train_brax(
             logger.print(f"stopping: wall-clock budget of {cfg.max_minutes} min reached")
             break
     compiler.get("evaluate")  # surface a compile error even when no evaluation ran
+    loop_s = time.monotonic() - t_loop
+    if eval_at_end:  # eval.initial=end: the untrained policy, once the trained one is out
+        logger.print("step-0 evaluation (the untrained policy; after training: --eval.initial end)")
+        eval_at_zero()
     train_seconds = time.monotonic() - t_start
     if epochs_done:
         logger.print(
-            f"trained {env_steps - start_steps:,} env steps in {time.monotonic() - t_loop:.1f} s of loop "
+            f"trained {env_steps - start_steps:,} env steps in {loop_s:.1f} s of loop "
             f"({train_seconds:.1f} s with setup and compile)"
         )
     return BraxTrainResult(

@@ -31,9 +31,11 @@ class BraxTrainResult:
     train_seconds: float
     """Wall time of the training loop in this run, s (compile and evaluations included)."""
     evals: list[dict[str, float]] = field(default_factory=list)
-    """Evaluation records (``step``, ``time_s``, ``success_rate``, ``episode_reward``, ...)."""
+    """Evaluation records (``step``, ``time_s``, ``success_rate``, ``episode_reward``, ...), in step order
+    (step 0 first, whenever it ran: ``eval.initial``)."""
     time_to_threshold_s: float | None = None
-    """Seconds from logger start to the first evaluation at or above the success threshold."""
+    """Seconds from logger start to the first evaluation at or above the success threshold (a step-0
+    evaluation run after training does not count: ``RunLogger.record_eval``)."""
     evaluator: Callable[[Any, int], dict[str, float]] | None = None
     """``evaluator(host_params, seed)``: the run's compiled evaluation (``num_eval_envs`` episodes)."""
     num_eval_envs: int = 0

@@ -18,7 +18,7 @@ import dataclasses
 import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_args
 
 import tyro
 
@@ -28,6 +28,7 @@ from bar_policy.tasks.registry import TASKS
 
 __all__ = [
     "ACTION_PRIORS",
+    "INITIAL_EVALS",
     "PRESETS",
     "DistributedConfig",
     "EnvName",
@@ -57,6 +58,9 @@ ACTION_PRIORS: tuple[str, ...] = (
 (``EnvEntry.action_prior`` in its task record), in registry order."""
 ActionPriorName = Literal[ACTION_PRIORS]  # type: ignore[valid-type]
 """The ``--network.action-prior`` choices (``ACTION_PRIORS``)."""
+InitialEval = Literal["start", "end", "off"]
+"""``EvalConfig.initial`` choices: when the step-0 evaluation runs."""
+INITIAL_EVALS: tuple[str, ...] = get_args(InitialEval)
 PresetName = Literal[tuple(name for r in TASKS for name, _ in r.presets)]  # type: ignore[valid-type]
 """Preset names (``PRESETS``, read from the task records)."""
 
@@ -213,15 +217,23 @@ class EvalConfig:
     """Periodic evaluation on fresh seeds (deterministic policy, domain randomisation as in training)."""
 
     num_evals: int = 11
-    """Evaluations over the run (the first before training, the last at the end)."""
+    """Evaluations over the run (the untrained policy's at step 0 counted, see ``initial``; the last at the
+    end)."""
     num_eval_envs: int = 1024
     """Episodes per evaluation (one per parallel env)."""
     success_threshold: float = 0.95
     """Success rate that counts as solved (reported as time-to-threshold)."""
+    initial: InitialEval = "end"
+    """When the untrained policy is evaluated (recorded at step 0; a resume has none): ``start`` (at the
+    first epoch end where the evaluation is compiled, before the first periodic one), ``end`` (after the
+    last periodic one: it costs nothing on the way to the first trained policy, about 3 s on an H100) or
+    ``off``. Not counted for the time to threshold when it runs late."""
 
     def __post_init__(self) -> None:
         if self.num_evals < 2 or self.num_eval_envs <= 0:
             raise ValueError(f"eval.num_evals must be >= 2 and num_eval_envs > 0, got {self}")
+        if self.initial not in INITIAL_EVALS:
+            raise ValueError(f"unknown eval.initial {self.initial!r}; valid: {list(INITIAL_EVALS)}")
 
 
 @dataclass(frozen=True, kw_only=True)

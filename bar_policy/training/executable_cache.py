@@ -275,12 +275,23 @@ OUTSIDE_PROGRAMS = (
     "compile_cache_dir",
     "executable_cache",
     "autotune_seed",
+    "eval.initial",
 )
 """Training-config fields no compiled program reads (where the run is written, when it stops, what is
 exported, where caches live, whether XLA's autotune cache is seeded: that changes which implementation
-XLA picks for a fusion, never what the program computes): left out of the key, so a rerun under another
-run name or wall-clock budget is served. Until stop 31 they were in it, and the GPU's warm runs missed
-(docs/startup.md)."""
+XLA picks for a fusion, never what the program computes; when the step-0 evaluation runs): left out of the
+key (a dotted name: a field of a section), so a rerun under another run name or wall-clock budget is
+served. Until stop 31 they were in it, and the GPU's warm runs missed (docs/startup.md)."""
+
+
+def _program_fields(train: Mapping[str, Any]) -> dict[str, Any]:
+    """``train`` (a ``config_to_dict`` record) less ``OUTSIDE_PROGRAMS``."""
+    out = {k: v for k, v in train.items() if k not in OUTSIDE_PROGRAMS}
+    for name in OUTSIDE_PROGRAMS:
+        section, _, leaf = name.partition(".")
+        if leaf and isinstance(out.get(section), Mapping):
+            out[section] = {k: v for k, v in out[section].items() if k != leaf}
+    return out
 
 
 def executable_cache_for(
@@ -303,7 +314,7 @@ def executable_cache_for(
         return None
     cls = type(env)
     context = {
-        "train": {k: v for k, v in record["train"].items() if k not in OUTSIDE_PROGRAMS},
+        "train": _program_fields(record["train"]),
         "env": record["env"] or repr(getattr(env, "config", None)),
         "env_class": f"{cls.__module__}.{cls.__qualname__}",
         "env_source": ek.source_hash(env),

@@ -31,7 +31,8 @@ def next_would_overrun(elapsed_s: float, next_s: float, budget_s: float) -> bool
     """Whether a next step expected to take ``next_s`` would end past a wall-clock budget, s.
 
     The trainers stop *before* an epoch that would overrun ``max_minutes`` (its expected length: the last
-    epoch's, plus the last evaluation's when one is due), so the budget bounds the run instead of being
+    epoch's, plus the last evaluation's when one is due, plus one more while the step-0 evaluation waits
+    for the end of training, ``eval.initial=end``), so the budget bounds the run instead of being
     overshot by up to one epoch; ``budget_s <= 0`` means no budget.
     """
     return budget_s > 0 and elapsed_s + next_s > budget_s
@@ -119,17 +120,23 @@ class RunLogger:
     ) -> None:
         """Log, keep and print one evaluation; note the first time success reaches ``threshold``.
 
+        ``evals`` stays in step order: a record of an earlier step than one already kept (the step-0
+        evaluation run after training, ``eval.initial=end``) goes in before it, and is written to
+        ``metrics.jsonl`` when it ran, so there it comes last. Such a late record does not count for the
+        time to threshold (its time says when it ran, not how long training took).
+
         Args:
-            step: env steps so far.
+            step: env steps so far (or 0, for the untrained policy).
             metrics: the evaluation (``success_rate``, ``episode_reward``, optionally ``final_distance``, m,
                 and the task's other ratios); ``time_s`` is added.
-            evals: the run's evaluation records, appended to.
+            evals: the run's evaluation records, in step order; the record is inserted.
             time_to_threshold: empty until the threshold is first reached, then holds that time, s.
             threshold: success rate that counts as solved (0..1).
         """
         metrics["time_s"] = self.elapsed()
         self.log(step, metrics, kind="eval")
-        evals.append({"step": step, **metrics})
+        later = next((i for i, e in enumerate(evals) if e["step"] > step), None)
+        evals.insert(len(evals) if later is None else later, {"step": step, **metrics})
         text = (
             f"  eval @ {step:,} steps: success {100 * metrics['success_rate']:.1f}%, "
             f"episode reward {metrics['episode_reward']:.2f}"
@@ -140,7 +147,7 @@ class RunLogger:
             if k not in ("success_rate", "episode_reward", "episode_reward_std", "final_distance", "time_s"):
                 text += f", {k} {v:.4g}"
         self.print(text)
-        if not time_to_threshold and metrics["success_rate"] >= threshold:
+        if later is None and not time_to_threshold and metrics["success_rate"] >= threshold:
             time_to_threshold.append(metrics["time_s"])
 
     def progress(self, step: int, sps: float, metrics: dict[str, float]) -> None:

@@ -49,7 +49,8 @@ def plot_curve(run_dir: str | Path, out: str | Path, threshold: float = 0.95) ->
 
     run_dir, out = Path(run_dir), Path(out)
     recs = _records(run_dir)
-    ev = [r for r in recs if r["kind"] == "eval"]
+    # In step order: the step-0 evaluation may have run (and been written) last (eval.initial=end).
+    ev = sorted((r for r in recs if r["kind"] == "eval"), key=lambda r: r["step"])
     tr = [r for r in recs if r["kind"] == "train"]
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
     steps = [r["step"] / 1e6 for r in ev]
@@ -82,8 +83,15 @@ def plot_curve(run_dir: str | Path, out: str | Path, threshold: float = 0.95) ->
 
 
 def _time_axis(ev: list[dict[str, Any]]) -> tuple:
+    """Steps (M) <-> wall time (s), interpolated through the evaluations in step order.
+
+    An evaluation that ran after a later step's (the step-0 evaluation after training) is left out: its
+    time says when it ran, not when training was there.
+    """
     import numpy as np
 
+    times = [r.get("time_s", 0.0) for r in ev]
+    ev = [r for i, r in enumerate(ev) if all(times[i] < later for later in times[i + 1 :])]
     s = np.array([r["step"] / 1e6 for r in ev], dtype=float)
     t = np.array([r.get("time_s", 0.0) for r in ev], dtype=float)
     if len(s) < 2 or np.any(np.diff(s) <= 0):

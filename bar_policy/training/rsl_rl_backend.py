@@ -30,10 +30,11 @@ and quality; ``rsl_rl_programs``) are traced, lowered and submitted to a ``start
 module (torch, rsl_rl, tensordict) is imported (``run`` calls ``prepare_rsl_rl`` first; a direct call
 without ``programs`` prepares them here), so the imports run while XLA compiles on worker threads. The
 training env's first reset waits for its program, the runner reads its observations, and training starts
-once the training step is ready. As in the brax backend, the
-step-0 evaluation (of the initial actor, copied before training) runs after the first iteration where the
-evaluation step is compiled, or before the first periodic evaluation, whichever comes first; the start-up
-report is printed and recorded after it.
+once the training step is ready. As in the brax backend, the step-0 evaluation (of the initial actor,
+copied before training) runs as ``eval.initial`` says: ``end`` (default) after the last periodic
+evaluation; ``start`` after the first iteration where the evaluation step is compiled, or before the first
+periodic evaluation, whichever comes first (the start-up report is then printed and recorded after it, else
+after the first iteration); ``off`` never.
 
 Speed: nothing in the rollout waits for the device. Actions and observations cross by DLPack on the
 device; the logged sums accumulate on the device (``RslRlVecEnv.take_stats`` reads them once per
@@ -107,9 +108,9 @@ class RslRlTrainResult:
     train_seconds: float
     """Wall time of the training loop, s."""
     evals: list[dict[str, float]] = field(default_factory=list)
-    """Evaluation records."""
+    """Evaluation records, in step order (as ``BraxTrainResult.evals``)."""
     time_to_threshold_s: float | None = None
-    """Seconds to the first evaluation at or above the success threshold."""
+    """Seconds to the first evaluation at or above the success threshold (as ``BraxTrainResult``'s)."""
     best: BestIterate | None = None
     """The best evaluated iterate of this run (its ``params`` is a copy of the actor's state dict)."""
     spare_actor: torch.nn.Module | None = None
@@ -206,8 +207,8 @@ def train_rsl_rl(
         alg = runner.alg
         if prior is not None:
             start_actor_at_prior(alg.actor)  # a resume loads its own parameters over it
-        # The untrained actor, for the step-0 evaluation after the first iterations (copied before any
-        # forward pass, as spare_actor below); frozen in eval mode.
+        # The untrained actor, for the step-0 evaluation (copied before any forward pass, as spare_actor
+        # below); frozen in eval mode.
         initial_actor = copy.deepcopy(alg.actor).eval()
         if cfg.resume:
             path = latest_checkpoint(cfg.resume)
@@ -229,16 +230,23 @@ def train_rsl_rl(
     ttt: list[float] = []
     episode_length = int(env.episode_length)
 
+    last_eval_s = 0.0
+
     def run_eval(step: int, actor: torch.nn.Module) -> None:
         """Evaluate ``actor`` (the current one, or the initial one at step 0) and offer it to the keeper."""
+        nonlocal last_eval_s
+        t_eval = time.monotonic()
         training = actor.training
         actor.eval()
         module = deterministic_module(actor, device)
         m = evaluate_torch_policy(lambda o: module(o), eval_vec, episode_length, seed=cfg.seed + 1000 + step)
+        if step:  # the step-0 evaluation's time may include a wait for its compile
+            last_eval_s = time.monotonic() - t_eval
         logger.record_eval(step, m, evals, ttt, cfg.eval.success_threshold)
         if keeper.offer(step, m, lambda: {k: v.detach().clone() for k, v in actor.state_dict().items()}):
             logger.print(f"  best so far: the actor at {step:,} steps is kept")
         actor.train(training)
+        compiler.confirm()  # every loaded program has run: none is a suspect of a crash
 
     def checkpoint(step: int, it: int) -> None:
         if checkpoint_dir is None:
@@ -252,16 +260,19 @@ def train_rsl_rl(
         save_checkpoint(checkpoint_dir, state, env_steps=step, iteration=it, extra=config_record)
 
     # As the brax backend: the step-0 evaluation (of the initial actor; a resume has none) runs after the
-    # first iteration where the evaluation step is compiled, or before the first periodic evaluation, so
-    # training waits only for the training step. The start-up report is finished once it ran.
-    eval_at_start = iteration == 0
+    # last periodic one (eval.initial=end), or (start) after the first iteration where the evaluation step
+    # is compiled, or before the first periodic evaluation, so training waits only for the training step.
+    # The start-up report is finished after the first iteration, or once a start-of-run evaluation ran.
+    eval_at_start = iteration == 0 and cfg.eval.initial == "start"
+    eval_at_end = iteration == 0 and cfg.eval.initial == "end"
     startup_pending = True
     first_epoch_end = 0.0
 
     def eval_at_zero() -> None:
         t_eval = time.monotonic()
         run_eval(0, initial_actor)
-        timer.add(sb.FIRST_EVAL, time.monotonic() - t_eval)
+        if startup_pending:
+            timer.add(sb.FIRST_EVAL, time.monotonic() - t_eval)
 
     with timer.phase(sb.WAIT):
         compiler.get("train step")
@@ -301,20 +312,22 @@ def train_rsl_rl(
         }
         logger.log(env_steps, train_metrics, kind="train")
         last = iteration >= total_iters
-        over_budget = next_would_overrun(logger.elapsed(), dt, 60 * cfg.max_minutes)
+        # Room for the step-0 evaluation when it runs after training (the periodic ones are not counted).
+        reserve = last_eval_s if eval_at_end else 0.0
+        over_budget = next_would_overrun(logger.elapsed(), dt + reserve, 60 * cfg.max_minutes)
         if iteration % max(1, iters_per_eval // 2) == 0 or last or over_budget:
             logger.progress(env_steps, steps_per_iter / dt, train_metrics)
         eval_due = iteration % iters_per_eval == 0 or last or over_budget
-        if eval_at_start and (eval_due or compiler.done("eval step")):
+        step0_now = eval_at_start and (eval_due or compiler.done("eval step"))
+        if step0_now:
             eval_at_start = False
-            eval_at_zero()  # always before a periodic evaluation: the first record is step 0's
+            eval_at_zero()  # always before a periodic evaluation
         if startup_pending and not eval_at_start:
             startup_pending = False
-            report = timer.finish(first_epoch_end)
+            report = timer.finish(first_epoch_end, until=sb.UNTIL_EVAL if step0_now else sb.UNTIL_EPOCH)
             for line in timer.lines(report):
                 logger.print(line)
             logger.note("startup", {"step": env_steps, **report})
-            compiler.confirm()  # the loaded programs ran: not suspects of a crash
         if eval_due:
             run_eval(env_steps, alg.actor)
             if (
@@ -326,11 +339,12 @@ def train_rsl_rl(
         if over_budget and not last:
             logger.print(f"stopping: wall-clock budget of {cfg.max_minutes} min reached")
             break
-    if eval_at_start:  # no iteration ran (nothing to train): the untrained actor is still evaluated
+    loop_s = time.monotonic() - t_loop
+    if eval_at_end:  # eval.initial=end: the untrained actor, once the trained one is out
+        logger.print("step-0 evaluation (the untrained policy; after training: --eval.initial end)")
+    if eval_at_start or eval_at_end:  # start: no iteration ran (nothing to train); it is still evaluated
         eval_at_zero()
-    logger.print(
-        f"trained {env_steps - start_steps:,} env steps in {time.monotonic() - t_loop:.1f} s of loop"
-    )
+    logger.print(f"trained {env_steps - start_steps:,} env steps in {loop_s:.1f} s of loop")
     alg.eval_mode()
     return RslRlTrainResult(
         actor=alg.actor,

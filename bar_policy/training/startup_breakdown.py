@@ -3,9 +3,11 @@
 Two views of the same start:
 
 - **Main-thread phases** (``PHASES``), in order and exclusive (``bar_policy._phases.PhaseClock``): from the
-  process start (or the ``run()`` call) to the end of the first evaluation, through imports, the model
-  build, the env construction, tracing and lowering, the wait for the compiles, the first epoch and the
-  first evaluation. They never overlap, so they add up to at most the wall time around them; what no
+  process start (or the ``run()`` call) to the end of the start-up, through imports, the model build, the
+  env construction, tracing and lowering, the wait for the compiles, the first epoch and, with
+  ``eval.initial=start``, the step-0 evaluation. The start-up ends with that evaluation, or else (``end``,
+  ``off``, a resume) with the first epoch, and then the evaluation rows are left out of the printed table
+  (``UNTIL_EPOCH``). They never overlap, so they add up to at most the wall time around them; what no
   phase claims is the ``OTHER`` row, so the rows add up to the total.
 - **Programs**: each compiled program's trace, lower and compile (or persistent-cache load) seconds, with
   its cache outcome. The compiles run on worker threads, overlapping each other and the phases above.
@@ -31,7 +33,7 @@ from bar_policy._phases import MODEL_BUILD, PhaseClock
 if TYPE_CHECKING:
     from bar_policy.training.autotune_seed import SeedOutcome
 
-__all__ = ["PHASES", "ProgramTimes", "StartupTimer"]
+__all__ = ["PHASES", "UNTIL_EPOCH", "UNTIL_EVAL", "ProgramTimes", "StartupTimer"]
 
 BEFORE_RUN = "before run (interpreter, CLI imports, parsing)"
 IMPORTS = "imports (jax, mujoco.mjx, brax or torch)"
@@ -77,6 +79,13 @@ PHASES: tuple[str, ...] = (
     OTHER,
 )
 """Every main-thread phase a brax run's record holds (0.0 when it did not happen), in print order."""
+
+UNTIL_EVAL = "first evaluation"
+UNTIL_EPOCH = "first epoch"
+"""Where a start-up ends (the record's ``until``): the step-0 evaluation (``eval.initial=start``), or the
+first epoch when no evaluation runs before training (``end``, ``off``, a resume). ``MORE_EPOCHS`` and
+``FIRST_EVAL`` are then 0.0 by construction, and ``lines`` leaves them out."""
+_EVAL_ROWS = (MORE_EPOCHS, FIRST_EVAL)
 
 _ORDER: tuple[str, ...] = (
     *PHASES[: PHASES.index(TRACE)],
@@ -190,7 +199,12 @@ class StartupTimer:
         return time.monotonic() - self.origin
 
     def finish(
-        self, first_epoch_end_s: float, stats: dict[str, float] | None = None, *, total_s: float | None = None
+        self,
+        first_epoch_end_s: float,
+        stats: dict[str, float] | None = None,
+        *,
+        total_s: float | None = None,
+        until: str = UNTIL_EVAL,
     ) -> dict[str, Any]:
         """The JSON record (also kept as ``report``): origin, totals, every phase, programs, compile counts.
 
@@ -203,6 +217,7 @@ class StartupTimer:
             first_epoch_end_s: seconds from the origin to the end of the first epoch.
             stats: this run's ``CompileStats`` counts (a difference of two snapshots).
             total_s: seconds from the origin to the end of the start-up (default: now).
+            until: what ended the start-up: ``UNTIL_EVAL`` (the step-0 evaluation) or ``UNTIL_EPOCH``.
         """
         total = self.elapsed() if total_s is None else total_s
         named = {k: self.phases.get(k, 0.0) for k in PHASES if k != OTHER}
@@ -213,6 +228,7 @@ class StartupTimer:
         phases[OTHER] = round(max(0.0, total - sum(named.values())), 3)
         self.report = {
             "origin": self.origin_name,
+            "until": until,
             "total_s": round(total, 3),
             "first_epoch_end_s": round(first_epoch_end_s, 3),
             "phases": phases,
@@ -231,13 +247,20 @@ class StartupTimer:
 
 def _table(rec: dict[str, Any]) -> Iterator[str]:
     origin = "process start" if rec["origin"] == "process start" else "run()"
-    yield (
-        f"start-up: {rec['total_s']:.1f} s from {origin} to the first evaluation "
-        f"(first epoch done at {rec['first_epoch_end_s']:.1f} s)"
-    )
-    width = max(len(k) for k in rec["phases"])
+    # Records before "until" existed ended at the first evaluation.
+    head = f"start-up: {rec['total_s']:.1f} s from {origin} to"
+    if rec.get("until", UNTIL_EVAL) == UNTIL_EVAL:
+        rows = rec["phases"]
+        yield f"{head} the first evaluation (first epoch done at {rec['first_epoch_end_s']:.1f} s)"
+    else:  # no evaluation ran in the start-up: its rows would read 0 s, as if it had been instant
+        rows = {k: v for k, v in rec["phases"].items() if k not in _EVAL_ROWS}
+        yield (
+            f"{head} the end of the first epoch (done at {rec['first_epoch_end_s']:.1f} s; no evaluation "
+            "before training)"
+        )
+    width = max(len(k) for k in rows)
     yield "  main thread, in order (rows add up to the total):"
-    for k, v in rec["phases"].items():
+    for k, v in rows.items():
         yield f"    {k:<{width}}  {v:7.2f} s"
     if rec["programs"]:
         yield "  programs (compiles run on worker threads, overlapping each other and the rows above):"

@@ -99,6 +99,8 @@ def test_only_process_zero_writes_logs(dist_run):
     lines = [json.loads(x) for x in (dist_run / "dist" / "metrics.jsonl").read_text().splitlines()]
     assert [r["step"] for r in lines if r["kind"] == "train"] == [512, 1024, 1536, 2048]
     assert len([r for r in lines if r["kind"] == "final"]) == 1
+    # Both processes ran every evaluation (collectives), the step-0 one after training (eval.initial=end).
+    assert [r["step"] for r in lines if r["kind"] == "eval"] == [1024, 2048, 0]
 
 
 def test_brax_run_never_imports_torch(dist_run):

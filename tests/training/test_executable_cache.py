@@ -285,8 +285,9 @@ def test_off_switch_writes_and_reads_nothing(tmp_path, monkeypatch):
 
 
 def test_run_name_budget_and_paths_stay_out_of_the_key(tmp_path, monkeypatch):
-    """A rerun under another run name, runs directory, wall-clock budget, export path or cache directory
-    compiles the same programs: the same context. A changed PPO value does not (a different context)."""
+    """A rerun under another run name, runs directory, wall-clock budget, export path, cache directory or
+    step-0 evaluation time compiles the same programs: the same context. A changed PPO value or
+    evaluation size does not (a different context)."""
     monkeypatch.setenv(ec.CPU_ENV, "1")
     cfg = apply_overrides(preset("tiny"), ["executable_cache=True"])
     base = config_to_dict(cfg)
@@ -300,10 +301,12 @@ def test_run_name_budget_and_paths_stay_out_of_the_key(tmp_path, monkeypatch):
                 "onnx_path=x.onnx",
                 "export_onnx=False",
                 "autotune_seed=False",  # changes XLA's choice of implementation, not what is computed
+                "eval.initial=off",  # a section's field
             ],
         )
     )
     tuned = config_to_dict(apply_overrides(cfg, ["ppo.learning_rate=0.000123"]))
+    bigger = config_to_dict(apply_overrides(cfg, ["eval.num_eval_envs=32"]))  # the field beside it
     assert {k for k in base if base[k] != moved[k]} == {
         "run_name",
         "runs_dir",
@@ -311,14 +314,20 @@ def test_run_name_budget_and_paths_stay_out_of_the_key(tmp_path, monkeypatch):
         "onnx_path",
         "export_onnx",
         "autotune_seed",
+        "eval",
     }
+    assert {k for k in base["eval"] if base["eval"][k] != moved["eval"][k]} == {"initial"}
     ctx = [
         executable_cache_for(cfg, tmp_path, {"train": t, "env": {}}, Toy()).context
-        for t in (base, moved, tuned)
+        for t in (base, moved, tuned, bigger)
     ]
     assert ctx[0] == ctx[1]
-    assert ctx[0] != ctx[2]
-    assert set(ec.OUTSIDE_PROGRAMS) <= set(base)  # every name left out is a real field
+    assert ctx[0] != ctx[2] and ctx[0] != ctx[3]
+    assert "initial" in base["eval"] and "initial" not in ctx[0]["train"]["eval"]
+    assert base["eval"]["initial"] == "end"  # the record itself is left whole
+    for name in ec.OUTSIDE_PROGRAMS:  # every name left out is a real field (of a section, when dotted)
+        section, _, leaf = name.partition(".")
+        assert section in base and (not leaf or leaf in base[section]), name
 
 
 def test_key_covers_config_code_versions_platform_and_signature():

@@ -46,7 +46,8 @@ def test_rsl_rl_run_trains_checkpoints_and_exports(rsl_run):
     lines = (summary.run_dir / "metrics.jsonl").read_text().splitlines()
     records = [json.loads(x) for x in lines]
     assert len([r for r in records if r["kind"] == "train"]) == 10
-    assert next(r["step"] for r in records if r["kind"] == "eval") == 0
+    # Every 5 iterations, then the untrained actor's step-0 evaluation after training (eval.initial=end).
+    assert [r["step"] for r in records if r["kind"] == "eval"] == [1280, 2560, 0]
     model = onnx.load(str(summary.onnx_path))
     props = {p.key: p.value for p in model.metadata_props}
     assert set(BAR_KEYS) | set(HC_KEYS) <= set(props)
@@ -85,8 +86,9 @@ def test_rsl_rl_resume_continues_the_step_count(rsl_run, toy_env, tmp_path):
 
 
 def test_rsl_rl_evaluates_the_initial_actor_at_step_0(rsl_run):
-    # The step-0 evaluation runs after the first iterations (once the eval step is compiled), on a copy of
-    # the actor taken before training. Expected: rsl-rl's deterministic module of a freshly built initial
+    # The step-0 evaluation runs after training (eval.initial=end; with start, after the first iterations
+    # once the eval step is compiled: tests/training/test_initial_eval.py), on a copy of the actor taken
+    # before training. Expected: rsl-rl's deterministic module of a freshly built initial
     # actor (torch seeded with the run's seed, as train_rsl_rl seeds it before building its runner),
     # evaluated on the step-0 seeds (cfg.seed + 1000).
     from rsl_rl.runners import OnPolicyRunner

@@ -80,7 +80,7 @@ def test_record_names_every_phase_and_its_rows_add_up():
     )
     rec = timer.finish(7.0, {"compiles": 2, "compile_s": 3.2, "cache_hits": 1, "cache_misses": 0,
                              "cache_load_s": 0.15}, total_s=9.0)  # fmt: skip
-    assert timer.report is rec
+    assert timer.report is rec and rec["until"] == sb.UNTIL_EVAL  # the default: ended by the evaluation
     assert set(PHASES) <= set(rec["phases"]) and "a backend's own phase" in rec["phases"]
     assert list(rec["phases"])[-1] == sb.OTHER
     # 9 s in all, 1 + 2.5 + 0.5 named: the other 5 s are the OTHER row.
@@ -97,6 +97,31 @@ def test_record_names_every_phase_and_its_rows_add_up():
         "XLA compiles: 2 (3.2 s summed over threads); persistent cache 1 hits (0.15 s loading) / 0 misses"
     )
     assert json.loads(json.dumps(rec)) == rec
+
+
+def test_a_start_up_without_an_evaluation_prints_no_evaluation_rows():
+    # eval.initial=end or off, or a resume: the start-up ends with the first epoch.
+    timer = StartupTimer(origin=time.monotonic() - 5.0, origin_name="process start")
+    timer.add(sb.TRACE, 2.0)
+    timer.add(sb.FIRST_EPOCH, 1.5)
+    rec = timer.finish(4.5, total_s=5.0, until=sb.UNTIL_EPOCH)
+    # The record keeps every phase (0.0 for the evaluation's two) and says where the start-up ended ...
+    assert rec["until"] == sb.UNTIL_EPOCH and set(PHASES) <= set(rec["phases"])
+    assert rec["phases"][sb.FIRST_EVAL] == rec["phases"][sb.MORE_EPOCHS] == 0.0
+    # ... and the table leaves those two out instead of showing an evaluation that took 0 s; the rows
+    # still add up to the total (2 + 1.5 named, 1.5 other).
+    lines = StartupTimer.lines(rec)
+    assert lines[0] == (
+        "start-up: 5.0 s from process start to the end of the first epoch (done at 4.5 s; no evaluation "
+        "before training)"
+    )
+    text = "\n".join(lines)
+    assert sb.FIRST_EVAL not in text and sb.MORE_EPOCHS not in text and sb.FIRST_EPOCH in text
+    assert any(sb.OTHER in line and line.split()[-2:] == ["1.50", "s"] for line in lines)
+    # A record from before ``until`` existed ended at the first evaluation, rows and all.
+    old = {k: v for k, v in StartupTimer().finish(1.0, total_s=2.0).items() if k != "until"}
+    assert "to the first evaluation" in StartupTimer.lines(old)[0]
+    assert any(sb.FIRST_EVAL in line for line in StartupTimer.lines(old))
 
 
 @pytest.mark.parametrize(
@@ -121,8 +146,11 @@ def test_a_run_records_its_startup_breakdown(brax_run, run_walls):
     # The stand-in env is handed to run(): no model to build. Everything else of a brax start happened
     # (the imports too, but in a test process they are done before, and may round to 0 ms).
     assert phases[MODEL_BUILD] == 0.0 and phases[sb.BEFORE_RUN] == 0.0
-    for name in (sb.RUN_RECORD, sb.PROGRAMS, sb.TRACE, sb.LOWER, sb.FIRST_EPOCH, sb.FIRST_EVAL):
+    for name in (sb.RUN_RECORD, sb.PROGRAMS, sb.TRACE, sb.LOWER, sb.FIRST_EPOCH):
         assert phases[name] > 0, name
+    # eval.initial=end (the default): the start-up ends with the first epoch; no evaluation in it (with
+    # start, tests/training/test_initial_eval.py).
+    assert rec["until"] == sb.UNTIL_EPOCH and phases[sb.FIRST_EVAL] == phases[sb.MORE_EPOCHS] == 0.0
     # The rows add up to the total, which lies inside the wall time measured around run().
     assert sum(phases.values()) == pytest.approx(rec["total_s"], abs=ROUNDING_S)
     assert 0 < rec["first_epoch_end_s"] <= rec["total_s"] <= run_walls["brax"] + ROUNDING_S
@@ -137,8 +165,10 @@ def test_a_run_records_its_startup_breakdown(brax_run, run_walls):
     assert all(p["compile_s"] > 0 and p["cache"] in outcomes for p in progs.values())
     # Four programs, plus at most a few tiny ones jax needs (the pmap trainer compiled ~85 here).
     assert 4 <= rec["compiles"]["compiles"] <= 8
-    # The step-0 evaluation is still the first one recorded.
-    assert next(r for r in recs if r["kind"] == "eval")["step"] == 0
+    # In the record: the first epoch, the report, the periodic evaluations, then the step-0 one.
+    kinds = [r["kind"] for r in recs]
+    assert kinds.index("train") < recs.index(logged) < kinds.index("eval")
+    assert [r["step"] for r in recs if r["kind"] == "eval"][-1] == 0
 
 
 def test_an_rsl_rl_run_records_its_startup_breakdown(rsl_run):
@@ -153,18 +183,12 @@ def test_an_rsl_rl_run_records_its_startup_breakdown(rsl_run):
     # Where an rsl-rl start goes: its jax programs (both envs' resets and steps and the evaluation's quality
     # reduction, traced and lowered on this thread: the TRACE and LOWER rows, taken out of the programs
     # row), then torch's imports (done before in a test process: the row is there, maybe 0 ms), the wait
-    # for the training reset and its run, the runner, the first iteration (the FIRST_EPOCH row), and the
-    # step-0 evaluation, after it. No brax program is built.
-    for name in (
-        sb.RSL_PROGRAMS,
-        sb.RSL_RESET,
-        sb.RSL_RUNNER,
-        sb.TRACE,
-        sb.LOWER,
-        sb.FIRST_EPOCH,
-        sb.FIRST_EVAL,
-    ):
+    # for the training reset and its run, the runner and the first iteration (the FIRST_EPOCH row); the
+    # step-0 evaluation runs after training (eval.initial=end), outside the start-up. No brax program is
+    # built.
+    for name in (sb.RSL_PROGRAMS, sb.RSL_RESET, sb.RSL_RUNNER, sb.TRACE, sb.LOWER, sb.FIRST_EPOCH):
         assert phases[name] > 0, name
+    assert rec["until"] == sb.UNTIL_EPOCH and phases[sb.FIRST_EVAL] == phases[sb.MORE_EPOCHS] == 0.0
     assert sb.RSL_IMPORTS in phases and phases[sb.PROGRAMS] == 0.0
     progs = rec["programs"]
     assert set(progs) == {"train reset", "train step", "eval reset", "eval step", "eval quality"}
@@ -175,12 +199,10 @@ def test_an_rsl_rl_run_records_its_startup_breakdown(rsl_run):
     assert [order.index(k) for k in happened] == sorted(order.index(k) for k in happened)
     assert order.index(sb.RSL_RUNNER) < order.index(sb.WAIT) and order[-1] == sb.OTHER
     # The rows add up to the total: each row is rounded to 1 ms (ROUNDING_S allows a few ms over all of
-    # them). The report is finished after the step-0 evaluation, which follows the first iteration.
+    # them). The report is finished after the first iteration.
     assert sum(phases.values()) == pytest.approx(rec["total_s"], abs=ROUNDING_S)
     assert 0 < rec["first_epoch_end_s"] <= rec["total_s"]
-    assert rec["total_s"] - rec["first_epoch_end_s"] >= phases[sb.FIRST_EVAL] - ROUNDING_S
-    # In the record: the first iteration, then the step-0 evaluation (the first one), then the report.
+    # In the record: the first iteration, the report, the periodic evaluations, then the step-0 one.
     kinds = [r["kind"] for r in recs]
-    first_eval = kinds.index("eval")
-    assert recs[first_eval]["step"] == 0
-    assert kinds.index("train") < first_eval < recs.index(logged)
+    assert kinds.index("train") < recs.index(logged) < kinds.index("eval")
+    assert [r["step"] for r in recs if r["kind"] == "eval"][-1] == 0
