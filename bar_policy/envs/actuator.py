@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from mujoco import mjx
 
+from bar_policy.envs.device_arrays import to_device
 from bar_policy.robot.constants import RobotSpec
 from bar_policy.robot.mit import MitCommand, WireRanges, firmware_torque, quantize_command, wire_ranges
 
@@ -50,7 +51,7 @@ class ActuatorParams:
     @classmethod
     def from_robot(cls, robot: RobotSpec, *, quantize_wire: bool, torque_saturation: bool) -> ActuatorParams:
         """Build from the robot data; ``torque_saturation=False`` leaves the law unclipped."""
-        f32 = lambda x: jnp.asarray(np.asarray(x, dtype=np.float32))  # noqa: E731
+        f32 = lambda x: to_device(x, np.float32)  # noqa: E731
         cap = robot.torque_cap if torque_saturation else np.full(robot.num_joints, np.inf)
         r = wire_ranges(robot.models)
         return cls(

@@ -51,6 +51,7 @@ import numpy as np
 from mujoco import mjx
 
 from bar_policy.envs import rewards as robot_rewards
+from bar_policy.envs.device_arrays import to_device
 from bar_policy.envs.robot import LiteRobotEnv
 from bar_policy.envs.robot_config import RobotEnvConfig, nominal
 from bar_policy.envs.task import TaskStep, Transition
@@ -182,17 +183,17 @@ class LitePiano(LiteRobotEnv):
         self._key_qpos = np.array([m.jnt_qposadr[m.joint(f"piano_key{k.midi}").id] for k in keys])
         self._key_sites = np.array([m.site(f"piano_key{k.midi}_top").id for k in keys])
         self._tip_sites = np.array([m.site(s).id for s in FINGERTIP_SITES])
-        self._threshold = jnp.asarray(press_thresholds(kb), jnp.float32)
+        self._threshold = to_device(press_thresholds(kb), np.float32)
         self._black = black_keys(kb)  # numpy: a static mask in the jitted step
-        self._angle_max = jnp.asarray(rewards.angle_max(kb), jnp.float32)
+        self._angle_max = to_device(rewards.angle_max(kb), np.float32)
         length_s = cfg.episode_length_s - cfg.playback.count_in_s  # the random songs fit after the count-in
         songs = training_songs(kb, cfg.songs, length_s, cfg.tempo_bpm, cfg.song_seed, cfg.library)
         self.songs = tuple(songs)
         """The bank's songs as written (the bank holds them as played)."""
         self.bank = song_bank(songs, kb, cfg.ctrl_dt, self.episode_length, TARGET_FRAMES - 1, cfg.playback)
-        self._down = jnp.asarray(self.bank.down)
-        self._hands = jnp.asarray(self.bank.hands)
-        self._held = jnp.asarray(held_pose(np.asarray(self._default), cfg.mode), jnp.float32)
+        self._down = to_device(self.bank.down)
+        self._hands = to_device(self.bank.hands)
+        self._held = to_device(held_pose(np.asarray(self._default), cfg.mode), np.float32)
 
     def action_prior(self, lead_steps: int) -> BlendPrior:
         """The key-pose prior (``prior.py``): goal-key frames ``0..lead_steps`` press, later ones hover."""

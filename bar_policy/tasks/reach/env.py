@@ -35,6 +35,7 @@ import numpy as np
 from mujoco import mjx
 
 from bar_policy.envs import rewards
+from bar_policy.envs.device_arrays import to_device
 from bar_policy.envs.robot import LiteRobotEnv
 from bar_policy.envs.robot_config import (
     ActuatorConfig,
@@ -180,7 +181,7 @@ class LiteReach(LiteRobotEnv):
         self._site_ids = np.array([self.mj_model.site(s).id for s in FINGERTIP_SITES])
         # The fingertips of the default pose, where each episode's commanded targets start (the deploy
         # side's ``TransitionCommands`` starts from the same ``Kinematics``), shape (2, 3), m.
-        self._tips0 = jnp.asarray(Kinematics(cfg.mode).fingertips(np.asarray(self._default)), jnp.float32)
+        self._tips0 = to_device(Kinematics(cfg.mode).fingertips(np.asarray(self._default)), np.float32)
 
     def task_metadata(self) -> dict:
         """The command transition's duration (``bar.command_transition``), s."""

@@ -40,6 +40,7 @@ from mujoco import mjx
 
 from bar_policy.envs import rewards
 from bar_policy.envs.base import State
+from bar_policy.envs.device_arrays import to_device
 from bar_policy.envs.robot import LiteRobotEnv
 from bar_policy.envs.robot_config import nominal
 from bar_policy.envs.sampling import StartBins, start_probabilities, update_counts
@@ -85,13 +86,13 @@ class LiteTrack(LiteRobotEnv):
         table = ReferenceTable.build(clips, TRACK_BODY_NAMES, rate_hz=1.0 / cfg.ctrl_dt)
         self.reference = table
         vel = [np.gradient(table.joint_pos[s : s + n], cfg.ctrl_dt, axis=0) for s, n in self._spans()]
-        self._ref_q = jnp.asarray(table.joint_pos)
-        self._ref_dq = jnp.asarray(np.concatenate(vel).astype(np.float32))
-        self._ref_pos = jnp.asarray(table.body_pos)
-        self._ref_ori = jnp.asarray(table.body_ori)
-        self._ref_tip = jnp.asarray(table.fingertip_pos)
-        self._clip_start = jnp.asarray(table.clip_start)
-        self._clip_length = jnp.asarray(table.clip_length)
+        self._ref_q = to_device(table.joint_pos)
+        self._ref_dq = to_device(np.concatenate(vel).astype(np.float32))
+        self._ref_pos = to_device(table.body_pos)
+        self._ref_ori = to_device(table.body_ori)
+        self._ref_tip = to_device(table.fingertip_pos)
+        self._clip_start = to_device(table.clip_start)
+        self._clip_length = to_device(table.clip_length)
         self._body_ids = np.array([self.mj_model.body(b).id for b in TRACK_BODY_NAMES])
         self._site_ids = np.array([self.mj_model.site(s).id for s in FINGERTIP_SITES])
         bin_frames = max(round(cfg.sampling.bin_s / cfg.ctrl_dt), 1)
