@@ -29,7 +29,6 @@ evaluation that ranks above every earlier one keeps a host copy of its params
 from __future__ import annotations
 
 import math
-import os
 import time
 from collections.abc import Callable
 from typing import Any
@@ -150,11 +149,7 @@ def train_brax(
     envs_abs = dp.abstract(reset_lowered.out_info, sharded=True)
     compiler.submit("epoch", programs.epoch, ts_abs, envs_abs, key_abs, load_in_background=True)
     compiler.submit("init", programs.init, key_abs)
-    # Experimental (issue 19, to measure): the evaluation's compile after the epoch's, not beside it.
-    after = "epoch" if os.environ.get("BAR_POLICY_EVAL_COMPILE_AFTER_EPOCH") == "1" else ""
-    compiler.submit(
-        "evaluate", programs.evaluate, _policy_params(ts_abs), key_abs, key_abs, background=True, after=after
-    )
+    compiler.submit("evaluate", programs.evaluate, _policy_params(ts_abs), key_abs, key_abs, background=True)
 
     env_steps, iteration = 0, 0
     with timer.phase(sb.WAIT):

@@ -214,7 +214,6 @@ class Compiler:
         *args: Any,
         background: bool = False,
         load_in_background: bool = False,
-        after: str = "",
     ) -> Any:
         """Trace and lower now, compile in the background; returns the ``Lowered`` (its ``out_info``).
 
@@ -226,10 +225,6 @@ class Compiler:
         ``background``; an unusable entry is then traced and compiled there) while a program to compile is
         still traced here: for a program whose result the caller does not read (a warm start's epoch or
         rsl-rl step, whose seconds of loading then overlap what this thread does next).
-        With ``after=<name>`` (background programs only) the compile (not the trace) waits until program
-        ``name`` is compiled or loaded: two XLA compiles side by side share the CPU cores and both end later
-        (H100, reach epoch: 27.9 s alone, 38.7 s beside the evaluation's), so the one needed first goes alone.
-        A load from the executable cache does not wait.
         """
         from bar_policy.training.startup_breakdown import EXEC_LOAD, LOWER, TRACE
 
@@ -279,13 +274,7 @@ class Compiler:
 
             def everything() -> Any:
                 compiled = load()
-                if compiled is not None:
-                    return compiled
-                lowered = trace_and_lower()
-                if after:
-                    with contextlib.suppress(Exception):  # its own error surfaces in its own get()
-                        self._futures[after].result()
-                return compile_it(lowered)
+                return compiled if compiled is not None else compile_it(trace_and_lower())
 
             self._futures[name] = self._pool.submit(everything)
             return None
