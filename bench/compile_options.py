@@ -204,13 +204,15 @@ def _table(rows: list[dict[str, Any]], args: argparse.Namespace) -> str:
         f"compile options: {args.env}, preset {args.preset} {' '.join(args.set)}, epoch program, "
         f"{jax.devices()[0].device_kind}, jax {jax.__version__}",
         "",
-        "| variant | options | compile s | env steps/s | first call s | MB | load s | load s (load flag) | note |",
+        "| variant | options | compile s | env steps/s | first call s | MB | load s | load s (load flag) "
+        "| note |",
         "|---|---|---:|---:|---:|---:|---:|---:|---|",
     ]
     for r in rows:
         opts = " ".join(f"{k}={v}" for k, v in VARIANTS[r["variant"]].items()) or "XLA defaults"
         lines.append(
-            f"| {r['variant']} | {opts} | {f(r.get('compile_s'), '.1f')} | {f(r.get('env_steps_per_s'), ',.0f')} "
+            f"| {r['variant']} | {opts} | {f(r.get('compile_s'), '.1f')} "
+            f"| {f(r.get('env_steps_per_s'), ',.0f')} "
             f"| {f(r.get('first_call_s'), '.2f')} | {f(r.get('mb'), '.1f')} | {f(r.get('load_s'), '.2f')} "
             f"| {f(r.get('load_flag_s'), '.2f')} | {r.get('error', '')} |"
         )
