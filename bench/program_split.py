@@ -1,0 +1,210 @@
+"""Would the epoch as two programs (rollout, update) compile and load sooner than as one? (issue 19)
+
+A cold reach run waits for the epoch program's compile (H100: 28 s alone, 31 s beside the evaluation's) and
+a warm one for its load from the executable cache (4-7 s). The epoch is ``iters`` PPO iterations, each a
+rollout (the env step: most of the code) and an update (the networks' gradients). As two programs they
+would compile side by side. This bench compiles each set of programs the way the trainer does (traced and
+lowered one after the other on the main thread, compiled concurrently on threads, on an empty jax cache
+with the shipped autotune seeds), then loads the serialised executables concurrently in a fresh process,
+and reports per set: each program's compile and load, and the wall time until all of them are ready.
+
+Sets: ``epoch+evaluate`` (today's start) and ``rollout+update+evaluate``; ``--sets`` picks. Each set's
+compile runs in a process of its own (XLA keeps in-process caches).
+
+Examples::
+
+    python bench/program_split.py --out $OUT/program_split.md            # GPU (~3 min)
+    python bench/program_split.py --preset tiny --sets rollout+update     # CPU smoke check
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pickle
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+PROGRAMS = ("epoch", "rollout", "update", "evaluate")
+
+
+def _compile_set(args: argparse.Namespace) -> dict[str, Any]:
+    """Trace and lower the set's programs in turn, compile them concurrently, store their executables."""
+    import jax
+    import numpy as np
+    from jax.experimental.serialize_executable import serialize
+    from jax.sharding import Mesh
+    from jax.sharding import PartitionSpec as P
+
+    from bar_policy import envs
+    from bar_policy.training.autotune_seed import seed_autotune_cache
+    from bar_policy.training.brax_ppo import epoch_iterations, make_programs, slot_env
+    from bar_policy.training.brax_programs import _policy_params
+    from bar_policy.training.config import apply_overrides, preset
+    from bar_policy.training.learner import make_learner
+    from bar_policy.training.parallel import AXIS, DataParallel
+    from bar_policy.training.startup import configure_compile_cache
+
+    names = args.compile_set.split("+")
+    out: dict[str, Any] = {"set": args.compile_set}
+    cache = configure_compile_cache(True, args.cache_dir)
+    out["seed"] = seed_autotune_cache(cache).line()
+    cfg = apply_overrides(preset(args.preset), args.set)
+    ppo = cfg.ppo
+    env = envs.load(args.env)
+    randomizer = envs.get_randomizer(args.env, env.config)
+    wrap = envs.wrap_for_brax_training
+    dp = DataParallel(Mesh(np.asarray(jax.devices()[:1]), (AXIS,)))
+    learner = make_learner(env.observation_size, env.action_size, ppo, cfg.network)
+    progs = make_programs(env, cfg, learner, dp, wrap, randomizer, epoch_iterations(cfg))
+    unrolls = ppo.batch_size * ppo.num_minibatches // ppo.num_envs
+
+    def rollout(ts: Any, envs_carry: Any, key: jax.Array) -> Any:
+        state, model_keys = envs_carry
+        batch = slot_env(env, wrap, randomizer, model_keys)
+        state, data, stats = learner.rollout(ts, state, key, batch, unrolls)
+        return (state, model_keys), data, jax.lax.psum(stats, AXIS)
+
+    rep, shard = P(), P(AXIS)
+    f_roll = dp.map(rollout, (rep, shard, rep), (shard, shard, rep), donate_argnums=(1,))
+    f_update = dp.map(learner.update, (rep, shard, rep), (rep, rep), donate_argnums=(0,))
+    key_abs = dp.abstract(np.zeros(2, np.uint32), sharded=False)
+    ts_abs = dp.abstract(jax.eval_shape(learner.init, key_abs), sharded=False)
+    envs_abs = dp.abstract(progs.reset.trace(key_abs, key_abs).lower().out_info, sharded=True)
+    lowered: dict[str, Any] = {}
+    t0 = time.monotonic()
+    for name in names:  # traced and lowered in turn (the trainer's main thread)
+        if name == "epoch":
+            lowered[name] = progs.epoch.trace(ts_abs, envs_abs, key_abs).lower()
+        elif name == "rollout":
+            lowered[name] = f_roll.trace(ts_abs, envs_abs, key_abs).lower()
+        elif name == "update":
+            data_abs = jax.eval_shape(f_roll, ts_abs, envs_abs, key_abs)[1]
+            lowered[name] = f_update.trace(ts_abs, dp.abstract(data_abs, sharded=True), key_abs).lower()
+        elif name == "evaluate":
+            lowered[name] = progs.evaluate.trace(_policy_params(ts_abs), key_abs, key_abs).lower()
+    out["trace_lower_s"] = time.monotonic() - t0
+
+    def compile_one(name: str) -> tuple[str, Any, float]:
+        t = time.monotonic()
+        compiled = lowered[name].compile()
+        return name, compiled, time.monotonic() - t
+
+    t0 = time.monotonic()
+    with ThreadPoolExecutor(len(names)) as pool:
+        done = list(pool.map(compile_one, names))
+    out["compile_wall_s"] = time.monotonic() - t0
+    out["compile_s"] = {n: s for n, _, s in done}
+    work = Path(args.workdir) / args.compile_set
+    work.mkdir(parents=True, exist_ok=True)
+    out["mb"] = {}
+    for name, compiled, _ in done:
+        try:
+            blob, in_tree, out_tree = serialize(compiled)
+        except Exception as e:  # jaxlib 0.10.2's CPU thunks: "`LessThan` is not serializable"
+            out["error"] = f"{name} not serialisable: {str(e).splitlines()[0][:120]}"
+            continue
+        (work / f"{name}.pkl").write_bytes(pickle.dumps({"e": blob, "i": in_tree, "o": out_tree}))
+        out["mb"][name] = len(blob) / 2**20
+    return out
+
+
+def _load_set(directory: str) -> dict[str, Any]:
+    """Load every stored executable of a set concurrently (as a warm run does), in this fresh process."""
+    import jax
+    from jax.experimental.serialize_executable import deserialize_and_load
+
+    from bar_policy.training.executable_cache import _init_lazy_kernels
+
+    jax.devices()
+    _init_lazy_kernels()
+    files = sorted(Path(directory).glob("*.pkl"))
+
+    def load(path: Path) -> tuple[str, float]:
+        entry = pickle.loads(path.read_bytes())
+        t = time.monotonic()
+        deserialize_and_load(entry["e"], entry["i"], entry["o"])
+        return path.stem, time.monotonic() - t
+
+    t0 = time.monotonic()
+    with ThreadPoolExecutor(max(len(files), 1)) as pool:
+        loads = dict(pool.map(load, files))
+    return {"load_s": loads, "load_wall_s": time.monotonic() - t0}
+
+
+def _child(argv: list[str], timeout: float) -> dict[str, Any]:
+    try:
+        r = subprocess.run([sys.executable, __file__, *argv], capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return {"error": f"timed out after {timeout:.0f} s"}
+    try:
+        return json.loads(r.stdout.strip().splitlines()[-1])
+    except (IndexError, json.JSONDecodeError):
+        return {"error": f"exit {r.returncode}: {(r.stderr.strip().splitlines() or ['?'])[-1][:200]}"}
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--preset", default="gpu")
+    p.add_argument("--env", default="LiteReach")
+    p.add_argument("--set", nargs="*", default=[], help="config overrides, e.g. ppo.num_envs=8192")
+    p.add_argument("--sets", default="epoch+evaluate,rollout+update+evaluate")
+    p.add_argument("--workdir", default="")
+    p.add_argument("--timeout", type=float, default=200, help="seconds per child process")
+    p.add_argument("--out", default="")
+    p.add_argument("--compile-set", default="", help=argparse.SUPPRESS)
+    p.add_argument("--load-set", default="", help=argparse.SUPPRESS)
+    p.add_argument("--cache-dir", default="", help=argparse.SUPPRESS)
+    args = p.parse_args()
+    if args.load_set:
+        print(json.dumps(_load_set(args.load_set)))
+        return 0
+    if args.compile_set:
+        print(json.dumps(_compile_set(args)))
+        return 0
+    sets = [s for s in args.sets.split(",") if s]
+    bad = [n for s in sets for n in s.split("+") if n not in PROGRAMS]
+    if bad:
+        p.error(f"unknown programs {bad}; valid: {list(PROGRAMS)}")
+    work = Path(args.workdir or tempfile.mkdtemp(prefix="program_split_"))
+    rows = []
+    for s in sets:
+        argv = ["--compile-set", s, "--preset", args.preset, "--env", args.env, "--workdir", str(work)]
+        argv += ["--cache-dir", str(work / f"cache_{s}")] + (["--set", *args.set] if args.set else [])
+        row = _child(argv, args.timeout)
+        if "compile_s" in row:
+            row.update(_child(["--load-set", str(work / s)], args.timeout))
+        rows.append({"set": s, **row})
+        print(json.dumps(rows[-1]), flush=True)
+    lines = [
+        f"program split: {args.env}, preset {args.preset} {' '.join(args.set)}",
+        "",
+        "| set | trace+lower s (main) | compile s each (concurrent) | all compiled s | MB each | load s each "
+        "(concurrent, fresh process) | all loaded s | note |",
+        "|---|---:|---|---:|---|---|---:|---|",
+    ]
+    for r in rows:
+
+        def each(d: dict[str, float] | None, fmt: str) -> str:
+            return ", ".join(f"{k} {format(v, fmt)}" for k, v in (d or {}).items()) or "-"
+
+        lines.append(
+            f"| {r['set']} | {r.get('trace_lower_s', float('nan')):.1f} | {each(r.get('compile_s'), '.1f')} "
+            f"| {r.get('compile_wall_s', float('nan')):.1f} | {each(r.get('mb'), '.1f')} "
+            f"| {each(r.get('load_s'), '.2f')} | {r.get('load_wall_s', float('nan')):.2f} "
+            f"| {r.get('error', '')} |"
+        )
+    text = "\n".join(lines)
+    print(text)
+    if args.out:
+        Path(args.out).write_text(text + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
