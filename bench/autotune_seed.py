@@ -27,8 +27,8 @@ from pathlib import Path
 
 from bar_policy.training.autotune_seed import SEED_DIR, pack_seed
 
-PROGRAMS = ("reset", "epoch", "init", "evaluate")
-"""The brax backend's programs (``startup.Compiler`` names)."""
+PROGRAMS = ("reset", "rollout", "update", "init", "evaluate")
+"""The brax backend's programs (``startup.Compiler`` names; "epoch" in the seeds made before session 34)."""
 
 
 def _commit() -> str:

@@ -1,8 +1,9 @@
 """What XLA's per-compile options do to the reach epoch: compile time, training speed, load time (issue 19).
 
-A cold run waits about 39 s for the epoch program to compile (H100, shipped autotune seeds) and a warm run
-about 5.8 s for its executable to load from the executable cache. This bench compiles the trainer's own epoch
-program (``brax_ppo``'s, ``--preset``, one device) under each named set of XLA debug options, passed per
+The epoch here is the one-program epoch the trainer had until session 34 (``bench/fused_epoch.py``). A cold
+run waited about 39 s for it to compile (H100, shipped autotune seeds) and a warm run about 5.8 s for its
+executable to load from the executable cache. This bench compiles that epoch (``--preset``, one device)
+under each named set of XLA debug options, passed per
 compile (``Lowered.compile(compiler_options=...)``, so the rest of the process keeps XLA's defaults), and
 reports per variant:
 
@@ -59,6 +60,7 @@ def _one(args: argparse.Namespace) -> dict[str, Any]:
     """Compile, run and serialise the epoch under one variant (this process only); the row as a dict."""
     import jax
     import numpy as np
+    from fused_epoch import fused_epoch
     from jax.experimental.serialize_executable import serialize
     from jax.sharding import Mesh
 
@@ -79,13 +81,14 @@ def _one(args: argparse.Namespace) -> dict[str, Any]:
     dp = DataParallel(Mesh(np.asarray(jax.devices()[:1]), (AXIS,)))
     learner = make_learner(env.observation_size, env.action_size, cfg.ppo, cfg.network)
     iters = args.epoch_iters or epoch_iterations(cfg)
-    progs = make_programs(env, cfg, learner, dp, envs.wrap_for_brax_training, randomizer, iters)
+    progs = make_programs(env, cfg, learner, dp, envs.wrap_for_brax_training, randomizer)
+    epoch_program = fused_epoch(env, cfg, learner, dp, envs.wrap_for_brax_training, randomizer, iters)
     key_abs = dp.abstract(np.zeros(2, np.uint32), sharded=False)
     ts_abs = dp.abstract(jax.eval_shape(learner.init, key_abs), sharded=False)
     reset = progs.reset.trace(key_abs, key_abs).lower()
     envs_abs = dp.abstract(reset.out_info, sharded=True)
     t0 = time.monotonic()
-    lowered = progs.epoch.trace(ts_abs, envs_abs, key_abs).lower()
+    lowered = epoch_program.trace(ts_abs, envs_abs, key_abs).lower()
     row["trace_lower_s"] = time.monotonic() - t0
     t0 = time.monotonic()
     try:

@@ -8,7 +8,8 @@ lowered one after the other on the main thread, compiled concurrently on threads
 with the shipped autotune seeds), then loads the serialised executables concurrently in a fresh process,
 and reports per set: each program's compile and load, and the wall time until all of them are ready.
 
-Sets: ``epoch+evaluate`` (today's start) and ``rollout+update+evaluate``; ``--sets`` picks. Each set's
+Sets: ``epoch+evaluate`` (the start until session 34: ``bench/fused_epoch.py``) and
+``rollout+update+evaluate`` (the trainer's programs since); ``--sets`` picks. Each set's
 compile runs in a process of its own (XLA keeps in-process caches).
 
 Examples::
@@ -37,13 +38,13 @@ def _compile_set(args: argparse.Namespace) -> dict[str, Any]:
     """Trace and lower the set's programs in turn, compile them concurrently, store their executables."""
     import jax
     import numpy as np
+    from fused_epoch import fused_epoch
     from jax.experimental.serialize_executable import serialize
     from jax.sharding import Mesh
-    from jax.sharding import PartitionSpec as P
 
     from bar_policy import envs
     from bar_policy.training.autotune_seed import seed_autotune_cache
-    from bar_policy.training.brax_ppo import epoch_iterations, make_programs, slot_env
+    from bar_policy.training.brax_ppo import epoch_iterations, make_programs
     from bar_policy.training.brax_programs import _policy_params
     from bar_policy.training.config import apply_overrides, preset
     from bar_policy.training.learner import make_learner
@@ -61,31 +62,23 @@ def _compile_set(args: argparse.Namespace) -> dict[str, Any]:
     wrap = envs.wrap_for_brax_training
     dp = DataParallel(Mesh(np.asarray(jax.devices()[:1]), (AXIS,)))
     learner = make_learner(env.observation_size, env.action_size, ppo, cfg.network)
-    progs = make_programs(env, cfg, learner, dp, wrap, randomizer, epoch_iterations(cfg))
-    unrolls = ppo.batch_size * ppo.num_minibatches // ppo.num_envs
-
-    def rollout(ts: Any, envs_carry: Any, key: jax.Array) -> Any:
-        state, model_keys = envs_carry
-        batch = slot_env(env, wrap, randomizer, model_keys)
-        state, data, stats = learner.rollout(ts, state, key, batch, unrolls)
-        return (state, model_keys), data, jax.lax.psum(stats, AXIS)
-
-    rep, shard = P(), P(AXIS)
-    f_roll = dp.map(rollout, (rep, shard, rep), (shard, shard, rep), donate_argnums=(1,))
-    f_update = dp.map(learner.update, (rep, shard, rep), (rep, rep), donate_argnums=(0,))
+    progs = make_programs(env, cfg, learner, dp, wrap, randomizer)
+    epoch_program = fused_epoch(env, cfg, learner, dp, wrap, randomizer, epoch_iterations(cfg))
     key_abs = dp.abstract(np.zeros(2, np.uint32), sharded=False)
+    i_abs = dp.abstract(np.zeros((), np.int32), sharded=False)
     ts_abs = dp.abstract(jax.eval_shape(learner.init, key_abs), sharded=False)
     envs_abs = dp.abstract(progs.reset.trace(key_abs, key_abs).lower().out_info, sharded=True)
     lowered: dict[str, Any] = {}
     t0 = time.monotonic()
     for name in names:  # traced and lowered in turn (the trainer's main thread)
         if name == "epoch":
-            lowered[name] = progs.epoch.trace(ts_abs, envs_abs, key_abs).lower()
+            lowered[name] = epoch_program.trace(ts_abs, envs_abs, key_abs).lower()
         elif name == "rollout":
-            lowered[name] = f_roll.trace(ts_abs, envs_abs, key_abs).lower()
+            lowered[name] = progs.rollout.trace(ts_abs, envs_abs, key_abs, i_abs).lower()
         elif name == "update":
-            data_abs = jax.eval_shape(f_roll, ts_abs, envs_abs, key_abs)[1]
-            lowered[name] = f_update.trace(ts_abs, dp.abstract(data_abs, sharded=True), key_abs).lower()
+            data_abs = jax.eval_shape(progs.rollout, ts_abs, envs_abs, key_abs, i_abs)[1]
+            args = (ts_abs, dp.abstract(data_abs, sharded=True), key_abs, i_abs)
+            lowered[name] = progs.update.trace(*args).lower()
         elif name == "evaluate":
             lowered[name] = progs.evaluate.trace(_policy_params(ts_abs), key_abs, key_abs).lower()
     out["trace_lower_s"] = time.monotonic() - t0

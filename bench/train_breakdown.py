@@ -8,7 +8,8 @@ iteration), on one device, every part compiled once and timed over ``--iters`` c
 - ``rollout``: env + policy sampling + transitions (``Learner.rollout``), the same steps;
 - ``update``: normaliser update + ``num_updates_per_batch`` x ``num_minibatches`` Adam steps on one
   iteration's data (``Learner.update``);
-- ``epoch``: the trainer's own epoch program (``brax_ppo``) over ``--epoch-iters`` iterations, per iteration;
+- ``epoch``: the trainer's epoch (its rollout and update programs, ``brax_programs.run_epoch``) over
+  ``--epoch-iters`` iterations, per iteration;
 - ``loop``: the same epoch called as the training loop calls it (host sync and metrics read each call).
 
 The training loop's target is ``loop`` >= 90 % of ``env`` steps/s. ``rollout - env`` is the policy's cost,
@@ -36,6 +37,7 @@ from jax.sharding import PartitionSpec as P
 
 from bar_policy import envs
 from bar_policy.training.brax_ppo import epoch_iterations, host_key, make_programs, slot_env
+from bar_policy.training.brax_programs import run_epoch
 from bar_policy.training.config import apply_overrides, preset
 from bar_policy.training.learner import make_learner
 from bar_policy.training.parallel import AXIS, DataParallel
@@ -75,7 +77,7 @@ def main() -> int:
     n, steps = ppo.num_envs, ppo.steps_per_iteration
     unrolls = steps // (n * ppo.unroll_length)
     args.epoch_iters = args.epoch_iters or epoch_iterations(cfg)  # the trainer's: its compile is cached
-    progs = make_programs(env, cfg, learner, dp, wrap, randomizer, args.epoch_iters)
+    progs = make_programs(env, cfg, learner, dp, wrap, randomizer)
 
     def env_only(envs_carry: Any, key: jax.Array, scale: float) -> Any:
         """The env alone: zero actions (as bench/mjx_throughput.py's harness c), or uniform random ones
@@ -106,7 +108,10 @@ def main() -> int:
     ts_abs = dp.abstract(jax.eval_shape(learner.init, key_abs), sharded=False)
     envs_abs = dp.abstract(compiler.submit("reset", progs.reset, key_abs, key_abs).out_info, sharded=True)
     compiler.submit("init", progs.init, key_abs)
-    compiler.submit("epoch", progs.epoch, ts_abs, envs_abs, key_abs)
+    i_abs = dp.abstract(np.zeros((), np.int32), sharded=False)
+    train_rollout = compiler.submit("train rollout", progs.rollout, ts_abs, envs_abs, key_abs, i_abs)
+    train_data_abs = dp.abstract(train_rollout.out_info[1], sharded=True)
+    compiler.submit("train update", progs.update, ts_abs, train_data_abs, key_abs, i_abs)
     compiler.submit("env", f_env, envs_abs, key_abs)
     compiler.submit("env random", f_env_random, envs_abs, key_abs)
     rollout_lowered = compiler.submit("rollout", f_roll, ts_abs, envs_abs, key_abs)
@@ -122,17 +127,20 @@ def main() -> int:
     rows["env random"] = _time(lambda: compiler.get("env random")(carry, key), args.iters)
     rows["rollout"] = _time(lambda: compiler.get("rollout")(ts, carry, key), args.iters)
     rows["update"] = _time(lambda: compiler.get("update")(ts, data, key), args.iters)
-    epoch = compiler.get("epoch")
-    state = {"ts": ts, "carry": carry}
+    programs = (compiler.get("train rollout"), compiler.get("train update"))
+    index = [dp.replicate(np.int32(i)) for i in range(args.epoch_iters)]
+    state = {"ts": compiler.get("init")(dp.replicate(host_key(0, 1))), "carry": carry}
 
-    def run_epoch(read: bool) -> Any:
-        state["ts"], state["carry"], metrics, stats = epoch(state["ts"], state["carry"], key)
+    def one_epoch(read: bool) -> Any:
+        state["ts"], state["carry"], metrics, stats = run_epoch(
+            *programs, state["ts"], state["carry"], key, index
+        )
         if read:
             dp.to_host((metrics, stats))
         return stats
 
-    rows["epoch"] = _time(lambda: run_epoch(False), args.iters) / args.epoch_iters
-    rows["loop"] = _time(lambda: run_epoch(True), args.iters) / args.epoch_iters
+    rows["epoch"] = _time(lambda: one_epoch(False), args.iters) / args.epoch_iters
+    rows["loop"] = _time(lambda: one_epoch(True), args.iters) / args.epoch_iters
 
     dev = jax.devices()[0].device_kind
     lines = [

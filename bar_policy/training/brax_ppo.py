@@ -12,8 +12,13 @@ learner state replicated), each compiled once, ahead of time and concurrently (`
 - ``reset(key, model_key) -> envs``: every env slot reset, with its randomised model's key kept beside its
   state. Slot ``i`` of ``num_envs`` gets key ``i`` of ``split(key, num_envs)`` whatever the device count, so
   every slot has its own model over the whole global batch (and 1, 2 or 8 devices draw the same models).
-- ``epoch(state, envs, key) -> state, envs, losses, sums``: ``iters_per_epoch`` PPO iterations in one
-  call (one host sync per progress line); state and envs are donated.
+- ``rollout(state, envs, key, i) -> envs, transitions, sums`` and ``update(state, transitions, key, i) ->
+  state, losses``: PPO iteration ``i`` of an epoch keyed ``key`` (envs, then state donated). An epoch
+  (``iters_per_epoch`` iterations, one progress line) is ``brax_programs.run_epoch``: the calls queue on
+  the device, with one host sync at its end. Two programs, not one scan over both: they compile side by
+  side (H100, reach: all ready 26.5 s after the start of their compiles instead of the one epoch program's
+  35.5 s, both beside the evaluation's; ``bench/program_split.py``, session 34) and load sooner (3.0 s
+  instead of 3.8 s).
 - ``evaluate(params, key, model_key) -> metrics``: one deterministic episode in each of ``num_eval_envs``
   slots (sharded too), without the in-step reset; every process takes part.
 
@@ -51,8 +56,10 @@ from bar_policy.training.brax_programs import (
     _policy_params,
     action_prior,
     epoch_iterations,
+    epoch_totals,
     host_key,
     make_programs,
+    run_epoch,
     slot_env,
     slot_keys,
 )
@@ -132,22 +139,24 @@ def train_brax(
 
         prior = action_prior(env, cfg.network, cfg.env_name)
         learner = make_learner(env.observation_size, env.action_size, ppo, cfg.network, prior)
-        programs = make_programs(
-            env, cfg, learner, dp, wrap_fn, randomizer, iters_per_epoch, eval_env, eval_randomizer
-        )
+        programs = make_programs(env, cfg, learner, dp, wrap_fn, randomizer, eval_env, eval_randomizer)
         key_abs = dp.abstract(np.zeros(2, np.uint32), sharded=False)
+        i_abs = dp.abstract(np.zeros((), np.int32), sharded=False)
         template = jax.eval_shape(learner.init, key_abs)
         ts_abs = dp.abstract(template, sharded=False)
     seed = cfg.seed
 
     # Trace each program here and compile it on a worker thread. The reset goes first (its outputs are the
-    # epoch's inputs), the epoch (the longest compile) right after it, then the small init. Nothing waits on
-    # the evaluation before the first epoch ends, so it is traced on a worker too: on a warm compile cache
+    # rollout's inputs), the rollout (the longest compile) right after it, the update (its inputs are the
+    # rollout's outputs, so the rollout is loaded here on a warm start), then the small init. Nothing waits
+    # on the evaluation before the first epochs end, so it is traced on a worker too: on a warm compile cache
     # its trace is a third of what is left of the start-up, and it now overlaps the first epochs.
     compiler = Compiler(timer, executable_cache=executable_cache)
     reset_lowered = compiler.submit("reset", programs.reset, key_abs, key_abs)
     envs_abs = dp.abstract(reset_lowered.out_info, sharded=True)
-    compiler.submit("epoch", programs.epoch, ts_abs, envs_abs, key_abs, load_in_background=True)
+    rollout_lowered = compiler.submit("rollout", programs.rollout, ts_abs, envs_abs, key_abs, i_abs)
+    data_abs = dp.abstract(rollout_lowered.out_info[1], sharded=True)
+    compiler.submit("update", programs.update, ts_abs, data_abs, key_abs, i_abs, load_in_background=True)
     compiler.submit("init", programs.init, key_abs)
     compiler.submit("evaluate", programs.evaluate, _policy_params(ts_abs), key_abs, key_abs, background=True)
 
@@ -162,7 +171,8 @@ def train_brax(
             ts = compiler.get("init")(dp.replicate(host_key(seed, _K_INIT)))
         model_key = dp.replicate(host_key(seed, _K_MODEL))
         envs = compiler.get("reset")(dp.replicate(host_key(seed, _K_RESET, iteration)), model_key)
-        epoch = compiler.get("epoch")
+        rollout, update = compiler.get("rollout"), compiler.get("update")
+        iteration_index = [dp.replicate(np.int32(i)) for i in range(iters_per_epoch)]
         if jax.process_count() > 1:
             # Start together: a process still compiling in the background would reach the first
             # collective late, and CPU (gloo) collectives give up after 30 s.
@@ -208,7 +218,24 @@ def train_brax(
     eval_at_end = iteration == 0 and cfg.eval.initial == "end"
     epochs_done = 0
     first_epoch_end = 0.0
-    startup_pending = True
+    startup_pending, step0_in_startup = True, False
+    startup_end_s: float | None = None  # when the start-up ended (its report may come later)
+
+    def report_startup() -> None:
+        """Print and record the start-up breakdown (up to the first epoch's end, or the step-0 evaluation's).
+
+        Called once every program is compiled or loaded, so that no row is still compiling: with the
+        evaluation compiling beside the first epochs, that is at the first evaluation at the latest.
+        """
+        nonlocal startup_pending
+        startup_pending = False
+        stats1 = CompileStats.get().snapshot()
+        until = sb.UNTIL_EVAL if step0_in_startup else sb.UNTIL_EPOCH
+        compiles = {k: stats1[k] - stats0[k] for k in stats1}
+        report = timer.finish(first_epoch_end, compiles, total_s=startup_end_s, until=until)
+        for line in timer.lines(report):
+            logger.print(line)
+        logger.note("startup", {"step": env_steps, **report})
 
     def eval_at_zero() -> None:
         """The untrained policy's evaluation (its params re-created by ``init``), logged as step 0."""
@@ -221,8 +248,9 @@ def train_brax(
     t_loop = time.monotonic()
     while iteration < total_iters:
         t0 = time.monotonic()
-        ts, envs, metrics, stats = epoch(ts, envs, dp.replicate(host_key(seed, _K_EPOCH, iteration)))
-        metrics, stats = dp.to_host((metrics, stats))
+        epoch_key = dp.replicate(host_key(seed, _K_EPOCH, iteration))
+        ts, envs, metrics, stats = run_epoch(rollout, update, ts, envs, epoch_key, iteration_index)
+        metrics, stats = epoch_totals(*dp.to_host((metrics, stats)))
         dt = time.monotonic() - t0
         iteration += iters_per_epoch
         env_steps += iters_per_epoch * steps_per_iter
@@ -260,23 +288,21 @@ def train_brax(
         if step0_now:
             eval_at_start = False
             eval_at_zero()
-        if startup_pending and not eval_at_start:  # the start-up ends here: printed and recorded
-            startup_pending = False
-            stats1 = CompileStats.get().snapshot()
-            until = sb.UNTIL_EVAL if step0_now else sb.UNTIL_EPOCH
-            report = timer.finish(first_epoch_end, {k: stats1[k] - stats0[k] for k in stats1}, until=until)
-            for line in timer.lines(report):
-                logger.print(line)
-            logger.note("startup", {"step": env_steps, **report})
+        if startup_end_s is None and not eval_at_start:  # the start-up ends here (first epoch or step 0's)
+            startup_end_s, step0_in_startup = timer.elapsed(), step0_now
         if eval_due:
             device_eval(_policy_params(ts), env_steps)
             n_evals = epochs_done // _LINES_PER_EVAL
             if last or (cfg.checkpoint_every and n_evals % cfg.checkpoint_every == 0):
                 checkpoint(env_steps, iteration)
+        if startup_pending and not eval_at_start and compiler.done("evaluate"):
+            report_startup()  # the start-up ended with the first epoch (or step 0's evaluation)
         if over_budget and not iteration >= total_iters:
             logger.print(f"stopping: wall-clock budget of {cfg.max_minutes} min reached")
             break
     compiler.get("evaluate")  # surface a compile error even when no evaluation ran
+    if startup_pending and epochs_done:
+        report_startup()
     loop_s = time.monotonic() - t_loop
     if eval_at_end:  # eval.initial=end: the untrained policy, once the trained one is out
         logger.print("step-0 evaluation (the untrained policy; after training: --eval.initial end)")

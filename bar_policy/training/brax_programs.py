@@ -1,8 +1,9 @@
 """The data-parallel programs of ``train_brax`` and their pure helpers (``training.brax_ppo``).
 
-``make_programs`` builds the ``init`` / ``reset`` / ``epoch`` / ``evaluate`` programs (``training.brax_ppo``
-documents each); ``slot_keys`` / ``slot_env`` give every env slot its own key and randomised model whatever
-the device count; ``host_key`` derives keys on the host; ``epoch_iterations`` sizes an epoch.
+``make_programs`` builds the ``init`` / ``reset`` / ``rollout`` / ``update`` / ``evaluate`` programs
+(``training.brax_ppo`` documents each); ``run_epoch`` / ``epoch_totals`` run an epoch of them and total it;
+``slot_keys`` / ``slot_env`` give every env slot its own key and randomised model whatever the device count;
+``host_key`` derives keys on the host; ``epoch_iterations`` sizes an epoch.
 """
 
 from __future__ import annotations
@@ -26,8 +27,10 @@ __all__ = [
     "Programs",
     "action_prior",
     "epoch_iterations",
+    "epoch_totals",
     "host_key",
     "make_programs",
+    "run_epoch",
     "slot_env",
     "slot_keys",
 ]
@@ -104,12 +107,45 @@ def slot_env(
 
 @dataclass(frozen=True)
 class Programs:
-    """The four jitted data-parallel programs of a run (before compilation; see the module docstring)."""
+    """The five jitted data-parallel programs of a run (before compilation; see ``brax_ppo``'s docstring)."""
 
     init: Callable[..., Any]
     reset: Callable[..., Any]
-    epoch: Callable[..., Any]
+    rollout: Callable[..., Any]
+    update: Callable[..., Any]
     evaluate: Callable[..., Any]
+
+
+def run_epoch(
+    rollout: Callable[..., Any],
+    update: Callable[..., Any],
+    ts: TrainingState,
+    envs: Any,
+    key: jax.Array,
+    iterations: list[jax.Array],
+) -> tuple[TrainingState, Any, list[Any], list[Any]]:
+    """One epoch: ``rollout`` then ``update`` (compiled programs) for each iteration index in ``iterations``.
+
+    Dispatched without a host sync (the calls queue on the device); returns ``(ts, envs, metrics, stats)``
+    with one entry per iteration in ``metrics`` and ``stats``, to reduce with ``epoch_totals`` once on
+    the host. ``iterations``: replicated int32 scalars 0 .. iters - 1, made once.
+    """
+    metrics, stats = [], []
+    for i in iterations:
+        envs, data, st = rollout(ts, envs, key, i)
+        ts, m = update(ts, data, key, i)
+        metrics.append(m)
+        stats.append(st)
+    return ts, envs, metrics, stats
+
+
+def epoch_totals(metrics: list[dict[str, Any]], stats: list[Any]) -> tuple[dict[str, float], np.ndarray]:
+    """Host copies of ``run_epoch``'s lists -> each loss metric's mean over the epoch, the stats' sums.
+
+    ``stats`` rows are ``[reward, success numerator, success denominator]`` over every device's slots.
+    """
+    means = {k: float(np.mean([m[k] for m in metrics])) for k in metrics[0]}
+    return means, np.sum(np.stack(stats), axis=0)
 
 
 def make_programs(
@@ -119,11 +155,10 @@ def make_programs(
     dp: DataParallel,
     wrap_fn: Callable[..., Any],
     randomizer: Callable[..., Any] | None,
-    iters_per_epoch: int,
     eval_env: Any | None = None,
     eval_randomizer: Callable[..., Any] | None = None,
 ) -> Programs:
-    """The run's ``init``, ``reset``, ``epoch`` and ``evaluate`` programs on the mesh of ``dp``.
+    """The run's ``init``, ``reset``, ``rollout``, ``update`` and ``evaluate`` programs on the mesh of ``dp``.
 
     ``eval_env``: the env the evaluation runs (the task's held-out variant) with ``eval_randomizer``;
     None: ``env`` with ``randomizer``.
@@ -141,23 +176,26 @@ def make_programs(
         model_keys = slot_keys(model_key, ppo.num_envs, envs_local)
         return batch(model_keys).reset(slot_keys(key, ppo.num_envs, envs_local)), model_keys
 
-    def epoch(ts: TrainingState, envs: tuple[Any, jax.Array], key: jax.Array) -> tuple:
+    def iteration_keys(key: jax.Array, i: jax.Array) -> jax.Array:
+        """Iteration ``i``'s ``(rollout, SGD)`` keys of an epoch keyed ``key``, this device's (shape (2, 2)).
+
+        The epoch's key, folded with the device index, is split once per iteration (``k, k_it = split(k)``)
+        and each iteration's ``k_it`` into its rollout and SGD keys. ``rollout`` and ``update`` each derive
+        the chain themselves (``i`` <= a few dozen splits), so neither passes keys to the other.
+        """
+        k = jax.random.fold_in(key, jax.lax.axis_index(AXIS))
+        k = jax.lax.fori_loop(0, i, lambda _, c: jax.random.split(c)[0], k)
+        return jax.random.split(jax.random.split(k)[1])
+
+    def rollout(ts: TrainingState, envs: tuple[Any, jax.Array], key: jax.Array, i: jax.Array) -> tuple:
         env_state, model_keys = envs
-        env_b = batch(model_keys)
-        key = jax.random.fold_in(key, jax.lax.axis_index(AXIS))
+        k_roll = iteration_keys(key, i)[0]
+        env_state, data, stats = learner.rollout(ts, env_state, k_roll, batch(model_keys), unrolls)
+        return (env_state, model_keys), data, jax.lax.psum(stats, axis_name=AXIS)
 
-        def body(c: tuple, _: None) -> tuple:
-            ts, s, k = c
-            k, k_it = jax.random.split(k)
-            ts, s, metrics, stats = learner.iteration(ts, s, k_it, env_b, unrolls)
-            return (ts, s, k), (metrics, stats)
-
-        (ts, env_state, _), (metrics, stats) = jax.lax.scan(
-            body, (ts, env_state, key), None, length=iters_per_epoch
-        )
-        metrics = jax.lax.pmean(jax.tree.map(lambda x: x.mean(), metrics), axis_name=AXIS)
-        stats = jax.lax.psum(stats.sum(axis=0), axis_name=AXIS)
-        return strip_weak_type(ts), (env_state, model_keys), metrics, stats
+    def update(ts: TrainingState, data: Any, key: jax.Array, i: jax.Array) -> tuple:
+        ts, metrics = learner.update(ts, data, iteration_keys(key, i)[1])
+        return strip_weak_type(ts), jax.lax.pmean(metrics, axis_name=AXIS)
 
     def evaluate(params: Any, key: jax.Array, model_key: jax.Array) -> dict[str, jax.Array]:
         keys = slot_keys(model_key, cfg.eval.num_eval_envs, eval_local)
@@ -170,7 +208,8 @@ def make_programs(
     return Programs(
         init=dp.map(learner.init, (rep,), rep),
         reset=dp.map(reset, (rep, rep), shard),
-        epoch=dp.map(epoch, (rep, shard, rep), (rep, shard, rep, rep), donate_argnums=(0, 1)),
+        rollout=dp.map(rollout, (rep, shard, rep, rep), (shard, shard, rep), donate_argnums=(1,)),
+        update=dp.map(update, (rep, shard, rep, rep), (rep, rep), donate_argnums=(0,)),
         evaluate=dp.map(evaluate, (rep, rep, rep), rep),
     )
 

@@ -209,7 +209,7 @@ def test_pack_script_round_trips(tmp_path):
     assert run.returncode == 0, run.stderr
     m = SeedManifest.read(tmp_path / "s" / "fake.json")
     assert (m.device_kind, m.subdir, m.entries, m.archive) == (KIND, SUBDIR, 3, "fake.tar.gz")
-    assert m.programs == ("reset", "epoch", "init", "evaluate")
+    assert m.programs == ("reset", "rollout", "update", "init", "evaluate")  # the trainer's, since session 34
     first = (tmp_path / "s" / "fake.tar.gz").read_bytes()
     # Reproducible: packing again gives the same bytes.
     pack_seed(tmp_path / "made" / AUTOTUNE_DIR, tmp_path / "s2", name="fake", device_kind=KIND,

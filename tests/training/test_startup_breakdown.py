@@ -154,10 +154,10 @@ def test_a_run_records_its_startup_breakdown(brax_run, run_walls):
     # The rows add up to the total, which lies inside the wall time measured around run().
     assert sum(phases.values()) == pytest.approx(rec["total_s"], abs=ROUNDING_S)
     assert 0 < rec["first_epoch_end_s"] <= rec["total_s"] <= run_walls["brax"] + ROUNDING_S
-    # Four programs: init, reset and epoch traced on the main thread, the evaluation on a worker; the
-    # main thread's trace row is the sum of their traces.
+    # Five programs: init, reset, rollout and update traced on the main thread, the evaluation on a worker;
+    # the main thread's trace row is the sum of their traces.
     progs = rec["programs"]
-    assert set(progs) == {"init", "reset", "epoch", "evaluate"}
+    assert set(progs) == {"init", "reset", "rollout", "update", "evaluate"}
     assert [k for k, p in progs.items() if p["thread"] == "worker"] == ["evaluate"]
     main = [p for p in progs.values() if p["thread"] == "main"]
     assert sum(p["trace_s"] for p in main) == pytest.approx(phases[sb.TRACE], abs=ROUNDING_S)
