@@ -10,7 +10,9 @@ iteration), on one device, every part compiled once and timed over ``--iters`` c
   iteration's data (``Learner.update``);
 - ``epoch``: the trainer's epoch (its rollout and update programs, ``brax_programs.run_epoch``) over
   ``--epoch-iters`` iterations, per iteration;
-- ``loop``: the same epoch called as the training loop calls it (host sync and metrics read each call).
+- ``loop``: the same epoch called as the training loop calls it (host sync and metrics read each call);
+- with ``--fused``, ``epoch, one program`` and ``loop, one program``: the same for the one-program epoch
+  the trainer had until session 34 (``bench/fused_epoch.py``), in the same process.
 
 The training loop's target is ``loop`` >= 90 % of ``env`` steps/s. ``rollout - env`` is the policy's cost,
 ``update`` the learner's, ``loop - epoch`` the host's.
@@ -32,6 +34,7 @@ from typing import Any
 
 import jax
 import numpy as np
+from fused_epoch import fused_epoch
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
@@ -63,6 +66,11 @@ def main() -> int:
     p.add_argument("--iters", type=int, default=5, help="timed calls per part")
     p.add_argument("--epoch-iters", type=int, default=0, help="iterations per epoch call (0: the trainer's)")
     p.add_argument("--no-compile-cache", action="store_true")
+    p.add_argument(
+        "--fused",
+        action="store_true",
+        help="also the one-program epoch of before session 34 (bench/fused_epoch.py)",
+    )
     p.add_argument("--out", default="")
     args = p.parse_args()
 
@@ -117,6 +125,9 @@ def main() -> int:
     rollout_lowered = compiler.submit("rollout", f_roll, ts_abs, envs_abs, key_abs)
     data_abs = dp.abstract(rollout_lowered.out_info, sharded=True)
     compiler.submit("update", f_update, ts_abs, data_abs, key_abs)
+    if args.fused:
+        fused = fused_epoch(env, cfg, learner, dp, wrap, randomizer, args.epoch_iters)
+        compiler.submit("fused epoch", fused, ts_abs, envs_abs, key_abs)
 
     key = dp.replicate(host_key(0, 9))
     ts = compiler.get("init")(dp.replicate(host_key(0, 1)))
@@ -141,6 +152,18 @@ def main() -> int:
 
     rows["epoch"] = _time(lambda: one_epoch(False), args.iters) / args.epoch_iters
     rows["loop"] = _time(lambda: one_epoch(True), args.iters) / args.epoch_iters
+    if args.fused:
+
+        def fused_call(read: bool) -> Any:
+            state["ts"], state["carry"], metrics, stats = compiler.get("fused epoch")(
+                state["ts"], state["carry"], key
+            )
+            if read:
+                dp.to_host((metrics, stats))
+            return stats
+
+        rows["epoch, one program"] = _time(lambda: fused_call(False), args.iters) / args.epoch_iters
+        rows["loop, one program"] = _time(lambda: fused_call(True), args.iters) / args.epoch_iters
 
     dev = jax.devices()[0].device_kind
     lines = [
@@ -150,7 +173,7 @@ def main() -> int:
         "| part | ms per iteration | env steps/s | env alone / part (time) |",
         "|---|---:|---:|---:|",
     ]
-    for name in ("env", "env random", "rollout", "update", "epoch", "loop"):
+    for name in rows:
         sps = steps / rows[name]
         lines.append(f"| {name} | {1e3 * rows[name]:.1f} | {sps:,.0f} | {rows['env'] / rows[name]:.1%} |")
     lines.append("")
