@@ -22,7 +22,8 @@
 #                      defaults, then a cold and a warm run with XLA_FLAGS=$LOAD_FLAGS (default
 #                      --xla_gpu_experimental_aot_compiled_thunks=true: the serialised executable holds its
 #                      thunks, so a load need not regenerate them), each pair on its own empty cache; flags
-#                      XLA refuses are left out, as in flags
+#                      XLA refuses are left out, as in flags. jaxlib 0.11.2 refuses that default (removed:
+#                      docs/startup.md, "What a warm load still costs"): pass LOAD_FLAGS there
 #   smoke             : CPU logic check of startup and rsl with tiny sizes (not for the GPU); smoke-loadflags:
 #                      the same for loadflags
 #
