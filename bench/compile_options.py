@@ -32,12 +32,12 @@ import argparse
 import json
 import os
 import pickle
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
+
+from json_child import json_child
 
 VARIANTS: dict[str, dict[str, Any]] = {
     "default": {},
@@ -135,20 +135,6 @@ def _load(path: str) -> dict[str, Any]:
     return {"load_s": time.monotonic() - t0}
 
 
-def _child(argv: list[str], env: dict[str, str] | None = None, timeout: float = 600) -> dict[str, Any]:
-    """Run this script with ``argv`` in a fresh process; its last stdout line is a JSON dict."""
-    cmd = [sys.executable, __file__, *argv]
-    try:
-        out = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=timeout, check=False)
-    except subprocess.TimeoutExpired:
-        return {"error": f"timed out after {timeout:.0f} s"}
-    lines = out.stdout.strip().splitlines()
-    try:
-        return json.loads(lines[-1])
-    except (IndexError, json.JSONDecodeError):
-        return {"error": f"exit {out.returncode}: {(out.stderr.strip().splitlines() or ['?'])[-1][:200]}"}
-
-
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--preset", default="gpu")
@@ -181,12 +167,14 @@ def main() -> int:
         argv += ["--epoch-iters", str(args.epoch_iters), "--cache-dir", str(work / f"cache_{name}")]
         argv += ["--set", *args.set] if args.set else []
         t0 = time.monotonic()
-        row = {"variant": name, **_child(argv, timeout=args.timeout)}
+        row = {"variant": name, **json_child(__file__, argv, timeout=args.timeout)}
         row["process_s"] = time.monotonic() - t0
         if "file" in row:
-            row["load_s"] = _child(["--load", row["file"]], timeout=120).get("load_s")
+            row["load_s"] = json_child(__file__, ["--load", row["file"]], timeout=120).get("load_s")
             flagged = {**os.environ, "XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} {LOAD_FLAG}".strip()}
-            row["load_flag_s"] = _child(["--load", row["file"]], env=flagged, timeout=120).get("load_s")
+            row["load_flag_s"] = json_child(__file__, ["--load", row["file"]], env=flagged, timeout=120).get(
+                "load_s"
+            )
         rows.append(row)
         print(json.dumps(row), flush=True)
     text = _table(rows, args)

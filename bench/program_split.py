@@ -23,13 +23,13 @@ from __future__ import annotations
 import argparse
 import json
 import pickle
-import subprocess
-import sys
 import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
+
+from json_child import json_child
 
 PROGRAMS = ("epoch", "rollout", "update", "evaluate")
 
@@ -77,8 +77,8 @@ def _compile_set(args: argparse.Namespace) -> dict[str, Any]:
             lowered[name] = progs.rollout.trace(ts_abs, envs_abs, key_abs, i_abs).lower()
         elif name == "update":
             data_abs = jax.eval_shape(progs.rollout, ts_abs, envs_abs, key_abs, i_abs)[1]
-            args = (ts_abs, dp.abstract(data_abs, sharded=True), key_abs, i_abs)
-            lowered[name] = progs.update.trace(*args).lower()
+            update_args = (ts_abs, dp.abstract(data_abs, sharded=True), key_abs, i_abs)
+            lowered[name] = progs.update.trace(*update_args).lower()
         elif name == "evaluate":
             lowered[name] = progs.evaluate.trace(_policy_params(ts_abs), key_abs, key_abs).lower()
     out["trace_lower_s"] = time.monotonic() - t0
@@ -130,17 +130,6 @@ def _load_set(directory: str) -> dict[str, Any]:
     return {"load_s": loads, "load_wall_s": time.monotonic() - t0}
 
 
-def _child(argv: list[str], timeout: float) -> dict[str, Any]:
-    try:
-        r = subprocess.run([sys.executable, __file__, *argv], capture_output=True, text=True, timeout=timeout)
-    except subprocess.TimeoutExpired:
-        return {"error": f"timed out after {timeout:.0f} s"}
-    try:
-        return json.loads(r.stdout.strip().splitlines()[-1])
-    except (IndexError, json.JSONDecodeError):
-        return {"error": f"exit {r.returncode}: {(r.stderr.strip().splitlines() or ['?'])[-1][:200]}"}
-
-
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--preset", default="gpu")
@@ -169,9 +158,9 @@ def main() -> int:
     for s in sets:
         argv = ["--compile-set", s, "--preset", args.preset, "--env", args.env, "--workdir", str(work)]
         argv += ["--cache-dir", str(work / f"cache_{s}")] + (["--set", *args.set] if args.set else [])
-        row = _child(argv, args.timeout)
+        row = json_child(__file__, argv, timeout=args.timeout)
         if "compile_s" in row:
-            row.update(_child(["--load-set", str(work / s)], args.timeout))
+            row.update(json_child(__file__, ["--load-set", str(work / s)], timeout=args.timeout))
         rows.append({"set": s, **row})
         print(json.dumps(rows[-1]), flush=True)
     lines = [
