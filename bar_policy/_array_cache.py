@@ -1,5 +1,8 @@
 """A disk cache for arrays the package computes from its own files, such as the piano's key poses.
 
+Users: ``tasks.piano.prior.key_poses``; the tracker's random clips (``motion.generator.random_clips``)
+and reference kinematics (``tasks.track.shared.ReferenceTable.build``), with ``cache=True``.
+
 The piano's key-pose prior solves 388 IK problems in Python (``tasks.piano.prior.key_poses``): 11.5 s on
 this project's 2-core CPU and 10-16 s on the H100 machine's. Every piano training start and every deploy
 start of its kinematic source paid that, warm or cold. This cache keeps the result as one ``.npz`` file.

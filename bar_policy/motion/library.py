@@ -74,6 +74,7 @@ def clip_set(
     num_clips: int | None = None,
     length_s: float = DEFAULT_LENGTH_S,
     config: RandomMotionConfig | None = None,
+    cache: bool = False,
 ) -> ClipSet:
     """Build a named clip set.
 
@@ -84,6 +85,7 @@ def clip_set(
         num_clips: random clips in the set (default ``CLIP_SETS[name]``).
         length_s: duration of each random clip, s.
         config: random generator parameters.
+        cache: keep the random clips' frames on disk (``random_clips``; the tracking env does).
 
     Raises:
         ValueError: an unknown set name (the message lists the sets) or a negative count.
@@ -96,7 +98,7 @@ def clip_set(
     clips: list[Clip] = []
     if name in ("train", "heldout"):
         seed = TRAIN_SEED if name == "train" else HELDOUT_SEED
-        clips += random_clips(seed, count, length_s, mode=mode, rate_hz=rate_hz, config=config)
+        clips += random_clips(seed, count, length_s, mode=mode, rate_hz=rate_hz, config=config, cache=cache)
     if name in ("heldout", "gestures"):
         clips += gestures(mode, rate_hz)
     if name == "families":

@@ -109,3 +109,24 @@ def test_action_map_covers_the_motion_box():
     np.testing.assert_allclose(d - s * 1.0, lo - 0.25)
     # left elbow: box [-2.2, 0] -> default -1.1, scale 1.35.
     assert (d[3], s[3]) == pytest.approx((-1.1, 1.35))
+
+
+def test_reference_table_cache_keys_on_content_and_bodies(tmp_path, monkeypatch):
+    """``cache=True`` stores the kinematics under the clips' content (not their names) and the bodies."""
+    monkeypatch.setenv("BAR_POLICY_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("BAR_POLICY_ARRAY_CACHE", "1")
+    piano = np.tile(ROBOT.pose("piano_ready"), (3, 1))
+    clip = Clip.make("p", 50.0, piano)
+    plain = ReferenceTable.build([clip])
+    for _ in range(2):  # a miss, then a hit: the same bytes as the uncached table
+        cached = ReferenceTable.build([clip], cache=True)
+        for k in ("joint_pos", "body_pos", "body_ori", "fingertip_pos"):
+            a, b = getattr(plain, k), getattr(cached, k)
+            assert a.dtype == b.dtype == np.float32 and a.shape == b.shape and a.tobytes() == b.tobytes()
+    entries = lambda: len(list((tmp_path / "arrays").glob("track_reference-*.npz")))  # noqa: E731
+    assert entries() == 1
+    ReferenceTable.build([Clip.make("p", 50.0, piano + 0.01)], cache=True)  # same name, other frames
+    ReferenceTable.build([clip], TRACK_BODY_NAMES[:2], cache=True)  # other bodies
+    assert entries() == 3
+    with pytest.raises(ValueError, match="pass kinematics or cache, not both"):
+        ReferenceTable.build([clip], kinematics=Kinematics(), cache=True)

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bar_policy._array import Array, array_namespace
+from bar_policy._array_cache import cached_arrays
 from bar_policy.motion.clip import Clip
 from bar_policy.motion.generator import motion_box
 from bar_policy.robot.constants import FINGERTIP_SITES
@@ -118,32 +119,58 @@ class ReferenceTable:
         *,
         rate_hz: float = 50.0,
         kinematics: Kinematics | None = None,
+        cache: bool = False,
     ) -> ReferenceTable:
         """Concatenate ``clips`` (resampled to ``rate_hz``) and compute their kinematics with C MuJoCo.
 
+        ``cache``: keep the kinematics (body and fingertip poses) on disk (``bar_policy._array_cache``),
+        keyed on the mode, the body names and the resampled clips' content hashes (plus the package's files
+        and the numpy and mujoco versions): the training set's 96k frames take 0.8 s of forward kinematics
+        on the project's 2-core CPU. The table is the same either way, bit for bit. The cached kinematics
+        are the robot's alone (``Kinematics(mode)``), so ``cache`` takes no ``kinematics``.
+
         Raises:
-            ValueError: no clips, clips of different joint sets, or an unknown body name.
+            ValueError: no clips, clips of different joint sets, an unknown body name, or both ``cache``
+                and ``kinematics``.
         """
         if not clips:
             raise ValueError("a reference table needs at least one clip")
         modes = {c.mode for c in clips}
         if len(modes) != 1:
             raise ValueError(f"clips of different joint sets: {sorted(modes)}")
-        kin = kinematics or Kinematics(modes.pop())
+        if cache and kinematics is not None:
+            raise ValueError(
+                "cache=True computes the robot's own kinematics; pass kinematics or cache, not both"
+            )
+        mode = modes.pop()
+        body_names = tuple(body_names)
         clips = [c.resample(rate_hz) for c in clips]
         q = np.concatenate([c.joint_pos for c in clips]).astype(np.float64)
-        pos, rot, tips = kin.trajectory(q, body_names, FINGERTIP_SITES)
-        lengths = np.array([c.num_frames for c in clips], dtype=np.int32)
         f32 = np.float32
+
+        def poses() -> dict[str, np.ndarray]:
+            pos, rot, tips = (kinematics or Kinematics(mode)).trajectory(q, body_names, FINGERTIP_SITES)
+            return {
+                "body_pos": pos.astype(f32),
+                "body_ori": rotation_to_6d(rot).astype(f32),
+                "fingertip_pos": tips.astype(f32),
+            }
+
+        if cache:
+            parts = {"mode": mode, "body_names": body_names, "clips": [c.content_hash for c in clips]}
+            fk = cached_arrays("track_reference", parts, ("body_pos", "body_ori", "fingertip_pos"), poses)
+        else:
+            fk = poses()
+        lengths = np.array([c.num_frames for c in clips], dtype=np.int32)
         return cls(
             joint_pos=q.astype(f32),
-            body_pos=pos.astype(f32),
-            body_ori=rotation_to_6d(rot).astype(f32),
-            fingertip_pos=tips.astype(f32),
+            body_pos=fk["body_pos"],
+            body_ori=fk["body_ori"],
+            fingertip_pos=fk["fingertip_pos"],
             clip_start=np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int32),
             clip_length=lengths,
             clip_names=tuple(c.name for c in clips),
-            body_names=tuple(body_names),
+            body_names=body_names,
             rate_hz=float(rate_hz),
         )
 
