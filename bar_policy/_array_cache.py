@@ -25,11 +25,16 @@ They are plain ``np.savez`` data, read with ``allow_pickle=False``. Failures nev
 - an entry that cannot be read, or that lacks an expected array, is logged, recomputed and replaced;
 - a directory that cannot be written is logged, and the computed arrays are returned uncached.
 
+Entries are capped at ``MAX_BYTES`` (1 GiB) together: past that, the least recently used (oldest
+modification time; a hit refreshes it) are deleted after a store. Every edit to the package makes new
+entries (the tracker's are 24 MB a package version), so without the cap the directory would only grow.
+
 ``BAR_POLICY_ARRAY_CACHE=0`` switches the cache off.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import io
 import json
@@ -49,6 +54,8 @@ __all__ = ["cache_dir", "cache_key", "cached_arrays"]
 _log = logging.getLogger(__name__)
 SWITCH = "BAR_POLICY_ARRAY_CACHE"
 """Environment variable: ``0`` turns the cache off."""
+MAX_BYTES = 1 << 30
+"""The entries' total size past which the least recently used are deleted, bytes."""
 
 
 def cache_dir() -> Path:
@@ -78,6 +85,7 @@ def cached_arrays(
     names: tuple[str, ...],
     compute: Callable[[], Mapping[str, np.ndarray]],
     directory: Path | None = None,
+    max_bytes: int = MAX_BYTES,
 ) -> dict[str, np.ndarray]:
     """The arrays ``compute()`` returns for ``parts``, from the disk cache when an entry is there.
 
@@ -87,6 +95,7 @@ def cached_arrays(
         names: the arrays' names; an entry holding other names is recomputed.
         compute: makes the arrays (a mapping of exactly ``names`` to numpy arrays) on a miss.
         directory: where entries go (default ``cache_dir()``).
+        max_bytes: the entries' total size kept after a store (least recently used deleted first).
 
     Returns:
         The arrays by name: loaded (bit for bit what ``compute`` returned when the entry was made) or
@@ -111,6 +120,8 @@ def cached_arrays(
                 loaded = {k: data[k] for k in data.files}
             if sorted(loaded) == sorted(names):
                 _log.info("%s: loaded %s", name, path)
+                with contextlib.suppress(OSError):  # recently used: the last to be evicted
+                    os.utime(path)
                 return loaded
             _log.warning("%s: %s holds %s, not %s; recomputing", name, path, sorted(loaded), sorted(names))
         except (OSError, ValueError, EOFError) as e:
@@ -125,4 +136,29 @@ def cached_arrays(
         _log.info("%s: stored %s", name, path)
     except OSError as e:
         _log.warning("%s: cannot write the cache entry %s (%s); not cached", name, path, e)
+        return out
+    _evict(path.parent, max_bytes, keep=path)
     return out
+
+
+def _evict(directory: Path, max_bytes: int, keep: Path) -> None:
+    """Delete the least recently used ``*.npz`` entries of ``directory`` until the rest fit ``max_bytes``.
+
+    ``keep`` (the entry just stored) is never deleted. Each deletion is logged; one that fails (another
+    process deleted it first) is skipped.
+    """
+    entries = []
+    for p in directory.glob("*.npz"):
+        with contextlib.suppress(OSError):
+            st = p.stat()
+            entries.append((st.st_mtime, st.st_size, p))
+    total = sum(size for _, size, _ in entries)
+    for _, size, p in sorted(entries):
+        if total <= max_bytes:
+            break
+        if p == keep:
+            continue
+        with contextlib.suppress(OSError):
+            p.unlink()
+            total -= size
+            _log.info("array cache: evicted %s (%d bytes; entries over %d bytes)", p.name, size, max_bytes)

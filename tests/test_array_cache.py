@@ -48,6 +48,33 @@ def test_other_parts_or_another_package_are_other_entries(tmp_path, monkeypatch)
     assert compute.calls == 3 and len(list(tmp_path.glob("thing-*.npz"))) == 3
 
 
+def test_past_the_cap_the_least_recently_used_entries_go(tmp_path):
+    """Three entries of one size under a cap of two: a store evicts the oldest, a hit counts as a use."""
+    import os
+
+    compute = Counter()
+    cached_arrays("thing", {"x": 1}, NAMES, compute, tmp_path)
+    size = next(tmp_path.glob("*.npz")).stat().st_size  # every entry: the same arrays, the same size
+    cap = 2 * size
+    cached_arrays("thing", {"x": 2}, NAMES, compute, tmp_path, max_bytes=cap)
+    paths = {p.name for p in tmp_path.glob("*.npz")}
+    assert len(paths) == 2 and compute.calls == 2
+    # Age both, then use x=1: it is now the newer of the two.
+    for i, p in enumerate(sorted(tmp_path.glob("*.npz"))):
+        os.utime(p, (1_000_000 + i, 1_000_000 + i))
+    cached_arrays("thing", {"x": 1}, NAMES, compute, tmp_path, max_bytes=cap)
+    assert compute.calls == 2  # a hit
+    x1 = max(tmp_path.glob("*.npz"), key=lambda p: p.stat().st_mtime)
+    cached_arrays("thing", {"x": 3}, NAMES, compute, tmp_path, max_bytes=cap)  # a store: over the cap
+    left = {p.name for p in tmp_path.glob("*.npz")}
+    assert len(left) == 2 and x1.name in left  # x=2, the least recently used, went
+    cached_arrays("thing", {"x": 2}, NAMES, compute, tmp_path, max_bytes=cap)
+    assert compute.calls == 4  # evicted: computed again
+    # A cap below one entry keeps the entry just stored and nothing else.
+    cached_arrays("thing", {"x": 5}, NAMES, compute, tmp_path, max_bytes=1)
+    assert len(list(tmp_path.glob("*.npz"))) == 1
+
+
 def test_a_corrupt_or_foreign_entry_is_recomputed_and_replaced(tmp_path, caplog):
     compute = Counter()
     cached_arrays("thing", {}, NAMES, compute, tmp_path)
