@@ -225,7 +225,8 @@ def train_brax(
         """Print and record the start-up breakdown (up to the first epoch's end, or the step-0 evaluation's).
 
         Called once every program is compiled or loaded, so that no row is still compiling: with the
-        evaluation compiling beside the first epochs, that is at the first evaluation at the latest.
+        evaluation compiling beside the first epochs, that is just before the first evaluation at the
+        latest (which would wait for its program anyway), so the record always precedes every evaluation's.
         """
         nonlocal startup_pending
         startup_pending = False
@@ -290,13 +291,14 @@ def train_brax(
             eval_at_zero()
         if startup_end_s is None and not eval_at_start:  # the start-up ends here (first epoch or step 0's)
             startup_end_s, step0_in_startup = timer.elapsed(), step0_now
+        if startup_pending and not eval_at_start and (eval_due or compiler.done("evaluate")):
+            compiler.get("evaluate")  # an evaluation is due: it waits for the program anyway
+            report_startup()  # the start-up ended with the first epoch (or step 0's evaluation)
         if eval_due:
             device_eval(_policy_params(ts), env_steps)
             n_evals = epochs_done // _LINES_PER_EVAL
             if last or (cfg.checkpoint_every and n_evals % cfg.checkpoint_every == 0):
                 checkpoint(env_steps, iteration)
-        if startup_pending and not eval_at_start and compiler.done("evaluate"):
-            report_startup()  # the start-up ended with the first epoch (or step 0's evaluation)
         if over_budget and not iteration >= total_iters:
             logger.print(f"stopping: wall-clock budget of {cfg.max_minutes} min reached")
             break
