@@ -111,7 +111,8 @@ def train_brax(
         randomizer: ``(model, rng) -> (model, in_axes)`` domain randomiser, or None.
         checkpoint_dir: where checkpoints go (None: no checkpoints).
         config_record: JSON record stored in checkpoint sidecars.
-        timer: start-up breakdown to add the compile phases to (printed after the first epoch).
+        timer: start-up breakdown to add the compile phases to (printed once the first epoch is done and
+            every program compiled, before the first evaluation at the latest).
         eval_env: the env every evaluation runs (the task's held-out variant, ``evaluation_env()``) with
             ``eval_randomizer``; None: ``env`` with ``randomizer``.
         eval_randomizer: the model randomiser of ``eval_env`` (None: its nominal model).
