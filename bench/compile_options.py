@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from json_child import json_child
+from one_device import one_device
 
 VARIANTS: dict[str, dict[str, Any]] = {
     "default": {},
@@ -58,37 +59,16 @@ LOAD_FLAG = "--xla_gpu_experimental_aot_compiled_thunks=true"
 
 def _one(args: argparse.Namespace) -> dict[str, Any]:
     """Compile, run and serialise the epoch under one variant (this process only); the row as a dict."""
-    import jax
-    import numpy as np
-    from fused_epoch import fused_epoch
     from jax.experimental.serialize_executable import serialize
-    from jax.sharding import Mesh
 
-    from bar_policy import envs
-    from bar_policy.training.autotune_seed import seed_autotune_cache
-    from bar_policy.training.brax_ppo import epoch_iterations, host_key, make_programs
-    from bar_policy.training.config import apply_overrides, preset
-    from bar_policy.training.learner import make_learner
-    from bar_policy.training.parallel import AXIS, DataParallel
-    from bar_policy.training.startup import configure_compile_cache
+    from bar_policy.training.brax_ppo import host_key
 
     row: dict[str, Any] = {"variant": args.one, "options": VARIANTS[args.one]}
-    cache = configure_compile_cache(True, args.cache_dir)
-    row["seed"] = seed_autotune_cache(cache).line()
-    cfg = apply_overrides(preset(args.preset), args.set)
-    env = envs.load(args.env)
-    randomizer = envs.get_randomizer(args.env, env.config)
-    dp = DataParallel(Mesh(np.asarray(jax.devices()[:1]), (AXIS,)))
-    learner = make_learner(env.observation_size, env.action_size, cfg.ppo, cfg.network)
-    iters = args.epoch_iters or epoch_iterations(cfg)
-    progs = make_programs(env, cfg, learner, dp, envs.wrap_for_brax_training, randomizer)
-    epoch_program = fused_epoch(env, cfg, learner, dp, envs.wrap_for_brax_training, randomizer, iters)
-    key_abs = dp.abstract(np.zeros(2, np.uint32), sharded=False)
-    ts_abs = dp.abstract(jax.eval_shape(learner.init, key_abs), sharded=False)
-    reset = progs.reset.trace(key_abs, key_abs).lower()
-    envs_abs = dp.abstract(reset.out_info, sharded=True)
+    o = one_device(args.preset, args.env, args.set, args.cache_dir, args.epoch_iters)
+    row["seed"] = o.seed_line
+    dp = o.dp
     t0 = time.monotonic()
-    lowered = epoch_program.trace(ts_abs, envs_abs, key_abs).lower()
+    lowered = o.fused.trace(o.ts_abs, o.envs_abs, o.key_abs).lower()
     row["trace_lower_s"] = time.monotonic() - t0
     t0 = time.monotonic()
     try:
@@ -97,8 +77,8 @@ def _one(args: argparse.Namespace) -> dict[str, Any]:
         row["error"] = f"{type(e).__name__}: {str(e).splitlines()[0][:200]}"
         return row
     row["compile_s"] = time.monotonic() - t0
-    ts = progs.init.trace(key_abs).lower().compile()(dp.replicate(host_key(0, 1)))
-    carry = reset.compile()(dp.replicate(host_key(0, 2)), dp.replicate(host_key(0, 3)))
+    ts = o.progs.init.trace(o.key_abs).lower().compile()(dp.replicate(host_key(0, 1)))
+    carry = o.reset.compile()(dp.replicate(host_key(0, 2)), dp.replicate(host_key(0, 3)))
     key = dp.replicate(host_key(0, 9))
     times = []
     for _ in range(2):  # a warm-up call, then the timed one
@@ -106,7 +86,7 @@ def _one(args: argparse.Namespace) -> dict[str, Any]:
         ts, carry, metrics, stats = epoch(ts, carry, key)
         dp.to_host((metrics, stats))
         times.append(time.monotonic() - t0)
-    row["env_steps_per_s"] = iters * cfg.ppo.steps_per_iteration / times[-1]
+    row["env_steps_per_s"] = o.iters * o.cfg.ppo.steps_per_iteration / times[-1]
     row["first_call_s"] = times[0]
     try:
         blob, in_tree, out_tree = serialize(epoch)

@@ -45,11 +45,7 @@ check_variants "${names[@]}"
 
 run_one() {  # run_one NAME EXTRA...  (GPU=<index> pins it to one card)
   local name=$1; shift
-  stamp "start $name (GPU ${GPU:-all}): $*"
-  # shellcheck disable=SC2046,SC2086
-  env $(gpu_pin) timeout -k 5 "${RUN_TIMEOUT:-575}" python3 train/ppo.py --preset piano --run-name "$name" \
-    --runs-dir "$RUNS" --max-minutes "$MINUTES" $SIZE "$@" ${EXTRA:-} > "$WORK/$name.log" 2>&1
-  stamp "end $name: exit $?"
+  train_run "$name" "${RUN_TIMEOUT:-575}" --preset piano "$@"
   mkdir -p "$RUNS/$name" && cp "$WORK/$name.log" "$RUNS/$name/log.txt"
   (cd "$RUNS" && tar czf "$OUT/$name.tgz" --exclude=checkpoints --exclude=tb "$name")
 }

@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from json_child import json_child
+from one_device import one_device
 
 PROGRAMS = ("epoch", "rollout", "update", "evaluate")
 
@@ -37,42 +38,20 @@ PROGRAMS = ("epoch", "rollout", "update", "evaluate")
 def _compile_set(args: argparse.Namespace) -> dict[str, Any]:
     """Trace and lower the set's programs in turn, compile them concurrently, store their executables."""
     import jax
-    import numpy as np
-    from fused_epoch import fused_epoch
     from jax.experimental.serialize_executable import serialize
-    from jax.sharding import Mesh
 
-    from bar_policy import envs
-    from bar_policy.training.autotune_seed import seed_autotune_cache
-    from bar_policy.training.brax_ppo import epoch_iterations, make_programs
     from bar_policy.training.brax_programs import _policy_params
-    from bar_policy.training.config import apply_overrides, preset
-    from bar_policy.training.learner import make_learner
-    from bar_policy.training.parallel import AXIS, DataParallel
-    from bar_policy.training.startup import configure_compile_cache
 
     names = args.compile_set.split("+")
     out: dict[str, Any] = {"set": args.compile_set}
-    cache = configure_compile_cache(True, args.cache_dir)
-    out["seed"] = seed_autotune_cache(cache).line()
-    cfg = apply_overrides(preset(args.preset), args.set)
-    ppo = cfg.ppo
-    env = envs.load(args.env)
-    randomizer = envs.get_randomizer(args.env, env.config)
-    wrap = envs.wrap_for_brax_training
-    dp = DataParallel(Mesh(np.asarray(jax.devices()[:1]), (AXIS,)))
-    learner = make_learner(env.observation_size, env.action_size, ppo, cfg.network)
-    progs = make_programs(env, cfg, learner, dp, wrap, randomizer)
-    epoch_program = fused_epoch(env, cfg, learner, dp, wrap, randomizer, epoch_iterations(cfg))
-    key_abs = dp.abstract(np.zeros(2, np.uint32), sharded=False)
-    i_abs = dp.abstract(np.zeros((), np.int32), sharded=False)
-    ts_abs = dp.abstract(jax.eval_shape(learner.init, key_abs), sharded=False)
-    envs_abs = dp.abstract(progs.reset.trace(key_abs, key_abs).lower().out_info, sharded=True)
+    o = one_device(args.preset, args.env, args.set, args.cache_dir)
+    out["seed"] = o.seed_line
+    dp, progs, key_abs, i_abs, ts_abs, envs_abs = o.dp, o.progs, o.key_abs, o.i_abs, o.ts_abs, o.envs_abs
     lowered: dict[str, Any] = {}
     t0 = time.monotonic()
     for name in names:  # traced and lowered in turn (the trainer's main thread)
         if name == "epoch":
-            lowered[name] = epoch_program.trace(ts_abs, envs_abs, key_abs).lower()
+            lowered[name] = o.fused.trace(ts_abs, envs_abs, key_abs).lower()
         elif name == "rollout":
             lowered[name] = progs.rollout.trace(ts_abs, envs_abs, key_abs, i_abs).lower()
         elif name == "update":

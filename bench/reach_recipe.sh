@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Reach recipes for issue 19's time to a policy: named variants of the gpu preset side by side, one per GPU,
 # each a cold run (its own empty compile cache; the shipped autotune seeds apply on an H100) with an
-# evaluation every 1.15M env steps (--eval.num-evals 41), so that the env steps to 95 % are resolved finely.
+# evaluation every 1.15M env steps (the gpu preset's 41 since session 34), so that the env steps to 95 % are
+# resolved finely.
 # Run from the repository root after the pip prefix of shared/gpu/README.md.
 #
 #   GPUS="0 1 2 3" bash bench/reach_recipe.sh base envs8192 lr1e-3 upd4   (~3 min, nvidia-h100-x4)
@@ -39,7 +40,7 @@ declare -A VARIANT=(
   [ent1e-3]="--ppo.entropy-cost 1e-3"
 )
 MINUTES=${MINUTES:-2.2}
-SIZE="--eval.num-evals 41 --final-eval-envs 1024 --no-export-onnx"
+SIZE="--final-eval-envs 1024 --no-export-onnx"  # the gpu preset evaluates every 1.15M env steps
 names=("$@")
 if [ "${1:-smoke}" = smoke ]; then
   export JAX_PLATFORMS=cpu
@@ -51,11 +52,7 @@ check_variants "${names[@]}"
 
 run_one() {  # run_one NAME EXTRA...  (GPU=<index> pins it to one card)
   local name=$1; shift
-  stamp "start $name (GPU ${GPU:-all}): $*"
-  # shellcheck disable=SC2046,SC2086
-  env $(gpu_pin) timeout -k 5 "${RUN_TIMEOUT:-240}" python3 train/ppo.py --run-name "$name" --runs-dir "$RUNS" \
-    --compile-cache-dir "$WORK/cache_$name" --max-minutes "$MINUTES" $SIZE "$@" ${EXTRA:-} > "$WORK/$name.log" 2>&1
-  stamp "end $name: exit $?"
+  train_run "$name" "${RUN_TIMEOUT:-240}" --compile-cache-dir "$WORK/cache_$name" "$@"
 }
 
 rm -rf "$WORK"/cache_* "$RUNS"  # a rerun starts afresh (a used run name is refused)

@@ -219,7 +219,9 @@ def train_brax(
     eval_at_end = iteration == 0 and cfg.eval.initial == "end"
     epochs_done = 0
     first_epoch_end = 0.0
-    startup_pending, step0_in_startup = True, False
+    # With eval.initial=start the step-0 evaluation always runs within the start-up (which ends with it).
+    step0_in_startup = eval_at_start
+    startup_pending = True
     startup_end_s: float | None = None  # when the start-up ended (its report may come later)
 
     def report_startup() -> None:
@@ -286,12 +288,11 @@ def train_brax(
         # eval.initial=start: the step-0 evaluation runs at the first epoch end where the evaluation
         # program is ready, and always before the first periodic one. Under jax.distributed it was
         # compiled before the start on every process, so every process takes the same branch.
-        step0_now = eval_at_start and (eval_due or compiler.done("evaluate"))
-        if step0_now:
+        if eval_at_start and (eval_due or compiler.done("evaluate")):
             eval_at_start = False
             eval_at_zero()
         if startup_end_s is None and not eval_at_start:  # the start-up ends here (first epoch or step 0's)
-            startup_end_s, step0_in_startup = timer.elapsed(), step0_now
+            startup_end_s = timer.elapsed()
         if startup_pending and not eval_at_start and (eval_due or compiler.done("evaluate")):
             compiler.get("evaluate")  # an evaluation is due: it waits for the program anyway
             report_startup()  # the start-up ended with the first epoch (or step 0's evaluation)

@@ -223,7 +223,7 @@ class Compiler:
         On an executable-cache hit the loaded ``Compiled`` is returned instead (it has ``out_info`` too).
         With ``load_in_background=True`` a stored program is loaded on a worker (None is returned, as with
         ``background``; an unusable entry is then traced and compiled there) while a program to compile is
-        still traced here: for a program whose result the caller does not read (a warm start's epoch or
+        still traced here: for a program whose result the caller does not read (a warm start's brax update or
         rsl-rl step, whose seconds of loading then overlap what this thread does next).
         """
         from bar_policy.training.startup_breakdown import EXEC_LOAD, LOWER, TRACE

@@ -13,8 +13,9 @@ GPU = {"preset": "gpu", "eval.num_evals": 41}
 
 Budget: about 5 minutes including compile if the batched env runs at >= 200 k steps/s. Evaluations every
 1.15 M steps (41 over the run, each about 3 s on an H100): the policy crosses 95 % success between 1.7 M and
-2.3 M env steps (session 34: 94.8-97.7 % at 2.29 M in 7 of 7 runs, 84-85 % at 1.72 M), which evaluations
-every 2.1 M steps (21) only saw at 4.3 M, about 15 s later. The cost is 20 more evaluations over a full run.
+2.3 M env steps (session 34: at or above 95 % at 2.29 M in 10 of 11 runs, 94.8 % in the other; 84-85 % at
+1.72 M), which evaluations every 2.1 M steps (21) only saw at 4.3 M, about 15 s later. The cost is 20 more
+evaluations over a full run.
 """
 
 RSL = {

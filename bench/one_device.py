@@ -1,0 +1,78 @@
+"""The trainer's programs on one device, ready to lower: the set-up ``compile_options.py`` and
+``program_split.py`` share (a fresh process each, on an empty compile cache with the shipped seeds).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+
+@dataclass(frozen=True)
+class OneDevice:
+    """A preset's env, learner and programs on one device, with the abstract arguments to lower them."""
+
+    cfg: Any
+    dp: Any
+    learner: Any
+    progs: Any
+    """``brax_programs.make_programs``'s ``Programs``."""
+    fused: Any
+    """The one-program epoch of before session 34 (``fused_epoch``)."""
+    iters: int
+    """Iterations per epoch of ``fused``."""
+    key_abs: Any
+    i_abs: Any
+    ts_abs: Any
+    envs_abs: Any
+    reset: Any
+    """The reset program, lowered (its ``out_info`` gave ``envs_abs``)."""
+    seed_line: str
+    """What the autotune seed did (``SeedOutcome.line``)."""
+
+
+def one_device(
+    preset_name: str, env_name: str, overrides: list[str], cache_dir: str, iters: int = 0
+) -> OneDevice:
+    """Compile cache at ``cache_dir`` (seeded), then the programs of ``preset_name`` + ``overrides``.
+
+    ``iters``: the fused epoch's iterations (0: the trainer's, ``epoch_iterations``).
+    """
+    import jax
+    import numpy as np
+    from fused_epoch import fused_epoch
+    from jax.sharding import Mesh
+
+    from bar_policy import envs
+    from bar_policy.training.autotune_seed import seed_autotune_cache
+    from bar_policy.training.brax_ppo import epoch_iterations, make_programs
+    from bar_policy.training.config import apply_overrides, preset
+    from bar_policy.training.learner import make_learner
+    from bar_policy.training.parallel import AXIS, DataParallel
+    from bar_policy.training.startup import configure_compile_cache
+
+    seed_line = seed_autotune_cache(configure_compile_cache(True, cache_dir)).line()
+    cfg = apply_overrides(preset(preset_name), overrides)
+    env = envs.load(env_name)
+    randomizer = envs.get_randomizer(env_name, env.config)
+    wrap = envs.wrap_for_brax_training
+    dp = DataParallel(Mesh(np.asarray(jax.devices()[:1]), (AXIS,)))
+    learner = make_learner(env.observation_size, env.action_size, cfg.ppo, cfg.network)
+    iters = iters or epoch_iterations(cfg)
+    progs = make_programs(env, cfg, learner, dp, wrap, randomizer)
+    key_abs = dp.abstract(np.zeros(2, np.uint32), sharded=False)
+    reset = progs.reset.trace(key_abs, key_abs).lower()
+    return OneDevice(
+        cfg=cfg,
+        dp=dp,
+        learner=learner,
+        progs=progs,
+        fused=fused_epoch(env, cfg, learner, dp, wrap, randomizer, iters),
+        iters=iters,
+        key_abs=key_abs,
+        i_abs=dp.abstract(np.zeros((), np.int32), sharded=False),
+        ts_abs=dp.abstract(jax.eval_shape(learner.init, key_abs), sharded=False),
+        envs_abs=dp.abstract(reset.out_info, sharded=True),
+        reset=reset,
+        seed_line=seed_line,
+    )
