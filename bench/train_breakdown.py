@@ -11,6 +11,8 @@ iteration), on one device, every part compiled once and timed over ``--iters`` c
 - ``epoch``: the trainer's epoch (its rollout and update programs, ``brax_programs.run_epoch``) over
   ``--epoch-iters`` iterations, per iteration;
 - ``loop``: the same epoch called as the training loop calls it (host sync and metrics read each call);
+- ``evaluate``: one periodic evaluation (``eval.num_eval_envs`` deterministic episodes of the env's
+  ``episode_length`` steps), reported in s per evaluation below the table;
 - with ``--fused``, ``epoch, one program`` and ``loop, one program``: the same for the one-program epoch
   the trainer had until session 34 (``bench/fused_epoch.py``), in the same process.
 
@@ -28,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -39,8 +42,9 @@ from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
 from bar_policy import envs
+from bar_policy.training.autotune_seed import seed_autotune_cache
 from bar_policy.training.brax_ppo import epoch_iterations, host_key, make_programs, slot_env
-from bar_policy.training.brax_programs import run_epoch
+from bar_policy.training.brax_programs import _policy_params, run_epoch
 from bar_policy.training.config import apply_overrides, preset
 from bar_policy.training.learner import make_learner
 from bar_policy.training.parallel import AXIS, DataParallel
@@ -74,8 +78,13 @@ def main() -> int:
     p.add_argument("--out", default="")
     args = p.parse_args()
 
-    configure_compile_cache(not args.no_compile_cache)
+    cache_dir = configure_compile_cache(not args.no_compile_cache)
     cfg = apply_overrides(preset(args.preset), args.set)
+    # As the trainer (training.run): its matmul precision, and the shipped autotune seed before compiling.
+    jax.config.update(
+        "jax_default_matmul_precision", "highest" if cfg.matmul_precision == "highest" else None
+    )
+    print("autotune seed:", seed_autotune_cache(cache_dir, enabled=cfg.autotune_seed))
     ppo = cfg.ppo
     env = envs.load(args.env)
     randomizer = envs.get_randomizer(args.env, env.config)
@@ -125,6 +134,7 @@ def main() -> int:
     rollout_lowered = compiler.submit("rollout", f_roll, ts_abs, envs_abs, key_abs)
     data_abs = dp.abstract(rollout_lowered.out_info, sharded=True)
     compiler.submit("update", f_update, ts_abs, data_abs, key_abs)
+    compiler.submit("evaluate", progs.evaluate, _policy_params(ts_abs), key_abs, key_abs)
     if args.fused:
         fused = fused_epoch(env, cfg, learner, dp, wrap, randomizer, args.epoch_iters)
         compiler.submit("fused epoch", fused, ts_abs, envs_abs, key_abs)
@@ -165,6 +175,7 @@ def main() -> int:
         rows["epoch, one program"] = _time(lambda: fused_call(False), args.iters) / args.epoch_iters
         rows["loop, one program"] = _time(lambda: fused_call(True), args.iters) / args.epoch_iters
 
+    eval_s = _time(lambda: compiler.get("evaluate")(_policy_params(ts), key, key), args.iters)
     dev = jax.devices()[0].device_kind
     lines = [
         f"train breakdown: {args.env}, preset {args.preset} {' '.join(args.set)}, {dev}, {n} envs, "
@@ -177,6 +188,12 @@ def main() -> int:
         sps = steps / rows[name]
         lines.append(f"| {name} | {1e3 * rows[name]:.1f} | {sps:,.0f} | {rows['env'] / rows[name]:.1%} |")
     lines.append("")
+    eval_steps = cfg.eval.num_eval_envs * int(env.episode_length)
+    lines.append(
+        f"evaluate: {eval_s:.3f} s per evaluation ({cfg.eval.num_eval_envs} envs x {int(env.episode_length)} "
+        f"steps, {eval_steps / eval_s:,.0f} env steps/s)"
+    )
+    lines.append(f"XLA_FLAGS: {os.environ.get('XLA_FLAGS', '')!r}")
     compiles = [f"{k} {p.compile_s:.1f}" for k, p in timer.programs.items()]
     lines.append("compile s (concurrent): " + ", ".join(compiles))
     text = "\n".join(lines)
