@@ -16,11 +16,13 @@ Examples::
 
     python bench/program_split.py --out $OUT/program_split.md            # GPU (~3 min)
     python bench/program_split.py --preset tiny --sets rollout+update     # CPU smoke check
+    python bench/program_split.py --sets rollout --profile $OUT/prof      # where a compile and a load go
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import pickle
 import tempfile
@@ -31,6 +33,7 @@ from typing import Any
 
 from json_child import json_child
 from one_device import one_device
+from trace_summary import profiled, top_events
 
 PROGRAMS = ("epoch", "rollout", "update", "evaluate")
 
@@ -67,10 +70,13 @@ def _compile_set(args: argparse.Namespace) -> dict[str, Any]:
         compiled = lowered[name].compile()
         return name, compiled, time.monotonic() - t
 
+    prof = Path(args.profile) / f"compile_{args.compile_set}" if args.profile else None
     t0 = time.monotonic()
-    with ThreadPoolExecutor(len(names)) as pool:
+    with profiled(prof) if prof else contextlib.nullcontext(), ThreadPoolExecutor(len(names)) as pool:
         done = list(pool.map(compile_one, names))
     out["compile_wall_s"] = time.monotonic() - t0
+    if prof:
+        out["compile_events"] = top_events(prof)
     out["compile_s"] = {n: s for n, _, s in done}
     work = Path(args.workdir) / args.compile_set
     work.mkdir(parents=True, exist_ok=True)
@@ -86,7 +92,7 @@ def _compile_set(args: argparse.Namespace) -> dict[str, Any]:
     return out
 
 
-def _load_set(directory: str) -> dict[str, Any]:
+def _load_set(directory: str, profile: str = "") -> dict[str, Any]:
     """Load every stored executable of a set concurrently (as a warm run does), in this fresh process."""
     import jax
     from jax.experimental.serialize_executable import deserialize_and_load
@@ -103,10 +109,12 @@ def _load_set(directory: str) -> dict[str, Any]:
         deserialize_and_load(entry["e"], entry["i"], entry["o"])
         return path.stem, time.monotonic() - t
 
+    prof = Path(profile) / f"load_{Path(directory).name}" if profile else None
     t0 = time.monotonic()
-    with ThreadPoolExecutor(max(len(files), 1)) as pool:
+    with profiled(prof) if prof else contextlib.nullcontext(), ThreadPoolExecutor(max(len(files), 1)) as pool:
         loads = dict(pool.map(load, files))
-    return {"load_s": loads, "load_wall_s": time.monotonic() - t0}
+    out = {"load_s": loads, "load_wall_s": time.monotonic() - t0}
+    return {**out, "load_events": top_events(prof)} if prof else out
 
 
 def main() -> int:
@@ -117,13 +125,16 @@ def main() -> int:
     p.add_argument("--sets", default="epoch+evaluate,rollout+update+evaluate")
     p.add_argument("--workdir", default="")
     p.add_argument("--timeout", type=float, default=200, help="seconds per child process")
+    p.add_argument(
+        "--profile", default="", help="trace the compiles and loads into this folder; print their top events"
+    )
     p.add_argument("--out", default="")
     p.add_argument("--compile-set", default="", help=argparse.SUPPRESS)
     p.add_argument("--load-set", default="", help=argparse.SUPPRESS)
     p.add_argument("--cache-dir", default="", help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.load_set:
-        print(json.dumps(_load_set(args.load_set)))
+        print(json.dumps(_load_set(args.load_set, args.profile)))
         return 0
     if args.compile_set:
         print(json.dumps(_compile_set(args)))
@@ -137,9 +148,11 @@ def main() -> int:
     for s in sets:
         argv = ["--compile-set", s, "--preset", args.preset, "--env", args.env, "--workdir", str(work)]
         argv += ["--cache-dir", str(work / f"cache_{s}")] + (["--set", *args.set] if args.set else [])
+        argv += ["--profile", args.profile] if args.profile else []
         row = json_child(__file__, argv, timeout=args.timeout)
         if "compile_s" in row:
-            row.update(json_child(__file__, ["--load-set", str(work / s)], timeout=args.timeout))
+            load_argv = ["--load-set", str(work / s)] + (["--profile", args.profile] if args.profile else [])
+            row.update(json_child(__file__, load_argv, timeout=args.timeout))
         rows.append({"set": s, **row})
         print(json.dumps(rows[-1]), flush=True)
     lines = [
@@ -160,6 +173,12 @@ def main() -> int:
             f"| {each(r.get('load_s'), '.2f')} | {r.get('load_wall_s', float('nan')):.2f} "
             f"| {r.get('error', '')} |"
         )
+    for r in rows:
+        for part in ("compile_events", "load_events"):
+            if r.get(part):
+                lines += ["", f"{r['set']}, {part} (ms summed over threads, nested included):", ""]
+                fmt = "- {ms:,.0f} ms  x{count} ({threads} thr)  {name}"
+                lines += [fmt.format(**e) for e in r[part]]
     text = "\n".join(lines)
     print(text)
     if args.out:

@@ -11,6 +11,8 @@ iteration), on one device, every part compiled once and timed over ``--iters`` c
 - ``epoch``: the trainer's epoch (its rollout and update programs, ``brax_programs.run_epoch``) over
   ``--epoch-iters`` iterations, per iteration;
 - ``loop``: the same epoch called as the training loop calls it (host sync and metrics read each call);
+- ``env random, mid-training`` and ``rollout, mid-training``: the same as above, from the envs' state and the
+  networks after the epoch rows (mid-episode: the states training steps from), not from a fresh reset;
 - ``evaluate``: one periodic evaluation (``eval.num_eval_envs`` deterministic episodes of the env's
   ``episode_length`` steps), reported in s per evaluation below the table;
 - with ``--fused``, ``epoch, one program`` and ``loop, one program``: the same for the one-program epoch
@@ -162,6 +164,10 @@ def main() -> int:
 
     rows["epoch"] = _time(lambda: one_epoch(False), args.iters) / args.epoch_iters
     rows["loop"] = _time(lambda: one_epoch(True), args.iters) / args.epoch_iters
+    # From where training left the envs (mid-episode, the policy's poses and contacts), not a fresh reset.
+    mid_ts, mid = state["ts"], state["carry"]
+    rows["env random, mid-training"] = _time(lambda: compiler.get("env random")(mid, key), args.iters)
+    rows["rollout, mid-training"] = _time(lambda: compiler.get("rollout")(mid_ts, mid, key), args.iters)
     if args.fused:
 
         def fused_call(read: bool) -> Any:
