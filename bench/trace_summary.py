@@ -19,11 +19,17 @@ from typing import Any
 
 
 @contextlib.contextmanager
-def profiled(log_dir: str | Path) -> Iterator[None]:
-    """The stretch inside, traced by ``jax.profiler`` into ``log_dir`` (with a Perfetto JSON)."""
+def profiled(log_dir: str | Path, python: bool = True) -> Iterator[None]:
+    """The stretch inside, traced by ``jax.profiler`` into ``log_dir`` (with a Perfetto JSON).
+
+    ``python=False`` leaves Python frames out (a device trace of many kernels otherwise hits the
+    profiler's event cap, about a million).
+    """
     import jax
 
-    with jax.profiler.trace(str(log_dir), create_perfetto_trace=True):
+    opts = jax.profiler.ProfileOptions()
+    opts.python_tracer_level = 1 if python else 0
+    with jax.profiler.trace(str(log_dir), create_perfetto_trace=True, profiler_options=opts):
         yield
 
 
@@ -54,3 +60,54 @@ def top_events(log_dir: str | Path, n: int = 40) -> list[dict[str, Any]]:
     return [
         {"name": k, "ms": round(total[k], 1), "count": count[k], "threads": len(threads[k])} for k in names
     ]
+
+
+def device_summary(log_dir: str | Path, gaps: int = 12) -> dict[str, Any]:
+    """What the GPU did in a trace: kernel time per XLA module, busy and idle time, the longest idle gaps.
+
+    Device events are those of processes whose name holds ``GPU`` (the profiler's ``/device:GPU:0``).
+    ``modules``: ``{hlo_module: [ms, count]}``; ``window_ms``: first kernel start to last kernel end;
+    ``busy_ms``: the union of kernel intervals (streams overlapping counted once); ``gaps``: the longest
+    idle stretches as ``[ms, module before, module after]``. Empty dict when no trace or no device events.
+    """
+    files = sorted(Path(log_dir).rglob("perfetto_trace.json.gz"))
+    if not files:
+        return {}
+    with gzip.open(files[-1], "rt") as f:
+        events = json.load(f).get("traceEvents", [])
+    names = {
+        e.get("pid"): str(e.get("args", {}).get("name", ""))
+        for e in events
+        if e.get("ph") == "M" and e.get("name") == "process_name"
+    }
+    dev = [e for e in events if e.get("ph") == "X" and "dur" in e and "GPU" in names.get(e.get("pid"), "")]
+    if not dev:
+        return {"process_names": sorted(set(names.values()))[:20]}
+    modules: dict[str, list[float]] = defaultdict(lambda: [0.0, 0])
+
+    def module(e: dict) -> str:
+        a = e.get("args", {})
+        return str(a.get("hlo_module") or a.get("hlo_module_name") or a.get("module") or "?")[:60]
+
+    for e in dev:
+        m = modules[module(e)]
+        m[0] += float(e["dur"]) / 1e3
+        m[1] += 1
+    dev.sort(key=lambda e: float(e["ts"]))
+    busy, found = 0.0, []
+    end, last = float(dev[0]["ts"]), dev[0]
+    for e in dev:
+        ts, te = float(e["ts"]), float(e["ts"]) + float(e["dur"])
+        if ts > end:
+            found.append([round((ts - end) / 1e3, 2), module(last), module(e)])
+        busy += max(0.0, te - max(ts, end))
+        if te > end:
+            end, last = te, e
+    window = (end - float(dev[0]["ts"])) / 1e3
+    return {
+        "modules": {k: [round(v[0], 1), v[1]] for k, v in sorted(modules.items(), key=lambda kv: -kv[1][0])},
+        "window_ms": round(window, 1),
+        "busy_ms": round(busy / 1e3, 1),
+        "gaps": sorted(found, reverse=True)[:gaps],
+        "arg_keys": sorted(dev[0].get("args", {}))[:12],
+    }

@@ -42,6 +42,7 @@ import numpy as np
 from fused_epoch import fused_epoch
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
+from trace_summary import device_summary, profiled
 
 from bar_policy import envs
 from bar_policy.training.autotune_seed import seed_autotune_cache
@@ -76,6 +77,12 @@ def main() -> int:
         "--fused",
         action="store_true",
         help="also the one-program epoch of before session 34 (bench/fused_epoch.py)",
+    )
+    p.add_argument(
+        "--profile",
+        default="",
+        help="also trace one rollout + update call and one epoch under jax.profiler into this folder and "
+        "print what the device did in each (bench/trace_summary.py device_summary)",
     )
     p.add_argument("--out", default="")
     args = p.parse_args()
@@ -181,6 +188,19 @@ def main() -> int:
         rows["epoch, one program"] = _time(lambda: fused_call(False), args.iters) / args.epoch_iters
         rows["loop, one program"] = _time(lambda: fused_call(True), args.iters) / args.epoch_iters
 
+    profiles = {}
+    if args.profile:
+        jax.block_until_ready(state["ts"])
+        with profiled(Path(args.profile) / "parts", python=False):
+            jax.block_until_ready(
+                compiler.get("update")(mid_ts, compiler.get("rollout")(mid_ts, mid, key), key)
+            )
+        profiles["rollout + update (the rows' programs)"] = device_summary(Path(args.profile) / "parts")
+        with profiled(Path(args.profile) / "epoch", python=False):
+            jax.block_until_ready(one_epoch(True))
+        profiles[f"epoch ({args.epoch_iters} iterations, the trainer's programs)"] = device_summary(
+            Path(args.profile) / "epoch"
+        )
     eval_s = _time(lambda: compiler.get("evaluate")(_policy_params(ts), key, key), args.iters)
     dev = jax.devices()[0].device_kind
     lines = [
@@ -202,6 +222,12 @@ def main() -> int:
     lines.append(f"XLA_FLAGS: {os.environ.get('XLA_FLAGS', '')!r}")
     compiles = [f"{k} {p.compile_s:.1f}" for k, p in timer.programs.items()]
     lines.append("compile s (concurrent): " + ", ".join(compiles))
+    for name, summary in profiles.items():
+        lines += ["", f"device profile, {name}:", ""]
+        lines += [f"- {k}: {v}" for k, v in summary.items() if k != "modules"]
+        lines += [
+            f"- module {k}: {v[0]:,.1f} ms in {v[1]} kernels" for k, v in summary.get("modules", {}).items()
+        ]
     text = "\n".join(lines)
     print(text)
     if args.out:
