@@ -202,7 +202,7 @@ def main() -> int:
             Path(args.profile) / "epoch"
         )
         with profiled(Path(args.profile) / "evaluate", python=False):
-            jax.block_until_ready(compiler.get("evaluate")(_policy_params(mid_ts), key, key))
+            jax.block_until_ready(compiler.get("evaluate")(_policy_params(state["ts"]), key, key))
         profiles["one evaluation"] = device_summary(Path(args.profile) / "evaluate")
     eval_s = _time(lambda: compiler.get("evaluate")(_policy_params(ts), key, key), args.iters)
     dev = jax.devices()[0].device_kind
