@@ -84,6 +84,9 @@ def main() -> int:
         help="also trace one rollout + update call and one epoch under jax.profiler into this folder and "
         "print what the device did in each (bench/trace_summary.py device_summary)",
     )
+    p.add_argument(
+        "--profile-eval", action="store_true", help="with --profile, one evaluation too (a large trace)"
+    )
     p.add_argument("--out", default="")
     args = p.parse_args()
 
@@ -195,12 +198,15 @@ def main() -> int:
             jax.block_until_ready(
                 compiler.get("update")(mid_ts, compiler.get("rollout")(mid_ts, mid, key), key)
             )
+        t_prof = time.perf_counter()
         profiles["rollout + update (the rows' programs)"] = device_summary(Path(args.profile) / "parts")
+        print(f"profile of the parts summarised in {time.perf_counter() - t_prof:.1f} s", flush=True)
         with profiled(Path(args.profile) / "epoch", python=False):
             jax.block_until_ready(one_epoch(True))
         profiles[f"epoch ({args.epoch_iters} iterations, the trainer's programs)"] = device_summary(
             Path(args.profile) / "epoch"
         )
+    if args.profile and args.profile_eval:
         with profiled(Path(args.profile) / "evaluate", python=False):
             jax.block_until_ready(compiler.get("evaluate")(_policy_params(state["ts"]), key, key))
         profiles["one evaluation"] = device_summary(Path(args.profile) / "evaluate")
