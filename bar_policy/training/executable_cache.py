@@ -34,9 +34,6 @@ four programs and reached the first evaluation at 22.0 s and 25.0 s instead of 3
 a CPU unless ``BAR_POLICY_EXECUTABLE_CACHE_ON_CPU=1``, on other backends (unmeasured), with
 ``--no-compile-cache``, and under multi-process ``jax.distributed`` (each process would load its own
 executable with no check that all loaded the same program). ``off_reason`` says which.
-
-**Prefetch** (``executable_prefetch``): a cache with a ``launch_key`` names its programs' keys in that
-launch's manifest; ``load`` takes a prefetched executable first, only ever for the exact key it was asked.
 """
 
 from __future__ import annotations
@@ -56,7 +53,6 @@ from typing import Any
 
 from bar_policy._files import write_atomic
 from bar_policy.training import executable_key as ek
-from bar_policy.training.executable_manifest import LaunchManifest
 
 __all__ = [
     "CPU_ENV",
@@ -91,20 +87,10 @@ class ExecutableCache:
         directory: where the entries go (``<jax cache dir>/executables``); created.
         context: what the run's programs close over that the code does not say: the training config, the
             env config and class (JSON-able; ``repr`` for the rest).
-        launch_key: ``executable_prefetch.launch_key`` of the run: ``key`` names each program's key in that
-            launch's manifest (``executable_manifest``; '' writes none).
     """
 
-    manifest: LaunchManifest | None = None
-    prefetch: Any = None
-    """An ``executable_prefetch.Prefetch`` whose executables ``load`` takes first (None: no prefetch)."""
-
-    def __init__(
-        self, directory: str | Path, context: Mapping[str, Any], max_bytes: int = MAX_BYTES,
-        launch_key: str = "",
-    ) -> None:  # fmt: skip
+    def __init__(self, directory: str | Path, context: Mapping[str, Any], max_bytes: int = MAX_BYTES) -> None:
         self.directory = Path(directory)
-        self.manifest = LaunchManifest(self.directory, launch_key) if launch_key else None
         self.max_bytes = max_bytes
         self.directory.mkdir(parents=True, exist_ok=True)
         self.context = dict(context)
@@ -166,10 +152,7 @@ class ExecutableCache:
             "args": ek.signature(args),
         }
         text = json.dumps(inputs, sort_keys=True, default=repr)
-        key = hashlib.sha256(text.encode()).hexdigest()
-        if self.manifest is not None:  # the next run of this launch key prefetches it
-            self.manifest.record(name, key, inputs)
-        return key, inputs
+        return hashlib.sha256(text.encode()).hexdigest(), inputs
 
     def _path(self, key: str) -> Path:
         return self.directory / f"{key}.bin"
@@ -183,13 +166,6 @@ class ExecutableCache:
         path = self._path(key)
         if not path.exists():
             return None
-        compiled = self.prefetch.take(key) if self.prefetch is not None else None
-        if compiled is not None:  # loaded on the prefetch's thread from this key's entry, checked as below
-            _init_lazy_kernels()  # here, not there: it imports scipy, and that thread imports nothing
-            with contextlib.suppress(OSError):
-                os.utime(path)
-            self._record_loaded(key)
-            return compiled
         try:
             from jax.experimental.serialize_executable import deserialize_and_load
 
@@ -319,7 +295,7 @@ def _program_fields(train: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def executable_cache_for(
-    cfg: Any, cache_dir: Path | None, record: Mapping[str, Any], env: Any, prefetch: Any = None
+    cfg: Any, cache_dir: Path | None, record: Mapping[str, Any], env: Any
 ) -> ExecutableCache | None:
     """The run's cache in ``<cache_dir>/executables``.
 
@@ -331,8 +307,6 @@ def executable_cache_for(
         cache_dir: jax's persistent cache directory (``startup.configure_compile_cache``'s answer).
         record: the run's config record (``run._open_run``): its ``train`` and ``env`` configs go in the key.
         env: the env trained on: its class (and source, when outside ``bar_policy``) go in the key.
-        prefetch: the run's ``executable_prefetch.Prefetch`` (None: none): the cache takes its executables
-            and writes the manifest of its launch key.
     """
     import jax
 
@@ -345,15 +319,13 @@ def executable_cache_for(
         "env_class": f"{cls.__module__}.{cls.__qualname__}",
         "env_source": ek.source_hash(env),
     }
-    launch = getattr(prefetch, "launch_key", "")
-    cache = ExecutableCache(Path(cache_dir) / "executables", context, launch_key=launch)
+    cache = ExecutableCache(Path(cache_dir) / "executables", context)
     if _crashed_marker(cache.directory).exists():
         _log.warning(
             "executable cache: off, a run crashed after loading from it on this backend and jaxlib (delete "
             "%s to try again)", _crashed_marker(cache.directory),
         )  # fmt: skip
         return None
-    cache.prefetch = prefetch
     return cache
 
 

@@ -23,15 +23,7 @@ import numpy as np
 
 from bar_policy._files import PACKAGE_ROOT, package_hash
 
-__all__ = [
-    "flag_environment",
-    "library_versions",
-    "package_hash",
-    "platform",
-    "runtime_flags",
-    "signature",
-    "source_hash",
-]
+__all__ = ["library_versions", "package_hash", "platform", "runtime_flags", "signature", "source_hash"]
 
 LIBRARIES = (
     "jax",
@@ -108,20 +100,12 @@ def runtime_flags() -> dict[str, str]:
         for k, v in jax.config.values.items()
         if "compilation_cache" not in k and "persistent_cache" not in k
     }
-    return {**flags, **{f"env:{k}": v for k, v in flag_environment().items()}}
-
-
-def flag_environment() -> dict[str, str]:
-    """The ``XLA_*``, ``JAX_*`` and ``LIBTPU_*`` environment variables but the compilation cache's own.
-
-    Apart from ``runtime_flags`` because the prefetch's launch key (``executable_prefetch``) reads them
-    before jax's config is final, and must filter them the same way.
-    """
-    return {
+    env = {
         k: v
         for k, v in os.environ.items()
         if k.startswith(("XLA_", "JAX_", "LIBTPU_")) and "COMPILATION_CACHE" not in k
     }
+    return {**flags, **{f"env:{k}": v for k, v in env.items()}}
 
 
 def _sharding(s: Any) -> Any:

@@ -26,7 +26,6 @@ from bar_policy.training.best import finish_best
 from bar_policy.training.config import TrainConfig, config_to_dict
 from bar_policy.training.distributed import init_distributed, local_default_devices, shutdown_distributed
 from bar_policy.training.executable_cache import executable_cache_for, executable_cache_line
-from bar_policy.training.executable_prefetch import start_prefetch
 from bar_policy.training.progress import RunLogger, format_duration, format_steps
 from bar_policy.training.startup import StartupTimer, configure_compile_cache
 
@@ -196,7 +195,6 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
         with timer.phase(sb.DISTRIBUTED):
             init_distributed(cfg)
         seeded = seed_in_background(cache_dir, enabled=cfg.autotune_seed)  # waited for before compiling
-        timer.executable_prefetch = prefetch = start_prefetch(cfg, cache_dir)  # loads during the env build
         import jax
 
         # Full float32 products unless asked otherwise (a TF32 gradient destabilised Playground's runs).
@@ -225,13 +223,16 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
     is_main = jax.process_index() == 0
     with timer.phase(sb.RUN_RECORD):
         timer.autotune_seed = seed = seeded.result()
-        switches = "(--no-compile-cache turns it off, --compile-cache-dir moves it)"
-        cache_note = f"compile cache: {cache_dir} {switches}" if cache_dir else "compile cache: off"
+        cache_note = (
+            f"compile cache: {cache_dir} (--no-compile-cache turns it off, --compile-cache-dir moves it)"
+            if cache_dir
+            else "compile cache: off"
+        )
         partitioner_note = (
             f"partitioner: {partitioner} (JAX_USE_SHARDY_PARTITIONER in the environment chooses)"
         )
         run_dir, logger, record = _open_run(cfg, env, is_main, [cache_note, partitioner_note])
-        exec_cache = executable_cache_for(cfg, cache_dir, record, env, prefetch)
+        exec_cache = executable_cache_for(cfg, cache_dir, record, env)
         if is_main:
             logger.print(executable_cache_line(cfg, cache_dir, exec_cache))
             logger.print(seed.line())

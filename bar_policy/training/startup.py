@@ -10,8 +10,7 @@ the evaluation, the reset). Five things cut it:
   keyed on the lowered program, so a warm run still traces and lowers every program; this one stores the
   serialised executable under a key of everything that determines it (config, package content, library
   versions, devices, argument signature), so a rerun loads it without tracing (``docs/startup.md``). On by
-  default on GPUs. The last launch's entries are loaded on a thread during the imports and the env build
-  (``bar_policy.training.executable_prefetch``).
+  default on GPUs.
 - **Autotune seed** (``bar_policy.training.autotune_seed``): XLA's GPU autotuning results shipped for a
   device kind and jaxlib, copied into the cache's per-fusion autotune directory, so a cold compile skips
   timing fusions already timed (about 30 s of an H100's cold start).

@@ -13,9 +13,7 @@ Two views of the same start:
   its cache outcome. The compiles run on worker threads, overlapping each other and the phases above.
 
 The record also says what seeding XLA's autotune cache did (``autotune_seed``, one ``autotune seed: ...``
-line in the table), since a cold GPU compile is about 30 s shorter with it, and what the prefetch of the last
-launch's executables did (``executable_prefetch``, one ``executable prefetch: ...`` line), since it decides
-how much of a warm start's executable loading the main thread still waits for.
+line in the table), since a cold GPU compile is about 30 s shorter with it.
 
 ``StartupTimer.finish`` makes the JSON record of both (``final_eval.json`` and ``metrics.jsonl`` keep it
 under ``startup``); ``lines`` prints it as a table.
@@ -34,7 +32,6 @@ from bar_policy._phases import MODEL_BUILD, PhaseClock
 
 if TYPE_CHECKING:
     from bar_policy.training.autotune_seed import SeedOutcome
-    from bar_policy.training.executable_prefetch import Prefetch
 
 __all__ = ["PHASES", "UNTIL_EPOCH", "UNTIL_EVAL", "ProgramTimes", "StartupTimer"]
 
@@ -173,8 +170,6 @@ class StartupTimer:
     """The record ``finish`` made (None before)."""
     autotune_seed: SeedOutcome | None = None
     """What seeding XLA's autotune cache did (``autotune_seed.seed_autotune_cache``; None: not tried)."""
-    executable_prefetch: Prefetch | None = None
-    """The run's prefetch of the last launch's executables (``executable_prefetch``; None: not started)."""
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
     @property
@@ -242,8 +237,6 @@ class StartupTimer:
         }
         if self.autotune_seed is not None:
             self.report["autotune_seed"] = self.autotune_seed.as_dict()
-        if self.executable_prefetch is not None:
-            self.report["executable_prefetch"] = self.executable_prefetch.as_dict()
         return self.report
 
     @staticmethod
@@ -294,7 +287,3 @@ def _table(rec: dict[str, Any]) -> Iterator[str]:
         from bar_policy.training.autotune_seed import SeedOutcome
 
         yield f"  {SeedOutcome(**rec['autotune_seed']).line()}"
-    if rec.get("executable_prefetch"):
-        from bar_policy.training.executable_prefetch import prefetch_line
-
-        yield f"  {prefetch_line(rec['executable_prefetch'])}"

@@ -550,8 +550,7 @@ def test_a_two_device_mesh_program_is_stored_loaded_in_a_fresh_process_and_train
     assert single["phases"][sb.TRACE] > 0  # traced and compiled, not served a 2-device program
     # Every program now has two entries, with the same argument tree, shapes and dtypes: they differ in the
     # device list and in each argument's sharding (its mesh and device ids), not only in XLA_FLAGS.
-    # (The sidecars: the launch manifests of executable_prefetch, launch-*.json, sit beside them.)
-    sides = [json.loads(p.read_text()) for p in entries.glob("*.json") if not p.name.startswith("launch-")]
+    sides = [json.loads(p.read_text()) for p in entries.glob("*.json")]
     assert len(sides) == 2 * len(cold["programs"])
     for name in cold["programs"]:
         two, one = sorted(
