@@ -45,7 +45,6 @@ from bar_policy.envs.robot_config import (
     check_multiple,
     nominal,
 )
-from bar_policy.envs.site_kinematics import plan_sites, site_positions
 from bar_policy.envs.task import TaskStep, Transition
 from bar_policy.obs import ObservationManager
 from bar_policy.robot.constants import FINGERTIP_SITES
@@ -180,9 +179,6 @@ class LiteReach(LiteRobotEnv):
         cfg = config or default_config()
         super().__init__(cfg, ObservationManager.for_task("reach", cfg.mode), scene=scene)
         self._site_ids = np.array([self.mj_model.site(s).id for s in FINGERTIP_SITES])
-        # The fingertips' body chains for the observation's forward kinematics (``site_kinematics``: only
-        # the 15 bodies on the two arms, not ``mjx.kinematics``' every frame); None: run mjx.kinematics.
-        self._tip_chains = plan_sites(self.mj_model, self._site_ids)
         # The fingertips of the default pose, where each episode's commanded targets start (the deploy
         # side's ``TransitionCommands`` starts from the same ``Kinematics``), shape (2, 3), m.
         self._tips0 = to_device(Kinematics(cfg.mode).fingertips(np.asarray(self._default)), np.float32)
@@ -258,17 +254,8 @@ class LiteReach(LiteRobotEnv):
         return TaskStep(terms=terms, info=task_info, metrics=metrics)
 
     def task_obs(self, model: mjx.Model, data: mjx.Data, q_meas: jax.Array, info: dict) -> dict:
-        """Fingertips by forward kinematics of the measured q, and the two targets.
-
-        The fingertips are ``mjx.kinematics``' ``site_xpos`` rows, computed from their body chains only
-        (``site_kinematics.site_positions``, the same maths on the same (randomised) model; a fraction of
-        the program's size, and this runs twice per training program).
-        """
-        data_q = self.with_robot_q(data, q_meas)
-        if self._tip_chains is None:
-            tips = mjx.kinematics(model, data_q).site_xpos[self._site_ids]
-        else:
-            tips = site_positions(model, data_q.qpos, self._tip_chains)
+        """Fingertips by forward kinematics of the measured q, and the two targets."""
+        tips = mjx.kinematics(model, self.with_robot_q(data, q_meas)).site_xpos[self._site_ids]
         return {
             "fingertip_pos_left": tips[0],
             "fingertip_pos_right": tips[1],
