@@ -9,9 +9,15 @@ This bench compiles, each in a fresh process on an empty compile cache with the 
 - ``step``: one control step of the batched training env (randomised models, auto-reset), no policy;
 - ``step-noreset``: the same without the auto-reset (the evaluation's env step);
 - ``physics``: the 10 physics substeps of a control step alone (``physics_step.step`` on the randomised
-  batched model, zero applied force), no MIT law, observation, reward or reset;
+  batched model, zero applied force), no MIT law, observation, reward or reset; ``physics20``: 20 control
+  steps of it in one ``scan`` (an iteration's physics);
+- ``rest``: the rollout with ``physics_step.step`` replaced by the identity: what a second program would
+  compile if the physics were a program of its own;
+- ``physics+rest``: both traced, then compiled concurrently in one process (the critical path of a split);
 
-and reports each one's trace + lower s, compile s and HLO lines. ``rollout - step`` is what the policy and
+and reports each one's trace + lower s, compile s and HLO lines. ``physics`` and ``physics20`` also run on
+a reset batch: ``physics`` called 20 times from Python against ``physics20`` once, the cost of driving the
+physics from the host one control step at a time. ``rollout - step`` is what the policy and
 the learner's bookkeeping add; ``step - physics`` what the env's own code around the physics adds.
 
 Examples::
@@ -23,16 +29,18 @@ Examples::
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
 from json_child import json_child
 from one_device import one_device
 
-PARTS = ("rollout", "step", "step-noreset", "physics")
+PARTS = ("rollout", "step", "step-noreset", "physics", "physics20", "rest", "physics+rest")
 
 
 def _compile_part(args: argparse.Namespace) -> dict[str, Any]:
@@ -42,6 +50,7 @@ def _compile_part(args: argparse.Namespace) -> dict[str, Any]:
 
     from bar_policy import envs
     from bar_policy.envs import physics_step
+    from bar_policy.training.brax_ppo import host_key
     from bar_policy.training.brax_programs import slot_env
     from bar_policy.training.parallel import AXIS
 
@@ -58,7 +67,7 @@ def _compile_part(args: argparse.Namespace) -> dict[str, Any]:
         batch = slot_env(env, wrap, randomizer, model_keys, auto_reset=auto_reset)
         return batch.step(state, jnp.zeros((state.obs.shape[0], n_act)))
 
-    def physics(envs_carry: Any) -> Any:
+    def physics(envs_carry: Any, steps: int = 1) -> Any:
         state, model_keys = envs_carry
         batch = slot_env(env, wrap, randomizer, model_keys)
         plan = env._step_plan  # the env's own step plan (private: a bench reads it)
@@ -67,23 +76,59 @@ def _compile_part(args: argparse.Namespace) -> dict[str, Any]:
             one = jax.vmap(lambda m, dd: physics_step.step(m, dd, plan), in_axes=(batch._in_axes, 0))
             return one(batch.model, d), None
 
-        return jax.lax.scan(sub, state.data, None, length=env.n_substeps)[0]
+        data = jax.lax.scan(sub, state.data, None, length=env.n_substeps * steps)[0]
+        return state.replace(data=data), model_keys
+
+    def rest_rollout() -> Any:
+        """The rollout program lowered with the physics step as the identity (traced after the patch)."""
+        real = physics_step.step
+        physics_step.step = lambda m, d, plan: d
+        try:
+            return progs.rollout.trace(ts_abs, envs_abs, key_abs, i_abs).lower()
+        finally:
+            physics_step.step = real
 
     name = args.compile_part
-    if name == "rollout":
-        fn, fargs = progs.rollout, (ts_abs, envs_abs, key_abs, i_abs)
-    elif name in ("step", "step-noreset"):
-        fn = dp.map(lambda c: step(c, name == "step"), (shard,), shard)
-        fargs = (envs_abs,)
-    else:
-        fn, fargs = dp.map(physics, (shard,), shard), (envs_abs,)
+    out: dict[str, Any] = {"part": name}
     t0 = time.monotonic()
-    lowered = fn.trace(*fargs).lower()
+    if name == "rollout":
+        lowered = {name: progs.rollout.trace(ts_abs, envs_abs, key_abs, i_abs).lower()}
+    elif name in ("step", "step-noreset"):
+        lowered = {name: dp.map(lambda c: step(c, name == "step"), (shard,), shard).trace(envs_abs).lower()}
+    elif name in ("physics", "physics20"):
+        fn = dp.map(functools.partial(physics, steps=20 if name == "physics20" else 1), (shard,), shard)
+        lowered = {name: fn.trace(envs_abs).lower()}
+    elif name == "rest":
+        lowered = {name: rest_rollout()}
+    else:
+        fn = dp.map(physics, (shard,), shard)
+        lowered = {"physics": fn.trace(envs_abs).lower(), "rest": rest_rollout()}
     t1 = time.monotonic()
-    lowered.compile()
+
+    def compile_one(item: tuple[str, Any]) -> tuple[str, Any, float]:
+        t = time.monotonic()
+        return item[0], item[1].compile(), time.monotonic() - t
+
+    with ThreadPoolExecutor(len(lowered)) as pool:
+        done = list(pool.map(compile_one, lowered.items()))
     t2 = time.monotonic()
-    hlo = lowered.compiler_ir("hlo").as_hlo_text().count("\n")
-    return {"part": name, "trace_lower_s": t1 - t0, "compile_s": t2 - t1, "hlo_lines": hlo}
+    out.update(trace_lower_s=t1 - t0, compile_s=t2 - t1)
+    out["each_s"] = {n: round(s, 1) for n, _, s in done}
+    out["hlo_lines"] = sum(lw.compiler_ir("hlo").as_hlo_text().count("\n") for lw in lowered.values())
+    if name in ("physics", "physics20"):
+        compiled = done[0][1]
+        carry = o.reset.compile()(dp.replicate(host_key(0, 2)), dp.replicate(host_key(0, 3)))
+        calls = 20 if name == "physics" else 1
+        best = float("inf")
+        for _ in range(4):  # the first is a warm-up
+            t = time.perf_counter()
+            c = carry
+            for _ in range(calls):
+                c = compiled(c)
+            jax.block_until_ready(c)
+            best = min(best, time.perf_counter() - t)
+        out["run_ms_20_steps"] = 1e3 * best
+    return out
 
 
 def main() -> int:
@@ -115,13 +160,16 @@ def main() -> int:
         f"compile parts: {args.env}, preset {args.preset} {' '.join(args.set)} (each in a fresh process, "
         "empty cache + seeds)",
         "",
-        "| part | trace + lower s | compile s | HLO lines | note |",
-        "|---|---:|---:|---:|---|",
+        "| part | trace + lower s | compile s (wall) | each program's compile s | HLO lines | ms per 20 "
+        "control steps | note |",
+        "|---|---:|---:|---|---:|---:|---|",
     ]
     for r in rows:
         tl, c = r.get("trace_lower_s", float("nan")), r.get("compile_s", float("nan"))
-        hlo, err = r.get("hlo_lines", 0), r.get("error", "")
-        lines.append(f"| {r['part']} | {tl:.1f} | {c:.1f} | {hlo:,} | {err} |")
+        hlo, err, run = r.get("hlo_lines", 0), r.get("error", ""), r.get("run_ms_20_steps")
+        each = ", ".join(f"{k} {v}" for k, v in r.get("each_s", {}).items())
+        run_s = f"{run:.1f}" if run is not None else "-"
+        lines.append(f"| {r['part']} | {tl:.1f} | {c:.1f} | {each} | {hlo:,} | {run_s} | {err} |")
     text = "\n".join(lines)
     print(text)
     if args.out:
