@@ -25,6 +25,7 @@ of the whole step. The pieces (``mujoco.mjx._src``, as ``forward.py`` and ``solv
 
     python bench/piano_solver_parts.py --batch 8192          # GPU
     python bench/piano_solver_parts.py --batch 32 --reps 2   # CPU check
+    python bench/piano_solver_parts.py --scene reach --batch 4096   # LiteReach's scene (no leaf dofs)
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ from unittest import mock
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 from mujoco import mjx
 from mujoco.mjx._src import collision_driver, constraint, solver, support
@@ -49,12 +51,26 @@ from bar_policy.tasks.piano.keyboard import compact_config
 from bar_policy.tasks.piano.scene import keyboard_scene
 
 
-def _states(batch: int) -> tuple[mjx.Model, mjx.Data, physics_step.StepPlan]:
-    spec = robot_spec("arms")
-    keyboard_scene(compact_config())(spec)
-    m = compile_scene(spec, "arms")
+def _reach_batch(batch: int) -> tuple[mujoco.MjModel, mjx.Model, mjx.Data]:
+    """LiteReach's model and ``batch`` states at uniform random joint angles within the limits (seed 0)."""
+    from bar_policy import envs
+
+    m = envs.load("LiteReach").mj_model
+    lo, hi = m.jnt_range[:, 0], m.jnt_range[:, 1]
+    qs = np.random.default_rng(0).uniform(lo, hi, (batch, m.nq))
+    mx, d0 = mjx.put_model(m), mjx.make_data(m)
+    return m, mx, jax.jit(jax.vmap(lambda qq: d0.replace(qpos=qq)))(jnp.asarray(qs, jnp.float32))
+
+
+def _states(batch: int, scene: str = "piano") -> tuple[mjx.Model, mjx.Data, physics_step.StepPlan]:
+    if scene == "reach":
+        m, mx, d = _reach_batch(batch)
+    else:
+        spec = robot_spec("arms")
+        keyboard_scene(compact_config())(spec)
+        m = compile_scene(spec, "arms")
+        mx, d = held_batch(m, batch)
     plan = physics_step.plan(m)
-    mx, d = held_batch(m, batch)
 
     def settle(x: mjx.Data) -> mjx.Data:
         return jax.lax.fori_loop(0, 50, lambda _, y: physics_step.step(mx, y, plan), x)
@@ -122,7 +138,7 @@ def pieces(m: mjx.Model, plan: physics_step.StepPlan) -> dict[str, Callable[[mjx
     def update_constraint(ctx: solver.Context, d: mjx.Data) -> solver.Context:
         return ctx.replace(qacc=ctx.qacc + 1e-6 * solver._update_constraint(m, d, ctx).qfrc_constraint)
 
-    return {
+    out = {
         "step": lambda d: physics_step.step(m, d, plan),
         "mjx_step": lambda d: mjx.step(m, d),
         "fwd_position": lambda d: physics_step.fwd_position(m, d, plan),
@@ -144,6 +160,9 @@ def pieces(m: mjx.Model, plan: physics_step.StepPlan) -> dict[str, Callable[[mjx
         "mul_m": lambda d: d.replace(qacc=support.mul_m(m, d, d.qacc) * 1e-3),
         "euler": lambda d: mjx_forward.euler(m, d).replace(qpos=d.qpos, qvel=d.qvel),
     }
+    if split is None:  # no leaf dofs (reach): no arrowhead direction to time
+        out.pop("grad_leaf")
+    return out
 
 
 def main() -> None:
@@ -152,13 +171,17 @@ def main() -> None:
     p.add_argument("--reps", type=int, default=10, help="calls of a piece per timed program")
     p.add_argument("--min-time", type=float, default=1.0, help="seconds per timing")
     p.add_argument("--pieces", default=None, help="comma-separated subset (default: all)")
+    p.add_argument(
+        "--scene", default="piano", choices=("piano", "reach"),
+        help="piano: the keyboard scene from the held pose; reach: LiteReach's scene from random poses",
+    )  # fmt: skip
     p.add_argument("--out", type=Path, default=None)
     a = p.parse_args()
-    m, d, plan = _states(a.batch)
+    m, d, plan = _states(a.batch, a.scene)
     fns = pieces(m, plan)
     names = a.pieces.split(",") if a.pieces else list(fns)
     rows = [
-        f"device {jax.devices()[0].device_kind}, batch {a.batch}, {a.reps} calls per program",
+        f"device {jax.devices()[0].device_kind}, {a.scene}, batch {a.batch}, {a.reps} calls per program",
         "",
         "| piece | us per env-step | share of step |",
         "|---|---:|---:|",
