@@ -13,6 +13,7 @@ iteration), on one device, every part compiled once and timed over ``--iters`` c
 - ``loop``: the same epoch called as the training loop calls it (host sync and metrics read each call);
 - ``env random, mid-training`` and ``rollout, mid-training``: the same as above, from the envs' state and the
   networks after the epoch rows (mid-episode: the states training steps from), not from a fresh reset;
+- ``--concurrent``: an evaluation on a thread while an epoch runs, against the two one after the other;
 - ``evaluate``: one periodic evaluation (``eval.num_eval_envs`` deterministic episodes of the env's
   ``episode_length`` steps), reported in s per evaluation below the table;
 - with ``--fused``, ``epoch, one program`` and ``loop, one program``: the same for the one-program epoch
@@ -33,6 +34,7 @@ from __future__ import annotations
 import argparse
 import functools
 import os
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -86,6 +88,11 @@ def main() -> int:
     )
     p.add_argument(
         "--profile-eval", action="store_true", help="with --profile, one evaluation too (a large trace)"
+    )
+    p.add_argument(
+        "--concurrent",
+        action="store_true",
+        help="also an evaluation on a thread while an epoch runs: the wall time against the two in turn",
     )
     p.add_argument("--out", default="")
     args = p.parse_args()
@@ -211,6 +218,33 @@ def main() -> int:
             jax.block_until_ready(compiler.get("evaluate")(_policy_params(state["ts"]), key, key))
         profiles["one evaluation"] = device_summary(Path(args.profile) / "evaluate")
     eval_s = _time(lambda: compiler.get("evaluate")(_policy_params(ts), key, key), args.iters)
+    overlap = ""
+    if args.concurrent:
+        # An evaluation on a thread of its own while the main thread runs an epoch: does the device overlap
+        # them (both programs are bound by kernel launches, not by the device's arithmetic)?
+        evaluate = compiler.get("evaluate")
+        epoch_s = _time(lambda: one_epoch(True), args.iters)
+        walls = []
+        for _ in range(args.iters):
+            done: dict[str, float] = {}
+            t0 = time.perf_counter()
+
+            def run_eval(t0: float = t0, done: dict[str, float] = done) -> None:
+                jax.block_until_ready(evaluate(_policy_params(ts), key, key))
+                done["eval"] = time.perf_counter() - t0
+
+            worker = threading.Thread(target=run_eval)
+            worker.start()
+            one_epoch(True)
+            done["epoch"] = time.perf_counter() - t0
+            worker.join()
+            walls.append((time.perf_counter() - t0, done["epoch"], done["eval"]))
+        wall, ep_end, ev_end = min(walls)
+        overlap = (
+            f"epoch ({args.epoch_iters} iterations) and evaluation concurrently: {wall:.3f} s wall "
+            f"(epoch done at {ep_end:.3f} s, evaluation at {ev_end:.3f} s) against {epoch_s:.3f} + "
+            f"{eval_s:.3f} = {epoch_s + eval_s:.3f} s one after the other"
+        )
     dev = jax.devices()[0].device_kind
     lines = [
         f"train breakdown: {args.env}, preset {args.preset} {' '.join(args.set)}, {dev}, {n} envs, "
@@ -229,6 +263,8 @@ def main() -> int:
         f"steps, {eval_steps / eval_s:,.0f} env steps/s)"
     )
     lines.append(f"XLA_FLAGS: {os.environ.get('XLA_FLAGS', '')!r}")
+    if overlap:
+        lines.append(overlap)
     compiles = [f"{k} {p.compile_s:.1f}" for k, p in timer.programs.items()]
     lines.append("compile s (concurrent): " + ", ".join(compiles))
     for name, summary in profiles.items():
