@@ -39,6 +39,7 @@ from typing import Any
 
 from json_child import json_child
 from one_device import one_device
+from report import emit
 
 VARIANTS: dict[str, dict[str, Any]] = {
     "default": {},
@@ -157,10 +158,8 @@ def main() -> int:
             )
         rows.append(row)
         print(json.dumps(row), flush=True)
-    text = _table(rows, args)
-    print(text)
+    emit(_table(rows, args), args.out)
     if args.out:
-        Path(args.out).write_text(text + "\n")
         Path(args.out).with_suffix(".jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
     return 0
 

@@ -39,6 +39,7 @@ from typing import Any
 
 from json_child import json_child
 from one_device import one_device
+from report import emit
 
 PARTS = ("rollout", "step", "step-noreset", "physics", "physics20", "rest", "physics+rest")
 
@@ -56,9 +57,7 @@ def _compile_part(args: argparse.Namespace) -> dict[str, Any]:
 
     o = one_device(args.preset, args.env, args.set, args.cache_dir)
     dp, progs, key_abs, i_abs, ts_abs, envs_abs = o.dp, o.progs, o.key_abs, o.i_abs, o.ts_abs, o.envs_abs
-    env = envs.load(args.env)
-    randomizer = envs.get_randomizer(args.env, env.config)
-    wrap = envs.wrap_for_brax_training
+    env, randomizer, wrap = o.env, o.randomizer, envs.wrap_for_brax_training
     shard = jax.sharding.PartitionSpec(AXIS)
     n_act = env.action_size
 
@@ -170,10 +169,7 @@ def main() -> int:
         each = ", ".join(f"{k} {v}" for k, v in r.get("each_s", {}).items())
         run_s = f"{run:.1f}" if run is not None else "-"
         lines.append(f"| {r['part']} | {tl:.1f} | {c:.1f} | {each} | {hlo:,} | {run_s} | {err} |")
-    text = "\n".join(lines)
-    print(text)
-    if args.out:
-        Path(args.out).write_text(text + "\n")
+    emit("\n".join(lines), args.out)
     return 0
 
 

@@ -13,6 +13,9 @@ class OneDevice:
     """A preset's env, learner and programs on one device, with the abstract arguments to lower them."""
 
     cfg: Any
+    env: Any
+    randomizer: Any
+    """The env's model randomiser (``envs.get_randomizer``)."""
     dp: Any
     learner: Any
     progs: Any
@@ -64,6 +67,8 @@ def one_device(
     reset = progs.reset.trace(key_abs, key_abs).lower()
     return OneDevice(
         cfg=cfg,
+        env=env,
+        randomizer=randomizer,
         dp=dp,
         learner=learner,
         progs=progs,

@@ -33,6 +33,7 @@ from typing import Any
 
 from json_child import json_child
 from one_device import one_device
+from report import emit
 from trace_summary import profiled, top_events
 
 PROGRAMS = ("epoch", "rollout", "update", "evaluate")
@@ -179,10 +180,7 @@ def main() -> int:
                 lines += ["", f"{r['set']}, {part} (ms summed over threads, nested included):", ""]
                 fmt = "- {ms:,.0f} ms  x{count} ({threads} thr)  {name}"
                 lines += [fmt.format(**e) for e in r[part]]
-    text = "\n".join(lines)
-    print(text)
-    if args.out:
-        Path(args.out).write_text(text + "\n")
+    emit("\n".join(lines), args.out)
     return 0
 
 

@@ -23,7 +23,8 @@ import argparse
 import os
 import time
 from collections import defaultdict
-from pathlib import Path
+
+from report import emit
 
 from bar_policy.training.config import apply_overrides, preset
 
@@ -133,10 +134,7 @@ def main() -> int:
     for k, v in phases.items():
         lines.append(f"| {k} | {1e3 * v / args.iters:.1f} | {v / args.iters / total:.1%} |")
     lines.append(f"| total (synced) | {1e3 * total:.1f} | {steps / total:,.0f} env steps/s |")
-    text = "\n".join(lines)
-    print(text)
-    if args.out:
-        Path(args.out).write_text(text + "\n")
+    emit("\n".join(lines), args.out)
     return 0
 
 

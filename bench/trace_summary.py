@@ -33,6 +33,15 @@ def profiled(log_dir: str | Path, python: bool = True) -> Iterator[None]:
         yield
 
 
+def _trace_events(log_dir: str | Path) -> list[dict[str, Any]]:
+    """The events of the last Perfetto JSON ``profiled`` wrote under ``log_dir`` ([] when there is none)."""
+    files = sorted(Path(log_dir).rglob("perfetto_trace.json.gz"))
+    if not files:
+        return []
+    with gzip.open(files[-1], "rt") as f:
+        return json.load(f).get("traceEvents", [])
+
+
 def top_events(log_dir: str | Path, n: int = 40) -> list[dict[str, Any]]:
     """``[{"name", "ms", "count", "threads"}]``: the ``n`` event names with the most summed duration.
 
@@ -41,11 +50,7 @@ def top_events(log_dir: str | Path, n: int = 40) -> list[dict[str, Any]]:
     tracer's ``$file:line function`` events) are left out: the C++ events are what this is for. Empty
     when no trace.
     """
-    files = sorted(Path(log_dir).rglob("perfetto_trace.json.gz"))
-    if not files:
-        return []
-    with gzip.open(files[-1], "rt") as f:
-        events = json.load(f).get("traceEvents", [])
+    events = _trace_events(log_dir)
     total: dict[str, float] = defaultdict(float)
     count: dict[str, int] = defaultdict(int)
     threads: dict[str, set] = defaultdict(set)
@@ -70,11 +75,9 @@ def device_summary(log_dir: str | Path, gaps: int = 12) -> dict[str, Any]:
     ``busy_ms``: the union of kernel intervals (streams overlapping counted once); ``gaps``: the longest
     idle stretches as ``[ms, module before, module after]``. Empty dict when no trace or no device events.
     """
-    files = sorted(Path(log_dir).rglob("perfetto_trace.json.gz"))
-    if not files:
+    events = _trace_events(log_dir)
+    if not events:
         return {}
-    with gzip.open(files[-1], "rt") as f:
-        events = json.load(f).get("traceEvents", [])
     names = {
         e.get("pid"): str(e.get("args", {}).get("name", ""))
         for e in events

@@ -44,6 +44,7 @@ import numpy as np
 from fused_epoch import fused_epoch
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
+from report import emit
 from trace_summary import device_summary, profiled
 
 from bar_policy import envs
@@ -171,13 +172,16 @@ def main() -> int:
     index = [dp.replicate(np.int32(i)) for i in range(args.epoch_iters)]
     state = {"ts": compiler.get("init")(dp.replicate(host_key(0, 1))), "carry": carry}
 
-    def one_epoch(read: bool) -> Any:
-        state["ts"], state["carry"], metrics, stats = run_epoch(
-            *programs, state["ts"], state["carry"], key, index
-        )
+    def epoch_call(epoch: Any, read: bool) -> Any:
+        """One epoch call ``epoch(ts, carry) -> (ts, carry, metrics, stats)`` on ``state``; ``read``: its
+        metrics and stats copied to the host, as the training loop does."""
+        state["ts"], state["carry"], metrics, stats = epoch(state["ts"], state["carry"])
         if read:
             dp.to_host((metrics, stats))
         return stats
+
+    def one_epoch(read: bool) -> Any:
+        return epoch_call(lambda ts_, carry_: run_epoch(*programs, ts_, carry_, key, index), read)
 
     rows["epoch"] = _time(lambda: one_epoch(False), args.iters) / args.epoch_iters
     rows["loop"] = _time(lambda: one_epoch(True), args.iters) / args.epoch_iters
@@ -186,37 +190,37 @@ def main() -> int:
     rows["env random, mid-training"] = _time(lambda: compiler.get("env random")(mid, key), args.iters)
     rows["rollout, mid-training"] = _time(lambda: compiler.get("rollout")(mid_ts, mid, key), args.iters)
     if args.fused:
+        fused_program = compiler.get("fused epoch")
 
-        def fused_call(read: bool) -> Any:
-            state["ts"], state["carry"], metrics, stats = compiler.get("fused epoch")(
-                state["ts"], state["carry"], key
-            )
-            if read:
-                dp.to_host((metrics, stats))
-            return stats
+        def fused(ts_: Any, carry_: Any) -> Any:
+            return fused_program(ts_, carry_, key)
 
-        rows["epoch, one program"] = _time(lambda: fused_call(False), args.iters) / args.epoch_iters
-        rows["loop, one program"] = _time(lambda: fused_call(True), args.iters) / args.epoch_iters
+        for row, read in (("epoch, one program", False), ("loop, one program", True)):
+            rows[row] = _time(lambda read=read: epoch_call(fused, read), args.iters) / args.epoch_iters
 
     profiles = {}
+
+    def profile(name: str, folder: str, fn: Any) -> None:
+        """``fn()`` traced into ``--profile``/``folder``; what the device did is reported as ``name``."""
+        with profiled(Path(args.profile) / folder, python=False):
+            jax.block_until_ready(fn())
+        profiles[name] = device_summary(Path(args.profile) / folder)
+
     if args.profile:
         jax.block_until_ready(state["ts"])
-        with profiled(Path(args.profile) / "parts", python=False):
-            jax.block_until_ready(
-                compiler.get("update")(mid_ts, compiler.get("rollout")(mid_ts, mid, key), key)
-            )
-        t_prof = time.perf_counter()
-        profiles["rollout + update (the rows' programs)"] = device_summary(Path(args.profile) / "parts")
-        print(f"profile of the parts summarised in {time.perf_counter() - t_prof:.1f} s", flush=True)
-        with profiled(Path(args.profile) / "epoch", python=False):
-            jax.block_until_ready(one_epoch(True))
-        profiles[f"epoch ({args.epoch_iters} iterations, the trainer's programs)"] = device_summary(
-            Path(args.profile) / "epoch"
+        profile(
+            "rollout + update (the rows' programs)",
+            "parts",
+            lambda: compiler.get("update")(  # the current state: the epoch calls donate the one before
+                state["ts"], compiler.get("rollout")(state["ts"], state["carry"], key), key
+            ),
         )
-    if args.profile and args.profile_eval:
-        with profiled(Path(args.profile) / "evaluate", python=False):
-            jax.block_until_ready(compiler.get("evaluate")(_policy_params(state["ts"]), key, key))
-        profiles["one evaluation"] = device_summary(Path(args.profile) / "evaluate")
+        profile(
+            f"epoch ({args.epoch_iters} iterations, the trainer's programs)", "epoch", lambda: one_epoch(True)
+        )
+        if args.profile_eval:
+            evaluate = compiler.get("evaluate")
+            profile("one evaluation", "evaluate", lambda: evaluate(_policy_params(state["ts"]), key, key))
     eval_s = _time(lambda: compiler.get("evaluate")(_policy_params(ts), key, key), args.iters)
     overlap = ""
     if args.concurrent:
@@ -273,10 +277,7 @@ def main() -> int:
         lines += [
             f"- module {k}: {v[0]:,.1f} ms in {v[1]} kernels" for k, v in summary.get("modules", {}).items()
         ]
-    text = "\n".join(lines)
-    print(text)
-    if args.out:
-        Path(args.out).write_text(text + "\n")
+    emit("\n".join(lines), args.out)
     return 0
 
 
