@@ -55,7 +55,11 @@ if [ "$PART" = smoke ] || [ "${PART#smoke-}" != "$PART" ]; then  # smoke-<part>:
   SMOKE="--preset tiny --ppo.num-timesteps 2048 --final-eval-envs 16"
   TS=6
 fi
-COMMON="--runs-dir $RUNS --no-export-onnx --final-eval-envs 1024 $SMOKE"
+# TRAIN_ARGS: more arguments for every training run (e.g. "--env-overrides sim_dt=0.004"); EXPORT_ONNX=1 keeps
+# the ONNX export (to gate the policy afterwards).
+NO_EXPORT=--no-export-onnx
+[ -n "${EXPORT_ONNX:-}" ] && NO_EXPORT=""
+COMMON="--runs-dir $RUNS $NO_EXPORT --final-eval-envs 1024 $SMOKE ${TRAIN_ARGS:-}"
 
 ppo() {  # ppo NAME TIMEOUT_S ARGS...
   local name=$1 t=$2; shift 2

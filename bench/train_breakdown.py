@@ -106,7 +106,7 @@ def main() -> int:
     )
     print("autotune seed:", seed_autotune_cache(cache_dir, enabled=cfg.autotune_seed))
     ppo = cfg.ppo
-    env = envs.load(args.env)
+    env = envs.load(args.env, overrides=list(cfg.env_overrides) or None)  # --set env_overrides=sim_dt=0.004
     randomizer = envs.get_randomizer(args.env, env.config)
     wrap = envs.wrap_for_brax_training
     dp = DataParallel(Mesh(np.asarray(jax.devices()[:1]), (AXIS,)))
