@@ -15,8 +15,6 @@ Each variant is the keyboard scene of ``LitePiano`` (``compact_config()``, 49 ke
     leaf        --level physics: the step through ``envs.physics_step`` (static contact-row masks, the keys'
                 dofs factored as an arrowhead in MJX's Newton); at --level env the env's default
     mjxsolve    --level env: the env on ``mjx.step`` itself (``physics_step.plan`` off)
-    libdense    --level env, ``robot``: the dense mass matrix's Cholesky factors through jax's library calls
-                (``physics_step.plan(unrolled=False)``) instead of written out (``small_spd``: the GPU default)
     lswhile     the line search's fixed ``ls_iterations`` scan (a cond per step: under vmap every step runs)
                 as a ``while_loop`` that stops once every env's search is done: the same values (the scan's
                 late steps are no-ops), without reverse-mode autodiff; an experiment, patched while tracing
@@ -45,7 +43,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import functools
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -224,12 +221,7 @@ def env_level(variant: str, batch: int, steps: int) -> tuple[mujoco.MjModel, flo
     from bar_policy.training.throughput import raw_env_steps_per_second
 
     name = "LiteReach" if variant.split("+")[0] == "robot" else "LitePiano"
-    parts = variant.split("+")
-    plan = physics_step.plan
-    if "mjxsolve" in parts:
-        plan = lambda _m: None  # noqa: E731
-    elif "libdense" in parts:
-        plan = functools.partial(physics_step.plan, unrolled=False)
+    plan = (lambda _m: None) if "mjxsolve" in variant.split("+") else physics_step.plan
     with (
         mock.patch.object(piano_env, "keyboard_scene", lambda _kb: variant_scene(variant)),
         mock.patch.object(physics_step, "plan", plan),

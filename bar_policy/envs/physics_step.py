@@ -5,9 +5,6 @@
    keys.
 3. Where there are leaves, the Newton loop written out instead of a ``while_loop``
    (``leaf_newton.newton_loop``); every Newton scene on the pyramidal cone builds its start once, not twice.
-4. On a GPU, where the mass matrix is dense (nv < 60: the robot and reach), every Cholesky of the step
-   written out in scalars (``small_spd``) instead of a batched ``potrf`` and triangular solves: the mass
-   matrix's factor and ``qacc_smooth``, the Newton direction, Euler's implicit damping.
 
 None changes the physics: each is MJX's computation rearranged (tests: ``tests/envs/test_physics_step.py``,
 equal to ``mjx.step`` to float64 rounding). The sequence below is ``mujoco.mjx._src.forward``'s
@@ -18,80 +15,34 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import jax
-import jax.numpy as jnp
 import mujoco
 import numpy as np
 from mujoco import mjx
-from mujoco.mjx._src import collision_driver, sensor, smooth, solver, support
+from mujoco.mjx._src import collision_driver, sensor, smooth, solver
 from mujoco.mjx._src import forward as mjx_forward
-from mujoco.mjx._src.types import DisableBit, IntegratorType
+from mujoco.mjx._src.types import IntegratorType
 
-from bar_policy.envs import contact_rows, leaf_newton, small_spd
+from bar_policy.envs import contact_rows, leaf_newton
 
 _INTEGRATORS = (int(mujoco.mjtIntegrator.mjINT_EULER), int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST))
 
 
 @dataclass(frozen=True)
 class StepPlan:
-    """What :func:`step` needs from the compiled model.
-
-    The (nbody, nv) ancestor mask, the leaf split, and whether the dense mass matrix's Cholesky factors are
-    written out (``unrolled``, item 4 above).
-    """
+    """What :func:`step` needs from the compiled model: the (nbody, nv) ancestor mask and the leaf split."""
 
     ancestors: np.ndarray
     split: leaf_newton.LeafSplit | None
-    unrolled: bool = False
 
 
-def plan(m: mujoco.MjModel, unrolled: bool | None = None) -> StepPlan | None:
+def plan(m: mujoco.MjModel) -> StepPlan | None:
     """The plan for ``m``, or None where :func:`step` would not be MJX's step (then ``mjx.step`` runs).
 
     None for RK4 (MJX's own ``forward`` runs inside it) and the implicit integrator (not followed here).
-    ``unrolled``: None = on a GPU backend where MJX's mass matrix is dense; True/False force it (a dense
-    matrix is still required).
     """
     if int(m.opt.integrator) not in _INTEGRATORS:
         return None
-    dense = not support.is_sparse(m)
-    if unrolled is None:
-        unrolled = dense and jax.default_backend() == "gpu"
-    if unrolled and not dense:
-        raise ValueError(f"physics_step.plan: unrolled needs a dense mass matrix, nv = {m.nv} is sparse")
-    split = leaf_newton.leaf_split(m)
-    return StepPlan(ancestors=contact_rows.ancestor_dofs(m), split=split, unrolled=unrolled)
-
-
-def _factor_m(m: mjx.Model, d: mjx.Data, p: StepPlan) -> mjx.Data:
-    """``smooth.factor_m``; unrolled: ``qLD`` = the upper factor ``L^T``.
-
-    That is MJX's dense layout (``cho_factor``'s ``lower=False``), so MJX's ``solve_m`` reads it as its own.
-    """
-    if not p.unrolled:
-        return smooth.factor_m(m, d)
-    return d.tree_replace({"_impl.qLD": small_spd.cholesky(d._impl.M).T})
-
-
-def _fwd_acceleration(m: mjx.Model, d: mjx.Data, p: StepPlan) -> mjx.Data:
-    """``mjx_forward.fwd_acceleration``; unrolled: ``qacc_smooth`` solved with :func:`_factor_m`'s factor."""
-    if not p.unrolled:
-        return mjx_forward.fwd_acceleration(m, d)
-    qfrc_applied = d.qfrc_applied + support.xfrc_accumulate(m, d)
-    qfrc_smooth = d.qfrc_passive - d.qfrc_bias + d.qfrc_actuator + qfrc_applied
-    qacc_smooth = small_spd.cho_solve(d._impl.qLD.T, qfrc_smooth)
-    return d.replace(qfrc_smooth=qfrc_smooth, qacc_smooth=qacc_smooth)
-
-
-def _euler(m: mjx.Model, d: mjx.Data, p: StepPlan) -> mjx.Data:
-    """``mjx_forward.euler``; unrolled: the implicit damping's ``(M + h D)^-1`` through ``small_spd``."""
-    if not p.unrolled:
-        return mjx_forward.euler(m, d)
-    qacc = d.qacc
-    if not m.opt.disableflags & DisableBit.EULERDAMP:
-        damped = d._impl.M + jnp.diag(m.opt.timestep * m.dof_damping)
-        qacc = small_spd.spd_solve(damped, d.qfrc_smooth + d.qfrc_constraint)
-    return mjx_forward._advance(m, d, d.act_dot, qacc)
+    return StepPlan(ancestors=contact_rows.ancestor_dofs(m), split=leaf_newton.leaf_split(m))
 
 
 def fwd_position(m: mjx.Model, d: mjx.Data, p: StepPlan) -> mjx.Data:
@@ -102,7 +53,7 @@ def fwd_position(m: mjx.Model, d: mjx.Data, p: StepPlan) -> mjx.Data:
     d = smooth.tendon(m, d)
     d = smooth.crb(m, d)
     d = smooth.tendon_armature(m, d)
-    d = _factor_m(m, d, p)
+    d = smooth.factor_m(m, d)
     d = collision_driver.collision(m, d)
     d = contact_rows.make_constraint(m, d, p.ancestors)
     return smooth.transmission(m, d)
@@ -118,13 +69,10 @@ def forward(m: mjx.Model, d: mjx.Data, p: StepPlan) -> mjx.Data:
     d = mjx_forward.fwd_velocity(m, d)
     d = sensor.sensor_vel(m, d)
     d = mjx_forward.fwd_actuation(m, d)
-    d = _fwd_acceleration(m, d, p)
+    d = mjx_forward.fwd_acceleration(m, d)
     if d._impl.efc_J.size == 0:
         return d.replace(qacc=d.qacc_smooth)
-    if leaf_newton.is_newton_pyramidal(m):
-        d = leaf_newton.solve(m, d, p.split, p.unrolled)
-    else:
-        d = solver.solve(m, d)
+    d = leaf_newton.solve(m, d, p.split) if leaf_newton.is_newton_pyramidal(m) else solver.solve(m, d)
     return sensor.sensor_acc(m, d)
 
 
@@ -138,5 +86,5 @@ def step(m: mjx.Model, d: mjx.Data, p: StepPlan | None) -> mjx.Data:
         return mjx.step(m, d)
     d = forward(m, d, p)
     if m.opt.integrator == IntegratorType.EULER:
-        return _euler(m, d, p)
+        return mjx_forward.euler(m, d)
     return mjx_forward.implicit(m, d)
