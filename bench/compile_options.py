@@ -37,6 +37,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from config_args import add_config_args, config_argv, pick
 from json_child import json_child
 from one_device import one_device
 from report import emit
@@ -118,9 +119,7 @@ def _load(path: str) -> dict[str, Any]:
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--preset", default="gpu")
-    p.add_argument("--env", default="LiteReach")
-    p.add_argument("--set", nargs="*", default=[], help="config overrides, e.g. ppo.num_envs=8192")
+    add_config_args(p)
     p.add_argument("--variants", default=",".join(VARIANTS), help=f"comma-separated, of {sorted(VARIANTS)}")
     p.add_argument("--epoch-iters", type=int, default=0, help="iterations per epoch (0: the trainer's)")
     p.add_argument("--workdir", default="", help="where the variants' caches and executables go")
@@ -136,17 +135,13 @@ def main() -> int:
     if args.one:
         print(json.dumps(_one(args)))
         return 0
-    names = [v for v in args.variants.split(",") if v]
-    unknown = [v for v in names if v not in VARIANTS]
-    if unknown:
-        p.error(f"unknown variants {unknown}; valid: {sorted(VARIANTS)}")
+    names = pick(p, args.variants, sorted(VARIANTS), "variants")
     work = Path(args.workdir or tempfile.mkdtemp(prefix="compile_options_"))
     work.mkdir(parents=True, exist_ok=True)
     rows = []
     for name in names:
-        argv = ["--one", name, "--preset", args.preset, "--env", args.env, "--workdir", str(work)]
+        argv = ["--one", name, *config_argv(args), "--workdir", str(work)]
         argv += ["--epoch-iters", str(args.epoch_iters), "--cache-dir", str(work / f"cache_{name}")]
-        argv += ["--set", *args.set] if args.set else []
         t0 = time.monotonic()
         row = {"variant": name, **json_child(__file__, argv, timeout=args.timeout)}
         row["process_s"] = time.monotonic() - t0

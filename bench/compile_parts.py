@@ -37,6 +37,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
+from config_args import add_config_args, config_argv, pick
 from json_child import json_child
 from one_device import one_device
 from report import emit
@@ -132,9 +133,7 @@ def _compile_part(args: argparse.Namespace) -> dict[str, Any]:
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--preset", default="gpu")
-    p.add_argument("--env", default="LiteReach")
-    p.add_argument("--set", nargs="*", default=[], help="config overrides, e.g. ppo.num_envs=8192")
+    add_config_args(p)
     p.add_argument("--parts", default=",".join(PARTS))
     p.add_argument("--timeout", type=float, default=150, help="seconds per child process")
     p.add_argument("--out", default="")
@@ -144,15 +143,11 @@ def main() -> int:
     if args.compile_part:
         print(json.dumps(_compile_part(args)))
         return 0
-    parts = [s for s in args.parts.split(",") if s]
-    bad = [s for s in parts if s not in PARTS]
-    if bad:
-        p.error(f"unknown parts {bad}; valid: {list(PARTS)}")
+    parts = pick(p, args.parts, PARTS, "parts")
     work = Path(tempfile.mkdtemp(prefix="compile_parts_"))
     rows = []
     for part in parts:
-        argv = ["--compile-part", part, "--preset", args.preset, "--env", args.env]
-        argv += ["--cache-dir", str(work / f"cache_{part}")] + (["--set", *args.set] if args.set else [])
+        argv = ["--compile-part", part, *config_argv(args), "--cache-dir", str(work / f"cache_{part}")]
         rows.append({"part": part, **json_child(__file__, argv, timeout=args.timeout)})
         print(json.dumps(rows[-1]), flush=True)
     lines = [

@@ -43,6 +43,7 @@ def one_device(
     """
     import jax
     import numpy as np
+    from config_args import load_env
     from fused_epoch import fused_epoch
     from jax.sharding import Mesh
 
@@ -56,7 +57,7 @@ def one_device(
 
     seed_line = seed_autotune_cache(configure_compile_cache(True, cache_dir)).line()
     cfg = apply_overrides(preset(preset_name), overrides)
-    env = envs.load(env_name, overrides=list(cfg.env_overrides) or None)
+    env = load_env(env_name, cfg)
     randomizer = envs.get_randomizer(env_name, env.config)
     wrap = envs.wrap_for_brax_training
     dp = DataParallel(Mesh(np.asarray(jax.devices()[:1]), (AXIS,)))

@@ -31,6 +31,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
+from config_args import add_config_args, config_argv
 from json_child import json_child
 from one_device import one_device
 from report import emit
@@ -120,9 +121,7 @@ def _load_set(directory: str, profile: str = "") -> dict[str, Any]:
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--preset", default="gpu")
-    p.add_argument("--env", default="LiteReach")
-    p.add_argument("--set", nargs="*", default=[], help="config overrides, e.g. ppo.num_envs=8192")
+    add_config_args(p)
     p.add_argument("--sets", default="epoch+evaluate,rollout+update+evaluate")
     p.add_argument("--workdir", default="")
     p.add_argument("--timeout", type=float, default=200, help="seconds per child process")
@@ -147,8 +146,8 @@ def main() -> int:
     work = Path(args.workdir or tempfile.mkdtemp(prefix="program_split_"))
     rows = []
     for s in sets:
-        argv = ["--compile-set", s, "--preset", args.preset, "--env", args.env, "--workdir", str(work)]
-        argv += ["--cache-dir", str(work / f"cache_{s}")] + (["--set", *args.set] if args.set else [])
+        argv = ["--compile-set", s, *config_argv(args), "--workdir", str(work)]
+        argv += ["--cache-dir", str(work / f"cache_{s}")]
         argv += ["--profile", args.profile] if args.profile else []
         row = json_child(__file__, argv, timeout=args.timeout)
         if "compile_s" in row:

@@ -24,6 +24,7 @@ import os
 import time
 from collections import defaultdict
 
+from config_args import add_config_args, load_env
 from report import emit
 
 from bar_policy.training.config import apply_overrides, preset
@@ -31,9 +32,7 @@ from bar_policy.training.config import apply_overrides, preset
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--preset", default="gpu")
-    p.add_argument("--env", default="LiteReach")
-    p.add_argument("--set", nargs="*", default=[], help="config overrides, e.g. ppo.num_envs=8192")
+    add_config_args(p)
     p.add_argument("--iters", type=int, default=3)
     p.add_argument("--out", default="")
     args = p.parse_args()
@@ -50,7 +49,7 @@ def main() -> int:
     from bar_policy.training.startup import configure_compile_cache
 
     configure_compile_cache(True)
-    env = envs.load(args.env)
+    env = load_env(args.env, cfg)
     device = torch_device_for_jax()
     vec = RslRlVecEnv(
         env,

@@ -41,6 +41,7 @@ from typing import Any
 
 import jax
 import numpy as np
+from config_args import add_config_args, load_env
 from fused_epoch import fused_epoch
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
@@ -70,9 +71,7 @@ def _time(fn: Any, iters: int) -> float:
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--preset", default="gpu")
-    p.add_argument("--env", default="LiteReach")
-    p.add_argument("--set", nargs="*", default=[], help="config overrides, e.g. ppo.num_envs=8192")
+    add_config_args(p)
     p.add_argument("--iters", type=int, default=5, help="timed calls per part")
     p.add_argument("--epoch-iters", type=int, default=0, help="iterations per epoch call (0: the trainer's)")
     p.add_argument("--no-compile-cache", action="store_true")
@@ -106,7 +105,7 @@ def main() -> int:
     )
     print("autotune seed:", seed_autotune_cache(cache_dir, enabled=cfg.autotune_seed))
     ppo = cfg.ppo
-    env = envs.load(args.env, overrides=list(cfg.env_overrides) or None)  # --set env_overrides=sim_dt=0.004
+    env = load_env(args.env, cfg)  # --set env_overrides=sim_dt=0.004 reaches the env
     randomizer = envs.get_randomizer(args.env, env.config)
     wrap = envs.wrap_for_brax_training
     dp = DataParallel(Mesh(np.asarray(jax.devices()[:1]), (AXIS,)))
