@@ -21,6 +21,13 @@
 #   unroll20   20-step unrolls (2x the data per iteration)
 #   seed1      the preset on seed 1 (how far two seeds differ)
 #   ent1e-3    entropy cost 1e-3 instead of 5e-3
+#   upd16      16 passes over each batch instead of 8 (twice the SGD steps per env step)
+#   bs256      batch_size 256: half the env steps per iteration, the same 128 SGD steps (on half-size
+#              minibatches), so twice the SGD steps per env step at the same unroll
+#   bs256lr    bs256 with learning rate 1e-3
+#   unroll5    5-step unrolls: half the env steps per iteration, the same 128 SGD steps
+#   adaptive   rsl-rl's KL-adaptive learning rate from 1e-3 (desired KL 0.01)
+#   adabs256   adaptive with bs256
 # Two runs per GPU (GPUS="0 1 2 3 0 1 2 3") need XLA_PYTHON_CLIENT_MEM_FRACTION=0.45: then only the env
 # steps to 95 % compare, not the env steps/s.
 # EXTRA="..." adds arguments to every run; MINUTES (default 2.2) is each run's budget from process start.
@@ -38,6 +45,12 @@ declare -A VARIANT=(
   [unroll20]="--ppo.unroll-length 20"
   [seed1]="--seed 1"
   [ent1e-3]="--ppo.entropy-cost 1e-3"
+  [upd16]="--ppo.num-updates-per-batch 16"
+  [bs256]="--ppo.batch-size 256"
+  [bs256lr]="--ppo.batch-size 256 --ppo.learning-rate 1e-3"
+  [unroll5]="--ppo.unroll-length 5"
+  [adaptive]="--ppo.schedule adaptive --ppo.learning-rate 1e-3"
+  [adabs256]="--ppo.schedule adaptive --ppo.learning-rate 1e-3 --ppo.batch-size 256"
 )
 MINUTES=${MINUTES:-2.2}
 SIZE="--final-eval-envs 1024 --no-export-onnx"  # the gpu preset evaluates every 1.15M env steps
