@@ -28,9 +28,12 @@
 #   unroll5    5-step unrolls: half the env steps per iteration, the same 128 SGD steps
 #   adaptive   rsl-rl's KL-adaptive learning rate from 1e-3 (desired KL 0.01)
 #   adabs256   adaptive with bs256
+#   s1bs256, s2bs256            bs256 on seeds 1 and 2
+#   s1bs256dt4, s2bs256dt4      the same at a 4 ms physics step (--env-overrides sim_dt=0.004)
 # Two runs per GPU (GPUS="0 1 2 3 0 1 2 3") need XLA_PYTHON_CLIENT_MEM_FRACTION=0.45: then only the env
 # steps to 95 % compare, not the env steps/s.
 # EXTRA="..." adds arguments to every run; MINUTES (default 2.2) is each run's budget from process start.
+# ONNX=1 exports each run's policy (policy.onnx, kept in the archive) for the ship gate (`bar-deploy eval`).
 set -u
 # shellcheck source=bench/recipe_lib.sh
 source "$(dirname "$0")/recipe_lib.sh"
@@ -50,10 +53,15 @@ declare -A VARIANT=(
   [bs256lr]="--ppo.batch-size 256 --ppo.learning-rate 1e-3"
   [unroll5]="--ppo.unroll-length 5"
   [adaptive]="--ppo.schedule adaptive --ppo.learning-rate 1e-3"
+  [s1bs256]="--seed 1 --ppo.batch-size 256"
+  [s2bs256]="--seed 2 --ppo.batch-size 256"
+  [s1bs256dt4]="--seed 1 --ppo.batch-size 256 --env-overrides sim_dt=0.004"
+  [s2bs256dt4]="--seed 2 --ppo.batch-size 256 --env-overrides sim_dt=0.004"
   [adabs256]="--ppo.schedule adaptive --ppo.learning-rate 1e-3 --ppo.batch-size 256"
 )
 MINUTES=${MINUTES:-2.2}
-SIZE="--final-eval-envs 1024 --no-export-onnx"  # the gpu preset evaluates every 1.15M env steps
+SIZE="--final-eval-envs 1024"  # the gpu preset evaluates every 1.15M env steps
+[ "${ONNX:-0}" = 1 ] || SIZE="$SIZE --no-export-onnx"
 names=("$@")
 if [ "${1:-smoke}" = smoke ]; then
   export JAX_PLATFORMS=cpu
