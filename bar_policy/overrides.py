@@ -25,7 +25,7 @@ import typing
 from collections.abc import Iterable, Mapping
 from typing import Any, Literal, Union, get_args, get_origin
 
-__all__ = ["OverrideError", "apply_overrides", "field_paths", "split_override"]
+__all__ = ["OverrideError", "apply_overrides", "field_paths", "merge_overrides", "split_override"]
 
 _NONE_WORDS = ("None", "null")
 """Texts read as None for an optional field."""
@@ -43,6 +43,18 @@ def split_override(text: str) -> tuple[str, str]:
     if not eq or not path.strip():
         raise OverrideError(f"override {text!r} must look like 'dotted.path=value'")
     return path.strip(), value.strip()
+
+
+def merge_overrides(base: Iterable[str], extra: Iterable[str]) -> tuple[str, ...]:
+    """``extra`` on top of ``base``: ``base``'s items whose path ``extra`` does not set, then ``extra``.
+
+    How a command line's ``--env-overrides`` applies on top of a preset's own (``training.cli``): the reach
+    gpu preset's ``sim_dt=0.004`` stays when a run adds ``reward.scales.success=1``, and goes when it gives
+    ``sim_dt=0.002``. ``merge_overrides(x, x) == tuple(x)``.
+    """
+    extra = tuple(extra)
+    given = {split_override(o)[0] for o in extra}
+    return tuple(o for o in base if split_override(o)[0] not in given) + extra
 
 
 def apply_overrides(config: Any, overrides: Iterable[str] | Mapping[str, Any]) -> Any:

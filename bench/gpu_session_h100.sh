@@ -14,7 +14,7 @@
 #                      autotuning, compilation over 16 threads; flags XLA refuses are left out); then
 #                      bench/rsl_rl_profile.py (NO_PROFILE=1: not)
 #   seeds    (~3.5 min a preset): XLA autotune seeds for more presets (training.autotune_seed): per preset in
-#                      $SEED_PRESETS (default "rsl track"; piano in a call of its own), a cold run on its own
+#                      $SEED_PRESETS (default "rsl track"; gpu or piano in a call of their own), a cold run on its own
 #                      empty cache without the shipped seed, then bench/autotune_seed.py packs that cache's
 #                      autotune results into $OUT (<gpu>-jaxlib-<v>-<preset>.tar.gz/.json: copy both to
 #                      bar_policy/training/autotune/)
@@ -168,7 +168,7 @@ print(f'{k}-jaxlib-{jaxlib.__version__}')")
     rm -rf "$WORK/seedcache_$p"
     ppo "seed_$p" 240 --preset "$p" --compile-cache-dir "$WORK/seedcache_$p" --no-autotune-seed \
       --max-minutes "${SEED_MIN:-2.5}"
-    local plist=(reset epoch init evaluate)
+    local plist=(reset rollout update init evaluate)
     [ "$p" = rsl ] && plist=("train step" "eval step")
     python3 bench/autotune_seed.py --from "$WORK/seedcache_$p" --name "$name-$p" --out "$OUT" \
       --programs "${plist[@]}" --made-with "python3 train/ppo.py --preset $p, empty compile cache, --no-autotune-seed"

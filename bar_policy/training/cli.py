@@ -22,7 +22,10 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Sequence
+from dataclasses import replace
 
+from bar_policy.overrides import merge_overrides
+from bar_policy.tasks.registry import TASKS
 from bar_policy.training.config import PRESETS, TrainConfig, preset
 
 __all__ = ["check_env_overrides", "main", "parse_config", "preset_of"]
@@ -61,13 +64,34 @@ def parse_config(argv: Sequence[str] | None = None) -> TrainConfig:
         + f"\n\nDefaults shown: the {name} preset's. Env and reward settings: dotted.path=value items "
         + "(docs/training.md lists them)."
     )
-    cfg = tyro.cli(TrainConfig, default=preset(name), args=args, description=description, prog=PROG)
+    base = preset(name)
+    cfg = tyro.cli(TrainConfig, default=base, args=args, description=description, prog=PROG)
     try:
+        cfg = replace(cfg, env_overrides=_on_preset(name, base.env_overrides, cfg))
         check_env_overrides(cfg)
     except ValueError as e:
         print(f"{PROG}: error: --env-overrides: {e}", file=sys.stderr)
         raise SystemExit(2) from None
     return cfg
+
+
+def _on_preset(name: str, preset_items: tuple[str, ...], cfg: TrainConfig) -> tuple[str, ...]:
+    """The run's env overrides: ``--env-overrides`` on top of the preset's own items.
+
+    A path given on the command line replaces the preset's value for it; the preset's other items stay
+    (``overrides.merge_overrides``). A preset's items are its task's settings (the reach gpu preset's
+    ``sim_dt=0.004``): with an env of another task (``--env LitePiano``) they are left out, with a note.
+    """
+    own = next(r for r in TASKS if name in dict(r.presets))
+    if preset_items and cfg.env_name not in {e.name for e in own.envs}:
+        kept = tuple(o for o in cfg.env_overrides if o not in preset_items)
+        print(
+            f"{PROG}: note: preset {name}'s env settings {list(preset_items)} are the {own.name} task's; "
+            f"not applied to {cfg.env_name}",
+            file=sys.stderr,
+        )
+        return kept
+    return merge_overrides(preset_items, cfg.env_overrides)
 
 
 def check_env_overrides(cfg: TrainConfig) -> None:

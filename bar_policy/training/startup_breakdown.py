@@ -35,7 +35,9 @@ if TYPE_CHECKING:
 
 __all__ = ["PHASES", "UNTIL_EPOCH", "UNTIL_EVAL", "ProgramTimes", "StartupTimer"]
 
-BEFORE_RUN = "before run (interpreter, CLI imports, parsing)"
+BEFORE_RUN = "before run (interpreter, CLI, parsing, env check)"
+"""The env check: with ``--env-overrides`` (the reach gpu preset has one) the parser checks them against the
+env's config, which imports the env package (jax, MJX); the imports row then holds what is left."""
 IMPORTS = "imports (jax, mujoco.mjx, brax or torch)"
 DISTRIBUTED = "jax.distributed connect"
 ENV_BUILD = "env construction (less the model build)"

@@ -83,8 +83,8 @@ def test_cli_env_alias_and_cache_flags():
     assert cfg.env_name == "LiteTrack" and cfg.compile_cache is False
     cfg = parse_config(["--env=LiteReachNeck", "--compile-cache-dir", "/tmp/c"])
     assert cfg.env_name == "LiteReachNeck" and cfg.compile_cache and cfg.compile_cache_dir == "/tmp/c"
-    # --env-overrides is not mistaken for the alias.
-    assert parse_config(["--env-overrides", "init_noise=0"]).env_overrides == ("init_noise=0",)
+    # --env-overrides is not mistaken for the alias (it adds to the gpu preset's own item).
+    assert parse_config(["--env-overrides", "init_noise=0"]).env_overrides == ("sim_dt=0.004", "init_noise=0")
     # One process per GPU: the GPU ids parse to a tuple.
     assert parse_config(["--distributed.local-device-ids", "1"]).distributed.local_device_ids == (1,)
 
@@ -96,3 +96,41 @@ def test_distributed_config_validation_names_the_values():
         DistributedConfig(num_processes=2, process_id=2)
     with pytest.raises(ValueError, match=r"max_devices_per_host must be positive or None, got 0"):
         DistributedConfig(max_devices_per_host=0)
+
+
+def test_merge_overrides_keeps_the_base_items_the_extra_ones_do_not_set():
+    from bar_policy.overrides import merge_overrides
+
+    base = ("sim_dt=0.004", "episode_length_s=4")
+    assert merge_overrides(base, ()) == base
+    assert merge_overrides(base, base) == base
+    assert merge_overrides(base, ["reward.scales.success=1"]) == (*base, "reward.scales.success=1")
+    # A path given again replaces the base's value for it, wherever it stood.
+    assert merge_overrides(base, ["sim_dt = 0.002"]) == ("episode_length_s=4", "sim_dt = 0.002")
+
+
+def test_cli_env_overrides_add_to_the_gpu_presets_own(capsys):
+    """The reach gpu preset trains at a 4 ms physics step; --env-overrides adds to it, not replaces it."""
+    assert parse_config([]).env_overrides == ("sim_dt=0.004",)
+    cfg = parse_config(["--env-overrides", "reward.scales.success=1"])
+    assert cfg.env_overrides == ("sim_dt=0.004", "reward.scales.success=1")
+    assert parse_config(["--env-overrides", "sim_dt=0.002"]).env_overrides == ("sim_dt=0.002",)
+    # The preset's settings are the reach task's: the neck variant keeps them, another task's env does not,
+    # and the run says so.
+    assert parse_config(["--env", "LiteReachNeck"]).env_overrides == ("sim_dt=0.004",)
+    capsys.readouterr()
+    assert parse_config(["--env", "LitePiano"]).env_overrides == ()
+    assert "['sim_dt=0.004'] are the reach task's; not applied to LitePiano" in capsys.readouterr().err
+    assert parse_config(["--preset", "tiny"]).env_overrides == ()
+
+
+def test_gpu_presets_first_evaluation_follows_the_measured_crossing():
+    """40M steps / 40,960 per iteration = 977 iterations; 23 periods x 2 lines -> 22-iteration epochs, an
+    evaluation every 44 iterations = 1,802,240 env steps, just past the 1.64M at which five runs of five
+    crossed 95 % (docs/benchmarks.md "Session 37")."""
+    from bar_policy.training.brax_programs import epoch_iterations
+
+    cfg = preset("gpu")
+    assert cfg.ppo.steps_per_iteration == 256 * 16 * 10 == 40_960
+    assert epoch_iterations(cfg) == 22
+    assert 2 * 22 * cfg.ppo.steps_per_iteration == 1_802_240

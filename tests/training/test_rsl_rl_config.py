@@ -59,9 +59,9 @@ def test_rsl_preset_is_the_gpu_preset_at_the_fields_values():
     """``--preset rsl`` (reach on rsl-rl as its users train it) = the gpu preset with ``FIELD_RSL_RL_PPO``."""
     cfg = preset("rsl")
     assert cfg.backend == "rsl-rl" and cfg.env_name == preset("gpu").env_name
-    # Its evaluation cadence stays the one its targets were measured at (21); the gpu preset's is 41.
-    assert (cfg.eval.num_evals, preset("gpu").eval.num_evals) == (21, 41)
-    gpu_eval = dataclasses.replace(cfg.eval, num_evals=41)
+    # Its evaluation cadence stays the one its targets were measured at (21); the gpu preset's is 24.
+    assert (cfg.eval.num_evals, preset("gpu").eval.num_evals) == (21, 24)
+    gpu_eval = dataclasses.replace(cfg.eval, num_evals=24)
     as_gpu = dataclasses.replace(cfg, preset="gpu", backend="brax", eval=gpu_eval)
     assert as_gpu == field_hyperparameters(preset("gpu"))
     assert parse_config(["--preset", "rsl"]) == cfg
