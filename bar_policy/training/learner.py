@@ -6,7 +6,8 @@ mesh axis ``AXIS`` (``bar_policy.training.parallel``): ``lax.pmean`` of the grad
 logged sums. On one device the collectives are identities.
 
 The algorithm is brax's (``brax.training.agents.ppo``): ``make_ppo_networks`` (tanh-normal policy),
-``compute_ppo_loss`` (GAE, clipped ratio, entropy bonus), running observation statistics, and its data layout
+``compute_ppo_loss`` (GAE, clipped ratio, entropy bonus; as ``training.ppo_loss``, the same numbers in fewer
+GPU kernels), running observation statistics, and its data layout
 (``batch_size * num_minibatches`` segments of ``unroll_length`` steps per iteration, ``num_updates_per_batch``
 shuffled passes of ``num_minibatches`` Adam steps).
 """
@@ -36,6 +37,7 @@ from bar_policy.obs.action_prior import Prior, check_fits
 from bar_policy.training import eval_quality
 from bar_policy.training.config import NetworkConfig, PPOConfig
 from bar_policy.training.parallel import AXIS
+from bar_policy.training.ppo_loss import kl_estimate, ppo_loss
 
 __all__ = [
     "Learner",
@@ -168,7 +170,7 @@ class Learner:
         opt_state, params, k = carry
         k, k_perm, k_mb = jax.random.split(k, 3)
         loss_fn = functools.partial(
-            ppo_losses.compute_ppo_loss,
+            ppo_loss,
             ppo_network=self.networks,
             entropy_cost=ppo.entropy_cost,
             discounting=ppo.discounting,
@@ -190,10 +192,11 @@ class Learner:
         def minibatch(c: tuple, mb: types.Transition) -> tuple:
             o, p, kk = c
             kk, k_loss = jax.random.split(kk)
-            kl = jax.lax.pmean(self.approx_kl(p, normalizer, mb), axis_name=AXIS)
+            (_, metrics), grads = grad_fn(p, normalizer, mb, k_loss)
+            # The KL of the parameters the gradient is taken at (``approx_kl``, from the loss's own pass).
+            kl = jax.lax.pmean(metrics["kl"], axis_name=AXIS)
             if ppo.schedule == "adaptive":
                 o = set_learning_rate(o, adapt_learning_rate(learning_rate(o), kl, ppo))
-            (_, metrics), grads = grad_fn(p, normalizer, mb, k_loss)
             grads = jax.lax.pmean(grads, axis_name=AXIS)
             if warmup_steps:  # critic warm-up: zero policy gradients leave Adam's update exactly 0
                 frozen = adam_count(o) < warmup_steps
@@ -222,8 +225,7 @@ class Learner:
         logits = self.networks.policy_network.apply(normalizer, params.policy, mb.observation)
         extras = mb.extras["policy_extras"]
         new = self.networks.parametric_action_distribution.log_prob(logits, extras["raw_action"])
-        log_r = new - extras["log_prob"]
-        return jnp.mean(jnp.exp(log_r) - 1.0 - log_r)
+        return kl_estimate(new, extras["log_prob"])
 
     def rollout(
         self, ts: TrainingState, env_state: Any, key: jax.Array, env: Any, unrolls: int
