@@ -6,7 +6,8 @@
 #   g2_warm  the same command again on the same cache (the executable cache loads every program)
 #   g1       GPU 0 alone, empty cache of its own (1-device programs differ), the baseline of the ratio
 #
-# Same per-device sizes everywhere: the gpu preset (4096 envs, batch_size 512) per GPU. Each run stops at
+# Same per-device sizes everywhere: the gpu preset (4096 envs, batch_size 256 since session 37; BATCH=512
+# for the figures before it) per GPU. Each run stops at
 # a wall-clock budget from process start (--max-minutes), skips the ONNX export, and has its own timeout.
 # $OUT gets summary_x2.md (bench/session_summary.py: steady env steps/s = median of the progress lines
 # after the first; "x first" = ratio to the first run listed, g1) and session_x2.tgz (logs, metrics).
@@ -23,7 +24,7 @@ T0=$(date +%s)
 # not (the warm run's imports 3.4 -> 2.4 s on an H100 machine, session 34).
 [ -z "${PYTHONPATH:-}" ] || python3 -m compileall -q -j 0 ${PYTHONPATH//:/ } > /dev/null 2>&1 || true
 stamp() { echo "[$(( $(date +%s) - T0 )) s] $*"; }
-ENVS=4096; BATCH=512; FINAL=1024; TS=1; SIZES=""
+ENVS=4096; BATCH=${BATCH:-256}; FINAL=1024; TS=1; SIZES=""
 if [ "${1:-}" = "--smoke" ]; then
   export JAX_PLATFORMS=cpu
   ENVS=16; BATCH=16; FINAL=16; TS=6; SIZES="--preset tiny --ppo.num-timesteps 2048"

@@ -6,7 +6,8 @@
 #   phase 3:               training on 4 GPUs (0-3)
 #   then a results table (bench/session_summary.py) printed last.
 #
-# Same per-device batch everywhere: 4096 envs and batch_size 512 per GPU (the gpu preset per device).
+# Same per-device batch everywhere: 4096 envs and batch_size 256 per GPU (the gpu preset per device since
+# session 37; BATCH=512 for the figures before it).
 # Each training run stops at a wall-clock budget (--max-minutes, from process start, compile included),
 # evaluates every 2 progress lines of 10 iterations, and skips the ONNX export. Each step has its own
 # timeout, so one hang cannot eat the call. Work goes to $WORK; $OUT gets 2 files (the device tool brings
@@ -38,7 +39,7 @@ if [ $SMOKE = 1 ]; then
   T_TRAIN=900
 else
   PER_DEV="--ppo.num-timesteps 400000000 --log-every-iterations 10"
-  ENVS=4096; BATCH=512; MINUTES=2.0; FINAL=1024
+  ENVS=4096; BATCH=${BATCH:-256}; MINUTES=2.0; FINAL=1024
   T_TRAIN=170
 fi
 COMMON="--runs-dir $WORK/runs --no-export-onnx --final-eval-envs $FINAL --max-minutes $MINUTES"

@@ -1,20 +1,22 @@
 #!/usr/bin/env bash
 # Reach recipes for issue 19's time to a policy: named variants of the gpu preset side by side, one per GPU,
-# each a cold run (its own empty compile cache; the shipped autotune seeds apply on an H100) with an
-# evaluation every 1.15M env steps (the gpu preset's 41 since session 34), so that the env steps to 95 % are
-# resolved finely.
+# each a cold run (its own empty compile cache; the shipped autotune seeds apply on an H100) with the
+# preset's evaluations (EXTRA="--eval.num-evals 124": one every 327,680 env steps, so that the env steps to
+# 95 % are resolved finely).
+# BASE="..." goes before each variant's own flags: the tables of sessions 34 and 37 were measured on the
+# preset of their time, BASE="--ppo.batch-size 512 --env-overrides sim_dt=0.002 --eval.num-evals 41"
+# (the gpu preset since session 37 is batch 256 at a 4 ms step: its own variant bs256 at sim_dt=0.004).
 # Run from the repository root after the pip prefix of shared/gpu/README.md.
 #
 #   GPUS="0 1 2 3" bash bench/reach_recipe.sh base envs8192 lr1e-3 upd4   (~3 min, nvidia-h100-x4)
 #   bash bench/reach_recipe.sh base                                       (~3 min, one GPU)
 #   bash bench/reach_recipe.sh smoke                                      CPU check of the script
 #
-# Why: a warm start spends about 12 s before learning (imports, model, executable loads) and 3 s per
-# evaluation; the rest is env steps to 95 % over the training speed (session 33: 4.26M at 145k/s, 52 s
-# warm). A 20 s warm start needs 95 % within about one epoch of learning. Each variant is judged by its
-# env steps at 95 % and its steady env steps/s (bench/session_summary.py's table, summary.md in $OUT).
+# Why: a warm start spends about 9 s before learning (imports, model, executable loads) and 1.5-3 s per
+# evaluation; the rest is env steps to 95 % over the training speed. Each variant is judged by its env
+# steps at 95 % and its steady env steps/s (bench/session_summary.py's table, summary.md in $OUT).
 #
-# Variants (on top of the gpu preset):
+# Variants (on top of the gpu preset and BASE; described against the batch-512 preset they were made for):
 #   base       the preset                          envs8192  8192 envs, batch_size 1024 (2x the data per iteration)
 #   lr1e-3     learning rate 1e-3                  upd4      4 passes over each batch instead of 8
 #   mb8        8 minibatches of 1024 (fewer, larger SGD steps)
@@ -60,7 +62,7 @@ declare -A VARIANT=(
   [adabs256]="--ppo.schedule adaptive --ppo.learning-rate 1e-3 --ppo.batch-size 256"
 )
 MINUTES=${MINUTES:-2.2}
-SIZE="--final-eval-envs 1024"  # the gpu preset evaluates every 1.15M env steps
+SIZE="--final-eval-envs 1024 ${BASE:-}"
 [ "${ONNX:-0}" = 1 ] || SIZE="$SIZE --no-export-onnx"
 names=("$@")
 if [ "${1:-smoke}" = smoke ]; then
