@@ -14,7 +14,8 @@ env steps/s, noise).
 This module ships such directories (``autotune/<name>.tar.gz``, each with a ``<name>.json`` manifest
 naming the device kind, the jax/jaxlib versions and the commit it was made with) and, at start-up, copies
 every one matching this machine into the compile cache (``seed_autotune_cache``; one seed per preset whose
-programs were compiled cold: reach, rsl, track and piano for the H100 and jaxlib 0.11.2; the trainer runs
+programs were compiled cold: reach (the gpu preset of session 32 and that of session 37), rsl, track and piano
+for the H100 and jaxlib 0.11.2; the trainer runs
 it on a thread, ``seed_in_background``). It never overwrites a file
 already there (XLA's own results win) and counts what it skipped.
 
