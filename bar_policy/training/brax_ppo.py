@@ -64,7 +64,7 @@ from bar_policy.training.brax_programs import (
     slot_keys,
 )
 from bar_policy.training.brax_result import BraxTrainResult
-from bar_policy.training.checkpoint import load_checkpoint, save_checkpoint
+from bar_policy.training.checkpoint import load_checkpoint, resume_changes, save_checkpoint
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.executable_cache import ExecutableCache
 from bar_policy.training.learner import TrainingState, make_learner, make_networks
@@ -168,6 +168,8 @@ def train_brax(
             env_steps, iteration = ckpt.env_steps, ckpt.iteration
             ts = dp.replicate(ckpt.state)
             logger.print(f"resumed {ckpt.path} at {env_steps} env steps (iteration {iteration})")
+            for line in resume_changes(ckpt.path, config_record):
+                logger.print(line)
         else:
             ts = compiler.get("init")(dp.replicate(host_key(seed, _K_INIT)))
         model_key = dp.replicate(host_key(seed, _K_MODEL))

@@ -18,10 +18,15 @@ from typing import Any
 from flax import serialization
 
 from bar_policy._files import write_atomic
+from bar_policy.training.executable_cache import OUTSIDE_PROGRAMS
 
-__all__ = ["Checkpoint", "latest_checkpoint", "load_checkpoint", "save_checkpoint"]
+__all__ = ["Checkpoint", "latest_checkpoint", "load_checkpoint", "resume_changes", "save_checkpoint"]
 
 _NAME = re.compile(r"step_(\d+)\.msgpack$")
+
+_NOT_LISTED = frozenset({*OUTSIDE_PROGRAMS, "ppo.num_timesteps"})
+"""Training-config fields a resume is expected to change: those no program reads (where it writes, when it
+stops, what it exports, its caches: ``executable_cache.OUTSIDE_PROGRAMS``) and how far it goes."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -117,3 +122,47 @@ def load_checkpoint(path: str | os.PathLike[str], template: Any) -> Checkpoint:
     return Checkpoint(
         state=state, env_steps=int(payload["env_steps"]), iteration=int(payload["iteration"]), path=file
     )
+
+
+def _flat(tree: Any, prefix: str = "") -> dict[str, Any]:
+    """``{"a": {"b": 1}}`` -> ``{"a.b": 1}``."""
+    if not isinstance(tree, dict):
+        return {prefix: tree}
+    out: dict[str, Any] = {}
+    for k, v in tree.items():
+        out.update(_flat(v, f"{prefix}.{k}" if prefix else str(k)))
+    return out
+
+
+def resume_changes(checkpoint: str | os.PathLike[str], record: dict[str, Any] | None) -> list[str]:
+    """Lines naming what a resume trains differently from the run it resumes, for the log.
+
+    A resume trains under the command's own config, which is what it should do (a longer run, a changed
+    reward weight). But a default that changed between the two runs (the reach gpu preset's batch and
+    physics step in session 37) would change the training without a word, so every difference between the
+    checkpoint's sidecar record and this run's (``train`` and ``env`` sections, flattened to dotted names)
+    is listed, except the fields a resume is expected to change (``_NOT_LISTED``). ``[]`` when both
+    agree, when ``record`` is None, or when the checkpoint has no readable sidecar (one line says so).
+
+    Args:
+        checkpoint: the checkpoint file resumed (its ``.json`` sidecar holds the run's record).
+        record: this run's record (``{"train": config_to_dict(cfg), "env": ...}``).
+    """
+    if record is None:
+        return []
+    sidecar = Path(checkpoint).with_suffix(".json")
+    try:
+        old = json.loads(sidecar.read_text())
+    except (OSError, ValueError) as e:
+        return [f"resume: no config record to compare with ({sidecar}: {e})"]
+    lines = []
+    for section in ("train", "env"):
+        before, now = _flat(old.get(section, {})), _flat(record.get(section, {}))
+        for name in sorted(set(before) | set(now)):
+            if section == "train" and name in _NOT_LISTED:
+                continue
+            if before.get(name) != now.get(name):
+                lines.append(f"  {section} {name}: {before.get(name)!r} -> {now.get(name)!r}")
+    if lines:
+        return [f"resume: {len(lines)} settings differ from the resumed run's ({sidecar.name}):", *lines]
+    return []

@@ -58,7 +58,7 @@ from bar_policy.export import export_policy
 from bar_policy.obs.action_prior import Prior
 from bar_policy.training import startup_breakdown as sb
 from bar_policy.training.best import BestIterate, BestKeeper
-from bar_policy.training.checkpoint import latest_checkpoint, save_checkpoint
+from bar_policy.training.checkpoint import latest_checkpoint, resume_changes, save_checkpoint
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.executable_cache import ExecutableCache
 from bar_policy.training.progress import RunLogger, next_would_overrun
@@ -220,6 +220,8 @@ def train_rsl_rl(
             alg.learning_rate = float(st["learning_rate"])
             env_steps, iteration = int(payload["env_steps"]), int(payload["iteration"])
             logger.print(f"resumed {path} at {env_steps} env steps (iteration {iteration})")
+            for line in resume_changes(path, config_record):
+                logger.print(line)
         # Copied before any forward pass: later the Gaussian head holds non-leaf tensors deepcopy refuses.
         spare_actor = copy.deepcopy(alg.actor)
     start_steps = env_steps

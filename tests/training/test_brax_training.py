@@ -116,7 +116,7 @@ def test_exported_graph_matches_the_jax_policy(brax_run):
     assert summary.export["max_abs_error"] <= 1e-5
 
 
-def test_resume_continues_the_step_count(brax_run, toy_env, tmp_path):
+def test_resume_continues_the_step_count(brax_run, toy_env, tmp_path, capsys):
     from bar_policy.training.run import run
 
     _, first = brax_run
@@ -126,7 +126,11 @@ def test_resume_continues_the_step_count(brax_run, toy_env, tmp_path):
         "resumed",
         [*TOY_BRAX, f"resume={first.run_dir}", f"ppo.num_timesteps={total}", "export_onnx=False"],
     )
+    capsys.readouterr()
     resumed = run(cfg, env=toy_env)
+    out = capsys.readouterr().out
+    # The same training settings (another run name, budget, export and step count): nothing to list.
+    assert "resumed " in out and "settings differ" not in out
     train = _records(resumed.run_dir, "train")
     assert train[0]["step"] > first.env_steps
     assert resumed.env_steps == total == train[-1]["step"] and len(train) == 1

@@ -57,7 +57,7 @@ def test_rsl_rl_run_trains_checkpoints_and_exports(rsl_run):
     assert ckpts[-1].name == f"step_{summary.env_steps:012d}.msgpack"
 
 
-def test_rsl_rl_resume_continues_the_step_count(rsl_run, toy_env, tmp_path):
+def test_rsl_rl_resume_continues_the_step_count(rsl_run, toy_env, tmp_path, capsys):
     from bar_policy.training.run import run
 
     _, first = rsl_run
@@ -71,7 +71,11 @@ def test_rsl_rl_resume_continues_the_step_count(rsl_run, toy_env, tmp_path):
             "export_onnx=False",
         ],
     )
+    capsys.readouterr()
     resumed = run(cfg, env=toy_env)
+    out = capsys.readouterr().out
+    # The same training settings (another run name, export and step count): nothing to list.
+    assert "resumed " in out and "settings differ" not in out
     steps = [
         json.loads(x)["step"]
         for x in (resumed.run_dir / "metrics.jsonl").read_text().splitlines()
