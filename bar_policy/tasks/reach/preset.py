@@ -20,13 +20,14 @@ physics step (5 per 20 ms control step).
 Measured (docs/benchmarks.md "Session 37", one or two runs per H100, evaluations every 327k env steps):
 - ``batch_size`` 256 (one 10-step unroll per env per iteration, so twice the SGD steps per env step of 512)
   crossed 95 % success at 1.64 M env steps in 5 runs of 5 (seeds 0-2 at 2 ms, 1-2 at 4 ms; 95.5-99.9 %
-  there), where 512 needed 2.29-2.46 M. Its iterations cost about 10 % more per env step (the update runs as
-  often for half the data).
+  there), where 512 needed 2.29-2.46 M. It costs more per env step (the update runs as often for half the
+  data): 130k against 143k env steps/s at 2 ms.
 - ``sim_dt=0.004`` trains at about 1.6x the env steps/s of the model's 2 ms and learns as fast per env step.
   Its files are gated on the C MuJoCo sim at 2 ms like any other (``train/ship.py``, ``bar-deploy eval``):
-  of five 4 ms files four passed, as did four of five 2 ms files; every miss was torque-cap time at the
-  episode's first command. ``--env-overrides sim_dt=0.002`` trains at the model's own step (a path given
-  on the command line replaces the preset's value for it; the preset's other items stay).
+  of nine 4 ms files (sessions 36 and 37, the default command's own four included) eight passed, as did four
+  of five 2 ms files; every miss was torque-cap time at the episode's first command.
+  ``--env-overrides sim_dt=0.002`` trains at the model's own step (a path given on the command line
+  replaces the preset's value for it; the preset's other items stay).
 - 24 evaluations: one every 44 iterations (1.80 M env steps), the first just past the 1.64 M crossing, so a
   warm run pays one evaluation (about 1.4 s at 4 ms) on the way to 95 %. Until session 37: batch 512, 2 ms,
   41 evaluations (every 1.15 M; 95 % seen at 2.29 M).
