@@ -18,15 +18,14 @@ from typing import Any
 from flax import serialization
 
 from bar_policy._files import write_atomic
-from bar_policy.training.executable_cache import OUTSIDE_PROGRAMS
+from bar_policy.training.executable_cache import program_fields
 
 __all__ = ["Checkpoint", "latest_checkpoint", "load_checkpoint", "resume_changes", "save_checkpoint"]
 
 _NAME = re.compile(r"step_(\d+)\.msgpack$")
 
-_NOT_LISTED = frozenset({*OUTSIDE_PROGRAMS, "ppo.num_timesteps"})
-"""Training-config fields a resume is expected to change: those no program reads (where it writes, when it
-stops, what it exports, its caches: ``executable_cache.OUTSIDE_PROGRAMS``) and how far it goes."""
+_STEPS = "ppo.num_timesteps"
+"""How far a run goes: a resume is expected to change it (not listed by ``resume_changes``)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -141,8 +140,10 @@ def resume_changes(checkpoint: str | os.PathLike[str], record: dict[str, Any] | 
     reward weight). But a default that changed between the two runs (the reach gpu preset's batch and
     physics step in session 37) would change the training without a word, so every difference between the
     checkpoint's sidecar record and this run's (``train`` and ``env`` sections, flattened to dotted names)
-    is listed, except the fields a resume is expected to change (``_NOT_LISTED``). ``[]`` when both
-    agree, when ``record`` is None, or when the checkpoint has no readable sidecar (one line says so).
+    is listed, except the fields a resume is expected to change: those no program reads (where it writes,
+    when it stops, what it exports, its caches: ``executable_cache.program_fields`` leaves them out) and the
+    step count. ``[]`` when both agree or when ``record`` is None; one line when the checkpoint has no
+    readable sidecar.
 
     Args:
         checkpoint: the checkpoint file resumed (its ``.json`` sidecar holds the run's record).
@@ -156,11 +157,9 @@ def resume_changes(checkpoint: str | os.PathLike[str], record: dict[str, Any] | 
     except (OSError, ValueError) as e:
         return [f"resume: no config record to compare with ({sidecar}: {e})"]
     lines = []
-    for section in ("train", "env"):
-        before, now = _flat(old.get(section, {})), _flat(record.get(section, {}))
-        for name in sorted(set(before) | set(now)):
-            if section == "train" and name in _NOT_LISTED:
-                continue
+    for section, kept in (("train", program_fields), ("env", dict)):
+        before, now = (_flat(kept(r.get(section, {}))) for r in (old, record))
+        for name in sorted((set(before) | set(now)) - {_STEPS}):
             if before.get(name) != now.get(name):
                 lines.append(f"  {section} {name}: {before.get(name)!r} -> {now.get(name)!r}")
     if lines:

@@ -82,16 +82,19 @@ def _on_preset(name: str, preset_items: tuple[str, ...], cfg: TrainConfig) -> tu
     (``overrides.merge_overrides``). A preset's items are its task's settings (the reach gpu preset's
     ``sim_dt=0.004``): with an env of another task (``--env LitePiano``) they are left out, with a note.
     """
+    if not preset_items:
+        return cfg.env_overrides
+    # Equal to the preset's items: tyro's default, so nothing was given on the command line.
+    given = () if cfg.env_overrides == preset_items else cfg.env_overrides
     own = next(r for r in TASKS if name in dict(r.presets))
-    if preset_items and cfg.env_name not in {e.name for e in own.envs}:
-        kept = tuple(o for o in cfg.env_overrides if o not in preset_items)
-        print(
-            f"{PROG}: note: preset {name}'s env settings {list(preset_items)} are the {own.name} task's; "
-            f"not applied to {cfg.env_name}",
-            file=sys.stderr,
-        )
-        return kept
-    return merge_overrides(preset_items, cfg.env_overrides)
+    if cfg.env_name in {e.name for e in own.envs}:
+        return merge_overrides(preset_items, given)
+    print(
+        f"{PROG}: note: preset {name}'s env settings {list(preset_items)} are the {own.name} task's; "
+        f"not applied to {cfg.env_name}",
+        file=sys.stderr,
+    )
+    return given
 
 
 def check_env_overrides(cfg: TrainConfig) -> None:

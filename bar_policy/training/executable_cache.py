@@ -63,6 +63,7 @@ __all__ = [
     "executable_cache_for",
     "executable_cache_line",
     "off_reason",
+    "program_fields",
 ]
 
 FORMAT = 1
@@ -284,8 +285,11 @@ key (a dotted name: a field of a section), so a rerun under another run name or 
 served. Until stop 31 they were in it, and the GPU's warm runs missed (docs/startup.md)."""
 
 
-def _program_fields(train: Mapping[str, Any]) -> dict[str, Any]:
-    """``train`` (a ``config_to_dict`` record) less ``OUTSIDE_PROGRAMS``."""
+def program_fields(train: Mapping[str, Any]) -> dict[str, Any]:
+    """``train`` (a ``config_to_dict`` record) less ``OUTSIDE_PROGRAMS``.
+
+    The key's part of it, and what ``checkpoint.resume_changes`` compares.
+    """
     out = {k: v for k, v in train.items() if k not in OUTSIDE_PROGRAMS}
     for name in OUTSIDE_PROGRAMS:
         section, _, leaf = name.partition(".")
@@ -314,7 +318,7 @@ def executable_cache_for(
         return None
     cls = type(env)
     context = {
-        "train": _program_fields(record["train"]),
+        "train": program_fields(record["train"]),
         "env": record["env"] or repr(getattr(env, "config", None)),
         "env_class": f"{cls.__module__}.{cls.__qualname__}",
         "env_source": ek.source_hash(env),
