@@ -1,0 +1,191 @@
+"""Can the update run beside the rollout on one GPU? (issue 19: steady training >= 90 % of the raw env.)
+
+The update (128 Adam steps) and the rollout (the env's physics) are both bound by the number of small
+kernels they launch, not by the device's arithmetic, and the device runs one program at a time (session 35:
+an evaluation on a thread did not overlap an epoch). XLA runs a computation annotated with a stream
+(``jax.experimental.compute_on.compute_on2(compute_type="gpu_stream:N")``, XLA's
+``xla_gpu_experimental_stream_annotation``) on a stream of its own, so one program can hold both. This bench
+measures, at a preset's training batch on one device:
+
+- ``micro``: two independent chains of ``--micro-steps`` small matmuls, alone, one after the other in one
+  program, and with one of them on stream 1 (does the annotation overlap anything at all?);
+- ``real``: the trainer's rollout alone, the update alone, and one program that runs the update of the
+  previous iteration's data on stream 1 while the rollout collects the next (a pipelined iteration, with a
+  policy one update older than brax's); per iteration, after a warm-up, best of ``--iters``.
+
+It checks that the pipelined program's outputs equal the two programs' (same inputs, same keys).
+
+Examples::
+
+    python bench/stream_overlap.py --out $OUT/overlap.md                # gpu preset, one GPU
+    python bench/stream_overlap.py --preset tiny --iters 1 --micro-steps 4   # CPU smoke check
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from config_args import add_config_args, load_env
+from jax.experimental.compute_on import compute_on2
+from jax.sharding import Mesh
+from jax.sharding import PartitionSpec as P
+from report import emit
+
+from bar_policy import envs
+from bar_policy.training.autotune_seed import seed_autotune_cache
+from bar_policy.training.brax_ppo import host_key, make_programs, slot_env
+from bar_policy.training.config import apply_overrides, preset
+from bar_policy.training.learner import make_learner
+from bar_policy.training.parallel import AXIS, DataParallel
+from bar_policy.training.startup import configure_compile_cache
+
+
+def _best(fn: Any, iters: int) -> float:
+    """Seconds per call: best of ``iters`` calls after one warm-up."""
+    jax.block_until_ready(fn())
+    best = float("inf")
+    for _ in range(iters):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def _on_stream(fn: Any, stream: int) -> Any:
+    """``fn`` as a computation XLA runs on GPU stream ``stream`` (outputs in device memory)."""
+    return compute_on2(fn, compute_type=f"gpu_stream:{stream}", out_memory_spaces=jax.memory.Space.Device)
+
+
+def micro(steps: int, iters: int) -> dict[str, float]:
+    """Two chains of ``steps`` dependent (256, 256) matmuls + tanh: alone, in turn, on two streams (ms)."""
+    k1, k2 = jax.random.split(jax.random.PRNGKey(0))
+    w = jax.random.normal(k1, (256, 256), jnp.float32) / 16.0
+    x = jax.random.normal(k2, (256, 256), jnp.float32)
+
+    def chain(x: jax.Array) -> jax.Array:
+        return jax.lax.fori_loop(0, steps, lambda _, y: jnp.tanh(y @ w), x)
+
+    both = jax.jit(lambda a, b: (chain(a), chain(b)))
+    streamed = jax.jit(lambda a, b: (chain(a), _on_stream(chain, 1)(b)))
+    one = jax.jit(chain)
+    out = {"one chain": _best(lambda: one(x), iters)}
+    out["two chains, one program"] = _best(lambda: both(x, x), iters)
+    out["two chains, second on stream 1"] = _best(lambda: streamed(x, x), iters)
+    a, b = streamed(x, x)
+    out["max |streamed - plain|"] = float(jnp.max(jnp.abs(jnp.stack(both(x, x)) - jnp.stack([a, b]))))
+    return {k: (1e3 * v if "|" not in k else v) for k, v in out.items()}
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    add_config_args(p)
+    p.add_argument("--iters", type=int, default=5, help="timed calls per row")
+    p.add_argument("--micro-steps", type=int, default=400, help="matmuls per chain in the micro rows")
+    p.add_argument("--no-real", action="store_true", help="the micro rows only")
+    p.add_argument("--out", default="")
+    args = p.parse_args()
+
+    lines = [f"stream overlap: {jax.devices()[0].device_kind}, XLA_FLAGS {os.environ.get('XLA_FLAGS', '')!r}"]
+    lines += ["", "| micro row | ms |", "|---|---:|"]
+    for k, v in micro(args.micro_steps, args.iters).items():
+        lines.append(f"| {k} | {v:.4g} |")
+    emit("\n".join(lines), args.out)
+    if args.no_real:
+        return 0
+
+    cache_dir = configure_compile_cache(True)
+    cfg = apply_overrides(preset(args.preset), args.set)
+    jax.config.update(
+        "jax_default_matmul_precision", "highest" if cfg.matmul_precision == "highest" else None
+    )
+    print("autotune seed:", seed_autotune_cache(cache_dir, enabled=cfg.autotune_seed))
+    ppo = cfg.ppo
+    env = load_env(args.env, cfg)
+    randomizer = envs.get_randomizer(args.env, env.config)
+    dp = DataParallel(Mesh(np.asarray(jax.devices()[:1]), (AXIS,)))
+    learner = make_learner(env.observation_size, env.action_size, ppo, cfg.network)
+    n, steps = ppo.num_envs, ppo.steps_per_iteration
+    unrolls = steps // (n * ppo.unroll_length)
+
+    progs = make_programs(env, cfg, learner, dp, envs.wrap_for_brax_training, randomizer)
+
+    def rollout(ts: Any, carry: Any, key: jax.Array) -> Any:
+        batch = slot_env(env, envs.wrap_for_brax_training, randomizer, carry[1])
+        state, data, _ = learner.rollout(ts, carry[0], key, batch, unrolls)
+        return (state, carry[1]), data
+
+    def update(ts: Any, data: Any, key: jax.Array) -> Any:
+        return learner.update(ts, data, key)[0]
+
+    def pipelined(ts: Any, carry: Any, data: Any, key: jax.Array) -> Any:
+        """The update of ``data`` on stream 1 while the rollout (with ``ts``) collects the next data."""
+        new_ts = _on_stream(update, 1)(ts, data, key)
+        carry, next_data = rollout(ts, carry, key)
+        return new_ts, carry, next_data
+
+    rep, shard = P(), P(AXIS)
+    f_roll = dp.map(rollout, (rep, shard, rep), (shard, shard))
+    f_update = dp.map(update, (rep, shard, rep), rep)
+    f_pipe = dp.map(pipelined, (rep, shard, shard, rep), (rep, shard, shard))
+    key = dp.replicate(host_key(0, 9))
+    t0 = time.perf_counter()
+    ts = progs.init(dp.replicate(host_key(0, 1)))
+    carry = progs.reset(dp.replicate(host_key(0, 2)), dp.replicate(host_key(0, 3)))
+    carry, data = f_roll(ts, carry, key)
+    jax.block_until_ready(f_update(ts, data, key))
+    compile_parts = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    piped = f_pipe(ts, carry, data, key)
+    jax.block_until_ready(piped)
+    compile_pipe = time.perf_counter() - t0
+
+    # Same inputs and keys: the pipelined program's outputs against the two programs'.
+    ref_ts = f_update(ts, data, key)
+    ref_data = f_roll(ts, carry, key)[1]
+    diffs = jax.tree.map(
+        lambda a, b: (
+            float(np.max(np.abs(np.asarray(a, np.float64) - np.asarray(b, np.float64))))
+            if np.size(a)
+            else 0.0
+        ),
+        (piped[0], piped[2]),
+        (ref_ts, ref_data),
+    )
+    max_diff = max(jax.tree.leaves(diffs))
+
+    rows = {
+        "rollout alone": _best(lambda: f_roll(ts, carry, key), args.iters),
+        "update alone": _best(lambda: f_update(ts, data, key), args.iters),
+    }
+    rows["rollout then update (two programs)"] = _best(
+        lambda: f_update(ts, f_roll(ts, carry, key)[1], key), args.iters
+    )
+    rows["pipelined (update on stream 1 beside the rollout)"] = _best(
+        lambda: f_pipe(ts, carry, data, key), args.iters
+    )
+    lines += [
+        "",
+        f"{args.env}, preset {args.preset} {' '.join(args.set)}, {n} envs, {steps:,} env steps and "
+        f"{ppo.num_updates_per_batch * ppo.num_minibatches} Adam steps per iteration",
+        "",
+        "| row | ms per iteration | env steps/s |",
+        "|---|---:|---:|",
+    ]
+    lines += [f"| {k} | {1e3 * v:.1f} | {steps / v:,.0f} |" for k, v in rows.items()]
+    lines += [
+        "",
+        f"compile + first call: rollout, update {compile_parts:.1f} s; pipelined {compile_pipe:.1f} s",
+        f"max |pipelined - two programs| over the new params and the data: {max_diff:.3g}",
+    ]
+    emit("\n".join(lines), args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
