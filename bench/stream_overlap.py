@@ -32,7 +32,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from config_args import add_config_args, load_env
-from jax.experimental.compute_on import compute_on2
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 from report import emit
@@ -58,8 +57,23 @@ def _best(fn: Any, iters: int) -> float:
 
 
 def _on_stream(fn: Any, stream: int) -> Any:
-    """``fn`` as a computation XLA runs on GPU stream ``stream`` (outputs in device memory)."""
-    return compute_on2(fn, compute_type=f"gpu_stream:{stream}", out_memory_spaces=jax.memory.Space.Device)
+    """``fn`` as a computation XLA runs on GPU stream ``stream`` (outputs in device memory).
+
+    ``compute_on2`` where this jax has it (0.10); else (``BAR_STREAM_API=legacy`` forces it) the
+    ``compute_on`` context around a jitted call, whose lowering carries the same stream annotation.
+    """
+    import jax._src.compute_on as con
+
+    if hasattr(con, "compute_on2") and os.environ.get("BAR_STREAM_API") != "legacy":
+        space = jax._src.core.MemorySpace.Device
+        return con.compute_on2(fn, compute_type=f"gpu_stream:{stream}", out_memory_spaces=space)
+    jitted = jax.jit(fn)
+
+    def wrapped(*args: Any) -> Any:
+        with con.compute_on(f"gpu_stream:{stream}"):
+            return jitted(*args)
+
+    return wrapped
 
 
 def micro(steps: int, iters: int) -> dict[str, float]:
@@ -91,7 +105,17 @@ def main() -> int:
     p.add_argument("--out", default="")
     args = p.parse_args()
 
-    lines = [f"stream overlap: {jax.devices()[0].device_kind}, XLA_FLAGS {os.environ.get('XLA_FLAGS', '')!r}"]
+    import jax._src.compute_on as con
+
+    api = (
+        "compute_on2"
+        if hasattr(con, "compute_on2") and os.environ.get("BAR_STREAM_API") != "legacy"
+        else "compute_on"
+    )
+    lines = [
+        f"stream overlap: {jax.devices()[0].device_kind}, jax {jax.__version__}, {api}, "
+        f"XLA_FLAGS {os.environ.get('XLA_FLAGS', '')!r}"
+    ]
     lines += ["", "| micro row | ms |", "|---|---:|"]
     for k, v in micro(args.micro_steps, args.iters).items():
         lines.append(f"| {k} | {v:.4g} |")
