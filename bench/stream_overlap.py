@@ -56,21 +56,32 @@ def _best(fn: Any, iters: int) -> float:
     return best
 
 
-def _on_stream(fn: Any, stream: int) -> Any:
-    """``fn`` as a computation XLA runs on GPU stream ``stream`` (outputs in device memory).
+def _stream_api() -> str:
+    """Which jax API annotates a stream: ``compute_on`` taking a function (jax 0.11), ``compute_on2``
+    (0.10), or ``legacy`` (0.10's ``compute_on`` context around a jitted call; ``BAR_STREAM_API=legacy``)."""
+    import inspect
 
-    ``compute_on2`` where this jax has it (0.10); else (``BAR_STREAM_API=legacy`` forces it) the
-    ``compute_on`` context around a jitted call, whose lowering carries the same stream annotation.
-    """
     import jax._src.compute_on as con
 
-    if hasattr(con, "compute_on2") and os.environ.get("BAR_STREAM_API") != "legacy":
+    if os.environ.get("BAR_STREAM_API") == "legacy":
+        return "legacy"
+    if "out_memory_spaces" in inspect.signature(con.compute_on).parameters:
+        return "compute_on"
+    return "compute_on2" if hasattr(con, "compute_on2") else "legacy"
+
+
+def _on_stream(fn: Any, stream: int) -> Any:
+    """``fn`` as a computation XLA runs on GPU stream ``stream`` (outputs in device memory)."""
+    import jax._src.compute_on as con
+
+    api, kind = _stream_api(), f"gpu_stream:{stream}"
+    if api != "legacy":
         space = jax._src.core.MemorySpace.Device
-        return con.compute_on2(fn, compute_type=f"gpu_stream:{stream}", out_memory_spaces=space)
+        return getattr(con, api)(fn, compute_type=kind, out_memory_spaces=space)
     jitted = jax.jit(fn)
 
     def wrapped(*args: Any) -> Any:
-        with con.compute_on(f"gpu_stream:{stream}"):
+        with con.compute_on(kind):
             return jitted(*args)
 
     return wrapped
@@ -105,13 +116,7 @@ def main() -> int:
     p.add_argument("--out", default="")
     args = p.parse_args()
 
-    import jax._src.compute_on as con
-
-    api = (
-        "compute_on2"
-        if hasattr(con, "compute_on2") and os.environ.get("BAR_STREAM_API") != "legacy"
-        else "compute_on"
-    )
+    api = _stream_api()
     lines = [
         f"stream overlap: {jax.devices()[0].device_kind}, jax {jax.__version__}, {api}, "
         f"XLA_FLAGS {os.environ.get('XLA_FLAGS', '')!r}"
