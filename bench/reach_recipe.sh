@@ -21,7 +21,7 @@
 #   lr1e-3     learning rate 1e-3                  upd4      4 passes over each batch instead of 8
 #   mb8        8 minibatches of 1024 (fewer, larger SGD steps)
 #   unroll20   20-step unrolls (2x the data per iteration)
-#   seed1      the preset on seed 1 (how far two seeds differ)
+#   seed1, seed2  the preset on seeds 1 and 2 (how far seeds differ)
 #   ent1e-3    entropy cost 1e-3 instead of 5e-3
 #   upd16      16 passes over each batch instead of 8 (twice the SGD steps per env step)
 #   bs256      batch_size 256: half the env steps per iteration, the same 128 SGD steps (on half-size
@@ -49,6 +49,7 @@ declare -A VARIANT=(
   [mb8]="--ppo.num-minibatches 8 --ppo.batch-size 1024"
   [unroll20]="--ppo.unroll-length 20"
   [seed1]="--seed 1"
+  [seed2]="--seed 2"
   [ent1e-3]="--ppo.entropy-cost 1e-3"
   [upd16]="--ppo.num-updates-per-batch 16"
   [bs256]="--ppo.batch-size 256"

@@ -1,0 +1,113 @@
+"""The update program on one device and on several (issue 19: two GPUs >= 1.9x one).
+
+Each Adam step of the data-parallel update all-reduces the gradients (one all-reduce per step after XLA's
+combiner: the gradients and the KL estimate), 128 per iteration at the gpu preset; with twice the SGD steps
+per env step (session 37) the update is a larger share of an iteration, so its all-reduces weigh more on
+two GPUs. This bench times only the update (``Learner.update`` under the trainer's ``DataParallel`` mesh),
+on synthetic transitions of the preset's per-device sizes, so that XLA or NCCL settings can be compared
+in a process each without compiling the env:
+
+    python bench/update_scaling.py --devices 1 --label "1 GPU"
+    python bench/update_scaling.py --devices 2 --label "2 GPUs"
+    NCCL_PROTO=LL python bench/update_scaling.py --devices 2 --label "2 GPUs, NCCL_PROTO=LL"
+
+Sizes: ``num_envs`` and ``batch_size`` of ``--preset`` (default gpu) are per device, as the multi-GPU
+commands give them. The line printed (and appended to ``--out``) gives ms per update call, best of
+``--iters`` after a warm-up, and the compile seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+from brax.training import types
+from config_args import add_config_args, load_env
+from jax.sharding import Mesh
+from jax.sharding import PartitionSpec as P
+
+from bar_policy.training.autotune_seed import seed_autotune_cache
+from bar_policy.training.config import apply_overrides, preset
+from bar_policy.training.learner import make_learner
+from bar_policy.training.parallel import AXIS, DataParallel
+from bar_policy.training.startup import configure_compile_cache
+
+
+def transitions(rows: int, steps: int, obs: int, act: int, seed: int) -> types.Transition:
+    """Random transitions shaped as ``Learner.rollout`` returns them: leaves ``(rows, steps, ...)``."""
+    rng = np.random.default_rng(seed)
+
+    def f(*shape: int) -> np.ndarray:
+        return rng.standard_normal((rows, steps, *shape)).astype(np.float32)
+
+    ones = np.ones((rows, steps), np.float32)
+    return types.Transition(
+        observation=f(obs),
+        action=np.tanh(f(act)),
+        reward=f(),
+        discount=ones,
+        next_observation=f(obs),
+        extras={
+            "policy_extras": {"log_prob": f() - 5.0, "raw_action": f(act)},
+            "state_extras": {"truncation": 0.0 * ones},
+        },
+    )
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    add_config_args(p)
+    p.add_argument("--devices", type=int, default=1)
+    p.add_argument("--iters", type=int, default=10)
+    p.add_argument("--label", default="")
+    p.add_argument("--out", default="")
+    args = p.parse_args()
+
+    cache_dir = configure_compile_cache(True)
+    cfg = apply_overrides(preset(args.preset), args.set)
+    jax.config.update(
+        "jax_default_matmul_precision", "highest" if cfg.matmul_precision == "highest" else None
+    )
+    seed_autotune_cache(cache_dir, enabled=cfg.autotune_seed)
+    ppo = cfg.ppo
+    env = load_env(args.env, cfg)
+    learner = make_learner(env.observation_size, env.action_size, ppo, cfg.network)
+    devices = jax.devices()[: args.devices]
+    if len(devices) < args.devices:
+        p.error(f"--devices {args.devices}: this process sees {len(jax.devices())} device(s)")
+    dp = DataParallel(Mesh(np.asarray(devices), (AXIS,)))
+    rows = ppo.batch_size * ppo.num_minibatches * args.devices  # global; each device its own share
+    data = transitions(rows, ppo.unroll_length, env.observation_size, env.action_size, 0)
+    data = jax.device_put(data, dp.sharded)
+    ts = dp.replicate(jax.device_get(jax.jit(learner.init)(jax.random.PRNGKey(0))))
+    key = dp.replicate(np.asarray(jax.random.PRNGKey(1)))
+    update = dp.map(lambda t, d, k: learner.update(t, d, k)[0], (P(), P(AXIS), P()), P())
+    t0 = time.perf_counter()
+    compiled = update.lower(ts, data, key).compile()
+    compile_s = time.perf_counter() - t0
+    jax.block_until_ready(compiled(ts, data, key))
+    best = float("inf")
+    for _ in range(args.iters):
+        t0 = time.perf_counter()
+        jax.block_until_ready(compiled(ts, data, key))
+        best = min(best, time.perf_counter() - t0)
+    adam = ppo.num_updates_per_batch * ppo.num_minibatches
+    line = (
+        f"| {args.label or f'{args.devices} device(s)'} | {devices[0].device_kind} x {len(devices)} | "
+        f"{1e3 * best:.2f} | {1e6 * best / adam:.0f} | {compile_s:.1f} | "
+        f"XLA_FLAGS={os.environ.get('XLA_FLAGS', '')!r} NCCL_PROTO={os.environ.get('NCCL_PROTO', '')!r} |"
+    )
+    print("| run | devices | ms per update | us per Adam step | compile s | settings |")
+    print(line)
+    if args.out:
+        with Path(args.out).open("a") as fh:
+            fh.write(line + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
