@@ -40,6 +40,7 @@ from config_args import add_config_args, load_env
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 from report import emit
+from train_breakdown import best_time
 
 from bar_policy import envs
 from bar_policy.training.autotune_seed import seed_autotune_cache
@@ -48,17 +49,6 @@ from bar_policy.training.config import apply_overrides, preset
 from bar_policy.training.learner import make_learner
 from bar_policy.training.parallel import AXIS, DataParallel
 from bar_policy.training.startup import configure_compile_cache
-
-
-def _best(fn: Any, iters: int) -> float:
-    """Seconds per call: best of ``iters`` calls after one warm-up."""
-    jax.block_until_ready(fn())
-    best = float("inf")
-    for _ in range(iters):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def _stream_api() -> str:
@@ -104,9 +94,9 @@ def micro(steps: int, iters: int) -> dict[str, float]:
     both = jax.jit(lambda a, b: (chain(a), chain(b)))
     streamed = jax.jit(lambda a, b: (chain(a), _on_stream(chain, 1)(b)))
     one = jax.jit(chain)
-    out = {"one chain": _best(lambda: one(x), iters)}
-    out["two chains, one program"] = _best(lambda: both(x, x), iters)
-    out["two chains, second on stream 1"] = _best(lambda: streamed(x, x), iters)
+    out = {"one chain": best_time(lambda: one(x), iters)}
+    out["two chains, one program"] = best_time(lambda: both(x, x), iters)
+    out["two chains, second on stream 1"] = best_time(lambda: streamed(x, x), iters)
     a, b = streamed(x, x)
     out["max |streamed - plain|"] = float(jnp.max(jnp.abs(jnp.stack(both(x, x)) - jnp.stack([a, b]))))
     return {k: (1e3 * v if "|" not in k else v) for k, v in out.items()}
@@ -198,13 +188,13 @@ def main() -> int:
     max_diff = max(jax.tree.leaves(diffs))
 
     rows = {
-        "rollout alone": _best(lambda: f_roll(ts, carry, key), args.iters),
-        "update alone": _best(lambda: f_update(ts, data, key), args.iters),
+        "rollout alone": best_time(lambda: f_roll(ts, carry, key), args.iters),
+        "update alone": best_time(lambda: f_update(ts, data, key), args.iters),
     }
-    rows["rollout then update (two programs)"] = _best(
+    rows["rollout then update (two programs)"] = best_time(
         lambda: f_update(ts, f_roll(ts, carry, key)[1], key), args.iters
     )
-    rows["pipelined (update on stream 1 beside the rollout)"] = _best(
+    rows["pipelined (update on stream 1 beside the rollout)"] = best_time(
         lambda: f_pipe(ts, carry, data, key), args.iters
     )
     lines += [

@@ -58,7 +58,7 @@ from bar_policy.training.parallel import AXIS, DataParallel
 from bar_policy.training.startup import Compiler, StartupTimer, configure_compile_cache
 
 
-def _time(fn: Any, iters: int) -> float:
+def best_time(fn: Any, iters: int) -> float:
     """Seconds per call (best of ``iters`` calls after one warm-up)."""
     jax.block_until_ready(fn())
     best = float("inf")
@@ -163,10 +163,10 @@ def main() -> int:
     carry = compiler.get("reset")(dp.replicate(host_key(0, 2)), dp.replicate(host_key(0, 3)))
     data = compiler.get("rollout")(ts, carry, key)
     rows: dict[str, float] = {}
-    rows["env"] = _time(lambda: compiler.get("env")(carry, key), args.iters)
-    rows["env random"] = _time(lambda: compiler.get("env random")(carry, key), args.iters)
-    rows["rollout"] = _time(lambda: compiler.get("rollout")(ts, carry, key), args.iters)
-    rows["update"] = _time(lambda: compiler.get("update")(ts, data, key), args.iters)
+    rows["env"] = best_time(lambda: compiler.get("env")(carry, key), args.iters)
+    rows["env random"] = best_time(lambda: compiler.get("env random")(carry, key), args.iters)
+    rows["rollout"] = best_time(lambda: compiler.get("rollout")(ts, carry, key), args.iters)
+    rows["update"] = best_time(lambda: compiler.get("update")(ts, data, key), args.iters)
     programs = (compiler.get("train rollout"), compiler.get("train update"))
     index = [dp.replicate(np.int32(i)) for i in range(args.epoch_iters)]
     state = {"ts": compiler.get("init")(dp.replicate(host_key(0, 1))), "carry": carry}
@@ -182,12 +182,12 @@ def main() -> int:
     def one_epoch(read: bool) -> Any:
         return epoch_call(lambda ts_, carry_: run_epoch(*programs, ts_, carry_, key, index), read)
 
-    rows["epoch"] = _time(lambda: one_epoch(False), args.iters) / args.epoch_iters
-    rows["loop"] = _time(lambda: one_epoch(True), args.iters) / args.epoch_iters
+    rows["epoch"] = best_time(lambda: one_epoch(False), args.iters) / args.epoch_iters
+    rows["loop"] = best_time(lambda: one_epoch(True), args.iters) / args.epoch_iters
     # From where training left the envs (mid-episode, the policy's poses and contacts), not a fresh reset.
     mid_ts, mid = state["ts"], state["carry"]
-    rows["env random, mid-training"] = _time(lambda: compiler.get("env random")(mid, key), args.iters)
-    rows["rollout, mid-training"] = _time(lambda: compiler.get("rollout")(mid_ts, mid, key), args.iters)
+    rows["env random, mid-training"] = best_time(lambda: compiler.get("env random")(mid, key), args.iters)
+    rows["rollout, mid-training"] = best_time(lambda: compiler.get("rollout")(mid_ts, mid, key), args.iters)
     if args.fused:
         fused_program = compiler.get("fused epoch")
 
@@ -195,7 +195,7 @@ def main() -> int:
             return fused_program(ts_, carry_, key)
 
         for row, read in (("epoch, one program", False), ("loop, one program", True)):
-            rows[row] = _time(lambda read=read: epoch_call(fused, read), args.iters) / args.epoch_iters
+            rows[row] = best_time(lambda read=read: epoch_call(fused, read), args.iters) / args.epoch_iters
 
     profiles = {}
 
@@ -220,13 +220,13 @@ def main() -> int:
         if args.profile_eval:
             evaluate = compiler.get("evaluate")
             profile("one evaluation", "evaluate", lambda: evaluate(_policy_params(state["ts"]), key, key))
-    eval_s = _time(lambda: compiler.get("evaluate")(_policy_params(ts), key, key), args.iters)
+    eval_s = best_time(lambda: compiler.get("evaluate")(_policy_params(ts), key, key), args.iters)
     overlap = ""
     if args.concurrent:
         # An evaluation on a thread of its own while the main thread runs an epoch: does the device overlap
         # them (both programs are bound by kernel launches, not by the device's arithmetic)?
         evaluate = compiler.get("evaluate")
-        epoch_s = _time(lambda: one_epoch(True), args.iters)
+        epoch_s = best_time(lambda: one_epoch(True), args.iters)
         walls = []
         for _ in range(args.iters):
             done: dict[str, float] = {}

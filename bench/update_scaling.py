@@ -29,6 +29,7 @@ from brax.training import types
 from config_args import add_config_args, load_env
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
+from train_breakdown import best_time
 
 from bar_policy.training.autotune_seed import seed_autotune_cache
 from bar_policy.training.config import apply_overrides, preset
@@ -89,12 +90,7 @@ def main() -> int:
     t0 = time.perf_counter()
     compiled = update.lower(ts, data, key).compile()
     compile_s = time.perf_counter() - t0
-    jax.block_until_ready(compiled(ts, data, key))
-    best = float("inf")
-    for _ in range(args.iters):
-        t0 = time.perf_counter()
-        jax.block_until_ready(compiled(ts, data, key))
-        best = min(best, time.perf_counter() - t0)
+    best = best_time(lambda: compiled(ts, data, key), args.iters)
     adam = ppo.num_updates_per_batch * ppo.num_minibatches
     line = (
         f"| {args.label or f'{args.devices} device(s)'} | {devices[0].device_kind} x {len(devices)} | "
