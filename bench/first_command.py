@@ -14,6 +14,9 @@ physics step and reports:
 Example (CPU, a few minutes, mostly compiling)::
 
     python bench/first_command.py runs/X/policy.onnx --out first_command.md
+
+On this project's 2-core CPU a batch of 256 hangs in XLA's CPU runtime (docs/benchmarks.md "Session 38");
+``XLA_FLAGS=--xla_cpu_multi_thread_eigen=false`` avoids it. The default batch, 64, does not hang.
 """
 
 from __future__ import annotations
@@ -21,14 +24,15 @@ from __future__ import annotations
 import argparse
 import functools
 import json
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-import onnxruntime as ort
 from report import emit
 
 from bar_policy import envs
+from bar_policy.deploy.onnx_file import read_bytes, session
 from bar_policy.robot.constants import load_robot
 
 
@@ -41,7 +45,8 @@ def main() -> int:
     p.add_argument("--out", default="")
     args = p.parse_args()
 
-    sess = ort.InferenceSession(args.policy)
+    # The deploy runtime's loader (never a pickle) and its single-threaded session.
+    sess = session(Path(args.policy), read_bytes(Path(args.policy)), 1)
     meta = sess.get_modelmeta().custom_metadata_map
     if json.loads(meta.get("bar.task", '""')) != "reach":
         p.error(f"{args.policy} is not a reach file (bar.task = {meta.get('bar.task')!r})")
