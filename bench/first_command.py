@@ -15,8 +15,8 @@ Example (CPU, a few minutes, mostly compiling)::
 
     python bench/first_command.py runs/X/policy.onnx --out first_command.md
 
-On this project's 2-core CPU a batch of 256 hangs in XLA's CPU runtime (docs/benchmarks.md "Session 38");
-``XLA_FLAGS=--xla_cpu_multi_thread_eigen=false`` avoids it. The default batch, 64, does not hang.
+On this project's 2-core CPU a batch of 256 hung in XLA's CPU runtime (docs/benchmarks.md "Session 38");
+the default batch, 64, does not.
 """
 
 from __future__ import annotations
