@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import json
 from pathlib import Path
 
 import jax
@@ -32,7 +31,7 @@ import numpy as np
 from report import emit
 
 from bar_policy import envs
-from bar_policy.deploy.onnx_file import read_bytes, session
+from bar_policy.deploy.onnx_file import metadata, read_bytes, session
 from bar_policy.robot.constants import load_robot
 
 
@@ -45,17 +44,17 @@ def main() -> int:
     p.add_argument("--out", default="")
     args = p.parse_args()
 
-    # The deploy runtime's loader (never a pickle) and its single-threaded session.
-    sess = session(Path(args.policy), read_bytes(Path(args.policy)), 1)
-    meta = sess.get_modelmeta().custom_metadata_map
-    if json.loads(meta.get("bar.task", '""')) != "reach":
-        p.error(f"{args.policy} is not a reach file (bar.task = {meta.get('bar.task')!r})")
-    over = [f"sim_dt={float(meta['bar.physics_dt']):g}"] if "bar.physics_dt" in meta else []
+    # The deploy runtime's loader (never a pickle), its single-threaded session and its metadata parser.
+    path = Path(args.policy)
+    sess = session(path, read_bytes(path), 1)
+    meta = metadata(path, sess)
+    if meta.task != "reach":
+        p.error(f"{args.policy} is not a reach file (its task: {meta.task!r})")
+    over = [f"sim_dt={meta.physics_dt:g}"] if meta.physics_dt is not None else []
+    obs_size = sess.get_inputs()[0].shape[1]
 
     def act(obs: jax.Array) -> np.ndarray:
-        return sess.run(
-            None, {"obs": np.asarray(obs, np.float32).reshape(-1, sess.get_inputs()[0].shape[1])}
-        )[0]
+        return sess.run(None, {"obs": np.asarray(obs, np.float32).reshape(-1, obs_size)})[0]
 
     robot = load_robot("arms")
     cap, names = robot.torque_cap, [j.name for j in robot.joints]

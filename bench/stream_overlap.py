@@ -52,34 +52,23 @@ from bar_policy.training.startup import configure_compile_cache
 
 
 def _stream_api() -> str:
-    """Which jax API annotates a stream: ``compute_on`` taking a function (jax 0.11), ``compute_on2``
-    (0.10), or ``legacy`` (0.10's ``compute_on`` context around a jitted call; ``BAR_STREAM_API=legacy``)."""
+    """The jax function that annotates a stream: ``compute_on`` taking a function (jax 0.11) or
+    ``compute_on2`` (0.10); both take ``(fn, compute_type=, out_memory_spaces=)``."""
     import inspect
 
     import jax._src.compute_on as con
 
-    if os.environ.get("BAR_STREAM_API") == "legacy":
-        return "legacy"
     if "out_memory_spaces" in inspect.signature(con.compute_on).parameters:
         return "compute_on"
-    return "compute_on2" if hasattr(con, "compute_on2") else "legacy"
+    return "compute_on2"
 
 
 def _on_stream(fn: Any, stream: int) -> Any:
     """``fn`` as a computation XLA runs on GPU stream ``stream`` (outputs in device memory)."""
     import jax._src.compute_on as con
 
-    api, kind = _stream_api(), f"gpu_stream:{stream}"
-    if api != "legacy":
-        space = jax._src.core.MemorySpace.Device
-        return getattr(con, api)(fn, compute_type=kind, out_memory_spaces=space)
-    jitted = jax.jit(fn)
-
-    def wrapped(*args: Any) -> Any:
-        with con.compute_on(kind):
-            return jitted(*args)
-
-    return wrapped
+    space = jax._src.core.MemorySpace.Device
+    return getattr(con, _stream_api())(fn, compute_type=f"gpu_stream:{stream}", out_memory_spaces=space)
 
 
 def micro(steps: int, iters: int) -> dict[str, float]:

@@ -37,7 +37,7 @@ from bar_policy.obs.action_prior import Prior, check_fits
 from bar_policy.training import eval_quality
 from bar_policy.training.config import NetworkConfig, PPOConfig
 from bar_policy.training.parallel import AXIS
-from bar_policy.training.ppo_loss import kl_estimate, ppo_loss
+from bar_policy.training.ppo_loss import ppo_loss
 
 __all__ = [
     "Learner",
@@ -193,7 +193,7 @@ class Learner:
             o, p, kk = c
             kk, k_loss = jax.random.split(kk)
             (_, metrics), grads = grad_fn(p, normalizer, mb, k_loss)
-            # The KL of the parameters the gradient is taken at (``approx_kl``, from the loss's own pass).
+            # The KL of the parameters the gradient is taken at (from the loss's own policy pass).
             kl = jax.lax.pmean(metrics["kl"], axis_name=AXIS)
             if ppo.schedule == "adaptive":
                 o = set_learning_rate(o, adapt_learning_rate(learning_rate(o), kl, ppo))
@@ -209,23 +209,6 @@ class Learner:
             minibatch, (opt_state, params, k_mb), jax.tree.map(shuffle, data)
         )
         return (opt_state, params, k), metrics
-
-    def approx_kl(
-        self, params: ppo_losses.PPONetworkParams, normalizer: Any, mb: types.Transition
-    ) -> jax.Array:
-        """KL(behaviour policy || current policy) on this device's minibatch, nats.
-
-        The KL of the joint (all action dimensions) distribution, averaged over the minibatch's states, as
-        rsl-rl measures it for its schedule.
-
-        Estimated by ``mean(r - 1 - log r)`` with ``r`` the probability ratio of the stored raw
-        (pre-tanh) actions (its expectation under the behaviour policy is the KL divergence; the tanh's
-        Jacobian cancels in the ratio).
-        """
-        logits = self.networks.policy_network.apply(normalizer, params.policy, mb.observation)
-        extras = mb.extras["policy_extras"]
-        new = self.networks.parametric_action_distribution.log_prob(logits, extras["raw_action"])
-        return kl_estimate(new, extras["log_prob"])
 
     def rollout(
         self, ts: TrainingState, env_state: Any, key: jax.Array, env: Any, unrolls: int
