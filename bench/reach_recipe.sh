@@ -32,6 +32,8 @@
 #   adabs256   adaptive with bs256
 #   s1bs256, s2bs256            bs256 on seeds 1 and 2
 #   s1bs256dt4, s2bs256dt4      the same at a 4 ms physics step (--env-overrides sim_dt=0.004)
+#   wp0, s1wp0, s2wp0           the wrist posture cost off (weight 0), seeds 0-2: the recipe before it
+#   wp03, s1wp03, s2wp03        the wrist posture cost at -0.3 instead of -0.1, seeds 0-2
 # Two runs per GPU (GPUS="0 1 2 3 0 1 2 3") need XLA_PYTHON_CLIENT_MEM_FRACTION=0.45: then only the env
 # steps to 95 % compare, not the env steps/s.
 # EXTRA="..." adds arguments to every run; MINUTES (default 2.2) is each run's budget from process start.
@@ -60,6 +62,12 @@ declare -A VARIANT=(
   [s2bs256]="--seed 2 --ppo.batch-size 256"
   [s1bs256dt4]="--seed 1 --ppo.batch-size 256 --env-overrides sim_dt=0.004"
   [s2bs256dt4]="--seed 2 --ppo.batch-size 256 --env-overrides sim_dt=0.004"
+  [wp0]="--env-overrides reward.scales.wrist_posture=0"
+  [s1wp0]="--seed 1 --env-overrides reward.scales.wrist_posture=0"
+  [s2wp0]="--seed 2 --env-overrides reward.scales.wrist_posture=0"
+  [wp03]="--env-overrides reward.scales.wrist_posture=-0.3"
+  [s1wp03]="--seed 1 --env-overrides reward.scales.wrist_posture=-0.3"
+  [s2wp03]="--seed 2 --env-overrides reward.scales.wrist_posture=-0.3"
   [adabs256]="--ppo.schedule adaptive --ppo.learning-rate 1e-3 --ppo.batch-size 256"
 )
 MINUTES=${MINUTES:-2.2}

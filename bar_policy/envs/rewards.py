@@ -3,9 +3,9 @@
 Every term returns a non-negative scalar; the sign lives only in the weight (a task's ``reward.scales``:
 rewards positive, costs negative), and the robot env (``bar_policy.envs.robot``) logs each scaled term as
 ``reward/<name>``. All functions are plain jnp arithmetic on unbatched inputs (vmap them for a batch).
-Reach uses ``reach_kernel``, ``success``, ``joint_limit`` and ``joint_vel``; tracking uses
-``joint_tracking``, ``body_pos_tracking`` and ``body_ori_tracking`` (with ``orientation_error``); both use
-``action_rate`` and ``torque``.
+Reach uses ``reach_kernel``, ``success``, ``joint_limit``, ``joint_deviation`` and ``joint_vel``; tracking
+uses ``joint_tracking``, ``body_pos_tracking`` and ``body_ori_tracking`` (with ``orientation_error``); both
+use ``action_rate`` and ``torque``.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ __all__ = [
     "action_rate",
     "body_ori_tracking",
     "body_pos_tracking",
+    "joint_deviation",
     "joint_limit",
     "joint_tracking",
     "joint_vel",
@@ -68,6 +69,15 @@ def joint_limit(q: jax.Array, lower: jax.Array, upper: jax.Array, soft_fraction:
     mid = 0.5 * (lower + upper)
     half = 0.5 * (upper - lower) * soft_fraction
     return jnp.sum(jnp.maximum(q - (mid + half), 0.0) + jnp.maximum((mid - half) - q, 0.0))
+
+
+def joint_deviation(q: jax.Array, q_ref: jax.Array) -> jax.Array:
+    """Cost ``sum_j |q_j - q_ref_j|``, rad, over the joints given (shapes ``(n,)``).
+
+    An L1 distance from a posture: it pulls as hard at 0.1 rad as at 0.5 rad, so it removes a habitual
+    offset rather than only its far tail.
+    """
+    return jnp.sum(jnp.abs(q - q_ref))
 
 
 def torque(tau_sq_normalised: jax.Array) -> jax.Array:

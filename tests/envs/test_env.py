@@ -111,6 +111,15 @@ def test_step_reward_metrics_and_resampling(nominal_env, nominal_fns):
     applied = (1.0 - np.exp(-2.0 * np.pi * 3.0 * 0.02)) * 0.25
     assert terms["reward/action_rate"] == pytest.approx(-0.1 * 14 * applied**2, rel=1e-5)
     assert terms["reward/action_accel"] == pytest.approx(-0.2 * 14 * applied**2, rel=1e-5)
+    # wrist_posture = -0.1 sum |q - q_default| over the six wrist joints, read from qpos at the compiled
+    # model's joint addresses, against the reference's piano_ready pose (the reach default; float32 q of
+    # order 1: 1e-6 is 8 ulp per joint).
+    wrists = [n for n in env.robot.joint_names if "wrist" in n]
+    assert len(wrists) == 6
+    qpos, q0 = np.asarray(s1.data.qpos), env.robot.pose("piano_ready")
+    dev = sum(abs(qpos[env.mj_model.joint(n).qposadr[0]] - q0[env.robot.index(n)]) for n in wrists)
+    assert dev > 1e-3  # the action moved the wrists, so the check is not 0 == 0
+    assert terms["reward/wrist_posture"] == pytest.approx(-0.1 * dev, abs=1e-6)
     # The previous-action slice of the obs is the action just applied (float32: 1e-7 on 0.0785).
     om = env.obs_manager
     np.testing.assert_allclose(om.split(np.asarray(s1.obs))["actions"], applied, atol=1e-7)

@@ -45,6 +45,14 @@ def test_joint_limit_hand_value():
     )
 
 
+def test_joint_deviation_hand_value():
+    # |0.3 - 0| + |-0.2 - 0.1| + |0.5 - 0.5| = 0.6 rad (L1: an offset's sign does not count).
+    q = jnp.array([0.3, -0.2, 0.5])
+    ref = jnp.array([0.0, 0.1, 0.5])
+    assert float(rewards.joint_deviation(q, ref)) == pytest.approx(0.6, abs=1e-6)
+    assert float(rewards.joint_deviation(ref, ref)) == 0.0
+
+
 def test_joint_vel_and_torque_hand_values():
     assert float(rewards.joint_vel(jnp.array([1.0, -2.0, 0.5]))) == pytest.approx(5.25)
     assert float(rewards.torque(jnp.float32(0.7))) == pytest.approx(0.7)

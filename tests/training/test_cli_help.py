@@ -99,7 +99,7 @@ def test_env_overrides_reach_the_env_config():
         (["--env-overrides", "reward.scales.nope=1"],
          "bar-train: error: --env-overrides: override 'reward.scales.nope': no field 'nope' in RewardScales; "
          "valid fields: ['reach_coarse', 'reach_fine', 'success', 'action_rate', 'action_accel', "
-         "'joint_limit', 'torque', 'torque_near_cap', 'joint_vel']"),
+         "'joint_limit', 'torque', 'torque_near_cap', 'joint_vel', 'wrist_posture']"),
         (["--env", "LiteTrack", "--env-overrides", "motion.clip_set=mocap"], "clip sets"),
         (["--env-overrides", "episode_length_s=long"], "episode_length_s=long: expected a number"),
         (["--env-overrides", "episode_length_s"], "must look like 'dotted.path=value'"),
