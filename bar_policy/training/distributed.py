@@ -3,32 +3,25 @@
 ``init_distributed`` connects this process to the coordinator (process 0) when a run names one;
 ``local_default_devices`` keeps MJX's model on this process's own device while the env is built;
 ``shutdown_distributed`` ends the session on every process once the run is over, the coordinator's service
-last, so no process is left talking to a coordinator that is gone.
+last, so no process is left talking to a coordinator that is gone (``watch_filter`` keeps the coordinator's
+own client's last word on it off stderr).
 """
 
 from __future__ import annotations
 
 import contextlib
-import os
-import re
-import sys
-import tempfile
 import time
 from collections.abc import Iterator
 from typing import Any
 
 from bar_policy.training.config import TrainConfig
+from bar_policy.training.watch_filter import install as install_watch_filter
 
-__all__ = ["drop_own_watch_cancelled", "init_distributed", "local_default_devices", "shutdown_distributed"]
+__all__ = ["init_distributed", "local_default_devices", "shutdown_distributed"]
 
 SERVICE_GRACE_S = 1.0
 """Seconds the coordinator waits, after every process passed the shutdown barrier, before it stops the
 coordination service (see ``shutdown_distributed``)."""
-
-_SETTLE_S = 0.3
-"""Seconds stderr stays captured after the service stopped (the cancelled watch logs from a gRPC thread;
-on an H100 its record was always in the capture)."""
-
 
 def init_distributed(cfg: TrainConfig) -> None:
     """``jax.distributed.initialize`` when a coordinator address is configured (multi-host).
@@ -91,12 +84,14 @@ def shutdown_distributed(timeout_s: float = 1800.0) -> None:
     2. ``jax.distributed.shutdown`` without the service: the preemption manager, then the client, whose
        shutdown barrier (all processes) is where each client stops polling and disconnects;
     3. process 0 only: ``SERVICE_GRACE_S`` for the other processes to disconnect and exit, then the
-       service (``_stop_service``).
+       service (``_stop_service``), with its stderr filtered from then on.
 
     Measured with 2 processes on one H100 (``local_device_ids=[0]`` each), 6 sessions of each order of
     exit: with 1-3 the other process printed nothing; process 0 still logged its own client's watch
-    ``UNAVAILABLE: Cancelling all calls`` as its service stopped, which ``_stop_service`` drops. On CPU
-    (jax 0.10.2 here) neither order printed anything, before or after.
+    ``UNAVAILABLE: Cancelling all calls`` as its service stopped. On two H100s (session 39) it logged
+    ``UNAVAILABLE: failed to connect to all addresses`` instead, after a capture of the stop alone had
+    ended: hence a filter to the process's end (``training.watch_filter``). On CPU (jax 0.10.2 here)
+    neither order printed anything, before or after.
 
     Args:
         timeout_s: how long a process waits at the barrier for the slowest one, s.
@@ -117,47 +112,13 @@ def shutdown_distributed(timeout_s: float = 1800.0) -> None:
         _stop_service(service, jax.process_index())
 
 
-_ABSL_HEADER = re.compile(r"^[IWEF]\d{4} \d\d:\d\d:\d\d\.\d+ ")
-"""The first line of an absl log record (``W1125 09:40:40.413933   676 file.cc:1605] message``)."""
-
-
-def drop_own_watch_cancelled(text: str, process_id: int) -> str:
-    """``text`` less the absl records of this process's task watch ended by its own service's stop.
-
-    A record is its header line (``_ABSL_HEADER``) and the lines up to the next header; dropped are the
-    records whose header says ``WatchTasksAsync failed for task <process_id>`` with ``Cancelling all
-    calls`` or ``CANCELLED``. Everything else (other records, other tasks, lines before any header) stays.
-    """
-    kept: list[str] = []
-    drop = False
-    own = f"WatchTasksAsync failed for task {process_id}:"
-    for line in text.splitlines(keepends=True):
-        if _ABSL_HEADER.match(line):
-            drop = own in line and ("Cancelling all calls" in line or "CANCELLED" in line)
-        if not drop:
-            kept.append(line)
-    return "".join(kept)
-
-
 def _stop_service(service: Any, process_id: int) -> None:
-    """Stop the coordination service with stderr (fd 2) captured; pass on all but its expected warning.
+    """Stop the coordination service, this process's stderr filtered from then on (``watch_filter``).
 
-    On a GPU host this process's own GPU client keeps a watch call open on the service, and stopping the
-    service cancels it: XLA's C++ logging then writes one warning record straight to fd 2 (no Python
-    logger or warnings filter sees it), from a gRPC thread, within the stop. The capture covers the stop
-    and ``_SETTLE_S`` after it; ``drop_own_watch_cancelled`` removes that record and nothing else.
+    On a GPU host this process's own GPU client keeps a watch call open on the service; the stop ends it,
+    and XLA's C++ logging writes its warning straight to fd 2 (no Python logger or warnings filter sees it),
+    during the stop or, when the client calls again, after it. ``watch_filter.install`` drops those records
+    of this process's task until the process ends and passes everything else on.
     """
-    sys.stderr.flush()
-    saved = os.dup(2)
-    with tempfile.TemporaryFile() as tmp:
-        os.dup2(tmp.fileno(), 2)
-        try:
-            service.shutdown()
-            time.sleep(_SETTLE_S)
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-        tmp.seek(0)
-        text = tmp.read().decode(errors="replace")
-    sys.stderr.write(drop_own_watch_cancelled(text, process_id))
-    sys.stderr.flush()
+    install_watch_filter(process_id)
+    service.shutdown()

@@ -392,7 +392,7 @@ def summary_table(s: RunSummary, cfg: TrainConfig) -> list[str]:
             if k not in ("success_rate", "episode_reward", "episode_reward_std", "final_distance", "episodes")
         ),
         ("ONNX", str(s.onnx_path) if s.onnx_path else "not exported"),
-        ("parity max abs error", f"{s.export.get('max_abs_error', math.nan):.2e}"),
+        ("parity max abs error", f"{e:.2e}" if (e := s.export.get("max_abs_error")) is not None else "-"),
         ("best iterate", _best_text(s.best)),
     ]
     width = max(len(k) for k, _ in rows)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import jax
 import numpy as np
@@ -131,6 +132,11 @@ def test_resume_continues_the_step_count(brax_run, toy_env, tmp_path, capsys):
     out = capsys.readouterr().out
     # The same training settings (another run name, budget, export and step count): nothing to list.
     assert "resumed " in out and "settings differ" not in out
+    # No ONNX file: the summary says so, and gives no parity figure (once "nan").
+    table = dict(
+        re.split(r"\s{2,}", line, maxsplit=1) for line in out.splitlines() if re.search(r"\S\s{2,}\S", line)
+    )
+    assert table["ONNX"] == "not exported" and table["parity max abs error"] == "-"
     train = _records(resumed.run_dir, "train")
     assert train[0]["step"] > first.env_steps
     assert resumed.env_steps == total == train[-1]["step"] and len(train) == 1
