@@ -312,9 +312,10 @@ class TrainConfig:
     executable_cache: bool = True
     """Executable cache in <cache directory>/executables (with the compile cache): a rerun of the same
     command and code loads each program without tracing, lowering or compiling it. Used on GPU backends;
-    on a CPU only with BAR_POLICY_EXECUTABLE_CACHE_ON_CPU=1; never in multi-process runs. H100, LiteReach
-    gpu preset (session 32): two warm runs loaded all 4 programs, first evaluation at 22.0 and 25.0 s
-    instead of 35-41 s with jax's persistent cache alone, same learning curve (docs/startup.md)."""
+    on a CPU only with BAR_POLICY_EXECUTABLE_CACHE_ON_CPU=1; under several processes each keeps its own
+    entries, loaded only when every process holds them. H100, LiteReach gpu preset (session 32): two warm
+    runs loaded all 4 programs, first evaluation at 22.0 and 25.0 s instead of 35-41 s with jax's
+    persistent cache alone, same learning curve (docs/startup.md)."""
     ppo: PPOConfig = field(default_factory=PPOConfig)
     network: NetworkConfig = field(default_factory=NetworkConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)

@@ -23,6 +23,7 @@ SERVICE_GRACE_S = 1.0
 """Seconds the coordinator waits, after every process passed the shutdown barrier, before it stops the
 coordination service (see ``shutdown_distributed``)."""
 
+
 def init_distributed(cfg: TrainConfig) -> None:
     """``jax.distributed.initialize`` when a coordinator address is configured (multi-host).
 

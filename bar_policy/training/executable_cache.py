@@ -31,9 +31,12 @@ compiled normally (and stored afresh): a stale or broken program is never served
 
 On by default on GPU backends (``--no-executable-cache`` turns it off): on one H100 two warm runs loaded all
 four programs and reached the first evaluation at 22.0 s and 25.0 s instead of 35-41 s (session 32). Off on
-a CPU unless ``BAR_POLICY_EXECUTABLE_CACHE_ON_CPU=1``, on other backends (unmeasured), with
-``--no-compile-cache``, and under multi-process ``jax.distributed`` (each process would load its own
-executable with no check that all loaded the same program). ``off_reason`` says which.
+a CPU unless ``BAR_POLICY_EXECUTABLE_CACHE_ON_CPU=1``, on other backends (unmeasured), and with
+``--no-compile-cache``; ``off_reason`` says which. Under several ``jax.distributed`` processes each stores and
+loads its own entries (the key holds the process index), and a program is loaded only when every process
+holds it (``startup.Compiler``, through ``parallel.all_agree``); otherwise every process compiles it, as in
+a cold run, whose independent compiles of one program are what jax's own persistent cache serves back
+too. An entry that passes that check but fails to load on one process is compiled there alone.
 """
 
 from __future__ import annotations
@@ -277,10 +280,12 @@ OUTSIDE_PROGRAMS = (
     "executable_cache",
     "autotune_seed",
     "eval.initial",
+    "distributed.coordinator_address",
 )
 """Training-config fields no compiled program reads (where the run is written, when it stops, what is
 exported, where caches live, whether XLA's autotune cache is seeded: that changes which implementation
-XLA picks for a fusion, never what the program computes; when the step-0 evaluation runs): left out of the
+XLA picks for a fusion, never what the program computes; when the step-0 evaluation runs; where the
+coordinator listens: the process count and index are in the key's platform part): left out of the
 key (a dotted name: a field of a section), so a rerun under another run name or wall-clock budget is
 served. Until stop 31 they were in it, and the GPU's warm runs missed (docs/startup.md)."""
 
@@ -303,8 +308,8 @@ def executable_cache_for(
 ) -> ExecutableCache | None:
     """The run's cache in ``<cache_dir>/executables``.
 
-    None when ``off_reason`` gives one (switched off, no compile cache, several processes, a CPU without
-    the opt-in, a backend other than a GPU) or a run crashed after loading from it (a warning line).
+    None when ``off_reason`` gives one (switched off, no compile cache, a CPU without the opt-in, a
+    backend other than a GPU) or a run crashed after loading from it (a warning line).
 
     Args:
         cfg: the run's ``TrainConfig``.
@@ -345,17 +350,15 @@ def off_reason(cfg: Any, cache_dir: Path | None, backend: str, process_count: in
     """Why the run gets no executable cache, '' when it gets one (the default decision, docs/startup.md).
 
     Args:
-        cfg: the run's ``TrainConfig`` (``executable_cache``, ``distributed.num_processes``).
+        cfg: the run's ``TrainConfig`` (``executable_cache``).
         cache_dir: jax's persistent cache directory, None when ``--no-compile-cache``.
         backend: ``jax.default_backend()``: ``gpu`` (CUDA or ROCm), ``cpu``, ``tpu``...
-        process_count: ``jax.process_count()``.
+        process_count: ``jax.process_count()`` (no longer a reason: each process keeps its own entries).
     """
     if not cfg.executable_cache:
         return "switched off, --no-executable-cache"
     if cache_dir is None:
         return "compile cache off"
-    if cfg.distributed.num_processes > 1 or process_count > 1:
-        return "multi-process run"
     if backend == "cpu":
         return "" if os.environ.get(CPU_ENV) == "1" else f"CPU backend; {CPU_ENV}=1 turns it on"
     return "" if backend == "gpu" else f"{backend} backend, unmeasured there"

@@ -152,12 +152,40 @@ def barrier(name: str, timeout_s: float = 1800.0) -> None:
     """
     if jax.process_count() == 1:
         return
+    _client().wait_at_barrier(name, int(timeout_s * 1000))
+
+
+_AGREE_CALLS: dict[str, int] = {}
+"""How often this process called ``all_agree`` with each name (the n-th calls of the processes meet)."""
+
+
+def all_agree(name: str, value: bool, timeout_s: float = 1800.0) -> bool:
+    """Whether ``value`` is True on every process; ``value`` itself in a single process.
+
+    Every process must make the same calls in the same order: the n-th call of a ``name`` on one process
+    meets the n-th on the others (``training.startup.Compiler``: whether every process holds a program in
+    its executable cache). Through the coordination service's key-value store, as ``barrier``: each process
+    sets its answer under the call's key, then waits up to ``timeout_s`` for every other one.
+    """
+    if jax.process_count() == 1:
+        return value
+    client = _client()
+    n = _AGREE_CALLS[name] = _AGREE_CALLS.get(name, 0) + 1
+    prefix = f"bar_policy/agree/{name}/{n}"
+    client.key_value_set(f"{prefix}/{jax.process_index()}", "1" if value else "0")
+    wait_ms = int(timeout_s * 1000)
+    answers = [client.blocking_key_value_get(f"{prefix}/{p}", wait_ms) for p in range(jax.process_count())]
+    return all(a == "1" for a in answers)
+
+
+def _client() -> Any:
+    """This process's ``jax.distributed`` client (several processes imply one)."""
     from jax._src import distributed
 
     client = distributed.global_state.client
     if client is None:  # pragma: no cover - process_count > 1 implies an initialised client
         raise RuntimeError("several processes but no jax.distributed client")
-    client.wait_at_barrier(name, int(timeout_s * 1000))
+    return client
 
 
 def choose_partitioner() -> str:

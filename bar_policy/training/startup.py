@@ -226,18 +226,21 @@ class Compiler:
         still traced here: for a program whose result the caller does not read (a warm start's brax update or
         rsl-rl step, whose seconds of loading then overlap what this thread does next).
         """
+        from bar_policy.training.parallel import all_agree
         from bar_policy.training.startup_breakdown import EXEC_LOAD, LOWER, TRACE
 
         cache = self.executable_cache
         key, inputs = cache.key(name, jitted, args) if cache is not None else ("", {})
-        if load_in_background and cache is not None and cache.has(key):
+        # Under several processes all load the program or none does (each compiles it, as a cold run).
+        stored = all_agree(f"executable {name}", cache is not None and cache.has(key))
+        if load_in_background and stored:
             background = True
         times = self.timer.program(name)
         times.thread = "worker" if background else "main"
 
         def load() -> Any:
             t = time.monotonic()
-            compiled = cache.load(key, name) if cache is not None else None
+            compiled = cache.load(key, name) if cache is not None and stored else None
             if compiled is not None:
                 times.executable, times.exec_load_s = "hit", time.monotonic() - t
                 if not background:

@@ -16,6 +16,7 @@ import os
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -33,18 +34,19 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-@pytest.fixture(scope="module")
-def dist_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("dist")
+def _launch(out: Path, cache: Path, run_name: str) -> Path:
+    """Both workers of one 2-process run into ``out`` (asserts they exit 0); their output is kept there."""
     env = {
         **os.environ,
         "JAX_PLATFORMS": "cpu",
         "XLA_FLAGS": "--xla_force_host_platform_device_count=2",
+        # The executable cache, off on a CPU by default: its multi-process path is what runs on GPUs.
+        "BAR_POLICY_EXECUTABLE_CACHE_ON_CPU": "1",
         # This checkout's bar_policy, whichever one is installed.
         "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])),
     }
     port = str(_free_port())
-    args = ["export_onnx=False", "--toy"]
+    args = ["export_onnx=False", f"compile_cache_dir={cache}", f"run_name={run_name}", "--toy"]
     procs = [
         subprocess.Popen(
             [sys.executable, str(WORKER), port, str(pid), str(out), *args],
@@ -68,6 +70,26 @@ def dist_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
         (out / f"process{pid}.out").write_text(stdout)
         (out / f"process{pid}.err").write_text(stderr)
     return out
+
+
+@pytest.fixture(scope="module")
+def dist_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("dist_cache")
+
+
+@pytest.fixture(scope="module")
+def dist_run(tmp_path_factory: pytest.TempPathFactory, dist_cache: Path) -> Path:
+    """The cold run: every program compiled by each process and stored in the executable cache."""
+    return _launch(tmp_path_factory.mktemp("dist"), dist_cache, "dist")
+
+
+@pytest.fixture(scope="module")
+def dist_warm(
+    tmp_path_factory: pytest.TempPathFactory, dist_cache: Path, dist_run: Path
+) -> tuple[Path, float]:
+    """The same run again on the same cache (another run name and coordinator port); its start time."""
+    started = time.time()
+    return _launch(tmp_path_factory.mktemp("dist_warm"), dist_cache, "dist_warm"), started
 
 
 def _result(out: Path, pid: int) -> dict:
@@ -130,3 +152,29 @@ def test_startup_record_counts_from_the_process_start(dist_run):
     # and the stand-in env builds no MuJoCo model.
     assert phases[sb.BEFORE_RUN] > 0 and phases[sb.DISTRIBUTED] > 0 and phases[MODEL_BUILD] == 0.0
     assert sum(phases.values()) == pytest.approx(rec["total_s"], abs=0.02)
+
+
+def test_warm_run_loads_every_program_on_both_processes_and_trains_the_same(dist_run, dist_warm, dist_cache):
+    """Under two processes the executable cache serves the second run: each process stored its own five
+    programs (reset, rollout, update, init, evaluate) in the cold run, loaded all of them in the warm one
+    (each load touches its entry), compiled none, and both runs end with the same parameters."""
+    warm, started = dist_warm
+    entries = sorted((dist_cache / "executables").glob("*.bin"))
+    sidecars = [json.loads(p.with_suffix(".json").read_text()) for p in entries]
+    assert len(entries) == 10, [p.name for p in entries]  # 5 programs x 2 processes, nothing added warm
+    assert sorted(s["platform"]["process_index"] for s in sidecars) == [0] * 5 + [1] * 5
+    assert all(p.stat().st_mtime >= started for p in entries)  # every entry loaded by the warm run
+    record = json.loads((warm / "dist_warm" / "final_eval.json").read_text())["startup"]["programs"]
+    assert {name: r["executable"] for name, r in record.items()} == dict.fromkeys(
+        ("evaluate", "init", "reset", "rollout", "update"), "hit"
+    )
+    for pid in (0, 1):
+        cold, again = _result(dist_run, pid), _result(warm, pid)
+        leaves = sorted(k for k in cold if k.startswith("arr_"))
+        assert len(leaves) > 10 and all(np.array_equal(cold[k], again[k]) for k in leaves)
+        assert int(again["env_steps"]) == 4 * 512
+    # The warm run's output is as clean as the cold run's.
+    for pid in (0, 1):
+        text = (warm / f"process{pid}.err").read_text()
+        for needle in ("Failed to connect", "CANCELLED", "unusable"):
+            assert needle not in text, f"process {pid}: {needle!r}\n{text[-3000:]}"
