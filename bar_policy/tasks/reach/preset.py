@@ -27,7 +27,8 @@ Measured (docs/benchmarks.md "Session 37", one or two runs per H100, evaluations
   of 14 4 ms files (sessions 36-38, the default command's own six included) eleven passed, as did four of
   five 2 ms files; every miss was torque-cap time at the episode's first command (two reward costs on it
   were tried in session 38 and rejected). The env's ``wrist_posture`` cost (session 39) aims at its cause:
-  its three files (seeds 0-2) reached 95 % at 1.64 M env steps each and all three passed.
+  its three files (seeds 0-2) reached 95 % at 1.64 M env steps each, and these three and the default
+  command's cold and warm files on another host all passed (docs/benchmarks.md "Session 39").
   ``--env-overrides sim_dt=0.002`` trains at the model's own step (a path given on the command line
   replaces the preset's value for it; the preset's other items stay).
 - 24 evaluations: one every 44 iterations (1.80 M env steps), the first just past the 1.64 M crossing, so a
