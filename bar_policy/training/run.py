@@ -22,6 +22,7 @@ from typing import Any
 
 from bar_policy.training import startup_breakdown as sb
 from bar_policy.training.autotune_seed import seed_in_background
+from bar_policy.training.backend_env import set_backend_env
 from bar_policy.training.best import finish_best
 from bar_policy.training.config import TrainConfig, config_to_dict
 from bar_policy.training.distributed import init_distributed, local_default_devices, shutdown_distributed
@@ -60,22 +61,6 @@ class RunSummary:
     best: dict[str, Any] = dataclasses.field(default_factory=dict)
     """The best evaluated iterate (``bar_policy.training.best.finish_best``): ``step``, ``is_last``, and
     when it is not the last iterate its ``final_eval`` and ``onnx``."""
-
-
-def _set_memory_env(cfg: TrainConfig) -> None:
-    """rsl-rl: let torch have the GPU memory that XLA would otherwise preallocate (75 % by default).
-
-    Sets ``XLA_PYTHON_CLIENT_PREALLOCATE=false`` (jax grows its pool on demand) unless the user set it or
-    ``XLA_PYTHON_CLIENT_MEM_FRACTION``; it takes effect only if jax has not started its GPU backend yet
-    (``python train/ppo.py`` calls this first).
-    """
-    import os
-
-    if cfg.backend == "rsl-rl" and not {
-        "XLA_PYTHON_CLIENT_PREALLOCATE",
-        "XLA_PYTHON_CLIENT_MEM_FRACTION",
-    } & set(os.environ):
-        os.environ["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"
 
 
 def resolve_run_dir(cfg: TrainConfig, *, check: bool = True) -> Path:
@@ -183,7 +168,7 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
         timer.origin_name = "process start"
         timer.add(sb.BEFORE_RUN, t0 - started_at)
     with timer.phase(sb.IMPORTS):
-        _set_memory_env(cfg)
+        env_notes = set_backend_env(cfg)  # before anything starts jax's backend
         if cfg.backend == "rsl-rl" and cfg.distributed.num_processes > 1:
             raise ValueError(
                 "the rsl-rl backend runs in one process on one device; use --backend brax for several"
@@ -231,7 +216,7 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
         partitioner_note = (
             f"partitioner: {partitioner} (JAX_USE_SHARDY_PARTITIONER in the environment chooses)"
         )
-        run_dir, logger, record = _open_run(cfg, env, is_main, [cache_note, partitioner_note])
+        run_dir, logger, record = _open_run(cfg, env, is_main, [cache_note, partitioner_note, *env_notes])
         exec_cache = executable_cache_for(cfg, cache_dir, record, env)
         if is_main:
             logger.print(executable_cache_line(cfg, cache_dir, exec_cache))

@@ -90,21 +90,23 @@ def test_compile_stats_count_a_fresh_compile():
 def test_rsl_rl_runs_let_torch_have_the_gpu_memory(monkeypatch):
     import dataclasses
 
+    from bar_policy.training.backend_env import set_backend_env
     from bar_policy.training.config import preset
-    from bar_policy.training.run import _set_memory_env
 
     for var in ("XLA_PYTHON_CLIENT_PREALLOCATE", "XLA_PYTHON_CLIENT_MEM_FRACTION"):
         monkeypatch.delenv(var, raising=False)
+    monkeypatch.setenv("PJRT_NPROC", "2")  # the user's choice: the CPU-thread part leaves it alone
     brax, rsl = preset("tiny"), dataclasses.replace(preset("tiny"), backend="rsl-rl")
-    _set_memory_env(brax)
+    assert set_backend_env(brax) == []
     assert "XLA_PYTHON_CLIENT_PREALLOCATE" not in os.environ
-    _set_memory_env(rsl)
+    set_backend_env(rsl)
     assert os.environ["XLA_PYTHON_CLIENT_PREALLOCATE"] == "false"
     # A user's own setting wins.
     monkeypatch.delenv("XLA_PYTHON_CLIENT_PREALLOCATE")
     monkeypatch.setenv("XLA_PYTHON_CLIENT_MEM_FRACTION", "0.3")
-    _set_memory_env(rsl)
+    set_backend_env(rsl)
     assert "XLA_PYTHON_CLIENT_PREALLOCATE" not in os.environ
+    assert os.environ["PJRT_NPROC"] == "2"
 
 
 def test_runs_compile_with_gspmd_unless_the_user_chose(monkeypatch):

@@ -1,0 +1,96 @@
+"""Environment a run sets before jax starts its backend: GPU memory for torch, CPU threads for LAPACK.
+
+``set_backend_env(cfg)`` runs first in ``run`` (before anything touches a device) and returns the notes the
+run prints under its header:
+
+- **rsl-rl and GPU memory.** ``XLA_PYTHON_CLIENT_PREALLOCATE=false`` (jax grows its pool on demand instead of
+  taking 75 % of the GPU), so torch has the memory, unless the user set it or
+  ``XLA_PYTHON_CLIENT_MEM_FRACTION``.
+- **A deadlock of jaxlib 0.10's CPU LAPACK kernels.** jaxlib < 0.11 splits a batched LAPACK call (Cholesky,
+  triangular solve) over XLA's CPU thread pool once ``batch x cost per matrix >= 200,000`` and the pool has
+  more than one thread, and the calling thread waits for the pieces. The MJX step has two independent
+  batched Choleskys per physics substep (the mass matrix and the constraint solver's Hessian, nv = 14:
+  914 per matrix), so from 219 envs per device XLA may run both at once, one on each thread of a 2-thread
+  pool, each waiting for pieces no free thread will run: the process stops for good (on this project's
+  2-core CPU, ``--ppo.num-envs 256`` and 512 hung in their first epoch; gdb: both ``tf_XLAEigen`` threads in
+  ``lapack_spotrf_ffi -> ParallelBatchMap -> BlockingCounter::Wait``). jax fixed it upstream after 0.11.0
+  (the kernels no longer split in open-source builds). A 1-thread pool never splits, so on a CPU-only run
+  with such a jaxlib and at most ``SMALL_CPU`` cores this sets ``PJRT_NPROC=1`` (the size of XLA's CPU pool),
+  unless the user set it. On the 2-core CPU that also trained faster: 876 against 766 env steps/s at 128
+  envs. A larger pool avoids the deadlock while fewer LAPACK calls run at once than it has threads (3 and 4
+  threads ran at 256 envs), so more cores are left alone; ``PJRT_NPROC=1`` in the environment is the
+  remedy there if a run stops. If jax's backend is already running (a library caller used jax first), the
+  variable would do nothing: a note says so instead.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import os
+from typing import Any
+
+__all__ = ["SMALL_CPU", "cpu_threads_decision", "set_backend_env"]
+
+SMALL_CPU = 2
+"""Cores (this process's CPU affinity) up to which a CPU-only run on an affected jaxlib gets one XLA
+thread."""
+
+NPROC = "PJRT_NPROC"
+"""The environment variable XLA reads for its CPU thread pool's size."""
+
+
+def cpu_threads_decision(
+    *, cpu_only: bool, jaxlib_version: str, cores: int, user_set: bool, backend_started: bool
+) -> str:
+    """What to do about the LAPACK deadlock (module docstring): ``set``, ``note`` or ``none``.
+
+    ``set``: set ``PJRT_NPROC=1``; ``note``: the conditions hold but the backend already runs (only a note
+    can help); ``none``: not affected (a GPU run, jaxlib >= 0.11, more than ``SMALL_CPU`` cores) or the user
+    chose the pool size.
+    """
+    major_minor = tuple(int(p) for p in jaxlib_version.split(".")[:2])
+    if not cpu_only or major_minor >= (0, 11) or cores > SMALL_CPU or user_set:
+        return "none"
+    return "note" if backend_started else "set"
+
+
+def _cpu_only() -> bool:
+    """Whether jax will run on the CPU alone.
+
+    ``JAX_PLATFORMS`` (or jax's config) names only ``cpu``, or no accelerator plugin is installed (the
+    ``jax_plugins`` entry points: jax-cuda12/13, ROCm, TPU).
+    """
+    import jax
+
+    platforms = (jax.config.jax_platforms or os.environ.get("JAX_PLATFORMS") or "").strip()
+    if platforms:
+        return all(p.strip() == "cpu" for p in platforms.split(","))
+    return not list(importlib.metadata.entry_points(group="jax_plugins"))
+
+
+def set_backend_env(cfg: Any) -> list[str]:
+    """Set the variables above for ``cfg`` (a ``TrainConfig``) where they apply; returns the run's notes."""
+    import jaxlib
+    from jax._src import xla_bridge
+
+    notes = []
+    memory = {"XLA_PYTHON_CLIENT_PREALLOCATE", "XLA_PYTHON_CLIENT_MEM_FRACTION"}
+    if cfg.backend == "rsl-rl" and not memory & set(os.environ):
+        os.environ["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"
+    decision = cpu_threads_decision(
+        cpu_only=_cpu_only(),
+        jaxlib_version=jaxlib.__version__,
+        cores=len(os.sched_getaffinity(0)),
+        user_set=NPROC in os.environ,
+        backend_started=xla_bridge.backends_are_initialized(),
+    )
+    why = f"jaxlib {jaxlib.__version__}'s batched LAPACK deadlocks a small CPU pool from 219 envs"
+    if decision == "set":
+        os.environ[NPROC] = "1"
+        notes.append(f"CPU threads: {NPROC}=1 ({why}; training.backend_env)")
+    elif decision == "note":
+        notes.append(
+            f"note: jax's CPU backend already runs with its own thread pool ({why}): if this run stops, "
+            f"set {NPROC}=1 before jax starts"
+        )
+    return notes

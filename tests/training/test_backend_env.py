@@ -1,0 +1,80 @@
+"""The CPU-thread setting against jaxlib 0.10's LAPACK deadlock (``training.backend_env``).
+
+The decision is a pure function of the conditions; the subprocess test runs, on a machine where the run
+would set it (jaxlib < 0.11, at most ``SMALL_CPU`` cores), the smallest program that deadlocked here:
+four independent batched Choleskys of 256 14x14 matrices in a loop. Without the setting it stopped in 6 of
+6 runs within 150 calls (docs/benchmarks.md "Session 39"); with it the process keeps one XLA thread.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import jaxlib
+import pytest
+
+from bar_policy.training.backend_env import SMALL_CPU, cpu_threads_decision
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_decision_table():
+    base = {"cpu_only": True, "jaxlib_version": "0.10.2", "cores": 2, "user_set": False}
+    base["backend_started"] = False
+    assert cpu_threads_decision(**base) == "set"
+    assert cpu_threads_decision(**{**base, "cores": 1}) == "set"
+    assert cpu_threads_decision(**{**base, "backend_started": True}) == "note"  # too late to set
+    assert cpu_threads_decision(**{**base, "user_set": True}) == "none"  # the user's pool size stays
+    assert cpu_threads_decision(**{**base, "cpu_only": False}) == "none"  # a GPU run
+    assert cpu_threads_decision(**{**base, "jaxlib_version": "0.11.2"}) == "none"  # fixed upstream
+    assert cpu_threads_decision(**{**base, "jaxlib_version": "1.0.0"}) == "none"
+    assert cpu_threads_decision(**{**base, "cores": SMALL_CPU + 1}) == "none"  # a larger pool
+
+
+AFFECTED = (
+    tuple(int(p) for p in jaxlib.__version__.split(".")[:2]) < (0, 11)
+    and len(os.sched_getaffinity(0)) <= SMALL_CPU
+)
+
+
+@pytest.mark.skipif(not AFFECTED, reason="this machine's run would not set PJRT_NPROC (jaxlib or cores)")
+def test_batched_choleskys_that_deadlocked_run_with_the_setting():
+    script = textwrap.dedent(
+        """
+        import dataclasses, os
+        from pathlib import Path
+        from bar_policy.training.backend_env import set_backend_env
+        from bar_policy.training.config import preset
+        notes = set_backend_env(preset("tiny"))
+        assert os.environ["PJRT_NPROC"] == "1" and "PJRT_NPROC=1" in notes[0], notes
+        import jax, jax.numpy as jnp
+        B, N, K = 256, 14, 4  # 256 x 14^3 / 3 = 234k >= 200k: jaxlib 0.10 splits each call over the pool
+        x = jax.random.normal(jax.random.PRNGKey(0), (B, N, N))
+        spd = x @ jnp.swapaxes(x, -1, -2) + N * jnp.eye(N)
+
+        @jax.jit
+        def f(a):
+            def body(i, c):
+                outs = []
+                for k in range(K):  # independent inputs: XLA may run the K factorisations at once
+                    big = jnp.tanh(jnp.broadcast_to(c[k][:, None], (B, 64, N, N)) * 1e-3).sum(1)
+                    outs.append(jnp.linalg.cholesky(a + k + 1e-3 * big @ jnp.swapaxes(big, -1, -2)))
+                return outs
+            return jax.lax.fori_loop(0, 20, body, [a] * K)
+
+        for _ in range(150):
+            out = jax.block_until_ready(f(spd))
+        names = [p.read_text().strip() for p in Path("/proc/self/task").glob("*/comm")]
+        pool = sum(n == "tf_XLAEigen" for n in names)
+        print("xla threads", pool, "finite", bool(jnp.isfinite(out[0]).all()))
+        """
+    )
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONPATH": str(REPO)}
+    env.pop("PJRT_NPROC", None)
+    r = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "xla threads 1 finite True" in r.stdout, r.stdout
