@@ -319,7 +319,7 @@ def executable_cache_for(
     """
     import jax
 
-    if off_reason(cfg, cache_dir, jax.default_backend(), jax.process_count()):
+    if off_reason(cfg, cache_dir, jax.default_backend()):
         return None
     cls = type(env)
     context = {
@@ -346,14 +346,13 @@ def _crashed_marker(directory: Path) -> Path:
     return directory / f"crashed-{jax.default_backend()}-jaxlib-{jaxlib.__version__}"
 
 
-def off_reason(cfg: Any, cache_dir: Path | None, backend: str, process_count: int) -> str:
+def off_reason(cfg: Any, cache_dir: Path | None, backend: str) -> str:
     """Why the run gets no executable cache, '' when it gets one (the default decision, docs/startup.md).
 
     Args:
         cfg: the run's ``TrainConfig`` (``executable_cache``).
         cache_dir: jax's persistent cache directory, None when ``--no-compile-cache``.
         backend: ``jax.default_backend()``: ``gpu`` (CUDA or ROCm), ``cpu``, ``tpu``...
-        process_count: ``jax.process_count()`` (no longer a reason: each process keeps its own entries).
     """
     if not cfg.executable_cache:
         return "switched off, --no-executable-cache"
@@ -370,5 +369,5 @@ def executable_cache_line(cfg: Any, cache_dir: Path | None, cache: ExecutableCac
         return f"executable cache: {cache.directory} (docs/startup.md)"
     import jax
 
-    why = off_reason(cfg, cache_dir, jax.default_backend(), jax.process_count())
+    why = off_reason(cfg, cache_dir, jax.default_backend())
     return f"executable cache: off ({why or 'a run crashed after loading from it: see the warning above'})"

@@ -29,7 +29,7 @@ import subprocess
 import sys
 from collections.abc import Iterable, Iterator
 
-__all__ = ["HEADER", "drop_own_watch_records", "install", "is_own_watch_end"]
+__all__ = ["HEADER", "drop_own_watch_records", "install"]
 
 HEADER = re.compile(r"^[IWEF]\d{4} \d\d:\d\d:\d\d\.\d+ ")
 """The first line of an absl log record."""
@@ -40,13 +40,13 @@ _ENDED = ("Cancelling all calls", "CANCELLED", "failed to connect to all address
 """What the record of a watch ended by its own service's stop says (module docstring)."""
 
 
-def is_own_watch_end(header: str, process_id: int) -> bool:
+def _is_own_watch_end(header: str, process_id: int) -> bool:
     """Whether an absl header line is this process's task watch ended by its own service's stop."""
     return f"WatchTasksAsync failed for task {process_id}:" in header and any(s in header for s in _ENDED)
 
 
 def drop_own_watch_records(lines: Iterable[str], process_id: int) -> Iterator[str]:
-    """``lines`` (each with its newline) less the records that ``is_own_watch_end`` names; lazily.
+    """``lines`` (each with its newline) less the records that ``_is_own_watch_end`` names; lazily.
 
     Everything else (other records, other tasks' watches, lines before any record or after a dropped
     record's empty line) is yielded unchanged, so the filter can run on a stream.
@@ -54,7 +54,7 @@ def drop_own_watch_records(lines: Iterable[str], process_id: int) -> Iterator[st
     drop = False
     for line in lines:
         if HEADER.match(line):
-            drop = is_own_watch_end(line, process_id)
+            drop = _is_own_watch_end(line, process_id)
         elif drop and not line.strip():
             drop = False  # the record's closing empty line: dropped with it, and the record is over
             continue

@@ -230,25 +230,24 @@ def test_an_entry_under_another_key_is_refused(tmp_path, caplog):
 
 
 def test_default_is_on_for_gpus_and_several_processes_off_on_cpus(tmp_path, monkeypatch):
-    """The default decision (docs/startup.md, "Switches"), backend and process count given explicitly.
+    """The default decision (docs/startup.md, "Switches"), the backend given explicitly.
 
     Several processes keep it on since session 39: each stores and loads its own entries, and a program is
     loaded only when all hold it (``test_distributed.py`` runs that path)."""
     cfg = preset("tiny")
     assert cfg.executable_cache is True and preset("gpu").executable_cache is True
     monkeypatch.delenv(ec.CPU_ENV, raising=False)
-    assert ec.off_reason(cfg, tmp_path, "gpu", 1) == ""  # on
-    assert ec.off_reason(cfg, tmp_path, "cpu", 1) == f"CPU backend; {ec.CPU_ENV}=1 turns it on"
-    assert ec.off_reason(cfg, tmp_path, "tpu", 1) == "tpu backend, unmeasured there"
-    assert ec.off_reason(cfg, tmp_path, "gpu", 2) == ""
+    assert ec.off_reason(cfg, tmp_path, "gpu") == ""  # on
+    assert ec.off_reason(cfg, tmp_path, "cpu") == f"CPU backend; {ec.CPU_ENV}=1 turns it on"
+    assert ec.off_reason(cfg, tmp_path, "tpu") == "tpu backend, unmeasured there"
     several = apply_overrides(cfg, ["distributed.num_processes=2"])
-    assert ec.off_reason(several, tmp_path, "gpu", 1) == ""
-    assert ec.off_reason(cfg, None, "gpu", 1) == "compile cache off"
+    assert ec.off_reason(several, tmp_path, "gpu") == ""
+    assert ec.off_reason(cfg, None, "gpu") == "compile cache off"
     off = apply_overrides(cfg, ["executable_cache=False"])
-    assert ec.off_reason(off, tmp_path, "gpu", 1) == "switched off, --no-executable-cache"
+    assert ec.off_reason(off, tmp_path, "gpu") == "switched off, --no-executable-cache"
     monkeypatch.setenv(ec.CPU_ENV, "1")
-    assert ec.off_reason(cfg, tmp_path, "cpu", 1) == ""  # the CPU opt-in
-    assert ec.off_reason(cfg, tmp_path, "cpu", 2) == ""  # several processes too
+    assert ec.off_reason(cfg, tmp_path, "cpu") == ""  # the CPU opt-in
+    assert ec.off_reason(several, tmp_path, "cpu") == ""  # several processes too
     # The run's log line names the reason (this process is a CPU).
     monkeypatch.delenv(ec.CPU_ENV)
     line = ec.executable_cache_line(cfg, tmp_path, None)
