@@ -34,6 +34,11 @@
 #   s1bs256dt4, s2bs256dt4      the same at a 4 ms physics step (--env-overrides sim_dt=0.004)
 #   wp0, s1wp0, s2wp0           the wrist posture cost off (weight 0), seeds 0-2: the recipe before it
 #   wp03, s1wp03, s2wp03        the wrist posture cost at -0.3 instead of -0.1, seeds 0-2
+#   eps0, s1eps0, s2eps0        the normaliser without its variance floor (ppo.obs_std_eps 0), seeds 0-2
+#   vt, s1vt, s2vt              value targets and advantages fixed per iteration (ppo.value_targets), seeds 0-2
+#   vteps0, s1vteps0, s2vteps0  vt without the variance floor
+#   pass, s1pass, s2pass        value targets and advantages fixed per SGD pass (ppo.value_targets pass)
+#   passeps0, s1passeps0, s2passeps0  pass without the variance floor
 # Two runs per GPU (GPUS="0 1 2 3 0 1 2 3") need XLA_PYTHON_CLIENT_MEM_FRACTION=0.45: then only the env
 # steps to 95 % compare, not the env steps/s.
 # EXTRA="..." adds arguments to every run; MINUTES (default 2.2) is each run's budget from process start.
@@ -68,6 +73,21 @@ declare -A VARIANT=(
   [wp03]="--env-overrides reward.scales.wrist_posture=-0.3"
   [s1wp03]="--seed 1 --env-overrides reward.scales.wrist_posture=-0.3"
   [s2wp03]="--seed 2 --env-overrides reward.scales.wrist_posture=-0.3"
+  [eps0]="--ppo.obs-std-eps 0"
+  [s1eps0]="--seed 1 --ppo.obs-std-eps 0"
+  [s2eps0]="--seed 2 --ppo.obs-std-eps 0"
+  [vt]="--ppo.value-targets iteration"
+  [s1vt]="--seed 1 --ppo.value-targets iteration"
+  [s2vt]="--seed 2 --ppo.value-targets iteration"
+  [vteps0]="--ppo.value-targets iteration --ppo.obs-std-eps 0"
+  [s1vteps0]="--seed 1 --ppo.value-targets iteration --ppo.obs-std-eps 0"
+  [s2vteps0]="--seed 2 --ppo.value-targets iteration --ppo.obs-std-eps 0"
+  [pass]="--ppo.value-targets pass"
+  [s1pass]="--seed 1 --ppo.value-targets pass"
+  [s2pass]="--seed 2 --ppo.value-targets pass"
+  [passeps0]="--ppo.value-targets pass --ppo.obs-std-eps 0"
+  [s1passeps0]="--seed 1 --ppo.value-targets pass --ppo.obs-std-eps 0"
+  [s2passeps0]="--seed 2 --ppo.value-targets pass --ppo.obs-std-eps 0"
   [adabs256]="--ppo.schedule adaptive --ppo.learning-rate 1e-3 --ppo.batch-size 256"
 )
 MINUTES=${MINUTES:-2.2}

@@ -154,14 +154,19 @@ class PPOConfig:
     """Global gradient-norm clip (<= 0 disables it)."""
     normalize_observations: bool = True
     """Keep running mean/std of observations and feed (obs - mean) / std to the networks."""
+    obs_std_eps: float = 1e-4
+    """Added to the observations' running variance, (obs unit)^2 (brax's ``std_eps``): std >= 0.01, as in
+    rsl-rl's normaliser. At 0 (brax's) reach's first targets (1.3 mm apart) gave z = 30 (docs/training.md)."""
+    value_targets: Literal["minibatch", "pass", "iteration"] = "pass"
+    """GAE's targets and advantages from the critic at every minibatch (brax), at each SGD pass's start, or
+    once per iteration (rsl-rl); ``ppo_loss.value_targets``. Reach's value loss spiked at minibatch, not at
+    pass, which learns as fast (docs/training.md). brax backend; track and piano keep minibatch."""
     vf_loss_coefficient: float = 0.5
     """Weight of the value loss."""
     actor_warmup_iterations: int = 0
-    """Training iterations at the start in which only the critic learns: the policy's gradients are zeroed,
-    so the policy stays exactly as initialised (brax backend). With an action prior the first PPO updates,
-    taken against a critic that knows nothing yet, push the policy off the prior (the piano: F1 0.70 ->
-    0.23 in 2.3M steps, docs/piano.md); a warm-up lets the value function learn the prior's returns
-    first. 0: off."""
+    """First iterations in which only the critic learns (policy gradients zeroed; brax backend): against an
+    untrained critic the first updates push the policy off an action prior (piano: F1 0.70 -> 0.23 in 2.3M
+    steps, docs/piano.md). 0: off."""
 
     def __post_init__(self) -> None:
         ints = ("num_timesteps", "num_envs", "unroll_length", "batch_size", "num_minibatches")
@@ -181,6 +186,8 @@ class PPOConfig:
                 f"ppo.desired_kl > 0, got {self.min_learning_rate}, {self.learning_rate}, "
                 f"{self.max_learning_rate}, {self.desired_kl}"
             )
+        if not 0 <= self.obs_std_eps < float("inf"):
+            raise ValueError(f"ppo.obs_std_eps must be a finite variance >= 0, got {self.obs_std_eps}")
         if not 0 < self.discounting <= 1 or not 0 <= self.gae_lambda <= 1:
             raise ValueError(f"discounting must be in (0, 1] and gae_lambda in [0, 1], got {self}")
         if self.actor_warmup_iterations < 0:
@@ -196,10 +203,9 @@ class PPOConfig:
 class RslRlConfig:
     """Settings that only the rsl-rl backend uses (the rest comes from ``PPOConfig``).
 
-    Mapping: num_steps_per_env = ppo.steps_per_iteration / ppo.num_envs (the env steps of one brax
-    iteration), num_learning_epochs = ppo.num_updates_per_batch, num_mini_batches = ppo.num_minibatches,
-    gamma = ppo.discounting, lam = ppo.gae_lambda, clip_param = ppo.clipping_epsilon,
-    entropy_coef = ppo.entropy_cost.
+    Mapping: num_steps_per_env = ppo.steps_per_iteration / ppo.num_envs, num_learning_epochs =
+    ppo.num_updates_per_batch, num_mini_batches = ppo.num_minibatches, gamma = ppo.discounting, lam =
+    ppo.gae_lambda, clip_param = ppo.clipping_epsilon, entropy_coef = ppo.entropy_cost.
     """
 
     schedule: Literal["adaptive", "fixed"] = "adaptive"
@@ -217,8 +223,7 @@ class EvalConfig:
     """Periodic evaluation on fresh seeds (deterministic policy, domain randomisation as in training)."""
 
     num_evals: int = 11
-    """Evaluations over the run (the untrained policy's at step 0 counted, see ``initial``; the last at the
-    end)."""
+    """Evaluations over the run (step 0's counted, see ``initial``; the last at the end)."""
     num_eval_envs: int = 1024
     """Episodes per evaluation (one per parallel env)."""
     success_threshold: float = 0.95

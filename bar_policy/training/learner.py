@@ -37,7 +37,7 @@ from bar_policy.obs.action_prior import Prior, check_fits
 from bar_policy.training import eval_quality
 from bar_policy.training.config import NetworkConfig, PPOConfig
 from bar_policy.training.parallel import AXIS
-from bar_policy.training.ppo_loss import ppo_loss
+from bar_policy.training.ppo_loss import ppo_loss, value_targets
 
 __all__ = [
     "Learner",
@@ -159,10 +159,18 @@ class Learner:
                 optimizer_state=self.optimizer.init(params),
                 params=params,
                 normalizer_params=running_statistics.init_state(
-                    specs.Array((self.observation_size,), jnp.float32)
+                    specs.Array((self.observation_size,), jnp.float32), std_eps=self.ppo.obs_std_eps
                 ),
             )
         )
+
+    def _with_targets(self, params: Any, normalizer: Any, data: types.Transition) -> types.Transition:
+        """``data`` with ``extras["value_targets"]`` (``ppo_loss.value_targets`` under ``params``' critic)."""
+        ppo = self.ppo
+        targets = value_targets(
+            params, normalizer, data, self.networks, ppo.discounting, ppo.reward_scaling, ppo.gae_lambda
+        )
+        return data._replace(extras={**data.extras, "value_targets": targets})
 
     def _sgd_pass(self, carry: tuple, data: types.Transition, normalizer: Any) -> tuple:
         """One shuffled pass of ``num_minibatches`` Adam steps over this device's segments."""
@@ -183,6 +191,8 @@ class Learner:
         grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
         warmup_steps = ppo.actor_warmup_iterations * ppo.num_updates_per_batch * ppo.num_minibatches
 
+        if ppo.value_targets == "pass":  # fixed for this pass, from the critic it starts with
+            data = self._with_targets(params, normalizer, data)
         # One permutation for every leaf: brax's per-leaf ``jax.random.permutation(k_perm, x)`` order.
         perm = jax.random.permutation(k_perm, jax.tree.leaves(data)[0].shape[0])
 
@@ -262,6 +272,8 @@ class Learner:
         normalizer = ts.normalizer_params
         if ppo.normalize_observations:
             normalizer = running_statistics.update(normalizer, data.observation, pmap_axis_name=AXIS)
+        if ppo.value_targets == "iteration":  # fixed for the iteration, from the critic that collected it
+            data = self._with_targets(ts.params, normalizer, data)
         (opt_state, params, _), metrics = jax.lax.scan(
             lambda c, _: self._sgd_pass(c, data, normalizer),
             (ts.optimizer_state, ts.params, key),

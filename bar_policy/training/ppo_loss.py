@@ -5,6 +5,10 @@ value clipping (the configuration the learner uses): GAE from the current critic
 clipped probability ratio, the value loss, the entropy bonus of brax's tanh-normal (with its sampled Jacobian
 term). A test holds the loss and its gradients equal to brax's (``tests/training/test_ppo_loss.py``).
 
+With targets in ``data.extras["value_targets"]`` (``value_targets``: GAE taken once per SGD pass or per
+iteration, ``PPOConfig.value_targets``) the loss uses them instead of recomputing GAE, and runs the critic on
+the steps only: brax's loss at the parameters the targets were taken at, fixed targets after.
+
 What differs is the program, not the numbers. On one H100 the update runs about 160 kernels per Adam step
 of a few microseconds each (docs/benchmarks.md, sessions 35 and 37), so its time is their count:
 
@@ -32,7 +36,7 @@ from brax.training import types
 from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import networks as ppo_networks
 
-__all__ = ["gae", "kl_estimate", "ppo_loss"]
+__all__ = ["gae", "kl_estimate", "ppo_loss", "value_targets"]
 
 
 def gae(
@@ -74,6 +78,58 @@ def gae(
     return jax.lax.stop_gradient(vs), jax.lax.stop_gradient(advantages)
 
 
+def _targets(
+    params: ppo_losses.PPONetworkParams,
+    normalizer_params: Any,
+    data: types.Transition,
+    ppo_network: ppo_networks.PPONetworks,
+    discounting: float,
+    reward_scaling: float,
+    gae_lambda: float,
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """``(vs, advantages, baseline)``, each ``[T, B]``, of time-major ``data`` under ``params``' critic."""
+    # The critic at [obs_0 .. obs_{T-1}, next_obs_{T-1}]: the baseline and the bootstrap in one pass.
+    obs = jax.tree.map(lambda o, n: jnp.concatenate([o, n[-1:]]), data.observation, data.next_observation)
+    values_all = ppo_network.value_network.apply(normalizer_params, params.value, obs)
+    baseline, bootstrap_value = values_all[:-1], values_all[-1]
+    truncation = data.extras["state_extras"]["truncation"]
+    termination = (1 - data.discount) * (1 - truncation)
+    vs, advantages = gae(
+        truncation=truncation,
+        termination=termination,
+        rewards=data.reward * reward_scaling,
+        values=baseline,
+        bootstrap_value=bootstrap_value,
+        lambda_=gae_lambda,
+        discount=discounting,
+    )
+    return vs, advantages, baseline
+
+
+def value_targets(
+    params: ppo_losses.PPONetworkParams,
+    normalizer_params: Any,
+    data: types.Transition,
+    ppo_network: ppo_networks.PPONetworks,
+    discounting: float,
+    reward_scaling: float,
+    gae_lambda: float,
+) -> dict[str, jax.Array]:
+    """GAE's targets and advantages of ``data`` under ``params``' critic: ``{"vs", "advantages"}``.
+
+    Both ``[B, T]``, for batch-major ``data`` (leaves ``[B, T, ...]``). Put into
+    ``data.extras["value_targets"]`` before SGD, ``ppo_loss`` regresses the critic on these fixed targets
+    and weighs the policy by these advantages (normalised per minibatch), as rsl-rl, Stable-Baselines3 and
+    CleanRL do, instead of recomputing both from the critic being trained at every minibatch as brax does
+    (``PPOConfig.value_targets``).
+    """
+    tm = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), data)
+    vs, advantages, _ = _targets(
+        params, normalizer_params, tm, ppo_network, discounting, reward_scaling, gae_lambda
+    )
+    return {"vs": jnp.swapaxes(vs, 0, 1), "advantages": jnp.swapaxes(advantages, 0, 1)}
+
+
 def kl_estimate(log_prob_new: jax.Array, log_prob_old: jax.Array) -> jax.Array:
     """KL(behaviour || current) estimated as ``mean(r - 1 - log r)``, ``r`` the probability ratio, nats.
 
@@ -104,24 +160,16 @@ def ppo_loss(
     the parameters the loss is taken at) and ``policy_dist_mean_std``.
     """
     dist = ppo_network.parametric_action_distribution
+    fixed = data.extras.get("value_targets")
     data = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), data)  # time first: [T, B, ...]
     logits = ppo_network.policy_network.apply(normalizer_params, params.policy, data.observation)
-    # The critic at [obs_0 .. obs_{T-1}, next_obs_{T-1}]: the baseline and the bootstrap in one pass.
-    obs = jax.tree.map(lambda o, n: jnp.concatenate([o, n[-1:]]), data.observation, data.next_observation)
-    values_all = ppo_network.value_network.apply(normalizer_params, params.value, obs)
-    baseline, bootstrap_value = values_all[:-1], values_all[-1]
-
-    truncation = data.extras["state_extras"]["truncation"]
-    termination = (1 - data.discount) * (1 - truncation)
-    vs, advantages = gae(
-        truncation=truncation,
-        termination=termination,
-        rewards=data.reward * reward_scaling,
-        values=baseline,
-        bootstrap_value=bootstrap_value,
-        lambda_=gae_lambda,
-        discount=discounting,
-    )
+    if fixed is not None:  # the iteration's targets (``value_targets``): the critic on the steps only
+        baseline = ppo_network.value_network.apply(normalizer_params, params.value, data.observation)
+        vs, advantages = data.extras["value_targets"]["vs"], data.extras["value_targets"]["advantages"]
+    else:
+        vs, advantages, baseline = _targets(
+            params, normalizer_params, data, ppo_network, discounting, reward_scaling, gae_lambda
+        )
     if normalize_advantage:
         advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
 

@@ -1,4 +1,6 @@
-"""``training.ppo_loss``: brax's PPO loss in fewer kernels gives brax's numbers (values and gradients)."""
+"""``training.ppo_loss``: brax's PPO loss in fewer kernels gives brax's numbers (values and gradients); the
+targets fixed per pass or per iteration (``PPOConfig.value_targets``) are brax's at the parameters they were
+taken at, and stay fixed after; the normaliser's variance floor (``PPOConfig.obs_std_eps``)."""
 
 from __future__ import annotations
 
@@ -13,7 +15,8 @@ from kl_reference import approx_kl
 
 from bar_policy.training.config import NetworkConfig, PPOConfig
 from bar_policy.training.learner import make_learner
-from bar_policy.training.ppo_loss import gae, ppo_loss
+from bar_policy.training.parallel import AXIS
+from bar_policy.training.ppo_loss import gae, ppo_loss, value_targets
 
 T, B, N_OBS, N_ACT = 10, 64, 7, 3
 # float32 throughout. The GAE recursion adds at most T = 10 terms of size O(1) with factors <= 1, in the
@@ -105,3 +108,75 @@ def test_loss_gradients_and_metrics_match_brax(case):
     # The KL metric is the learner's estimate of the same parameters on the same minibatch.
     np.testing.assert_allclose(got_m["kl"], approx_kl(learner, params, norm, data), rtol=1e-5)
     assert float(got_m["kl"]) > 1e-4
+
+
+def _with_targets(learner, params, norm, data):
+    targets = value_targets(params, norm, data, learner.networks, 0.97, 1.0, 0.95)
+    return data._replace(extras={**data.extras, "value_targets": targets})
+
+
+def test_fixed_targets_are_brax_targets_at_their_parameters(case):
+    """Targets taken at ``params`` and fed back in: brax's loss and gradients at ``params`` (the critic
+    computes the same GAE; brax stops its gradient), to the tolerance of the first test."""
+    learner, params, norm, data = case
+    rng = jax.random.PRNGKey(3)
+    (want, want_m), want_g = jax.value_and_grad(ppo_losses.compute_ppo_loss, has_aux=True)(
+        params, norm, data, rng, learner.networks, **KW
+    )
+    fixed = _with_targets(learner, params, norm, data)
+    ours_fn = jax.value_and_grad(ppo_loss, has_aux=True)
+    (got, got_m), got_g = ours_fn(params, norm, fixed, rng, learner.networks, **KW)
+    np.testing.assert_allclose(got, want, atol=TOL, rtol=TOL)
+    for k in ("policy_loss", "v_loss", "entropy_loss"):
+        np.testing.assert_allclose(got_m[k], want_m[k], atol=TOL, rtol=TOL, err_msg=k)
+    for g, w in zip(jax.tree.leaves(got_g), jax.tree.leaves(want_g), strict=True):
+        np.testing.assert_allclose(g, w, atol=TOL * float(jnp.max(jnp.abs(w))), rtol=TOL)
+
+
+def test_fixed_targets_do_not_follow_the_critic(case):
+    """At another critic the value loss regresses on the stored targets: 0.5 * vf * mean((vs - V)^2) with
+    ``vs`` from the first critic and ``V`` the new critic's values, by hand in numpy (float64)."""
+    learner, params, norm, data = case
+    fixed = _with_targets(learner, params, norm, data)
+    moved = params.replace(value=jax.tree.map(lambda p: p * 1.5, params.value))
+    _, m = ppo_loss(moved, norm, fixed, jax.random.PRNGKey(3), learner.networks, **KW)
+    vs = np.asarray(fixed.extras["value_targets"]["vs"], np.float64)  # [B, T]
+    v_new = np.asarray(learner.networks.value_network.apply(norm, moved.value, data.observation), np.float64)
+    want = 0.5 * 0.5 * np.mean((vs - v_new) ** 2)
+    np.testing.assert_allclose(float(m["v_loss"]), want, rtol=1e-5)
+    # brax's loss at the moved critic recomputes the targets with it: a different value loss.
+    _, brax_m = ppo_losses.compute_ppo_loss(moved, norm, data, jax.random.PRNGKey(3), learner.networks, **KW)
+    assert abs(float(brax_m["v_loss"]) - want) > 1e-2 * want
+
+
+def _update(case, **ppo):
+    data = case[3]
+    cfg = PPOConfig(num_envs=64, batch_size=32, num_minibatches=2, **ppo)
+    learner = make_learner(N_OBS, N_ACT, cfg, NetworkConfig(policy_hidden=(16, 16), value_hidden=(32,)))
+    ts = learner.init(jax.random.PRNGKey(5))
+    update = jax.jit(jax.vmap(lambda t, d, k: learner.update(t, d, k)[0], axis_name=AXIS))
+    out = update(*jax.tree.map(lambda x: jnp.asarray(x)[None], (ts, data, jax.random.PRNGKey(7))))
+    return jax.tree.leaves(out.params)
+
+
+def test_target_modes_agree_where_their_critics_do(case):
+    """One pass: ``pass`` takes its targets from the critic ``iteration`` does (bit for bit). Two passes:
+    the second pass of ``pass`` takes them from the critic after the first pass, so the two differ."""
+    one_pass = _update(case, value_targets="pass", num_updates_per_batch=1)
+    one_iter = _update(case, value_targets="iteration", num_updates_per_batch=1)
+    for a, b in zip(one_pass, one_iter, strict=True):
+        np.testing.assert_array_equal(a, b)
+    two_pass = _update(case, value_targets="pass", num_updates_per_batch=2)
+    two_iter = _update(case, value_targets="iteration", num_updates_per_batch=2)
+    assert max(float(jnp.max(jnp.abs(a - b))) for a, b in zip(two_pass, two_iter, strict=True)) > 1e-6
+
+
+def test_normaliser_std_floor():
+    """A constant observation has variance 0: its std is sqrt(obs_std_eps) = 0.01, or brax's floor 1e-6."""
+    batch = jnp.full((128, N_OBS), 0.25, jnp.float32)
+    for eps, want in ((1e-4, 0.01), (0.0, 1e-6)):
+        learner = make_learner(N_OBS, N_ACT, PPOConfig(obs_std_eps=eps), NetworkConfig())
+        norm = learner.init(jax.random.PRNGKey(0)).normalizer_params
+        np.testing.assert_allclose(running_statistics.update(norm, batch).std, want, rtol=1e-6)
+    with pytest.raises(ValueError, match="obs_std_eps"):
+        PPOConfig(obs_std_eps=-1.0)

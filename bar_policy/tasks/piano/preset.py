@@ -22,6 +22,9 @@ PIANO = {
     "ppo.actor_warmup_iterations": 10,
     "ppo.entropy_cost": 1e-3,
     "ppo.discounting": 0.98,
+    # Measured with brax's targets and normaliser; session 40's defaults are not re-measured here.
+    "ppo.value_targets": "minibatch",
+    "ppo.obs_std_eps": 0.0,
     "network.policy_hidden": (512, 256, 128),
     "network.action_prior": "key_pose",
     "network.prior_lead_steps": 2,

@@ -21,6 +21,9 @@ TRACK = {
     "ppo.schedule": "fixed",
     "ppo.entropy_cost": 1e-3,
     "ppo.discounting": 0.98,
+    # Measured with brax's targets and normaliser; session 40's defaults are not re-measured here.
+    "ppo.value_targets": "minibatch",
+    "ppo.obs_std_eps": 0.0,
     "network.policy_hidden": (256, 256, 128),
     "network.value_hidden": (512, 256, 256),
     "network.action_prior": "reference",
