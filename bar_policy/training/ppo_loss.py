@@ -118,10 +118,10 @@ def value_targets(
     """GAE's targets and advantages of ``data`` under ``params``' critic: ``{"vs", "advantages"}``.
 
     Both ``[B, T]``, for batch-major ``data`` (leaves ``[B, T, ...]``). Put into
-    ``data.extras["value_targets"]`` before SGD, ``ppo_loss`` regresses the critic on these fixed targets
-    and weighs the policy by these advantages (normalised per minibatch), as rsl-rl, Stable-Baselines3 and
-    CleanRL do, instead of recomputing both from the critic being trained at every minibatch as brax does
-    (``PPOConfig.value_targets``).
+    ``data.extras["value_targets"]`` before an SGD pass (or before all of them, as rsl-rl, Stable-Baselines3
+    and CleanRL do), ``ppo_loss`` regresses the critic on these fixed targets and weighs the policy by these
+    advantages (normalised per minibatch), instead of recomputing both from the critic being trained at
+    every minibatch as brax does (``PPOConfig.value_targets``).
     """
     tm = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), data)
     vs, advantages, _ = _targets(
