@@ -160,12 +160,12 @@ def ppo_loss(
     the parameters the loss is taken at) and ``policy_dist_mean_std``.
     """
     dist = ppo_network.parametric_action_distribution
-    fixed = data.extras.get("value_targets")
     data = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), data)  # time first: [T, B, ...]
     logits = ppo_network.policy_network.apply(normalizer_params, params.policy, data.observation)
-    if fixed is not None:  # the iteration's targets (``value_targets``): the critic on the steps only
+    fixed = data.extras.get("value_targets")
+    if fixed is not None:  # targets taken before the pass (``value_targets``): the critic on the steps only
         baseline = ppo_network.value_network.apply(normalizer_params, params.value, data.observation)
-        vs, advantages = data.extras["value_targets"]["vs"], data.extras["value_targets"]["advantages"]
+        vs, advantages = fixed["vs"], fixed["advantages"]
     else:
         vs, advantages, baseline = _targets(
             params, normalizer_params, data, ppo_network, discounting, reward_scaling, gae_lambda
