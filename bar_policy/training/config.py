@@ -159,8 +159,8 @@ class PPOConfig:
     rsl-rl's normaliser. At 0 (brax's) reach's first targets (1.3 mm apart) gave z = 30 (docs/training.md)."""
     value_targets: Literal["minibatch", "pass", "iteration"] = "pass"
     """GAE's targets and advantages from the critic at every minibatch (brax), at each SGD pass's start, or
-    once per iteration (rsl-rl); ``ppo_loss.value_targets``. Reach's value loss spiked at minibatch, not at
-    pass, which learns as fast (docs/training.md). brax backend; track and piano keep minibatch."""
+    once per iteration (rsl-rl; ``ppo_loss.with_value_targets``). Reach's value loss spiked at minibatch,
+    not at pass, which learns as fast (docs/training.md). brax backend; track and piano keep minibatch."""
     vf_loss_coefficient: float = 0.5
     """Weight of the value loss."""
     actor_warmup_iterations: int = 0

@@ -37,7 +37,7 @@ from bar_policy.obs.action_prior import Prior, check_fits
 from bar_policy.training import eval_quality
 from bar_policy.training.config import NetworkConfig, PPOConfig
 from bar_policy.training.parallel import AXIS
-from bar_policy.training.ppo_loss import ppo_loss, value_targets
+from bar_policy.training.ppo_loss import ppo_loss, with_value_targets
 
 __all__ = [
     "Learner",
@@ -165,12 +165,11 @@ class Learner:
         )
 
     def _with_targets(self, params: Any, normalizer: Any, data: types.Transition) -> types.Transition:
-        """``data`` with ``extras["value_targets"]`` (``ppo_loss.value_targets`` under ``params``' critic)."""
+        """``ppo_loss.with_value_targets`` under ``params``' critic with this config's GAE settings."""
         ppo = self.ppo
-        targets = value_targets(
+        return with_value_targets(
             params, normalizer, data, self.networks, ppo.discounting, ppo.reward_scaling, ppo.gae_lambda
         )
-        return data._replace(extras={**data.extras, "value_targets": targets})
 
     def _sgd_pass(self, carry: tuple, data: types.Transition, normalizer: Any) -> tuple:
         """One shuffled pass of ``num_minibatches`` Adam steps over this device's segments."""

@@ -5,7 +5,7 @@ value clipping (the configuration the learner uses): GAE from the current critic
 clipped probability ratio, the value loss, the entropy bonus of brax's tanh-normal (with its sampled Jacobian
 term). A test holds the loss and its gradients equal to brax's (``tests/training/test_ppo_loss.py``).
 
-With targets in ``data.extras["value_targets"]`` (``value_targets``: GAE taken once per SGD pass or per
+With targets in ``data.extras["value_targets"]`` (``with_value_targets``: GAE taken once per SGD pass or per
 iteration, ``PPOConfig.value_targets``) the loss uses them instead of recomputing GAE, and runs the critic on
 the steps only: brax's loss at the parameters the targets were taken at, fixed targets after.
 
@@ -36,7 +36,7 @@ from brax.training import types
 from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import networks as ppo_networks
 
-__all__ = ["gae", "kl_estimate", "ppo_loss", "value_targets"]
+__all__ = ["gae", "kl_estimate", "ppo_loss", "with_value_targets"]
 
 
 def gae(
@@ -106,7 +106,7 @@ def _targets(
     return vs, advantages, baseline
 
 
-def value_targets(
+def with_value_targets(
     params: ppo_losses.PPONetworkParams,
     normalizer_params: Any,
     data: types.Transition,
@@ -114,20 +114,21 @@ def value_targets(
     discounting: float,
     reward_scaling: float,
     gae_lambda: float,
-) -> dict[str, jax.Array]:
-    """GAE's targets and advantages of ``data`` under ``params``' critic: ``{"vs", "advantages"}``.
+) -> types.Transition:
+    """``data`` with GAE's targets and advantages under ``params``' critic in ``extras["value_targets"]``.
 
-    Both ``[B, T]``, for batch-major ``data`` (leaves ``[B, T, ...]``). Put into
-    ``data.extras["value_targets"]`` before an SGD pass (or before all of them, as rsl-rl, Stable-Baselines3
-    and CleanRL do), ``ppo_loss`` regresses the critic on these fixed targets and weighs the policy by these
-    advantages (normalised per minibatch), instead of recomputing both from the critic being trained at
-    every minibatch as brax does (``PPOConfig.value_targets``).
+    ``{"vs", "advantages"}``, both ``[B, T]``, for batch-major ``data`` (leaves ``[B, T, ...]``). Given them
+    before an SGD pass (or before all of them, as rsl-rl, Stable-Baselines3 and CleanRL do), ``ppo_loss``
+    regresses the critic on these fixed targets and weighs the policy by these advantages (normalised per
+    minibatch), instead of recomputing both from the critic being trained at every minibatch as brax does
+    (``PPOConfig.value_targets``).
     """
     tm = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), data)
     vs, advantages, _ = _targets(
         params, normalizer_params, tm, ppo_network, discounting, reward_scaling, gae_lambda
     )
-    return {"vs": jnp.swapaxes(vs, 0, 1), "advantages": jnp.swapaxes(advantages, 0, 1)}
+    targets = {"vs": jnp.swapaxes(vs, 0, 1), "advantages": jnp.swapaxes(advantages, 0, 1)}
+    return data._replace(extras={**data.extras, "value_targets": targets})
 
 
 def kl_estimate(log_prob_new: jax.Array, log_prob_old: jax.Array) -> jax.Array:
@@ -163,7 +164,7 @@ def ppo_loss(
     data = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), data)  # time first: [T, B, ...]
     logits = ppo_network.policy_network.apply(normalizer_params, params.policy, data.observation)
     fixed = data.extras.get("value_targets")
-    if fixed is not None:  # targets taken before the pass (``value_targets``): the critic on the steps only
+    if fixed is not None:  # taken before the pass (``with_value_targets``): the critic on the steps only
         baseline = ppo_network.value_network.apply(normalizer_params, params.value, data.observation)
         vs, advantages = fixed["vs"], fixed["advantages"]
     else:

@@ -16,7 +16,7 @@ from kl_reference import approx_kl
 from bar_policy.training.config import NetworkConfig, PPOConfig
 from bar_policy.training.learner import make_learner
 from bar_policy.training.parallel import AXIS
-from bar_policy.training.ppo_loss import gae, ppo_loss, value_targets
+from bar_policy.training.ppo_loss import gae, ppo_loss, with_value_targets
 
 T, B, N_OBS, N_ACT = 10, 64, 7, 3
 # float32 throughout. The GAE recursion adds at most T = 10 terms of size O(1) with factors <= 1, in the
@@ -110,11 +110,6 @@ def test_loss_gradients_and_metrics_match_brax(case):
     assert float(got_m["kl"]) > 1e-4
 
 
-def _with_targets(learner, params, norm, data):
-    targets = value_targets(params, norm, data, learner.networks, 0.97, 1.0, 0.95)
-    return data._replace(extras={**data.extras, "value_targets": targets})
-
-
 def test_fixed_targets_are_brax_targets_at_their_parameters(case):
     """Targets taken at ``params`` and fed back in: brax's loss and gradients at ``params`` (the critic
     computes the same GAE; brax stops its gradient), to the tolerance of the first test."""
@@ -123,7 +118,7 @@ def test_fixed_targets_are_brax_targets_at_their_parameters(case):
     (want, want_m), want_g = jax.value_and_grad(ppo_losses.compute_ppo_loss, has_aux=True)(
         params, norm, data, rng, learner.networks, **KW
     )
-    fixed = _with_targets(learner, params, norm, data)
+    fixed = with_value_targets(params, norm, data, learner.networks, 0.97, 1.0, 0.95)
     ours_fn = jax.value_and_grad(ppo_loss, has_aux=True)
     (got, got_m), got_g = ours_fn(params, norm, fixed, rng, learner.networks, **KW)
     np.testing.assert_allclose(got, want, atol=TOL, rtol=TOL)
@@ -137,7 +132,7 @@ def test_fixed_targets_do_not_follow_the_critic(case):
     """At another critic the value loss regresses on the stored targets: 0.5 * vf * mean((vs - V)^2) with
     ``vs`` from the first critic and ``V`` the new critic's values, by hand in numpy (float64)."""
     learner, params, norm, data = case
-    fixed = _with_targets(learner, params, norm, data)
+    fixed = with_value_targets(params, norm, data, learner.networks, 0.97, 1.0, 0.95)
     moved = params.replace(value=jax.tree.map(lambda p: p * 1.5, params.value))
     _, m = ppo_loss(moved, norm, fixed, jax.random.PRNGKey(3), learner.networks, **KW)
     vs = np.asarray(fixed.extras["value_targets"]["vs"], np.float64)  # [B, T]
