@@ -20,10 +20,16 @@ ExecutionStreamId found for call-start ... only reachable through embedded calls
 the loop's own computations). The rollout and the update are loops, so the bench stops there and says so.
 On this CPU (jax 0.10) the annotation is accepted and ignored.
 
+``--plain``: the same rows with no stream annotation: the two chains (or the update and the rollout) are
+merely independent in one program. Run under ``XLA_FLAGS=--xla_gpu_command_buffer_scheduling_mode=CONCURRENT
+--xla_gpu_enable_command_buffer=+WHILE,+CONDITIONAL`` it asks whether XLA's command buffers (CUDA graphs,
+whose nodes run concurrently where no buffer dependency orders them) overlap the two loops on their own.
+
 Examples::
 
     python bench/stream_overlap.py --out $OUT/overlap.md                # gpu preset, one GPU
     python bench/stream_overlap.py --preset tiny --iters 1 --micro-steps 4   # CPU smoke check
+    XLA_FLAGS="--xla_gpu_command_buffer_scheduling_mode=CONCURRENT" python bench/stream_overlap.py --plain
 """
 
 from __future__ import annotations
@@ -71,8 +77,14 @@ def _on_stream(fn: Any, stream: int) -> Any:
     return getattr(con, _stream_api())(fn, compute_type=f"gpu_stream:{stream}", out_memory_spaces=space)
 
 
-def micro(steps: int, iters: int) -> dict[str, float]:
-    """Two chains of ``steps`` dependent (256, 256) matmuls + tanh: alone, in turn, on two streams (ms)."""
+def _place(fn: Any, stream: int, plain: bool) -> Any:
+    """``fn`` on GPU stream ``stream`` (``_on_stream``), or ``fn`` itself when ``plain``."""
+    return fn if plain else _on_stream(fn, stream)
+
+
+def micro(steps: int, iters: int, plain: bool = False) -> dict[str, float]:
+    """Two chains of ``steps`` dependent (256, 256) matmuls + tanh: alone, in turn, on two streams (ms);
+    ``plain``: the last row without the annotation (what XLA's own scheduling makes of two loops)."""
     k1, k2 = jax.random.split(jax.random.PRNGKey(0))
     w = jax.random.normal(k1, (256, 256), jnp.float32) / 16.0
     x = jax.random.normal(k2, (256, 256), jnp.float32)
@@ -81,11 +93,12 @@ def micro(steps: int, iters: int) -> dict[str, float]:
         return jax.lax.fori_loop(0, steps, lambda _, y: jnp.tanh(y @ w), x)
 
     both = jax.jit(lambda a, b: (chain(a), chain(b)))
-    streamed = jax.jit(lambda a, b: (chain(a), _on_stream(chain, 1)(b)))
+    streamed = jax.jit(lambda a, b: (chain(a), _place(chain, 1, plain)(b)))
     one = jax.jit(chain)
     out = {"one chain": best_time(lambda: one(x), iters)}
     out["two chains, one program"] = best_time(lambda: both(x, x), iters)
-    out["two chains, second on stream 1"] = best_time(lambda: streamed(x, x), iters)
+    if not plain:  # plain: ``streamed`` is ``both``
+        out["two chains, second on stream 1"] = best_time(lambda: streamed(x, x), iters)
     a, b = streamed(x, x)
     out["max |streamed - plain|"] = float(jnp.max(jnp.abs(jnp.stack(both(x, x)) - jnp.stack([a, b]))))
     return {k: (1e3 * v if "|" not in k else v) for k, v in out.items()}
@@ -97,17 +110,18 @@ def main() -> int:
     p.add_argument("--iters", type=int, default=5, help="timed calls per row")
     p.add_argument("--micro-steps", type=int, default=400, help="matmuls per chain in the micro rows")
     p.add_argument("--no-real", action="store_true", help="the micro rows only")
+    p.add_argument("--plain", action="store_true", help="no stream annotation (see the module docstring)")
     p.add_argument("--out", default="")
     args = p.parse_args()
 
     api = _stream_api()
     lines = [
-        f"stream overlap: {jax.devices()[0].device_kind}, jax {jax.__version__}, {api}, "
+        f"stream overlap: {jax.devices()[0].device_kind}, jax {jax.__version__}, {api}, plain {args.plain}, "
         f"XLA_FLAGS {os.environ.get('XLA_FLAGS', '')!r}"
     ]
     lines += ["", "| micro row | ms |", "|---|---:|"]
     try:
-        rows = micro(args.micro_steps, args.iters)
+        rows = micro(args.micro_steps, args.iters, args.plain)
     except jax.errors.JaxRuntimeError as err:  # the trainer's programs hold loops too: no point going on
         emit("\n".join([*lines[:1], "", f"XLA refused the annotated program: {str(err)[:400]}"]), args.out)
         return 1
@@ -142,7 +156,7 @@ def main() -> int:
 
     def pipelined(ts: Any, carry: Any, data: Any, key: jax.Array) -> Any:
         """The update of ``data`` on stream 1 while the rollout (with ``ts``) collects the next data."""
-        new_ts = _on_stream(update, 1)(ts, data, key)
+        new_ts = _place(update, 1, args.plain)(ts, data, key)
         carry, next_data = rollout(ts, carry, key)
         return new_ts, carry, next_data
 
@@ -183,9 +197,8 @@ def main() -> int:
     rows["rollout then update (two programs)"] = best_time(
         lambda: f_update(ts, f_roll(ts, carry, key)[1], key), args.iters
     )
-    rows["pipelined (update on stream 1 beside the rollout)"] = best_time(
-        lambda: f_pipe(ts, carry, data, key), args.iters
-    )
+    piped_row = "pipelined, one program, no annotation" if args.plain else "pipelined (update on stream 1)"
+    rows[piped_row] = best_time(lambda: f_pipe(ts, carry, data, key), args.iters)
     lines += [
         "",
         f"{args.env}, preset {args.preset} {' '.join(args.set)}, {n} envs, {steps:,} env steps and "

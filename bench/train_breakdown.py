@@ -94,6 +94,11 @@ def main() -> int:
         action="store_true",
         help="also an evaluation on a thread while an epoch runs: the wall time against the two in turn",
     )
+    p.add_argument(
+        "--dump",
+        default="",
+        help="save the first rollout's data and the update of it to this .npz (to compare two XLA_FLAGS)",
+    )
     p.add_argument("--out", default="")
     args = p.parse_args()
 
@@ -162,6 +167,9 @@ def main() -> int:
     ts = compiler.get("init")(dp.replicate(host_key(0, 1)))
     carry = compiler.get("reset")(dp.replicate(host_key(0, 2)), dp.replicate(host_key(0, 3)))
     data = compiler.get("rollout")(ts, carry, key)
+    if args.dump:  # one rollout and one update from the seeds: what another process's flags must reproduce
+        leaves = dp.to_host(jax.tree.leaves((data, compiler.get("update")(ts, data, key))))
+        np.savez(args.dump, *[np.asarray(x) for x in leaves])
     rows: dict[str, float] = {}
     rows["env"] = best_time(lambda: compiler.get("env")(carry, key), args.iters)
     rows["env random"] = best_time(lambda: compiler.get("env random")(carry, key), args.iters)
@@ -266,6 +274,9 @@ def main() -> int:
         f"steps, {eval_steps / eval_s:,.0f} env steps/s)"
     )
     lines.append(f"XLA_FLAGS: {os.environ.get('XLA_FLAGS', '')!r}")
+    peak = (jax.devices()[0].memory_stats() or {}).get("peak_bytes_in_use")
+    if peak is not None:  # GPUs report it; XLA's CPU client does not
+        lines.append(f"device memory, peak in this process: {peak / 2**30:.2f} GiB")
     if overlap:
         lines.append(overlap)
     compiles = [f"{k} {p.compile_s:.1f}" for k, p in timer.programs.items()]

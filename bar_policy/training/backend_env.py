@@ -1,4 +1,4 @@
-"""Environment a run sets before jax starts its backend: GPU memory for torch, CPU threads for LAPACK.
+"""Environment a run sets before jax starts its backend: torch's GPU memory, XLA's scheduling, CPU threads.
 
 ``set_backend_env(cfg)`` runs first in ``run`` (before anything touches a device) and returns the notes the
 run prints under its header:
@@ -6,6 +6,15 @@ run prints under its header:
 - **rsl-rl and GPU memory.** ``XLA_PYTHON_CLIENT_PREALLOCATE=false`` (jax grows its pool on demand instead of
   taking 75 % of the GPU), so torch has the memory, unless the user set it or
   ``XLA_PYTHON_CLIENT_MEM_FRACTION``.
+- **Command buffers that run independent kernels at once.** XLA records runs of a GPU program's kernels into
+  command buffers (CUDA graphs). By default (``LHS``) each buffer runs its kernels one after another;
+  ``--xla_gpu_command_buffer_scheduling_mode=CONCURRENT`` gives the graph the program's own buffer
+  dependencies instead, so kernels that do not depend on each other run side by side. The MJX step and the
+  update are bound by the number of their small kernels, not by the device's arithmetic (docs/benchmarks.md
+  "Session 35"), so on one H100 at the gpu preset's batch the rollout took 114 instead of 129 ms and the
+  update (128 Adam steps) 32 instead of 51 ms ("Session 41"). A run whose jax has a GPU appends the flag to
+  ``XLA_FLAGS`` unless ``XLA_FLAGS`` already names it (the user's choice stays). The executable cache keys
+  on ``XLA_FLAGS``, so programs compiled under either mode are never served to the other.
 - **A deadlock of jaxlib 0.10's CPU LAPACK kernels.** jaxlib < 0.11 splits a batched LAPACK call (Cholesky,
   triangular solve) over XLA's CPU thread pool once ``batch x cost per matrix >= 200,000`` and the pool has
   more than one thread, and the calling thread waits for the pieces. The MJX step has two independent
@@ -29,7 +38,7 @@ import importlib.metadata
 import os
 from typing import Any
 
-__all__ = ["SMALL_CPU", "cpu_threads_decision", "set_backend_env"]
+__all__ = ["SCHEDULING", "SMALL_CPU", "cpu_threads_decision", "scheduling_decision", "set_backend_env"]
 
 SMALL_CPU = 2
 """Cores (this process's CPU affinity) up to which a CPU-only run on an affected jaxlib gets one XLA
@@ -37,6 +46,22 @@ thread."""
 
 NPROC = "PJRT_NPROC"
 """The environment variable XLA reads for its CPU thread pool's size."""
+
+SCHEDULING = "--xla_gpu_command_buffer_scheduling_mode=CONCURRENT"
+"""The XLA flag a GPU run adds (module docstring): command buffers ordered by their buffer dependencies."""
+
+
+def scheduling_decision(*, cpu_only: bool, xla_flags: str, backend_started: bool) -> str:
+    """Whether to add ``SCHEDULING`` to ``XLA_FLAGS`` (``xla_flags``): ``set``, ``note`` or ``none``.
+
+    ``set``: append it; ``note``: a GPU run whose backend already runs (the flag would do nothing: a note
+    says so); ``none``: a CPU-only run (XLA's CPU programs have no command buffers) or ``xla_flags``
+    already sets the scheduling mode.
+    """
+    flag = SCHEDULING.split("=")[0]
+    if cpu_only or any(f.split("=")[0] == flag for f in xla_flags.split()):
+        return "none"
+    return "note" if backend_started else "set"
 
 
 def cpu_threads_decision(
@@ -74,15 +99,23 @@ def set_backend_env(cfg: Any) -> list[str]:
     from jax._src import xla_bridge
 
     notes = []
+    cpu_only, started = _cpu_only(), xla_bridge.backends_are_initialized()
+    flags = os.environ.get("XLA_FLAGS", "")
+    scheduling = scheduling_decision(cpu_only=cpu_only, xla_flags=flags, backend_started=started)
+    if scheduling == "set":
+        os.environ["XLA_FLAGS"] = f"{flags} {SCHEDULING}".strip()
+        notes.append(f"XLA: {SCHEDULING} (independent kernels run at once; training.backend_env)")
+    elif scheduling == "note":
+        notes.append(f"note: jax's GPU backend already runs, so XLA_FLAGS lacks {SCHEDULING} (slower steps)")
     memory = {"XLA_PYTHON_CLIENT_PREALLOCATE", "XLA_PYTHON_CLIENT_MEM_FRACTION"}
     if cfg.backend == "rsl-rl" and not memory & set(os.environ):
         os.environ["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"
     decision = cpu_threads_decision(
-        cpu_only=_cpu_only(),
+        cpu_only=cpu_only,
         jaxlib_version=jaxlib.__version__,
         cores=len(os.sched_getaffinity(0)),
         user_set=NPROC in os.environ,
-        backend_started=xla_bridge.backends_are_initialized(),
+        backend_started=started,
     )
     why = f"jaxlib {jaxlib.__version__}'s batched LAPACK deadlocks a small CPU pool from 219 envs"
     if decision == "set":

@@ -1,4 +1,5 @@
-"""The CPU-thread setting against jaxlib 0.10's LAPACK deadlock (``training.backend_env``).
+"""The CPU-thread setting against jaxlib 0.10's LAPACK deadlock and XLA's scheduling flag on a GPU
+(``training.backend_env``).
 
 The decision is a pure function of the conditions; the subprocess test runs, on a machine where the run
 would set it (jaxlib < 0.11, at most ``SMALL_CPU`` cores), the smallest program that deadlocked here:
@@ -17,7 +18,8 @@ from pathlib import Path
 import jaxlib
 import pytest
 
-from bar_policy.training.backend_env import SMALL_CPU, cpu_threads_decision
+from bar_policy.training import backend_env
+from bar_policy.training.backend_env import SCHEDULING, SMALL_CPU, cpu_threads_decision, scheduling_decision
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -33,6 +35,40 @@ def test_decision_table():
     assert cpu_threads_decision(**{**base, "jaxlib_version": "0.11.2"}) == "none"  # fixed upstream
     assert cpu_threads_decision(**{**base, "jaxlib_version": "1.0.0"}) == "none"
     assert cpu_threads_decision(**{**base, "cores": SMALL_CPU + 1}) == "none"  # a larger pool
+
+
+def test_scheduling_decision_table():
+    base = {"cpu_only": False, "xla_flags": "", "backend_started": False}
+    assert scheduling_decision(**base) == "set"
+    assert scheduling_decision(**{**base, "xla_flags": "--xla_gpu_autotune_level=0"}) == "set"
+    assert scheduling_decision(**{**base, "backend_started": True}) == "note"  # too late to set
+    assert scheduling_decision(**{**base, "cpu_only": True}) == "none"  # no command buffers on a CPU
+    for mode in ("LHS", "SERIALIZE", "CONCURRENT"):  # the user's mode stays, whichever it is
+        flags = f"--xla_gpu_autotune_level=0 --xla_gpu_command_buffer_scheduling_mode={mode}"
+        assert scheduling_decision(**{**base, "xla_flags": flags}) == "none"
+    # A flag whose name merely starts the same is another flag.
+    other = "--xla_gpu_command_buffer_scheduling_mode_x=1"
+    assert scheduling_decision(**{**base, "xla_flags": other}) == "set"
+
+
+def test_a_gpu_run_appends_the_flag_and_keeps_the_users(monkeypatch):
+    """The GPU branch with the platform faked (this machine has no GPU): the user's flags are kept in front,
+    a second call adds nothing, and a run that already runs jax's backend gets the note only."""
+    monkeypatch.setattr(backend_env, "_cpu_only", lambda: False)
+    monkeypatch.setattr("jax._src.xla_bridge.backends_are_initialized", lambda: False)
+    monkeypatch.setenv("PJRT_NPROC", "2")
+    monkeypatch.setenv("XLA_FLAGS", "--xla_gpu_autotune_level=0")
+    from bar_policy.training.config import preset
+
+    notes = backend_env.set_backend_env(preset("tiny"))
+    assert os.environ["XLA_FLAGS"] == f"--xla_gpu_autotune_level=0 {SCHEDULING}"
+    assert len(notes) == 1 and SCHEDULING in notes[0]
+    assert backend_env.set_backend_env(preset("tiny")) == []
+    assert os.environ["XLA_FLAGS"] == f"--xla_gpu_autotune_level=0 {SCHEDULING}"
+    monkeypatch.delenv("XLA_FLAGS")
+    monkeypatch.setattr("jax._src.xla_bridge.backends_are_initialized", lambda: True)
+    notes = backend_env.set_backend_env(preset("tiny"))
+    assert "XLA_FLAGS" not in os.environ and "already runs" in notes[0]
 
 
 AFFECTED = (
