@@ -24,6 +24,8 @@ On this CPU (jax 0.10) the annotation is accepted and ignored.
 merely independent in one program. Run under ``XLA_FLAGS=--xla_gpu_command_buffer_scheduling_mode=CONCURRENT
 --xla_gpu_enable_command_buffer=+WHILE,+CONDITIONAL`` it asks whether XLA's command buffers (CUDA graphs,
 whose nodes run concurrently where no buffer dependency orders them) overlap the two loops on their own.
+Session 41 (H100): with the loops in graphs (``+WHILE,+CONDITIONAL``) the micro chains overlap (two in
+4.1 ms, one alone 5.4 ms), the trainer's update and rollout do not (141.7 ms against 110.1 + 32.1).
 
 Examples::
 
