@@ -30,16 +30,21 @@ import time
 import numpy as np
 
 
+def max_abs_diff(a: np.ndarray, b: np.ndarray) -> float:
+    """Largest |a - b| over two same-shape arrays, in float64 (0 for empty ones)."""
+    return float(np.max(np.abs(a.astype(np.float64) - b.astype(np.float64)))) if a.size else 0.0
+
+
 def compare(a_path: str, b_path: str) -> str:
     """One line per differing array of two dumps, then a summary line."""
     a, b = np.load(a_path), np.load(b_path)
     lines, worst, differ = [], 0.0, 0
     for k in a.files:
-        x, y = a[k].astype(np.float64), b[k].astype(np.float64)
-        d = float(np.max(np.abs(x - y))) if x.size else 0.0
+        x = a[k]
+        d = max_abs_diff(x, b[k])
         if d > 0:
             differ += 1
-            scale = float(np.max(np.abs(x)))
+            scale = float(np.max(np.abs(x.astype(np.float64))))
             worst = max(worst, d / max(scale, 1e-30))
             lines.append(f"{k} {x.shape}: max |diff| {d:.3g}, max |a| {scale:.3g}")
     lines.append(
@@ -84,8 +89,7 @@ def run(args: argparse.Namespace) -> str:
     t1 = time.perf_counter()
     second = one_pass()
     t2 = time.perf_counter()
-    pairs = zip(first, second, strict=True)
-    diffs = [float(np.max(np.abs(a.astype(np.float64) - b))) if a.size else 0.0 for a, b in pairs]
+    diffs = [max_abs_diff(a, b) for a, b in zip(first, second, strict=True)]
     if args.dump:
         np.savez(args.dump, *first)
     return (

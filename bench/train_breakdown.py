@@ -19,7 +19,10 @@ iteration), on one device, every part compiled once and timed over ``--iters`` c
 - with ``--fused``, ``epoch, one program`` and ``loop, one program``: the same for the one-program epoch
   the trainer had until session 34 (``bench/fused_epoch.py``), in the same process.
 
-The training loop's target is ``loop`` >= 90 % of ``env`` steps/s. ``rollout - env`` is the policy's cost,
+Every row runs under this process's ``XLA_FLAGS``; the trainer adds
+``--xla_gpu_command_buffer_scheduling_mode=CONCURRENT`` on a GPU (``training.backend_env``), so set it to
+time the trainer's schedule (``...=LHS``: XLA's default). The training loop's target is ``loop`` >= 90 % of
+``env`` steps/s. ``rollout - env`` is the policy's cost,
 ``update`` the learner's, ``loop - epoch`` the host's.
 
 Examples::
@@ -97,7 +100,8 @@ def main() -> int:
     p.add_argument(
         "--dump",
         default="",
-        help="save the first rollout's data and the update of it to this .npz (to compare two XLA_FLAGS)",
+        help="save the first rollout's data and the update of it to this .npz (two processes' XLA_FLAGS: "
+        "compare with bench/schedule_parity.py --compare A B)",
     )
     p.add_argument("--out", default="")
     args = p.parse_args()
