@@ -253,7 +253,16 @@ def test_song_on_the_mock_sim_and_emulated_targets(piano_policy, tmp_path, targe
     # 0.5 s count-in, from song step 25 (POLICY's first tick is song step 0); no goal key before it.
     assert not goal[steps < 25].any()
     first = int(np.argmax(goal.any(axis=1)))
-    assert steps[first] == 25 and set(np.flatnonzero(goal[first]) + KB.lowest) == {48, 60}
+    assert steps[first] == steps[steps >= 25].min()  # the first tick at or past the count-in
+    assert set(np.flatnonzero(goal[first]) + KB.lowest) == {48, 60}
+    # The song follows the run's clock. The sim target is synchronous (no overruns, no jitter): step 25 is
+    # logged. The mock and the bus are paced by the wall clock: an overrun skips its missed deadlines
+    # (``timing.Pacer``), and a tick woken more than half a step late rounds to the next step, so on a
+    # loaded machine step 25's tick can be lost, but only behind an overrun or such a late wake-up.
+    assert steps[first - 1] < 25
+    dt = 1.5 / len(steps)  # the piano's control step, 0.02 s: 75 ticks in the 1.5 s run
+    late = bool(np.asarray(log["overrun"])[first - 1]) or float(np.asarray(log["jitter"])[first]) > dt / 2
+    assert steps[first] == 25 or (target != "sim" and late)
     # bar-deploy plot draws the piano roll from those two arrays.
     from bar_policy.deploy.plot import plot_log
 
