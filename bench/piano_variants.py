@@ -15,6 +15,8 @@ Each variant is the keyboard scene of ``LitePiano`` (``compact_config()``, 49 ke
     leaf        --level physics: the step through ``envs.physics_step`` (static contact-row masks, the keys'
                 dofs factored as an arrowhead in MJX's Newton); at --level env the env's default
     mjxsolve    --level env: the env on ``mjx.step`` itself (``physics_step.plan`` off)
+    spd, spdcol --level env, ``robot``: the dense mass matrix's Cholesky factors written out (``small_spd``'s
+                scalar or columns form, ``physics_step.plan(cholesky=...)``) instead of jax's library calls
     lswhile     the line search's fixed ``ls_iterations`` scan (a cond per step: under vmap every step runs)
                 as a ``while_loop`` that stops once every env's search is done: the same values (the scan's
                 late steps are no-ops), without reverse-mode autodiff; an experiment, patched while tracing
@@ -43,6 +45,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -83,7 +86,7 @@ def _edit(part: str) -> Callable[[mujoco.MjSpec], None]:
             spec.option.jacobian = mujoco.mjtJacobian.mjJAC_DENSE
         elif part == "nocon":
             spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
-        elif part in ("leaf", "mjxsolve", "lswhile", "libchol", "newtonwhile", "lsunroll"):
+        elif part in ("leaf", "mjxsolve", "lswhile", "libchol", "newtonwhile", "lsunroll", "spd", "spdcol"):
             pass  # not a scene edit: the step function (``physics``, ``env_level``)
         elif part.startswith("it"):
             spec.option.iterations = int(part[2:])
@@ -92,7 +95,7 @@ def _edit(part: str) -> Callable[[mujoco.MjSpec], None]:
         elif part != "capped":
             valid = (
                 "capped, uncapped, nolimit, cg, dense, nocon, leaf, mjxsolve, lswhile, libchol, newtonwhile, "
-                "lsunroll, itN, lsN"
+                "lsunroll, spd, spdcol, itN, lsN"
             )
             raise ValueError(f"unknown edit {part!r}; valid: {valid}")
 
@@ -221,7 +224,12 @@ def env_level(variant: str, batch: int, steps: int) -> tuple[mujoco.MjModel, flo
     from bar_policy.training.throughput import raw_env_steps_per_second
 
     name = "LiteReach" if variant.split("+")[0] == "robot" else "LitePiano"
-    plan = (lambda _m: None) if "mjxsolve" in variant.split("+") else physics_step.plan
+    parts = variant.split("+")
+    plan = physics_step.plan
+    if "mjxsolve" in parts:
+        plan = lambda _m: None  # noqa: E731
+    elif "spd" in parts or "spdcol" in parts:
+        plan = functools.partial(physics_step.plan, cholesky="scalar" if "spd" in parts else "columns")
     with (
         mock.patch.object(piano_env, "keyboard_scene", lambda _kb: variant_scene(variant)),
         mock.patch.object(physics_step, "plan", plan),

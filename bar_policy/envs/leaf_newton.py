@@ -42,6 +42,8 @@ from mujoco import mjx
 from mujoco.mjx._src import constraint, solver, support
 from mujoco.mjx._src.types import ConeType, DisableBit, SolverType
 
+from bar_policy.envs.small_spd import SOLVERS, spd_solve
+
 _ONE_DOF = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
 
 
@@ -137,38 +139,6 @@ def _mass_parts(m: mjx.Model, d: mjx.Data, split: LeafSplit) -> tuple[jax.Array,
     return m_rr, split.take(diag, split.leaf)
 
 
-def spd_solve(a: jax.Array, y: jax.Array) -> jax.Array:
-    """``a^-1 y`` for a small symmetric positive definite ``a`` (n, n), by a Cholesky written out in scalars.
-
-    The same factorisation as ``cho_factor``/``cho_solve`` (row by row, ``a = L L^T``, then two
-    substitutions), unrolled at trace time: under ``vmap`` every scalar becomes one element-wise op over the
-    batch, which XLA fuses into a few kernels, where the library calls (a batched ``potrf`` and two batched
-    triangular solves on a GPU) each run on their own. Only the lower triangle of ``a`` is read. For the
-    robot's Schur complement, n = 14: about n^3 / 6 = 460 multiply-adds.
-    """
-    n = a.shape[-1]
-    low: list[list[jax.Array]] = [[] for _ in range(n)]
-    for i in range(n):
-        for j in range(i + 1):
-            acc = a[i, j]
-            for k in range(j):
-                acc = acc - low[i][k] * low[j][k]
-            low[i].append(jnp.sqrt(acc) if i == j else acc / low[j][j])
-    z: list[jax.Array] = []
-    for i in range(n):  # L z = y
-        acc = y[i]
-        for k in range(i):
-            acc = acc - low[i][k] * z[k]
-        z.append(acc / low[i][i])
-    x: list[jax.Array] = [jnp.zeros((), y.dtype)] * n
-    for i in reversed(range(n)):  # L^T x = z
-        acc = z[i]
-        for k in range(i + 1, n):
-            acc = acc - low[k][i] * x[k]
-        x[i] = acc / low[i][i]
-    return jnp.stack(x)
-
-
 def _gradient(
     m: mjx.Model, d: mjx.Data, ctx: solver.Context, split: LeafSplit, m_rr: jax.Array, m_kk: jax.Array
 ) -> solver.Context:
@@ -195,6 +165,19 @@ def _gradient(
     x_k = (g_k - b.T @ x_r) / c
     mgrad = split.join(x_r, x_k)
     return ctx.replace(grad=grad, Mgrad=mgrad)
+
+
+def _gradient_dense(m: mjx.Model, d: mjx.Data, ctx: solver.Context, cholesky: str) -> solver.Context:
+    """MJX's ``_update_gradient`` for Newton (pyramidal cone, dense M), solved by a ``small_spd`` form.
+
+    ``H = M + J^T diag(D active) J``, symmetrised as MJX does before its Cholesky; ``Mgrad = H^-1 grad``.
+    ``cholesky``: a key of ``small_spd.SOLVERS``.
+    """
+    grad = ctx.Ma - d.qfrc_smooth - ctx.qfrc_constraint
+    jac = d._impl.efc_J
+    h = support.full_m(m, d) + (jac.T * (d._impl.efc_D * ctx.active)) @ jac
+    factor, solve = SOLVERS[cholesky]
+    return ctx.replace(grad=grad, Mgrad=solve(factor((h + h.T) * 0.5), grad))
 
 
 def newton_loop(
@@ -234,20 +217,26 @@ def is_newton_pyramidal(m: mjx.Model) -> bool:
     return m.opt.solver == SolverType.NEWTON and m.opt.cone == ConeType.PYRAMIDAL
 
 
-def solve(m: mjx.Model, d: mjx.Data, split: LeafSplit | None) -> mjx.Data:
+def solve(m: mjx.Model, d: mjx.Data, split: LeafSplit | None, cholesky: str = "library") -> mjx.Data:
     """MJX's ``solver.solve`` (Newton): the same warm start, direction, line search and exits.
 
     Two changes where the scene has leaves (``split``), neither to the values: the direction comes from the
     arrowhead factorisation (:func:`_gradient`) and the Newton loop is written out (:func:`newton_loop`).
-    Without leaves the direction is MJX's own (``solver._update_gradient``: the dense Hessian's Cholesky) in
-    MJX's ``while_loop``, which is faster there (measured; comment below); only the start is shared.
+    Without leaves the direction is MJX's dense Hessian's Cholesky (``solver._update_gradient``; with
+    ``cholesky`` a ``small_spd.SOLVERS`` form, :func:`_gradient_dense`'s written-out one) in MJX's
+    ``while_loop``, which is faster there (measured; comment below); only the start is shared.
     """
     if not is_newton_pyramidal(m):
         raise ValueError(
             f"leaf_newton.solve needs the Newton solver and the pyramidal cone; the model has "
             f"{m.opt.solver} and {m.opt.cone} (use mjx.step)"
         )
-    if split is None:
+    if split is None and cholesky != "library":
+
+        def gradient(ctx: solver.Context) -> solver.Context:
+            return _gradient_dense(m, d, ctx, cholesky)
+
+    elif split is None:
 
         def gradient(ctx: solver.Context) -> solver.Context:
             return solver._update_gradient(m, d, ctx)

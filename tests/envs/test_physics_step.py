@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from mujoco import mjx
 
-from bar_policy.envs import contact_rows, leaf_newton, physics_step
+from bar_policy.envs import contact_rows, leaf_newton, physics_step, small_spd
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.scene import load_model
 from bar_policy.tasks.piano.keyboard import compact_config
@@ -94,10 +94,10 @@ def test_ancestor_mask_by_hand() -> None:
     assert sorted(np.flatnonzero(anc[wrists[0]] | anc[wrists[1]]).tolist()) == list(range(14))
 
 
-def _compare(m: mujoco.MjModel, states: list[mujoco.MjData]) -> int:
+def _compare(m: mujoco.MjModel, states: list[mujoco.MjData], cholesky: str = "library") -> int:
     """physics_step.forward/step against mjx.forward/step from each state, float64; returns the largest
-    number of active contact rows seen (to show the states are in contact)."""
-    plan = physics_step.plan(m)
+    number of active contact rows seen (to show the states are in contact). ``cholesky``: the plan's."""
+    plan = physics_step.plan(m, cholesky=cholesky)
     most = 0
     with jax.enable_x64(True):
         mx = mjx.put_model(m)
@@ -128,7 +128,9 @@ def test_piano_step_equals_mjx_step_in_contact(piano) -> None:
     assert _compare(piano, states) >= 2  # both fingertips on keys (contact rows active)
 
 
-def test_reach_step_equals_mjx_step() -> None:
+@pytest.mark.parametrize("cholesky", physics_step.CHOLESKY)
+def test_reach_step_equals_mjx_step(cholesky: str) -> None:
+    # scalar / columns: every Cholesky of the step written out (small_spd; opt-in, for the GPU's graphs).
     m = load_model("arms")
     rng = np.random.default_rng(3)
     states = []
@@ -139,12 +141,14 @@ def test_reach_step_equals_mjx_step() -> None:
         mujoco.mj_forward(m, d)
         states.append(d)
     assert physics_step.plan(m).split is None
-    _compare(m, states)
+    assert physics_step.plan(m, cholesky=cholesky).unrolled is (cholesky != "library")
+    _compare(m, states, cholesky)
 
 
-def test_spd_solve_against_numpy() -> None:
+def test_small_spd_against_numpy() -> None:
     # A 14 x 14 SPD matrix with eigenvalues 1 .. 1e3 (condition 1e3): a backward-stable solve in float64
-    # has relative error <= ~n * cond * eps = 14 * 1e3 * 2.2e-16 = 3e-12; checked at 1e-10.
+    # has relative error <= ~n * cond * eps = 14 * 1e3 * 2.2e-16 = 3e-12; checked at 1e-10. The factor is
+    # numpy's Cholesky (unique with a positive diagonal): error ~n * eps * cond^0.5 = 1e-13, checked at 1e-12.
     rng = np.random.default_rng(5)
     q, _ = np.linalg.qr(rng.normal(size=(14, 14)))
     a = (q * np.geomspace(1.0, 1e3, 14)) @ q.T
@@ -153,8 +157,54 @@ def test_spd_solve_against_numpy() -> None:
     upper_garbage = np.tril(a) + np.triu(np.full((14, 14), 7.0), 1)  # only the lower triangle is read
     with jax.enable_x64(True):
         for m in (a, upper_garbage):
-            x = np.asarray(jax.jit(leaf_newton.spd_solve)(jnp.asarray(m), jnp.asarray(y)))
+            x = np.asarray(jax.jit(small_spd.spd_solve)(jnp.asarray(m), jnp.asarray(y)))
             np.testing.assert_allclose(x, expected, rtol=1e-10, atol=0)
+            low = np.asarray(jax.jit(small_spd.cholesky)(jnp.asarray(m)))
+            np.testing.assert_allclose(low, np.linalg.cholesky(a), rtol=0, atol=1e-12 * np.abs(low).max())
+            x = np.asarray(jax.jit(small_spd.cho_solve)(jnp.asarray(low), jnp.asarray(y)))
+            np.testing.assert_allclose(x, expected, rtol=1e-10, atol=0)
+            # The columns form: the same factor (zeros above the diagonal) and solve, the same bounds.
+            factor, solve = small_spd.SOLVERS["columns"]
+            low_c = np.asarray(jax.jit(factor)(jnp.asarray(m)))
+            np.testing.assert_allclose(low_c, np.linalg.cholesky(a), rtol=0, atol=1e-12 * np.abs(low).max())
+            assert not np.triu(low_c, 1).any()
+            x = np.asarray(jax.jit(solve)(jnp.asarray(low_c), jnp.asarray(y)))
+            np.testing.assert_allclose(x, expected, rtol=1e-10, atol=0)
+    # The piano's Newton direction takes the same solve through leaf_newton.
+    assert leaf_newton.spd_solve is small_spd.spd_solve
+
+
+def test_written_out_cholesky_needs_a_dense_mass_matrix(piano) -> None:
+    # The keyboard's 63 dofs make MJX's mass matrix sparse (nv >= 60): no written-out factor for it.
+    assert not physics_step.plan(piano).unrolled
+    with pytest.raises(ValueError, match="cholesky 'columns' needs a dense mass matrix, nv = 63 is sparse"):
+        physics_step.plan(piano, cholesky="columns")
+    with pytest.raises(ValueError, match=r"unknown cholesky 'lu'; valid: \['library', 'scalar', 'columns'\]"):
+        physics_step.plan(piano, cholesky="lu")
+
+
+def _cuda_library_calls(m: mujoco.MjModel, cholesky: str) -> tuple[list[str], int]:
+    """The custom-call targets and the triangular solves of a batch of physics steps lowered for CUDA."""
+    import re
+
+    from jax import export
+
+    mx, p = mjx.put_model(m), physics_step.plan(m, cholesky=cholesky)
+    batch = jax.tree.map(lambda x: jnp.broadcast_to(x, (4, *x.shape)), mjx.make_data(m))
+    f = jax.jit(jax.vmap(lambda d: physics_step.step(mx, d, p)))
+    text = export.export(f, platforms=("cuda",))(batch).mlir_module()
+    return sorted(set(re.findall(r"custom_call @([\w$]+)", text))), text.count("triangular_solve")
+
+
+def test_written_out_step_has_no_library_call_on_cuda() -> None:
+    # XLA records no cuSOLVER potrf and no cuBLAS triangular solve into a command buffer (a CUDA graph), so
+    # those split the step's graphs (physics_step, item 4). Lowered for CUDA (no GPU needed): the default
+    # step holds the mass matrix's and the Newton direction's potrf and their solves; written out, none.
+    m = load_model("arms")
+    calls, trsm = _cuda_library_calls(m, "library")
+    assert "cusolver_potrf_ffi" in calls and trsm > 0
+    for form in small_spd.SOLVERS:
+        assert _cuda_library_calls(m, form) == ([], 0), form
 
 
 def test_while_newton_loop_gives_the_same_step(piano, monkeypatch) -> None:

@@ -1,0 +1,82 @@
+#!/usr/bin/env bash
+# Issue 19's steady-loop target (loop >= 90 % of the raw env) on one GPU: does a physics step that XLA can
+# record whole into CUDA graphs change the picture? (docs/benchmarks.md, session 42.)
+#
+# XLA records no cuSOLVER potrf and no cuBLAS triangular solve into a command buffer, and a while loop
+# becomes a graph node only when its whole body can be recorded (and WHILE is among the enabled command
+# types, which by default it is not). The reach step's library Cholesky calls therefore split every
+# physics step's graphs, and MJX's Newton while_loop sends its predicate to the host on every iteration.
+# `--cholesky columns` (or `scalar`) builds the env on written-out factors (envs.small_spd), which leave no
+# library call in the step (tests/envs/test_physics_step.py lowers it for CUDA).
+#
+# One process per variant, each `bench/train_breakdown.py` (env alone, rollout, update, epoch, loop):
+#   VARIANTS (default below): NAME=CHOLESKY:XLA_FLAGS entries, separated by spaces; the flags' commas
+#   are kept as they are. Every variant gets the trainer's schedule (CONCURRENT) unless it names one.
+#   PIPE=1: then bench/stream_overlap.py --plain (the update of one iteration beside the next rollout in
+#   one program) under PIPE_VARIANT (default columns_while).
+#   STEP_TIMEOUT: seconds per process (default 240). BREAKDOWN_ARGS / OVERLAP_ARGS: the two benches' other
+#   arguments (defaults below; the overlap's: the gpu preset, 5 timed calls).
+# $OUT gets breakdown_<name>.md per variant, overlap_<name>.md and summary_capture.md (the rows side by side).
+#
+# Usage (repository root, after the pip prefix of /work/shared/gpu/README.md):
+#   bash bench/capture_variants.sh
+#   VARIANTS="lib=library: col=columns:" PIPE_VARIANT=col JAX_PLATFORMS=cpu \
+#     BREAKDOWN_ARGS="--preset tiny --iters 1 --epoch-iters 1" \
+#     OVERLAP_ARGS="--preset tiny --iters 1 --micro-steps 4" bash bench/capture_variants.sh   # CPU smoke
+set -u
+OUT=${OUT:-/tmp/capture_out}
+mkdir -p "$OUT"
+export PYTHONUNBUFFERED=1
+CONC=--xla_gpu_command_buffer_scheduling_mode=CONCURRENT
+WHILE=--xla_gpu_enable_command_buffer=+WHILE
+VARIANTS=${VARIANTS:-"library=library:$CONC columns=columns:$CONC library_while=library:$CONC $WHILE columns_while=columns:$CONC $WHILE"}
+BREAKDOWN_ARGS=${BREAKDOWN_ARGS:-"--iters 2 --epoch-iters 4"}
+OVERLAP_ARGS=${OVERLAP_ARGS:-}
+STEP_TIMEOUT=${STEP_TIMEOUT:-240}
+T0=$(date +%s)
+stamp() { echo "[$(( $(date +%s) - T0 )) s] $*"; }
+
+# "a=x:F1 F2 b=y:F3" -> one line per variant: name, cholesky, flags
+split_variants() {
+  python3 - "$VARIANTS" <<'EOF'
+import re, sys
+for m in re.finditer(r"(\w+)=(\w+):(.*?)(?=\s+\w+=\w+:|$)", sys.argv[1].strip()):
+    print(m.group(1), m.group(2), m.group(3).strip(), sep="\t")
+EOF
+}
+
+declare -A FLAGS_OF CHOL_OF
+NAMES=()
+while IFS=$'\t' read -r name chol flags; do
+  NAMES+=("$name"); CHOL_OF[$name]=$chol; FLAGS_OF[$name]=$flags
+done < <(split_variants)
+[ ${#NAMES[@]} -gt 0 ] || { echo "no variant in VARIANTS=$VARIANTS (NAME=CHOLESKY:FLAGS ...)"; exit 2; }
+
+for name in "${NAMES[@]}"; do
+  stamp "breakdown $name: --cholesky ${CHOL_OF[$name]}, XLA_FLAGS '${FLAGS_OF[$name]}'"
+  # shellcheck disable=SC2086
+  XLA_FLAGS="${FLAGS_OF[$name]}" timeout "$STEP_TIMEOUT" python3 bench/train_breakdown.py $BREAKDOWN_ARGS \
+    --cholesky "${CHOL_OF[$name]}" --out "$OUT/breakdown_$name.md" \
+    > "$OUT/breakdown_$name.log" 2>&1
+  stamp "  rc $? ($(grep -c . "$OUT/breakdown_$name.log") log lines)"
+done
+
+if [ "${PIPE:-1}" = 1 ]; then
+  name=${PIPE_VARIANT:-columns_while}
+  stamp "overlap $name"
+  # shellcheck disable=SC2086
+  XLA_FLAGS="${FLAGS_OF[$name]:-}" timeout "$STEP_TIMEOUT" python3 bench/stream_overlap.py --plain $OVERLAP_ARGS \
+    --cholesky "${CHOL_OF[$name]:-library}" --out "$OUT/overlap_$name.md" > "$OUT/overlap_$name.log" 2>&1
+  stamp "  rc $?"
+fi
+
+{
+  echo "capture variants, $(python3 -c 'import jax; print(jax.devices()[0].device_kind, "jax", jax.__version__)' 2>/dev/null)"
+  for name in "${NAMES[@]}"; do
+    echo; echo "## $name (--cholesky ${CHOL_OF[$name]}, XLA_FLAGS '${FLAGS_OF[$name]}')"
+    grep -E '^\| (env|rollout|update|epoch|loop)' "$OUT/breakdown_$name.md" 2>/dev/null \
+      || tail -5 "$OUT/breakdown_$name.log"
+  done
+  for f in "$OUT"/overlap_*.md; do [ -f "$f" ] && { echo; cat "$f"; }; done
+} > "$OUT/summary_capture.md"
+cat "$OUT/summary_capture.md"
