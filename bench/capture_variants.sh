@@ -6,8 +6,8 @@
 # becomes a graph node only when its whole body can be recorded (and WHILE is among the enabled command
 # types, which by default it is not). The reach step's library Cholesky calls therefore split every
 # physics step's graphs, and MJX's Newton while_loop sends its predicate to the host on every iteration.
-# `--cholesky columns` (or `scalar`) builds the env on written-out factors (envs.small_spd), which leave no
-# library call in the step (tests/envs/test_physics_step.py lowers it for CUDA).
+# The env option `cholesky=columns` (or `scalar`) builds the step on written-out factors (envs.small_spd),
+# which leave no library call in it (tests/envs/test_physics_step.py lowers it for CUDA).
 #
 # One process per variant, each `bench/train_breakdown.py` (env alone, rollout, update, epoch, loop):
 #   VARIANTS (default below): NAME=CHOLESKY:XLA_FLAGS entries, separated by spaces; the flags' commas
@@ -15,7 +15,8 @@
 #   PIPE=1: then bench/stream_overlap.py --plain (the update of one iteration beside the next rollout in
 #   one program) under PIPE_VARIANT (default columns_while).
 #   STEP_TIMEOUT: seconds per process (default 240). BREAKDOWN_ARGS / OVERLAP_ARGS: the two benches' other
-#   arguments (defaults below; the overlap's: the gpu preset, 5 timed calls).
+#   arguments (defaults below; the overlap's: the gpu preset, 5 timed calls). Each process gets
+#   `--set env_overrides=cholesky=<form>`, so these must not hold a `--set` of their own.
 # $OUT gets breakdown_<name>.md per variant, overlap_<name>.md and summary_capture.md (the rows side by side).
 #
 # Usage (repository root, after the pip prefix of /work/shared/gpu/README.md):
@@ -53,10 +54,10 @@ done < <(split_variants)
 [ ${#NAMES[@]} -gt 0 ] || { echo "no variant in VARIANTS=$VARIANTS (NAME=CHOLESKY:FLAGS ...)"; exit 2; }
 
 for name in "${NAMES[@]}"; do
-  stamp "breakdown $name: --cholesky ${CHOL_OF[$name]}, XLA_FLAGS '${FLAGS_OF[$name]}'"
+  stamp "breakdown $name: cholesky=${CHOL_OF[$name]}, XLA_FLAGS '${FLAGS_OF[$name]}'"
   # shellcheck disable=SC2086
   XLA_FLAGS="${FLAGS_OF[$name]}" timeout "$STEP_TIMEOUT" python3 bench/train_breakdown.py $BREAKDOWN_ARGS \
-    --cholesky "${CHOL_OF[$name]}" --out "$OUT/breakdown_$name.md" \
+    --set env_overrides=cholesky="${CHOL_OF[$name]}" --out "$OUT/breakdown_$name.md" \
     > "$OUT/breakdown_$name.log" 2>&1
   stamp "  rc $? ($(grep -c . "$OUT/breakdown_$name.log") log lines)"
 done
@@ -66,14 +67,15 @@ if [ "${PIPE:-1}" = 1 ]; then
   stamp "overlap $name"
   # shellcheck disable=SC2086
   XLA_FLAGS="${FLAGS_OF[$name]:-}" timeout "$STEP_TIMEOUT" python3 bench/stream_overlap.py --plain $OVERLAP_ARGS \
-    --cholesky "${CHOL_OF[$name]:-library}" --out "$OUT/overlap_$name.md" > "$OUT/overlap_$name.log" 2>&1
+    --set env_overrides=cholesky="${CHOL_OF[$name]:-library}" --out "$OUT/overlap_$name.md" \
+    > "$OUT/overlap_$name.log" 2>&1
   stamp "  rc $?"
 fi
 
 {
   echo "capture variants, $(python3 -c 'import jax; print(jax.devices()[0].device_kind, "jax", jax.__version__)' 2>/dev/null)"
   for name in "${NAMES[@]}"; do
-    echo; echo "## $name (--cholesky ${CHOL_OF[$name]}, XLA_FLAGS '${FLAGS_OF[$name]}')"
+    echo; echo "## $name (cholesky=${CHOL_OF[$name]}, XLA_FLAGS '${FLAGS_OF[$name]}')"
     grep -E '^\| (env|rollout|update|epoch|loop)' "$OUT/breakdown_$name.md" 2>/dev/null \
       || tail -5 "$OUT/breakdown_$name.log"
   done

@@ -66,7 +66,7 @@ def _one(args: argparse.Namespace) -> dict[str, Any]:
     from bar_policy.training.brax_ppo import host_key
 
     row: dict[str, Any] = {"variant": args.one, "options": VARIANTS[args.one]}
-    o = one_device(args.preset, args.env, args.set, args.cache_dir, args.epoch_iters, args.cholesky)
+    o = one_device(args.preset, args.env, args.set, args.cache_dir, args.epoch_iters)
     row["seed"] = o.seed_line
     dp = o.dp
     t0 = time.monotonic()

@@ -56,7 +56,7 @@ def _compile_part(args: argparse.Namespace) -> dict[str, Any]:
     from bar_policy.training.brax_programs import slot_env
     from bar_policy.training.parallel import AXIS
 
-    o = one_device(args.preset, args.env, args.set, args.cache_dir, cholesky=args.cholesky)
+    o = one_device(args.preset, args.env, args.set, args.cache_dir)
     dp, progs, key_abs, i_abs, ts_abs, envs_abs = o.dp, o.progs, o.key_abs, o.i_abs, o.ts_abs, o.envs_abs
     env, randomizer, wrap = o.env, o.randomizer, envs.wrap_for_brax_training
     shard = jax.sharding.PartitionSpec(AXIS)

@@ -1,11 +1,8 @@
-"""The training-config arguments the GPU benches share: ``--preset``, ``--env``, ``--set``, ``--cholesky``.
+"""The training-config arguments the GPU benches share: ``--preset``, ``--env``, ``--set``.
 
 ``add_config_args`` declares them; ``config_argv`` passes them on to a bench's child process; ``load_env``
 builds the env the way the trainer does (``training.run``: the config's ``env_overrides`` applied, so
 ``--set env_overrides=sim_dt=0.004`` reaches the env); ``pick`` reads a comma-separated choice list.
-``--cholesky scalar|columns`` builds the env on ``physics_step.plan(cholesky=...)``: the dense mass matrix's
-Cholesky factors written out (``envs.small_spd``), which XLA can record into CUDA graphs, where the library
-calls (the default, ``library``) it cannot.
 """
 
 from __future__ import annotations
@@ -20,36 +17,18 @@ def add_config_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--preset", default="gpu")
     p.add_argument("--env", default="LiteReach")
     p.add_argument("--set", nargs="*", default=[], help="config overrides, e.g. ppo.num_envs=8192")
-    p.add_argument(
-        "--cholesky",
-        choices=("library", "scalar", "columns"),
-        default="library",
-        help="the dense physics step's Cholesky factors: jax's library calls (the trainer's) or a form "
-        "written out (envs.small_spd)",
-    )
 
 
 def config_argv(args: argparse.Namespace) -> list[str]:
     """The arguments of :func:`add_config_args` as a child process's command line."""
-    argv = ["--preset", args.preset, "--env", args.env, "--cholesky", args.cholesky]
-    return argv + (["--set", *args.set] if args.set else [])
+    return ["--preset", args.preset, "--env", args.env] + (["--set", *args.set] if args.set else [])
 
 
-def load_env(name: str, cfg: Any, cholesky: str = "library") -> Any:
-    """``envs.load(name)`` with ``cfg.env_overrides`` applied, as the trainer builds it.
-
-    ``cholesky``: ``physics_step.plan``'s (one of ``physics_step.CHOLESKY``; a written-out form is a
-    ValueError for a scene whose mass matrix MJX keeps sparse, the piano's).
-    """
-    import functools
-    from unittest import mock
-
+def load_env(name: str, cfg: Any) -> Any:
+    """``envs.load(name)`` with ``cfg.env_overrides`` applied, as the trainer builds it."""
     from bar_policy import envs
-    from bar_policy.envs import physics_step
 
-    plan = functools.partial(physics_step.plan, cholesky=cholesky)
-    with mock.patch.object(physics_step, "plan", plan):  # the robot plans its step when it is built
-        return envs.load(name, overrides=list(cfg.env_overrides) or None)
+    return envs.load(name, overrides=list(cfg.env_overrides) or None)
 
 
 def pick(p: argparse.ArgumentParser, text: str, valid: Sequence[str], what: str) -> list[str]:

@@ -35,17 +35,11 @@ class OneDevice:
 
 
 def one_device(
-    preset_name: str,
-    env_name: str,
-    overrides: list[str],
-    cache_dir: str,
-    iters: int = 0,
-    cholesky: str = "library",
+    preset_name: str, env_name: str, overrides: list[str], cache_dir: str, iters: int = 0
 ) -> OneDevice:
     """Compile cache at ``cache_dir`` (seeded), then the programs of ``preset_name`` + ``overrides``.
 
-    ``iters``: the fused epoch's iterations (0: the trainer's, ``epoch_iterations``); ``cholesky``: as
-    ``config_args.load_env``'s.
+    ``iters``: the fused epoch's iterations (0: the trainer's, ``epoch_iterations``).
     """
     import jax
     import numpy as np
@@ -63,7 +57,7 @@ def one_device(
 
     seed_line = seed_autotune_cache(configure_compile_cache(True, cache_dir)).line()
     cfg = apply_overrides(preset(preset_name), overrides)
-    env = load_env(env_name, cfg, cholesky)
+    env = load_env(env_name, cfg)
     randomizer = envs.get_randomizer(env_name, env.config)
     wrap = envs.wrap_for_brax_training
     dp = DataParallel(Mesh(np.asarray(jax.devices()[:1]), (AXIS,)))

@@ -49,7 +49,7 @@ def _compile_set(args: argparse.Namespace) -> dict[str, Any]:
 
     names = args.compile_set.split("+")
     out: dict[str, Any] = {"set": args.compile_set}
-    o = one_device(args.preset, args.env, args.set, args.cache_dir, cholesky=args.cholesky)
+    o = one_device(args.preset, args.env, args.set, args.cache_dir)
     out["seed"] = o.seed_line
     dp, progs, key_abs, i_abs, ts_abs, envs_abs = o.dp, o.progs, o.key_abs, o.i_abs, o.ts_abs, o.envs_abs
     lowered: dict[str, Any] = {}

@@ -49,7 +49,7 @@ def main() -> int:
     from bar_policy.training.startup import configure_compile_cache
 
     configure_compile_cache(True)
-    env = load_env(args.env, cfg, args.cholesky)
+    env = load_env(args.env, cfg)
     device = torch_device_for_jax()
     vec = RslRlVecEnv(
         env,

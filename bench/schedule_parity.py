@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> str:
     jax.config.update(
         "jax_default_matmul_precision", "highest" if cfg.matmul_precision == "highest" else None
     )
-    env = load_env(args.env, cfg, args.cholesky)
+    env = load_env(args.env, cfg)
     dp = DataParallel(Mesh(np.asarray(jax.devices()[:1]), (AXIS,)))
     learner = make_learner(env.observation_size, env.action_size, cfg.ppo, cfg.network)
     progs = make_programs(env, cfg, learner, dp, envs.wrap_for_brax_training, envs.get_randomizer(args.env))

@@ -139,7 +139,7 @@ def main() -> int:
     )
     print("autotune seed:", seed_autotune_cache(cache_dir, enabled=cfg.autotune_seed))
     ppo = cfg.ppo
-    env = load_env(args.env, cfg, args.cholesky)
+    env = load_env(args.env, cfg)
     randomizer = envs.get_randomizer(args.env, env.config)
     dp = DataParallel(Mesh(np.asarray(jax.devices()[:1]), (AXIS,)))
     learner = make_learner(env.observation_size, env.action_size, ppo, cfg.network)

@@ -114,7 +114,7 @@ def main() -> int:
     )
     print("autotune seed:", seed_autotune_cache(cache_dir, enabled=cfg.autotune_seed))
     ppo = cfg.ppo
-    env = load_env(args.env, cfg, args.cholesky)  # --set env_overrides=... reaches the env
+    env = load_env(args.env, cfg)  # --set env_overrides=sim_dt=0.004 reaches the env
     randomizer = envs.get_randomizer(args.env, env.config)
     wrap = envs.wrap_for_brax_training
     dp = DataParallel(Mesh(np.asarray(jax.devices()[:1]), (AXIS,)))

@@ -75,7 +75,7 @@ def main() -> int:
     )
     seed_autotune_cache(cache_dir, enabled=cfg.autotune_seed)
     ppo = cfg.ppo
-    env = load_env(args.env, cfg, args.cholesky)
+    env = load_env(args.env, cfg)
     learner = make_learner(env.observation_size, env.action_size, ppo, cfg.network)
     devices = jax.devices()[: args.devices]
     if len(devices) < args.devices:

@@ -109,7 +109,7 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         if obs_manager.joint_names != self.robot.joint_names:
             raise ValueError(f"layout {obs_manager.schema.name} is for mode {obs_manager.schema.mode!r}")
         self._mj_model = mj_model
-        self._step_plan = physics_step.plan(mj_model)  # mjx.step, with exact speed-ups (physics_step)
+        self._step_plan = physics_step.plan(mj_model, cfg.cholesky)  # mjx.step, exact speed-ups
         with phase(MODEL_BUILD):
             self._mjx_model = mjx.put_model(mj_model)
             self._init_data = mjx.put_data(mj_model, mujoco.MjData(mj_model))

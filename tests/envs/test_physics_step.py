@@ -183,6 +183,18 @@ def test_written_out_cholesky_needs_a_dense_mass_matrix(piano) -> None:
         physics_step.plan(piano, cholesky="lu")
 
 
+def test_env_config_picks_the_cholesky_form(piano) -> None:
+    # The env option reaches the robot's step plan; a bad name and the sparse piano fail at build time.
+    from bar_policy import envs
+
+    assert envs.load("LiteReach")._step_plan.cholesky == "library"
+    assert envs.load("LiteReach", overrides=["cholesky=columns"])._step_plan.cholesky == "columns"
+    with pytest.raises(ValueError, match=r"unknown cholesky 'lu'; valid: \['library', 'scalar', 'columns'\]"):
+        envs.load("LiteReach", overrides=["cholesky=lu"])
+    with pytest.raises(ValueError, match="cholesky 'scalar' needs a dense mass matrix, nv = 63"):
+        envs.load("LitePiano", overrides=["cholesky=scalar"])
+
+
 def _cuda_library_calls(m: mujoco.MjModel, cholesky: str) -> tuple[list[str], int]:
     """The custom-call targets and the triangular solves of a batch of physics steps lowered for CUDA."""
     import re
