@@ -231,21 +231,15 @@ def solve(m: mjx.Model, d: mjx.Data, split: LeafSplit | None, cholesky: str = "l
             f"leaf_newton.solve needs the Newton solver and the pyramidal cone; the model has "
             f"{m.opt.solver} and {m.opt.cone} (use mjx.step)"
         )
-    if split is None and cholesky != "library":
-
-        def gradient(ctx: solver.Context) -> solver.Context:
-            return _gradient_dense(m, d, ctx, cholesky)
-
-    elif split is None:
-
-        def gradient(ctx: solver.Context) -> solver.Context:
-            return solver._update_gradient(m, d, ctx)
-
-    else:
+    # The direction: the arrowhead's with leaves, else the dense Hessian's (MJX's, or written out).
+    gradient: Callable[[solver.Context], solver.Context]
+    if split is not None:
         m_rr, m_kk = _mass_parts(m, d, split)
-
-        def gradient(ctx: solver.Context) -> solver.Context:
-            return _gradient(m, d, ctx, split, m_rr, m_kk)
+        gradient = functools.partial(_gradient, m, d, split=split, m_rr=m_rr, m_kk=m_kk)
+    elif cholesky == "library":
+        gradient = functools.partial(solver._update_gradient, m, d)
+    else:
+        gradient = functools.partial(_gradient_dense, m, d, cholesky=cholesky)
 
     def cond(ctx: solver.Context) -> jax.Array:
         improvement = solver._rescale(m, d, ctx.prev_cost - ctx.cost)

@@ -159,17 +159,13 @@ def test_small_spd_against_numpy() -> None:
         for m in (a, upper_garbage):
             x = np.asarray(jax.jit(small_spd.spd_solve)(jnp.asarray(m), jnp.asarray(y)))
             np.testing.assert_allclose(x, expected, rtol=1e-10, atol=0)
-            low = np.asarray(jax.jit(small_spd.cholesky)(jnp.asarray(m)))
-            np.testing.assert_allclose(low, np.linalg.cholesky(a), rtol=0, atol=1e-12 * np.abs(low).max())
-            x = np.asarray(jax.jit(small_spd.cho_solve)(jnp.asarray(low), jnp.asarray(y)))
-            np.testing.assert_allclose(x, expected, rtol=1e-10, atol=0)
-            # The columns form: the same factor (zeros above the diagonal) and solve, the same bounds.
-            factor, solve = small_spd.SOLVERS["columns"]
-            low_c = np.asarray(jax.jit(factor)(jnp.asarray(m)))
-            np.testing.assert_allclose(low_c, np.linalg.cholesky(a), rtol=0, atol=1e-12 * np.abs(low).max())
-            assert not np.triu(low_c, 1).any()
-            x = np.asarray(jax.jit(solve)(jnp.asarray(low_c), jnp.asarray(y)))
-            np.testing.assert_allclose(x, expected, rtol=1e-10, atol=0)
+            # Each form's factor (zeros above the diagonal) and solve against numpy, the same bounds.
+            for factor, solve in small_spd.SOLVERS.values():
+                low = np.asarray(jax.jit(factor)(jnp.asarray(m)))
+                np.testing.assert_allclose(low, np.linalg.cholesky(a), rtol=0, atol=1e-12 * np.abs(low).max())
+                assert not np.triu(low, 1).any()
+                x = np.asarray(jax.jit(solve)(jnp.asarray(low), jnp.asarray(y)))
+                np.testing.assert_allclose(x, expected, rtol=1e-10, atol=0)
     # The piano's Newton direction takes the same solve through leaf_newton.
     assert leaf_newton.spd_solve is small_spd.spd_solve
 
