@@ -16,7 +16,8 @@
 #   one program) under PIPE_VARIANT (default columns_while).
 #   STEP_TIMEOUT: seconds per process (default 240). BREAKDOWN_ARGS / OVERLAP_ARGS: the two benches' other
 #   arguments (defaults below; the overlap's: the gpu preset, 5 timed calls). Each process gets
-#   `--set env_overrides=cholesky=<form>`, so these must not hold a `--set` of their own.
+#   `--env-overrides cholesky=<form>` (added to the preset's own, so the gpu preset keeps its 4 ms step; session
+#   43's first call passed `--set env_overrides=...`, which replaced them and measured at 2 ms).
 # $OUT gets breakdown_<name>.md per variant, overlap_<name>.md and summary_capture.md (the rows side by side).
 #
 # Usage (repository root, after the pip prefix of /work/shared/gpu/README.md):
@@ -57,7 +58,7 @@ for name in "${NAMES[@]}"; do
   stamp "breakdown $name: cholesky=${CHOL_OF[$name]}, XLA_FLAGS '${FLAGS_OF[$name]}'"
   # shellcheck disable=SC2086
   XLA_FLAGS="${FLAGS_OF[$name]}" timeout "$STEP_TIMEOUT" python3 bench/train_breakdown.py $BREAKDOWN_ARGS \
-    --set env_overrides=cholesky="${CHOL_OF[$name]}" --out "$OUT/breakdown_$name.md" \
+    --env-overrides cholesky="${CHOL_OF[$name]}" --out "$OUT/breakdown_$name.md" \
     > "$OUT/breakdown_$name.log" 2>&1
   stamp "  rc $? ($(grep -c . "$OUT/breakdown_$name.log") log lines)"
 done
@@ -67,7 +68,7 @@ if [ "${PIPE:-1}" = 1 ]; then
   stamp "overlap $name"
   # shellcheck disable=SC2086
   XLA_FLAGS="${FLAGS_OF[$name]:-}" timeout "$STEP_TIMEOUT" python3 bench/stream_overlap.py --plain $OVERLAP_ARGS \
-    --set env_overrides=cholesky="${CHOL_OF[$name]:-library}" --out "$OUT/overlap_$name.md" \
+    --env-overrides cholesky="${CHOL_OF[$name]:-library}" --out "$OUT/overlap_$name.md" \
     > "$OUT/overlap_$name.log" 2>&1
   stamp "  rc $?"
 fi

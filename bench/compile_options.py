@@ -37,7 +37,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from config_args import add_config_args, config_argv, pick
+from config_args import add_config_args, config_argv, config_label, pick
 from json_child import json_child
 from one_device import one_device
 from report import emit
@@ -66,7 +66,7 @@ def _one(args: argparse.Namespace) -> dict[str, Any]:
     from bar_policy.training.brax_ppo import host_key
 
     row: dict[str, Any] = {"variant": args.one, "options": VARIANTS[args.one]}
-    o = one_device(args.preset, args.env, args.set, args.cache_dir, args.epoch_iters)
+    o = one_device(args, args.cache_dir, args.epoch_iters)
     row["seed"] = o.seed_line
     dp = o.dp
     t0 = time.monotonic()
@@ -166,7 +166,7 @@ def _table(rows: list[dict[str, Any]], args: argparse.Namespace) -> str:
         return "-" if v is None else format(v, fmt)
 
     lines = [
-        f"compile options: {args.env}, preset {args.preset} {' '.join(args.set)}, epoch program, "
+        f"compile options: {args.env}, {config_label(args)}, epoch program, "
         f"{jax.devices()[0].device_kind}, jax {jax.__version__}",
         "",
         "| variant | options | compile s | env steps/s | first call s | MB | load s | load s (load flag) "

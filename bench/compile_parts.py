@@ -37,7 +37,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from config_args import add_config_args, config_argv, pick
+from config_args import add_config_args, config_argv, config_label, pick
 from json_child import json_child
 from one_device import one_device
 from report import emit
@@ -56,7 +56,7 @@ def _compile_part(args: argparse.Namespace) -> dict[str, Any]:
     from bar_policy.training.brax_programs import slot_env
     from bar_policy.training.parallel import AXIS
 
-    o = one_device(args.preset, args.env, args.set, args.cache_dir)
+    o = one_device(args, args.cache_dir)
     dp, progs, key_abs, i_abs, ts_abs, envs_abs = o.dp, o.progs, o.key_abs, o.i_abs, o.ts_abs, o.envs_abs
     env, randomizer, wrap = o.env, o.randomizer, envs.wrap_for_brax_training
     shard = jax.sharding.PartitionSpec(AXIS)
@@ -151,8 +151,7 @@ def main() -> int:
         rows.append({"part": part, **json_child(__file__, argv, timeout=args.timeout)})
         print(json.dumps(rows[-1]), flush=True)
     lines = [
-        f"compile parts: {args.env}, preset {args.preset} {' '.join(args.set)} (each in a fresh process, "
-        "empty cache + seeds)",
+        f"compile parts: {args.env}, {config_label(args)} (each in a fresh process, empty cache + seeds)",
         "",
         "| part | trace + lower s | compile s (wall) | each program's compile s | HLO lines | ms per 20 "
         "control steps | note |",

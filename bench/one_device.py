@@ -34,31 +34,29 @@ class OneDevice:
     """What the autotune seed did (``SeedOutcome.line``)."""
 
 
-def one_device(
-    preset_name: str, env_name: str, overrides: list[str], cache_dir: str, iters: int = 0
-) -> OneDevice:
-    """Compile cache at ``cache_dir`` (seeded), then the programs of ``preset_name`` + ``overrides``.
+def one_device(args: Any, cache_dir: str, iters: int = 0) -> OneDevice:
+    """Compile cache at ``cache_dir`` (seeded), then the programs of the config that ``args`` (a bench's
+    ``config_args.add_config_args`` arguments) names.
 
     ``iters``: the fused epoch's iterations (0: the trainer's, ``epoch_iterations``).
     """
     import jax
     import numpy as np
-    from config_args import load_env
+    from config_args import config_of, load_env
     from fused_epoch import fused_epoch
     from jax.sharding import Mesh
 
     from bar_policy import envs
     from bar_policy.training.autotune_seed import seed_autotune_cache
     from bar_policy.training.brax_ppo import epoch_iterations, make_programs
-    from bar_policy.training.config import apply_overrides, preset
     from bar_policy.training.learner import make_learner
     from bar_policy.training.parallel import AXIS, DataParallel
     from bar_policy.training.startup import configure_compile_cache
 
     seed_line = seed_autotune_cache(configure_compile_cache(True, cache_dir)).line()
-    cfg = apply_overrides(preset(preset_name), overrides)
-    env = load_env(env_name, cfg)
-    randomizer = envs.get_randomizer(env_name, env.config)
+    cfg = config_of(args)
+    env = load_env(args.env, cfg)
+    randomizer = envs.get_randomizer(args.env, env.config)
     wrap = envs.wrap_for_brax_training
     dp = DataParallel(Mesh(np.asarray(jax.devices()[:1]), (AXIS,)))
     learner = make_learner(env.observation_size, env.action_size, cfg.ppo, cfg.network)

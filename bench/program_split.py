@@ -31,7 +31,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from config_args import add_config_args, config_argv
+from config_args import add_config_args, config_argv, config_label
 from json_child import json_child
 from one_device import one_device
 from report import emit
@@ -49,7 +49,7 @@ def _compile_set(args: argparse.Namespace) -> dict[str, Any]:
 
     names = args.compile_set.split("+")
     out: dict[str, Any] = {"set": args.compile_set}
-    o = one_device(args.preset, args.env, args.set, args.cache_dir)
+    o = one_device(args, args.cache_dir)
     out["seed"] = o.seed_line
     dp, progs, key_abs, i_abs, ts_abs, envs_abs = o.dp, o.progs, o.key_abs, o.i_abs, o.ts_abs, o.envs_abs
     lowered: dict[str, Any] = {}
@@ -156,7 +156,7 @@ def main() -> int:
         rows.append({"set": s, **row})
         print(json.dumps(rows[-1]), flush=True)
     lines = [
-        f"program split: {args.env}, preset {args.preset} {' '.join(args.set)}",
+        f"program split: {args.env}, {config_label(args)}",
         "",
         "| set | trace+lower s (main) | compile s each (concurrent) | all compiled s | MB each | load s each "
         "(concurrent, fresh process) | all loaded s | note |",

@@ -24,10 +24,8 @@ import os
 import time
 from collections import defaultdict
 
-from config_args import add_config_args, load_env
+from config_args import add_config_args, config_label, config_of, load_env
 from report import emit
-
-from bar_policy.training.config import apply_overrides, preset
 
 
 def main() -> int:
@@ -36,7 +34,7 @@ def main() -> int:
     p.add_argument("--iters", type=int, default=3)
     p.add_argument("--out", default="")
     args = p.parse_args()
-    cfg = apply_overrides(preset(args.preset), ["backend=rsl-rl", *args.set])
+    cfg = config_of(args, "backend=rsl-rl")
     os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")  # as the backend does
 
     import jax
@@ -120,7 +118,7 @@ def main() -> int:
     free = min(free_first, free_run())  # before and after the synced runs: the better of the two
 
     lines = [
-        f"rsl-rl profile: {args.env}, preset {args.preset} {' '.join(args.set)}, torch {device}, "
+        f"rsl-rl profile: {args.env}, {config_label(args)}, torch {device}, "
         f"{cfg.ppo.num_envs} envs x {steps_per_env} steps = {steps:,} env steps per iteration, "
         f"{cfg.ppo.num_updates_per_batch} x {cfg.ppo.num_minibatches} minibatches",
         "",

@@ -56,17 +56,16 @@ def compare(a_path: str, b_path: str) -> str:
 def run(args: argparse.Namespace) -> str:
     """The programs, twice from the same seeds; the dump of the first pass; the report."""
     import jax
-    from config_args import load_env
+    from config_args import config_of, load_env
     from jax.sharding import Mesh
 
     from bar_policy import envs
     from bar_policy.training.brax_ppo import host_key, make_programs
     from bar_policy.training.brax_programs import run_epoch
-    from bar_policy.training.config import apply_overrides, preset
     from bar_policy.training.learner import make_learner
     from bar_policy.training.parallel import AXIS, DataParallel
 
-    cfg = apply_overrides(preset(args.preset), args.set)
+    cfg = config_of(args)
     jax.config.update(
         "jax_default_matmul_precision", "highest" if cfg.matmul_precision == "highest" else None
     )

@@ -44,7 +44,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-from config_args import add_config_args, load_env
+from config_args import add_config_args, config_label, config_of, load_env
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 from report import emit
@@ -53,7 +53,6 @@ from train_breakdown import best_time
 from bar_policy import envs
 from bar_policy.training.autotune_seed import seed_autotune_cache
 from bar_policy.training.brax_ppo import host_key, make_programs, slot_env
-from bar_policy.training.config import apply_overrides, preset
 from bar_policy.training.learner import make_learner
 from bar_policy.training.parallel import AXIS, DataParallel
 from bar_policy.training.startup import configure_compile_cache
@@ -133,7 +132,7 @@ def main() -> int:
         return 0
 
     cache_dir = configure_compile_cache(True)
-    cfg = apply_overrides(preset(args.preset), args.set)
+    cfg = config_of(args)
     jax.config.update(
         "jax_default_matmul_precision", "highest" if cfg.matmul_precision == "highest" else None
     )
@@ -203,7 +202,7 @@ def main() -> int:
     rows[piped_row] = best_time(lambda: f_pipe(ts, carry, data, key), args.iters)
     lines += [
         "",
-        f"{args.env}, preset {args.preset} {' '.join(args.set)}, {n} envs, {steps:,} env steps and "
+        f"{args.env}, {config_label(args)}, {n} envs, {steps:,} env steps and "
         f"{ppo.num_updates_per_batch * ppo.num_minibatches} Adam steps per iteration",
         "",
         "| row | ms per iteration | env steps/s |",

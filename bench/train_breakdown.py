@@ -44,7 +44,7 @@ from typing import Any
 
 import jax
 import numpy as np
-from config_args import add_config_args, load_env
+from config_args import add_config_args, config_label, config_of, load_env
 from fused_epoch import fused_epoch
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
@@ -55,7 +55,6 @@ from bar_policy import envs
 from bar_policy.training.autotune_seed import seed_autotune_cache
 from bar_policy.training.brax_ppo import epoch_iterations, host_key, make_programs, slot_env
 from bar_policy.training.brax_programs import _policy_params, run_epoch
-from bar_policy.training.config import apply_overrides, preset
 from bar_policy.training.learner import make_learner
 from bar_policy.training.parallel import AXIS, DataParallel
 from bar_policy.training.startup import Compiler, StartupTimer, configure_compile_cache
@@ -107,14 +106,14 @@ def main() -> int:
     args = p.parse_args()
 
     cache_dir = configure_compile_cache(not args.no_compile_cache)
-    cfg = apply_overrides(preset(args.preset), args.set)
+    cfg = config_of(args)
     # As the trainer (training.run): its matmul precision, and the shipped autotune seed before compiling.
     jax.config.update(
         "jax_default_matmul_precision", "highest" if cfg.matmul_precision == "highest" else None
     )
     print("autotune seed:", seed_autotune_cache(cache_dir, enabled=cfg.autotune_seed))
     ppo = cfg.ppo
-    env = load_env(args.env, cfg)  # --set env_overrides=sim_dt=0.004 reaches the env
+    env = load_env(args.env, cfg)  # --env-overrides cholesky=columns reaches the env
     randomizer = envs.get_randomizer(args.env, env.config)
     wrap = envs.wrap_for_brax_training
     dp = DataParallel(Mesh(np.asarray(jax.devices()[:1]), (AXIS,)))
@@ -262,7 +261,7 @@ def main() -> int:
         )
     dev = jax.devices()[0].device_kind
     lines = [
-        f"train breakdown: {args.env}, preset {args.preset} {' '.join(args.set)}, {dev}, {n} envs, "
+        f"train breakdown: {args.env}, {config_label(args)}, {dev}, {n} envs, "
         f"{steps:,} env steps and {ppo.num_updates_per_batch * ppo.num_minibatches} Adam steps per iteration",
         "",
         "| part | ms per iteration | env steps/s | env alone / part (time) |",

@@ -26,13 +26,12 @@ from pathlib import Path
 import jax
 import numpy as np
 from brax.training import types
-from config_args import add_config_args, load_env
+from config_args import add_config_args, config_of, load_env
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 from train_breakdown import best_time
 
 from bar_policy.training.autotune_seed import seed_autotune_cache
-from bar_policy.training.config import apply_overrides, preset
 from bar_policy.training.learner import make_learner
 from bar_policy.training.parallel import AXIS, DataParallel
 from bar_policy.training.startup import configure_compile_cache
@@ -69,7 +68,7 @@ def main() -> int:
     args = p.parse_args()
 
     cache_dir = configure_compile_cache(True)
-    cfg = apply_overrides(preset(args.preset), args.set)
+    cfg = config_of(args)
     jax.config.update(
         "jax_default_matmul_precision", "highest" if cfg.matmul_precision == "highest" else None
     )

@@ -154,22 +154,25 @@ def test_a_tampered_archive_or_member_is_refused_and_counted(tmp_path, gpu):
     )
 
 
-# The shipped seeds: archive -> (commit, programs, entries), from each cold run's pack (docs/startup.md).
+# The shipped seeds: archive -> (device kind, XLA's subdirectory, commit, programs, entries), from each cold
+# run's pack (docs/startup.md).
+H100, H100_DIR = "NVIDIA H100 80GB HBM3", "699b92c0fb30cb16"
+H200, H200_DIR = "NVIDIA H200", "ed0e56ab8b2a0ecb"
+EPOCH = ("reset", "epoch", "init", "evaluate")
+SPLIT = ("reset", "rollout", "update", "init", "evaluate")
 SHIPPED = {
-    "h100-80gb-hbm3-jaxlib-0.11.2-piano.tar.gz": ("e842f1c", ("reset", "epoch", "init", "evaluate"), 1072),
-    "h100-80gb-hbm3-jaxlib-0.11.2-rsl.tar.gz": ("a27fd9d", ("train step", "eval step"), 749),
-    "h100-80gb-hbm3-jaxlib-0.11.2-track.tar.gz": ("a27fd9d", ("reset", "epoch", "init", "evaluate"), 830),
-    "h100-80gb-hbm3-jaxlib-0.11.2.tar.gz": ("c61072c", ("reset", "epoch", "init", "evaluate"), 868),
+    "h100-80gb-hbm3-jaxlib-0.11.2-piano.tar.gz": (H100, H100_DIR, "e842f1c", EPOCH, 1072),
+    "h100-80gb-hbm3-jaxlib-0.11.2-rsl.tar.gz": (H100, H100_DIR, "a27fd9d", ("train step", "eval step"), 749),
+    "h100-80gb-hbm3-jaxlib-0.11.2-track.tar.gz": (H100, H100_DIR, "a27fd9d", EPOCH, 830),
+    "h100-80gb-hbm3-jaxlib-0.11.2.tar.gz": (H100, H100_DIR, "c61072c", EPOCH, 868),
     # The gpu preset of session 37 (batch 256, 4 ms, training.ppo_loss); the one above is session 32's.
-    "h100-80gb-hbm3-jaxlib-0.11.2-gpu.tar.gz": (
-        "68897c4",
-        ("reset", "rollout", "update", "init", "evaluate"),
-        849,
-    ),
+    "h100-80gb-hbm3-jaxlib-0.11.2-gpu.tar.gz": (H100, H100_DIR, "68897c4", SPLIT, 849),
+    # The same preset on the H200 (session 43: the lent machines are H200s now).
+    "h200-jaxlib-0.11.2-gpu.tar.gz": (H200, H200_DIR, "e26260c", SPLIT, 853),
 }
 SHIPPED_MEMBERS = 1072 + 749 + 830 + 868 + 849
 SHIPPED_UNION = 2819
-"""Distinct entry names over the five archives (a fusion two presets share is one name; counted with
+"""The H100 archives' entries, all and distinct (a fusion two presets share is one name; counted with
 ``tarfile`` when they were added: 4368 members, 1549 of them repeats)."""
 
 
@@ -177,9 +180,9 @@ def test_the_shipped_seeds_match_their_manifests():
     seeds = shipped_seeds()
     assert {m.archive for _, m in seeds} == set(SHIPPED)
     for path, m in seeds:
-        commit, programs, entries = SHIPPED[m.archive]
-        assert m.device_kind == "NVIDIA H100 80GB HBM3"
-        assert (m.jax, m.jaxlib, m.commit, m.subdir) == ("0.11.2", "0.11.2", commit, "699b92c0fb30cb16")
+        kind, subdir, commit, programs, entries = SHIPPED[m.archive]
+        assert (m.device_kind, m.subdir) == (kind, subdir)
+        assert (m.jax, m.jaxlib, m.commit) == ("0.11.2", "0.11.2", commit)
         assert m.programs == programs
         archive = path.parent / m.archive
         assert hashlib.sha256(archive.read_bytes()).hexdigest() == m.sha256
@@ -197,12 +200,18 @@ def test_the_shipped_seed_is_package_data():
 
 
 def test_the_shipped_seed_applies_on_its_own_device(tmp_path, monkeypatch):
-    monkeypatch.setattr(ats, "local_platform", lambda: ("gpu", "NVIDIA H100 80GB HBM3", "0.11.2"))
     monkeypatch.setattr(ats, "_xla_caches_flag", lambda: AUTOTUNE_DIR)
-    out = ats.seed_autotune_cache(tmp_path)
-    # Every seed applies; a name two seeds share is written once, then counted as present.
+    monkeypatch.setattr(ats, "local_platform", lambda: ("gpu", H100, "0.11.2"))
+    out = ats.seed_autotune_cache(tmp_path / "h100")
+    # Every H100 seed applies, the H200's does not; a name two seeds share is written once, then counted
+    # as present.
     assert (out.seeded, out.present, out.refused) == (SHIPPED_UNION, SHIPPED_MEMBERS - SHIPPED_UNION, 0)
-    assert len(list((tmp_path / AUTOTUNE_DIR / "699b92c0fb30cb16").iterdir())) == SHIPPED_UNION
+    assert [p.name for p in (tmp_path / "h100" / AUTOTUNE_DIR).iterdir()] == [H100_DIR]
+    assert len(list((tmp_path / "h100" / AUTOTUNE_DIR / H100_DIR).iterdir())) == SHIPPED_UNION
+    monkeypatch.setattr(ats, "local_platform", lambda: ("gpu", H200, "0.11.2"))
+    out = ats.seed_autotune_cache(tmp_path / "h200")
+    assert (out.seeded, out.present, out.refused, out.source) == (853, 0, 0, "h200-jaxlib-0.11.2-gpu.tar.gz")
+    assert [p.name for p in (tmp_path / "h200" / AUTOTUNE_DIR).iterdir()] == [H200_DIR]
 
 
 def test_pack_script_round_trips(tmp_path):
