@@ -67,7 +67,8 @@ from bar_policy.training.brax_result import BraxTrainResult
 from bar_policy.training.checkpoint import load_checkpoint, resume_changes, save_checkpoint
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.executable_cache import ExecutableCache
-from bar_policy.training.learner import TrainingState, make_learner, make_networks
+from bar_policy.training.learner import TrainingState, make_learner
+from bar_policy.training.networks import make_networks
 from bar_policy.training.parallel import barrier, make_data_parallel
 from bar_policy.training.progress import RunLogger, next_would_overrun
 from bar_policy.training.startup import Compiler, CompileStats, StartupTimer

@@ -1,4 +1,6 @@
-"""brax's PPO as per-device functions: networks, training state, one iteration, one evaluation.
+"""brax's PPO as per-device functions: training state, one iteration, one evaluation.
+
+The networks are ``training.networks``'.
 
 Everything here is written for one device's shard of the env batch and reduces across devices through the
 mesh axis ``AXIS`` (``bar_policy.training.parallel``): ``lax.pmean`` of the gradients, brax's
@@ -14,9 +16,7 @@ shuffled passes of ``num_minibatches`` Adam steps).
 
 from __future__ import annotations
 
-import dataclasses
 import functools
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -25,17 +25,16 @@ import flax
 import jax
 import jax.numpy as jnp
 import optax
-from brax.training import networks as brax_networks
 from brax.training import types
 from brax.training.acme import running_statistics, specs
 from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import networks as ppo_networks
-from flax import linen
 
 from bar_policy.envs.base import eval_ratios
-from bar_policy.obs.action_prior import Prior, check_fits
+from bar_policy.obs.action_prior import Prior
 from bar_policy.training import eval_quality
 from bar_policy.training.config import NetworkConfig, PPOConfig
+from bar_policy.training.networks import make_networks
 from bar_policy.training.parallel import AXIS
 from bar_policy.training.ppo_loss import ppo_loss, with_value_targets
 
@@ -45,17 +44,10 @@ __all__ = [
     "adapt_learning_rate",
     "learning_rate",
     "make_learner",
-    "make_networks",
+    "segments",
     "set_learning_rate",
     "strip_weak_type",
 ]
-
-_ACTIVATIONS: dict[str, Callable[[jax.Array], jax.Array]] = {
-    "swish": linen.swish,
-    "elu": linen.elu,
-    "relu": linen.relu,
-    "tanh": linen.tanh,
-}
 
 
 @flax.struct.dataclass
@@ -67,70 +59,10 @@ class TrainingState:
     normalizer_params: running_statistics.RunningStatisticsState
 
 
-PRIOR_INIT_SCALE = 0.01
-"""With an action prior, the initial loc kernel of the policy's output layer is brax's times this (its bias
-0): CleanRL's and Stable-Baselines3's policy-head gain of 0.01, so training starts from the prior."""
-
-
-BRAX_MIN_STD = 0.001
-"""brax's ``NormalTanhDistribution`` minimum std: its scale is ``softplus(raw) + BRAX_MIN_STD``."""
-
-
-def make_networks(
-    observation_size: int,
-    action_size: int,
-    net: NetworkConfig,
-    normalize: bool,
-    prior: Prior | None = None,
-) -> ppo_networks.PPONetworks:
-    """Brax PPO networks (tanh-normal policy) with our layer sizes and activation.
-
-    With ``prior``, the policy's pre-tanh mean is the MLP's plus ``prior.pre_tanh(obs)`` of the raw
-    (unnormalised) observation, so a zero MLP output is the prior's action; the scale half is untouched.
-    """
-    networks = _brax_networks(observation_size, action_size, net, normalize)
-    if prior is None:
-        return networks
-    check_fits(prior, observation_size, action_size)
-    base = networks.policy_network
-
-    def init(key: jax.Array) -> Any:
-        # The loc half of the output layer starts at PRIOR_INIT_SCALE of brax's init, so the first policy
-        # is the prior plus a small perturbation rather than the prior drowned in a random MLP's output.
-        params = base.init(key)
-        layers = params["params"]
-        last = max(layers, key=lambda s: int(s.rsplit("_", 1)[1]))
-        kernel, bias = layers[last]["kernel"], layers[last]["bias"]
-        kernel = kernel.at[:, :action_size].multiply(PRIOR_INIT_SCALE)
-        bias = bias.at[:action_size].set(0.0)
-        if net.prior_noise_std is not None:
-            # brax's tanh-normal std is softplus(raw) + 0.001: a near-zero kernel and this bias start every
-            # action's std at prior_noise_std, rather than softplus(0) = 0.69, which hides the prior's pose.
-            kernel = kernel.at[:, action_size:].multiply(PRIOR_INIT_SCALE)
-            bias = bias.at[action_size:].set(math.log(math.expm1(net.prior_noise_std - BRAX_MIN_STD)))
-        return {**params, "params": {**layers, last: {**layers[last], "kernel": kernel, "bias": bias}}}
-
-    def apply(processor_params: Any, policy_params: Any, obs: jax.Array) -> jax.Array:
-        loc, scale = jnp.split(base.apply(processor_params, policy_params, obs), 2, axis=-1)
-        return jnp.concatenate([loc + prior.pre_tanh(obs), scale], axis=-1)
-
-    policy = brax_networks.FeedForwardNetwork(init=init, apply=apply)
-    return dataclasses.replace(networks, policy_network=policy)
-
-
-def _brax_networks(
-    observation_size: int, action_size: int, net: NetworkConfig, normalize: bool
-) -> ppo_networks.PPONetworks:
-    return ppo_networks.make_ppo_networks(
-        observation_size,
-        action_size,
-        preprocess_observations_fn=running_statistics.normalize
-        if normalize
-        else types.identity_observation_preprocessor,
-        policy_hidden_layer_sizes=net.policy_hidden,
-        value_hidden_layer_sizes=net.value_hidden,
-        activation=_ACTIVATIONS[net.activation],
-    )
+def segments(data: Any) -> Any:
+    """A rollout's transitions by segment: ``(unrolls, T, envs, ...)`` -> ``(unrolls * envs, T, ...)``."""
+    data = jax.tree.map(lambda x: jnp.swapaxes(x, 1, 2), data)
+    return jax.tree.map(lambda x: x.reshape((-1, *x.shape[2:])), data)
 
 
 def strip_weak_type(tree: Any) -> Any:
@@ -171,8 +103,11 @@ class Learner:
             params, normalizer, data, self.networks, ppo.discounting, ppo.reward_scaling, ppo.gae_lambda
         )
 
-    def _sgd_pass(self, carry: tuple, data: types.Transition, normalizer: Any) -> tuple:
-        """One shuffled pass of ``num_minibatches`` Adam steps over this device's segments."""
+    def sgd_pass(self, carry: tuple, data: types.Transition, normalizer: Any) -> tuple:
+        """One shuffled pass of ``num_minibatches`` Adam steps over this device's segments.
+
+        ``carry`` = ``(optimizer state, params, key)``; returns ``(carry, metrics)``, ``update``'s scan body.
+        """
         ppo = self.ppo
         opt_state, params, k = carry
         k, k_perm, k_mb = jax.random.split(k, 3)
@@ -219,6 +154,33 @@ class Learner:
         )
         return (opt_state, params, k), metrics
 
+    def collect_step(self, ts: TrainingState, env: Any) -> Callable[[tuple, Any], tuple]:
+        """``rollout``'s scan body: one control step of every slot of ``env`` under ``ts``'s policy.
+
+        ``((env_state, key), _) -> ((env_state, key), (transition, sums))``; ``sums``: ``rollout``'s
+        ``stats`` of that step.
+        """
+        policy = self.make_policy((ts.normalizer_params, ts.params.policy, ts.params.value))
+        task = env.unwrapped
+
+        def env_step(c: tuple, _: Any) -> tuple:
+            s, kk = c
+            kk, k_act = jax.random.split(kk)
+            action, extras = policy(s.obs, k_act)
+            ns = env.step(s, action)
+            num, den = eval_ratios(task, ns.metrics)["success_rate"]
+            tr = types.Transition(
+                observation=s.obs,
+                action=action,
+                reward=ns.reward,
+                discount=1.0 - ns.done,
+                next_observation=ns.obs,
+                extras={"policy_extras": extras, "state_extras": {"truncation": ns.info["truncation"]}},
+            )
+            return (ns, kk), (tr, jnp.stack([ns.reward.sum(), num.sum(), den.sum()]))
+
+        return env_step
+
     def rollout(
         self, ts: TrainingState, env_state: Any, key: jax.Array, env: Any, unrolls: int
     ) -> tuple[Any, types.Transition, jax.Array]:
@@ -235,52 +197,85 @@ class Learner:
             ``(env_state, data, stats)``: ``data`` = transitions, leaves ``(unrolls * envs, T, ...)``;
             ``stats`` = this device's sums of ``[reward, success numerator, success denominator]``.
         """
-        policy = self.make_policy((ts.normalizer_params, ts.params.policy, ts.params.value))
-        task = env.unwrapped
-
-        def env_step(c: tuple, _: None) -> tuple:
-            s, kk = c
-            kk, k_act = jax.random.split(kk)
-            action, extras = policy(s.obs, k_act)
-            ns = env.step(s, action)
-            num, den = eval_ratios(task, ns.metrics)["success_rate"]
-            tr = types.Transition(
-                observation=s.obs,
-                action=action,
-                reward=ns.reward,
-                discount=1.0 - ns.done,
-                next_observation=ns.obs,
-                extras={"policy_extras": extras, "state_extras": {"truncation": ns.info["truncation"]}},
-            )
-            return (ns, kk), (tr, jnp.stack([ns.reward.sum(), num.sum(), den.sum()]))
+        env_step = self.collect_step(ts, env)
 
         def unroll(c: tuple, _: None) -> tuple:
             return jax.lax.scan(env_step, c, None, length=self.ppo.unroll_length)
 
         (env_state, _), (data, stats) = jax.lax.scan(unroll, (env_state, key), None, length=unrolls)
-        # (unrolls, T, envs, ...) -> (unrolls * envs, T, ...)
-        data = jax.tree.map(lambda x: jnp.swapaxes(x, 1, 2), data)
-        data = jax.tree.map(lambda x: x.reshape((-1, *x.shape[2:])), data)
-        return env_state, data, stats.sum(axis=(0, 1))
+        return env_state, segments(data), stats.sum(axis=(0, 1))
+
+    def prepare_update(self, ts: TrainingState, data: types.Transition) -> tuple[Any, types.Transition]:
+        """``update``'s first part: the normaliser updated with ``data``'s observations.
+
+        Also ``data`` with its value targets when those are fixed for the iteration (``value_targets =
+        "iteration"``: from the critic that collected it).
+        """
+        normalizer = ts.normalizer_params
+        if self.ppo.normalize_observations:
+            normalizer = running_statistics.update(normalizer, data.observation, pmap_axis_name=AXIS)
+        if self.ppo.value_targets == "iteration":
+            data = self._with_targets(ts.params, normalizer, data)
+        return normalizer, data
 
     def update(
         self, ts: TrainingState, data: types.Transition, key: jax.Array
     ) -> tuple[TrainingState, dict[str, jax.Array]]:
-        """Normaliser update, then ``num_updates_per_batch`` shuffled SGD passes over ``data``."""
-        ppo = self.ppo
-        normalizer = ts.normalizer_params
-        if ppo.normalize_observations:
-            normalizer = running_statistics.update(normalizer, data.observation, pmap_axis_name=AXIS)
-        if ppo.value_targets == "iteration":  # fixed for the iteration, from the critic that collected it
-            data = self._with_targets(ts.params, normalizer, data)
+        """``prepare_update``, then ``num_updates_per_batch`` shuffled SGD passes over ``data``."""
+        normalizer, data = self.prepare_update(ts, data)
         (opt_state, params, _), metrics = jax.lax.scan(
-            lambda c, _: self._sgd_pass(c, data, normalizer),
+            lambda c, _: self.sgd_pass(c, data, normalizer),
             (ts.optimizer_state, ts.params, key),
             None,
-            length=ppo.num_updates_per_batch,
+            length=self.ppo.num_updates_per_batch,
         )
         ts = TrainingState(optimizer_state=opt_state, params=params, normalizer_params=normalizer)
         return ts, jax.tree.map(jnp.mean, metrics)
+
+    def overlapped(
+        self,
+        ts: TrainingState,
+        env_state: Any,
+        key: jax.Array,
+        env: Any,
+        unrolls: int,
+        data: Any,
+        sgd_key: Any,
+    ) -> tuple[TrainingState, Any, types.Transition, jax.Array, dict[str, jax.Array]]:
+        """``rollout(ts, env_state, key, env, unrolls)`` and ``update(ts, data, sgd_key)`` as one loop.
+
+        Each of the rollout's first control steps shares a loop body with one SGD pass over ``data`` (then
+        the steps or passes left over run alone), so nothing orders the two inside a body: a GPU may run
+        them side by side (``bench/stream_overlap.py``). The results are those of the two calls (tests:
+        test_learner_parts.py). In a trainer, ``data`` is the previous iteration's: the policy collecting
+        is then one update older than brax's.
+
+        Returns:
+            ``(updated ts, env_state, the new data, stats, loss metrics)`` as ``rollout`` and ``update``.
+        """
+        step = self.collect_step(ts, env)
+        normalizer, data = self.prepare_update(ts, data)
+
+        def body(c: tuple, _: None) -> tuple:
+            env_c, out = step(c[0], None)
+            sgd_c, metrics = self.sgd_pass(c[1], data, normalizer)
+            return (env_c, sgd_c), (out, metrics)
+
+        n_steps, n_passes = unrolls * self.ppo.unroll_length, self.ppo.num_updates_per_batch
+        both = min(n_steps, n_passes)
+        init = ((env_state, key), (ts.optimizer_state, ts.params, sgd_key))
+        (env_c, sgd_c), (outs, metrics) = jax.lax.scan(body, init, None, length=both)
+        if n_steps > both:
+            env_c, rest = jax.lax.scan(step, env_c, None, length=n_steps - both)
+            outs = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), outs, rest)
+        if n_passes > both:
+            sgd_c, rest = jax.lax.scan(
+                lambda c, _: self.sgd_pass(c, data, normalizer), sgd_c, None, length=n_passes - both
+            )
+            metrics = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), metrics, rest)
+        trs, stats = jax.tree.map(lambda x: x.reshape((unrolls, self.ppo.unroll_length, *x.shape[1:])), outs)
+        ts = TrainingState(optimizer_state=sgd_c[0], params=sgd_c[1], normalizer_params=normalizer)
+        return ts, env_c[0], segments(trs), stats.sum(axis=(0, 1)), jax.tree.map(jnp.mean, metrics)
 
     def iteration(
         self, ts: TrainingState, env_state: Any, key: jax.Array, env: Any, unrolls: int

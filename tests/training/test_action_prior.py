@@ -22,7 +22,7 @@ from bar_policy.obs import ObservationManager
 from bar_policy.obs.action_prior import PRIOR_BOUND, ActionPrior, BlendPrior, reference_prior
 from bar_policy.tasks.track import track_action_scale, track_default_pose
 from bar_policy.training.config import NetworkConfig
-from bar_policy.training.learner import PRIOR_INIT_SCALE, make_networks
+from bar_policy.training.networks import PRIOR_INIT_SCALE, make_networks
 
 N = 14
 K = 5  # the tracking layout's lookahead frames
