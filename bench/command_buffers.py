@@ -34,8 +34,11 @@ import argparse
 import collections
 import re
 import sys
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from report import emit
 
 STRUCTURAL = frozenset(
     {
@@ -134,14 +137,17 @@ class Report:
     outside: collections.Counter = field(default_factory=collections.Counter)  # (kind, where) -> count
 
 
-def _count_graph(mod: Module, name: str, rep: Report, seen: set[str]) -> None:
-    """Count the launching instructions of a command buffer and of the computations it calls."""
+def _launching(mod: Module, name: str, seen: set[str]) -> Iterator[Instruction]:
+    """The instructions of computation ``name`` that launch work; none if it was seen already."""
     if name in seen or name not in mod.computations:
         return
     seen.add(name)
-    for ins in mod.computations[name]:
-        if ins.opcode in STRUCTURAL:
-            continue
+    yield from (ins for ins in mod.computations[name] if ins.opcode not in STRUCTURAL)
+
+
+def _count_graph(mod: Module, name: str, rep: Report, seen: set[str]) -> None:
+    """Count the launching instructions of a command buffer and of the computations it calls."""
+    for ins in _launching(mod, name, seen):
         rep.in_graphs[ins.kind()] += 1
         if ins.opcode in ("while", "conditional", "call"):
             for names in ins.callees().values():
@@ -151,12 +157,7 @@ def _count_graph(mod: Module, name: str, rep: Report, seen: set[str]) -> None:
 
 def _walk(mod: Module, name: str, where: str, rep: Report, seen: set[str]) -> None:
     """Classify the instructions at the host's level of computation ``name`` (entry, loop or branch)."""
-    if name in seen or name not in mod.computations:
-        return
-    seen.add(name)
-    for ins in mod.computations[name]:
-        if ins.opcode in STRUCTURAL:
-            continue
+    for ins in _launching(mod, name, seen):
         callees = ins.callees()
         if ins.opcode == "call" and any(is_command_buffer(c) for c in callees.get("to_apply", [])):
             rep.graphs += 1
@@ -230,10 +231,7 @@ def main(argv: list[str] | None = None) -> int:
         mod = parse(f.read_text())
         has = any(is_command_buffer(c) for c in mod.computations)
         lines += render(f.name.split(".")[1] if "." in f.name else f.name, analyse(mod), has)
-    text = "\n".join(lines)
-    print(text)
-    if args.out:
-        Path(args.out).write_text(text + "\n")
+    emit("\n".join(lines), args.out)
     return 0
 
 

@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 
 BENCH = Path(__file__).resolve().parents[1] / "bench"
+sys.path.insert(0, str(BENCH))  # the script imports its sibling report.py, as when run from bench/
 spec = importlib.util.spec_from_file_location("command_buffers", BENCH / "command_buffers.py")
 cb = importlib.util.module_from_spec(spec)
 sys.modules["command_buffers"] = cb
