@@ -14,6 +14,9 @@
 #   are kept as they are. Every variant gets the trainer's schedule (CONCURRENT) unless it names one.
 #   PIPE=1: then bench/stream_overlap.py --plain (the update of one iteration beside the next rollout in
 #   one program) under PIPE_VARIANT (default columns_while).
+#   DUMP=1: the overlap's process also dumps XLA's optimised HLO of its programs (DUMP_MODULES, a regex
+#   of module names; into DUMP_DIR, not $OUT) and bench/command_buffers.py reports what of each runs
+#   outside a command buffer ($OUT/command_buffers_<name>.md).
 #   STEP_TIMEOUT: seconds per process (default 240). BREAKDOWN_ARGS / OVERLAP_ARGS: the two benches' other
 #   arguments (defaults below; the overlap's: the gpu preset, 5 timed calls). Each process gets
 #   `--env-overrides cholesky=<form>` (added to the preset's own, so the gpu preset keeps its 4 ms step; session
@@ -35,6 +38,8 @@ VARIANTS=${VARIANTS:-"library=library:$CONC columns=columns:$CONC library_while=
 BREAKDOWN_ARGS=${BREAKDOWN_ARGS:-"--iters 2 --epoch-iters 4"}
 OVERLAP_ARGS=${OVERLAP_ARGS:-}
 STEP_TIMEOUT=${STEP_TIMEOUT:-240}
+DUMP_DIR=${DUMP_DIR:-/tmp/capture_dump}
+DUMP_MODULES=${DUMP_MODULES:-"jit_(rollout|update|pipelined|interleaved)"}
 T0=$(date +%s)
 stamp() { echo "[$(( $(date +%s) - T0 )) s] $*"; }
 
@@ -65,12 +70,22 @@ done
 
 if [ "${PIPE:-1}" = 1 ]; then
   name=${PIPE_VARIANT:-columns_while}
+  flags="${FLAGS_OF[$name]:-}"
+  if [ "${DUMP:-0}" = 1 ]; then  # XLA's optimised HLO of the overlap's programs, read by command_buffers.py
+    rm -rf "$DUMP_DIR"
+    flags="$flags --xla_dump_to=$DUMP_DIR --xla_dump_hlo_as_text --xla_dump_hlo_module_re=$DUMP_MODULES"
+  fi
   stamp "overlap $name"
   # shellcheck disable=SC2086
-  XLA_FLAGS="${FLAGS_OF[$name]:-}" timeout "$STEP_TIMEOUT" python3 bench/stream_overlap.py --plain $OVERLAP_ARGS \
+  XLA_FLAGS="$flags" timeout "$STEP_TIMEOUT" python3 bench/stream_overlap.py --plain $OVERLAP_ARGS \
     --env-overrides cholesky="${CHOL_OF[$name]:-library}" --out "$OUT/overlap_$name.md" \
     > "$OUT/overlap_$name.log" 2>&1
   stamp "  rc $?"
+  if [ "${DUMP:-0}" = 1 ]; then
+    python3 bench/command_buffers.py "$DUMP_DIR" --module "$DUMP_MODULES" --out "$OUT/command_buffers_$name.md" \
+      > /dev/null 2>&1
+    stamp "  command buffers: rc $? ($(du -sh "$DUMP_DIR" 2>/dev/null | cut -f1) of dump)"
+  fi
 fi
 
 {
@@ -80,6 +95,6 @@ fi
     grep -E '^\| (env|rollout|update|epoch|loop)' "$OUT/breakdown_$name.md" 2>/dev/null \
       || tail -5 "$OUT/breakdown_$name.log"
   done
-  for f in "$OUT"/overlap_*.md; do [ -f "$f" ] && { echo; cat "$f"; }; done
+  for f in "$OUT"/overlap_*.md "$OUT"/command_buffers_*.md; do [ -f "$f" ] && { echo; cat "$f"; }; done
 } > "$OUT/summary_capture.md"
 cat "$OUT/summary_capture.md"

@@ -217,12 +217,12 @@ def render(name: str, rep: Report, has_graph_computations: bool) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("dump", help="XLA's --xla_dump_to directory (or one *after_optimizations.txt file)")
-    p.add_argument("--module", default="", help="only modules whose file name contains this")
+    p.add_argument("--module", default="", help="only modules whose file name matches this regex")
     p.add_argument("--out", default="")
     args = p.parse_args(argv)
     src = Path(args.dump)
     files = [src] if src.is_file() else sorted(src.glob("*after_optimizations.txt"))
-    files = [f for f in files if args.module in f.name]
+    files = [f for f in files if re.search(args.module, f.name)]
     if not files:
         print(f"no *after_optimizations.txt under {src} matching {args.module!r}", file=sys.stderr)
         return 2
