@@ -41,6 +41,7 @@ CASES = [
 ]
 
 
+@pytest.mark.numerics
 @pytest.mark.parametrize("name,extra", CASES, ids=[c[0] for c in CASES])
 def test_overlapped_equals_the_rollout_and_the_update(tmp_path, toy_env, name, extra):
     cfg = toy_config(tmp_path, name, [*TOY_BRAX, *extra])
