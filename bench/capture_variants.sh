@@ -16,7 +16,8 @@
 #   one program) under PIPE_VARIANT (default columns_while).
 #   DUMP=1: the overlap's process also dumps XLA's optimised HLO of its programs (DUMP_MODULES, a regex
 #   of module names; into DUMP_DIR, not $OUT) and bench/command_buffers.py reports what of each runs
-#   outside a command buffer ($OUT/command_buffers_<name>.md).
+#   outside a command buffer ($OUT/command_buffers_<name>.md); XLA's own log of the thunks it leaves out
+#   of command buffers (TF_CPP_VMODULE, VLOG 2) is summarised in $OUT/command_buffer_log_<name>.md.
 #   STEP_TIMEOUT: seconds per process (default 240). BREAKDOWN_ARGS / OVERLAP_ARGS: the two benches' other
 #   arguments (defaults below; the overlap's: the gpu preset, 5 timed calls). Each process gets
 #   `--env-overrides cholesky=<form>` (added to the preset's own, so the gpu preset keeps its 4 ms step; session
@@ -76,15 +77,31 @@ if [ "${PIPE:-1}" = 1 ]; then
     flags="$flags --xla_dump_to=$DUMP_DIR --xla_dump_hlo_as_text --xla_dump_hlo_module_re=$DUMP_MODULES"
   fi
   stamp "overlap $name"
+  log="$OUT/overlap_$name.log"
+  vmodule="" vlog=()
+  if [ "${DUMP:-0}" = 1 ]; then  # XLA's own account of each thunk it leaves out (VLOG 2), to a big file
+    mkdir -p "$DUMP_DIR"; log="$DUMP_DIR/overlap.log"
+    vmodule="command_buffer_conversion_pass=2,command_buffer_scheduling=2"
+    # an empty compile cache of its own: a program loaded from the cache is neither compiled nor dumped
+    vlog=(TF_CPP_MIN_LOG_LEVEL=0 "TF_CPP_VMODULE=$vmodule" "JAX_COMPILATION_CACHE_DIR=$DUMP_DIR/jax_cache")
+  fi
   # shellcheck disable=SC2086
-  XLA_FLAGS="$flags" timeout "$STEP_TIMEOUT" python3 bench/stream_overlap.py --plain $OVERLAP_ARGS \
-    --env-overrides cholesky="${CHOL_OF[$name]:-library}" --out "$OUT/overlap_$name.md" \
-    > "$OUT/overlap_$name.log" 2>&1
+  env "${vlog[@]}" XLA_FLAGS="$flags" timeout "$STEP_TIMEOUT" \
+    python3 bench/stream_overlap.py --plain $OVERLAP_ARGS --env-overrides cholesky="${CHOL_OF[$name]:-library}" \
+    --out "$OUT/overlap_$name.md" > "$log" 2>&1
   stamp "  rc $?"
   if [ "${DUMP:-0}" = 1 ]; then
+    grep -vE '^[IV][0-9]{4} ' "$log" > "$OUT/overlap_$name.log"  # the log without XLA's info lines
     python3 bench/command_buffers.py "$DUMP_DIR" --module "$DUMP_MODULES" --out "$OUT/command_buffers_$name.md" \
       > /dev/null 2>&1
     stamp "  command buffers: rc $? ($(du -sh "$DUMP_DIR" 2>/dev/null | cut -f1) of dump)"
+    {
+      echo "XLA's command-buffer log (TF_CPP_VMODULE=$vmodule): $(grep -cE '^[IV][0-9]{4} ' "$log") info lines"
+      echo; echo "command buffers created: $(grep -c 'Creating command buffer thunk' "$log")"
+      echo; echo "thunks left out of a command buffer, by XLA's reason (count, message):"
+      grep -oE "Unsupported thunk kind: [A-Za-z0-9_]+|Thunk kind [A-Za-z0-9_]+ lowering is not enabled[^.]*|Thunk kind [A-Za-z0-9_]+ is not lowered to command buffer[^.]*|[A-Za-z]+Thunk is not convertible[^.]*" \
+        "$log" | sort | uniq -c | sort -rn | head -25
+    } > "$OUT/command_buffer_log_$name.md"
   fi
 fi
 
@@ -95,6 +112,8 @@ fi
     grep -E '^\| (env|rollout|update|epoch|loop)' "$OUT/breakdown_$name.md" 2>/dev/null \
       || tail -5 "$OUT/breakdown_$name.log"
   done
-  for f in "$OUT"/overlap_*.md "$OUT"/command_buffers_*.md; do [ -f "$f" ] && { echo; cat "$f"; }; done
+  for f in "$OUT"/overlap_*.md "$OUT"/command_buffer_log_*.md "$OUT"/command_buffers_*.md; do
+    [ -f "$f" ] && { echo; cat "$f"; }
+  done
 } > "$OUT/summary_capture.md"
 cat "$OUT/summary_capture.md"
