@@ -71,20 +71,17 @@ done
 
 if [ "${PIPE:-1}" = 1 ]; then
   name=${PIPE_VARIANT:-columns_while}
-  flags="${FLAGS_OF[$name]:-}"
-  if [ "${DUMP:-0}" = 1 ]; then  # XLA's optimised HLO of the overlap's programs, read by command_buffers.py
-    rm -rf "$DUMP_DIR"
+  flags="${FLAGS_OF[$name]:-}" log="$OUT/overlap_$name.log" vmodule="" vlog=()
+  if [ "${DUMP:-0}" = 1 ]; then
+    # XLA's optimised HLO of the overlap's programs (read by command_buffers.py) and its own account of
+    # each thunk it leaves out of a command buffer (VLOG 2), both into DUMP_DIR (large); an empty compile
+    # cache of its own, since a program loaded from the cache is neither compiled nor dumped
+    rm -rf "$DUMP_DIR"; mkdir -p "$DUMP_DIR"; log="$DUMP_DIR/overlap.log"
     flags="$flags --xla_dump_to=$DUMP_DIR --xla_dump_hlo_as_text --xla_dump_hlo_module_re=$DUMP_MODULES"
-  fi
-  stamp "overlap $name"
-  log="$OUT/overlap_$name.log"
-  vmodule="" vlog=()
-  if [ "${DUMP:-0}" = 1 ]; then  # XLA's own account of each thunk it leaves out (VLOG 2), to a big file
-    mkdir -p "$DUMP_DIR"; log="$DUMP_DIR/overlap.log"
     vmodule="command_buffer_conversion_pass=2,command_buffer_scheduling=2"
-    # an empty compile cache of its own: a program loaded from the cache is neither compiled nor dumped
     vlog=(TF_CPP_MIN_LOG_LEVEL=0 "TF_CPP_VMODULE=$vmodule" "JAX_COMPILATION_CACHE_DIR=$DUMP_DIR/jax_cache")
   fi
+  stamp "overlap $name"
   # shellcheck disable=SC2086
   env "${vlog[@]}" XLA_FLAGS="$flags" timeout "$STEP_TIMEOUT" \
     python3 bench/stream_overlap.py --plain $OVERLAP_ARGS --env-overrides cholesky="${CHOL_OF[$name]:-library}" \

@@ -5,10 +5,14 @@ program side by side only when both are nodes of one command buffer (docs/benchm
 two chains of matmuls did, the trainer's rollout and update did not, even with no library call left in the
 physics step). This script says what keeps a program's instructions out of a command buffer.
 
-XLA's ``command-buffer-scheduling`` pass (a late HLO pass of the GPU compiler) outlines each run of
-recordable instructions into a computation named ``command_buffer...`` called from where it was; what is
-left at the top level of the entry computation, of a while loop's body or condition, or of a conditional's
-branch runs op by op from the host. For each dumped module this prints:
+Older XLA formed command buffers in a late HLO pass (``command-buffer-scheduling``) that outlines each
+run of recordable instructions into a computation named ``command_buffer...``; what is left at the top
+level of the entry computation, of a while loop's body or condition, or of a conditional's branch runs op
+by op from the host. jaxlib 0.10 and later form them from thunks after the HLO
+(``command_buffer_conversion_pass``; the switch between the two is among their removed ``DebugOptions``),
+so their HLO holds no such computation: there this report only gives the loops and what runs in them, and
+XLA's own log says what it recorded (``bench/capture_variants.sh DUMP=1`` gathers both). For each dumped
+module this prints:
 
 - the command buffers: how many, and the instructions (and while loops) recorded in them;
 - the while loops outside any command buffer (each iteration returns to the host), with their trip
@@ -20,10 +24,10 @@ Structural instructions (parameters, tuples, constants, bitcasts, ...) launch no
 If a module holds no ``command_buffer`` computation at all, XLA formed its command buffers after the HLO
 (from thunks) or formed none; the report says so rather than guessing.
 
-Usage (on the GPU machine, after the pip prefix of shared/gpu/README.md)::
+Usage (on the GPU machine, after the pip prefix of shared/gpu/README.md; or through
+``DUMP=1 bash bench/capture_variants.sh``)::
 
-    XLA_FLAGS="--xla_gpu_command_buffer_scheduling_mode=CONCURRENT --xla_gpu_enable_command_buffer=+WHILE \\
-      --xla_dump_to=/tmp/dump --xla_dump_hlo_as_text --xla_dump_hlo_module_re=.*(rollout|interleaved).*" \\
+    XLA_FLAGS="--xla_dump_to=/tmp/dump --xla_dump_hlo_as_text --xla_dump_hlo_module_re=jit_rollout" \\
       python3 bench/stream_overlap.py --plain --env-overrides cholesky=columns
     python3 bench/command_buffers.py /tmp/dump --out $OUT/command_buffers.md
 """

@@ -218,16 +218,18 @@ class Learner:
             data = self._with_targets(ts.params, normalizer, data)
         return normalizer, data
 
+    def _sgd_passes(self, carry: tuple, data: types.Transition, normalizer: Any, n: int) -> tuple:
+        """``n`` SGD passes (``sgd_pass``) in one scan: ``(carry, metrics stacked over the passes)``."""
+        return jax.lax.scan(lambda c, _: self.sgd_pass(c, data, normalizer), carry, None, length=n)
+
     def update(
         self, ts: TrainingState, data: types.Transition, key: jax.Array
     ) -> tuple[TrainingState, dict[str, jax.Array]]:
         """``prepare_update``, then ``num_updates_per_batch`` shuffled SGD passes over ``data``."""
         normalizer, data = self.prepare_update(ts, data)
-        (opt_state, params, _), metrics = jax.lax.scan(
-            lambda c, _: self.sgd_pass(c, data, normalizer),
-            (ts.optimizer_state, ts.params, key),
-            None,
-            length=self.ppo.num_updates_per_batch,
+        init = (ts.optimizer_state, ts.params, key)
+        (opt_state, params, _), metrics = self._sgd_passes(
+            init, data, normalizer, self.ppo.num_updates_per_batch
         )
         ts = TrainingState(optimizer_state=opt_state, params=params, normalizer_params=normalizer)
         return ts, jax.tree.map(jnp.mean, metrics)
@@ -265,13 +267,11 @@ class Learner:
         both = min(n_steps, n_passes)
         init = ((env_state, key), (ts.optimizer_state, ts.params, sgd_key))
         (env_c, sgd_c), (outs, metrics) = jax.lax.scan(body, init, None, length=both)
-        if n_steps > both:
+        if n_steps > both:  # the control steps left over, then the passes (only one of the two runs)
             env_c, rest = jax.lax.scan(step, env_c, None, length=n_steps - both)
             outs = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), outs, rest)
         if n_passes > both:
-            sgd_c, rest = jax.lax.scan(
-                lambda c, _: self.sgd_pass(c, data, normalizer), sgd_c, None, length=n_passes - both
-            )
+            sgd_c, rest = self._sgd_passes(sgd_c, data, normalizer, n_passes - both)
             metrics = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), metrics, rest)
         trs, stats = jax.tree.map(lambda x: x.reshape((unrolls, self.ppo.unroll_length, *x.shape[1:])), outs)
         ts = TrainingState(optimizer_state=sgd_c[0], params=sgd_c[1], normalizer_params=normalizer)
