@@ -67,13 +67,17 @@ def top_events(log_dir: str | Path, n: int = 40) -> list[dict[str, Any]]:
     ]
 
 
-def device_summary(log_dir: str | Path, gaps: int = 12) -> dict[str, Any]:
+def device_summary(log_dir: str | Path, gaps: int = 12, ops: int = 0) -> dict[str, Any]:
     """What the GPU did in a trace: kernel time per XLA module, busy and idle time, the longest idle gaps.
 
     Device events are those of processes whose name holds ``GPU`` (the profiler's ``/device:GPU:0``).
     ``modules``: ``{hlo_module: [ms, count]}``; ``window_ms``: first kernel start to last kernel end;
     ``busy_ms``: the union of kernel intervals (streams overlapping counted once); ``gaps``: the longest
-    idle stretches as ``[ms, module before, module after]``. Empty dict when no trace or no device events.
+    idle stretches as ``[ms, module before, module after]``. With ``ops`` > 0 also ``ops``:
+    ``{hlo_module: [[hlo_op, ms, count], ...]}``, each module's ``ops`` instructions with the most kernel
+    time (the event's name where it carries no ``hlo_op``): which of a program's instructions its kernels
+    come from, and how long each runs on average (``ms / count``). Empty dict when no trace or no device
+    events.
     """
     events = _trace_events(log_dir)
     if not events:
@@ -92,10 +96,14 @@ def device_summary(log_dir: str | Path, gaps: int = 12) -> dict[str, Any]:
         a = e.get("args", {})
         return str(a.get("hlo_module") or a.get("hlo_module_name") or a.get("module") or "?")[:60]
 
+    per_op: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(lambda: [0.0, 0]))
     for e in dev:
         m = modules[module(e)]
         m[0] += float(e["dur"]) / 1e3
         m[1] += 1
+        o = per_op[module(e)][str(e.get("args", {}).get("hlo_op") or e.get("name", "?"))[:60]]
+        o[0] += float(e["dur"]) / 1e3
+        o[1] += 1
     dev.sort(key=lambda e: float(e["ts"]))
     busy, found = 0.0, []
     end, last = float(dev[0]["ts"]), dev[0]
@@ -107,10 +115,16 @@ def device_summary(log_dir: str | Path, gaps: int = 12) -> dict[str, Any]:
         if te > end:
             end, last = te, e
     window = (end - float(dev[0]["ts"])) / 1e3
-    return {
+    out = {
         "modules": {k: [round(v[0], 1), v[1]] for k, v in sorted(modules.items(), key=lambda kv: -kv[1][0])},
         "window_ms": round(window, 1),
         "busy_ms": round(busy / 1e3, 1),
         "gaps": sorted(found, reverse=True)[:gaps],
         "arg_keys": sorted(dev[0].get("args", {}))[:12],
     }
+    if ops > 0:
+        out["ops"] = {
+            mod: [[k, round(v[0], 3), v[1]] for k, v in sorted(table.items(), key=lambda kv: -kv[1][0])[:ops]]
+            for mod, table in per_op.items()
+        }
+    return out

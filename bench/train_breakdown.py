@@ -92,6 +92,12 @@ def main() -> int:
         "--profile-eval", action="store_true", help="with --profile, one evaluation too (a large trace)"
     )
     p.add_argument(
+        "--profile-ops",
+        type=int,
+        default=0,
+        help="with --profile, a table per program of its N instructions with the most kernel time",
+    )
+    p.add_argument(
         "--concurrent",
         action="store_true",
         help="also an evaluation on a thread while an epoch runs: the wall time against the two in turn",
@@ -214,7 +220,7 @@ def main() -> int:
         """``fn()`` traced into ``--profile``/``folder``; what the device did is reported as ``name``."""
         with profiled(Path(args.profile) / folder, python=False):
             jax.block_until_ready(fn())
-        profiles[name] = device_summary(Path(args.profile) / folder)
+        profiles[name] = device_summary(Path(args.profile) / folder, ops=args.profile_ops)
 
     if args.profile:
         jax.block_until_ready(state["ts"])
@@ -286,10 +292,13 @@ def main() -> int:
     lines.append("compile s (concurrent): " + ", ".join(compiles))
     for name, summary in profiles.items():
         lines += ["", f"device profile, {name}:", ""]
-        lines += [f"- {k}: {v}" for k, v in summary.items() if k != "modules"]
+        lines += [f"- {k}: {v}" for k, v in summary.items() if k not in ("modules", "ops")]
         lines += [
             f"- module {k}: {v[0]:,.1f} ms in {v[1]} kernels" for k, v in summary.get("modules", {}).items()
         ]
+        for mod, table in summary.get("ops", {}).items():
+            lines += ["", f"| {mod}: instruction | kernel ms | kernels | us each |", "|---|---:|---:|---:|"]
+            lines += [f"| {op} | {ms:,.2f} | {n} | {1e3 * ms / n:.1f} |" for op, ms, n in table]
     emit("\n".join(lines), args.out)
     return 0
 

@@ -167,13 +167,19 @@ SHIPPED = {
     "h100-80gb-hbm3-jaxlib-0.11.2.tar.gz": (H100, H100_DIR, "c61072c", EPOCH, 868),
     # The gpu preset of session 37 (batch 256, 4 ms, training.ppo_loss); the one above is session 32's.
     "h100-80gb-hbm3-jaxlib-0.11.2-gpu.tar.gz": (H100, H100_DIR, "68897c4", SPLIT, 849),
-    # The same preset on the H200 (session 43: the lent machines are H200s now).
+    # The same preset on the H200 (session 43: the lent machines are H200s now), then rsl and track
+    # (session 44).
     "h200-jaxlib-0.11.2-gpu.tar.gz": (H200, H200_DIR, "e26260c", SPLIT, 853),
+    "h200-jaxlib-0.11.2-rsl.tar.gz": (H200, H200_DIR, "968e856", ("train step", "eval step"), 757),
+    "h200-jaxlib-0.11.2-track.tar.gz": (H200, H200_DIR, "968e856", SPLIT, 831),
 }
 SHIPPED_MEMBERS = 1072 + 749 + 830 + 868 + 849
 SHIPPED_UNION = 2819
 """The H100 archives' entries, all and distinct (a fusion two presets share is one name; counted with
 ``tarfile`` when they were added: 4368 members, 1549 of them repeats)."""
+H200_MEMBERS = 853 + 757 + 831
+H200_UNION = 1866
+"""The same for the H200's three (``tarfile``, session 44: 2441 members, 575 of them repeats)."""
 
 
 def test_the_shipped_seeds_match_their_manifests():
@@ -203,14 +209,15 @@ def test_the_shipped_seed_applies_on_its_own_device(tmp_path, monkeypatch):
     monkeypatch.setattr(ats, "_xla_caches_flag", lambda: AUTOTUNE_DIR)
     monkeypatch.setattr(ats, "local_platform", lambda: ("gpu", H100, "0.11.2"))
     out = ats.seed_autotune_cache(tmp_path / "h100")
-    # Every H100 seed applies, the H200's does not; a name two seeds share is written once, then counted
+    # Every H100 seed applies, the H200's do not; a name two seeds share is written once, then counted
     # as present.
     assert (out.seeded, out.present, out.refused) == (SHIPPED_UNION, SHIPPED_MEMBERS - SHIPPED_UNION, 0)
     assert [p.name for p in (tmp_path / "h100" / AUTOTUNE_DIR).iterdir()] == [H100_DIR]
     assert len(list((tmp_path / "h100" / AUTOTUNE_DIR / H100_DIR).iterdir())) == SHIPPED_UNION
     monkeypatch.setattr(ats, "local_platform", lambda: ("gpu", H200, "0.11.2"))
     out = ats.seed_autotune_cache(tmp_path / "h200")
-    assert (out.seeded, out.present, out.refused, out.source) == (853, 0, 0, "h200-jaxlib-0.11.2-gpu.tar.gz")
+    assert (out.seeded, out.present, out.refused) == (H200_UNION, H200_MEMBERS - H200_UNION, 0)
+    assert out.source == ", ".join(f"h200-jaxlib-0.11.2-{p}.tar.gz" for p in ("gpu", "rsl", "track"))
     assert [p.name for p in (tmp_path / "h200" / AUTOTUNE_DIR).iterdir()] == [H200_DIR]
 
 
