@@ -67,6 +67,15 @@ def top_events(log_dir: str | Path, n: int = 40) -> list[dict[str, Any]]:
     ]
 
 
+def _op(e: dict) -> str:
+    """The instruction a kernel event comes from: its ``hlo_op``, and for a kernel a command buffer (CUDA
+    graph) replays, whose ``hlo_op`` names only the buffer, ``command_buffer_N / <kernel name>``."""
+    op, name = str(e.get("args", {}).get("hlo_op") or ""), str(e.get("name", "?"))
+    if not op:
+        return name[:60]
+    return f"{op} / {name[:60]}" if op.startswith("command_buffer") else op[:60]
+
+
 def device_summary(log_dir: str | Path, gaps: int = 12, ops: int = 0) -> dict[str, Any]:
     """What the GPU did in a trace: kernel time per XLA module, busy and idle time, the longest idle gaps.
 
@@ -74,8 +83,8 @@ def device_summary(log_dir: str | Path, gaps: int = 12, ops: int = 0) -> dict[st
     ``modules``: ``{hlo_module: [ms, count]}``; ``window_ms``: first kernel start to last kernel end;
     ``busy_ms``: the union of kernel intervals (streams overlapping counted once); ``gaps``: the longest
     idle stretches as ``[ms, module before, module after]``. With ``ops`` > 0 also ``ops``:
-    ``{hlo_module: [[hlo_op, ms, count], ...]}``, each module's ``ops`` instructions with the most kernel
-    time (the event's name where it carries no ``hlo_op``): which of a program's instructions its kernels
+    ``{hlo_module: [[op, ms, count], ...]}``, each module's ``ops`` instructions with the most kernel time
+    (``_op``: inside a CUDA graph, the kernel's own name): which of a program's instructions its kernels
     come from, and how long each runs on average (``ms / count``). Empty dict when no trace or no device
     events.
     """
@@ -101,7 +110,7 @@ def device_summary(log_dir: str | Path, gaps: int = 12, ops: int = 0) -> dict[st
         m = modules[module(e)]
         m[0] += float(e["dur"]) / 1e3
         m[1] += 1
-        o = per_op[module(e)][str(e.get("args", {}).get("hlo_op") or e.get("name", "?"))[:60]]
+        o = per_op[module(e)][_op(e)]
         o[0] += float(e["dur"]) / 1e3
         o[1] += 1
     dev.sort(key=lambda e: float(e["ts"]))

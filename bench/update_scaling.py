@@ -14,21 +14,36 @@ in a process each without compiling the env:
 Sizes: ``num_envs`` and ``batch_size`` of ``--preset`` (default gpu) are per device, as the multi-GPU
 commands give them. The line printed (and appended to ``--out``) gives ms per update call, best of
 ``--iters`` after a warm-up, and the compile seconds.
+
+What an Adam step costs on one GPU (session 44: the update is one CUDA graph of 96 kernels per Adam step, so
+fewer kernels per step is the lever; docs/benchmarks.md "Session 44"):
+
+    python bench/update_scaling.py --label "per-leaf Adam" --profile /tmp/upd --profile-ops 30
+    python bench/update_scaling.py --label "flat Adam" --flat-adam
+
+``--flat-adam``: the same optimizer under ``optax.flatten`` (Adam and the norm clip over one vector of every
+parameter instead of per leaf; the same elementwise arithmetic, the clip's norm summed in another order); the
+line also gives the largest difference of its new parameters from the per-leaf update's.
+``--profile DIR``: one call under jax.profiler; ``--profile-ops N`` prints its N kernels with the most time
+(``trace_summary.device_summary``).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import time
 from pathlib import Path
 
 import jax
 import numpy as np
+import optax
 from brax.training import types
 from config_args import add_config_args, config_of, load_env
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
+from trace_summary import device_summary, profiled
 from train_breakdown import best_time
 
 from bar_policy.training.autotune_seed import seed_autotune_cache
@@ -65,6 +80,9 @@ def main() -> int:
     p.add_argument("--iters", type=int, default=10)
     p.add_argument("--label", default="")
     p.add_argument("--out", default="")
+    p.add_argument("--flat-adam", action="store_true", help="the optimizer under optax.flatten (docstring)")
+    p.add_argument("--profile", default="", help="also trace one update call into this folder")
+    p.add_argument("--profile-ops", type=int, default=25, help="with --profile: the kernels listed")
     args = p.parse_args()
 
     cache_dir = configure_compile_cache(True)
@@ -85,19 +103,40 @@ def main() -> int:
     data = jax.device_put(data, dp.sharded)
     ts = dp.replicate(jax.device_get(jax.jit(learner.init)(jax.random.PRNGKey(0))))
     key = dp.replicate(np.asarray(jax.random.PRNGKey(1)))
-    update = dp.map(lambda t, d, k: learner.update(t, d, k)[0], (P(), P(AXIS), P()), P())
+    base = learner
+    if args.flat_adam:
+        learner = dataclasses.replace(learner, optimizer=optax.flatten(learner.optimizer))
+        ts = ts.replace(optimizer_state=dp.replicate(jax.device_get(learner.optimizer.init(ts.params))))
+
+    def program(lr: object) -> object:
+        return dp.map(lambda t, d, k: lr.update(t, d, k)[0], (P(), P(AXIS), P()), P())
+
     t0 = time.perf_counter()
-    compiled = update.lower(ts, data, key).compile()
+    compiled = program(learner).lower(ts, data, key).compile()
     compile_s = time.perf_counter() - t0
     best = best_time(lambda: compiled(ts, data, key), args.iters)
     adam = ppo.num_updates_per_batch * ppo.num_minibatches
+    diff = ""
+    if args.flat_adam:  # the same update per leaf, from the same parameters, data and key
+        ts0 = ts.replace(optimizer_state=dp.replicate(jax.device_get(base.optimizer.init(ts.params))))
+        a, b = jax.device_get((compiled(ts, data, key).params, jax.jit(program(base))(ts0, data, key).params))
+        gap = max(float(np.max(np.abs(x - y))) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True))
+        diff = f" max |flat - per leaf| over the new params {gap:.2e};"
     line = (
         f"| {args.label or f'{args.devices} device(s)'} | {devices[0].device_kind} x {len(devices)} | "
-        f"{1e3 * best:.2f} | {1e6 * best / adam:.0f} | {compile_s:.1f} | "
+        f"{1e3 * best:.2f} | {1e6 * best / adam:.0f} | {compile_s:.1f} |{diff} "
         f"XLA_FLAGS={os.environ.get('XLA_FLAGS', '')!r} NCCL_PROTO={os.environ.get('NCCL_PROTO', '')!r} |"
     )
     print("| run | devices | ms per update | us per Adam step | compile s | settings |")
     print(line)
+    if args.profile:
+        with profiled(args.profile, python=False):
+            jax.block_until_ready(compiled(ts, data, key))
+        summary = device_summary(args.profile, ops=args.profile_ops)
+        print({k: v for k, v in summary.items() if k != "ops"})
+        for mod, table in summary.get("ops", {}).items():
+            print(f"\n| {mod}: kernel | ms | kernels | us each |\n|---|---:|---:|---:|")
+            print("\n".join(f"| {op} | {ms:,.2f} | {n} | {1e3 * ms / n:.1f} |" for op, ms, n in table))
     if args.out:
         with Path(args.out).open("a") as fh:
             fh.write(line + "\n")

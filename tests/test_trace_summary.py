@@ -35,6 +35,9 @@ def trace(tmp_path: Path) -> Path:
         _kernel(500, 1000, "jit_update", "dot.1"),  # overlaps the first by 500 us
         _kernel(2000, 400, "jit_update", "fusion.3"),
         _kernel(12400, 200, "jit_rollout", "fusion.9"),  # 10 ms after the last one ends
+        # two kernels a CUDA graph replays: the event names the graph as its instruction
+        {**_kernel(12600, 100, "jit_rollout", "command_buffer_4"), "name": "loop_add_fusion"},
+        {**_kernel(12700, 100, "jit_rollout", "command_buffer_4"), "name": "loop_add_fusion"},
         {"ph": "X", "pid": 1, "tid": 1, "ts": 0, "dur": 50000, "name": "host work", "args": {}},
     ]
     folder = tmp_path / "plugins" / "profile" / "run"
@@ -46,18 +49,22 @@ def trace(tmp_path: Path) -> Path:
 
 def test_busy_window_and_gaps(trace: Path) -> None:
     s = device_summary(trace)
-    # window: 0 to 12.6 ms; busy: [0, 1.5) + [2.0, 2.4) + [12.4, 12.6) = 1.5 + 0.4 + 0.2 = 2.1 ms
-    assert s["window_ms"] == pytest.approx(12.6)
-    assert s["busy_ms"] == pytest.approx(2.1)
+    # window: 0 to 12.8 ms; busy: [0, 1.5) + [2.0, 2.4) + [12.4, 12.8) = 1.5 + 0.4 + 0.4 = 2.3 ms
+    assert s["window_ms"] == pytest.approx(12.8)
+    assert s["busy_ms"] == pytest.approx(2.3)
     # gaps: 2.4 -> 12.4 ms (update to rollout) and 1.5 -> 2.0 ms (update to update), longest first
     assert s["gaps"] == [[10.0, "jit_update", "jit_rollout"], [0.5, "jit_update", "jit_update"]]
     # kernel time per module sums durations, the overlap counted twice: 1.0 + 1.0 + 0.4 = 2.4 ms
-    assert s["modules"] == {"jit_update": [2.4, 3], "jit_rollout": [0.2, 1]}
+    assert s["modules"] == {"jit_update": [2.4, 3], "jit_rollout": [0.4, 3]}
     assert "ops" not in s
 
 
 def test_ops_table(trace: Path) -> None:
     ops = device_summary(trace, ops=1)["ops"]
     # only the top instruction per module: dot.1 (2.0 ms in 2 kernels) over fusion.3 (0.4 ms)
+    # (the rollout's tie, 0.2 ms each, goes to the first seen)
     assert ops == {"jit_update": [["dot.1", 2.0, 2]], "jit_rollout": [["fusion.9", 0.2, 1]]}
-    assert device_summary(trace, ops=5)["ops"]["jit_update"][1] == ["fusion.3", 0.4, 1]
+    five = device_summary(trace, ops=5)["ops"]
+    assert five["jit_update"][1] == ["fusion.3", 0.4, 1]
+    # a graph's kernels are told apart by their own name
+    assert five["jit_rollout"][1] == ["command_buffer_4 / loop_add_fusion", 0.2, 2]
