@@ -120,7 +120,8 @@ def main() -> int:
     if args.flat_adam:  # the same update per leaf, from the same parameters, data and key
         ts0 = ts.replace(optimizer_state=dp.replicate(jax.device_get(base.optimizer.init(ts.params))))
         a, b = jax.device_get((compiled(ts, data, key).params, jax.jit(program(base))(ts0, data, key).params))
-        gap = max(float(np.max(np.abs(x - y))) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True))
+        pairs = zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
+        gap = max(float(np.max(np.abs(x - y))) for x, y in pairs)
         diff = f" max |flat - per leaf| over the new params {gap:.2e};"
     line = (
         f"| {args.label or f'{args.devices} device(s)'} | {devices[0].device_kind} x {len(devices)} | "
