@@ -17,7 +17,9 @@
 #   DUMP=1: the overlap's process also dumps XLA's optimised HLO of its programs (DUMP_MODULES, a regex
 #   of module names; into DUMP_DIR, not $OUT) and bench/command_buffers.py reports what of each runs
 #   outside a command buffer ($OUT/command_buffers_<name>.md); XLA's own log of the thunks it leaves out
-#   of command buffers (TF_CPP_VMODULE, VLOG 2) is summarised in $OUT/command_buffer_log_<name>.md.
+#   of command buffers (TF_CPP_VMODULE, VLOG 2) is summarised in $OUT/command_buffer_log_overlap_<name>.md.
+#   VLOG=1: each breakdown process also logs XLA's command-buffer decisions (TF_CPP_VMODULE, VLOG 2),
+#   summarised in $OUT/command_buffer_log_<name>.md and then dropped from its log (session 44's calls 2-3).
 #   STEP_TIMEOUT: seconds per process (default 240). BREAKDOWN_ARGS / OVERLAP_ARGS: the two benches' other
 #   arguments (defaults below; the overlap's: the gpu preset, 5 timed calls). Each process gets
 #   `--env-overrides cholesky=<form>` (added to the preset's own, so the gpu preset keeps its 4 ms step; session
@@ -43,6 +45,18 @@ DUMP_DIR=${DUMP_DIR:-/tmp/capture_dump}
 DUMP_MODULES=${DUMP_MODULES:-"jit_(rollout|update|pipelined|interleaved)"}
 T0=$(date +%s)
 stamp() { echo "[$(( $(date +%s) - T0 )) s] $*"; }
+VMODULE="command_buffer_conversion_pass=2,command_buffer_scheduling=2"
+XLA_INFO='^[IVW][0-9]{4} '  # the start of an XLA/absl log line
+
+# cb_reasons LOG: XLA's command-buffer log in LOG (VMODULE), as the buffers it made and the thunks it left
+# out of one, by its reason (count, message)
+cb_reasons() {
+  echo "XLA's command-buffer log (TF_CPP_VMODULE=$VMODULE): $(grep -cE "$XLA_INFO" "$1") info lines"
+  echo; echo "command buffers created: $(grep -c 'Creating command buffer thunk' "$1")"
+  echo; echo "thunks left out of a command buffer, by XLA's reason (count, message):"
+  grep -oE "Unsupported thunk kind: [A-Za-z0-9_]+|Thunk kind [A-Za-z0-9_]+ lowering is not enabled[^.]*|Thunk kind [A-Za-z0-9_]+ is not lowered to command buffer[^.]*|[A-Za-z0-9]+Thunk is not convertible[^.]*" \
+    "$1" | sort | uniq -c | sort -rn | head -25
+}
 
 # "a=x:F1 F2 b=y:F3" -> one line per variant: name, cholesky, flags
 split_variants() {
@@ -62,24 +76,29 @@ done < <(split_variants)
 
 for name in "${NAMES[@]}"; do
   stamp "breakdown $name: cholesky=${CHOL_OF[$name]}, XLA_FLAGS '${FLAGS_OF[$name]}'"
+  vlog=()
+  [ "${VLOG:-0}" = 1 ] && vlog=(TF_CPP_MIN_LOG_LEVEL=0 "TF_CPP_VMODULE=$VMODULE")
+  log="$OUT/breakdown_$name.log"
   # shellcheck disable=SC2086
-  XLA_FLAGS="${FLAGS_OF[$name]}" timeout "$STEP_TIMEOUT" python3 bench/train_breakdown.py $BREAKDOWN_ARGS \
-    --env-overrides cholesky="${CHOL_OF[$name]}" --out "$OUT/breakdown_$name.md" \
-    > "$OUT/breakdown_$name.log" 2>&1
-  stamp "  rc $? ($(grep -c . "$OUT/breakdown_$name.log") log lines)"
+  env "${vlog[@]}" XLA_FLAGS="${FLAGS_OF[$name]}" timeout "$STEP_TIMEOUT" python3 bench/train_breakdown.py \
+    $BREAKDOWN_ARGS --env-overrides cholesky="${CHOL_OF[$name]}" --out "$OUT/breakdown_$name.md" > "$log" 2>&1
+  stamp "  rc $? ($(grep -c . "$log") log lines)"
+  if [ "${VLOG:-0}" = 1 ]; then
+    cb_reasons "$log" > "$OUT/command_buffer_log_$name.md"
+    grep -vE "$XLA_INFO" "$log" > "$log.tmp"; mv "$log.tmp" "$log"
+  fi
 done
 
 if [ "${PIPE:-1}" = 1 ]; then
   name=${PIPE_VARIANT:-columns_while}
-  flags="${FLAGS_OF[$name]:-}" log="$OUT/overlap_$name.log" vmodule="" vlog=()
+  flags="${FLAGS_OF[$name]:-}" log="$OUT/overlap_$name.log" vlog=()
   if [ "${DUMP:-0}" = 1 ]; then
     # XLA's optimised HLO of the overlap's programs (read by command_buffers.py) and its own account of
     # each thunk it leaves out of a command buffer (VLOG 2), both into DUMP_DIR (large); an empty compile
     # cache of its own, since a program loaded from the cache is neither compiled nor dumped
     rm -rf "$DUMP_DIR"; mkdir -p "$DUMP_DIR"; log="$DUMP_DIR/overlap.log"
     flags="$flags --xla_dump_to=$DUMP_DIR --xla_dump_hlo_as_text --xla_dump_hlo_module_re=$DUMP_MODULES"
-    vmodule="command_buffer_conversion_pass=2,command_buffer_scheduling=2"
-    vlog=(TF_CPP_MIN_LOG_LEVEL=0 "TF_CPP_VMODULE=$vmodule" "JAX_COMPILATION_CACHE_DIR=$DUMP_DIR/jax_cache")
+    vlog=(TF_CPP_MIN_LOG_LEVEL=0 "TF_CPP_VMODULE=$VMODULE" "JAX_COMPILATION_CACHE_DIR=$DUMP_DIR/jax_cache")
   fi
   stamp "overlap $name"
   # shellcheck disable=SC2086
@@ -88,17 +107,11 @@ if [ "${PIPE:-1}" = 1 ]; then
     --out "$OUT/overlap_$name.md" > "$log" 2>&1
   stamp "  rc $?"
   if [ "${DUMP:-0}" = 1 ]; then
-    grep -vE '^[IV][0-9]{4} ' "$log" > "$OUT/overlap_$name.log"  # the log without XLA's info lines
+    grep -vE "$XLA_INFO" "$log" > "$OUT/overlap_$name.log"  # the log without XLA's info lines
     python3 bench/command_buffers.py "$DUMP_DIR" --module "$DUMP_MODULES" --out "$OUT/command_buffers_$name.md" \
       > /dev/null 2>&1
     stamp "  command buffers: rc $? ($(du -sh "$DUMP_DIR" 2>/dev/null | cut -f1) of dump)"
-    {
-      echo "XLA's command-buffer log (TF_CPP_VMODULE=$vmodule): $(grep -cE '^[IV][0-9]{4} ' "$log") info lines"
-      echo; echo "command buffers created: $(grep -c 'Creating command buffer thunk' "$log")"
-      echo; echo "thunks left out of a command buffer, by XLA's reason (count, message):"
-      grep -oE "Unsupported thunk kind: [A-Za-z0-9_]+|Thunk kind [A-Za-z0-9_]+ lowering is not enabled[^.]*|Thunk kind [A-Za-z0-9_]+ is not lowered to command buffer[^.]*|[A-Za-z]+Thunk is not convertible[^.]*" \
-        "$log" | sort | uniq -c | sort -rn | head -25
-    } > "$OUT/command_buffer_log_$name.md"
+    cb_reasons "$log" > "$OUT/command_buffer_log_overlap_$name.md"
   fi
 fi
 
