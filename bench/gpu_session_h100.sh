@@ -24,8 +24,13 @@
 #                      thunks, so a load need not regenerate them), each pair on its own empty cache; flags
 #                      XLA refuses are left out, as in flags. jaxlib 0.11.2 refuses that default (removed:
 #                      docs/startup.md, "What a warm load still costs"): pass LOAD_FLAGS there
-#   smoke             : CPU logic check of startup and rsl with tiny sizes (not for the GPU); smoke-loadflags:
-#                      the same for loadflags
+#   update   (~3 min): what an Adam step of the update costs (bench/update_scaling.py, synthetic data, the
+#                      trainer's CONCURRENT schedule): per-leaf Adam with a kernel profile of one update
+#                      call (its 40 costliest kernels), then each variant in $UPDATE_VARIANTS (default: Adam
+#                      over one flat vector; cuBLAS instead of Triton for the matmuls), one process each;
+#                      $OUT/summary_update.md holds the rows, $OUT/update_profile.md the profile
+#   smoke             : CPU logic check of startup and rsl with tiny sizes (not for the GPU); smoke-loadflags,
+#                      smoke-update: the same for loadflags, update
 #
 # Every training run is `python3 train/ppo.py` with the default (gpu) preset, a wall-clock budget
 # (--max-minutes, from process start) and no ONNX export; time to 95 % is counted from process start.
@@ -159,6 +164,30 @@ loadflags() {
   finish loadflags "${runs[@]}" --append "$WORK/loadflags.md"
 }
 
+update() {
+  local conc=--xla_gpu_command_buffer_scheduling_mode=CONCURRENT pr="" label args flags
+  [ -n "$SMOKE" ] && pr="--preset tiny --iters 2"
+  echo "| run | devices | ms per update | us per Adam step | compile s | settings |" > "$OUT/summary_update.md"
+  echo "|---|---|---:|---:|---:|---|" >> "$OUT/summary_update.md"
+  stamp "update: per-leaf Adam, profiled"
+  # shellcheck disable=SC2086
+  XLA_FLAGS=$conc timeout -k 10 $((120 * TS)) python3 bench/update_scaling.py $pr --label "per-leaf Adam" \
+    --out "$OUT/summary_update.md" --profile "$WORK/update_trace" --profile-ops 40 > "$OUT/update_profile.md" 2>&1
+  stamp "  exit $?"
+  # label|arguments|extra XLA flags, separated by ';'
+  local variants=${UPDATE_VARIANTS:-"flat Adam|--flat-adam|;cuBLAS matmuls||--xla_gpu_enable_triton_gemm=false"}
+  while IFS='|' read -r label args flags; do
+    [ -n "$label" ] || continue
+    stamp "update: $label"
+    # shellcheck disable=SC2086
+    XLA_FLAGS="$conc $flags" timeout -k 10 $((120 * TS)) python3 bench/update_scaling.py $pr $args \
+      --label "$label" --out "$OUT/summary_update.md" > "$WORK/update_$label.log" 2>&1
+    stamp "  exit $?"
+  done < <(tr ';' '\n' <<< "$variants")
+  rm -rf "$WORK/update_trace"
+  cat "$OUT/summary_update.md"
+}
+
 seeds() {
   local p name
   name=$(python3 -c "import re, jax, jaxlib
@@ -190,7 +219,9 @@ case "$PART" in
   flags) flags ;;
   loadflags) loadflags ;;
   seeds) seeds ;;
+  update) update ;;
+  smoke-update) update ;;
   smoke) COLD_MIN=8 WARM_MIN=8 startup; RSL_MIN=0.5 RSL_PRESET=tiny rsl ;;
   smoke-loadflags) COLD_MIN=8 WARM_MIN=8 loadflags ;;
-  *) echo "unknown part $PART; parts: startup, rsl, flags, loadflags, seeds, smoke"; exit 2 ;;
+  *) echo "unknown part $PART; parts: startup, rsl, flags, loadflags, seeds, update, smoke"; exit 2 ;;
 esac

@@ -122,7 +122,7 @@ def main() -> int:
         a, b = jax.device_get((compiled(ts, data, key).params, jax.jit(program(base))(ts0, data, key).params))
         pairs = zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
         gap = max(float(np.max(np.abs(x - y))) for x, y in pairs)
-        diff = f" max |flat - per leaf| over the new params {gap:.2e};"
+        diff = f" flat minus per-leaf params, largest magnitude {gap:.2e};"
     line = (
         f"| {args.label or f'{args.devices} device(s)'} | {devices[0].device_kind} x {len(devices)} | "
         f"{1e3 * best:.2f} | {1e6 * best / adam:.0f} | {compile_s:.1f} |{diff} "
