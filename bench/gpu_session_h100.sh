@@ -219,8 +219,7 @@ case "$PART" in
   flags) flags ;;
   loadflags) loadflags ;;
   seeds) seeds ;;
-  update) update ;;
-  smoke-update) update ;;
+  update | smoke-update) update ;;
   smoke) COLD_MIN=8 WARM_MIN=8 startup; RSL_MIN=0.5 RSL_PRESET=tiny rsl ;;
   smoke-loadflags) COLD_MIN=8 WARM_MIN=8 loadflags ;;
   *) echo "unknown part $PART; parts: startup, rsl, flags, loadflags, seeds, update, smoke"; exit 2 ;;

@@ -107,12 +107,10 @@ def device_summary(log_dir: str | Path, gaps: int = 12, ops: int = 0) -> dict[st
 
     per_op: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(lambda: [0.0, 0]))
     for e in dev:
-        m = modules[module(e)]
-        m[0] += float(e["dur"]) / 1e3
-        m[1] += 1
-        o = per_op[module(e)][_op(e)]
-        o[0] += float(e["dur"]) / 1e3
-        o[1] += 1
+        mod, ms = module(e), float(e["dur"]) / 1e3
+        for row in (modules[mod], per_op[mod][_op(e)]):
+            row[0] += ms
+            row[1] += 1
     dev.sort(key=lambda e: float(e["ts"]))
     busy, found = 0.0, []
     end, last = float(dev[0]["ts"]), dev[0]
@@ -137,3 +135,13 @@ def device_summary(log_dir: str | Path, gaps: int = 12, ops: int = 0) -> dict[st
             for mod, table in per_op.items()
         }
     return out
+
+
+def ops_tables(summary: dict[str, Any], what: str = "instruction") -> list[str]:
+    """``device_summary``'s ``ops`` as one Markdown table per module (``what`` heads the first column): each
+    instruction's kernel time, kernel count and time per kernel. No lines when it has no ``ops``."""
+    lines: list[str] = []
+    for mod, table in summary.get("ops", {}).items():
+        lines += ["", f"| {mod}: {what} | kernel ms | kernels | us each |", "|---|---:|---:|---:|"]
+        lines += [f"| {op} | {ms:,.2f} | {n} | {1e3 * ms / n:.1f} |" for op, ms, n in table]
+    return lines

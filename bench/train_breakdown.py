@@ -49,7 +49,7 @@ from fused_epoch import fused_epoch
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 from report import emit
-from trace_summary import device_summary, profiled
+from trace_summary import device_summary, ops_tables, profiled
 
 from bar_policy import envs
 from bar_policy.training.autotune_seed import seed_autotune_cache
@@ -296,9 +296,7 @@ def main() -> int:
         lines += [
             f"- module {k}: {v[0]:,.1f} ms in {v[1]} kernels" for k, v in summary.get("modules", {}).items()
         ]
-        for mod, table in summary.get("ops", {}).items():
-            lines += ["", f"| {mod}: instruction | kernel ms | kernels | us each |", "|---|---:|---:|---:|"]
-            lines += [f"| {op} | {ms:,.2f} | {n} | {1e3 * ms / n:.1f} |" for op, ms, n in table]
+        lines += ops_tables(summary)
     emit("\n".join(lines), args.out)
     return 0
 

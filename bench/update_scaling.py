@@ -43,7 +43,7 @@ from brax.training import types
 from config_args import add_config_args, config_of, load_env
 from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
-from trace_summary import device_summary, profiled
+from trace_summary import device_summary, ops_tables, profiled
 from train_breakdown import best_time
 
 from bar_policy.training.autotune_seed import seed_autotune_cache
@@ -103,7 +103,7 @@ def main() -> int:
     data = jax.device_put(data, dp.sharded)
     ts = dp.replicate(jax.device_get(jax.jit(learner.init)(jax.random.PRNGKey(0))))
     key = dp.replicate(np.asarray(jax.random.PRNGKey(1)))
-    base = learner
+    base, ts_leaf = learner, ts  # the per-leaf optimizer and its state
     if args.flat_adam:
         learner = dataclasses.replace(learner, optimizer=optax.flatten(learner.optimizer))
         ts = ts.replace(optimizer_state=dp.replicate(jax.device_get(learner.optimizer.init(ts.params))))
@@ -118,8 +118,8 @@ def main() -> int:
     adam = ppo.num_updates_per_batch * ppo.num_minibatches
     diff = ""
     if args.flat_adam:  # the same update per leaf, from the same parameters, data and key
-        ts0 = ts.replace(optimizer_state=dp.replicate(jax.device_get(base.optimizer.init(ts.params))))
-        a, b = jax.device_get((compiled(ts, data, key).params, jax.jit(program(base))(ts0, data, key).params))
+        per_leaf = jax.jit(program(base))(ts_leaf, data, key)
+        a, b = jax.device_get((compiled(ts, data, key).params, per_leaf.params))
         pairs = zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
         gap = max(float(np.max(np.abs(x - y))) for x, y in pairs)
         diff = f" flat minus per-leaf params, largest magnitude {gap:.2e};"
@@ -135,9 +135,7 @@ def main() -> int:
             jax.block_until_ready(compiled(ts, data, key))
         summary = device_summary(args.profile, ops=args.profile_ops)
         print({k: v for k, v in summary.items() if k != "ops"})
-        for mod, table in summary.get("ops", {}).items():
-            print(f"\n| {mod}: kernel | ms | kernels | us each |\n|---|---:|---:|---:|")
-            print("\n".join(f"| {op} | {ms:,.2f} | {n} | {1e3 * ms / n:.1f} |" for op, ms, n in table))
+        print("\n".join(ops_tables(summary, "kernel")))
     if args.out:
         with Path(args.out).open("a") as fh:
             fh.write(line + "\n")

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-from trace_summary import device_summary
+from trace_summary import device_summary, ops_tables
 
 
 def _kernel(ts: float, dur: float, module: str, op: str) -> dict:
@@ -68,3 +68,16 @@ def test_ops_table(trace: Path) -> None:
     assert five["jit_update"][1] == ["fusion.3", 0.4, 1]
     # a graph's kernels are told apart by their own name
     assert five["jit_rollout"][1] == ["command_buffer_4 / loop_add_fusion", 0.2, 2]
+
+
+def test_ops_tables(trace: Path) -> None:
+    lines = ops_tables(device_summary(trace, ops=1), "kernel")
+    # one table per module; us each = 1e3 * ms / kernels: 2.0 ms / 2 -> 1000.0 us, 0.2 ms / 1 -> 200.0 us
+    assert lines[:4] == [
+        "",
+        "| jit_update: kernel | kernel ms | kernels | us each |",
+        "|---|---:|---:|---:|",
+        "| dot.1 | 2.00 | 2 | 1000.0 |",
+    ]
+    assert lines[-1] == "| fusion.9 | 0.20 | 1 | 200.0 |"
+    assert ops_tables(device_summary(trace)) == []  # no ops asked for: no tables
