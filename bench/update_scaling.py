@@ -24,6 +24,9 @@ fewer kernels per step is the lever; docs/benchmarks.md "Session 44"):
 ``--flat-adam``: the same optimizer under ``optax.flatten`` (Adam and the norm clip over one vector of every
 parameter instead of per leaf; the same elementwise arithmetic, the clip's norm summed in another order); the
 line also gives the largest difference of its new parameters from the per-leaf update's.
+``--precision P``: the update's matrix products at ``P`` (``jax.default_matmul_precision``: ``tensorfloat32``,
+``bfloat16``, or an algorithm such as ``BF16_BF16_F32_X3`` or ``TF32_TF32_F32_X3``) instead of the config's
+full float32, with the same difference column against the float32 per-leaf update.
 ``--profile DIR``: one call under jax.profiler; ``--profile-ops N`` prints its N kernels with the most time
 (``trace_summary.device_summary``).
 """
@@ -81,6 +84,9 @@ def main() -> int:
     p.add_argument("--label", default="")
     p.add_argument("--out", default="")
     p.add_argument("--flat-adam", action="store_true", help="the optimizer under optax.flatten (docstring)")
+    p.add_argument(
+        "--precision", default="", help="the update's matmul precision instead of the config's (docstring)"
+    )
     p.add_argument("--profile", default="", help="also trace one update call into this folder")
     p.add_argument("--profile-ops", type=int, default=25, help="with --profile: the kernels listed")
     args = p.parse_args()
@@ -112,17 +118,21 @@ def main() -> int:
         return dp.map(lambda t, d, k: lr.update(t, d, k)[0], (P(), P(AXIS), P()), P())
 
     t0 = time.perf_counter()
-    compiled = program(learner).lower(ts, data, key).compile()
+    with jax.default_matmul_precision(args.precision or jax.config.jax_default_matmul_precision):
+        compiled = program(learner).lower(ts, data, key).compile()
     compile_s = time.perf_counter() - t0
     best = best_time(lambda: compiled(ts, data, key), args.iters)
     adam = ppo.num_updates_per_batch * ppo.num_minibatches
     diff = ""
-    if args.flat_adam:  # the same update per leaf, from the same parameters, data and key
-        per_leaf = jax.jit(program(base))(ts_leaf, data, key)
-        a, b = jax.device_get((compiled(ts, data, key).params, per_leaf.params))
+    if args.flat_adam or args.precision:  # per leaf at full float32, same parameters, data and key
+        with jax.default_matmul_precision("highest"):
+            reference = jax.jit(program(base))(ts_leaf, data, key)
+        a, b = jax.device_get((compiled(ts, data, key).params, reference.params))
         pairs = zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
         gap = max(float(np.max(np.abs(x - y))) for x, y in pairs)
-        diff = f" flat minus per-leaf params, largest magnitude {gap:.2e};"
+        diff = f" params minus per-leaf float32's, largest magnitude {gap:.2e};"
+    if args.precision:
+        diff += f" precision {args.precision};"
     line = (
         f"| {args.label or f'{args.devices} device(s)'} | {devices[0].device_kind} x {len(devices)} | "
         f"{1e3 * best:.2f} | {1e6 * best / adam:.0f} | {compile_s:.1f} |{diff} "

@@ -168,8 +168,9 @@ SHIPPED = {
     # The gpu preset of session 37 (batch 256, 4 ms, training.ppo_loss); the one above is session 32's.
     "h100-80gb-hbm3-jaxlib-0.11.2-gpu.tar.gz": (H100, H100_DIR, "68897c4", SPLIT, 849),
     # The same preset on the H200 (session 43: the lent machines are H200s now), then rsl and track
-    # (session 44).
+    # (session 44) and piano (session 45).
     "h200-jaxlib-0.11.2-gpu.tar.gz": (H200, H200_DIR, "e26260c", SPLIT, 853),
+    "h200-jaxlib-0.11.2-piano.tar.gz": (H200, H200_DIR, "280175b", SPLIT, 1053),
     "h200-jaxlib-0.11.2-rsl.tar.gz": (H200, H200_DIR, "968e856", ("train step", "eval step"), 757),
     "h200-jaxlib-0.11.2-track.tar.gz": (H200, H200_DIR, "968e856", SPLIT, 831),
 }
@@ -177,9 +178,9 @@ SHIPPED_MEMBERS = 1072 + 749 + 830 + 868 + 849
 SHIPPED_UNION = 2819
 """The H100 archives' entries, all and distinct (a fusion two presets share is one name; counted with
 ``tarfile`` when they were added: 4368 members, 1549 of them repeats)."""
-H200_MEMBERS = 853 + 757 + 831
-H200_UNION = 1866
-"""The same for the H200's three (``tarfile``, session 44: 2441 members, 575 of them repeats)."""
+H200_MEMBERS = 853 + 1053 + 757 + 831
+H200_UNION = 2692
+"""The same for the H200's four (``tarfile``, session 45: 3494 members, 802 of them repeats)."""
 
 
 def test_the_shipped_seeds_match_their_manifests():
@@ -217,7 +218,7 @@ def test_the_shipped_seed_applies_on_its_own_device(tmp_path, monkeypatch):
     monkeypatch.setattr(ats, "local_platform", lambda: ("gpu", H200, "0.11.2"))
     out = ats.seed_autotune_cache(tmp_path / "h200")
     assert (out.seeded, out.present, out.refused) == (H200_UNION, H200_MEMBERS - H200_UNION, 0)
-    assert out.source == ", ".join(f"h200-jaxlib-0.11.2-{p}.tar.gz" for p in ("gpu", "rsl", "track"))
+    assert out.source == ", ".join(f"h200-jaxlib-0.11.2-{p}.tar.gz" for p in ("gpu", "piano", "rsl", "track"))
     assert [p.name for p in (tmp_path / "h200" / AUTOTUNE_DIR).iterdir()] == [H200_DIR]
 
 
