@@ -29,8 +29,12 @@
 #                      call (its 40 costliest kernels), then each variant in $UPDATE_VARIANTS (default: Adam
 #                      over one flat vector; cuBLAS instead of Triton for the matmuls), one process each;
 #                      $OUT/summary_update.md holds the rows, $OUT/update_profile.md the profile
+#   precision (~7 min): the default command against ppo.update_precision=$UPDATE_PRECISION (default
+#                      tensorfloat32: the SGD passes on tensor cores, physics and rollout at float32), on one
+#                      compile cache: base_s0 (cold), prec_s0..2, base_s1 (warm but for the changed update),
+#                      ONNX exported; $OUT/<run>.onnx for the ship gate (`bar-deploy eval`)
 #   smoke             : CPU logic check of startup and rsl with tiny sizes (not for the GPU); smoke-loadflags,
-#                      smoke-update: the same for loadflags, update
+#                      smoke-update, smoke-precision: the same for loadflags, update, precision
 #
 # Every training run is `python3 train/ppo.py` with the default (gpu) preset, a wall-clock budget
 # (--max-minutes, from process start) and no ONNX export; time to 95 % is counted from process start.
@@ -188,6 +192,23 @@ update() {
   cat "$OUT/summary_update.md"
 }
 
+precision() {
+  local pr=${UPDATE_PRECISION:-tensorfloat32} r runs=()
+  COMMON=${COMMON/--no-export-onnx/}
+  rm -rf "$CACHE"
+  ppo base_s0 200 --compile-cache-dir "$CACHE" --seed 0 --max-minutes "${COLD_MIN:-1.4}"
+  for r in 0 1 2; do
+    ppo "prec_s$r" 150 --compile-cache-dir "$CACHE" --seed "$r" --ppo.update-precision "$pr" --max-minutes "${WARM_MIN:-1.1}"
+  done
+  ppo base_s1 150 --compile-cache-dir "$CACHE" --seed 1 --max-minutes "${WARM_MIN:-1.1}"
+  for r in base_s0 prec_s0 prec_s1 prec_s2 base_s1; do
+    runs+=("$RUNS/$r")
+    cp "$RUNS/$r/policy.onnx" "$OUT/$r.onnx" 2>/dev/null || stamp "$r: no policy.onnx"
+  done
+  echo "prec_*: --ppo.update-precision $pr; base_*: the default (run)" > "$WORK/precision.md"
+  finish precision "${runs[@]}" --append "$WORK/precision.md"
+}
+
 seeds() {
   local p name
   name=$(python3 -c "import re, jax, jaxlib
@@ -220,7 +241,9 @@ case "$PART" in
   loadflags) loadflags ;;
   seeds) seeds ;;
   update | smoke-update) update ;;
+  precision) precision ;;
+  smoke-precision) COLD_MIN=8 WARM_MIN=8 precision ;;
   smoke) COLD_MIN=8 WARM_MIN=8 startup; RSL_MIN=0.5 RSL_PRESET=tiny rsl ;;
   smoke-loadflags) COLD_MIN=8 WARM_MIN=8 loadflags ;;
-  *) echo "unknown part $PART; parts: startup, rsl, flags, loadflags, seeds, update, smoke"; exit 2 ;;
+  *) echo "unknown part $PART; parts: startup, rsl, flags, loadflags, seeds, update, precision, smoke"; exit 2 ;;
 esac

@@ -1,11 +1,9 @@
 """Typed training configuration: one frozen dataclass tree shared by both PPO backends.
 
-``TrainConfig`` is the root. ``preset(name)`` builds the tuned variants that the tasks register (reach:
-``gpu``, ``cpu``, ``tiny``; track: ``track`` for LiteTrack on the GPU; ``TaskRecord.presets``) as dotted-path
-overrides of the base; ``apply_overrides`` (``bar_policy.overrides``, the same
-syntax as the env's ``--env-overrides``) applies dotted-path overrides (``"ppo.learning_rate=1e-3"``) to any
-config. The CLI (``bar_policy.training.cli``) turns every field into a flag with tyro, whose ``--help``
-shows each field's docstring below (units included).
+``TrainConfig`` is the root. ``preset(name)`` builds the variants the tasks register (``TaskRecord.presets``)
+as dotted-path overrides of the base, which ``apply_overrides`` (``bar_policy.overrides``, the env's
+``--env-overrides`` syntax: ``"ppo.learning_rate=1e-3"``) applies to any config. The CLI (``training.cli``)
+makes every field a tyro flag whose ``--help`` shows the field's docstring below (units included).
 
 Sizes follow brax's PPO: one training iteration collects ``batch_size * num_minibatches`` trajectories of
 ``unroll_length`` steps (``num_envs`` environments, ``batch_size * num_minibatches / num_envs`` unrolls
@@ -163,6 +161,9 @@ class PPOConfig:
     not at pass, which learns as fast (docs/training.md). brax backend; track and piano keep minibatch."""
     vf_loss_coefficient: float = 0.5
     """Weight of the value loss."""
+    update_precision: Literal["run", "tensorfloat32", "BF16_BF16_F32_X3"] = "run"
+    """SGD passes' matrix products (brax): ``run`` (``TrainConfig.matmul_precision``) or tensor cores' (jax's
+    names; physics, rollout keep the run's). docs/benchmarks.md "Session 45": H200 update 30 -> 17 / 22 ms."""
     actor_warmup_iterations: int = 0
     """First iterations in which only the critic learns (policy gradients zeroed; brax backend): against an
     untrained critic the first updates push the policy off an action prior (piano: F1 0.70 -> 0.23 in 2.3M
@@ -367,11 +368,6 @@ def preset(name: str) -> TrainConfig:
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}; presets: {sorted(PRESETS)}")
     return PRESETS[name]()
-
-
-# ----------------------------------------------------------------------------------------------------------
-# Overrides and (de)serialisation
-# ----------------------------------------------------------------------------------------------------------
 
 
 def config_to_dict(cfg: TrainConfig) -> dict[str, Any]:

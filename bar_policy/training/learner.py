@@ -16,6 +16,7 @@ shuffled passes of ``num_minibatches`` Adam steps).
 
 from __future__ import annotations
 
+import contextlib
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -107,7 +108,14 @@ class Learner:
         """One shuffled pass of ``num_minibatches`` Adam steps over this device's segments.
 
         ``carry`` = ``(optimizer state, params, key)``; returns ``(carry, metrics)``, ``update``'s scan body.
+        Its matrix products are traced at ``ppo.update_precision`` (``run``: the surrounding precision).
         """
+        precision = self.ppo.update_precision
+        with contextlib.nullcontext() if precision == "run" else jax.default_matmul_precision(precision):
+            return self._sgd_pass(carry, data, normalizer)
+
+    def _sgd_pass(self, carry: tuple, data: types.Transition, normalizer: Any) -> tuple:
+        """``sgd_pass`` under the precision it sets."""
         ppo = self.ppo
         opt_state, params, k = carry
         k, k_perm, k_mb = jax.random.split(k, 3)
