@@ -12,6 +12,9 @@
 # $OUT gets summary_x2.md (bench/session_summary.py: steady env steps/s = median of the progress lines
 # after the first; "x first" = ratio to the first run listed, g1) and session_x2.tgz (logs, metrics).
 #
+# TRAIN_ARGS: more arguments for every run (e.g. "--ppo.update-precision tensorfloat32"); NO_WARM=1 skips
+# g2_warm (about 3.5 minutes then).
+#
 # Usage (repository root, after the pip prefix of /work/shared/gpu/README.md): bash bench/gpu_session_x2.sh
 #   --smoke: CPU logic check with two forced host devices and tiny sizes.
 set -u
@@ -36,18 +39,20 @@ train() {  # train NAME GPU_LIST N CACHE MINUTES TIMEOUT_S
   stamp "train $1 on $3 device(s) ($2), cache $4, --max-minutes $5"
   env $(devices "$2" "$3") timeout -k 10 $(($6 * TS)) python3 train/ppo.py --run-name "$1" --runs-dir "$WORK/runs" \
     --no-export-onnx --final-eval-envs $FINAL --compile-cache-dir "$4" --max-minutes "$5" $SIZES \
-    --ppo.num-envs $((ENVS * $3)) --ppo.batch-size $((BATCH * $3)) > "$WORK/$1.log" 2>&1
+    --ppo.num-envs $((ENVS * $3)) --ppo.batch-size $((BATCH * $3)) ${TRAIN_ARGS:-} > "$WORK/$1.log" 2>&1
   stamp "train $1 exit $?"
   grep -v "^WARNING\|^I0000\|^W0000" "$WORK/$1.log" | grep -A14 "^start-up" | head -n 16
 }
 finish() {
   tar -czf "$OUT/session_x2.tgz" -C "$WORK" --exclude='*.msgpack' --exclude='tb' --exclude='cache*' . 2>/dev/null
-  python3 bench/session_summary.py "$WORK"/runs/{g1,g2_cold,g2_warm} --out "$OUT/summary_x2.md"
+  python3 bench/session_summary.py "$WORK"/runs/g1 "$WORK"/runs/g2_* --out "$OUT/summary_x2.md"
 }
 rm -rf "$WORK"/cache2 "$WORK"/cache1
 train g2_cold 0,1 2 "$WORK/cache2" "${COLD_MIN:-1.8}" 170
 finish > /dev/null
-train g2_warm 0,1 2 "$WORK/cache2" "${WARM_MIN:-1.2}" 120
-finish > /dev/null
+if [ -z "${NO_WARM:-}" ]; then
+  train g2_warm 0,1 2 "$WORK/cache2" "${WARM_MIN:-1.2}" 120
+  finish > /dev/null
+fi
 train g1 0 1 "$WORK/cache1" "${G1_MIN:-1.6}" 150
 finish
