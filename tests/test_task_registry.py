@@ -83,10 +83,12 @@ def test_a_preset_is_its_overrides_on_the_base():
     assert (track.env_name, track.ppo.num_envs, track.ppo.unroll_length) == ("LiteTrack", 8192, 20)
     assert track.network.action_prior == "reference" and track.network.policy_hidden == (256, 256, 128)
     assert track.ppo.clipping_epsilon == base.ppo.clipping_epsilon and track.seed == base.seed
-    # gpu: the base but for its batch, evaluation cadence and 4 ms physics step (tasks/reach/preset.py).
+    # gpu: the base but for its batch, update precision, evaluation cadence and 4 ms physics step
+    # (tasks/reach/preset.py).
     gpu = preset("gpu")
     assert (gpu.ppo.batch_size, gpu.eval.num_evals, gpu.env_overrides) == (256, 24, ("sim_dt=0.004",))
-    ppo = dataclasses.replace(gpu.ppo, batch_size=base.ppo.batch_size)
+    assert (gpu.ppo.update_precision, base.ppo.update_precision) == ("tensorfloat32", "run")
+    ppo = dataclasses.replace(gpu.ppo, batch_size=base.ppo.batch_size, update_precision="run")
     rest = dataclasses.replace(gpu, eval=base.eval, ppo=ppo, env_overrides=())
     assert rest == TrainConfig(preset="gpu")
 

@@ -204,6 +204,8 @@ def train_rsl_rl(
         with timer.phase(sb.RSL_RESET):  # the runner reads the first observations
             vec_env.get_observations()
         runner = OnPolicyRunner(vec_env, rsl_rl_train_cfg(cfg), log_dir=None, device=device)
+        if ppo.update_precision != "run":  # a brax setting (--preset gpu --backend rsl-rl): said, not applied
+            logger.print(f"ppo.update_precision={ppo.update_precision} not applied: rsl-rl updates in torch")
         alg = runner.alg
         if prior is not None:
             start_actor_at_prior(alg.actor)  # a resume loads its own parameters over it
