@@ -62,7 +62,7 @@ from bar_policy.training.checkpoint import latest_checkpoint, resume_changes, sa
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.executable_cache import ExecutableCache
 from bar_policy.training.progress import RunLogger, next_would_overrun
-from bar_policy.training.rsl_rl_config import rsl_rl_train_cfg
+from bar_policy.training.rsl_rl_config import not_applied, rsl_rl_train_cfg
 from bar_policy.training.rsl_rl_env import RslRlVecEnv
 from bar_policy.training.rsl_rl_policy import (
     deterministic_module,
@@ -204,8 +204,8 @@ def train_rsl_rl(
         with timer.phase(sb.RSL_RESET):  # the runner reads the first observations
             vec_env.get_observations()
         runner = OnPolicyRunner(vec_env, rsl_rl_train_cfg(cfg), log_dir=None, device=device)
-        if ppo.update_precision != "run":  # a brax setting (--preset gpu --backend rsl-rl): said, not applied
-            logger.print(f"ppo.update_precision={ppo.update_precision} not applied: rsl-rl updates in torch")
+        for line in not_applied(cfg):  # brax settings (--preset gpu --backend rsl-rl): said, not applied
+            logger.print(line)
         alg = runner.alg
         if prior is not None:
             start_actor_at_prior(alg.actor)  # a resume loads its own parameters over it

@@ -51,6 +51,7 @@ __all__ = [
     "field_cli_flags",
     "field_hyperparameters",
     "field_overrides",
+    "not_applied",
     "rsl_rl_train_cfg",
 ]
 
@@ -116,6 +117,16 @@ def field_overrides(num_envs: int) -> dict[str, Any]:
 def field_hyperparameters(cfg: TrainConfig) -> TrainConfig:
     """``cfg`` with the field's rsl-rl hyperparameters (``field_overrides(cfg.ppo.num_envs)``)."""
     return apply_overrides(cfg, field_overrides(cfg.ppo.num_envs))
+
+
+def not_applied(cfg: TrainConfig) -> list[str]:
+    """A line per brax-backend setting in ``cfg`` that the rsl-rl backend runs without (it prints them).
+
+    Today ``ppo.update_precision`` other than ``run`` (the gpu preset's TF32; rsl-rl's update is torch's).
+    """
+    if cfg.ppo.update_precision == "run":
+        return []
+    return [f"ppo.update_precision={cfg.ppo.update_precision} not applied: rsl-rl updates in torch"]
 
 
 def field_cli_flags(num_envs: int) -> list[str]:

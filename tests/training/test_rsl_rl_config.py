@@ -13,6 +13,7 @@ from bar_policy.training.rsl_rl_config import (
     field_cli_flags,
     field_hyperparameters,
     field_overrides,
+    not_applied,
     rsl_rl_train_cfg,
 )
 
@@ -71,3 +72,13 @@ def test_rsl_preset_is_the_gpu_preset_at_the_fields_values():
     alg = train_cfg["algorithm"]
     assert (alg["num_learning_epochs"], alg["num_mini_batches"]) == (5, 4)
     assert train_cfg["actor"]["hidden_dims"] == [256, 128, 64] and train_cfg["actor"]["activation"] == "elu"
+
+
+def test_the_gpu_presets_brax_update_precision_is_said_not_applied_on_rsl_rl():
+    """``--backend rsl-rl`` on the gpu preset (TF32 SGD passes, a brax setting) prints one line naming it;
+    ``--preset rsl`` and the field's values set ``run``, so nothing is left unsaid or said twice."""
+    gpu_on_rsl = dataclasses.replace(preset("gpu"), backend="rsl-rl")
+    assert not_applied(gpu_on_rsl) == [
+        "ppo.update_precision=tensorfloat32 not applied: rsl-rl updates in torch"
+    ]
+    assert not_applied(preset("rsl")) == not_applied(field_hyperparameters(gpu_on_rsl)) == []
