@@ -15,11 +15,13 @@ Sizes: ``num_envs`` and ``batch_size`` of ``--preset`` (default gpu) are per dev
 commands give them. The line printed (and appended to ``--out``) gives ms per update call, best of
 ``--iters`` after a warm-up, and the compile seconds.
 
-What an Adam step costs on one GPU (session 44: the update is one CUDA graph of 96 kernels per Adam step, so
-fewer kernels per step is the lever; docs/benchmarks.md "Session 44"):
+What an Adam step costs on one GPU (session 44: the update is one CUDA graph of 96 kernels per Adam step;
+session 45: its time is the float32 GEMMs, so the precision of the products is the lever, not Adam's form;
+docs/benchmarks.md "Session 45"):
 
     python bench/update_scaling.py --label "per-leaf Adam" --profile /tmp/upd --profile-ops 30
     python bench/update_scaling.py --label "flat Adam" --flat-adam
+    python bench/update_scaling.py --label "TF32" --precision tensorfloat32
 
 ``--flat-adam``: the same optimizer under ``optax.flatten`` (Adam and the norm clip over one vector of every
 parameter instead of per leaf; the same elementwise arithmetic, the clip's norm summed in another order); the
