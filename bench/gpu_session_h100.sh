@@ -29,9 +29,9 @@
 #                      call (its 40 costliest kernels), then each variant in $UPDATE_VARIANTS (default: Adam
 #                      over one flat vector; cuBLAS instead of Triton for the matmuls), one process each;
 #                      $OUT/summary_update.md holds the rows, $OUT/update_profile.md the profile
-#   precision (~7 min): the default command against ppo.update_precision=$UPDATE_PRECISION (default
-#                      tensorfloat32: the SGD passes on tensor cores, physics and rollout at float32), on one
-#                      compile cache: base_s0 (cold), prec_s0..2, base_s1 (warm but for the changed update),
+#   precision (~7 min): float32 SGD passes (--ppo.update-precision run) against $UPDATE_PRECISION (default
+#                      tensorfloat32, the gpu preset's since session 45: tensor cores, physics and rollout at
+#                      float32), on one compile cache: base_s0 (cold), prec_s0..2, base_s1 (warm but for the update),
 #                      ONNX exported; $OUT/<run>.onnx for the ship gate (`bar-deploy eval`)
 #   smoke             : CPU logic check of startup and rsl with tiny sizes (not for the GPU); smoke-loadflags,
 #                      smoke-update, smoke-precision: the same for loadflags, update, precision
@@ -196,16 +196,16 @@ precision() {
   local pr=${UPDATE_PRECISION:-tensorfloat32} r runs=()
   COMMON=${COMMON/--no-export-onnx/}
   rm -rf "$CACHE"
-  ppo base_s0 200 --compile-cache-dir "$CACHE" --seed 0 --max-minutes "${COLD_MIN:-1.4}"
+  ppo base_s0 200 --compile-cache-dir "$CACHE" --seed 0 --ppo.update-precision run --max-minutes "${COLD_MIN:-1.4}"
   for r in 0 1 2; do
     ppo "prec_s$r" 150 --compile-cache-dir "$CACHE" --seed "$r" --ppo.update-precision "$pr" --max-minutes "${WARM_MIN:-1.1}"
   done
-  ppo base_s1 150 --compile-cache-dir "$CACHE" --seed 1 --max-minutes "${WARM_MIN:-1.1}"
+  ppo base_s1 150 --compile-cache-dir "$CACHE" --seed 1 --ppo.update-precision run --max-minutes "${WARM_MIN:-1.1}"
   for r in base_s0 prec_s0 prec_s1 prec_s2 base_s1; do
     runs+=("$RUNS/$r")
     cp "$RUNS/$r/policy.onnx" "$OUT/$r.onnx" 2>/dev/null || stamp "$r: no policy.onnx"
   done
-  echo "prec_*: --ppo.update-precision $pr; base_*: the default (run)" > "$WORK/precision.md"
+  echo "prec_*: --ppo.update-precision $pr; base_*: --ppo.update-precision run (float32)" > "$WORK/precision.md"
   finish precision "${runs[@]}" --append "$WORK/precision.md"
 }
 

@@ -28,7 +28,8 @@ parameter instead of per leaf; the same elementwise arithmetic, the clip's norm 
 line also gives the largest difference of its new parameters from the per-leaf update's.
 ``--precision P``: the update's matrix products at ``P`` (``jax.default_matmul_precision``: ``tensorfloat32``,
 ``bfloat16``, or an algorithm such as ``BF16_BF16_F32_X3`` or ``TF32_TF32_F32_X3``) instead of the config's
-full float32, with the same difference column against the float32 per-leaf update.
+``ppo.update_precision`` (the gpu preset's TF32 since session 45; ``--precision highest`` for float32), with
+the same difference column against the float32 per-leaf update.
 ``--profile DIR``: one call under jax.profiler; ``--profile-ops N`` prints its N kernels with the most time
 (``trace_summary.device_summary``).
 """
@@ -111,7 +112,10 @@ def main() -> int:
     data = jax.device_put(data, dp.sharded)
     ts = dp.replicate(jax.device_get(jax.jit(learner.init)(jax.random.PRNGKey(0))))
     key = dp.replicate(np.asarray(jax.random.PRNGKey(1)))
-    base, ts_leaf = learner, ts  # the per-leaf optimizer and its state
+    # The reference: per-leaf Adam, products at float32 (ppo.update_precision="run" under "highest" below).
+    base, ts_leaf = dataclasses.replace(learner, ppo=dataclasses.replace(ppo, update_precision="run")), ts
+    if args.precision:  # the outer precision below governs the SGD passes too, not the preset's setting
+        learner = dataclasses.replace(learner, ppo=base.ppo)
     if args.flat_adam:
         learner = dataclasses.replace(learner, optimizer=optax.flatten(learner.optimizer))
         ts = ts.replace(optimizer_state=dp.replicate(jax.device_get(learner.optimizer.init(ts.params))))
@@ -133,8 +137,7 @@ def main() -> int:
         pairs = zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
         gap = max(float(np.max(np.abs(x - y))) for x, y in pairs)
         diff = f" params minus per-leaf float32's, largest magnitude {gap:.2e};"
-    if args.precision:
-        diff += f" precision {args.precision};"
+    diff += f" precision {args.precision or ppo.update_precision};"
     line = (
         f"| {args.label or f'{args.devices} device(s)'} | {devices[0].device_kind} x {len(devices)} | "
         f"{1e3 * best:.2f} | {1e6 * best / adam:.0f} | {compile_s:.1f} |{diff} "
