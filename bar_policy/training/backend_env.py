@@ -15,6 +15,13 @@ run prints under its header:
   update (128 Adam steps) 32 instead of 51 ms ("Session 41"). A run whose jax has a GPU appends the flag to
   ``XLA_FLAGS`` unless ``XLA_FLAGS`` already names it (the user's choice stays). The executable cache keys
   on ``XLA_FLAGS``, so programs compiled under either mode are never served to the other.
+- **Newton loops recorded whole for a written-out Cholesky.** An env built with ``cholesky=columns`` or
+  ``scalar`` (``--env-overrides``; docs/physics.md section 5) has no library call left in its physics step,
+  so XLA can record MJX's Newton ``while`` loop as one graph node, but only when ``WHILE`` is among the
+  command-buffer types, which by default it is not. Without it that form is no faster than ``library`` and
+  compiles longer; with it reach trained at 1.17x (docs/benchmarks.md "Session 43") and its iteration took
+  84.8 against 96.9 ms ("Session 46"). Such a run appends ``GRAPHED_LOOPS`` unless ``XLA_FLAGS`` already
+  names ``--xla_gpu_enable_command_buffer`` (the user's set stays).
 - **A deadlock of jaxlib 0.10's CPU LAPACK kernels.** jaxlib < 0.11 splits a batched LAPACK call (Cholesky,
   triangular solve) over XLA's CPU thread pool once ``batch x cost per matrix >= 200,000`` and the pool has
   more than one thread, and the calling thread waits for the pieces. The MJX step has two independent
@@ -38,7 +45,16 @@ import importlib.metadata
 import os
 from typing import Any
 
-__all__ = ["SCHEDULING", "SMALL_CPU", "cpu_threads_decision", "scheduling_decision", "set_backend_env"]
+__all__ = [
+    "GRAPHED_LOOPS",
+    "SCHEDULING",
+    "SMALL_CPU",
+    "WRITTEN_OUT",
+    "cpu_threads_decision",
+    "loops_decision",
+    "scheduling_decision",
+    "set_backend_env",
+]
 
 SMALL_CPU = 2
 """Cores (this process's CPU affinity) up to which a CPU-only run on an affected jaxlib gets one XLA
@@ -50,6 +66,18 @@ NPROC = "PJRT_NPROC"
 SCHEDULING = "--xla_gpu_command_buffer_scheduling_mode=CONCURRENT"
 """The XLA flag a GPU run adds (module docstring): command buffers ordered by their buffer dependencies."""
 
+GRAPHED_LOOPS = "--xla_gpu_enable_command_buffer=+WHILE"
+"""The XLA flag a GPU run on a written-out Cholesky adds: while loops join the command-buffer types."""
+
+WRITTEN_OUT = ("columns", "scalar")
+"""The env's ``cholesky`` forms with no library call in the step (``envs.physics_step.CHOLESKY``)."""
+
+
+def _names(xla_flags: str, flag: str) -> bool:
+    """Whether ``xla_flags`` sets ``flag`` (the name before ``=``; a longer name is another flag)."""
+    name = flag.split("=")[0]
+    return any(f.split("=")[0] == name for f in xla_flags.split())
+
 
 def scheduling_decision(*, cpu_only: bool, xla_flags: str, backend_started: bool) -> str:
     """Whether to add ``SCHEDULING`` to ``XLA_FLAGS`` (``xla_flags``): ``set``, ``note`` or ``none``.
@@ -58,8 +86,22 @@ def scheduling_decision(*, cpu_only: bool, xla_flags: str, backend_started: bool
     says so); ``none``: a CPU-only run (XLA's CPU programs have no command buffers) or ``xla_flags``
     already sets the scheduling mode.
     """
-    flag = SCHEDULING.split("=")[0]
-    if cpu_only or any(f.split("=")[0] == flag for f in xla_flags.split()):
+    if cpu_only or _names(xla_flags, SCHEDULING):
+        return "none"
+    return "note" if backend_started else "set"
+
+
+def loops_decision(
+    *, cpu_only: bool, xla_flags: str, env_overrides: tuple[str, ...], backend_started: bool
+) -> str:
+    """Whether to add ``GRAPHED_LOOPS`` to ``xla_flags``: ``set``, ``note`` or ``none`` (as above).
+
+    ``env_overrides``: the run's ``key=value`` env items; only a ``cholesky`` among ``WRITTEN_OUT`` asks for
+    it (the env's own default is ``library``). ``none`` too when ``xla_flags`` already sets the
+    command-buffer types.
+    """
+    forms = [o.split("=", 1)[1].strip() for o in env_overrides if o.split("=", 1)[0].strip() == "cholesky"]
+    if cpu_only or not forms or forms[-1] not in WRITTEN_OUT or _names(xla_flags, GRAPHED_LOOPS):
         return "none"
     return "note" if backend_started else "set"
 
@@ -107,6 +149,17 @@ def set_backend_env(cfg: Any) -> list[str]:
         notes.append(f"XLA: {SCHEDULING} (independent kernels run at once; training.backend_env)")
     elif scheduling == "note":
         notes.append(f"note: jax's GPU backend already runs, so XLA_FLAGS lacks {SCHEDULING} (slower steps)")
+    loops = loops_decision(
+        cpu_only=cpu_only,
+        xla_flags=os.environ.get("XLA_FLAGS", ""),
+        env_overrides=tuple(cfg.env_overrides),
+        backend_started=started,
+    )
+    if loops == "set":
+        os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {GRAPHED_LOOPS}".strip()
+        notes.append(f"XLA: {GRAPHED_LOOPS} (the written-out Cholesky's Newton loops as graph nodes)")
+    elif loops == "note":
+        notes.append(f"note: jax's GPU backend already runs, so XLA_FLAGS lacks {GRAPHED_LOOPS} (slower)")
     memory = {"XLA_PYTHON_CLIENT_PREALLOCATE", "XLA_PYTHON_CLIENT_MEM_FRACTION"}
     if cfg.backend == "rsl-rl" and not memory & set(os.environ):
         os.environ["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"

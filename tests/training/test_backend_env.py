@@ -9,6 +9,7 @@ four independent batched Choleskys of 256 14x14 matrices in a loop. Without the 
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import subprocess
 import sys
@@ -19,7 +20,14 @@ import jaxlib
 import pytest
 
 from bar_policy.training import backend_env
-from bar_policy.training.backend_env import SCHEDULING, SMALL_CPU, cpu_threads_decision, scheduling_decision
+from bar_policy.training.backend_env import (
+    GRAPHED_LOOPS,
+    SCHEDULING,
+    SMALL_CPU,
+    cpu_threads_decision,
+    loops_decision,
+    scheduling_decision,
+)
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -49,6 +57,38 @@ def test_scheduling_decision_table():
     # A flag whose name merely starts the same is another flag.
     other = "--xla_gpu_command_buffer_scheduling_mode_x=1"
     assert scheduling_decision(**{**base, "xla_flags": other}) == "set"
+
+
+def test_loops_decision_table():
+    """Only a written-out Cholesky asks for while loops in command buffers; the last override wins, as it
+    does for the env's config; a user's own command-buffer set stays."""
+    base = {"cpu_only": False, "xla_flags": "", "backend_started": False}
+    base["env_overrides"] = ("cholesky=columns",)
+    assert loops_decision(**base) == "set"
+    assert loops_decision(**{**base, "env_overrides": ("sim_dt=0.004", "cholesky = scalar")}) == "set"
+    assert loops_decision(**{**base, "backend_started": True}) == "note"
+    assert loops_decision(**{**base, "cpu_only": True}) == "none"
+    assert loops_decision(**{**base, "env_overrides": ()}) == "none"  # the env's default, library
+    assert loops_decision(**{**base, "env_overrides": ("cholesky=library",)}) == "none"
+    assert loops_decision(**{**base, "env_overrides": ("cholesky=columns", "cholesky=library")}) == "none"
+    assert loops_decision(**{**base, "env_overrides": ("sim_dt=0.004",)}) == "none"
+    for user in ("--xla_gpu_enable_command_buffer=", "--xla_gpu_enable_command_buffer=+WHILE,+CONDITIONAL"):
+        assert loops_decision(**{**base, "xla_flags": f"{SCHEDULING} {user}"}) == "none"
+    assert loops_decision(**{**base, "xla_flags": SCHEDULING}) == "set"
+
+
+def test_a_written_out_cholesky_run_appends_both_flags(monkeypatch):
+    monkeypatch.setattr(backend_env, "_cpu_only", lambda: False)
+    monkeypatch.setattr("jax._src.xla_bridge.backends_are_initialized", lambda: False)
+    monkeypatch.delenv("XLA_FLAGS", raising=False)
+    from bar_policy.training.config import preset
+
+    cfg = dataclasses.replace(preset("tiny"), env_overrides=("cholesky=columns",))
+    notes = backend_env.set_backend_env(cfg)
+    assert os.environ["XLA_FLAGS"] == f"{SCHEDULING} {GRAPHED_LOOPS}"
+    assert len(notes) == 2 and GRAPHED_LOOPS in notes[1]
+    assert backend_env.set_backend_env(cfg) == []  # nothing twice
+    assert backend_env.set_backend_env(preset("tiny")) == []  # library: nothing to add
 
 
 def test_a_gpu_run_appends_the_flag_and_keeps_the_users(monkeypatch):
