@@ -168,18 +168,20 @@ SHIPPED = {
     # The gpu preset of session 37 (batch 256, 4 ms, training.ppo_loss); the one above is session 32's.
     "h100-80gb-hbm3-jaxlib-0.11.2-gpu.tar.gz": (H100, H100_DIR, "68897c4", SPLIT, 849),
     # The same preset on the H200 (session 43: the lent machines are H200s now), then rsl and track
-    # (session 44) and piano (session 45).
-    "h200-jaxlib-0.11.2-gpu.tar.gz": (H200, H200_DIR, "e26260c", SPLIT, 853),
+    # (session 44) and piano (session 45); the gpu preset again in session 46, with its TF32 update (13 of
+    # its 853 entries differ from session 43's).
+    "h200-jaxlib-0.11.2-gpu.tar.gz": (H200, H200_DIR, "fabc7da", SPLIT, 853),
     "h200-jaxlib-0.11.2-piano.tar.gz": (H200, H200_DIR, "280175b", SPLIT, 1053),
     "h200-jaxlib-0.11.2-rsl.tar.gz": (H200, H200_DIR, "968e856", ("train step", "eval step"), 757),
-    "h200-jaxlib-0.11.2-track.tar.gz": (H200, H200_DIR, "968e856", SPLIT, 831),
+    # track again in session 46, for the preset's written-out Cholesky and TF32 update (bd258f3)
+    "h200-jaxlib-0.11.2-track.tar.gz": (H200, H200_DIR, "bd258f3", SPLIT, 1028),
 }
 SHIPPED_MEMBERS = 1072 + 749 + 830 + 868 + 849
 SHIPPED_UNION = 2819
 """The H100 archives' entries, all and distinct (a fusion two presets share is one name; counted with
 ``tarfile`` when they were added: 4368 members, 1549 of them repeats)."""
-H200_MEMBERS = 853 + 1053 + 757 + 831
-H200_UNION = 2692
+H200_MEMBERS = 853 + 1053 + 757 + 1028
+H200_UNION = 2908
 """The same for the H200's four (``tarfile``, session 45: 3494 members, 802 of them repeats)."""
 
 
