@@ -69,16 +69,18 @@ def test_the_shipped_reach_policy_says_what_trained_it():
 
 
 def test_the_shipped_tracker_says_what_trained_it():
-    """The tracker shipped from the ablation's fixed-LR run of issue 16 (docs/tracking.md, an H100 of an
-    x4 host): its commit, a clean tree, the versions and the exact training command."""
+    """The tracker shipped from session 46's run (docs/tracking.md row 13, one H200): its commit, a clean
+    tree, the versions and the exact training command, with the written-out Cholesky and TF32 SGD passes
+    that the track preset has had since."""
     from bar_policy.deploy.policy import load_policy
 
     meta = load_policy(REPO / "checkpoints" / "lite_track_arms.onnx").metadata
-    assert meta.provenance["git_commit"].startswith("218165f") and meta.provenance["git_dirty"] is False
+    assert meta.provenance["git_commit"].startswith("fabc7da") and meta.provenance["git_dirty"] is False
     head, command = provenance.describe(meta.provenance, meta.code_version)
-    assert head.startswith("provenance: commit 218165fafa95 (clean tree, as given by BAR_POLICY_GIT_COMMIT)")
+    assert head.startswith("provenance: commit fabc7dabe316 (clean tree, as given by BAR_POLICY_GIT_COMMIT)")
     assert "jax 0.11.2" in head
-    assert "--preset track --seed 0" in command and "--ppo.schedule fixed" in command
+    assert "--preset track --seed 0" in command and "--max-minutes 8.6" in command
+    assert "--ppo.update-precision tensorfloat32 --env-overrides cholesky=columns" in command
 
 
 @pytest.mark.parametrize(

@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import platform
 import time
 from dataclasses import dataclass
@@ -87,6 +88,10 @@ def resolve_run_dir(cfg: TrainConfig, *, check: bool = True) -> Path:
 
 
 def _device_record() -> dict[str, Any]:
+    """The run's devices, and XLA's flags as the run set them (``backend_env``) as ``xla_flags``.
+
+    The flags choose how the programs run (command buffers, their loops): a speed is read with them.
+    """
     import jax
 
     return {
@@ -96,6 +101,7 @@ def _device_record() -> dict[str, Any]:
         "process_count": jax.process_count(),
         "host": platform.node(),
         "jax": jax.__version__,
+        "xla_flags": os.environ.get("XLA_FLAGS", ""),
     }
 
 

@@ -93,6 +93,7 @@ def test_training_runs_data_parallel_on_two_devices(two_device_run):
     assert result["steps"] == 4 * 2560 and result["err"] <= 1e-5
     record = json.loads((tmp / "md" / "config.json").read_text())
     assert len(record["device"]["devices"]) == 2
+    assert record["device"]["xla_flags"] == "--xla_force_host_platform_device_count=2"  # a CPU run adds none
     lines = [json.loads(x) for x in (tmp / "md" / "metrics.jsonl").read_text().splitlines()]
     assert [r["step"] for r in lines if r["kind"] == "train"] == [5120, 10240]
 
