@@ -13,7 +13,8 @@
 #   VARIANTS (default below): NAME=CHOLESKY:XLA_FLAGS entries, separated by spaces; the flags' commas
 #   are kept as they are. Every variant gets the trainer's schedule (CONCURRENT) unless it names one.
 #   PIPE=1: then bench/stream_overlap.py --plain (the update of one iteration beside the next rollout in
-#   one program) under PIPE_VARIANT (default columns_while).
+#   one program) under PIPE_VARIANT (default columns_while). Off unless set (it was on by default until
+#   session 46, whose first call spent 100 s on it unasked; sessions 41-44 answered what it asks).
 #   DUMP=1: the overlap's process also dumps XLA's optimised HLO of its programs (DUMP_MODULES, a regex
 #   of module names; into DUMP_DIR, not $OUT) and bench/command_buffers.py reports what of each runs
 #   outside a command buffer ($OUT/command_buffers_<name>.md); XLA's own log of the thunks it leaves out
@@ -28,7 +29,7 @@
 #
 # Usage (repository root, after the pip prefix of /work/shared/gpu/README.md):
 #   bash bench/capture_variants.sh
-#   VARIANTS="lib=library: col=columns:" PIPE_VARIANT=col JAX_PLATFORMS=cpu \
+#   VARIANTS="lib=library: col=columns:" PIPE=1 PIPE_VARIANT=col JAX_PLATFORMS=cpu \
 #     BREAKDOWN_ARGS="--preset tiny --iters 1 --epoch-iters 1" \
 #     OVERLAP_ARGS="--preset tiny --iters 1 --micro-steps 4" bash bench/capture_variants.sh   # CPU smoke
 set -u
@@ -89,7 +90,7 @@ for name in "${NAMES[@]}"; do
   fi
 done
 
-if [ "${PIPE:-1}" = 1 ]; then
+if [ "${PIPE:-0}" = 1 ]; then
   name=${PIPE_VARIANT:-columns_while}
   flags="${FLAGS_OF[$name]:-}" log="$OUT/overlap_$name.log" vlog=()
   if [ "${DUMP:-0}" = 1 ]; then
