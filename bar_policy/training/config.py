@@ -162,8 +162,8 @@ class PPOConfig:
     vf_loss_coefficient: float = 0.5
     """Weight of the value loss."""
     update_precision: Literal["run", "tensorfloat32", "BF16_BF16_F32_X3"] = "run"
-    """SGD passes' matrix products (brax): ``run`` (``TrainConfig.matmul_precision``) or tensor cores' (jax's
-    names; physics, rollout keep the run's). docs/benchmarks.md "Session 45": H200 update 30 -> 17 / 22 ms."""
+    """SGD passes' matrix products: ``run`` (``TrainConfig.matmul_precision``) or tensor cores' (jax's names;
+    physics, rollout keep the run's; rsl-rl: TF32 only). benchmarks.md "Session 45": H200 30 -> 17 / 22 ms."""
     actor_warmup_iterations: int = 0
     """First iterations in which only the critic learns (policy gradients zeroed; brax backend): against an
     untrained critic the first updates push the policy off an action prior (piano: F1 0.70 -> 0.23 in 2.3M

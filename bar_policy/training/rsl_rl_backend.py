@@ -80,6 +80,7 @@ from bar_policy.training.rsl_rl_state import (
 )
 from bar_policy.training.startup import StartupTimer
 from bar_policy.training.torch_bridge import COPIES, torch_device_for_jax
+from bar_policy.training.torch_precision import update_precision
 
 __all__ = [
     "RslRlTrainResult",
@@ -204,7 +205,7 @@ def train_rsl_rl(
         with timer.phase(sb.RSL_RESET):  # the runner reads the first observations
             vec_env.get_observations()
         runner = OnPolicyRunner(vec_env, rsl_rl_train_cfg(cfg), log_dir=None, device=device)
-        for line in not_applied(cfg):  # brax settings (--preset gpu --backend rsl-rl): said, not applied
+        for line in not_applied(cfg):  # brax settings torch lacks (BF16x3 products): said, not applied
             logger.print(line)
         alg = runner.alg
         if prior is not None:
@@ -293,7 +294,8 @@ def train_rsl_rl(
                 obs, rewards, dones, extras = vec_env.step(actions)
                 alg.process_env_step(obs, rewards, dones, extras)
             alg.compute_returns(obs)
-        losses = alg.update()
+        with update_precision(ppo.update_precision):  # the SGD passes only, as brax's
+            losses = alg.update()
         stats = vec_env.take_stats()
         if COPIES.count > copies_seen:  # never silent: a torch->jax crossing that could not share
             copies_seen = COPIES.count

@@ -48,12 +48,16 @@ from bar_policy.training.config import TrainConfig, apply_overrides
 
 __all__ = [
     "FIELD_RSL_RL_PPO",
+    "TORCH_PRECISIONS",
     "field_cli_flags",
     "field_hyperparameters",
     "field_overrides",
     "not_applied",
     "rsl_rl_train_cfg",
 ]
+
+TORCH_PRECISIONS = ("run", "tensorfloat32")
+"""The ``ppo.update_precision`` values the rsl-rl backend applies to torch's update (``torch_precision``)."""
 
 _ACT = {"swish": "swish", "elu": "elu", "relu": "relu", "tanh": "tanh"}
 
@@ -122,11 +126,15 @@ def field_hyperparameters(cfg: TrainConfig) -> TrainConfig:
 def not_applied(cfg: TrainConfig) -> list[str]:
     """A line per brax-backend setting in ``cfg`` that the rsl-rl backend runs without (it prints them).
 
-    Today ``ppo.update_precision`` other than ``run`` (the gpu preset's TF32; rsl-rl's update is torch's).
+    Today ``ppo.update_precision`` ``BF16_BF16_F32_X3``: torch has no three-pass bfloat16 product.
+    ``tensorfloat32`` (the gpu and track presets') applies to rsl-rl's update too (``torch_precision``).
     """
-    if cfg.ppo.update_precision == "run":
+    if cfg.ppo.update_precision in TORCH_PRECISIONS:
         return []
-    return [f"ppo.update_precision={cfg.ppo.update_precision} not applied: rsl-rl updates in torch"]
+    return [
+        f"ppo.update_precision={cfg.ppo.update_precision} not applied: rsl-rl updates in torch, which has "
+        f"no such product (it applies {', '.join(TORCH_PRECISIONS)})"
+    ]
 
 
 def field_cli_flags(num_envs: int) -> list[str]:

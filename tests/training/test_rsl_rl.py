@@ -211,3 +211,41 @@ def test_vec_env_quality_figures_by_hand(toy_env):
     assert q["quality/episodes"] == 8 and q["quality/completion_pct"] == 100.0
     assert q["quality/action_rate"] == pytest.approx(14 * 0.6**2, rel=1e-5)
     assert q["quality/chatter_unmeasured"] == 0 and q["quality/chatter_max_mrad"] > 0
+
+
+def test_tf32_covers_rsl_rls_update_and_not_its_rollout(toy_env, tmp_path, monkeypatch):
+    """``ppo.update_precision=tensorfloat32`` on rsl-rl (``torch_precision``): every ``PPO.update`` call
+    runs with CUDA float32 matmuls at TF32, every ``PPO.act`` (the rollout's actor) with the setting the
+    process had, which is back in place after the run. Read from torch's own flag (this CPU has no TF32)."""
+    from rsl_rl.algorithms import PPO
+
+    from bar_policy.training.run import run
+
+    seen: dict[str, set] = {"update": set(), "act": set()}
+    matmul = torch.backends.cuda.matmul
+    before = matmul.fp32_precision
+    for name in seen:
+        original = getattr(PPO, name)
+
+        def spy(self, *a, _name=name, _original=original, **k):
+            seen[_name].add(matmul.fp32_precision)
+            return _original(self, *a, **k)
+
+        monkeypatch.setattr(PPO, name, spy)
+    run(toy_config(tmp_path, "tf32", [*TOY_RSL, "ppo.update_precision=tensorfloat32"]), env=toy_env)
+    assert seen == {"update": {"tf32"}, "act": {before}} and before != "tf32"
+    assert matmul.fp32_precision == before
+
+
+def test_update_precision_restores_torchs_setting_when_the_update_raises():
+    from bar_policy.training.torch_precision import update_precision
+
+    matmul = torch.backends.cuda.matmul
+    before = matmul.fp32_precision
+    with pytest.raises(RuntimeError, match="boom"), update_precision("tensorfloat32"):
+        assert matmul.fp32_precision == "tf32"
+        raise RuntimeError("boom")
+    assert matmul.fp32_precision == before
+    for setting in ("run", "BF16_BF16_F32_X3"):  # torch's own default, and a product torch lacks: unchanged
+        with update_precision(setting):
+            assert matmul.fp32_precision == before

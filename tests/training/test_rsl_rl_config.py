@@ -74,11 +74,17 @@ def test_rsl_preset_is_the_gpu_preset_at_the_fields_values():
     assert train_cfg["actor"]["hidden_dims"] == [256, 128, 64] and train_cfg["actor"]["activation"] == "elu"
 
 
-def test_the_gpu_presets_brax_update_precision_is_said_not_applied_on_rsl_rl():
-    """``--backend rsl-rl`` on the gpu preset (TF32 SGD passes, a brax setting) prints one line naming it;
-    ``--preset rsl`` and the field's values set ``run``, so nothing is left unsaid or said twice."""
+def test_only_an_update_precision_torch_lacks_is_said_not_applied_on_rsl_rl():
+    """``--backend rsl-rl`` applies the gpu and track presets' TF32 SGD passes to torch's update
+    (``torch_precision``), so nothing is said; the three-pass bfloat16 product, which torch lacks, gets one
+    line naming it and what torch applies; ``--preset rsl`` and the field's values set ``run``."""
     gpu_on_rsl = dataclasses.replace(preset("gpu"), backend="rsl-rl")
-    assert not_applied(gpu_on_rsl) == [
-        "ppo.update_precision=tensorfloat32 not applied: rsl-rl updates in torch"
+    assert gpu_on_rsl.ppo.update_precision == "tensorfloat32" and not_applied(gpu_on_rsl) == []
+    bf16x3 = dataclasses.replace(
+        gpu_on_rsl, ppo=dataclasses.replace(gpu_on_rsl.ppo, update_precision="BF16_BF16_F32_X3")
+    )
+    assert not_applied(bf16x3) == [
+        "ppo.update_precision=BF16_BF16_F32_X3 not applied: rsl-rl updates in torch, which has no such "
+        "product (it applies run, tensorfloat32)"
     ]
     assert not_applied(preset("rsl")) == not_applied(field_hyperparameters(gpu_on_rsl)) == []
