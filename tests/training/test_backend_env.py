@@ -75,6 +75,10 @@ def test_loops_decision_table():
     for user in ("--xla_gpu_enable_command_buffer=", "--xla_gpu_enable_command_buffer=+WHILE,+CONDITIONAL"):
         assert loops_decision(**{**base, "xla_flags": f"{SCHEDULING} {user}"}) == "none"
     assert loops_decision(**{**base, "xla_flags": SCHEDULING}) == "set"
+    # The forms it asks for are the env's written-out ones, whatever the env adds later.
+    from bar_policy.envs.physics_step import CHOLESKY
+
+    assert set(backend_env.WRITTEN_OUT) == set(CHOLESKY) - {"library"}
 
 
 def test_a_written_out_cholesky_run_appends_both_flags(monkeypatch):
