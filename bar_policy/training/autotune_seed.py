@@ -17,8 +17,8 @@ every one matching this machine into the compile cache (``seed_autotune_cache``;
 programs were compiled cold: reach (the gpu preset of session 32 and that of session 37), rsl, track and piano
 for the H100, and reach's gpu preset (session 43, remade in 46 with its TF32 update), rsl and track (session
 44) and piano (session 45) for the H200, all with jaxlib 0.11.2; the trainer runs it on a thread,
-``seed_in_background``). It never overwrites
-a file already there (XLA's own results win) and counts what it skipped.
+``seed_in_background``). It never overwrites a file already there (XLA's own results win) and counts what
+it skipped.
 
 **Why a seed cannot give a wrong program.** An entry's file name and content hold the key of one fusion
 (its HLO, hashed, and the device); XLA looks an entry up only for a fusion with that key and ignores the

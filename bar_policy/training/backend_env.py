@@ -45,6 +45,8 @@ import importlib.metadata
 import os
 from typing import Any
 
+from bar_policy.overrides import split_override
+
 __all__ = [
     "GRAPHED_LOOPS",
     "SCHEDULING",
@@ -100,7 +102,7 @@ def loops_decision(
     it (the env's own default is ``library``). ``none`` too when ``xla_flags`` already sets the
     command-buffer types.
     """
-    forms = [o.split("=", 1)[1].strip() for o in env_overrides if o.split("=", 1)[0].strip() == "cholesky"]
+    forms = [value for path, value in map(split_override, env_overrides) if path == "cholesky"]
     if cpu_only or not forms or forms[-1] not in WRITTEN_OUT or _names(xla_flags, GRAPHED_LOOPS):
         return "none"
     return "note" if backend_started else "set"

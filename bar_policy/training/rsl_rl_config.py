@@ -114,7 +114,7 @@ def field_overrides(num_envs: int) -> dict[str, Any]:
         "network.value_hidden": f["hidden_dims"],
         "network.activation": f["activation"],
         "network.init_noise_std": f["init_noise_std"],
-        "ppo.update_precision": "run",  # brax's setting; rsl-rl's torch update is float32
+        "ppo.update_precision": "run",  # the field trains its torch update at float32
     }
 
 
