@@ -14,7 +14,11 @@
 #   bash bench/track_recipe.sh train SEED (~9.5 min) `--preset track --seed SEED` alone on the GPU: the
 #                                          figure of record (10 min on one H100, compile included)
 #                                          (EXTRA="--env-overrides k=v ..." adds arguments: a candidate)
-#   bash bench/track_recipe.sh smoke      CPU check of the script with tiny sizes
+#   bash bench/track_recipe.sh rsl SEED   (~9.5 min) the tracker on the rsl-rl backend at the field's values
+#                                          (`field_cli_flags(8192)`) on the track preset's networks, action
+#                                          prior and initial std 0.3 (docs/training.md); EXTRA adds arguments
+#                                          (e.g. EXTRA="--rsl-rl.schedule fixed --ppo.learning-rate 3e-4")
+#   bash bench/track_recipe.sh smoke      CPU check of the script with tiny sizes (smoke-rsl: the rsl part)
 #
 # $OUT gets runs.tgz (each run's config, metrics.jsonl, final_eval.json, ONNX files, newest checkpoint and
 # log) and summary.md
@@ -50,8 +54,9 @@ SETS_A="recipe actuator_gains no_filter weak_action_rate"
 SETS_B="no_sampling fixed_lr no_near_cap tf32"
 
 SIZE=""
+PRE=""  # arguments before SIZE (so that the smoke's tiny sizes win over them)
 MINUTES=${MINUTES:-8.9}
-if [ "$PART" = smoke ]; then
+if [ "$PART" = smoke ] || [ "$PART" = smoke-rsl ]; then
   export JAX_PLATFORMS=cpu
   SIZE="--ppo.num-envs 16 --ppo.batch-size 16 --ppo.num-minibatches 2 --ppo.unroll-length 4 --ppo.num-updates-per-batch 1"
   SIZE="$SIZE --ppo.num-timesteps 256 --eval.num-eval-envs 8 --eval.num-evals 2 --final-eval-envs 8"
@@ -67,7 +72,7 @@ run_one() {  # run_one NAME SEED EXTRA...  (GPU=<index> pins it to one card)
   [ -n "${GPU:-}" ] && pin="CUDA_VISIBLE_DEVICES=$GPU"
   # shellcheck disable=SC2086
   env $pin timeout -k 5 ${RUN_TIMEOUT:-585} python3 train/ppo.py --preset track --seed "$seed" --run-name "$name" --runs-dir "$RUNS" \
-    --compile-cache-dir "$CACHE" --max-minutes "$MINUTES" $SIZE "$@" > "$WORK/$name.log" 2>&1
+    --compile-cache-dir "$CACHE" --max-minutes "$MINUTES" $PRE $SIZE "$@" > "$WORK/$name.log" 2>&1
   stamp "end $name: exit $?"
 }
 
@@ -109,7 +114,25 @@ case "$PART" in
     # shellcheck disable=SC2086
     run_one "recipe-seed$ARG" "$ARG" --final-eval-envs 1024 ${EXTRA:-}
     ;;
-  *) echo "unknown part $PART (ablate A|B, train SEED, smoke)"; exit 2 ;;
+  rsl|smoke-rsl)
+    # The field's rsl-rl values but not its networks or initial std (the preset's networks and reference
+    # prior stay; 0.3 action units: at the field's 1.0 the wrists end at their limits, docs/training.md).
+    PRE=$(python3 -c "
+from bar_policy.training.rsl_rl_config import field_cli_flags
+flags, out, skip = field_cli_flags(8192), [], False
+for f in flags:
+    if f.startswith('--'):
+        skip = f in ('--network.policy-hidden', '--network.value-hidden', '--network.init-noise-std',
+                     '--ppo.update-precision')
+    if not skip:
+        out.append(f)
+print(' '.join(['--backend', 'rsl-rl', *out, '--network.init-noise-std', '0.3', '--final-eval-envs', '1024']))") || exit 1
+    seed=$ARG
+    [ "$PART" = smoke-rsl ] && seed=0
+    # shellcheck disable=SC2086
+    run_one "rsl-seed$seed" "$seed" ${EXTRA:-}
+    ;;
+  *) echo "unknown part $PART (ablate A|B, train SEED, rsl SEED, smoke, smoke-rsl)"; exit 2 ;;
 esac
 summary
 stamp done
