@@ -17,7 +17,8 @@
 #   bash bench/track_recipe.sh rsl SEED   (~9.5 min) the tracker on the rsl-rl backend at the field's values
 #                                          (`field_cli_flags(8192)`) on the track preset's networks, action
 #                                          prior and initial std 0.3 (docs/training.md); EXTRA adds arguments
-#                                          (e.g. EXTRA="--rsl-rl.schedule fixed --ppo.learning-rate 3e-4")
+#                                          (e.g. EXTRA="--rsl-rl.schedule fixed --ppo.schedule fixed
+#                                          --ppo.learning-rate 3e-4": rsl-rl's schedule and its brax side)
 #   bash bench/track_recipe.sh smoke      CPU check of the script with tiny sizes (smoke-rsl: the rsl part)
 #
 # $OUT gets runs.tgz (each run's config, metrics.jsonl, final_eval.json, ONNX files, newest checkpoint and

@@ -48,6 +48,8 @@ from bar_policy.training.config import TrainConfig, apply_overrides
 
 __all__ = [
     "FIELD_RSL_RL_PPO",
+    "RSL_RL_LR_BOUNDS",
+    "RSL_RL_OBS_STD_EPS",
     "TORCH_PRECISIONS",
     "field_cli_flags",
     "field_hyperparameters",
@@ -58,6 +60,12 @@ __all__ = [
 
 TORCH_PRECISIONS = ("run", "tensorfloat32")
 """The ``ppo.update_precision`` values the rsl-rl backend applies to torch's update (``torch_precision``)."""
+
+RSL_RL_LR_BOUNDS = (1e-5, 1e-2)
+"""rsl-rl's adaptive rule keeps its learning rate within these (``PPO.update``; brax's defaults match)."""
+
+RSL_RL_OBS_STD_EPS = 1e-4
+"""The ``ppo.obs_std_eps`` (variance added) nearest rsl-rl's normaliser, ``(x - mean) / (std + 0.01)``."""
 
 _ACT = {"swish": "swish", "elu": "elu", "relu": "relu", "tanh": "tanh"}
 
@@ -110,6 +118,11 @@ def field_overrides(num_envs: int) -> dict[str, Any]:
         "rsl_rl.schedule": f["schedule"],
         "rsl_rl.desired_kl": f["desired_kl"],
         "rsl_rl.value_loss_coef": f["value_loss_coef"],
+        # The brax side of the same choices (what rsl-rl does), so that not_applied has nothing to say.
+        "ppo.schedule": f["schedule"],
+        "ppo.desired_kl": f["desired_kl"],
+        "ppo.vf_loss_coefficient": f["value_loss_coef"],
+        "ppo.value_targets": "iteration",
         "network.policy_hidden": f["hidden_dims"],
         "network.value_hidden": f["hidden_dims"],
         "network.activation": f["activation"],
@@ -126,15 +139,63 @@ def field_hyperparameters(cfg: TrainConfig) -> TrainConfig:
 def not_applied(cfg: TrainConfig) -> list[str]:
     """A line per brax-backend setting in ``cfg`` that the rsl-rl backend runs without (it prints them).
 
-    Today ``ppo.update_precision`` ``BF16_BF16_F32_X3``: torch has no three-pass bfloat16 product.
-    ``tensorfloat32`` (the gpu and track presets') applies to rsl-rl's update too (``torch_precision``).
+    rsl-rl runs its own PPO, so a brax setting it has no counterpart for, or one whose counterpart is set
+    apart (``rsl_rl.*``) to another value, would otherwise vanish unsaid (``--preset track --backend
+    rsl-rl`` took rsl-rl's KL-adaptive rate where the preset asks for a fixed one). Said:
+    ``ppo.update_precision`` ``BF16_BF16_F32_X3`` (torch has no three-pass bfloat16 product;
+    ``tensorfloat32`` applies, ``torch_precision``); ``ppo.schedule`` against ``rsl_rl.schedule``, and under
+    both adaptive ``ppo.desired_kl`` against ``rsl_rl.desired_kl`` and the rate's bounds against rsl-rl's
+    fixed ``RSL_RL_LR_BOUNDS``; ``ppo.value_targets`` other than ``iteration`` (rsl-rl computes returns
+    once per rollout); ``ppo.vf_loss_coefficient`` against ``rsl_rl.value_loss_coef``; ``ppo.obs_std_eps``
+    other than ``RSL_RL_OBS_STD_EPS`` (rsl-rl's normaliser divides by std + 0.01); ``ppo.reward_scaling``
+    other than 1. The field's values (``field_overrides``) set the brax side to match, so ``--preset rsl``
+    says nothing.
     """
-    if cfg.ppo.update_precision in TORCH_PRECISIONS:
-        return []
-    return [
-        f"ppo.update_precision={cfg.ppo.update_precision} not applied: rsl-rl updates in torch, which has "
-        f"no such product (it applies {', '.join(TORCH_PRECISIONS)})"
-    ]
+    ppo, r = cfg.ppo, cfg.rsl_rl
+    out = []
+    if ppo.update_precision not in TORCH_PRECISIONS:
+        out.append(
+            f"ppo.update_precision={ppo.update_precision} not applied: rsl-rl updates in torch, which has "
+            f"no such product (it applies {', '.join(TORCH_PRECISIONS)})"
+        )
+    if ppo.schedule != r.schedule:
+        out.append(
+            f"ppo.schedule={ppo.schedule} not applied: rsl-rl's learning rate follows "
+            f"rsl_rl.schedule={r.schedule} (--rsl-rl.schedule)"
+        )
+    elif r.schedule == "adaptive":
+        if ppo.desired_kl != r.desired_kl:
+            out.append(
+                f"ppo.desired_kl={ppo.desired_kl:g} not applied: rsl-rl's adaptive rate targets "
+                f"rsl_rl.desired_kl={r.desired_kl:g} (--rsl-rl.desired-kl)"
+            )
+        if (ppo.min_learning_rate, ppo.max_learning_rate) != RSL_RL_LR_BOUNDS:
+            lo, hi = RSL_RL_LR_BOUNDS
+            out.append(
+                f"ppo.min_learning_rate={ppo.min_learning_rate:g}, ppo.max_learning_rate="
+                f"{ppo.max_learning_rate:g} not applied: rsl-rl's adaptive rate stays within [{lo:g}, {hi:g}]"
+            )
+    if ppo.value_targets != "iteration":
+        out.append(
+            f"ppo.value_targets={ppo.value_targets} not applied: rsl-rl computes the value targets and "
+            "advantages once per iteration (as ppo.value_targets=iteration)"
+        )
+    if ppo.vf_loss_coefficient != r.value_loss_coef:
+        out.append(
+            f"ppo.vf_loss_coefficient={ppo.vf_loss_coefficient:g} not applied: rsl-rl weighs its value loss "
+            f"by rsl_rl.value_loss_coef={r.value_loss_coef:g} (--rsl-rl.value-loss-coef)"
+        )
+    if ppo.normalize_observations and ppo.obs_std_eps != RSL_RL_OBS_STD_EPS:
+        out.append(
+            f"ppo.obs_std_eps={ppo.obs_std_eps:g} not applied: rsl-rl's normaliser divides by its running "
+            f"std + 0.01 (as ppo.obs_std_eps={RSL_RL_OBS_STD_EPS:g})"
+        )
+    if ppo.reward_scaling != 1.0:
+        out.append(
+            f"ppo.reward_scaling={ppo.reward_scaling:g} not applied: rsl-rl's loss takes the env's rewards "
+            "unscaled"
+        )
+    return out
 
 
 def field_cli_flags(num_envs: int) -> list[str]:

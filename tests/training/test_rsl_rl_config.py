@@ -10,6 +10,7 @@ from bar_policy.training.cli import parse_config
 from bar_policy.training.config import preset
 from bar_policy.training.rsl_rl_config import (
     FIELD_RSL_RL_PPO,
+    RSL_RL_LR_BOUNDS,
     field_cli_flags,
     field_hyperparameters,
     field_overrides,
@@ -76,10 +77,14 @@ def test_rsl_preset_is_the_gpu_preset_at_the_fields_values():
 
 def test_only_an_update_precision_torch_lacks_is_said_not_applied_on_rsl_rl():
     """``--backend rsl-rl`` applies the gpu and track presets' TF32 SGD passes to torch's update
-    (``torch_precision``), so nothing is said; the three-pass bfloat16 product, which torch lacks, gets one
-    line naming it and what torch applies; ``--preset rsl`` and the field's values set ``run``."""
-    gpu_on_rsl = dataclasses.replace(preset("gpu"), backend="rsl-rl")
-    assert gpu_on_rsl.ppo.update_precision == "tensorfloat32" and not_applied(gpu_on_rsl) == []
+    (``torch_precision``), so nothing is said of it; the three-pass bfloat16 product, which torch lacks, gets
+    one line naming it and what torch applies; ``--preset rsl`` and the field's values set ``run``."""
+    gpu_on_rsl = field_hyperparameters(dataclasses.replace(preset("gpu"), backend="rsl-rl"))
+    assert gpu_on_rsl.ppo.update_precision == "run" and not_applied(gpu_on_rsl) == []
+    tf32 = dataclasses.replace(
+        gpu_on_rsl, ppo=dataclasses.replace(gpu_on_rsl.ppo, update_precision="tensorfloat32")
+    )
+    assert not_applied(tf32) == []
     bf16x3 = dataclasses.replace(
         gpu_on_rsl, ppo=dataclasses.replace(gpu_on_rsl.ppo, update_precision="BF16_BF16_F32_X3")
     )
@@ -87,4 +92,63 @@ def test_only_an_update_precision_torch_lacks_is_said_not_applied_on_rsl_rl():
         "ppo.update_precision=BF16_BF16_F32_X3 not applied: rsl-rl updates in torch, which has no such "
         "product (it applies run, tensorfloat32)"
     ]
-    assert not_applied(preset("rsl")) == not_applied(field_hyperparameters(gpu_on_rsl)) == []
+    assert not_applied(preset("rsl")) == []
+
+
+def test_the_track_preset_on_rsl_rl_says_each_brax_setting_it_runs_without():
+    """The tracker's rsl-rl command of docs/training.md (the track preset plus the field's rsl-rl flags)
+    runs rsl-rl's PPO, so four of the preset's brax choices do not reach it; each gets its line (values read
+    off the track preset: fixed rate, minibatch targets, obs_std_eps 0, value weight 0.5 against rsl-rl's 1;
+    rsl-rl's normaliser divides by std + 0.01). The field's values set the brax side as rsl-rl runs it."""
+    flags = [
+        *["--backend", "rsl-rl", "--ppo.unroll-length", "24", "--ppo.num-minibatches", "4"],
+        *["--ppo.batch-size", "2048", "--rsl-rl.schedule", "adaptive", "--rsl-rl.desired-kl", "0.01"],
+        *["--rsl-rl.value-loss-coef", "1.0", "--network.init-noise-std", "0.3"],
+    ]
+    cfg = parse_config(["--preset", "track", *flags])
+    assert not_applied(cfg) == [
+        "ppo.schedule=fixed not applied: rsl-rl's learning rate follows rsl_rl.schedule=adaptive "
+        "(--rsl-rl.schedule)",
+        "ppo.value_targets=minibatch not applied: rsl-rl computes the value targets and advantages once per "
+        "iteration (as ppo.value_targets=iteration)",
+        "ppo.vf_loss_coefficient=0.5 not applied: rsl-rl weighs its value loss by rsl_rl.value_loss_coef=1 "
+        "(--rsl-rl.value-loss-coef)",
+        "ppo.obs_std_eps=0 not applied: rsl-rl's normaliser divides by its running std + 0.01 (as "
+        "ppo.obs_std_eps=0.0001)",
+    ]
+    # Under both schedules adaptive, the KL target and the rate's bounds are compared too; reward scaling
+    # has no rsl-rl counterpart at all.
+    ppo = dataclasses.replace(
+        cfg.ppo, schedule="adaptive", desired_kl=0.02, max_learning_rate=1e-3, reward_scaling=2.0
+    )
+    lines = not_applied(dataclasses.replace(cfg, ppo=ppo))
+    assert lines[0] == (
+        "ppo.desired_kl=0.02 not applied: rsl-rl's adaptive rate targets rsl_rl.desired_kl=0.01 "
+        "(--rsl-rl.desired-kl)"
+    )
+    assert lines[1] == (
+        "ppo.min_learning_rate=1e-05, ppo.max_learning_rate=0.001 not applied: rsl-rl's adaptive rate stays "
+        "within [1e-05, 0.01]"
+    )
+    assert lines[-1] == "ppo.reward_scaling=2 not applied: rsl-rl's loss takes the env's rewards unscaled"
+    # With the field's values on top (what `bash bench/track_recipe.sh rsl` runs), only the track preset's
+    # own normaliser setting is left to say.
+    field = parse_config(["--preset", "track", "--backend", "rsl-rl", *field_cli_flags(8192)])
+    assert not_applied(field) == [not_applied(cfg)[3]]
+
+
+def test_rsl_rl_lr_bounds_are_rsl_rls_own():
+    """``RSL_RL_LR_BOUNDS`` is what rsl-rl's PPO clamps its adaptive rate to (read from its source, so a
+    new rsl-rl that moves them fails here), and brax's defaults match them."""
+    import inspect
+    import re
+
+    from rsl_rl.algorithms import ppo as rsl_ppo
+
+    src = inspect.getsource(rsl_ppo.PPO.update)
+    lo = re.search(r"max\(([0-9.eE+-]+), self\.learning_rate / 1\.5\)", src)
+    hi = re.search(r"min\(([0-9.eE+-]+), self\.learning_rate \* 1\.5\)", src)
+    assert lo and hi, "rsl-rl's adaptive rule no longer reads as max(lo, lr / 1.5), min(hi, lr * 1.5)"
+    assert (float(lo.group(1)), float(hi.group(1))) == RSL_RL_LR_BOUNDS
+    ppo = preset("gpu").ppo
+    assert (ppo.min_learning_rate, ppo.max_learning_rate) == RSL_RL_LR_BOUNDS

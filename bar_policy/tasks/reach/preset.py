@@ -61,6 +61,10 @@ RSL = {
     "rsl_rl.schedule": "adaptive",
     "rsl_rl.desired_kl": 0.01,
     "rsl_rl.value_loss_coef": 1.0,
+    "ppo.schedule": "adaptive",  # the brax side of the same choices: nothing unapplied to report
+    "ppo.desired_kl": 0.01,
+    "ppo.vf_loss_coefficient": 1.0,
+    "ppo.value_targets": "iteration",
     "network.policy_hidden": (256, 128, 64),
     "network.value_hidden": (256, 128, 64),
     "network.activation": "elu",
