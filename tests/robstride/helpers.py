@@ -22,9 +22,16 @@ TEST_TIMEOUT = 0.2
 """Reply deadline in tests, s: generous (threads on a loaded 2-core host); only fault paths wait for it."""
 
 
+TEST_CAN_TIMEOUT = 1.0
+"""The motors' CAN watchdog in tests, s (the robot's is 0.2): a test not about the watchdog must not trip it
+when the loaded 2-core host stalls a thread (one did for 490 ms in a full run). The watchdog's own tests
+set theirs."""
+
+
 def make_group(
     robot, channels, *, calibration: Calibration | None = None, timeout: float = TEST_TIMEOUT, **kw
 ):
+    kw.setdefault("can_timeout", TEST_CAN_TIMEOUT)
     buses = {i: can.Bus(interface="virtual", channel=ch) for i, ch in channels.items()}
     return RobstrideGroup.from_robot(robot, buses, calibration=calibration, reply_timeout=timeout, **kw)
 

@@ -22,7 +22,8 @@ from bar_policy.robstride.tools import main
 
 from .bridge import SocketcandBridge
 from .conftest import assert_ends_with_damping_then_stop
-from .helpers import Child, make_target
+from .helpers import Child
+from .helpers import make_target as _make_target
 
 LEFT = [11, 12, 13, 14, 15, 16, 17]
 RIGHT = [21, 22, 23, 24, 25, 26, 27]
@@ -32,6 +33,13 @@ RIGHT = [21, 22, 23, 24, 25, 26, 27]
 ARM_PAYLOAD = bytes.fromhex("28700000a00f0000")
 WINDOW = 0.2
 LATE = 0.1  # scheduling tolerance of the emulator's thread: passive within 300 ms of the last frame
+
+
+def make_target(robot, channels, **kw):
+    """``helpers.make_target`` with the robot's own watchdog (``DEFAULT_CAN_TIMEOUT``, 0.2 s), which these
+    tests are about, in place of the other tests' generous one (``helpers.TEST_CAN_TIMEOUT``)."""
+    group_kw = {"can_timeout": proto.DEFAULT_CAN_TIMEOUT, **kw.pop("group_kw", {})}
+    return _make_target(robot, channels, group_kw=group_kw, **kw)
 
 
 def _write_id(can_id: int) -> int:
