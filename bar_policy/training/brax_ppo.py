@@ -71,6 +71,7 @@ from bar_policy.training.learner import TrainingState, make_learner
 from bar_policy.training.networks import make_networks
 from bar_policy.training.parallel import barrier, make_data_parallel
 from bar_policy.training.progress import RunLogger, next_would_overrun
+from bar_policy.training.rsl_rl_config import brax_not_applied
 from bar_policy.training.startup import Compiler, CompileStats, StartupTimer
 
 __all__ = [
@@ -162,6 +163,7 @@ def train_brax(
     compiler.submit("init", programs.init, key_abs)
     compiler.submit("evaluate", programs.evaluate, _policy_params(ts_abs), key_abs, key_abs, background=True)
 
+    logger.not_applied(brax_not_applied(cfg))  # rsl-rl-only settings a brax run ignores: said and recorded
     env_steps, iteration = 0, 0
     with timer.phase(sb.WAIT):
         if cfg.resume:

@@ -174,6 +174,13 @@ class RunLogger:
         if self.enabled:
             print(text, file=self.stream, flush=True)
 
+    def not_applied(self, settings: list[str]) -> None:
+        """Print each setting the backend runs without, and record them as one ``not_applied`` line."""
+        for line in settings:
+            self.print(line)
+        if settings:
+            self.note("not_applied", {"settings": settings})
+
     def close(self) -> None:
         """Flush and close the files."""
         if self._jsonl is not None:

@@ -205,11 +205,7 @@ def train_rsl_rl(
         with timer.phase(sb.RSL_RESET):  # the runner reads the first observations
             vec_env.get_observations()
         runner = OnPolicyRunner(vec_env, rsl_rl_train_cfg(cfg), log_dir=None, device=device)
-        unapplied = not_applied(cfg)  # brax settings rsl-rl runs without: said and recorded, never dropped
-        for line in unapplied:
-            logger.print(line)
-        if unapplied:
-            logger.note("not_applied", {"settings": unapplied})
+        logger.not_applied(not_applied(cfg))  # brax settings rsl-rl runs without: said and recorded
         alg = runner.alg
         if prior is not None:
             start_actor_at_prior(alg.actor)  # a resume loads its own parameters over it

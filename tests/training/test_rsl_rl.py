@@ -195,6 +195,7 @@ def test_both_backends_write_the_same_run_record(brax_run, rsl_run):
 
     # rsl-rl's record also names the brax settings it ran without (test_rsl_rl_run_trains_checkpoints_...).
     assert kinds(brax).keys() == kinds(rsl).keys() - {"not_applied"}
+    assert "not_applied" not in kinds(brax)  # the toy brax run leaves every rsl_rl.* at its default
     for kind in kinds(brax):
         assert kinds(brax)[kind] <= kinds(rsl)[kind], kind
     # The files, but the best iterate's ONNX, written only when an earlier iterate ranked higher.

@@ -11,6 +11,7 @@ from bar_policy.training.config import preset
 from bar_policy.training.rsl_rl_config import (
     FIELD_RSL_RL_PPO,
     RSL_RL_LR_BOUNDS,
+    brax_not_applied,
     field_cli_flags,
     field_hyperparameters,
     field_overrides,
@@ -152,3 +153,41 @@ def test_rsl_rl_lr_bounds_are_rsl_rls_own():
     assert (float(lo.group(1)), float(hi.group(1))) == RSL_RL_LR_BOUNDS
     ppo = preset("gpu").ppo
     assert (ppo.min_learning_rate, ppo.max_learning_rate) == RSL_RL_LR_BOUNDS
+
+
+def test_a_brax_run_says_which_rsl_rl_settings_it_ignores():
+    """``rsl_rl.*`` on a brax run: each one set away from ``RslRlConfig``'s default gets a line naming the
+    brax field that decides instead (values read off the gpu preset: fixed rate, value weight 0.5); the
+    presets and the field's flags (defaults on the rsl-rl side) get none, and an rsl-rl run none of these."""
+    flags = ["--rsl-rl.schedule", "fixed", "--rsl-rl.value-loss-coef", "2.0", "--rsl-rl.device", "cpu"]
+    cfg = parse_config(["--preset", "gpu", *flags])
+    assert brax_not_applied(cfg) == [
+        "rsl_rl.schedule=fixed not applied: an rsl-rl backend setting; the brax backend's is "
+        "ppo.schedule=fixed",
+        "rsl_rl.value_loss_coef=2.0 not applied: an rsl-rl backend setting; the brax backend's is "
+        "ppo.vf_loss_coefficient=0.5",
+        "rsl_rl.device=cpu not applied: an rsl-rl backend setting; the brax backend runs on jax's devices",
+    ]
+    for name in ("gpu", "track", "piano", "cpu", "tiny"):
+        assert brax_not_applied(preset(name)) == [], name
+    assert brax_not_applied(parse_config(field_cli_flags(4096))) == []
+    assert brax_not_applied(dataclasses.replace(cfg, backend="rsl-rl")) == []
+
+
+def test_the_run_logger_says_and_records_the_settings_a_backend_runs_without(tmp_path):
+    """``RunLogger.not_applied`` (both trainers call it with their backend's list): each line on the
+    terminal, and the list as one ``not_applied`` record in metrics.jsonl; an empty list writes nothing."""
+    import io
+    import json
+
+    from bar_policy.training.progress import RunLogger
+
+    out = io.StringIO()
+    logger = RunLogger(tmp_path, 100, stream=out)
+    lines = ["a not applied: x", "b not applied: y"]
+    logger.not_applied(lines)
+    logger.not_applied([])
+    logger.close()
+    assert out.getvalue().splitlines() == lines
+    (record,) = [json.loads(x) for x in (tmp_path / "metrics.jsonl").read_text().splitlines()]
+    assert record["kind"] == "not_applied" and record["settings"] == lines
