@@ -120,14 +120,9 @@ case "$PART" in
     # prior stay; 0.3 action units: at the field's 1.0 the wrists end at their limits, docs/training.md).
     PRE=$(python3 -c "
 from bar_policy.training.rsl_rl_config import field_cli_flags
-flags, out, skip = field_cli_flags(8192), [], False
-for f in flags:
-    if f.startswith('--'):
-        skip = f in ('--network.policy-hidden', '--network.value-hidden', '--network.init-noise-std',
-                     '--ppo.update-precision')
-    if not skip:
-        out.append(f)
-print(' '.join(['--backend', 'rsl-rl', *out, '--network.init-noise-std', '0.3', '--final-eval-envs', '1024']))") || exit 1
+own = ('network.policy_hidden', 'network.value_hidden', 'network.init_noise_std', 'ppo.update_precision')
+print(' '.join(field_cli_flags(8192, leave_out=own)))") || exit 1
+    PRE="--backend rsl-rl $PRE --network.init-noise-std 0.3 --final-eval-envs 1024"
     seed=$ARG
     [ "$PART" = smoke-rsl ] && seed=0
     # shellcheck disable=SC2086

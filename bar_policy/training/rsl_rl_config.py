@@ -228,10 +228,15 @@ def brax_not_applied(cfg: TrainConfig) -> list[str]:
     return out
 
 
-def field_cli_flags(num_envs: int) -> list[str]:
-    """``field_overrides`` as ``bar-train`` flags: ``["--ppo.unroll-length", "24", ...]``."""
+def field_cli_flags(num_envs: int, leave_out: tuple[str, ...] = ()) -> list[str]:
+    """``field_overrides`` as ``bar-train`` flags: ``["--ppo.unroll-length", "24", ...]``.
+
+    ``leave_out``: dotted paths of ``field_overrides`` to omit (a task keeping its own networks, say).
+    """
     out = []
     for path, value in field_overrides(num_envs).items():
+        if path in leave_out:
+            continue
         group, name = path.split(".")
         flag = f"--{group.replace('_', '-')}.{name.replace('_', '-')}"
         if isinstance(value, bool):

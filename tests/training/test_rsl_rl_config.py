@@ -44,6 +44,14 @@ def test_field_cli_flags_parse_to_the_same_config():
     parsed = parse_config(["--backend", "rsl-rl", *flags])
     want = field_hyperparameters(preset("gpu"))
     assert (parsed.ppo, parsed.network, parsed.rsl_rl) == (want.ppo, want.network, want.rsl_rl)
+    # leave_out drops a path's flag with its values, and nothing else.
+    i, j = flags.index("--network.policy-hidden"), flags.index("--ppo.update-precision")
+    assert flags[i : i + 4] == ["--network.policy-hidden", "256", "128", "64"] and flags[j:] == [
+        "--ppo.update-precision",
+        "run",
+    ]
+    kept = field_cli_flags(4096, leave_out=("network.policy_hidden", "ppo.update_precision"))
+    assert kept == flags[:i] + flags[i + 4 : j]
 
 
 @pytest.mark.parametrize("num_envs", [0, 6, 4098])
