@@ -19,10 +19,10 @@
 #                                          prior and initial std 0.3 (docs/training.md); EXTRA adds arguments
 #                                          (e.g. EXTRA="--rsl-rl.schedule fixed --ppo.schedule fixed
 #                                          --ppo.learning-rate 3e-4": rsl-rl's schedule and its brax side)
-#   bash bench/track_recipe.sh rsl-fixed SEED (~9.5 min) `rsl` with the track preset's fixed rate 3e-4 and
-#                                          entropy cost 1e-3 in place of the field's KL-adaptive rate and 5e-3:
-#                                          files that pass the ship gate (the adaptive rate's chatter at 25 Hz)
-#                                          at larger errors (docs/benchmarks.md "Session 48")
+#   bash bench/track_recipe.sh rsl-fixed SEED (~9.5 min) `--preset track-rsl`: `rsl` with the track preset's
+#                                          fixed rate 3e-4 and entropy cost 1e-3 in place of the field's
+#                                          KL-adaptive rate (its files chatter at 25 Hz) and 5e-3: files that
+#                                          pass the ship gate, at larger errors (docs/benchmarks.md "Session 48")
 #   bash bench/track_recipe.sh smoke      CPU check of the script with tiny sizes (smoke-rsl: the rsl part)
 #
 # $OUT gets runs.tgz (each run's config, metrics.jsonl, final_eval.json, ONNX files, newest checkpoint and
@@ -120,17 +120,18 @@ case "$PART" in
     run_one "recipe-seed$ARG" "$ARG" --final-eval-envs 1024 ${EXTRA:-}
     ;;
   rsl|rsl-fixed|smoke-rsl)
-    # The field's rsl-rl values but not its networks or initial std (the preset's networks and reference
-    # prior stay; 0.3 action units: at the field's 1.0 the wrists end at their limits, docs/training.md).
-    PRE=$(python3 -c "
+    if [ "$PART" = rsl-fixed ]; then  # the last --preset wins: track-rsl over run_one's track
+      PRE="--preset track-rsl --final-eval-envs 1024"
+      name=rsl-fixed
+    else
+      # The field's rsl-rl values but not its networks or initial std (the preset's networks and reference
+      # prior stay; 0.3 action units: at the field's 1.0 the wrists end at their limits, docs/training.md).
+      PRE=$(python3 -c "
 from bar_policy.training.rsl_rl_config import field_cli_flags
 own = ('network.policy_hidden', 'network.value_hidden', 'network.init_noise_std', 'ppo.update_precision')
 print(' '.join(field_cli_flags(8192, leave_out=own)))") || exit 1
-    PRE="--backend rsl-rl $PRE --network.init-noise-std 0.3 --final-eval-envs 1024"
-    name=rsl
-    if [ "$PART" = rsl-fixed ]; then  # later flags win: these replace the field's rate, schedule, entropy cost
-      PRE="$PRE --rsl-rl.schedule fixed --ppo.schedule fixed --ppo.learning-rate 3e-4 --ppo.entropy-cost 0.001"
-      name=rsl-fixed
+      PRE="--backend rsl-rl $PRE --network.init-noise-std 0.3 --final-eval-envs 1024"
+      name=rsl
     fi
     seed=$ARG
     [ "$PART" = smoke-rsl ] && seed=0

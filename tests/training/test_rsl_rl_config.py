@@ -146,6 +146,41 @@ def test_the_track_preset_on_rsl_rl_says_each_brax_setting_it_runs_without():
     assert not_applied(field) == [not_applied(cfg)[3]]
 
 
+def test_track_rsl_preset_is_the_track_preset_at_the_fields_values_but_its_measured_departures():
+    """``--preset track-rsl`` = the track preset with the field's rsl-rl values (``field_overrides(8192)``)
+    but the track preset's networks and TF32 SGD passes, and the departures session 48 measured: initial std
+    0.3, a fixed rate of 3e-4 (the field's adaptive one chatters), entropy cost 1e-3; ``obs_std_eps`` 1e-4
+    states rsl-rl's normaliser, so nothing goes unapplied."""
+    track = preset("track")
+    field = field_hyperparameters(dataclasses.replace(track, backend="rsl-rl"))
+    expected = dataclasses.replace(
+        field,
+        preset="track-rsl",
+        network=dataclasses.replace(
+            field.network,
+            policy_hidden=track.network.policy_hidden,
+            value_hidden=track.network.value_hidden,
+            init_noise_std=0.3,
+        ),
+        ppo=dataclasses.replace(
+            field.ppo,
+            update_precision="tensorfloat32",
+            schedule="fixed",
+            learning_rate=3e-4,
+            entropy_cost=1e-3,
+            obs_std_eps=1e-4,
+        ),
+        rsl_rl=dataclasses.replace(field.rsl_rl, schedule="fixed"),
+    )
+    cfg = preset("track-rsl")
+    assert cfg == expected
+    assert not_applied(cfg) == []
+    alg = rsl_rl_train_cfg(cfg)["algorithm"]
+    assert (alg["schedule"], alg["learning_rate"], alg["entropy_coef"]) == ("fixed", 3e-4, 1e-3)
+    assert (alg["num_learning_epochs"], alg["num_mini_batches"], alg["gamma"]) == (5, 4, 0.99)
+    assert rsl_rl_train_cfg(cfg)["num_steps_per_env"] == 24
+
+
 def test_rsl_rl_lr_bounds_are_rsl_rls_own():
     """``RSL_RL_LR_BOUNDS`` is what rsl-rl's PPO clamps its adaptive rate to (read from its source, so a
     new rsl-rl that moves them fails here), and brax's defaults match them."""
