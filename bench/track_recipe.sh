@@ -121,7 +121,7 @@ case "$PART" in
     ;;
   rsl|rsl-fixed|smoke-rsl)
     if [ "$PART" = rsl-fixed ]; then  # the last --preset wins: track-rsl over run_one's track
-      PRE="--preset track-rsl --final-eval-envs 1024"
+      PRE="--preset track-rsl"
       name=rsl-fixed
     else
       # The field's rsl-rl values but not its networks or initial std (the preset's networks and reference
@@ -130,9 +130,10 @@ case "$PART" in
 from bar_policy.training.rsl_rl_config import field_cli_flags
 own = ('network.policy_hidden', 'network.value_hidden', 'network.init_noise_std', 'ppo.update_precision')
 print(' '.join(field_cli_flags(8192, leave_out=own)))") || exit 1
-      PRE="--backend rsl-rl $PRE --network.init-noise-std 0.3 --final-eval-envs 1024"
+      PRE="--backend rsl-rl $PRE --network.init-noise-std 0.3"
       name=rsl
     fi
+    PRE="$PRE --final-eval-envs 1024"
     seed=$ARG
     [ "$PART" = smoke-rsl ] && seed=0
     # shellcheck disable=SC2086

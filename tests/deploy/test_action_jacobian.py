@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 from action_jacobian import last_action_jacobian, probe
 from policy_factory import default_metadata, make_policy_file
 
