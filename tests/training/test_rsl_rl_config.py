@@ -148,9 +148,9 @@ def test_the_track_preset_on_rsl_rl_says_each_brax_setting_it_runs_without():
 
 def test_track_rsl_preset_is_the_track_preset_at_the_fields_values_but_its_measured_departures():
     """``--preset track-rsl`` = the track preset with the field's rsl-rl values (``field_overrides(8192)``)
-    but the track preset's networks and TF32 SGD passes, and the departures session 48 measured: initial std
-    0.3, a fixed rate of 3e-4 (the field's adaptive one chatters), entropy cost 1e-3; ``obs_std_eps`` 1e-4
-    states rsl-rl's normaliser, so nothing goes unapplied."""
+    but the track preset's networks and TF32 SGD passes, and the departures sessions 48-49 measured: initial
+    std 0.3, a fixed rate of 3e-4 (the field's adaptive one chatters), entropy cost 1e-3, gamma 0.98 (the
+    track preset's); ``obs_std_eps`` 1e-4 states rsl-rl's normaliser, so nothing goes unapplied."""
     track = preset("track")
     field = field_hyperparameters(dataclasses.replace(track, backend="rsl-rl"))
     expected = dataclasses.replace(
@@ -168,6 +168,7 @@ def test_track_rsl_preset_is_the_track_preset_at_the_fields_values_but_its_measu
             schedule="fixed",
             learning_rate=3e-4,
             entropy_cost=1e-3,
+            discounting=0.98,
             obs_std_eps=1e-4,
         ),
         rsl_rl=dataclasses.replace(field.rsl_rl, schedule="fixed"),
@@ -177,7 +178,8 @@ def test_track_rsl_preset_is_the_track_preset_at_the_fields_values_but_its_measu
     assert not_applied(cfg) == []
     alg = rsl_rl_train_cfg(cfg)["algorithm"]
     assert (alg["schedule"], alg["learning_rate"], alg["entropy_coef"]) == ("fixed", 3e-4, 1e-3)
-    assert (alg["num_learning_epochs"], alg["num_mini_batches"], alg["gamma"]) == (5, 4, 0.99)
+    assert (alg["num_learning_epochs"], alg["num_mini_batches"], alg["gamma"]) == (5, 4, 0.98)
+    assert track.ppo.discounting == 0.98 and field.ppo.discounting == 0.99
     assert rsl_rl_train_cfg(cfg)["num_steps_per_env"] == 24
 
 
