@@ -1,7 +1,8 @@
 """Where an rsl-rl iteration's time goes (issue 9, item 4): act, env step, process, returns, update.
 
 Builds the rsl-rl backend's pieces exactly as ``train_rsl_rl`` does (``RslRlVecEnv`` + rsl-rl's
-``OnPolicyRunner`` algorithm, config from a preset) and times ``--iters`` iterations twice:
+``OnPolicyRunner`` algorithm, config from a preset; the run's XLA flags from ``set_backend_env``, the update
+under ``ppo.update_precision``) and times ``--iters`` iterations twice:
 
 1. as the trainer runs them (no waits in the rollout): env steps/s end to end (best of a run before and one
    after the synced runs, after two warm-up iterations);
@@ -15,12 +16,12 @@ Examples::
     python bench/rsl_rl_profile.py --out $OUT/rsl_profile.md            # gpu preset, LiteReach
     python bench/rsl_rl_profile.py --preset tiny --iters 2             # CPU smoke check
     python bench/rsl_rl_profile.py --set ppo.num_envs=8192 ppo.batch_size=1024
+    python bench/rsl_rl_profile.py --preset track-rsl --env LiteTrack      # the rsl-rl tracker's iteration
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from collections import defaultdict
 
@@ -35,7 +36,9 @@ def main() -> int:
     p.add_argument("--out", default="")
     args = p.parse_args()
     cfg = config_of(args, "backend=rsl-rl")
-    os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")  # as the backend does
+    from bar_policy.training.backend_env import set_backend_env
+
+    notes = set_backend_env(cfg)  # as the run does, before jax starts: memory, XLA's graph flags
 
     import jax
     import torch
@@ -45,6 +48,7 @@ def main() -> int:
     from bar_policy.training.rsl_rl_backend import rsl_rl_train_cfg
     from bar_policy.training.rsl_rl_env import RslRlVecEnv, torch_device_for_jax
     from bar_policy.training.startup import configure_compile_cache
+    from bar_policy.training.torch_precision import update_precision
 
     configure_compile_cache(True)
     env = load_env(args.env, cfg)
@@ -87,7 +91,8 @@ def main() -> int:
                 t = mark("process", t)
             alg.compute_returns(obs)
             t = mark("returns", t)
-        alg.update()
+        with update_precision(cfg.ppo.update_precision):
+            alg.update()
         t = mark("update", t)
         vec.take_stats()
         mark("stats", t)
@@ -120,7 +125,9 @@ def main() -> int:
     lines = [
         f"rsl-rl profile: {args.env}, {config_label(args)}, torch {device}, "
         f"{cfg.ppo.num_envs} envs x {steps_per_env} steps = {steps:,} env steps per iteration, "
-        f"{cfg.ppo.num_updates_per_batch} x {cfg.ppo.num_minibatches} minibatches",
+        f"{cfg.ppo.num_updates_per_batch} x {cfg.ppo.num_minibatches} minibatches, "
+        f"update precision {cfg.ppo.update_precision}",
+        *notes,
         "",
         f"as trained (no waits): {1e3 * free:.0f} ms per iteration, {steps / free:,.0f} env steps/s "
         f"(first iteration with compile {warm:.1f} s)",
