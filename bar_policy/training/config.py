@@ -215,6 +215,10 @@ class RslRlConfig:
     """KL target of the adaptive schedule."""
     value_loss_coef: float = 1.0
     """Weight of the value loss."""
+    clipped_value_loss: bool = True
+    """rsl-rl's ``use_clipped_value_loss``: per sample, the larger of the squared error and the one with the
+    value's change since the rollout clipped to ``ppo.clipping_epsilon`` (rsl-rl's default and the field's;
+    brax's is never clipped). ``--rsl-rl.no-clipped-value-loss``: the plain squared error."""
     device: str = "auto"
     """Torch device: ``auto`` (cuda when jax runs on a GPU, else cpu), ``cpu`` or ``cuda``."""
 

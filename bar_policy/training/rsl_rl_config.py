@@ -203,6 +203,12 @@ def not_applied(cfg: TrainConfig) -> list[str]:
 _BRAX_SIDE = {"schedule": "schedule", "desired_kl": "desired_kl", "value_loss_coef": "vf_loss_coefficient"}
 """``RslRlConfig`` field -> the ``PPOConfig`` field a brax run reads for the same choice."""
 
+_BRAX_HAS_NONE = {
+    "clipped_value_loss": "brax's value loss is never clipped",
+    "device": "the brax backend runs on jax's devices",
+}
+"""``RslRlConfig`` field with no ``PPOConfig`` counterpart -> what a brax run does instead."""
+
 
 def brax_not_applied(cfg: TrainConfig) -> list[str]:
     """A line per ``rsl_rl.*`` setting a brax run leaves unused (``not_applied``'s counterpart).
@@ -220,9 +226,7 @@ def brax_not_applied(cfg: TrainConfig) -> list[str]:
             continue
         brax = _BRAX_SIDE.get(f.name)
         ours = (
-            f"the brax backend's is ppo.{brax}={getattr(cfg.ppo, brax)}"
-            if brax
-            else "the brax backend runs on jax's devices"
+            f"the brax backend's is ppo.{brax}={getattr(cfg.ppo, brax)}" if brax else _BRAX_HAS_NONE[f.name]
         )
         out.append(f"rsl_rl.{f.name}={value} not applied: an rsl-rl backend setting; {ours}")
     return out
@@ -269,6 +273,7 @@ def rsl_rl_train_cfg(cfg: TrainConfig) -> dict[str, Any]:
             "gamma": ppo.discounting,
             "lam": ppo.gae_lambda,
             "value_loss_coef": r.value_loss_coef,
+            "use_clipped_value_loss": r.clipped_value_loss,
             "entropy_coef": ppo.entropy_cost,
             "learning_rate": ppo.learning_rate,
             "max_grad_norm": ppo.max_grad_norm if ppo.max_grad_norm > 0 else 1e9,

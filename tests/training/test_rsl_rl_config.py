@@ -183,6 +183,22 @@ def test_track_rsl_preset_is_the_track_preset_at_the_fields_values_but_its_measu
     assert rsl_rl_train_cfg(cfg)["num_steps_per_env"] == 24
 
 
+def test_the_clipped_value_loss_is_rsl_rls_default_and_can_be_turned_off():
+    """``rsl_rl.clipped_value_loss`` reaches rsl-rl's PPO as ``use_clipped_value_loss``; its default is
+    rsl-rl's own (read from its signature, so a new rsl-rl that changes it fails here), which the field's
+    configs and ``track-rsl`` keep."""
+    import inspect
+
+    from rsl_rl.algorithms import ppo as rsl_ppo
+
+    default = inspect.signature(rsl_ppo.PPO).parameters["use_clipped_value_loss"].default
+    for cfg in (preset("track-rsl"), field_hyperparameters(preset("gpu"))):
+        assert rsl_rl_train_cfg(cfg)["algorithm"]["use_clipped_value_loss"] is default is True
+    plain = parse_config(["--preset", "track-rsl", "--rsl-rl.no-clipped-value-loss"])
+    assert rsl_rl_train_cfg(plain)["algorithm"]["use_clipped_value_loss"] is False
+    assert not_applied(plain) == []  # an rsl-rl setting on an rsl-rl run: nothing to say
+
+
 def test_rsl_rl_lr_bounds_are_rsl_rls_own():
     """``RSL_RL_LR_BOUNDS`` is what rsl-rl's PPO clamps its adaptive rate to (read from its source, so a
     new rsl-rl that moves them fails here), and brax's defaults match them."""
@@ -205,12 +221,14 @@ def test_a_brax_run_says_which_rsl_rl_settings_it_ignores():
     brax field that decides instead (values read off the gpu preset: fixed rate, value weight 0.5); the
     presets and the field's flags (defaults on the rsl-rl side) get none, and an rsl-rl run none of these."""
     flags = ["--rsl-rl.schedule", "fixed", "--rsl-rl.value-loss-coef", "2.0", "--rsl-rl.device", "cpu"]
-    cfg = parse_config(["--preset", "gpu", *flags])
+    cfg = parse_config(["--preset", "gpu", *flags, "--rsl-rl.no-clipped-value-loss"])
     assert brax_not_applied(cfg) == [
         "rsl_rl.schedule=fixed not applied: an rsl-rl backend setting; the brax backend's is "
         "ppo.schedule=fixed",
         "rsl_rl.value_loss_coef=2.0 not applied: an rsl-rl backend setting; the brax backend's is "
         "ppo.vf_loss_coefficient=0.5",
+        "rsl_rl.clipped_value_loss=False not applied: an rsl-rl backend setting; brax's value loss is never "
+        "clipped",
         "rsl_rl.device=cpu not applied: an rsl-rl backend setting; the brax backend runs on jax's devices",
     ]
     for name in ("gpu", "track", "piano", "cpu", "tiny"):

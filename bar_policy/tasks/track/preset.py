@@ -92,9 +92,10 @@ reference action prior, physics step, TF32 SGD passes and evaluations, rsl-rl's 
   rsl-rl (16-18 mrad on the sim target's worst held-out clip; the gate's limit is 5) as on brax;
 - the track preset's entropy cost 1e-3 (at the field's 5e-3 with a fixed rate the std stopped at 0.10 and
   the fingertip error at 1.09 cm, over the gate's 1 cm);
-- the track preset's gamma 0.98 in place of the field's 0.99 (a 1 s horizon; session 49, seed 0: sim
-  held-out 0.0117 rad / 0.91 cm against 0.0134 / 0.98 at 0.99, ahead on both at every MJX evaluation; the
-  env steps, 86.3 M against 77.7 M, differ in part by host: 188-211 k against 178-193 k env steps/s).
+- the track preset's gamma 0.98 (Isaac Lab's Franka lift's too) in place of mjlab's 0.99 (a 1 s horizon;
+  session 49, seed 0: sim held-out 0.0117 rad / 0.91 cm against 0.0134 / 0.98 at 0.99, ahead on both at
+  every MJX evaluation; the env steps, 86.3 M against 77.7 M, differ in part by host: 188-211 k against
+  178-193 k env steps/s).
 
 Session 49 (one H200, seed 0, commit 32fbaf1, 8.6 min; these settings as flags): 86.3 M env steps, sim
 held-out 0.0117 rad / 0.91 cm, 0.52 mrad worst chatter, no tick at a cap, bus within 0.5 % of the sim: the
