@@ -285,7 +285,7 @@ class TrainConfig:
     """brax = brax's PPO pieces, JAX end to end (default); rsl-rl = rsl-rl-lib (torch) on the same env."""
     preset: PresetName = "gpu"
     """Preset supplying every default shown: gpu (one H100), rsl (gpu on rsl-rl at the field's values), cpu,
-    tiny (tests), track (LiteTrack, H100), piano (LitePiano, H100)."""
+    tiny (tests), track (LiteTrack, H100), track-rsl (track on rsl-rl), piano (LitePiano, H100)."""
     seed: int = 0
     """Seed of parameter init, env resets and evaluation."""
     run_name: str = ""
