@@ -207,7 +207,10 @@ _BRAX_HAS_NONE = {
     "clipped_value_loss": "brax's value loss is never clipped",
     "device": "the brax backend runs on jax's devices",
 }
-"""``RslRlConfig`` field with no ``PPOConfig`` counterpart -> what a brax run does instead."""
+"""``RslRlConfig`` field with no ``PPOConfig`` counterpart -> what a brax run does instead (a field in neither
+map, added later, gets ``_BRAX_IGNORES``: still said, never a KeyError in the brax trainer)."""
+
+_BRAX_IGNORES = "the brax backend does not read it"
 
 
 def brax_not_applied(cfg: TrainConfig) -> list[str]:
@@ -226,7 +229,9 @@ def brax_not_applied(cfg: TrainConfig) -> list[str]:
             continue
         brax = _BRAX_SIDE.get(f.name)
         ours = (
-            f"the brax backend's is ppo.{brax}={getattr(cfg.ppo, brax)}" if brax else _BRAX_HAS_NONE[f.name]
+            f"the brax backend's is ppo.{brax}={getattr(cfg.ppo, brax)}"
+            if brax
+            else _BRAX_HAS_NONE.get(f.name, _BRAX_IGNORES)
         )
         out.append(f"rsl_rl.{f.name}={value} not applied: an rsl-rl backend setting; {ours}")
     return out
