@@ -6,7 +6,9 @@ under ``ppo.update_precision``) and times ``--iters`` iterations twice:
 
 1. as the trainer runs them (no waits in the rollout): env steps/s end to end (best of a run before and one
    after the synced runs, after two warm-up iterations);
-2. with a device sync after every phase, so each phase's own time shows: ``act`` (actor + critic forward
+2. at its two boundaries (the rollout as queued by the host and as done on the device, the update), beside
+   the env alone (the same steps with one fixed action batch, nothing of torch between them);
+3. with a device sync after every phase, so each phase's own time shows: ``act`` (actor + critic forward
    and sampling), ``env`` (DLPack hand-off + jitted batched step), ``process`` (rsl-rl's storage and
    time-out bootstrap), ``returns`` (GAE), ``update`` (rsl-rl's PPO update), ``stats`` (the one host read
    of the logged sums).
@@ -116,6 +118,43 @@ def main() -> int:
         return (time.perf_counter() - t0) / args.iters
 
     free_first = free_run()
+
+    def parts() -> tuple[float, float, float, float]:
+        """One iteration as trained, timed at its two boundaries: (rollout queued by the host, rollout done
+        on the device, update as trained, env alone: the same steps with fixed actions, no torch between)."""
+        nonlocal obs
+        sync()
+        t0 = time.perf_counter()
+        with torch.inference_mode():
+            for _ in range(steps_per_env):
+                actions = alg.act(obs)
+                obs, rew, dones, extras = vec.step(actions)
+                alg.process_env_step(obs, rew, dones, extras)
+            alg.compute_returns(obs)
+            queued = time.perf_counter() - t0
+            sync()
+            rollout = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        with update_precision(cfg.ppo.update_precision):
+            alg.update()
+        sync()
+        update = time.perf_counter() - t0
+        vec.take_stats()
+        with torch.inference_mode():
+            fixed = alg.act(obs)
+            alg.storage.clear()
+            alg.transition.clear()
+            sync()
+            t0 = time.perf_counter()
+            for _ in range(steps_per_env):
+                vec.step(fixed)
+            sync()
+            env_alone = time.perf_counter() - t0
+        obs = vec.get_observations()
+        return queued, rollout, update, env_alone
+
+    split = [parts() for _ in range(args.iters)]
+    queued, rollout, update, env_alone = (min(x) for x in zip(*split, strict=True))
     phases: dict[str, float] = defaultdict(float)
     for _ in range(args.iters):
         obs = iteration(obs, phases)
@@ -131,6 +170,14 @@ def main() -> int:
         "",
         f"as trained (no waits): {1e3 * free:.0f} ms per iteration, {steps / free:,.0f} env steps/s "
         f"(first iteration with compile {warm:.1f} s)",
+        "",
+        "| one iteration as trained, best of the runs | ms per iteration |",
+        "|---|---:|",
+        f"| rollout: queued by the host (no waits) | {1e3 * queued:.1f} |",
+        f"| rollout: done on the device | {1e3 * rollout:.1f} |",
+        f"| update (rsl-rl's, its own per-minibatch reads) | {1e3 * update:.1f} |",
+        f"| env alone: the same {steps_per_env} steps, fixed actions, no torch between | {1e3 * env_alone:.1f} "
+        f"({steps / env_alone:,.0f} env steps/s) |",
         "",
         "| phase (synced after each) | ms per iteration | share |",
         "|---|---:|---:|",
