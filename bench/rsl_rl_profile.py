@@ -176,7 +176,8 @@ def main() -> int:
         f"| rollout: queued by the host (no waits) | {1e3 * queued:.1f} |",
         f"| rollout: done on the device | {1e3 * rollout:.1f} |",
         f"| update (rsl-rl's, its own per-minibatch reads) | {1e3 * update:.1f} |",
-        f"| env alone: the same {steps_per_env} steps, fixed actions, no torch between | {1e3 * env_alone:.1f} "
+        f"| env alone: the same {steps_per_env} steps, fixed actions, no torch between "
+        f"| {1e3 * env_alone:.1f} "
         f"({steps / env_alone:,.0f} env steps/s) |",
         "",
         "| phase (synced after each) | ms per iteration | share |",
