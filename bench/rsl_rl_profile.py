@@ -27,6 +27,7 @@ import argparse
 import time
 from collections import defaultdict
 
+import numpy as np
 from config_args import add_config_args, config_label, config_of, load_env
 from report import emit
 
@@ -153,6 +154,50 @@ def main() -> int:
         obs = vec.get_observations()
         return queued, rollout, update, env_alone
 
+    from bar_policy.training.torch_bridge import jax_to_torch, torch_to_jax
+
+    def host_calls(check: bool) -> tuple[dict[str, float], float]:
+        """One rollout as trained (``vec.step``'s pieces written out), each host call timed without waits:
+        where the host spends an iteration, and whether a call blocks it. ``check``: the bridge's
+        ``torch_to_jax`` (which compares buffer pointers) or ``jax.dlpack.from_dlpack`` alone."""
+        nonlocal obs
+        host: dict[str, float] = defaultdict(float)
+
+        def tick(name: str, t: float) -> float:
+            now = time.perf_counter()
+            host[name] += now - t
+            return now
+
+        sync()
+        t0 = t = time.perf_counter()
+        with torch.inference_mode():
+            for _ in range(steps_per_env):
+                actions = alg.act(obs)
+                t = tick("act", t)
+                a = actions.to(torch.float32)
+                x = torch_to_jax(a) if check else jax.dlpack.from_dlpack(a)
+                t = tick("torch -> jax (actions)", t)
+                vec.state, vec.stats = vec._step(vec.state, x, vec.stats)
+                t = tick("jitted step call", t)
+                obs = vec.get_observations()
+                s = vec.state
+                rew, done = jax_to_torch(s.reward), jax_to_torch(s.done)
+                log = {f"Metrics/{k}": jax_to_torch(v) for k, v in s.metrics.items()}
+                extras = {"time_outs": jax_to_torch(s.info["truncation"]), "log": log}
+                t = tick(f"jax -> torch ({4 + len(log)} arrays)", t)
+                alg.process_env_step(obs, rew, done, extras)
+                t = tick("process", t)
+            alg.compute_returns(obs)
+        host["queued (all of the above)"] = time.perf_counter() - t0
+        sync()
+        done_s = time.perf_counter() - t0
+        with update_precision(cfg.ppo.update_precision):
+            alg.update()
+        vec.take_stats()
+        return host, done_s
+
+    calls = {check: [host_calls(check) for _ in range(args.iters)] for check in (True, False)}
+
     split = [parts() for _ in range(args.iters)]
     queued, rollout, update, env_alone = (min(x) for x in zip(*split, strict=True))
     phases: dict[str, float] = defaultdict(float)
@@ -179,6 +224,17 @@ def main() -> int:
         f"| env alone: the same {steps_per_env} steps, fixed actions, no torch between "
         f"| {1e3 * env_alone:.1f} "
         f"({steps / env_alone:,.0f} env steps/s) |",
+        "",
+        "| host time per call, one rollout as trained (median of the runs) | bridge's torch_to_jax: ms "
+        "| jax.dlpack.from_dlpack alone: ms |",
+        "|---|---:|---:|",
+    ]
+    med = {c: {k: float(np.median([h[k] for h, _ in runs])) for k in runs[0][0]} for c, runs in calls.items()}
+    for k in med[True]:
+        lines.append(f"| {k} | {1e3 * med[True][k]:.1f} | {1e3 * med[False][k]:.1f} |")
+    done_med = {c: float(np.median([d for _, d in runs])) for c, runs in calls.items()}
+    lines += [
+        f"| rollout done on the device | {1e3 * done_med[True]:.1f} | {1e3 * done_med[False]:.1f} |",
         "",
         "| phase (synced after each) | ms per iteration | share |",
         "|---|---:|---:|",
