@@ -198,6 +198,29 @@ def main() -> int:
 
     calls = {check: [host_calls(check) for _ in range(args.iters)] for check in (True, False)}
 
+    def rollout_syncs() -> int | None:
+        """torch calls that block the host in one rollout as trained (CUDA's sync debug mode), or None."""
+        nonlocal obs
+        if not device.startswith("cuda"):
+            return None
+        import warnings
+
+        sync()
+        torch.cuda.set_sync_debug_mode("warn")
+        try:
+            with warnings.catch_warnings(record=True) as seen, torch.inference_mode():
+                warnings.simplefilter("always")
+                for _ in range(steps_per_env):
+                    obs, rew, dones, extras = vec.step(alg.act(obs))
+                    alg.process_env_step(obs, rew, dones, extras)
+                alg.compute_returns(obs)
+        finally:
+            torch.cuda.set_sync_debug_mode(0)
+        alg.storage.clear()
+        return sum("synchronizing" in str(w.message) for w in seen)
+
+    syncs = rollout_syncs()
+
     split = [parts() for _ in range(args.iters)]
     queued, rollout, update, env_alone = (min(x) for x in zip(*split, strict=True))
     phases: dict[str, float] = defaultdict(float)
@@ -215,6 +238,8 @@ def main() -> int:
         "",
         f"as trained (no waits): {1e3 * free:.0f} ms per iteration, {steps / free:,.0f} env steps/s "
         f"(first iteration with compile {warm:.1f} s)",
+        f"torch calls that block the host in one rollout ({steps_per_env} steps, CUDA's sync debug mode): "
+        + ("n/a (not CUDA)" if syncs is None else str(syncs)),
         "",
         "| one iteration as trained, best of the runs | ms per iteration |",
         "|---|---:|",

@@ -49,6 +49,7 @@ from bar_policy.training.config import RslRlConfig, TrainConfig, apply_overrides
 
 __all__ = [
     "FIELD_RSL_RL_PPO",
+    "GAUSSIAN_HEAD",
     "RSL_RL_LR_BOUNDS",
     "RSL_RL_OBS_STD_EPS",
     "TORCH_PRECISIONS",
@@ -68,6 +69,10 @@ RSL_RL_LR_BOUNDS = (1e-5, 1e-2)
 
 RSL_RL_OBS_STD_EPS = 1e-4
 """The ``ppo.obs_std_eps`` (variance added) nearest rsl-rl's normaliser, ``(x - mean) / (std + 0.01)``."""
+
+GAUSSIAN_HEAD = "bar_policy.training.rsl_rl_sampling:GaussianNoSync"
+"""The actor's ``distribution_cfg`` class: rsl-rl's Gaussian head without its per-step host sync (by name,
+so that this module stays torch-free)."""
 
 _ACT = {"swish": "swish", "elu": "elu", "relu": "relu", "tanh": "tanh"}
 
@@ -264,7 +269,8 @@ def rsl_rl_train_cfg(cfg: TrainConfig) -> dict[str, Any]:
     std = net.init_noise_std
     if net.action_prior != "none" and net.prior_noise_std is not None:
         std = net.prior_noise_std
-    dist = {"class_name": "GaussianDistribution", "init_std": std, "std_type": "scalar"}
+    # rsl-rl's Gaussian head, sampled without its per-step host sync (rsl_rl_sampling).
+    dist = {"class_name": GAUSSIAN_HEAD, "init_std": std, "std_type": "scalar"}
     return {
         "num_steps_per_env": ppo.steps_per_iteration // ppo.num_envs,
         "save_interval": 10**9,

@@ -10,6 +10,7 @@ from collections.abc import Callable
 
 import numpy as np
 import torch
+from rsl_rl.modules import GaussianDistribution
 
 from bar_policy.export import MlpPolicy
 from bar_policy.obs.action_prior import Prior
@@ -53,7 +54,7 @@ def mlp_policy_from_rsl_rl(actor: torch.nn.Module, prior: Prior | None = None) -
     if len(acts) != 1:
         raise ValueError(f"expected one hidden activation, found {sorted(acts)}")
     dist = getattr(actor, "distribution", None)
-    if dist is not None and type(dist).__name__ != "GaussianDistribution":
+    if dist is not None and not isinstance(dist, GaussianDistribution):
         raise ValueError(f"only the Gaussian head exports (identity mean), got {type(dist).__name__}")
     return MlpPolicy(
         obs_mean=mean,
