@@ -97,8 +97,10 @@ reference action prior, physics step, TF32 SGD passes and evaluations, rsl-rl's 
   every MJX evaluation; the env steps, 86.3 M against 77.7 M, differ in part by host: 188-211 k against
   178-193 k env steps/s).
 
-Session 49 (one H200, seed 0, commit 32fbaf1, 8.6 min; these settings as flags): 86.3 M env steps, sim
-held-out 0.0117 rad / 0.91 cm, 0.52 mrad worst chatter, no tick at a cap, bus within 0.5 % of the sim: the
-ship gate passes, at -2 % / +25 % of brax's shipped tracker (docs/benchmarks.md "Session 49"). One seed: at
-gamma 0.99 seed 1's last iterate missed the gate's 1 cm (1.06; its best iterate, 0.97, passed).
+Session 50 (one H200, commit e57c7cf, 8.6 min, with rsl-rl's actions sampled without a host sync,
+``training.rsl_rl_sampling``): seeds 0 and 1 trained 96.9 / 95.0 M env steps; on the sim target's held-out
+clips 0.0103 / 0.0104 rad and 0.77 / 0.78 cm, 0.47 / 0.52 mrad worst chatter, no tick at a cap, the bus
+within 0.7 % of the sim: both pass the ship gate, at -14 / -13 % joint and +5 / +7 % fingertip error of
+brax's shipped tracker (docs/benchmarks.md "Session 50"; session 49's run of this preset, before that fix:
+86.3 M env steps, 0.0117 rad / 0.91 cm).
 """
