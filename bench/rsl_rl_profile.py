@@ -25,7 +25,9 @@ from __future__ import annotations
 
 import argparse
 import time
+import warnings
 from collections import defaultdict
+from collections.abc import Callable
 
 import numpy as np
 from config_args import add_config_args, config_label, config_of, load_env
@@ -51,6 +53,7 @@ def main() -> int:
     from bar_policy.training.rsl_rl_backend import rsl_rl_train_cfg
     from bar_policy.training.rsl_rl_env import RslRlVecEnv, torch_device_for_jax
     from bar_policy.training.startup import configure_compile_cache
+    from bar_policy.training.torch_bridge import jax_to_torch, torch_to_jax
     from bar_policy.training.torch_precision import update_precision
 
     configure_compile_cache(True)
@@ -74,15 +77,12 @@ def main() -> int:
         if device.startswith("cuda"):
             torch.cuda.synchronize()
 
-    def iteration(obs: object, phases: dict[str, float] | None) -> object:
-        def mark(name: str, t: float) -> float:
-            if phases is None:
-                return t
-            sync()
-            now = time.perf_counter()
-            phases[name] += now - t
-            return now
+    def unmarked(name: str, t: float) -> float:
+        return t
 
+    def rollout(obs: object, mark: Callable[[str, float], float] = unmarked) -> tuple[object, float]:
+        """The trainer's rollout (``rsl_rl_backend``'s loop), ``mark`` called after each phase; returns the
+        last observations and ``mark``'s last time."""
         t = time.perf_counter()
         with torch.inference_mode():
             for _ in range(steps_per_env):
@@ -93,7 +93,18 @@ def main() -> int:
                 alg.process_env_step(obs, rew, dones, extras)
                 t = mark("process", t)
             alg.compute_returns(obs)
-            t = mark("returns", t)
+        return obs, mark("returns", t)
+
+    def iteration(obs: object, phases: dict[str, float] | None) -> object:
+        def mark(name: str, t: float) -> float:
+            if phases is None:
+                return t
+            sync()
+            now = time.perf_counter()
+            phases[name] += now - t
+            return now
+
+        obs, t = rollout(obs, mark)
         with update_precision(cfg.ppo.update_precision):
             alg.update()
         t = mark("update", t)
@@ -126,15 +137,10 @@ def main() -> int:
         nonlocal obs
         sync()
         t0 = time.perf_counter()
-        with torch.inference_mode():
-            for _ in range(steps_per_env):
-                actions = alg.act(obs)
-                obs, rew, dones, extras = vec.step(actions)
-                alg.process_env_step(obs, rew, dones, extras)
-            alg.compute_returns(obs)
-            queued = time.perf_counter() - t0
-            sync()
-            rollout = time.perf_counter() - t0
+        obs, _ = rollout(obs)
+        queued = time.perf_counter() - t0
+        sync()
+        done = time.perf_counter() - t0
         t0 = time.perf_counter()
         with update_precision(cfg.ppo.update_precision):
             alg.update()
@@ -152,9 +158,7 @@ def main() -> int:
             sync()
             env_alone = time.perf_counter() - t0
         obs = vec.get_observations()
-        return queued, rollout, update, env_alone
-
-    from bar_policy.training.torch_bridge import jax_to_torch, torch_to_jax
+        return queued, done, update, env_alone
 
     def host_calls(check: bool) -> tuple[dict[str, float], float]:
         """One rollout as trained (``vec.step``'s pieces written out), each host call timed without waits:
@@ -203,17 +207,12 @@ def main() -> int:
         nonlocal obs
         if not device.startswith("cuda"):
             return None
-        import warnings
-
         sync()
         torch.cuda.set_sync_debug_mode("warn")
         try:
-            with warnings.catch_warnings(record=True) as seen, torch.inference_mode():
+            with warnings.catch_warnings(record=True) as seen:
                 warnings.simplefilter("always")
-                for _ in range(steps_per_env):
-                    obs, rew, dones, extras = vec.step(alg.act(obs))
-                    alg.process_env_step(obs, rew, dones, extras)
-                alg.compute_returns(obs)
+                obs, _ = rollout(obs)
         finally:
             torch.cuda.set_sync_debug_mode(0)
         alg.storage.clear()
@@ -222,7 +221,7 @@ def main() -> int:
     syncs = rollout_syncs()
 
     split = [parts() for _ in range(args.iters)]
-    queued, rollout, update, env_alone = (min(x) for x in zip(*split, strict=True))
+    queued, rollout_done, update, env_alone = (min(x) for x in zip(*split, strict=True))
     phases: dict[str, float] = defaultdict(float)
     for _ in range(args.iters):
         obs = iteration(obs, phases)
@@ -244,7 +243,7 @@ def main() -> int:
         "| one iteration as trained, best of the runs | ms per iteration |",
         "|---|---:|",
         f"| rollout: queued by the host (no waits) | {1e3 * queued:.1f} |",
-        f"| rollout: done on the device | {1e3 * rollout:.1f} |",
+        f"| rollout: done on the device | {1e3 * rollout_done:.1f} |",
         f"| update (rsl-rl's, its own per-minibatch reads) | {1e3 * update:.1f} |",
         f"| env alone: the same {steps_per_env} steps, fixed actions, no torch between "
         f"| {1e3 * env_alone:.1f} "

@@ -18,22 +18,15 @@ from tensordict import TensorDict  # noqa: E402
 from bar_policy.training.rsl_rl_sampling import GaussianNoSync  # noqa: E402
 
 
-def _pair(num_actions: int = 14, std: float = 0.3) -> tuple[GaussianDistribution, GaussianNoSync]:
-    ours = GaussianNoSync(num_actions, init_std=std, std_type="scalar")
-    ref = GaussianDistribution(num_actions, init_std=std, std_type="scalar")
-    ref.load_state_dict(ours.state_dict())  # the same keys: a checkpoint of one loads into the other
-    return ref, ours
-
-
 @pytest.mark.parametrize("std_type", ["scalar", "log"])
 def test_samples_equal_rsl_rls_bit_for_bit_from_the_same_seed(std_type):
     # torch.normal(mean, std) fills N(0, 1) and scales: the same draw, so equal floats, not just close ones.
     ref = GaussianDistribution(14, init_std=0.3, std_type=std_type)
     ours = GaussianNoSync(14, init_std=0.3, std_type=std_type)
     with torch.no_grad():
-        for p in (ref, ours):
-            next(p.parameters()).copy_(torch.linspace(-1.5, -0.5, 14) if std_type == "log" else
-                                       torch.linspace(0.05, 0.9, 14))  # fmt: skip
+        next(ours.parameters()).copy_(torch.linspace(-1.5, -0.5, 14) if std_type == "log" else
+                                      torch.linspace(0.05, 0.9, 14))  # fmt: skip
+    ref.load_state_dict(ours.state_dict())  # the same keys: a checkpoint of one loads into the other
     mean = torch.randn(256, 14, generator=torch.Generator().manual_seed(1)) * 2.0
     ref.update(mean)
     ours.update(mean)
@@ -52,7 +45,7 @@ def test_sample_moments_are_the_heads_mean_and_std():
     # Independently of rsl-rl: 200k draws of one row; the sample mean is within 5 standard errors
     # (std / sqrt(n) = 0.3 / 447 = 6.7e-4 -> 3.4e-3) and the sample std within 5 of its error
     # (std / sqrt(2 n) = 4.7e-4 -> 2.4e-3).
-    _, ours = _pair(3, std=0.3)
+    ours = GaussianNoSync(3, init_std=0.3)
     ours.update(torch.tensor([[0.5, -1.0, 2.0]]).expand(200_000, 3))
     torch.manual_seed(0)
     x = ours.sample()
