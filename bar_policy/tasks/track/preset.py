@@ -103,4 +103,8 @@ clips 0.0103 / 0.0104 rad and 0.77 / 0.78 cm, 0.47 / 0.52 mrad worst chatter, no
 within 0.7 % of the sim: both pass the ship gate, at -14 / -13 % joint and +5 / +7 % fingertip error of
 brax's shipped tracker (docs/benchmarks.md "Session 50"; session 49's run of this preset, before that fix:
 86.3 M env steps, 0.0117 rad / 0.91 cm).
+
+Not at 16384 envs (session 51, seed 0): with the field's 4 minibatches, half the Adam steps per env step, it
+ran 265-272 k env steps/s and 110 M env steps, but its MJX evaluations were best at 46 M (0.0100 rad /
+0.77 cm) and ended at 0.0139 / 1.29, after a fall to 0.0219 / 2.19.
 """
