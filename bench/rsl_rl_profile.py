@@ -13,6 +13,10 @@ under ``ppo.update_precision``) and times ``--iters`` iterations twice:
    time-out bootstrap), ``returns`` (GAE), ``update`` (rsl-rl's PPO update), ``stats`` (the one host read
    of the logged sums).
 
+On CUDA it also counts the torch calls that block the host in one rollout and in one update (CUDA's sync
+debug mode) and sums one update's kernel time (torch.profiler): the update's time less its kernels' is
+what the host's per-minibatch reads cost.
+
 Examples::
 
     python bench/rsl_rl_profile.py --out $OUT/rsl_profile.md            # gpu preset, LiteReach
@@ -77,6 +81,11 @@ def main() -> int:
         if device.startswith("cuda"):
             torch.cuda.synchronize()
 
+    def update() -> None:
+        """rsl-rl's PPO update as trained (under the run's update precision)."""
+        with update_precision(cfg.ppo.update_precision):
+            alg.update()
+
     def unmarked(name: str, t: float) -> float:
         return t
 
@@ -105,8 +114,7 @@ def main() -> int:
             return now
 
         obs, t = rollout(obs, mark)
-        with update_precision(cfg.ppo.update_precision):
-            alg.update()
+        update()
         t = mark("update", t)
         vec.take_stats()
         mark("stats", t)
@@ -142,10 +150,9 @@ def main() -> int:
         sync()
         done = time.perf_counter() - t0
         t0 = time.perf_counter()
-        with update_precision(cfg.ppo.update_precision):
-            alg.update()
+        update()
         sync()
-        update = time.perf_counter() - t0
+        update_s = time.perf_counter() - t0
         vec.take_stats()
         with torch.inference_mode():
             fixed = alg.act(obs)
@@ -158,7 +165,7 @@ def main() -> int:
             sync()
             env_alone = time.perf_counter() - t0
         obs = vec.get_observations()
-        return queued, done, update, env_alone
+        return queued, done, update_s, env_alone
 
     def host_calls(check: bool) -> tuple[dict[str, float], float]:
         """One rollout as trained (``vec.step``'s pieces written out), each host call timed without waits:
@@ -195,33 +202,53 @@ def main() -> int:
         host["queued (all of the above)"] = time.perf_counter() - t0
         sync()
         done_s = time.perf_counter() - t0
-        with update_precision(cfg.ppo.update_precision):
-            alg.update()
+        update()
         vec.take_stats()
         return host, done_s
 
     calls = {check: [host_calls(check) for _ in range(args.iters)] for check in (True, False)}
 
-    def rollout_syncs() -> int | None:
-        """torch calls that block the host in one rollout as trained (CUDA's sync debug mode), or None."""
-        nonlocal obs
-        if not device.startswith("cuda"):
-            return None
+    def blocking(fn: Callable[[], object]) -> int:
+        """torch calls that block the host while ``fn`` runs (CUDA's sync debug mode)."""
         sync()
         torch.cuda.set_sync_debug_mode("warn")
         try:
             with warnings.catch_warnings(record=True) as seen:
                 warnings.simplefilter("always")
-                obs, _ = rollout(obs)
+                fn()
         finally:
             torch.cuda.set_sync_debug_mode(0)
-        alg.storage.clear()
         return sum("synchronizing" in str(w.message) for w in seen)
 
-    syncs = rollout_syncs()
+    def kernel_seconds(fn: Callable[[], object]) -> float:
+        """The device's kernel time while ``fn`` runs: torch.profiler's self CUDA time, summed."""
+        sync()
+        with torch.profiler.profile(activities=[torch.profiler.ProfilerActivity.CUDA]) as prof:
+            fn()
+            sync()
+        return 1e-6 * sum(e.self_device_time_total for e in prof.key_averages())
+
+    def rollout_and_update() -> tuple[int, int, float] | None:
+        """One rollout's and one update's blocking torch calls, and one update's kernel time (s), each of an
+        iteration as trained; None off CUDA. rsl-rl's update reads its losses with ``.item()`` per
+        minibatch: the counts and the kernel time say how much of the update's time is the host's."""
+        nonlocal obs
+        if not device.startswith("cuda"):
+            return None
+
+        def collect() -> None:
+            nonlocal obs
+            obs, _ = rollout(obs)
+
+        in_rollout = blocking(collect)
+        in_update = blocking(update)
+        collect()
+        return in_rollout, in_update, kernel_seconds(update)
+
+    blocking_counts = rollout_and_update()
 
     split = [parts() for _ in range(args.iters)]
-    queued, rollout_done, update, env_alone = (min(x) for x in zip(*split, strict=True))
+    queued, rollout_done, update_s, env_alone = (min(x) for x in zip(*split, strict=True))
     phases: dict[str, float] = defaultdict(float)
     for _ in range(args.iters):
         obs = iteration(obs, phases)
@@ -237,14 +264,17 @@ def main() -> int:
         "",
         f"as trained (no waits): {1e3 * free:.0f} ms per iteration, {steps / free:,.0f} env steps/s "
         f"(first iteration with compile {warm:.1f} s)",
-        f"torch calls that block the host in one rollout ({steps_per_env} steps, CUDA's sync debug mode): "
-        + ("n/a (not CUDA)" if syncs is None else str(syncs)),
+        "torch calls that block the host (CUDA's sync debug mode), one rollout of "
+        f"{steps_per_env} steps / one update: "
+        + ("n/a (not CUDA)" if blocking_counts is None else f"{blocking_counts[0]} / {blocking_counts[1]}"),
         "",
         "| one iteration as trained, best of the runs | ms per iteration |",
         "|---|---:|",
         f"| rollout: queued by the host (no waits) | {1e3 * queued:.1f} |",
         f"| rollout: done on the device | {1e3 * rollout_done:.1f} |",
-        f"| update (rsl-rl's, its own per-minibatch reads) | {1e3 * update:.1f} |",
+        f"| update (rsl-rl's, its own per-minibatch reads) | {1e3 * update_s:.1f} |",
+        "| update: its kernels' time on the device (torch.profiler) | "
+        + ("n/a |" if blocking_counts is None else f"{1e3 * blocking_counts[2]:.1f} |"),
         f"| env alone: the same {steps_per_env} steps, fixed actions, no torch between "
         f"| {1e3 * env_alone:.1f} "
         f"({steps / env_alone:,.0f} env steps/s) |",
