@@ -18,6 +18,8 @@ iteration), on one device, every part compiled once and timed over ``--iters`` c
   ``episode_length`` steps), reported in s per evaluation below the table;
 - with ``--fused``, ``epoch, one program`` and ``loop, one program``: the same for the one-program epoch
   the trainer had until session 34 (``bench/fused_epoch.py``), in the same process.
+- with ``--loop-only``: ``env``, ``epoch`` and ``loop`` alone, the programs they need and no others (the
+  tracker's nine programs did not compile within a 280 s call on an H200, session 51).
 
 Every row runs under this process's ``XLA_FLAGS``; the trainer adds
 ``--xla_gpu_command_buffer_scheduling_mode=CONCURRENT`` on a GPU (``training.backend_env``), so set it to
@@ -30,6 +32,7 @@ Examples::
     python bench/train_breakdown.py --out $OUT/breakdown.md            # gpu preset, one GPU
     python bench/train_breakdown.py --preset tiny --iters 2            # CPU smoke check
     python bench/train_breakdown.py --set ppo.num_updates_per_batch=4  # what an override would change
+    python bench/train_breakdown.py --preset track --env LiteTrack --loop-only --epoch-iters 4
 """
 
 from __future__ import annotations
@@ -108,8 +111,19 @@ def main() -> int:
         help="save the first rollout's data and the update of it to this .npz (two processes' XLA_FLAGS: "
         "compare with bench/schedule_parity.py --compare A B)",
     )
+    p.add_argument(
+        "--loop-only",
+        action="store_true",
+        help="only the env alone and the trainer's epoch and loop: four programs fewer to compile (the "
+        "tracker's compile for an hour's budget of a GPU call)",
+    )
     p.add_argument("--out", default="")
     args = p.parse_args()
+    if args.loop_only and (args.fused or args.profile or args.concurrent or args.dump):
+        p.error(
+            "--loop-only times env, epoch and loop alone; --fused, --profile, --concurrent and --dump need "
+            "the other programs"
+        )
 
     cache_dir = configure_compile_cache(not args.no_compile_cache)
     cfg = config_of(args)
@@ -163,11 +177,12 @@ def main() -> int:
     train_data_abs = dp.abstract(train_rollout.out_info[1], sharded=True)
     compiler.submit("train update", progs.update, ts_abs, train_data_abs, key_abs, i_abs)
     compiler.submit("env", f_env, envs_abs, key_abs)
-    compiler.submit("env random", f_env_random, envs_abs, key_abs)
-    rollout_lowered = compiler.submit("rollout", f_roll, ts_abs, envs_abs, key_abs)
-    data_abs = dp.abstract(rollout_lowered.out_info, sharded=True)
-    compiler.submit("update", f_update, ts_abs, data_abs, key_abs)
-    compiler.submit("evaluate", progs.evaluate, _policy_params(ts_abs), key_abs, key_abs)
+    if not args.loop_only:
+        compiler.submit("env random", f_env_random, envs_abs, key_abs)
+        rollout_lowered = compiler.submit("rollout", f_roll, ts_abs, envs_abs, key_abs)
+        data_abs = dp.abstract(rollout_lowered.out_info, sharded=True)
+        compiler.submit("update", f_update, ts_abs, data_abs, key_abs)
+        compiler.submit("evaluate", progs.evaluate, _policy_params(ts_abs), key_abs, key_abs)
     if args.fused:
         fused = fused_epoch(env, cfg, learner, dp, wrap, randomizer, args.epoch_iters)
         compiler.submit("fused epoch", fused, ts_abs, envs_abs, key_abs)
@@ -175,15 +190,17 @@ def main() -> int:
     key = dp.replicate(host_key(0, 9))
     ts = compiler.get("init")(dp.replicate(host_key(0, 1)))
     carry = compiler.get("reset")(dp.replicate(host_key(0, 2)), dp.replicate(host_key(0, 3)))
-    data = compiler.get("rollout")(ts, carry, key)
     if args.dump:  # one rollout and one update from the seeds: what another process's flags must reproduce
+        data = compiler.get("rollout")(ts, carry, key)
         leaves = dp.to_host(jax.tree.leaves((data, compiler.get("update")(ts, data, key))))
         np.savez(args.dump, *[np.asarray(x) for x in leaves])
     rows: dict[str, float] = {}
     rows["env"] = best_time(lambda: compiler.get("env")(carry, key), args.iters)
-    rows["env random"] = best_time(lambda: compiler.get("env random")(carry, key), args.iters)
-    rows["rollout"] = best_time(lambda: compiler.get("rollout")(ts, carry, key), args.iters)
-    rows["update"] = best_time(lambda: compiler.get("update")(ts, data, key), args.iters)
+    if not args.loop_only:
+        data = compiler.get("rollout")(ts, carry, key)
+        rows["env random"] = best_time(lambda: compiler.get("env random")(carry, key), args.iters)
+        rows["rollout"] = best_time(lambda: compiler.get("rollout")(ts, carry, key), args.iters)
+        rows["update"] = best_time(lambda: compiler.get("update")(ts, data, key), args.iters)
     programs = (compiler.get("train rollout"), compiler.get("train update"))
     index = [dp.replicate(np.int32(i)) for i in range(args.epoch_iters)]
     state = {"ts": compiler.get("init")(dp.replicate(host_key(0, 1))), "carry": carry}
@@ -203,8 +220,11 @@ def main() -> int:
     rows["loop"] = best_time(lambda: one_epoch(True), args.iters) / args.epoch_iters
     # From where training left the envs (mid-episode, the policy's poses and contacts), not a fresh reset.
     mid_ts, mid = state["ts"], state["carry"]
-    rows["env random, mid-training"] = best_time(lambda: compiler.get("env random")(mid, key), args.iters)
-    rows["rollout, mid-training"] = best_time(lambda: compiler.get("rollout")(mid_ts, mid, key), args.iters)
+    if not args.loop_only:
+        rows["env random, mid-training"] = best_time(lambda: compiler.get("env random")(mid, key), args.iters)
+        rows["rollout, mid-training"] = best_time(
+            lambda: compiler.get("rollout")(mid_ts, mid, key), args.iters
+        )
     if args.fused:
         fused_program = compiler.get("fused epoch")
 
@@ -237,7 +257,11 @@ def main() -> int:
         if args.profile_eval:
             evaluate = compiler.get("evaluate")
             profile("one evaluation", "evaluate", lambda: evaluate(_policy_params(state["ts"]), key, key))
-    eval_s = best_time(lambda: compiler.get("evaluate")(_policy_params(ts), key, key), args.iters)
+    eval_s = (
+        None
+        if args.loop_only
+        else best_time(lambda: compiler.get("evaluate")(_policy_params(ts), key, key), args.iters)
+    )
     overlap = ""
     if args.concurrent:
         # An evaluation on a thread of its own while the main thread runs an epoch: does the device overlap
@@ -277,11 +301,12 @@ def main() -> int:
         sps = steps / rows[name]
         lines.append(f"| {name} | {1e3 * rows[name]:.1f} | {sps:,.0f} | {rows['env'] / rows[name]:.1%} |")
     lines.append("")
-    eval_steps = cfg.eval.num_eval_envs * int(env.episode_length)
-    lines.append(
-        f"evaluate: {eval_s:.3f} s per evaluation ({cfg.eval.num_eval_envs} envs x {int(env.episode_length)} "
-        f"steps, {eval_steps / eval_s:,.0f} env steps/s)"
-    )
+    if eval_s is not None:
+        eval_steps = cfg.eval.num_eval_envs * int(env.episode_length)
+        lines.append(
+            f"evaluate: {eval_s:.3f} s per evaluation ({cfg.eval.num_eval_envs} envs x "
+            f"{int(env.episode_length)} steps, {eval_steps / eval_s:,.0f} env steps/s)"
+        )
     lines.append(f"XLA_FLAGS: {os.environ.get('XLA_FLAGS', '')!r}")
     peak = (jax.devices()[0].memory_stats() or {}).get("peak_bytes_in_use")
     if peak is not None:  # GPUs report it; XLA's CPU client does not
