@@ -114,8 +114,8 @@ def main() -> int:
     p.add_argument(
         "--loop-only",
         action="store_true",
-        help="only the env alone and the trainer's epoch and loop: four programs fewer to compile (the "
-        "tracker's compile for an hour's budget of a GPU call)",
+        help="only the env alone and the trainer's epoch and loop: four programs fewer to compile, for "
+        "presets whose programs compile long (the tracker's)",
     )
     p.add_argument("--out", default="")
     args = p.parse_args()
