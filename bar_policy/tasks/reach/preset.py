@@ -77,7 +77,7 @@ RSL = {
 iteration (98,304 env steps, 20 SGD steps), KL-adaptive learning rate from 1e-3, [256, 128, 64] elu.
 ``python train/ppo.py --preset rsl``. One H200, cold (session 51): 95 % at 92 s, 169 k env steps/s steady.
 With ``--env-overrides cholesky=columns`` it trains at 236 k (the host no longer runs MJX's Newton loops)
-but reaches 95 % at 104 s (its rollout compiles 15 s longer): the choice for a long run, not for the
+but reaches 95 % at 104 s (its env step compiles 15 s longer): the choice for a long run, not for the
 time to 95 %.
 """
 
