@@ -232,7 +232,6 @@ def main() -> int:
         """One rollout's and one update's blocking torch calls, and one update's kernel time (s), each of an
         iteration as trained; None off CUDA. rsl-rl's update reads its losses with ``.item()`` per
         minibatch: the counts and the kernel time say how much of the update's time is the host's."""
-        nonlocal obs
         if not device.startswith("cuda"):
             return None
 
@@ -245,7 +244,7 @@ def main() -> int:
         collect()
         return in_rollout, in_update, kernel_seconds(update)
 
-    blocking_counts = rollout_and_update()
+    cuda_checks = rollout_and_update()
 
     split = [parts() for _ in range(args.iters)]
     queued, rollout_done, update_s, env_alone = (min(x) for x in zip(*split, strict=True))
@@ -266,7 +265,7 @@ def main() -> int:
         f"(first iteration with compile {warm:.1f} s)",
         "torch calls that block the host (CUDA's sync debug mode), one rollout of "
         f"{steps_per_env} steps / one update: "
-        + ("n/a (not CUDA)" if blocking_counts is None else f"{blocking_counts[0]} / {blocking_counts[1]}"),
+        + ("n/a (not CUDA)" if cuda_checks is None else f"{cuda_checks[0]} / {cuda_checks[1]}"),
         "",
         "| one iteration as trained, best of the runs | ms per iteration |",
         "|---|---:|",
@@ -274,7 +273,7 @@ def main() -> int:
         f"| rollout: done on the device | {1e3 * rollout_done:.1f} |",
         f"| update (rsl-rl's, its own per-minibatch reads) | {1e3 * update_s:.1f} |",
         "| update: its kernels' time on the device (torch.profiler) | "
-        + ("n/a |" if blocking_counts is None else f"{1e3 * blocking_counts[2]:.1f} |"),
+        + ("n/a |" if cuda_checks is None else f"{1e3 * cuda_checks[2]:.1f} |"),
         f"| env alone: the same {steps_per_env} steps, fixed actions, no torch between "
         f"| {1e3 * env_alone:.1f} "
         f"({steps / env_alone:,.0f} env steps/s) |",

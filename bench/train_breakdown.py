@@ -190,14 +190,13 @@ def main() -> int:
     key = dp.replicate(host_key(0, 9))
     ts = compiler.get("init")(dp.replicate(host_key(0, 1)))
     carry = compiler.get("reset")(dp.replicate(host_key(0, 2)), dp.replicate(host_key(0, 3)))
-    if args.dump:  # one rollout and one update from the seeds: what another process's flags must reproduce
-        data = compiler.get("rollout")(ts, carry, key)
+    data = None if args.loop_only else compiler.get("rollout")(ts, carry, key)  # the update row's data
+    if args.dump:  # that rollout and its update from the seeds: what another process's flags must reproduce
         leaves = dp.to_host(jax.tree.leaves((data, compiler.get("update")(ts, data, key))))
         np.savez(args.dump, *[np.asarray(x) for x in leaves])
     rows: dict[str, float] = {}
     rows["env"] = best_time(lambda: compiler.get("env")(carry, key), args.iters)
     if not args.loop_only:
-        data = compiler.get("rollout")(ts, carry, key)
         rows["env random"] = best_time(lambda: compiler.get("env random")(carry, key), args.iters)
         rows["rollout"] = best_time(lambda: compiler.get("rollout")(ts, carry, key), args.iters)
         rows["update"] = best_time(lambda: compiler.get("update")(ts, data, key), args.iters)
