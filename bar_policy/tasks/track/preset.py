@@ -107,4 +107,6 @@ brax's shipped tracker (docs/benchmarks.md "Session 50"; session 49's run of thi
 Not at 16384 envs (session 51, seed 0): with the field's 4 minibatches, half the Adam steps per env step, it
 ran 265-272 k env steps/s and 110 M env steps, but its MJX evaluations were best at 46 M (0.0100 rad /
 0.77 cm) and ended at 0.0139 / 1.29, after a fall to 0.0219 / 2.19.
+With 8 minibatches (session 52, seed 0: the 8192-env preset's Adam steps per env step), it
+was best at 31 M env steps (0.0106 rad / 1.00 cm) and ended at 0.0366 / 3.62, at 12.5 % success.
 """
