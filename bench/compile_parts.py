@@ -84,7 +84,7 @@ def _compile_part(args: argparse.Namespace) -> dict[str, Any]:
         real = physics_step.step
         physics_step.step = lambda m, d, plan: d
         try:
-            return progs.rollout.trace(ts_abs, envs_abs, key_abs, i_abs).lower()
+            return progs.rollout.trace(ts_abs, envs_abs, key_abs, i_abs, o.w_abs).lower()
         finally:
             physics_step.step = real
 
@@ -92,7 +92,7 @@ def _compile_part(args: argparse.Namespace) -> dict[str, Any]:
     out: dict[str, Any] = {"part": name}
     t0 = time.monotonic()
     if name == "rollout":
-        lowered = {name: progs.rollout.trace(ts_abs, envs_abs, key_abs, i_abs).lower()}
+        lowered = {name: progs.rollout.trace(ts_abs, envs_abs, key_abs, i_abs, o.w_abs).lower()}
     elif name in ("step", "step-noreset"):
         lowered = {name: dp.map(lambda c: step(c, name == "step"), (shard,), shard).trace(envs_abs).lower()}
     elif name in ("physics", "physics20"):

@@ -30,6 +30,10 @@ class OneDevice:
     envs_abs: Any
     reset: Any
     """The reset program, lowered (its ``out_info`` gave ``envs_abs``)."""
+    w_abs: Any
+    """The reward weights' abstract argument (the rollout's and the evaluation's last)."""
+    weights: Any
+    """The reward weights, replicated (``envs.reward_weights.weights(env)``)."""
     seed_line: str
     """What the autotune seed did (``SeedOutcome.line``)."""
 
@@ -47,6 +51,7 @@ def one_device(args: Any, cache_dir: str, iters: int = 0) -> OneDevice:
     from jax.sharding import Mesh
 
     from bar_policy import envs
+    from bar_policy.envs.reward_weights import weights
     from bar_policy.training.autotune_seed import seed_autotune_cache
     from bar_policy.training.brax_ppo import epoch_iterations, make_programs
     from bar_policy.training.learner import make_learner
@@ -78,5 +83,7 @@ def one_device(args: Any, cache_dir: str, iters: int = 0) -> OneDevice:
         ts_abs=dp.abstract(jax.eval_shape(learner.init, key_abs), sharded=False),
         envs_abs=dp.abstract(reset.out_info, sharded=True),
         reset=reset,
+        w_abs=dp.abstract(weights(env), sharded=False),
+        weights=dp.replicate(weights(env)),
         seed_line=seed_line,
     )

@@ -58,13 +58,13 @@ def _compile_set(args: argparse.Namespace) -> dict[str, Any]:
         if name == "epoch":
             lowered[name] = o.fused.trace(ts_abs, envs_abs, key_abs).lower()
         elif name == "rollout":
-            lowered[name] = progs.rollout.trace(ts_abs, envs_abs, key_abs, i_abs).lower()
+            lowered[name] = progs.rollout.trace(ts_abs, envs_abs, key_abs, i_abs, o.w_abs).lower()
         elif name == "update":
-            data_abs = jax.eval_shape(progs.rollout, ts_abs, envs_abs, key_abs, i_abs)[1]
+            data_abs = jax.eval_shape(progs.rollout, ts_abs, envs_abs, key_abs, i_abs, o.w_abs)[1]
             update_args = (ts_abs, dp.abstract(data_abs, sharded=True), key_abs, i_abs)
             lowered[name] = progs.update.trace(*update_args).lower()
         elif name == "evaluate":
-            lowered[name] = progs.evaluate.trace(_policy_params(ts_abs), key_abs, key_abs).lower()
+            lowered[name] = progs.evaluate.trace(_policy_params(ts_abs), key_abs, key_abs, o.w_abs).lower()
     out["trace_lower_s"] = time.monotonic() - t0
 
     def compile_one(name: str) -> tuple[str, Any, float]:

@@ -60,6 +60,7 @@ def run(args: argparse.Namespace) -> str:
     from jax.sharding import Mesh
 
     from bar_policy import envs
+    from bar_policy.envs.reward_weights import weights
     from bar_policy.training.brax_ppo import host_key, make_programs
     from bar_policy.training.brax_programs import run_epoch
     from bar_policy.training.learner import make_learner
@@ -74,12 +75,13 @@ def run(args: argparse.Namespace) -> str:
     learner = make_learner(env.observation_size, env.action_size, cfg.ppo, cfg.network)
     progs = make_programs(env, cfg, learner, dp, envs.wrap_for_brax_training, envs.get_randomizer(args.env))
     index = [dp.replicate(np.int32(i)) for i in range(args.iterations)]
+    w = dp.replicate(weights(env))
 
     def one_pass() -> list[np.ndarray]:
         ts = progs.init(dp.replicate(host_key(0, 1)))
         carry = progs.reset(dp.replicate(host_key(0, 2)), dp.replicate(host_key(0, 3)))
         ts, carry, metrics, stats = run_epoch(
-            progs.rollout, progs.update, ts, carry, dp.replicate(host_key(0, 9)), index
+            progs.rollout, progs.update, ts, carry, dp.replicate(host_key(0, 9)), index, w
         )
         return [np.asarray(x) for x in jax.tree.leaves(dp.to_host((ts, metrics, stats, carry[0].obs)))]
 

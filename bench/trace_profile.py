@@ -46,6 +46,7 @@ def build(args: argparse.Namespace) -> tuple[Any, dict[str, float]]:
     from jax.sharding import Mesh
 
     from bar_policy import envs
+    from bar_policy.envs import reward_weights
     from bar_policy.training.brax_programs import action_prior, make_programs
     from bar_policy.training.learner import make_learner
     from bar_policy.training.parallel import AXIS, DataParallel
@@ -72,6 +73,7 @@ def build(args: argparse.Namespace) -> tuple[Any, dict[str, float]]:
         "key_abs": key_abs,
         "i_abs": dp.abstract(np.zeros((), np.int32), sharded=False),
         "ts_abs": ts_abs,
+        "w_abs": dp.abstract(reward_weights.weights(env), sharded=False),
     }
     return ctx, steps
 
@@ -80,16 +82,16 @@ def arguments(name: str, ctx: dict[str, Any], lowered: dict[str, Any]) -> tuple:
     """Program ``name``'s abstract arguments; the rollout's and the update's come from earlier outputs."""
     from bar_policy.training.brax_ppo import _policy_params
 
-    dp, key, i, ts = ctx["dp"], ctx["key_abs"], ctx["i_abs"], ctx["ts_abs"]
+    dp, key, i, ts, w = ctx["dp"], ctx["key_abs"], ctx["i_abs"], ctx["ts_abs"], ctx["w_abs"]
     if name == "reset":
         return (key, key)
     if name == "rollout":
-        return (ts, dp.abstract(lowered["reset"].out_info, sharded=True), key, i)
+        return (ts, dp.abstract(lowered["reset"].out_info, sharded=True), key, i, w)
     if name == "update":
         return (ts, dp.abstract(lowered["rollout"].out_info[1], sharded=True), key, i)
     if name == "init":
         return (key,)
-    return (_policy_params(ts), key, key)
+    return (_policy_params(ts), key, key, w)
 
 
 def top_functions(profile: cProfile.Profile, order: str, n: int) -> list[str]:

@@ -55,6 +55,7 @@ from report import emit
 from trace_summary import device_summary, ops_tables, profiled
 
 from bar_policy import envs
+from bar_policy.envs import reward_weights
 from bar_policy.training.autotune_seed import seed_autotune_cache
 from bar_policy.training.brax_ppo import epoch_iterations, host_key, make_programs, slot_env
 from bar_policy.training.brax_programs import _policy_params, run_epoch
@@ -169,11 +170,13 @@ def main() -> int:
     timer = StartupTimer()
     compiler = Compiler(timer)
     key_abs = dp.abstract(np.zeros(2, np.uint32), sharded=False)
+    w_host = reward_weights.weights(env)  # the rollout's and evaluation's reward weights (an argument)
+    w_abs, w = dp.abstract(w_host, sharded=False), dp.replicate(w_host)
     ts_abs = dp.abstract(jax.eval_shape(learner.init, key_abs), sharded=False)
     envs_abs = dp.abstract(compiler.submit("reset", progs.reset, key_abs, key_abs).out_info, sharded=True)
     compiler.submit("init", progs.init, key_abs)
     i_abs = dp.abstract(np.zeros((), np.int32), sharded=False)
-    train_rollout = compiler.submit("train rollout", progs.rollout, ts_abs, envs_abs, key_abs, i_abs)
+    train_rollout = compiler.submit("train rollout", progs.rollout, ts_abs, envs_abs, key_abs, i_abs, w_abs)
     train_data_abs = dp.abstract(train_rollout.out_info[1], sharded=True)
     compiler.submit("train update", progs.update, ts_abs, train_data_abs, key_abs, i_abs)
     compiler.submit("env", f_env, envs_abs, key_abs)
@@ -182,7 +185,7 @@ def main() -> int:
         rollout_lowered = compiler.submit("rollout", f_roll, ts_abs, envs_abs, key_abs)
         data_abs = dp.abstract(rollout_lowered.out_info, sharded=True)
         compiler.submit("update", f_update, ts_abs, data_abs, key_abs)
-        compiler.submit("evaluate", progs.evaluate, _policy_params(ts_abs), key_abs, key_abs)
+        compiler.submit("evaluate", progs.evaluate, _policy_params(ts_abs), key_abs, key_abs, w_abs)
     if args.fused:
         fused = fused_epoch(env, cfg, learner, dp, wrap, randomizer, args.epoch_iters)
         compiler.submit("fused epoch", fused, ts_abs, envs_abs, key_abs)
@@ -213,7 +216,7 @@ def main() -> int:
         return stats
 
     def one_epoch(read: bool) -> Any:
-        return epoch_call(lambda ts_, carry_: run_epoch(*programs, ts_, carry_, key, index), read)
+        return epoch_call(lambda ts_, carry_: run_epoch(*programs, ts_, carry_, key, index, w), read)
 
     rows["epoch"] = best_time(lambda: one_epoch(False), args.iters) / args.epoch_iters
     rows["loop"] = best_time(lambda: one_epoch(True), args.iters) / args.epoch_iters
@@ -255,11 +258,11 @@ def main() -> int:
         )
         if args.profile_eval:
             evaluate = compiler.get("evaluate")
-            profile("one evaluation", "evaluate", lambda: evaluate(_policy_params(state["ts"]), key, key))
+            profile("one evaluation", "evaluate", lambda: evaluate(_policy_params(state["ts"]), key, key, w))
     eval_s = (
         None
         if args.loop_only
-        else best_time(lambda: compiler.get("evaluate")(_policy_params(ts), key, key), args.iters)
+        else best_time(lambda: compiler.get("evaluate")(_policy_params(ts), key, key, w), args.iters)
     )
     overlap = ""
     if args.concurrent:
@@ -273,7 +276,7 @@ def main() -> int:
             t0 = time.perf_counter()
 
             def run_eval(t0: float = t0, done: dict[str, float] = done) -> None:
-                jax.block_until_ready(evaluate(_policy_params(ts), key, key))
+                jax.block_until_ready(evaluate(_policy_params(ts), key, key, w))
                 done["eval"] = time.perf_counter() - t0
 
             worker = threading.Thread(target=run_eval)

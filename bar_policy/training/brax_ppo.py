@@ -12,15 +12,17 @@ learner state replicated), each compiled once, ahead of time and concurrently (`
 - ``reset(key, model_key) -> envs``: every env slot reset, with its randomised model's key kept beside its
   state. Slot ``i`` of ``num_envs`` gets key ``i`` of ``split(key, num_envs)`` whatever the device count, so
   every slot has its own model over the whole global batch (and 1, 2 or 8 devices draw the same models).
-- ``rollout(state, envs, key, i) -> envs, transitions, sums`` and ``update(state, transitions, key, i) ->
-  state, losses``: PPO iteration ``i`` of an epoch keyed ``key`` (envs, then state donated). An epoch
+- ``rollout(state, envs, key, i, weights) -> envs, transitions, sums`` and ``update(state, transitions, key,
+  i) -> state, losses``: PPO iteration ``i`` of an epoch keyed ``key`` (envs, then state donated).
+  ``weights`` are the reward weights (``envs.reward_weights``): an argument, so a run that changes one
+  loads the compiled programs (the executable key holds the terms' names, not their values). An epoch
   (``iters_per_epoch`` iterations, one progress line) is ``brax_programs.run_epoch``: the calls queue on
   the device, with one host sync at its end. Two programs, not one scan over both: they compile side by
   side (H100, reach: all ready 26.5 s after the start of their compiles instead of the one epoch program's
   35.5 s, both beside the evaluation's; ``bench/program_split.py``, session 34) and load sooner (3.0 s
   instead of 3.8 s).
-- ``evaluate(params, key, model_key) -> metrics``: one deterministic episode in each of ``num_eval_envs``
-  slots (sharded too), without the in-step reset; every process takes part.
+- ``evaluate(params, key, model_key, weights) -> metrics``: one deterministic episode in each of
+  ``num_eval_envs`` slots (sharded too), without the in-step reset; every process takes part.
 
 The evaluation is traced and compiled on a worker thread, so the training start waits for neither its
 trace nor its compile. The evaluation at step 0, of the initial params (re-created by ``init`` from the same
@@ -41,6 +43,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from bar_policy.envs import reward_weights
 from bar_policy.training import startup_breakdown as sb
 from bar_policy.training.best import BestKeeper
 from bar_policy.training.brax_programs import (
@@ -157,11 +160,13 @@ def train_brax(
     compiler = Compiler(timer, executable_cache=executable_cache)
     reset_lowered = compiler.submit("reset", programs.reset, key_abs, key_abs)
     envs_abs = dp.abstract(reset_lowered.out_info, sharded=True)
-    rollout_lowered = compiler.submit("rollout", programs.rollout, ts_abs, envs_abs, key_abs, i_abs)
+    w_abs = dp.abstract(reward_weights.weights(env), sharded=False)
+    rollout_lowered = compiler.submit("rollout", programs.rollout, ts_abs, envs_abs, key_abs, i_abs, w_abs)
     data_abs = dp.abstract(rollout_lowered.out_info[1], sharded=True)
     compiler.submit("update", programs.update, ts_abs, data_abs, key_abs, i_abs, load_in_background=True)
     compiler.submit("init", programs.init, key_abs)
-    compiler.submit("evaluate", programs.evaluate, _policy_params(ts_abs), key_abs, key_abs, background=True)
+    evaluate_abs = (_policy_params(ts_abs), key_abs, key_abs, w_abs)
+    compiler.submit("evaluate", programs.evaluate, *evaluate_abs, background=True)
 
     logger.not_applied(brax_not_applied(cfg))  # rsl-rl-only settings a brax run ignores: said and recorded
     env_steps, iteration = 0, 0
@@ -186,11 +191,11 @@ def train_brax(
             barrier("bar_policy: programs compiled")
 
     eval_model_key = dp.replicate(host_key(seed, _K_EVAL_MODEL))
+    weights = dp.replicate(reward_weights.weights(env))  # the rollout's and evaluation's argument
 
     def evaluator(params: Any, eval_seed: int) -> dict[str, float]:
-        metrics = compiler.get("evaluate")(
-            dp.replicate(tuple(params[:2])), dp.replicate(host_key(eval_seed, _K_EVAL)), eval_model_key
-        )
+        key = dp.replicate(host_key(eval_seed, _K_EVAL))
+        metrics = compiler.get("evaluate")(dp.replicate(tuple(params[:2])), key, eval_model_key, weights)
         return {k: float(v) for k, v in dp.to_host(metrics).items()}
 
     last_eval_s = 0.0
@@ -198,7 +203,9 @@ def train_brax(
     def device_eval(params: tuple[Any, Any], step: int) -> None:
         nonlocal last_eval_s
         t_eval = time.monotonic()
-        m = compiler.get("evaluate")(params, dp.replicate(host_key(seed, _K_EVAL, step)), eval_model_key)
+        m = compiler.get("evaluate")(
+            params, dp.replicate(host_key(seed, _K_EVAL, step)), eval_model_key, weights
+        )
         m = {k: float(v) for k, v in dp.to_host(m).items()}
         if step:  # the step-0 evaluation's time includes its compile
             last_eval_s = time.monotonic() - t_eval
@@ -258,7 +265,7 @@ def train_brax(
     while iteration < total_iters:
         t0 = time.monotonic()
         epoch_key = dp.replicate(host_key(seed, _K_EPOCH, iteration))
-        ts, envs, metrics, stats = run_epoch(rollout, update, ts, envs, epoch_key, iteration_index)
+        ts, envs, metrics, stats = run_epoch(rollout, update, ts, envs, epoch_key, iteration_index, weights)
         metrics, stats = epoch_totals(*dp.to_host((metrics, stats)))
         dt = time.monotonic() - t0
         iteration += iters_per_epoch

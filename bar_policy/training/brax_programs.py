@@ -17,6 +17,7 @@ import jax
 import numpy as np
 from jax.sharding import PartitionSpec as P
 
+from bar_policy.envs.reward_weights import with_weights
 from bar_policy.obs.action_prior import Prior
 from bar_policy.tasks.registry import env_entries
 from bar_policy.training.config import NetworkConfig, TrainConfig
@@ -123,16 +124,18 @@ def run_epoch(
     envs: Any,
     key: jax.Array,
     iterations: list[jax.Array],
+    weights: dict[str, jax.Array],
 ) -> tuple[TrainingState, Any, list[Any], list[Any]]:
     """One epoch: ``rollout`` then ``update`` (compiled programs) for each iteration index in ``iterations``.
 
     Dispatched without a host sync (the calls queue on the device); returns ``(ts, envs, metrics, stats)``
     with one entry per iteration in ``metrics`` and ``stats``, to reduce with ``epoch_totals`` once on
-    the host. ``iterations``: replicated int32 scalars 0 .. iters - 1, made once.
+    the host. ``iterations``: replicated int32 scalars 0 .. iters - 1, made once; ``weights``: the reward
+    weights, replicated (``envs.reward_weights``).
     """
     metrics, stats = [], []
     for i in iterations:
-        envs, data, st = rollout(ts, envs, key, i)
+        envs, data, st = rollout(ts, envs, key, i, weights)
         ts, m = update(ts, data, key, i)
         metrics.append(m)
         stats.append(st)
@@ -162,6 +165,10 @@ def make_programs(
 
     ``eval_env``: the env the evaluation runs (the task's held-out variant) with ``eval_randomizer``;
     None: ``env`` with ``randomizer``.
+
+    ``rollout`` and ``evaluate`` take the reward weights as their last argument (a replicated
+    ``{term: float32 scalar}``, ``envs.reward_weights.weights(env)``), so that a compiled program serves
+    any weights: a run that changes only a weight loads both from the executable cache.
     """
     ppo = cfg.ppo
     n = dp.n_devices
@@ -169,8 +176,9 @@ def make_programs(
     unrolls = ppo.batch_size * ppo.num_minibatches // ppo.num_envs
     episode_length = int(env.episode_length)
 
-    def batch(model_keys: jax.Array, **kw: Any) -> Any:
-        return slot_env(env, wrap_fn, randomizer, model_keys, **kw)
+    def batch(model_keys: jax.Array, weights: dict[str, jax.Array] | None = None, **kw: Any) -> Any:
+        e = env if weights is None else with_weights(env, weights)
+        return slot_env(e, wrap_fn, randomizer, model_keys, **kw)
 
     def reset(key: jax.Array, model_key: jax.Array) -> tuple[Any, jax.Array]:
         model_keys = slot_keys(model_key, ppo.num_envs, envs_local)
@@ -187,20 +195,22 @@ def make_programs(
         k = jax.lax.fori_loop(0, i, lambda _, c: jax.random.split(c)[0], k)
         return jax.random.split(jax.random.split(k)[1])
 
-    def rollout(ts: TrainingState, envs: tuple[Any, jax.Array], key: jax.Array, i: jax.Array) -> tuple:
+    def rollout(
+        ts: TrainingState, envs: tuple[Any, jax.Array], key: jax.Array, i: jax.Array, weights: dict
+    ) -> tuple:
         env_state, model_keys = envs
         k_roll = iteration_keys(key, i)[0]
-        env_state, data, stats = learner.rollout(ts, env_state, k_roll, batch(model_keys), unrolls)
+        env_state, data, stats = learner.rollout(ts, env_state, k_roll, batch(model_keys, weights), unrolls)
         return (env_state, model_keys), data, jax.lax.psum(stats, axis_name=AXIS)
 
     def update(ts: TrainingState, data: Any, key: jax.Array, i: jax.Array) -> tuple:
         ts, metrics = learner.update(ts, data, iteration_keys(key, i)[1])
         return strip_weak_type(ts), jax.lax.pmean(metrics, axis_name=AXIS)
 
-    def evaluate(params: Any, key: jax.Array, model_key: jax.Array) -> dict[str, jax.Array]:
+    def evaluate(params: Any, key: jax.Array, model_key: jax.Array, weights: dict) -> dict[str, jax.Array]:
         keys = slot_keys(model_key, cfg.eval.num_eval_envs, eval_local)
         e_env, e_rand = (env, randomizer) if eval_env is None else (eval_env, eval_randomizer)
-        env_e = slot_env(e_env, wrap_fn, e_rand, keys, auto_reset=False)
+        env_e = slot_env(with_weights(e_env, weights), wrap_fn, e_rand, keys, auto_reset=False)
         state = env_e.reset(slot_keys(key, cfg.eval.num_eval_envs, eval_local))
         return learner.evaluate(params, env_e, state, key, episode_length)
 
@@ -208,9 +218,9 @@ def make_programs(
     return Programs(
         init=dp.map(learner.init, (rep,), rep),
         reset=dp.map(reset, (rep, rep), shard),
-        rollout=dp.map(rollout, (rep, shard, rep, rep), (shard, shard, rep), donate_argnums=(1,)),
+        rollout=dp.map(rollout, (rep, shard, rep, rep, rep), (shard, shard, rep), donate_argnums=(1,)),
         update=dp.map(update, (rep, shard, rep, rep), (rep, rep), donate_argnums=(0,)),
-        evaluate=dp.map(evaluate, (rep, rep, rep), rep),
+        evaluate=dp.map(evaluate, (rep, rep, rep, rep), rep),
     )
 
 

@@ -123,13 +123,16 @@ def test_changed_code_and_another_jaxlib_make_new_keys(tmp_cache, monkeypatch):
     assert len(_entries(tmp_cache) - keys) == 2  # the edited program's and the other jaxlib's
 
 
-def test_a_reward_weight_is_part_of_the_lowered_program():
+def test_a_reward_weight_is_part_of_the_lowered_program_unless_it_is_an_argument():
     """LiteReach's step for another reward weight lowers to another module (so another cache key).
 
     What jax hashes for the key is this module; the same config, built afresh, lowers to the same text,
-    so it hits. Lowering only (about 3 s a program on a CPU), no compile.
+    so it hits. With the weights as an argument (``envs.reward_weights``, as the brax programs take
+    them) every weight lowers to one module, so the compile cache serves it. Lowering only (about 3 s a
+    program on a CPU), no compile.
     """
     from bar_policy import envs
+    from bar_policy.envs.reward_weights import weights, with_weights
 
     def lowered_step(overrides: list[str]) -> str:
         env = envs.load("LiteReach", overrides=overrides or None)
@@ -137,6 +140,17 @@ def test_a_reward_weight_is_part_of_the_lowered_program():
         action = jax.ShapeDtypeStruct((env.action_size,), jnp.float32)
         return jax.jit(env.step).trace(state, action).lower().as_text()
 
+    def lowered_weighted_step(overrides: list[str]) -> str:
+        env = envs.load("LiteReach", overrides=overrides or None)
+        state = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
+        action = jax.ShapeDtypeStruct((env.action_size,), jnp.float32)
+        w = jax.tree.map(lambda x: jax.ShapeDtypeStruct((), jnp.float32), weights(env))
+        step = jax.jit(lambda s, a, w: with_weights(env, w).step(s, a))
+        return step.trace(state, action, w).lower().as_text()
+
     default = lowered_step([])
     assert lowered_step([]) == default
     assert lowered_step(["reward.scales.reach_fine=2.0"]) != default
+    weighted = lowered_weighted_step([])
+    assert lowered_weighted_step(["reward.scales.reach_fine=2.0", "reward.scales.success=0.6"]) == weighted
+    assert lowered_weighted_step(["reward.fine_std=0.04"]) != weighted  # a kernel's length is no weight

@@ -17,6 +17,7 @@ from jax.sharding import PartitionSpec as P
 from toy_configs import TOY_BRAX, toy_config
 
 from bar_policy import envs
+from bar_policy.envs.reward_weights import weights
 from bar_policy.training.brax_programs import epoch_totals, host_key, make_programs, run_epoch, slot_env
 from bar_policy.training.learner import make_learner
 from bar_policy.training.parallel import AXIS, DataParallel
@@ -61,7 +62,8 @@ def both_epochs(tmp_path_factory, toy_env):
 
     ts, env_carry = start()
     index = [dp.replicate(np.int32(i)) for i in range(ITERS)]
-    ts_s, carry_s, metrics, stats = run_epoch(progs.rollout, progs.update, ts, env_carry, key, index)
+    w = dp.replicate(weights(toy_env))  # the toy env has no reward weights: an empty argument
+    ts_s, carry_s, metrics, stats = run_epoch(progs.rollout, progs.update, ts, env_carry, key, index, w)
     split = (dp.to_host(ts_s), dp.to_host(carry_s[0].obs), *epoch_totals(*dp.to_host((metrics, stats))))
     ts, env_carry = start()
     ts_f, state_f, metrics_f, stats_f = _fused_epoch(toy_env, cfg, learner, dp)(ts, env_carry, key)
