@@ -10,7 +10,7 @@ submits; ``docs/startup.md`` has the measurements.
 
 - the program's name and the jitted function's module and qualified name;
 - the run's context, passed in explicitly (``run.py``: the training config ``config_to_dict(cfg)`` less
-  ``OUTSIDE_PROGRAMS``, the env config (on brax, its reward weights by name only: ``weights_by_name``), the
+  ``OUTSIDE_PROGRAMS``, the env config (its reward weights by name only: ``weights_by_name``), the
   env's class and, for an env class outside ``bar_policy``, its
   source file's hash);
   the seed and every randomisation setting the programs close over live in those configs;
@@ -306,18 +306,18 @@ def program_fields(train: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def weights_by_name(
-    train: Mapping[str, Any], env: Mapping[str, Any] | None, backend: str
+    train: Mapping[str, Any], env: Mapping[str, Any] | None
 ) -> tuple[Mapping[str, Any], Mapping[str, Any] | None]:
-    """The key's training and env config parts, with the brax programs' reward weights by name only.
+    """The key's training and env config parts, with the reward weights by name only.
 
-    The brax backend's rollout and evaluation take the weights as an argument (``brax_programs``), so
-    their values are left out: the env record keeps the terms' names, and the training config's
-    ``env_overrides`` lose their ``reward.scales.*`` items. A run that changes only a weight is then
-    served. The rsl-rl backend's programs read the weights from the env's config: there both stay whole.
+    Every program that steps the env takes the weights as an argument (the brax rollout and evaluation,
+    ``brax_programs``; the rsl-rl steps, ``rsl_rl_programs``), so their values are left out. The env
+    record keeps the terms' names, and the training config's ``env_overrides`` lose their
+    ``reward.scales.*`` items. A run that changes only a weight is then served.
     """
     reward = env.get("reward") if isinstance(env, Mapping) else None
     scales = reward.get("scales") if isinstance(reward, Mapping) else None
-    if backend != "brax" or not isinstance(scales, Mapping):
+    if not isinstance(scales, Mapping):
         return train, env
     overrides = [o for o in train.get("env_overrides", ()) if not str(o).strip().startswith("reward.scales.")]
     return {**train, "env_overrides": overrides}, {**env, "reward": {**reward, "scales": sorted(scales)}}
@@ -342,7 +342,7 @@ def executable_cache_for(
     if off_reason(cfg, cache_dir, jax.default_backend()):
         return None
     cls = type(env)
-    train, env_record = weights_by_name(program_fields(record["train"]), record["env"], cfg.backend)
+    train, env_record = weights_by_name(program_fields(record["train"]), record["env"])
     context = {
         "train": train,
         "env": env_record or repr(getattr(env, "config", None)),

@@ -6,7 +6,8 @@ episode truncation, auto-reset, domain randomisation, exactly as for the brax ba
 the stream of reset keys. With a ``startup.Compiler`` each of them is traced and lowered here and compiled
 on the compiler's worker threads, as its own program (``<name> reset``, ``<name> step``, ``<name> quality``):
 the step is traced on the reset's abstract output (``out_info``), so nothing runs before the first state is
-needed, and then the reset runs from its compiled executable.
+needed, and then the reset runs from its compiled executable. The step takes the reward weights as its last
+argument (``envs.reward_weights``): a run that changes only a weight loads it from the executable cache.
 
 ``prepare_rsl_rl`` builds the training and the evaluation env's programs and submits them all. ``run.py``
 calls it before it imports ``rsl_rl_backend`` (torch, rsl_rl, tensordict: seconds of the main thread), so
@@ -16,6 +17,7 @@ that import runs while XLA compiles; nothing imported here pulls torch in
 
 from __future__ import annotations
 
+import copy
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -25,6 +27,7 @@ import jax
 import jax.numpy as jnp
 
 from bar_policy.envs.base import eval_ratios
+from bar_policy.envs.reward_weights import weights, with_weights
 from bar_policy.obs.action_prior import Prior, check_fits
 from bar_policy.training import eval_quality
 from bar_policy.training.config import TrainConfig
@@ -86,6 +89,9 @@ class EnvPrograms:
         self._env = wrap_fn(
             env, episode_length=self.max_episode_length, action_repeat=1, randomization_fn=rfn
         )
+        self.weights = jax.device_put(weights(env), jax.local_devices()[0])
+        """The reward weights, the step's last argument (``envs.reward_weights``): a compiled step serves
+        any weights, so a run that changes only a weight loads it from the executable cache."""
         self.reset_jit = jax.jit(self._reset_fn)
         self.step_jit = jax.jit(self._step_fn)
         self.quality_jit = jax.jit(self._quality_fn)
@@ -93,8 +99,8 @@ class EnvPrograms:
         """The first reset's keys (drawn now, from the same stream as every later unseeded reset)."""
         self.reset: Callable[..., Any] = self.reset_jit
         """``keys -> (state, stats)``: the jitted reset, or its compiled executable once submitted."""
-        self.step: Callable[..., Any] = self.step_jit
-        """``(state, actions, stats) -> (state, stats)``."""
+        self.step: Callable[..., Any] = lambda *args: self.step_jit(*args, self.weights)
+        """``(state, actions, stats) -> (state, stats)``, on ``weights``."""
         self.finish_quality: Callable[..., Any] = self.quality_jit
         """``(quality sums, signals) -> figures``."""
         if compiler is not None:
@@ -127,9 +133,10 @@ class EnvPrograms:
             out.out_info,
         )
         actions = jax.ShapeDtypeStruct((self.num_envs, self.num_actions), jnp.float32)
-        compiler.submit(step_name, self.step_jit, state, actions, stats, load_in_background=True)
+        w = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=device), self.weights)
+        compiler.submit(step_name, self.step_jit, state, actions, stats, w, load_in_background=True)
         self.reset = lambda *args: compiler.get(reset_name)(*args)
-        self.step = lambda *args: compiler.get(step_name)(*args)
+        self.step = lambda *args: compiler.get(step_name)(*args, self.weights)
         if self.quality:
             compiler.submit(quality_name, self.quality_jit, stats["quality"], stats["signals"])
             self.finish_quality = lambda *args: compiler.get(quality_name)(*args)
@@ -153,10 +160,14 @@ class EnvPrograms:
             stats["t"] = jnp.zeros((), jnp.int32)
         return state, stats
 
-    def _step_fn(self, state: Any, actions: jax.Array, stats: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
+    def _step_fn(
+        self, state: Any, actions: jax.Array, stats: dict[str, Any], w: dict[str, jax.Array]
+    ) -> tuple[Any, dict[str, Any]]:
         stats_in = stats
         actions = commanded_action(self.prior, state.obs, actions)  # the observation the actor saw
-        ns = self._env.step(state, actions)
+        batch = copy.copy(self._env)  # the same wrapper and randomised models, the env on weights ``w``
+        batch.env = with_weights(self.task, w)
+        ns = batch.step(state, actions)
         ratios = eval_ratios(self.task, ns.metrics)
         num, den = ratios["success_rate"]
         alive = stats["alive"]

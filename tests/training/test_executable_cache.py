@@ -334,10 +334,10 @@ def test_run_name_budget_and_paths_stay_out_of_the_key(tmp_path, monkeypatch):
         assert section in base and (not leaf or leaf in base[section]), name
 
 
-def test_brax_keys_reward_weights_by_name_rsl_rl_by_value(tmp_path, monkeypatch):
-    """The brax programs take the reward weights as an argument (``brax_programs``): a run that changes
-    only a weight has the same context, so it loads the compiled programs. Any other env field still
-    changes it. The rsl-rl programs read the weights from the env's config, so there a weight changes it.
+def test_the_key_holds_reward_weights_by_name(tmp_path, monkeypatch):
+    """Every program that steps the env takes the reward weights as an argument (the brax rollout and
+    evaluation, the rsl-rl steps): a run that changes only a weight has the same context, on either
+    backend, so it loads the compiled programs. Any other env field still changes it.
     """
     import dataclasses
     import json
@@ -353,21 +353,21 @@ def test_brax_keys_reward_weights_by_name_rsl_rl_by_value(tmp_path, monkeypatch)
     overrides = ([], ["reward.scales.success=0.6"], ["reward.fine_std=0.04"])
     records = [env_record(o) for o in overrides]
     assert records[0]["reward"]["scales"]["success"] != 0.6  # the override is a change
-    for backend, weight_changes_it in (("brax", False), ("rsl-rl", True)):
+    for backend in ("brax", "rsl-rl"):
         ctx = []
         for o, r in zip(overrides, records, strict=True):  # the run's config holds them too
             cfg = apply_overrides(preset("tiny"), ["executable_cache=True", f"backend={backend}"])
             cfg = dataclasses.replace(cfg, env_overrides=(*cfg.env_overrides, *o))
             record = {"train": config_to_dict(cfg), "env": r}
             ctx.append(executable_cache_for(cfg, tmp_path, record, Toy()).context)
-        assert (ctx[0] != ctx[1]) is weight_changes_it, backend
+        assert ctx[0] == ctx[1], backend
         assert ctx[0] != ctx[2], backend
     train = {"seed": 0, "env_overrides": ["sim_dt=0.004", "reward.scales.success=0.6"]}
-    t, e = ec.weights_by_name(train, records[1], "brax")
+    t, e = ec.weights_by_name(train, records[1])
     assert e["reward"]["scales"] == sorted(records[1]["reward"]["scales"])  # the names stay
     assert t == {"seed": 0, "env_overrides": ["sim_dt=0.004"]}
     assert records[1]["reward"]["scales"]["success"] == 0.6  # the record itself is left whole
-    assert ec.weights_by_name(train, {"gain": 0.3}, "brax") == (train, {"gain": 0.3})  # no weights
+    assert ec.weights_by_name(train, {"gain": 0.3}) == (train, {"gain": 0.3})  # no weights: as it is
 
 
 def test_key_covers_config_code_versions_platform_and_signature():
