@@ -137,7 +137,10 @@ class RslRlVecEnv(VecEnv):
 
     @property
     def _step(self) -> Callable[..., Any]:
-        """The batched step (jitted, or the compiler's executable; exposed for tests)."""
+        """The batched step ``(state, actions, stats)`` on the env's reward weights (exposed for tests).
+
+        ``EnvPrograms.step``: the jitted step, or the compiler's executable, with the weights appended.
+        """
         return self.programs.step
 
     @property

@@ -148,4 +148,5 @@ def test_vec_env_steps_make_no_host_round_trip(toy_env, monkeypatch):
     assert done.sum() == 0 and env.take_stats()["success"][1] > 0  # the steps did run
     # One signature throughout: the reset's state is committed to the device as the step's outputs are,
     # so the jitted step compiled once (a second compile would have read constants on the host, above).
-    assert env._step._cache_size() == 1
+    # ``env._step`` calls it with the env's reward weights appended (``EnvPrograms.step``).
+    assert env.programs.step_jit._cache_size() == 1
