@@ -91,6 +91,9 @@ __all__ = [
     "train_rsl_rl",
 ]
 
+_EVAL_PROGRAMS = ("eval reset", "eval step", "eval quality")
+"""The evaluation env's programs (``rsl_rl_programs.EnvPrograms``, named ``eval``), compiled on workers."""
+
 
 @dataclass(frozen=True, kw_only=True)
 class RslRlTrainResult:
@@ -266,11 +269,14 @@ def train_rsl_rl(
     # As the brax backend: the step-0 evaluation (of the initial actor; a resume has none) runs after the
     # last periodic one (eval.initial=end), or (start) after the first iteration where the evaluation step
     # is compiled, or before the first periodic evaluation, so training waits only for the training step.
-    # The start-up report is finished after the first iteration, or once a start-of-run evaluation ran.
+    # The start-up report is finished after the first iteration where the evaluation's programs are ready
+    # (before the first evaluation at the latest), or once a start-of-run evaluation ran.
     eval_at_start = iteration == 0 and cfg.eval.initial == "start"
     eval_at_end = iteration == 0 and cfg.eval.initial == "end"
     startup_pending = True
     first_epoch_end = 0.0
+    startup_end_s: float | None = None  # when the start-up ended (its report may come later)
+    startup_until = sb.UNTIL_EPOCH
 
     def eval_at_zero() -> None:
         t_eval = time.monotonic()
@@ -327,9 +333,17 @@ def train_rsl_rl(
         if step0_now:
             eval_at_start = False
             eval_at_zero()  # always before a periodic evaluation
-        if startup_pending and not eval_at_start:
+        if startup_end_s is None and not eval_at_start:  # the start-up ends (first iteration or step 0)
+            startup_end_s = timer.elapsed()
+            startup_until = sb.UNTIL_EVAL if step0_now else sb.UNTIL_EPOCH
+        # Reported once every evaluation program is ready (or an evaluation is due, which waits for them
+        # anyway), so that no row of the report is a program still compiling on a worker.
+        eval_ready = eval_due or all(compiler.done(n) for n in _EVAL_PROGRAMS)
+        if startup_pending and startup_end_s is not None and eval_ready:
+            for name in _EVAL_PROGRAMS:
+                compiler.get(name)
             startup_pending = False
-            report = timer.finish(first_epoch_end, until=sb.UNTIL_EVAL if step0_now else sb.UNTIL_EPOCH)
+            report = timer.finish(first_epoch_end, total_s=startup_end_s, until=startup_until)
             for line in timer.lines(report):
                 logger.print(line)
             logger.note("startup", {"step": env_steps, **report})

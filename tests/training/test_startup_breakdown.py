@@ -193,13 +193,15 @@ def test_an_rsl_rl_run_records_its_startup_breakdown(rsl_run):
     progs = rec["programs"]
     assert set(progs) == {"train reset", "train step", "eval reset", "eval step", "eval quality"}
     assert all(p["thread"] == "main" for p in progs.values())
+    # Finished once the evaluation's programs were ready: no row is a program still compiling on a worker.
+    assert all(p["compile_s"] > 0 for p in progs.values()), progs
     assert sum(p["trace_s"] for p in progs.values()) == pytest.approx(phases[sb.TRACE], abs=ROUNDING_S)
     order = list(logged["phases"])  # metrics.jsonl keeps the print order (final_eval.json sorts its keys)
     happened = [sb.PROGRAMS, sb.RSL_PROGRAMS, sb.TRACE, sb.LOWER, sb.RSL_IMPORTS, sb.RSL_RESET, sb.RSL_RUNNER]
     assert [order.index(k) for k in happened] == sorted(order.index(k) for k in happened)
     assert order.index(sb.RSL_RUNNER) < order.index(sb.WAIT) and order[-1] == sb.OTHER
     # The rows add up to the total: each row is rounded to 1 ms (ROUNDING_S allows a few ms over all of
-    # them). The report is finished after the first iteration.
+    # them). The report is finished after the first iteration where the evaluation's programs are ready.
     assert sum(phases.values()) == pytest.approx(rec["total_s"], abs=ROUNDING_S)
     assert 0 < rec["first_epoch_end_s"] <= rec["total_s"]
     # In the record: the first iteration, the report, the periodic evaluations, then the step-0 one.
