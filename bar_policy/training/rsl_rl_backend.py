@@ -33,8 +33,9 @@ training env's first reset waits for its program, the runner reads its observati
 once the training step is ready. As in the brax backend, the step-0 evaluation (of the initial actor,
 copied before training) runs as ``eval.initial`` says: ``end`` (default) after the last periodic
 evaluation; ``start`` after the first iteration where the evaluation step is compiled, or before the first
-periodic evaluation, whichever comes first (the start-up report is then printed and recorded after it, else
-after the first iteration); ``off`` never.
+periodic evaluation, whichever comes first (the start-up then ends after it, else after the first
+iteration; its report is printed and recorded once the evaluation's programs are ready, before the first
+evaluation at the latest, so that no row is a program still compiling); ``off`` never.
 
 Speed: nothing in the rollout waits for the device. Actions and observations cross by DLPack on the
 device; the logged sums accumulate on the device (``RslRlVecEnv.take_stats`` reads them once per
