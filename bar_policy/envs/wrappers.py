@@ -22,6 +22,7 @@ derived from the env's own key). The reset is computed only when at least one en
 
 from __future__ import annotations
 
+import copy
 import functools
 from collections.abc import Callable
 from typing import Any
@@ -81,6 +82,16 @@ class BatchedEnv:
             self._model, self._in_axes = env.mjx_model, None
         else:
             self._model, self._in_axes = randomization_fn(env.mjx_model)
+
+    def with_env(self, env: MjxEnv) -> BatchedEnv:
+        """A shallow copy stepping ``env`` in place of ``self.env``: the same settings and randomised models.
+
+        For a copy of the same env with another config (``envs.reward_weights.with_weights``): nothing this
+        wrapper built at construction may depend on what differs.
+        """
+        out = copy.copy(self)
+        out.env = env
+        return out
 
     # -- brax Env surface --------------------------------------------------------------------------
     @property

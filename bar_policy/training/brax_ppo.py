@@ -160,7 +160,8 @@ def train_brax(
     compiler = Compiler(timer, executable_cache=executable_cache)
     reset_lowered = compiler.submit("reset", programs.reset, key_abs, key_abs)
     envs_abs = dp.abstract(reset_lowered.out_info, sharded=True)
-    w_abs = dp.abstract(reward_weights.weights(env), sharded=False)
+    w_host = reward_weights.weights(env)  # the rollout's and evaluation's argument
+    w_abs = dp.abstract(w_host, sharded=False)
     rollout_lowered = compiler.submit("rollout", programs.rollout, ts_abs, envs_abs, key_abs, i_abs, w_abs)
     data_abs = dp.abstract(rollout_lowered.out_info[1], sharded=True)
     compiler.submit("update", programs.update, ts_abs, data_abs, key_abs, i_abs, load_in_background=True)
@@ -191,7 +192,7 @@ def train_brax(
             barrier("bar_policy: programs compiled")
 
     eval_model_key = dp.replicate(host_key(seed, _K_EVAL_MODEL))
-    weights = dp.replicate(reward_weights.weights(env))  # the rollout's and evaluation's argument
+    weights = dp.replicate(w_host)
 
     def evaluator(params: Any, eval_seed: int) -> dict[str, float]:
         key = dp.replicate(host_key(eval_seed, _K_EVAL))

@@ -56,6 +56,7 @@ from pathlib import Path
 from typing import Any
 
 from bar_policy._files import write_atomic
+from bar_policy.overrides import split_override
 from bar_policy.training import executable_key as ek
 
 __all__ = [
@@ -319,8 +320,9 @@ def weights_by_name(
     scales = reward.get("scales") if isinstance(reward, Mapping) else None
     if not isinstance(scales, Mapping):
         return train, env
-    overrides = [o for o in train.get("env_overrides", ()) if not str(o).strip().startswith("reward.scales.")]
-    return {**train, "env_overrides": overrides}, {**env, "reward": {**reward, "scales": sorted(scales)}}
+    overrides = train.get("env_overrides", ())
+    kept = [o for o in overrides if not split_override(o)[0].startswith("reward.scales.")]
+    return {**train, "env_overrides": kept}, {**env, "reward": {**reward, "scales": sorted(scales)}}
 
 
 def executable_cache_for(

@@ -339,8 +339,11 @@ def train_rsl_rl(
             startup_until = sb.UNTIL_EVAL if step0_now else sb.UNTIL_EPOCH
         # Reported once every evaluation program is ready (or an evaluation is due, which waits for them
         # anyway), so that no row of the report is a program still compiling on a worker.
-        eval_ready = eval_due or all(compiler.done(n) for n in _EVAL_PROGRAMS)
-        if startup_pending and startup_end_s is not None and eval_ready:
+        if (
+            startup_pending
+            and startup_end_s is not None
+            and (eval_due or all(compiler.done(n) for n in _EVAL_PROGRAMS))
+        ):
             for name in _EVAL_PROGRAMS:
                 compiler.get(name)
             startup_pending = False

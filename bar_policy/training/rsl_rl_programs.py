@@ -17,7 +17,6 @@ that import runs while XLA compiles; nothing imported here pulls torch in
 
 from __future__ import annotations
 
-import copy
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -165,9 +164,7 @@ class EnvPrograms:
     ) -> tuple[Any, dict[str, Any]]:
         stats_in = stats
         actions = commanded_action(self.prior, state.obs, actions)  # the observation the actor saw
-        batch = copy.copy(self._env)  # the same wrapper and randomised models, the env on weights ``w``
-        batch.env = with_weights(self.task, w)
-        ns = batch.step(state, actions)
+        ns = self._env.with_env(with_weights(self.task, w)).step(state, actions)  # on the weights ``w``
         ratios = eval_ratios(self.task, ns.metrics)
         num, den = ratios["success_rate"]
         alive = stats["alive"]
