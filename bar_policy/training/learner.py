@@ -104,17 +104,21 @@ class Learner:
             params, normalizer, data, self.networks, ppo.discounting, ppo.reward_scaling, ppo.gae_lambda
         )
 
-    def sgd_pass(self, carry: tuple, data: types.Transition, normalizer: Any) -> tuple:
+    def sgd_pass(
+        self, carry: tuple, data: types.Transition, normalizer: Any, unrolled: bool = False
+    ) -> tuple:
         """One shuffled pass of ``num_minibatches`` Adam steps over this device's segments.
 
         ``carry`` = ``(optimizer state, params, key)``; returns ``(carry, metrics)``, ``update``'s scan body.
         Its matrix products are traced at ``ppo.update_precision`` (``run``: the surrounding precision).
+        ``unrolled``: the Adam steps written out one after another instead of a ``scan`` (no loop in the
+        program: what a computation on a GPU stream of its own needs; same values).
         """
         precision = self.ppo.update_precision
         with contextlib.nullcontext() if precision == "run" else jax.default_matmul_precision(precision):
-            return self._sgd_pass(carry, data, normalizer)
+            return self._sgd_pass(carry, data, normalizer, unrolled)
 
-    def _sgd_pass(self, carry: tuple, data: types.Transition, normalizer: Any) -> tuple:
+    def _sgd_pass(self, carry: tuple, data: types.Transition, normalizer: Any, unrolled: bool) -> tuple:
         """``sgd_pass`` under the precision it sets."""
         ppo = self.ppo
         opt_state, params, k = carry
@@ -157,10 +161,15 @@ class Learner:
             metrics = {**metrics, "kl": kl, "learning_rate": learning_rate(o)}
             return (o, optax.apply_updates(p, updates), kk), metrics
 
-        (opt_state, params, _), metrics = jax.lax.scan(
-            minibatch, (opt_state, params, k_mb), jax.tree.map(shuffle, data)
-        )
-        return (opt_state, params, k), metrics
+        mbs = jax.tree.map(shuffle, data)
+        if not unrolled:
+            (opt_state, params, _), metrics = jax.lax.scan(minibatch, (opt_state, params, k_mb), mbs)
+            return (opt_state, params, k), metrics
+        c, steps = (opt_state, params, k_mb), []
+        for m in range(ppo.num_minibatches):
+            c, step_metrics = minibatch(c, jax.tree.map(lambda x, m=m: x[m], mbs))
+            steps.append(step_metrics)
+        return (c[0], c[1], k), jax.tree.map(lambda *xs: jnp.stack(xs), *steps)
 
     def collect_step(self, ts: TrainingState, env: Any) -> Callable[[tuple, Any], tuple]:
         """``rollout``'s scan body: one control step of every slot of ``env`` under ``ts``'s policy.
@@ -281,6 +290,50 @@ class Learner:
         if n_passes > both:
             sgd_c, rest = self._sgd_passes(sgd_c, data, normalizer, n_passes - both)
             metrics = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), metrics, rest)
+        trs, stats = jax.tree.map(lambda x: x.reshape((unrolls, self.ppo.unroll_length, *x.shape[1:])), outs)
+        ts = TrainingState(optimizer_state=sgd_c[0], params=sgd_c[1], normalizer_params=normalizer)
+        return ts, env_c[0], segments(trs), stats.sum(axis=(0, 1)), jax.tree.map(jnp.mean, metrics)
+
+    def streamed(
+        self,
+        ts: TrainingState,
+        env_state: Any,
+        key: jax.Array,
+        env: Any,
+        unrolls: int,
+        data: Any,
+        sgd_key: Any,
+        stream: int = 1,
+    ) -> tuple[TrainingState, Any, types.Transition, jax.Array, dict[str, jax.Array]]:
+        """``overlapped`` with each SGD pass on GPU stream ``stream`` (``training.gpu_stream``).
+
+        The first ``num_updates_per_batch`` control steps each share a loop body with one whole SGD pass
+        (its Adam steps written out, ``sgd_pass(unrolled=True)``), which XLA runs on the other stream beside
+        the step; the steps left over run alone. Same results as ``rollout`` and ``update`` (tests:
+        test_learner_parts.py). Needs at least as many control steps per iteration as SGD passes.
+        """
+        from bar_policy.training.gpu_stream import on_stream
+
+        n_steps, n_passes = unrolls * self.ppo.unroll_length, self.ppo.num_updates_per_batch
+        if n_steps < n_passes:
+            raise ValueError(
+                f"streamed: {n_steps} control steps per iteration, fewer than the {n_passes} SGD passes "
+                "(ppo.num_updates_per_batch) they would carry"
+            )
+        step = self.collect_step(ts, env)
+        normalizer, data = self.prepare_update(ts, data)
+        sgd = on_stream(lambda c, d, nz: self.sgd_pass(c, d, nz, unrolled=True), stream)
+
+        def body(c: tuple, _: None) -> tuple:
+            env_c, out = step(c[0], None)
+            sgd_c, metrics = sgd(c[1], data, normalizer)
+            return (env_c, sgd_c), (out, metrics)
+
+        init = ((env_state, key), (ts.optimizer_state, ts.params, sgd_key))
+        (env_c, sgd_c), (outs, metrics) = jax.lax.scan(body, init, None, length=n_passes)
+        if n_steps > n_passes:
+            env_c, rest = jax.lax.scan(step, env_c, None, length=n_steps - n_passes)
+            outs = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), outs, rest)
         trs, stats = jax.tree.map(lambda x: x.reshape((unrolls, self.ppo.unroll_length, *x.shape[1:])), outs)
         ts = TrainingState(optimizer_state=sgd_c[0], params=sgd_c[1], normalizer_params=normalizer)
         return ts, env_c[0], segments(trs), stats.sum(axis=(0, 1)), jax.tree.map(jnp.mean, metrics)

@@ -1,0 +1,109 @@
+"""A computation on a GPU stream of its own inside a jitted program (issue 19: the update beside the rollout).
+
+XLA runs a ``call`` whose frontend attributes name a stream (``_xla_stream_annotation``, jax's
+``compute_on(compute_type="gpu_stream:N")``) asynchronously on that stream, so the work after it in the
+program, up to the first use of its results, runs beside it. Two limits of XLA's pass
+(``ExplicitStreamAnnotationAsyncWrapper``) shape this module (measured on an H200, jax 0.11.2,
+docs/benchmarks.md "Session 53"):
+
+- the annotated computation may sit in a loop's body, but it must hold no loop and no nested call itself:
+  jax annotates every op traced under the annotation, so a nested ``jit`` (most ``jnp`` functions, optax,
+  flax's layers) or a ``while`` becomes a second annotated call inside the first, which XLA refuses ("No
+  ExecutionStreamId found for call-start ... only reachable through embedded calls");
+- so ``on_stream`` traces the function once and evaluates its jaxpr with every nested call (``jit``,
+  ``custom_jvp_call``, ``custom_vjp_call``, ``checkpoint``) written inline, and refuses one that still
+  holds a loop or a conditional (``scan``, ``while``, ``cond``), naming it.
+
+On a CPU the annotation is accepted and ignored: the values are those of ``fn`` itself (tests:
+test_gpu_stream.py).
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable
+from typing import Any
+
+import jax
+from jax.extend import core as jex_core
+
+__all__ = ["LOOPS", "inline_calls", "on_stream"]
+
+_CALLS = {
+    "jit": "jaxpr",
+    "pjit": "jaxpr",
+    "closed_call": "call_jaxpr",
+    "core_call": "call_jaxpr",
+    "custom_jvp_call": "call_jaxpr",
+    "custom_vjp_call": "call_jaxpr",
+    "custom_vjp_call_jaxpr": "fun_jaxpr",
+    "checkpoint": "jaxpr",
+    "remat": "jaxpr",
+}
+"""Primitives that call a sub-jaxpr, and the parameter holding it: written inline by ``inline_calls``."""
+
+LOOPS = ("while", "scan", "cond", "fori_loop")
+"""Primitives that hold their own computations: a stream's computation must not hold one."""
+
+
+def _evaluate(jaxpr: Any, consts: Any, args: Any) -> list:
+    """``jaxpr`` on ``args`` in the current trace, every nested call's equations bound in its place."""
+    env: dict = {}
+
+    def read(v: Any) -> Any:
+        return v.val if isinstance(v, jex_core.Literal) else env[v]
+
+    env.update(zip(jaxpr.constvars, consts, strict=True))
+    env.update(zip(jaxpr.invars, args, strict=True))
+    for eqn in jaxpr.eqns:
+        invals = [read(v) for v in eqn.invars]
+        sub = eqn.params.get(_CALLS.get(eqn.primitive.name, ""))
+        if sub is not None:
+            closed = isinstance(sub, jex_core.ClosedJaxpr)
+            outs = _evaluate(sub.jaxpr if closed else sub, sub.consts if closed else (), invals)
+        else:
+            if eqn.primitive.name in LOOPS:
+                raise ValueError(
+                    f"on_stream: the function holds a {eqn.primitive.name!r}; a computation on a GPU stream "
+                    f"of its own must be loop-free (unroll it: a Python loop, or scan(..., unroll=True))"
+                )
+            params = eqn.primitive.get_bind_params(eqn.params)  # jax 0.10: params; older: (subfuns, params)
+            subfuns, params = params if isinstance(params, tuple) else ((), params)
+            # Not under ``eqn.ctx``: its compute type is the inner trace's (none), which would drop the
+            # stream annotation of the trace this runs in.
+            outs = eqn.primitive.bind(*subfuns, *invals, **params)
+            if not eqn.primitive.multiple_results:
+                outs = [outs]
+        for v, x in zip(eqn.outvars, outs, strict=True):
+            if not isinstance(v, jex_core.DropVar):
+                env[v] = x
+    return [read(v) for v in jaxpr.outvars]
+
+
+def inline_calls(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """``fn`` with every nested call written inline (same values; pytrees in and out).
+
+    Raises:
+        ValueError: at trace time, if ``fn`` holds a loop or a conditional (``LOOPS``).
+    """
+
+    def inlined(*args: Any) -> Any:
+        closed, shape = jax.make_jaxpr(fn, return_shape=True)(*args)
+        outs = _evaluate(closed.jaxpr, closed.consts, jax.tree.leaves(args))
+        return jax.tree.unflatten(jax.tree.structure(shape), outs)
+
+    return inlined
+
+
+def on_stream(fn: Callable[..., Any], stream: int) -> Callable[..., Any]:
+    """``fn`` (loop-free, see the module docstring) as a computation XLA runs on GPU stream ``stream``.
+
+    Its outputs stay in device memory. Stream 0 is the program's own; use 1 or more.
+    """
+    import jax._src.compute_on as con  # no public name yet (jax 0.10-0.11)
+
+    # jax 0.11: ``compute_on`` takes the function; 0.10: ``compute_on2`` does (``compute_on`` is a context).
+    takes_fn = "out_memory_spaces" in inspect.signature(con.compute_on).parameters
+    api = con.compute_on if takes_fn else con.compute_on2
+    space = jax._src.core.MemorySpace.Device
+    return api(inline_calls(fn), compute_type=f"gpu_stream:{stream}", out_memory_spaces=space)
