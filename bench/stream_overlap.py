@@ -234,6 +234,12 @@ def main() -> int:
         inter = f_inter(ts, carry, data, key)
         jax.block_until_ready(inter)
     compile_inter = time.perf_counter() - t0
+    if "streamed" in forms:  # what XLA refuses (gpu_stream's docstring): a call or loop inside the stream's
+        text = f_streamed.lower(ts, carry, data, key).as_text()
+        funcs = text.split("func.func ")
+        stream_fns = [f for f in funcs if f.startswith("private @compute_on")]
+        nested = sum(f.count("call @") + f.count("stablehlo.while") for f in stream_fns)
+        print(f"streamed: {len(stream_fns)} stream computations, {nested} calls or loops inside them")
     t0 = time.perf_counter()
     try:
         if "streamed" in forms:

@@ -12,7 +12,13 @@ docs/benchmarks.md "Session 53"):
   ExecutionStreamId found for call-start ... only reachable through embedded calls");
 - so ``on_stream`` traces the function once and evaluates its jaxpr with every nested call (``jit``,
   ``custom_jvp_call``, ``custom_vjp_call``, ``checkpoint``) written inline, and refuses one that still
-  holds a loop or a conditional (``scan``, ``while``, ``cond``), naming it.
+  holds a loop or a conditional (``scan``, ``while``, ``cond``), naming it;
+- jax's PRNG is the one part that hides its calls below the jaxpr: a key's ``random_split``,
+  ``random_bits`` and ``random_fold_in`` lower to jitted functions of the key's implementation, and the
+  Threefry hash (``threefry2x32``) to a function of its own. So those primitives are evaluated through
+  the implementation's functions on the key's raw data (inlined in turn), and the hash through jax's own
+  loop-free form of it (``_threefry2x32_lowering`` with ``use_rolled_loops=False``, what jax lowers it to
+  on a GPU): the same bits (tests).
 
 On a CPU the annotation is accepted and ignored: the values are those of ``fn`` itself (tests:
 test_gpu_stream.py).
@@ -46,6 +52,43 @@ LOOPS = ("while", "scan", "cond", "fori_loop")
 """Primitives that hold their own computations: a stream's computation must not hold one."""
 
 
+def _threefry_hash() -> Callable[..., Any]:
+    """The loop-free Threefry-2x32 of jax (``(k1, k2, x1, x2) -> (y1, y2)``, uint32 arrays)."""
+    import functools
+    import importlib
+
+    for module in ("jax._src.random.threefry2x32", "jax._src.prng"):  # jax 0.10-0.11; older
+        try:
+            lowering = importlib.import_module(module)._threefry2x32_lowering
+        except (ImportError, AttributeError):
+            continue
+        return functools.partial(lowering, use_rolled_loops=False)
+    raise NotImplementedError(f"on_stream: this jax ({jax.__version__}) has no _threefry2x32_lowering")
+
+
+def _random(name: str, eqn: Any, invals: list) -> list:
+    """A PRNG primitive through the key implementation's functions on raw key data (module docstring)."""
+    from jax._src.random import prng
+
+    if name == "threefry2x32":
+        return list(inline_calls(_threefry_hash())(*invals))
+    key = eqn.invars[0].aval
+    impl, ndim = key.dtype._impl, len(key.shape)
+    raw = prng.random_unwrap(invals[0])
+    if name == "random_split":
+        fn = lambda r: prng.random_split_impl_base(impl, r, ndim, **eqn.params)  # noqa: E731
+        return [prng.random_wrap(inline_calls(fn)(raw), impl=impl)]
+    if name == "random_bits":
+        fn = lambda r: prng.random_bits_impl_base(impl, r, ndim, **eqn.params)  # noqa: E731
+        return [inline_calls(fn)(raw)]
+    fn = lambda r, msgs: prng.random_fold_in_impl_base(impl, r, msgs, key.shape)  # noqa: E731
+    return [prng.random_wrap(inline_calls(fn)(raw, invals[1]), impl=impl)]
+
+
+_RANDOM = ("random_split", "random_bits", "random_fold_in", "threefry2x32")
+"""The PRNG primitives ``_random`` evaluates."""
+
+
 def _evaluate(jaxpr: Any, consts: Any, args: Any) -> list:
     """``jaxpr`` on ``args`` in the current trace, every nested call's equations bound in its place."""
     env: dict = {}
@@ -58,7 +101,9 @@ def _evaluate(jaxpr: Any, consts: Any, args: Any) -> list:
     for eqn in jaxpr.eqns:
         invals = [read(v) for v in eqn.invars]
         sub = eqn.params.get(_CALLS.get(eqn.primitive.name, ""))
-        if sub is not None:
+        if eqn.primitive.name in _RANDOM:
+            outs = _random(eqn.primitive.name, eqn, invals)
+        elif sub is not None:
             closed = isinstance(sub, jex_core.ClosedJaxpr)
             outs = _evaluate(sub.jaxpr if closed else sub, sub.consts if closed else (), invals)
         else:
