@@ -8,21 +8,28 @@ an evaluation on a thread did not overlap an epoch). XLA runs a computation anno
 measures, at a preset's training batch on one device:
 
 - ``micro``: two independent chains of ``--micro-steps`` small matmuls, alone, one after the other in one
-  program, and with one of them on stream 1 (does the annotation overlap anything at all?);
-- ``real``: the trainer's rollout alone, the update alone, and one program that runs the update of the
-  previous iteration's data on stream 1 while the rollout collects the next (a pipelined iteration, with a
-  policy one update older than brax's); per iteration, after a warm-up, best of ``--iters``;
-- ``interleaved``: the same pipelined iteration as one loop: each of the rollout's first control steps and
-  one SGD pass of the update (16 Adam steps at the gpu preset) in one loop body, so that inside the body's
-  graph nothing orders the two (session 43: two loops side by side in one program ran one after the other,
-  even with nothing in them that XLA cannot record).
+  program, both in one loop whose body holds a step of each, with the second chain on stream 1, and with
+  the second chain's (loop-free) step on stream 1 inside that loop's body;
+- ``real``: the trainer's rollout alone, the update alone, and the one-program forms of a pipelined
+  iteration (the update of the previous iteration's data while the rollout collects the next, with a policy
+  one update older than brax's; ``--forms`` picks them, as each compiles for minutes): ``pipelined``, the
+  update on stream 1 beside the rollout; ``interleaved`` (``one_loop.overlapped``), each of the rollout's
+  first control steps and one SGD pass (16 Adam steps at the gpu preset) in one loop body, so that inside
+  the body's graph nothing orders the two (session 43: two loops side by side in one program ran one after
+  the other); ``streamed`` (``one_loop.streamed``, session 53), the same with each SGD pass, its Adam steps
+  written out, on stream 1 (``training.gpu_stream``). Per iteration, after a warm-up, best of ``--iters``.
 
-It checks that both one-program forms' outputs equal the two programs' (same inputs, same keys).
+It checks that the one-program forms' outputs equal the two programs' (same inputs, same keys), and counts
+the calls and loops inside the streamed form's stream computations (XLA refuses any).
 
 Session 38 (H100, jax 0.11.2): XLA refused the micro rows' annotated program, whose chain is a loop ("No
 ExecutionStreamId found for call-start ... only reachable through embedded calls": the annotation reached
-the loop's own computations). The rollout and the update are loops, so the bench stops there and says so.
-On this CPU (jax 0.10) the annotation is accepted and ignored.
+the loop's own computations); a refused row now holds XLA's message and the others still run. Session 53
+(H200, jax 0.11.2): a loop-free step on stream 1 inside a loop's body is accepted (two chains in 3.1-3.8
+ms, one alone 5.4-6.1). The streamed iteration, once its stream computation held no call, ran: 219.9 ms
+against 124.7 ms for the two programs with the library Cholesky, 106.8 against 111.7 ms with
+``cholesky=columns`` and ``+WHILE`` (docs/benchmarks.md "Session 53"). On this CPU (jax 0.10) the
+annotation is accepted and ignored.
 
 ``--plain``: the same rows with no stream annotation: the two chains (or the update and the rollout) are
 merely independent in one program. Run under ``XLA_FLAGS=--xla_gpu_command_buffer_scheduling_mode=CONCURRENT
@@ -36,6 +43,8 @@ Examples::
     python bench/stream_overlap.py --out $OUT/overlap.md                # gpu preset, one GPU
     python bench/stream_overlap.py --preset tiny --iters 1 --micro-steps 4   # CPU smoke check
     XLA_FLAGS="--xla_gpu_command_buffer_scheduling_mode=CONCURRENT" python bench/stream_overlap.py --plain
+    XLA_FLAGS="$C --xla_gpu_enable_command_buffer=+WHILE" python bench/stream_overlap.py --forms streamed \
+        --env-overrides cholesky=columns                                  # session 53's call 4
 """
 
 from __future__ import annotations
@@ -55,6 +64,7 @@ from report import emit
 from train_breakdown import best_time
 
 from bar_policy import envs
+from bar_policy.training import one_loop
 from bar_policy.training.autotune_seed import seed_autotune_cache
 from bar_policy.training.brax_ppo import host_key, make_programs, slot_env
 from bar_policy.training.learner import make_learner
@@ -193,17 +203,19 @@ def main() -> int:
         return new_ts, carry, next_data
 
     def interleaved(ts: Any, carry: Any, data: Any, key: jax.Array) -> Any:
-        """The pipelined iteration as one loop (``Learner.overlapped``): each of the rollout's first
+        """The pipelined iteration as one loop (``one_loop.overlapped``): each of the rollout's first
         control steps beside one SGD pass over ``data`` in one loop body."""
         batch = slot_env(env, envs.wrap_for_brax_training, randomizer, carry[1])
-        new_ts, state, next_data, _, _ = learner.overlapped(ts, carry[0], key, batch, unrolls, data, key)
+        out = one_loop.overlapped(learner, ts, carry[0], key, batch, unrolls, data, key)
+        new_ts, state, next_data = out[:3]
         return new_ts, (state, carry[1]), next_data
 
     def streamed(ts: Any, carry: Any, data: Any, key: jax.Array) -> Any:
-        """The pipelined iteration as one loop (``Learner.streamed``): each of the rollout's first
+        """The pipelined iteration as one loop (``one_loop.streamed``): each of the rollout's first
         control steps beside one whole SGD pass on GPU stream 1 in one loop body."""
         batch = slot_env(env, envs.wrap_for_brax_training, randomizer, carry[1])
-        new_ts, state, next_data, _, _ = learner.streamed(ts, carry[0], key, batch, unrolls, data, key)
+        out = one_loop.streamed(learner, ts, carry[0], key, batch, unrolls, data, key)
+        new_ts, state, next_data = out[:3]
         return new_ts, (state, carry[1]), next_data
 
     rep, shard = P(), P(AXIS)

@@ -235,7 +235,7 @@ class Learner:
             data = self._with_targets(ts.params, normalizer, data)
         return normalizer, data
 
-    def _sgd_passes(self, carry: tuple, data: types.Transition, normalizer: Any, n: int) -> tuple:
+    def sgd_passes(self, carry: tuple, data: types.Transition, normalizer: Any, n: int) -> tuple:
         """``n`` SGD passes (``sgd_pass``) in one scan: ``(carry, metrics stacked over the passes)``."""
         return jax.lax.scan(lambda c, _: self.sgd_pass(c, data, normalizer), carry, None, length=n)
 
@@ -245,98 +245,11 @@ class Learner:
         """``prepare_update``, then ``num_updates_per_batch`` shuffled SGD passes over ``data``."""
         normalizer, data = self.prepare_update(ts, data)
         init = (ts.optimizer_state, ts.params, key)
-        (opt_state, params, _), metrics = self._sgd_passes(
+        (opt_state, params, _), metrics = self.sgd_passes(
             init, data, normalizer, self.ppo.num_updates_per_batch
         )
         ts = TrainingState(optimizer_state=opt_state, params=params, normalizer_params=normalizer)
         return ts, jax.tree.map(jnp.mean, metrics)
-
-    def overlapped(
-        self,
-        ts: TrainingState,
-        env_state: Any,
-        key: jax.Array,
-        env: Any,
-        unrolls: int,
-        data: Any,
-        sgd_key: Any,
-    ) -> tuple[TrainingState, Any, types.Transition, jax.Array, dict[str, jax.Array]]:
-        """``rollout(ts, env_state, key, env, unrolls)`` and ``update(ts, data, sgd_key)`` as one loop.
-
-        Each of the rollout's first control steps shares a loop body with one SGD pass over ``data`` (then
-        the steps or passes left over run alone), so nothing orders the two inside a body: a GPU may run
-        them side by side (``bench/stream_overlap.py``). The results are those of the two calls (tests:
-        test_learner_parts.py). In a trainer, ``data`` is the previous iteration's: the policy collecting
-        is then one update older than brax's.
-
-        Returns:
-            ``(updated ts, env_state, the new data, stats, loss metrics)`` as ``rollout`` and ``update``.
-        """
-        step = self.collect_step(ts, env)
-        normalizer, data = self.prepare_update(ts, data)
-
-        def body(c: tuple, _: None) -> tuple:
-            env_c, out = step(c[0], None)
-            sgd_c, metrics = self.sgd_pass(c[1], data, normalizer)
-            return (env_c, sgd_c), (out, metrics)
-
-        n_steps, n_passes = unrolls * self.ppo.unroll_length, self.ppo.num_updates_per_batch
-        both = min(n_steps, n_passes)
-        init = ((env_state, key), (ts.optimizer_state, ts.params, sgd_key))
-        (env_c, sgd_c), (outs, metrics) = jax.lax.scan(body, init, None, length=both)
-        if n_steps > both:  # the control steps left over, then the passes (only one of the two runs)
-            env_c, rest = jax.lax.scan(step, env_c, None, length=n_steps - both)
-            outs = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), outs, rest)
-        if n_passes > both:
-            sgd_c, rest = self._sgd_passes(sgd_c, data, normalizer, n_passes - both)
-            metrics = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), metrics, rest)
-        trs, stats = jax.tree.map(lambda x: x.reshape((unrolls, self.ppo.unroll_length, *x.shape[1:])), outs)
-        ts = TrainingState(optimizer_state=sgd_c[0], params=sgd_c[1], normalizer_params=normalizer)
-        return ts, env_c[0], segments(trs), stats.sum(axis=(0, 1)), jax.tree.map(jnp.mean, metrics)
-
-    def streamed(
-        self,
-        ts: TrainingState,
-        env_state: Any,
-        key: jax.Array,
-        env: Any,
-        unrolls: int,
-        data: Any,
-        sgd_key: Any,
-        stream: int = 1,
-    ) -> tuple[TrainingState, Any, types.Transition, jax.Array, dict[str, jax.Array]]:
-        """``overlapped`` with each SGD pass on GPU stream ``stream`` (``training.gpu_stream``).
-
-        The first ``num_updates_per_batch`` control steps each share a loop body with one whole SGD pass
-        (its Adam steps written out, ``sgd_pass(unrolled=True)``), which XLA runs on the other stream beside
-        the step; the steps left over run alone. Same results as ``rollout`` and ``update`` (tests:
-        test_learner_parts.py). Needs at least as many control steps per iteration as SGD passes.
-        """
-        from bar_policy.training.gpu_stream import on_stream
-
-        n_steps, n_passes = unrolls * self.ppo.unroll_length, self.ppo.num_updates_per_batch
-        if n_steps < n_passes:
-            raise ValueError(
-                f"streamed: {n_steps} control steps per iteration, fewer than the {n_passes} SGD passes "
-                "(ppo.num_updates_per_batch) they would carry"
-            )
-        step = self.collect_step(ts, env)
-        normalizer, data = self.prepare_update(ts, data)
-        sgd = on_stream(lambda c, d, nz: self.sgd_pass(c, d, nz, unrolled=True), stream)
-
-        def body(c: tuple, _: None) -> tuple:
-            env_c, out = step(c[0], None)
-            sgd_c, metrics = sgd(c[1], data, normalizer)
-            return (env_c, sgd_c), (out, metrics)
-
-        init = ((env_state, key), (ts.optimizer_state, ts.params, sgd_key))
-        (env_c, sgd_c), (outs, metrics) = jax.lax.scan(body, init, None, length=n_passes)
-        if n_steps > n_passes:
-            env_c, rest = jax.lax.scan(step, env_c, None, length=n_steps - n_passes)
-            outs = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), outs, rest)
-        trs, stats = jax.tree.map(lambda x: x.reshape((unrolls, self.ppo.unroll_length, *x.shape[1:])), outs)
-        ts = TrainingState(optimizer_state=sgd_c[0], params=sgd_c[1], normalizer_params=normalizer)
-        return ts, env_c[0], segments(trs), stats.sum(axis=(0, 1)), jax.tree.map(jnp.mean, metrics)
 
     def iteration(
         self, ts: TrainingState, env_state: Any, key: jax.Array, env: Any, unrolls: int

@@ -1,9 +1,10 @@
-"""The learner's parts (``training.learner``): the rollout's layout and the rollout and update as one loop.
+"""The learner's parts (``training.learner``): the rollout's layout, and the rollout and update as one loop.
 
-``Learner.overlapped`` runs a rollout and the update of other data in one loop, each of the rollout's first
-control steps beside one SGD pass (``bench/stream_overlap.py`` asks whether a GPU then runs them side by
-side). Its results must be those of ``rollout`` and ``update`` called apart, from the same state and keys,
-whether the rollout has more control steps than the update has passes or fewer.
+``one_loop.overlapped`` runs a rollout and the update of other data in one loop, each of the rollout's first
+control steps beside one SGD pass; ``one_loop.streamed`` puts each pass on a GPU stream of its own, its Adam
+steps written out (``bench/stream_overlap.py`` asks whether a GPU then runs them side by side). Their
+results must be those of ``rollout`` and ``update`` called apart, from the same state and keys, whether the
+rollout has more control steps than the update has passes or fewer (``streamed`` refuses fewer).
 
 ``ppo.update_precision`` sets the precision of the update's matrix products and of no other.
 """
@@ -21,6 +22,7 @@ from jax.sharding import PartitionSpec as P
 from toy_configs import TOY_BRAX, toy_config
 
 from bar_policy import envs
+from bar_policy.training import one_loop
 from bar_policy.training.brax_programs import host_key, make_programs, slot_env
 from bar_policy.training.learner import make_learner, segments
 from bar_policy.training.parallel import AXIS, DataParallel
@@ -46,9 +48,10 @@ CASES = [
 
 
 @pytest.mark.numerics
+@pytest.mark.parametrize("form", ["overlapped", "streamed"])
 @pytest.mark.parametrize("name,extra", CASES, ids=[c[0] for c in CASES])
-def test_overlapped_equals_the_rollout_and_the_update(tmp_path, toy_env, name, extra):
-    cfg = toy_config(tmp_path, name, [*TOY_BRAX, *extra])
+def test_one_loop_equals_the_rollout_and_the_update(tmp_path, toy_env, name, extra, form):
+    cfg = toy_config(tmp_path, f"{name}_{form}", [*TOY_BRAX, *extra])
     ppo = cfg.ppo
     unrolls = ppo.batch_size * ppo.num_minibatches // ppo.num_envs
     passes = ppo.num_updates_per_batch
@@ -72,8 +75,8 @@ def test_overlapped_equals_the_rollout_and_the_update(tmp_path, toy_env, name, e
         return new_ts, state.obs, new_data, jax.lax.psum(stats, AXIS), (metrics, magnitude)
 
     def together(ts, carry, key, data, sgd_key):
-        new_ts, state, new_data, stats, metrics = learner.overlapped(
-            ts, carry[0], key, batch(carry[1]), unrolls, data, sgd_key
+        new_ts, state, new_data, stats, metrics = getattr(one_loop, form)(
+            learner, ts, carry[0], key, batch(carry[1]), unrolls, data, sgd_key
         )
         return new_ts, state.obs, new_data, jax.lax.psum(stats, AXIS), (metrics, metrics)
 
@@ -87,14 +90,19 @@ def test_overlapped_equals_the_rollout_and_the_update(tmp_path, toy_env, name, e
         lambda t, c, k: learner.rollout(t, c[0], k, batch(c[1]), unrolls)[1], (rep, shard, rep), shard
     )
     data = first(ts, carry, k_data)
+    if form == "streamed" and unrolls * ppo.unroll_length < passes:
+        with pytest.raises(ValueError, match=r"2 control steps per iteration, fewer than the 4 SGD passes"):
+            dp.map(together, *specs)(ts, carry, k_roll, data, k_sgd)
+        return
     want = dp.to_host(dp.map(apart, *specs)(ts, carry, k_roll, data, k_sgd))
     got = dp.to_host(dp.map(together, *specs)(ts, carry, k_roll, data, k_sgd))
     assert jax.tree.structure(got) == jax.tree.structure(want)
     # Same keys, same arithmetic: the new params, Adam moments, normaliser, env state and data agree to
-    # float32 rounding (bit for bit on this project's CPU). XLA fuses the one loop and the two calls apart,
-    # so a sum may round in another order: 1e-6 relative (a few float32 ulps, 2**-23 = 1.2e-7, over one
-    # update of at most 8 Adam steps and 80 control steps) plus 1e-6 absolute for values near 0, as
-    # tests/training/test_epoch_programs.py allows the epoch's two programs against its one scan.
+    # float32 rounding (bit for bit on this project's CPU). XLA fuses the one loop and the two calls apart
+    # (and ``streamed`` writes the Adam steps out instead of a scan), so a sum may round in another order:
+    # 1e-6 relative (a few float32 ulps, 2**-23 = 1.2e-7, over one update of at most 8 Adam steps and 80
+    # control steps) plus 1e-6 absolute for values near 0, as tests/training/test_epoch_programs.py allows
+    # the epoch's two programs against its one scan.
     for (path, a), b in zip(
         jax.tree_util.tree_leaves_with_path(got[:3]), jax.tree.leaves(want[:3]), strict=True
     ):
