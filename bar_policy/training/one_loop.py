@@ -22,6 +22,7 @@ test_learner_parts.py): ``(updated ts, env_state, the new data, stats, loss metr
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -37,12 +38,41 @@ Result = tuple[TrainingState, Any, types.Transition, jax.Array, dict[str, jax.Ar
 """``(updated ts, env_state, the new data, stats, loss metrics)``."""
 
 
-def _finish(
-    learner: Learner, unrolls: int, normalizer: Any, env_c: tuple, sgd_c: tuple, outs: Any, metrics: Any
+def _one_loop(
+    learner: Learner,
+    ts: TrainingState,
+    env_state: Any,
+    key: jax.Array,
+    env: Any,
+    unrolls: int,
+    data: Any,
+    sgd_key: Any,
+    sgd_pass: Callable[[tuple, Any, Any], tuple],
 ) -> Result:
-    """The loop's carries and outputs in ``rollout``'s and ``update``'s layout."""
-    unroll_length = learner.ppo.unroll_length
-    trs, stats = jax.tree.map(lambda x: x.reshape((unrolls, unroll_length, *x.shape[1:])), outs)
+    """The rollout's control steps and ``sgd_pass`` (``(carry, data, normaliser) -> (carry, metrics)``).
+
+    The first ``min(control steps, passes)`` loop bodies hold one of each; the steps or passes left over
+    (only one of the two) run alone after them, the passes as ``learner.sgd_passes``.
+    """
+    step = learner.collect_step(ts, env)
+    normalizer, data = learner.prepare_update(ts, data)
+
+    def body(c: tuple, _: None) -> tuple:
+        env_c, out = step(c[0], None)
+        sgd_c, metrics = sgd_pass(c[1], data, normalizer)
+        return (env_c, sgd_c), (out, metrics)
+
+    n_steps, n_passes = unrolls * learner.ppo.unroll_length, learner.ppo.num_updates_per_batch
+    both = min(n_steps, n_passes)
+    init = ((env_state, key), (ts.optimizer_state, ts.params, sgd_key))
+    (env_c, sgd_c), (outs, metrics) = jax.lax.scan(body, init, None, length=both)
+    if n_steps > both:
+        env_c, rest = jax.lax.scan(step, env_c, None, length=n_steps - both)
+        outs = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), outs, rest)
+    if n_passes > both:
+        sgd_c, rest = learner.sgd_passes(sgd_c, data, normalizer, n_passes - both)
+        metrics = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), metrics, rest)
+    trs, stats = jax.tree.map(lambda x: x.reshape((unrolls, learner.ppo.unroll_length, *x.shape[1:])), outs)
     ts = TrainingState(optimizer_state=sgd_c[0], params=sgd_c[1], normalizer_params=normalizer)
     return ts, env_c[0], segments(trs), stats.sum(axis=(0, 1)), jax.tree.map(jnp.mean, metrics)
 
@@ -62,25 +92,7 @@ def overlapped(
     Each of the rollout's first control steps shares a loop body with one SGD pass over ``data`` (then the
     steps or passes left over run alone), so nothing orders the two inside a body.
     """
-    step = learner.collect_step(ts, env)
-    normalizer, data = learner.prepare_update(ts, data)
-
-    def body(c: tuple, _: None) -> tuple:
-        env_c, out = step(c[0], None)
-        sgd_c, metrics = learner.sgd_pass(c[1], data, normalizer)
-        return (env_c, sgd_c), (out, metrics)
-
-    n_steps, n_passes = unrolls * learner.ppo.unroll_length, learner.ppo.num_updates_per_batch
-    both = min(n_steps, n_passes)
-    init = ((env_state, key), (ts.optimizer_state, ts.params, sgd_key))
-    (env_c, sgd_c), (outs, metrics) = jax.lax.scan(body, init, None, length=both)
-    if n_steps > both:  # the control steps left over, then the passes (only one of the two runs)
-        env_c, rest = jax.lax.scan(step, env_c, None, length=n_steps - both)
-        outs = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), outs, rest)
-    if n_passes > both:
-        sgd_c, rest = learner.sgd_passes(sgd_c, data, normalizer, n_passes - both)
-        metrics = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), metrics, rest)
-    return _finish(learner, unrolls, normalizer, env_c, sgd_c, outs, metrics)
+    return _one_loop(learner, ts, env_state, key, env, unrolls, data, sgd_key, learner.sgd_pass)
 
 
 def streamed(
@@ -109,18 +121,5 @@ def streamed(
             f"streamed: {n_steps} control steps per iteration, fewer than the {n_passes} SGD passes "
             "(ppo.num_updates_per_batch) they would carry"
         )
-    step = learner.collect_step(ts, env)
-    normalizer, data = learner.prepare_update(ts, data)
     sgd = on_stream(lambda c, d, nz: learner.sgd_pass(c, d, nz, unrolled=True), stream)
-
-    def body(c: tuple, _: None) -> tuple:
-        env_c, out = step(c[0], None)
-        sgd_c, metrics = sgd(c[1], data, normalizer)
-        return (env_c, sgd_c), (out, metrics)
-
-    init = ((env_state, key), (ts.optimizer_state, ts.params, sgd_key))
-    (env_c, sgd_c), (outs, metrics) = jax.lax.scan(body, init, None, length=n_passes)
-    if n_steps > n_passes:
-        env_c, rest = jax.lax.scan(step, env_c, None, length=n_steps - n_passes)
-        outs = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), outs, rest)
-    return _finish(learner, unrolls, normalizer, env_c, sgd_c, outs, metrics)
+    return _one_loop(learner, ts, env_state, key, env, unrolls, data, sgd_key, sgd)
