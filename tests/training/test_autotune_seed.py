@@ -64,10 +64,39 @@ def test_seeds_an_empty_cache_then_skips_what_is_there(tmp_path, gpu):
     assert (first.seeded, first.present, first.refused, first.reason) == (3, 0, 0, "")
     assert first.source == "fake.tar.gz"
     target = cache / AUTOTUNE_DIR / SUBDIR
-    assert {p.name: p.read_bytes() for p in target.iterdir()} == ENTRIES  # no temporary files left
+    (manifest,) = (m for _, m in shipped_seeds(seeds))
+    stamp = f".seeded-{manifest.sha256}"
+    # The entries, and the empty stamp of an archive copied whole; no temporary files left.
+    assert {p.name: p.read_bytes() for p in target.iterdir()} == {**ENTRIES, stamp: b""}
     assert first.line().startswith("autotune seed: 3 entries seeded, 0 already present, from fake.tar.gz")
     again = ats.seed_autotune_cache(cache, seeds_dir=seeds)
     assert (again.seeded, again.present) == (0, 3)
+
+
+def test_a_stamped_archive_is_not_read_again_and_a_removed_folder_is_seeded_again(tmp_path, gpu, monkeypatch):
+    """Session 53: a warm start's seeding read every member again (0.6 s of Python beside the start)."""
+    seeds, cache = _seeds(tmp_path), tmp_path / "cache"
+    assert ats.seed_autotune_cache(cache, seeds_dir=seeds).seeded == 3
+    real_open = tarfile.open
+
+    def no_read(*args, **kwargs):
+        raise AssertionError("the archive was read although its stamp is there")
+
+    monkeypatch.setattr(ats.tarfile, "open", no_read)
+    again = ats.seed_autotune_cache(cache, seeds_dir=seeds)
+    assert (again.seeded, again.present, again.source) == (0, 3, "fake.tar.gz")
+    monkeypatch.setattr(ats.tarfile, "open", real_open)
+    for p in (cache / AUTOTUNE_DIR / SUBDIR).iterdir():  # a user clears XLA's folder: the stamp goes too
+        p.unlink()
+    assert ats.seed_autotune_cache(cache, seeds_dir=seeds).seeded == 3
+
+
+def test_the_copy_gives_the_interpreter_lock_up_after_each_member(tmp_path, gpu, monkeypatch):
+    """A thread waiting for the lock (the main thread after a device transfer) gets it between members."""
+    seeds, calls = _seeds(tmp_path), []
+    monkeypatch.setattr(ats.time, "sleep", calls.append)
+    out = ats.seed_autotune_cache(tmp_path / "cache", seeds_dir=seeds)
+    assert out.seeded == 3 and calls == [0] * len(ENTRIES)  # the archive's members: its three entries
 
 
 def test_seeding_runs_on_its_own_thread_and_gives_the_same_outcome(tmp_path, gpu, monkeypatch):
@@ -216,7 +245,10 @@ def test_the_shipped_seed_applies_on_its_own_device(tmp_path, monkeypatch):
     # as present.
     assert (out.seeded, out.present, out.refused) == (SHIPPED_UNION, SHIPPED_MEMBERS - SHIPPED_UNION, 0)
     assert [p.name for p in (tmp_path / "h100" / AUTOTUNE_DIR).iterdir()] == [H100_DIR]
-    assert len(list((tmp_path / "h100" / AUTOTUNE_DIR / H100_DIR).iterdir())) == SHIPPED_UNION
+    names = [p.name for p in (tmp_path / "h100" / AUTOTUNE_DIR / H100_DIR).iterdir()]
+    assert sum(n.endswith(".pb") for n in names) == SHIPPED_UNION
+    h100 = [m for _, m in shipped_seeds(SEED_DIR) if m.device_kind == H100]
+    assert sorted(n for n in names if n.startswith(".")) == sorted(f".seeded-{m.sha256}" for m in h100)
     monkeypatch.setattr(ats, "local_platform", lambda: ("gpu", H200, "0.11.2"))
     out = ats.seed_autotune_cache(tmp_path / "h200")
     assert (out.seeded, out.present, out.refused) == (H200_UNION, H200_MEMBERS - H200_UNION, 0)
@@ -246,7 +278,9 @@ def test_pack_script_round_trips(tmp_path):
 def test_round_trip_through_the_seeder(tmp_path, gpu):
     out = ats.seed_autotune_cache(tmp_path / "c", seeds_dir=_seeds(tmp_path))
     back = {p.name: p.read_bytes() for p in (tmp_path / "c" / AUTOTUNE_DIR / SUBDIR).iterdir()}
-    assert out.seeded == 3 and back == ENTRIES
+    stamps = {n for n in back if n.startswith(".seeded-")}
+    assert out.seeded == 3 and len(stamps) == 1
+    assert {n: b for n, b in back.items() if n not in stamps} == ENTRIES
 
 
 def test_pack_refuses_an_ambiguous_or_empty_source(tmp_path):
