@@ -91,14 +91,6 @@ def test_a_stamped_archive_is_not_read_again_and_a_removed_folder_is_seeded_agai
     assert ats.seed_autotune_cache(cache, seeds_dir=seeds).seeded == 3
 
 
-def test_the_copy_gives_the_interpreter_lock_up_after_each_member(tmp_path, gpu, monkeypatch):
-    """A thread waiting for the lock (the main thread after a device transfer) gets it between members."""
-    seeds, calls = _seeds(tmp_path), []
-    monkeypatch.setattr(ats.time, "sleep", calls.append)
-    out = ats.seed_autotune_cache(tmp_path / "cache", seeds_dir=seeds)
-    assert out.seeded == 3 and calls == [0] * len(ENTRIES)  # the archive's members: its three entries
-
-
 def test_seeding_runs_on_its_own_thread_and_gives_the_same_outcome(tmp_path, gpu, monkeypatch):
     """The trainer seeds in the background (``run.py``) and waits for the outcome before compiling."""
     seeds = _seeds(tmp_path)
