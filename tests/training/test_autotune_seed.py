@@ -91,6 +91,16 @@ def test_a_stamped_archive_is_not_read_again_and_a_removed_folder_is_seeded_agai
     assert ats.seed_autotune_cache(cache, seeds_dir=seeds).seeded == 3
 
 
+def test_a_seed_packed_from_a_seeded_cache_holds_the_entries_not_the_stamp(tmp_path, gpu):
+    cache = tmp_path / "cache"
+    assert ats.seed_autotune_cache(cache, seeds_dir=_seeds(tmp_path)).seeded == 3
+    pack_seed(cache / AUTOTUNE_DIR, tmp_path / "again", name="again", device_kind=KIND, jax_version="9.9.9",
+              jaxlib_version="9.9.9", commit="abc1234", programs=("reset",), made_with="a test")  # fmt: skip
+    with tarfile.open(tmp_path / "again" / "again.tar.gz") as tar:
+        names = sorted(t.name for t in tar if t.isfile())
+    assert names == [f"{SUBDIR}/{n}" for n in sorted(ENTRIES)]
+
+
 def test_seeding_runs_on_its_own_thread_and_gives_the_same_outcome(tmp_path, gpu, monkeypatch):
     """The trainer seeds in the background (``run.py``) and waits for the outcome before compiling."""
     seeds = _seeds(tmp_path)
