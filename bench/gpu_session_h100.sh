@@ -33,6 +33,10 @@
 #                      tensorfloat32, the gpu preset's since session 45: tensor cores, physics and rollout at
 #                      float32), on one compile cache: base_s0 (cold), prec_s0..2, base_s1 (warm but for the update),
 #                      ONNX exported; $OUT/<run>.onnx for the ship gate (`bar-deploy eval`)
+#   prealloc (~5 min): jax's GPU memory preallocation (75 % of the device, at the first transfer: the model
+#                      build's 1.5-2.2 s on an H200, session 53) against XLA_PYTHON_CLIENT_PREALLOCATE=false,
+#                      the default command cold then warm each, alternated on one host (A cold, B cold,
+#                      A warm, B warm), each pair on its own empty cache
 #   smoke             : CPU logic check of startup and rsl with tiny sizes (not for the GPU); smoke-loadflags,
 #                      smoke-update, smoke-precision: the same for loadflags, update, precision
 #
@@ -209,6 +213,20 @@ precision() {
   finish precision "${runs[@]}" --append "$WORK/precision.md"
 }
 
+prealloc() {
+  local runs=("$RUNS/pa_cold" "$RUNS/pb_cold" "$RUNS/pa_warm" "$RUNS/pb_warm")
+  rm -rf "$WORK/jaxcache_pa" "$WORK/jaxcache_pb"
+  ppo pa_cold 200 --compile-cache-dir "$WORK/jaxcache_pa" --max-minutes "${COLD_MIN:-1.3}"
+  XLA_PYTHON_CLIENT_PREALLOCATE=false ppo pb_cold 200 --compile-cache-dir "$WORK/jaxcache_pb" \
+    --max-minutes "${COLD_MIN:-1.3}"
+  finish prealloc "${runs[@]}" > /dev/null
+  ppo pa_warm 120 --compile-cache-dir "$WORK/jaxcache_pa" --max-minutes "${WARM_MIN:-0.6}"
+  XLA_PYTHON_CLIENT_PREALLOCATE=false ppo pb_warm 120 --compile-cache-dir "$WORK/jaxcache_pb" \
+    --max-minutes "${WARM_MIN:-0.6}"
+  echo "pb_*: XLA_PYTHON_CLIENT_PREALLOCATE=false; pa_*: jax's default (preallocate)" > "$WORK/prealloc.md"
+  finish prealloc "${runs[@]}" --append "$WORK/prealloc.md"
+}
+
 seeds() {
   local p name
   name=$(python3 -c "import re, jax, jaxlib
@@ -242,8 +260,10 @@ case "$PART" in
   seeds) seeds ;;
   update | smoke-update) update ;;
   precision) precision ;;
+  prealloc) prealloc ;;
+  smoke-prealloc) COLD_MIN=8 WARM_MIN=8 prealloc ;;
   smoke-precision) COLD_MIN=8 WARM_MIN=8 precision ;;
   smoke) COLD_MIN=8 WARM_MIN=8 startup; RSL_MIN=0.5 RSL_PRESET=tiny rsl ;;
   smoke-loadflags) COLD_MIN=8 WARM_MIN=8 loadflags ;;
-  *) echo "unknown part $PART; parts: startup, rsl, flags, loadflags, seeds, update, precision, smoke"; exit 2 ;;
+  *) echo "unknown part $PART; parts: startup, rsl, flags, loadflags, seeds, update, precision, prealloc, smoke"; exit 2 ;;
 esac
