@@ -64,7 +64,7 @@ from report import emit
 from train_breakdown import best_time
 
 from bar_policy import envs
-from bar_policy.training import one_loop
+from bar_policy.training import gpu_stream, one_loop
 from bar_policy.training.autotune_seed import seed_autotune_cache
 from bar_policy.training.brax_ppo import host_key, make_programs, slot_env
 from bar_policy.training.learner import make_learner
@@ -72,29 +72,10 @@ from bar_policy.training.parallel import AXIS, DataParallel
 from bar_policy.training.startup import configure_compile_cache
 
 
-def _stream_api() -> str:
-    """The jax function that annotates a stream: ``compute_on`` taking a function (jax 0.11) or
-    ``compute_on2`` (0.10); both take ``(fn, compute_type=, out_memory_spaces=)``."""
-    import inspect
-
-    import jax._src.compute_on as con
-
-    if "out_memory_spaces" in inspect.signature(con.compute_on).parameters:
-        return "compute_on"
-    return "compute_on2"
-
-
-def _on_stream(fn: Any, stream: int) -> Any:
-    """``fn`` as a computation XLA runs on GPU stream ``stream`` (outputs in device memory)."""
-    import jax._src.compute_on as con
-
-    space = jax._src.core.MemorySpace.Device
-    return getattr(con, _stream_api())(fn, compute_type=f"gpu_stream:{stream}", out_memory_spaces=space)
-
-
 def _place(fn: Any, stream: int, plain: bool) -> Any:
-    """``fn`` on GPU stream ``stream`` (``_on_stream``), or ``fn`` itself when ``plain``."""
-    return fn if plain else _on_stream(fn, stream)
+    """``fn`` annotated for GPU stream ``stream`` as it is (``gpu_stream.annotate``), or ``fn`` itself when
+    ``plain``."""
+    return fn if plain else gpu_stream.annotate(fn, stream)
 
 
 def micro(steps: int, iters: int, plain: bool = False) -> dict[str, Any]:
@@ -125,7 +106,7 @@ def micro(steps: int, iters: int, plain: bool = False) -> dict[str, Any]:
     if not plain:  # plain: ``streamed`` is ``both``, so neither row says anything
         # Session 53: each row on its own, so that XLA refusing one (session 38: the annotated loop) still
         # leaves the other. The second row annotates a loop-free step inside the loop's body.
-        body_streamed = jax.jit(in_body(_on_stream(one_step, 1)))
+        body_streamed = jax.jit(in_body(gpu_stream.annotate(one_step, 1)))
         for row, fn in (
             ("two chains, second on stream 1", streamed),
             ("one loop, the second's step on stream 1 in each body", body_streamed),
@@ -156,7 +137,7 @@ def main() -> int:
     p.add_argument("--out", default="")
     args = p.parse_args()
 
-    api = _stream_api()
+    api = gpu_stream.stream_api()
     lines = [
         f"stream overlap: {jax.devices()[0].device_kind}, jax {jax.__version__}, {api}, plain {args.plain}, "
         f"XLA_FLAGS {os.environ.get('XLA_FLAGS', '')!r}"

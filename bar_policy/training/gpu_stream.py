@@ -26,6 +26,7 @@ test_gpu_stream.py).
 
 from __future__ import annotations
 
+import functools
 import inspect
 from collections.abc import Callable
 from typing import Any
@@ -33,7 +34,7 @@ from typing import Any
 import jax
 from jax.extend import core as jex_core
 
-__all__ = ["LOOPS", "inline_calls", "on_stream"]
+__all__ = ["LOOPS", "annotate", "inline_calls", "on_stream", "stream_api"]
 
 _CALLS = {
     "jit": "jaxpr",
@@ -52,9 +53,9 @@ LOOPS = ("while", "scan", "cond", "fori_loop")
 """Primitives that hold their own computations: a stream's computation must not hold one."""
 
 
+@functools.cache
 def _threefry_hash() -> Callable[..., Any]:
     """The loop-free Threefry-2x32 of jax (``(k1, k2, x1, x2) -> (y1, y2)``, uint32 arrays)."""
-    import functools
     import importlib
 
     for module in ("jax._src.random.threefry2x32", "jax._src.prng"):  # jax 0.10-0.11; older
@@ -140,15 +141,34 @@ def inline_calls(fn: Callable[..., Any]) -> Callable[..., Any]:
     return inlined
 
 
+def stream_api() -> str:
+    """The jax function that annotates a stream, ``compute_on`` or ``compute_on2``.
+
+    jax 0.11's ``compute_on`` takes the function; in 0.10 that is ``compute_on2`` (``compute_on`` is a
+    context). Both take ``(fn, compute_type=, out_memory_spaces=)``. No public name yet.
+    """
+    import jax._src.compute_on as con
+
+    takes_fn = "out_memory_spaces" in inspect.signature(con.compute_on).parameters
+    return "compute_on" if takes_fn else "compute_on2"
+
+
+def annotate(fn: Callable[..., Any], stream: int) -> Callable[..., Any]:
+    """``fn`` as it is, annotated for GPU stream ``stream`` (outputs in device memory).
+
+    No inlining and no check, so XLA sees what jax lowers (``bench/stream_overlap.py`` shows what it
+    refuses).
+    """
+    import jax._src.compute_on as con
+
+    space = jax._src.core.MemorySpace.Device
+    return getattr(con, stream_api())(fn, compute_type=f"gpu_stream:{stream}", out_memory_spaces=space)
+
+
 def on_stream(fn: Callable[..., Any], stream: int) -> Callable[..., Any]:
     """``fn`` (loop-free, see the module docstring) as a computation XLA runs on GPU stream ``stream``.
 
-    Its outputs stay in device memory. Stream 0 is the program's own; use 1 or more.
+    ``annotate(inline_calls(fn), stream)``. Its outputs stay in device memory. Stream 0 is the program's
+    own; use 1 or more.
     """
-    import jax._src.compute_on as con  # no public name yet (jax 0.10-0.11)
-
-    # jax 0.11: ``compute_on`` takes the function; 0.10: ``compute_on2`` does (``compute_on`` is a context).
-    takes_fn = "out_memory_spaces" in inspect.signature(con.compute_on).parameters
-    api = con.compute_on if takes_fn else con.compute_on2
-    space = jax._src.core.MemorySpace.Device
-    return api(inline_calls(fn), compute_type=f"gpu_stream:{stream}", out_memory_spaces=space)
+    return annotate(inline_calls(fn), stream)
