@@ -33,10 +33,11 @@
 #                      tensorfloat32, the gpu preset's since session 45: tensor cores, physics and rollout at
 #                      float32), on one compile cache: base_s0 (cold), prec_s0..2, base_s1 (warm but for the update),
 #                      ONNX exported; $OUT/<run>.onnx for the ship gate (`bar-deploy eval`)
-#   prealloc (~5 min): jax's GPU memory preallocation (75 % of the device, at the first transfer: the model
-#                      build's 1.5-2.2 s on an H200, session 53) against XLA_PYTHON_CLIENT_PREALLOCATE=false,
-#                      the default command cold then warm each, alternated on one host (A cold, B cold,
-#                      A warm, B warm), each pair on its own empty cache
+#   prealloc (~5 min): jax's GPU memory preallocation (XLA_PYTHON_CLIENT_PREALLOCATE=true: 75 % of the
+#                      device at the first transfer, the model build's 1.5-2.4 s on an H200, sessions 53-54)
+#                      against the pool grown on demand (false, the trainer's default since session 54), the
+#                      default command cold then warm each, alternated on one host (A cold, B cold, A warm,
+#                      B warm; PREALLOC_FIRST=false runs B first), each pair on its own empty cache
 #   smoke             : CPU logic check of startup and rsl with tiny sizes (not for the GPU); smoke-loadflags,
 #                      smoke-update, smoke-precision: the same for loadflags, update, precision
 #
@@ -214,16 +215,21 @@ precision() {
 }
 
 prealloc() {
-  local runs=("$RUNS/pa_cold" "$RUNS/pb_cold" "$RUNS/pa_warm" "$RUNS/pb_warm")
+  local runs=("$RUNS/pa_cold" "$RUNS/pb_cold" "$RUNS/pa_warm" "$RUNS/pb_warm") arm arms=(pa pb) phase
+  [ "${PREALLOC_FIRST:-true}" = false ] && arms=(pb pa)
   rm -rf "$WORK/jaxcache_pa" "$WORK/jaxcache_pb"
-  ppo pa_cold 200 --compile-cache-dir "$WORK/jaxcache_pa" --max-minutes "${COLD_MIN:-1.3}"
-  XLA_PYTHON_CLIENT_PREALLOCATE=false ppo pb_cold 200 --compile-cache-dir "$WORK/jaxcache_pb" \
-    --max-minutes "${COLD_MIN:-1.3}"
-  finish prealloc "${runs[@]}" > /dev/null
-  ppo pa_warm 120 --compile-cache-dir "$WORK/jaxcache_pa" --max-minutes "${WARM_MIN:-0.6}"
-  XLA_PYTHON_CLIENT_PREALLOCATE=false ppo pb_warm 120 --compile-cache-dir "$WORK/jaxcache_pb" \
-    --max-minutes "${WARM_MIN:-0.6}"
-  echo "pb_*: XLA_PYTHON_CLIENT_PREALLOCATE=false; pa_*: jax's default (preallocate)" > "$WORK/prealloc.md"
+  for phase in cold warm; do
+    for arm in "${arms[@]}"; do
+      local value=false minutes=${WARM_MIN:-0.6} limit=120
+      [ "$arm" = pa ] && value=true
+      [ "$phase" = cold ] && minutes=${COLD_MIN:-1.3} && limit=200
+      XLA_PYTHON_CLIENT_PREALLOCATE=$value ppo "${arm}_$phase" $limit --compile-cache-dir "$WORK/jaxcache_$arm" \
+        --max-minutes "$minutes"
+    done
+    [ "$phase" = cold ] && finish prealloc "${runs[@]}" > /dev/null
+  done
+  echo "pa_*: XLA_PYTHON_CLIENT_PREALLOCATE=true (jax preallocates); pb_*: false (the trainer's default); order: ${arms[*]}" \
+    > "$WORK/prealloc.md"
   finish prealloc "${runs[@]}" --append "$WORK/prealloc.md"
 }
 

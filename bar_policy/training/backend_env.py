@@ -3,9 +3,12 @@
 ``set_backend_env(cfg)`` runs first in ``run`` (before anything touches a device) and returns the notes the
 run prints under its header:
 
-- **rsl-rl and GPU memory.** ``XLA_PYTHON_CLIENT_PREALLOCATE=false`` (jax grows its pool on demand instead of
-  taking 75 % of the GPU), so torch has the memory, unless the user set it or
-  ``XLA_PYTHON_CLIENT_MEM_FRACTION``.
+- **GPU memory on demand.** ``XLA_PYTHON_CLIENT_PREALLOCATE=false``: jax grows its pool as programs need it
+  instead of reserving 75 % of the GPU at its first transfer, unless the user set it or
+  ``XLA_PYTHON_CLIENT_MEM_FRACTION``. That reservation was the model build's time on a GPU (the env's first
+  ``device_put``): 2.37 s cold and 1.44 s warm on an H200, against 0.12 and 0.05 s without it, at the same
+  steady rate (324 k against 321 k env steps/s; docs/benchmarks.md "Session 54"). rsl-rl runs need it for
+  torch's share of the memory, on any platform; a CPU-only brax run has no pool, so nothing is set there.
 - **Command buffers that run independent kernels at once.** XLA records runs of a GPU program's kernels into
   command buffers (CUDA graphs). By default (``LHS``) each buffer runs its kernels one after another;
   ``--xla_gpu_command_buffer_scheduling_mode=CONCURRENT`` gives the graph the program's own buffer
@@ -49,11 +52,13 @@ from bar_policy.overrides import split_override
 
 __all__ = [
     "GRAPHED_LOOPS",
+    "MEMORY_VARS",
     "SCHEDULING",
     "SMALL_CPU",
     "WRITTEN_OUT",
     "cpu_threads_decision",
     "loops_decision",
+    "memory_decision",
     "scheduling_decision",
     "set_backend_env",
 ]
@@ -70,6 +75,12 @@ SCHEDULING = "--xla_gpu_command_buffer_scheduling_mode=CONCURRENT"
 
 GRAPHED_LOOPS = "--xla_gpu_enable_command_buffer=+WHILE"
 """The XLA flag a GPU run on a written-out Cholesky adds: while loops join the command-buffer types."""
+
+PREALLOCATE = "XLA_PYTHON_CLIENT_PREALLOCATE"
+"""The variable that makes jax's GPU client reserve its pool at start (``false``: grow on demand)."""
+
+MEMORY_VARS = (PREALLOCATE, "XLA_PYTHON_CLIENT_MEM_FRACTION")
+"""The user's choices of jax's GPU memory: either one set leaves the memory part alone."""
 
 WRITTEN_OUT = ("columns", "scalar")
 """The env's ``cholesky`` forms with no library call in the step (``envs.physics_step.CHOLESKY``)."""
@@ -106,6 +117,20 @@ def loops_decision(
     if cpu_only or not forms or forms[-1] not in WRITTEN_OUT or _names(xla_flags, GRAPHED_LOOPS):
         return "none"
     return "note" if backend_started else "set"
+
+
+def memory_decision(*, cpu_only: bool, backend: str, user_set: bool, backend_started: bool) -> str:
+    """Whether to set ``PREALLOCATE`` to ``false`` (module docstring): ``set``, ``note`` or ``none``.
+
+    ``set`` for a GPU run and for every rsl-rl run (torch's memory); ``note``: such a run whose GPU backend
+    already runs (the variable would do nothing); ``none``: a CPU-only brax run (no pool to reserve), or the
+    user chose (``user_set``: one of ``MEMORY_VARS`` is in the environment).
+    """
+    if user_set or (cpu_only and backend != "rsl-rl"):
+        return "none"
+    if backend_started:
+        return "none" if cpu_only else "note"
+    return "set"
 
 
 def cpu_threads_decision(
@@ -162,9 +187,20 @@ def set_backend_env(cfg: Any) -> list[str]:
         notes.append(f"XLA: {GRAPHED_LOOPS} (the written-out Cholesky's Newton loops as graph nodes)")
     elif loops == "note":
         notes.append(f"note: jax's GPU backend already runs, so XLA_FLAGS lacks {GRAPHED_LOOPS} (slower)")
-    memory = {"XLA_PYTHON_CLIENT_PREALLOCATE", "XLA_PYTHON_CLIENT_MEM_FRACTION"}
-    if cfg.backend == "rsl-rl" and not memory & set(os.environ):
-        os.environ["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"
+    memory = memory_decision(
+        cpu_only=cpu_only,
+        backend=cfg.backend,
+        user_set=any(v in os.environ for v in MEMORY_VARS),
+        backend_started=started,
+    )
+    if memory == "set":
+        os.environ[PREALLOCATE] = "false"
+        if not cpu_only:
+            notes.append(
+                f"GPU memory: {PREALLOCATE}=false (jax's pool grows on demand; training.backend_env)"
+            )
+    elif memory == "note":
+        notes.append(f"note: jax's GPU backend already runs, so it reserved its memory pool ({PREALLOCATE})")
     decision = cpu_threads_decision(
         cpu_only=cpu_only,
         jaxlib_version=jaxlib.__version__,

@@ -1,5 +1,5 @@
-"""The CPU-thread setting against jaxlib 0.10's LAPACK deadlock and XLA's scheduling flag on a GPU
-(``training.backend_env``).
+"""The CPU-thread setting against jaxlib 0.10's LAPACK deadlock, XLA's scheduling flag and jax's GPU memory
+pool on a GPU (``training.backend_env``).
 
 The decision is a pure function of the conditions; the subprocess test runs, on a machine where the run
 would set it (jaxlib < 0.11, at most ``SMALL_CPU`` cores), the smallest program that deadlocked here:
@@ -22,10 +22,13 @@ import pytest
 from bar_policy.training import backend_env
 from bar_policy.training.backend_env import (
     GRAPHED_LOOPS,
+    MEMORY_VARS,
+    PREALLOCATE,
     SCHEDULING,
     SMALL_CPU,
     cpu_threads_decision,
     loops_decision,
+    memory_decision,
     scheduling_decision,
 )
 
@@ -81,16 +84,62 @@ def test_loops_decision_table():
     assert set(backend_env.WRITTEN_OUT) == set(CHOLESKY) - {"library"}
 
 
+def _no_memory_choice(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Neither memory variable in the environment, and both restored after the test (``set_backend_env``
+    writes ``os.environ`` itself: a variable that was absent is recorded first, so it is removed again)."""
+    for var in MEMORY_VARS:
+        monkeypatch.setenv(var, "")
+        monkeypatch.delenv(var)
+
+
+def test_memory_decision_table():
+    """GPU runs of either backend grow jax's pool on demand; rsl-rl on any platform (torch's share); a
+    CPU-only brax run has no pool; a user's variable wins; a backend already up gets a note on a GPU."""
+    base = {"cpu_only": False, "backend": "brax", "user_set": False, "backend_started": False}
+    assert memory_decision(**base) == "set"
+    assert memory_decision(**{**base, "backend": "rsl-rl"}) == "set"
+    assert memory_decision(**{**base, "cpu_only": True}) == "none"
+    assert memory_decision(**{**base, "cpu_only": True, "backend": "rsl-rl"}) == "set"
+    assert memory_decision(**{**base, "user_set": True}) == "none"
+    assert memory_decision(**{**base, "user_set": True, "backend": "rsl-rl"}) == "none"
+    assert memory_decision(**{**base, "backend_started": True}) == "note"
+    late_cpu_rsl = {**base, "backend_started": True, "cpu_only": True, "backend": "rsl-rl"}
+    assert memory_decision(**late_cpu_rsl) == "none"  # nothing to note: a CPU has no pool
+
+
+def test_a_gpu_brax_run_grows_the_memory_pool_unless_the_user_chose(monkeypatch):
+    monkeypatch.setattr(backend_env, "_cpu_only", lambda: False)
+    monkeypatch.setattr("jax._src.xla_bridge.backends_are_initialized", lambda: False)
+    monkeypatch.setenv("XLA_FLAGS", SCHEDULING)  # the scheduling part has nothing to add
+    _no_memory_choice(monkeypatch)
+    from bar_policy.training.config import preset
+
+    notes = backend_env.set_backend_env(preset("tiny"))
+    assert os.environ[PREALLOCATE] == "false"
+    assert len(notes) == 1 and f"{PREALLOCATE}=false" in notes[0]
+    assert backend_env.set_backend_env(preset("tiny")) == []  # now the environment holds a choice
+    for var, value in ((PREALLOCATE, "true"), ("XLA_PYTHON_CLIENT_MEM_FRACTION", "0.5")):
+        _no_memory_choice(monkeypatch)
+        monkeypatch.setenv(var, value)
+        assert backend_env.set_backend_env(preset("tiny")) == []
+        assert os.environ[var] == value and all(v == var or v not in os.environ for v in MEMORY_VARS)
+    _no_memory_choice(monkeypatch)
+    monkeypatch.setattr("jax._src.xla_bridge.backends_are_initialized", lambda: True)
+    notes = backend_env.set_backend_env(preset("tiny"))
+    assert PREALLOCATE not in os.environ and len(notes) == 1 and "already runs" in notes[0]
+
+
 def test_a_written_out_cholesky_run_appends_both_flags(monkeypatch):
     monkeypatch.setattr(backend_env, "_cpu_only", lambda: False)
     monkeypatch.setattr("jax._src.xla_bridge.backends_are_initialized", lambda: False)
     monkeypatch.delenv("XLA_FLAGS", raising=False)
+    _no_memory_choice(monkeypatch)
     from bar_policy.training.config import preset
 
     cfg = dataclasses.replace(preset("tiny"), env_overrides=("cholesky=columns",))
     notes = backend_env.set_backend_env(cfg)
     assert os.environ["XLA_FLAGS"] == f"{SCHEDULING} {GRAPHED_LOOPS}"
-    assert len(notes) == 2 and GRAPHED_LOOPS in notes[1]
+    assert len(notes) == 3 and GRAPHED_LOOPS in notes[1] and PREALLOCATE in notes[2]
     assert backend_env.set_backend_env(cfg) == []  # nothing twice
     assert backend_env.set_backend_env(preset("tiny")) == []  # library: nothing to add
 
@@ -102,6 +151,7 @@ def test_a_gpu_run_appends_the_flag_and_keeps_the_users(monkeypatch):
     monkeypatch.setattr("jax._src.xla_bridge.backends_are_initialized", lambda: False)
     monkeypatch.setenv("PJRT_NPROC", "2")
     monkeypatch.setenv("XLA_FLAGS", "--xla_gpu_autotune_level=0")
+    monkeypatch.setenv("XLA_PYTHON_CLIENT_MEM_FRACTION", "0.75")  # the memory part stays out of this test
     from bar_policy.training.config import preset
 
     notes = backend_env.set_backend_env(preset("tiny"))
