@@ -6,6 +6,12 @@ Physics steps/s = env steps/s x the env's ``n_substeps``.
 
     python3 bench/env_throughput.py --envs LiteReach,LiteTrack --batch 8192       # one GPU
     python3 bench/env_throughput.py --batch 4 --steps 2                           # CPU smoke, every env
+    PJRT_NPROC=1 python3 bench/env_throughput.py --envs LiteReach --batch 256 --steps 20 \
+        --env-overrides sim_dt=0.004 fingertip_kinematics=mjx                  # one env variant (CPU)
+
+``--env-overrides`` applies ``key=value`` items to every listed env's default config (``envs.load``'s
+overrides; the gpu preset trains reach at ``sim_dt=0.004``). On a CPU with jaxlib 0.10 and two cores, set
+``PJRT_NPROC=1`` from 219 envs (the trainer does: ``training.backend_env``), or a batch this size may hang.
 
 Prints a markdown table (and writes it to ``--out``).
 """
@@ -23,6 +29,7 @@ def main() -> None:
     )
     p.add_argument("--batch", type=int, default=8192, help="envs per batch")
     p.add_argument("--steps", type=int, default=100, help="control steps per timed call")
+    p.add_argument("--env-overrides", nargs="*", default=[], help="key=value items for every env's config")
     p.add_argument("--out", type=Path, default=None, help="also write the table here")
     a = p.parse_args()
 
@@ -34,13 +41,13 @@ def main() -> None:
 
     rows = [
         f"device {jax.devices()[0].device_kind}, batch {a.batch}, {a.steps} control steps per call, "
-        f"commit {commit_text(collect())}",
+        f"commit {commit_text(collect())}, env overrides {' '.join(a.env_overrides) or 'none'}",
         "",
         "| env | substeps | env steps/s | physics steps/s | compile s |",
         "|---|---|---|---|---|",
     ]
     for name in a.envs.split(",") if a.envs else envs.ALL_ENVS:
-        env = envs.load(name)
+        env = envs.load(name, overrides=a.env_overrides)
         r = raw_env_steps_per_second(
             env,
             envs.wrap_for_brax_training,

@@ -166,7 +166,7 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
     def with_robot_q(self, data: mjx.Data, q: jax.Array) -> mjx.Data:
         """``data`` with the robot's joints at ``q`` (rad, shape (n,)); the scene's other joints unchanged.
 
-        For forward kinematics of a measured pose: ``mjx.kinematics(model, env.with_robot_q(data, q))``.
+        Measured-pose FK: ``site_kinematics.site_positions`` of its qpos (a few sites) or ``mjx.kinematics``.
         """
         if self._dof is None:
             return data.replace(qpos=q)

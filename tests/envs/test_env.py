@@ -39,6 +39,9 @@ def test_registry_and_errors():
         envs.apply_overrides(cfg, ["actuator.latency_steps=[2, 1]"])
     with pytest.raises(ValueError, match="damping"):
         envs.apply_overrides(cfg, ["actuator.damping=rk4"])
+    with pytest.raises(ValueError, match=r"fingertip_kinematics 'fk'; valid: \['chains', 'mjx'\]"):
+        envs.apply_overrides(cfg, ["fingertip_kinematics=fk"])
+    assert envs.apply_overrides(cfg, ["fingertip_kinematics=mjx"]).fingertip_kinematics == "mjx"
 
 
 def test_metadata_arrays(nominal_env):

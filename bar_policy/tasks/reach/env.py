@@ -45,6 +45,7 @@ from bar_policy.envs.robot_config import (
     check_multiple,
     nominal,
 )
+from bar_policy.envs.site_kinematics import plan_sites, site_positions
 from bar_policy.envs.task import TaskStep, Transition
 from bar_policy.obs import ObservationManager
 from bar_policy.robot.constants import FINGERTIP_SITES
@@ -119,6 +120,10 @@ class RewardConfig:
             raise ValueError(f"soft_limit_fraction must be in (0, 1], got {self.soft_limit_fraction}")
 
 
+FINGERTIP_KINEMATICS = ("chains", "mjx")
+"""``ReachEnvConfig.fingertip_kinematics``'s choices."""
+
+
 @dataclass(frozen=True, kw_only=True)
 class ReachEnvConfig(RobotEnvConfig):
     """Everything LiteReach needs. Build with ``default_config()``; derive with ``dataclasses.replace``."""
@@ -136,9 +141,19 @@ class ReachEnvConfig(RobotEnvConfig):
     """Target workspace (chest frame)."""
     reward: RewardConfig = field(default_factory=RewardConfig)
     """Reward terms and weights."""
+    fingertip_kinematics: str = "chains"
+    """How the observation's fingertips are computed from the measured q (``FINGERTIP_KINEMATICS``):
+    ``chains``, the two arms' body chains alone (``envs.site_kinematics``), or ``mjx``, ``mjx.kinematics``
+    of every frame. The same positions to float32 rounding (tests/envs/test_site_kinematics.py); ``chains``
+    traces in a fraction of the time, on a cold start's critical path (docs/benchmarks.md, session 54)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if self.fingertip_kinematics not in FINGERTIP_KINEMATICS:
+            raise ValueError(
+                f"unknown fingertip_kinematics {self.fingertip_kinematics!r}; "
+                f"valid: {list(FINGERTIP_KINEMATICS)}"
+            )
         check_multiple("resample_period_s", self.resample_period_s, self.ctrl_dt)
         if not 0.0 <= self.target_transition_s <= self.resample_period_s:
             raise ValueError(
@@ -184,6 +199,10 @@ class LiteReach(LiteRobotEnv):
         cfg = config or default_config()
         super().__init__(cfg, ObservationManager.for_task("reach", cfg.mode), scene=scene)
         self._site_ids = np.array([self.mj_model.site(s).id for s in FINGERTIP_SITES])
+        # The fingertips' body chains for the observation's forward kinematics (``site_kinematics``: the 15
+        # bodies of the two arms, not ``mjx.kinematics``' every frame); None: ``mjx.kinematics`` runs.
+        chains = cfg.fingertip_kinematics == "chains"
+        self._tip_chains = plan_sites(self.mj_model, self._site_ids) if chains else None
         # The wrist joints (yaw, pitch, roll of each arm), indices into the robot's joint order.
         self._wrists = np.array([i for i, n in enumerate(self.robot.joint_names) if "wrist" in n])
         # The fingertips of the default pose, where each episode's commanded targets start (the deploy
@@ -264,8 +283,18 @@ class LiteReach(LiteRobotEnv):
         return TaskStep(terms=terms, info=task_info, metrics=metrics)
 
     def task_obs(self, model: mjx.Model, data: mjx.Data, q_meas: jax.Array, info: dict) -> dict:
-        """Fingertips by forward kinematics of the measured q, and the two targets."""
-        tips = mjx.kinematics(model, self.with_robot_q(data, q_meas)).site_xpos[self._site_ids]
+        """Fingertips by forward kinematics of the measured q, and the two targets.
+
+        The fingertips are ``mjx.kinematics``' ``site_xpos`` rows; by default computed from their body chains
+        alone (``site_kinematics.site_positions``: the same maths on the same, possibly randomised, model).
+        This runs twice per training program (the step's observation and the auto-reset's) and in the
+        evaluation: with every frame's kinematics it was about a third of those programs' traces.
+        """
+        data_q = self.with_robot_q(data, q_meas)
+        if self._tip_chains is None:
+            tips = mjx.kinematics(model, data_q).site_xpos[self._site_ids]
+        else:
+            tips = site_positions(model, data_q.qpos, self._tip_chains)
         return {
             "fingertip_pos_left": tips[0],
             "fingertip_pos_right": tips[1],
