@@ -53,6 +53,7 @@ from bar_policy.overrides import split_override
 __all__ = [
     "GRAPHED_LOOPS",
     "MEMORY_VARS",
+    "PREALLOCATE",
     "SCHEDULING",
     "SMALL_CPU",
     "WRITTEN_OUT",
@@ -122,15 +123,14 @@ def loops_decision(
 def memory_decision(*, cpu_only: bool, backend: str, user_set: bool, backend_started: bool) -> str:
     """Whether to set ``PREALLOCATE`` to ``false`` (module docstring): ``set``, ``note`` or ``none``.
 
-    ``set`` for a GPU run and for every rsl-rl run (torch's memory); ``note``: such a run whose GPU backend
-    already runs (the variable would do nothing); ``none``: a CPU-only brax run (no pool to reserve), or the
-    user chose (``user_set``: one of ``MEMORY_VARS`` is in the environment).
+    ``set`` for a GPU run and for every rsl-rl run (torch's memory; where jax has no GPU the variable is
+    harmless); ``note``: a GPU run whose backend already runs (the variable would do nothing); ``none``: a
+    CPU-only brax run (no pool to reserve), or the user chose (``user_set``: one of ``MEMORY_VARS`` is in the
+    environment).
     """
     if user_set or (cpu_only and backend != "rsl-rl"):
         return "none"
-    if backend_started:
-        return "none" if cpu_only else "note"
-    return "set"
+    return "note" if backend_started and not cpu_only else "set"
 
 
 def cpu_threads_decision(

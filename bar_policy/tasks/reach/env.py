@@ -288,7 +288,8 @@ class LiteReach(LiteRobotEnv):
         The fingertips are ``mjx.kinematics``' ``site_xpos`` rows; by default computed from their body chains
         alone (``site_kinematics.site_positions``: the same maths on the same, possibly randomised, model).
         This runs twice per training program (the step's observation and the auto-reset's) and in the
-        evaluation: with every frame's kinematics it was about a third of those programs' traces.
+        evaluation: with every frame's kinematics it was about a fifth of the rollout's trace and over half of
+        the reset's (docs/benchmarks.md, session 54).
         """
         data_q = self.with_robot_q(data, q_meas)
         if self._tip_chains is None:
