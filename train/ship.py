@@ -15,7 +15,7 @@ clip set), and judged by the ship gate (``bar_policy.quality.gate``): the thresh
 or one line per miss naming the metric, its value and the threshold. A file that misses is refused: nothing
 is written. A file that passes is published: ``checkpoints/<name>.onnx`` and ``checkpoints/<name>.json``
 (with the gate's record under ``ship_gate``: task, thresholds, verdict, the report's figures); for reach
-also ``docs/training_curve.png`` and the results block of ``docs/training.md`` (they describe the reach
+also ``docs/training_curve.png`` and the results block of ``docs/reach.md`` (they describe the reach
 policy, so a tracker run leaves them alone), then whether the issue's reach targets were met.
 
 Exit status:
@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None, *, eval_options: Mapping[str, Any] | Non
         "(default: 4096 after training here, 0 with --from-run: the machine that trained is not this one)",
     )
     pre.add_argument("--checkpoints-dir", default="checkpoints", help="where the ONNX and JSON go")
-    pre.add_argument("--docs-dir", default="docs", help="where the reach curve and training.md results go")
+    pre.add_argument("--docs-dir", default="docs", help="where the reach curve and reach.md results go")
     known, rest = pre.parse_known_args(sys.argv[1:] if argv is None else argv)
     if known.from_run is None:
         if not any(a.startswith("--run-name") for a in rest):

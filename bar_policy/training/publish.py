@@ -4,7 +4,7 @@
 after loading it with the deploy loader (the same checks ``bar-deploy`` runs), writes
 ``checkpoints/<name>.json`` (config, final evaluation, evaluation history, export record), draws
 ``docs/training_curve.png`` from ``<run>/metrics.jsonl`` and rewrites the results block of
-``docs/training.md`` (between ``<!-- results:start -->`` and ``<!-- results:end -->``); with
+``docs/reach.md`` (between ``<!-- results:start -->`` and ``<!-- results:end -->``); with
 ``docs_dir=None`` it writes no docs (the results block and the curve describe the reach policy).
 ``choose_iterate`` names the file ``publish`` ships, so ``train/ship.py`` can judge that file on held-out data
 before anything is written.
@@ -100,7 +100,7 @@ def _time_axis(ev: list[dict[str, Any]]) -> tuple:
 
 
 def results_markdown(final: dict[str, Any], name: str) -> str:
-    """The results block for docs/training.md from a run's ``final_eval.json`` content."""
+    """The results block for docs/reach.md from a run's ``final_eval.json`` content."""
     fe = final["final_eval"]
     dev = final["config"]["device"]
     ttt = final.get("time_to_threshold_s")
@@ -201,7 +201,7 @@ def publish(
         run_dir: the finished run's directory.
         name: file stem under ``checkpoints_dir``.
         checkpoints_dir: where the ONNX and JSON go.
-        docs_dir: where the curve PNG and ``training.md`` go; None writes no docs (then the returned paths
+        docs_dir: where the curve PNG and ``reach.md`` go; None writes no docs (then the returned paths
             are the ONNX and JSON only).
         iterate: ``"last"``, ``"best"`` or ``"auto"`` (see ``ITERATES``). ``"best"`` ships the last iterate
             when the run's best one is the last.
@@ -227,7 +227,7 @@ def publish(
         return {"onnx": onnx_dst, "json": json_dst}
     docs = Path(docs_dir)
     curve = plot_curve(run_dir, docs / "training_curve.png", final.get("success_threshold", 0.95))
-    md = docs / "training.md"
+    md = docs / "reach.md"
     block = results_markdown(final, name)
     text = md.read_text() if md.exists() else "# Training\n\n## Results\n\n"
     if RESULTS_START in text and RESULTS_END in text:

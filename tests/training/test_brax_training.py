@@ -167,7 +167,7 @@ def test_publish_ships_onnx_json_curve_and_results(brax_run, tmp_path):
     _, summary = brax_run
     docs = tmp_path / "docs"
     docs.mkdir()
-    (docs / "training.md").write_text(f"# T\n\nintro\n\n{RESULTS_START}\nold\n{RESULTS_END}\n\ntail\n")
+    (docs / "reach.md").write_text(f"# T\n\nintro\n\n{RESULTS_START}\nold\n{RESULTS_END}\n\ntail\n")
     paths = publish(summary.run_dir, checkpoints_dir=tmp_path / "ck", docs_dir=docs)
     assert load_policy(paths["onnx"]).n_actions == 14
     shipped = json.loads(paths["json"].read_text())
