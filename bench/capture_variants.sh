@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Issue 19's steady-loop target (loop >= 90 % of the raw env) on one GPU: does a physics step that XLA can
-# record whole into CUDA graphs change the picture? (docs/benchmarks.md, session 42.)
+# record whole into CUDA graphs change the picture? (docs/performance.md, session 42.)
 #
 # XLA records no cuSOLVER potrf and no cuBLAS triangular solve into a command buffer, and a while loop
 # becomes a graph node only when its whole body can be recorded (and WHILE is among the enabled command

@@ -1,7 +1,7 @@
 """What of a GPU program runs outside XLA's command buffers (CUDA graphs)? Read from XLA's HLO dump.
 
 Issue 19's steady target needs the update to run beside the rollout on one GPU. XLA runs two loops of one
-program side by side only when both are nodes of one command buffer (docs/benchmarks.md, sessions 41-43:
+program side by side only when both are nodes of one command buffer (docs/performance.md, sessions 41-43:
 two chains of matmuls did, the trainer's rollout and update did not, even with no library call left in the
 physics step). This script says what keeps a program's instructions out of a command buffer.
 

@@ -23,7 +23,7 @@
 #                      --xla_gpu_experimental_aot_compiled_thunks=true: the serialised executable holds its
 #                      thunks, so a load need not regenerate them), each pair on its own empty cache; flags
 #                      XLA refuses are left out, as in flags. jaxlib 0.11.2 refuses that default (removed:
-#                      docs/startup.md, "What a warm load still costs"): pass LOAD_FLAGS there
+#                      docs/training.md, "What a warm load still costs"): pass LOAD_FLAGS there
 #   update   (~3 min): what an Adam step of the update costs (bench/update_scaling.py, synthetic data, the
 #                      trainer's CONCURRENT schedule): per-leaf Adam with a kernel profile of one update
 #                      call (its 40 costliest kernels), then each variant in $UPDATE_VARIANTS (default: Adam

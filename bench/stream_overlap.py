@@ -28,7 +28,7 @@ the loop's own computations); a refused row now holds XLA's message and the othe
 (H200, jax 0.11.2): a loop-free step on stream 1 inside a loop's body is accepted (two chains in 3.1-3.8
 ms, one alone 5.4-6.1). The streamed iteration, once its stream computation held no call, ran: 219.9 ms
 against 124.7 ms for the two programs with the library Cholesky, 106.8 against 111.7 ms with
-``cholesky=columns`` and ``+WHILE`` (docs/benchmarks.md "Session 53"). On this CPU (jax 0.10) the
+``cholesky=columns`` and ``+WHILE`` (docs/performance.md "Session 53"). On this CPU (jax 0.10) the
 annotation is accepted and ignored.
 
 ``--plain``: the same rows with no stream annotation: the two chains (or the update and the rollout) are

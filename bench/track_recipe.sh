@@ -23,7 +23,7 @@
 #                                          fixed rate 3e-4, entropy cost 1e-3 and gamma 0.98 in place of the
 #                                          field's KL-adaptive rate (its files chatter at 25 Hz), 5e-3 and 0.99:
 #                                          files that pass the ship gate, within 20 % of brax's
-#                                          errors (docs/benchmarks.md "Sessions 48-50")
+#                                          errors (docs/performance.md "Sessions 48-50")
 #   bash bench/track_recipe.sh smoke      CPU check of the script with tiny sizes (smoke-rsl: the rsl part)
 #
 # $OUT gets runs.tgz (each run's config, metrics.jsonl, final_eval.json, ONNX files, newest checkpoint and

@@ -17,7 +17,7 @@ commands give them. The line printed (and appended to ``--out``) gives ms per up
 
 What an Adam step costs on one GPU (session 44: the update is one CUDA graph of 96 kernels per Adam step;
 session 45: its time is the float32 GEMMs, so the precision of the products is the lever, not Adam's form;
-docs/benchmarks.md "Session 45"):
+docs/performance.md "Session 45"):
 
     python bench/update_scaling.py --label "per-leaf Adam" --profile /tmp/upd --profile-ops 30
     python bench/update_scaling.py --label "flat Adam" --flat-adam

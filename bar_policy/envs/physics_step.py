@@ -12,7 +12,7 @@
    steps/s against 2.13M and doubled the env's compile (session 36). It is kept because XLA never records
    those library calls into a command buffer (a CUDA graph): with them the Newton ``while_loop`` and the
    rollout cannot each be one graph, and the loop's predicate goes to the host every Newton iteration
-   (docs/benchmarks.md, session 42).
+   (docs/performance.md, session 42).
 
 None changes the physics: each is MJX's computation rearranged (tests: ``tests/envs/test_physics_step.py``,
 equal to ``mjx.step`` to float64 rounding). The sequence below is ``mujoco.mjx._src.forward``'s

@@ -163,7 +163,8 @@ class PPOConfig:
     """Weight of the value loss."""
     update_precision: Literal["run", "tensorfloat32", "BF16_BF16_F32_X3"] = "run"
     """SGD passes' matrix products: ``run`` (``TrainConfig.matmul_precision``) or tensor cores' (jax's names;
-    physics, rollout keep the run's; rsl-rl: TF32 only). benchmarks.md "Session 45": H200 30 -> 17 / 22 ms."""
+    physics, rollout keep the run's; rsl-rl: TF32 only). docs/performance.md: H200 update 30 -> 17 / 22 ms
+    (float32 -> tensorfloat32 / BF16_BF16_F32_X3)."""
     actor_warmup_iterations: int = 0
     """First iterations in which only the critic learns (policy gradients zeroed; brax backend): against an
     untrained critic the first updates push the policy off an action prior (piano: F1 0.70 -> 0.23 in 2.3M
@@ -325,7 +326,7 @@ class TrainConfig:
     on a CPU only with BAR_POLICY_EXECUTABLE_CACHE_ON_CPU=1; under several processes each keeps its own
     entries, loaded only when every process holds them. H100, LiteReach gpu preset (session 32): two warm
     runs loaded all 4 programs, first evaluation at 22.0 and 25.0 s instead of 35-41 s with jax's
-    persistent cache alone, same learning curve (docs/startup.md)."""
+    persistent cache alone, same learning curve (docs/training.md)."""
     ppo: PPOConfig = field(default_factory=PPOConfig)
     network: NetworkConfig = field(default_factory=NetworkConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)

@@ -4,7 +4,7 @@ jax's persistent compilation cache keys an executable on the lowered program, so
 lower (seconds of Python per program) before it can hit. This cache keys the *serialised executable*
 (``jax.experimental.serialize_executable``) on everything that determines the program instead, so a hit
 skips the trace, the lowering and the compile. ``startup.Compiler`` consults it for every program it
-submits; ``docs/startup.md`` has the measurements.
+submits; ``docs/training.md`` has the measurements.
 
 **The key** (``ExecutableCache.key``): a SHA-256 over a JSON document of
 
@@ -82,7 +82,7 @@ tens of MB)."""
 CPU_ENV = "BAR_POLICY_EXECUTABLE_CACHE_ON_CPU"
 """Set to 1 to use the cache on the CPU backend: off there by default, since a deserialised CPU executable
 of the brax epoch crashed jaxlib 0.10.2 (segfault) when run; the cause (LAPACK not initialised in a process
-that lowered nothing) is fixed by ``_init_lazy_kernels`` (``docs/startup.md``)."""
+that lowered nothing) is fixed by ``_init_lazy_kernels`` (``docs/training.md``)."""
 
 _log = logging.getLogger(__name__)
 
@@ -131,7 +131,7 @@ class ExecutableCache:
     def _record_loaded(self, key: str) -> None:
         """Add ``key`` to this process's in-flight record (until ``confirm``, a crash bans it).
 
-        The crash guard of jaxlib 0.10.2's CPU loads (docs/startup.md). Programs load on several threads
+        The crash guard of jaxlib 0.10.2's CPU loads (docs/training.md). Programs load on several threads
         (the evaluation's on a worker), so the list and its file are updated under a lock.
         """
         with self._lock:  # one writer at a time: a record written from a stale list would lose a key
@@ -246,7 +246,7 @@ def _init_lazy_kernels() -> None:
     lowering rule of each linalg primitive (``lapack.prepare_lapack_call``), not at import. A process that
     loads an executable instead of lowering it never calls it, and the first LAPACK call of the loaded
     program jumps to address 0: the segfault of the brax epoch (MJX's solver factorises with
-    ``potrf``) on a CPU with jaxlib 0.10.2 (docs/startup.md). The GPU's hybrid (host LAPACK) kernels are
+    ``potrf``) on a CPU with jaxlib 0.10.2 (docs/training.md). The GPU's hybrid (host LAPACK) kernels are
     initialised the same lazy way (``gpu_solver.initialize_hybrid_kernels``). Both calls are idempotent;
     the first loads scipy (about 0.15 s).
     """
@@ -290,7 +290,7 @@ exported, where caches live, whether XLA's autotune cache is seeded: that change
 XLA picks for a fusion, never what the program computes; when the step-0 evaluation runs; where the
 coordinator listens: the process count and index are in the key's platform part): left out of the
 key (a dotted name: a field of a section), so a rerun under another run name or wall-clock budget is
-served. Until stop 31 they were in it, and the GPU's warm runs missed (docs/startup.md)."""
+served. Until stop 31 they were in it, and the GPU's warm runs missed (docs/training.md)."""
 
 
 def program_fields(train: Mapping[str, Any]) -> dict[str, Any]:
@@ -370,7 +370,7 @@ def _crashed_marker(directory: Path) -> Path:
 
 
 def off_reason(cfg: Any, cache_dir: Path | None, backend: str) -> str:
-    """Why the run gets no executable cache, '' when it gets one (the default decision, docs/startup.md).
+    """Why the run gets no executable cache, '' when it gets one (the default decision, docs/training.md).
 
     Args:
         cfg: the run's ``TrainConfig`` (``executable_cache``).
@@ -387,9 +387,9 @@ def off_reason(cfg: Any, cache_dir: Path | None, backend: str) -> str:
 
 
 def executable_cache_line(cfg: Any, cache_dir: Path | None, cache: ExecutableCache | None) -> str:
-    """The run's log line: ``executable cache: <dir> (docs/startup.md)`` or ``... off (<why>)``."""
+    """The run's log line: ``executable cache: <dir> (docs/training.md)`` or ``... off (<why>)``."""
     if cache is not None:
-        return f"executable cache: {cache.directory} (docs/startup.md)"
+        return f"executable cache: {cache.directory} (docs/training.md)"
     import jax
 
     why = off_reason(cfg, cache_dir, jax.default_backend())

@@ -4,7 +4,7 @@ XLA runs a ``call`` whose frontend attributes name a stream (``_xla_stream_annot
 ``compute_on(compute_type="gpu_stream:N")``) asynchronously on that stream, so the work after it in the
 program, up to the first use of its results, runs beside it. Two limits of XLA's pass
 (``ExplicitStreamAnnotationAsyncWrapper``) shape this module (measured on an H200, jax 0.11.2,
-docs/benchmarks.md "Session 53"):
+docs/performance.md "Session 53"):
 
 - the annotated computation may sit in a loop's body, but it must hold no loop and no nested call itself:
   jax annotates every op traced under the annotation, so a nested ``jit`` (most ``jnp`` functions, optax,

@@ -10,7 +10,7 @@ in one ``scan``, so that a GPU may run them side by side (``bench/stream_overlap
 - ``streamed``: the same with each SGD pass on a GPU stream of its own (``training.gpu_stream``), its Adam
   steps written out (a stream's computation holds no loop).
 
-Measured on an H200 (docs/benchmarks.md, sessions 44 and 53): neither pays at the reach default. With the
+Measured on an H200 (docs/performance.md, sessions 44 and 53): neither pays at the reach default. With the
 library Cholesky the streamed iteration took 220 ms against 125 ms for the two programs (the stream's
 kernels are launched one by one while the host drives the physics' Newton loops); with
 ``cholesky=columns`` and graphed loops 106.8 against 111.7 ms, beside a 95.8 ms rollout alone, and its

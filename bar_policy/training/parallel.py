@@ -194,7 +194,7 @@ def choose_partitioner() -> str:
     On 2 and 4 H200s (jax 0.11.2, CUDA 13) XLA segfaults while compiling any multi-device program that
     holds ``mjx.forward``/``mjx.step`` or returns an ``mjx.Data`` whole; one device compiles them, and the
     same programs compile on every device count once ``jax_use_shardy_partitioner`` is off
-    (``docs/benchmarks.md``; the bisect script is at ``git show dec95c9:bench/pmap_reset_bisect.py``).
+    (``docs/performance.md``; the bisect script is at ``git show dec95c9:bench/pmap_reset_bisect.py``).
     ``JAX_USE_SHARDY_PARTITIONER`` in the environment wins. Idempotent; returns the partitioner in use, for a
     run's header.
     """

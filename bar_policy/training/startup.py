@@ -9,7 +9,7 @@ the evaluation, the reset). Five things cut it:
 - **Executable cache** (``bar_policy.training.executable_cache``, handed to ``Compiler``): jax's cache is
   keyed on the lowered program, so a warm run still traces and lowers every program; this one stores the
   serialised executable under a key of everything that determines it (config, package content, library
-  versions, devices, argument signature), so a rerun loads it without tracing (``docs/startup.md``). On by
+  versions, devices, argument signature), so a rerun loads it without tracing (``docs/training.md``). On by
   default on GPUs.
 - **Autotune seed** (``bar_policy.training.autotune_seed``): XLA's GPU autotuning results shipped for a
   device kind and jaxlib, copied into the cache's per-fusion autotune directory, so a cold compile skips

@@ -186,7 +186,7 @@ def test_a_tampered_archive_or_member_is_refused_and_counted(tmp_path, gpu):
 
 
 # The shipped seeds: archive -> (device kind, XLA's subdirectory, commit, programs, entries), from each cold
-# run's pack (docs/startup.md).
+# run's pack (docs/training.md).
 H100, H100_DIR = "NVIDIA H100 80GB HBM3", "699b92c0fb30cb16"
 H200, H200_DIR = "NVIDIA H200", "ed0e56ab8b2a0ecb"
 EPOCH = ("reset", "epoch", "init", "evaluate")

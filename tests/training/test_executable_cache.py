@@ -230,7 +230,7 @@ def test_an_entry_under_another_key_is_refused(tmp_path, caplog):
 
 
 def test_default_is_on_for_gpus_and_several_processes_off_on_cpus(tmp_path, monkeypatch):
-    """The default decision (docs/startup.md, "Switches"), the backend given explicitly.
+    """The default decision (docs/training.md, "Switches"), the backend given explicitly.
 
     Several processes keep it on since session 39: each stores and loads its own entries, and a program is
     loaded only when all hold it (``test_distributed.py`` runs that path)."""
@@ -261,7 +261,7 @@ def test_default_is_on_for_gpus_and_several_processes_off_on_cpus(tmp_path, monk
     assert cache is not None and cache.directory == tmp_path / "executables"
     assert (
         ec.executable_cache_line(cfg, tmp_path, cache)
-        == f"executable cache: {cache.directory} (docs/startup.md)"
+        == f"executable cache: {cache.directory} (docs/training.md)"
     )
 
 

@@ -145,7 +145,7 @@ class ReachEnvConfig(RobotEnvConfig):
     """How the observation's fingertips are computed from the measured q (``FINGERTIP_KINEMATICS``):
     ``chains``, the two arms' body chains alone (``envs.site_kinematics``), or ``mjx``, ``mjx.kinematics``
     of every frame. The same positions to float32 rounding (tests/envs/test_site_kinematics.py); ``chains``
-    traces in a fraction of the time, on a cold start's critical path (docs/benchmarks.md, session 54)."""
+    traces in a fraction of the time, on a cold start's critical path (docs/performance.md, session 54)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -289,7 +289,7 @@ class LiteReach(LiteRobotEnv):
         alone (``site_kinematics.site_positions``: the same maths on the same, possibly randomised, model).
         This runs twice per training program (the step's observation and the auto-reset's) and in the
         evaluation: with every frame's kinematics it was about a fifth of the rollout's trace and over half of
-        the reset's (docs/benchmarks.md, session 54).
+        the reset's (docs/performance.md, session 54).
         """
         data_q = self.with_robot_q(data, q_meas)
         if self._tip_chains is None:

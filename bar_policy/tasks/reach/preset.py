@@ -18,7 +18,7 @@ GPU = {
 """Default, for one H100: 40 M steps, 4096 envs, 40,960 env steps and 128 SGD steps per iteration, a 4 ms
 physics step (5 per 20 ms control step).
 
-Measured (docs/benchmarks.md "Session 37", one or two runs per H100, evaluations every 327k env steps):
+Measured (docs/performance.md "Session 37", one or two runs per H100, evaluations every 327k env steps):
 - ``batch_size`` 256 (one 10-step unroll per env per iteration, so twice the SGD steps per env step of 512)
   crossed 95 % success at 1.64 M env steps in 5 runs of 5 (seeds 0-2 at 2 ms, 1-2 at 4 ms; 95.5-99.9 %
   there), where 512 needed 2.29-2.46 M. It costs more per env step (the update runs as often for half the
@@ -29,7 +29,7 @@ Measured (docs/benchmarks.md "Session 37", one or two runs per H100, evaluations
   five 2 ms files; every miss was torque-cap time at the episode's first command (two reward costs on it
   were tried in session 38 and rejected). The env's ``wrist_posture`` cost (session 39) aims at its cause:
   its three files (seeds 0-2) reached 95 % at 1.64 M env steps each, and these three and the default
-  command's cold and warm files on another host all passed (docs/benchmarks.md "Session 39").
+  command's cold and warm files on another host all passed (docs/performance.md "Session 39").
   ``--env-overrides sim_dt=0.002`` trains at the model's own step (a path given on the command line
   replaces the preset's value for it; the preset's other items stay).
 - ``update_precision`` tensorfloat32 (session 45, H200): the SGD passes' matrix products on TF32 tensor

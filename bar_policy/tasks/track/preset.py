@@ -101,7 +101,7 @@ Session 50 (one H200, commit e57c7cf, 8.6 min, with rsl-rl's actions sampled wit
 ``training.rsl_rl_sampling``): seeds 0 and 1 trained 96.9 / 95.0 M env steps; on the sim target's held-out
 clips 0.0103 / 0.0104 rad and 0.77 / 0.78 cm, 0.47 / 0.52 mrad worst chatter, no tick at a cap, the bus
 within 0.7 % of the sim: both pass the ship gate, at -14 / -13 % joint and +5 / +7 % fingertip error of
-brax's shipped tracker (docs/benchmarks.md "Session 50"; session 49's run of this preset, before that fix:
+brax's shipped tracker (docs/performance.md "Session 50"; session 49's run of this preset, before that fix:
 86.3 M env steps, 0.0117 rad / 0.91 cm).
 
 Not at 16384 envs (session 51, seed 0): with the field's 4 minibatches, half the Adam steps per env step, it
