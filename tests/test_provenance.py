@@ -56,7 +56,7 @@ def test_a_file_without_provenance_loads_and_says_so():
 
 
 def test_the_shipped_reach_policy_says_what_trained_it():
-    """The reach policy shipped from the H100 run of issue 16 (docs/training.md): its commit, a clean tree,
+    """The reach policy shipped from the H100 run of issue 16 (docs/reach.md): its commit, a clean tree,
     the command, and the 1 s command transition it was trained with."""
     from bar_policy.deploy.policy import load_policy
 
