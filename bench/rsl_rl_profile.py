@@ -54,11 +54,11 @@ def main() -> int:
     from rsl_rl.runners import OnPolicyRunner
 
     from bar_policy import envs
-    from bar_policy.training.rsl_rl_backend import rsl_rl_train_cfg
-    from bar_policy.training.rsl_rl_env import RslRlVecEnv, torch_device_for_jax
+    from bar_policy.training.rsl_rl.backend import rsl_rl_train_cfg
+    from bar_policy.training.rsl_rl.env import RslRlVecEnv, torch_device_for_jax
+    from bar_policy.training.rsl_rl.torch_bridge import jax_to_torch, torch_to_jax
+    from bar_policy.training.rsl_rl.torch_precision import update_precision
     from bar_policy.training.startup import configure_compile_cache
-    from bar_policy.training.torch_bridge import jax_to_torch, torch_to_jax
-    from bar_policy.training.torch_precision import update_precision
 
     configure_compile_cache(True)
     env = load_env(args.env, cfg)
@@ -90,7 +90,7 @@ def main() -> int:
         return t
 
     def rollout(obs: object, mark: Callable[[str, float], float] = unmarked) -> tuple[object, float]:
-        """The trainer's rollout (``rsl_rl_backend``'s loop), ``mark`` called after each phase; returns the
+        """The trainer's rollout (``rsl_rl.backend``'s loop), ``mark`` called after each phase; returns the
         last observations and ``mark``'s last time."""
         t = time.perf_counter()
         with torch.inference_mode():

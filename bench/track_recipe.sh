@@ -128,7 +128,7 @@ case "$PART" in
       # The field's rsl-rl values but not its networks or initial std (the preset's networks and reference
       # prior stay; 0.3 action units: at the field's 1.0 the wrists end at their limits, docs/training.md).
       PRE=$(python3 -c "
-from bar_policy.training.rsl_rl_config import field_cli_flags
+from bar_policy.training.rsl_rl.config import field_cli_flags
 own = ('network.policy_hidden', 'network.value_hidden', 'network.init_noise_std', 'ppo.update_precision')
 print(' '.join(field_cli_flags(8192, leave_out=own)))") || exit 1
       PRE="--backend rsl-rl $PRE --network.init-noise-std 0.3"

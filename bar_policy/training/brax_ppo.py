@@ -74,7 +74,7 @@ from bar_policy.training.learner import TrainingState, make_learner
 from bar_policy.training.networks import make_networks
 from bar_policy.training.parallel import barrier, make_data_parallel
 from bar_policy.training.progress import RunLogger, next_would_overrun
-from bar_policy.training.rsl_rl_config import brax_not_applied
+from bar_policy.training.rsl_rl.config import brax_not_applied
 from bar_policy.training.startup import Compiler, CompileStats, StartupTimer
 
 __all__ = [

@@ -80,7 +80,7 @@ class NetworkConfig:
     whole action) or the prior the env serves (its record's ``EnvEntry.action_prior``, built by the env's
     ``action_prior``; e.g. the tracker's ``reference``, its reference pose ``prior_lead_steps`` ahead, read
     from the observation); the MLP learns the correction. Both backends (rsl-rl: the env adds the prior to
-    the Gaussian actor's action, ``training.rsl_rl_prior``); written into the ONNX graph."""
+    the Gaussian actor's action, ``training.rsl_rl.prior``); written into the ONNX graph."""
     prior_lead_steps: int = 5
     """Reference frame of the ``reference`` prior, control steps ahead (1..the layout's lookahead): 5 = 100
     ms, which the action filter's lag (53-64 ms at 2.5-3 Hz) and the PD law's need: with a zero MLP on the sim

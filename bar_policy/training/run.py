@@ -197,8 +197,8 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
 
         if cfg.backend == "brax":
             from bar_policy.training.brax_ppo import train_brax
-        else:  # torch-free: rsl_rl_backend (torch) is imported once its programs are compiling
-            from bar_policy.training.rsl_rl_programs import prepare_rsl_rl
+        else:  # torch-free: rsl_rl.backend (torch) is imported once its programs are compiling
+            from bar_policy.training.rsl_rl.programs import prepare_rsl_rl
 
     # The env's model build (bar_policy._phases.MODEL_BUILD) is its own row, taken out of this one.
     with timer.active(), timer.phase(sb.ENV_BUILD):
@@ -253,7 +253,7 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
                 timer=timer, executable_cache=exec_cache,
             )  # fmt: skip
         with timer.phase(sb.RSL_IMPORTS):
-            from bar_policy.training.rsl_rl_backend import train_rsl_rl
+            from bar_policy.training.rsl_rl.backend import train_rsl_rl
         result = train_rsl_rl(
             env, cfg, logger, randomizer=randomizer, checkpoint_dir=ckpt_dir, config_record=record,
             timer=timer, eval_env=eval_env, programs=programs,

@@ -20,7 +20,7 @@ from bar_policy.training.brax_programs import _policy_params, make_programs
 from bar_policy.training.config import apply_overrides, preset
 from bar_policy.training.learner import make_learner
 from bar_policy.training.parallel import AXIS, DataParallel
-from bar_policy.training.rsl_rl_programs import EnvPrograms
+from bar_policy.training.rsl_rl.programs import EnvPrograms
 
 WEIGHT = "reward.scales.success=0.6"
 

@@ -8,7 +8,7 @@ import pytest
 
 from bar_policy.training.cli import parse_config
 from bar_policy.training.config import preset
-from bar_policy.training.rsl_rl_config import (
+from bar_policy.training.rsl_rl.config import (
     FIELD_RSL_RL_PPO,
     RSL_RL_LR_BOUNDS,
     brax_not_applied,
@@ -86,8 +86,9 @@ def test_rsl_preset_is_the_gpu_preset_at_the_fields_values():
 
 def test_only_an_update_precision_torch_lacks_is_said_not_applied_on_rsl_rl():
     """``--backend rsl-rl`` applies the gpu and track presets' TF32 SGD passes to torch's update
-    (``torch_precision``), so nothing is said of it; the three-pass bfloat16 product, which torch lacks, gets
-    one line naming it and what torch applies; ``--preset rsl`` and the field's values set ``run``."""
+    (``rsl_rl.torch_precision``), so nothing is said of it; the three-pass bfloat16 product, which torch
+    lacks, gets one line naming it and what torch applies; ``--preset rsl`` and the field's values set
+    ``run``."""
     gpu_on_rsl = field_hyperparameters(dataclasses.replace(preset("gpu"), backend="rsl-rl"))
     assert gpu_on_rsl.ppo.update_precision == "run" and not_applied(gpu_on_rsl) == []
     tf32 = dataclasses.replace(

@@ -24,9 +24,9 @@ from bar_policy.export import _run_onnx, export_policy
 from bar_policy.obs import ObservationManager
 from bar_policy.obs.action_prior import ActionPrior, reference_prior
 from bar_policy.tasks.track import track_action_scale, track_default_pose
-from bar_policy.training.rsl_rl_backend import mlp_policy_from_rsl_rl, torch_policy_reference
-from bar_policy.training.rsl_rl_env import RslRlVecEnv
-from bar_policy.training.rsl_rl_prior import commanded_action, start_actor_at_prior
+from bar_policy.training.rsl_rl.backend import mlp_policy_from_rsl_rl, torch_policy_reference
+from bar_policy.training.rsl_rl.env import RslRlVecEnv
+from bar_policy.training.rsl_rl.prior import commanded_action, start_actor_at_prior
 
 N = 14
 K = 5  # the tracking layout's lookahead frames
@@ -186,7 +186,7 @@ def test_start_at_prior_makes_the_first_mean_the_prior(track_setup):
 
 def test_actor_warmup_stays_refused_on_rsl_rl(toy_env, tmp_path):
     """network.action_prior is accepted now; ppo.actor_warmup_iterations is still a brax-only option."""
-    from bar_policy.training.rsl_rl_backend import train_rsl_rl
+    from bar_policy.training.rsl_rl.backend import train_rsl_rl
 
     cfg = toy_config(tmp_path, "warm", [*TOY_RSL, "ppo.actor_warmup_iterations=2"])
     with pytest.raises(

@@ -72,7 +72,7 @@ RSL = {
     "ppo.update_precision": "run",
 }
 """The gpu preset on rsl-rl as its users train arm reach: the field's hyperparameters
-(``training.rsl_rl_config.FIELD_RSL_RL_PPO``, sources there; a test holds this dict equal to
+(``training.rsl_rl.config.FIELD_RSL_RL_PPO``, sources there; a test holds this dict equal to
 ``field_hyperparameters(preset("gpu"))``) for 4096 envs: 24 steps per env and 5 epochs of 4 minibatches per
 iteration (98,304 env steps, 20 SGD steps), KL-adaptive learning rate from 1e-3, [256, 128, 64] elu.
 ``python train/ppo.py --preset rsl``. One H200, cold (session 51): 95 % at 92 s, 169 k env steps/s steady.

@@ -61,7 +61,7 @@ TRACK_RSL = {
     **TRACK,
     "preset": "track-rsl",
     "backend": "rsl-rl",
-    # The field's rsl-rl values for 8192 envs (training.rsl_rl_config.field_overrides(8192), sources there).
+    # The field's rsl-rl values for 8192 envs (training.rsl_rl.config.field_overrides(8192), sources there).
     "ppo.unroll_length": 24,
     "ppo.num_minibatches": 4,
     "ppo.batch_size": 2048,
@@ -98,7 +98,7 @@ reference action prior, physics step, TF32 SGD passes and evaluations, rsl-rl's 
   178-193 k env steps/s).
 
 Session 50 (one H200, commit e57c7cf, 8.6 min, with rsl-rl's actions sampled without a host sync,
-``training.rsl_rl_sampling``): seeds 0 and 1 trained 96.9 / 95.0 M env steps; on the sim target's held-out
+``training.rsl_rl.sampling``): seeds 0 and 1 trained 96.9 / 95.0 M env steps; on the sim target's held-out
 clips 0.0103 / 0.0104 rad and 0.77 / 0.78 cm, 0.47 / 0.52 mrad worst chatter, no tick at a cap, the bus
 within 0.7 % of the sim: both pass the ship gate, at -14 / -13 % joint and +5 / +7 % fingertip error of
 brax's shipped tracker (docs/benchmarks.md "Session 50"; session 49's run of this preset, before that fix:

@@ -13,20 +13,20 @@ back to back), and updates on them as brax does: num_learning_epochs = num_updat
 num_mini_batches = num_minibatches minibatches (``batch_size * unroll_length`` samples each);
 gamma = discounting, lam = gae_lambda, clip_param = clipping_epsilon, entropy_coef = entropy_cost,
 learning_rate, max_grad_norm. The field's rsl-rl values for arm reach/manipulation (Isaac Lab's Franka
-reach and lift, mjlab's YAM lift; table and sources in ``rsl_rl_config``): num_steps_per_env 24,
+reach and lift, mjlab's YAM lift; table and sources in ``rsl_rl.config``): num_steps_per_env 24,
 learning_rate 1e-3 adaptive (desired_kl 0.01), clip 0.2, entropy 0.005, gamma 0.99, lam 0.95, 5 epochs
 of 4 minibatches, max_grad_norm 1.0, value_loss_coef 1.0, init_noise_std 1.0, actor = critic
-[256, 128, 64] elu with observation normalisation; ``rsl_rl_config.field_hyperparameters(cfg)`` applies
+[256, 128, 64] elu with observation normalisation; ``rsl_rl.config.field_hyperparameters(cfg)`` applies
 them (``field_cli_flags`` gives the ``bar-train`` flags).
 
 Action prior (``network.action_prior``, e.g. the tracker's ``reference``): the env commands
-``prior(obs) + actor's action`` (``rsl_rl_prior`` gives the design and why rsl-rl's PPO is unchanged), the
+``prior(obs) + actor's action`` (``rsl_rl.prior`` gives the design and why rsl-rl's PPO is unchanged), the
 evaluations step envs with the same prior, and the exported file carries it in its graph (``MlpPolicy``'s
 ``identity`` head plus the prior); the parity gate's reference adds it in numpy.
 ``ppo.actor_warmup_iterations`` stays a brax-backend option.
 
 Start-up (``startup_breakdown``'s rows): the envs' jax programs (train reset and step, eval reset, step
-and quality; ``rsl_rl_programs``) are traced, lowered and submitted to a ``startup.Compiler`` before this
+and quality; ``rsl_rl.programs``) are traced, lowered and submitted to a ``startup.Compiler`` before this
 module (torch, rsl_rl, tensordict) is imported (``run`` calls ``prepare_rsl_rl`` first; a direct call
 without ``programs`` prepares them here), so the imports run while XLA compiles on worker threads. The
 training env's first reset waits for its program, the runner reads its observations, and training starts
@@ -63,25 +63,25 @@ from bar_policy.training.checkpoint import latest_checkpoint, resume_changes, sa
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.executable_cache import ExecutableCache
 from bar_policy.training.progress import RunLogger, next_would_overrun
-from bar_policy.training.rsl_rl_config import not_applied, rsl_rl_train_cfg
-from bar_policy.training.rsl_rl_env import RslRlVecEnv
-from bar_policy.training.rsl_rl_policy import (
+from bar_policy.training.rsl_rl.config import not_applied, rsl_rl_train_cfg
+from bar_policy.training.rsl_rl.env import RslRlVecEnv
+from bar_policy.training.rsl_rl.policy import (
     deterministic_module,
     evaluate_torch_policy,
     mlp_policy_from_rsl_rl,
     torch_policy_reference,
 )
-from bar_policy.training.rsl_rl_prior import start_actor_at_prior
-from bar_policy.training.rsl_rl_programs import RslRlPrograms, prepare_rsl_rl
-from bar_policy.training.rsl_rl_state import (
+from bar_policy.training.rsl_rl.prior import start_actor_at_prior
+from bar_policy.training.rsl_rl.programs import RslRlPrograms, prepare_rsl_rl
+from bar_policy.training.rsl_rl.state import (
     load_module_state,
     load_optimizer_state,
     module_state,
     optimizer_state,
 )
+from bar_policy.training.rsl_rl.torch_bridge import COPIES, torch_device_for_jax
+from bar_policy.training.rsl_rl.torch_precision import update_precision
 from bar_policy.training.startup import StartupTimer
-from bar_policy.training.torch_bridge import COPIES, torch_device_for_jax
-from bar_policy.training.torch_precision import update_precision
 
 __all__ = [
     "RslRlTrainResult",
@@ -93,7 +93,7 @@ __all__ = [
 ]
 
 _EVAL_PROGRAMS = ("eval reset", "eval step", "eval quality")
-"""The evaluation env's programs (``rsl_rl_programs.EnvPrograms``, named ``eval``), compiled on workers."""
+"""The evaluation env's programs (``rsl_rl.programs.EnvPrograms``, named ``eval``), compiled on workers."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -121,7 +121,7 @@ class RslRlTrainResult:
     spare_actor: torch.nn.Module | None = None
     """An actor of the same structure that ``at`` loads other parameters into (the trained one is kept)."""
     prior: Prior | None = None
-    """The action prior the envs add to the actor's actions (``rsl_rl_prior``; exported), None without one."""
+    """The action prior the envs add to the actor's actions (``rsl_rl.prior``; exported), None without one."""
 
     def at(self, state: dict[str, torch.Tensor]) -> RslRlTrainResult:
         """The same result with the actor parameters ``state`` (e.g. ``best.params``), to evaluate or export.
@@ -177,7 +177,7 @@ def train_rsl_rl(
 
     ``eval_env``: the env the evaluations run (the task's held-out variant) on its nominal model, as brax's;
     None: ``env`` with ``randomizer``. ``programs``: the envs' jax programs already submitted
-    (``rsl_rl_programs.prepare_rsl_rl`` on the same arguments, as ``run`` does before importing this
+    (``rsl_rl.programs.prepare_rsl_rl`` on the same arguments, as ``run`` does before importing this
     module); None: prepared here (``wrap_fn``, ``randomizer``, ``eval_env``, ``executable_cache``).
     """
     from flax import serialization

@@ -70,7 +70,7 @@ RSL_RL_LR_BOUNDS = (1e-5, 1e-2)
 RSL_RL_OBS_STD_EPS = 1e-4
 """The ``ppo.obs_std_eps`` (variance added) nearest rsl-rl's normaliser, ``(x - mean) / (std + 0.01)``."""
 
-GAUSSIAN_HEAD = "bar_policy.training.rsl_rl_sampling:GaussianNoSync"
+GAUSSIAN_HEAD = "bar_policy.training.rsl_rl.sampling:GaussianNoSync"
 """The actor's ``distribution_cfg`` class: rsl-rl's Gaussian head without its per-step host sync (by name,
 so that this module stays torch-free)."""
 
@@ -265,11 +265,11 @@ def field_cli_flags(num_envs: int, leave_out: tuple[str, ...] = ()) -> list[str]
 def rsl_rl_train_cfg(cfg: TrainConfig) -> dict[str, Any]:
     """rsl-rl 5.x ``train_cfg`` dict for ``OnPolicyRunner`` from our config (mapping: ``RslRlConfig``)."""
     ppo, net, r = cfg.ppo, cfg.network, cfg.rsl_rl
-    # With an action prior, network.prior_noise_std (when set) is the initial std, as on brax (rsl_rl_prior).
+    # With an action prior, network.prior_noise_std (when set) is the initial std, as on brax (rsl_rl.prior).
     std = net.init_noise_std
     if net.action_prior != "none" and net.prior_noise_std is not None:
         std = net.prior_noise_std
-    # rsl-rl's Gaussian head, sampled without its per-step host sync (rsl_rl_sampling).
+    # rsl-rl's Gaussian head, sampled without its per-step host sync (rsl_rl.sampling).
     dist = {"class_name": GAUSSIAN_HEAD, "init_std": std, "std_type": "scalar"}
     return {
         "num_steps_per_env": ppo.steps_per_iteration // ppo.num_envs,

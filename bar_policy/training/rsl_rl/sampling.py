@@ -12,7 +12,7 @@ env alone; docs/benchmarks.md "Session 50", ``bench/rsl_rl_profile.py`` counts t
 ``torch.normal(mean, std)`` computes (bit for bit on CPU: ``tests/training/test_rsl_rl_sampling.py``). Its std
 is a clamped parameter (``std_range[0] >= 1e-6``), so the check it skips cannot fail. Parameters, state-dict
 keys, log-probabilities, entropy and KL are rsl-rl's own; checkpoints of either load into the other.
-``rsl_rl_config.rsl_rl_train_cfg`` names it as the actor's ``distribution_cfg`` class.
+``rsl_rl.config.rsl_rl_train_cfg`` names it as the actor's ``distribution_cfg`` class.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The policy of an rsl-rl actor: its exportable ``MlpPolicy``, rsl-rl's own reference, its evaluation.
 
-Used by the rsl-rl backend (``rsl_rl_backend``: the evaluations during training, the result's export and
+Used by the rsl-rl backend (``rsl_rl.backend``: the evaluations during training, the result's export and
 final evaluation); below it in the layers (imports only the export, the prior and the env adapter).
 """
 
@@ -14,7 +14,7 @@ from rsl_rl.modules import GaussianDistribution
 
 from bar_policy.export import MlpPolicy
 from bar_policy.obs.action_prior import Prior
-from bar_policy.training.rsl_rl_env import RslRlVecEnv
+from bar_policy.training.rsl_rl.env import RslRlVecEnv
 
 __all__ = [
     "deterministic_module",
@@ -30,7 +30,7 @@ def mlp_policy_from_rsl_rl(actor: torch.nn.Module, prior: Prior | None = None) -
     Folds ``EmpiricalNormalization`` (``(x - mean) / (std + eps)``) into (mean, std + eps); reads the
     ``Linear`` layers of ``actor.mlp`` (kernel = weight.T); the Gaussian head's deterministic output is the
     MLP output itself (``identity``). ``prior``: the action prior the env added to the actor's actions in
-    training (``rsl_rl_prior``); the graph then outputs ``mlp(obs) + prior(obs)``, shape (batch, A).
+    training (``rsl_rl.prior``); the graph then outputs ``mlp(obs) + prior(obs)``, shape (batch, A).
     """
     norm = actor.obs_normalizer
     n = actor.obs_dim

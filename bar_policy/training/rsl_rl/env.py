@@ -1,7 +1,7 @@
 """rsl-rl ``VecEnv`` over a batched MJX env: JAX steps under jit, tensors cross by DLPack (no host copies).
 
 The jax side (the env wrapped for training exactly as for the brax backend, the jitted ``reset``, ``step``
-and quality reduction, the reset keys) is ``rsl_rl_programs.EnvPrograms``, torch-free, so that it can be
+and quality reduction, the reset keys) is ``rsl_rl.programs.EnvPrograms``, torch-free, so that it can be
 built and its programs submitted to the compiler before torch is imported; this class is the torch side
 over it (built from one, or building its own). Each ``step(actions)``:
 
@@ -20,7 +20,7 @@ Nothing in a step waits for the device: the logged sums (reward, the task's ``ev
 device until ``take_stats`` reads them once per iteration or evaluation. The jax state is never donated,
 so the torch views of its buffers stay valid until rsl-rl copies them into its rollout storage. Torch must
 run on the device jax uses (``cuda`` for a GPU jax, else ``cpu``). Every crossing goes through
-``bar_policy.training.torch_bridge`` (a copy there is counted and logged, never silent); the per-step path
+``torch_bridge`` (a copy there is counted and logged, never silent); the per-step path
 has no numpy and no ``device_get``.
 
 rsl-rl 5.x ``VecEnv`` contract (``rsl_rl/env/vec_env.py``): ``get_observations() -> TensorDict``;
@@ -34,8 +34,8 @@ length come from rsl-rl's own logger (``Train/mean_reward``, ``Train/mean_episod
 runner's ``init_at_random_ep_len`` works.
 
 With an action prior (``prior=``), the actions ``step`` is given are the actor's residual: the jitted step
-commands ``prior(obs) + residual`` (``rsl_rl_prior.commanded_action``, on the device, from the observation
-the actor saw), and the quality figures see that commanded action. ``rsl_rl_prior`` explains why PPO is
+commands ``prior(obs) + residual`` (``rsl_rl.prior.commanded_action``, on the device, from the observation
+the actor saw), and the quality figures see that commanded action. ``rsl_rl.prior`` explains why PPO is
 unchanged by it.
 """
 
@@ -51,9 +51,9 @@ from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
 from bar_policy.obs.action_prior import Prior
-from bar_policy.training.rsl_rl_programs import EnvPrograms
+from bar_policy.training.rsl_rl.programs import EnvPrograms
+from bar_policy.training.rsl_rl.torch_bridge import jax_to_torch, torch_device_for_jax, torch_to_jax
 from bar_policy.training.startup import Compiler
-from bar_policy.training.torch_bridge import jax_to_torch, torch_device_for_jax, torch_to_jax
 
 __all__ = ["RslRlVecEnv", "torch_device_for_jax"]
 
@@ -80,7 +80,7 @@ class RslRlVecEnv(VecEnv):
             num_envs x joints).
         prior: the action prior, or None: ``step``'s actions are then residuals added to ``prior(obs)``
             of the current observations (``commanded_action``).
-        programs: the env's jax side already built (``rsl_rl_programs.EnvPrograms``, e.g. submitted by
+        programs: the env's jax side already built (``rsl_rl.programs.EnvPrograms``, e.g. submitted by
             ``prepare_rsl_rl`` before torch was imported); ``env`` to ``prior`` are then not given.
 
     The first reset runs when the state is first needed (``state``, ``get_observations``, ``step``), from

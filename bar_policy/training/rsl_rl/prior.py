@@ -24,9 +24,9 @@ during training, before the same [-1, 1] clip (the runtime's).
 
 As brax does (``networks.PRIOR_INIT_SCALE``), a fresh actor's output layer starts at 0.01 of its init with a
 zero bias (``start_actor_at_prior``), so the first policy's mean is within a few 1e-3 of the prior; and
-``network.prior_noise_std``, when set, is the initial action noise std (``rsl_rl_config.rsl_rl_train_cfg``).
+``network.prior_noise_std``, when set, is the initial action noise std (``rsl_rl.config.rsl_rl_train_cfg``).
 
-Torch-free at import (torch only inside ``start_actor_at_prior``): ``rsl_rl_programs`` builds the envs'
+Torch-free at import (torch only inside ``start_actor_at_prior``): ``rsl_rl.programs`` builds the envs'
 programs with ``rsl_rl_prior`` and ``commanded_action`` before torch is imported.
 """
 

@@ -9,7 +9,7 @@ alone and restores the one before, so the rollout's actor still acts in IEEE flo
 - ``tensorfloat32``: ``torch.backends.cuda.matmul.fp32_precision = "tf32"`` (TF32 tensor cores, XLA's
   ``tensorfloat32``; the API of every torch the project pins, >= 2.11).
 - ``BF16_BF16_F32_X3``: torch has no three-pass bfloat16 product, so it is not applied
-  (``rsl_rl_config.not_applied`` says so).
+  (``rsl_rl.config.not_applied`` says so).
 
 CPU products are float32 either way (the setting is CUDA's).
 """
@@ -28,7 +28,7 @@ __all__ = ["update_precision"]
 def update_precision(setting: str) -> Iterator[None]:
     """CUDA float32 matmuls at ``setting`` inside the block; the previous setting after it, raised or not.
 
-    ``run`` and the settings torch lacks (``rsl_rl_config.not_applied`` says which) change nothing.
+    ``run`` and the settings torch lacks (``rsl_rl.config.not_applied`` says which) change nothing.
     """
     if setting != "tensorfloat32":
         yield

@@ -10,9 +10,9 @@ needed, and then the reset runs from its compiled executable. The step takes the
 argument (``envs.reward_weights``): a run that changes only a weight loads it from the executable cache.
 
 ``prepare_rsl_rl`` builds the training and the evaluation env's programs and submits them all. ``run.py``
-calls it before it imports ``rsl_rl_backend`` (torch, rsl_rl, tensordict: seconds of the main thread), so
+calls it before it imports ``rsl_rl.backend`` (torch, rsl_rl, tensordict: seconds of the main thread), so
 that import runs while XLA compiles; nothing imported here pulls torch in
-(``tests/training/test_rsl_rl_start.py``). ``RslRlVecEnv`` (``rsl_rl_env``) is the torch side over them.
+(``tests/training/test_rsl_rl_start.py``). ``RslRlVecEnv`` (``rsl_rl.env``) is the torch side over them.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from bar_policy.training import eval_quality
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.executable_cache import ExecutableCache
 from bar_policy.training.parallel import AXIS
-from bar_policy.training.rsl_rl_prior import commanded_action, rsl_rl_prior
+from bar_policy.training.rsl_rl.prior import commanded_action, rsl_rl_prior
 from bar_policy.training.startup import Compiler, StartupTimer
 
 __all__ = ["EnvPrograms", "RslRlPrograms", "prepare_rsl_rl"]
@@ -213,7 +213,7 @@ class RslRlPrograms:
     eval: EnvPrograms
     """The evaluation env's (``eval reset``, ``eval step``, ``eval quality``)."""
     prior: Prior | None
-    """The action prior both envs add (``rsl_rl_prior``), or None."""
+    """The action prior both envs add (``rsl_rl.prior``), or None."""
 
 
 def prepare_rsl_rl(
@@ -237,7 +237,7 @@ def prepare_rsl_rl(
 
     Raises:
         ValueError: ``ppo.actor_warmup_iterations`` is set (a brax-backend option), or a prior the env does
-            not serve (``rsl_rl_prior``).
+            not serve (``rsl_rl.prior``).
     """
     if cfg.ppo.actor_warmup_iterations:
         raise ValueError(
