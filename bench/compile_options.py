@@ -107,7 +107,7 @@ def _load(path: str) -> dict[str, Any]:
     import jax
     from jax.experimental.serialize_executable import deserialize_and_load
 
-    from bar_policy.training.executable_cache import _init_lazy_kernels
+    from bar_policy.training.startup.executable_cache import _init_lazy_kernels
 
     jax.devices()  # the backend's own start-up is not the load's
     _init_lazy_kernels()  # as the executable cache does before a load

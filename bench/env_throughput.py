@@ -11,7 +11,8 @@ Physics steps/s = env steps/s x the env's ``n_substeps``.
 
 ``--env-overrides`` applies ``key=value`` items to every listed env's default config (``envs.load``'s
 overrides; the gpu preset trains reach at ``sim_dt=0.004``). On a CPU with jaxlib 0.10 and two cores, set
-``PJRT_NPROC=1`` from 219 envs (the trainer does: ``training.backend_env``), or a batch this size may hang.
+``PJRT_NPROC=1`` from 219 envs (the trainer does: ``training.startup.backend_env``), or a batch this size may
+hang.
 
 Prints a markdown table (and writes it to ``--out``).
 """

@@ -13,7 +13,7 @@
 #                      baseline runs beside the variant): XLA's defaults, then XLA_FLAGS=$FLAGS (default: no
 #                      autotuning, compilation over 16 threads; flags XLA refuses are left out); then
 #                      bench/rsl_rl_profile.py (NO_PROFILE=1: not)
-#   seeds    (~3.5 min a preset): XLA autotune seeds for more presets (training.autotune_seed): per preset in
+#   seeds    (~3.5 min a preset): XLA autotune seeds for more presets (training.startup.autotune): per preset in
 #                      $SEED_PRESETS (default "rsl track"; gpu or piano in a call of their own), a cold run on its own
 #                      empty cache without the shipped seed, then bench/autotune_seed.py packs that cache's
 #                      autotune results into $OUT (<gpu>-jaxlib-<v>-<preset>.tar.gz/.json: copy both to

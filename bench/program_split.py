@@ -99,7 +99,7 @@ def _load_set(directory: str, profile: str = "") -> dict[str, Any]:
     import jax
     from jax.experimental.serialize_executable import deserialize_and_load
 
-    from bar_policy.training.executable_cache import _init_lazy_kernels
+    from bar_policy.training.startup.executable_cache import _init_lazy_kernels
 
     jax.devices()
     _init_lazy_kernels()

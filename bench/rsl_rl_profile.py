@@ -45,7 +45,7 @@ def main() -> int:
     p.add_argument("--out", default="")
     args = p.parse_args()
     cfg = config_of(args, "backend=rsl-rl")
-    from bar_policy.training.backend_env import set_backend_env
+    from bar_policy.training.startup.backend_env import set_backend_env
 
     notes = set_backend_env(cfg)  # as the run does, before jax starts: memory, XLA's graph flags
 
@@ -58,7 +58,7 @@ def main() -> int:
     from bar_policy.training.rsl_rl.env import RslRlVecEnv, torch_device_for_jax
     from bar_policy.training.rsl_rl.torch_bridge import jax_to_torch, torch_to_jax
     from bar_policy.training.rsl_rl.torch_precision import update_precision
-    from bar_policy.training.startup import configure_compile_cache
+    from bar_policy.training.startup.compiler import configure_compile_cache
 
     configure_compile_cache(True)
     env = load_env(args.env, cfg)

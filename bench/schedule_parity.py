@@ -1,9 +1,10 @@
 """Does a GPU program compute the same under other XLA_FLAGS? (issue 19: command-buffer scheduling.)
 
-``training.backend_env`` runs GPU programs with ``--xla_gpu_command_buffer_scheduling_mode=CONCURRENT``:
-kernels without a buffer dependency between them may run at once. A missing dependency would be a data race.
-This bench runs the trainer's own programs (``brax_programs.make_programs``: init, reset, rollout, update)
-for ``--iterations`` PPO iterations from fixed seeds, twice in one process, and:
+``training.startup.backend_env`` runs GPU programs with
+``--xla_gpu_command_buffer_scheduling_mode=CONCURRENT``: kernels without a buffer dependency between them may
+run at once. A missing dependency would be a data race. This bench runs the trainer's own programs
+(``brax_programs.make_programs``: init, reset, rollout, update) for ``--iterations`` PPO iterations from fixed
+seeds, twice in one process, and:
 
 - reports whether the second pass equals the first bit for bit (run-to-run determinism under this process's
   XLA_FLAGS), and the largest difference if not;

@@ -65,11 +65,11 @@ from train_breakdown import best_time
 
 from bar_policy import envs
 from bar_policy.training import gpu_stream, one_loop
-from bar_policy.training.autotune_seed import seed_autotune_cache
 from bar_policy.training.brax_ppo import host_key, make_programs, slot_env
 from bar_policy.training.learner import make_learner
 from bar_policy.training.parallel import AXIS, DataParallel
-from bar_policy.training.startup import configure_compile_cache
+from bar_policy.training.startup.autotune import seed_autotune_cache
+from bar_policy.training.startup.compiler import configure_compile_cache
 
 
 def _place(fn: Any, stream: int, plain: bool) -> Any:

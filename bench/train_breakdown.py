@@ -22,8 +22,8 @@ iteration), on one device, every part compiled once and timed over ``--iters`` c
   tracker's nine programs did not compile within a 280 s call on an H200, session 51).
 
 Every row runs under this process's ``XLA_FLAGS``; the trainer adds
-``--xla_gpu_command_buffer_scheduling_mode=CONCURRENT`` on a GPU (``training.backend_env``), so set it to
-time the trainer's schedule (``...=LHS``: XLA's default). The training loop's target is ``loop`` >= 90 % of
+``--xla_gpu_command_buffer_scheduling_mode=CONCURRENT`` on a GPU (``training.startup.backend_env``), so set it
+to time the trainer's schedule (``...=LHS``: XLA's default). The training loop's target is ``loop`` >= 90 % of
 ``env`` steps/s. ``rollout - env`` is the policy's cost,
 ``update`` the learner's, ``loop - epoch`` the host's.
 
@@ -56,12 +56,13 @@ from trace_summary import device_summary, ops_tables, profiled
 
 from bar_policy import envs
 from bar_policy.envs import reward_weights
-from bar_policy.training.autotune_seed import seed_autotune_cache
 from bar_policy.training.brax_ppo import epoch_iterations, host_key, make_programs, slot_env
 from bar_policy.training.brax_programs import _policy_params, run_epoch
 from bar_policy.training.learner import make_learner
 from bar_policy.training.parallel import AXIS, DataParallel
-from bar_policy.training.startup import Compiler, StartupTimer, configure_compile_cache
+from bar_policy.training.startup.autotune import seed_autotune_cache
+from bar_policy.training.startup.breakdown import StartupTimer
+from bar_policy.training.startup.compiler import Compiler, configure_compile_cache
 
 
 def best_time(fn: Any, iters: int) -> float:

@@ -6,7 +6,7 @@ step count (exact resume), progress lines with success rate and ETA, a wall-cloc
 evaluation ratios on fresh seeds, several hosts, and a fast start.
 
 Programs (``jit`` of ``shard_map`` over the mesh of ``bar_policy.training.parallel``; env slots sharded,
-learner state replicated), each compiled once, ahead of time and concurrently (``startup.Compiler``):
+learner state replicated), each compiled once, ahead of time and concurrently (``startup.compiler.Compiler``):
 
 - ``init(key) -> state``: fresh params, Adam state, normaliser.
 - ``reset(key, model_key) -> envs``: every env slot reset, with its randomised model's key kept beside its
@@ -44,7 +44,6 @@ import jax
 import numpy as np
 
 from bar_policy.envs import reward_weights
-from bar_policy.training import startup_breakdown as sb
 from bar_policy.training.best import BestKeeper
 from bar_policy.training.brax_programs import (
     _K_EPOCH,
@@ -69,13 +68,15 @@ from bar_policy.training.brax_programs import (
 from bar_policy.training.brax_result import BraxTrainResult
 from bar_policy.training.checkpoint import load_checkpoint, resume_changes, save_checkpoint
 from bar_policy.training.config import TrainConfig
-from bar_policy.training.executable_cache import ExecutableCache
 from bar_policy.training.learner import TrainingState, make_learner
 from bar_policy.training.networks import make_networks
 from bar_policy.training.parallel import barrier, make_data_parallel
 from bar_policy.training.progress import RunLogger, next_would_overrun
 from bar_policy.training.rsl_rl.config import brax_not_applied
-from bar_policy.training.startup import Compiler, CompileStats, StartupTimer
+from bar_policy.training.startup import breakdown as sb
+from bar_policy.training.startup.breakdown import StartupTimer
+from bar_policy.training.startup.compiler import Compiler, CompileStats
+from bar_policy.training.startup.executable_cache import ExecutableCache
 
 __all__ = [
     "BraxTrainResult",

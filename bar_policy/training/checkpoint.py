@@ -18,7 +18,7 @@ from typing import Any
 from flax import serialization
 
 from bar_policy._files import write_atomic
-from bar_policy.training.executable_cache import program_fields
+from bar_policy.training.startup.executable_cache import program_fields
 
 __all__ = ["Checkpoint", "latest_checkpoint", "load_checkpoint", "resume_changes", "save_checkpoint"]
 

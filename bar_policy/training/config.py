@@ -317,7 +317,7 @@ class TrainConfig:
     """Cache directory (empty: $JAX_COMPILATION_CACHE_DIR, else $XDG_CACHE_HOME/bar_policy/jax)."""
     autotune_seed: bool = True
     """Seed XLA's per-fusion autotune cache (in the compile cache) with the results shipped for this GPU
-    and jaxlib (``training/autotune_seed.py``); GPUs only, never overwrites. H100, LiteReach gpu preset,
+    and jaxlib (``training/startup/autotune.py``); GPUs only, never overwrites. H100, LiteReach gpu preset,
     empty compile cache: first evaluation at 68.6 s instead of 99.4 s, same training speed (session 32)."""
     executable_cache: bool = True
     """Executable cache in <cache directory>/executables (with the compile cache): a rerun of the same

@@ -21,15 +21,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bar_policy.training import startup_breakdown as sb
-from bar_policy.training.autotune_seed import seed_in_background
-from bar_policy.training.backend_env import set_backend_env
 from bar_policy.training.best import finish_best
 from bar_policy.training.config import TrainConfig, config_to_dict
 from bar_policy.training.distributed import init_distributed, local_default_devices, shutdown_distributed
-from bar_policy.training.executable_cache import executable_cache_for, executable_cache_line
 from bar_policy.training.progress import RunLogger, format_duration, format_steps
-from bar_policy.training.startup import StartupTimer, configure_compile_cache
+from bar_policy.training.startup import breakdown as sb
+from bar_policy.training.startup.autotune import seed_in_background
+from bar_policy.training.startup.backend_env import set_backend_env
+from bar_policy.training.startup.breakdown import StartupTimer
+from bar_policy.training.startup.compiler import configure_compile_cache
+from bar_policy.training.startup.executable_cache import executable_cache_for, executable_cache_line
 
 __all__ = ["RunSummary", "init_distributed", "resolve_run_dir", "run"]
 

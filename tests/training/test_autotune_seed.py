@@ -1,4 +1,4 @@
-"""Seeding XLA's per-fusion autotune cache from the shipped results (``training.autotune_seed``).
+"""Seeding XLA's per-fusion autotune cache from the shipped results (``training.startup.autotune``).
 
 CPU only: the device kind, backend and jaxlib version are monkeypatched (``local_platform``), so a fake
 H100 gets the seed and the real CPU backend does not. Expected counts are worked out from the files made
@@ -17,8 +17,14 @@ from pathlib import Path
 
 import pytest
 
-from bar_policy.training import autotune_seed as ats
-from bar_policy.training.autotune_seed import AUTOTUNE_DIR, SEED_DIR, SeedManifest, pack_seed, shipped_seeds
+from bar_policy.training.startup import autotune as ats
+from bar_policy.training.startup.autotune import (
+    AUTOTUNE_DIR,
+    SEED_DIR,
+    SeedManifest,
+    pack_seed,
+    shipped_seeds,
+)
 
 REPO = Path(__file__).resolve().parents[2]
 KIND = "NVIDIA Fake 80GB"
@@ -306,7 +312,7 @@ def test_a_manifest_with_missing_fields_names_them(tmp_path):
 
 
 def test_seed_outcome_is_in_the_startup_record_and_table():
-    from bar_policy.training.startup_breakdown import StartupTimer
+    from bar_policy.training.startup.breakdown import StartupTimer
 
     timer = StartupTimer()
     timer.autotune_seed = ats.SeedOutcome(seeded=868, source="h100.tar.gz", seconds=0.0123)

@@ -17,11 +17,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from bar_policy.training import executable_cache as ec
-from bar_policy.training import executable_key as ek
 from bar_policy.training.config import apply_overrides, config_to_dict, preset
-from bar_policy.training.executable_cache import ExecutableCache, executable_cache_for
-from bar_policy.training.startup import Compiler, StartupTimer
+from bar_policy.training.startup import executable_cache as ec
+from bar_policy.training.startup import executable_key as ek
+from bar_policy.training.startup.breakdown import StartupTimer
+from bar_policy.training.startup.compiler import Compiler
+from bar_policy.training.startup.executable_cache import ExecutableCache, executable_cache_for
 
 X = jnp.linspace(-2.0, 3.0, 24, dtype=jnp.float32).reshape(4, 6)
 
@@ -485,8 +486,8 @@ def test_a_rerun_loads_every_program_and_trains_the_same(
     from jax.experimental.compilation_cache import compilation_cache as cc
     from toy_configs import toy_config
 
-    from bar_policy.training import startup_breakdown as sb
     from bar_policy.training.run import run
+    from bar_policy.training.startup import breakdown as sb
 
     cache = tmp_path / "jax"
     # No run name: each run gets its own directory, the config (part of the key) stays the same.
@@ -565,7 +566,7 @@ def test_a_two_device_mesh_program_is_stored_loaded_in_a_fresh_process_and_train
     Three processes of the smallest brax run (about 20 s on 2 cores: two compiling runs, one loading)."""
     import json
 
-    from bar_policy.training import startup_breakdown as sb
+    from bar_policy.training.startup import breakdown as sb
 
     first = _mesh_run(tmp_path, "first", 2)
     second = _mesh_run(tmp_path, "second", 2)
@@ -624,7 +625,7 @@ LAPACK_CHILD = """
 import sys
 import jax, jax.numpy as jnp, numpy as np
 jax.config.update("jax_enable_compilation_cache", False)
-from bar_policy.training.executable_cache import ExecutableCache
+from bar_policy.training.startup.executable_cache import ExecutableCache
 
 def program(a):  # a Cholesky factorisation and a triangular solve: LAPACK potrf and trsm on a CPU
     c = jnp.linalg.cholesky(a)

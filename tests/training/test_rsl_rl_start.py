@@ -51,7 +51,7 @@ def test_prepare_submits_every_program_without_importing_torch(tmp_path):
     got = _run(
         f"""
 from bar_policy.training.rsl_rl.programs import prepare_rsl_rl
-from bar_policy.training.startup import StartupTimer
+from bar_policy.training.startup.breakdown import StartupTimer
 timer = StartupTimer()
 cfg = toy_config(Path({str(tmp_path)!r}), "prep", TOY_RSL)
 prepare_rsl_rl(ToyReach(), cfg, randomizer=None, timer=timer)
@@ -72,7 +72,7 @@ def test_run_submits_the_programs_before_importing_torch(tmp_path):
     got = _run(
         f"""
 import importlib.abc
-from bar_policy.training import startup
+from bar_policy.training.startup import compiler as startup
 events = []
 def torch_loaded():
     return [m for m in {TORCH_SIDE!r} if m in sys.modules]

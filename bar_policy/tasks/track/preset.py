@@ -50,11 +50,12 @@ inside 10 min; evaluations run on the held-out clips.
 
 Speed (session 46, one H200, seed 0, docs/tracking.md row 13): the physics step on the written-out
 Cholesky (``cholesky=columns``: the same factor, no library call, so XLA records MJX's Newton loop into a
-CUDA graph; the trainer adds ``--xla_gpu_enable_command_buffer=+WHILE`` for it, ``training.backend_env``)
-and the SGD passes' products on TF32 (physics and rollout stay float32) trained 105.5 M env steps in an
-8.6 min budget, where the float32 ``library`` recipe had reached 60-68 M in 8.0-8.9; its last iterate
-passed the gate with the best held-out errors so far (sim 0.0120 rad, 0.73 cm; the shipped file 0.0129,
-0.85). Seed 1 (session 47, commit 15dd184): 113 M env steps, sim 0.0114 rad, 0.75 cm, also a pass.
+CUDA graph; the trainer adds ``--xla_gpu_enable_command_buffer=+WHILE`` for it,
+``training.startup.backend_env``) and the SGD passes' products on TF32 (physics and rollout stay float32)
+trained 105.5 M env steps in an 8.6 min budget, where the float32 ``library`` recipe had reached 60-68 M in
+8.0-8.9; its last iterate passed the gate with the best held-out errors so far (sim 0.0120 rad, 0.73 cm; the
+shipped file 0.0129, 0.85). Seed 1 (session 47, commit 15dd184): 113 M env steps, sim 0.0114 rad, 0.75 cm,
+also a pass.
 """
 
 TRACK_RSL = {

@@ -25,9 +25,9 @@ evaluations step envs with the same prior, and the exported file carries it in i
 ``identity`` head plus the prior); the parity gate's reference adds it in numpy.
 ``ppo.actor_warmup_iterations`` stays a brax-backend option.
 
-Start-up (``startup_breakdown``'s rows): the envs' jax programs (train reset and step, eval reset, step
-and quality; ``rsl_rl.programs``) are traced, lowered and submitted to a ``startup.Compiler`` before this
-module (torch, rsl_rl, tensordict) is imported (``run`` calls ``prepare_rsl_rl`` first; a direct call
+Start-up (``startup.breakdown``'s rows): the envs' jax programs (train reset and step, eval reset, step
+and quality; ``rsl_rl.programs``) are traced, lowered and submitted to a ``startup.compiler.Compiler`` before
+this module (torch, rsl_rl, tensordict) is imported (``run`` calls ``prepare_rsl_rl`` first; a direct call
 without ``programs`` prepares them here), so the imports run while XLA compiles on worker threads. The
 training env's first reset waits for its program, the runner reads its observations, and training starts
 once the training step is ready. As in the brax backend, the step-0 evaluation (of the initial actor,
@@ -57,11 +57,9 @@ import torch
 
 from bar_policy.export import export_policy
 from bar_policy.obs.action_prior import Prior
-from bar_policy.training import startup_breakdown as sb
 from bar_policy.training.best import BestIterate, BestKeeper
 from bar_policy.training.checkpoint import latest_checkpoint, resume_changes, save_checkpoint
 from bar_policy.training.config import TrainConfig
-from bar_policy.training.executable_cache import ExecutableCache
 from bar_policy.training.progress import RunLogger, next_would_overrun
 from bar_policy.training.rsl_rl.config import not_applied, rsl_rl_train_cfg
 from bar_policy.training.rsl_rl.env import RslRlVecEnv
@@ -81,7 +79,9 @@ from bar_policy.training.rsl_rl.state import (
 )
 from bar_policy.training.rsl_rl.torch_bridge import COPIES, torch_device_for_jax
 from bar_policy.training.rsl_rl.torch_precision import update_precision
-from bar_policy.training.startup import StartupTimer
+from bar_policy.training.startup import breakdown as sb
+from bar_policy.training.startup.breakdown import StartupTimer
+from bar_policy.training.startup.executable_cache import ExecutableCache
 
 __all__ = [
     "RslRlTrainResult",

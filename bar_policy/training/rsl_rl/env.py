@@ -53,7 +53,7 @@ from tensordict import TensorDict
 from bar_policy.obs.action_prior import Prior
 from bar_policy.training.rsl_rl.programs import EnvPrograms
 from bar_policy.training.rsl_rl.torch_bridge import jax_to_torch, torch_device_for_jax, torch_to_jax
-from bar_policy.training.startup import Compiler
+from bar_policy.training.startup.compiler import Compiler
 
 __all__ = ["RslRlVecEnv", "torch_device_for_jax"]
 
@@ -69,8 +69,8 @@ class RslRlVecEnv(VecEnv):
         seed: seed of the randomisation and of the resets.
         device: torch device; must be where jax's arrays live (``torch_device_for_jax()``).
         compiler: compile the batched reset, step (and quality reduction) ahead of time on this
-            ``startup.Compiler``'s threads (as ``<name> reset``, ``<name> step``, ``<name> quality``),
-            instead of at their first call.
+            ``startup.compiler.Compiler``'s threads (as ``<name> reset``, ``<name> step``, ``<name>
+            quality``), instead of at their first call.
         name: the programs' name prefix in ``compiler``.
         log_metrics: put the env's per-step metrics in ``extras["log"]`` (``Metrics/<name>``); off for
             an evaluation env, whose steps no rsl-rl logger reads.

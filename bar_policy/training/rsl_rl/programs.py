@@ -3,11 +3,12 @@
 ``EnvPrograms`` is everything of one ``RslRlVecEnv`` that is jax: the env wrapped for training (batch,
 episode truncation, auto-reset, domain randomisation, exactly as for the brax backend), the pure jitted
 ``reset``, ``step`` and (for an evaluation env) ``quality`` functions with their logging-stats pytrees, and
-the stream of reset keys. With a ``startup.Compiler`` each of them is traced and lowered here and compiled
-on the compiler's worker threads, as its own program (``<name> reset``, ``<name> step``, ``<name> quality``):
-the step is traced on the reset's abstract output (``out_info``), so nothing runs before the first state is
-needed, and then the reset runs from its compiled executable. The step takes the reward weights as its last
-argument (``envs.reward_weights``): a run that changes only a weight loads it from the executable cache.
+the stream of reset keys. With a ``startup.compiler.Compiler`` each of them is traced and lowered here and
+compiled on the compiler's worker threads, as its own program (``<name> reset``, ``<name> step``, ``<name>
+quality``): the step is traced on the reset's abstract output (``out_info``), so nothing runs before the first
+state is needed, and then the reset runs from its compiled executable. The step takes the reward weights as
+its last argument (``envs.reward_weights``): a run that changes only a weight loads it from the executable
+cache.
 
 ``prepare_rsl_rl`` builds the training and the evaluation env's programs and submits them all. ``run.py``
 calls it before it imports ``rsl_rl.backend`` (torch, rsl_rl, tensordict: seconds of the main thread), so
@@ -30,10 +31,11 @@ from bar_policy.envs.reward_weights import weights, with_weights
 from bar_policy.obs.action_prior import Prior, check_fits
 from bar_policy.training import eval_quality
 from bar_policy.training.config import TrainConfig
-from bar_policy.training.executable_cache import ExecutableCache
 from bar_policy.training.parallel import AXIS
 from bar_policy.training.rsl_rl.prior import commanded_action, rsl_rl_prior
-from bar_policy.training.startup import Compiler, StartupTimer
+from bar_policy.training.startup.breakdown import StartupTimer
+from bar_policy.training.startup.compiler import Compiler
+from bar_policy.training.startup.executable_cache import ExecutableCache
 
 __all__ = ["EnvPrograms", "RslRlPrograms", "prepare_rsl_rl"]
 

@@ -63,7 +63,7 @@ __all__ = [
 AUTOTUNE_DIR = "xla_gpu_per_fusion_autotune_cache_dir"
 """The per-fusion cache's folder under jax's compile cache dir (and its name in jax's config flag)."""
 
-SEED_DIR = Path(__file__).resolve().parent / "autotune"
+SEED_DIR = Path(__file__).resolve().parents[1] / "autotune"
 """Where the shipped seeds live: ``<name>.json`` manifests next to their ``.tar.gz`` archives."""
 
 FORMAT = 1
@@ -183,7 +183,7 @@ def seed_autotune_cache(
     unreadable manifest or archive is the ``reason`` and training goes on without it.
 
     Args:
-        cache_dir: jax's compile cache directory (``startup.configure_compile_cache``), None when off.
+        cache_dir: jax's compile cache directory (``compiler.configure_compile_cache``), None when off.
         enabled: ``TrainConfig.autotune_seed``.
         seeds_dir: where the manifests and archives are (the package's ``autotune/`` folder).
     """

@@ -2,7 +2,7 @@
 
 Each is described the same way in every process (``executable_cache`` hashes them).
 
-Seeding XLA's autotune cache (``autotune_seed``) changes none of these parts but ``package_hash`` (its
+Seeding XLA's autotune cache (``autotune``) changes none of these parts but ``package_hash`` (its
 archive is a package file: replacing it misses once): a seed only changes which implementation XLA picks
 for a fusion, not what a program computes, so the key rightly ignores whether a seed was applied, and
 ``runtime_flags`` leaves out jax's ``jax_persistent_cache_*`` settings (``..._enable_xla_caches`` among them).

@@ -6,18 +6,18 @@ the evaluation, the reset). Five things cut it:
 - **Persistent cache** (``configure_compile_cache``): on by default in ``$XDG_CACHE_HOME/bar_policy/jax``
   (``~/.cache/bar_policy/jax``), every program cached whatever its compile time, so a rerun of the same
   command loads executables instead of compiling them.
-- **Executable cache** (``bar_policy.training.executable_cache``, handed to ``Compiler``): jax's cache is
-  keyed on the lowered program, so a warm run still traces and lowers every program; this one stores the
-  serialised executable under a key of everything that determines it (config, package content, library
-  versions, devices, argument signature), so a rerun loads it without tracing (``docs/startup.md``). On by
-  default on GPUs.
-- **Autotune seed** (``bar_policy.training.autotune_seed``): XLA's GPU autotuning results shipped for a
+- **Executable cache** (``bar_policy.training.startup.executable_cache``, handed to ``Compiler``): jax's
+  cache is keyed on the lowered program, so a warm run still traces and lowers every program; this one
+  stores the serialised executable under a key of everything that determines it (config, package content,
+  library versions, devices, argument signature), so a rerun loads it without tracing
+  (``docs/startup.md``). On by default on GPUs.
+- **Autotune seed** (``bar_policy.training.startup.autotune``): XLA's GPU autotuning results shipped for a
   device kind and jaxlib, copied into the cache's per-fusion autotune directory, so a cold compile skips
   timing fusions already timed (about 30 s of an H100's cold start).
 - **Concurrent compiles** (``Compiler``): each program is traced in the calling thread (Python, holds the
   GIL) and handed to a thread for XLA's compile (releases the GIL), so the epoch, evaluation and reset
   compile side by side while the next program is traced.
-- **A breakdown** (``StartupTimer``, ``bar_policy.training.startup_breakdown``): where the seconds before
+- **A breakdown** (``StartupTimer``, ``bar_policy.training.startup.breakdown``): where the seconds before
   training went (imports, model build, env, each trace, lowering, compile or cache load, first epoch and
   evaluation), printed at the top of a run and kept in its record, so a slow start is visible.
 """
@@ -33,15 +33,14 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from bar_policy.training.startup_breakdown import ProgramTimes, StartupTimer
+from bar_policy.training.startup.breakdown import ProgramTimes, StartupTimer
 
 if TYPE_CHECKING:
-    from bar_policy.training.executable_cache import ExecutableCache
+    from bar_policy.training.startup.executable_cache import ExecutableCache
 
 __all__ = [
     "CompileStats",
     "Compiler",
-    "StartupTimer",
     "configure_compile_cache",
     "default_cache_dir",
     "process_uptime",
@@ -193,8 +192,8 @@ class Compiler:
     seconds and the program's persistent-cache outcome go into ``timer.programs[name]``; the calling
     thread's trace and lower seconds also into the timer's ``TRACE`` and ``LOWER`` phases.
 
-    With an ``executable_cache`` (``bar_policy.training.executable_cache``) a program whose key is stored
-    is loaded instead (in the calling thread, or on the worker with ``background=True``): no trace, no
+    With an ``executable_cache`` (``bar_policy.training.startup.executable_cache``) a program whose key is
+    stored is loaded instead (in the calling thread, or on the worker with ``background=True``): no trace, no
     lowering, no compile; a miss is compiled as above and its executable stored.
     """
 
@@ -227,7 +226,7 @@ class Compiler:
         rsl-rl step, whose seconds of loading then overlap what this thread does next).
         """
         from bar_policy.training.parallel import all_agree
-        from bar_policy.training.startup_breakdown import EXEC_LOAD, LOWER, TRACE
+        from bar_policy.training.startup.breakdown import EXEC_LOAD, LOWER, TRACE
 
         cache = self.executable_cache
         key, inputs = cache.key(name, jitted, args) if cache is not None else ("", {})

@@ -173,7 +173,7 @@ def set_backend_env(cfg: Any) -> list[str]:
     scheduling = scheduling_decision(cpu_only=cpu_only, xla_flags=flags, backend_started=started)
     if scheduling == "set":
         os.environ["XLA_FLAGS"] = f"{flags} {SCHEDULING}".strip()
-        notes.append(f"XLA: {SCHEDULING} (independent kernels run at once; training.backend_env)")
+        notes.append(f"XLA: {SCHEDULING} (independent kernels run at once; training.startup.backend_env)")
     elif scheduling == "note":
         notes.append(f"note: jax's GPU backend already runs, so XLA_FLAGS lacks {SCHEDULING} (slower steps)")
     loops = loops_decision(
@@ -197,7 +197,7 @@ def set_backend_env(cfg: Any) -> list[str]:
         os.environ[PREALLOCATE] = "false"
         if not cpu_only:
             notes.append(
-                f"GPU memory: {PREALLOCATE}=false (jax's pool grows on demand; training.backend_env)"
+                f"GPU memory: {PREALLOCATE}=false (jax's pool grows on demand; training.startup.backend_env)"
             )
     elif memory == "note":
         notes.append(f"note: jax's GPU backend already runs, so it reserved its memory pool ({PREALLOCATE})")
@@ -211,7 +211,7 @@ def set_backend_env(cfg: Any) -> list[str]:
     why = f"jaxlib {jaxlib.__version__}'s batched LAPACK deadlocks a small CPU pool from 219 envs"
     if decision == "set":
         os.environ[NPROC] = "1"
-        notes.append(f"CPU threads: {NPROC}=1 ({why}; training.backend_env)")
+        notes.append(f"CPU threads: {NPROC}=1 ({why}; training.startup.backend_env)")
     elif decision == "note":
         notes.append(
             f"note: jax's CPU backend already runs with its own thread pool ({why}): if this run stops, "

@@ -12,7 +12,7 @@ Two views of the same start:
 - **Programs**: each compiled program's trace, lower and compile (or persistent-cache load) seconds, with
   its cache outcome. The compiles run on worker threads, overlapping each other and the phases above.
 
-The record also says what seeding XLA's autotune cache did (``autotune_seed``, one ``autotune seed: ...``
+The record also says what seeding XLA's autotune cache did (``startup.autotune``, one ``autotune seed: ...``
 line in the table), since a cold GPU compile is about 30 s shorter with it.
 
 ``StartupTimer.finish`` makes the JSON record of both (``final_eval.json`` and ``metrics.jsonl`` keep it
@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 from bar_policy._phases import MODEL_BUILD, PhaseClock
 
 if TYPE_CHECKING:
-    from bar_policy.training.autotune_seed import SeedOutcome
+    from bar_policy.training.startup.autotune import SeedOutcome
 
 __all__ = ["PHASES", "UNTIL_EPOCH", "UNTIL_EVAL", "ProgramTimes", "StartupTimer"]
 
@@ -171,7 +171,7 @@ class StartupTimer:
     report: dict[str, Any] | None = None
     """The record ``finish`` made (None before)."""
     autotune_seed: SeedOutcome | None = None
-    """What seeding XLA's autotune cache did (``autotune_seed.seed_autotune_cache``; None: not tried)."""
+    """What seeding XLA's autotune cache did (``autotune.seed_autotune_cache``; None: not tried)."""
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
     @property
@@ -286,6 +286,6 @@ def _table(rec: dict[str, Any]) -> Iterator[str]:
             f"{c['cache_misses']:.0f} misses"
         )
     if rec.get("autotune_seed"):
-        from bar_policy.training.autotune_seed import SeedOutcome
+        from bar_policy.training.startup.autotune import SeedOutcome
 
         yield f"  {SeedOutcome(**rec['autotune_seed']).line()}"

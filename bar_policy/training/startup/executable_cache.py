@@ -3,7 +3,7 @@
 jax's persistent compilation cache keys an executable on the lowered program, so every run has to trace and
 lower (seconds of Python per program) before it can hit. This cache keys the *serialised executable*
 (``jax.experimental.serialize_executable``) on everything that determines the program instead, so a hit
-skips the trace, the lowering and the compile. ``startup.Compiler`` consults it for every program it
+skips the trace, the lowering and the compile. ``startup.compiler.Compiler`` consults it for every program it
 submits; ``docs/startup.md`` has the measurements.
 
 **The key** (``ExecutableCache.key``): a SHA-256 over a JSON document of
@@ -35,8 +35,8 @@ four programs and reached the first evaluation at 22.0 s and 25.0 s instead of 3
 a CPU unless ``BAR_POLICY_EXECUTABLE_CACHE_ON_CPU=1``, on other backends (unmeasured), and with
 ``--no-compile-cache``; ``off_reason`` says which. Under several ``jax.distributed`` processes each stores and
 loads its own entries (the key holds the process index), and a program is loaded only when every process
-holds it (``startup.Compiler``, through ``parallel.all_agree``); otherwise every process compiles it, as in
-a cold run, whose independent compiles of one program are what jax's own persistent cache serves back
+holds it (``startup.compiler.Compiler``, through ``parallel.all_agree``); otherwise every process compiles it,
+as in a cold run, whose independent compiles of one program are what jax's own persistent cache serves back
 too. An entry that passes that check but fails to load on one process is compiled there alone.
 """
 
@@ -57,7 +57,7 @@ from typing import Any
 
 from bar_policy._files import write_atomic
 from bar_policy.overrides import split_override
-from bar_policy.training import executable_key as ek
+from bar_policy.training.startup import executable_key as ek
 
 __all__ = [
     "CPU_ENV",
@@ -335,7 +335,7 @@ def executable_cache_for(
 
     Args:
         cfg: the run's ``TrainConfig``.
-        cache_dir: jax's persistent cache directory (``startup.configure_compile_cache``'s answer).
+        cache_dir: jax's persistent cache directory (``compiler.configure_compile_cache``'s answer).
         record: the run's config record (``run._open_run``): its ``train`` and ``env`` configs go in the key.
         env: the env trained on: its class (and source, when outside ``bar_policy``) go in the key.
     """
