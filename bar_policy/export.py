@@ -238,7 +238,7 @@ def export_brax_policy(
         activation: the networks' hidden activation.
         num_parity_obs: observations checked by the gate.
         seed: seed of those observations.
-        prior: the networks' action prior (``training.networks.make_networks``), None without one.
+        prior: the networks' action prior (``training.brax.networks.make_networks``), None without one.
 
     Returns:
         ``export_policy``'s summary.

@@ -45,7 +45,7 @@ def _compile_set(args: argparse.Namespace) -> dict[str, Any]:
     import jax
     from jax.experimental.serialize_executable import serialize
 
-    from bar_policy.training.brax_programs import _policy_params
+    from bar_policy.training.brax.programs import _policy_params
 
     names = args.compile_set.split("+")
     out: dict[str, Any] = {"set": args.compile_set}

@@ -65,8 +65,8 @@ from train_breakdown import best_time
 
 from bar_policy import envs
 from bar_policy.training import gpu_stream, one_loop
-from bar_policy.training.brax_ppo import host_key, make_programs, slot_env
-from bar_policy.training.learner import make_learner
+from bar_policy.training.brax.learner import make_learner
+from bar_policy.training.brax.ppo import host_key, make_programs, slot_env
 from bar_policy.training.parallel import AXIS, DataParallel
 from bar_policy.training.startup.autotune import seed_autotune_cache
 from bar_policy.training.startup.compiler import configure_compile_cache

@@ -52,7 +52,7 @@ from jax.sharding import PartitionSpec as P
 from trace_summary import device_summary, ops_tables, profiled
 from train_breakdown import best_time
 
-from bar_policy.training.learner import make_learner
+from bar_policy.training.brax.learner import make_learner
 from bar_policy.training.parallel import AXIS, DataParallel
 from bar_policy.training.startup.autotune import seed_autotune_cache
 from bar_policy.training.startup.compiler import configure_compile_cache

@@ -29,8 +29,8 @@ import jax
 import jax.numpy as jnp
 from brax.training import types
 
+from bar_policy.training.brax.learner import Learner, TrainingState, segments
 from bar_policy.training.gpu_stream import on_stream
-from bar_policy.training.learner import Learner, TrainingState, segments
 
 __all__ = ["overlapped", "streamed"]
 

@@ -197,7 +197,7 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
         from bar_policy import envs
 
         if cfg.backend == "brax":
-            from bar_policy.training.brax_ppo import train_brax
+            from bar_policy.training.brax.ppo import train_brax
         else:  # torch-free: rsl_rl.backend (torch) is imported once its programs are compiling
             from bar_policy.training.rsl_rl.programs import prepare_rsl_rl
 

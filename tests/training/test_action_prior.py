@@ -21,8 +21,8 @@ from bar_policy.export_graph import MlpPolicy
 from bar_policy.obs import ObservationManager
 from bar_policy.obs.action_prior import PRIOR_BOUND, ActionPrior, BlendPrior, reference_prior
 from bar_policy.tasks.track import track_action_scale, track_default_pose
+from bar_policy.training.brax.networks import PRIOR_INIT_SCALE, make_networks
 from bar_policy.training.config import NetworkConfig
-from bar_policy.training.networks import PRIOR_INIT_SCALE, make_networks
 
 N = 14
 K = 5  # the tracking layout's lookahead frames
@@ -210,7 +210,7 @@ def test_prior_noise_std_sets_the_initial_std(layout, pose_scale):
 def test_env_serves_only_its_own_prior():
     """network.action_prior must name the prior the env serves: the message names the valid values."""
     from bar_policy import envs
-    from bar_policy.training.brax_programs import action_prior
+    from bar_policy.training.brax.programs import action_prior
 
     reach = envs.load("LiteReach", config=envs.nominal_config())
     with pytest.raises(ValueError, match=r"LiteReach has no action prior; valid values for it: \['none'\]"):

@@ -202,7 +202,7 @@ SHIPPED = {
     "h100-80gb-hbm3-jaxlib-0.11.2-rsl.tar.gz": (H100, H100_DIR, "a27fd9d", ("train step", "eval step"), 749),
     "h100-80gb-hbm3-jaxlib-0.11.2-track.tar.gz": (H100, H100_DIR, "a27fd9d", EPOCH, 830),
     "h100-80gb-hbm3-jaxlib-0.11.2.tar.gz": (H100, H100_DIR, "c61072c", EPOCH, 868),
-    # The gpu preset of session 37 (batch 256, 4 ms, training.ppo_loss); the one above is session 32's.
+    # The gpu preset of session 37 (batch 256, 4 ms, training.brax.ppo_loss); the one above is session 32's.
     "h100-80gb-hbm3-jaxlib-0.11.2-gpu.tar.gz": (H100, H100_DIR, "68897c4", SPLIT, 849),
     # The same preset on the H200 (session 43: the lent machines are H200s now), then rsl and track
     # (session 44) and piano (session 45); the gpu preset again in session 46, with its TF32 update (13 of

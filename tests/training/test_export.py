@@ -26,7 +26,7 @@ from bar_policy.export import (
     parity_observations,
     parity_sigmas,
 )
-from bar_policy.training.brax_ppo import make_networks
+from bar_policy.training.brax.ppo import make_networks
 from bar_policy.training.config import NetworkConfig
 from bar_policy.training.metadata import policy_metadata
 

@@ -1,4 +1,4 @@
-"""The learner's parts (``training.learner``): the rollout's layout, and the rollout and update as one loop.
+"""The learner's parts (``brax.learner``): the rollout's layout, and the rollout and update as one loop.
 
 ``one_loop.overlapped`` runs a rollout and the update of other data in one loop, each of the rollout's first
 control steps beside one SGD pass; ``one_loop.streamed`` puts each pass on a GPU stream of its own, its Adam
@@ -23,8 +23,8 @@ from toy_configs import TOY_BRAX, toy_config
 
 from bar_policy import envs
 from bar_policy.training import one_loop
-from bar_policy.training.brax_programs import host_key, make_programs, slot_env
-from bar_policy.training.learner import make_learner, segments
+from bar_policy.training.brax.learner import make_learner, segments
+from bar_policy.training.brax.programs import host_key, make_programs, slot_env
 from bar_policy.training.parallel import AXIS, DataParallel
 
 

@@ -22,9 +22,10 @@ action semantics (its noise would be in pre-tanh units) for no gain. The exporte
 then Add to the MLP output, no Atanh), so its output is the deterministic ``a`` the env was commanded
 during training, before the same [-1, 1] clip (the runtime's).
 
-As brax does (``networks.PRIOR_INIT_SCALE``), a fresh actor's output layer starts at 0.01 of its init with a
-zero bias (``start_actor_at_prior``), so the first policy's mean is within a few 1e-3 of the prior; and
-``network.prior_noise_std``, when set, is the initial action noise std (``rsl_rl.config.rsl_rl_train_cfg``).
+As brax does (``training.brax.networks.PRIOR_INIT_SCALE``), a fresh actor's output layer starts at 0.01 of its
+init with a zero bias (``start_actor_at_prior``), so the first policy's mean is within a few 1e-3 of the
+prior; and ``network.prior_noise_std``, when set, is the initial action noise std
+(``rsl_rl.config.rsl_rl_train_cfg``).
 
 Torch-free at import (torch only inside ``start_actor_at_prior``): ``rsl_rl.programs`` builds the envs'
 programs with ``rsl_rl_prior`` and ``commanded_action`` before torch is imported.
@@ -37,9 +38,9 @@ from typing import TYPE_CHECKING, Any
 import jax
 
 from bar_policy.obs.action_prior import Prior, check_fits
-from bar_policy.training.brax_programs import action_prior
+from bar_policy.training.brax.networks import PRIOR_INIT_SCALE
+from bar_policy.training.brax.programs import action_prior
 from bar_policy.training.config import TrainConfig
-from bar_policy.training.networks import PRIOR_INIT_SCALE
 
 if TYPE_CHECKING:
     import torch

@@ -312,7 +312,7 @@ def weights_by_name(
     """The key's training and env config parts, with the reward weights by name only.
 
     Every program that steps the env takes the weights as an argument (the brax rollout and evaluation,
-    ``brax_programs``; the rsl-rl steps, ``rsl_rl.programs``), so their values are left out. The env
+    ``training.brax.programs``; the rsl-rl steps, ``rsl_rl.programs``), so their values are left out. The env
     record keeps the terms' names, and the training config's ``env_overrides`` lose their
     ``reward.scales.*`` items. A run that changes only a weight is then served.
     """

@@ -1,8 +1,8 @@
 """The default backend: PPO on the MJX env, JAX end to end, data-parallel over every device.
 
-The algorithm is brax's (``bar_policy.training.learner``: networks, loss, running statistics, data layout).
-The loop around it is ours, for what ``ppo.train`` cannot give: checkpoints with the optimizer state and
-step count (exact resume), progress lines with success rate and ETA, a wall-clock budget, the task's
+The algorithm is brax's (``bar_policy.training.brax.learner``: networks, loss, running statistics, data
+layout). The loop around it is ours, for what ``ppo.train`` cannot give: checkpoints with the optimizer state
+and step count (exact resume), progress lines with success rate and ETA, a wall-clock budget, the task's
 evaluation ratios on fresh seeds, several hosts, and a fast start.
 
 Programs (``jit`` of ``shard_map`` over the mesh of ``bar_policy.training.parallel``; env slots sharded,
@@ -16,8 +16,8 @@ learner state replicated), each compiled once, ahead of time and concurrently (`
   i) -> state, losses``: PPO iteration ``i`` of an epoch keyed ``key`` (envs, then state donated).
   ``weights`` are the reward weights (``envs.reward_weights``): an argument, so a run that changes one
   loads the compiled programs (the executable key holds the terms' names, not their values). An epoch
-  (``iters_per_epoch`` iterations, one progress line) is ``brax_programs.run_epoch``: the calls queue on
-  the device, with one host sync at its end. Two programs, not one scan over both: they compile side by
+  (``iters_per_epoch`` iterations, one progress line) is ``training.brax.programs.run_epoch``: the calls queue
+  on the device, with one host sync at its end. Two programs, not one scan over both: they compile side by
   side (H100, reach: all ready 26.5 s after the start of their compiles instead of the one epoch program's
   35.5 s, both beside the evaluation's; ``bench/program_split.py``, session 34) and load sooner (3.0 s
   instead of 3.8 s).
@@ -45,7 +45,9 @@ import numpy as np
 
 from bar_policy.envs import reward_weights
 from bar_policy.training.best import BestKeeper
-from bar_policy.training.brax_programs import (
+from bar_policy.training.brax.learner import TrainingState, make_learner
+from bar_policy.training.brax.networks import make_networks
+from bar_policy.training.brax.programs import (
     _K_EPOCH,
     _K_EVAL,
     _K_EVAL_MODEL,
@@ -65,11 +67,9 @@ from bar_policy.training.brax_programs import (
     slot_env,
     slot_keys,
 )
-from bar_policy.training.brax_result import BraxTrainResult
+from bar_policy.training.brax.result import BraxTrainResult
 from bar_policy.training.checkpoint import load_checkpoint, resume_changes, save_checkpoint
 from bar_policy.training.config import TrainConfig
-from bar_policy.training.learner import TrainingState, make_learner
-from bar_policy.training.networks import make_networks
 from bar_policy.training.parallel import barrier, make_data_parallel
 from bar_policy.training.progress import RunLogger, next_would_overrun
 from bar_policy.training.rsl_rl.config import brax_not_applied

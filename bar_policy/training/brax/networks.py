@@ -3,7 +3,8 @@
 ``make_networks`` builds brax's ``PPONetworks`` (``brax.training.agents.ppo.networks``) from a
 ``NetworkConfig`` (layer sizes, activation) and, for a task with an action prior (``obs.action_prior``),
 adds the prior's pre-tanh action to the policy's mean so that a zero MLP output is the prior's action. The
-learner (``training.learner``), the exporter and the rsl-rl backend's actor start (``rsl_rl.prior``) share it.
+learner (``training.brax.learner``), the exporter and the rsl-rl backend's actor start (``rsl_rl.prior``)
+share it.
 """
 
 from __future__ import annotations

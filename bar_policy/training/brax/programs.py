@@ -1,7 +1,7 @@
-"""The data-parallel programs of ``train_brax`` and their pure helpers (``training.brax_ppo``).
+"""The data-parallel programs of ``train_brax`` and their pure helpers (``training.brax.ppo``).
 
 ``make_programs`` builds the ``init`` / ``reset`` / ``rollout`` / ``update`` / ``evaluate`` programs
-(``training.brax_ppo`` documents each); ``run_epoch`` / ``epoch_totals`` run an epoch of them and total it;
+(``training.brax.ppo`` documents each); ``run_epoch`` / ``epoch_totals`` run an epoch of them and total it;
 ``slot_keys`` / ``slot_env`` give every env slot its own key and randomised model whatever the device count;
 ``host_key`` derives keys on the host; ``epoch_iterations`` sizes an epoch.
 """
@@ -20,8 +20,8 @@ from jax.sharding import PartitionSpec as P
 from bar_policy.envs.reward_weights import with_weights
 from bar_policy.obs.action_prior import Prior
 from bar_policy.tasks.registry import env_entries
+from bar_policy.training.brax.learner import Learner, TrainingState, strip_weak_type
 from bar_policy.training.config import NetworkConfig, TrainConfig
-from bar_policy.training.learner import Learner, TrainingState, strip_weak_type
 from bar_policy.training.parallel import AXIS, DataParallel
 
 __all__ = [
@@ -108,7 +108,7 @@ def slot_env(
 
 @dataclass(frozen=True)
 class Programs:
-    """The five jitted data-parallel programs of a run (before compilation; see ``brax_ppo``'s docstring)."""
+    """The five jitted data-parallel programs of a run (before compilation; see ``ppo``'s docstring)."""
 
     init: Callable[..., Any]
     reset: Callable[..., Any]

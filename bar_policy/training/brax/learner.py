@@ -1,6 +1,6 @@
 """brax's PPO as per-device functions: training state, one iteration, one evaluation.
 
-The networks are ``training.networks``'.
+The networks are ``networks``'.
 
 Everything here is written for one device's shard of the env batch and reduces across devices through the
 mesh axis ``AXIS`` (``bar_policy.training.parallel``): ``lax.pmean`` of the gradients, brax's
@@ -8,8 +8,8 @@ mesh axis ``AXIS`` (``bar_policy.training.parallel``): ``lax.pmean`` of the grad
 logged sums. On one device the collectives are identities.
 
 The algorithm is brax's (``brax.training.agents.ppo``): ``make_ppo_networks`` (tanh-normal policy),
-``compute_ppo_loss`` (GAE, clipped ratio, entropy bonus; as ``training.ppo_loss``, the same numbers in fewer
-GPU kernels), running observation statistics, and its data layout
+``compute_ppo_loss`` (GAE, clipped ratio, entropy bonus; as ``training.brax.ppo_loss``, the same numbers in
+fewer GPU kernels), running observation statistics, and its data layout
 (``batch_size * num_minibatches`` segments of ``unroll_length`` steps per iteration, ``num_updates_per_batch``
 shuffled passes of ``num_minibatches`` Adam steps).
 """
@@ -34,10 +34,10 @@ from brax.training.agents.ppo import networks as ppo_networks
 from bar_policy.envs.base import eval_ratios
 from bar_policy.obs.action_prior import Prior
 from bar_policy.training import eval_quality
+from bar_policy.training.brax.networks import make_networks
+from bar_policy.training.brax.ppo_loss import ppo_loss, with_value_targets
 from bar_policy.training.config import NetworkConfig, PPOConfig
-from bar_policy.training.networks import make_networks
 from bar_policy.training.parallel import AXIS
-from bar_policy.training.ppo_loss import ppo_loss, with_value_targets
 
 __all__ = [
     "Learner",
