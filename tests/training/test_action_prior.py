@@ -16,8 +16,9 @@ import pytest
 from brax.training.acme import running_statistics, specs
 from brax.training.agents.ppo import networks as ppo_networks
 
-from bar_policy.export import _run_onnx, build_onnx_model, export_brax_policy, mlp_policy_from_brax
-from bar_policy.export_graph import MlpPolicy
+from bar_policy.export.graph import MlpPolicy, build_onnx_model
+from bar_policy.export.parity import _run_onnx
+from bar_policy.export.policy import export_brax_policy, mlp_policy_from_brax
 from bar_policy.obs import ObservationManager
 from bar_policy.obs.action_prior import PRIOR_BOUND, ActionPrior, BlendPrior, reference_prior
 from bar_policy.tasks.track import track_action_scale, track_default_pose

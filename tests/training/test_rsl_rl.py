@@ -12,7 +12,8 @@ from toy_configs import TOY_RSL, toy_config
 
 from bar_policy.deploy.metadata import BAR_KEYS, HC_KEYS, PolicyMetadata
 from bar_policy.envs import wrap_for_brax_training
-from bar_policy.export import ParityError, export_policy
+from bar_policy.export.parity import ParityError
+from bar_policy.export.policy import export_policy
 from bar_policy.training.rsl_rl.backend import mlp_policy_from_rsl_rl, torch_policy_reference
 from bar_policy.training.rsl_rl.env import RslRlVecEnv
 from bar_policy.training.rsl_rl.policy import evaluate_torch_policy

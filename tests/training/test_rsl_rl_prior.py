@@ -20,7 +20,8 @@ from toy_configs import TOY_RSL, toy_config
 
 from bar_policy.deploy.metadata import PolicyMetadata
 from bar_policy.envs import wrap_for_brax_training
-from bar_policy.export import _run_onnx, export_policy
+from bar_policy.export.parity import _run_onnx
+from bar_policy.export.policy import export_policy
 from bar_policy.obs import ObservationManager
 from bar_policy.obs.action_prior import ActionPrior, reference_prior
 from bar_policy.tasks.track import track_action_scale, track_default_pose
@@ -154,7 +155,7 @@ def test_exported_actor_with_prior_is_prior_plus_actor(track_setup, tmp_path):
 
 def test_parity_gate_covers_the_prior(track_setup, tmp_path):
     """A file without the prior fails the gate against the reference with it, and vice versa."""
-    from bar_policy.export import ParityError
+    from bar_policy.export.parity import ParityError
 
     layout, prior, _, _, meta = track_setup
     actor = _actor(layout.size, 1)

@@ -67,8 +67,8 @@ class BraxTrainResult:
         return out
 
     def export_onnx(self, metadata: Any, path: str | Any) -> dict[str, Any]:
-        """Export the deterministic policy with the parity gate (``bar_policy.export.export_brax_policy``)."""
-        from bar_policy.export import export_brax_policy
+        """Export the deterministic policy with the parity gate (``export.policy.export_brax_policy``)."""
+        from bar_policy.export.policy import export_brax_policy
 
         return export_brax_policy(
             self.params, self.make_policy, metadata, path, activation=self.activation, prior=self.prior

@@ -55,7 +55,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from bar_policy.export import export_policy
+from bar_policy.export.policy import export_policy
 from bar_policy.obs.action_prior import Prior
 from bar_policy.training.best import BestIterate, BestKeeper
 from bar_policy.training.checkpoint import latest_checkpoint, resume_changes, save_checkpoint

@@ -12,7 +12,7 @@ import numpy as np
 import torch
 from rsl_rl.modules import GaussianDistribution
 
-from bar_policy.export import MlpPolicy
+from bar_policy.export.graph import MlpPolicy
 from bar_policy.obs.action_prior import Prior
 from bar_policy.training.rsl_rl.env import RslRlVecEnv
 

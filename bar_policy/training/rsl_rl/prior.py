@@ -18,7 +18,7 @@ Why additive and not brax's ``tanh(mlp + atanh(prior))``: brax's head is tanh-no
 before its squash; rsl-rl's head has no squash (the env's clip bounds the action), so the prior is added in
 action units, where a zero residual commands the prior itself. A tanh in the env would change rsl-rl's
 action semantics (its noise would be in pre-tanh units) for no gain. The exported file is the same
-``MlpPolicy`` with the ``identity`` head and ``prior`` (``bar_policy.export_graph``: Gather, Mul, Add, Clip,
+``MlpPolicy`` with the ``identity`` head and ``prior`` (``bar_policy.export.graph``: Gather, Mul, Add, Clip,
 then Add to the MLP output, no Atanh), so its output is the deterministic ``a`` the env was commanded
 during training, before the same [-1, 1] clip (the runtime's).
 

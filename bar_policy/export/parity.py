@@ -1,8 +1,8 @@
-"""The parity gate of ``bar_policy.export``: onnxruntime against the training framework's own inference.
+"""The parity gate of ``export.policy``: onnxruntime against the training framework's own inference.
 
 ``parity_observations`` (k = 1, 4, 8 sigma) are checked at ``k * PARITY_TOLERANCE``,
 ``extreme_observations`` (anywhere in +-100 raw) at ``EXTREME_TOLERANCE``; ``check_parity`` raises
-``ParityError`` on a mismatch. ``bar_policy.export`` gives the reasons for both tolerances' values.
+``ParityError`` on a mismatch. ``export.policy`` gives the reasons for both tolerances' values.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from bar_policy.export_graph import MlpPolicy
+from bar_policy.export.graph import MlpPolicy
 
 __all__ = [
     "EXTREME_TOLERANCE",

@@ -1,6 +1,6 @@
 """A deterministic MLP policy as plain arrays (``MlpPolicy``) and its ONNX graph (``build_onnx_model``).
 
-``bar_policy.export`` documents the graph (normaliser folded in, dense layers, the ``tanh_loc`` /
+``export.policy`` documents the graph (normaliser folded in, dense layers, the ``tanh_loc`` /
 ``identity`` heads) and the parity gate that guards every written file.
 """
 

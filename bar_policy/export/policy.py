@@ -36,18 +36,14 @@ import numpy as np
 import bar_policy
 from bar_policy._files import write_atomic
 from bar_policy.deploy.metadata import PolicyMetadata
-from bar_policy.export_graph import (  # noqa: F401 (Head: re-exported)
-    OPSET,
+from bar_policy.export.graph import (
     Activation,
-    Head,
     MlpPolicy,
     build_onnx_model,
 )
-from bar_policy.export_parity import (
+from bar_policy.export.parity import (
     EXTREME_TOLERANCE,
     PARITY_TOLERANCE,
-    ParityError,
-    _run_onnx,  # noqa: F401 (re-exported: tests call it from here)
     check_parity,
     extreme_observations,
     parity_observations,
@@ -56,21 +52,11 @@ from bar_policy.export_parity import (
 from bar_policy.obs.action_prior import Prior
 
 __all__ = [
-    "EXTREME_TOLERANCE",
-    "OPSET",
-    "PARITY_TOLERANCE",
-    "MlpPolicy",
-    "ParityError",
     "brax_policy_reference",
-    "build_onnx_model",
-    "check_parity",
     "code_version",
     "export_brax_policy",
     "export_policy",
-    "extreme_observations",
     "mlp_policy_from_brax",
-    "parity_observations",
-    "parity_sigmas",
 ]
 
 
