@@ -11,7 +11,7 @@ level of the entry computation, of a while loop's body or condition, or of a con
 by op from the host. jaxlib 0.10 and later form them from thunks after the HLO
 (``command_buffer_conversion_pass``; the switch between the two is among their removed ``DebugOptions``),
 so their HLO holds no such computation: there this report only gives the loops and what runs in them, and
-XLA's own log says what it recorded (``bench/capture_variants.sh DUMP=1`` gathers both). For each dumped
+XLA's own log says what it recorded (``TF_CPP_VMODULE``, VLOG 2). For each dumped
 module this prints:
 
 - the command buffers: how many, and the instructions (and while loops) recorded in them;
@@ -24,11 +24,10 @@ Structural instructions (parameters, tuples, constants, bitcasts, ...) launch no
 If a module holds no ``command_buffer`` computation at all, XLA formed its command buffers after the HLO
 (from thunks) or formed none; the report says so rather than guessing.
 
-Usage (on the GPU machine, after the pip prefix of shared/gpu/README.md; or through
-``DUMP=1 bash bench/capture_variants.sh``)::
+Usage (on the GPU machine, after the pip prefix of shared/gpu/README.md)::
 
     XLA_FLAGS="--xla_dump_to=/tmp/dump --xla_dump_hlo_as_text --xla_dump_hlo_module_re=jit_rollout" \\
-      python3 bench/stream_overlap.py --plain --env-overrides cholesky=columns
+      python3 bench/train_breakdown.py --no-compile-cache
     python3 bench/command_buffers.py /tmp/dump --out $OUT/command_buffers.md
 """
 

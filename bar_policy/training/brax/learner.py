@@ -104,21 +104,17 @@ class Learner:
             params, normalizer, data, self.networks, ppo.discounting, ppo.reward_scaling, ppo.gae_lambda
         )
 
-    def sgd_pass(
-        self, carry: tuple, data: types.Transition, normalizer: Any, unrolled: bool = False
-    ) -> tuple:
+    def sgd_pass(self, carry: tuple, data: types.Transition, normalizer: Any) -> tuple:
         """One shuffled pass of ``num_minibatches`` Adam steps over this device's segments.
 
         ``carry`` = ``(optimizer state, params, key)``; returns ``(carry, metrics)``, ``update``'s scan body.
         Its matrix products are traced at ``ppo.update_precision`` (``run``: the surrounding precision).
-        ``unrolled``: the Adam steps written out one after another instead of a ``scan`` (no loop in the
-        program: what a computation on a GPU stream of its own needs; same values).
         """
         precision = self.ppo.update_precision
         with contextlib.nullcontext() if precision == "run" else jax.default_matmul_precision(precision):
-            return self._sgd_pass(carry, data, normalizer, unrolled)
+            return self._sgd_pass(carry, data, normalizer)
 
-    def _sgd_pass(self, carry: tuple, data: types.Transition, normalizer: Any, unrolled: bool) -> tuple:
+    def _sgd_pass(self, carry: tuple, data: types.Transition, normalizer: Any) -> tuple:
         """``sgd_pass`` under the precision it sets."""
         ppo = self.ppo
         opt_state, params, k = carry
@@ -162,14 +158,8 @@ class Learner:
             return (o, optax.apply_updates(p, updates), kk), metrics
 
         mbs = jax.tree.map(shuffle, data)
-        if not unrolled:
-            (opt_state, params, _), metrics = jax.lax.scan(minibatch, (opt_state, params, k_mb), mbs)
-            return (opt_state, params, k), metrics
-        c, steps = (opt_state, params, k_mb), []
-        for m in range(ppo.num_minibatches):
-            c, step_metrics = minibatch(c, jax.tree.map(lambda x, m=m: x[m], mbs))
-            steps.append(step_metrics)
-        return (c[0], c[1], k), jax.tree.map(lambda *xs: jnp.stack(xs), *steps)
+        (opt_state, params, _), metrics = jax.lax.scan(minibatch, (opt_state, params, k_mb), mbs)
+        return (opt_state, params, k), metrics
 
     def collect_step(self, ts: TrainingState, env: Any) -> Callable[[tuple, Any], tuple]:
         """``rollout``'s scan body: one control step of every slot of ``env`` under ``ts``'s policy.
