@@ -14,7 +14,7 @@ Usage::
         --device-kind "NVIDIA H100 80GB HBM3" --jax 0.11.2 --jaxlib 0.11.2 --commit c61072c
 
 Writes ``<out>/<name>.tar.gz`` and ``<out>/<name>.json`` (``--out`` defaults to the package's
-``bar_policy/training/autotune``) and prints the manifest.
+``bar_policy/data/autotune``) and prints the manifest.
 """
 
 from __future__ import annotations

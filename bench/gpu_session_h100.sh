@@ -17,7 +17,7 @@
 #                      $SEED_PRESETS (default "rsl track"; gpu or piano in a call of their own), a cold run on its own
 #                      empty cache without the shipped seed, then bench/autotune_seed.py packs that cache's
 #                      autotune results into $OUT (<gpu>-jaxlib-<v>-<preset>.tar.gz/.json: copy both to
-#                      bar_policy/training/autotune/)
+#                      bar_policy/data/autotune/)
 #   loadflags (~6 min): what XLA flags do to a warm start's executable loads: a cold and a warm run on XLA's
 #                      defaults, then a cold and a warm run with XLA_FLAGS=$LOAD_FLAGS (default
 #                      --xla_gpu_experimental_aot_compiled_thunks=true: the serialised executable holds its

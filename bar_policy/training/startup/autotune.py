@@ -11,12 +11,12 @@ into an empty compile cache the first evaluation came at 68.6 s instead of 99.4 
 instead of 71 s, evaluate 31.2 s instead of 54 s) and training ran at the same speed (143.3k vs 144.7k
 env steps/s, noise).
 
-This module ships such directories (``autotune/<name>.tar.gz``, each with a ``<name>.json`` manifest
-naming the device kind, the jax/jaxlib versions and the commit it was made with) and, at start-up, copies
-every one matching this machine into the compile cache (``seed_autotune_cache``; one seed per preset whose
-programs were compiled cold: reach (the gpu preset of session 32 and that of session 37), rsl, track and piano
-for the H100, and reach's gpu preset (session 43, remade in 46 with its TF32 update), rsl and track (session
-44) and piano (session 45) for the H200, all with jaxlib 0.11.2; the trainer runs it on a thread,
+This module ships such directories (``bar_policy/data/autotune/<name>.tar.gz``, each with a ``<name>.json``
+manifest naming the device kind, the jax/jaxlib versions and the commit it was made with) and, at start-up,
+copies every one matching this machine into the compile cache (``seed_autotune_cache``; one seed per preset
+whose programs were compiled cold: reach (the gpu preset of session 32 and that of session 37), rsl, track and
+piano for the H100, and reach's gpu preset (session 43, remade in 46 with its TF32 update), rsl and track
+(session 44) and piano (session 45) for the H200, all with jaxlib 0.11.2; the trainer runs it on a thread,
 ``seed_in_background``). It never overwrites a file already there (XLA's own results win) and counts what
 it skipped.
 
@@ -48,6 +48,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from bar_policy._files import PACKAGE_ROOT
+
 __all__ = [
     "AUTOTUNE_DIR",
     "SEED_DIR",
@@ -63,7 +65,7 @@ __all__ = [
 AUTOTUNE_DIR = "xla_gpu_per_fusion_autotune_cache_dir"
 """The per-fusion cache's folder under jax's compile cache dir (and its name in jax's config flag)."""
 
-SEED_DIR = Path(__file__).resolve().parents[1] / "autotune"
+SEED_DIR = PACKAGE_ROOT / "data" / "autotune"
 """Where the shipped seeds live: ``<name>.json`` manifests next to their ``.tar.gz`` archives."""
 
 FORMAT = 1
