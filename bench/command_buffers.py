@@ -1,9 +1,10 @@
 """What of a GPU program runs outside XLA's command buffers (CUDA graphs)? Read from XLA's HLO dump.
 
-Issue 19's steady target needs the update to run beside the rollout on one GPU. XLA runs two loops of one
-program side by side only when both are nodes of one command buffer (docs/benchmarks.md, sessions 41-43:
-two chains of matmuls did, the trainer's rollout and update did not, even with no library call left in the
-physics step). This script says what keeps a program's instructions out of a command buffer.
+A steady loop at >= 90 % of the raw env's rate needs the update to run beside the rollout on one GPU. XLA runs
+two loops of one program side by side only when both are nodes of one command buffer (docs/benchmarks.md,
+2026-11-27 to 2026-11-28: two chains of matmuls did, the trainer's rollout and update did not, even with no
+library call left in the physics step). This script says what keeps a program's instructions out of a command
+buffer.
 
 Older XLA formed command buffers in a late HLO pass (``command-buffer-scheduling``) that outlines each
 run of recordable instructions into a computation named ``command_buffer...``; what is left at the top

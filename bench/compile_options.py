@@ -1,6 +1,6 @@
-"""What XLA's per-compile options do to the reach epoch: compile time, training speed, load time (issue 19).
+"""What XLA's per-compile options do to the reach epoch: compile time, training speed, load time.
 
-The epoch here is the one-program epoch the trainer had until session 34 (``bench/fused_epoch.py``). A cold
+The epoch here is the one-program epoch the trainer had until 2026-11-27 (``bench/fused_epoch.py``). A cold
 run waited about 39 s for it to compile (H100, shipped autotune seeds) and a warm run about 5.8 s for its
 executable to load from the executable cache. This bench compiles that epoch (``--preset``, one device)
 under each named set of XLA debug options, passed per

@@ -1,4 +1,4 @@
-"""Which part of the rollout program its compile time goes to (issue 19: the cold start's critical path).
+"""Which part of the rollout program its compile time goes to (the cold start's critical path).
 
 The trainer's ``rollout`` (policy sampling + 20 env steps + transitions, one program) compiles in 25-34 s on
 an H100, half of it in one thread's HLO passes (``program_split.py --profile``). Programs compile

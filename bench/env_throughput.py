@@ -1,4 +1,4 @@
-"""Raw MJX env throughput per registered env, side by side in one process (issue 18).
+"""Raw MJX env throughput per registered env, side by side in one process.
 
 Each env runs ``steps`` control steps of zero actions under one ``jit(scan)`` at the given batch, through
 the training wrappers and the env's domain randomiser (``training.throughput``), the best of 3 timed calls.

@@ -21,7 +21,7 @@ class OneDevice:
     progs: Any
     """``training.brax.programs.make_programs``'s ``Programs``."""
     fused: Any
-    """The one-program epoch of before session 34 (``fused_epoch``)."""
+    """The one-program epoch of before 2026-11-27 (``fused_epoch``)."""
     iters: int
     """Iterations per epoch of ``fused``."""
     key_abs: Any

@@ -1,4 +1,4 @@
-"""Would the epoch as two programs (rollout, update) compile and load sooner than as one? (issue 19)
+"""Would the epoch as two programs (rollout, update) compile and load sooner than as one?
 
 A cold reach run waits for the epoch program's compile (H100: 28 s alone, 31 s beside the evaluation's) and
 a warm one for its load from the executable cache (4-7 s). The epoch is ``iters`` PPO iterations, each a
@@ -8,7 +8,7 @@ lowered one after the other on the main thread, compiled concurrently on threads
 with the shipped autotune seeds), then loads the serialised executables concurrently in a fresh process,
 and reports per set: each program's compile and load, and the wall time until all of them are ready.
 
-Sets: ``epoch+evaluate`` (the start until session 34: ``bench/fused_epoch.py``) and
+Sets: ``epoch+evaluate`` (the start until 2026-11-27: ``bench/fused_epoch.py``) and
 ``rollout+update+evaluate`` (the trainer's programs since); ``--sets`` picks. Each set's
 compile runs in a process of its own (XLA keeps in-process caches).
 

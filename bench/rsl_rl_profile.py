@@ -1,4 +1,4 @@
-"""Where an rsl-rl iteration's time goes (issue 9, item 4): act, env step, process, returns, update.
+"""Where an rsl-rl iteration's time goes: act, env step, process, returns, update.
 
 Builds the rsl-rl backend's pieces exactly as ``train_rsl_rl`` does (``RslRlVecEnv`` + rsl-rl's
 ``OnPolicyRunner`` algorithm, config from a preset; the run's XLA flags from ``set_backend_env``, the update

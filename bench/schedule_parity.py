@@ -1,4 +1,4 @@
-"""Does a GPU program compute the same under other XLA_FLAGS? (issue 19: command-buffer scheduling.)
+"""Does a GPU program compute the same under other XLA_FLAGS? (command-buffer scheduling)
 
 ``training.startup.backend_env`` runs GPU programs with
 ``--xla_gpu_command_buffer_scheduling_mode=CONCURRENT``: kernels without a buffer dependency between them may

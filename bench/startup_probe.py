@@ -1,4 +1,4 @@
-"""Issue 19: what ``python train/ppo.py`` spends from the process start to the end of its env build.
+"""What ``python train/ppo.py`` spends from the process start to the end of its env build.
 
 Runs the command's start (interpreter, CLI imports and parsing, ``run``'s imports phase, the model build,
 the env construction) in ``--runs`` fresh interpreters, each stopped where the run directory would be

@@ -1,9 +1,9 @@
-"""Where a cold start's main-thread trace and lowering go, program by program (issue 19).
+"""Where a cold start's main-thread trace and lowering go, program by program.
 
 A cold run traces and lowers ``reset``, ``rollout``, ``update`` and ``init`` on its main thread, then
 ``evaluate`` on a worker, before their compiles can start (``training.brax.ppo.train_brax``). On the lent H200
 hosts that took 9.9-14.0 s on the main thread plus 7-10 s for the evaluation, beside the other
-programs' compiles (session 52). This machine's CPU does the same alone in about 6 s plus 4 s.
+programs' compiles (2026-11-29). This machine's CPU does the same alone in about 6 s plus 4 s.
 
 This bench builds the run's programs as the trainer does: the task's evaluation env, its model
 randomiser and the reference prior, one device. It then traces and lowers each program in the

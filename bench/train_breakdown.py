@@ -1,4 +1,4 @@
-"""Where a training iteration's time goes (issue 9, item 5): env alone, rollout, SGD, the epoch program.
+"""Where a training iteration's time goes: env alone, rollout, SGD, the epoch program.
 
 At the training batch of a preset (default ``gpu``: 4096 envs, 81,920 env steps and 128 Adam steps per
 iteration), on one device, every part compiled once and timed over ``--iters`` calls after a warm-up:
@@ -17,9 +17,9 @@ iteration), on one device, every part compiled once and timed over ``--iters`` c
 - ``evaluate``: one periodic evaluation (``eval.num_eval_envs`` deterministic episodes of the env's
   ``episode_length`` steps), reported in s per evaluation below the table;
 - with ``--fused``, ``epoch, one program`` and ``loop, one program``: the same for the one-program epoch
-  the trainer had until session 34 (``bench/fused_epoch.py``), in the same process.
+  the trainer had until 2026-11-27 (``bench/fused_epoch.py``), in the same process.
 - with ``--loop-only``: ``env``, ``epoch`` and ``loop`` alone, the programs they need and no others (the
-  tracker's nine programs did not compile within a 280 s call on an H200, session 51).
+  tracker's nine programs did not compile within a 280 s call on an H200, 2026-11-29).
 
 Every row runs under this process's ``XLA_FLAGS``; the trainer adds
 ``--xla_gpu_command_buffer_scheduling_mode=CONCURRENT`` on a GPU (``training.startup.backend_env``), so set it
@@ -85,7 +85,7 @@ def main() -> int:
     p.add_argument(
         "--fused",
         action="store_true",
-        help="also the one-program epoch of before session 34 (bench/fused_epoch.py)",
+        help="also the one-program epoch of before 2026-11-27 (bench/fused_epoch.py)",
     )
     p.add_argument(
         "--profile",

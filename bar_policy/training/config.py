@@ -163,7 +163,8 @@ class PPOConfig:
     """Weight of the value loss."""
     update_precision: Literal["run", "tensorfloat32", "BF16_BF16_F32_X3"] = "run"
     """SGD passes' matrix products: ``run`` (``TrainConfig.matmul_precision``) or tensor cores' (jax's names;
-    physics, rollout keep the run's; rsl-rl: TF32 only). benchmarks.md "Session 45": H200 30 -> 17 / 22 ms."""
+    physics, rollout keep the run's; rsl-rl: TF32 only). One H200, 128 Adam steps (commit 280175b,
+    2026-11-28, bench/update_scaling.py): 30 ms float32, 17 ms tensorfloat32, 22 ms BF16_BF16_F32_X3."""
     actor_warmup_iterations: int = 0
     """First iterations in which only the critic learns (policy gradients zeroed; brax backend): against an
     untrained critic the first updates push the policy off an action prior (piano: F1 0.70 -> 0.23 in 2.3M
@@ -318,12 +319,12 @@ class TrainConfig:
     autotune_seed: bool = True
     """Seed XLA's per-fusion autotune cache (in the compile cache) with the results shipped for this GPU
     and jaxlib (``training/startup/autotune.py``); GPUs only, never overwrites. H100, LiteReach gpu preset,
-    empty compile cache: first evaluation at 68.6 s instead of 99.4 s, same training speed (session 32)."""
+    empty compile cache: first evaluation at 68.6 s instead of 99.4 s, same training speed (2026-11-27)."""
     executable_cache: bool = True
     """Executable cache in <cache directory>/executables (with the compile cache): a rerun of the same
     command and code loads each program without tracing, lowering or compiling it. Used on GPU backends;
     on a CPU only with BAR_POLICY_EXECUTABLE_CACHE_ON_CPU=1; under several processes each keeps its own
-    entries, loaded only when every process holds them. H100, LiteReach gpu preset (session 32): two warm
+    entries, loaded only when every process holds them. H100, LiteReach gpu preset (2026-11-27): two warm
     runs loaded all 4 programs, first evaluation at 22.0 and 25.0 s instead of 35-41 s with jax's
     persistent cache alone, same learning curve (docs/startup.md)."""
     ppo: PPOConfig = field(default_factory=PPOConfig)

@@ -4,7 +4,7 @@ pool on a GPU (``training.startup.backend_env``).
 The decision is a pure function of the conditions; the subprocess test runs, on a machine where the run
 would set it (jaxlib < 0.11, at most ``SMALL_CPU`` cores), the smallest program that deadlocked here:
 four independent batched Choleskys of 256 14x14 matrices in a loop. Without the setting it stopped in 6 of
-6 runs within 150 calls (docs/benchmarks.md "Session 39"); with it the process keeps one XLA thread.
+6 runs within 150 calls (docs/benchmarks.md, 2026-11-27); with it the process keeps one XLA thread.
 """
 
 from __future__ import annotations

@@ -233,7 +233,7 @@ def test_an_entry_under_another_key_is_refused(tmp_path, caplog):
 def test_default_is_on_for_gpus_and_several_processes_off_on_cpus(tmp_path, monkeypatch):
     """The default decision (docs/startup.md, "Switches"), the backend given explicitly.
 
-    Several processes keep it on since session 39: each stores and loads its own entries, and a program is
+    Several processes keep it on since 2026-11-27: each stores and loads its own entries, and a program is
     loaded only when all hold it (``test_distributed.py`` runs that path)."""
     cfg = preset("tiny")
     assert cfg.executable_cache is True and preset("gpu").executable_cache is True
@@ -277,7 +277,7 @@ def test_off_switch_writes_and_reads_nothing(tmp_path, monkeypatch):
     assert executable_cache_for(off, tmp_path, record, Toy()) is None
     assert executable_cache_for(cfg, None, record, Toy()) is None  # --no-compile-cache
     several = apply_overrides(preset("tiny"), ["distributed.num_processes=2"])
-    # jax.distributed runs get one too (since session 39: each process its own entries, loaded when all hold
+    # jax.distributed runs get one too (since 2026-11-27: each process its own entries, loaded when all hold
     # them; tests/training/test_distributed.py).
     assert executable_cache_for(several, tmp_path, record, Toy()) is not None
 
@@ -559,7 +559,7 @@ def _curves(run_dir: Path) -> list[dict]:
 
 @pytest.mark.slow
 def test_a_two_device_mesh_program_is_stored_loaded_in_a_fresh_process_and_trains_the_same(tmp_path):
-    """Issue 19's two GPUs of one host, on 2 forced CPU devices: the data-parallel programs (arguments
+    """Two GPUs of one host, played by 2 forced CPU devices: the data-parallel programs (arguments
     sharded over the 2-device mesh) are stored by one process and loaded by the next, which traces nothing
     and trains bit for bit the same; a 1-device run on the same cache misses every entry and compiles.
 

@@ -149,7 +149,7 @@ def test_the_track_preset_on_rsl_rl_says_each_brax_setting_it_runs_without():
 
 def test_track_rsl_preset_is_the_track_preset_at_the_fields_values_but_its_measured_departures():
     """``--preset track-rsl`` = the track preset with the field's rsl-rl values (``field_overrides(8192)``)
-    but the track preset's networks and TF32 SGD passes, and the departures sessions 48-49 measured: initial
+    but the track preset's networks and TF32 SGD passes, and the departures 2026-11-29 measured: initial
     std 0.3, a fixed rate of 3e-4 (the field's adaptive one chatters), entropy cost 1e-3, gamma 0.98 (the
     track preset's); ``obs_std_eps`` 1e-4 states rsl-rl's normaliser, so nothing goes unapplied."""
     track = preset("track")

@@ -19,7 +19,7 @@ learner state replicated), each compiled once, ahead of time and concurrently (`
   (``iters_per_epoch`` iterations, one progress line) is ``training.brax.programs.run_epoch``: the calls queue
   on the device, with one host sync at its end. Two programs, not one scan over both: they compile side by
   side (H100, reach: all ready 26.5 s after the start of their compiles instead of the one epoch program's
-  35.5 s, both beside the evaluation's; ``bench/program_split.py``, session 34) and load sooner (3.0 s
+  35.5 s, both beside the evaluation's; ``bench/program_split.py``, 2026-11-27) and load sooner (3.0 s
   instead of 3.8 s).
 - ``evaluate(params, key, model_key, weights) -> metrics``: one deterministic episode in each of
   ``num_eval_envs`` slots (sharded too), without the in-step reset; every process takes part.

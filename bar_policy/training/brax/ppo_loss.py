@@ -10,7 +10,7 @@ iteration, ``PPOConfig.value_targets``) the loss uses them instead of recomputin
 the steps only: brax's loss at the parameters the targets were taken at, fixed targets after.
 
 What differs is the program, not the numbers. On one H100 the update runs about 160 kernels per Adam step
-of a few microseconds each (docs/benchmarks.md, sessions 35 and 37), so its time is their count:
+of a few microseconds each (docs/benchmarks.md, 2026-11-27), so its time is their count:
 
 - **GAE unrolled at trace time.** brax runs the backward recursion as a ``lax.scan``: a ``unroll_length``
   (10) iteration loop on every minibatch. Unrolled, it is element-wise work over the batch that XLA fuses

@@ -5,7 +5,7 @@ rsl-rl's ``GaussianDistribution.sample`` is ``torch.distributions.Normal(mean, s
 ``cudaStreamSynchronize`` per rollout step. In our rollout the step before it is the MJX env step, so the
 host waited for each env step to finish before it could queue the next one, and the device sat idle while
 the host dispatched it: 8-9 ms per control step of the tracker (8192 envs: 36 ms a step against 29 ms for the
-env alone; docs/benchmarks.md "Session 50", ``bench/rsl_rl_profile.py`` counts the syncs).
+env alone; docs/benchmarks.md, 2026-11-29, ``bench/rsl_rl_profile.py`` counts the syncs).
 
 ``GaussianNoSync`` is rsl-rl's ``GaussianDistribution`` with that one method replaced: the same draw,
 ``mean + std * z`` with ``z ~ N(0, 1)`` of the broadcast shape from the same generator, which is what

@@ -5,7 +5,7 @@ and keeps the fastest. jax points XLA's *per-fusion autotune cache* at
 ``<compile cache dir>/xla_gpu_per_fusion_autotune_cache_dir`` (jax config
 ``jax_persistent_cache_enable_xla_caches``, default ``"xla_gpu_per_fusion_autotune_cache_dir"``): one small
 ``.pb`` file per autotuned fusion, in a subdirectory per device and XLA version ("Persisted autotuning"
-in XLA's docs). A cold start on an H100 (LiteReach, ``gpu`` preset, session 32, commit c61072c) spent about
+in XLA's docs). A cold start on an H100 (LiteReach, ``gpu`` preset, 2026-11-27, commit c61072c) spent about
 30 s of its 99 s before the first evaluation autotuning: with a previous run's autotune directory copied
 into an empty compile cache the first evaluation came at 68.6 s instead of 99.4 s (epoch compile 42.7 s
 instead of 71 s, evaluate 31.2 s instead of 54 s) and training ran at the same speed (143.3k vs 144.7k
@@ -14,11 +14,11 @@ env steps/s, noise).
 This module ships such directories (``bar_policy/data/autotune/<name>.tar.gz``, each with a ``<name>.json``
 manifest naming the device kind, the jax/jaxlib versions and the commit it was made with) and, at start-up,
 copies every one matching this machine into the compile cache (``seed_autotune_cache``; one seed per preset
-whose programs were compiled cold: reach (the gpu preset of session 32 and that of session 37), rsl, track and
-piano for the H100, and reach's gpu preset (session 43, remade in 46 with its TF32 update), rsl and track
-(session 44) and piano (session 45) for the H200, all with jaxlib 0.11.2; the trainer runs it on a thread,
-``seed_in_background``). It never overwrites a file already there (XLA's own results win) and counts what
-it skipped.
+whose programs were compiled cold: reach (the gpu preset at batch 512 and 2 ms, and at batch 256 and 4 ms),
+rsl, track and piano for the H100, and reach's gpu preset (2026-11-28, remade on 2026-11-29 with its TF32
+update), rsl and track (2026-11-28) and piano (2026-11-28) for the H200, all with jaxlib 0.11.2; the trainer
+runs it on a thread, ``seed_in_background``). It never overwrites a file already there (XLA's own results win)
+and counts what it skipped.
 
 **Why a seed cannot give a wrong program.** An entry's file name and content hold the key of one fusion
 (its HLO, hashed, and the device); XLA looks an entry up only for a fusion with that key and ignores the
@@ -202,7 +202,7 @@ def seed_in_background(
 ) -> Future[SeedOutcome]:
     """``seed_autotune_cache`` on a thread of its own; wait for its result before compiling anything.
 
-    The copy (about 2 s for 2,729 small files on the H100 machine, session 33) then overlaps the imports
+    The copy (about 2 s for 2,729 small files on the H100 machine, 2026-11-27) then overlaps the imports
     and the env build. A fusion that XLA times before its entry is copied keeps XLA's own file
     (``_write_new`` never overwrites), so an early compile is never served a half-written entry.
     """
@@ -268,7 +268,7 @@ def _extract(blob: bytes, manifest: SeedManifest, autotune_dir: Path) -> SeedOut
     """Copy the archive ``blob``'s ``<subdir>/<name>.pb`` members into ``autotune_dir``, never overwriting.
 
     An archive copied whole leaves a stamp ``.seeded-<sha256>`` in its folder, so a later start reads
-    nothing (reading every member again took 0.6 s of Python on an H200 host, session 53, beside the main
+    nothing (reading every member again took 0.6 s of Python on an H200 host, 2026-11-29, beside the main
     thread's start). XLA opens entries by key only, so the stamp is never read as one; removing the folder
     removes the stamp.
     """

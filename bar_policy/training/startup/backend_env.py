@@ -7,23 +7,23 @@ run prints under its header:
   instead of reserving 75 % of the GPU at its first transfer, unless the user set it or
   ``XLA_PYTHON_CLIENT_MEM_FRACTION``. That reservation was the model build's time on a GPU (the env's first
   ``device_put``): 2.37 s cold and 1.44 s warm on an H200, against 0.12 and 0.05 s without it, at the same
-  steady rate (324 k against 321 k env steps/s; docs/benchmarks.md "Session 54"). rsl-rl runs need it for
+  steady rate (324 k against 321 k env steps/s; docs/benchmarks.md, 2026-12-01). rsl-rl runs need it for
   torch's share of the memory, on any platform; a CPU-only brax run has no pool, so nothing is set there.
 - **Command buffers that run independent kernels at once.** XLA records runs of a GPU program's kernels into
   command buffers (CUDA graphs). By default (``LHS``) each buffer runs its kernels one after another;
   ``--xla_gpu_command_buffer_scheduling_mode=CONCURRENT`` gives the graph the program's own buffer
   dependencies instead, so kernels that do not depend on each other run side by side. The MJX step and the
   update are bound by the number of their small kernels, not by the device's arithmetic (docs/benchmarks.md
-  "Session 35"), so on one H100 at the gpu preset's batch the rollout took 114 instead of 129 ms and the
-  update (128 Adam steps) 32 instead of 51 ms ("Session 41"). A run whose jax has a GPU appends the flag to
+  2026-11-27), so on one H100 at the gpu preset's batch the rollout took 114 instead of 129 ms and the
+  update (128 Adam steps) 32 instead of 51 ms (2026-11-27). A run whose jax has a GPU appends the flag to
   ``XLA_FLAGS`` unless ``XLA_FLAGS`` already names it (the user's choice stays). The executable cache keys
   on ``XLA_FLAGS``, so programs compiled under either mode are never served to the other.
 - **Newton loops recorded whole for a written-out Cholesky.** An env built with ``cholesky=columns`` or
   ``scalar`` (``--env-overrides``; docs/physics.md section 5) has no library call left in its physics step,
   so XLA can record MJX's Newton ``while`` loop as one graph node, but only when ``WHILE`` is among the
   command-buffer types, which by default it is not. Without it that form is no faster than ``library`` and
-  compiles longer; with it reach trained at 1.17x (docs/benchmarks.md "Session 43") and its iteration took
-  84.8 against 96.9 ms ("Session 46"). Such a run appends ``GRAPHED_LOOPS`` unless ``XLA_FLAGS`` already
+  compiles longer; with it reach trained at 1.17x (docs/benchmarks.md, 2026-11-28) and its iteration took
+  84.8 against 96.9 ms (2026-11-29). Such a run appends ``GRAPHED_LOOPS`` unless ``XLA_FLAGS`` already
   names ``--xla_gpu_enable_command_buffer`` (the user's set stays).
 - **A deadlock of jaxlib 0.10's CPU LAPACK kernels.** jaxlib < 0.11 splits a batched LAPACK call (Cholesky,
   triangular solve) over XLA's CPU thread pool once ``batch x cost per matrix >= 200,000`` and the pool has

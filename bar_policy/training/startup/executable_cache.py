@@ -31,7 +31,7 @@ does not match, a failed ``deserialize_and_load``) logs one warning line, is del
 compiled normally (and stored afresh): a stale or broken program is never served.
 
 On by default on GPU backends (``--no-executable-cache`` turns it off): on one H100 two warm runs loaded all
-four programs and reached the first evaluation at 22.0 s and 25.0 s instead of 35-41 s (session 32). Off on
+four programs and reached the first evaluation at 22.0 s and 25.0 s instead of 35-41 s (2026-11-27). Off on
 a CPU unless ``BAR_POLICY_EXECUTABLE_CACHE_ON_CPU=1``, on other backends (unmeasured), and with
 ``--no-compile-cache``; ``off_reason`` says which. Under several ``jax.distributed`` processes each stores and
 loads its own entries (the key holds the process index), and a program is loaded only when every process
