@@ -163,8 +163,7 @@ class PPOConfig:
     """Weight of the value loss."""
     update_precision: Literal["run", "tensorfloat32", "BF16_BF16_F32_X3"] = "run"
     """SGD passes' matrix products: ``run`` (``TrainConfig.matmul_precision``) or tensor cores' (jax's names;
-    physics, rollout keep the run's; rsl-rl: TF32 only). One H200, 128 Adam steps (commit 280175b,
-    2026-11-28, bench/update_scaling.py): 30 ms float32, 17 ms tensorfloat32, 22 ms BF16_BF16_F32_X3."""
+    physics, rollout keep the run's; rsl-rl: TF32 only). H200 (280175b, 2026-11-28): 30 -> 17 / 22 ms."""
     actor_warmup_iterations: int = 0
     """First iterations in which only the critic learns (policy gradients zeroed; brax backend): against an
     untrained critic the first updates push the policy off an action prior (piano: F1 0.70 -> 0.23 in 2.3M
