@@ -6,12 +6,12 @@ import dataclasses
 
 import pytest
 
+from bar_policy.training.brax.ignored_settings import brax_not_applied
 from bar_policy.training.cli import parse_config
 from bar_policy.training.config import preset
 from bar_policy.training.rsl_rl.config import (
     FIELD_RSL_RL_PPO,
     RSL_RL_LR_BOUNDS,
-    brax_not_applied,
     field_cli_flags,
     field_hyperparameters,
     field_overrides,

@@ -45,6 +45,7 @@ import numpy as np
 
 from bar_policy.envs import reward_weights
 from bar_policy.training.best import BestKeeper
+from bar_policy.training.brax.ignored_settings import brax_not_applied
 from bar_policy.training.brax.learner import TrainingState, make_learner
 from bar_policy.training.brax.networks import make_networks
 from bar_policy.training.brax.programs import (
@@ -72,7 +73,6 @@ from bar_policy.training.checkpoint import load_checkpoint, resume_changes, save
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.parallel import barrier, make_data_parallel
 from bar_policy.training.progress import RunLogger, next_would_overrun
-from bar_policy.training.rsl_rl.config import brax_not_applied
 from bar_policy.training.startup import breakdown as sb
 from bar_policy.training.startup.breakdown import StartupTimer
 from bar_policy.training.startup.compiler import Compiler, CompileStats

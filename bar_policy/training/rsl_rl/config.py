@@ -42,10 +42,9 @@ graph). Both use rsl-rl's clipped value loss (its default).
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
-from bar_policy.training.config import RslRlConfig, TrainConfig, apply_overrides
+from bar_policy.training.config import TrainConfig, apply_overrides
 
 __all__ = [
     "FIELD_RSL_RL_PPO",
@@ -53,7 +52,6 @@ __all__ = [
     "RSL_RL_LR_BOUNDS",
     "RSL_RL_OBS_STD_EPS",
     "TORCH_PRECISIONS",
-    "brax_not_applied",
     "field_cli_flags",
     "field_hyperparameters",
     "field_overrides",
@@ -202,43 +200,6 @@ def not_applied(cfg: TrainConfig) -> list[str]:
             f"ppo.reward_scaling={ppo.reward_scaling:g} not applied: rsl-rl's loss takes the env's rewards "
             "unscaled"
         )
-    return out
-
-
-_BRAX_SIDE = {"schedule": "schedule", "desired_kl": "desired_kl", "value_loss_coef": "vf_loss_coefficient"}
-"""``RslRlConfig`` field -> the ``PPOConfig`` field a brax run reads for the same choice."""
-
-_BRAX_HAS_NONE = {
-    "clipped_value_loss": "brax's value loss is never clipped",
-    "device": "the brax backend runs on jax's devices",
-}
-"""``RslRlConfig`` field with no ``PPOConfig`` counterpart -> what a brax run does instead (a field in neither
-map, added later, gets ``_BRAX_IGNORES``: still said, never a KeyError in the brax trainer)."""
-
-_BRAX_IGNORES = "the brax backend does not read it"
-
-
-def brax_not_applied(cfg: TrainConfig) -> list[str]:
-    """A line per ``rsl_rl.*`` setting a brax run leaves unused (``not_applied``'s counterpart).
-
-    Only where it differs from ``RslRlConfig``'s default: at the default nobody asked for it (the field's
-    values keep the defaults and set the brax side, ``field_overrides``). The brax trainer prints and
-    records them.
-    """
-    if cfg.backend != "brax":
-        return []
-    out, default = [], RslRlConfig()
-    for f in dataclasses.fields(RslRlConfig):
-        value = getattr(cfg.rsl_rl, f.name)
-        if value == getattr(default, f.name):
-            continue
-        brax = _BRAX_SIDE.get(f.name)
-        ours = (
-            f"the brax backend's is ppo.{brax}={getattr(cfg.ppo, brax)}"
-            if brax
-            else _BRAX_HAS_NONE.get(f.name, _BRAX_IGNORES)
-        )
-        out.append(f"rsl_rl.{f.name}={value} not applied: an rsl-rl backend setting; {ours}")
     return out
 
 
