@@ -2,6 +2,6 @@
 
 ``ppo.train_brax`` is the loop (rollout, update, evaluate, checkpoint); ``programs`` builds its jitted
 data-parallel programs; ``learner`` is brax's PPO as per-device functions, over ``networks`` (brax's policy
-and value MLPs with an action prior) and ``ppo_loss``; ``result`` is what a run returns and exports; ``ignored_settings`` says which ``rsl_rl.*`` settings a
-brax run leaves unused.
+and value MLPs with an action prior) and ``ppo_loss``; ``result`` is what a run returns and exports;
+``ignored_settings`` names the ``rsl_rl.*`` settings a brax run leaves unused.
 """
