@@ -63,7 +63,7 @@ def _one(args: argparse.Namespace) -> dict[str, Any]:
     """Compile, run and serialise the epoch under one variant (this process only); the row as a dict."""
     from jax.experimental.serialize_executable import serialize
 
-    from bar_policy.training.brax.ppo import host_key
+    from bar_policy.training.brax.programs import host_key
 
     row: dict[str, Any] = {"variant": args.one, "options": VARIANTS[args.one]}
     o = one_device(args, args.cache_dir, args.epoch_iters)

@@ -52,8 +52,7 @@ def _compile_part(args: argparse.Namespace) -> dict[str, Any]:
 
     from bar_policy import envs
     from bar_policy.envs import physics_step
-    from bar_policy.training.brax.ppo import host_key
-    from bar_policy.training.brax.programs import slot_env
+    from bar_policy.training.brax.programs import host_key, slot_env
     from bar_policy.training.parallel import AXIS
 
     o = one_device(args, args.cache_dir)

@@ -53,7 +53,7 @@ def one_device(args: Any, cache_dir: str, iters: int = 0) -> OneDevice:
     from bar_policy import envs
     from bar_policy.envs.reward_weights import weights
     from bar_policy.training.brax.learner import make_learner
-    from bar_policy.training.brax.ppo import epoch_iterations, make_programs
+    from bar_policy.training.brax.programs import epoch_iterations, make_programs
     from bar_policy.training.parallel import AXIS, DataParallel
     from bar_policy.training.startup.autotune import seed_autotune_cache
     from bar_policy.training.startup.compiler import configure_compile_cache

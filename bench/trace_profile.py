@@ -80,7 +80,7 @@ def build(args: argparse.Namespace) -> tuple[Any, dict[str, float]]:
 
 def arguments(name: str, ctx: dict[str, Any], lowered: dict[str, Any]) -> tuple:
     """Program ``name``'s abstract arguments; the rollout's and the update's come from earlier outputs."""
-    from bar_policy.training.brax.ppo import _policy_params
+    from bar_policy.training.brax.programs import _policy_params
 
     dp, key, i, ts, w = ctx["dp"], ctx["key_abs"], ctx["i_abs"], ctx["ts_abs"], ctx["w_abs"]
     if name == "reset":

@@ -57,8 +57,14 @@ from trace_summary import device_summary, ops_tables, profiled
 from bar_policy import envs
 from bar_policy.envs import reward_weights
 from bar_policy.training.brax.learner import make_learner
-from bar_policy.training.brax.ppo import epoch_iterations, host_key, make_programs, slot_env
-from bar_policy.training.brax.programs import _policy_params, run_epoch
+from bar_policy.training.brax.programs import (
+    _policy_params,
+    epoch_iterations,
+    host_key,
+    make_programs,
+    run_epoch,
+    slot_env,
+)
 from bar_policy.training.parallel import AXIS, DataParallel
 from bar_policy.training.startup.autotune import seed_autotune_cache
 from bar_policy.training.startup.breakdown import StartupTimer

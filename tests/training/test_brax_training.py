@@ -91,7 +91,7 @@ def test_exported_graph_matches_the_jax_policy(brax_run):
     # Rebuild brax's policy from the final checkpoint (what was exported).
     from brax.training.agents.ppo import networks as ppo_networks
 
-    from bar_policy.training.brax.ppo import make_networks
+    from bar_policy.training.brax.networks import make_networks
     from bar_policy.training.config import preset
 
     net = make_networks(54, 14, preset("tiny").network, True)

@@ -46,8 +46,7 @@ import numpy as np
 from bar_policy.envs import reward_weights
 from bar_policy.training.best import BestKeeper
 from bar_policy.training.brax.ignored_settings import brax_not_applied
-from bar_policy.training.brax.learner import TrainingState, make_learner
-from bar_policy.training.brax.networks import make_networks
+from bar_policy.training.brax.learner import make_learner
 from bar_policy.training.brax.programs import (
     _K_EPOCH,
     _K_EVAL,
@@ -56,7 +55,6 @@ from bar_policy.training.brax.programs import (
     _K_MODEL,
     _K_RESET,
     _LINES_PER_EVAL,
-    Programs,
     _host_params,
     _policy_params,
     action_prior,
@@ -65,8 +63,6 @@ from bar_policy.training.brax.programs import (
     host_key,
     make_programs,
     run_epoch,
-    slot_env,
-    slot_keys,
 )
 from bar_policy.training.brax.result import BraxTrainResult
 from bar_policy.training.checkpoint import load_checkpoint, resume_changes, save_checkpoint
@@ -78,19 +74,7 @@ from bar_policy.training.startup.breakdown import StartupTimer
 from bar_policy.training.startup.compiler import Compiler, CompileStats
 from bar_policy.training.startup.executable_cache import ExecutableCache
 
-__all__ = [
-    "BraxTrainResult",
-    "Programs",
-    "TrainingState",
-    "action_prior",
-    "epoch_iterations",
-    "host_key",
-    "make_networks",
-    "make_programs",
-    "slot_env",
-    "slot_keys",
-    "train_brax",
-]
+__all__ = ["train_brax"]
 
 
 def train_brax(
