@@ -20,8 +20,8 @@ PACKAGE_ROOT = Path(__file__).resolve().parent
 def package_hash() -> str:
     """SHA-256 of every file under ``bar_policy/`` (paths and contents; ``__pycache__`` left out).
 
-    The content the caches key on (``training.executable_key``, ``_array_cache``): any edit to the package's
-    code, model files or shipped data changes it. Computed once per process (8 ms here).
+    The content the caches key on (``training.startup.executable_key``, ``_array_cache``): any edit to the
+    package's code, model files or shipped data changes it. Computed once per process (8 ms here).
     """
     h = hashlib.sha256()
     for p in sorted(PACKAGE_ROOT.rglob("*")):

@@ -2,7 +2,7 @@
 
 The observation holds the last action (term ``actions``), so a policy closes a loop through it from one
 control step to the next. A period-2 oscillation at the control rate's Nyquist frequency (the rsl-rl
-tracker's chatter, docs/performance.md "Session 47") is that loop's mode at eigenvalue -1: this prints the
+tracker's chatter, docs/performance.md, 2026-11-29) is that loop's mode at eigenvalue -1: this prints the
 eigenvalues of the (n, n) Jacobian of the action with respect to the last action, by central differences on
 the ONNX file, at states taken from a deploy run's log. Its most negative real eigenvalue is the candidate
 for such a mode; a magnitude above 1 alone does not make the closed loop unstable (the plant, the action

@@ -1,4 +1,4 @@
-"""Pack a compile cache's XLA autotune results as a seed the trainer ships (``training.autotune_seed``).
+"""Pack a compile cache's XLA autotune results as a seed the trainer ships (``training.startup.autotune``).
 
 Run on the GPU machine right after a cold training run (empty compile cache), so the device kind and the
 jax/jaxlib versions are read from the running jax; elsewhere give them as flags (``--device-kind``,
@@ -14,7 +14,7 @@ Usage::
         --device-kind "NVIDIA H100 80GB HBM3" --jax 0.11.2 --jaxlib 0.11.2 --commit c61072c
 
 Writes ``<out>/<name>.tar.gz`` and ``<out>/<name>.json`` (``--out`` defaults to the package's
-``bar_policy/training/autotune``) and prints the manifest.
+``bar_policy/data/autotune``) and prints the manifest.
 """
 
 from __future__ import annotations
@@ -25,10 +25,11 @@ import subprocess
 import sys
 from pathlib import Path
 
-from bar_policy.training.autotune_seed import SEED_DIR, pack_seed
+from bar_policy.training.startup.autotune import SEED_DIR, pack_seed
 
 PROGRAMS = ("reset", "rollout", "update", "init", "evaluate")
-"""The brax backend's programs (``startup.Compiler`` names; "epoch" in the seeds made before session 34)."""
+"""The brax backend's programs (``startup.compiler.Compiler`` names; "epoch" in the seeds made before session
+34)."""
 
 
 def _commit() -> str:

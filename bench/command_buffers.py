@@ -1,9 +1,10 @@
 """What of a GPU program runs outside XLA's command buffers (CUDA graphs)? Read from XLA's HLO dump.
 
-Issue 19's steady target needs the update to run beside the rollout on one GPU. XLA runs two loops of one
-program side by side only when both are nodes of one command buffer (docs/performance.md, sessions 41-43:
-two chains of matmuls did, the trainer's rollout and update did not, even with no library call left in the
-physics step). This script says what keeps a program's instructions out of a command buffer.
+A steady loop at >= 90 % of the raw env's rate needs the update to run beside the rollout on one GPU. XLA runs
+two loops of one program side by side only when both are nodes of one command buffer (docs/performance.md,
+2026-11-27 to 2026-11-28: two chains of matmuls did, the trainer's rollout and update did not, even with no
+library call left in the physics step). This script says what keeps a program's instructions out of a command
+buffer.
 
 Older XLA formed command buffers in a late HLO pass (``command-buffer-scheduling``) that outlines each
 run of recordable instructions into a computation named ``command_buffer...``; what is left at the top
@@ -11,7 +12,7 @@ level of the entry computation, of a while loop's body or condition, or of a con
 by op from the host. jaxlib 0.10 and later form them from thunks after the HLO
 (``command_buffer_conversion_pass``; the switch between the two is among their removed ``DebugOptions``),
 so their HLO holds no such computation: there this report only gives the loops and what runs in them, and
-XLA's own log says what it recorded (``bench/capture_variants.sh DUMP=1`` gathers both). For each dumped
+XLA's own log says what it recorded (``TF_CPP_VMODULE``, VLOG 2). For each dumped
 module this prints:
 
 - the command buffers: how many, and the instructions (and while loops) recorded in them;
@@ -24,11 +25,10 @@ Structural instructions (parameters, tuples, constants, bitcasts, ...) launch no
 If a module holds no ``command_buffer`` computation at all, XLA formed its command buffers after the HLO
 (from thunks) or formed none; the report says so rather than guessing.
 
-Usage (on the GPU machine, after the pip prefix of shared/gpu/README.md; or through
-``DUMP=1 bash bench/capture_variants.sh``)::
+Usage (on the GPU machine, after the pip prefix of shared/gpu/README.md)::
 
     XLA_FLAGS="--xla_dump_to=/tmp/dump --xla_dump_hlo_as_text --xla_dump_hlo_module_re=jit_rollout" \\
-      python3 bench/stream_overlap.py --plain --env-overrides cholesky=columns
+      python3 bench/train_breakdown.py --no-compile-cache
     python3 bench/command_buffers.py /tmp/dump --out $OUT/command_buffers.md
 """
 

@@ -1,6 +1,6 @@
-"""What XLA's per-compile options do to the reach epoch: compile time, training speed, load time (issue 19).
+"""What XLA's per-compile options do to the reach epoch: compile time, training speed, load time.
 
-The epoch here is the one-program epoch the trainer had until session 34 (``bench/fused_epoch.py``). A cold
+The epoch here is the one-program epoch the trainer had until 2026-11-27 (``bench/fused_epoch.py``). A cold
 run waited about 39 s for it to compile (H100, shipped autotune seeds) and a warm run about 5.8 s for its
 executable to load from the executable cache. This bench compiles that epoch (``--preset``, one device)
 under each named set of XLA debug options, passed per
@@ -63,7 +63,7 @@ def _one(args: argparse.Namespace) -> dict[str, Any]:
     """Compile, run and serialise the epoch under one variant (this process only); the row as a dict."""
     from jax.experimental.serialize_executable import serialize
 
-    from bar_policy.training.brax_ppo import host_key
+    from bar_policy.training.brax.programs import host_key
 
     row: dict[str, Any] = {"variant": args.one, "options": VARIANTS[args.one]}
     o = one_device(args, args.cache_dir, args.epoch_iters)
@@ -107,7 +107,7 @@ def _load(path: str) -> dict[str, Any]:
     import jax
     from jax.experimental.serialize_executable import deserialize_and_load
 
-    from bar_policy.training.executable_cache import _init_lazy_kernels
+    from bar_policy.training.startup.executable_cache import _init_lazy_kernels
 
     jax.devices()  # the backend's own start-up is not the load's
     _init_lazy_kernels()  # as the executable cache does before a load

@@ -1,4 +1,4 @@
-"""Which part of the rollout program its compile time goes to (issue 19: the cold start's critical path).
+"""Which part of the rollout program its compile time goes to (the cold start's critical path).
 
 The trainer's ``rollout`` (policy sampling + 20 env steps + transitions, one program) compiles in 25-34 s on
 an H100, half of it in one thread's HLO passes (``program_split.py --profile``). Programs compile
@@ -52,8 +52,7 @@ def _compile_part(args: argparse.Namespace) -> dict[str, Any]:
 
     from bar_policy import envs
     from bar_policy.envs import physics_step
-    from bar_policy.training.brax_ppo import host_key
-    from bar_policy.training.brax_programs import slot_env
+    from bar_policy.training.brax.programs import host_key, slot_env
     from bar_policy.training.parallel import AXIS
 
     o = one_device(args, args.cache_dir)

@@ -9,7 +9,7 @@ comma-separated choice list.
 ``--env-overrides`` adds to the preset's own env overrides as the trainer's ``--env-overrides`` does
 (``overrides.merge_overrides``): ``--env-overrides cholesky=columns`` keeps the gpu preset's
 ``sim_dt=0.004``. ``--set env_overrides=...`` replaces the whole tuple, as ``--set`` does for any field
-(session 43's first call lost the 4 ms step that way).
+(a bench that did so lost the gpu preset's 4 ms step).
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ Usage::
 Without ``--policy`` it builds a 2-hidden-layer tanh MLP (``--hidden`` wide) with the test policy factory
 (needs ``onnx``, which is fine here: this is not deploy code).
 
-Targets (issue 5, 2-core CPU): compute p99 <= 1 ms; 500 Hz on the mock with p99 jitter <= 0.5 ms; the sim
+Targets (2-core CPU): compute p99 <= 1 ms; 500 Hz on the mock with p99 jitter <= 0.5 ms; the sim
 target headless at >= 20x real time. The machine may be shared: the load average is printed with the numbers.
 """
 

@@ -1,4 +1,4 @@
-"""Raw MJX env throughput per registered env, side by side in one process (issue 18).
+"""Raw MJX env throughput per registered env, side by side in one process.
 
 Each env runs ``steps`` control steps of zero actions under one ``jit(scan)`` at the given batch, through
 the training wrappers and the env's domain randomiser (``training.throughput``), the best of 3 timed calls.
@@ -11,7 +11,8 @@ Physics steps/s = env steps/s x the env's ``n_substeps``.
 
 ``--env-overrides`` applies ``key=value`` items to every listed env's default config (``envs.load``'s
 overrides; the gpu preset trains reach at ``sim_dt=0.004``). On a CPU with jaxlib 0.10 and two cores, set
-``PJRT_NPROC=1`` from 219 envs (the trainer does: ``training.backend_env``), or a batch this size may hang.
+``PJRT_NPROC=1`` from 219 envs (the trainer does: ``training.startup.backend_env``), or a batch this size may
+hang.
 
 Prints a markdown table (and writes it to ``--out``).
 """

@@ -16,7 +16,7 @@ Example (CPU, a few minutes, mostly compiling)::
     python bench/first_command.py runs/X/policy.onnx --out first_command.md
 
 On this project's 2-core CPU a batch of 256 hung in jaxlib 0.10's batched LAPACK kernels (docs/performance.md
-"Session 39"): run this bench with ``PJRT_NPROC=1`` there above the default batch, 64.
+2026-11-27): run this bench with ``PJRT_NPROC=1`` there above the default batch, 64.
 """
 
 from __future__ import annotations

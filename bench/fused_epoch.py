@@ -1,4 +1,4 @@
-"""The epoch as one program (a scan of PPO iterations), as ``brax_programs`` built it before session 34.
+"""The epoch as one program (a scan of PPO iterations), as ``training.brax.programs`` once built it.
 
 For the benches that compare it with the trainer's two programs (``rollout``, ``update``): same keys per
 iteration, same totals (mean losses, summed stats), one compile.
@@ -11,8 +11,8 @@ from typing import Any
 import jax
 from jax.sharding import PartitionSpec as P
 
-from bar_policy.training.brax_programs import slot_env
-from bar_policy.training.learner import Learner, strip_weak_type
+from bar_policy.training.brax.learner import Learner, strip_weak_type
+from bar_policy.training.brax.programs import slot_env
 from bar_policy.training.parallel import AXIS, DataParallel
 
 

@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
-# The nvidia-h100-x1 measurements of issue 9, in two calls of under 10 minutes each (argument = part):
+# The nvidia-h100-x1 measurements of training at scale, in two calls of under 10 minutes each (argument = part):
 #
 #   startup  (~7 min, 9.7 at worst): cold start on an empty compilation cache -> the same command again (warm) ->
 #                      raw env throughput at the training batch (bench/mjx_throughput.py, harness c, 4096)
 #                      -> where an iteration's time goes (bench/train_breakdown.py); COLD_WARM_ONLY=1
-#                      stops after the warm run (~4.5 min). Since session 32 the cold run gets the shipped
+#                      stops after the warm run (~4.5 min). Since 2026-11-27 the cold run gets the shipped
 #                      autotune seed and the warm one the executable cache (both defaults on a GPU)
 #   rsl      (~8 min): the rsl-rl backend, --max-minutes 5, same env at the field's rsl-rl values
 #                      (--preset rsl; RSL_PRESET=gpu for brax's), then where an rsl-rl iteration's time
@@ -13,11 +13,11 @@
 #                      baseline runs beside the variant): XLA's defaults, then XLA_FLAGS=$FLAGS (default: no
 #                      autotuning, compilation over 16 threads; flags XLA refuses are left out); then
 #                      bench/rsl_rl_profile.py (NO_PROFILE=1: not)
-#   seeds    (~3.5 min a preset): XLA autotune seeds for more presets (training.autotune_seed): per preset in
+#   seeds    (~3.5 min a preset): XLA autotune seeds for more presets (training.startup.autotune): per preset in
 #                      $SEED_PRESETS (default "rsl track"; gpu or piano in a call of their own), a cold run on its own
 #                      empty cache without the shipped seed, then bench/autotune_seed.py packs that cache's
 #                      autotune results into $OUT (<gpu>-jaxlib-<v>-<preset>.tar.gz/.json: copy both to
-#                      bar_policy/training/autotune/)
+#                      bar_policy/data/autotune/)
 #   loadflags (~6 min): what XLA flags do to a warm start's executable loads: a cold and a warm run on XLA's
 #                      defaults, then a cold and a warm run with XLA_FLAGS=$LOAD_FLAGS (default
 #                      --xla_gpu_experimental_aot_compiled_thunks=true: the serialised executable holds its
@@ -30,12 +30,12 @@
 #                      over one flat vector; cuBLAS instead of Triton for the matmuls), one process each;
 #                      $OUT/summary_update.md holds the rows, $OUT/update_profile.md the profile
 #   precision (~7 min): float32 SGD passes (--ppo.update-precision run) against $UPDATE_PRECISION (default
-#                      tensorfloat32, the gpu preset's since session 45: tensor cores, physics and rollout at
+#                      tensorfloat32, the gpu preset's since 2026-11-28: tensor cores, physics and rollout at
 #                      float32), on one compile cache: base_s0 (cold), prec_s0..2, base_s1 (warm but for the update),
 #                      ONNX exported; $OUT/<run>.onnx for the ship gate (`bar-deploy eval`)
 #   prealloc (~5 min): jax's GPU memory preallocation (XLA_PYTHON_CLIENT_PREALLOCATE=true: 75 % of the
-#                      device at the first transfer, the model build's 1.5-2.4 s on an H200, sessions 53-54)
-#                      against the pool grown on demand (false, the trainer's default since session 54), the
+#                      device at the first transfer, the model build's 1.5-2.4 s on an H200, 2026-11-29 to 2026-12-01)
+#                      against the pool grown on demand (false, the trainer's default since 2026-12-01), the
 #                      default command cold then warm each, alternated on one host (A cold, B cold, A warm,
 #                      B warm; PREALLOC_FIRST=false runs B first), each pair on its own empty cache
 #   smoke             : CPU logic check of startup and rsl with tiny sizes (not for the GPU); smoke-loadflags,
@@ -57,7 +57,7 @@ mkdir -p "$OUT" "$WORK"
 export PYTHONUNBUFFERED=1
 T0=$(date +%s)
 # Bytecode for what is on PYTHONPATH: a pip install writes it, the lent machine's --no-compile prefix does
-# not (the warm run's imports 3.4 -> 2.4 s on an H100 machine, session 34).
+# not (the warm run's imports 3.4 -> 2.4 s on an H100 machine, 2026-11-27).
 [ -z "${PYTHONPATH:-}" ] || python3 -m compileall -q -j 0 ${PYTHONPATH//:/ } > /dev/null 2>&1 || true
 stamp() { echo "[$(( $(date +%s) - T0 )) s] $*"; }
 CACHE=$WORK/jaxcache
@@ -124,7 +124,7 @@ rsl() {
 }
 
 flags() {
-  # Session 30: jax 0.11.2 aborts on --xla_gpu_enable_llvm_module_compilation_parallelism (unknown flag), so
+  # 2026-11-26: jax 0.11.2 aborts on --xla_gpu_enable_llvm_module_compilation_parallelism (unknown flag), so
   # each candidate is tried on a one-line program first and only the ones XLA accepts are kept.
   local par="" f
   for f in ${FLAGS:---xla_gpu_autotune_level=0 --xla_gpu_force_compilation_parallelism=16}; do

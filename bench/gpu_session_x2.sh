@@ -1,12 +1,12 @@
 #!/usr/bin/env bash
-# Two GPUs of one host (nvidia-h100-x2 / nvidia-h200-x2), issue 19, one call of about 6 minutes:
+# Two GPUs of one host (nvidia-h100-x2 / nvidia-h200-x2), one call of about 6 minutes:
 #
 #   g2_cold  both GPUs, one process (a 2-device mesh), empty compile cache (the shipped autotune seed applies
 #            where the device kind has one)
 #   g2_warm  the same command again on the same cache (the executable cache loads every program)
 #   g1       GPU 0 alone, empty cache of its own (1-device programs differ), the baseline of the ratio
 #
-# Same per-device sizes everywhere: the gpu preset (4096 envs, batch_size 256 since session 37; BATCH=512
+# Same per-device sizes everywhere: the gpu preset (4096 envs, batch_size 256 since 2026-11-27; BATCH=512
 # for the figures before it) per GPU. Each run stops at
 # a wall-clock budget from process start (--max-minutes), skips the ONNX export, and has its own timeout.
 # $OUT gets summary_x2.md (bench/session_summary.py: steady env steps/s = median of the progress lines
@@ -24,7 +24,7 @@ WORK=${WORK:-/tmp/session_x2}
 mkdir -p "$OUT" "$WORK"
 T0=$(date +%s)
 # Bytecode for what is on PYTHONPATH: a pip install writes it, the lent machine's --no-compile prefix does
-# not (the warm run's imports 3.4 -> 2.4 s on an H100 machine, session 34).
+# not (the warm run's imports 3.4 -> 2.4 s on an H100 machine, 2026-11-27).
 [ -z "${PYTHONPATH:-}" ] || python3 -m compileall -q -j 0 ${PYTHONPATH//:/ } > /dev/null 2>&1 || true
 stamp() { echo "[$(( $(date +%s) - T0 )) s] $*"; }
 ENVS=4096; BATCH=${BATCH:-256}; FINAL=1024; TS=1; SIZES=""

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# One nvidia-h200-x4 session for issue 9 (about 8 minutes): everything multi-GPU in one call.
+# One nvidia-h200-x4 call (about 8 minutes): everything multi-GPU in one call.
 #
 #   phase 1:               training on 1 GPU (GPU 2)
 #   phase 2 (in parallel): training on 2 GPUs (0,1)           | 2 processes, one per GPU, jax.distributed (2,3)
@@ -7,7 +7,7 @@
 #   then a results table (bench/session_summary.py) printed last.
 #
 # Same per-device batch everywhere: 4096 envs and batch_size 256 per GPU (the gpu preset per device since
-# session 37; BATCH=512 for the figures before it).
+# 2026-11-27; BATCH=512 for the figures before it).
 # Each training run stops at a wall-clock budget (--max-minutes, from process start, compile included),
 # evaluates every 2 progress lines of 10 iterations, and skips the ONNX export. Each step has its own
 # timeout, so one hang cannot eat the call. Work goes to $WORK; $OUT gets 2 files (the device tool brings
@@ -28,7 +28,7 @@ SMOKE=0
 export JAX_COMPILATION_CACHE_DIR=${JAX_COMPILATION_CACHE_DIR:-/tmp/jaxcache_x4}
 T0=$(date +%s)
 # Bytecode for what is on PYTHONPATH: a pip install writes it, the lent machine's --no-compile prefix does
-# not (the warm run's imports 3.4 -> 2.4 s on an H100 machine, session 34).
+# not (the warm run's imports 3.4 -> 2.4 s on an H100 machine, 2026-11-27).
 [ -z "${PYTHONPATH:-}" ] || python3 -m compileall -q -j 0 ${PYTHONPATH//:/ } > /dev/null 2>&1 || true
 stamp() { echo "[$(( $(date +%s) - T0 )) s] $*"; }
 

@@ -19,9 +19,9 @@ class OneDevice:
     dp: Any
     learner: Any
     progs: Any
-    """``brax_programs.make_programs``'s ``Programs``."""
+    """``training.brax.programs.make_programs``'s ``Programs``."""
     fused: Any
-    """The one-program epoch of before session 34 (``fused_epoch``)."""
+    """The one-program epoch of before 2026-11-27 (``fused_epoch``)."""
     iters: int
     """Iterations per epoch of ``fused``."""
     key_abs: Any
@@ -52,11 +52,11 @@ def one_device(args: Any, cache_dir: str, iters: int = 0) -> OneDevice:
 
     from bar_policy import envs
     from bar_policy.envs.reward_weights import weights
-    from bar_policy.training.autotune_seed import seed_autotune_cache
-    from bar_policy.training.brax_ppo import epoch_iterations, make_programs
-    from bar_policy.training.learner import make_learner
+    from bar_policy.training.brax.learner import make_learner
+    from bar_policy.training.brax.programs import epoch_iterations, make_programs
     from bar_policy.training.parallel import AXIS, DataParallel
-    from bar_policy.training.startup import configure_compile_cache
+    from bar_policy.training.startup.autotune import seed_autotune_cache
+    from bar_policy.training.startup.compiler import configure_compile_cache
 
     seed_line = seed_autotune_cache(configure_compile_cache(True, cache_dir)).line()
     cfg = config_of(args)

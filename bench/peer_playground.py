@@ -1,6 +1,6 @@
 """Side by side with a peer: our reach env and MuJoCo Playground envs in one process, one batch, one device.
 
-Issue 19 item 5. For our env (``--ours``, default LiteReach, through ``bar_policy.envs.load``) and each
+For our env (``--ours``, default LiteReach, through ``bar_policy.envs.load``) and each
 Playground env (``--peers``, loaded through Playground's own ``mujoco_playground.registry``, MJX's JAX
 implementation: ``impl="jax"``, since Warp is not installed) at the same ``--batch``:
 

@@ -63,7 +63,8 @@ def write_prior_policy(
     path: Path, prior_config: KeyPosePriorConfig, lead: int, filter_hz: float | None
 ) -> dict:
     """Export the zero-MLP policy of the env's prior to ``path`` (``export_policy``'s summary)."""
-    from bar_policy.export import MlpPolicy, export_policy
+    from bar_policy.export.graph import MlpPolicy
+    from bar_policy.export.policy import export_policy
     from bar_policy.tasks.piano.env import LitePiano, default_config
     from bar_policy.training.metadata import policy_metadata
 

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# The piano's training runs (issue 18): named variants of `--preset piano`, one per GPU, each returned as
-# one archive (a device call returns at most 8 files: session 29 lost a run's policy to that limit).
+# The piano's training runs: named variants of `--preset piano`, one per GPU, each returned as
+# one archive (a device call returns at most 8 files: 2026-11-26 lost a run's policy to that limit).
 # Run from the repository root after the pip prefix of shared/gpu/README.md.
 #
 #   GPUS="0 1" bash bench/piano_recipe.sh preset accel   (~9 min, nvidia-h100-x2) the named variants side
@@ -10,8 +10,8 @@
 #
 # Variants (on top of `--preset piano`, i.e. fixed LR 1e-4 after 10 iterations of critic warm-up):
 #   preset   the preset alone (seed 0)         seed1    the preset, seed 1
-#   accel    action_accel -0.5, near-cap -1.0 (session 29's nc1)
-#   lr3e-4   learning rate 3e-4 (session 29's wA)
+#   accel    action_accel -0.5, near-cap -1.0 (the 2026-11-26 run nc1)
+#   lr3e-4   learning rate 3e-4 (the 2026-11-26 run wA)
 # EXTRA="..." adds arguments to every run; MINUTES (default 7.2) is each run's training budget.
 #
 # $OUT gets <variant>.tgz (config, metrics.jsonl, final_eval.json, ONNX files, log; no checkpoints) and

@@ -23,7 +23,7 @@ Each variant is the keyboard scene of ``LitePiano`` (``compact_config()``, 49 ke
     libchol     the arrowhead's 14 x 14 solve through jax's Cholesky (``cho_factor``/``cho_solve``: a batched
                 ``potrf`` and triangular solves on a GPU) instead of ``leaf_newton.spd_solve``'s unrolled one
     newtonwhile the Newton loop as MJX's while_loop (``leaf_newton.while_newton_loop``) instead of written out
-                (``newton_loop``, the env's since session 32; ``newtonfor`` before it)
+                (``newton_loop``, the env's since 2026-11-27; ``newtonfor`` before it)
     lsunroll    the line search's scan unrolled (``unroll=True``: the same values, straight-line code)
     itN, lsN    N solver / line-search iterations (the robot's scene: 3 and 5)
 

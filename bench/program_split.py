@@ -1,4 +1,4 @@
-"""Would the epoch as two programs (rollout, update) compile and load sooner than as one? (issue 19)
+"""Would the epoch as two programs (rollout, update) compile and load sooner than as one?
 
 A cold reach run waits for the epoch program's compile (H100: 28 s alone, 31 s beside the evaluation's) and
 a warm one for its load from the executable cache (4-7 s). The epoch is ``iters`` PPO iterations, each a
@@ -8,7 +8,7 @@ lowered one after the other on the main thread, compiled concurrently on threads
 with the shipped autotune seeds), then loads the serialised executables concurrently in a fresh process,
 and reports per set: each program's compile and load, and the wall time until all of them are ready.
 
-Sets: ``epoch+evaluate`` (the start until session 34: ``bench/fused_epoch.py``) and
+Sets: ``epoch+evaluate`` (the start until 2026-11-27: ``bench/fused_epoch.py``) and
 ``rollout+update+evaluate`` (the trainer's programs since); ``--sets`` picks. Each set's
 compile runs in a process of its own (XLA keeps in-process caches).
 
@@ -45,7 +45,7 @@ def _compile_set(args: argparse.Namespace) -> dict[str, Any]:
     import jax
     from jax.experimental.serialize_executable import serialize
 
-    from bar_policy.training.brax_programs import _policy_params
+    from bar_policy.training.brax.programs import _policy_params
 
     names = args.compile_set.split("+")
     out: dict[str, Any] = {"set": args.compile_set}
@@ -99,7 +99,7 @@ def _load_set(directory: str, profile: str = "") -> dict[str, Any]:
     import jax
     from jax.experimental.serialize_executable import deserialize_and_load
 
-    from bar_policy.training.executable_cache import _init_lazy_kernels
+    from bar_policy.training.startup.executable_cache import _init_lazy_kernels
 
     jax.devices()
     _init_lazy_kernels()

@@ -1,4 +1,4 @@
-"""Reach success of an ONNX policy through the CAN emulator vs the C MuJoCo sim target (issue 6 target).
+"""Reach success of an ONNX policy through the CAN emulator vs the C MuJoCo sim target.
 
     python bench/reach_emulator.py --policy x.onnx [--episodes 20] [--seed 0]
 

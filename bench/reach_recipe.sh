@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
-# Reach recipes for issue 19's time to a policy: named variants of the gpu preset side by side, one per GPU,
+# Reach recipes for the time to a policy: named variants of the gpu preset side by side, one per GPU,
 # each a cold run (its own empty compile cache; the shipped autotune seeds apply on an H100) with the
 # preset's evaluations (EXTRA="--eval.num-evals 124": one every 327,680 env steps, so that the env steps to
 # 95 % are resolved finely).
-# BASE="..." goes before each variant's own flags: the tables of sessions 34 and 37 were measured on the
+# BASE="..." goes before each variant's own flags: the tables of 2026-11-27 were measured on the
 # preset of their time, BASE="--ppo.batch-size 512 --env-overrides sim_dt=0.002 --eval.num-evals 41"
-# (the gpu preset since session 37 is batch 256 at a 4 ms step: its own variant bs256 at sim_dt=0.004).
+# (the gpu preset since 2026-11-27 is batch 256 at a 4 ms step: its own variant bs256 at sim_dt=0.004).
 # Run from the repository root after the pip prefix of shared/gpu/README.md.
 #
 #   GPUS="0 1 2 3" bash bench/reach_recipe.sh base envs8192 lr1e-3 upd4   (~3 min, nvidia-h100-x4)

@@ -12,7 +12,7 @@ recipe_setup() {  # recipe_setup NAME: OUT (default /tmp/NAME_out), WORK (/tmp/N
   export PYTHONUNBUFFERED=1
   T0=$(date +%s)
   # Bytecode for what is on PYTHONPATH: a pip install writes it, the lent machine's --no-compile prefix
-  # does not (the warm run's imports 3.4 -> 2.4 s on an H100 machine, session 34).
+  # does not (the warm run's imports 3.4 -> 2.4 s on an H100 machine, 2026-11-27).
   [ -z "${PYTHONPATH:-}" ] || python3 -m compileall -q -j 0 ${PYTHONPATH//:/ } > /dev/null 2>&1 || true
 }
 

@@ -1,4 +1,4 @@
-"""Where an rsl-rl iteration's time goes (issue 9, item 4): act, env step, process, returns, update.
+"""Where an rsl-rl iteration's time goes: act, env step, process, returns, update.
 
 Builds the rsl-rl backend's pieces exactly as ``train_rsl_rl`` does (``RslRlVecEnv`` + rsl-rl's
 ``OnPolicyRunner`` algorithm, config from a preset; the run's XLA flags from ``set_backend_env``, the update
@@ -45,7 +45,7 @@ def main() -> int:
     p.add_argument("--out", default="")
     args = p.parse_args()
     cfg = config_of(args, "backend=rsl-rl")
-    from bar_policy.training.backend_env import set_backend_env
+    from bar_policy.training.startup.backend_env import set_backend_env
 
     notes = set_backend_env(cfg)  # as the run does, before jax starts: memory, XLA's graph flags
 
@@ -54,11 +54,11 @@ def main() -> int:
     from rsl_rl.runners import OnPolicyRunner
 
     from bar_policy import envs
-    from bar_policy.training.rsl_rl_backend import rsl_rl_train_cfg
-    from bar_policy.training.rsl_rl_env import RslRlVecEnv, torch_device_for_jax
-    from bar_policy.training.startup import configure_compile_cache
-    from bar_policy.training.torch_bridge import jax_to_torch, torch_to_jax
-    from bar_policy.training.torch_precision import update_precision
+    from bar_policy.training.rsl_rl.backend import rsl_rl_train_cfg
+    from bar_policy.training.rsl_rl.env import RslRlVecEnv, torch_device_for_jax
+    from bar_policy.training.rsl_rl.torch_bridge import jax_to_torch, torch_to_jax
+    from bar_policy.training.rsl_rl.torch_precision import update_precision
+    from bar_policy.training.startup.compiler import configure_compile_cache
 
     configure_compile_cache(True)
     env = load_env(args.env, cfg)
@@ -90,7 +90,7 @@ def main() -> int:
         return t
 
     def rollout(obs: object, mark: Callable[[str, float], float] = unmarked) -> tuple[object, float]:
-        """The trainer's rollout (``rsl_rl_backend``'s loop), ``mark`` called after each phase; returns the
+        """The trainer's rollout (``rsl_rl.backend``'s loop), ``mark`` called after each phase; returns the
         last observations and ``mark``'s last time."""
         t = time.perf_counter()
         with torch.inference_mode():

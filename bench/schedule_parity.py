@@ -1,9 +1,10 @@
-"""Does a GPU program compute the same under other XLA_FLAGS? (issue 19: command-buffer scheduling.)
+"""Does a GPU program compute the same under other XLA_FLAGS? (command-buffer scheduling)
 
-``training.backend_env`` runs GPU programs with ``--xla_gpu_command_buffer_scheduling_mode=CONCURRENT``:
-kernels without a buffer dependency between them may run at once. A missing dependency would be a data race.
-This bench runs the trainer's own programs (``brax_programs.make_programs``: init, reset, rollout, update)
-for ``--iterations`` PPO iterations from fixed seeds, twice in one process, and:
+``training.startup.backend_env`` runs GPU programs with
+``--xla_gpu_command_buffer_scheduling_mode=CONCURRENT``: kernels without a buffer dependency between them may
+run at once. A missing dependency would be a data race. This bench runs the trainer's own programs
+(``training.brax.programs.make_programs``: init, reset, rollout, update) for ``--iterations`` PPO iterations
+from fixed seeds, twice in one process, and:
 
 - reports whether the second pass equals the first bit for bit (run-to-run determinism under this process's
   XLA_FLAGS), and the largest difference if not;
@@ -61,9 +62,8 @@ def run(args: argparse.Namespace) -> str:
 
     from bar_policy import envs
     from bar_policy.envs.reward_weights import weights
-    from bar_policy.training.brax_ppo import host_key, make_programs
-    from bar_policy.training.brax_programs import run_epoch
-    from bar_policy.training.learner import make_learner
+    from bar_policy.training.brax.learner import make_learner
+    from bar_policy.training.brax.programs import host_key, make_programs, run_epoch
     from bar_policy.training.parallel import AXIS, DataParallel
 
     cfg = config_of(args)

@@ -54,7 +54,7 @@ def summarize(run: Path, threshold: float = 0.95) -> dict[str, str]:
         f"steps at {threshold:.0%}": f"{hit['step']:,}" if hit else "-",
         "final success": f"{100 * final[-1]['success_rate']:.1f}%" if final else "-",
     }
-    if startup and "phases" in startup[0]:  # the named breakdown (training.startup_breakdown)
+    if startup and "phases" in startup[0]:  # the named breakdown (training.startup.breakdown)
         s = startup[0]
         progs = s["programs"]
         row["compiles s"] = " ".join(f"{k}={p['compile_s']:.0f}" for k, p in progs.items()) or "-"

@@ -1,10 +1,10 @@
-"""Issue 19: what ``python train/ppo.py`` spends from the process start to the end of its env build.
+"""What ``python train/ppo.py`` spends from the process start to the end of its env build.
 
 Runs the command's start (interpreter, CLI imports and parsing, ``run``'s imports phase, the model build,
 the env construction) in ``--runs`` fresh interpreters, each stopped where the run directory would be
 opened, and prints:
 
-- the median seconds (min-max) of each start-up row (``bar_policy.training.startup_breakdown``);
+- the median seconds (min-max) of each start-up row (``bar_policy.training.startup.breakdown``);
 - when the autotune-seed thread started and finished the device backend (``local_platform``), in seconds
   from the process start: the model build waits for it;
 - one more run under ``python -X importtime``: the top-level packages by import seconds, and through which
@@ -49,14 +49,14 @@ PYC_PACKAGES += ("bar_policy",)
 def child(train_args: list[str], profile: bool) -> None:
     """One start, stopped before the run directory; prints one JSON line (``profile``: the env build's)."""
     os.environ.setdefault("MUJOCO_GL", "disable")  # as train/ppo.py does, before MuJoCo is imported
-    from bar_policy.training.startup import process_uptime
+    from bar_policy.training.startup.compiler import process_uptime
 
     started_at = time.monotonic() - process_uptime()
     from bar_policy.training.cli import parse_config
 
     cfg = parse_config(train_args)
-    from bar_policy.training import autotune_seed
     from bar_policy.training import run as run_mod
+    from bar_policy.training.startup import autotune as autotune_seed
 
     backend: dict[str, float] = {}
     platform = autotune_seed.local_platform

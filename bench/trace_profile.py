@@ -1,9 +1,9 @@
-"""Where a cold start's main-thread trace and lowering go, program by program (issue 19).
+"""Where a cold start's main-thread trace and lowering go, program by program.
 
 A cold run traces and lowers ``reset``, ``rollout``, ``update`` and ``init`` on its main thread, then
-``evaluate`` on a worker, before their compiles can start (``brax_ppo.train_brax``). On the lent H200
+``evaluate`` on a worker, before their compiles can start (``training.brax.ppo.train_brax``). On the lent H200
 hosts that took 9.9-14.0 s on the main thread plus 7-10 s for the evaluation, beside the other
-programs' compiles (session 52). This machine's CPU does the same alone in about 6 s plus 4 s.
+programs' compiles (2026-11-29). This machine's CPU does the same alone in about 6 s plus 4 s.
 
 This bench builds the run's programs as the trainer does: the task's evaluation env, its model
 randomiser and the reference prior, one device. It then traces and lowers each program in the
@@ -36,7 +36,7 @@ from config_args import add_config_args, config_label, config_of, load_env
 from report import emit
 
 PROGRAMS = ("reset", "rollout", "update", "init", "evaluate")
-"""The trainer's programs in the order it traces them (``brax_ppo.train_brax``)."""
+"""The trainer's programs in the order it traces them (``training.brax.ppo.train_brax``)."""
 
 
 def build(args: argparse.Namespace) -> tuple[Any, dict[str, float]]:
@@ -47,8 +47,8 @@ def build(args: argparse.Namespace) -> tuple[Any, dict[str, float]]:
 
     from bar_policy import envs
     from bar_policy.envs import reward_weights
-    from bar_policy.training.brax_programs import action_prior, make_programs
-    from bar_policy.training.learner import make_learner
+    from bar_policy.training.brax.learner import make_learner
+    from bar_policy.training.brax.programs import action_prior, make_programs
     from bar_policy.training.parallel import AXIS, DataParallel
 
     steps: dict[str, float] = {}
@@ -80,7 +80,7 @@ def build(args: argparse.Namespace) -> tuple[Any, dict[str, float]]:
 
 def arguments(name: str, ctx: dict[str, Any], lowered: dict[str, Any]) -> tuple:
     """Program ``name``'s abstract arguments; the rollout's and the update's come from earlier outputs."""
-    from bar_policy.training.brax_ppo import _policy_params
+    from bar_policy.training.brax.programs import _policy_params
 
     dp, key, i, ts, w = ctx["dp"], ctx["key_abs"], ctx["i_abs"], ctx["ts_abs"], ctx["w_abs"]
     if name == "reset":

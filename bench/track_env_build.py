@@ -1,4 +1,4 @@
-"""Issue 19: seconds to build LiteTrack and its evaluation env, array cache off vs warm (fresh interpreters).
+"""Seconds to build LiteTrack and its evaluation env, array cache off vs warm (fresh interpreters).
 
 Each run is a fresh ``python`` that imports ``bar_policy.envs`` and then times ``envs.load("LiteTrack")``
 (the model build, the 64 training clips, the reference table) and ``env.evaluation_env()`` (the held-out

@@ -1,6 +1,6 @@
 """Tracking fidelity of an ONNX tracking policy on held-out clips: MJX, the C MuJoCo sim target, the bus.
 
-Issue 10 item 5: the tracking error of one policy on the same clips in three places, side by side:
+The tracking error of one policy on the same clips in three places, side by side:
 
 - ``mjx``: the training env (``LiteTrack`` on exactly these clips, a batch stepped in lockstep, nominal
   physics unless ``--randomize``), the policy's own ONNX graph (onnxruntime);
@@ -21,7 +21,7 @@ clip at the reference velocity (sim) or at rest (bus; the reference starts at re
         --json track_fidelity.json --markdown track_fidelity.md
     python bench/track_fidelity.py --policy runs/<run>/policy.onnx --columns mjx --randomize
 
-Targets (issue 10): on held-out clips (random clips of another seed plus the named gestures) mean joint
+Targets: on held-out clips (random clips of another seed plus the named gestures) mean joint
 error <= 0.05 rad and mean fingertip error <= 2 cm on the sim target; sim within 20 % of MJX; the emulated
 bus within 30 % of sim (``check_targets``; relative differences of the joint and fingertip errors).
 """
@@ -275,7 +275,7 @@ def markdown(out: dict) -> str:
             row += [""] * (len(head) - len(row))
             lines.append("| " + " | ".join(row) + " |")
             label = ""
-    lines += ["", "| target (issue 10, all held-out clips) | met | value |", "|---|---|---|"]
+    lines += ["", "| target (all held-out clips) | met | value |", "|---|---|---|"]
     for name, ok, value in check_targets(table):
         lines.append(f"| {name} | {'n/a' if ok is None else 'yes' if ok else 'NO'} | {value} |")
     secs = ", ".join(f"{names[c]} {out['columns'][c]['wall_s']:.0f} s" for c in cols)

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The tracker's training recipe on one GPU (issue 16): an ablation of recipe variants, and the recipe's
+# The tracker's training recipe on one GPU: an ablation of recipe variants, and the recipe's
 # training runs by seed. Run from the repository root after the pip prefix of shared/gpu/README.md.
 #
 #   bash bench/track_recipe.sh ablate A   (~9.5 min) four variants side by side on the one GPU, 4096 envs each,
@@ -23,7 +23,7 @@
 #                                          fixed rate 3e-4, entropy cost 1e-3 and gamma 0.98 in place of the
 #                                          field's KL-adaptive rate (its files chatter at 25 Hz), 5e-3 and 0.99:
 #                                          files that pass the ship gate, within 20 % of brax's
-#                                          errors (docs/performance.md "Sessions 48-50")
+#                                          errors (docs/performance.md, 2026-11-29)
 #   bash bench/track_recipe.sh smoke      CPU check of the script with tiny sizes (smoke-rsl: the rsl part)
 #
 # $OUT gets runs.tgz (each run's config, metrics.jsonl, final_eval.json, ONNX files, newest checkpoint and
@@ -128,7 +128,7 @@ case "$PART" in
       # The field's rsl-rl values but not its networks or initial std (the preset's networks and reference
       # prior stay; 0.3 action units: at the field's 1.0 the wrists end at their limits, docs/training.md).
       PRE=$(python3 -c "
-from bar_policy.training.rsl_rl_config import field_cli_flags
+from bar_policy.training.rsl_rl.config import field_cli_flags
 own = ('network.policy_hidden', 'network.value_hidden', 'network.init_noise_std', 'ppo.update_precision')
 print(' '.join(field_cli_flags(8192, leave_out=own)))") || exit 1
       PRE="--backend rsl-rl $PRE --network.init-noise-std 0.3"

@@ -1,4 +1,4 @@
-"""Where a training iteration's time goes (issue 9, item 5): env alone, rollout, SGD, the epoch program.
+"""Where a training iteration's time goes: env alone, rollout, SGD, the epoch program.
 
 At the training batch of a preset (default ``gpu``: 4096 envs, 81,920 env steps and 128 Adam steps per
 iteration), on one device, every part compiled once and timed over ``--iters`` calls after a warm-up:
@@ -8,7 +8,7 @@ iteration), on one device, every part compiled once and timed over ``--iters`` c
 - ``rollout``: env + policy sampling + transitions (``Learner.rollout``), the same steps;
 - ``update``: normaliser update + ``num_updates_per_batch`` x ``num_minibatches`` Adam steps on one
   iteration's data (``Learner.update``);
-- ``epoch``: the trainer's epoch (its rollout and update programs, ``brax_programs.run_epoch``) over
+- ``epoch``: the trainer's epoch (its rollout and update programs, ``training.brax.programs.run_epoch``) over
   ``--epoch-iters`` iterations, per iteration;
 - ``loop``: the same epoch called as the training loop calls it (host sync and metrics read each call);
 - ``env random, mid-training`` and ``rollout, mid-training``: the same as above, from the envs' state and the
@@ -17,13 +17,13 @@ iteration), on one device, every part compiled once and timed over ``--iters`` c
 - ``evaluate``: one periodic evaluation (``eval.num_eval_envs`` deterministic episodes of the env's
   ``episode_length`` steps), reported in s per evaluation below the table;
 - with ``--fused``, ``epoch, one program`` and ``loop, one program``: the same for the one-program epoch
-  the trainer had until session 34 (``bench/fused_epoch.py``), in the same process.
+  the trainer had until 2026-11-27 (``bench/fused_epoch.py``), in the same process.
 - with ``--loop-only``: ``env``, ``epoch`` and ``loop`` alone, the programs they need and no others (the
-  tracker's nine programs did not compile within a 280 s call on an H200, session 51).
+  tracker's nine programs did not compile within a 280 s call on an H200, 2026-11-29).
 
 Every row runs under this process's ``XLA_FLAGS``; the trainer adds
-``--xla_gpu_command_buffer_scheduling_mode=CONCURRENT`` on a GPU (``training.backend_env``), so set it to
-time the trainer's schedule (``...=LHS``: XLA's default). The training loop's target is ``loop`` >= 90 % of
+``--xla_gpu_command_buffer_scheduling_mode=CONCURRENT`` on a GPU (``training.startup.backend_env``), so set it
+to time the trainer's schedule (``...=LHS``: XLA's default). The training loop's target is ``loop`` >= 90 % of
 ``env`` steps/s. ``rollout - env`` is the policy's cost,
 ``update`` the learner's, ``loop - epoch`` the host's.
 
@@ -56,12 +56,19 @@ from trace_summary import device_summary, ops_tables, profiled
 
 from bar_policy import envs
 from bar_policy.envs import reward_weights
-from bar_policy.training.autotune_seed import seed_autotune_cache
-from bar_policy.training.brax_ppo import epoch_iterations, host_key, make_programs, slot_env
-from bar_policy.training.brax_programs import _policy_params, run_epoch
-from bar_policy.training.learner import make_learner
+from bar_policy.training.brax.learner import make_learner
+from bar_policy.training.brax.programs import (
+    _policy_params,
+    epoch_iterations,
+    host_key,
+    make_programs,
+    run_epoch,
+    slot_env,
+)
 from bar_policy.training.parallel import AXIS, DataParallel
-from bar_policy.training.startup import Compiler, StartupTimer, configure_compile_cache
+from bar_policy.training.startup.autotune import seed_autotune_cache
+from bar_policy.training.startup.breakdown import StartupTimer
+from bar_policy.training.startup.compiler import Compiler, configure_compile_cache
 
 
 def best_time(fn: Any, iters: int) -> float:
@@ -84,7 +91,7 @@ def main() -> int:
     p.add_argument(
         "--fused",
         action="store_true",
-        help="also the one-program epoch of before session 34 (bench/fused_epoch.py)",
+        help="also the one-program epoch of before 2026-11-27 (bench/fused_epoch.py)",
     )
     p.add_argument(
         "--profile",

@@ -1,8 +1,8 @@
-"""The update program on one device and on several (issue 19: two GPUs >= 1.9x one).
+"""The update program on one device and on several (target: two GPUs >= 1.9x one).
 
 Each Adam step of the data-parallel update all-reduces the gradients (one all-reduce per step after XLA's
 combiner: the gradients and the KL estimate), 128 per iteration at the gpu preset; with twice the SGD steps
-per env step (session 37) the update is a larger share of an iteration, so its all-reduces weigh more on
+per env step (2026-11-27) the update is a larger share of an iteration, so its all-reduces weigh more on
 two GPUs. This bench times only the update (``Learner.update`` under the trainer's ``DataParallel`` mesh),
 on synthetic transitions of the preset's per-device sizes, so that XLA or NCCL settings can be compared
 in a process each without compiling the env:
@@ -15,9 +15,9 @@ Sizes: ``num_envs`` and ``batch_size`` of ``--preset`` (default gpu) are per dev
 commands give them. The line printed (and appended to ``--out``) gives ms per update call, best of
 ``--iters`` after a warm-up, and the compile seconds.
 
-What an Adam step costs on one GPU (session 44: the update is one CUDA graph of 96 kernels per Adam step;
-session 45: its time is the float32 GEMMs, so the precision of the products is the lever, not Adam's form;
-docs/performance.md "Session 45"):
+What an Adam step costs on one GPU (2026-11-28: the update is one CUDA graph of 96 kernels per Adam step;
+2026-11-28: its time is the float32 GEMMs, so the precision of the products is the lever, not Adam's form;
+docs/performance.md, 2026-11-28):
 
     python bench/update_scaling.py --label "per-leaf Adam" --profile /tmp/upd --profile-ops 30
     python bench/update_scaling.py --label "flat Adam" --flat-adam
@@ -28,7 +28,7 @@ parameter instead of per leaf; the same elementwise arithmetic, the clip's norm 
 line also gives the largest difference of its new parameters from the per-leaf update's.
 ``--precision P``: the update's matrix products at ``P`` (``jax.default_matmul_precision``: ``tensorfloat32``,
 ``bfloat16``, or an algorithm such as ``BF16_BF16_F32_X3`` or ``TF32_TF32_F32_X3``) instead of the config's
-``ppo.update_precision`` (the gpu preset's TF32 since session 45; ``--precision highest`` for float32), with
+``ppo.update_precision`` (the gpu preset's TF32 since 2026-11-28; ``--precision highest`` for float32), with
 the same difference column against the float32 per-leaf update.
 ``--profile DIR``: one call under jax.profiler; ``--profile-ops N`` prints its N kernels with the most time
 (``trace_summary.device_summary``).
@@ -52,10 +52,10 @@ from jax.sharding import PartitionSpec as P
 from trace_summary import device_summary, ops_tables, profiled
 from train_breakdown import best_time
 
-from bar_policy.training.autotune_seed import seed_autotune_cache
-from bar_policy.training.learner import make_learner
+from bar_policy.training.brax.learner import make_learner
 from bar_policy.training.parallel import AXIS, DataParallel
-from bar_policy.training.startup import configure_compile_cache
+from bar_policy.training.startup.autotune import seed_autotune_cache
+from bar_policy.training.startup.compiler import configure_compile_cache
 
 
 def transitions(rows: int, steps: int, obs: int, act: int, seed: int) -> types.Transition:

@@ -1,4 +1,4 @@
-"""The package's size targets (issue 17): no module over 400 lines, no sub-package over 40 % of the lines.
+"""The package's size targets: no module over 400 lines, no sub-package over 40 % of the lines.
 
 Lines are physical lines (``wc -l``). The package's total counts every ``.py`` file under ``bar_policy/``;
 a sub-package is a folder directly under it, with everything beneath.

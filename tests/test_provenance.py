@@ -56,7 +56,7 @@ def test_a_file_without_provenance_loads_and_says_so():
 
 
 def test_the_shipped_reach_policy_says_what_trained_it():
-    """The reach policy shipped from the H100 run of issue 16 (docs/reach.md): its commit, a clean tree,
+    """The reach policy shipped from the H100 run (docs/training.md): its commit, a clean tree,
     the command, and the 1 s command transition it was trained with."""
     from bar_policy.deploy.policy import load_policy
 
@@ -69,7 +69,7 @@ def test_the_shipped_reach_policy_says_what_trained_it():
 
 
 def test_the_shipped_tracker_says_what_trained_it():
-    """The tracker shipped from session 46's run (docs/tracking.md row 13, one H200): its commit, a clean
+    """The tracker shipped from the 2026-11-29 run (docs/tracking.md row 13, one H200): its commit, a clean
     tree, the versions and the exact training command, with the written-out Cholesky and TF32 SGD passes
     that the track preset has had since."""
     from bar_policy.deploy.policy import load_policy

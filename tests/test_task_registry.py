@@ -181,20 +181,3 @@ def test_env_names_of_the_moved_modules_stay_on_envs():
         for name in ("LiteReach", "ReachEnvConfig", "LiteTrack", "TrackEnvConfig"):
             if name in module.__all__:
                 assert getattr(envs, name) is getattr(module, name), name
-
-
-def test_old_paths_reexport_the_moved_modules():
-    pairs = {
-        "bar_policy.deploy.commands": "bar_policy.tasks.reach.commands",
-        "bar_policy.deploy.command_transition": "bar_policy.tasks.reach.transition",
-        "bar_policy.deploy.sim2sim": "bar_policy.tasks.reach.evaluate",
-        "bar_policy.deploy.tasks.reach": "bar_policy.tasks.reach.deploy",
-        "bar_policy.deploy.tasks.track": "bar_policy.tasks.track.deploy",
-        "bar_policy.deploy.tasks.track_eval": "bar_policy.tasks.track.evaluate",
-        "bar_policy.deploy.tasks.track_reference": "bar_policy.tasks.track.reference",
-        "bar_policy.deploy.tasks.base": "bar_policy.tasks.interfaces",
-        "bar_policy.deploy.cli_types": "bar_policy.tasks.cli_types",
-    }
-    for old, new in pairs.items():
-        a, b = importlib.import_module(old), importlib.import_module(new)
-        assert a.__all__ == b.__all__ and all(getattr(a, n) is getattr(b, n) for n in b.__all__), old

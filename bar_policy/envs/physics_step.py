@@ -9,10 +9,10 @@
    and reach): every Cholesky of the step written out (``small_spd``) instead of a batched ``potrf`` and
    triangular solves: the mass matrix's factor and ``qacc_smooth``, the Newton direction, Euler's implicit
    damping. Off by default: on an H100 under XLA's default schedule the scalar form ran 2.01M physics
-   steps/s against 2.13M and doubled the env's compile (session 36). It is kept because XLA never records
+   steps/s against 2.13M and doubled the env's compile (2026-11-27). It is kept because XLA never records
    those library calls into a command buffer (a CUDA graph): with them the Newton ``while_loop`` and the
    rollout cannot each be one graph, and the loop's predicate goes to the host every Newton iteration
-   (docs/performance.md, session 42).
+   (docs/performance.md, 2026-11-28).
 
 None changes the physics: each is MJX's computation rearranged (tests: ``tests/envs/test_physics_step.py``,
 equal to ``mjx.step`` to float64 rounding). The sequence below is ``mujoco.mjx._src.forward``'s

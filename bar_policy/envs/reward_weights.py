@@ -6,7 +6,7 @@ program, so a run that changes one weight compiles every program again (a cold s
 :func:`with_weights`, a program takes the weights as an argument instead. The env's config is copied with
 the argument's traced values in place of the floats, and the reward arithmetic is the same, so the
 program's code does not depend on the weights' values and a compiled program serves any of them
-(``training.brax_programs``).
+(``training.brax.programs``).
 
 An env without ``config.reward.scales`` (the tests' toy env) has no weights: :func:`weights` is empty and
 :func:`with_weights` returns the env itself.

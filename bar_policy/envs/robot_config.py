@@ -127,7 +127,7 @@ class RobotEnvConfig:
     """How the physics step factors the dense mass matrix and the Newton Hessian (``physics_step.CHOLESKY``):
     ``library`` (jax's cuSOLVER / LAPACK calls, MJX's own) or ``scalar`` / ``columns`` (written out,
     ``envs.small_spd``: XLA can record them into CUDA graphs). The same physics to rounding
-    (tests/envs/test_physics_step.py); docs/performance.md, session 42."""
+    (tests/envs/test_physics_step.py); docs/performance.md, 2026-11-28."""
     episode_length_s: float = 5.0
     """Episode length, s (250 control steps); the wrappers truncate episodes there."""
     action_scale: float | tuple[float, ...] | None = 0.8

@@ -4,7 +4,7 @@
 frame (with rotation matrices); an observation that needs two fingertip positions pays for all of it, twice
 per training program (the step's observation and the auto-reset's). :func:`site_positions` computes the
 same positions from the chains of bodies that lead to the requested sites and nothing else. For LiteReach's
-gpu-preset programs on the 2-core CPU (docs/performance.md, session 54): the rollout's StableHLO 14 % smaller,
+gpu-preset programs on the 2-core CPU (docs/performance.md, 2026-12-01): the rollout's StableHLO 14 % smaller,
 its trace 0.6 s and the reset's 0.46 s shorter, the env step 5 % faster and its compile 10 % shorter.
 
 The maths is MuJoCo's ``mj_kinematics`` (``engine_core_smooth.c``; MJX's ``smooth.kinematics``) for hinge

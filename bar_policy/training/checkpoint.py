@@ -18,7 +18,7 @@ from typing import Any
 from flax import serialization
 
 from bar_policy._files import write_atomic
-from bar_policy.training.executable_cache import program_fields
+from bar_policy.training.startup.executable_cache import program_fields
 
 __all__ = ["Checkpoint", "latest_checkpoint", "load_checkpoint", "resume_changes", "save_checkpoint"]
 
@@ -138,7 +138,7 @@ def resume_changes(checkpoint: str | os.PathLike[str], record: dict[str, Any] | 
 
     A resume trains under the command's own config, which is what it should do (a longer run, a changed
     reward weight). But a default that changed between the two runs (the reach gpu preset's batch and
-    physics step in session 37) would change the training without a word, so every difference between the
+    physics step on 2026-11-27) would change the training without a word, so every difference between the
     checkpoint's sidecar record and this run's (``train`` and ``env`` sections, flattened to dotted names)
     is listed, except the fields a resume is expected to change: those no program reads (where it writes,
     when it stops, what it exports, its caches: ``executable_cache.program_fields`` leaves them out) and the

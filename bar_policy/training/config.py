@@ -80,7 +80,7 @@ class NetworkConfig:
     whole action) or the prior the env serves (its record's ``EnvEntry.action_prior``, built by the env's
     ``action_prior``; e.g. the tracker's ``reference``, its reference pose ``prior_lead_steps`` ahead, read
     from the observation); the MLP learns the correction. Both backends (rsl-rl: the env adds the prior to
-    the Gaussian actor's action, ``training.rsl_rl_prior``); written into the ONNX graph."""
+    the Gaussian actor's action, ``training.rsl_rl.prior``); written into the ONNX graph."""
     prior_lead_steps: int = 5
     """Reference frame of the ``reference`` prior, control steps ahead (1..the layout's lookahead): 5 = 100
     ms, which the action filter's lag (53-64 ms at 2.5-3 Hz) and the PD law's need: with a zero MLP on the sim
@@ -163,8 +163,7 @@ class PPOConfig:
     """Weight of the value loss."""
     update_precision: Literal["run", "tensorfloat32", "BF16_BF16_F32_X3"] = "run"
     """SGD passes' matrix products: ``run`` (``TrainConfig.matmul_precision``) or tensor cores' (jax's names;
-    physics, rollout keep the run's; rsl-rl: TF32 only). docs/performance.md: H200 update 30 -> 17 / 22 ms
-    (float32 -> tensorfloat32 / BF16_BF16_F32_X3)."""
+    physics, rollout keep the run's; rsl-rl: TF32 only). H200 (280175b, 2026-11-28): 30 -> 17 / 22 ms."""
     actor_warmup_iterations: int = 0
     """First iterations in which only the critic learns (policy gradients zeroed; brax backend): against an
     untrained critic the first updates push the policy off an action prior (piano: F1 0.70 -> 0.23 in 2.3M
@@ -318,13 +317,13 @@ class TrainConfig:
     """Cache directory (empty: $JAX_COMPILATION_CACHE_DIR, else $XDG_CACHE_HOME/bar_policy/jax)."""
     autotune_seed: bool = True
     """Seed XLA's per-fusion autotune cache (in the compile cache) with the results shipped for this GPU
-    and jaxlib (``training/autotune_seed.py``); GPUs only, never overwrites. H100, LiteReach gpu preset,
-    empty compile cache: first evaluation at 68.6 s instead of 99.4 s, same training speed (session 32)."""
+    and jaxlib (``training/startup/autotune.py``); GPUs only, never overwrites. H100, LiteReach gpu preset,
+    empty compile cache: first evaluation at 68.6 s instead of 99.4 s, same training speed (2026-11-27)."""
     executable_cache: bool = True
     """Executable cache in <cache directory>/executables (with the compile cache): a rerun of the same
     command and code loads each program without tracing, lowering or compiling it. Used on GPU backends;
     on a CPU only with BAR_POLICY_EXECUTABLE_CACHE_ON_CPU=1; under several processes each keeps its own
-    entries, loaded only when every process holds them. H100, LiteReach gpu preset (session 32): two warm
+    entries, loaded only when every process holds them. H100, LiteReach gpu preset (2026-11-27): two warm
     runs loaded all 4 programs, first evaluation at 22.0 and 25.0 s instead of 35-41 s with jax's
     persistent cache alone, same learning curve (docs/training.md)."""
     ppo: PPOConfig = field(default_factory=PPOConfig)

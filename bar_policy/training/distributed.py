@@ -89,7 +89,7 @@ def shutdown_distributed(timeout_s: float = 1800.0) -> None:
 
     Measured with 2 processes on one H100 (``local_device_ids=[0]`` each), 6 sessions of each order of
     exit: with 1-3 the other process printed nothing; process 0 still logged its own client's watch
-    ``UNAVAILABLE: Cancelling all calls`` as its service stopped. On two H100s (session 39) it logged
+    ``UNAVAILABLE: Cancelling all calls`` as its service stopped. On two H100s (2026-11-27) it logged
     ``UNAVAILABLE: failed to connect to all addresses`` instead, after a capture of the stop alone had
     ended: hence a filter to the process's end (``training.watch_filter``). On CPU (jax 0.10.2 here)
     neither order printed anything, before or after.

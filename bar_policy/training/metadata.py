@@ -7,7 +7,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from bar_policy.deploy.metadata import PolicyMetadata
-from bar_policy.export import code_version
+from bar_policy.export.policy import code_version
 from bar_policy.provenance import collect
 from bar_policy.robot.mjcf import PHYSICS_DT
 

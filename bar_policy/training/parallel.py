@@ -163,7 +163,7 @@ def all_agree(name: str, value: bool, timeout_s: float = 1800.0) -> bool:
     """Whether ``value`` is True on every process; ``value`` itself in a single process.
 
     Every process must make the same calls in the same order: the n-th call of a ``name`` on one process
-    meets the n-th on the others (``training.startup.Compiler``: whether every process holds a program in
+    meets the n-th on the others (``startup.compiler.Compiler``: whether every process holds a program in
     its executable cache). Through the coordination service's key-value store, as ``barrier``: each process
     sets its answer under the call's key, then waits up to ``timeout_s`` for every other one.
     """

@@ -21,15 +21,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bar_policy.training import startup_breakdown as sb
-from bar_policy.training.autotune_seed import seed_in_background
-from bar_policy.training.backend_env import set_backend_env
 from bar_policy.training.best import finish_best
 from bar_policy.training.config import TrainConfig, config_to_dict
 from bar_policy.training.distributed import init_distributed, local_default_devices, shutdown_distributed
-from bar_policy.training.executable_cache import executable_cache_for, executable_cache_line
 from bar_policy.training.progress import RunLogger, format_duration, format_steps
-from bar_policy.training.startup import StartupTimer, configure_compile_cache
+from bar_policy.training.startup import breakdown as sb
+from bar_policy.training.startup.autotune import seed_in_background
+from bar_policy.training.startup.backend_env import set_backend_env
+from bar_policy.training.startup.breakdown import StartupTimer
+from bar_policy.training.startup.compiler import configure_compile_cache
+from bar_policy.training.startup.executable_cache import executable_cache_for, executable_cache_line
 
 __all__ = ["RunSummary", "init_distributed", "resolve_run_dir", "run"]
 
@@ -196,9 +197,9 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
         from bar_policy import envs
 
         if cfg.backend == "brax":
-            from bar_policy.training.brax_ppo import train_brax
-        else:  # torch-free: rsl_rl_backend (torch) is imported once its programs are compiling
-            from bar_policy.training.rsl_rl_programs import prepare_rsl_rl
+            from bar_policy.training.brax.ppo import train_brax
+        else:  # torch-free: rsl_rl.backend (torch) is imported once its programs are compiling
+            from bar_policy.training.rsl_rl.programs import prepare_rsl_rl
 
     # The env's model build (bar_policy._phases.MODEL_BUILD) is its own row, taken out of this one.
     with timer.active(), timer.phase(sb.ENV_BUILD):
@@ -253,7 +254,7 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
                 timer=timer, executable_cache=exec_cache,
             )  # fmt: skip
         with timer.phase(sb.RSL_IMPORTS):
-            from bar_policy.training.rsl_rl_backend import train_rsl_rl
+            from bar_policy.training.rsl_rl.backend import train_rsl_rl
         result = train_rsl_rl(
             env, cfg, logger, randomizer=randomizer, checkpoint_dir=ckpt_dir, config_record=record,
             timer=timer, eval_env=eval_env, programs=programs,

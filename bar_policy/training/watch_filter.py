@@ -5,7 +5,7 @@ coordination service that the same process hosts. Stopping the service (the last
 ``training.distributed.shutdown_distributed``) ends that watch, and XLA's C++ logging writes one absl record
 straight to fd 2 from a gRPC thread: ``WatchTasksAsync failed for task 0`` with ``UNAVAILABLE: Cancelling all
 calls`` or ``CANCELLED`` while the stop runs, or, when the client calls again after it, ``UNAVAILABLE:
-failed to connect to all addresses ... Connection refused`` (an H100 pair in session 39, after the run had
+failed to connect to all addresses ... Connection refused`` (an H100 pair on 2026-11-27, after the run had
 finished). Both say only that the service this process stopped is gone.
 
 ``install(process_id)`` sends this process's fd 2, from then until the process ends, through a child

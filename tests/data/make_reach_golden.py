@@ -19,12 +19,12 @@ below take the jitted reset/step so the test (tests/envs/test_reach_golden.py) r
 session fixtures' compiled functions.
 
 First recorded from the unsplit env (bar_policy/envs/reach.py at commit bec536f); re-recorded when the reach
-recipe changed on purpose (issue 16: the 3 Hz action filter, the ``action_accel`` and ``torque_near_cap``
+recipe changed on purpose (the 3 Hz action filter, the ``action_accel`` and ``torque_near_cap``
 terms and ``action_rate`` -0.1, which add an info leaf and two reward metrics), on an AVX2 machine, from the
-commit after 9897af8; and again for the command transition (issue 16: the commanded target moves to each new
+commit after 9897af8; and again for the command transition (the commanded target moves to each new
 goal along a minimum-jerk path, adding the ``from_*`` and ``goal_*`` info leaves), on an AVX2 machine, from
-the commit after 8c508c3; and again for the ``wrist_posture`` term (issue 19's ship-gate misses: a new
-reward metric), on an AVX2 machine, from the commit after 79b5390. That time every leaf the earlier file
+the commit after 8c508c3; and again for the ``wrist_posture`` term (against the ship gate's torque-cap misses:
+a new reward metric), on an AVX2 machine, from the commit after 79b5390. That time every leaf the earlier file
 held was bit for bit the same except ``reward`` and the episode reward sum, whose change equals the new
 term within 7e-8.
 """

@@ -2,7 +2,7 @@
 
 ``tests/data/reach_golden.npz`` was written by ``tests/data/make_reach_golden.py`` from the unsplit env
 (commit bec536f) on a machine with AVX-512, and re-recorded on an AVX2 machine when the reach recipe changed
-on purpose (issue 16's smoothness terms and action filter; the maker's docstring). Both rollouts replay
+on purpose (the smoothness terms and action filter; the maker's docstring). Both rollouts replay
 with the session fixtures' compiled functions (no extra compile): the nominal env unbatched, and the
 training config (randomisation on, 1 s episodes) batched through the randomised wrapper across an
 auto-reset.

@@ -1,6 +1,6 @@
 """Parity of the command transition: the env's commanded targets equal the deploy wrapper's, tick by tick.
 
-The env (jax, float32) and ``deploy.command_transition.TransitionCommands`` (numpy, float64) both call
+The env (jax, float32) and ``tasks.reach.transition.TransitionCommands`` (numpy, float64) both call
 ``tasks.reach.transition_point``; this runs the nominal env across a target resampling and feeds the env's
 own goals, at the same ticks, to the wrapper (started at the deploy side's default-pose fingertips).
 """

@@ -1,4 +1,4 @@
-"""LiteTrack's start-up cache (issue 19): the random clips and the reference kinematics come from disk
+"""LiteTrack's start-up cache: the random clips and the reference kinematics come from disk
 (``bar_policy._array_cache``) bit for bit, and a config field they depend on is another entry, never a stale
 hit. Small clip sets (2 clips of 2 s) keep each build under a second on the CPU."""
 

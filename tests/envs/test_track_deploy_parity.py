@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 
 from bar_policy.deploy.inputs import StateInputs
-from bar_policy.deploy.tasks.track import MotionReference
 from bar_policy.obs import ObservationManager
 from bar_policy.robot.action_filter import filter_alpha, lowpass_step, pose_action
 from bar_policy.tasks import track as task
 from bar_policy.tasks.track.config import default_config
 from bar_policy.tasks.track.env import SUCCESS_FINGERTIP_M, SUCCESS_JOINT_RAD
+from bar_policy.tasks.track.reference import MotionReference
 
 pytestmark = pytest.mark.numerics  # compares XLA floats with another implementation / a recording
 
@@ -144,7 +144,7 @@ def test_first_policy_tick_after_the_hold_ramp_sees_the_env_reset_observation(
     from bar_policy.deploy.log import load_log
     from bar_policy.deploy.runtime import Runtime, RuntimeConfig
     from bar_policy.deploy.safety import Mode, SafetyConfig
-    from bar_policy.deploy.tasks.track import reference_for
+    from bar_policy.tasks.track.reference import reference_for
 
     policy = _env_policy(track_env, tmp_path / "p.onnx", bias=0.1)  # puts tests/deploy on the path
     from fault_targets import SteppedMock

@@ -69,7 +69,8 @@ CHATTER_TOL_MRAD = 2e3 * Q_TOL
 @pytest.fixture(scope="module")
 def prior_file(tmp_path_factory) -> Path:
     """The key-pose prior alone, ``actions = tanh(0 + atanh(prior(obs)))``, at the env's scale and filter."""
-    from bar_policy.export import MlpPolicy, export_policy
+    from bar_policy.export.graph import MlpPolicy
+    from bar_policy.export.policy import export_policy
 
     meta = dataclasses.replace(
         default_metadata(task="piano"),

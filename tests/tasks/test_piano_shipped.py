@@ -1,7 +1,7 @@
 """The shipped piano policy, ``checkpoints/lite_piano_arms.onnx``: what it declares, and what it plays on the
 C MuJoCo sim target with the held-out songs (the path ``bar-deploy eval`` runs).
 
-The thresholds are issue 18's targets: F1 >= 0.9 on the held-out songs on the sim target (RoboPianist's step
+The thresholds are the piano's targets: F1 >= 0.9 on the held-out songs on the sim target (RoboPianist's step
 mean over all ticks), and the piano's ship gate (``bar_policy.tasks.piano.gate``: every song completed, at
 most 0.5 % of ticks at a torque cap, chatter against the key-pose reference at most 5 mrad). The file scored
 F1 0.913 when it shipped (docs/piano.md): the sim target steps C MuJoCo in float64 and the policy runs in

@@ -285,7 +285,7 @@ NEW_BLACK = (
 
 
 def test_library_trains_on_black_keys_in_both_hands():
-    # Session 31: no training song had a black key. The four songs added then hold black keys in each
+    # 2026-11-27: no training song had a black key. The four songs added then hold black keys in each
     # hand, every one of the five (C#, D#, F#, G#, A#), each hand on its side of the split.
     assert set(NEW_BLACK) <= set(TRAIN)
     notes = [n for name in TRAIN for n in library_song(name).notes]

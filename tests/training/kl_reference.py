@@ -1,7 +1,7 @@
 """The KL estimate taken the long way, for tests: the policy run again on a minibatch, then ``kl_estimate``.
 
-The learner takes the KL from the loss's own policy pass (``training.ppo_loss``); this separate pass is what
-the tests hold that metric and the estimator to (a module of its own: importable by a name no other test
+The learner takes the KL from the loss's own policy pass (``training.brax.ppo_loss``); this separate pass is
+what the tests hold that metric and the estimator to (a module of its own: importable by a name no other test
 folder uses).
 """
 
@@ -11,8 +11,8 @@ from typing import Any
 
 import jax
 
-from bar_policy.training.learner import Learner
-from bar_policy.training.ppo_loss import kl_estimate
+from bar_policy.training.brax.learner import Learner
+from bar_policy.training.brax.ppo_loss import kl_estimate
 
 
 def approx_kl(learner: Learner, params: Any, normalizer: Any, mb: Any) -> jax.Array:

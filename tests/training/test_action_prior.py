@@ -16,13 +16,14 @@ import pytest
 from brax.training.acme import running_statistics, specs
 from brax.training.agents.ppo import networks as ppo_networks
 
-from bar_policy.export import _run_onnx, build_onnx_model, export_brax_policy, mlp_policy_from_brax
-from bar_policy.export_graph import MlpPolicy
+from bar_policy.export.graph import MlpPolicy, build_onnx_model
+from bar_policy.export.parity import _run_onnx
+from bar_policy.export.policy import export_brax_policy, mlp_policy_from_brax
 from bar_policy.obs import ObservationManager
 from bar_policy.obs.action_prior import PRIOR_BOUND, ActionPrior, BlendPrior, reference_prior
 from bar_policy.tasks.track import track_action_scale, track_default_pose
+from bar_policy.training.brax.networks import PRIOR_INIT_SCALE, make_networks
 from bar_policy.training.config import NetworkConfig
-from bar_policy.training.networks import PRIOR_INIT_SCALE, make_networks
 
 N = 14
 K = 5  # the tracking layout's lookahead frames
@@ -181,7 +182,7 @@ def test_reach_has_no_prior_and_rsl_rl_refuses_one():
     with pytest.raises(ValueError, match=r"no action prior.*valid network.action_prior values for it: none"):
         reach.action_prior(5)
     from bar_policy.training.config import TrainConfig
-    from bar_policy.training.rsl_rl_backend import train_rsl_rl
+    from bar_policy.training.rsl_rl.backend import train_rsl_rl
 
     cfg = TrainConfig(env_name="LiteReach", network=NetworkConfig(action_prior="reference"))
     with pytest.raises(ValueError, match=r"LiteReach has no action prior; valid values for it: \['none'\]"):
@@ -210,7 +211,7 @@ def test_prior_noise_std_sets_the_initial_std(layout, pose_scale):
 def test_env_serves_only_its_own_prior():
     """network.action_prior must name the prior the env serves: the message names the valid values."""
     from bar_policy import envs
-    from bar_policy.training.brax_programs import action_prior
+    from bar_policy.training.brax.programs import action_prior
 
     reach = envs.load("LiteReach", config=envs.nominal_config())
     with pytest.raises(ValueError, match=r"LiteReach has no action prior; valid values for it: \['none'\]"):

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from brax.training import types
 
+from bar_policy.training.brax.learner import adam_count, make_learner
 from bar_policy.training.config import NetworkConfig, PPOConfig
-from bar_policy.training.learner import adam_count, make_learner
 from bar_policy.training.parallel import AXIS
 
 N_OBS, N_ACT, SEGMENTS, T = 6, 3, 8, 5

@@ -12,8 +12,13 @@ from brax.training import types
 from brax.training.acme import running_statistics, specs
 from kl_reference import approx_kl
 
+from bar_policy.training.brax.learner import (
+    adapt_learning_rate,
+    learning_rate,
+    make_learner,
+    set_learning_rate,
+)
 from bar_policy.training.config import NetworkConfig, PPOConfig
-from bar_policy.training.learner import adapt_learning_rate, learning_rate, make_learner, set_learning_rate
 
 PPO = PPOConfig(schedule="adaptive", desired_kl=0.01, learning_rate=1e-3, min_learning_rate=1e-4,
                 max_learning_rate=2e-3)  # fmt: skip

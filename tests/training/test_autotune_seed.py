@@ -1,4 +1,4 @@
-"""Seeding XLA's per-fusion autotune cache from the shipped results (``training.autotune_seed``).
+"""Seeding XLA's per-fusion autotune cache from the shipped results (``training.startup.autotune``).
 
 CPU only: the device kind, backend and jaxlib version are monkeypatched (``local_platform``), so a fake
 H100 gets the seed and the real CPU backend does not. Expected counts are worked out from the files made
@@ -17,8 +17,14 @@ from pathlib import Path
 
 import pytest
 
-from bar_policy.training import autotune_seed as ats
-from bar_policy.training.autotune_seed import AUTOTUNE_DIR, SEED_DIR, SeedManifest, pack_seed, shipped_seeds
+from bar_policy.training.startup import autotune as ats
+from bar_policy.training.startup.autotune import (
+    AUTOTUNE_DIR,
+    SEED_DIR,
+    SeedManifest,
+    pack_seed,
+    shipped_seeds,
+)
 
 REPO = Path(__file__).resolve().parents[2]
 KIND = "NVIDIA Fake 80GB"
@@ -74,7 +80,7 @@ def test_seeds_an_empty_cache_then_skips_what_is_there(tmp_path, gpu):
 
 
 def test_a_stamped_archive_is_not_read_again_and_a_removed_folder_is_seeded_again(tmp_path, gpu, monkeypatch):
-    """Session 53: a warm start's seeding read every member again (0.6 s of Python beside the start)."""
+    """2026-11-29: a warm start's seeding read every member again (0.6 s of Python beside the start)."""
     seeds, cache = _seeds(tmp_path), tmp_path / "cache"
     assert ats.seed_autotune_cache(cache, seeds_dir=seeds).seeded == 3
     real_open = tarfile.open
@@ -196,15 +202,16 @@ SHIPPED = {
     "h100-80gb-hbm3-jaxlib-0.11.2-rsl.tar.gz": (H100, H100_DIR, "a27fd9d", ("train step", "eval step"), 749),
     "h100-80gb-hbm3-jaxlib-0.11.2-track.tar.gz": (H100, H100_DIR, "a27fd9d", EPOCH, 830),
     "h100-80gb-hbm3-jaxlib-0.11.2.tar.gz": (H100, H100_DIR, "c61072c", EPOCH, 868),
-    # The gpu preset of session 37 (batch 256, 4 ms, training.ppo_loss); the one above is session 32's.
+    # The gpu preset of 2026-11-27 (batch 256, 4 ms, training.brax.ppo_loss); the one above is the batch-512,
+    # 2 ms preset's.
     "h100-80gb-hbm3-jaxlib-0.11.2-gpu.tar.gz": (H100, H100_DIR, "68897c4", SPLIT, 849),
-    # The same preset on the H200 (session 43: the lent machines are H200s now), then rsl and track
-    # (session 44) and piano (session 45); the gpu preset again in session 46, with its TF32 update (13 of
-    # its 853 entries differ from session 43's).
+    # The same preset on the H200 (2026-11-28: the lent machines are H200s now), then rsl and track
+    # (2026-11-28) and piano (2026-11-28); the gpu preset again on 2026-11-29, with its TF32 update (13 of
+    # its 853 entries differ from the first H200 seed's).
     "h200-jaxlib-0.11.2-gpu.tar.gz": (H200, H200_DIR, "fabc7da", SPLIT, 853),
     "h200-jaxlib-0.11.2-piano.tar.gz": (H200, H200_DIR, "280175b", SPLIT, 1053),
     "h200-jaxlib-0.11.2-rsl.tar.gz": (H200, H200_DIR, "968e856", ("train step", "eval step"), 757),
-    # track again in session 46, for the preset's written-out Cholesky and TF32 update (bd258f3)
+    # track again on 2026-11-29, for the preset's written-out Cholesky and TF32 update (bd258f3)
     "h200-jaxlib-0.11.2-track.tar.gz": (H200, H200_DIR, "bd258f3", SPLIT, 1028),
 }
 SHIPPED_MEMBERS = 1072 + 749 + 830 + 868 + 849
@@ -213,7 +220,7 @@ SHIPPED_UNION = 2819
 ``tarfile`` when they were added: 4368 members, 1549 of them repeats)."""
 H200_MEMBERS = 853 + 1053 + 757 + 1028
 H200_UNION = 2908
-"""The same for the H200's four (``tarfile``, session 45: 3494 members, 802 of them repeats)."""
+"""The same for the H200's four (``tarfile``, 2026-11-28: 3494 members, 802 of them repeats)."""
 
 
 def test_the_shipped_seeds_match_their_manifests():
@@ -268,7 +275,7 @@ def test_pack_script_round_trips(tmp_path):
     assert run.returncode == 0, run.stderr
     m = SeedManifest.read(tmp_path / "s" / "fake.json")
     assert (m.device_kind, m.subdir, m.entries, m.archive) == (KIND, SUBDIR, 3, "fake.tar.gz")
-    assert m.programs == ("reset", "rollout", "update", "init", "evaluate")  # the trainer's, since session 34
+    assert m.programs == ("reset", "rollout", "update", "init", "evaluate")  # the trainer's, since 2026-11-27
     first = (tmp_path / "s" / "fake.tar.gz").read_bytes()
     # Reproducible: packing again gives the same bytes.
     pack_seed(tmp_path / "made" / AUTOTUNE_DIR, tmp_path / "s2", name="fake", device_kind=KIND,
@@ -306,7 +313,7 @@ def test_a_manifest_with_missing_fields_names_them(tmp_path):
 
 
 def test_seed_outcome_is_in_the_startup_record_and_table():
-    from bar_policy.training.startup_breakdown import StartupTimer
+    from bar_policy.training.startup.breakdown import StartupTimer
 
     timer = StartupTimer()
     timer.autotune_seed = ats.SeedOutcome(seeded=868, source="h100.tar.gz", seconds=0.0123)

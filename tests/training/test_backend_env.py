@@ -1,10 +1,10 @@
 """The CPU-thread setting against jaxlib 0.10's LAPACK deadlock, XLA's scheduling flag and jax's GPU memory
-pool on a GPU (``training.backend_env``).
+pool on a GPU (``training.startup.backend_env``).
 
 The decision is a pure function of the conditions; the subprocess test runs, on a machine where the run
 would set it (jaxlib < 0.11, at most ``SMALL_CPU`` cores), the smallest program that deadlocked here:
 four independent batched Choleskys of 256 14x14 matrices in a loop. Without the setting it stopped in 6 of
-6 runs within 150 calls (docs/performance.md "Session 39"); with it the process keeps one XLA thread.
+6 runs within 150 calls (docs/performance.md, 2026-11-27); with it the process keeps one XLA thread.
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from pathlib import Path
 import jaxlib
 import pytest
 
-from bar_policy.training import backend_env
-from bar_policy.training.backend_env import (
+from bar_policy.training.startup import backend_env
+from bar_policy.training.startup.backend_env import (
     GRAPHED_LOOPS,
     MEMORY_VARS,
     PREALLOCATE,
@@ -177,7 +177,7 @@ def test_batched_choleskys_that_deadlocked_run_with_the_setting():
         """
         import dataclasses, os
         from pathlib import Path
-        from bar_policy.training.backend_env import set_backend_env
+        from bar_policy.training.startup.backend_env import set_backend_env
         from bar_policy.training.config import preset
         notes = set_backend_env(preset("tiny"))
         assert os.environ["PJRT_NPROC"] == "1" and "PJRT_NPROC=1" in notes[0], notes

@@ -3,7 +3,7 @@
 ``--env-overrides`` adds to the preset's own env overrides as the trainer's ``--env-overrides`` does, so a
 bench that picks the Cholesky form keeps the reach gpu preset's 4 ms step (``bar_policy/tasks/reach/
 preset.py``: ``env_overrides = ("sim_dt=0.004",)``); ``--set env_overrides=...`` still replaces the tuple.
-Session 43's first GPU call measured at 2 ms because only ``--set`` existed.
+A GPU call once measured at 2 ms because only ``--set`` existed.
 """
 
 from __future__ import annotations

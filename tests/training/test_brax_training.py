@@ -91,7 +91,7 @@ def test_exported_graph_matches_the_jax_policy(brax_run):
     # Rebuild brax's policy from the final checkpoint (what was exported).
     from brax.training.agents.ppo import networks as ppo_networks
 
-    from bar_policy.training.brax_ppo import make_networks
+    from bar_policy.training.brax.networks import make_networks
     from bar_policy.training.config import preset
 
     net = make_networks(54, 14, preset("tiny").network, True)
@@ -110,7 +110,7 @@ def test_exported_graph_matches_the_jax_policy(brax_run):
     with jax.default_matmul_precision("float32"):
         want = np.asarray(jax.jit(policy)(obs, jax.random.PRNGKey(0))[0])
     got = sess.run(["actions"], {"obs": obs})[0]
-    # Two float32 MLPs (ONNX Runtime, XLA) summing in different orders: bar_policy.export.PARITY_TOLERANCE
+    # Two float32 MLPs (ONNX Runtime, XLA) summing in different orders: export.parity.PARITY_TOLERANCE
     # (its docstring derives it from the layer widths and float32 rounding).
     assert np.max(np.abs(got - want)) <= 1e-5
     assert np.max(np.abs(want)) > 0.1  # a trained, non-trivial policy

@@ -142,7 +142,7 @@ def test_processes_start_and_shut_down_without_error_output(dist_run):
 
 def test_startup_record_counts_from_the_process_start(dist_run):
     from bar_policy._phases import MODEL_BUILD
-    from bar_policy.training import startup_breakdown as sb
+    from bar_policy.training.startup import breakdown as sb
 
     rec = json.loads((dist_run / "dist" / "final_eval.json").read_text())["startup"]
     assert rec["origin"] == "process start"

@@ -21,7 +21,7 @@ OWN_WATCH = (
     "external/xla+/xla/tsl/distributed_runtime/rpc/grpc_util.h:89\n"
     "\n"
 )
-# What process 0 wrote after the stop on two H100s (session 39): the client called the stopped service again.
+# What process 0 wrote after the stop on two H100s (2026-11-27): the client called the stopped service again.
 OWN_WATCH_REFUSED = (
     "W1127 17:07:38.031651    4341 pjrt_client.cc:1605] WatchTasksAsync failed for task 0: UNAVAILABLE: "
     "failed to connect to all addresses; last error: UNKNOWN: ipv4:127.0.0.1:24993: Failed to connect to "

@@ -1,6 +1,6 @@
-"""The epoch as two programs (``rollout``, ``update``: ``brax_programs.run_epoch``) against one ``lax.scan``.
+"""The epoch as two programs (``rollout``, ``update``: ``brax.programs.run_epoch``) against one ``lax.scan``.
 
-Until session 34 the trainer compiled an epoch as one program, a scan of ``Learner.iteration`` whose keys
+Until 2026-11-27 the trainer compiled an epoch as one program, a scan of ``Learner.iteration`` whose keys
 came from one chain (``k, k_it = split(k)`` per iteration after folding in the device index). Since then
 the rollout and the update are programs of their own, which each derive iteration ``i``'s key from the
 chain. The reference here is that scan, written out again; both start from the same state and must reach
@@ -18,8 +18,8 @@ from toy_configs import TOY_BRAX, toy_config
 
 from bar_policy import envs
 from bar_policy.envs.reward_weights import weights
-from bar_policy.training.brax_programs import epoch_totals, host_key, make_programs, run_epoch, slot_env
-from bar_policy.training.learner import make_learner
+from bar_policy.training.brax.learner import make_learner
+from bar_policy.training.brax.programs import epoch_totals, host_key, make_programs, run_epoch, slot_env
 from bar_policy.training.parallel import AXIS, DataParallel
 
 ITERS = 3

@@ -17,11 +17,11 @@ from jax.sharding import PartitionSpec as P
 
 from bar_policy.envs import wrap_for_brax_training
 from bar_policy.envs.base import reach_eval_ratios
-from bar_policy.training.brax_ppo import host_key, slot_env, slot_keys
+from bar_policy.training.brax.learner import make_learner
+from bar_policy.training.brax.programs import host_key, slot_env, slot_keys
 from bar_policy.training.config import preset
-from bar_policy.training.learner import make_learner
 from bar_policy.training.parallel import make_data_parallel
-from bar_policy.training.rsl_rl_env import RslRlVecEnv
+from bar_policy.training.rsl_rl.env import RslRlVecEnv
 
 pytestmark = pytest.mark.slow
 

@@ -17,11 +17,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from bar_policy.training import executable_cache as ec
-from bar_policy.training import executable_key as ek
 from bar_policy.training.config import apply_overrides, config_to_dict, preset
-from bar_policy.training.executable_cache import ExecutableCache, executable_cache_for
-from bar_policy.training.startup import Compiler, StartupTimer
+from bar_policy.training.startup import executable_cache as ec
+from bar_policy.training.startup import executable_key as ek
+from bar_policy.training.startup.breakdown import StartupTimer
+from bar_policy.training.startup.compiler import Compiler
+from bar_policy.training.startup.executable_cache import ExecutableCache, executable_cache_for
 
 X = jnp.linspace(-2.0, 3.0, 24, dtype=jnp.float32).reshape(4, 6)
 
@@ -232,7 +233,7 @@ def test_an_entry_under_another_key_is_refused(tmp_path, caplog):
 def test_default_is_on_for_gpus_and_several_processes_off_on_cpus(tmp_path, monkeypatch):
     """The default decision (docs/training.md, "Switches"), the backend given explicitly.
 
-    Several processes keep it on since session 39: each stores and loads its own entries, and a program is
+    Several processes keep it on since 2026-11-27: each stores and loads its own entries, and a program is
     loaded only when all hold it (``test_distributed.py`` runs that path)."""
     cfg = preset("tiny")
     assert cfg.executable_cache is True and preset("gpu").executable_cache is True
@@ -276,7 +277,7 @@ def test_off_switch_writes_and_reads_nothing(tmp_path, monkeypatch):
     assert executable_cache_for(off, tmp_path, record, Toy()) is None
     assert executable_cache_for(cfg, None, record, Toy()) is None  # --no-compile-cache
     several = apply_overrides(preset("tiny"), ["distributed.num_processes=2"])
-    # jax.distributed runs get one too (since session 39: each process its own entries, loaded when all hold
+    # jax.distributed runs get one too (since 2026-11-27: each process its own entries, loaded when all hold
     # them; tests/training/test_distributed.py).
     assert executable_cache_for(several, tmp_path, record, Toy()) is not None
 
@@ -485,8 +486,8 @@ def test_a_rerun_loads_every_program_and_trains_the_same(
     from jax.experimental.compilation_cache import compilation_cache as cc
     from toy_configs import toy_config
 
-    from bar_policy.training import startup_breakdown as sb
     from bar_policy.training.run import run
+    from bar_policy.training.startup import breakdown as sb
 
     cache = tmp_path / "jax"
     # No run name: each run gets its own directory, the config (part of the key) stays the same.
@@ -558,14 +559,14 @@ def _curves(run_dir: Path) -> list[dict]:
 
 @pytest.mark.slow
 def test_a_two_device_mesh_program_is_stored_loaded_in_a_fresh_process_and_trains_the_same(tmp_path):
-    """Issue 19's two GPUs of one host, on 2 forced CPU devices: the data-parallel programs (arguments
+    """Two GPUs of one host, played by 2 forced CPU devices: the data-parallel programs (arguments
     sharded over the 2-device mesh) are stored by one process and loaded by the next, which traces nothing
     and trains bit for bit the same; a 1-device run on the same cache misses every entry and compiles.
 
     Three processes of the smallest brax run (about 20 s on 2 cores: two compiling runs, one loading)."""
     import json
 
-    from bar_policy.training import startup_breakdown as sb
+    from bar_policy.training.startup import breakdown as sb
 
     first = _mesh_run(tmp_path, "first", 2)
     second = _mesh_run(tmp_path, "second", 2)
@@ -624,7 +625,7 @@ LAPACK_CHILD = """
 import sys
 import jax, jax.numpy as jnp, numpy as np
 jax.config.update("jax_enable_compilation_cache", False)
-from bar_policy.training.executable_cache import ExecutableCache
+from bar_policy.training.startup.executable_cache import ExecutableCache
 
 def program(a):  # a Cholesky factorisation and a triangular solve: LAPACK potrf and trsm on a CPU
     c = jnp.linalg.cholesky(a)

@@ -13,20 +13,22 @@ from brax.training.acme import running_statistics, specs
 from brax.training.agents.ppo import networks as ppo_networks
 
 from bar_policy.deploy.policy import PolicyLoadError, load_policy
-from bar_policy.export import (
+from bar_policy.export.graph import build_onnx_model
+from bar_policy.export.parity import (
     PARITY_TOLERANCE,
     ParityError,
     _run_onnx,
-    brax_policy_reference,
-    build_onnx_model,
     check_parity,
-    export_brax_policy,
-    export_policy,
-    mlp_policy_from_brax,
     parity_observations,
     parity_sigmas,
 )
-from bar_policy.training.brax_ppo import make_networks
+from bar_policy.export.policy import (
+    brax_policy_reference,
+    export_brax_policy,
+    export_policy,
+    mlp_policy_from_brax,
+)
+from bar_policy.training.brax.networks import make_networks
 from bar_policy.training.config import NetworkConfig
 from bar_policy.training.metadata import policy_metadata
 

@@ -12,8 +12,8 @@ import json
 import pytest
 from toy_configs import TOY_BRAX, TOY_RSL, toy_config
 
-from bar_policy.training import startup_breakdown as sb
 from bar_policy.training.progress import RunLogger
+from bar_policy.training.startup import breakdown as sb
 
 SHORT = {"brax": "ppo.num_timesteps=133120", "rsl": "ppo.num_timesteps=512"}
 """One epoch of 13 iterations of 10,240 env steps (brax); two iterations of 256 (rsl-rl)."""

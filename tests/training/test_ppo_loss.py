@@ -1,6 +1,6 @@
-"""``training.ppo_loss``: brax's PPO loss in fewer kernels gives brax's numbers (values and gradients); the
-targets fixed per pass or per iteration (``PPOConfig.value_targets``) are brax's at the parameters they were
-taken at, and stay fixed after; the normaliser's variance floor (``PPOConfig.obs_std_eps``)."""
+"""``training.brax.ppo_loss``: brax's PPO loss in fewer kernels gives brax's numbers (values and gradients);
+the targets fixed per pass or per iteration (``PPOConfig.value_targets``) are brax's at the parameters they
+were taken at, and stay fixed after; the normaliser's variance floor (``PPOConfig.obs_std_eps``)."""
 
 from __future__ import annotations
 
@@ -13,10 +13,10 @@ from brax.training.acme import running_statistics, specs
 from brax.training.agents.ppo import losses as ppo_losses
 from kl_reference import approx_kl
 
+from bar_policy.training.brax.learner import make_learner
+from bar_policy.training.brax.ppo_loss import gae, ppo_loss, with_value_targets
 from bar_policy.training.config import NetworkConfig, PPOConfig
-from bar_policy.training.learner import make_learner
 from bar_policy.training.parallel import AXIS
-from bar_policy.training.ppo_loss import gae, ppo_loss, with_value_targets
 
 T, B, N_OBS, N_ACT = 10, 64, 7, 3
 # float32 throughout. The GAE recursion adds at most T = 10 terms of size O(1) with factors <= 1, in the

@@ -16,11 +16,11 @@ from jax.sharding import Mesh
 
 from bar_policy import envs
 from bar_policy.envs.reward_weights import weights
-from bar_policy.training.brax_programs import _policy_params, make_programs
+from bar_policy.training.brax.learner import make_learner
+from bar_policy.training.brax.programs import _policy_params, make_programs
 from bar_policy.training.config import apply_overrides, preset
-from bar_policy.training.learner import make_learner
 from bar_policy.training.parallel import AXIS, DataParallel
-from bar_policy.training.rsl_rl_programs import EnvPrograms
+from bar_policy.training.rsl_rl.programs import EnvPrograms
 
 WEIGHT = "reward.scales.success=0.6"
 

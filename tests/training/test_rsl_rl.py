@@ -12,11 +12,12 @@ from toy_configs import TOY_RSL, toy_config
 
 from bar_policy.deploy.metadata import BAR_KEYS, HC_KEYS, PolicyMetadata
 from bar_policy.envs import wrap_for_brax_training
-from bar_policy.export import ParityError, export_policy
-from bar_policy.training import startup_breakdown as sb
-from bar_policy.training.rsl_rl_backend import mlp_policy_from_rsl_rl, torch_policy_reference
-from bar_policy.training.rsl_rl_env import RslRlVecEnv
-from bar_policy.training.rsl_rl_policy import evaluate_torch_policy
+from bar_policy.export.parity import ParityError
+from bar_policy.export.policy import export_policy
+from bar_policy.training.rsl_rl.backend import mlp_policy_from_rsl_rl, torch_policy_reference
+from bar_policy.training.rsl_rl.env import RslRlVecEnv
+from bar_policy.training.rsl_rl.policy import evaluate_torch_policy
+from bar_policy.training.startup import breakdown as sb
 
 pytestmark = pytest.mark.slow
 
@@ -105,7 +106,7 @@ def test_rsl_rl_evaluates_the_initial_actor_at_step_0(rsl_run):
     # evaluated on the step-0 seeds (cfg.seed + 1000).
     from rsl_rl.runners import OnPolicyRunner
 
-    from bar_policy.training.rsl_rl_config import rsl_rl_train_cfg
+    from bar_policy.training.rsl_rl.config import rsl_rl_train_cfg
 
     cfg, summary = rsl_run
     res = summary.result
@@ -166,7 +167,7 @@ def test_rsl_rls_own_runner_learns_and_logs_on_the_adapter(toy_env, tmp_path):
     from rsl_rl.runners import OnPolicyRunner
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-    from bar_policy.training.rsl_rl_config import rsl_rl_train_cfg
+    from bar_policy.training.rsl_rl.config import rsl_rl_train_cfg
 
     cfg = toy_config(tmp_path, "own-runner", TOY_RSL)
     env = RslRlVecEnv(toy_env, cfg.ppo.num_envs, wrap_fn=wrap_for_brax_training, seed=0, device="cpu")
@@ -248,7 +249,7 @@ def test_tf32_covers_rsl_rls_update_and_not_its_rollout(toy_env, tmp_path, monke
 
 
 def test_update_precision_restores_torchs_setting_when_the_update_raises():
-    from bar_policy.training.torch_precision import update_precision
+    from bar_policy.training.rsl_rl.torch_precision import update_precision
 
     matmul = torch.backends.cuda.matmul
     before = matmul.fp32_precision

@@ -6,12 +6,12 @@ import dataclasses
 
 import pytest
 
+from bar_policy.training.brax.ignored_settings import brax_not_applied
 from bar_policy.training.cli import parse_config
 from bar_policy.training.config import preset
-from bar_policy.training.rsl_rl_config import (
+from bar_policy.training.rsl_rl.config import (
     FIELD_RSL_RL_PPO,
     RSL_RL_LR_BOUNDS,
-    brax_not_applied,
     field_cli_flags,
     field_hyperparameters,
     field_overrides,
@@ -86,8 +86,9 @@ def test_rsl_preset_is_the_gpu_preset_at_the_fields_values():
 
 def test_only_an_update_precision_torch_lacks_is_said_not_applied_on_rsl_rl():
     """``--backend rsl-rl`` applies the gpu and track presets' TF32 SGD passes to torch's update
-    (``torch_precision``), so nothing is said of it; the three-pass bfloat16 product, which torch lacks, gets
-    one line naming it and what torch applies; ``--preset rsl`` and the field's values set ``run``."""
+    (``rsl_rl.torch_precision``), so nothing is said of it; the three-pass bfloat16 product, which torch
+    lacks, gets one line naming it and what torch applies; ``--preset rsl`` and the field's values set
+    ``run``."""
     gpu_on_rsl = field_hyperparameters(dataclasses.replace(preset("gpu"), backend="rsl-rl"))
     assert gpu_on_rsl.ppo.update_precision == "run" and not_applied(gpu_on_rsl) == []
     tf32 = dataclasses.replace(
@@ -148,7 +149,7 @@ def test_the_track_preset_on_rsl_rl_says_each_brax_setting_it_runs_without():
 
 def test_track_rsl_preset_is_the_track_preset_at_the_fields_values_but_its_measured_departures():
     """``--preset track-rsl`` = the track preset with the field's rsl-rl values (``field_overrides(8192)``)
-    but the track preset's networks and TF32 SGD passes, and the departures sessions 48-49 measured: initial
+    but the track preset's networks and TF32 SGD passes, and the departures 2026-11-29 measured: initial
     std 0.3, a fixed rate of 3e-4 (the field's adaptive one chatters), entropy cost 1e-3, gamma 0.98 (the
     track preset's); ``obs_std_eps`` 1e-4 states rsl-rl's normaliser, so nothing goes unapplied."""
     track = preset("track")

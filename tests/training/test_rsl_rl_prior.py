@@ -20,13 +20,14 @@ from toy_configs import TOY_RSL, toy_config
 
 from bar_policy.deploy.metadata import PolicyMetadata
 from bar_policy.envs import wrap_for_brax_training
-from bar_policy.export import _run_onnx, export_policy
+from bar_policy.export.parity import _run_onnx
+from bar_policy.export.policy import export_policy
 from bar_policy.obs import ObservationManager
 from bar_policy.obs.action_prior import ActionPrior, reference_prior
 from bar_policy.tasks.track import track_action_scale, track_default_pose
-from bar_policy.training.rsl_rl_backend import mlp_policy_from_rsl_rl, torch_policy_reference
-from bar_policy.training.rsl_rl_env import RslRlVecEnv
-from bar_policy.training.rsl_rl_prior import commanded_action, start_actor_at_prior
+from bar_policy.training.rsl_rl.backend import mlp_policy_from_rsl_rl, torch_policy_reference
+from bar_policy.training.rsl_rl.env import RslRlVecEnv
+from bar_policy.training.rsl_rl.prior import commanded_action, start_actor_at_prior
 
 N = 14
 K = 5  # the tracking layout's lookahead frames
@@ -154,7 +155,7 @@ def test_exported_actor_with_prior_is_prior_plus_actor(track_setup, tmp_path):
 
 def test_parity_gate_covers_the_prior(track_setup, tmp_path):
     """A file without the prior fails the gate against the reference with it, and vice versa."""
-    from bar_policy.export import ParityError
+    from bar_policy.export.parity import ParityError
 
     layout, prior, _, _, meta = track_setup
     actor = _actor(layout.size, 1)
@@ -186,7 +187,7 @@ def test_start_at_prior_makes_the_first_mean_the_prior(track_setup):
 
 def test_actor_warmup_stays_refused_on_rsl_rl(toy_env, tmp_path):
     """network.action_prior is accepted now; ppo.actor_warmup_iterations is still a brax-only option."""
-    from bar_policy.training.rsl_rl_backend import train_rsl_rl
+    from bar_policy.training.rsl_rl.backend import train_rsl_rl
 
     cfg = toy_config(tmp_path, "warm", [*TOY_RSL, "ppo.actor_warmup_iterations=2"])
     with pytest.raises(

@@ -1,4 +1,4 @@
-"""rsl-rl's Gaussian head without its host sync (``rsl_rl_sampling.GaussianNoSync``).
+"""rsl-rl's Gaussian head without its host sync (``rsl_rl.sampling.GaussianNoSync``).
 
 The reference is rsl-rl's own ``GaussianDistribution`` (``torch.distributions.Normal(mean, std).sample()``,
 i.e. ``torch.normal``): the replacement must draw the same actions from the same generator state, and be
@@ -15,7 +15,7 @@ from rsl_rl.modules import GaussianDistribution  # noqa: E402
 from rsl_rl.utils import resolve_callable  # noqa: E402
 from tensordict import TensorDict  # noqa: E402
 
-from bar_policy.training.rsl_rl_sampling import GaussianNoSync  # noqa: E402
+from bar_policy.training.rsl_rl.sampling import GaussianNoSync  # noqa: E402
 
 
 @pytest.mark.parametrize("std_type", ["scalar", "log"])
@@ -60,7 +60,7 @@ def test_sample_before_update_is_a_clear_error():
 
 def test_the_backends_actor_config_builds_this_head():
     from bar_policy.training.config import TrainConfig
-    from bar_policy.training.rsl_rl_config import rsl_rl_train_cfg
+    from bar_policy.training.rsl_rl.config import rsl_rl_train_cfg
 
     dist_cfg = rsl_rl_train_cfg(TrainConfig())["actor"]["distribution_cfg"]
     assert resolve_callable(dist_cfg["class_name"]) is GaussianNoSync

@@ -50,8 +50,8 @@ def _run(script: str, tmp_path: Path) -> dict:
 def test_prepare_submits_every_program_without_importing_torch(tmp_path):
     got = _run(
         f"""
-from bar_policy.training.rsl_rl_programs import prepare_rsl_rl
-from bar_policy.training.startup import StartupTimer
+from bar_policy.training.rsl_rl.programs import prepare_rsl_rl
+from bar_policy.training.startup.breakdown import StartupTimer
 timer = StartupTimer()
 cfg = toy_config(Path({str(tmp_path)!r}), "prep", TOY_RSL)
 prepare_rsl_rl(ToyReach(), cfg, randomizer=None, timer=timer)
@@ -68,11 +68,11 @@ os._exit(0)
 @pytest.mark.slow
 def test_run_submits_the_programs_before_importing_torch(tmp_path):
     """``run`` on the rsl-rl backend: every program is submitted with none of torch's side imported, then
-    ``rsl_rl_backend`` (which imports torch) is imported (stopped there, which ends the run)."""
+    ``rsl_rl.backend`` (which imports torch) is imported (stopped there, which ends the run)."""
     got = _run(
         f"""
 import importlib.abc
-from bar_policy.training import startup
+from bar_policy.training.startup import compiler as startup
 events = []
 def torch_loaded():
     return [m for m in {TORCH_SIDE!r} if m in sys.modules]
@@ -85,7 +85,7 @@ class Stop(BaseException):
     pass
 class Watch(importlib.abc.MetaPathFinder):
     def find_spec(self, name, path=None, target=None):
-        if name == "bar_policy.training.rsl_rl_backend":
+        if name == "bar_policy.training.rsl_rl.backend":
             events.append([name, torch_loaded()])
             raise Stop(name)
         return None
@@ -102,4 +102,4 @@ os._exit(0)
 """,
         tmp_path,
     )
-    assert got["events"] == [[name, []] for name in [*PROGRAMS, "bar_policy.training.rsl_rl_backend"]]
+    assert got["events"] == [[name, []] for name in [*PROGRAMS, "bar_policy.training.rsl_rl.backend"]]

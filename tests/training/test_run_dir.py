@@ -23,7 +23,7 @@ def test_reused_run_dir_is_refused_without_resume(tmp_path: Path) -> None:
 
 
 def test_a_resume_lists_the_settings_that_differ_from_the_resumed_run(tmp_path: Path) -> None:
-    """A default that changed between two runs (session 37: the gpu preset's batch and physics step) must
+    """A default that changed between two runs (2026-11-27: the gpu preset's batch and physics step) must
     not change a resumed training without a word; where the run writes and how far it goes may change."""
     import json
 

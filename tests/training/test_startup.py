@@ -9,11 +9,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from bar_policy.training import startup_breakdown as sb
-from bar_policy.training.startup import (
+from bar_policy.training.startup import breakdown as sb
+from bar_policy.training.startup.breakdown import StartupTimer
+from bar_policy.training.startup.compiler import (
     Compiler,
     CompileStats,
-    StartupTimer,
     configure_compile_cache,
     default_cache_dir,
 )
@@ -90,8 +90,8 @@ def test_compile_stats_count_a_fresh_compile():
 def test_rsl_rl_runs_let_torch_have_the_gpu_memory(monkeypatch):
     import dataclasses
 
-    from bar_policy.training.backend_env import set_backend_env
     from bar_policy.training.config import preset
+    from bar_policy.training.startup.backend_env import set_backend_env
 
     for var in ("XLA_PYTHON_CLIENT_PREALLOCATE", "XLA_PYTHON_CLIENT_MEM_FRACTION"):
         monkeypatch.delenv(var, raising=False)

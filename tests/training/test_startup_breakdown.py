@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 
 from bar_policy._phases import MODEL_BUILD, PhaseClock, phase
-from bar_policy.training import startup_breakdown as sb
-from bar_policy.training.startup_breakdown import PHASES, ProgramTimes, StartupTimer
+from bar_policy.training.startup import breakdown as sb
+from bar_policy.training.startup.breakdown import PHASES, ProgramTimes, StartupTimer
 
 ROUNDING_S = 0.001 * (len(PHASES) + 2)
 """Tolerance of sums over the record: each value is rounded to 1 ms (half a ms of error each, and a few

@@ -14,8 +14,8 @@ import pytest
 import torch
 
 from bar_policy.envs import wrap_for_brax_training
-from bar_policy.training.rsl_rl_env import RslRlVecEnv
-from bar_policy.training.torch_bridge import COPIES, jax_to_torch, torch_device_for_jax, torch_to_jax
+from bar_policy.training.rsl_rl.env import RslRlVecEnv
+from bar_policy.training.rsl_rl.torch_bridge import COPIES, jax_to_torch, torch_device_for_jax, torch_to_jax
 
 SHAPES = [(), (7,), (4, 14), (2, 3, 5)]
 DTYPES = [(jnp.float32, torch.float32), (jnp.int32, torch.int32), (jnp.bool_, torch.bool)]
@@ -82,7 +82,7 @@ def test_a_requires_grad_tensor_crosses_without_its_graph():
 )
 def test_a_copy_is_counted_and_logged_never_silent(make, reason, caplog):
     t = make()
-    with caplog.at_level(logging.WARNING, logger="bar_policy.training.torch_bridge"):
+    with caplog.at_level(logging.WARNING, logger="bar_policy.training.rsl_rl.torch_bridge"):
         x = torch_to_jax(t)
         torch_to_jax(t)
     np.testing.assert_array_equal(np.asarray(x), t.numpy().astype(np.asarray(x).dtype))

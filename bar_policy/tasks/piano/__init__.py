@@ -1,4 +1,4 @@
-"""The piano task (issue 18): the Lite plays a keyboard. Definitions shared by training and deployment.
+"""The piano task: the Lite plays a keyboard. Definitions shared by training and deployment.
 
 ``keyboard`` (geometry, key table, press test), ``scene`` (the keys in the robot's ``MjSpec``), ``reach``
 (which keys each fingertip reaches), ``songs`` (notes, the song format, playability, goal keys), ``midi``

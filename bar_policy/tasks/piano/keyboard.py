@@ -1,4 +1,4 @@
-"""The piano keyboard: spring-loaded keys built with ``MjSpec`` onto the Lite's scene (issue 18, item 1).
+"""The piano keyboard: spring-loaded keys built with ``MjSpec`` onto the Lite's scene.
 
 Geometry (``KeyboardConfig``; sources in docs/piano.md):
 

@@ -22,7 +22,7 @@ PIANO = {
     "ppo.actor_warmup_iterations": 10,
     "ppo.entropy_cost": 1e-3,
     "ppo.discounting": 0.98,
-    # Measured with brax's targets and normaliser; session 40's defaults are not re-measured here.
+    # Measured with brax's targets and normaliser, not with the per-pass targets and std floor.
     "ppo.value_targets": "minibatch",
     "ppo.obs_std_eps": 0.0,
     "network.policy_hidden": (512, 256, 128),

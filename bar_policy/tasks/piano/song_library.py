@@ -8,7 +8,7 @@ Little Lamb", "Frere Jacques" and "Au clair de la lune" (traditional): all publi
 from the well-known tunes in C major. "London Bridge Is Falling Down" (traditional English nursery rhyme,
 printed since the 18th century: public domain), written out here from the well-known tune transposed to
 F major, its B-flats as A#4 (the note names have sharps only).
-Black keys (session 31: no training song had one): the D major and E major scales, the B-flat and E-flat
+Black keys (2026-11-27: no training song had one): the D major and E major scales, the B-flat and E-flat
 major arpeggios and London Bridge.
 
 ``TRAIN`` songs are for training; ``HELDOUT`` songs are never trained on (evaluation only); ``RETIRED``

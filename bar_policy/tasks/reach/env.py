@@ -134,9 +134,10 @@ class ReachEnvConfig(RobotEnvConfig):
     """Cutoff of the action low-pass, Hz (``RobotEnvConfig.action_filter_hz``), the tracker's: PPO's
     exploration noise reaches the joints smoothed, and the deploy runtime applies the same filter."""
     target_transition_s: float = 1.0
-    """Duration of the commanded target's minimum-jerk move to each new target, s (0: a step, as before
-    issue 16). A step measured 14.9 mrad of chatter on q_cmd through the 3 Hz filter (docs/training.md); a 1 s
-    move leaves 1.5 s of the 2.5 s segment to settle inside the 3 cm success radius."""
+    """Duration of the commanded target's minimum-jerk move to each new target, s (0: a step, the
+    original design). A step measured 14.9 mrad of chatter on q_cmd through the 3 Hz filter
+    (docs/training.md); a 1 s move leaves 1.5 s of the 2.5 s segment to settle inside the 3 cm success
+    radius."""
     target: ReachTargetConfig = field(default_factory=ReachTargetConfig)
     """Target workspace (chest frame)."""
     reward: RewardConfig = field(default_factory=RewardConfig)
@@ -145,7 +146,7 @@ class ReachEnvConfig(RobotEnvConfig):
     """How the observation's fingertips are computed from the measured q (``FINGERTIP_KINEMATICS``):
     ``chains``, the two arms' body chains alone (``envs.site_kinematics``), or ``mjx``, ``mjx.kinematics``
     of every frame. The same positions to float32 rounding (tests/envs/test_site_kinematics.py); ``chains``
-    traces in a fraction of the time, on a cold start's critical path (docs/performance.md, session 54)."""
+    traces in a fraction of the time, on a cold start's critical path (docs/performance.md, 2026-12-01)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -289,7 +290,7 @@ class LiteReach(LiteRobotEnv):
         alone (``site_kinematics.site_positions``: the same maths on the same, possibly randomised, model).
         This runs twice per training program (the step's observation and the auto-reset's) and in the
         evaluation: with every frame's kinematics it was about a fifth of the rollout's trace and over half of
-        the reset's (docs/performance.md, session 54).
+        the reset's (docs/performance.md, 2026-12-01).
         """
         data_q = self.with_robot_q(data, q_meas)
         if self._tip_chains is None:

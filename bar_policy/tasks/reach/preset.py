@@ -18,33 +18,33 @@ GPU = {
 """Default, for one H100: 40 M steps, 4096 envs, 40,960 env steps and 128 SGD steps per iteration, a 4 ms
 physics step (5 per 20 ms control step).
 
-Measured (docs/performance.md "Session 37", one or two runs per H100, evaluations every 327k env steps):
+Measured (docs/performance.md, 2026-11-27, one or two runs per H100, evaluations every 327k env steps):
 - ``batch_size`` 256 (one 10-step unroll per env per iteration, so twice the SGD steps per env step of 512)
   crossed 95 % success at 1.64 M env steps in 5 runs of 5 (seeds 0-2 at 2 ms, 1-2 at 4 ms; 95.5-99.9 %
   there), where 512 needed 2.29-2.46 M. It costs more per env step (the update runs as often for half the
   data): 130k against 143k env steps/s at 2 ms.
 - ``sim_dt=0.004`` trains at about 1.6x the env steps/s of the model's 2 ms and learns as fast per env step.
   Its files are gated on the C MuJoCo sim at 2 ms like any other (``train/ship.py``, ``bar-deploy eval``):
-  of 14 4 ms files (sessions 36-38, the default command's own six included) eleven passed, as did four of
+  of 14 4 ms files (2026-11-27, the default command's own six included) eleven passed, as did four of
   five 2 ms files; every miss was torque-cap time at the episode's first command (two reward costs on it
-  were tried in session 38 and rejected). The env's ``wrist_posture`` cost (session 39) aims at its cause:
+  were tried on 2026-11-27 and rejected). The env's ``wrist_posture`` cost (2026-11-27) aims at its cause:
   its three files (seeds 0-2) reached 95 % at 1.64 M env steps each, and these three and the default
-  command's cold and warm files on another host all passed (docs/performance.md "Session 39").
+  command's cold and warm files on another host all passed (docs/performance.md, 2026-11-27).
   ``--env-overrides sim_dt=0.002`` trains at the model's own step (a path given on the command line
   replaces the preset's value for it; the preset's other items stay).
-- ``update_precision`` tensorfloat32 (session 45, H200): the SGD passes' matrix products on TF32 tensor
+- ``update_precision`` tensorfloat32 (2026-11-28, H200): the SGD passes' matrix products on TF32 tensor
   cores, physics and rollout at float32; the update 30.6 -> 18.2 ms per iteration, steady training 297-302k
   -> 323-328k env steps/s. Seeds 0-2 learned as seeds 0-1 at float32 (97.4-97.7 % at the first evaluation,
   100 % after) and their three files passed the ship gate (``bar-deploy eval``), as did the two float32
   ones. ``--ppo.update-precision run`` trains at float32 throughout.
 - 24 evaluations: one every 44 iterations (1.80 M env steps), the first just past the 1.64 M crossing, so a
-  warm run pays one evaluation (about 1.4 s at 4 ms) on the way to 95 %. Until session 37: batch 512, 2 ms,
-  41 evaluations (every 1.15 M; 95 % seen at 2.29 M).
+  warm run pays one evaluation (about 1.4 s at 4 ms) on the way to 95 %. The recipe before it
+  (batch 512, 2 ms, 41 evaluations every 1.15 M) saw 95 % at 2.29 M.
 """
 
 RSL = {
     **GPU,
-    "eval.num_evals": 21,  # as measured for rsl-rl (session 33)
+    "eval.num_evals": 21,  # as measured for rsl-rl (2026-11-27)
     "preset": "rsl",
     "backend": "rsl-rl",
     "ppo.unroll_length": 24,
@@ -72,10 +72,10 @@ RSL = {
     "ppo.update_precision": "run",
 }
 """The gpu preset on rsl-rl as its users train arm reach: the field's hyperparameters
-(``training.rsl_rl_config.FIELD_RSL_RL_PPO``, sources there; a test holds this dict equal to
+(``training.rsl_rl.config.FIELD_RSL_RL_PPO``, sources there; a test holds this dict equal to
 ``field_hyperparameters(preset("gpu"))``) for 4096 envs: 24 steps per env and 5 epochs of 4 minibatches per
 iteration (98,304 env steps, 20 SGD steps), KL-adaptive learning rate from 1e-3, [256, 128, 64] elu.
-``python train/ppo.py --preset rsl``. One H200, cold (session 51): 95 % at 92 s, 169 k env steps/s steady.
+``python train/ppo.py --preset rsl``. One H200, cold (2026-11-29): 95 % at 92 s, 169 k env steps/s steady.
 With ``--env-overrides cholesky=columns`` it trains at 236 k (the host no longer runs MJX's Newton loops)
 but reaches 95 % at 104 s (its env step compiles 15 s longer): the choice for a long run, not for the
 time to 95 %.

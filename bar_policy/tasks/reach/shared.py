@@ -12,7 +12,7 @@ deploy side with ``numpy.random.Generator.random``: same distribution, same code
 **Command transition.** A new target is not shown to the policy as a step: the commanded target moves from
 where it was to the new one along a minimum-jerk path over ``transition_s`` (``transition_point``), the way
 a robot arm's setpoint generator moves between waypoints. A step asks for an infinitely fast move, and the
-policy answers with a command whose content above 5 Hz is chatter by definition (issue 16: a 0.5 rad step
+policy answers with a command whose content above 5 Hz is chatter by definition (a 0.5 rad step
 through the 3 Hz action filter alone measures 10.8 mrad; the same move as a 1 s minimum-jerk path, 0.25).
 The env (jax) and every deploy command source (numpy) call this same function; the ONNX metadata key
 ``bar.command_transition`` carries the duration (absent: 0, a step, as in files made before it).

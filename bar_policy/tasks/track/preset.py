@@ -21,7 +21,7 @@ TRACK = {
     "ppo.schedule": "fixed",
     "ppo.entropy_cost": 1e-3,
     "ppo.discounting": 0.98,
-    # Measured with brax's targets and normaliser; session 40's defaults are not re-measured here.
+    # Measured with brax's targets and normaliser, not with the per-pass targets and std floor.
     "ppo.value_targets": "minibatch",
     "ppo.obs_std_eps": 0.0,
     "ppo.update_precision": "tensorfloat32",
@@ -48,20 +48,21 @@ docs/tracking.md); gamma 0.98 (a 1 s horizon covers the 100 ms lookahead and the
 = 8.9 starts no epoch that would end past 534 s, leaving the final evaluation and export (about 20 s)
 inside 10 min; evaluations run on the held-out clips.
 
-Speed (session 46, one H200, seed 0, docs/tracking.md row 13): the physics step on the written-out
+Speed (2026-11-29, one H200, seed 0, docs/tracking.md row 13): the physics step on the written-out
 Cholesky (``cholesky=columns``: the same factor, no library call, so XLA records MJX's Newton loop into a
-CUDA graph; the trainer adds ``--xla_gpu_enable_command_buffer=+WHILE`` for it, ``training.backend_env``)
-and the SGD passes' products on TF32 (physics and rollout stay float32) trained 105.5 M env steps in an
-8.6 min budget, where the float32 ``library`` recipe had reached 60-68 M in 8.0-8.9; its last iterate
-passed the gate with the best held-out errors so far (sim 0.0120 rad, 0.73 cm; the shipped file 0.0129,
-0.85). Seed 1 (session 47, commit 15dd184): 113 M env steps, sim 0.0114 rad, 0.75 cm, also a pass.
+CUDA graph; the trainer adds ``--xla_gpu_enable_command_buffer=+WHILE`` for it,
+``training.startup.backend_env``) and the SGD passes' products on TF32 (physics and rollout stay float32)
+trained 105.5 M env steps in an 8.6 min budget, where the float32 ``library`` recipe had reached 60-68 M in
+8.0-8.9; its last iterate passed the gate with the best held-out errors so far (sim 0.0120 rad, 0.73 cm; the
+shipped file 0.0129, 0.85). Seed 1 (2026-11-29, commit 15dd184): 113 M env steps, sim 0.0114 rad, 0.75 cm,
+also a pass.
 """
 
 TRACK_RSL = {
     **TRACK,
     "preset": "track-rsl",
     "backend": "rsl-rl",
-    # The field's rsl-rl values for 8192 envs (training.rsl_rl_config.field_overrides(8192), sources there).
+    # The field's rsl-rl values for 8192 envs (training.rsl_rl.config.field_overrides(8192), sources there).
     "ppo.unroll_length": 24,
     "ppo.num_minibatches": 4,
     "ppo.batch_size": 2048,
@@ -87,26 +88,26 @@ TRACK_RSL = {
 reference action prior, physics step, TF32 SGD passes and evaluations, rsl-rl's PPO at the field's values
 (24 steps per env, 5 epochs of 4 minibatches, lambda 0.95, clip 0.2, elu) but for four measured departures:
 
-- initial std 0.3 action units (at the field's 1.0 the wrists end at their limits; session 30);
+- initial std 0.3 action units (at the field's 1.0 the wrists end at their limits; 2026-11-26);
 - a fixed learning rate of 3e-4 in place of the field's KL-adaptive one, whose trackers chatter at 25 Hz on
   rsl-rl (16-18 mrad on the sim target's worst held-out clip; the gate's limit is 5) as on brax;
 - the track preset's entropy cost 1e-3 (at the field's 5e-3 with a fixed rate the std stopped at 0.10 and
   the fingertip error at 1.09 cm, over the gate's 1 cm);
 - the track preset's gamma 0.98 (Isaac Lab's Franka lift's too) in place of mjlab's 0.99 (a 1 s horizon;
-  session 49, seed 0: sim held-out 0.0117 rad / 0.91 cm against 0.0134 / 0.98 at 0.99, ahead on both at
+  2026-11-29, seed 0: sim held-out 0.0117 rad / 0.91 cm against 0.0134 / 0.98 at 0.99, ahead on both at
   every MJX evaluation; the env steps, 86.3 M against 77.7 M, differ in part by host: 188-211 k against
   178-193 k env steps/s).
 
-Session 50 (one H200, commit e57c7cf, 8.6 min, with rsl-rl's actions sampled without a host sync,
-``training.rsl_rl_sampling``): seeds 0 and 1 trained 96.9 / 95.0 M env steps; on the sim target's held-out
+Measured 2026-11-29 (one H200, commit e57c7cf, 8.6 min, with rsl-rl's actions sampled without a host sync,
+``training.rsl_rl.sampling``): seeds 0 and 1 trained 96.9 / 95.0 M env steps; on the sim target's held-out
 clips 0.0103 / 0.0104 rad and 0.77 / 0.78 cm, 0.47 / 0.52 mrad worst chatter, no tick at a cap, the bus
 within 0.7 % of the sim: both pass the ship gate, at -14 / -13 % joint and +5 / +7 % fingertip error of
-brax's shipped tracker (docs/performance.md "Session 50"; session 49's run of this preset, before that fix:
+brax's shipped tracker (docs/performance.md, 2026-11-29; the same preset with the synced sampling:
 86.3 M env steps, 0.0117 rad / 0.91 cm).
 
-Not at 16384 envs (session 51, seed 0): with the field's 4 minibatches, half the Adam steps per env step, it
+Not at 16384 envs (2026-11-29, seed 0): with the field's 4 minibatches, half the Adam steps per env step, it
 ran 265-272 k env steps/s and 110 M env steps, but its MJX evaluations were best at 46 M (0.0100 rad /
 0.77 cm) and ended at 0.0139 / 1.29, after a fall to 0.0219 / 2.19.
-With 8 minibatches (session 52, seed 0: the 8192-env preset's Adam steps per env step), it
+With 8 minibatches (2026-11-29, seed 0: the 8192-env preset's Adam steps per env step), it
 was best at 31 M env steps (0.0106 rad / 1.00 cm) and ended at 0.0366 / 3.62, at 12.5 % success.
 """

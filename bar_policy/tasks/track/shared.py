@@ -66,7 +66,7 @@ ACTION_MARGIN = 0.25
 """Action range beyond the motion box on each side, rad (gravity compensation and lead)."""
 
 SUCCESS_JOINT_RAD = 0.05
-"""A tracking step succeeds when the mean joint error is at most this, rad (the env's metric, issue 10)."""
+"""A tracking step succeeds when the mean joint error is at most this, rad (the env's metric)."""
 SUCCESS_FINGERTIP_M = 0.02
 """... and the mean fingertip error at most this, m."""
 LOST_DISTANCE = 0.25

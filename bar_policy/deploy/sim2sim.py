@@ -1,4 +1,0 @@
-"""Moved to ``bar_policy.tasks.reach.evaluate``; this old path re-exports it (``docs/tasks.md``)."""
-
-from bar_policy.tasks.reach.evaluate import *  # noqa: F403
-from bar_policy.tasks.reach.evaluate import __all__  # noqa: F401

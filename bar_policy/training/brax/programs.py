@@ -1,0 +1,234 @@
+"""The data-parallel programs of ``train_brax`` and their pure helpers (``training.brax.ppo``).
+
+``make_programs`` builds the ``init`` / ``reset`` / ``rollout`` / ``update`` / ``evaluate`` programs
+(``training.brax.ppo`` documents each); ``run_epoch`` / ``epoch_totals`` run an epoch of them and total it;
+``slot_keys`` / ``slot_env`` give every env slot its own key and randomised model whatever the device count;
+``host_key`` derives keys on the host; ``epoch_iterations`` sizes an epoch.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import jax
+import numpy as np
+from jax.sharding import PartitionSpec as P
+
+from bar_policy.envs.reward_weights import with_weights
+from bar_policy.obs.action_prior import Prior
+from bar_policy.tasks.registry import env_entries
+from bar_policy.training.brax.learner import Learner, TrainingState, strip_weak_type
+from bar_policy.training.config import NetworkConfig, TrainConfig
+from bar_policy.training.parallel import AXIS, DataParallel
+
+__all__ = [
+    "Programs",
+    "action_prior",
+    "epoch_iterations",
+    "epoch_totals",
+    "host_key",
+    "make_programs",
+    "run_epoch",
+    "slot_env",
+    "slot_keys",
+]
+
+_LINES_PER_EVAL = 2
+"""Progress lines (training epochs) per evaluation period."""
+
+
+def host_key(seed: int, *path: int) -> np.ndarray:
+    """A raw threefry key (uint32[2]) derived on the host from ``seed`` and a path of ints (no device op)."""
+    return np.random.default_rng([seed, *path]).integers(0, 2**32, 2, dtype=np.uint32)
+
+
+_K_INIT, _K_MODEL, _K_RESET, _K_EPOCH, _K_EVAL, _K_EVAL_MODEL = range(6)
+
+
+def action_prior(env: Any, net: NetworkConfig, env_name: str) -> Prior | None:
+    """The env's action prior that ``net.action_prior`` asks for (``LiteRobotEnv.action_prior``), or None.
+
+    ``env_name`` is the env's registered name: its task record's ``EnvEntry.action_prior`` names the prior
+    it serves.
+    """
+    if net.action_prior == "none":
+        return None
+    kind = env_entries()[env_name][1].action_prior
+    if net.action_prior != kind:
+        valid = ["none"] + ([kind] if kind else [])
+        raise ValueError(
+            f"network.action_prior={net.action_prior!r}: {type(env).__name__} has "
+            f"{'the ' + repr(kind) + ' prior' if kind else 'no action prior'}; valid values for it: {valid}"
+        )
+    return env.action_prior(net.prior_lead_steps)
+
+
+def epoch_iterations(cfg: TrainConfig) -> int:
+    """Training iterations per compiled epoch (one progress line).
+
+    ``log_every_iterations``, or when it is 0 about ``_LINES_PER_EVAL`` lines per evaluation period.
+    """
+    total_iters = math.ceil(cfg.ppo.num_timesteps / cfg.ppo.steps_per_iteration)
+    periods = max((cfg.eval.num_evals - 1) * _LINES_PER_EVAL, 1)
+    return cfg.log_every_iterations or max(1, math.ceil(total_iters / periods))
+
+
+def slot_keys(key: jax.Array, total: int, local: int) -> jax.Array:
+    """This device's keys among ``split(key, total)``: slot ``i`` gets key ``i`` on any device count.
+
+    Per-device code (inside ``DataParallel.map``); ``local = total / n_devices``. Shape ``(local, 2)``.
+    """
+    keys = jax.random.split(key, total)
+    return jax.lax.dynamic_slice_in_dim(keys, jax.lax.axis_index(AXIS) * local, local)
+
+
+def slot_env(
+    env: Any,
+    wrap_fn: Callable[..., Any],
+    randomizer: Callable[..., Any] | None,
+    model_keys: jax.Array,
+    **kw: Any,
+) -> Any:
+    """The batched env of this device's slots, each on the model its key draws (per-device code).
+
+    The randomised model is built inside the program from the slots' keys (a traced value, sharded with
+    the slots), not closed over as a constant; ``kw`` goes to ``wrap_fn`` (e.g. ``auto_reset=False``).
+    """
+    rfn = None
+    if randomizer is not None:
+
+        def rfn(model: Any) -> Any:
+            return randomizer(model, rng=model_keys)
+
+    return wrap_fn(env, episode_length=int(env.episode_length), action_repeat=1, randomization_fn=rfn, **kw)
+
+
+@dataclass(frozen=True)
+class Programs:
+    """The five jitted data-parallel programs of a run (before compilation; see ``ppo``'s docstring)."""
+
+    init: Callable[..., Any]
+    reset: Callable[..., Any]
+    rollout: Callable[..., Any]
+    update: Callable[..., Any]
+    evaluate: Callable[..., Any]
+
+
+def run_epoch(
+    rollout: Callable[..., Any],
+    update: Callable[..., Any],
+    ts: TrainingState,
+    envs: Any,
+    key: jax.Array,
+    iterations: list[jax.Array],
+    weights: dict[str, jax.Array],
+) -> tuple[TrainingState, Any, list[Any], list[Any]]:
+    """One epoch: ``rollout`` then ``update`` (compiled programs) for each iteration index in ``iterations``.
+
+    Dispatched without a host sync (the calls queue on the device); returns ``(ts, envs, metrics, stats)``
+    with one entry per iteration in ``metrics`` and ``stats``, to reduce with ``epoch_totals`` once on
+    the host. ``iterations``: replicated int32 scalars 0 .. iters - 1, made once; ``weights``: the reward
+    weights, replicated (``envs.reward_weights``).
+    """
+    metrics, stats = [], []
+    for i in iterations:
+        envs, data, st = rollout(ts, envs, key, i, weights)
+        ts, m = update(ts, data, key, i)
+        metrics.append(m)
+        stats.append(st)
+    return ts, envs, metrics, stats
+
+
+def epoch_totals(metrics: list[dict[str, Any]], stats: list[Any]) -> tuple[dict[str, float], np.ndarray]:
+    """Host copies of ``run_epoch``'s lists -> each loss metric's mean over the epoch, the stats' sums.
+
+    ``stats`` rows are ``[reward, success numerator, success denominator]`` over every device's slots.
+    """
+    means = {k: float(np.mean([m[k] for m in metrics])) for k in metrics[0]}
+    return means, np.sum(np.stack(stats), axis=0)
+
+
+def make_programs(
+    env: Any,
+    cfg: TrainConfig,
+    learner: Learner,
+    dp: DataParallel,
+    wrap_fn: Callable[..., Any],
+    randomizer: Callable[..., Any] | None,
+    eval_env: Any | None = None,
+    eval_randomizer: Callable[..., Any] | None = None,
+) -> Programs:
+    """The run's ``init``, ``reset``, ``rollout``, ``update`` and ``evaluate`` programs on the mesh of ``dp``.
+
+    ``eval_env``: the env the evaluation runs (the task's held-out variant) with ``eval_randomizer``;
+    None: ``env`` with ``randomizer``.
+
+    ``rollout`` and ``evaluate`` take the reward weights as their last argument (a replicated
+    ``{term: float32 scalar}``, ``envs.reward_weights.weights(env)``), so that a compiled program serves
+    any weights: a run that changes only a weight loads both from the executable cache.
+    """
+    ppo = cfg.ppo
+    n = dp.n_devices
+    envs_local, eval_local = ppo.num_envs // n, cfg.eval.num_eval_envs // n
+    unrolls = ppo.batch_size * ppo.num_minibatches // ppo.num_envs
+    episode_length = int(env.episode_length)
+
+    def batch(model_keys: jax.Array, weights: dict[str, jax.Array] | None = None, **kw: Any) -> Any:
+        e = env if weights is None else with_weights(env, weights)
+        return slot_env(e, wrap_fn, randomizer, model_keys, **kw)
+
+    def reset(key: jax.Array, model_key: jax.Array) -> tuple[Any, jax.Array]:
+        model_keys = slot_keys(model_key, ppo.num_envs, envs_local)
+        return batch(model_keys).reset(slot_keys(key, ppo.num_envs, envs_local)), model_keys
+
+    def iteration_keys(key: jax.Array, i: jax.Array) -> jax.Array:
+        """Iteration ``i``'s ``(rollout, SGD)`` keys of an epoch keyed ``key``, this device's (shape (2, 2)).
+
+        The epoch's key, folded with the device index, is split once per iteration (``k, k_it = split(k)``)
+        and each iteration's ``k_it`` into its rollout and SGD keys. ``rollout`` and ``update`` each derive
+        the chain themselves (``i`` <= a few dozen splits), so neither passes keys to the other.
+        """
+        k = jax.random.fold_in(key, jax.lax.axis_index(AXIS))
+        k = jax.lax.fori_loop(0, i, lambda _, c: jax.random.split(c)[0], k)
+        return jax.random.split(jax.random.split(k)[1])
+
+    def rollout(
+        ts: TrainingState, envs: tuple[Any, jax.Array], key: jax.Array, i: jax.Array, weights: dict
+    ) -> tuple:
+        env_state, model_keys = envs
+        k_roll = iteration_keys(key, i)[0]
+        env_state, data, stats = learner.rollout(ts, env_state, k_roll, batch(model_keys, weights), unrolls)
+        return (env_state, model_keys), data, jax.lax.psum(stats, axis_name=AXIS)
+
+    def update(ts: TrainingState, data: Any, key: jax.Array, i: jax.Array) -> tuple:
+        ts, metrics = learner.update(ts, data, iteration_keys(key, i)[1])
+        return strip_weak_type(ts), jax.lax.pmean(metrics, axis_name=AXIS)
+
+    def evaluate(params: Any, key: jax.Array, model_key: jax.Array, weights: dict) -> dict[str, jax.Array]:
+        keys = slot_keys(model_key, cfg.eval.num_eval_envs, eval_local)
+        e_env, e_rand = (env, randomizer) if eval_env is None else (eval_env, eval_randomizer)
+        env_e = slot_env(with_weights(e_env, weights), wrap_fn, e_rand, keys, auto_reset=False)
+        state = env_e.reset(slot_keys(key, cfg.eval.num_eval_envs, eval_local))
+        return learner.evaluate(params, env_e, state, key, episode_length)
+
+    rep, shard = P(), P(AXIS)
+    return Programs(
+        init=dp.map(learner.init, (rep,), rep),
+        reset=dp.map(reset, (rep, rep), shard),
+        rollout=dp.map(rollout, (rep, shard, rep, rep, rep), (shard, shard, rep), donate_argnums=(1,)),
+        update=dp.map(update, (rep, shard, rep, rep), (rep, rep), donate_argnums=(0,)),
+        evaluate=dp.map(evaluate, (rep, rep, rep, rep), rep),
+    )
+
+
+def _host_params(host: TrainingState) -> tuple[Any, Any, Any]:
+    """``(normalizer, policy, value)`` of a host copy of the training state (brax's layout)."""
+    return (host.normalizer_params, host.params.policy, host.params.value)
+
+
+def _policy_params(ts: TrainingState) -> tuple[Any, Any]:
+    """What the deterministic policy reads: ``(normalizer, policy)``."""
+    return (ts.normalizer_params, ts.params.policy)

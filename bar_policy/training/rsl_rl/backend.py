@@ -1,0 +1,384 @@
+"""The ``--backend rsl-rl`` path: rsl-rl-lib's PPO (torch) on the same MJX env through ``RslRlVecEnv``.
+
+rsl-rl's ``OnPolicyRunner`` builds the algorithm (actor/critic ``MLPModel`` with empirical observation
+normalisation, Gaussian policy, adaptive-KL schedule); the rollout/update loop is written here so that it
+shares our progress lines, evaluation, msgpack checkpoints (torch state dicts as numpy, no pickle) and
+export with the brax backend. The loop is the runner's: ``act`` -> ``env.step`` -> ``process_env_step``
+for ``num_steps_per_env`` steps, then ``compute_returns`` and ``update``.
+
+Config mapping from ``PPOConfig`` (``rsl_rl_train_cfg``): one rsl-rl iteration collects the env steps
+of one brax iteration, ``ppo.steps_per_iteration`` (num_steps_per_env = steps_per_iteration / num_envs,
+the ``batch_size * num_minibatches / num_envs`` segments of ``unroll_length`` that brax collects per env,
+back to back), and updates on them as brax does: num_learning_epochs = num_updates_per_batch passes of
+num_mini_batches = num_minibatches minibatches (``batch_size * unroll_length`` samples each);
+gamma = discounting, lam = gae_lambda, clip_param = clipping_epsilon, entropy_coef = entropy_cost,
+learning_rate, max_grad_norm. The field's rsl-rl values for arm reach/manipulation (Isaac Lab's Franka
+reach and lift, mjlab's YAM lift; table and sources in ``rsl_rl.config``): num_steps_per_env 24,
+learning_rate 1e-3 adaptive (desired_kl 0.01), clip 0.2, entropy 0.005, gamma 0.99, lam 0.95, 5 epochs
+of 4 minibatches, max_grad_norm 1.0, value_loss_coef 1.0, init_noise_std 1.0, actor = critic
+[256, 128, 64] elu with observation normalisation; ``rsl_rl.config.field_hyperparameters(cfg)`` applies
+them (``field_cli_flags`` gives the ``bar-train`` flags).
+
+Action prior (``network.action_prior``, e.g. the tracker's ``reference``): the env commands
+``prior(obs) + actor's action`` (``rsl_rl.prior`` gives the design and why rsl-rl's PPO is unchanged), the
+evaluations step envs with the same prior, and the exported file carries it in its graph (``MlpPolicy``'s
+``identity`` head plus the prior); the parity gate's reference adds it in numpy.
+``ppo.actor_warmup_iterations`` stays a brax-backend option.
+
+Start-up (``startup.breakdown``'s rows): the envs' jax programs (train reset and step, eval reset, step
+and quality; ``rsl_rl.programs``) are traced, lowered and submitted to a ``startup.compiler.Compiler`` before
+this module (torch, rsl_rl, tensordict) is imported (``run`` calls ``prepare_rsl_rl`` first; a direct call
+without ``programs`` prepares them here), so the imports run while XLA compiles on worker threads. The
+training env's first reset waits for its program, the runner reads its observations, and training starts
+once the training step is ready. As in the brax backend, the step-0 evaluation (of the initial actor,
+copied before training) runs as ``eval.initial`` says: ``end`` (default) after the last periodic
+evaluation; ``start`` after the first iteration where the evaluation step is compiled, or before the first
+periodic evaluation, whichever comes first (the start-up then ends after it, else after the first
+iteration; its report is printed and recorded once the evaluation's programs are ready, before the first
+evaluation at the latest, so that no row is a program still compiling); ``off`` never.
+
+Speed: nothing in the rollout waits for the device. Actions and observations cross by DLPack on the
+device; the logged sums accumulate on the device (``RslRlVecEnv.take_stats`` reads them once per
+iteration). rsl-rl's own ``update`` still reads its losses and KL with ``.item()`` once per minibatch.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+from bar_policy.export.policy import export_policy
+from bar_policy.obs.action_prior import Prior
+from bar_policy.training.best import BestIterate, BestKeeper
+from bar_policy.training.checkpoint import latest_checkpoint, resume_changes, save_checkpoint
+from bar_policy.training.config import TrainConfig
+from bar_policy.training.progress import RunLogger, next_would_overrun
+from bar_policy.training.rsl_rl.config import not_applied, rsl_rl_train_cfg
+from bar_policy.training.rsl_rl.env import RslRlVecEnv
+from bar_policy.training.rsl_rl.policy import (
+    deterministic_module,
+    evaluate_torch_policy,
+    mlp_policy_from_rsl_rl,
+    torch_policy_reference,
+)
+from bar_policy.training.rsl_rl.prior import start_actor_at_prior
+from bar_policy.training.rsl_rl.programs import RslRlPrograms, prepare_rsl_rl
+from bar_policy.training.rsl_rl.state import (
+    load_module_state,
+    load_optimizer_state,
+    module_state,
+    optimizer_state,
+)
+from bar_policy.training.rsl_rl.torch_bridge import COPIES, torch_device_for_jax
+from bar_policy.training.rsl_rl.torch_precision import update_precision
+from bar_policy.training.startup import breakdown as sb
+from bar_policy.training.startup.breakdown import StartupTimer
+from bar_policy.training.startup.executable_cache import ExecutableCache
+
+__all__ = [
+    "RslRlTrainResult",
+    "evaluate_torch_policy",
+    "mlp_policy_from_rsl_rl",
+    "rsl_rl_train_cfg",
+    "torch_policy_reference",
+    "train_rsl_rl",
+]
+
+_EVAL_PROGRAMS = ("eval reset", "eval step", "eval quality")
+"""The evaluation env's programs (``rsl_rl.programs.EnvPrograms``, named ``eval``), compiled on workers."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class RslRlTrainResult:
+    """Outcome of ``train_rsl_rl`` (same interface as ``BraxTrainResult`` where ``run`` uses it)."""
+
+    actor: torch.nn.Module
+    """The trained rsl-rl actor (``MLPModel``)."""
+    eval_env: RslRlVecEnv
+    """Evaluation env (randomised like training, its own seeds)."""
+    episode_length: int
+    """Control steps per episode."""
+    env_steps: int
+    """Total env steps trained (including before a resume)."""
+    run_env_steps: int
+    """Env steps trained in this run."""
+    train_seconds: float
+    """Wall time of the training loop, s."""
+    evals: list[dict[str, float]] = field(default_factory=list)
+    """Evaluation records, in step order (as ``BraxTrainResult.evals``)."""
+    time_to_threshold_s: float | None = None
+    """Seconds to the first evaluation at or above the success threshold (as ``BraxTrainResult``'s)."""
+    best: BestIterate | None = None
+    """The best evaluated iterate of this run (its ``params`` is a copy of the actor's state dict)."""
+    spare_actor: torch.nn.Module | None = None
+    """An actor of the same structure that ``at`` loads other parameters into (the trained one is kept)."""
+    prior: Prior | None = None
+    """The action prior the envs add to the actor's actions (``rsl_rl.prior``; exported), None without one."""
+
+    def at(self, state: dict[str, torch.Tensor]) -> RslRlTrainResult:
+        """The same result with the actor parameters ``state`` (e.g. ``best.params``), to evaluate or export.
+
+        Loads ``state`` into ``spare_actor`` (one spare per result: the previous ``at`` result then
+        shares it).
+        """
+        if self.spare_actor is None:
+            raise ValueError("this result has no spare actor to load other parameters into")
+        self.spare_actor.load_state_dict(state)
+        self.spare_actor.eval()
+        return dataclasses.replace(self, actor=self.spare_actor)
+
+    def policy_fn(self) -> Callable[[torch.Tensor], torch.Tensor]:
+        """Deterministic torch policy on the env's device: the actor's action (the env adds any prior)."""
+        module = deterministic_module(self.actor, self.eval_env.device)
+        return lambda obs: module(obs)
+
+    def final_evaluation(self, episodes: int, seed: int) -> dict[str, float]:
+        """Evaluate on ``episodes`` episodes, in batches of the eval env size."""
+        rounds = max(1, math.ceil(episodes / self.eval_env.num_envs))
+        runs = [
+            evaluate_torch_policy(self.policy_fn(), self.eval_env, self.episode_length, seed + i)
+            for i in range(rounds)
+        ]
+        out = {k: float(np.mean([r[k] for r in runs])) for k in runs[0]}
+        out["episodes"] = float(rounds * self.eval_env.num_envs)
+        return out
+
+    def export_onnx(self, metadata: Any, path: str | Any) -> dict[str, Any]:
+        """Export with the parity gate against rsl-rl's own deterministic module (plus the prior)."""
+        actor, prior = self.actor, self.prior
+        return export_policy(
+            mlp_policy_from_rsl_rl(actor, prior), metadata, path, torch_policy_reference(actor, prior)
+        )
+
+
+def train_rsl_rl(
+    env: Any,
+    cfg: TrainConfig,
+    logger: RunLogger,
+    *,
+    wrap_fn: Callable[..., Any] | None = None,
+    randomizer: Callable[..., Any] | None,
+    checkpoint_dir: str | None,
+    config_record: dict[str, Any] | None = None,
+    timer: StartupTimer | None = None,
+    eval_env: Any | None = None,
+    executable_cache: ExecutableCache | None = None,
+    programs: RslRlPrograms | None = None,
+) -> RslRlTrainResult:
+    """Train with rsl-rl-lib's PPO on ``env``; same arguments and outputs as ``train_brax``.
+
+    ``eval_env``: the env the evaluations run (the task's held-out variant) on its nominal model, as brax's;
+    None: ``env`` with ``randomizer``. ``programs``: the envs' jax programs already submitted
+    (``rsl_rl.programs.prepare_rsl_rl`` on the same arguments, as ``run`` does before importing this
+    module); None: prepared here (``wrap_fn``, ``randomizer``, ``eval_env``, ``executable_cache``).
+    """
+    from flax import serialization
+    from rsl_rl.runners import OnPolicyRunner
+
+    ppo = cfg.ppo
+    t_start = time.monotonic()
+    timer = timer or StartupTimer()
+    if programs is None:
+        # The training and evaluation programs compile side by side (their traces and lowerings are the
+        # Compiler's TRACE and LOWER rows, taken out of this one).
+        with timer.phase(sb.RSL_PROGRAMS):
+            programs = prepare_rsl_rl(
+                env, cfg, wrap_fn=wrap_fn, randomizer=randomizer, eval_env=eval_env, timer=timer,
+                executable_cache=executable_cache,
+            )  # fmt: skip
+    compiler, prior = programs.compiler, programs.prior
+    device = torch_device_for_jax() if cfg.rsl_rl.device == "auto" else cfg.rsl_rl.device
+    torch.manual_seed(cfg.seed)
+    steps_per_env = ppo.steps_per_iteration // ppo.num_envs
+    steps_per_iter = ppo.num_envs * steps_per_env
+    total_iters = math.ceil(ppo.num_timesteps / steps_per_iter)
+    env_steps = iteration = 0
+    with timer.phase(sb.RSL_RUNNER):
+        # Both envs add the prior to the actor's actions. Our loop records its own sums on the device
+        # (take_stats); extras["log"] is for OnPolicyRunner.learn.
+        vec_env = RslRlVecEnv(programs=programs.train, device=device, log_metrics=False)
+        eval_vec = RslRlVecEnv(programs=programs.eval, device=device, log_metrics=False)
+        with timer.phase(sb.RSL_RESET):  # the runner reads the first observations
+            vec_env.get_observations()
+        runner = OnPolicyRunner(vec_env, rsl_rl_train_cfg(cfg), log_dir=None, device=device)
+        logger.not_applied(not_applied(cfg))  # brax settings rsl-rl runs without: said and recorded
+        alg = runner.alg
+        if prior is not None:
+            start_actor_at_prior(alg.actor)  # a resume loads its own parameters over it
+        # The untrained actor, for the step-0 evaluation (copied before any forward pass, as spare_actor
+        # below); frozen in eval mode.
+        initial_actor = copy.deepcopy(alg.actor).eval()
+        if cfg.resume:
+            path = latest_checkpoint(cfg.resume)
+            payload = serialization.msgpack_restore(path.read_bytes())
+            st = payload["state"]
+            load_module_state(alg.actor, st["actor"], device)
+            load_module_state(alg.critic, st["critic"], device)
+            load_optimizer_state(alg.optimizer, st["optimizer"], device)
+            alg.learning_rate = float(st["learning_rate"])
+            env_steps, iteration = int(payload["env_steps"]), int(payload["iteration"])
+            logger.print(f"resumed {path} at {env_steps} env steps (iteration {iteration})")
+            for line in resume_changes(path, config_record):
+                logger.print(line)
+        # Copied before any forward pass: later the Gaussian head holds non-leaf tensors deepcopy refuses.
+        spare_actor = copy.deepcopy(alg.actor)
+    start_steps = env_steps
+    keeper = BestKeeper(start_steps, getattr(env, "task_name", None))  # ranked as brax ranks
+    periods = max((cfg.eval.num_evals - 1), 1)
+    iters_per_eval = max(1, math.ceil(total_iters / periods))
+    evals: list[dict[str, float]] = []
+    ttt: list[float] = []
+    episode_length = int(env.episode_length)
+
+    last_eval_s = 0.0
+
+    def run_eval(step: int, actor: torch.nn.Module) -> None:
+        """Evaluate ``actor`` (the current one, or the initial one at step 0) and offer it to the keeper."""
+        nonlocal last_eval_s
+        t_eval = time.monotonic()
+        training = actor.training
+        actor.eval()
+        module = deterministic_module(actor, device)
+        m = evaluate_torch_policy(lambda o: module(o), eval_vec, episode_length, seed=cfg.seed + 1000 + step)
+        if step:  # the step-0 evaluation's time may include a wait for its compile
+            last_eval_s = time.monotonic() - t_eval
+        logger.record_eval(step, m, evals, ttt, cfg.eval.success_threshold)
+        if keeper.offer(step, m, lambda: {k: v.detach().clone() for k, v in actor.state_dict().items()}):
+            logger.print(f"  best so far: the actor at {step:,} steps is kept")
+        actor.train(training)
+        compiler.confirm()  # every loaded program has run: none is a suspect of a crash
+
+    def checkpoint(step: int, it: int) -> None:
+        if checkpoint_dir is None:
+            return
+        state = {
+            "actor": module_state(alg.actor),
+            "critic": module_state(alg.critic),
+            "optimizer": optimizer_state(alg.optimizer),
+            "learning_rate": np.asarray(alg.learning_rate),
+        }
+        save_checkpoint(checkpoint_dir, state, env_steps=step, iteration=it, extra=config_record)
+
+    # As the brax backend: the step-0 evaluation (of the initial actor; a resume has none) runs after the
+    # last periodic one (eval.initial=end), or (start) after the first iteration where the evaluation step
+    # is compiled, or before the first periodic evaluation, so training waits only for the training step.
+    # The start-up report is finished after the first iteration where the evaluation's programs are ready
+    # (before the first evaluation at the latest), or once a start-of-run evaluation ran.
+    eval_at_start = iteration == 0 and cfg.eval.initial == "start"
+    eval_at_end = iteration == 0 and cfg.eval.initial == "end"
+    startup_pending = True
+    first_epoch_end = 0.0
+    startup_end_s: float | None = None  # when the start-up ended (its report may come later)
+    startup_until = sb.UNTIL_EPOCH
+
+    def eval_at_zero() -> None:
+        t_eval = time.monotonic()
+        run_eval(0, initial_actor)
+        if startup_pending:
+            timer.add(sb.FIRST_EVAL, time.monotonic() - t_eval)
+
+    with timer.phase(sb.WAIT):
+        compiler.get("train step")
+        obs = vec_env.get_observations().to(device)
+    alg.train_mode()
+    t_loop = time.monotonic()
+    iterations_run = 0
+    copies_seen = COPIES.count
+    while iteration < total_iters:
+        t0 = time.monotonic()
+        with torch.inference_mode():
+            for _ in range(steps_per_env):
+                actions = alg.act(obs)
+                obs, rewards, dones, extras = vec_env.step(actions)
+                alg.process_env_step(obs, rewards, dones, extras)
+            alg.compute_returns(obs)
+        with update_precision(ppo.update_precision):  # the SGD passes only, as brax's
+            losses = alg.update()
+        stats = vec_env.take_stats()
+        if COPIES.count > copies_seen:  # never silent: a torch->jax crossing that could not share
+            copies_seen = COPIES.count
+            logger.print(f"  torch->jax bridge copies so far: {dict(COPIES.by_reason)}")
+        iteration += 1
+        iterations_run += 1
+        env_steps += steps_per_iter
+        dt = time.monotonic() - t0
+        if iterations_run == 1:
+            timer.add(sb.FIRST_EPOCH, dt)  # the first iteration
+            first_epoch_end = timer.elapsed()
+        elif eval_at_start:
+            timer.add(sb.MORE_EPOCHS, dt)
+        train_metrics = {
+            **{f"loss/{k}": float(v) for k, v in losses.items()},
+            "episode_reward": stats["reward"] / steps_per_iter * episode_length,
+            "success_rate": stats["success"][0] / max(stats["success"][1], 1.0),
+            "sps": steps_per_iter / dt,
+            "learning_rate": float(alg.learning_rate),
+        }
+        logger.log(env_steps, train_metrics, kind="train")
+        last = iteration >= total_iters
+        # Room for the step-0 evaluation when it runs after training (the periodic ones are not counted).
+        reserve = last_eval_s if eval_at_end else 0.0
+        over_budget = next_would_overrun(logger.elapsed(), dt + reserve, 60 * cfg.max_minutes)
+        if iteration % max(1, iters_per_eval // 2) == 0 or last or over_budget:
+            logger.progress(env_steps, steps_per_iter / dt, train_metrics)
+        eval_due = iteration % iters_per_eval == 0 or last or over_budget
+        step0_now = eval_at_start and (eval_due or compiler.done("eval step"))
+        if step0_now:
+            eval_at_start = False
+            eval_at_zero()  # always before a periodic evaluation
+        if startup_end_s is None and not eval_at_start:  # the start-up ends (first iteration or step 0)
+            startup_end_s = timer.elapsed()
+            startup_until = sb.UNTIL_EVAL if step0_now else sb.UNTIL_EPOCH
+        # Reported once every evaluation program is ready (or an evaluation is due, which waits for them
+        # anyway), so that no row of the report is a program still compiling on a worker.
+        if (
+            startup_pending
+            and startup_end_s is not None
+            and (eval_due or all(compiler.done(n) for n in _EVAL_PROGRAMS))
+        ):
+            for name in _EVAL_PROGRAMS:
+                compiler.get(name)
+            startup_pending = False
+            report = timer.finish(first_epoch_end, total_s=startup_end_s, until=startup_until)
+            for line in timer.lines(report):
+                logger.print(line)
+            logger.note("startup", {"step": env_steps, **report})
+        if eval_due:
+            run_eval(env_steps, alg.actor)
+            if (
+                last
+                or over_budget
+                or (cfg.checkpoint_every and (iteration // iters_per_eval) % cfg.checkpoint_every == 0)
+            ):
+                checkpoint(env_steps, iteration)
+        if over_budget and not last:
+            logger.print(f"stopping: wall-clock budget of {cfg.max_minutes} min reached")
+            break
+    loop_s = time.monotonic() - t_loop
+    if eval_at_end:  # eval.initial=end: the untrained actor, once the trained one is out
+        logger.print("step-0 evaluation (the untrained policy; after training: --eval.initial end)")
+    if eval_at_start or eval_at_end:  # start: no iteration ran (nothing to train); it is still evaluated
+        eval_at_zero()
+    logger.print(f"trained {env_steps - start_steps:,} env steps in {loop_s:.1f} s of loop")
+    alg.eval_mode()
+    return RslRlTrainResult(
+        actor=alg.actor,
+        eval_env=eval_vec,
+        episode_length=episode_length,
+        env_steps=env_steps,
+        run_env_steps=env_steps - start_steps,
+        train_seconds=time.monotonic() - t_start,
+        evals=evals,
+        time_to_threshold_s=ttt[0] if ttt else None,
+        best=keeper.best,
+        spare_actor=spare_actor,
+        prior=prior,
+    )

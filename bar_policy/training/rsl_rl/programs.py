@@ -1,0 +1,258 @@
+"""The jax side of the rsl-rl backend, torch-free: its envs' programs, submitted before torch is imported.
+
+``EnvPrograms`` is everything of one ``RslRlVecEnv`` that is jax: the env wrapped for training (batch,
+episode truncation, auto-reset, domain randomisation, exactly as for the brax backend), the pure jitted
+``reset``, ``step`` and (for an evaluation env) ``quality`` functions with their logging-stats pytrees, and
+the stream of reset keys. With a ``startup.compiler.Compiler`` each of them is traced and lowered here and
+compiled on the compiler's worker threads, as its own program (``<name> reset``, ``<name> step``, ``<name>
+quality``): the step is traced on the reset's abstract output (``out_info``), so nothing runs before the first
+state is needed, and then the reset runs from its compiled executable. The step takes the reward weights as
+its last argument (``envs.reward_weights``): a run that changes only a weight loads it from the executable
+cache.
+
+``prepare_rsl_rl`` builds the training and the evaluation env's programs and submits them all. ``run.py``
+calls it before it imports ``rsl_rl.backend`` (torch, rsl_rl, tensordict: seconds of the main thread), so
+that import runs while XLA compiles; nothing imported here pulls torch in
+(``tests/training/test_rsl_rl_start.py``). ``RslRlVecEnv`` (``rsl_rl.env``) is the torch side over them.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from bar_policy.envs.base import eval_ratios
+from bar_policy.envs.reward_weights import weights, with_weights
+from bar_policy.obs.action_prior import Prior, check_fits
+from bar_policy.training import eval_quality
+from bar_policy.training.config import TrainConfig
+from bar_policy.training.parallel import AXIS
+from bar_policy.training.rsl_rl.prior import commanded_action, rsl_rl_prior
+from bar_policy.training.startup.breakdown import StartupTimer
+from bar_policy.training.startup.compiler import Compiler
+from bar_policy.training.startup.executable_cache import ExecutableCache
+
+__all__ = ["EnvPrograms", "RslRlPrograms", "prepare_rsl_rl"]
+
+
+class EnvPrograms:
+    """The jax programs of a batch of ``num_envs`` copies of a ``bar_policy.envs`` env (see the module doc).
+
+    Args:
+        env: the unwrapped jax env.
+        num_envs: batch size.
+        wrap_fn: ``wrap_for_brax_training(env, episode_length=, action_repeat=, randomization_fn=)``.
+        randomizer: ``(model, rng) -> (model, in_axes)``, or None for the nominal model.
+        seed: seed of the randomisation and of the resets.
+        quality: also measure the evaluation's safety and smoothness figures (``eval_quality``) on each
+            slot's first episode (it keeps every step's chatter signal, episode_length x num_envs x joints).
+        prior: the action prior, or None: the step's actions are then residuals added to ``prior(obs)``.
+        compiler: submit the programs to it now (``submit``); None: they compile at their first call.
+        name: the programs' name prefix in ``compiler`` (``<name> reset``, ``<name> step``,
+            ``<name> quality``): distinct per env, so each has its own executable-cache key.
+    """
+
+    def __init__(
+        self,
+        env: Any,
+        num_envs: int,
+        *,
+        wrap_fn: Callable[..., Any],
+        randomizer: Callable[..., Any] | None = None,
+        seed: int = 0,
+        quality: bool = False,
+        prior: Prior | None = None,
+        compiler: Compiler | None = None,
+        name: str = "env",
+    ) -> None:
+        self.task = env
+        """The unwrapped env (its ``eval_ratios`` define the evaluation)."""
+        self.num_envs = int(num_envs)
+        self.num_actions = int(env.action_size)
+        self.num_obs = int(env.observation_size)
+        self.max_episode_length = int(env.episode_length)
+        self.quality = quality
+        if prior is not None:
+            check_fits(prior, self.num_obs, self.num_actions)
+        self.prior = prior
+        """The action prior added to the step's actions, or None."""
+        self.name = name
+        key = jax.random.PRNGKey(seed)
+        k_rand, self._key = jax.random.split(key)
+        rfn = None
+        if randomizer is not None:
+            rfn = functools.partial(randomizer, rng=jax.random.split(k_rand, self.num_envs))
+        self._env = wrap_fn(
+            env, episode_length=self.max_episode_length, action_repeat=1, randomization_fn=rfn
+        )
+        self.weights = jax.device_put(weights(env), jax.local_devices()[0])
+        """The reward weights, the step's last argument (``envs.reward_weights``): a compiled step serves
+        any weights, so a run that changes only a weight loads it from the executable cache."""
+        self.reset_jit = jax.jit(self._reset_fn)
+        self.step_jit = jax.jit(self._step_fn)
+        self.quality_jit = jax.jit(self._quality_fn)
+        self.first_keys = self.next_keys()
+        """The first reset's keys (drawn now, from the same stream as every later unseeded reset)."""
+        self.reset: Callable[..., Any] = self.reset_jit
+        """``keys -> (state, stats)``: the jitted reset, or its compiled executable once submitted."""
+        self.step: Callable[..., Any] = lambda *args: self.step_jit(*args, self.weights)
+        """``(state, actions, stats) -> (state, stats)``, on ``weights``."""
+        self.finish_quality: Callable[..., Any] = self.quality_jit
+        """``(quality sums, signals) -> figures``."""
+        if compiler is not None:
+            self.submit(compiler)
+
+    def next_keys(self, seed: int | None = None) -> jax.Array:
+        """Reset keys for every env: the next of the stream, or those of ``seed`` (the stream is kept).
+
+        Committed to jax's device (as the step's outputs are: its actions come from torch, committed): the
+        step then sees one signature from the first call on (an uncommitted reset state compiled the jitted
+        step a second time on the second call).
+        """
+        if seed is None:
+            self._key, k = jax.random.split(self._key)
+        else:
+            k = jax.random.PRNGKey(seed)
+        return jax.device_put(jax.random.split(k, self.num_envs), jax.local_devices()[0])
+
+    def submit(self, compiler: Compiler) -> None:
+        """Trace and lower the reset, step and quality here; compile them on ``compiler``'s workers.
+
+        The step is traced on the reset's abstract output. Nothing runs: a first call waits for its program.
+        """
+        reset_name, step_name, quality_name = (f"{self.name} {p}" for p in ("reset", "step", "quality"))
+        out = compiler.submit(reset_name, self.reset_jit, self.first_keys)
+        # A Lowered's out_info has no sharding, a loaded executable's has: rebuilt alike (the step's key).
+        device = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+        state, stats = jax.tree.map(
+            lambda s: jax.ShapeDtypeStruct(s.shape, s.dtype, weak_type=s.weak_type, sharding=device),
+            out.out_info,
+        )
+        actions = jax.ShapeDtypeStruct((self.num_envs, self.num_actions), jnp.float32)
+        w = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=device), self.weights)
+        compiler.submit(step_name, self.step_jit, state, actions, stats, w, load_in_background=True)
+        self.reset = lambda *args: compiler.get(reset_name)(*args)
+        self.step = lambda *args: compiler.get(step_name)(*args, self.weights)
+        if self.quality:
+            compiler.submit(quality_name, self.quality_jit, stats["quality"], stats["signals"])
+            self.finish_quality = lambda *args: compiler.get(quality_name)(*args)
+
+    # -- jitted pure functions ---------------------------------------------------------------------
+    def _reset_fn(self, keys: jax.Array) -> tuple[Any, dict[str, Any]]:
+        state = self._env.reset(keys)
+        ratios = eval_ratios(self.task, state.metrics)  # a reset's metrics have the step's keys
+        zeros = jnp.zeros(self.num_envs)
+        stats = {
+            "reward": jnp.zeros(()),
+            "success": (jnp.zeros(()), jnp.zeros(())),
+            "alive": zeros + 1.0,
+            "return": zeros,
+            "ratios": {k: (zeros, zeros) for k in ratios},
+        }
+        if self.quality:
+            n = self.num_actions
+            stats["quality"] = eval_quality.init(self.num_envs, n)
+            stats["signals"] = jnp.zeros((self.max_episode_length, self.num_envs, n))
+            stats["t"] = jnp.zeros((), jnp.int32)
+        return state, stats
+
+    def _step_fn(
+        self, state: Any, actions: jax.Array, stats: dict[str, Any], w: dict[str, jax.Array]
+    ) -> tuple[Any, dict[str, Any]]:
+        stats_in = stats
+        actions = commanded_action(self.prior, state.obs, actions)  # the observation the actor saw
+        ns = self._env.with_env(with_weights(self.task, w)).step(state, actions)  # on the weights ``w``
+        ratios = eval_ratios(self.task, ns.metrics)
+        num, den = ratios["success_rate"]
+        alive = stats["alive"]
+        stats = {
+            "reward": stats["reward"] + ns.reward.sum(),
+            "success": (stats["success"][0] + num.sum(), stats["success"][1] + den.sum()),
+            "alive": alive * (1.0 - ns.done),
+            "return": stats["return"] + ns.reward * alive,
+            "ratios": {
+                k: (stats["ratios"][k][0] + n * alive, stats["ratios"][k][1] + d * alive)
+                for k, (n, d) in ratios.items()
+            },
+        }
+        if self.quality:  # as Learner.evaluate: the applied action's signals, before the step
+            t, task, f32 = stats_in["t"], self.task, lambda x: jnp.asarray(x, jnp.float32)
+            sig = jax.vmap(task.quality_signals)(state, actions)
+            robot = task.robot
+            limits = {"cap": f32(robot.torque_cap), "lower": f32(robot.lower), "upper": f32(robot.upper)}
+            terminated = ns.done * (1.0 - ns.info["truncation"])
+            first = t == 0
+            qc, _ = eval_quality.update(
+                stats_in["quality"], sig, alive, terminated, first, dt=task.dt, **limits
+            )
+            last = self.max_episode_length - 1
+            stats["quality"] = qc
+            stats["signals"] = stats_in["signals"].at[jnp.minimum(t, last)].set(sig["signal"])
+            stats["t"] = t + 1
+        return ns, stats
+
+    def _quality_fn(self, qc: dict[str, jax.Array], signals: jax.Array) -> dict[str, jax.Array]:
+        # eval_quality.finish reduces over the mesh axis: a vmap of size 1 names it (the sums are this
+        # device's). Chatter is measured over every tick of ``signals``: an evaluation steps all of them.
+        one = jax.tree.map(lambda x: x[None], (qc, signals))
+        out = jax.vmap(lambda q, s: eval_quality.finish(q, s, self.task.dt), axis_name=AXIS)(*one)
+        return jax.tree.map(lambda x: x[0], out)
+
+
+@dataclass(frozen=True, kw_only=True)
+class RslRlPrograms:
+    """The rsl-rl backend's jax side, prepared (``prepare_rsl_rl``) for ``train_rsl_rl(programs=...)``."""
+
+    compiler: Compiler
+    """Where every program below was submitted (``train_rsl_rl`` waits on it)."""
+    train: EnvPrograms
+    """The training env's (``train reset``, ``train step``)."""
+    eval: EnvPrograms
+    """The evaluation env's (``eval reset``, ``eval step``, ``eval quality``)."""
+    prior: Prior | None
+    """The action prior both envs add (``rsl_rl.prior``), or None."""
+
+
+def prepare_rsl_rl(
+    env: Any,
+    cfg: TrainConfig,
+    *,
+    wrap_fn: Callable[..., Any] | None = None,
+    randomizer: Callable[..., Any] | None,
+    eval_env: Any | None = None,
+    timer: StartupTimer | None = None,
+    executable_cache: ExecutableCache | None = None,
+    compiler: Compiler | None = None,
+) -> RslRlPrograms:
+    """Build both envs' programs and submit them to ``compiler``; torch is not imported.
+
+    In order: train reset, train step, eval reset, eval step, eval quality. ``compiler`` defaults to a new
+    one on ``timer`` and ``executable_cache``.
+
+    ``eval_env``: the env the evaluations run (the task's held-out variant) on its nominal model, as brax's;
+    None: ``env`` with ``randomizer``. Seeds: ``cfg.seed`` for training, ``cfg.seed + 1`` for evaluation.
+
+    Raises:
+        ValueError: ``ppo.actor_warmup_iterations`` is set (a brax-backend option), or a prior the env does
+            not serve (``rsl_rl.prior``).
+    """
+    if cfg.ppo.actor_warmup_iterations:
+        raise ValueError(
+            f"ppo.actor_warmup_iterations={cfg.ppo.actor_warmup_iterations} is a brax-backend option; the "
+            "rsl-rl backend's PPO has no critic warm-up (valid here: 0; or --backend brax)"
+        )
+    prior = rsl_rl_prior(env, cfg)  # refuses a prior the env does not serve, before any set-up
+    if wrap_fn is None:
+        from bar_policy.envs import wrap_for_brax_training as wrap_fn
+    if compiler is None:
+        compiler = Compiler(timer or StartupTimer(), executable_cache=executable_cache)
+    kw = {"wrap_fn": wrap_fn, "randomizer": randomizer, "prior": prior, "compiler": compiler}
+    train = EnvPrograms(env, cfg.ppo.num_envs, seed=cfg.seed, name="train", **kw)
+    e_env, e_kw = (env, kw) if eval_env is None else (eval_env, {**kw, "randomizer": None})
+    evals = EnvPrograms(e_env, cfg.eval.num_eval_envs, seed=cfg.seed + 1, name="eval", quality=True, **e_kw)
+    return RslRlPrograms(compiler=compiler, train=train, eval=evals, prior=prior)

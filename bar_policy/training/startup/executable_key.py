@@ -1,0 +1,185 @@
+"""The executable cache's key parts: package content, versions, platform, flags, argument signature.
+
+Each is described the same way in every process (``executable_cache`` hashes them).
+
+Seeding XLA's autotune cache (``autotune``) changes none of these parts but ``package_hash`` (its
+archive is a package file: replacing it misses once): a seed only changes which implementation XLA picks
+for a fusion, not what a program computes, so the key rightly ignores whether a seed was applied, and
+``runtime_flags`` leaves out jax's ``jax_persistent_cache_*`` settings (``..._enable_xla_caches`` among them).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import json
+import os
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bar_policy._files import PACKAGE_ROOT, package_hash
+
+__all__ = ["library_versions", "package_hash", "platform", "runtime_flags", "signature", "source_hash"]
+
+LIBRARIES = (
+    "jax",
+    "jaxlib",
+    "jax-cuda12-plugin",
+    "jax-cuda12-pjrt",
+    "jax-cuda13-plugin",
+    "jax-cuda13-pjrt",
+    "libtpu",
+    "mujoco",
+    "mujoco-mjx",
+    "brax",
+    "flax",
+    "optax",
+    "numpy",
+)
+"""Distributions whose version is part of the key (None when not installed)."""
+
+
+def source_hash(obj: Any) -> str | None:
+    """SHA-256 of the source file defining ``obj``'s class.
+
+    None when the file lies in ``bar_policy`` (``package_hash`` covers it) or there is none.
+    """
+    import inspect
+
+    cls = obj if isinstance(obj, type) else type(obj)
+    try:
+        path = Path(inspect.getfile(cls)).resolve()
+    except (TypeError, OSError):
+        return None
+    if path.is_relative_to(PACKAGE_ROOT) or not path.is_file():
+        return None
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+@functools.cache
+def library_versions() -> dict[str, str | None]:
+    """Installed versions of ``LIBRARIES`` (``jax.__version__``/``jaxlib.__version__`` for those two)."""
+    import jax
+    import jaxlib
+
+    out: dict[str, str | None] = {}
+    for name in LIBRARIES:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = None
+    out["jax"], out["jaxlib"] = jax.__version__, jaxlib.__version__
+    return out
+
+
+def platform() -> dict[str, Any]:
+    """The default backend and its devices, the process count and index."""
+    import jax
+
+    devices = jax.devices()
+    return {
+        "backend": jax.default_backend(),
+        "platform_version": devices[0].client.platform_version,
+        "devices": [[d.id, d.device_kind, d.process_index] for d in devices],
+        "local_devices": [d.id for d in jax.local_devices()],
+        "process_count": jax.process_count(),
+        "process_index": jax.process_index(),
+    }
+
+
+def runtime_flags() -> dict[str, str]:
+    """Every jax config value but the compilation cache's own, and the XLA/JAX/LIBTPU environment."""
+    import jax
+
+    flags = {
+        k: repr(v)
+        for k, v in jax.config.values.items()
+        if "compilation_cache" not in k and "persistent_cache" not in k
+    }
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k.startswith(("XLA_", "JAX_", "LIBTPU_")) and "COMPILATION_CACHE" not in k
+    }
+    return {**flags, **{f"env:{k}": v for k, v in env.items()}}
+
+
+def _sharding(s: Any) -> Any:
+    if s is None:
+        return None
+    mesh = getattr(s, "mesh", None)
+    devices = getattr(mesh, "devices", None)
+    if devices is not None:
+        ids = [int(d.id) for d in devices.flat]
+    else:
+        ids = sorted(int(d.id) for d in getattr(s, "device_set", ()))
+    return [repr(s), ids, getattr(s, "memory_kind", None)]
+
+
+def _name(t: type) -> str:
+    return f"{t.__module__}.{t.__qualname__}"
+
+
+def _stable(x: Any, depth: int = 0) -> Any:
+    """A description of ``x`` that is the same in every process for equal content (a tree's static data).
+
+    Containers, numpy arrays (by content), dataclasses and objects (by their fields) are described by
+    value; whatever else falls back to ``repr``, which may hold an address: then the key differs in every
+    run (a miss each time), it never matches a program built for other content.
+    """
+    if x is None or isinstance(x, bool | int | float | complex | str | bytes):
+        return repr(x)
+    if isinstance(x, np.generic):
+        return f"{type(x).__name__}({x!r})"
+    if isinstance(x, np.ndarray):
+        digest = hashlib.sha256(np.ascontiguousarray(x).tobytes()).hexdigest()
+        return ["ndarray", list(x.shape), str(x.dtype), digest]
+    if isinstance(x, type):
+        return _name(x)
+    if depth > 12:
+        return repr(x)
+    if isinstance(x, tuple | list):
+        return [type(x).__name__, [_stable(v, depth + 1) for v in x]]
+    if isinstance(x, dict):
+        return ["dict", [[_stable(k, depth + 1), _stable(v, depth + 1)] for k, v in x.items()]]
+    if isinstance(x, set | frozenset):
+        return [type(x).__name__, sorted(json.dumps(_stable(v, depth + 1), default=repr) for v in x)]
+    if dataclasses.is_dataclass(x):
+        state = {f.name: getattr(x, f.name, None) for f in dataclasses.fields(x)}
+    elif hasattr(x, "__dict__") and not callable(x):
+        state = dict(vars(x))
+    elif getattr(type(x), "__slots__", None):
+        state = {k: getattr(x, k, None) for k in type(x).__slots__}
+    else:
+        return repr(x)
+    return [_name(type(x)), _stable(state, depth + 1)]
+
+
+def _tree(tree: Any) -> Any:
+    """``tree`` (a ``PyTreeDef``) described with ``_stable`` node data (``str`` of it shows addresses)."""
+    node = tree.node_data()
+    if node is None:
+        return "*"
+    kind, aux = node
+    return [_name(kind), _stable(aux), [_tree(c) for c in tree.children()]]
+
+
+def _leaf(x: Any) -> list[Any]:
+    if hasattr(x, "shape") and hasattr(x, "dtype"):
+        weak = getattr(x, "weak_type", None)
+        if weak is None:
+            weak = getattr(getattr(x, "aval", None), "weak_type", False)
+        return [list(x.shape), str(x.dtype), bool(weak), _sharding(getattr(x, "sharding", None))]
+    return ["static", _name(type(x)), _stable(x)]
+
+
+def signature(args: Any) -> dict[str, Any]:
+    """The abstract signature of ``args``: its tree and each leaf's shape, dtype, weak type, sharding."""
+    import jax
+
+    leaves, tree = jax.tree_util.tree_flatten(args)
+    return {"tree": _tree(tree), "leaves": [_leaf(x) for x in leaves]}
