@@ -9,7 +9,7 @@ Exit status of a run (``RunResult.exit_status``; ``bar-deploy`` returns it):
   the stop frames, or the safe stop raised (it takes precedence over 1: the motors may still be enabled).
 
 The ``end:`` line (``RunResult.end_line``) names the end reason (the first fault whenever one occurred), the
-final mode, both clip counts and the safe stop's outcome.
+final mode, both clip counts, the safe stop's outcome and the later faults, if any.
 """
 
 from __future__ import annotations
@@ -122,6 +122,8 @@ class RunResult:
     extras: dict[str, Any] = field(default_factory=dict)
     action_count: int = 0
     """Raw action entries the policy produced (POLICY ticks x n_actions), the denominator of the clips."""
+    later_faults: tuple[str, ...] = ()
+    """The distinct faults after the first (which the end reason names), in the order they came."""
 
     @property
     def exit_status(self) -> int:
@@ -137,4 +139,5 @@ class RunResult:
             f"q_cmd clipped {self.clip_count} joint-ticks; "
             f"actions clipped {self.action_clip_count} of {self.action_count} entries; "
             f"safe stop: {self.safe_stop}"
+            + (f"; later faults: {'; '.join(self.later_faults)}" if self.later_faults else "")
         )

@@ -173,6 +173,13 @@ class Runtime(RunLoop):
         self._end_reason = ""
         self._first_fault: str | None = None
         """``"fault KIND: detail"`` of the run's first fault (None: no fault)."""
+        self.faults: list[str] = []
+        """Every distinct ``"fault KIND: detail"`` (and an exception that ended the run), first first."""
+        self.result: RunResult | None = None
+        """What the run did, set when it ended, also when it ended on an exception (which then propagates)."""
+        self.stop_hold_s = 0.0
+        """Damping the target's safe stop held before its stop frames, s (the rest of ``damping_after_fault``
+        after the loop's DAMPING ticks)."""
         self.stop_report: StopReport | None = None
         """What the safe stop's frames got back (None until the run ended, or when ``safe_stop`` raised)."""
         self.safe_stop_summary = ""
@@ -216,11 +223,16 @@ class Runtime(RunLoop):
     def _fault(self, kind: str, detail: str, t: float) -> None:
         if self._first_fault is None:
             self._first_fault = f"fault {kind}: {detail}"
+        self._note_fault(f"fault {kind}: {detail}")
         changed = self.safety.fault(kind, detail, t)
         if changed and (self._end_t is None or self.completed):  # a fault in the final HOLD is a fault
             self._end_t, self._end_after = t, self.config.damping_after_fault
             self._end_reason = f"fault {kind}: {detail}"
             self.completed = False
+
+    def stop_damping_record(self) -> dict[str, Any]:
+        """For the run log: how the run's damping was held (``stop_hold_s``: the target's part of it)."""
+        return {"damping_time_s": self.config.damping_after_fault, "target_hold_s": self.stop_hold_s}
 
     def request_stop(self, reason: str) -> None:
         """Ask the loop to stop (DAMPING at the next tick, then the safe ending); the first reason is kept."""

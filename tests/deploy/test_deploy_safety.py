@@ -15,7 +15,7 @@ from bar_policy.deploy.log import load_log
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import CapDwell, Mode, SafetyConfig, SafetySupervisor
-from bar_policy.deploy.targets.base import JointState, TargetError
+from bar_policy.deploy.targets.base import JointState
 from bar_policy.robot.constants import load_robot
 from bar_policy.tasks.reach.commands import SampledCommands
 
@@ -271,14 +271,16 @@ def test_exception_mid_run_still_writes_the_log(zero_policy, tmp_path):
         RuntimeConfig(duration=2.0, start_mode="policy"),
         log_dir=tmp_path,
     )
-    with pytest.raises(TargetError, match="injected bus failure at read 30"):
-        rt.run()
+    # A target error ends the run as a fault (the target is past commanding): no exception, the end line
+    # and exit status 1, the log holds the 30 ticks before it.
+    res = rt.run()
     arrays, meta = load_log(rt.log_path)
     assert arrays["q"].shape == (30, 14)
     np.testing.assert_allclose(arrays["t"], np.arange(30) * 0.02, atol=1e-12)
-    assert meta["end_reason"] == "exception TargetError: injected bus failure at read 30"
+    assert meta["end_reason"] == res.end_reason == "fault target: injected bus failure at read 30"
+    assert res.exit_status == 1 and res.end_line().startswith("end: fault target: injected bus failure")
     assert meta["transitions"][-1]["to"] == "DAMPING"
-    assert meta["transitions"][-1]["reason"].startswith("run ended: exception TargetError")
+    assert meta["transitions"][-1]["reason"] == "fault target: injected bus failure at read 30"
     assert rt.safety.mode == Mode.DAMPING
 
 
