@@ -186,6 +186,7 @@ def _run_session(
             duration=None if duration is None or math.isinf(duration) else duration,
             start_mode=args.start,
             damping_after_fault=args.damping_time,
+            stop_damping=args.stop_damping,
             end_hold=args.end_hold,
             realtime=args.realtime or args.viewer,
             rt_priority=args.rt_priority,

@@ -87,6 +87,10 @@ def run_parser() -> argparse.ArgumentParser:
     p.add_argument("--damping-time", type=_seconds0, default=1.0, metavar="S",
                    help="after a fault or a stop signal, damp this long before the stop frames, s "
                         "(default 1)")  # fmt: skip
+    p.add_argument("--stop-damping", default="gravity", choices=("gravity", "plain"),
+                   help="damping of the fault and end stops: gravity = Kd plus the model's gravity torque at "
+                        "the measured q as feed-forward, within the torque caps (default); plain = Kd alone "
+                        "(the arms sag)")  # fmt: skip
     p.add_argument("--end-hold", type=_seconds0, default=1.0, metavar="S",
                    help="after the commands end (a motion clip's last frame), HOLD that pose this long, s "
                         "(default 1)")  # fmt: skip

@@ -50,7 +50,9 @@ class RuntimeConfig:
     control_dt: float = DEFAULT_CONTROL_DT
     """Control period, s (must equal the policy's ``policy_dt``)."""
     duration: float | None = 10.0
-    """Run length, s of target time (ticks = duration / control_dt); None runs until a stop or a fault."""
+    """Run length, s; None runs until a stop or a fault. Wall-clock time when the loop is paced (an
+    asynchronous target, or ``realtime``): the loop ends at the first deadline at or after it, ticks that
+    ran late skip deadlines (``TimingStats.skipped``); else target time (ticks = duration / control_dt)."""
     start_mode: Literal["hold", "policy"] = "hold"
     """``hold``: ramp to the default pose, then the policy. ``policy``: the policy from the first tick."""
     damping_after_fault: float = 1.0
@@ -58,6 +60,9 @@ class RuntimeConfig:
     end_hold: float = 1.0
     """After the command source's end (a motion clip's last frame), HOLD its end pose this long before the
     run ends as completed, s (the pose ramps over the first half)."""
+    stop_damping: str = "gravity"
+    """The damping of the fault and end stops (``deploy.gravity``): ``gravity`` adds the model's gravity
+    torque at the measured q as ``tau_ff`` (within the caps), ``plain`` is Kd alone."""
     realtime: bool = False
     """Pace a synchronous target at wall-clock rate (for the viewer)."""
     spin_s: float = 0.0003
@@ -79,6 +84,10 @@ class RuntimeConfig:
             raise ValueError(f"RuntimeConfig.control_dt must be > 0 s, got {self.control_dt}")
         if self.duration is not None and not (math.isfinite(self.duration) and self.duration > 0):
             raise ValueError(f"RuntimeConfig.duration must be > 0 s or None, got {self.duration}")
+        if self.stop_damping not in ("gravity", "plain"):
+            raise ValueError(
+                f"RuntimeConfig.stop_damping must be 'gravity' or 'plain', got {self.stop_damping!r}"
+            )
         if self.start_mode not in ("hold", "policy"):
             raise ValueError(f"RuntimeConfig.start_mode must be 'hold' or 'policy', got {self.start_mode!r}")
         if self.rt_priority is not None and not 1 <= self.rt_priority <= 99:

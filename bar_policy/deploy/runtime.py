@@ -61,6 +61,7 @@ import numpy as np
 
 from bar_policy.deploy.action_path import ActionPath
 from bar_policy.deploy.contract import PolicyLoadError
+from bar_policy.deploy.gravity import GravityTorque
 from bar_policy.deploy.inputs import StateInputs
 from bar_policy.deploy.live import LiveServer
 from bar_policy.deploy.log import RunLog
@@ -149,6 +150,12 @@ class Runtime(RunLoop):
             default_q=self.hold_pose,
             config=self.config.safety,
         )
+        self.gravity = GravityTorque(robot.mode) if self.config.stop_damping == "gravity" else None
+        """``tau_ff`` of the DAMPING after a fault or a stop, and of the target's own safe stop (None:
+        damping alone; ``deploy.gravity``)."""
+        use_stop_torque = getattr(target, "use_stop_torque", None)
+        if use_stop_torque is not None:
+            use_stop_torque(self.gravity)
         self.inputs = StateInputs(policy.obs_manager, robot.mode, kinematics)
         """The observation's state terms (``deploy.inputs``)."""
         self.log_dir = None if log_dir is None else Path(log_dir)
@@ -230,9 +237,27 @@ class Runtime(RunLoop):
             self._end_reason = f"fault {kind}: {detail}"
             self.completed = False
 
+    def _with_stop_torque(self, cmd: MitCommand, q: np.ndarray) -> MitCommand:
+        """In DAMPING with gravity compensation: ``tau_ff`` = the gravity torque at the measured ``q``."""
+        if self.gravity is None or self.safety.mode != Mode.DAMPING:
+            return cmd
+        return cmd._replace(tau_ff=self.gravity(q))
+
     def stop_damping_record(self) -> dict[str, Any]:
-        """For the run log: how the run's damping was held (``stop_hold_s``: the target's part of it)."""
-        return {"damping_time_s": self.config.damping_after_fault, "target_hold_s": self.stop_hold_s}
+        """For the run log: which damping the stops used and how it was held.
+
+        ``kind`` (``gravity`` or ``plain``), ``damping_time_s`` (the configured damping), ``target_hold_s``
+        (the part the target's safe stop held after the loop's DAMPING ticks), and with gravity the
+        evaluations, the clipped joint-evaluations and the largest torque asked per joint.
+        """
+        rec: dict[str, Any] = {
+            "kind": self.config.stop_damping,
+            "damping_time_s": self.config.damping_after_fault,
+            "target_hold_s": self.stop_hold_s,
+        }
+        if self.gravity is not None:
+            rec["gravity"] = self.gravity.record()
+        return rec
 
     def request_stop(self, reason: str) -> None:
         """Ask the loop to stop (DAMPING at the next tick, then the safe ending); the first reason is kept."""
@@ -324,7 +349,7 @@ class Runtime(RunLoop):
             else:
                 used, n_action_clipped = self.actions(action, t)
                 q_policy = self.policy.q_command(used)
-        cmd = sf.command(t, q_policy)
+        cmd = self._with_stop_torque(sf.command(t, q_policy), state.q)
         sat = sf.check_torque(cmd, state, self.config.control_dt)
         demand = sf.last_demand
         if q_policy is not None:
@@ -332,7 +357,7 @@ class Runtime(RunLoop):
             self.quality.update(demand, state.q, self.actions.last, cmd.q if ref is None else cmd.q - ref)
         if sat is not None:
             self._fault(*sat, t)
-            cmd = sf.command(t, q_policy)
+            cmd = self._with_stop_torque(sf.command(t, q_policy), state.q)
             demand = mit_torque(cmd, state.q, state.dq)
         self.target.write_command(cmd)
         self.last_command = cmd
