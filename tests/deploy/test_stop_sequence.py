@@ -447,3 +447,158 @@ def test_a_signal_during_the_imports_of_eval_exits_130(policy_path):
     )
     assert p.returncode == 130 and "Traceback" not in p.stderr
     assert p.stderr.strip() == "bar-deploy eval: interrupted (SIGINT)"
+
+
+# -- damping that holds the arms: gravity compensation for the fault and end stops -------------------------
+def test_gravity_torque_equals_inverse_dynamics_at_rest():
+    # Independent reference: mj_inverse with qvel = 0 and qacc = 0 gives the generalized force that holds the
+    # pose, M 0 + bias - passive - constraint = gravity (no joint springs: passive = damping x 0 = 0; the
+    # constraints are disabled in the reference: a random pose may put two links in contact).
+    import mujoco
+
+    from bar_policy.deploy.gravity import GravityTorque
+    from bar_policy.robot.constants import load_robot
+    from bar_policy.robot.scene import load_model
+
+    g = GravityTorque("arms")
+    model = load_model("arms")
+    model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(0)
+    robot = load_robot("arms")
+    for _ in range(5):
+        q = rng.uniform(robot.lower, robot.upper)
+        data.qpos[:14], data.qvel[:], data.qacc[:] = q, 0.0, 0.0
+        mujoco.mj_inverse(model, data)
+        # Same floating-point operations up to ordering: 1e-9 N*m on torques of at most a few N*m.
+        np.testing.assert_allclose(g.raw(q), data.qfrc_inverse[:14], atol=1e-9)
+        np.testing.assert_allclose(g(q), np.clip(data.qfrc_inverse[:14], -robot.torque_cap, robot.torque_cap))
+    assert g.clip_count == 0 and g.calls == 5
+
+
+def test_gravity_torque_beyond_a_cap_is_clipped_and_counted():
+    from bar_policy.deploy.gravity import GravityTorque
+
+    g = GravityTorque("arms")
+    g.cap = g.cap * 0.0 + 0.01  # every joint whose gravity torque exceeds 0.01 N*m is clipped
+    q = np.zeros(14)
+    raw = g.raw(q)
+    tau = g(q)
+    over = np.abs(raw) > 0.01
+    np.testing.assert_array_equal(tau, np.clip(raw, -0.01, 0.01))
+    assert g.clip_count == int(over.sum()) > 0
+
+
+def _sag(target_name: str, kind: str, zero_policy, tmp_path) -> tuple[float, dict, np.ndarray, np.ndarray]:
+    """The sag (rad, worst joint) over 1 s of damping after a stop at 1 s; the log's record, tau_ff, caps."""
+    from bar_policy.deploy.safety import Mode
+
+    policy = zero_policy
+    if target_name == "sim":
+        from bar_policy.deploy.targets.sim import SimTarget
+
+        target = SimTarget("arms")
+    else:
+        from bar_policy.deploy.targets.emulated import EmulatedBusTarget
+
+        target = EmulatedBusTarget("arms", DT, reply_timeout=0.5)
+    target.reset(policy.hold_pose)
+    qs: list[np.ndarray] = []
+
+    def on_tick(k, t, rt):
+        if k == 50:
+            rt.request_stop("measurement")
+        if rt.safety.mode == Mode.DAMPING:
+            qs.append(rt.last_state.q.copy())
+
+    cfg = RuntimeConfig(
+        duration=3.0,
+        start_mode="policy",
+        damping_after_fault=1.0,
+        stop_damping=kind,
+        handle_signals=False,
+        safety=SafetyConfig(ramp_time=0.0, max_overruns=0),
+    )
+    rt = Runtime(
+        policy,
+        target,
+        SampledCommands(policy.obs_manager.command_names),
+        cfg,
+        on_tick=on_tick,
+        log_dir=tmp_path,
+    )
+    try:
+        res = rt.run()
+    finally:
+        target.close()
+    assert res.end_reason == "measurement" and res.exit_status == EXIT_OK
+    q = np.asarray(qs)
+    assert len(q) == 51  # tick 51 .. 101: 1 s of DAMPING at 50 Hz
+    arrays, meta = load_log(rt.log_path.parent)
+    damping = arrays["mode"] == int(Mode.DAMPING)
+    return (
+        float(np.abs(q - q[0]).max()),
+        meta["stop_damping"],
+        arrays["tau_ff"][damping],
+        policy.robot.torque_cap,
+    )
+
+
+@pytest.mark.parametrize("target_name", ["sim", "emulated"])
+def test_damping_alone_sags_and_gravity_damping_holds_the_arms(target_name, zero_policy, tmp_path):
+    # The policy's rest pose (elbows at -1.7 rad, the upper arms forward): 1 s of damping alone lets the
+    # elbows fall about 1 rad (measured: bench/stop_sag.py); the gravity torque as tau_ff holds the pose
+    # within 0.1 rad, with every tau_ff within its cap (no cap raised) and no clip.
+    plain, rec_plain, ff_plain, _ = _sag(target_name, "plain", zero_policy, tmp_path / "plain")
+    held, rec, ff, cap = _sag(target_name, "gravity", zero_policy, tmp_path / "gravity")
+    assert plain > 0.5, plain
+    assert held < 0.1, held
+    assert rec_plain["kind"] == "plain" and "gravity" not in rec_plain
+    np.testing.assert_array_equal(ff_plain, 0.0)
+    assert rec["kind"] == "gravity" and rec["gravity"]["clipped_joint_evaluations"] == 0
+    assert np.all(np.abs(ff) <= cap) and np.abs(ff).max() > 0.5  # the elbows' gravity torque, N*m
+
+
+def test_the_real_targets_own_stop_damps_with_the_gravity_torque():
+    # After a driver error the real target stops by itself: its damping frames carry tau_ff = the gravity
+    # torque at the measured q (in the motor's frame: direction x tau), to the wire's 16-bit step.
+    from bar_policy.deploy.gravity import GravityTorque
+    from bar_policy.robot.mit import wire_ranges
+
+    args = _args()
+    target = _real(args)
+    rec = Recorder(args)
+    g = GravityTorque("arms")
+    try:
+        target.start()
+        q = target.read_state().q
+        rec.collect()
+        rec.frames = {k: [] for k in rec.frames}
+        target.use_stop_torque(g)
+        target.safe_stop(hold_s=0.0)  # one damping round at the last reading's q, then the stops
+    finally:
+        target.close()
+        time.sleep(0.05)
+        rec.collect()
+        rec.close()
+    expected = g(q)
+    index = {n: i for i, n in enumerate(target.joint_names)}
+    for bus in target.group.buses:
+        ranges = wire_ranges([m.model for m in bus.motors])
+        for k, motor in enumerate(bus.motors):
+            (mit,) = [
+                req
+                for m in rec.frames[bus.interface]
+                for req in [_request(m)]
+                if isinstance(req, motor_side.MitRequest) and req.motor_id == motor.can_id
+            ]
+            tau = mit.setpoint(motor.model).tau
+            step = 2 * ranges.t_max[k] / 65535  # one 16-bit step of the torque field
+            assert tau == pytest.approx(motor.direction * expected[index[motor.name]], abs=step), motor.name
+
+
+def _request(m):
+    try:
+        return motor_side.decode_request(m.arbitration_id, bytes(m.data))
+    except FrameError:
+        return None
