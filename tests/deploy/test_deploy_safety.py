@@ -28,6 +28,9 @@ def _run(policy, target, *, duration=1.0, start="policy", log_dir=None, on_tick=
         duration=duration,
         start_mode=start,
         damping_after_fault=0.1,
+        # Damping alone (tau_ff = 0) in these tests of the fault rules; the gravity-compensated damping (the
+        # default) has its own tests in test_stop_sequence.py.
+        stop_damping="plain",
         safety=SafetyConfig(**({"ramp_time": 0.0} | safety)),
     )
     cmds = SampledCommands(policy.obs_manager.command_names, seed=0)
@@ -247,7 +250,7 @@ def test_second_signal_is_counted_and_cannot_skip_the_stop(zero_policy, tmp_path
         zero_policy,
         target,
         SampledCommands(zero_policy.obs_manager.command_names),
-        RuntimeConfig(duration=1.0, start_mode="policy", damping_after_fault=0.2),
+        RuntimeConfig(duration=1.0, start_mode="policy", damping_after_fault=0.2, stop_damping="plain"),
         log_dir=tmp_path,
         on_tick=on_tick,
     )

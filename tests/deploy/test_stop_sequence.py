@@ -536,6 +536,12 @@ def _sag(target_name: str, kind: str, zero_policy, tmp_path) -> tuple[float, dic
     assert len(q) == 51  # tick 51 .. 101: 1 s of DAMPING at 50 Hz
     arrays, meta = load_log(rt.log_path.parent)
     damping = arrays["mode"] == int(Mode.DAMPING)
+    if kind == "gravity":  # each DAMPING tick's tau_ff is the gravity torque at that tick's measured q
+        from bar_policy.deploy.gravity import GravityTorque
+
+        g = GravityTorque("arms")
+        expected = np.array([g(q) for q in arrays["q"][damping]])
+        np.testing.assert_allclose(arrays["tau_ff"][damping], expected, rtol=0, atol=1e-12)
     return (
         float(np.abs(q - q[0]).max()),
         meta["stop_damping"],
