@@ -15,7 +15,8 @@ The policy file's task (``bar.task``; for HC-only files the task its terms imply
 and the evaluation (``deploy.tasks``); an option of another task is refused with a message that names both.
 
 Stopping: SIGINT (Ctrl+C), SIGTERM and SIGHUP take one path: DAMPING, then the stop frames on every bus,
-then the log closed with the reason; exit status 0. A second signal is counted and ignored. Exit status:
+then the log closed with the reason; exit status 0, also during the real target's start-up. A second
+signal is counted and ignored. Every run that started prints its ``end:`` line. Exit status:
 0 ran to the end or stopped on request, 1 ended on a fault or an error during the run (the joints were
 damped and stopped), 2 refused before anything moved (bad arguments, policy or target), 3 the safe stop was
 not confirmed (some joint did not answer the damping or stop frames; the end line names them, also after a
@@ -23,7 +24,10 @@ fault, which 3 takes precedence over; ``run_config.EXIT_*``); every refusal is
 one line on stderr, ``bar-deploy: error: ...``. A malformed input file (policy metadata, motion clip,
 commands file, calibration, run log) is refused the same way: its loader raises ``_files.InputError``
 naming the file and the problem, and the line is cut to ``MAX_ERROR_CHARS``. A SIGINT before the stop
-handlers are installed (the first fraction of a second) ends quietly: ``signals.early_interrupt``.
+handlers are installed ends quietly: ``signals.early_interrupt`` (the console entry point,
+``bar_policy.entry``, catches one during the imports too). The real target refuses a step start
+(``--start policy``, a ``--ramp-time`` below ``ramp_limit.min_ramp_time``) unless
+``--unsafe-allow-step-start`` is given.
 
 The only module that prints. Never imports jax, torch or onnx.
 """

@@ -33,8 +33,10 @@ command sources (by the policy's task):
   track --motion wave | clap | reach_sweep | hanging_to_piano_ready | random-s<seed>-<index> | clip.npz | .csv
 real target options: the group above (also listed by bar-deploy --target real --help)
 stopping: SIGINT (Ctrl+C), SIGTERM, SIGHUP -> DAMPING, stop frames, log closed; a second signal is ignored
-exit status: 0 done or stopped on request, 1 fault or error during the run, 2 refused before the start,
-3 the safe stop was not confirmed by every joint
+exit status: 0 done or stopped on request (at any moment, the start-up included), 1 fault or error during
+the run, 2 refused before the start (on the real target also --start policy or a --ramp-time below the
+safe minimum, unless --unsafe-allow-step-start), 3 the safe stop was not confirmed by every joint,
+130 eval / plot / log ended by a signal
 """
 
 

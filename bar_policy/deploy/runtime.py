@@ -17,6 +17,11 @@ Scheduling (``timing.Pacer``) uses absolute deadlines ``t0 + k * dt`` (no drift)
 synchronous target (sim) is not paced: the loop calls ``target.advance(dt)`` and runs as fast as it can
 (``realtime=True`` paces it for the viewer).
 
+A ``TargetError`` from the target mid-run is the fault ``target``: the loop ends at once (the real target
+has already damped and stopped), and the run ends as any fault does, without an exception. The DAMPING
+after a fault or a stop carries the gravity torque at the measured q as ``tau_ff`` (``deploy.gravity``;
+``RuntimeConfig.stop_damping``), which the target's own safe stop uses too (``Target.use_stop_torque``).
+
 Start-up: ZERO_TORQUE until the first state; a valid first state gives DAMPING then HOLD (ramp to the
 command source's ``hold_pose``, else the policy's rest pose ``policy.hold_pose``, over
 ``safety.ramp_time``) then POLICY, where the source's phase 0 begins (``source.begin(t)``);
@@ -40,8 +45,10 @@ never names a task: it only knows the ``CommandSource`` interface (``bar_policy.
 Stopping: SIGINT, SIGTERM and SIGHUP (``StopSignals``; the caller's, or installed by ``run`` in
 the main thread) and ``request_stop`` all take one path: the next tick enters DAMPING with the reason, the
 loop keeps damping for ``damping_after_fault`` s, then ends. A requested stop is not a fault. The run
-always ends through ``finally``: DAMPING, ``target.safe_stop()`` (stop frames on every bus on the real
-target), then the log is closed with the reason and the stop path's outcome: the target's ``StopReport``
+always ends through ``finally``: DAMPING, ``target.safe_stop(hold_s=...)`` (the rest of
+``damping_after_fault`` not yet damped by the loop, then stop frames on every bus on the real target; it
+runs once: a real target that already stopped itself after a driver error returns its report), then the
+log is closed with the reason and the stop path's outcome: the target's ``StopReport``
 (which joints answered the damping and the stop frames); ``RunResult.safe_stop`` says ``"stop confirmed
 (...)"`` only when every joint answered, else it names the joints that did not, and
 ``RunResult.exit_status`` is ``EXIT_STOP_UNCONFIRMED`` (3; ``run_config``). The signal handlers stay
