@@ -191,7 +191,13 @@ class RunLoop:
                     if runlog is not None:
                         runlog.append(rec)
                     if sync:
-                        self.target.advance(dt)
+                        try:
+                            self.target.advance(dt)
+                        except TargetError as e:  # the simulator cannot go on (its viewer was closed)
+                            self._fault("target", _one_line(e), t)
+                            self._log_transitions()
+                            k += 1  # the tick ran and is in the log
+                            break
                     else:
                         ov = self.safety.note_overrun(overran)
                         if ov is not None:

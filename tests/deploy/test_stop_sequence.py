@@ -608,3 +608,28 @@ def _request(m):
         return motor_side.decode_request(m.arbitration_id, bytes(m.data))
     except FrameError:
         return None
+
+
+class ClosedViewer(SteppedMock):
+    """A synchronous target whose ``advance`` fails from step ``at`` on (a sim whose viewer was closed)."""
+
+    def __init__(self, at: int) -> None:
+        super().__init__()
+        self.at = at
+
+    def advance(self, dt: float) -> None:
+        if self.steps >= self.at:
+            from bar_policy.deploy.targets.base import TargetError
+
+            raise TargetError("the viewer window was closed")
+        super().advance(dt)
+
+
+def test_a_synchronous_target_that_cannot_advance_ends_the_run_as_a_fault(zero_policy, tmp_path):
+    # advance fails after tick 5 ran (ticks 0..5 are in the log): the fault "target", no exception, status 1.
+    rt = _runtime(zero_policy, ClosedViewer(5), log_dir=tmp_path)
+    res = rt.run()
+    assert res.ticks == 6 and res.end_reason == "fault target: the viewer window was closed"
+    assert res.exit_status == EXIT_FAULT and res.end_line().startswith("end: fault target: the viewer")
+    arrays, _ = load_log(rt.log_path.parent)
+    assert arrays["t"].size == 6
