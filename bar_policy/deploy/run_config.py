@@ -141,6 +141,12 @@ class RunResult:
             return EXIT_STOP_UNCONFIRMED
         return EXIT_FAULT if self.fault_count else EXIT_OK
 
+    def _later_text(self, shown: int = 3) -> str:
+        """The first ``shown`` later faults, then how many more (all of them are in the run log)."""
+        text = "; ".join(self.later_faults[:shown])
+        more = len(self.later_faults) - shown
+        return f"{text}; and {more} more (run.json: later_faults)" if more > 0 else text
+
     def end_line(self) -> str:
         """The ``end:`` line: reason, final mode, q_cmd and action clip counts, the safe stop's outcome."""
         return (
@@ -148,5 +154,5 @@ class RunResult:
             f"q_cmd clipped {self.clip_count} joint-ticks; "
             f"actions clipped {self.action_clip_count} of {self.action_count} entries; "
             f"safe stop: {self.safe_stop}"
-            + (f"; later faults: {'; '.join(self.later_faults)}" if self.later_faults else "")
+            + (f"; later faults: {self._later_text()}" if self.later_faults else "")
         )

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import re
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -32,6 +33,8 @@ log = logging.getLogger("bar_policy.deploy.runtime")  # the runtime's logger, as
 
 _MAX_FAULTS_KEPT = 32
 """Distinct faults kept for the run record (``faults``); a run that faults every tick repeats itself."""
+_NUMBER = re.compile(r"[-+]?\d[\d.]*(?:e[-+]?\d+)?")
+"""A number in a fault's text (two faults that differ only in numbers are the same fault, counted)."""
 
 
 def _one_line(e: BaseException) -> str:
@@ -227,6 +230,7 @@ class RunLoop:
                         end_reason=end_reason,
                         later_faults=list(later),
                         faults=list(self.faults),
+                        fault_repeats=list(self.fault_repeats),
                         target_metadata=run_metadata_of(self.target),
                         stop_reason=self._stop_reason,
                         stop_signal=stop.signal_name,
@@ -273,9 +277,18 @@ class RunLoop:
         return self.result
 
     def _note_fault(self, text: str) -> None:
-        """Keep ``text`` in ``faults`` (each distinct fault once, in the order they first came)."""
-        if text not in self.faults and len(self.faults) < _MAX_FAULTS_KEPT:
+        """Keep ``text`` in ``faults``: each distinct fault once, in the order they first came.
+
+        Faults that differ only in their numbers (a stale state 120 ms old, then 140 ms) are one fault,
+        counted in ``fault_repeats``.
+        """
+        key = _NUMBER.sub("#", text)
+        if key in self._fault_keys:
+            self.fault_repeats[self._fault_keys[key]] += 1
+        elif len(self.faults) < _MAX_FAULTS_KEPT:
+            self._fault_keys[key] = len(self.faults)
             self.faults.append(text)
+            self.fault_repeats.append(1)
 
     def later_faults(self, end_reason: str) -> tuple[str, ...]:
         """The distinct faults after the one the end reason names (the end reason's own excluded)."""

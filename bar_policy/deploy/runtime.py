@@ -189,6 +189,9 @@ class Runtime(RunLoop):
         """``"fault KIND: detail"`` of the run's first fault (None: no fault)."""
         self.faults: list[str] = []
         """Every distinct ``"fault KIND: detail"`` (and an exception that ended the run), first first."""
+        self.fault_repeats: list[int] = []
+        """How often each of ``faults`` came (faults that differ only in their numbers count as one)."""
+        self._fault_keys: dict[str, int] = {}
         self.result: RunResult | None = None
         """What the run did, set when it ended, also when it ended on an exception (which then propagates)."""
         self.stop_hold_s = 0.0

@@ -633,3 +633,15 @@ def test_a_synchronous_target_that_cannot_advance_ends_the_run_as_a_fault(zero_p
     assert res.exit_status == EXIT_FAULT and res.end_line().startswith("end: fault target: the viewer")
     arrays, _ = load_log(rt.log_path.parent)
     assert arrays["t"].size == 6
+
+
+def test_a_fault_that_repeats_with_other_numbers_is_listed_once_and_counted(zero_policy, tmp_path):
+    # The stamp freezes at read 5: from tick 8 (age 0.06 s > 0.05 s) every tick is stale, each with its own
+    # age in the text ("state is 60.0 ms old", "80.0 ms", ...): one fault in the record, counted per tick.
+    rt = _runtime(zero_policy, SteppedMock(freeze_from=5), log_dir=tmp_path, stale_timeout=0.05)
+    res = rt.run()
+    assert res.end_reason == "fault stale_state: state is 60.0 ms old (timeout 50 ms)"
+    assert rt.faults == [res.end_reason] and rt.fault_repeats == [res.fault_count] and res.fault_count > 1
+    assert res.later_faults == () and "later faults" not in res.end_line()
+    _, meta = load_log(rt.log_path.parent)
+    assert meta["faults"] == [res.end_reason] and meta["fault_repeats"] == [res.fault_count]
