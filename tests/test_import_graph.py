@@ -129,10 +129,11 @@ LAYERS: tuple[tuple[str, ...], ...] = (
      "bar_policy.provenance", "bar_policy.signals", "bar_policy.quality"),
     ("bar_policy.obs", "bar_policy.envs", "bar_policy.robstride", "bar_policy.motion"),
     ("bar_policy.tasks",),
-    ("bar_policy.training", "bar_policy.deploy", "bar_policy.export"),
+    ("bar_policy.training", "bar_policy.deploy", "bar_policy.export", "bar_policy.entry"),
 )  # fmt: skip
 """From the ground up: the robot (and the task records, the helpers, the quality metrics); the observation
-contract, the robot env, the driver and the motions; the tasks; training, the deploy runtime and the export.
+contract, the robot env, the driver and the motions; the tasks; training, the deploy runtime, the export and
+the ``bar-deploy`` console entry point.
 The package's ``__init__`` sits above them all (it installs the task records' loader)."""
 
 

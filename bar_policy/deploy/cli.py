@@ -15,7 +15,8 @@ The policy file's task (``bar.task``; for HC-only files the task its terms imply
 and the evaluation (``deploy.tasks``); an option of another task is refused with a message that names both.
 
 Stopping: SIGINT (Ctrl+C), SIGTERM and SIGHUP take one path: DAMPING, then the stop frames on every bus,
-then the log closed with the reason; exit status 0. A second signal is counted and ignored. Exit status:
+then the log closed with the reason; exit status 0, also during the real target's start-up. A second
+signal is counted and ignored. Every run that started prints its ``end:`` line. Exit status:
 0 ran to the end or stopped on request, 1 ended on a fault or an error during the run (the joints were
 damped and stopped), 2 refused before anything moved (bad arguments, policy or target), 3 the safe stop was
 not confirmed (some joint did not answer the damping or stop frames; the end line names them, also after a
@@ -23,7 +24,10 @@ fault, which 3 takes precedence over; ``run_config.EXIT_*``); every refusal is
 one line on stderr, ``bar-deploy: error: ...``. A malformed input file (policy metadata, motion clip,
 commands file, calibration, run log) is refused the same way: its loader raises ``_files.InputError``
 naming the file and the problem, and the line is cut to ``MAX_ERROR_CHARS``. A SIGINT before the stop
-handlers are installed (the first fraction of a second) ends quietly: ``signals.early_interrupt``.
+handlers are installed ends quietly: ``signals.early_interrupt`` (the console entry point,
+``bar_policy.entry``, catches one during the imports too). The real target refuses a step start
+(``--start policy``, a ``--ramp-time`` below ``ramp_limit.min_ramp_time``) unless
+``--unsafe-allow-step-start`` is given.
 
 The only module that prints. Never imports jax, torch or onnx.
 """
@@ -43,7 +47,7 @@ from bar_policy.deploy import cli_parser
 from bar_policy.deploy.cli_tools import fail as _fail
 from bar_policy.deploy.cli_tools import log_command, plot_command
 from bar_policy.deploy.log_files import CAN_LOG_FILE
-from bar_policy.deploy.signals import early_interrupt
+from bar_policy.deploy.signals import early_interrupt, signal_name_of
 from bar_policy.tasks.cli_types import Parser as _Parser
 from bar_policy.tasks.cli_types import asks_help as _asks_help
 from bar_policy.tasks.cli_types import one_line as _one_line
@@ -186,6 +190,7 @@ def _run_session(
             duration=None if duration is None or math.isinf(duration) else duration,
             start_mode=args.start,
             damping_after_fault=args.damping_time,
+            stop_damping=args.stop_damping,
             end_hold=args.end_hold,
             realtime=args.realtime or args.viewer,
             rt_priority=args.rt_priority,
@@ -194,6 +199,11 @@ def _run_session(
         commands = task.command_source(policy, args, kin)
     except ValueError as e:  # PolicyLoadError, OptionError, bad settings
         return _fail(e)
+    if args.target == "real":
+        refused = _start_refusal(args, policy, commands.hold_pose)
+        if refused is not None:
+            commands.close()
+            return _fail(refused)
 
     target = None
     try:
@@ -251,15 +261,20 @@ def _run_session(
         try:
             target.start()
         except TargetError as e:
+            if stop.requested:  # type: ignore[attr-defined]
+                # A requested stop during the start-up: the start-up ended it (anything enabled was damped
+                # and stopped): a stop on request, status 0, as promised for every moment of the run.
+                rt.close_unstarted(f"stopped during the start-up: {stop.reason}")  # type: ignore[attr-defined]
+                print(f"{stop.reason} during the start-up: {_one_line(e)}")  # type: ignore[attr-defined]
+                print(f"end: {stop.reason} during the start-up; nothing left enabled")  # type: ignore[attr-defined]
+                return 0
             rt.close_unstarted(f"not started: target {args.target}: {_one_line(e)}")
             return _fail(f"target {args.target}: {e}")
         result = rt.run(stop)  # type: ignore[arg-type]
-    except TargetError as e:
-        where = f"; log: {rt.log_path.parent}" if rt.log_path is not None else ""
-        msg = f"target {args.target} failed during the run: {e} (safe stop: {_stop_text(rt)}{where})"
-        return _fail(msg, _after_exception(rt))
     except Exception as e:
         log.error("the run ended on an exception (safe stop: %s)", _stop_text(rt), exc_info=True)
+        if rt.result is not None:
+            print(rt.result.end_line())
         where = f"; log: {rt.log_path.parent}" if rt.log_path is not None else ""
         msg = f"the run ended on {type(e).__name__}: {e} (safe stop: {_stop_text(rt)}{where})"
         return _fail(msg, _after_exception(rt))
@@ -282,6 +297,35 @@ def _run_session(
     if video is not None:
         print(f"video: {video}")
     return result.exit_status
+
+
+def _start_refusal(args: argparse.Namespace, policy: object, hold: object) -> str | None:
+    """Why the real target refuses ``--start policy`` or a short ``--ramp-time`` (None: it does not).
+
+    The minimum is ``ramp_limit.min_ramp_time`` for the policy's Kp, the torque caps, the joint ranges
+    and the control period. ``--unsafe-allow-step-start`` lifts the refusal with a warning on stderr.
+    """
+    from bar_policy.deploy.ramp_limit import UNSAFE_FLAG, min_ramp_time
+
+    minimum = min_ramp_time(policy, hold=hold)
+    short = args.start == "policy" or args.ramp_time < minimum.seconds
+    if not short:
+        return None
+    what = "--start policy (no ramp)" if args.start == "policy" else f"--ramp-time {args.ramp_time:g} s"
+    if getattr(args, "unsafe_allow_step_start", False):
+        print(
+            f"WARNING: {UNSAFE_FLAG}: {what} on the real target, below the safe minimum ramp of "
+            f"{minimum.rounded_up:.2f} s ({minimum.reason}): the first ticks may push joints at their "
+            "torque cap and snap the arms. Keep clear of the robot.",
+            file=sys.stderr,
+            flush=True,
+        )
+        return None
+    return (
+        f"{what} is refused on the real target: below the safe minimum ramp of {minimum.rounded_up:.2f} s "
+        f"({minimum.reason}); use --start hold --ramp-time {minimum.rounded_up:.2f} or longer, or add "
+        f"{UNSAFE_FLAG} to accept the step"
+    )
 
 
 def _stop_text(rt: object) -> str:
@@ -354,8 +398,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if sub == "log":
             return log_command(rest)
         return _run(rest)
-    except KeyboardInterrupt:  # SIGINT before StopSignals (run), or during eval / plot: no traceback
-        status, line = early_interrupt(sub)
+    except KeyboardInterrupt as e:  # a signal before StopSignals (run), or during eval / plot: no traceback
+        status, line = early_interrupt(sub, signal_name_of(e))
         print(line, file=sys.stdout if status == 0 else sys.stderr, flush=True)
         return status
 

@@ -33,8 +33,10 @@ command sources (by the policy's task):
   track --motion wave | clap | reach_sweep | hanging_to_piano_ready | random-s<seed>-<index> | clip.npz | .csv
 real target options: the group above (also listed by bar-deploy --target real --help)
 stopping: SIGINT (Ctrl+C), SIGTERM, SIGHUP -> DAMPING, stop frames, log closed; a second signal is ignored
-exit status: 0 done or stopped on request, 1 fault or error during the run, 2 refused before the start,
-3 the safe stop was not confirmed by every joint
+exit status: 0 done or stopped on request (at any moment, the start-up included), 1 fault or error during
+the run, 2 refused before the start (on the real target also --start policy or a --ramp-time below the
+safe minimum, unless --unsafe-allow-step-start), 3 the safe stop was not confirmed by every joint,
+130 eval / plot / log ended by a signal
 """
 
 
@@ -87,6 +89,10 @@ def run_parser() -> argparse.ArgumentParser:
     p.add_argument("--damping-time", type=_seconds0, default=1.0, metavar="S",
                    help="after a fault or a stop signal, damp this long before the stop frames, s "
                         "(default 1)")  # fmt: skip
+    p.add_argument("--stop-damping", default="gravity", choices=("gravity", "plain"),
+                   help="damping of the fault and end stops: gravity = Kd plus the model's gravity torque at "
+                        "the measured q as feed-forward, within the torque caps (default); plain = Kd alone "
+                        "(the arms sag)")  # fmt: skip
     p.add_argument("--end-hold", type=_seconds0, default=1.0, metavar="S",
                    help="after the commands end (a motion clip's last frame), HOLD that pose this long, s "
                         "(default 1)")  # fmt: skip

@@ -9,7 +9,7 @@ Exit status of a run (``RunResult.exit_status``; ``bar-deploy`` returns it):
   the stop frames, or the safe stop raised (it takes precedence over 1: the motors may still be enabled).
 
 The ``end:`` line (``RunResult.end_line``) names the end reason (the first fault whenever one occurred), the
-final mode, both clip counts and the safe stop's outcome.
+final mode, both clip counts, the safe stop's outcome and the later faults, if any.
 """
 
 from __future__ import annotations
@@ -50,7 +50,9 @@ class RuntimeConfig:
     control_dt: float = DEFAULT_CONTROL_DT
     """Control period, s (must equal the policy's ``policy_dt``)."""
     duration: float | None = 10.0
-    """Run length, s of target time (ticks = duration / control_dt); None runs until a stop or a fault."""
+    """Run length, s; None runs until a stop or a fault. Wall-clock time when the loop is paced (an
+    asynchronous target, or ``realtime``): the loop ends at the first deadline at or after it, ticks that
+    ran late skip deadlines (``TimingStats.skipped``); else target time (ticks = duration / control_dt)."""
     start_mode: Literal["hold", "policy"] = "hold"
     """``hold``: ramp to the default pose, then the policy. ``policy``: the policy from the first tick."""
     damping_after_fault: float = 1.0
@@ -58,6 +60,9 @@ class RuntimeConfig:
     end_hold: float = 1.0
     """After the command source's end (a motion clip's last frame), HOLD its end pose this long before the
     run ends as completed, s (the pose ramps over the first half)."""
+    stop_damping: str = "gravity"
+    """The damping of the fault and end stops (``deploy.gravity``): ``gravity`` adds the model's gravity
+    torque at the measured q as ``tau_ff`` (within the caps), ``plain`` is Kd alone."""
     realtime: bool = False
     """Pace a synchronous target at wall-clock rate (for the viewer)."""
     spin_s: float = 0.0003
@@ -79,6 +84,10 @@ class RuntimeConfig:
             raise ValueError(f"RuntimeConfig.control_dt must be > 0 s, got {self.control_dt}")
         if self.duration is not None and not (math.isfinite(self.duration) and self.duration > 0):
             raise ValueError(f"RuntimeConfig.duration must be > 0 s or None, got {self.duration}")
+        if self.stop_damping not in ("gravity", "plain"):
+            raise ValueError(
+                f"RuntimeConfig.stop_damping must be 'gravity' or 'plain', got {self.stop_damping!r}"
+            )
         if self.start_mode not in ("hold", "policy"):
             raise ValueError(f"RuntimeConfig.start_mode must be 'hold' or 'policy', got {self.start_mode!r}")
         if self.rt_priority is not None and not 1 <= self.rt_priority <= 99:
@@ -122,6 +131,8 @@ class RunResult:
     extras: dict[str, Any] = field(default_factory=dict)
     action_count: int = 0
     """Raw action entries the policy produced (POLICY ticks x n_actions), the denominator of the clips."""
+    later_faults: tuple[str, ...] = ()
+    """The distinct faults after the first (which the end reason names), in the order they came."""
 
     @property
     def exit_status(self) -> int:
@@ -130,6 +141,12 @@ class RunResult:
             return EXIT_STOP_UNCONFIRMED
         return EXIT_FAULT if self.fault_count else EXIT_OK
 
+    def _later_text(self, shown: int = 3) -> str:
+        """The first ``shown`` later faults, then how many more (all of them are in the run log)."""
+        text = "; ".join(self.later_faults[:shown])
+        more = len(self.later_faults) - shown
+        return f"{text}; and {more} more (run.json: later_faults)" if more > 0 else text
+
     def end_line(self) -> str:
         """The ``end:`` line: reason, final mode, q_cmd and action clip counts, the safe stop's outcome."""
         return (
@@ -137,4 +154,5 @@ class RunResult:
             f"q_cmd clipped {self.clip_count} joint-ticks; "
             f"actions clipped {self.action_clip_count} of {self.action_count} entries; "
             f"safe stop: {self.safe_stop}"
+            + (f"; later faults: {self._later_text()}" if self.later_faults else "")
         )

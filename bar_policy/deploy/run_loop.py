@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import re
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -20,7 +21,7 @@ from bar_policy.deploy.log import LogDirError, RunLog, log_fields
 from bar_policy.deploy.log_files import CAN_LOG_FILE
 from bar_policy.deploy.run_config import RunResult
 from bar_policy.deploy.safety import Mode
-from bar_policy.deploy.targets.base import StopReport, run_metadata_of
+from bar_policy.deploy.targets.base import StopReport, TargetError, run_metadata_of
 from bar_policy.deploy.timing import Pacer, RealtimePriority
 from bar_policy.quality import summarise
 from bar_policy.robot.mjcf import lite_xml
@@ -29,6 +30,16 @@ from bar_policy.signals import StopSignals
 __all__ = ["RunLoop"]
 
 log = logging.getLogger("bar_policy.deploy.runtime")  # the runtime's logger, as before the split
+
+_MAX_FAULTS_KEPT = 32
+"""Distinct faults kept for the run record (``faults``); a run that faults every tick repeats itself."""
+_NUMBER = re.compile(r"[-+]?\d[\d.]*(?:e[-+]?\d+)?")
+"""A number in a fault's text (two faults that differ only in numbers are the same fault, counted)."""
+
+
+def _one_line(e: BaseException) -> str:
+    """The exception's message on one line."""
+    return " ".join(str(e).split())
 
 
 class RunLoop:
@@ -153,29 +164,43 @@ class RunLoop:
     def _run(self, stop: StopSignals) -> RunResult:
         cfg = self.config
         dt = cfg.control_dt
-        n_ticks = None if cfg.duration is None else max(round(cfg.duration / dt), 1)
+        sync = self.target.synchronous
+        paced = not sync or cfg.realtime
+        # The duration in deadlines: wall-clock time when paced (a late tick skips deadlines, so fewer ticks
+        # run), ticks of target time when not.
+        n_deadlines = None if cfg.duration is None else max(round(cfg.duration / dt), 1)
         self.open_log()
         runlog = self._runlog
-        sync = self.target.synchronous
         k = 0
+        t = 0.0
         end_reason = "duration reached"
         t0_target = self.target.now()
-        pacer = Pacer(dt, paced=not sync or cfg.realtime, spin_s=cfg.spin_s)
+        pacer = Pacer(dt, paced=paced, spin_s=cfg.spin_s)
         error: BaseException | None = None
         try:
             with RealtimePriority(cfg.rt_priority):
-                while n_ticks is None or k < n_ticks:
+                while n_deadlines is None or pacer.index < n_deadlines:
                     start, lateness = pacer.wait()
                     t = k * dt if sync else self.target.now() - t0_target
                     if stop.requested:
                         self.request_stop(stop.reason)
-                    rec = self._tick(k, t, self._pending_stop)
+                    try:
+                        rec = self._tick(k, t, self._pending_stop)
+                    except TargetError as e:  # the target stopped itself (the real one): the run ends here
+                        self._fault("target", _one_line(e), t)
+                        break
                     overran = pacer.tick_done(lateness, rec["compute"], rec["infer"])
                     rec.update(jitter=lateness, overrun=overran, wall=start - pacer.wall0)
                     if runlog is not None:
                         runlog.append(rec)
                     if sync:
-                        self.target.advance(dt)
+                        try:
+                            self.target.advance(dt)
+                        except TargetError as e:  # the simulator cannot go on (its viewer was closed)
+                            self._fault("target", _one_line(e), t)
+                            self._log_transitions()
+                            k += 1  # the tick ran and is in the log
+                            break
                     else:
                         ov = self.safety.note_overrun(overran)
                         if ov is not None:
@@ -189,7 +214,8 @@ class RunLoop:
             end_reason = self._final_reason(end_reason)
         except BaseException as e:
             error = e
-            end_reason = f"exception {type(e).__name__}: {e}"
+            self._note_fault(f"exception {type(e).__name__}: {_one_line(e)}")
+            end_reason = self._first_fault or f"exception {type(e).__name__}: {e}"
             raise
         finally:
             t_end = self.target.now() - t0_target
@@ -197,16 +223,21 @@ class RunLoop:
             safe_stop, report = self._safe_end(end_reason, t_end)
             self._log_transitions()
             log_path = None
+            later = self.later_faults(end_reason)
             if runlog is not None:
                 try:
                     log_path = runlog.close(
                         end_reason=end_reason,
+                        later_faults=list(later),
+                        faults=list(self.faults),
+                        fault_repeats=list(self.fault_repeats),
                         target_metadata=run_metadata_of(self.target),
                         stop_reason=self._stop_reason,
                         stop_signal=stop.signal_name,
                         stop_signals_received=stop.count,
                         safe_stop=safe_stop,
                         stop_report=None if report is None else report.to_dict(),
+                        stop_damping=self.stop_damping_record(),
                         exception=None if error is None else f"{type(error).__name__}: {error}",
                         transitions=[tr.to_dict() for tr in self.safety.transitions],
                         timing=timing.summary(),
@@ -223,25 +254,45 @@ class RunLoop:
                     if error is None:
                         raise
             self.log_path = log_path
-        return RunResult(
-            ticks=k,
-            final_mode=self.safety.mode,
-            transitions=[tr.to_dict() for tr in self.safety.transitions],
-            timing=timing,
-            end_reason=end_reason,
-            clip_count=self.safety.clip_count,
-            fault_count=self.safety.fault_count,
-            log_path=log_path,
-            last_state=self.last_state,
-            action_clip_count=self.action_clip_count,
-            stop_reason=self._stop_reason,
-            safe_stop=safe_stop,
-            stop_confirmed=report is not None and report.confirmed,
-            stop_unconfirmed=() if report is None else report.unconfirmed,
-            completed=self.completed,
-            quality=self.quality_record(),
-            action_count=self.actions.count,
-        )
+            self.result = RunResult(
+                ticks=k,
+                final_mode=self.safety.mode,
+                transitions=[tr.to_dict() for tr in self.safety.transitions],
+                timing=timing,
+                end_reason=end_reason,
+                clip_count=self.safety.clip_count,
+                fault_count=self.safety.fault_count,
+                log_path=log_path,
+                last_state=self.last_state,
+                action_clip_count=self.action_clip_count,
+                stop_reason=self._stop_reason,
+                safe_stop=safe_stop,
+                stop_confirmed=report is not None and report.confirmed,
+                stop_unconfirmed=() if report is None else report.unconfirmed,
+                completed=self.completed,
+                quality=self.quality_record(),
+                action_count=self.actions.count,
+                later_faults=later,
+            )
+        return self.result
+
+    def _note_fault(self, text: str) -> None:
+        """Keep ``text`` in ``faults``: each distinct fault once, in the order they first came.
+
+        Faults that differ only in their numbers (a stale state 120 ms old, then 140 ms) are one fault,
+        counted in ``fault_repeats``.
+        """
+        key = _NUMBER.sub("#", text)
+        if key in self._fault_keys:
+            self.fault_repeats[self._fault_keys[key]] += 1
+        elif len(self.faults) < _MAX_FAULTS_KEPT:
+            self._fault_keys[key] = len(self.faults)
+            self.faults.append(text)
+            self.fault_repeats.append(1)
+
+    def later_faults(self, end_reason: str) -> tuple[str, ...]:
+        """The distinct faults after the one the end reason names (the end reason's own excluded)."""
+        return tuple(f for f in self.faults if f not in end_reason)
 
     def _final_reason(self, loop_reason: str) -> str:
         """The end reason: the run's first fault whenever one occurred, else why the loop ended."""
@@ -256,17 +307,27 @@ class RunLoop:
     def _safe_end(self, reason: str, t: float) -> tuple[str, StopReport | None]:
         """DAMPING (logged with the reason), then the target's safe stop; errors here are logged only.
 
+        The run holds damping for ``damping_after_fault`` s once, whatever ended it: the loop's DAMPING ticks
+        after a fault or a stop count towards it, the target's safe stop holds the rest (``hold_s``; the
+        whole of it after the duration, a finished clip or an exception). A target that already stopped
+        itself (the real one after a driver error) sends nothing more and returns its report.
+
         Returns:
             The outcome (``StopReport.summary()``, or ``"failed: ..."`` with the error ``target.safe_stop``
             raised) and the report (None when it raised); both are also kept in ``safe_stop_summary`` and
             ``stop_report``.
         """
         sf = self.safety
+        damped = 0.0
+        if sf.mode == Mode.DAMPING and self._end_t is not None and not self.completed:
+            damped = max(0.0, t - self._end_t)
+        hold = max(0.0, self.config.damping_after_fault - damped)
         if sf.mode in (Mode.HOLD, Mode.POLICY, Mode.ZERO_TORQUE):
             level = logging.INFO if reason == "duration reached" or self.completed else logging.WARNING
             sf.transition(Mode.DAMPING, f"run ended: {reason}", t, level=level)
+        self.stop_hold_s = hold
         try:
-            report = self.target.safe_stop(sf.captured_q, sf.config.damping_kd)
+            report = self.target.safe_stop(sf.captured_q, sf.config.damping_kd, hold_s=hold)
         except Exception as e:
             log.exception("safe_stop of %s failed", type(self.target).__name__)
             self.safe_stop_summary = f"failed: {type(e).__name__}: {e}"

@@ -17,6 +17,11 @@ Scheduling (``timing.Pacer``) uses absolute deadlines ``t0 + k * dt`` (no drift)
 synchronous target (sim) is not paced: the loop calls ``target.advance(dt)`` and runs as fast as it can
 (``realtime=True`` paces it for the viewer).
 
+A ``TargetError`` from the target mid-run is the fault ``target``: the loop ends at once (the real target
+has already damped and stopped), and the run ends as any fault does, without an exception. The DAMPING
+after a fault or a stop carries the gravity torque at the measured q as ``tau_ff`` (``deploy.gravity``;
+``RuntimeConfig.stop_damping``), which the target's own safe stop uses too (``Target.use_stop_torque``).
+
 Start-up: ZERO_TORQUE until the first state; a valid first state gives DAMPING then HOLD (ramp to the
 command source's ``hold_pose``, else the policy's rest pose ``policy.hold_pose``, over
 ``safety.ramp_time``) then POLICY, where the source's phase 0 begins (``source.begin(t)``);
@@ -40,8 +45,10 @@ never names a task: it only knows the ``CommandSource`` interface (``bar_policy.
 Stopping: SIGINT, SIGTERM and SIGHUP (``StopSignals``; the caller's, or installed by ``run`` in
 the main thread) and ``request_stop`` all take one path: the next tick enters DAMPING with the reason, the
 loop keeps damping for ``damping_after_fault`` s, then ends. A requested stop is not a fault. The run
-always ends through ``finally``: DAMPING, ``target.safe_stop()`` (stop frames on every bus on the real
-target), then the log is closed with the reason and the stop path's outcome: the target's ``StopReport``
+always ends through ``finally``: DAMPING, ``target.safe_stop(hold_s=...)`` (the rest of
+``damping_after_fault`` not yet damped by the loop, then stop frames on every bus on the real target; it
+runs once: a real target that already stopped itself after a driver error returns its report), then the
+log is closed with the reason and the stop path's outcome: the target's ``StopReport``
 (which joints answered the damping and the stop frames); ``RunResult.safe_stop`` says ``"stop confirmed
 (...)"`` only when every joint answered, else it names the joints that did not, and
 ``RunResult.exit_status`` is ``EXIT_STOP_UNCONFIRMED`` (3; ``run_config``). The signal handlers stay
@@ -61,6 +68,7 @@ import numpy as np
 
 from bar_policy.deploy.action_path import ActionPath
 from bar_policy.deploy.contract import PolicyLoadError
+from bar_policy.deploy.gravity import GravityTorque
 from bar_policy.deploy.inputs import StateInputs
 from bar_policy.deploy.live import LiveServer
 from bar_policy.deploy.log import RunLog
@@ -149,6 +157,12 @@ class Runtime(RunLoop):
             default_q=self.hold_pose,
             config=self.config.safety,
         )
+        self.gravity = GravityTorque(robot.mode) if self.config.stop_damping == "gravity" else None
+        """``tau_ff`` of the DAMPING after a fault or a stop, and of the target's own safe stop (None:
+        damping alone; ``deploy.gravity``)."""
+        use_stop_torque = getattr(target, "use_stop_torque", None)
+        if use_stop_torque is not None:
+            use_stop_torque(self.gravity)
         self.inputs = StateInputs(policy.obs_manager, robot.mode, kinematics)
         """The observation's state terms (``deploy.inputs``)."""
         self.log_dir = None if log_dir is None else Path(log_dir)
@@ -173,6 +187,16 @@ class Runtime(RunLoop):
         self._end_reason = ""
         self._first_fault: str | None = None
         """``"fault KIND: detail"`` of the run's first fault (None: no fault)."""
+        self.faults: list[str] = []
+        """Every distinct ``"fault KIND: detail"`` (and an exception that ended the run), first first."""
+        self.fault_repeats: list[int] = []
+        """How often each of ``faults`` came (faults that differ only in their numbers count as one)."""
+        self._fault_keys: dict[str, int] = {}
+        self.result: RunResult | None = None
+        """What the run did, set when it ended, also when it ended on an exception (which then propagates)."""
+        self.stop_hold_s = 0.0
+        """Damping the target's safe stop held before its stop frames, s (the rest of ``damping_after_fault``
+        after the loop's DAMPING ticks)."""
         self.stop_report: StopReport | None = None
         """What the safe stop's frames got back (None until the run ended, or when ``safe_stop`` raised)."""
         self.safe_stop_summary = ""
@@ -216,11 +240,34 @@ class Runtime(RunLoop):
     def _fault(self, kind: str, detail: str, t: float) -> None:
         if self._first_fault is None:
             self._first_fault = f"fault {kind}: {detail}"
+        self._note_fault(f"fault {kind}: {detail}")
         changed = self.safety.fault(kind, detail, t)
         if changed and (self._end_t is None or self.completed):  # a fault in the final HOLD is a fault
             self._end_t, self._end_after = t, self.config.damping_after_fault
             self._end_reason = f"fault {kind}: {detail}"
             self.completed = False
+
+    def _with_stop_torque(self, cmd: MitCommand, q: np.ndarray) -> MitCommand:
+        """In DAMPING with gravity compensation: ``tau_ff`` = the gravity torque at the measured ``q``."""
+        if self.gravity is None or self.safety.mode != Mode.DAMPING:
+            return cmd
+        return cmd._replace(tau_ff=self.gravity(q))
+
+    def stop_damping_record(self) -> dict[str, Any]:
+        """For the run log: which damping the stops used and how it was held.
+
+        ``kind`` (``gravity`` or ``plain``), ``damping_time_s`` (the configured damping), ``target_hold_s``
+        (the part the target's safe stop held after the loop's DAMPING ticks), and with gravity the
+        evaluations, the clipped joint-evaluations and the largest torque asked per joint.
+        """
+        rec: dict[str, Any] = {
+            "kind": self.config.stop_damping,
+            "damping_time_s": self.config.damping_after_fault,
+            "target_hold_s": self.stop_hold_s,
+        }
+        if self.gravity is not None:
+            rec["gravity"] = self.gravity.record()
+        return rec
 
     def request_stop(self, reason: str) -> None:
         """Ask the loop to stop (DAMPING at the next tick, then the safe ending); the first reason is kept."""
@@ -312,7 +359,7 @@ class Runtime(RunLoop):
             else:
                 used, n_action_clipped = self.actions(action, t)
                 q_policy = self.policy.q_command(used)
-        cmd = sf.command(t, q_policy)
+        cmd = self._with_stop_torque(sf.command(t, q_policy), state.q)
         sat = sf.check_torque(cmd, state, self.config.control_dt)
         demand = sf.last_demand
         if q_policy is not None:
@@ -320,7 +367,7 @@ class Runtime(RunLoop):
             self.quality.update(demand, state.q, self.actions.last, cmd.q if ref is None else cmd.q - ref)
         if sat is not None:
             self._fault(*sat, t)
-            cmd = sf.command(t, q_policy)
+            cmd = self._with_stop_torque(sf.command(t, q_policy), state.q)
             demand = mit_torque(cmd, state.q, state.dq)
         self.target.write_command(cmd)
         self.last_command = cmd

@@ -43,13 +43,15 @@ class TimingStats:
     jitter: np.ndarray
     """Tick start minus its deadline (0 for an unpaced synchronous target)."""
     overruns: int
-    """Ticks that ended after the next deadline."""
+    """Ticks that ran late: ended after the next deadline."""
     wall: float
     """Wall-clock duration of the loop, s."""
     target_time: float
     """Target-clock duration, s."""
     paced: bool
     """True when ticks were paced against the wall clock."""
+    skipped: int = 0
+    """Deadlines skipped after late ticks (the ticks that did not run in a paced run's duration)."""
 
     def summary(self) -> dict[str, float]:
         """p50 / p99 / max in ms, counts, rates."""
@@ -67,6 +69,7 @@ class TimingStats:
             "infer_p50_ms": pct(self.infer, 50),
             "infer_p99_ms": pct(self.infer, 99),
             "overruns": self.overruns,
+            "skipped": self.skipped,
             "wall_s": self.wall,
             "target_s": self.target_time,
             "rate_hz": ticks / self.wall if self.wall > 0 else float("nan"),
@@ -93,7 +96,8 @@ class TimingStats:
         if self.paced:
             lines.append(
                 f"jitter p50 {s['jitter_p50_ms']:.3f} ms  p99 {s['jitter_p99_ms']:.3f} ms  "
-                f"max {s['jitter_max_ms']:.3f} ms  overruns {s['overruns']}"
+                f"max {s['jitter_max_ms']:.3f} ms  late ticks {s['overruns']} (ended after the next "
+                f"deadline; {s['skipped']} deadlines skipped)"
             )
         else:
             lines.append("unpaced synchronous target: no jitter, no overruns")
@@ -131,8 +135,10 @@ class Pacer:
     """The loop's clock: absolute deadlines ``t0 + k * dt`` (no drift), overruns, per-tick statistics.
 
     A paced loop sleeps until each deadline (``sleep_until``); a tick that ends after the next deadline is
-    an overrun, and the missed deadlines are skipped (the grid keeps its phase). An unpaced loop (a
-    synchronous target) never waits and has no jitter or overruns.
+    an overrun (a tick that ran late), and the missed deadlines are skipped (the grid keeps its phase):
+    ``index`` counts the deadlines passed, run or skipped, so ``index * dt`` is the wall-clock time of the
+    next deadline since the start. An unpaced loop (a synchronous target) never waits and has no jitter or
+    overruns; its ``index`` counts the ticks.
     """
 
     def __init__(self, dt: float, paced: bool, spin_s: float = 0.0003) -> None:
@@ -142,32 +148,44 @@ class Pacer:
         self.spin_s = spin_s
         self.wall0 = time.perf_counter()
         """Wall clock of the loop's start, s (``time.perf_counter``)."""
-        self._deadline = self.wall0
+        self.index = 0
+        """The next deadline's number: its time is ``wall0 + index * dt``."""
         self.compute: list[float] = []
         self.infer: list[float] = []
         self.jitter: list[float] = []
         self.overruns = 0
+        self.skipped = 0
+        """Deadlines skipped after overruns (ticks that never ran)."""
+
+    @property
+    def elapsed(self) -> float:
+        """Time of the next deadline since the start, s (wall clock when paced, else ticks x dt)."""
+        return self.index * self.dt
 
     def wait(self) -> tuple[float, float]:
         """Wait for the next deadline; returns (tick start, lateness = start - deadline; 0 unpaced), s."""
+        deadline = self.wall0 + self.index * self.dt
         if self.paced:
-            sleep_until(self._deadline, self.spin_s)
+            sleep_until(deadline, self.spin_s)
         start = time.perf_counter()
-        return start, (start - self._deadline if self.paced else 0.0)
+        return start, (start - deadline if self.paced else 0.0)
 
     def tick_done(self, lateness: float, compute: float, infer: float) -> bool:
         """Record a tick that took ``compute`` s (``infer`` in ONNX); returns True when it overran."""
         self.compute.append(compute)
         self.infer.append(infer)
         self.jitter.append(lateness)
+        self.index += 1
         if not self.paced:
             return False
         end = time.perf_counter()
-        self._deadline += self.dt
-        if end <= self._deadline:
+        deadline = self.wall0 + self.index * self.dt
+        if end <= deadline:
             return False
         self.overruns += 1
-        self._deadline += math.ceil((end - self._deadline) / self.dt) * self.dt  # skip, keep the grid
+        skip = math.ceil((end - deadline) / self.dt)  # skip the missed deadlines, keep the grid
+        self.index += skip
+        self.skipped += skip
         return True
 
     def stats(self, target_time: float) -> TimingStats:
@@ -180,4 +198,5 @@ class Pacer:
             wall=time.perf_counter() - self.wall0,
             target_time=target_time,
             paced=self.paced,
+            skipped=self.skipped,
         )

@@ -41,6 +41,8 @@ log = logging.getLogger(__name__)
 
 _SEND_RETRIES = 20
 _SEND_RETRY_SLEEP = 0.0002
+_QUEUED_AFTER_DEADLINE = 64
+"""``await_reply`` reads at most this many frames already queued past its deadline (bounded by chatter)."""
 
 
 class RobstrideBus(BusParams):
@@ -294,6 +296,39 @@ class RobstrideBus(BusParams):
                 interface=self.interface,
             )
         return reading
+
+    def send_stop(self, motor_id: int, *, clear_faults: bool = False) -> float:
+        """Drain what is queued (an earlier reply is no answer to this stop), send one stop frame.
+
+        Returns the deadline of its reply (``perf_counter``), for ``await_reply``.
+        """
+        for reply in self.drain():
+            self._note(reply, None)
+        self.send(proto.stop_frame(motor_id, clear_faults=clear_faults, host_id=self.host_id))
+        return time.perf_counter() + self.reply_timeout
+
+    def await_reply(self, motor_id: int, deadline: float) -> proto.Feedback | None:
+        """The first type-2 reply carrying ``motor_id`` until ``deadline`` (``perf_counter``); None if none.
+
+        A reply carrying another id is not this motor's answer: it is noted (late or unexpected) and the
+        wait goes on. Frames queued by the deadline still count (a descheduled host, as in
+        ``collect_round``), at most ``_QUEUED_AFTER_DEADLINE`` of them.
+        """
+        queued = 0
+        while True:
+            remaining = deadline - time.perf_counter()
+            if remaining <= 0:
+                queued += 1
+                if queued > _QUEUED_AFTER_DEADLINE:
+                    return None
+            reply = self._recv(max(remaining, 0.0))
+            if reply is None:
+                return None
+            if reply is False:
+                continue
+            if isinstance(reply, proto.Feedback) and reply.motor_id == motor_id:
+                return reply
+            self._note(reply, None)
 
     def empty_reading(self) -> BusReading:
         """A reading with no replies (NaN, mode -1)."""

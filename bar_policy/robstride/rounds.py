@@ -213,3 +213,42 @@ class GroupRounds:
             if missing:
                 log.warning("no reply to the stop frame from %s", missing)
         return reading
+
+    def stop_each(self, *, clear_faults: bool = False) -> np.ndarray:
+        """Stop (type 4) frames one motor at a time per bus; which joints answered, bool (num_joints,).
+
+        A joint counts as answered only for a type-2 reply carrying its own CAN id that arrived after its
+        own stop frame and before the next motor's frame on that bus (``RobstrideBus.send_stop`` /
+        ``await_reply``): a reply from another motor that answers in its place with its id, or a late reply
+        to an earlier frame, does not count. The buses run side by side (motor k of every bus, then motor
+        k + 1), so a silent motor delays the next stop frame on its bus by one reply deadline at most.
+        Best effort: errors are logged, every motor's stop frame is tried.
+        """
+        index = {name: i for i, name in enumerate(self.joint_names)}
+        answered = np.zeros(self.num_joints, dtype=bool)
+        for k in range(max((len(bus.motors) for bus in self.buses), default=0)):
+            sent: list[tuple[RobstrideBus, int, str, float]] = []
+            for bus in self.buses:
+                if k >= len(bus.motors):
+                    continue
+                motor = bus.motors[k]
+                try:
+                    sent.append(
+                        (
+                            bus,
+                            motor.can_id,
+                            motor.name,
+                            bus.send_stop(motor.can_id, clear_faults=clear_faults),
+                        )
+                    )
+                except RobstrideError as exc:
+                    log.error("%s: cannot send the stop frame of %s: %s", bus.interface, motor.name, exc)
+            for bus, can_id, name, deadline in sent:
+                try:
+                    answered[index[name]] = bus.await_reply(can_id, deadline) is not None
+                except RobstrideError as exc:
+                    log.error("%s: stop reply of %s: %s", bus.interface, name, exc)
+        missing = [n for n, ok in zip(self.joint_names, answered, strict=True) if not ok]
+        if missing:
+            log.warning("no reply carrying its own id to its stop frame from %s", missing)
+        return answered

@@ -15,7 +15,7 @@ from bar_policy.deploy.log import load_log
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import CapDwell, Mode, SafetyConfig, SafetySupervisor
-from bar_policy.deploy.targets.base import JointState, TargetError
+from bar_policy.deploy.targets.base import JointState
 from bar_policy.robot.constants import load_robot
 from bar_policy.tasks.reach.commands import SampledCommands
 
@@ -28,6 +28,9 @@ def _run(policy, target, *, duration=1.0, start="policy", log_dir=None, on_tick=
         duration=duration,
         start_mode=start,
         damping_after_fault=0.1,
+        # Damping alone (tau_ff = 0) in these tests of the fault rules; the gravity-compensated damping (the
+        # default) has its own tests in test_stop_sequence.py.
+        stop_damping="plain",
         safety=SafetyConfig(**({"ramp_time": 0.0} | safety)),
     )
     cmds = SampledCommands(policy.obs_manager.command_names, seed=0)
@@ -247,7 +250,7 @@ def test_second_signal_is_counted_and_cannot_skip_the_stop(zero_policy, tmp_path
         zero_policy,
         target,
         SampledCommands(zero_policy.obs_manager.command_names),
-        RuntimeConfig(duration=1.0, start_mode="policy", damping_after_fault=0.2),
+        RuntimeConfig(duration=1.0, start_mode="policy", damping_after_fault=0.2, stop_damping="plain"),
         log_dir=tmp_path,
         on_tick=on_tick,
     )
@@ -271,14 +274,16 @@ def test_exception_mid_run_still_writes_the_log(zero_policy, tmp_path):
         RuntimeConfig(duration=2.0, start_mode="policy"),
         log_dir=tmp_path,
     )
-    with pytest.raises(TargetError, match="injected bus failure at read 30"):
-        rt.run()
+    # A target error ends the run as a fault (the target is past commanding): no exception, the end line
+    # and exit status 1, the log holds the 30 ticks before it.
+    res = rt.run()
     arrays, meta = load_log(rt.log_path)
     assert arrays["q"].shape == (30, 14)
     np.testing.assert_allclose(arrays["t"], np.arange(30) * 0.02, atol=1e-12)
-    assert meta["end_reason"] == "exception TargetError: injected bus failure at read 30"
+    assert meta["end_reason"] == res.end_reason == "fault target: injected bus failure at read 30"
+    assert res.exit_status == 1 and res.end_line().startswith("end: fault target: injected bus failure")
     assert meta["transitions"][-1]["to"] == "DAMPING"
-    assert meta["transitions"][-1]["reason"].startswith("run ended: exception TargetError")
+    assert meta["transitions"][-1]["reason"] == "fault target: injected bus failure at read 30"
     assert rt.safety.mode == Mode.DAMPING
 
 

@@ -36,9 +36,9 @@ def _env() -> dict[str, str]:
     return env
 
 
-def _start(argv: list[str], log_dir: Path, frames: Path | None = None) -> subprocess.Popen:
+def _start(argv: list[str], log_dir: Path, frames: Path | None = None, ramp: float = 0.2) -> subprocess.Popen:
     common = [
-        "--duration", "60", "--ramp-time", "0.2", "--start", "hold", "--log", str(log_dir),
+        "--duration", "60", "--ramp-time", str(ramp), "--start", "hold", "--log", str(log_dir),
         "--damping-time", str(DAMPING_TIME), "--max-overruns", "0", "--stale-timeout", "2",
     ]  # fmt: skip
     if frames is None:
@@ -118,6 +118,9 @@ def _assert_stopped_log(run: Path, sig: signal.Signals) -> dict[str, np.ndarray]
 SIGNALS = [signal.SIGINT, signal.SIGTERM, signal.SIGHUP]
 
 
+REAL_RAMP_S = 1.2
+"""--ramp-time on the real target, s: at least the minimum it accepts for the test policy (Kp 50: 1.152 s,
+``deploy.ramp_limit``)."""
 WATCHDOG_S = 2.0
 """CAN watchdog armed by the emulated real target in these tests (generous: CI machines are loaded)."""
 
@@ -165,6 +168,7 @@ def test_signal_on_emulated_real_target_sends_damping_then_stop_frames(sig, poli
         [*argv, "--emulate", "lockstep", "--reply-timeout", "1", "--can-timeout", str(WATCHDOG_S)],
         log_dir,
         frames,
+        ramp=REAL_RAMP_S,
     )
     _wait_for_policy(proc, log_dir)
     out, err, _ = _stop_with(proc, sig)

@@ -102,6 +102,7 @@ def test_fault_temperature_ends_a_run_damped_and_stopped(robot, channels, listen
         control_dt=0.02,
         duration=3.0,
         damping_after_fault=0.1,
+        stop_damping="plain",  # damping frames with tau_ff = 0, as assert_ends_with_damping_then_stop checks
         handle_signals=False,
         safety=SafetyConfig(ramp_time=0.2, stale_timeout=1.0),
     )

@@ -15,7 +15,7 @@ targets always answer (the default ``safe_stop``).
 from __future__ import annotations
 
 import abc
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -148,14 +148,26 @@ class Target(abc.ABC):
 
         return time.monotonic()
 
-    def safe_stop(self, q: np.ndarray | None = None, kd: float = 1.0) -> StopReport:
+    def safe_stop(
+        self, q: np.ndarray | None = None, kd: float = 1.0, *, hold_s: float | None = None
+    ) -> StopReport:
         """Damping, then stop: the safe ending; returns which joints answered (here: all of them).
 
-        Real hardware overrides it to also send stop frames and to report the motors that did not reply.
+        ``hold_s``: how long the damping is held before the stop frames, s (None: the target's own
+        default). Here one damping command is written (a simulated or mock joint set has no stop frames and
+        no wall-clock hold). Real hardware overrides it to hold the damping, send stop frames and report the
+        motors that did not reply.
         """
         state_q = self.read_state().q if q is None else q
         self.write_command(MitCommand.damping(state_q, kd))
         return StopReport.all_answered(self.joint_names)
+
+    def use_stop_torque(self, tau_ff: Callable[[np.ndarray], np.ndarray] | None) -> None:  # noqa: B027
+        """Feed-forward torque for the damping of the target's own safe stop: ``tau_ff(q)``, N*m (n,).
+
+        The runtime hands its gravity compensation (``deploy.gravity``) to the target here, so a stop the
+        target runs by itself (the real target after a driver error) damps the same way. Default: unused.
+        """
 
     def run_metadata(self) -> dict[str, Any]:
         """Target settings worth keeping in the run log (JSON values), read when the run ends.

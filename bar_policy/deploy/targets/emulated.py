@@ -25,6 +25,7 @@ unique per instance (``virtual`` channels are process-wide), so several can coex
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 import can
 import numpy as np
@@ -73,12 +74,15 @@ class EmulatedBusTarget(Target):
         key = f"emulated-{id(self)}-{time.monotonic_ns()}"
         interfaces = sorted({j.can_interface for j in self.robot.joints})
         self.channels = {i: f"{key}-{i}" for i in interfaces}
+        self.control_dt = control_dt
+        """Physics per command round, s."""
         self.reply_timeout = reply_timeout
         self.can_timeout = can_timeout
         self.emu = RobstrideEmulator(
             self.robot, self.channels, mode="lockstep", control_dt=control_dt, scene=scene
         ).start()
         self.inner: RealTarget | None = None
+        self._stop_torque: Callable[[np.ndarray], np.ndarray] | None = None
 
     def reset(self, q: np.ndarray | None = None, dq: np.ndarray | None = None) -> None:
         """Teleport the emulated joints to ``q`` (default ``piano_ready``) at rest, start a fresh real target.
@@ -97,6 +101,7 @@ class EmulatedBusTarget(Target):
         self.inner = RealTarget(
             self.robot, group, refresh_on_read=False, damping_hold_s=0.0, scan_ids=range(1, 33)
         )
+        self.inner.use_stop_torque(self._stop_torque)
         self.inner.start()
 
     @property
@@ -122,9 +127,32 @@ class EmulatedBusTarget(Target):
         """Emulator physics time, s."""
         return self.emu.sim_time
 
-    def safe_stop(self, q: np.ndarray | None = None, kd: float = 1.0) -> StopReport:
-        """Damping, then stop frames on the buses; which motors replied (``RealTarget.safe_stop``)."""
-        return self._target().safe_stop(q, kd)
+    def safe_stop(
+        self, q: np.ndarray | None = None, kd: float = 1.0, *, hold_s: float | None = None
+    ) -> StopReport:
+        """Damping, then stop frames on the buses; which motors replied (``RealTarget.safe_stop``).
+
+        Lockstep: the damping is held for ``hold_s`` s of physics (one command round per control period,
+        at the measured q with the stop torque), then the stop frames.
+        """
+        inner = self._target()
+        rounds = 0 if hold_s is None or inner.stopped else round(hold_s / self.control_dt)
+        for _ in range(rounds):
+            try:
+                q_now = inner.read_state().q
+                cmd = MitCommand.damping(q_now if q is None else q, kd)
+                if self._stop_torque is not None:
+                    cmd = cmd._replace(tau_ff=np.asarray(self._stop_torque(q_now), dtype=np.float64))
+                inner.write_command(cmd)
+            except Exception:  # the inner target stopped itself (driver error): its report stands
+                break
+        return inner.safe_stop(q, kd, hold_s=0.0)
+
+    def use_stop_torque(self, tau_ff: Callable[[np.ndarray], np.ndarray] | None) -> None:
+        """The damping torque of the safe stop (``Target.use_stop_torque``), kept across ``reset``."""
+        self._stop_torque = tau_ff
+        if self.inner is not None:
+            self.inner.use_stop_torque(tau_ff)
 
     def close(self) -> None:
         """Close the real target and the emulator (safe to call twice)."""

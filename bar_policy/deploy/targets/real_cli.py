@@ -12,6 +12,7 @@ import signal
 
 import can
 
+from bar_policy.deploy.ramp_limit import START_LIMIT_MARGIN, UNSAFE_FLAG
 from bar_policy.deploy.targets.base import Target, TargetError
 from bar_policy.deploy.targets.real_target import RealTarget
 from bar_policy.robot.constants import load_robot
@@ -72,6 +73,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="Kd of the damping fail-safe, N*m*s/rad (default 1.0)")  # fmt: skip
     add("--scan-to", type=int_range(1, 127), default=127, metavar="ID",
         help=f"{HELP['--scan-to']}, before enabling (default 127)")  # fmt: skip
+    add(UNSAFE_FLAG, action="store_true",
+        help="UNSAFE: allow --start policy or a --ramp-time below the safe minimum on the real target "
+             "(refused without it: the step can snap the arms; the minimum is derived from the policy's Kp, "
+             "the torque caps and the joint ranges, deploy.ramp_limit)")  # fmt: skip
     add("--activation-retries", type=int_range(0, 20), default=DEFAULT_RETRIES, metavar="N",
         help="start-up: tries again after a missing reply this many times (backoff "
              f"{DEFAULT_RETRY_BACKOFF * 1e3:g} ms, doubling) before refusing "
@@ -140,6 +145,8 @@ def _make_target(args: argparse.Namespace, mode: str, scene: SceneEdit | None = 
         dry_run=getattr(args, "dry_run", False),
         refresh_on_read=emulate != "lockstep",
         damping_kd=getattr(args, "damping_kd", 1.0),
+        damping_hold_s=getattr(args, "damping_time", 0.2),
+        limit_margin=START_LIMIT_MARGIN,
         scan_ids=range(1, getattr(args, "scan_to", 127) + 1),
         companions=companions,
         stop_requested=installed_stop_request,

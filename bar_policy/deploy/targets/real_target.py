@@ -13,9 +13,13 @@
   returns fresh feedback: it re-sends the last command (harmless: the motors already apply it) unless
   ``refresh_on_read`` is off (the lockstep emulator, whose replies already carry the post-step state).
 - Any driver error (missing reply, fault bit, unexpected id, invalid command, a motor that left run mode:
-  a watchdog trip), ``KeyboardInterrupt`` or other exception inside a read or write sends damping then stop
-  frames on every bus, then raises (``TargetError`` from the driver error). ``close()`` does the same when
-  the motors are still enabled.
+  a watchdog trip), ``KeyboardInterrupt`` or other exception inside a read or write runs the safe stop
+  (``safe_stop``: damping for ``damping_hold_s``, then stop frames on every bus), then raises
+  (``TargetError`` from the driver error). ``close()`` does the same when the motors are still enabled.
+  The safe stop runs once: a later ``safe_stop`` (the runtime's safe ending after that error) sends nothing
+  and returns the first one's ``StopReport``, so a run's CAN log holds exactly one damping-then-stop.
+- The damping frames of the safe stop carry ``tau_ff`` from ``use_stop_torque`` (the runtime's
+  gravity compensation at the measured q, ``deploy.gravity``) when one is set, else 0.
 - ``record_can(path)`` records the raw traffic of every bus to a BLF (or ASC) file until ``close()``
   (``robstride.can_record``; ``bar-deploy`` writes ``run.blf`` in the run directory).
 
@@ -99,6 +103,9 @@ class RealTarget(Target):
         """True between a successful enable and the stop frames."""
         self.stopped = False
         """True once damping-then-stop ran; commands are refused afterwards."""
+        self.stop_report: StopReport | None = None
+        """The safe stop's report (None before it ran); a later ``safe_stop`` returns it unchanged."""
+        self._stop_torque: Callable[[np.ndarray], np.ndarray] | None = None
         self._last_cmd: MitCommand | None = None
         self._reading: BusReading | None = None
         self._closed = False
@@ -270,58 +277,88 @@ class RealTarget(Target):
         self._reading = self._guarded(self.group.exchange_mit, cmd)
         self._last_cmd = cmd
 
-    def safe_stop(self, q: np.ndarray | None = None, kd: float | None = None) -> StopReport:
+    def use_stop_torque(self, tau_ff: Callable[[np.ndarray], np.ndarray] | None) -> None:
+        """The safe stop's damping frames carry ``tau_ff(q)`` at the measured q, N*m (n,); None: 0."""
+        self._stop_torque = tau_ff
+
+    def safe_stop(
+        self, q: np.ndarray | None = None, kd: float | None = None, *, hold_s: float | None = None
+    ) -> StopReport:
         """Damping (Kp = 0) at ``q`` (default: the last reading), then stop frames on every bus; who replied.
 
-        The sequence of ``RobstrideGroup.damping_then_stop`` (damping repeated for ``damping_hold_s`` s at
-        most every 10 ms, then stop frames; best effort: errors are logged, the stop frames always go out),
-        with each motor's reply noted: ``damping_answered`` is the last damping round's, ``stop_answered``
-        the stop round's. A dry run sent nothing and enabled nothing: every joint counts as answered.
+        Damping frames are repeated for ``hold_s`` s (default ``damping_hold_s``) at most every 10 ms, with
+        ``tau_ff`` from ``use_stop_torque`` at each round's measured q; then one stop frame per motor, one
+        motor at a time per bus (``RobstrideGroup.stop_each``). Best effort: errors are logged, the stop
+        frames always go out. ``damping_answered`` is the last damping round's replies, ``stop_answered``
+        only replies carrying the joint's own id after its own stop frame. Runs once: when the target was
+        already stopped, nothing is sent and the first report is returned. A dry run sent nothing and
+        enabled nothing: every joint counts as answered.
         """
+        if self.stop_report is not None:
+            return self.stop_report
         if self.dry_run:
             self.stopped = True
-            return StopReport.all_answered(self.joint_names, "dry run: nothing was enabled, no frames sent")
+            self.stop_report = StopReport.all_answered(
+                self.joint_names, "dry run: nothing was enabled, no frames sent"
+            )
+            return self.stop_report
         if q is None and self._reading is not None:
             q = self._reading.q
         damped = np.zeros(self.num_joints, dtype=bool)
+        stopped = np.zeros(self.num_joints, dtype=bool)
+        hold = self.damping_hold_s if hold_s is None else max(0.0, float(hold_s))
         try:
-            damped = self._damping_rounds(q, self.damping_kd if kd is None else kd)
+            damped = self._damping_rounds(q, self.damping_kd if kd is None else kd, hold)
         finally:
             try:
-                stop_reading = self.group.stop()
+                stopped = self.group.stop_each()
             finally:
                 self.enabled = False
                 self.stopped = True
-        stopped = np.zeros(self.num_joints, dtype=bool) if stop_reading is None else stop_reading.mode >= 0
-        report = StopReport(self.joint_names, tuple(map(bool, damped)), tuple(map(bool, stopped)))
-        if not report.confirmed:
-            log.warning("real target: %s", report.summary())
-        return report
+                self.stop_report = StopReport(
+                    self.joint_names, tuple(map(bool, damped)), tuple(map(bool, stopped))
+                )
+        if not self.stop_report.confirmed:
+            log.warning("real target: %s", self.stop_report.summary())
+        return self.stop_report
 
-    def _damping_rounds(self, q: np.ndarray | None, kd: float) -> np.ndarray:
-        """Damping frames at ``q`` (rad; None: the last reading) for ``damping_hold_s`` s; who replied."""
+    def _damping_rounds(self, q: np.ndarray | None, kd: float, hold_s: float) -> np.ndarray:
+        """Damping frames at ``q`` (rad; None: the last reading) for ``hold_s`` s; who replied last."""
         if q is None:
             last = self.group.last_reading
             q = last.q if last is not None else np.zeros(self.num_joints)
-        cmd = MitCommand.damping(np.where(np.isfinite(q), q, 0.0), kd)
+        q = np.where(np.isfinite(q), q, 0.0)
+        measured = q
         answered = np.zeros(self.num_joints, dtype=bool)
-        end = time.monotonic() + self.damping_hold_s
+        end = time.monotonic() + hold_s
         while True:
+            cmd = MitCommand.damping(q, kd)
+            if self._stop_torque is not None:
+                try:
+                    cmd = cmd._replace(tau_ff=np.asarray(self._stop_torque(measured), dtype=np.float64))
+                except Exception:
+                    log.exception("stop torque failed: damping without it")
+                    self._stop_torque = None
             try:
                 frames = self.group.mit_frames(cmd)
             except RobstrideError as exc:
                 log.error("damping frames: %s", exc)
                 break
-            answered = self._best_effort_answers(frames)
+            answered, reading = self._best_effort_answers(frames)
+            measured = np.where(np.isfinite(reading), reading, measured)
             if time.monotonic() >= end:
                 break
             time.sleep(min(0.01, max(0.0, end - time.monotonic())))
         return answered
 
-    def _best_effort_answers(self, frames: Sequence[Sequence[object]]) -> np.ndarray:
-        """Send ``frames[b]`` on every bus independently, collect non-strictly; which joints replied, (n,)."""
+    def _best_effort_answers(self, frames: Sequence[Sequence[object]]) -> tuple[np.ndarray, np.ndarray]:
+        """Send ``frames[b]`` on every bus independently, collect non-strictly.
+
+        Returns which joints replied, bool (n,), and the replies' q, rad (n,; NaN where none came).
+        """
         index = {name: i for i, name in enumerate(self.joint_names)}
         answered = np.zeros(self.num_joints, dtype=bool)
+        q = np.full(self.num_joints, np.nan)
         sent = []
         for bus, bus_frames in zip(self.group.buses, frames, strict=True):
             try:
@@ -334,9 +371,10 @@ class RealTarget(Target):
             except RobstrideError as exc:
                 log.error("%s: damping replies: %s", bus.interface, exc)
                 continue
-            for motor, mode in zip(bus.motors, reading.mode, strict=True):
+            for motor, mode, qi in zip(bus.motors, reading.mode, reading.q, strict=True):
                 answered[index[motor.name]] = bool(mode >= 0)
-        return answered
+                q[index[motor.name]] = qi
+        return answered, q
 
     def close(self) -> None:
         """Damping then stop if still enabled, then close the buses and companions. Safe to call twice."""
