@@ -52,8 +52,12 @@ def _indexed_ok(path: Path) -> bool:
         return False
 
 
-def soak(policy: str, minutes: float, load_procs: int, log_dir: Path) -> dict:
-    """Run the soak; the figures (see the module docstring)."""
+def soak(policy: str, minutes: float, load_procs: int, log_dir: Path, rt_priority: int | None = None) -> dict:
+    """Run the soak; the figures (see the module docstring).
+
+    ``rt_priority``: the run's ``--rt-priority`` (SCHED_FIFO for the control loop, as a robot computer runs
+    it); None runs the loop under the normal scheduler.
+    """
     duration = 60.0 * minutes
     load = [_spin() for _ in range(load_procs)]
     t0 = time.monotonic()
@@ -62,6 +66,8 @@ def soak(policy: str, minutes: float, load_procs: int, log_dir: Path) -> dict:
             sys.executable, "-m", "bar_policy.deploy.cli", "--policy", policy, "--target", "real",
             "--can-interface", "virtual", "--duration", f"{duration:g}", "--log", str(log_dir),
         ]  # fmt: skip
+        if rt_priority is not None:
+            cmd += ["--rt-priority", str(rt_priority)]
         proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
     finally:
         for p in load:
@@ -84,6 +90,7 @@ def soak(policy: str, minutes: float, load_procs: int, log_dir: Path) -> dict:
         "policy": policy,
         "minutes": minutes,
         "load_procs": load_procs,
+        "rt_priority": rt_priority,
         "exit_status": proc.returncode,
         "end_line": next((ln for ln in proc.stdout.splitlines() if ln.startswith("end:")), ""),
         "wall_s": wall,
@@ -110,7 +117,8 @@ def markdown(r: dict) -> str:
     t = r["timing"]
     rows = [
         ("run", f"{r['minutes']:g} min, real target on the emulator (virtual CAN, realtime), "
-                f"{r['load_procs']} busy process(es) on {r['cpus']} CPUs"),
+                f"{r['load_procs']} busy process(es) on {r['cpus']} CPUs, loop priority "
+                f"{'SCHED_FIFO ' + str(r['rt_priority']) if r.get('rt_priority') else 'normal'}"),
         ("exit status / end", f"{r['exit_status']} / {r['end_reason']}"),
         ("faults", str(r["fault_count"])),
         ("safe stop", r["safe_stop"]),
@@ -134,12 +142,19 @@ def main() -> int:
     p.add_argument("--minutes", type=float, default=30.0, help="run length, min")
     p.add_argument("--load-procs", type=int, default=1, help="busy processes competing for the CPU")
     p.add_argument("--log", type=Path, default=None, help="run log directory (default: a temporary one)")
+    p.add_argument(
+        "--rt-priority",
+        type=int,
+        default=None,
+        metavar="1-99",
+        help="the run's --rt-priority (SCHED_FIFO control loop; root or CAP_SYS_NICE)",
+    )
     p.add_argument("--json", type=Path, default=None)
     p.add_argument("--markdown", type=Path, default=None)
     a = p.parse_args()
     log_dir = a.log or Path(tempfile.mkdtemp(prefix="soak-"))
     log_dir.mkdir(parents=True, exist_ok=True)
-    r = soak(a.policy, a.minutes, a.load_procs, log_dir)
+    r = soak(a.policy, a.minutes, a.load_procs, log_dir, a.rt_priority)
     md = markdown(r)
     print(md)
     if a.json:
