@@ -3,9 +3,10 @@
 Each row of ``robot.perturb_suite.SUITE`` runs the task's own evaluation (``DeployTask.evaluate``, the
 same episodes, clips or songs as a plain ``bar-deploy eval``) on the sim target of the perturbed robot
 (``targets.perturbed``) and is judged by the task's ship gate (``quality.gate.check``) as far as the row's
-``gating`` says. The table: perturbation, completion %, the task's metric (track: mean fingertip error,
-cm; reach: segment success %; piano: F1 %), ticks at a torque cap %, the worst episode's chatter (mrad),
-the verdict (PASS, MISS, or ``report`` for a row not judged) and the metric's ratio to the nominal row's.
+``gating`` says. The table: perturbation, completion %, the task's metrics (``task_metrics``: track, the
+mean fingertip and joint errors; reach, the median segment-end distance and the success %; piano, F1 %),
+ticks at a torque cap %, the worst episode's chatter (mrad), the verdict (PASS, MISS, or ``report`` for a
+row not judged) and the first metric's ratio to the nominal row's.
 
 The ship gate (``train/ship.py``) does not read this yet: the printed verdicts inform.
 """
@@ -18,11 +19,21 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from bar_policy.quality.gate import Miss, check, thresholds_text
 from bar_policy.robot.perturb_spec import Perturbation
 from bar_policy.robot.perturb_suite import SUITE, SuiteRow
 
-__all__ = ["SAFETY_METRICS", "RowResult", "SuiteResult", "evaluate_perturbed", "row_verdict", "run_suite"]
+__all__ = [
+    "SAFETY_METRICS",
+    "RowResult",
+    "SuiteResult",
+    "evaluate_perturbed",
+    "row_verdict",
+    "run_suite",
+    "task_metrics",
+]
 
 SAFETY_METRICS = frozenset({"min_completion_pct", "max_cap_share_pct"})
 """The thresholds a ``safety`` row is judged on (completion and torque caps)."""
@@ -42,11 +53,25 @@ def row_verdict(task: str, report: Mapping[str, Any], gating: str) -> tuple[str,
     return ("PASS" if not misses else "MISS"), misses
 
 
-def _metric(report: Mapping[str, Any]) -> tuple[str, float | None]:
-    """The task's accuracy figure of a gate report: fingertip error (cm) when tracked, else success %."""
+def task_metrics(result: Any, report: Mapping[str, Any]) -> list[tuple[str, float | None]]:
+    """The task's accuracy figures of one evaluation, the ratio's first: ``[(column, value), ...]``.
+
+    track: mean fingertip error (cm), mean joint error (rad); reach: the median segment-end distance over
+    both hands (cm, from the episodes' ``dist_left`` / ``dist_right``), success %; piano (and any other
+    task): its ``success_pct`` (piano: 100 x F1).
+    """
     if "fingertip_error_cm" in report:
-        return "fingertip cm", report.get("fingertip_error_cm")
-    return "success %", report.get("success_pct")
+        return [
+            ("fingertip cm", report.get("fingertip_error_cm")),
+            ("joint rad", report.get("joint_error_rad")),
+        ]
+    eps = getattr(result, "episodes", None) or []
+    raw = [getattr(e, side, None) for e in eps for side in ("dist_left", "dist_right")]
+    dists = [np.asarray(d, dtype=float) for d in raw if d is not None and len(d)]
+    if dists:
+        median = float(np.median(np.concatenate(dists))) * 100.0
+        return [("median end cm", median), ("success %", report.get("success_pct"))]
+    return [("success %", report.get("success_pct"))]
 
 
 def _chatter(report: Mapping[str, Any]) -> float | None:
@@ -66,10 +91,15 @@ class RowResult:
     """The task's gate report (``EvalResult.gate_report()``)."""
     verdict: str
     misses: list[Miss]
-    metric_name: str
-    metric: float | None
+    metrics: list[tuple[str, float | None]]
+    """The task's accuracy figures (``task_metrics``); the first is the ratio's."""
     ratio: float | None = None
-    """The metric over the nominal row's (None without a nominal figure)."""
+    """The first metric over the nominal row's (None without a nominal figure)."""
+
+    @property
+    def metric(self) -> float | None:
+        """The first metric's value."""
+        return self.metrics[0][1]
 
     def cells(self) -> list[str]:
         """The row's table cells."""
@@ -81,7 +111,7 @@ class RowResult:
         return [
             self.row.name,
             f(q.get("completion_pct"), ".1f"),
-            f(self.metric, ".3g"),
+            *(f(v, ".3g") for _, v in self.metrics),
             f(q.get("cap_share_pct"), ".2f"),
             f(_chatter(self.report), ".2f"),
             self.verdict,
@@ -96,7 +126,7 @@ class RowResult:
             "gating": self.row.gating,
             "verdict": self.verdict,
             "misses": [str(m) for m in self.misses],
-            "metric": {self.metric_name: self.metric},
+            "metrics": dict(self.metrics),
             "ratio_to_nominal": self.ratio,
             "gate_report": {k: v for k, v in self.report.items() if k != "episodes"},
         }
@@ -117,8 +147,8 @@ class SuiteResult:
 
     def format(self) -> str:
         """The table, each row's misses, the verdict."""
-        metric = self.rows[0].metric_name if self.rows else "metric"
-        head = ["perturbation", "completion %", metric, "caps %", "chatter mrad", "gate", "ratio"]
+        names = [n for n, _ in self.rows[0].metrics] if self.rows else ["metric"]
+        head = ["perturbation", "completion %", *names, "caps %", "chatter mrad", "gate", "ratio"]
         body = [r.cells() for r in self.rows]
         widths = [max(len(str(c)) for c in col) for col in zip(head, *body, strict=True)]
         line = "  ".join
@@ -177,8 +207,9 @@ def run_suite(
         result = task.evaluate(policy, args, make_runner(row.perturbation))
         report = result.gate_report()
         verdict, misses = row_verdict(task.name, report, row.gating)
-        name, value = _metric(report)
-        r = RowResult(row, report, verdict, misses, name, value)
+        metrics = task_metrics(result, report)
+        name, value = metrics[0]
+        r = RowResult(row, report, verdict, misses, metrics)
         if not row.spec:
             nominal = value
         if nominal and value is not None:
