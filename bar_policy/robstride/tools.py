@@ -321,7 +321,10 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``bar-bus``; returns the exit status."""
-    args = _parser().parse_args(argv)
+    parser = _parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "emulate_perturb", None) is not None and not args.emulate:
+        parser.error("--emulate-perturb perturbs the in-process emulator's robot: give --emulate too")
     commands = {"discover": _discover, "calibrate": _calibrate, "param": _param, "watchdog": _watchdog}
     try:
         return commands[args.command](args)

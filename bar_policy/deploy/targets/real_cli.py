@@ -7,9 +7,9 @@ Opening a channel that cannot be used raises ``BusOpenError`` with a one-line fi
 from __future__ import annotations
 
 import argparse
-from dataclasses import replace
 import logging
 import signal
+from dataclasses import replace
 
 import can
 
