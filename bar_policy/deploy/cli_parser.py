@@ -71,8 +71,8 @@ def perturb_option(p: argparse.ArgumentParser, *, suite: bool) -> None:
     where = "the sim target's robot" + (
         " ('suite': the robustness suite, one table)"
         if suite
-        else "; on --target real --can-interface "
-        "virtual the emulator's robot, hidden from the runtime (same as --emulate-perturb)"
+        else "; on the real target's virtual bus the in-process emulator's robot, hidden from the "
+        "runtime (there the same as --emulate-perturb)"
     )
     p.add_argument("--perturb", type=parse, default=None, metavar="KEY=VALUE,..." + ("|suite" * suite),
                    help=f"perturb {where}. Keys: {help_text()}")  # fmt: skip
