@@ -154,6 +154,10 @@ class PerturbedEmulator(RobstrideEmulator):
 
         return torque, idx, d
 
+    def applied_torques(self) -> np.ndarray:
+        """Torque each joint motor applies now, joint frame, canonical order, N*m: ``strength`` x the law."""
+        return self.motor_perturbation.strength * super().applied_torques()
+
     def _step(self, n: int) -> None:
         """``n`` physics steps: ``strength`` times the firmware torque, the pushes; then the delay line."""
         torque, idx, d = self._law()

@@ -185,13 +185,19 @@ def test_the_runtime_does_not_see_the_emulators_perturbation():
     while the emulator's true joints sit at the pose; the strength is invisible in the torque reading."""
     from bar_policy.deploy.targets.emulated import EmulatedBusTarget
 
-    p = parse_perturbation("offset_rad=0.01,payload_kg=0.5")
+    from bar_policy.robot.mit import wire_ranges
+
+    p = parse_perturbation("offset_rad=0.01,payload_kg=0.5,strength=0.8")
     t = EmulatedBusTarget("arms", 0.02, perturbation=p)
     try:
         t.reset(Q0)
         true_q = t.emu.joint_positions()
         np.testing.assert_allclose(t.read_state().q - true_q, 0.01, atol=4e-4)
         assert t.emu.model.body("left_hand_payload").mass[0] == 0.5
+        t.write_command(_ff(1.0))  # 1 N*m feed-forward, Kp = Kd = 0
+        step = 2 * wire_ranges(ROBOT.models).t_max / 65535  # one count of the 16-bit torque field, N*m
+        assert np.all(np.abs(t.emu.applied_torques() - 0.8) <= 0.8 * step)  # what the joint gets
+        assert np.all(np.abs(t.read_state().tau - 1.0) <= 2 * step)  # what the motor reports
     finally:
         t.close()
 
