@@ -24,6 +24,7 @@ from bar_policy.robot.constants import load_robot
 from bar_policy.robot.mit import MitCommand
 from bar_policy.robot.perturb_spec import parse_perturbation
 from bar_policy.robot.perturb_suite import SUITE, SuiteRow
+from bar_policy.tasks.episodes import true_q
 from bar_policy.tasks.track.evaluate import evaluate_track
 
 ROBOT = load_robot("arms")
@@ -112,6 +113,10 @@ def test_offset_shifts_the_measured_q_and_the_law_acts_on_it():
     t = _target("offset_rad=0.01")
     np.testing.assert_allclose(t.read_state().q, Q0 + 0.01, atol=1e-15)
     np.testing.assert_array_equal(t.data.qpos[t.index.qpos], Q0)  # the true joints did not move
+    np.testing.assert_array_equal(true_q(t), Q0)  # what an evaluation scores: the truth
+    plain = SimTarget("arms", EXACT)
+    plain.reset(Q0)
+    np.testing.assert_array_equal(true_q(plain), plain.read_state().q)
     z = np.zeros(N)
     kp = np.full(N, 20.0)
     t.write_command(MitCommand(Q0.copy(), z, kp, z, z))  # hold the true pose: Kp (q - (q + 0.01))
@@ -184,7 +189,6 @@ def test_the_runtime_does_not_see_the_emulators_perturbation():
     """The host reads ``q + offset`` through the 16-bit feedback (8 pi / 65535 = 3.8e-4 rad per count)
     while the emulator's true joints sit at the pose; the strength is invisible in the torque reading."""
     from bar_policy.deploy.targets.emulated import EmulatedBusTarget
-
     from bar_policy.robot.mit import wire_ranges
 
     p = parse_perturbation("offset_rad=0.01,payload_kg=0.5,strength=0.8")

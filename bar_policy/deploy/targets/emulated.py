@@ -79,6 +79,7 @@ class EmulatedBusTarget(Target):
         interfaces = sorted({j.can_interface for j in self.robot.joints})
         self.channels = {i: f"{key}-{i}" for i in interfaces}
         self.reply_timeout = reply_timeout
+        self.perturbation = None if perturbation is None or perturbation.nominal else perturbation
         self.can_timeout = can_timeout
         self.emu = emulator(
             self.robot,
@@ -123,6 +124,16 @@ class EmulatedBusTarget(Target):
     def read_state(self) -> JointState:
         """The last round's feedback (the post-step state in lockstep)."""
         return self._target().read_state()
+
+    def true_q(self) -> np.ndarray:
+        """What an evaluation scores (``tasks.episodes.true_q``), rad.
+
+        With a perturbation the emulator's true joints (the host reads them offset and late); without one
+        the reading, as before.
+        """
+        if self.perturbation is None:
+            return self.read_state().q
+        return self.emu.joint_positions()
 
     def write_command(self, cmd: MitCommand) -> None:
         """One command round = one control period of physics."""

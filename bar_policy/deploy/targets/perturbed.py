@@ -92,6 +92,10 @@ class PerturbedSimTarget(SimTarget):
             return self._measured()
         return dataclasses.replace(self._obs_queue[0], stamp=float(self.data.time))
 
+    def true_q(self) -> np.ndarray:
+        """Where the joints really are, rad (no offset, no delay): what an evaluation scores."""
+        return self._qpos[self._qadr].copy()
+
     def write_command(self, cmd: MitCommand) -> None:
         """Queue ``cmd``; the one written ``action_delay_ticks`` writes ago acts from the next step on."""
         super().write_command(cmd)
