@@ -28,6 +28,7 @@ from bar_policy.robot.scene import SceneEdit
 
 __all__ = [
     "ARM_BODIES",
+    "ARM_JOINTS",
     "HAND_BODIES",
     "PAYLOAD_POS",
     "PUSH_DURATION_S",
@@ -41,6 +42,9 @@ __all__ = [
 
 ARM_BODIES: tuple[str, ...] = tuple(link.name for link in (*links.LEFT_ARM, *links.RIGHT_ARM))
 """The arm links whose mass and inertia ``mass_scale`` scales (shoulder to hand, both arms)."""
+ARM_JOINTS: tuple[str, ...] = tuple(links.JOINT_OF_BODY.get(name, name) for name in ARM_BODIES)
+"""The arm joints (each link's joint), left arm then right, shoulder to wrist: those friction, damping and
+armature change (a task's scene may hold joints of its own: they are not the robot's)."""
 HAND_BODIES: tuple[str, str] = ("left_hand", "right_hand")
 """The bodies that carry the payload and take the pushes."""
 
@@ -82,14 +86,14 @@ def apply_to_spec(spec: mujoco.MjSpec, p: Perturbation) -> None:
     and the links' masses and full inertias multiplied. The payload is a child body of each hand at
     ``PAYLOAD_POS[p.payload_at]`` with ``p.payload_kg`` and a 1 cm sphere's inertia, no geom (it touches
     nothing). ``~`` draws follow ``Perturbation.values``: per link in ``ARM_BODIES`` order for the mass,
-    per arm joint in the spec's order for the rest.
+    per joint in ``ARM_JOINTS`` order for the rest.
     """
     masses = p.values("mass_scale", len(ARM_BODIES))
     for name, s in zip(ARM_BODIES, masses, strict=True):
         body = spec.body(name)
         body.mass = body.mass * s
         body.fullinertia = np.asarray(body.fullinertia) * s
-    joints = [j for j in spec.joints if _is_arm_joint(j.name)]
+    joints = [spec.joint(name) for name in ARM_JOINTS]
     fr = p.values("friction_nm", len(joints))
     dp = p.values("damping", len(joints))
     ar = p.values("armature_scale", len(joints))
@@ -106,10 +110,6 @@ def apply_to_spec(spec: mujoco.MjSpec, p: Perturbation) -> None:
             body.mass = m
             body.ipos = [0.0, 0.0, 0.0]
             body.fullinertia = [i, i, i, 0.0, 0.0, 0.0]
-
-
-def _is_arm_joint(name: str) -> bool:
-    return name.startswith(("left_", "right_"))
 
 
 def perturbed_scene(p: Perturbation, scene: SceneEdit | None = None) -> SceneEdit | None:

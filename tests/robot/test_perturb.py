@@ -195,3 +195,19 @@ def test_suite_rows_parse_and_cover_the_published_rows():
     )
     assert (combined.action_delay_ticks, combined.offset_rad, combined.payload_at) == (1, 0.002, "fingertip")
     assert set(KEYS) == {f for f in Perturbation.__dataclass_fields__ if f not in ("random", "text")}
+
+
+def test_a_task_scenes_own_joints_and_bodies_are_not_the_robots():
+    """A task's scene (here a key on a hinge, named like an arm part) keeps its joint and its mass."""
+
+    def scene(spec: mujoco.MjSpec) -> None:
+        key = spec.worldbody.add_body(name="left_key", pos=[0.4, 0.1, 0.2])
+        key.add_joint(name="left_key_hinge", type=mujoco.mjtJoint.mjJNT_HINGE, frictionloss=0.05)
+        key.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.01, 0.01, 0.01], mass=0.02)
+
+    m = load_model("arms", perturbed_scene(parse_perturbation("friction_nm=1.0,mass_scale=2"), scene))
+    assert m.dof_frictionloss[m.joint("left_key_hinge").dofadr[0]] == 0.05
+    assert m.body("left_key").mass[0] == pytest.approx(0.02, abs=1e-15)
+    assert m.dof_frictionloss[m.joint("left_elbow_pitch").dofadr[0]] == pytest.approx(
+        ARMS.frictionloss[ARMS.index("left_elbow_pitch")] + 1.0, abs=1e-15
+    )
