@@ -71,7 +71,7 @@ def task_metrics(result: Any, report: Mapping[str, Any]) -> list[tuple[str, floa
     if dists:
         median = float(np.median(np.concatenate(dists))) * 100.0
         return [("median end cm", median), ("success %", report.get("success_pct"))]
-    return [("success %", report.get("success_pct"))]
+    return [("F1 %" if report.get("task") == "piano" else "success %", report.get("success_pct"))]
 
 
 def _chatter(report: Mapping[str, Any]) -> float | None:
