@@ -365,3 +365,19 @@ def test_bar_bus_emulate_perturb(capsys):
     assert e.value.code == 2 and "did you mean 'strength'" in capsys.readouterr().err
     assert bus_main(["discover", "--can-interface", "virtual", "--emulate", "--emulate-perturb",
                      "offset_rad=0.01", "--scan-to", "16"]) == 0  # fmt: skip
+
+
+def test_eval_perturb_spec_on_the_cli_changes_the_score(tmp_path, capsys):
+    """``bar-deploy eval --perturb SPEC``: the same episode, scored on the true fingertips, moves by the
+    offset's effect (0.05 rad on every arm joint); the run says which robot it used."""
+    path = make_policy_file(tmp_path / "r.onnx", metadata=default_metadata(task="reach"))
+    base = ["eval", "--policy", str(path), "--episodes", "1", "--episode-length", "1"]
+    dists = {}
+    for name, extra in (("nominal", []), ("offset", ["--perturb", "offset_rad=0.05"])):
+        out = tmp_path / f"{name}.json"
+        assert main([*base, *extra, "--json", str(out)]) == 0
+        ep = json.loads(out.read_text())["episodes"][0]
+        dists[name] = np.array([ep["dist_left"], ep["dist_right"]])
+    assert "perturbed sim target (hidden from the policy): offset_rad=0.05" in capsys.readouterr().out
+    # 0.05 rad on seven joints of a ~0.45 m arm moves a fingertip by centimetres (3.4 cm measured here)
+    assert np.abs(dists["offset"] - dists["nominal"]).max() > 0.01
