@@ -116,6 +116,8 @@ def _run(argv: Sequence[str]) -> int:
         return _fail("--video needs --target sim")
     if args.viewer and args.target != "sim":
         return _fail("--viewer needs --target sim")
+    if args.perturb is not None and args.target == "mock":
+        return _fail("--perturb needs --target sim, or --target real --can-interface virtual")
     if args.live is not None and args.no_log:
         return _fail("--live serves the run log's channels: drop --no-log")
     if not args.no_log:
@@ -208,14 +210,16 @@ def _run_session(
     target = None
     try:
         if args.target == "sim":
-            from bar_policy.deploy.targets.sim import SimConfig, SimTarget, training_damping
+            from bar_policy.deploy.targets.perturbed import sim_target
+            from bar_policy.deploy.targets.sim import SimConfig, training_damping
 
             sim_cfg = SimConfig(
                 viewer=args.viewer,
                 video_path=str(args.video) if args.video else None,
                 damping=training_damping(policy.metadata.randomization),
             )
-            target = SimTarget(args.mode, sim_cfg, scene=task.scene(policy))  # type: ignore[attr-defined]
+            scene = task.scene(policy)  # type: ignore[attr-defined]
+            target = sim_target(args.mode, sim_cfg, scene=scene, perturbation=args.perturb)
         elif args.target == "mock":
             from bar_policy.deploy.targets.mock import MockTarget
 
@@ -352,6 +356,7 @@ def _eval(argv: Sequence[str]) -> int:
     from bar_policy.deploy.tasks import all_tasks
 
     _common(p)
+    cli_parser.perturb_option(p, suite=True)
     p.add_argument("--json", type=Path, help="write the per-episode / per-clip results here")
     for task in all_tasks():
         task.add_eval_arguments(p)
@@ -362,7 +367,12 @@ def _eval(argv: Sequence[str]) -> int:
     logging.getLogger("bar_policy.deploy.safety").setLevel(logging.WARNING)
     try:
         policy, task = _policy_task(args, "eval")
-        result = task.evaluate(policy, args, SimEpisodes(policy))
+        if args.perturb is None:
+            result = task.evaluate(policy, args, SimEpisodes(policy))
+        else:
+            from bar_policy.deploy.robustness import evaluate_perturbed
+
+            result = evaluate_perturbed(policy, task, args, args.perturb, print)
     except ValueError as e:  # PolicyLoadError, OptionError, bad settings
         return _fail(e)
     print(result.format())

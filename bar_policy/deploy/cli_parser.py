@@ -19,7 +19,7 @@ from bar_policy.tasks.cli_types import priority as _priority
 from bar_policy.tasks.cli_types import seconds as _seconds
 from bar_policy.tasks.cli_types import seconds0 as _seconds0
 
-__all__ = ["SUBCOMMANDS", "TARGETS", "common_options", "run_parser", "target_of"]
+__all__ = ["SUBCOMMANDS", "TARGETS", "common_options", "perturb_option", "run_parser", "target_of"]
 
 TARGETS = ("sim", "mock", "real")
 SUBCOMMANDS = ("run", "plot", "eval", "log")
@@ -51,6 +51,33 @@ def common_options(p: argparse.ArgumentParser) -> None:
                    help="clip raw actions to +-A, action units (default: the file's bar.action_clip, else "
                         "1.0 as in training; 0: none)")  # fmt: skip
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+
+
+def perturb_option(p: argparse.ArgumentParser, *, suite: bool) -> None:
+    """``--perturb SPEC``: the robot differs from the model (``robot.perturb_spec``); ``suite`` when allowed.
+
+    A bad spec is refused by the parser in one line (exit 2).
+    """
+    from bar_policy.robot.perturb_spec import PerturbationError, help_text, parse_perturbation
+
+    def parse(text: str) -> object:
+        if text.strip() == "suite":
+            if suite:
+                return "suite"
+            raise argparse.ArgumentTypeError("'suite' is for bar-deploy eval --perturb suite")
+        try:
+            return parse_perturbation(text)
+        except PerturbationError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+
+    where = "the sim target's robot" + (
+        " ('suite': the robustness suite, one table)"
+        if suite
+        else "; on the real target's virtual bus the in-process emulator's robot, hidden from the "
+        "runtime (there the same as --emulate-perturb)"
+    )
+    p.add_argument("--perturb", type=parse, default=None, metavar="KEY=VALUE,..." + ("|suite" * suite),
+                   help=f"perturb {where}. Keys: {help_text()}")  # fmt: skip
 
 
 def run_parser() -> argparse.ArgumentParser:
@@ -102,6 +129,7 @@ def run_parser() -> argparse.ArgumentParser:
     p.add_argument("--realtime", action="store_true", help="sim: pace at wall-clock rate")
     p.add_argument("--video", type=Path, metavar="PATH",
                    help="sim: write a video (.mp4, or .gif without ffmpeg)")  # fmt: skip
+    perturb_option(p, suite=False)
     for task in all_tasks():
         task.add_run_arguments(p)
     return p

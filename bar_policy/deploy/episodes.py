@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from bar_policy.deploy.targets.base import Target
     from bar_policy.deploy.targets.sim import SimTarget
     from bar_policy.robot.kinematics import Kinematics
+    from bar_policy.robot.perturb_spec import Perturbation
     from bar_policy.robot.scene import SceneEdit
     from bar_policy.tasks.episodes import TickHook
     from bar_policy.tasks.interfaces import CommandSource
@@ -33,18 +34,33 @@ class SimEpisodes:
 
     policy_mode = Mode.POLICY
 
-    def __init__(self, policy: OnnxPolicy, safety: SafetyConfig | None = None) -> None:
-        """``safety``: the supervisor's thresholds (default ``SafetyConfig()``; the ramp is always 0)."""
+    def __init__(
+        self,
+        policy: OnnxPolicy,
+        safety: SafetyConfig | None = None,
+        *,
+        perturbation: Perturbation | None = None,
+    ) -> None:
+        """``safety``: the supervisor's thresholds (default ``SafetyConfig()``; the ramp is always 0).
+
+        ``perturbation``: the sim target's robot differs from the model so (``--perturb``; None: nominal).
+        """
         self.policy = policy
         self.safety = dataclasses.replace(safety or SafetyConfig(), ramp_time=0.0)
+        self.perturbation = perturbation
 
     def target(self, *, initial_pose: str | None = None, scene: SceneEdit | None = None) -> SimTarget:
-        """A sim target integrating the law's damping as the policy was trained (``training_damping``)."""
-        from bar_policy.deploy.targets.sim import SimConfig, SimTarget, training_damping
+        """A sim target integrating the law's damping as the policy was trained (``training_damping``).
+
+        Of the perturbed robot when the runner has a perturbation (``targets.perturbed``).
+        """
+        from bar_policy.deploy.targets.perturbed import sim_target
+        from bar_policy.deploy.targets.sim import SimConfig, training_damping
 
         damping = training_damping(self.policy.metadata.randomization)
         pose = {} if initial_pose is None else {"initial_pose": initial_pose}
-        return SimTarget(self.policy.robot.mode, SimConfig(damping=damping, **pose), scene=scene)
+        config = SimConfig(damping=damping, **pose)
+        return sim_target(self.policy.robot.mode, config, scene=scene, perturbation=self.perturbation)
 
     def run(
         self,

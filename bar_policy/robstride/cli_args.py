@@ -184,3 +184,26 @@ def parse_channels(spec: str | None, interfaces: Sequence[str]) -> dict[str, str
     if missing:
         raise ValueError(f"--channels {spec!r} lacks interfaces {missing}")
     return mapping
+
+
+def perturbation_arg(text: str) -> object:
+    """``--emulate-perturb KEY=VALUE,...``: the emulator's robot (``robot.perturb_spec.Perturbation``).
+
+    A bad spec is an ``ArgumentTypeError`` naming the key and what is valid (one line, exit 2).
+    """
+    from bar_policy.robot.perturb_spec import PerturbationError, parse_perturbation
+
+    try:
+        return parse_perturbation(text)
+    except PerturbationError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
+def emulate_perturb_help() -> str:
+    """Help of ``--emulate-perturb`` (both tools): what it does and the keys with their units."""
+    from bar_policy.robot.perturb_spec import help_text
+
+    return (
+        "the in-process emulator's robot differs from the model so, hidden from the host (a robot the "
+        f"software does not know). Keys: {help_text()}"
+    )

@@ -51,9 +51,11 @@ from bar_policy.robstride.cli_args import (
     HELP,
     can_timeout_arg,
     deprecated_alias,
+    emulate_perturb_help,
     float_list,
     int_range,
     parse_channels,
+    perturbation_arg,
     positive,
 )
 from bar_policy.robstride.errors import InitializationError, RobstrideError
@@ -73,13 +75,16 @@ def model_guess(limit_torque: float) -> str:
 @contextlib.contextmanager
 def _emulator(args: argparse.Namespace, channels: dict[str, str]) -> Iterator[None]:
     if not getattr(args, "emulate", False):
+        if getattr(args, "emulate_perturb", None) is not None:
+            raise ValueError("--emulate-perturb perturbs the emulator's robot: give --emulate too")
         yield
         return
     if args.interface != "virtual":
         raise ValueError("--emulate needs --can-interface virtual")
-    from bar_policy.robstride.emulator import RobstrideEmulator
+    from bar_policy.robstride.emulator_perturb import emulator
 
-    with RobstrideEmulator(load_robot(args.mode), channels, mode="realtime"):
+    perturb = getattr(args, "emulate_perturb", None)
+    with emulator(load_robot(args.mode), channels, mode="realtime", perturbation=perturb):
         yield
 
 
@@ -258,6 +263,8 @@ def _parser() -> argparse.ArgumentParser:
         sp.add_argument("--mode", choices=MODES, default="arms", help="robot joint set")
         sp.add_argument("--emulate", action="store_true",
                         help="answer with the in-process emulator (--can-interface virtual)")  # fmt: skip
+        sp.add_argument("--emulate-perturb", type=perturbation_arg, default=None, metavar="KEY=VALUE,...",
+                        help=emulate_perturb_help())  # fmt: skip
 
     def channel(sp: argparse.ArgumentParser) -> None:
         one = sp.add_argument(
@@ -314,7 +321,10 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``bar-bus``; returns the exit status."""
-    args = _parser().parse_args(argv)
+    parser = _parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "emulate_perturb", None) is not None and not args.emulate:
+        parser.error("--emulate-perturb perturbs the in-process emulator's robot: give --emulate too")
     commands = {"discover": _discover, "calibrate": _calibrate, "param": _param, "watchdog": _watchdog}
     try:
         return commands[args.command](args)

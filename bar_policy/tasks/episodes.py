@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from bar_policy.robot.kinematics import Kinematics
     from bar_policy.robot.scene import SceneEdit
 
-__all__ = ["EpisodeRunner", "Policy", "RunOutcome", "TickHook"]
+__all__ = ["EpisodeRunner", "Policy", "RunOutcome", "TickHook", "true_q"]
 
 
 class Policy(Protocol):
@@ -89,3 +89,14 @@ class EpisodeRunner(Protocol):
         ``commands`` is the episode's ``tasks.interfaces.CommandSource``.
         """
         ...
+
+
+def true_q(target: Any) -> np.ndarray:
+    """The joint positions an evaluation scores, rad: the robot's true joints.
+
+    A target of a perturbed robot (``deploy.targets.perturbed``: an encoder offset, an observation delay)
+    has ``true_q()``: where the joints really are, which the runtime does not read. Any other target's
+    reading is its truth: ``read_state().q``.
+    """
+    fn = getattr(target, "true_q", None)
+    return np.asarray(fn() if fn is not None else target.read_state().q)

@@ -228,11 +228,13 @@ SHARED = {"--can-interface", "--reply-timeout", "--mode"}
 @pytest.mark.parametrize(
     ("command", "own"),
     [
-        (["discover"], {"--channel", "--scan-to", "--status", "--emulate"}),
+        (["discover"], {"--channel", "--scan-to", "--status", "--emulate", "--emulate-perturb"}),
         (["calibrate"], {"--channels", "--calibration", "--prior", "--sweep-threshold", "--rate",
-                         "--duration", "--emulate"}),
-        (["param", "read"], {"--channel", "--id", "--index", "--value", "--type", "--emulate"}),
-        (["watchdog"], {"--channel", "--id", "--model", "--can-timeout", "--silences", "--emulate"}),
+                         "--duration", "--emulate", "--emulate-perturb"}),
+        (["param", "read"], {"--channel", "--id", "--index", "--value", "--type", "--emulate",
+                             "--emulate-perturb"}),
+        (["watchdog"], {"--channel", "--id", "--model", "--can-timeout", "--silences", "--emulate",
+                        "--emulate-perturb"}),
     ],
 )  # fmt: skip
 def test_bar_bus_help_lists_each_option_once_and_hides_the_old_spellings(command, own, capsys):

@@ -34,8 +34,10 @@ from bar_policy.deploy.targets.base import JointState, StopReport, Target
 from bar_policy.deploy.targets.real import RealTarget
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.mit import MitCommand
+from bar_policy.robot.perturb_spec import Perturbation
 from bar_policy.robot.scene import SceneEdit
 from bar_policy.robstride.emulator import RobstrideEmulator
+from bar_policy.robstride.emulator_perturb import emulator
 from bar_policy.robstride.group import RobstrideGroup
 
 __all__ = ["LOCKSTEP_CAN_TIMEOUT", "EmulatedBusTarget"]
@@ -59,6 +61,7 @@ class EmulatedBusTarget(Target):
         reply_timeout: float = 0.2,
         can_timeout: float = LOCKSTEP_CAN_TIMEOUT,
         scene: SceneEdit | None = None,
+        perturbation: Perturbation | None = None,
     ) -> None:
         """Start the emulator (the real target starts on ``reset``).
 
@@ -68,6 +71,8 @@ class EmulatedBusTarget(Target):
             reply_timeout: reply deadline per round on the virtual bus, s.
             can_timeout: the motors' CAN watchdog armed at start (wall clock), s.
             scene: a task's additions to the emulator's scene (None: the robot alone).
+            perturbation: the emulated robot differs from the model so (``robot.perturb_spec``), hidden
+                from the real target (``robstride.emulator_perturb``); None: the nominal robot.
         """
         self.robot = load_robot(mode)
         super().__init__(self.robot.joint_names)
@@ -77,9 +82,15 @@ class EmulatedBusTarget(Target):
         self.control_dt = control_dt
         """Physics per command round, s."""
         self.reply_timeout = reply_timeout
+        self.perturbation = None if perturbation is None or perturbation.nominal else perturbation
         self.can_timeout = can_timeout
-        self.emu = RobstrideEmulator(
-            self.robot, self.channels, mode="lockstep", control_dt=control_dt, scene=scene
+        self.emu = emulator(
+            self.robot,
+            self.channels,
+            mode="lockstep",
+            control_dt=control_dt,
+            scene=scene,
+            perturbation=perturbation,
         ).start()
         self.inner: RealTarget | None = None
         self._stop_torque: Callable[[np.ndarray], np.ndarray] | None = None
@@ -118,6 +129,16 @@ class EmulatedBusTarget(Target):
     def read_state(self) -> JointState:
         """The last round's feedback (the post-step state in lockstep)."""
         return self._target().read_state()
+
+    def true_q(self) -> np.ndarray:
+        """What an evaluation scores (``tasks.episodes.true_q``), rad.
+
+        With a perturbation the emulator's true joints (the host reads them offset and late); without one
+        the reading, as before.
+        """
+        if self.perturbation is None:
+            return self.read_state().q
+        return self.emu.joint_positions()
 
     def write_command(self, cmd: MitCommand) -> None:
         """One command round = one control period of physics."""

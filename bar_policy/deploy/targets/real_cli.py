@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import logging
 import signal
+from dataclasses import replace
 
 import can
 
@@ -16,6 +17,7 @@ from bar_policy.deploy.ramp_limit import START_LIMIT_MARGIN, UNSAFE_FLAG
 from bar_policy.deploy.targets.base import Target, TargetError
 from bar_policy.deploy.targets.real_target import RealTarget
 from bar_policy.robot.constants import load_robot
+from bar_policy.robot.perturb_spec import Perturbation
 from bar_policy.robot.scene import SceneEdit
 from bar_policy.robstride.bus_types import DEFAULT_REPLY_TIMEOUT
 from bar_policy.robstride.calibration import Calibration
@@ -24,9 +26,11 @@ from bar_policy.robstride.cli_args import (
     CAN_INTERFACES,
     HELP,
     can_timeout_arg,
+    emulate_perturb_help,
     int_range,
     non_negative,
     parse_channels,
+    perturbation_arg,
     positive,
 )
 from bar_policy.robstride.errors import InitializationError, RobstrideError
@@ -34,7 +38,13 @@ from bar_policy.robstride.framing import DEFAULT_CAN_TIMEOUT
 from bar_policy.robstride.group import RobstrideGroup
 from bar_policy.robstride.startup import DEFAULT_RETRIES, DEFAULT_RETRY_BACKOFF
 
-__all__ = ["VIRTUAL_REPLY_TIMEOUT", "add_arguments", "installed_stop_request", "make_target"]
+__all__ = [
+    "VIRTUAL_REPLY_TIMEOUT",
+    "add_arguments",
+    "emulated_perturbation",
+    "installed_stop_request",
+    "make_target",
+]
 
 log = logging.getLogger("bar_policy.deploy.targets.real")  # the real target's logger, as before the split
 
@@ -61,6 +71,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="scan, verify, decode and log commands; write no caps, enable nothing")  # fmt: skip
     add("--emulate", choices=("auto", "none", "realtime", "lockstep"), default="auto",
         help="in-process emulator: auto = realtime on virtual, none on socketcan")  # fmt: skip
+    add("--emulate-perturb", type=perturbation_arg, default=None, metavar="KEY=VALUE,...",
+        help=emulate_perturb_help() + " (the same as --perturb on this target)")  # fmt: skip
     add("--emulate-dt", type=positive("s"), default=None, metavar="S",
         help="lockstep emulator: physics s per command round (default: --control-dt, else 0.02)")  # fmt: skip
     add("--reply-timeout", type=positive("s"), default=None, metavar="S",
@@ -119,14 +131,15 @@ def _make_target(args: argparse.Namespace, mode: str, scene: SceneEdit | None = 
             "leave the motors' own"
         )
     companions: list[object] = []
+    perturbation = emulated_perturbation(args, emulate)
     if emulate != "none":
-        from bar_policy.robstride.emulator import RobstrideEmulator
+        from bar_policy.robstride.emulator_perturb import emulator as make_emulator
 
         offsets = dict(zip(robot.joint_names, calibration.offsets(robot), strict=True))
-        emulator = RobstrideEmulator(
+        emulator = make_emulator(
             robot, channels, interface=interface, mode=emulate,
             control_dt=getattr(args, "emulate_dt", None) or getattr(args, "control_dt", 0.02),
-            offsets=offsets, scene=scene,
+            offsets=offsets, scene=scene, perturbation=perturbation,
         )  # fmt: skip
         companions.append(emulator.start())
         log.info("started the %s Robstride emulator on %s", emulate, channels)
@@ -152,6 +165,31 @@ def _make_target(args: argparse.Namespace, mode: str, scene: SceneEdit | None = 
         stop_requested=installed_stop_request,
         activation_retries=getattr(args, "activation_retries", DEFAULT_RETRIES),
     )
+
+
+def emulated_perturbation(args: argparse.Namespace, emulate: str) -> Perturbation | None:
+    """The emulator's hidden perturbation: ``--perturb`` or ``--emulate-perturb`` (one meaning here).
+
+    On this target both options perturb the in-process emulator's robot and the runtime does not know it;
+    given both, they must be the same spec. Without an emulator (socketcan, ``--emulate none``) there is
+    no robot to perturb: refused.
+
+    Raises:
+        InitializationError: the two disagree, or there is no emulator.
+    """
+    a, b = getattr(args, "perturb", None), getattr(args, "emulate_perturb", None)
+    if a is not None and b is not None and replace(a, text="") != replace(b, text=""):
+        raise InitializationError(
+            f"--perturb {a.describe()!r} and --emulate-perturb {b.describe()!r} differ: on the real target "
+            "both perturb the emulator's robot; give one"
+        )
+    p = a if a is not None else b
+    if p is not None and emulate == "none":
+        raise InitializationError(
+            "--perturb / --emulate-perturb perturb the in-process emulator's robot: they need "
+            "--can-interface virtual with an emulator (a real robot is what it is)"
+        )
+    return p
 
 
 def installed_stop_request() -> bool:

@@ -37,7 +37,7 @@ import numpy as np
 from bar_policy.quality import EpisodeQuality, summarise
 from bar_policy.quality.report import quality_summary_line
 from bar_policy.robot.kinematics import Kinematics
-from bar_policy.tasks.episodes import EpisodeRunner, Policy
+from bar_policy.tasks.episodes import EpisodeRunner, Policy, true_q
 from bar_policy.tasks.interfaces import EvalReport
 from bar_policy.tasks.reach.commands import SampledCommands
 from bar_policy.tasks.reach.shared import SUCCESS_RADIUS
@@ -196,7 +196,7 @@ def evaluate(
 
         def score(k: int, t: float, rt: Any, dists: list[tuple[float, float]] = dists) -> None:
             if (k + 1) % seg_ticks == 0 or k + 1 == n_ticks:
-                left, right = kin.fingertips(sim.read_state().q)
+                left, right = kin.fingertips(true_q(sim))
                 dl = float(np.linalg.norm(left - rt.last_commands["target_pos_left"]))
                 dr = float(np.linalg.norm(right - rt.last_commands["target_pos_right"]))
                 faulted = rt.safety.fault_count > 0

@@ -41,7 +41,7 @@ from bar_policy.quality import summarise as summarise_quality
 from bar_policy.quality.report import quality_summary_line
 from bar_policy.robot.constants import FINGERTIP_SITES
 from bar_policy.robot.kinematics import Kinematics
-from bar_policy.tasks.episodes import EpisodeRunner, Policy
+from bar_policy.tasks.episodes import EpisodeRunner, Policy, true_q
 from bar_policy.tasks.interfaces import EvalReport
 from bar_policy.tasks.track.reference import load_motion, reference_for
 from bar_policy.tasks.track.shared import (
@@ -284,7 +284,7 @@ def evaluate_track(
                   sums: dict[str, float] = sums, steps: list[int] = steps) -> None:  # fmt: skip
             if rt.safety.fault_count:
                 return
-            for key, v in step_errors(kin, sim.read_state().q, table, min(k + 1, last)).items():
+            for key, v in step_errors(kin, true_q(sim), table, min(k + 1, last)).items():
                 sums[key] += v
             steps[0] += 1
 
