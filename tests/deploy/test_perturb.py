@@ -347,7 +347,7 @@ def test_virtual_real_target_runs_the_perturbed_emulator(tmp_path, capsys):
         for opt in ("--perturb", "--emulate-perturb"):
             argv = ["--policy", str(path), "--no-log", "--target", "real", "--can-interface", "virtual",
                     "--emulate", "lockstep", "--duration", "0.2", "--ramp-time", "0",
-                    opt, "payload_kg=0.3"]  # fmt: skip
+                    "--unsafe-allow-step-start", opt, "payload_kg=0.3"]  # fmt: skip
             assert main(argv) == 0, capsys.readouterr().err
     finally:
         emulator_perturb.PerturbedEmulator.__init__ = real_init
