@@ -197,3 +197,15 @@ def test_track_s_termination_is_its_configured_distance():
     assert bool(end)
     end, _ = terminated((lost,), {"body_dist": jnp.array([0.05, 0.09])})
     assert not bool(end)
+
+
+def test_an_env_whose_table_is_not_its_weights_is_refused_when_built():
+    from bar_policy.tasks.reach.env import LiteReach, nominal_config
+
+    class Swapped(LiteReach):
+        def reward_terms(self):
+            first, second, *rest = super().reward_terms()
+            return (second, first, *rest)
+
+    with pytest.raises(ValueError, match=r"Swapped's reward table lists \['reach_fine', 'reach_coarse', "):
+        Swapped(nominal_config())
