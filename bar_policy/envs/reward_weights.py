@@ -1,12 +1,13 @@
 """Reward weights as a program's input: an env's ``config.reward.scales``, read out and put back.
 
-A robot env weights its reward terms by ``config.reward.scales.<name>`` while it is traced
-(``LiteRobotEnv.step_with_model``). Read from the config, the weights become constants of every compiled
-program, so a run that changes one weight compiles every program again (a cold start). With
-:func:`with_weights`, a program takes the weights as an argument instead. The env's config is copied with
-the argument's traced values in place of the floats, and the reward arithmetic is the same, so the
-program's code does not depend on the weights' values and a compiled program serves any of them
-(``training.brax.programs``).
+A robot env weights its reward terms by ``config.reward.scales.<name>`` while it is traced: the task's
+term table (``tasks/<task>/term_table.py``) is built from the env's config on every trace, each row's
+weight read from those fields (``LiteRobotEnv.step_with_model``). Read from the config, the weights become
+constants of every compiled program, so a run that changes one weight compiles every program again (a
+cold start). With :func:`with_weights`, a program takes the weights as an argument instead. The env's
+config is copied with the argument's traced values in place of the floats, and the reward arithmetic is
+the same, so the program's code does not depend on the weights' values and a compiled program serves any
+of them (``training.brax.programs``).
 
 An env without ``config.reward.scales`` (the tests' toy env) has no weights: :func:`weights` is empty and
 :func:`with_weights` returns the env itself.

@@ -1,11 +1,13 @@
 """Reward terms of the tasks: small pure functions of arrays, positive "goodness" or positive "cost".
 
 Every term returns a non-negative scalar; the sign lives only in the weight (a task's ``reward.scales``:
-rewards positive, costs negative), and the robot env (``bar_policy.envs.robot``) logs each scaled term as
-``reward/<name>``. All functions are plain jnp arithmetic on unbatched inputs (vmap them for a batch).
-Reach uses ``reach_kernel``, ``success``, ``joint_limit``, ``joint_deviation`` and ``joint_vel``; tracking
-uses ``joint_tracking``, ``body_pos_tracking`` and ``body_ori_tracking`` (with ``orientation_error``); both
-use ``action_rate`` and ``torque``.
+rewards positive, costs negative). A task's reward table (``tasks/<task>/term_table.py``, rows of
+``envs.term_table.RewardTerm``) names these functions with their weights and parameters; the robot env
+(``bar_policy.envs.robot``) sums the table and logs each scaled term as ``reward/<name>``. All functions
+are plain jnp arithmetic on unbatched inputs (vmap them for a batch). Reach uses ``reach_kernel``,
+``success``, ``joint_limit``, ``joint_deviation`` and ``joint_vel``; tracking uses ``joint_tracking``,
+``body_pos_tracking`` and ``body_ori_tracking`` (with ``orientation_error``); every task uses
+``action_rate``, ``action_accel`` and ``torque_near_cap``.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ __all__ = [
     "rotation_from_6d",
     "success",
     "torque",
+    "torque_near_cap",
 ]
 
 
@@ -86,6 +89,15 @@ def torque(tau_sq_normalised: jax.Array) -> jax.Array:
     Dimensionless, in [0, n] with saturation on. Kept as a pass-through so the term has one named place.
     """
     return tau_sq_normalised
+
+
+def torque_near_cap(near_cap: jax.Array) -> jax.Array:
+    """Cost: ``sum_j clip(|tau_law_j| / tau_cap_j - 0.8, 0, 1)``, averaged over the substeps (in the scan).
+
+    The unclipped MIT demand beyond 80 % of each cap (``Transition.near_cap``), dimensionless, <= n. Kept
+    as a pass-through so the term has one named place.
+    """
+    return near_cap
 
 
 def joint_vel(dq: jax.Array) -> jax.Array:

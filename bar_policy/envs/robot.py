@@ -20,9 +20,12 @@ robot env does the rest, identically for every task:
   ``ActuatorConfig.latency_steps``.
 - **Observation**: ``obs_manager.compute`` of the measured q (with encoder offset and noise), dq (with
   noise), the previous action (the clipped policy output, before latency), and the task's inputs.
-- **Reward**: the task's named terms, each weighted by ``config.reward.scales.<name>`` (per control step,
-  not multiplied by dt) and logged as ``metrics["reward/<name>"]``; a non-finite physics state ends the
-  episode (``done = 1``) and zeroes the scaled terms. The task may end episodes too (``TaskStep.terminate``).
+- **Reward and termination**: the task's term table (``reward_terms``, ``termination_terms``; rows of
+  ``envs.term_table``) evaluated on the step's signals (``robot_signals`` and the task's
+  ``TaskStep.signals``): each reward term weighted by ``config.reward.scales.<name>`` (per control step,
+  not multiplied by dt), summed in the table's order and logged as ``metrics["reward/<name>"]``. A
+  non-finite physics state ends the episode (``done = 1``, the ``non_finite`` termination every task
+  gets) and zeroes the scaled terms; the task's terminations end it too.
 - **Initial state**: the task's initial pose + U(-init_noise, init_noise) per joint (clipped to the
   limits) and the task's initial velocity. Domain randomisation of the model is ``randomize.py``;
   episode bookkeeping and auto-reset are the wrappers' (``wrappers.py``).
@@ -60,6 +63,8 @@ from bar_policy.envs.base import MjxEnv, State
 from bar_policy.envs.quality_signals import quality_signals
 from bar_policy.envs.robot_config import RobotEnvConfig
 from bar_policy.envs.task import TaskHooks, Transition
+from bar_policy.envs.term_table import TerminationTerm, check_names, reward_values, terminated, weighted_sum
+from bar_policy.envs.terminations import non_finite
 from bar_policy.obs import ObservationManager
 from bar_policy.obs.action_prior import Prior
 from bar_policy.robot.action_filter import filter_alpha, lowpass_step, pose_action
@@ -69,12 +74,15 @@ from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.mit import MitCommand, mit_torque
 from bar_policy.robot.scene import SceneEdit, load_model
 
-__all__ = ["NEAR_CAP_FRACTION", "LiteRobotEnv"]
+__all__ = ["NEAR_CAP_FRACTION", "NON_FINITE", "LiteRobotEnv"]
 
 NEAR_CAP_FRACTION = 0.8
 """Share of a joint's torque cap above which its unclipped MIT demand counts towards ``Transition.near_cap``
 (the tasks' torque-near-cap cost): the last 20 % before saturation and what a saturated joint asks beyond
 its cap, up to 1 per joint (1.8 caps), so a random early policy's cost stays bounded."""
+
+NON_FINITE = TerminationTerm("non_finite", non_finite, ("finite",))
+"""The robot's termination, first of every task's: the physics state (the whole scene's) is not finite."""
 
 
 class LiteRobotEnv(TaskHooks, MjxEnv):
@@ -137,6 +145,7 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
             torque_saturation=cfg.actuator.torque_saturation,
         )
         self._reward_names = tuple(f.name for f in fields(cfg.reward.scales))  # type: ignore[attr-defined]
+        check_names(self.reward_terms(), self._reward_names, type(self).__name__)
 
     # -- properties --------------------------------------------------------------------------------
     @property
@@ -228,6 +237,27 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         return self._reward_names
 
     # -- pure functions ----------------------------------------------------------------------------
+    def robot_signals(self, tr: Transition) -> dict[str, jax.Array]:
+        """The robot's signals of a step, which every task's term table may read (unbatched).
+
+        ``action``, ``last_action``, ``last_last_action``: the applied action of this step and of the two
+        before, (n,); ``q`` (rad), ``dq`` (rad/s): the true joint state after the step, (n,); ``q_lower``,
+        ``q_upper``: the joint limits, rad, (n,); ``tau_sq`` and ``near_cap``: the substep means of
+        ``Transition``; ``finite``: the physics state is finite (boolean scalar).
+        """
+        return {
+            "action": tr.action,
+            "last_action": tr.info["last_act"],
+            "last_last_action": tr.info["act_prev"],
+            "q": self.robot_q(tr.data),
+            "dq": self.robot_dq(tr.data),
+            "q_lower": self._lower,
+            "q_upper": self._upper,
+            "tau_sq": tr.tau_sq,
+            "near_cap": tr.near_cap,
+            "finite": tr.finite,
+        }
+
     def q_command(self, action: jax.Array) -> jax.Array:
         """``clip(default + action_scale * clip(action, -1, 1), lower, upper)``, rad. Shape (..., n)."""
         a = jnp.clip(action, -1.0, 1.0)
@@ -362,13 +392,16 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         step = info["step"] + 1
         tr = Transition(model, data, info, action, jnp.mean(tau_sq), step, finite, k_task, jnp.mean(near_cap))
         task = self.task_step(tr)
-        end = jnp.logical_not(finite)
-        if task.terminate is not None:
-            end = jnp.logical_or(end, task.terminate)
+        signals = self.robot_signals(tr)
+        if clash := sorted(signals.keys() & task.signals.keys()):
+            raise ValueError(
+                f"{type(self).__name__}'s task signals {clash} shadow the robot's {sorted(signals)}"
+            )
+        signals.update(task.signals)
+        table = self.reward_terms()
+        reward, scaled = weighted_sum(table, reward_values(table, signals), finite)
+        end, _ = terminated((NON_FINITE, *self.termination_terms()), signals)
         done = end.astype(jnp.float32)
-        scales = cfg.reward.scales  # type: ignore[attr-defined]
-        scaled = {k: jnp.where(finite, v * getattr(scales, k), 0.0) for k, v in task.terms.items()}
-        reward = sum(scaled.values())
         new_info = {
             **info,
             "rng": rng,

@@ -4,8 +4,12 @@ A task's env module (``tasks/<task>/env.py``) subclasses ``LiteRobotEnv`` and im
 
 - ``task_reset(model, key) -> (info, q_init, qvel_init)``: the task's entries of ``State.info`` for a new
   episode and the initial joint state (the robot env adds the initial-pose noise);
-- ``task_step(transition) -> TaskStep``: reward terms (unscaled), metrics, termination and the task's info
-  for the next state;
+- ``task_step(transition) -> TaskStep``: the step's task signals (named quantities the term tables read),
+  metrics and the task's info for the next state;
+- ``reward_terms() -> (RewardTerm, ...)`` and ``termination_terms() -> (TerminationTerm, ...)``: the task's
+  term table (``tasks/<task>/term_table.py``, rows of ``envs.term_table``) for the env's current config;
+  the robot env evaluates them on the robot's and the task's signals, sums the rewards and ends the
+  episode when a termination fires;
 - ``task_obs(model, data, q_meas, info) -> inputs``: the task's observation inputs (term name -> array);
 - ``metric_keys``: the names of the task's metrics.
 
@@ -22,6 +26,8 @@ from dataclasses import dataclass
 
 import jax
 from mujoco import mjx
+
+from bar_policy.envs.term_table import RewardTerm, TerminationTerm
 
 __all__ = ["TaskHooks", "TaskStep", "Transition"]
 
@@ -57,14 +63,13 @@ class Transition:
 class TaskStep:
     """What a task returns from ``task_step`` (a trace-time container, not a pytree)."""
 
-    terms: dict[str, jax.Array]
-    """Unscaled reward terms by name (every field of ``config.reward.scales``, in its order), scalars."""
+    signals: dict[str, jax.Array]
+    """The task's quantities of this step by name (distances, the reference's errors, the keys down...),
+    which its term tables read beside the robot's (``LiteRobotEnv.robot_signals``)."""
     info: dict[str, jax.Array]
     """The task's info entries for the new state (merged over the old info)."""
     metrics: dict[str, jax.Array]
     """The task's metrics, scalars (keys = ``metric_keys``)."""
-    terminate: jax.Array | None = None
-    """Boolean scalar: end the episode now (besides a non-finite state); None never ends it."""
 
 
 class TaskHooks(abc.ABC):
@@ -79,7 +84,19 @@ class TaskHooks(abc.ABC):
 
     @abc.abstractmethod
     def task_step(self, tr: Transition) -> TaskStep:
-        """Reward terms, metrics, termination and the next task info after one control step."""
+        """The task's signals, metrics and next task info after one control step."""
+
+    @abc.abstractmethod
+    def reward_terms(self) -> tuple[RewardTerm, ...]:
+        """The task's reward table for the env's current config (weights: ``config.reward.scales``).
+
+        Built on every call from ``self.config``, so an env whose config holds traced weights
+        (``reward_weights.with_weights``) gets them in its rows.
+        """
+
+    def termination_terms(self) -> tuple[TerminationTerm, ...]:
+        """The task's terminations besides the robot's non-finite state (default: none)."""
+        return ()
 
     @abc.abstractmethod
     def task_obs(self, model: mjx.Model, data: mjx.Data, q_meas: jax.Array, info: dict) -> dict:

@@ -17,7 +17,8 @@ and the initial-state noise are the robot env's (``bar_policy.envs.robot``); the
   ``key_pressed`` (the keys past their press threshold now), then q, dq and the last action.
 - **Step ``t``** (the ``t``-th control step of the episode, ``t = step - 1``): the goal is the bank's row
   ``t`` (what ``target_keys`` showed as current when the action was chosen); it is compared with the keys
-  down after the step. Rewards are the named terms of ``rewards`` weighted by ``RewardScales``; metrics
+  down after the step. Rewards are the rows of the task's term table (``term_table.py``: functions of
+  ``rewards`` and ``bar_policy.envs.rewards``) weighted by ``RewardScales``; metrics
   are the step's true positives, false positives and false negatives and its precision, recall and F1
   (``metrics``), so the evaluation reports RoboPianist's step means and the pooled F1 beside them; and the
   true positives and false negatives over the black keys and over the white keys (``colour_counts``), so
@@ -50,16 +51,16 @@ import jax.numpy as jnp
 import numpy as np
 from mujoco import mjx
 
-from bar_policy.envs import rewards as robot_rewards
 from bar_policy.envs.device_arrays import to_device
 from bar_policy.envs.robot import LiteRobotEnv
 from bar_policy.envs.robot_config import RobotEnvConfig, nominal
 from bar_policy.envs.task import TaskStep, Transition
+from bar_policy.envs.term_table import RewardTerm, TerminationTerm
 from bar_policy.obs import ObservationManager
 from bar_policy.obs.action_prior import BlendPrior
 from bar_policy.robot.constants import FINGERTIP_SITES
 from bar_policy.tasks.piano import metrics as piano_metrics
-from bar_policy.tasks.piano import rewards
+from bar_policy.tasks.piano import rewards, term_table
 from bar_policy.tasks.piano.bank import PlaybackConfig, song_bank, training_songs
 from bar_policy.tasks.piano.held import held_pose
 from bar_policy.tasks.piano.keyboard import (
@@ -73,43 +74,10 @@ from bar_policy.tasks.piano.prior import KeyPosePriorConfig, key_pose_prior
 from bar_policy.tasks.piano.reference import LEAD_STEPS, prior_entries
 from bar_policy.tasks.piano.scene import keyboard_scene
 from bar_policy.tasks.piano.song_library import TRAIN
+from bar_policy.tasks.piano.term_table import RewardConfig, RewardScales
 from bar_policy.tasks.piano.terms import PIANO_KEYS, TARGET_FRAMES
 
 __all__ = ["LitePiano", "PianoEnvConfig", "RewardConfig", "RewardScales", "default_config", "nominal_config"]
-
-
-@dataclass(frozen=True, kw_only=True)
-class RewardScales:
-    """Weights of the reward terms (positive: reward, negative: cost), per step. 0 drops a term."""
-
-    key_press: float = 1.0
-    """Goal keys pressed (``rewards.goal_keys_pressed``: mean over the goal keys of a kernel on how far each
-    is from the bottom of its travel; RoboPianist's 0.5 x, here with the whole key weight)."""
-    wrong_keys: float = -0.5
-    """Keys down that are not goal keys (``rewards.wrong_keys_pressed``: their count)."""
-    fingertip_near: float = 0.5
-    """Each hand's fingertip near its next goal key (``rewards.fingertip_to_goal``: 1 within 1 cm)."""
-    energy: float = -2e-3
-    """Mechanical power ``sum |tau dq|``, W, at the step's end (``tau``: the motor torque the last substep
-    applied, without the share of Kd that the implicit damping integrates)."""
-    action_rate: float = -0.1
-    """``sum((a_t - a_{t-1})^2)`` of the applied action (the tracker's and reach's)."""
-    action_accel: float = -0.2
-    """``sum((a_t - 2 a_{t-1} + a_{t-2})^2)`` of the applied action: chatter's own penalty."""
-    torque_near_cap: float = -0.1
-    """``sum_j clip(|tau_law_j| / tau_cap_j - 0.8, 0, 1)`` averaged over substeps."""
-    joint_limit: float = -1.0
-    """rad beyond the soft joint limits, summed over joints."""
-
-
-@dataclass(frozen=True, kw_only=True)
-class RewardConfig:
-    """Reward shaping."""
-
-    scales: RewardScales = field(default_factory=RewardScales)
-    """Term weights."""
-    soft_limit_fraction: float = 0.95
-    """Fraction of each joint's range inside which the joint-limit cost is zero."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -317,31 +285,33 @@ class LitePiano(LiteRobotEnv):
         }
         return info, self._held, jnp.zeros(self.action_size)
 
+    def reward_terms(self) -> tuple[RewardTerm, ...]:
+        """The piano's reward table (``term_table.reward_terms``) for the current config."""
+        return term_table.reward_terms(self.config.reward)
+
+    def termination_terms(self) -> tuple[TerminationTerm, ...]:
+        """The piano's terminations (``term_table.TERMINATIONS``): none of its own."""
+        return term_table.TERMINATIONS
+
     def task_step(self, tr: Transition) -> TaskStep:
-        """Key rewards against the goal row of this step, the robot's costs, and the key counts.
+        """The key signals of the term table against the goal row of this step, and the key counts.
 
         The task's info: the reference's filter state advanced one step (``reference_state``).
         """
-        cfg = self.config
         data, info = tr.data, tr.info
         s = tr.step - 1
         goal = self._down[info["song"], s]
         angles = self.key_angles(data)
         down = angles >= self._threshold
-        tips = data.site_xpos[self._tip_sites]
-        key_pos = data.site_xpos[self._key_sites]
-        q, dq = self.robot_q(data), self.robot_dq(data)
         windows = jax.lax.dynamic_slice_in_dim(self._hands[info["song"]], s, TARGET_FRAMES, axis=1)
-        rc = cfg.reward
-        terms = {
-            "key_press": rewards.goal_keys_pressed(rewards.key_depression(angles, self._angle_max), goal),
-            "wrong_keys": rewards.wrong_keys_pressed(down, goal),
-            "fingertip_near": rewards.fingertip_to_goal(tips, key_pos, rewards.next_goal(windows)),
-            "energy": rewards.energy(data.qfrc_applied[self.robot_index.dof], dq),
-            "action_rate": robot_rewards.action_rate(tr.action, info["last_act"]),
-            "action_accel": robot_rewards.action_accel(tr.action, info["last_act"], info["act_prev"]),
-            "torque_near_cap": tr.near_cap,
-            "joint_limit": robot_rewards.joint_limit(q, self._lower, self._upper, rc.soft_limit_fraction),
+        signals = {
+            "key_depression": rewards.key_depression(angles, self._angle_max),
+            "keys_down": down,
+            "goal_keys": goal,
+            "fingertips": data.site_xpos[self._tip_sites],
+            "key_sites": data.site_xpos[self._key_sites],
+            "hand_goal": rewards.next_goal(windows),
+            "tau_applied": data.qfrc_applied[self.robot_index.dof],
         }
         counts = piano_metrics.step_counts(down, goal)
         step = piano_metrics.scores(counts)
@@ -364,7 +334,7 @@ class LitePiano(LiteRobotEnv):
             k: jnp.asarray(v).astype(jnp.float32) for k, v in metrics.items()
         }  # strong float32, as reset's
         return TaskStep(
-            terms={k: jnp.asarray(v).astype(jnp.float32) for k, v in terms.items()},
+            signals=signals,
             info={"ref_act": self.reference_state(info), "ref_keys": down.astype(jnp.float32)},
             metrics=f32,
         )

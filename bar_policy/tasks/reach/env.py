@@ -13,9 +13,10 @@ noise and the initial-state noise are the robot env's (``bar_policy.envs.robot``
   ``resample_period_s``. The commanded target (observed, rewarded, scored) moves to each new target along
   ``transition_point``'s minimum-jerk path over ``target_transition_s``, from the previous commanded target
   (at reset: the fingertips of the default pose, where the deploy runtime's HOLD ramp leaves them).
-  Success = both fingertips within ``SUCCESS_RADIUS`` (3 cm). Rewards are the named terms of
-  ``bar_policy.envs.rewards`` weighted by ``RewardScales``. The reward uses the true fingertip positions
-  from the last substep's kinematics (2 ms before the step's end, saving one FK pass).
+  Success = both fingertips within ``SUCCESS_RADIUS`` (3 cm). Rewards are the rows of the task's term
+  table (``term_table.py``: functions of ``bar_policy.envs.rewards``) weighted by ``RewardScales``. The
+  reward uses the true fingertip positions from the last substep's kinematics (2 ms before the step's
+  end, saving one FK pass).
 - **Episodes**: the env ends an episode only when the physics state turns non-finite; the wrappers truncate
   at ``episode_length`` = ``episode_length_s / ctrl_dt`` steps.
 - **Metrics** (per step; brax sums them per episode): ``reward/<term>``, ``dist_left``, ``dist_right``
@@ -47,11 +48,14 @@ from bar_policy.envs.robot_config import (
 )
 from bar_policy.envs.site_kinematics import plan_sites, site_positions
 from bar_policy.envs.task import TaskStep, Transition
+from bar_policy.envs.term_table import RewardTerm, TerminationTerm
 from bar_policy.obs import ObservationManager
 from bar_policy.robot.constants import FINGERTIP_SITES
 from bar_policy.robot.kinematics import Kinematics
 from bar_policy.robot.scene import SceneEdit
+from bar_policy.tasks.reach import term_table
 from bar_policy.tasks.reach.shared import SUCCESS_RADIUS, ReachTargetConfig, sample_targets, transition_point
+from bar_policy.tasks.reach.term_table import RewardConfig, RewardScales
 
 __all__ = [
     "ActuatorConfig",
@@ -65,59 +69,6 @@ __all__ = [
     "neck_config",
     "nominal_config",
 ]
-
-
-@dataclass(frozen=True, kw_only=True)
-class RewardScales:
-    """Weights of the reward terms (positive: reward, negative: cost). 0 drops a term's effect."""
-
-    reach_coarse: float = 1.0
-    """Weight of ``1 - tanh(d / coarse_std)`` (mean of both hands), per step."""
-    reach_fine: float = 1.0
-    """Weight of ``1 - tanh(d / fine_std)`` (mean of both hands), per step."""
-    success: float = 0.5
-    """Weight of the both-hands-within-3-cm indicator, per step."""
-    action_rate: float = -0.1
-    """Weight of ``sum((a_t - a_{t-1})^2)`` of the applied action, per step (action units); the tracker's
-    (BeyondMimic's) -0.1; -0.01 shipped a policy at its torque caps 6 % of the time with 34 mrad of
-    chatter (docs/training.md)."""
-    action_accel: float = -0.2
-    """Weight of ``sum((a_t - 2 a_{t-1} + a_{t-2})^2)`` of the applied action, per step: chatter's own
-    penalty, as the tracker's."""
-    joint_limit: float = -1.0
-    """Weight of rad beyond the soft joint limits (summed over joints), per step."""
-    torque: float = -0.005
-    """Weight of ``sum((tau / tau_cap)^2)`` averaged over substeps, per step."""
-    torque_near_cap: float = -0.1
-    """Weight of ``sum_j clip(|tau_law_j| / tau_cap_j - 0.8, 0, 1)`` of the unclipped MIT demand averaged
-    over substeps (``Transition.near_cap``): a new target must be reached without slamming into the caps."""
-    joint_vel: float = -5e-4
-    """Weight of ``sum(dq^2)`` in (rad/s)^2, per step."""
-    wrist_posture: float = -0.1
-    """Weight of ``sum_j |q_j - q_default_j|`` over the wrist joints, rad, per step: reach does not need
-    the wrists, and a policy that holds them away from the default pose sends its first command of each
-    episode toward that posture, which met the 4 N m wrist caps in the ship gate (docs/training.md). At
-    -0.1 it cost no env steps to 95 % (three seeds); -0.3 needed 1.6-1.8x as many."""
-
-
-@dataclass(frozen=True, kw_only=True)
-class RewardConfig:
-    """Reward shaping."""
-
-    scales: RewardScales = field(default_factory=RewardScales)
-    """Term weights."""
-    coarse_std: float = 0.15
-    """Length scale of the coarse distance kernel, m."""
-    fine_std: float = 0.03
-    """Length scale of the fine distance kernel, m (the success radius)."""
-    soft_limit_fraction: float = 0.95
-    """Fraction of each joint's range inside which the joint-limit cost is zero."""
-
-    def __post_init__(self) -> None:
-        if not (self.coarse_std > 0 and self.fine_std > 0):
-            raise ValueError(f"kernel stds must be > 0 m, got {self.coarse_std}, {self.fine_std}")
-        if not 0 < self.soft_limit_fraction <= 1:
-            raise ValueError(f"soft_limit_fraction must be in (0, 1], got {self.soft_limit_fraction}")
 
 
 FINGERTIP_KINEMATICS = ("chains", "mjx")
@@ -234,38 +185,36 @@ class LiteReach(LiteRobotEnv):
             info["target_left"], info["target_right"] = gl, gr
         return info, self._default, jnp.zeros(self.action_size)
 
+    def reward_terms(self) -> tuple[RewardTerm, ...]:
+        """Reach's reward table (``term_table.reward_terms``) for the current config."""
+        return term_table.reward_terms(self.config.reward)
+
+    def termination_terms(self) -> tuple[TerminationTerm, ...]:
+        """Reach's terminations (``term_table.TERMINATIONS``): none of its own."""
+        return term_table.TERMINATIONS
+
     def task_step(self, tr: Transition) -> TaskStep:
-        """Distance rewards on the true fingertips, success, and target resampling at segment ends."""
+        """Fingertip distances for the reward table, success, and target resampling at segment ends."""
         cfg = self.config
         data, info, finite = tr.data, tr.info, tr.finite
         tips = data.site_xpos[self._site_ids]
         d_l = jnp.linalg.norm(tips[0] - info["target_left"])
         d_r = jnp.linalg.norm(tips[1] - info["target_right"])
-        rc = cfg.reward
-        terms = {
-            "reach_coarse": rewards.reach_kernel(d_l, d_r, rc.coarse_std),
-            "reach_fine": rewards.reach_kernel(d_l, d_r, rc.fine_std),
-            "success": rewards.success(d_l, d_r, SUCCESS_RADIUS),
-            "action_rate": rewards.action_rate(tr.action, info["last_act"]),
-            "action_accel": rewards.action_accel(tr.action, info["last_act"], info["act_prev"]),
-            "joint_limit": rewards.joint_limit(
-                self.robot_q(data), self._lower, self._upper, rc.soft_limit_fraction
-            ),
-            "torque": rewards.torque(tr.tau_sq),
-            "torque_near_cap": tr.near_cap,
-            "joint_vel": rewards.joint_vel(self.robot_dq(data)),
-            "wrist_posture": rewards.joint_deviation(
-                self.robot_q(data)[self._wrists], self._default[self._wrists]
-            ),
+        signals = {
+            "dist_left": d_l,
+            "dist_right": d_r,
+            "q_wrist": self.robot_q(data)[self._wrists],
+            "q_wrist_default": self._default[self._wrists],
         }
+        success = rewards.success(d_l, d_r, SUCCESS_RADIUS)
         seg_end = (tr.step % cfg.resample_steps) == 0
         new_l, new_r = sample_targets(jax.random.uniform(tr.key, (6,)), cfg.target)
         seg = seg_end.astype(jnp.float32)
         metrics = {
             "dist_left": jnp.where(finite, d_l, 0.0),
             "dist_right": jnp.where(finite, d_r, 0.0),
-            "success": terms["success"],
-            "success_end": terms["success"] * seg,
+            "success": success,
+            "success_end": success * seg,
             "segment_end": seg,
         }
         goal_l = jnp.where(seg_end, new_l, info["goal_left"])
@@ -281,7 +230,7 @@ class LiteReach(LiteRobotEnv):
             "goal_left": goal_l,
             "goal_right": goal_r,
         }
-        return TaskStep(terms=terms, info=task_info, metrics=metrics)
+        return TaskStep(signals=signals, info=task_info, metrics=metrics)
 
     def task_obs(self, model: mjx.Model, data: mjx.Data, q_meas: jax.Array, info: dict) -> dict:
         """Fingertips by forward kinematics of the measured q, and the two targets.

@@ -13,15 +13,17 @@ and the initial-pose noise are the robot env's; the task adds:
 - **Observation**: ``ObservationManager.for_task("track", mode)``: the reference at the next
   ``TRACK_LOOKAHEAD_STEPS`` frames (joint positions, ``motion_body_pos_b``, ``motion_body_ori_b`` of
   ``TRACK_BODY_NAMES`` in the chest frame), then joint_pos, joint_vel, actions.
-- **Reward** (terms in ``bar_policy.envs.rewards``, weights ``TrackRewardScales``): ``joint_pos``,
-  ``body_pos``, ``body_ori``, ``fingertip_pos`` (exponential kernels of the error against the frame the step
-  arrives at, on the true state), ``action_rate`` and ``action_accel`` (first and second differences of the
-  applied, filtered action: the second weighs content at 25 Hz 250 times more than at 1 Hz), ``torque`` and
-  ``torque_near_cap`` (the unclipped demand beyond 80 % of each cap).
+- **Reward** (the task's term table, ``term_table.py``: functions of ``bar_policy.envs.rewards``, weights
+  ``TrackRewardScales``): ``joint_pos``, ``body_pos``, ``body_ori``, ``fingertip_pos`` (exponential
+  kernels of the error against the frame the step arrives at, on the true state), ``action_rate`` and
+  ``action_accel`` (first and second differences of the applied, filtered action: the second weighs
+  content at 25 Hz 250 times more than at 1 Hz), ``torque`` and ``torque_near_cap`` (the unclipped demand
+  beyond 80 % of each cap).
 - **Start sampling** (training): with ``config.sampling.enabled`` the batched wrapper draws each reset's
   start bin adaptively, more often just before where episodes fail (``envs/sampling.py``).
-- **Termination**: when any tracked body is farther than ``termination_distance`` (0.25 m) from its
-  reference, or the physics turns non-finite; the wrappers truncate at ``episode_length`` (10 s).
+- **Termination** (``term_table.termination_terms``): when any tracked body is farther than
+  ``termination_distance`` (0.25 m) from its reference, or the physics turns non-finite; the wrappers
+  truncate at ``episode_length`` (10 s).
 - **Initial state**: the start frame's pose + U(-init_noise, init_noise), at the reference's velocity.
 - **Metrics** (per step, zero on a non-finite step): ``joint_error`` (mean |q - q_ref| over joints, rad),
   ``body_pos_error`` (mean over tracked bodies, m), ``fingertip_error`` (mean over both fingertips, m),
@@ -38,18 +40,20 @@ import jax.numpy as jnp
 import numpy as np
 from mujoco import mjx
 
-from bar_policy.envs import rewards
 from bar_policy.envs.base import State
 from bar_policy.envs.device_arrays import to_device
 from bar_policy.envs.robot import LiteRobotEnv
 from bar_policy.envs.robot_config import nominal
 from bar_policy.envs.sampling import StartBins, start_probabilities, update_counts
 from bar_policy.envs.task import TaskStep, Transition
+from bar_policy.envs.term_table import RewardTerm, TerminationTerm
+from bar_policy.envs.terminations import farther_than
 from bar_policy.motion.clip import Clip
 from bar_policy.motion.library import clip_set, clip_set_id
 from bar_policy.obs import ObservationManager
 from bar_policy.obs.action_prior import ActionPrior, reference_prior
 from bar_policy.robot.constants import FINGERTIP_SITES
+from bar_policy.tasks.track import term_table
 from bar_policy.tasks.track.config import TrackEnvConfig, default_config, heldout_config
 from bar_policy.tasks.track.shared import (
     TRACK_BODY_NAMES,
@@ -205,30 +209,36 @@ class LiteTrack(LiteRobotEnv):
         """The reference joint positions of the frame this step arrives at (what its command targets)."""
         return self._ref_q[jnp.minimum(info["frame"] + 1, info["last_frame"])]
 
+    def reward_terms(self) -> tuple[RewardTerm, ...]:
+        """Tracking's reward table (``term_table.reward_terms``) for the current config."""
+        return term_table.reward_terms(self.config.reward)
+
+    def termination_terms(self) -> tuple[TerminationTerm, ...]:
+        """Tracking's terminations (``term_table.termination_terms``): a tracked body lost."""
+        return term_table.termination_terms(self.config)
+
     def task_step(self, tr: Transition) -> TaskStep:
-        """Advance the reference one frame; tracking rewards and errors against it."""
+        """Advance the reference one frame; the signals of the term table and the errors against it."""
         cfg, info, data = self.config, tr.info, tr.data
-        rc = cfg.reward
         frame = jnp.minimum(info["frame"] + 1, info["last_frame"])
         q_ref, pos_ref, ori_ref = self._ref_q[frame], self._ref_pos[frame], self._ref_ori[frame]
         pos = data.xpos[self._body_ids]
-        rot = data.xmat[self._body_ids].reshape(-1, 3, 3)
         tips = data.site_xpos[self._site_ids]
         q = self.robot_q(data)
-        terms = {
-            "joint_pos": rewards.joint_tracking(q, q_ref, rc.joint_std),
-            "body_pos": rewards.body_pos_tracking(pos, pos_ref, rc.body_pos_std),
-            "body_ori": rewards.body_ori_tracking(rot, ori_ref, rc.body_ori_std),
-            "fingertip_pos": rewards.body_pos_tracking(tips, self._ref_tip[frame], rc.fingertip_std),
-            "action_rate": rewards.action_rate(tr.action, info["last_act"]),
-            "action_accel": rewards.action_accel(tr.action, info["last_act"], info["act_prev"]),
-            "torque": rewards.torque(tr.tau_sq),
-            "torque_near_cap": tr.near_cap,
-        }
         dist = jnp.linalg.norm(pos - pos_ref, axis=-1)
+        signals = {
+            "q_ref": q_ref,
+            "body_pos": pos,
+            "body_pos_ref": pos_ref,
+            "body_rot": data.xmat[self._body_ids].reshape(-1, 3, 3),
+            "body_ori_ref": ori_ref,
+            "fingertip_pos": tips,
+            "fingertip_pos_ref": self._ref_tip[frame],
+            "body_dist": dist,
+        }
         joint_err = jnp.mean(jnp.abs(q - q_ref))
         tip_err = jnp.mean(jnp.linalg.norm(tips - self._ref_tip[frame], axis=-1))
-        lost = (jnp.max(dist) > cfg.termination_distance) & (cfg.termination_distance > 0)
+        lost = farther_than(dist, cfg.termination_distance)
         ok = tr.finite
         success = (joint_err <= SUCCESS_JOINT_RAD) & (tip_err <= SUCCESS_FINGERTIP_M) & ok
         metrics = {
@@ -244,7 +254,7 @@ class LiteTrack(LiteRobotEnv):
             "frame": frame,
             "last_frame": info["last_frame"],
         }
-        return TaskStep(terms=terms, info=task_info, metrics=metrics, terminate=lost)
+        return TaskStep(signals=signals, info=task_info, metrics=metrics)
 
     def task_obs(self, model: mjx.Model, data: mjx.Data, q_meas: jax.Array, info: dict) -> dict:
         """The reference at the next ``TRACK_LOOKAHEAD_STEPS`` frames (``shared.reference_inputs``)."""
