@@ -48,10 +48,11 @@ from bar_policy.deploy.episodes import SimEpisodes
 from bar_policy.deploy.policy import OnnxPolicy, load_policy
 from bar_policy.robot.constants import FINGERTIP_SITES
 from bar_policy.tasks.piano.bank import random_songs
-from bar_policy.tasks.piano.evaluate import SongResult, SongTicks, evaluate
+from bar_policy.tasks.piano.evaluate import evaluate
 from bar_policy.tasks.piano.keyboard import Key, black_keys, compact_config, is_black, key_table
 from bar_policy.tasks.piano.prior import KeyPosePriorConfig
 from bar_policy.tasks.piano.reference import KeyPoseReference
+from bar_policy.tasks.piano.results import SongResult, SongTicks
 from bar_policy.tasks.piano.scene import FINGERTIP_GEOMS
 from bar_policy.tasks.piano.songs import Song, count_in
 
