@@ -42,8 +42,8 @@
 #   recipe track VARIANT... (~9.5 min): --preset track on one shared cache, MINUTES (8.9); A and B name the
 #             ablation sets; `SEED=0 ... recipe track recipe` is the figure of record; rsl: the field's
 #             rsl-rl values (field_cli_flags(8192)) on the preset's networks and prior, initial std 0.3;
-#             rsl-fixed: --preset track-rsl. Without GPUS the variants share the GPU at 4096 envs, batch 512
-#             (XLA_PYTHON_CLIENT_MEM_FRACTION=$MEM, 0.22)
+#             rsl-fixed: --preset track-rsl. Without GPUS the variants share the GPU at 4096 envs, batch
+#             512 (XLA_PYTHON_CLIENT_MEM_FRACTION=$MEM, 0.22); NO_CKPT=1 leaves the checkpoints out
 #   recipe piano VARIANT... (~9 min): --preset piano, MINUTES (7.2)
 #
 # smoke-PART (smoke-startup, smoke-rsl, smoke-update, smoke-precision, smoke-prealloc, smoke-loadflags,
@@ -418,7 +418,7 @@ recipe() {  # recipe TASK VARIANT...
       while read -r old; do rm -f "$old.msgpack" "$old.json"; done
   done
   local keep=(--exclude='*.msgpack')
-  [ "$task" = track ] && keep=()
+  [ "$task" = track ] && [ -z "${NO_CKPT:-}" ] && keep=()
   (cd "$WORK" && tar czf "$OUT/session_recipe_$task.tgz" "${keep[@]}" --exclude=tb --exclude='cache_*' \
     --exclude=jaxcache runs ./*.log 2>/dev/null)
   case "$task" in
