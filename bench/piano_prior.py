@@ -35,9 +35,10 @@ import numpy as np
 from bar_policy.deploy.episodes import SimEpisodes
 from bar_policy.deploy.policy import load_policy
 from bar_policy.tasks.piano.bank import PlaybackConfig
-from bar_policy.tasks.piano.evaluate import PianoEval, evaluate
+from bar_policy.tasks.piano.evaluate import evaluate
 from bar_policy.tasks.piano.keyboard import compact_config
 from bar_policy.tasks.piano.prior import KeyPosePriorConfig
+from bar_policy.tasks.piano.results import PianoEval
 from bar_policy.tasks.piano.scene import keyboard_scene
 from bar_policy.tasks.piano.song_library import HELDOUT, library_song
 

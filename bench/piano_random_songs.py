@@ -40,9 +40,10 @@ import numpy as np
 from bar_policy.deploy.episodes import SimEpisodes
 from bar_policy.deploy.policy import load_policy
 from bar_policy.tasks.piano.bank import random_songs
-from bar_policy.tasks.piano.evaluate import SongResult, SongTicks, evaluate
+from bar_policy.tasks.piano.evaluate import evaluate
 from bar_policy.tasks.piano.keyboard import compact_config, is_black
 from bar_policy.tasks.piano.prior import KeyPosePriorConfig
+from bar_policy.tasks.piano.results import SongResult, SongTicks
 from bar_policy.tasks.piano.songs import Note, Song, count_in
 
 ONSET_S = 0.1

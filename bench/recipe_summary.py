@@ -1,4 +1,4 @@
-"""One markdown row per training run of a recipe script (``track_recipe.sh``, ``piano_recipe.sh``).
+"""One markdown row per training run of a recipe (``gpu_session.sh recipe track|piano``).
 
 Each row: env steps, wall time and the final MJX evaluation's ``--keys`` from the run's ``final_eval.json``,
 then the best iterate (``last``, or its step and its ``--best`` figures).

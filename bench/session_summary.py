@@ -1,4 +1,4 @@
-"""Compact results table of a GPU session (``bench/gpu_session_*.sh``): one row per training run.
+"""Compact results table of a GPU session (``bench/gpu_session.sh``): one row per training run.
 
 For each run directory: devices, envs, steady env steps/s (median of the progress lines after the first,
 whose epoch includes the compile), its ratio to the first row, the time from process start to the first

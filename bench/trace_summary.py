@@ -4,7 +4,7 @@
 ``top_events(log_dir)`` reads the Perfetto JSON it wrote and sums each event name's duration (inclusive
 of nested events, over every thread), largest first. XLA names its compile passes, the GPU compiler's
 stages and a load's steps in such events, so a compile or a load gets a breakdown without TensorBoard.
-Used by ``program_split.py --profile``.
+Used by ``train_breakdown.py`` and ``update_scaling.py`` (``--profile``).
 """
 
 from __future__ import annotations

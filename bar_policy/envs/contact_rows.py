@@ -1,13 +1,13 @@
 """MJX's constraint rows with each contact's Jacobian mask taken from a static table.
 
-``mujoco.mjx._src.support.jac`` finds the dofs that move a body by scanning the whole body tree, once
-per contact side (its own TODO: "statically construct mask"). The piano scene has 60 contacts and 113
-bodies, and on an H100 ``make_constraint`` was 31 % of a physics step (``bench/piano_solver_parts.py``). The
-mask depends only on the model, so :func:`ancestor_dofs` builds it once (``(nbody, nv)``: dof ``j`` moves
-body ``b`` when ``j`` belongs to ``b`` or to one of its ancestors) and :func:`make_constraint` reads a row
-of it, and projects the Jacobian on the contact normal directly (the only row a frictionless contact
-has). Everything else is MJX's code, in MJX's row order; frictionless contacts (condim 1, every contact
-of the Lite's scenes) take this path, other condims MJX's own rows.
+``mujoco.mjx._src.support.jac`` finds the dofs that move a body by scanning the whole body tree, once per
+contact side (its own TODO: "statically construct mask"). The piano scene has 60 contacts and 113 bodies, and
+on an H100 ``make_constraint`` was 31 % of a physics step (``bench/piano_solver_parts.py`` at fdbaf1a). The
+mask depends only on the model, so :func:`ancestor_dofs` builds it once (``(nbody, nv)``: dof ``j`` moves body
+``b`` when ``j`` belongs to ``b`` or to one of its ancestors) and :func:`make_constraint` reads a row of it,
+and projects the Jacobian on the contact normal directly (the only row a frictionless contact has). Everything
+else is MJX's code, in MJX's row order; frictionless contacts (condim 1, every contact of the Lite's scenes)
+take this path, other condims MJX's own rows.
 
 Pinned to ``mujoco-mjx`` 3.17 (``mujoco.mjx._src``); ``tests/envs/test_physics_step.py`` holds the rows
 equal to MJX's.

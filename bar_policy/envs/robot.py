@@ -60,7 +60,6 @@ from bar_policy.envs.actuator import (
     robot_force,
 )
 from bar_policy.envs.base import MjxEnv, State
-from bar_policy.envs.quality_signals import quality_signals
 from bar_policy.envs.robot_config import RobotEnvConfig
 from bar_policy.envs.task import TaskHooks, Transition
 from bar_policy.envs.term_table import TerminationTerm, check_names, reward_values, terminated, weighted_sum
@@ -292,8 +291,26 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         return action, buf, make_command(self.q_command(delayed), info["kp"], info["kd"], self._act)
 
     def quality_signals(self, state: State, action: jax.Array) -> dict[str, jax.Array]:
-        """What the safety and smoothness metrics see at this tick, unbatched (``envs.quality_signals``)."""
-        return quality_signals(self, state, action)
+        """What the safety and smoothness metrics (``bar_policy.quality``) see at this tick, unbatched.
+
+        A pure function of the state and the policy's action: the MJX evaluation during training
+        (``training.eval_quality``) and the rsl-rl adapter vmap it over their slots. Returns ``demand``
+        (the unclipped MIT torque of the command this step applies, at the measured state: the supervisor's
+        saturation test on the robot, N*m), ``q`` (true positions, rad), ``action`` (the applied action)
+        and ``signal`` (the chatter signal: ``q_cmd - q_ref`` when the task has a reference
+        (``task_reference``), else ``q_cmd``, rad), each shape (n,).
+        """
+        info, data = state.info, state.data
+        applied, _, cmd = self._command(info, action)
+        q_cmd = self.q_command(applied)
+        ref = self.task_reference(info)
+        q, dq = self.robot_q(data), self.robot_dq(data)
+        return {
+            "demand": mit_torque(cmd, q + info["encoder_offset"], dq),
+            "q": q,
+            "action": applied,
+            "signal": q_cmd if ref is None else q_cmd - ref,
+        }
 
     def action_prior(self, lead_steps: int) -> Prior:
         """The task's action prior (``obs.action_prior``), ``lead_steps`` control steps ahead.

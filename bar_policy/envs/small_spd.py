@@ -8,8 +8,8 @@ substitutions as ``cho_solve``, unrolled at trace time: under ``vmap`` every sca
 op over the batch, which XLA fuses into a few kernels, where the library calls (a batched ``potrf`` and two
 batched triangular solves on a GPU) each launch on their own. For n = 14 (the Lite's arms) a factor is about
 n^3 / 6 = 460 multiply-adds and a solve about n^2 = 200. On a CPU the library calls are faster
-(``bench/piano_variants.py``'s ``libchol``). It is the largest program: some 1,500 scalar ops per factor and
-solve for n = 14, which XLA's compile pays for.
+(``libchol`` of ``bench/piano_variants.py`` at fdbaf1a). It is the largest program: some 1,500 scalar ops
+per factor and solve for n = 14, which XLA's compile pays for.
 
 ``columns`` (:func:`cholesky_columns`, :func:`cho_solve_columns`): the same factor column by column and the
 same substitutions entry by entry, each a masked vector op over the row (``n`` steps of a few ops rather

@@ -179,11 +179,16 @@ def random_clips(
         kin = Kinematics(mode)
         return [
             random_clip(
-                rng, length_s, name=f"{prefix}-s{seed}-{i:03d}", mode=mode, rate_hz=rate_hz, config=cfg,
+                rng,
+                length_s,
+                name=f"{prefix}-s{seed}-{i:03d}",
+                mode=mode,
+                rate_hz=rate_hz,
+                config=cfg,
                 kinematics=kin,
             )
             for i in range(count)
-        ]  # fmt: skip
+        ]
 
     if not cache or count < 1:
         return generate()

@@ -34,42 +34,77 @@ __all__ = ["GESTURES", "KEY_POSES", "gesture", "gestures"]
 _PIANO_L = (0.3, -1.0, 0.0, -1.7, -1.2, 0.0, 0.3)
 KEY_POSES: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] = {
     # name:          (left (pitch, roll, yaw, elbow, w_yaw, w_roll, w_pitch), right (same order))
-    "wave_up":      (_PIANO_L, (-0.31, 0.94, -0.71, -1.99, 1.03, 0.44, -0.51)),
-    "wave_out":     (_PIANO_L, (-0.32, 0.97, -0.81, -1.87, 0.98, 0.51, -0.45)),
-    "wave_in":      (_PIANO_L, (-0.24, 0.95, -0.62, -2.11, 1.11, 0.37, -0.61)),
-    "clap_open":    ((0.38, -1.02, 0.17, -1.75, -1.16, 0.07, 0.41),
-                     (0.38, 1.02, -0.17, -1.75, 1.16, 0.07, -0.41)),
-    "clap_closed":  ((0.23, -1.04, -0.18, -1.85, -1.24, -0.12, 0.33),
-                     (0.23, 1.04, 0.18, -1.85, 1.24, -0.12, -0.33)),
-    "sweep_centre": ((-0.32, -1.07, -0.05, -1.28, -1.2, 0.08, 0.02),
-                     (-0.32, 1.07, 0.05, -1.28, 1.2, 0.08, -0.02)),
-    "sweep_left":   ((-0.13, -0.83, 0.12, -1.24, -1.18, 0.14, 0.03),
-                     (-0.34, 1.46, 0.31, -1.36, 1.23, -0.02, -0.02)),
-    "sweep_right":  ((-0.34, -1.46, -0.31, -1.36, -1.23, -0.02, 0.02),
-                     (-0.13, 0.83, -0.12, -1.24, 1.18, 0.14, -0.03)),
-}  # fmt: skip
+    "wave_up": (_PIANO_L, (-0.31, 0.94, -0.71, -1.99, 1.03, 0.44, -0.51)),
+    "wave_out": (_PIANO_L, (-0.32, 0.97, -0.81, -1.87, 0.98, 0.51, -0.45)),
+    "wave_in": (_PIANO_L, (-0.24, 0.95, -0.62, -2.11, 1.11, 0.37, -0.61)),
+    "clap_open": (
+        (0.38, -1.02, 0.17, -1.75, -1.16, 0.07, 0.41),
+        (0.38, 1.02, -0.17, -1.75, 1.16, 0.07, -0.41),
+    ),
+    "clap_closed": (
+        (0.23, -1.04, -0.18, -1.85, -1.24, -0.12, 0.33),
+        (0.23, 1.04, 0.18, -1.85, 1.24, -0.12, -0.33),
+    ),
+    "sweep_centre": (
+        (-0.32, -1.07, -0.05, -1.28, -1.2, 0.08, 0.02),
+        (-0.32, 1.07, 0.05, -1.28, 1.2, 0.08, -0.02),
+    ),
+    "sweep_left": (
+        (-0.13, -0.83, 0.12, -1.24, -1.18, 0.14, 0.03),
+        (-0.34, 1.46, 0.31, -1.36, 1.23, -0.02, -0.02),
+    ),
+    "sweep_right": (
+        (-0.34, -1.46, -0.31, -1.36, -1.23, -0.02, 0.02),
+        (-0.13, 0.83, -0.12, -1.24, 1.18, 0.14, -0.03),
+    ),
+}
 """Keyframe poses, rad: (left arm, right arm), canonical order; ``RobotSpec.pose`` names work too."""
 
 GESTURES: dict[str, tuple[tuple[str, float], ...]] = {
     "wave": (
-        ("piano_ready", 0.0), ("piano_ready", 0.5), ("wave_up", 1.5), ("wave_out", 0.4), ("wave_in", 0.5),
-        ("wave_out", 0.5), ("wave_in", 0.5), ("wave_out", 0.5), ("wave_up", 0.4), ("piano_ready", 1.5),
+        ("piano_ready", 0.0),
+        ("piano_ready", 0.5),
+        ("wave_up", 1.5),
+        ("wave_out", 0.4),
+        ("wave_in", 0.5),
+        ("wave_out", 0.5),
+        ("wave_in", 0.5),
+        ("wave_out", 0.5),
+        ("wave_up", 0.4),
+        ("piano_ready", 1.5),
         ("piano_ready", 0.5),
     ),
     "clap": (
-        ("piano_ready", 0.0), ("piano_ready", 0.5), ("clap_open", 1.0), ("clap_closed", 0.5),
-        ("clap_open", 0.5), ("clap_closed", 0.5), ("clap_open", 0.5), ("clap_closed", 0.5),
-        ("clap_open", 0.5), ("piano_ready", 1.0), ("piano_ready", 0.5),
+        ("piano_ready", 0.0),
+        ("piano_ready", 0.5),
+        ("clap_open", 1.0),
+        ("clap_closed", 0.5),
+        ("clap_open", 0.5),
+        ("clap_closed", 0.5),
+        ("clap_open", 0.5),
+        ("clap_closed", 0.5),
+        ("clap_open", 0.5),
+        ("piano_ready", 1.0),
+        ("piano_ready", 0.5),
     ),
     "reach_sweep": (
-        ("piano_ready", 0.0), ("piano_ready", 0.5), ("sweep_centre", 1.0), ("sweep_left", 1.2),
-        ("sweep_right", 2.0), ("sweep_left", 2.0), ("sweep_centre", 1.2), ("piano_ready", 1.0),
+        ("piano_ready", 0.0),
+        ("piano_ready", 0.5),
+        ("sweep_centre", 1.0),
+        ("sweep_left", 1.2),
+        ("sweep_right", 2.0),
+        ("sweep_left", 2.0),
+        ("sweep_centre", 1.2),
+        ("piano_ready", 1.0),
         ("piano_ready", 0.5),
     ),
     "hanging_to_piano_ready": (
-        ("arms_hanging", 0.0), ("arms_hanging", 0.5), ("piano_ready", 3.0), ("piano_ready", 1.0),
+        ("arms_hanging", 0.0),
+        ("arms_hanging", 0.5),
+        ("piano_ready", 3.0),
+        ("piano_ready", 1.0),
     ),
-}  # fmt: skip
+}
 """Gesture name -> ``((pose, seconds from the previous keyframe), ...)``: the first keyframe (time 0) is
 where the clip starts, and a repeated pose is a hold."""
 

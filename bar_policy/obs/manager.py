@@ -127,9 +127,15 @@ class ObservationSchema:
         if not isinstance(data, Mapping):
             raise ValueError(f"observation schema must be a JSON object, got {type(data).__name__}")
         required = (
-            "name", "version", "robot", "mode", "joint_names", "action_joint_names",
-            "default_joint_pos", "terms",
-        )  # fmt: skip
+            "name",
+            "version",
+            "robot",
+            "mode",
+            "joint_names",
+            "action_joint_names",
+            "default_joint_pos",
+            "terms",
+        )
         missing = [k for k in required if k not in data]
         if missing:
             raise ValueError(f"observation schema lacks keys {missing}")

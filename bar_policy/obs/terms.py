@@ -46,7 +46,10 @@ class TermKind:
 
 ROBOT_TERMS: dict[str, TermKind] = {
     "joint_pos": TermKind(
-        size="joints", category="state", offset_default_pose=True, unit="rad",
+        size="joints",
+        category="state",
+        offset_default_pose=True,
+        unit="rad",
         doc="q - default_joint_pos, canonical joint order",
     ),
     "joint_vel": TermKind(size="joints", category="state", unit="rad/s", doc="dq, canonical order"),
@@ -61,7 +64,7 @@ ROBOT_TERMS: dict[str, TermKind] = {
     "imu_quaternion": TermKind(size=4, category="imu", unit="1", doc="orientation (w, x, y, z)"),
     "imu_angular_velocity": TermKind(size=3, category="imu", unit="rad/s", doc="gyroscope"),
     "imu_linear_acceleration": TermKind(size=3, category="imu", unit="m/s^2", doc="accelerometer"),
-}  # fmt: skip
+}
 """The robot's terms: what the runtime computes from the robot's state (or the policy's last action)."""
 
 

@@ -134,28 +134,66 @@ def check(task: str, report: Mapping[str, Any]) -> list[Miss]:
         f" ({len(faulted)} ended by a fault: {', '.join(map(str, faulted[:4]))})" * bool(faulted)
     )
     _bound(out, "min_completion_pct", True, q.get("completion_pct"), g.min_completion_pct, False, what, "%")
-    _bound(out, "max_cap_share_pct", True, q.get("cap_share_pct"), g.max_cap_share_pct, True,
-           "ticks at a torque cap", "%")  # fmt: skip
+    _bound(
+        out,
+        "max_cap_share_pct",
+        True,
+        q.get("cap_share_pct"),
+        g.max_cap_share_pct,
+        True,
+        "ticks at a torque cap",
+        "%",
+    )
     episodes = report.get("episodes") or []
     for ep in episodes:
         c = ep.get("chatter_mrad")
         if c is not None and c > g.max_chatter_mrad:
-            out.append(Miss("max_chatter_mrad", True,
-                            f"chatter {c:.2f} mrad on {ep.get('name')} ({ep.get('chatter_joint')}) > "
-                            f"{g.max_chatter_mrad:g} mrad (max_chatter_mrad)"))  # fmt: skip
+            out.append(
+                Miss(
+                    "max_chatter_mrad",
+                    True,
+                    f"chatter {c:.2f} mrad on {ep.get('name')} ({ep.get('chatter_joint')}) > "
+                    f"{g.max_chatter_mrad:g} mrad (max_chatter_mrad)",
+                )
+            )
     if not episodes:  # a summary without per-episode records (the MJX evaluation): its worst episode
         worst = f" on {q['chatter_worst_episode']}" if q.get("chatter_worst_episode") else ""
-        _bound(out, "max_chatter_mrad", True, q.get("chatter_max_mrad"), g.max_chatter_mrad, True,
-               f"chatter of the worst episode{worst}", "mrad")  # fmt: skip
+        _bound(
+            out,
+            "max_chatter_mrad",
+            True,
+            q.get("chatter_max_mrad"),
+            g.max_chatter_mrad,
+            True,
+            f"chatter of the worst episode{worst}",
+            "mrad",
+        )
     if g.max_joint_error_rad is not None:
-        _bound(out, "max_joint_error_rad", False, report.get("joint_error_rad"), g.max_joint_error_rad, True,
-               "mean joint error", "rad")  # fmt: skip
+        _bound(
+            out,
+            "max_joint_error_rad",
+            False,
+            report.get("joint_error_rad"),
+            g.max_joint_error_rad,
+            True,
+            "mean joint error",
+            "rad",
+        )
     if g.max_fingertip_error_cm is not None:
-        _bound(out, "max_fingertip_error_cm", False, report.get("fingertip_error_cm"),
-               g.max_fingertip_error_cm, True, "mean fingertip error", "cm")  # fmt: skip
+        _bound(
+            out,
+            "max_fingertip_error_cm",
+            False,
+            report.get("fingertip_error_cm"),
+            g.max_fingertip_error_cm,
+            True,
+            "mean fingertip error",
+            "cm",
+        )
     if g.min_success_pct is not None:
-        _bound(out, "min_success_pct", False, report.get("success_pct"), g.min_success_pct, False,
-               "success", "%")  # fmt: skip
+        _bound(
+            out, "min_success_pct", False, report.get("success_pct"), g.min_success_pct, False, "success", "%"
+        )
     return out
 
 

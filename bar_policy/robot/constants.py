@@ -259,9 +259,21 @@ def robot_from_ros2_control(
     if unknown:
         raise ValueError(f"mode {mode!r} names unknown groups {unknown}; groups: {sorted(groups)}")
     required = (
-        "name", "group", "can_id", "model", "direction", "lower", "upper",
-        "torque_limit", "current_limit", "kp", "kd", "armature", "frictionloss", "sim_effort",
-    )  # fmt: skip
+        "name",
+        "group",
+        "can_id",
+        "model",
+        "direction",
+        "lower",
+        "upper",
+        "torque_limit",
+        "current_limit",
+        "kp",
+        "kd",
+        "armature",
+        "frictionloss",
+        "sim_effort",
+    )
     args = data.get("args", {})
     joints = []
     for raw in data["joints"]:

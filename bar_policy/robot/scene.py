@@ -28,8 +28,8 @@ MJX's solver small (nefc 82 instead of 244 per env). The Newton solver is capped
 line-search steps): with frictionless contacts, joint limits and frictionloss it converges in 1-2
 iterations, and the cap bounds MJX's batched while-loop (H100, batch 8192: 0.73M physics steps/s with
 condim 3 and 6 iterations, 1.26M with condim 1, 1.72M with condim 1 and 3 iterations;
-``bench/mjx_variants.py``, docs/performance.md). Collision filtering: ``links.COLLISION_BITS``; the chest
-does not collide with the shoulder_yaw capsules, which sit 14 mm inside it when the arms hang
+``bench/mjx_variants.py`` at fdbaf1a, docs/performance.md). Collision filtering: ``links.COLLISION_BITS``;
+the chest does not collide with the shoulder_yaw capsules, which sit 14 mm inside it when the arms hang
 (lite-model.md 4.4).
 """
 

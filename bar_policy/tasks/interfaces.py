@@ -196,8 +196,13 @@ class DeployTask(abc.ABC):
             "bar-deploy eval evaluates reach and track policies"
         )
 
-    def check_options(self, policy_path: object, args: argparse.Namespace, others: tuple[DeployTask, ...],
-                      which: str = "run") -> None:  # fmt: skip
+    def check_options(
+        self,
+        policy_path: object,
+        args: argparse.Namespace,
+        others: tuple[DeployTask, ...],
+        which: str = "run",
+    ) -> None:
         """Refuse options of other tasks given for a policy of this task (the message says so).
 
         Args:

@@ -100,8 +100,7 @@ def test_sim_midi_keys_send_the_simulated_keys_as_messages() -> None:
     import mujoco
 
     from bar_policy.robot.scene import load_model
-    from bar_policy.tasks.piano.evaluate import SimMidiKeys
-    from bar_policy.tasks.piano.key_input import SimKeys
+    from bar_policy.tasks.piano.key_input import SimKeys, SimMidiKeys
     from bar_policy.tasks.piano.scene import keyboard_scene
 
     model = load_model("arms", keyboard_scene(KB))

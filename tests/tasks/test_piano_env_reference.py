@@ -1,6 +1,6 @@
 """The MJX piano env's chatter reference (``LitePiano.task_reference``): the deploy side's key-pose reference.
 
-The MJX evaluation measures chatter on ``q_cmd - task_reference`` (``envs.quality_signals``); the piano's
+The MJX evaluation measures chatter on ``q_cmd - task_reference`` (``env.quality_signals``); the piano's
 reference is the key-pose prior's command for the step's goal-key window through the env's action path
 (``tasks.piano.reference``, docs/piano.md "Chatter against the key-pose reference"). Expected values, each
 worked apart from the code under test:

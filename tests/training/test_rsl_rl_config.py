@@ -141,8 +141,8 @@ def test_the_track_preset_on_rsl_rl_says_each_brax_setting_it_runs_without():
         "within [1e-05, 0.01]"
     )
     assert lines[-1] == "ppo.reward_scaling=2 not applied: rsl-rl's loss takes the env's rewards unscaled"
-    # With the field's values on top (what `bash bench/track_recipe.sh rsl` runs), only the track preset's
-    # own normaliser setting is left to say.
+    # With the field's values on top (what `bash bench/gpu_session.sh recipe track rsl` runs), only the track
+    # preset's own normaliser setting is left to say.
     field = parse_config(["--preset", "track", "--backend", "rsl-rl", *field_cli_flags(8192)])
     assert not_applied(field) == [not_applied(cfg)[3]]
 

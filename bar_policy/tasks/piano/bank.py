@@ -101,9 +101,13 @@ def song_bank(
 
 
 def training_songs(
-    keyboard: KeyboardConfig, count: int, duration_s: float, tempo_bpm: tuple[float, float], seed: int,
+    keyboard: KeyboardConfig,
+    count: int,
+    duration_s: float,
+    tempo_bpm: tuple[float, float],
+    seed: int,
     library: Sequence[str] = (),
-) -> list[Song]:  # fmt: skip
+) -> list[Song]:
     """``library`` songs (by name) then ``count`` random playable songs, tempos ~ U(``tempo_bpm``) bpm."""
     drawn = random_songs(keyboard, count, duration_s, tempo_bpm, seed)
     return [library_song(name) for name in library] + [song for song, _ in drawn]

@@ -127,21 +127,36 @@ class PianoTask(DeployTask):
         """``--song`` and ``--keys``."""
         g = parser.add_argument_group("piano policies (songs)")
         songs = ", ".join(SONG_NAMES)
-        g.add_argument("--song", metavar="NAME|PATH", help=f"song to play: {songs}, or a .json song file "
-                       "or a .mid file (default: the first held-out song)")  # fmt: skip
-        g.add_argument("--keys", metavar="SOURCE", help="where key_pressed comes from: sim (the sim target's "
-                       "keys, its default), midi[:PORT] (a MIDI keyboard), kinematic (the fingertips; the "
-                       "mock and real targets' default)")  # fmt: skip
+        g.add_argument(
+            "--song",
+            metavar="NAME|PATH",
+            help=f"song to play: {songs}, or a .json song file "
+            "or a .mid file (default: the first held-out song)",
+        )
+        g.add_argument(
+            "--keys",
+            metavar="SOURCE",
+            help="where key_pressed comes from: sim (the sim target's "
+            "keys, its default), midi[:PORT] (a MIDI keyboard), kinematic (the fingertips; the "
+            "mock and real targets' default)",
+        )
 
     def add_eval_arguments(self, parser: argparse.ArgumentParser) -> None:
         """``--songs``, and ``--keys``: the policy's ``key_pressed`` source (the score counts the sim's)."""
         g = parser.add_argument_group("piano policies (key-press F1)")
-        g.add_argument("--songs", metavar="NAME[,NAME...]", help=f"songs to play (default the held-out "
-                       f"ones: {', '.join(HELDOUT)})")  # fmt: skip
-        g.add_argument("--keys", metavar="SOURCE", help="where the policy's key_pressed comes from: sim "
-                       "(the simulated keys, default), kinematic (the fingertips, as on the mock and real "
-                       "targets), sim-midi (the simulated keys sent as MIDI messages in memory); F1 always "
-                       "counts the simulated keys")  # fmt: skip
+        g.add_argument(
+            "--songs",
+            metavar="NAME[,NAME...]",
+            help=f"songs to play (default the held-out ones: {', '.join(HELDOUT)})",
+        )
+        g.add_argument(
+            "--keys",
+            metavar="SOURCE",
+            help="where the policy's key_pressed comes from: sim "
+            "(the simulated keys, default), kinematic (the fingertips, as on the mock and real "
+            "targets), sim-midi (the simulated keys sent as MIDI messages in memory); F1 always "
+            "counts the simulated keys",
+        )
 
     def scene(self, policy: Policy) -> SceneEdit | None:
         """The keyboard the policy was trained at (``compact_config()``)."""

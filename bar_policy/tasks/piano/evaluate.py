@@ -24,244 +24,39 @@ songs that completed (docs/piano.md, "Chatter against the key-pose reference").
 
 Key sources (``keys``, ``bar-deploy eval --keys``): the policy's ``key_pressed`` comes from ``sim`` (the
 simulated keys, the default), ``kinematic`` (the fingertips' forward kinematics of the measured q, what the
-mock and real targets use without a keyboard) or ``sim-midi`` (the simulated keys' presses and releases
-turned into ``mido`` note messages and fed in memory to ``MidiKeys``: the MIDI path end to end, without a
-port). The score always counts the simulated keys, the keys that really went down (``SongCommands``'s
-``truth``); each song also counts the ticks' keys where the source and the simulated keys disagree.
+mock and real targets use without a keyboard) or ``sim-midi`` (``key_input.SimMidiKeys``: the simulated
+keys' presses and releases turned into ``mido`` note messages and fed in memory to ``MidiKeys``: the MIDI
+path end to end, without a port). The score always counts the simulated keys, the keys that really went
+down (``SongCommands``'s ``truth``); each song also counts the ticks' keys where the source and the
+simulated keys disagree. The result types are ``results.py``'s.
 """
 
 from __future__ import annotations
 
 import math
-import queue
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
 
 from bar_policy.quality.metrics import chatter_mrad
-from bar_policy.quality.report import EpisodeQuality, quality_summary_line, summarise
 from bar_policy.tasks.episodes import EpisodeRunner, Policy
-from bar_policy.tasks.interfaces import EvalReport
-from bar_policy.tasks.piano import colour
 from bar_policy.tasks.piano.bank import PlaybackConfig
 from bar_policy.tasks.piano.held import held_pose
-from bar_policy.tasks.piano.key_input import KeySource, MidiKeys, SimKeys
+from bar_policy.tasks.piano.key_input import KeySource, SimMidiKeys
 from bar_policy.tasks.piano.keyboard import KeyboardConfig, black_keys, compact_config
 from bar_policy.tasks.piano.keys import KinematicKeys
-from bar_policy.tasks.piano.metrics import Counts, colour_counts, episode_scores, scores, step_counts
+from bar_policy.tasks.piano.metrics import colour_counts, episode_scores, step_counts
 from bar_policy.tasks.piano.reference import KeyPoseReference
+from bar_policy.tasks.piano.results import PianoEval, SongResult, SongTicks
 from bar_policy.tasks.piano.scene import keyboard_scene
 from bar_policy.tasks.piano.songs import Song
 from bar_policy.tasks.piano.source import END_HOLD_S, SongCommands, sim_keys
 
-__all__ = ["EVAL_KEY_SOURCES", "PianoEval", "SimMidiKeys", "SongResult", "SongTicks", "evaluate"]
+__all__ = ["EVAL_KEY_SOURCES", "evaluate"]
 
 EVAL_KEY_SOURCES = ("sim", "kinematic", "sim-midi")
 """Where the policy's ``key_pressed`` can come from in the evaluation (module docstring)."""
-
-
-class SimMidiKeys(MidiKeys):
-    """The simulated keys played into ``MidiKeys`` as ``mido`` note messages, in memory.
-
-    Each ``read`` turns the simulated keys' changes since the previous read into ``note_on`` (velocity 64) and
-    ``note_off`` messages, queues them and reads them back through ``MidiKeys``, so the notes' numbering, the
-    latch and the message handling are those of a MIDI keyboard. A change is seen at a control tick: a tap
-    shorter than a tick between two reads is not sent.
-    """
-
-    def __init__(self, sim: SimKeys, config: KeyboardConfig) -> None:
-        """``sim``: the simulated keys of the sim target, on ``config``."""
-        import mido  # a deploy extra, imported when this source is asked for
-
-        self._queue: queue.Queue = queue.Queue()
-        super().__init__(self._queue, config)
-        self._message = mido.Message
-        self._sim = sim
-        self._was = np.zeros(self.n_keys, bool)
-
-    def read(self, t_s: float) -> np.ndarray:
-        """Send the simulated keys' presses and releases since the last read, then read them as MIDI."""
-        now = self._sim.read(t_s)
-        for i in np.flatnonzero(now != self._was):
-            note = self.config.lowest + int(i)
-            kind = "note_on" if now[i] else "note_off"
-            self._queue.put(self._message(kind, note=note, velocity=64 if now[i] else 0))
-        self._was = now
-        return super().read(t_s)
-
-
-@dataclass(frozen=True)
-class SongResult:
-    """One song."""
-
-    song: str
-    ticks: int
-    scored: int
-    """Policy ticks scored (the hold after the song is not)."""
-    true_pos: int
-    false_pos: int
-    false_neg: int
-    precision: float
-    """Mean over the song's policy ticks of each tick's precision (RoboPianist's; ``metrics``)."""
-    recall: float
-    """Mean of each tick's recall."""
-    f1: float
-    """Mean of each tick's F1: the headline figure."""
-    faulted: bool
-    end_reason: str
-    quality: dict[str, Any] = field(default_factory=dict)
-    """The run's safety and smoothness (``EpisodeQuality.to_dict``); its chatter is against the reference."""
-    chatter_raw_mrad: float | None = None
-    """Chatter of ``q_cmd`` itself over the policy ticks, mrad (not gated; None: too short to measure)."""
-    keys: str = "sim"
-    """Where the policy's ``key_pressed`` came from (``EVAL_KEY_SOURCES``)."""
-    keys_extra: int = 0
-    """Key-ticks (scored ticks x keys) the source read down while the simulated key was up."""
-    keys_missed: int = 0
-    """Key-ticks the simulated key was down and the source read up."""
-    keys_down: int = 0
-    """Key-ticks the simulated key was down (the scale of ``keys_missed``)."""
-    true_pos_black: int = 0
-    """Black goal key-ticks pressed (``metrics.colour_counts``)."""
-    false_neg_black: int = 0
-    """Black goal key-ticks missed."""
-    true_pos_white: int = 0
-    """White goal key-ticks pressed."""
-    false_neg_white: int = 0
-    """White goal key-ticks missed."""
-
-    @property
-    def chatter_mrad(self) -> float | None:
-        """Chatter of ``q_cmd`` minus the key-pose reference, mrad (the gate's; None: not measured)."""
-        return self.quality.get("chatter_mrad")
-
-    @property
-    def f1_pooled(self) -> float:
-        """F1 of the counts summed over the song, ``2 tp / (2 tp + fp + fn)`` (1 when all are 0)."""
-        return float(scores(Counts(self.true_pos, self.false_pos, self.false_neg)).f1)
-
-    @property
-    def recall_black(self) -> float:
-        """Recall of the song's black goal key-ticks, pooled (``colour.recalls``: 1 when it has none)."""
-        return colour.recalls(colour.counts_of(self))["recall_black"]
-
-    @property
-    def recall_white(self) -> float:
-        """Recall of the song's white goal key-ticks, pooled (1 when it has none)."""
-        return colour.recalls(colour.counts_of(self))["recall_white"]
-
-
-@dataclass(frozen=True)
-class SongTicks:
-    """One song's scored ticks as arrays (``evaluate``'s ``on_song``).
-
-    ``SongResult``'s counts are those of ``down`` against ``goal``.
-    """
-
-    song: Song
-    """The song as given (its file's times; ``steps`` index it as played, after the count-in)."""
-    steps: np.ndarray
-    """int, shape (ticks,): each scored tick's song step (``SongCommands``'s ``song_step``)."""
-    down: np.ndarray
-    """bool, shape (ticks, n_keys): the simulated keys down (what is scored)."""
-    goal: np.ndarray
-    """bool, shape (ticks, n_keys): the goal keys of the tick's step."""
-    count_in_s: float
-    """The count-in the song was played with (``bank.PlaybackConfig``)."""
-
-
-@dataclass(frozen=True)
-class PianoEval(EvalReport):
-    """Every song's counts and the overall F1."""
-
-    songs: list[SongResult]
-    policy: str
-    fingerprint: str
-
-    def f1(self) -> float:
-        """The headline: the mean over every song's ticks of each tick's F1 (RoboPianist's)."""
-        ticks = sum(s.scored for s in self.songs)
-        return sum(s.f1 * s.scored for s in self.songs) / ticks if ticks else float("nan")
-
-    def f1_pooled(self) -> float:
-        """F1 of the counts summed over every song."""
-        c = Counts(*(sum(getattr(s, k) for s in self.songs) for k in ("true_pos", "false_pos", "false_neg")))
-        return float(scores(c).f1)
-
-    def colour_totals(self) -> dict[str, int]:
-        """Every song's ``colour.COLOUR_COUNTS`` (TP and FN of each key colour's goal key-ticks) summed."""
-        return {k: sum(getattr(s, k) for s in self.songs) for k in colour.COLOUR_COUNTS}
-
-    def gate_report(self) -> dict[str, Any]:
-        """F1 % over the songs, and their safety and smoothness (the ship gate's input)."""
-        records = [EpisodeQuality.from_dict(s.quality) for s in self.songs if s.quality]
-        return {
-            "task": "piano",
-            "quality": summarise(records),
-            "episodes": [r.to_dict() for r in records],
-            "success_pct": 100.0 * self.f1(),
-        }
-
-    def raw_chatter_line(self) -> str:
-        """The chatter of ``q_cmd`` itself over the songs that completed (not gated), one line."""
-        done = [s for s in self.songs if not s.faulted and s.chatter_raw_mrad is not None]
-        if not done:
-            return "chatter of q_cmd itself (not gated): n/a"
-        worst = max(done, key=lambda s: s.chatter_raw_mrad or 0.0)
-        mean = float(np.mean([s.chatter_raw_mrad for s in done]))
-        return (
-            f"chatter of q_cmd itself (not gated; the gate's is against the key-pose reference): "
-            f"mean {mean:.2f} mrad, worst {worst.chatter_raw_mrad:.2f} mrad ({worst.song})"
-        )
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON form (each song's ``chatter_mrad``, against the reference, beside ``chatter_raw_mrad``)."""
-        return {
-            "policy": self.policy,
-            "obs_fingerprint": self.fingerprint,
-            "f1": self.f1(),
-            "f1_pooled": self.f1_pooled(),
-            **colour.recalls(self.colour_totals()),
-            "songs": [
-                {
-                    **asdict(s),
-                    "f1_pooled": s.f1_pooled,
-                    **colour.recalls(colour.counts_of(s)),
-                    "chatter_mrad": s.chatter_mrad,
-                }
-                for s in self.songs
-            ],
-            "gate_report": self.gate_report(),
-        }
-
-    def format(self) -> str:
-        """Summary lines: one per song, the totals, the quality line and the gate."""
-        lines = [f"piano on the C MuJoCo sim target: policy {self.policy} [{self.fingerprint}]"]
-        keys = sorted({s.keys for s in self.songs} - {"sim"})
-        if keys:
-            lines.append(f"key_pressed from {', '.join(keys)}; scored against the simulated keys")
-        for s in self.songs:
-            end = "faulted" if s.faulted else "completed"
-            figs = (
-                f"precision {s.precision:.3f} recall {s.recall:.3f} F1 {s.f1:.3f} (pooled {s.f1_pooled:.3f})"
-            )
-            lines.append(f"  {s.song:26s} {figs}, {s.scored} ticks, {end}, {_chatter_text(s)}")
-            lines.append(f"    {colour.text(colour.counts_of(s))}")
-            if s.keys != "sim":
-                lines.append(
-                    f"    key_pressed ({s.keys}) against the simulated keys: {s.keys_extra} key-ticks down "
-                    f"extra, {s.keys_missed} of {s.keys_down} missed"
-                )
-        lines.append(
-            f"all songs: F1 {self.f1():.3f} (step mean, RoboPianist's), pooled {self.f1_pooled():.3f}; "
-            f"{colour.text(self.colour_totals())}"
-        )
-        lines.append(quality_summary_line(self.gate_report()["quality"]))
-        lines.append(self.raw_chatter_line())
-        lines.extend(self.gate_lines())
-        return "\n".join(lines)
 
 
 def evaluate(
@@ -386,13 +181,3 @@ def _finite(x: float) -> float | None:
     """``x`` as a float, None for NaN (a window too short to measure)."""
     x = float(x)
     return None if np.isnan(x) else x
-
-
-def _chatter_text(s: SongResult) -> str:
-    """``chatter X mrad vs the key-pose reference (q_cmd itself Y)`` for one song's line."""
-
-    def mrad(x: float | None) -> str:
-        return "n/a" if x is None else f"{x:.2f}"
-
-    raw = mrad(s.chatter_raw_mrad)
-    return f"chatter {mrad(s.chatter_mrad)} mrad vs the key-pose reference (q_cmd itself {raw})"

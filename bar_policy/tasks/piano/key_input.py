@@ -1,7 +1,7 @@
 """Where the deploy side's ``key_pressed`` comes from: pluggable sources of the keys that are down now.
 
 A ``KeySource`` answers ``read(t_s)`` with a bool array of shape (n_keys,) (keyboard order, lowest key
-first: ``keyboard.key_table``) and counts what it could not use (``counts``). Three sources:
+first: ``keyboard.key_table``) and counts what it could not use (``counts``). Four sources:
 
 - ``SimKeys``: the keyboard scene simulated in C MuJoCo (sim2sim): each key's hinge angle, read by name
   from its ``piano_key{m}_angle`` sensor (or its joint's ``qpos``), against ``keyboard.pressed``.
@@ -10,6 +10,8 @@ first: ``keyboard.key_table``) and counts what it could not use (``counts``). Th
   ``iter_pending()`` (a mido port), a ``queue.Queue`` or an iterable of ``mido.Message``; each ``read``
   drains what is pending (no thread: call it once per control tick).
 - ``ScheduledKeys``: replays a list of ``(time_s, key, down)`` events (a recording, or a song's notes).
+- ``SimMidiKeys``: the simulated keys' presses and releases sent through ``MidiKeys`` as ``mido`` note
+  messages, in memory: the MIDI path end to end without a port (``bar-deploy eval --keys sim-midi``).
 
 Event sources (``MidiKeys``, ``ScheduledKeys``) **latch** a press: a key pressed since the previous read
 reads as down once even if it was released before it (a tap shorter than a control tick is not lost).
@@ -37,7 +39,7 @@ if TYPE_CHECKING:
 
     from bar_policy.tasks.piano.songs import Song
 
-__all__ = ["KeySource", "MidiKeys", "ScheduledKeys", "SimKeys"]
+__all__ = ["KeySource", "MidiKeys", "ScheduledKeys", "SimKeys", "SimMidiKeys"]
 
 log = logging.getLogger(__name__)
 
@@ -296,3 +298,33 @@ class ScheduledKeys(KeySource):
             self._latch.event(key, down)
         self._next = max(self._next, end)
         return self._latch.snapshot()
+
+
+class SimMidiKeys(MidiKeys):
+    """The simulated keys played into ``MidiKeys`` as ``mido`` note messages, in memory.
+
+    Each ``read`` turns the simulated keys' changes since the previous read into ``note_on`` (velocity 64) and
+    ``note_off`` messages, queues them and reads them back through ``MidiKeys``, so the notes' numbering, the
+    latch and the message handling are those of a MIDI keyboard. A change is seen at a control tick: a tap
+    shorter than a tick between two reads is not sent.
+    """
+
+    def __init__(self, sim: SimKeys, config: KeyboardConfig) -> None:
+        """``sim``: the simulated keys of the sim target, on ``config``."""
+        import mido  # a deploy extra, imported when this source is asked for
+
+        self._queue: queue.Queue = queue.Queue()
+        super().__init__(self._queue, config)
+        self._message = mido.Message
+        self._sim = sim
+        self._was = np.zeros(self.n_keys, bool)
+
+    def read(self, t_s: float) -> np.ndarray:
+        """Send the simulated keys' presses and releases since the last read, then read them as MIDI."""
+        now = self._sim.read(t_s)
+        for i in np.flatnonzero(now != self._was):
+            note = self.config.lowest + int(i)
+            kind = "note_on" if now[i] else "note_off"
+            self._queue.put(self._message(kind, note=note, velocity=64 if now[i] else 0))
+        self._was = now
+        return super().read(t_s)

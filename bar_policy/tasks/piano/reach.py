@@ -57,11 +57,14 @@ class ReachChecker:
                 name=_CASE,
                 type=mujoco.mjtGeom.mjGEOM_BOX,
                 size=[cfg.white_length / 2, half_y, _CASE_DEPTH / 2],
-                pos=[cfg.front_x + cfg.white_length / 2, (max(ys) + min(ys)) / 2,
-                     cfg.top_z - _CASE_BELOW - _CASE_DEPTH / 2],
+                pos=[
+                    cfg.front_x + cfg.white_length / 2,
+                    (max(ys) + min(ys)) / 2,
+                    cfg.top_z - _CASE_BELOW - _CASE_DEPTH / 2,
+                ],
                 contype=0,
                 conaffinity=COLLISION_BITS["left"][0] | COLLISION_BITS["right"][0],
-            )  # fmt: skip
+            )
 
         self.model = load_model("arms", scene)
         self.data = mujoco.MjData(self.model)

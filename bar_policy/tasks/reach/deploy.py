@@ -67,10 +67,14 @@ class ReachTask(DeployTask):
             "Episode 0's targets are those of bar-deploy --seed N (default 0)",
         )
         g.add_argument("--episode-length", type=seconds, help="episode length in s (env: 5)")
-        g.add_argument("--resample-period", type=seconds0,
-                       help="target resampling period in s (env: 2.5; 0: none)")  # fmt: skip
-        g.add_argument("--init-noise", type=number("an angle >= 0 rad", lambda v: v >= 0),
-                       help="initial joint noise half-width, rad (default 0)")  # fmt: skip
+        g.add_argument(
+            "--resample-period", type=seconds0, help="target resampling period in s (env: 2.5; 0: none)"
+        )
+        g.add_argument(
+            "--init-noise",
+            type=number("an angle >= 0 rad", lambda v: v >= 0),
+            help="initial joint noise half-width, rad (default 0)",
+        )
 
     def command_source(
         self, policy: Policy, args: argparse.Namespace, kinematics: Kinematics | None = None

@@ -178,16 +178,33 @@ class TrackEvalResult(EvalReport):
             q = r.quality
             cap = f"{100 * q['cap_ticks'] / max(q['ticks'], 1):>8.2f}" if q else f"{'':>8}"
             chatter = q.get("chatter_mrad") if q else None
-            lines.append(row.format(
-                r.clip, r.steps, r.mean("joint_error"), 100 * r.mean("body_pos_error"),
-                100 * r.mean("fingertip_error"), 100 * r.mean("success"), int(r.sums["lost"]),
-                "yes" if r.faulted else "",
-            ) + cap + (f"{'':>9}" if chatter is None else f"{chatter:>9.2f}"))  # fmt: skip
+            lines.append(
+                row.format(
+                    r.clip,
+                    r.steps,
+                    r.mean("joint_error"),
+                    100 * r.mean("body_pos_error"),
+                    100 * r.mean("fingertip_error"),
+                    100 * r.mean("success"),
+                    int(r.sums["lost"]),
+                    "yes" if r.faulted else "",
+                )
+                + cap
+                + (f"{'':>9}" if chatter is None else f"{chatter:>9.2f}")
+            )
         for g in groups(self.clips):
-            lines.append(row.format(
-                "= " + g["group"], g["steps"], g["joint_error_rad"], g["body_pos_error_cm"],
-                g["fingertip_error_cm"], g["success_pct"], g["lost_steps"], g["faults"],
-            ))  # fmt: skip
+            lines.append(
+                row.format(
+                    "= " + g["group"],
+                    g["steps"],
+                    g["joint_error_rad"],
+                    g["body_pos_error_cm"],
+                    g["fingertip_error_cm"],
+                    g["success_pct"],
+                    g["lost_steps"],
+                    g["faults"],
+                )
+            )
         s = self.summary
         if s["faults"]:
             lines.append(
@@ -280,8 +297,15 @@ def evaluate_track(
         sums = dict.fromkeys(METRICS, 0.0)
         steps = [0]
 
-        def meter(k: int, t: float, rt: Any, table: ReferenceTable = table, last: int = last,
-                  sums: dict[str, float] = sums, steps: list[int] = steps) -> None:  # fmt: skip
+        def meter(
+            k: int,
+            t: float,
+            rt: Any,
+            table: ReferenceTable = table,
+            last: int = last,
+            sums: dict[str, float] = sums,
+            steps: list[int] = steps,
+        ) -> None:
             if rt.safety.fault_count:
                 return
             for key, v in step_errors(kin, true_q(sim), table, min(k + 1, last)).items():
