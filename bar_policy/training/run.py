@@ -187,7 +187,7 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
         if cfg.backend == "brax":
             from bar_policy.training.brax.ppo import train_brax
         else:  # torch-free: it imports rsl_rl.backend (torch) once its programs are compiling
-            from bar_policy.training.rsl_rl.programs import run_rsl_rl
+            from bar_policy.training.rsl_rl.entry import run_rsl_rl
 
     # The env's model build (bar_policy._phases.MODEL_BUILD) is its own row, taken out of this one.
     with timer.active(), timer.phase(sb.ENV_BUILD):

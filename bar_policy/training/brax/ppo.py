@@ -123,9 +123,9 @@ def train_brax(
         )
         prior = action_prior(env, cfg.network, cfg.env_name)
         learner = make_learner(env.observation_size, env.action_size, cfg.ppo, cfg.network, prior)
+        jitted = make_programs(env, cfg, learner, dp, wrap_fn, randomizer, eval_env, eval_randomizer)
         template = jax.eval_shape(learner.init, dp.abstract(np.zeros(2, np.uint32), sharded=False))
         weights = reward_weights.weights(env)  # the rollout's and evaluation's argument
-        jitted = make_programs(env, cfg, learner, dp, wrap_fn, randomizer, eval_env, eval_randomizer)
     programs = compile_programs(to_compile(jitted, dp, template, weights), start)
     logger.not_applied(brax_not_applied(cfg))  # rsl-rl-only settings a brax run ignores: said and recorded
     with start.timer.phase(sb.WAIT):
@@ -193,28 +193,36 @@ class _Run:
         self.cfg, self.env, self.logger, self.dp, self.programs = cfg, env, logger, dp, programs
         self.config_record = config_record
         seed = cfg.seed
-        self.env_steps, self.iteration = 0, 0
+        self.env_steps, self.iteration, state = 0, 0, None
         if cfg.resume:
             ckpt = load_checkpoint(cfg.resume, template)
-            self.env_steps, self.iteration = ckpt.env_steps, ckpt.iteration
-            self.ts = dp.replicate(ckpt.state)
+            self.env_steps, self.iteration, state = ckpt.env_steps, ckpt.iteration, ckpt.state
+            changes = resume_changes(ckpt.path, config_record)
             logger.print(f"resumed {ckpt.path} at {self.env_steps} env steps (iteration {self.iteration})")
-            for line in resume_changes(ckpt.path, config_record):
+            for line in changes:
                 logger.print(line)
-        else:
-            self.ts = programs["init"](dp.replicate(host_key(seed, _K_INIT)))
-        model_key = dp.replicate(host_key(seed, _K_MODEL))
-        self.envs = programs["reset"](dp.replicate(host_key(seed, _K_RESET, self.iteration)), model_key)
-        self.rollout, self.update = programs["rollout"], programs["update"]
         self.iters_per_epoch = epoch_iterations(cfg)
-        self.iteration_index = [dp.replicate(np.int32(i)) for i in range(self.iters_per_epoch)]
+        # Every host value the run starts from, on the devices at once (replicated).
+        host = {
+            "init": host_key(seed, _K_INIT),
+            "model": host_key(seed, _K_MODEL),
+            "reset": host_key(seed, _K_RESET, self.iteration),
+            "eval_model": host_key(seed, _K_EVAL_MODEL),
+            "weights": weights,
+            "iterations": [np.int32(i) for i in range(self.iters_per_epoch)],
+            "state": state,
+        }
+        dev = dp.replicate(host)
+        self.ts = dev["state"] if cfg.resume else programs["init"](dev["init"])
+        self.envs = programs["reset"](dev["reset"], dev["model"])
+        self.rollout, self.update = programs["rollout"], programs["update"]
+        self.iteration_index = dev["iterations"]
         if jax.process_count() > 1:
             # Start together: a process still compiling in the background would reach the first
             # collective late, and CPU (gloo) collectives give up after 30 s.
             programs["evaluate"]
             barrier("bar_policy: programs compiled")
-        self.eval_model_key = dp.replicate(host_key(seed, _K_EVAL_MODEL))
-        self.weights = dp.replicate(weights)
+        self.eval_model_key, self.weights = dev["eval_model"], dev["weights"]
         self.epochs = 0
         self.keeper = BestKeeper(self.env_steps, getattr(env, "task_name", None))
         self.evals: list[dict[str, float]] = []

@@ -27,9 +27,8 @@ evaluations step envs with the same prior, and the exported file carries it in i
 
 Start-up (``startup.breakdown``'s rows): the envs' jax programs (train reset and step, eval reset, step
 and quality; ``rsl_rl.programs``) are traced, lowered and compiling (``startup.session.compile_programs``)
-before this module (torch, rsl_rl, tensordict) is imported (``run`` calls ``rsl_rl.programs.run_rsl_rl``,
-which prepares them first; a direct call without ``programs`` prepares them here), so the imports run
-while XLA compiles on worker threads. The
+before this module (torch, rsl_rl, tensordict) is imported (``run`` calls ``rsl_rl.entry.run_rsl_rl``,
+which prepares them first), so the imports run while XLA compiles on worker threads. The
 training env's first reset waits for its program, the runner reads its observations, and training starts
 once the training step is ready. As in the brax backend, the step-0 evaluation (of the initial actor,
 copied before training) runs as ``eval.initial`` says: ``end`` (default) after the last periodic
@@ -71,7 +70,7 @@ from bar_policy.training.rsl_rl.policy import (
     torch_policy_reference,
 )
 from bar_policy.training.rsl_rl.prior import start_actor_at_prior
-from bar_policy.training.rsl_rl.programs import RslRlPrograms, prepare_rsl_rl
+from bar_policy.training.rsl_rl.programs import RslRlPrograms
 from bar_policy.training.rsl_rl.state import (
     load_module_state,
     load_optimizer_state,
@@ -164,32 +163,25 @@ def train_rsl_rl(
     cfg: TrainConfig,
     logger: RunLogger,
     *,
-    wrap_fn: Callable[..., Any] | None = None,
+    programs: RslRlPrograms,
     randomizer: Callable[..., Any] | None,
     checkpoint_dir: str | None,
     config_record: dict[str, Any] | None = None,
     start: StartUp | None = None,
     eval_env: Any | None = None,
-    programs: RslRlPrograms | None = None,
 ) -> RslRlTrainResult:
     """Train with rsl-rl-lib's PPO on ``env``; same arguments and outputs as ``train_brax``.
 
+    ``programs``: the envs' jax programs, compiling since ``rsl_rl.programs.prepare_rsl_rl`` (which
+    ``rsl_rl.entry.run_rsl_rl``, the backend's entry, calls before it imports this module).
     ``eval_env``: the env the evaluations run (the task's held-out variant) on its nominal model, as brax's;
-    None: ``env`` with ``randomizer``. ``programs``: the envs' jax programs already compiling
-    (``rsl_rl.programs.prepare_rsl_rl`` on the same arguments, as ``run_rsl_rl`` does before importing this
-    module); None: prepared here (``wrap_fn``, ``randomizer``, ``eval_env``, ``start``).
+    None: ``env`` with ``randomizer``.
     """
     from rsl_rl.runners import OnPolicyRunner
 
     ppo = cfg.ppo
     t_start = time.monotonic()
-    start = start or StartUp()
-    timer = start.timer
-    if programs is None:
-        with timer.phase(sb.RSL_PROGRAMS):
-            programs = prepare_rsl_rl(
-                env, cfg, wrap_fn=wrap_fn, randomizer=randomizer, eval_env=eval_env, start=start
-            )
+    timer = (start or StartUp()).timer
     compiled, prior = programs.compiled, programs.prior
     device = torch_device_for_jax() if cfg.rsl_rl.device == "auto" else cfg.rsl_rl.device
     torch.manual_seed(cfg.seed)

@@ -10,9 +10,10 @@ after ``use`` the reset runs from its compiled executable. The step takes the re
 argument (``envs.reward_weights``): a run that changes only a weight loads it from the executable cache.
 
 ``prepare_rsl_rl`` builds the training and the evaluation env's programs and compiles them all, once.
-``run_rsl_rl`` (what ``run`` calls) does so before it imports ``rsl_rl.backend`` (torch, rsl_rl, tensordict:
-seconds of the main thread), so that import runs while XLA compiles; nothing imported here pulls torch in
-(``tests/training/test_rsl_rl_start.py``). ``RslRlVecEnv`` (``rsl_rl.env``) is the torch side over them.
+``rsl_rl.entry.run_rsl_rl`` (what ``run`` calls) does so before it imports ``rsl_rl.backend`` (torch,
+rsl_rl, tensordict: seconds of the main thread), so that import runs while XLA compiles; nothing imported
+here pulls torch in (``tests/training/test_rsl_rl_start.py``). ``RslRlVecEnv`` (``rsl_rl.env``) is the
+torch side over them.
 """
 
 from __future__ import annotations
@@ -32,10 +33,9 @@ from bar_policy.training import eval_quality
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.parallel import AXIS
 from bar_policy.training.rsl_rl.prior import commanded_action, rsl_rl_prior
-from bar_policy.training.startup import breakdown as sb
 from bar_policy.training.startup.session import CompiledPrograms, Program, StartUp, compile_programs
 
-__all__ = ["EnvPrograms", "RslRlPrograms", "prepare_rsl_rl", "run_rsl_rl"]
+__all__ = ["EnvPrograms", "RslRlPrograms", "prepare_rsl_rl"]
 
 
 class EnvPrograms:
@@ -273,40 +273,3 @@ def prepare_rsl_rl(
     train.use(compiled)
     evals.use(compiled)
     return RslRlPrograms(compiled=compiled, train=train, eval=evals, prior=prior)
-
-
-def run_rsl_rl(
-    env: Any,
-    cfg: TrainConfig,
-    logger: Any,
-    *,
-    wrap_fn: Callable[..., Any] | None = None,
-    randomizer: Callable[..., Any] | None,
-    checkpoint_dir: str | None,
-    config_record: dict[str, Any] | None = None,
-    start: StartUp | None = None,
-    eval_env: Any | None = None,
-) -> Any:
-    """The rsl-rl trainer as ``run`` calls it; same arguments as ``brax.ppo.train_brax``.
-
-    The jax programs first (traced, lowered, compiling on worker threads), then torch's side imported
-    (``rsl_rl.backend``: seconds of this thread, overlapping the compiles), then ``backend.train_rsl_rl``.
-    """
-    start = start or StartUp()
-    with start.timer.phase(sb.RSL_PROGRAMS):
-        programs = prepare_rsl_rl(
-            env, cfg, wrap_fn=wrap_fn, randomizer=randomizer, eval_env=eval_env, start=start
-        )
-    with start.timer.phase(sb.RSL_IMPORTS):
-        from bar_policy.training.rsl_rl.backend import train_rsl_rl
-    return train_rsl_rl(
-        env,
-        cfg,
-        logger,
-        randomizer=randomizer,
-        checkpoint_dir=checkpoint_dir,
-        config_record=config_record,
-        start=start,
-        eval_env=eval_env,
-        programs=programs,
-    )
