@@ -86,6 +86,7 @@ def test_a_step0_evaluation_first_ends_the_start_up_after_it():
     compiled.epoch_ended(0.25, step0_waiting=True)
     with compiled.step0():
         time.sleep(0.05)
+    compiled["cube"]  # the evaluation's program is ready: the report needs no evaluation due
     compiled.after_epoch(logger, 8192, ("cube",), step0_waiting=False, eval_due=False)
     ((_, rec),) = logger.notes
     assert rec["until"] == sb.UNTIL_EVAL and rec["step"] == 8192
