@@ -26,11 +26,7 @@ from bar_policy.training.config import TrainConfig, config_to_dict
 from bar_policy.training.distributed import init_distributed, local_default_devices, shutdown_distributed
 from bar_policy.training.progress import RunLogger, format_duration, format_steps
 from bar_policy.training.startup import breakdown as sb
-from bar_policy.training.startup.autotune import seed_in_background
-from bar_policy.training.startup.backend_env import set_backend_env
-from bar_policy.training.startup.breakdown import StartupTimer
-from bar_policy.training.startup.compiler import configure_compile_cache
-from bar_policy.training.startup.executable_cache import executable_cache_for, executable_cache_line
+from bar_policy.training.startup.session import StartUp
 
 __all__ = ["RunSummary", "init_distributed", "resolve_run_dir", "run"]
 
@@ -170,23 +166,15 @@ def run(
 def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | None) -> RunSummary:
     """``run`` up to the distributed shutdown."""
     t0 = time.monotonic()
-    timer = StartupTimer(t0 if started_at is None else started_at)
-    if started_at is not None:
-        timer.origin_name = "process start"
-        timer.add(sb.BEFORE_RUN, t0 - started_at)
+    if cfg.backend == "rsl-rl" and cfg.distributed.num_processes > 1:
+        raise ValueError(
+            "the rsl-rl backend runs in one process on one device; use --backend brax for several"
+        )
+    # The start-up before jax's backend starts: backend environment, compile cache, jax.distributed, the
+    # autotune seeding (on a thread, overlapping the env build).
+    start = StartUp.begin(cfg, started_at)
+    timer = start.timer
     with timer.phase(sb.IMPORTS):
-        env_notes = set_backend_env(cfg)  # before anything starts jax's backend
-        if cfg.backend == "rsl-rl" and cfg.distributed.num_processes > 1:
-            raise ValueError(
-                "the rsl-rl backend runs in one process on one device; use --backend brax for several"
-            )
-        from bar_policy.training.parallel import choose_partitioner
-
-        cache_dir = configure_compile_cache(cfg.compile_cache, cfg.compile_cache_dir)
-        partitioner = choose_partitioner()
-        with timer.phase(sb.DISTRIBUTED):
-            init_distributed(cfg)
-        seeded = seed_in_background(cache_dir, enabled=cfg.autotune_seed)  # waited for before compiling
         import jax
 
         # Full float32 products unless asked otherwise (a TF32 gradient destabilised Playground's runs).
@@ -198,8 +186,8 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
 
         if cfg.backend == "brax":
             from bar_policy.training.brax.ppo import train_brax
-        else:  # torch-free: rsl_rl.backend (torch) is imported once its programs are compiling
-            from bar_policy.training.rsl_rl.programs import prepare_rsl_rl
+        else:  # torch-free: it imports rsl_rl.backend (torch) once its programs are compiling
+            from bar_policy.training.rsl_rl.entry import run_rsl_rl
 
     # The env's model build (bar_policy._phases.MODEL_BUILD) is its own row, taken out of this one.
     with timer.active(), timer.phase(sb.ENV_BUILD):
@@ -214,50 +202,22 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
         eval_env = None if eval_env is env else eval_env
     is_main = jax.process_index() == 0
     with timer.phase(sb.RUN_RECORD):
-        timer.autotune_seed = seed = seeded.result()
-        cache_note = (
-            f"compile cache: {cache_dir} (--no-compile-cache turns it off, --compile-cache-dir moves it)"
-            if cache_dir
-            else "compile cache: off"
-        )
-        partitioner_note = (
-            f"partitioner: {partitioner} (JAX_USE_SHARDY_PARTITIONER in the environment chooses)"
-        )
-        run_dir, logger, record = _open_run(cfg, env, is_main, [cache_note, partitioner_note, *env_notes])
-        exec_cache = executable_cache_for(cfg, cache_dir, record, env)
-        if is_main:
-            logger.print(executable_cache_line(cfg, cache_dir, exec_cache))
-            logger.print(seed.line())
+        run_dir, logger, record = _open_run(cfg, env, is_main, start.notes)
+        for line in start.open(cfg, record, env):  # the autotune seeding waited for; the executable cache
+            logger.print(line)
     logger.t0 = timer.origin
     provenance = record["provenance"]
-    ckpt_dir = str(run_dir / "checkpoints")
 
+    ckpt_dir = str(run_dir / "checkpoints")
     if cfg.backend == "brax":
         result = train_brax(
-            env,
-            cfg,
-            logger,
-            wrap_fn=envs.wrap_for_brax_training,
-            randomizer=randomizer,
-            checkpoint_dir=ckpt_dir,
-            config_record=record,
-            timer=timer,
-            eval_env=eval_env,
-            eval_randomizer=None,
-            executable_cache=exec_cache,
-        )
+            env, cfg, logger, wrap_fn=envs.wrap_for_brax_training, randomizer=randomizer,
+            checkpoint_dir=ckpt_dir, config_record=record, start=start, eval_env=eval_env,
+        )  # fmt: skip
     else:
-        # The jax programs first (traced, lowered, compiling on worker threads), then torch's imports.
-        with timer.phase(sb.RSL_PROGRAMS):
-            programs = prepare_rsl_rl(
-                env, cfg, wrap_fn=envs.wrap_for_brax_training, randomizer=randomizer, eval_env=eval_env,
-                timer=timer, executable_cache=exec_cache,
-            )  # fmt: skip
-        with timer.phase(sb.RSL_IMPORTS):
-            from bar_policy.training.rsl_rl.backend import train_rsl_rl
-        result = train_rsl_rl(
-            env, cfg, logger, randomizer=randomizer, checkpoint_dir=ckpt_dir, config_record=record,
-            timer=timer, eval_env=eval_env, programs=programs,
+        result = run_rsl_rl(
+            env, cfg, logger, wrap_fn=envs.wrap_for_brax_training, randomizer=randomizer,
+            checkpoint_dir=ckpt_dir, config_record=record, start=start, eval_env=eval_env,
         )  # fmt: skip
 
     # Every process evaluates (the brax evaluation is one program over all devices); process 0 reports.

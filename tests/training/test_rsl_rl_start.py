@@ -52,9 +52,10 @@ def test_prepare_submits_every_program_without_importing_torch(tmp_path):
         f"""
 from bar_policy.training.rsl_rl.programs import prepare_rsl_rl
 from bar_policy.training.startup.breakdown import StartupTimer
+from bar_policy.training.startup.session import StartUp
 timer = StartupTimer()
 cfg = toy_config(Path({str(tmp_path)!r}), "prep", TOY_RSL)
-prepare_rsl_rl(ToyReach(), cfg, randomizer=None, timer=timer)
+prepare_rsl_rl(ToyReach(), cfg, randomizer=None, start=StartUp(timer=timer))
 loaded = [m for m in {TORCH_SIDE!r} if m in sys.modules]
 print(json.dumps({{"programs": list(timer.programs), "loaded": loaded}}))
 sys.stdout.flush()

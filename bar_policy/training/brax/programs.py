@@ -1,7 +1,9 @@
 """The data-parallel programs of ``train_brax`` and their pure helpers (``training.brax.ppo``).
 
 ``make_programs`` builds the ``init`` / ``reset`` / ``rollout`` / ``update`` / ``evaluate`` programs
-(``training.brax.ppo`` documents each); ``run_epoch`` / ``epoch_totals`` run an epoch of them and total it;
+(``training.brax.ppo`` documents each) and ``to_compile`` lists them with their abstract arguments, in the
+order ``startup.session.compile_programs`` submits them; ``run_epoch`` / ``epoch_totals`` run an epoch of
+them and total it;
 ``slot_keys`` / ``slot_env`` give every env slot its own key and randomised model whatever the device count;
 ``host_key`` derives keys on the host; ``epoch_iterations`` sizes an epoch.
 """
@@ -23,6 +25,7 @@ from bar_policy.tasks.registry import env_entries
 from bar_policy.training.brax.learner import Learner, TrainingState, strip_weak_type
 from bar_policy.training.config import NetworkConfig, TrainConfig
 from bar_policy.training.parallel import AXIS, DataParallel
+from bar_policy.training.startup.session import Program
 
 __all__ = [
     "Programs",
@@ -34,6 +37,7 @@ __all__ = [
     "run_epoch",
     "slot_env",
     "slot_keys",
+    "to_compile",
 ]
 
 _LINES_PER_EVAL = 2
@@ -222,6 +226,38 @@ def make_programs(
         update=dp.map(update, (rep, shard, rep, rep), (rep, rep), donate_argnums=(0,)),
         evaluate=dp.map(evaluate, (rep, rep, rep, rep), rep),
     )
+
+
+def to_compile(
+    programs: Programs, dp: DataParallel, template: TrainingState, weights: dict[str, Any]
+) -> list[Program]:
+    """The five programs with their abstract arguments, in the order they are traced and submitted.
+
+    The reset goes first (its outputs are the rollout's inputs), the rollout (the longest compile) right
+    after it, the update (its inputs are the rollout's outputs, so on a warm start it is loaded on a worker
+    while the rollout is loaded here), then the small init. Nothing waits on the evaluation before the
+    first epochs end, so it is traced on a worker too: on a warm compile cache its trace is a third of what
+    is left of the start-up, and it overlaps the first epochs. ``template``: the training state's shapes
+    (``eval_shape`` of ``learner.init``); ``weights``: the reward weights (``envs.reward_weights``).
+    """
+    key = dp.abstract(np.zeros(2, np.uint32), sharded=False)
+    i = dp.abstract(np.zeros((), np.int32), sharded=False)
+    ts = dp.abstract(template, sharded=False)
+    w = dp.abstract(weights, sharded=False)
+
+    def rollout_args(out: Any) -> tuple:
+        return ts, dp.abstract(out["reset"], sharded=True), key, i, w
+
+    def update_args(out: Any) -> tuple:
+        return ts, dp.abstract(out["rollout"][1], sharded=True), key, i
+
+    return [
+        Program("reset", programs.reset, (key, key)),
+        Program("rollout", programs.rollout, rollout_args),
+        Program("update", programs.update, update_args, load_in_background=True),
+        Program("init", programs.init, (key,)),
+        Program("evaluate", programs.evaluate, (_policy_params(ts), key, key, w), background=True),
+    ]
 
 
 def _host_params(host: TrainingState) -> tuple[Any, Any, Any]:

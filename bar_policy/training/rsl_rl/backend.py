@@ -26,9 +26,9 @@ evaluations step envs with the same prior, and the exported file carries it in i
 ``ppo.actor_warmup_iterations`` stays a brax-backend option.
 
 Start-up (``startup.breakdown``'s rows): the envs' jax programs (train reset and step, eval reset, step
-and quality; ``rsl_rl.programs``) are traced, lowered and submitted to a ``startup.compiler.Compiler`` before
-this module (torch, rsl_rl, tensordict) is imported (``run`` calls ``prepare_rsl_rl`` first; a direct call
-without ``programs`` prepares them here), so the imports run while XLA compiles on worker threads. The
+and quality; ``rsl_rl.programs``) are traced, lowered and compiling (``startup.session.compile_programs``)
+before this module (torch, rsl_rl, tensordict) is imported (``run`` calls ``rsl_rl.entry.run_rsl_rl``,
+which prepares them first), so the imports run while XLA compiles on worker threads. The
 training env's first reset waits for its program, the runner reads its observations, and training starts
 once the training step is ready. As in the brax backend, the step-0 evaluation (of the initial actor,
 copied before training) runs as ``eval.initial`` says: ``end`` (default) after the last periodic
@@ -70,7 +70,7 @@ from bar_policy.training.rsl_rl.policy import (
     torch_policy_reference,
 )
 from bar_policy.training.rsl_rl.prior import start_actor_at_prior
-from bar_policy.training.rsl_rl.programs import RslRlPrograms, prepare_rsl_rl
+from bar_policy.training.rsl_rl.programs import RslRlPrograms
 from bar_policy.training.rsl_rl.state import (
     load_module_state,
     load_optimizer_state,
@@ -80,8 +80,7 @@ from bar_policy.training.rsl_rl.state import (
 from bar_policy.training.rsl_rl.torch_bridge import COPIES, torch_device_for_jax
 from bar_policy.training.rsl_rl.torch_precision import update_precision
 from bar_policy.training.startup import breakdown as sb
-from bar_policy.training.startup.breakdown import StartupTimer
-from bar_policy.training.startup.executable_cache import ExecutableCache
+from bar_policy.training.startup.session import StartUp
 
 __all__ = [
     "RslRlTrainResult",
@@ -164,43 +163,33 @@ def train_rsl_rl(
     cfg: TrainConfig,
     logger: RunLogger,
     *,
-    wrap_fn: Callable[..., Any] | None = None,
+    programs: RslRlPrograms,
     randomizer: Callable[..., Any] | None,
     checkpoint_dir: str | None,
     config_record: dict[str, Any] | None = None,
-    timer: StartupTimer | None = None,
+    start: StartUp | None = None,
     eval_env: Any | None = None,
-    executable_cache: ExecutableCache | None = None,
-    programs: RslRlPrograms | None = None,
 ) -> RslRlTrainResult:
     """Train with rsl-rl-lib's PPO on ``env``; same arguments and outputs as ``train_brax``.
 
+    ``programs``: the envs' jax programs, compiling since ``rsl_rl.programs.prepare_rsl_rl`` (which
+    ``rsl_rl.entry.run_rsl_rl``, the backend's entry, calls before it imports this module).
     ``eval_env``: the env the evaluations run (the task's held-out variant) on its nominal model, as brax's;
-    None: ``env`` with ``randomizer``. ``programs``: the envs' jax programs already submitted
-    (``rsl_rl.programs.prepare_rsl_rl`` on the same arguments, as ``run`` does before importing this
-    module); None: prepared here (``wrap_fn``, ``randomizer``, ``eval_env``, ``executable_cache``).
+    None: ``env`` with ``randomizer``.
     """
-    from flax import serialization
     from rsl_rl.runners import OnPolicyRunner
 
     ppo = cfg.ppo
     t_start = time.monotonic()
-    timer = timer or StartupTimer()
-    if programs is None:
-        # The training and evaluation programs compile side by side (their traces and lowerings are the
-        # Compiler's TRACE and LOWER rows, taken out of this one).
-        with timer.phase(sb.RSL_PROGRAMS):
-            programs = prepare_rsl_rl(
-                env, cfg, wrap_fn=wrap_fn, randomizer=randomizer, eval_env=eval_env, timer=timer,
-                executable_cache=executable_cache,
-            )  # fmt: skip
-    compiler, prior = programs.compiler, programs.prior
+    timer = (start or StartUp()).timer
+    compiled, prior = programs.compiled, programs.prior
     device = torch_device_for_jax() if cfg.rsl_rl.device == "auto" else cfg.rsl_rl.device
     torch.manual_seed(cfg.seed)
     steps_per_env = ppo.steps_per_iteration // ppo.num_envs
     steps_per_iter = ppo.num_envs * steps_per_env
     total_iters = math.ceil(ppo.num_timesteps / steps_per_iter)
     env_steps = iteration = 0
+    # Set-up: the two envs over the compiling programs, rsl-rl's runner (actor, critic, storage).
     with timer.phase(sb.RSL_RUNNER):
         # Both envs add the prior to the actor's actions. Our loop records its own sums on the device
         # (take_stats); extras["log"] is for OnPolicyRunner.learn.
@@ -217,17 +206,7 @@ def train_rsl_rl(
         # below); frozen in eval mode.
         initial_actor = copy.deepcopy(alg.actor).eval()
         if cfg.resume:
-            path = latest_checkpoint(cfg.resume)
-            payload = serialization.msgpack_restore(path.read_bytes())
-            st = payload["state"]
-            load_module_state(alg.actor, st["actor"], device)
-            load_module_state(alg.critic, st["critic"], device)
-            load_optimizer_state(alg.optimizer, st["optimizer"], device)
-            alg.learning_rate = float(st["learning_rate"])
-            env_steps, iteration = int(payload["env_steps"]), int(payload["iteration"])
-            logger.print(f"resumed {path} at {env_steps} env steps (iteration {iteration})")
-            for line in resume_changes(path, config_record):
-                logger.print(line)
+            env_steps, iteration = _resume(alg, cfg.resume, device, logger, config_record)
         # Copied before any forward pass: later the Gaussian head holds non-leaf tensors deepcopy refuses.
         spare_actor = copy.deepcopy(alg.actor)
     start_steps = env_steps
@@ -254,44 +233,25 @@ def train_rsl_rl(
         if keeper.offer(step, m, lambda: {k: v.detach().clone() for k, v in actor.state_dict().items()}):
             logger.print(f"  best so far: the actor at {step:,} steps is kept")
         actor.train(training)
-        compiler.confirm()  # every loaded program has run: none is a suspect of a crash
+        compiled.confirm()  # every loaded program has run: none is a suspect of a crash
 
-    def checkpoint(step: int, it: int) -> None:
-        if checkpoint_dir is None:
-            return
-        state = {
-            "actor": module_state(alg.actor),
-            "critic": module_state(alg.critic),
-            "optimizer": optimizer_state(alg.optimizer),
-            "learning_rate": np.asarray(alg.learning_rate),
-        }
-        save_checkpoint(checkpoint_dir, state, env_steps=step, iteration=it, extra=config_record)
+    def eval_at_zero() -> None:
+        with compiled.step0():
+            run_eval(0, initial_actor)
 
     # As the brax backend: the step-0 evaluation (of the initial actor; a resume has none) runs after the
     # last periodic one (eval.initial=end), or (start) after the first iteration where the evaluation step
     # is compiled, or before the first periodic evaluation, so training waits only for the training step.
-    # The start-up report is finished after the first iteration where the evaluation's programs are ready
-    # (before the first evaluation at the latest), or once a start-of-run evaluation ran.
     eval_at_start = iteration == 0 and cfg.eval.initial == "start"
     eval_at_end = iteration == 0 and cfg.eval.initial == "end"
-    startup_pending = True
-    first_epoch_end = 0.0
-    startup_end_s: float | None = None  # when the start-up ended (its report may come later)
-    startup_until = sb.UNTIL_EPOCH
-
-    def eval_at_zero() -> None:
-        t_eval = time.monotonic()
-        run_eval(0, initial_actor)
-        if startup_pending:
-            timer.add(sb.FIRST_EVAL, time.monotonic() - t_eval)
-
     with timer.phase(sb.WAIT):
-        compiler.get("train step")
+        compiled["train step"]
         obs = vec_env.get_observations().to(device)
     alg.train_mode()
     t_loop = time.monotonic()
-    iterations_run = 0
     copies_seen = COPIES.count
+    # The loop: rollout (act -> env.step -> process_env_step) -> update, then every iters_per_eval
+    # iterations an evaluation (and a checkpoint).
     while iteration < total_iters:
         t0 = time.monotonic()
         with torch.inference_mode():
@@ -307,14 +267,9 @@ def train_rsl_rl(
             copies_seen = COPIES.count
             logger.print(f"  torch->jax bridge copies so far: {dict(COPIES.by_reason)}")
         iteration += 1
-        iterations_run += 1
         env_steps += steps_per_iter
         dt = time.monotonic() - t0
-        if iterations_run == 1:
-            timer.add(sb.FIRST_EPOCH, dt)  # the first iteration
-            first_epoch_end = timer.elapsed()
-        elif eval_at_start:
-            timer.add(sb.MORE_EPOCHS, dt)
+        compiled.epoch_ended(dt, step0_waiting=eval_at_start)
         train_metrics = {
             **{f"loss/{k}": float(v) for k, v in losses.items()},
             "episode_reward": stats["reward"] / steps_per_iter * episode_length,
@@ -330,27 +285,12 @@ def train_rsl_rl(
         if iteration % max(1, iters_per_eval // 2) == 0 or last or over_budget:
             logger.progress(env_steps, steps_per_iter / dt, train_metrics)
         eval_due = iteration % iters_per_eval == 0 or last or over_budget
-        step0_now = eval_at_start and (eval_due or compiler.done("eval step"))
-        if step0_now:
+        if eval_at_start and (eval_due or compiled.ready("eval step")):
             eval_at_start = False
             eval_at_zero()  # always before a periodic evaluation
-        if startup_end_s is None and not eval_at_start:  # the start-up ends (first iteration or step 0)
-            startup_end_s = timer.elapsed()
-            startup_until = sb.UNTIL_EVAL if step0_now else sb.UNTIL_EPOCH
-        # Reported once every evaluation program is ready (or an evaluation is due, which waits for them
-        # anyway), so that no row of the report is a program still compiling on a worker.
-        if (
-            startup_pending
-            and startup_end_s is not None
-            and (eval_due or all(compiler.done(n) for n in _EVAL_PROGRAMS))
-        ):
-            for name in _EVAL_PROGRAMS:
-                compiler.get(name)
-            startup_pending = False
-            report = timer.finish(first_epoch_end, total_s=startup_end_s, until=startup_until)
-            for line in timer.lines(report):
-                logger.print(line)
-            logger.note("startup", {"step": env_steps, **report})
+        compiled.after_epoch(
+            logger, env_steps, _EVAL_PROGRAMS, step0_waiting=eval_at_start, eval_due=eval_due
+        )
         if eval_due:
             run_eval(env_steps, alg.actor)
             if (
@@ -358,7 +298,7 @@ def train_rsl_rl(
                 or over_budget
                 or (cfg.checkpoint_every and (iteration // iters_per_eval) % cfg.checkpoint_every == 0)
             ):
-                checkpoint(env_steps, iteration)
+                _checkpoint(alg, checkpoint_dir, env_steps, iteration, config_record)
         if over_budget and not last:
             logger.print(f"stopping: wall-clock budget of {cfg.max_minutes} min reached")
             break
@@ -382,3 +322,41 @@ def train_rsl_rl(
         spare_actor=spare_actor,
         prior=prior,
     )
+
+
+def _resume(
+    alg: Any, resume: str, device: str, logger: RunLogger, config_record: dict[str, Any] | None
+) -> tuple[int, int]:
+    """Load the actor, critic, optimizer and learning rate of ``resume``'s latest checkpoint into ``alg``.
+
+    Returns ``(env_steps, iteration)`` it was saved at; prints what the resumed run changes.
+    """
+    from flax import serialization
+
+    path = latest_checkpoint(resume)
+    payload = serialization.msgpack_restore(path.read_bytes())
+    st = payload["state"]
+    load_module_state(alg.actor, st["actor"], device)
+    load_module_state(alg.critic, st["critic"], device)
+    load_optimizer_state(alg.optimizer, st["optimizer"], device)
+    alg.learning_rate = float(st["learning_rate"])
+    env_steps, iteration = int(payload["env_steps"]), int(payload["iteration"])
+    logger.print(f"resumed {path} at {env_steps} env steps (iteration {iteration})")
+    for line in resume_changes(path, config_record):
+        logger.print(line)
+    return env_steps, iteration
+
+
+def _checkpoint(
+    alg: Any, directory: str | None, step: int, iteration: int, config_record: dict[str, Any] | None
+) -> None:
+    """Save the actor, critic, optimizer state and learning rate (torch state dicts as numpy)."""
+    if directory is None:
+        return
+    state = {
+        "actor": module_state(alg.actor),
+        "critic": module_state(alg.critic),
+        "optimizer": optimizer_state(alg.optimizer),
+        "learning_rate": np.asarray(alg.learning_rate),
+    }
+    save_checkpoint(directory, state, env_steps=step, iteration=iteration, extra=config_record)

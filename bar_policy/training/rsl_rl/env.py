@@ -53,7 +53,6 @@ from tensordict import TensorDict
 from bar_policy.obs.action_prior import Prior
 from bar_policy.training.rsl_rl.programs import EnvPrograms
 from bar_policy.training.rsl_rl.torch_bridge import jax_to_torch, torch_device_for_jax, torch_to_jax
-from bar_policy.training.startup.compiler import Compiler
 
 __all__ = ["RslRlVecEnv", "torch_device_for_jax"]
 
@@ -68,10 +67,7 @@ class RslRlVecEnv(VecEnv):
         randomizer: ``(model, rng) -> (model, in_axes)``, or None for the nominal model.
         seed: seed of the randomisation and of the resets.
         device: torch device; must be where jax's arrays live (``torch_device_for_jax()``).
-        compiler: compile the batched reset, step (and quality reduction) ahead of time on this
-            ``startup.compiler.Compiler``'s threads (as ``<name> reset``, ``<name> step``, ``<name>
-            quality``), instead of at their first call.
-        name: the programs' name prefix in ``compiler``.
+        name: the programs' name prefix (``EnvPrograms``).
         log_metrics: put the env's per-step metrics in ``extras["log"]`` (``Metrics/<name>``); off for
             an evaluation env, whose steps no rsl-rl logger reads.
         quality: also measure the evaluation's safety and smoothness figures (``eval_quality``, as the
@@ -80,8 +76,8 @@ class RslRlVecEnv(VecEnv):
             num_envs x joints).
         prior: the action prior, or None: ``step``'s actions are then residuals added to ``prior(obs)``
             of the current observations (``commanded_action``).
-        programs: the env's jax side already built (``rsl_rl.programs.EnvPrograms``, e.g. submitted by
-            ``prepare_rsl_rl`` before torch was imported); ``env`` to ``prior`` are then not given.
+        programs: the env's jax side already built (``rsl_rl.programs.EnvPrograms``, e.g. compiling since
+            ``prepare_rsl_rl``, before torch was imported); ``env`` to ``prior`` are then not given.
 
     The first reset runs when the state is first needed (``state``, ``get_observations``, ``step``), from
     the keys drawn at construction; a ``reset_all`` before it replaces it.
@@ -104,7 +100,6 @@ class RslRlVecEnv(VecEnv):
         randomizer: Callable[..., Any] | None = None,
         seed: int = 0,
         device: str | None = None,
-        compiler: Compiler | None = None,
         name: str = "env",
         log_metrics: bool = True,
         quality: bool = False,
@@ -116,7 +111,7 @@ class RslRlVecEnv(VecEnv):
                 raise ValueError("RslRlVecEnv needs env, num_envs and wrap_fn, or programs")
             programs = EnvPrograms(
                 env, num_envs, wrap_fn=wrap_fn, randomizer=randomizer, seed=seed, quality=quality,
-                prior=prior, compiler=compiler, name=name,
+                prior=prior, name=name,
             )  # fmt: skip
         self.programs = programs
         """The jax side: wrapped env, reset/step/quality programs, the reset keys."""

@@ -3,17 +3,17 @@
 ``EnvPrograms`` is everything of one ``RslRlVecEnv`` that is jax: the env wrapped for training (batch,
 episode truncation, auto-reset, domain randomisation, exactly as for the brax backend), the pure jitted
 ``reset``, ``step`` and (for an evaluation env) ``quality`` functions with their logging-stats pytrees, and
-the stream of reset keys. With a ``startup.compiler.Compiler`` each of them is traced and lowered here and
-compiled on the compiler's worker threads, as its own program (``<name> reset``, ``<name> step``, ``<name>
-quality``): the step is traced on the reset's abstract output (``out_info``), so nothing runs before the first
-state is needed, and then the reset runs from its compiled executable. The step takes the reward weights as
-its last argument (``envs.reward_weights``): a run that changes only a weight loads it from the executable
-cache.
+the stream of reset keys. ``to_compile`` lists them as programs of their own (``<name> reset``, ``<name>
+step``, ``<name> quality``) for the start-up's one call (``startup.session.compile_programs``): the step is
+traced on the reset's abstract output (``out_info``), so nothing runs before the first state is needed, and
+after ``use`` the reset runs from its compiled executable. The step takes the reward weights as its last
+argument (``envs.reward_weights``): a run that changes only a weight loads it from the executable cache.
 
-``prepare_rsl_rl`` builds the training and the evaluation env's programs and submits them all. ``run.py``
-calls it before it imports ``rsl_rl.backend`` (torch, rsl_rl, tensordict: seconds of the main thread), so
-that import runs while XLA compiles; nothing imported here pulls torch in
-(``tests/training/test_rsl_rl_start.py``). ``RslRlVecEnv`` (``rsl_rl.env``) is the torch side over them.
+``prepare_rsl_rl`` builds the training and the evaluation env's programs and compiles them all, once.
+``rsl_rl.entry.run_rsl_rl`` (what ``run`` calls) does so before it imports ``rsl_rl.backend`` (torch,
+rsl_rl, tensordict: seconds of the main thread), so that import runs while XLA compiles; nothing imported
+here pulls torch in (``tests/training/test_rsl_rl_start.py``). ``RslRlVecEnv`` (``rsl_rl.env``) is the
+torch side over them.
 """
 
 from __future__ import annotations
@@ -33,9 +33,7 @@ from bar_policy.training import eval_quality
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.parallel import AXIS
 from bar_policy.training.rsl_rl.prior import commanded_action, rsl_rl_prior
-from bar_policy.training.startup.breakdown import StartupTimer
-from bar_policy.training.startup.compiler import Compiler
-from bar_policy.training.startup.executable_cache import ExecutableCache
+from bar_policy.training.startup.session import CompiledPrograms, Program, StartUp, compile_programs
 
 __all__ = ["EnvPrograms", "RslRlPrograms", "prepare_rsl_rl"]
 
@@ -52,9 +50,9 @@ class EnvPrograms:
         quality: also measure the evaluation's safety and smoothness figures (``eval_quality``) on each
             slot's first episode (it keeps every step's chatter signal, episode_length x num_envs x joints).
         prior: the action prior, or None: the step's actions are then residuals added to ``prior(obs)``.
-        compiler: submit the programs to it now (``submit``); None: they compile at their first call.
-        name: the programs' name prefix in ``compiler`` (``<name> reset``, ``<name> step``,
-            ``<name> quality``): distinct per env, so each has its own executable-cache key.
+        name: the programs' name prefix (``<name> reset``, ``<name> step``, ``<name> quality``) for
+            ``to_compile``: distinct per env, so each has its own executable-cache key. Until ``use`` the
+            jitted functions run (compiled at their first call).
     """
 
     def __init__(
@@ -67,7 +65,6 @@ class EnvPrograms:
         seed: int = 0,
         quality: bool = False,
         prior: Prior | None = None,
-        compiler: Compiler | None = None,
         name: str = "env",
     ) -> None:
         self.task = env
@@ -104,8 +101,6 @@ class EnvPrograms:
         """``(state, actions, stats) -> (state, stats)``, on ``weights``."""
         self.finish_quality: Callable[..., Any] = self.quality_jit
         """``(quality sums, signals) -> figures``."""
-        if compiler is not None:
-            self.submit(compiler)
 
     def next_keys(self, seed: int | None = None) -> jax.Array:
         """Reset keys for every env: the next of the stream, or those of ``seed`` (the stream is kept).
@@ -120,27 +115,50 @@ class EnvPrograms:
             k = jax.random.PRNGKey(seed)
         return jax.device_put(jax.random.split(k, self.num_envs), jax.local_devices()[0])
 
-    def submit(self, compiler: Compiler) -> None:
-        """Trace and lower the reset, step and quality here; compile them on ``compiler``'s workers.
+    def to_compile(self) -> list[Program]:
+        """The reset, step and (with ``quality``) quality programs, for ``startup.session.compile_programs``.
 
-        The step is traced on the reset's abstract output. Nothing runs: a first call waits for its program.
+        The step and the quality reduction are traced on the reset's abstract output, so nothing runs
+        before the first state is needed; the step's stored executable is loaded on a worker.
         """
-        reset_name, step_name, quality_name = (f"{self.name} {p}" for p in ("reset", "step", "quality"))
-        out = compiler.submit(reset_name, self.reset_jit, self.first_keys)
-        # A Lowered's out_info has no sharding, a loaded executable's has: rebuilt alike (the step's key).
+        reset_name, step_name, quality_name = self._names()
         device = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
-        state, stats = jax.tree.map(
-            lambda s: jax.ShapeDtypeStruct(s.shape, s.dtype, weak_type=s.weak_type, sharding=device),
-            out.out_info,
-        )
-        actions = jax.ShapeDtypeStruct((self.num_envs, self.num_actions), jnp.float32)
-        w = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=device), self.weights)
-        compiler.submit(step_name, self.step_jit, state, actions, stats, w, load_in_background=True)
-        self.reset = lambda *args: compiler.get(reset_name)(*args)
-        self.step = lambda *args: compiler.get(step_name)(*args, self.weights)
+
+        def reset_out(out: Any) -> Any:
+            # A Lowered's out_info has no sharding, a loaded executable's has: rebuilt alike (the step's key).
+            return jax.tree.map(
+                lambda s: jax.ShapeDtypeStruct(s.shape, s.dtype, weak_type=s.weak_type, sharding=device),
+                out[reset_name],
+            )
+
+        def step_args(out: Any) -> tuple:
+            state, stats = reset_out(out)
+            actions = jax.ShapeDtypeStruct((self.num_envs, self.num_actions), jnp.float32)
+            w = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=device), self.weights)
+            return state, actions, stats, w
+
+        def quality_args(out: Any) -> tuple:
+            _, stats = reset_out(out)
+            return stats["quality"], stats["signals"]
+
+        programs = [
+            Program(reset_name, self.reset_jit, (self.first_keys,)),
+            Program(step_name, self.step_jit, step_args, load_in_background=True),
+        ]
         if self.quality:
-            compiler.submit(quality_name, self.quality_jit, stats["quality"], stats["signals"])
-            self.finish_quality = lambda *args: compiler.get(quality_name)(*args)
+            programs.append(Program(quality_name, self.quality_jit, quality_args))
+        return programs
+
+    def use(self, compiled: CompiledPrograms) -> None:
+        """Run the compiled (or loaded) programs from now on; a first call waits for its program."""
+        reset_name, step_name, quality_name = self._names()
+        self.reset = lambda *args: compiled[reset_name](*args)
+        self.step = lambda *args: compiled[step_name](*args, self.weights)
+        if self.quality:
+            self.finish_quality = lambda *args: compiled[quality_name](*args)
+
+    def _names(self) -> tuple[str, str, str]:
+        return tuple(f"{self.name} {p}" for p in ("reset", "step", "quality"))  # type: ignore[return-value]
 
     # -- jitted pure functions ---------------------------------------------------------------------
     def _reset_fn(self, keys: jax.Array) -> tuple[Any, dict[str, Any]]:
@@ -206,10 +224,10 @@ class EnvPrograms:
 
 @dataclass(frozen=True, kw_only=True)
 class RslRlPrograms:
-    """The rsl-rl backend's jax side, prepared (``prepare_rsl_rl``) for ``train_rsl_rl(programs=...)``."""
+    """The rsl-rl backend's jax side, compiling (``prepare_rsl_rl``), for ``train_rsl_rl(programs=...)``."""
 
-    compiler: Compiler
-    """Where every program below was submitted (``train_rsl_rl`` waits on it)."""
+    compiled: CompiledPrograms
+    """Every program below, compiling or compiled (``train_rsl_rl`` waits on it)."""
     train: EnvPrograms
     """The training env's (``train reset``, ``train step``)."""
     eval: EnvPrograms
@@ -225,14 +243,12 @@ def prepare_rsl_rl(
     wrap_fn: Callable[..., Any] | None = None,
     randomizer: Callable[..., Any] | None,
     eval_env: Any | None = None,
-    timer: StartupTimer | None = None,
-    executable_cache: ExecutableCache | None = None,
-    compiler: Compiler | None = None,
+    start: StartUp | None = None,
 ) -> RslRlPrograms:
-    """Build both envs' programs and submit them to ``compiler``; torch is not imported.
+    """Build both envs' programs and compile them (``compile_programs``, once); torch is not imported.
 
-    In order: train reset, train step, eval reset, eval step, eval quality. ``compiler`` defaults to a new
-    one on ``timer`` and ``executable_cache``.
+    In order: train reset, train step, eval reset, eval step, eval quality; ``start``: the run's start-up
+    (its breakdown and executable cache; None: a fresh one).
 
     ``eval_env``: the env the evaluations run (the task's held-out variant) on its nominal model, as brax's;
     None: ``env`` with ``randomizer``. Seeds: ``cfg.seed`` for training, ``cfg.seed + 1`` for evaluation.
@@ -249,10 +265,11 @@ def prepare_rsl_rl(
     prior = rsl_rl_prior(env, cfg)  # refuses a prior the env does not serve, before any set-up
     if wrap_fn is None:
         from bar_policy.envs import wrap_for_brax_training as wrap_fn
-    if compiler is None:
-        compiler = Compiler(timer or StartupTimer(), executable_cache=executable_cache)
-    kw = {"wrap_fn": wrap_fn, "randomizer": randomizer, "prior": prior, "compiler": compiler}
+    kw = {"wrap_fn": wrap_fn, "randomizer": randomizer, "prior": prior}
     train = EnvPrograms(env, cfg.ppo.num_envs, seed=cfg.seed, name="train", **kw)
     e_env, e_kw = (env, kw) if eval_env is None else (eval_env, {**kw, "randomizer": None})
     evals = EnvPrograms(e_env, cfg.eval.num_eval_envs, seed=cfg.seed + 1, name="eval", quality=True, **e_kw)
-    return RslRlPrograms(compiler=compiler, train=train, eval=evals, prior=prior)
+    compiled = compile_programs([*train.to_compile(), *evals.to_compile()], start)
+    train.use(compiled)
+    evals.use(compiled)
+    return RslRlPrograms(compiled=compiled, train=train, eval=evals, prior=prior)

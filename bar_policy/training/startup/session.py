@@ -1,0 +1,229 @@
+"""A run's start-up behind one object and one call: the trainer hands in its programs, gets them compiled.
+
+``StartUp.begin(cfg)`` is the first thing a run does (``training.run``): it sets the environment jax and
+torch read when their backends start (``backend_env``), switches jax's persistent compile cache on
+(``compiler.configure_compile_cache``), chooses the partitioner, connects ``jax.distributed`` and starts
+seeding XLA's GPU autotune cache on a thread (``autotune``), so the seeding overlaps the env build.
+``StartUp.open(cfg, record, env)``, once the run's record exists, waits for the seeding and opens the
+executable cache (``executable_cache``, keyed by the record); it returns the lines that say what both did.
+
+A trainer then calls ``compile_programs(programs, start)`` once: its jitted programs (``Program``, in the
+order to submit them) in, ``CompiledPrograms`` out. Each is traced and lowered on the calling thread (or a
+worker) and compiled on worker threads, or loaded from the executable cache (``compiler.Compiler``); every
+stage is timed into the start-up breakdown (``breakdown``). The trainer's loop only says when an epoch ends
+and when the step-0 evaluation runs (``epoch_ended``, ``step0``, ``after_epoch``): the start-up's end, and
+the printed and recorded breakdown once no program is still compiling, are decided here, alike for both
+trainers.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from concurrent.futures import Future
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bar_policy.training.startup import breakdown as sb
+from bar_policy.training.startup.breakdown import StartupTimer
+from bar_policy.training.startup.compiler import Compiler, CompileStats, configure_compile_cache
+from bar_policy.training.startup.executable_cache import (
+    ExecutableCache,
+    executable_cache_for,
+    executable_cache_line,
+)
+
+__all__ = ["CompiledPrograms", "Program", "StartUp", "compile_programs"]
+
+
+@dataclass
+class StartUp:
+    """What a run's start-up set up before its programs compile (``begin``, ``open``); see the module doc."""
+
+    timer: StartupTimer = field(default_factory=StartupTimer)
+    """The start-up breakdown, from the process start (or the ``run`` call)."""
+    cache_dir: Path | None = None
+    """jax's persistent compile cache (None: off)."""
+    notes: list[str] = field(default_factory=list)
+    """Lines for the run's header: the compile cache, the partitioner, the backend environment set."""
+    executable_cache: ExecutableCache | None = None
+    """Where the programs' executables are loaded from and stored (``open``; None: compiled every run)."""
+    seeding: Future | None = None
+    """The autotune seeding running on a thread (``autotune.seed_in_background``); ``open`` waits for it."""
+
+    @classmethod
+    def begin(cls, cfg: Any, started_at: float | None = None) -> StartUp:
+        """Everything before jax's backend starts, in the order it must happen (the ``IMPORTS`` row).
+
+        ``started_at``: ``time.monotonic()`` of the process start (the command line passes it); the
+        breakdown then counts from there (its ``BEFORE_RUN`` row: interpreter, CLI, parsing).
+        """
+        from bar_policy.training.distributed import init_distributed
+        from bar_policy.training.startup.autotune import seed_in_background
+        from bar_policy.training.startup.backend_env import set_backend_env
+
+        t0 = time.monotonic()
+        timer = StartupTimer(t0 if started_at is None else started_at)
+        if started_at is not None:
+            timer.origin_name = "process start"
+            timer.add(sb.BEFORE_RUN, t0 - started_at)
+        with timer.phase(sb.IMPORTS):
+            env_notes = set_backend_env(cfg)  # before anything starts jax's backend
+            from bar_policy.training.parallel import choose_partitioner
+
+            cache_dir = configure_compile_cache(cfg.compile_cache, cfg.compile_cache_dir)
+            partitioner = choose_partitioner()
+            with timer.phase(sb.DISTRIBUTED):
+                init_distributed(cfg)
+            seeding = seed_in_background(cache_dir, enabled=cfg.autotune_seed)  # waited for in ``open``
+        cache_note = (
+            f"compile cache: {cache_dir} (--no-compile-cache turns it off, --compile-cache-dir moves it)"
+            if cache_dir
+            else "compile cache: off"
+        )
+        partitioner_note = (
+            f"partitioner: {partitioner} (JAX_USE_SHARDY_PARTITIONER in the environment chooses)"
+        )
+        notes = [cache_note, partitioner_note, *env_notes]
+        return cls(timer=timer, cache_dir=cache_dir, notes=notes, seeding=seeding)
+
+    def open(self, cfg: Any, record: dict[str, Any], env: Any) -> list[str]:
+        """Wait for the autotune seeding and open the executable cache; returns the two lines saying so.
+
+        ``record``: the run's config record (``provenance``, ``train``, ``env``, ``device``), which keys
+        the executable cache with ``env``.
+        """
+        if self.seeding is not None:
+            self.timer.autotune_seed = self.seeding.result()
+        self.executable_cache = executable_cache_for(cfg, self.cache_dir, record, env)
+        lines = [executable_cache_line(cfg, self.cache_dir, self.executable_cache)]
+        if self.timer.autotune_seed is not None:
+            lines.append(self.timer.autotune_seed.line())
+        return lines
+
+
+@dataclass(frozen=True)
+class Program:
+    """One jitted program of a trainer, as ``compile_programs`` submits it."""
+
+    name: str
+    """Its name in the breakdown and the executable cache's key (``rollout``, ``train step``, ...)."""
+    jitted: Callable[..., Any]
+    """The ``jax.jit`` function."""
+    args: tuple[Any, ...] | Callable[[Mapping[str, Any]], tuple[Any, ...]]
+    """Its arguments (arrays or ``ShapeDtypeStruct``s), or a function of the ``out_info`` of the programs
+    submitted before it, by name (the rollout's envs are the reset's output)."""
+    background: bool = False
+    """Traced on a worker too (nothing waits on it soon: the evaluation)."""
+    load_in_background: bool = False
+    """When stored in the executable cache, loaded on a worker (its output is not read by what follows)."""
+
+
+def compile_programs(programs: Sequence[Program], start: StartUp | None = None) -> CompiledPrograms:
+    """Submit ``programs`` in order: each traced and lowered (or loaded) now, compiled on worker threads.
+
+    The one start-up call of a trainer. Trace order is submission order: put the programs the start waits
+    on first, the longest compile early, and those traced on a worker (``background``) last, since tracing
+    holds the GIL. ``start``: the run's ``StartUp`` (its breakdown and executable cache); None: a fresh
+    breakdown, no executable cache.
+    """
+    start = start or StartUp()
+    compiled = CompiledPrograms(Compiler(start.timer, executable_cache=start.executable_cache), start.timer)
+    out: dict[str, Any] = {}
+    for p in programs:
+        args = p.args(out) if callable(p.args) else p.args
+        submitted = compiled.compiler.submit(
+            p.name, p.jitted, *args, background=p.background, load_in_background=p.load_in_background
+        )
+        if submitted is not None:
+            out[p.name] = submitted.out_info
+    return compiled
+
+
+class CompiledPrograms:
+    """A trainer's programs, compiling or compiled (``compile_programs``), and the end of its start-up.
+
+    ``programs[name]`` is the executable (waits for its compile or load; re-raises its error). The loop
+    reports its first epochs and the step-0 evaluation here; the start-up ends with the first epoch, or
+    with the step-0 evaluation when it runs first (``eval.initial=start``), and its breakdown is printed
+    and recorded once the evaluation's programs are ready, before the first evaluation at the latest.
+    """
+
+    def __init__(self, compiler: Compiler, timer: StartupTimer) -> None:
+        self.compiler = compiler
+        self.timer = timer
+        self._stats0 = CompileStats.get().snapshot()
+        self._epochs = 0
+        self._first_epoch_end = 0.0
+        self._end_s: float | None = None  # when the start-up ended (its report may come later)
+        self._until = sb.UNTIL_EPOCH
+        self._step0_ran = False
+        self.reported = False
+        """Whether the start-up breakdown was printed and recorded."""
+
+    def __getitem__(self, name: str) -> Any:
+        return self.compiler.get(name)
+
+    def ready(self, *names: str) -> bool:
+        """Whether every program of ``names`` finished compiling (or loading)."""
+        return all(self.compiler.done(n) for n in names)
+
+    def confirm(self) -> None:
+        """Every program loaded from the executable cache ran: none is a suspect of a crash."""
+        self.compiler.confirm()
+
+    def epoch_ended(self, seconds: float, *, step0_waiting: bool) -> None:
+        """Time a training epoch (rsl-rl: an iteration) into the breakdown while the start-up lasts.
+
+        The first is ``FIRST_EPOCH``; later ones count (``MORE_EPOCHS``) while the step-0 evaluation still
+        waits for its program (``eval.initial=start``).
+        """
+        self._epochs += 1
+        if self._epochs == 1:
+            self.timer.add(sb.FIRST_EPOCH, seconds)
+            self._first_epoch_end = self.timer.elapsed()
+        elif step0_waiting:
+            self.timer.add(sb.MORE_EPOCHS, seconds)
+
+    @contextlib.contextmanager
+    def step0(self) -> Iterator[None]:
+        """Time the step-0 evaluation (``FIRST_EVAL``) when it runs inside the start-up."""
+        t = time.monotonic()
+        yield
+        if not self.reported:
+            self.timer.add(sb.FIRST_EVAL, time.monotonic() - t)
+            self._step0_ran = True
+
+    def after_epoch(
+        self, logger: Any, step: int, eval_programs: Sequence[str], *, step0_waiting: bool, eval_due: bool
+    ) -> None:
+        """End the start-up once no step-0 evaluation waits; report it once ``eval_programs`` are ready.
+
+        Reported when an evaluation is due at the latest (it would wait for its programs anyway), so that
+        no row of the breakdown is a program still compiling on a worker.
+        """
+        if self._end_s is None and not step0_waiting:
+            self._end_s = self.timer.elapsed()
+            self._until = sb.UNTIL_EVAL if self._step0_ran else sb.UNTIL_EPOCH
+        if not self.reported and self._end_s is not None and (eval_due or self.ready(*eval_programs)):
+            for name in eval_programs:
+                self[name]
+            self.report(logger, step)
+
+    def report(self, logger: Any, step: int) -> None:
+        """Print and record the start-up breakdown (once; none before an epoch ran)."""
+        if self.reported or not self._epochs:
+            return
+        self.reported = True
+        stats1 = CompileStats.get().snapshot()
+        compiles = {k: stats1[k] - self._stats0[k] for k in stats1}
+        rec = self.timer.finish(self._first_epoch_end, compiles, total_s=self._end_s, until=self._until)
+        for line in self.timer.lines(rec):
+            logger.print(line)
+        logger.note("startup", {"step": step, **rec})
+
+    def close(self) -> None:
+        """Release the worker threads."""
+        self.compiler.close()
