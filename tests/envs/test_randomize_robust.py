@@ -223,3 +223,29 @@ def test_config_errors():
         ActuatorConfig(strength=(0.0, 1.0))
     with pytest.raises(ValueError, match="obs_latency_steps"):
         ActuatorConfig(obs_latency_steps=(0, 11))
+
+
+@pytest.mark.parametrize(("name", "env_name"), [("reach-robust", "LiteReach"), ("track-robust", "LiteTrack"),
+                                                ("piano-robust", "LitePiano")])  # fmt: skip
+def test_robust_presets_turn_the_randomisation_on(name, env_name):
+    from bar_policy import envs
+    from bar_policy.tasks.robust_preset import ROBUST_ENV_OVERRIDES
+    from bar_policy.training.config import preset
+
+    cfg = preset(name)
+    base = preset(name.replace("-robust", "") if name != "reach-robust" else "gpu")
+    # The base preset's own overrides first, then the robust ones; nothing else differs.
+    assert cfg.env_overrides == (*base.env_overrides, *ROBUST_ENV_OVERRIDES)
+    assert replace(cfg, preset=base.preset, env_overrides=base.env_overrides) == base
+    env_cfg = envs.apply_overrides(envs.default_config(env_name), cfg.env_overrides)
+    rc, act = env_cfg.randomization, env_cfg.actuator
+    assert (rc.link_mass_scale, rc.frictionloss, rc.damping) == ((0.8, 1.2), (0.05, 1.35), (0.0, 1.0))
+    assert (rc.armature_scale, rc.payload_kg, rc.payload_at) == ((0.8, 1.2), (0.0, 0.6), "either")
+    assert (act.strength, act.latency_steps, act.obs_latency_steps) == ((0.8, 1.0), (0, 2), (0, 1))
+    assert act.encoder_offset == 0.01 and rc.armature
+    # nominal() of it turns every one off again.
+    nom = envs.nominal_config(env_cfg)
+    assert nom.randomization == ModelRandomizationConfig(
+        armature=False, frictionloss=None, link_mass_scale=None
+    )
+    assert nom.actuator.strength == (1.0, 1.0) and nom.actuator.obs_latency_steps == (0, 0)
