@@ -91,13 +91,22 @@ def make_command(q_cmd: jax.Array, kp: jax.Array, kd: jax.Array, params: Actuato
     return cmd
 
 
-def motor_torque(cmd: MitCommand, q_meas: jax.Array, dq: jax.Array, params: ActuatorParams) -> jax.Array:
+def motor_torque(
+    cmd: MitCommand,
+    q_meas: jax.Array,
+    dq: jax.Array,
+    params: ActuatorParams,
+    strength: jax.Array | None = None,
+) -> jax.Array:
     """Torque applied by the motors for an already wire-decoded ``cmd``: MIT law clipped to the cap.
 
     ``q_meas``: measured positions (true q + encoder offset), rad; ``dq``: velocities, rad/s; shape (n,).
-    Returns N*m, shape (n,).
+    ``strength``: per-joint factor on the produced torque, shape (n,) (``ActuatorConfig.strength``): the
+    result is ``strength * clip(law, cap)``, i.e. the torque and its cap both scaled; None: 1 (no multiply,
+    bit for bit the unscaled law). Returns N*m, shape (n,).
     """
-    return firmware_torque(cmd, q_meas, dq, params.ranges, params.tau_cap, quantize_wire=False)
+    tau = firmware_torque(cmd, q_meas, dq, params.ranges, params.tau_cap, quantize_wire=False)
+    return tau if strength is None else strength * tau
 
 
 def robot_force(tau: jax.Array, dof: np.ndarray | None, nv: int) -> jax.Array:

@@ -7,9 +7,16 @@ every reset by the env itself. The randomiser reads only the robot part of a con
 ``mode`` and ``randomization``), so it is the same for every task. ``in_axes`` has the model's structure
 with ``0`` on the randomised fields and ``None`` elsewhere, for ``jax.vmap(..., in_axes=(in_axes, 0))``.
 
-In a task's scene (``bar_policy.robot.scene``) armature and friction are drawn for the robot's joints and
-written at their dof addresses (``RobotIndex``, read from the model by name); the scene's other dofs keep
-theirs. The link-mass factor applies to every body of the scene.
+In a task's scene (``bar_policy.robot.scene``) armature, friction and damping are drawn for the robot's
+joints and written at their dof addresses (``RobotIndex``, read from the model by name); the scene's other
+dofs keep theirs. The link-mass factor applies to every body of the scene.
+
+The payload (``ModelRandomizationConfig.payload_kg``) needs a body in the compiled model: ``payload_scene``
+adds a massless, geom-less body to each hand of the training scene (the env does it when ``payload_kg`` is
+set), and the randomiser writes its drawn ``body_mass`` and ``body_inertia`` (and, for ``payload_at=either``,
+its ``body_pos``). The draws the default config makes are unchanged by the optional ones (their keys are
+folded from the slot's key, and a field left at its default draws nothing), so today's presets randomise
+bit for bit as before.
 """
 
 from __future__ import annotations
@@ -17,15 +24,56 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import jax
+import jax.numpy as jnp
+import mujoco
 import numpy as np
 from mujoco import mjx
 
 from bar_policy.envs.robot_config import RobotEnvConfig
 from bar_policy.robot.actuators import ROBSTRIDE_MODELS
 from bar_policy.robot.constants import load_robot
-from bar_policy.robot.index import RobotIndex
+from bar_policy.robot.index import RobotIndex, model_names
+from bar_policy.robot.perturb import HAND_BODIES, PAYLOAD_POS, PAYLOAD_RADIUS, payload_body_name
+from bar_policy.robot.scene import SceneEdit
 
-__all__ = ["armature_bounds", "make_randomizer"]
+__all__ = ["armature_bounds", "make_randomizer", "payload_inertia", "payload_scene"]
+
+_OPTIONAL_KEY = 0x524F42
+"""Folded into each slot's key for the optional draws (damping, armature scale, payload), so the draws of
+the default fields keep their keys."""
+
+
+def payload_scene(scene: SceneEdit | None = None) -> SceneEdit:
+    """The scene edit that runs ``scene`` (a task's additions, or None), then adds a payload body per hand.
+
+    Each payload body (``perturb.payload_body_name(hand)``) is a child of its hand at the fingertip site
+    (``perturb.PAYLOAD_POS["fingertip"]``), with zero mass and inertia and no geom and no joint: it changes
+    nothing until the randomiser gives it a mass (a massless body welded to its parent adds nothing to the
+    composite rigid body).
+    """
+
+    def edit(spec: mujoco.MjSpec) -> None:
+        if scene is not None:
+            scene(spec)
+        for hand in HAND_BODIES:
+            body = spec.body(hand).add_body(name=payload_body_name(hand), pos=PAYLOAD_POS["fingertip"][hand])
+            body.explicitinertial = True
+            body.mass = 0.0
+            body.ipos = [0.0, 0.0, 0.0]
+            body.inertia = [0.0, 0.0, 0.0]
+
+    return edit
+
+
+def payload_inertia(mass: jax.Array) -> jax.Array:
+    """Principal inertia of a payload of ``mass`` kg (any shape S), kg*m^2, shape S + (3,).
+
+    A solid sphere of ``PAYLOAD_RADIUS``, ``2/5 m r^2`` on each axis, as the deploy side's
+    ``perturb.apply_to_spec`` gives it.
+    """
+    i = 0.4 * mass * PAYLOAD_RADIUS**2
+    return jnp.stack([i, i, i], axis=-1)
+
 
 Randomizer = Callable[[mjx.Model, jax.Array], tuple[mjx.Model, mjx.Model]]
 
@@ -55,11 +103,23 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
     rc = config.randomization
     arm_lo, arm_hi = (x.astype(np.float32) for x in armature_bounds(config.mode))
     joint_names = load_robot(config.mode).joint_names
+    tip = np.array([PAYLOAD_POS["fingertip"][h] for h in HAND_BODIES], dtype=np.float32)
+    palm = np.array([PAYLOAD_POS["palm"][h] for h in HAND_BODIES], dtype=np.float32)
 
     def domain_randomize(model: mjx.Model, rng: jax.Array) -> tuple[mjx.Model, mjx.Model]:
         if rng.ndim != 2 or rng.shape[-1] != 2:
             raise ValueError(f"rng must be a batch of keys, shape (B, 2); got shape {rng.shape}")
         index = RobotIndex.from_model(model, joint_names)
+        payload_ids = None
+        if rc.payload_kg is not None:
+            bodies = model_names(model, model.name_bodyadr)
+            names = [payload_body_name(h) for h in HAND_BODIES]
+            if not all(n in bodies for n in names):
+                raise ValueError(
+                    f"randomization.payload_kg needs the payload bodies {names} in the model "
+                    "(randomize.payload_scene; the robot env adds them when payload_kg is set)"
+                )
+            payload_ids = np.array([bodies.index(n) for n in names])
 
         def robot_dofs(field: jax.Array, values: jax.Array) -> jax.Array:
             """``field`` (nv,) with ``values`` (n,) at the robot's dofs (``values`` itself, robot alone)."""
@@ -83,6 +143,34 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
                 s = jax.random.uniform(k_mass, model.body_mass.shape, minval=lo, maxval=hi)
                 out["body_mass"] = model.body_mass * s
                 out["body_inertia"] = model.body_inertia * s[:, None]
+            k_damp, k_ascale, k_pay, k_site = jax.random.split(jax.random.fold_in(key, _OPTIONAL_KEY), 4)
+            if rc.damping is not None:
+                # Added passive damping: MJCF dof_damping + U(damping) per joint, N*m*s/rad.
+                lo, hi = rc.damping
+                d = jax.random.uniform(k_damp, (index.num_joints,), minval=lo, maxval=hi)
+                out["dof_damping"] = robot_dofs(model.dof_damping, index.dq(model.dof_damping) + d)
+            if rc.armature_scale is not None:
+                # Armature x U(armature_scale) per joint, on the drawn armature when that is randomised.
+                lo, hi = rc.armature_scale
+                a = jax.random.uniform(k_ascale, (index.num_joints,), minval=lo, maxval=hi)
+                base = out.get("dof_armature", model.dof_armature)
+                out["dof_armature"] = robot_dofs(base, index.dq(base) * a)
+            if payload_ids is not None:
+                # Payload: U(payload_kg) per hand, a 1 cm sphere's inertia, at the fingertip or the palm.
+                lo, hi = rc.payload_kg
+                m = jax.random.uniform(k_pay, (len(HAND_BODIES),), minval=lo, maxval=hi)
+                mass = out.get("body_mass", model.body_mass)
+                inertia = out.get("body_inertia", model.body_inertia)
+                out["body_mass"] = mass.at[payload_ids].set(m)
+                out["body_inertia"] = inertia.at[payload_ids].set(payload_inertia(m))
+                if rc.payload_at != "fingertip":
+                    at_palm = (
+                        jax.random.bernoulli(k_site, 0.5, (len(HAND_BODIES),))
+                        if rc.payload_at == "either"
+                        else jnp.ones(len(HAND_BODIES), bool)
+                    )
+                    pos = jnp.where(at_palm[:, None], palm, tip)
+                    out["body_pos"] = model.body_pos.at[payload_ids].set(pos)
             return out
 
         fields = jax.vmap(one)(rng)

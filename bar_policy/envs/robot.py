@@ -17,7 +17,10 @@ robot env does the rest, identically for every task:
   ``data.qfrc_applied`` before ``mjx.step``, as mujoco_ros2_control's MujocoSystem does; the Kd term is
   integrated implicitly (``actuator.py``).
 - **Latency**: the applied action is the one issued ``L`` control steps ago, ``L`` sampled per episode in
-  ``ActuatorConfig.latency_steps``.
+  ``ActuatorConfig.latency_steps``; with ``ActuatorConfig.obs_latency_steps`` the observation's measured
+  joint state is the one of ``L_obs`` steps ago (``info["obs_buf"]``, the reset state at first).
+- **Strength** (``ActuatorConfig.strength``, off by default): per episode and joint, the joint receives
+  ``s * clip(law, cap)`` and the implicit Kd term is ``s * Kd`` (the deploy side's ``strength``).
 - **Observation**: ``obs_manager.compute`` of the measured q (with encoder offset and noise), dq (with
   noise), the previous action (the clipped policy output, before latency), and the task's inputs.
 - **Reward and termination**: the task's term table (``reward_terms``, ``termination_terms``; rows of
@@ -36,7 +39,9 @@ robot env does the rest, identically for every task:
 
 PRNG use is fixed (reach's outputs are pinned by tests/data/reach_golden.npz): ``reset`` splits its key in 8
 (0 initial noise, 1 the task, 2 latency, 3 Kp scale, 4 Kd scale, 5 encoder offset, 6 the next step's key,
-7 observation noise); ``step`` splits ``info["rng"]`` in 3 (next key, observation noise, the task).
+7 observation noise); ``step`` splits ``info["rng"]`` in 3 (next key, observation noise, the task). The
+optional draws (strength, observation latency) fold a constant into key 3 and key 2 and happen only when
+their field is not at its default, whose state then has no ``strength``, ``obs_latency`` or ``obs_buf``.
 """
 
 from __future__ import annotations
@@ -60,6 +65,7 @@ from bar_policy.envs.actuator import (
     robot_force,
 )
 from bar_policy.envs.base import MjxEnv, State
+from bar_policy.envs.randomize import payload_scene
 from bar_policy.envs.robot_config import RobotEnvConfig
 from bar_policy.envs.task import TaskHooks, Transition
 from bar_policy.envs.term_table import TerminationTerm, check_names, reward_values, terminated, weighted_sum
@@ -74,6 +80,9 @@ from bar_policy.robot.mit import MitCommand, mit_torque
 from bar_policy.robot.scene import SceneEdit, load_model
 
 __all__ = ["NEAR_CAP_FRACTION", "NON_FINITE", "LiteRobotEnv"]
+
+_OPTIONAL_KEY = 0x524F42
+"""Folded into a reset key for the optional per-episode draws (strength, observation latency)."""
 
 NEAR_CAP_FRACTION = 0.8
 """Share of a joint's torque cap above which its unclipped MIT demand counts towards ``Transition.near_cap``
@@ -106,6 +115,8 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         cfg = config
         self.config = cfg
         self.robot = load_robot(cfg.mode)
+        if cfg.randomization.payload_kg is not None:
+            scene = payload_scene(scene)  # massless payload bodies, given their mass by the randomiser
         with phase(MODEL_BUILD):
             mj_model = load_model(cfg.mode, scene)
         mj_model.opt.timestep = cfg.sim_dt
@@ -362,6 +373,17 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         kd = self._kd * jax.random.uniform(ks[4], (n,), minval=act.kd_scale[0], maxval=act.kd_scale[1])
         off = jax.random.uniform(ks[5], (n,), minval=-act.encoder_offset, maxval=act.encoder_offset)
         a_init = self.initial_action(q_init)
+        optional = {}
+        if act.strength != (1.0, 1.0):
+            k_strength = jax.random.fold_in(ks[3], _OPTIONAL_KEY)
+            optional["strength"] = jax.random.uniform(
+                k_strength, (n,), minval=act.strength[0], maxval=act.strength[1]
+            )
+        obs_lo, obs_hi = act.obs_latency_steps
+        if obs_hi > 0:
+            k_obs = jax.random.fold_in(ks[2], _OPTIONAL_KEY)
+            optional["obs_latency"] = jax.random.randint(k_obs, (), obs_lo, obs_hi + 1)
+            optional["obs_buf"] = jnp.broadcast_to(self._true_state(data), (obs_hi + 1, 2, n))
         info = {
             "rng": ks[6],
             "step": jnp.zeros((), jnp.int32),
@@ -373,6 +395,7 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
             "kp": kp,
             "kd": kd,
             "encoder_offset": off,
+            **optional,
         }
         obs = self._observe(model, data, info, info["last_act"], ks[7])
         metrics = {f"reward/{k}": jnp.zeros(()) for k in self._reward_names}
@@ -386,16 +409,19 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         rng, k_noise, k_task = jax.random.split(info["rng"], 3)
         action, buf, cmd = self._command(info, action)
         offset = info["encoder_offset"]
+        strength = info.get("strength")
+        tau_cap = self._act.tau_cap if strength is None else strength * self._act.tau_cap
         inv_cap = 1.0 / self._cap
         inv_cap_sq = 1.0 / np.square(self._cap)
         implicit = cfg.actuator.damping == "implicit"
 
         def substep(d: mjx.Data, _: None) -> tuple[mjx.Data, tuple[jax.Array, jax.Array]]:
             q, dq = self.robot_q(d), self.robot_dq(d)
-            tau = motor_torque(cmd, q + offset, dq, self._act)
+            tau = motor_torque(cmd, q + offset, dq, self._act, strength)
             demand = jnp.abs(mit_torque(cmd, q + offset, dq)) * inv_cap
             if implicit:
-                m_sub, qfrc = implicit_damping(model, cmd.kd, tau, dq, self._act.tau_cap, self._dof)
+                kd = cmd.kd if strength is None else strength * cmd.kd
+                m_sub, qfrc = implicit_damping(model, kd, tau, dq, tau_cap, self._dof)
             else:
                 m_sub, qfrc = model, robot_force(tau, self._dof, model.nv)
             d = physics_step.step(m_sub, d.replace(qfrc_applied=qfrc), self._step_plan)
@@ -428,18 +454,29 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
             "last_act": action,
             "act_buf": buf,
         }
+        if "obs_buf" in info:
+            newest = self._true_state(data)[None]
+            new_info["obs_buf"] = jnp.concatenate([newest, info["obs_buf"][:-1]], axis=0)
         obs = self._observe(model, data, new_info, action, k_noise)
         metrics = {f"reward/{k}": v for k, v in scaled.items()}
         metrics.update(task.metrics)
         return State(data=data, obs=obs, reward=reward, done=done, metrics=metrics, info=new_info)
+
+    def _true_state(self, data: mjx.Data) -> jax.Array:
+        """The robot's true ``(q, dq)`` stacked, shape (2, n) (rad, rad/s): an ``obs_buf`` entry."""
+        return jnp.stack([self.robot_q(data), self.robot_dq(data)])
 
     def _observe(
         self, model: mjx.Model, data: mjx.Data, info: dict, action: jax.Array, key: jax.Array
     ) -> jax.Array:
         """Observation from the measured state: q + offset (+ noise), dq (+ noise), the task's inputs."""
         nz = self.config.obs_noise
-        q = self.robot_q(data) + info["encoder_offset"]
-        dq = self.robot_dq(data)
+        if "obs_buf" in info:  # observation latency: the true state of ``obs_latency`` steps ago
+            q, dq = info["obs_buf"][info["obs_latency"]]
+            q = q + info["encoder_offset"]
+        else:
+            q = self.robot_q(data) + info["encoder_offset"]
+            dq = self.robot_dq(data)
         kq, kv = jax.random.split(key)
         if nz.joint_pos > 0:
             q = q + jax.random.uniform(kq, q.shape, minval=-nz.joint_pos, maxval=nz.joint_pos)

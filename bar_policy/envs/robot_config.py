@@ -17,6 +17,7 @@ from bar_policy.robot.mjcf import PHYSICS_DT
 
 __all__ = [
     "GAINS",
+    "PAYLOAD_AT",
     "ActuatorConfig",
     "ModelRandomizationConfig",
     "ObsNoiseConfig",
@@ -29,6 +30,9 @@ __all__ = [
 
 GAINS = ("robot", "actuator")
 """Valid ``RobotEnvConfig.gains``."""
+
+PAYLOAD_AT = ("fingertip", "palm", "either")
+"""Valid ``ModelRandomizationConfig.payload_at``."""
 
 
 def check_range(name: str, lo_hi: tuple[float, float], *, low: float = -math.inf) -> None:
@@ -61,6 +65,14 @@ class ActuatorConfig:
     """Per-joint, per-episode multiplier on Kd, dimensionless."""
     encoder_offset: float = 0.01
     """Half-width of the per-joint, per-episode encoder offset U(-x, x), rad (added to measured q)."""
+    strength: tuple[float, float] = (1.0, 1.0)
+    """Per-joint, per-episode motor strength U(low, high), dimensionless: the joint receives
+    ``strength * clip(law, cap)`` (the torque and its cap scaled; the implicit Kd term likewise), as the
+    deploy side's ``strength`` perturbation. (1, 1), the default, leaves the law as it is."""
+    obs_latency_steps: tuple[int, int] = (0, 0)
+    """Observation latency, control steps, inclusive integer range sampled per episode: the policy sees the
+    measured joint state (q, dq, and what the task computes from q) of that many steps ago (the reset state
+    until the episode has that many steps), as the deploy side's ``obs_delay_ticks``. (0, 0): none."""
     damping: str = "implicit"
     """How the integrator treats the law's Kd term: ``implicit`` (Kd of unsaturated joints goes into
     Euler's implicit joint damping, the applied force is unchanged; stable at 2 ms with a 6x margin) or
@@ -77,6 +89,12 @@ class ActuatorConfig:
             )
         check_range("kp_scale", self.kp_scale, low=0.0)
         check_range("kd_scale", self.kd_scale, low=0.0)
+        check_range("strength", self.strength, low=1e-3)
+        lo, hi = self.obs_latency_steps
+        if not (isinstance(lo, int) and isinstance(hi, int) and 0 <= lo <= hi <= 10):
+            raise ValueError(
+                f"obs_latency_steps must be integers 0 <= low <= high <= 10, got {self.obs_latency_steps}"
+            )
         if not self.encoder_offset >= 0:
             raise ValueError(f"encoder_offset must be >= 0 rad, got {self.encoder_offset}")
 
@@ -105,12 +123,34 @@ class ModelRandomizationConfig:
     """Joint Coulomb friction ~ U(low, high) per joint, N*m; None keeps the MJCF value (0.1)."""
     link_mass_scale: tuple[float, float] | None = (0.9, 1.1)
     """Per-body multiplier on mass and inertia (density scaling), dimensionless; None disables."""
+    damping: tuple[float, float] | None = None
+    """Added passive joint damping ~ U(low, high) per robot joint, N*m*s/rad, on top of the MJCF's
+    ``dof_damping`` (the deploy side's ``damping``); None (default) adds none."""
+    armature_scale: tuple[float, float] | None = None
+    """Per-joint multiplier on the robot joints' armature (after the ``armature`` draw), dimensionless;
+    None (default) disables."""
+    payload_kg: tuple[float, float] | None = None
+    """Point mass on each hand ~ U(low, high), kg, drawn per hand (the deploy side's ``payload_kg``). Not
+    None adds a massless payload body to each hand of the training scene (``randomize.payload_scene``),
+    whose ``body_mass`` and ``body_inertia`` (a 1 cm solid sphere's) the randomiser sets; None (default)
+    leaves the scene as it is."""
+    payload_at: str = "fingertip"
+    """Where the payload sits in the hand (``PAYLOAD_AT``): ``fingertip`` (the finger2 tip site), ``palm``
+    (the palm collider's centre), or ``either`` (one of the two per env slot and hand, even odds)."""
 
     def __post_init__(self) -> None:
         if self.frictionloss is not None:
             check_range("frictionloss", self.frictionloss, low=0.0)
         if self.link_mass_scale is not None:
             check_range("link_mass_scale", self.link_mass_scale, low=1e-3)
+        if self.damping is not None:
+            check_range("damping", self.damping, low=0.0)
+        if self.armature_scale is not None:
+            check_range("armature_scale", self.armature_scale, low=1e-3)
+        if self.payload_kg is not None:
+            check_range("payload_kg", self.payload_kg, low=0.0)
+        if self.payload_at not in PAYLOAD_AT:
+            raise ValueError(f"unknown payload_at {self.payload_at!r}; valid: {list(PAYLOAD_AT)}")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -194,7 +234,13 @@ def nominal(base: C) -> C:
         base,
         init_noise=0.0,
         actuator=replace(
-            base.actuator, latency_steps=(0, 0), kp_scale=(1.0, 1.0), kd_scale=(1.0, 1.0), encoder_offset=0.0
+            base.actuator,
+            latency_steps=(0, 0),
+            kp_scale=(1.0, 1.0),
+            kd_scale=(1.0, 1.0),
+            encoder_offset=0.0,
+            strength=(1.0, 1.0),
+            obs_latency_steps=(0, 0),
         ),
         obs_noise=ObsNoiseConfig(joint_pos=0.0, joint_vel=0.0),
         randomization=ModelRandomizationConfig(armature=False, frictionloss=None, link_mass_scale=None),

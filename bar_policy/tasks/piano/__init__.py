@@ -87,7 +87,7 @@ RECORD = TaskRecord(
     hc_only=False,
     metadata_keys=("dataset_repo_id",),
     metric="key-press precision, recall and F1 over the song's steps (RoboPianist's)",
-    presets=(("piano", f"{_HERE}.preset:PIANO"),),
+    presets=(("piano", f"{_HERE}.preset:PIANO"), ("piano-robust", f"{_HERE}.preset:PIANO_ROBUST")),
     gate=f"{_HERE}.gate:GATE",
     deploy=f"{_HERE}.deploy",
 )

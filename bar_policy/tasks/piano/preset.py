@@ -1,11 +1,13 @@
 """The piano training preset: ``{dotted.path: value}`` on ``TrainConfig()`` (``training.config.preset``).
 
-Plain data: this module imports nothing.
+Plain data: this module imports only the plain-data ``tasks.robust_preset``.
 """
 
 from __future__ import annotations
 
-__all__ = ["PIANO"]
+from bar_policy.tasks.robust_preset import robust
+
+__all__ = ["PIANO", "PIANO_ROBUST"]
 
 PIANO = {
     "preset": "piano",
@@ -40,3 +42,7 @@ updates unlearn the prior, and 1e-4 beat 3e-4: docs/piano.md), 4096 envs (the ke
 constraint rows: reach's nefc 82 becomes 137 with the contact caps), a wider first layer for the 631-entry
 observation.
 """
+
+PIANO_ROBUST = robust(PIANO, "piano-robust")
+"""The ``piano`` preset with the robustness randomisation (``tasks.robust_preset.ROBUST_ENV_OVERRIDES``;
+docs/robustness.md, "Training for robustness")."""

@@ -1,12 +1,15 @@
 """The reach training presets: ``{dotted.path: value}`` on ``TrainConfig()`` (``training.config.preset``).
 
 Sizes follow brax's PPO (``training.config``): an iteration collects ``batch_size * num_minibatches``
-unrolls of ``unroll_length`` steps over ``num_envs`` envs. Plain data: this module imports nothing.
+unrolls of ``unroll_length`` steps over ``num_envs`` envs. Plain data: this module imports only the
+plain-data ``tasks.robust_preset``.
 """
 
 from __future__ import annotations
 
-__all__ = ["CPU", "GPU", "RSL", "TINY"]
+from bar_policy.tasks.robust_preset import robust
+
+__all__ = ["CPU", "GPU", "REACH_ROBUST", "RSL", "TINY"]
 
 GPU = {
     "preset": "gpu",
@@ -113,3 +116,7 @@ TINY = {
     "final_eval_envs": 32,
 }
 """Seconds of training on a CPU, for tests and smoke runs (not expected to solve the task)."""
+
+REACH_ROBUST = robust(GPU, "reach-robust")
+"""The ``gpu`` preset with the robustness randomisation (``tasks.robust_preset.ROBUST_ENV_OVERRIDES``;
+docs/robustness.md, "Training for robustness")."""

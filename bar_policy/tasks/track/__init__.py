@@ -9,7 +9,8 @@ with jax blocked) and re-exports the shared definitions:
 ``layout.py``       its observation layout ``lite_track_<mode>``
 ``config.py``       ``TrackEnvConfig`` (rewards, clips, termination, adaptive start sampling)
 ``env.py``          ``LiteTrack`` (MJX): rewards, termination, metrics                      jax
-``preset.py``       the training presets ``track`` and ``track-rsl`` (the tracker on rsl-rl, robot grade)
+``preset.py``       the training presets ``track``, ``track-rsl`` (the tracker on rsl-rl, robot grade),
+                    ``track-robust``
 ``reference.py``    the deploy command source (``MotionReference``, ``--motion``)          numpy
 ``evaluate.py``     ``bar-deploy eval``: joint, body and fingertip errors on held-out clips
 ``deploy.py``       the ``track`` deploy task (options, command source, evaluation)
@@ -69,7 +70,11 @@ RECORD = TaskRecord(
     hc_only=False,
     metadata_keys=("body_names", "lookahead_steps", "dataset_repo_id"),
     metric="joint, tracked-body and fingertip errors on held-out clips",
-    presets=(("track", f"{_HERE}.preset:TRACK"), ("track-rsl", f"{_HERE}.preset:TRACK_RSL")),
+    presets=(
+        ("track", f"{_HERE}.preset:TRACK"),
+        ("track-rsl", f"{_HERE}.preset:TRACK_RSL"),
+        ("track-robust", f"{_HERE}.preset:TRACK_ROBUST"),
+    ),
     gate=f"{_HERE}.gate:GATE",
     deploy=f"{_HERE}.deploy",
 )

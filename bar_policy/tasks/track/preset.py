@@ -1,11 +1,13 @@
 """The track training preset: ``{dotted.path: value}`` on ``TrainConfig()`` (``training.config.preset``).
 
-Plain data: this module imports nothing.
+Plain data: this module imports only the plain-data ``tasks.robust_preset``.
 """
 
 from __future__ import annotations
 
-__all__ = ["TRACK", "TRACK_RSL"]
+from bar_policy.tasks.robust_preset import robust
+
+__all__ = ["TRACK", "TRACK_ROBUST", "TRACK_RSL"]
 
 TRACK = {
     "preset": "track",
@@ -111,3 +113,7 @@ ran 265-272 k env steps/s and 110 M env steps, but its MJX evaluations were best
 With 8 minibatches (2026-11-29, seed 0: the 8192-env preset's Adam steps per env step), it
 was best at 31 M env steps (0.0106 rad / 1.00 cm) and ended at 0.0366 / 3.62, at 12.5 % success.
 """
+
+TRACK_ROBUST = robust(TRACK, "track-robust")
+"""The ``track`` preset with the robustness randomisation (``tasks.robust_preset.ROBUST_ENV_OVERRIDES``;
+docs/robustness.md, "Training for robustness")."""
