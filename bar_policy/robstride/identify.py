@@ -1,0 +1,226 @@
+"""``bar-bus identify``'s procedure: a supervised excitation over the bus, then the fit, then the params file.
+
+1. The excitation (``robot.sysid_excitation``) runs on the enabled motors at the robot's own Kp, Kd, with
+   the nominal model's gravity torque at the target as feed-forward, one MIT round per period.
+2. The supervisor, every round: the torque the law will ask for (``Kp (q* - q) + Kd (dq* - dq) + ff``, from
+   the last reading) and the torque each motor reports must stay within the budget (``budget`` x the
+   joint's cap, 50 % by default), every joint inside its limits; a motor fault, a missing reply, a stop
+   request (a signal) or any exception ends the run. Every end, normal or not, sends damping frames then
+   stop frames on every bus (``RobstrideGroup.damping_then_stop``); a run cut short writes no file.
+3. The fit (``robot.sysid_fit``), per arm, of the recorded ``q, dq, tau`` and the acceleration
+   differentiated from ``dq`` (a zero-phase 5-sample moving average, then central differences).
+4. ``RobotParams`` with the values, their 95 % intervals and the run (``source``).
+
+No jax, no torch.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from bar_policy.robot.constants import RobotSpec
+from bar_policy.robot.index import RobotIndex
+from bar_policy.robot.mit import MitCommand
+from bar_policy.robot.params import Estimate, JointParams, Payload, RobotParams
+from bar_policy.robot.scene import load_model, robot_spec
+from bar_policy.robot.sysid_excitation import Excitation
+from bar_policy.robot.sysid_fit import ArmFit, ArmSamples, PayloadRegressor, fit_arm
+from bar_policy.robstride.errors import RobstrideError
+from bar_policy.robstride.group import RobstrideGroup
+
+__all__ = ["BudgetError", "Recording", "Supervisor", "differentiate", "fit_recording", "run_excitation"]
+
+log = logging.getLogger(__name__)
+
+HANDS = {"left": "left_hand", "right": "right_hand"}
+
+
+class BudgetError(RobstrideError):
+    """The excitation would exceed (or a motor reported above) the torque budget, or left the joint limits."""
+
+
+@dataclass
+class Recording:
+    """What the excitation measured, one row per round: shapes (N,) and (N, num_joints)."""
+
+    t: list[float] = field(default_factory=list)
+    q: list[np.ndarray] = field(default_factory=list)
+    dq: list[np.ndarray] = field(default_factory=list)
+    tau: list[np.ndarray] = field(default_factory=list)
+    peak_fraction: float = 0.0
+    """Largest ``|tau| / cap`` reported or asked for over the run (the budget's use)."""
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``t`` (N,), ``q``, ``dq``, ``tau`` (N, num_joints)."""
+        return np.array(self.t), np.array(self.q), np.array(self.dq), np.array(self.tau)
+
+
+class Supervisor:
+    """The torque budget and the joint limits, checked before each command and on each reading."""
+
+    def __init__(self, robot: RobotSpec, budget: float = 0.5, limit_margin: float = 0.05) -> None:
+        if not 0 < budget <= 0.5:
+            raise ValueError(f"torque budget {budget:g} of the cap: valid (0, 0.5]")
+        self.cap = np.array([j.torque_cap for j in robot.joints])
+        """Each joint's torque cap, N*m (the firmware's)."""
+        self.limit = budget * self.cap
+        self.lower = robot.lower - limit_margin
+        self.upper = robot.upper + limit_margin
+        self.names = robot.joint_names
+        self.peak = 0.0
+
+    def check(self, tau: np.ndarray, what: str, q: np.ndarray | None = None) -> None:
+        """``BudgetError`` naming the joint when ``|tau|`` > budget (or ``q`` is outside the limits)."""
+        frac = np.abs(tau) / self.cap
+        self.peak = max(self.peak, float(np.nanmax(frac)))
+        over = np.flatnonzero(~(np.abs(tau) <= self.limit))
+        if over.size:
+            i = int(over[0])
+            raise BudgetError(
+                f"{self.names[i]}: {what} torque {tau[i]:+.2f} N*m exceeds the budget "
+                f"+-{self.limit[i]:.2f} N*m ({self.limit[i] / self.cap[i]:.0%} of the cap)"
+            )
+        if q is not None:
+            out = np.flatnonzero(~((q >= self.lower) & (q <= self.upper)))
+            if out.size:
+                i = int(out[0])
+                raise BudgetError(f"{self.names[i]}: q={q[i]:+.3f} rad left its limits")
+
+
+def _gravity(model: mujoco.MjModel, index: RobotIndex) -> Callable[[np.ndarray], np.ndarray]:
+    d = mujoco.MjData(model)
+
+    def g(q: np.ndarray) -> np.ndarray:
+        d.qpos[index.qpos] = q
+        d.qvel[:] = 0.0
+        mujoco.mj_forward(model, d)
+        return d.qfrc_bias[index.dof].copy()
+
+    return g
+
+
+def run_excitation(
+    group: RobstrideGroup,
+    robot: RobotSpec,
+    excitation: Excitation,
+    supervisor: Supervisor,
+    *,
+    period: float,
+    stop: Callable[[], bool] = lambda: False,
+    realtime: bool = True,
+    on_round: Callable[[int, np.ndarray], None] | None = None,
+) -> Recording:
+    """Run ``excitation`` on the (enabled) ``group`` one round per ``period`` s; damping then stop at the end.
+
+    ``realtime``: pace the rounds on the wall clock (the real robot); False: back to back (the lockstep
+    emulator, whose physics advances one period per round). ``on_round(k, q)``: called after each reading
+    (tests inject faults there). Raises what ended the run (after damping then stop); ``StopIteration`` is
+    never raised: a stop request ends early and the caller sees a short recording with ``stopped``.
+    """
+    model = load_model(robot.mode)
+    index = RobotIndex.from_model(model, robot.joint_names)
+    gravity = _gravity(model, index)
+    kp, kd = robot.kp, robot.kd
+    rec = Recording()
+    n = int(round(excitation.duration / period))
+    reading = group.last_reading
+    q = reading.q.copy() if reading is not None else excitation.start.copy()
+    dq = np.zeros_like(q)
+    t0 = time.monotonic()
+    try:
+        for k in range(n + 1):
+            if stop():
+                raise KeyboardInterrupt("stop requested")
+            t = k * period
+            q_des, dq_des = excitation.at(t)
+            ff = gravity(q_des)
+            supervisor.check(kp * (q_des - q) + kd * (dq_des - dq) + ff, "commanded")
+            if realtime:
+                time.sleep(max(0.0, t0 + t - time.monotonic()))
+            reading = group.exchange_mit(MitCommand(q_des, dq_des, kp, kd, ff))
+            q, dq = reading.q, reading.dq
+            if on_round is not None:
+                on_round(k, q)
+            supervisor.check(reading.tau, "reported", q)
+            rec.t.append(t)
+            rec.q.append(q.copy())
+            rec.dq.append(dq.copy())
+            rec.tau.append(reading.tau.copy())
+    finally:
+        rec.peak_fraction = supervisor.peak
+        group.damping_then_stop(hold_s=0.3 if realtime else 0.0)
+    return rec
+
+
+def differentiate(dq: np.ndarray, dt: float) -> np.ndarray:
+    """Acceleration from velocity samples (N, n): 5-sample zero-phase moving average, central differences."""
+    kernel = np.ones(5) / 5
+    smooth = np.stack([np.convolve(c, kernel, mode="same") for c in dq.T], axis=1)
+    return np.gradient(smooth, dt, axis=0)
+
+
+def fit_recording(
+    robot: RobotSpec, rec: Recording, arms: tuple[str, ...], period: float, *, trim: int = 5
+) -> dict[str, ArmFit]:
+    """Fit each arm of ``arms`` to ``rec`` (``trim`` rounds dropped at both ends: the smoothing's edges)."""
+    _, q, dq, tau = rec.arrays()
+    qdd = differentiate(dq, period)
+    sl = slice(trim, len(q) - trim)
+    samples = ArmSamples(q[sl], dq[sl], qdd[sl], tau[sl])
+    model = load_model(robot.mode)
+    fits: dict[str, ArmFit] = {}
+    id_base = None
+    for arm in arms:
+        idx = [j.index for j in robot.joints if j.group == f"{arm}_arm"]
+        reg = PayloadRegressor(model, lambda: robot_spec(robot.mode), robot.joint_names, HANDS[arm])
+        if id_base is None:
+            id_base = reg.inverse(samples)
+        fits[arm] = fit_arm(samples, idx, robot.joint_names, reg, id_base=id_base)
+    return fits
+
+
+def _est(v: float, h: float) -> Estimate:
+    return Estimate(float(v), (float(v - h), float(v + h)))
+
+
+def to_params(fits: dict[str, ArmFit], source: dict[str, object]) -> RobotParams:
+    """The params file of the fits; a negative friction, damping, armature or mass is written as 0 and
+    counted in ``source.notes`` (a value the file cannot hold; its interval says how sure the fit was)."""
+    joints: dict[str, JointParams] = {}
+    floored: list[str] = []
+
+    def nonneg(name: str, v: float, h: float) -> Estimate:
+        if v < 0:
+            floored.append(f"{name}={v:.4g}")
+            return Estimate(0.0, (min(0.0, float(v - h)), max(0.0, float(v + h))))
+        return _est(v, h)
+
+    for fit in fits.values():
+        for c, name in enumerate(fit.joints):
+            joints[name] = JointParams(
+                friction_nm=nonneg(f"{name}.friction_nm", fit.friction[c], fit.half95["friction"][c]),
+                damping=nonneg(f"{name}.damping", fit.damping[c], fit.half95["damping"][c]),
+                armature=nonneg(f"{name}.armature", fit.armature[c], fit.half95["armature"][c]),
+                strength=_est(fit.strength[c], fit.half95["strength"][c]),
+            )
+    payload: dict[str, Payload] = {}
+    for arm, fit in fits.items():
+        mass = nonneg(f"payload.{arm}.mass_kg", fit.mass, fit.mass_half95)
+        com = tuple(float(x) for x in np.clip(fit.com, -0.5, 0.5))
+        if mass.value == 0.0 or not np.allclose(com, fit.com):
+            com = (0.0, 0.0, 0.0)
+            cis = None
+        else:
+            cis = tuple((c - h, c + h) for c, h in zip(com, fit.com_half95, strict=True))
+        payload[arm] = Payload(mass, com, cis)  # type: ignore[arg-type]
+    src = dict(source)
+    if floored:
+        log.warning("identify: %d negative estimates written as 0: %s", len(floored), ", ".join(floored))
+        src["notes"] = f"{len(floored)} negative estimates written as 0: " + ", ".join(floored)
+    return RobotParams(joints, payload, src)
