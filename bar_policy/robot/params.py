@@ -305,7 +305,9 @@ def apply_to_spec(spec: mujoco.MjSpec, params: RobotParams) -> None:
     for name, jp in params.joints.items():
         j = spec.joint(name)
         j.frictionloss = jp.friction_nm.value
-        j.damping = jp.damping.value
+        damping = np.array(j.damping, dtype=np.float64)  # MuJoCo 3.17: [linear, higher-order terms]
+        damping[0] = jp.damping.value
+        j.damping = damping
         j.armature = jp.armature.value
     for hand, p in params.payload.items():
         if p.mass_kg.value <= 0:

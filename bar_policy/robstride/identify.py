@@ -7,8 +7,7 @@
    joint's cap, 50 % by default), every joint inside its limits; a motor fault, a missing reply, a stop
    request (a signal) or any exception ends the run. Every end, normal or not, sends damping frames then
    stop frames on every bus (``RobstrideGroup.damping_then_stop``); a run cut short writes no file.
-3. The fit (``robot.sysid_fit``), per arm, of the recorded ``q, dq, tau`` and the acceleration
-   differentiated from ``dq`` (a zero-phase 5-sample moving average, then central differences).
+3. The fit (``robot.sysid_fit``), per arm, of round-averaged samples (``round_samples``).
 4. ``RobotParams`` with the values, their 95 % intervals and the run (``source``).
 
 No jax, no torch.
@@ -34,7 +33,7 @@ from bar_policy.robot.sysid_fit import ArmFit, ArmSamples, PayloadRegressor, fit
 from bar_policy.robstride.errors import RobstrideError
 from bar_policy.robstride.group import RobstrideGroup
 
-__all__ = ["BudgetError", "Recording", "Supervisor", "differentiate", "fit_recording", "run_excitation"]
+__all__ = ["BudgetError", "Recording", "Supervisor", "fit_recording", "round_samples", "run_excitation", "to_params"]
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +52,11 @@ class Recording:
     q: list[np.ndarray] = field(default_factory=list)
     dq: list[np.ndarray] = field(default_factory=list)
     tau: list[np.ndarray] = field(default_factory=list)
+    q_cmd: list[np.ndarray] = field(default_factory=list)
+    """Position target of each round's command (the state rows are the replies to it), rad."""
+    dq_cmd: list[np.ndarray] = field(default_factory=list)
+    ff: list[np.ndarray] = field(default_factory=list)
+    """Feed-forward torque of each round's command, N*m."""
     peak_fraction: float = 0.0
     """Largest ``|tau| / cap`` reported or asked for over the run (the budget's use)."""
 
@@ -133,6 +137,10 @@ def run_excitation(
     q = reading.q.copy() if reading is not None else excitation.start.copy()
     dq = np.zeros_like(q)
     t0 = time.monotonic()
+    rec.t.append(-period)  # the state before the first command
+    rec.q.append(q.copy())
+    rec.dq.append(dq.copy())
+    rec.tau.append(reading.tau.copy() if reading is not None else np.zeros_like(q))
     try:
         for k in range(n + 1):
             if stop():
@@ -152,27 +160,41 @@ def run_excitation(
             rec.q.append(q.copy())
             rec.dq.append(dq.copy())
             rec.tau.append(reading.tau.copy())
+            rec.q_cmd.append(q_des)
+            rec.dq_cmd.append(dq_des)
+            rec.ff.append(ff)
     finally:
         rec.peak_fraction = supervisor.peak
         group.damping_then_stop(hold_s=0.3 if realtime else 0.0)
     return rec
 
 
-def differentiate(dq: np.ndarray, dt: float) -> np.ndarray:
-    """Acceleration from velocity samples (N, n): 5-sample zero-phase moving average, central differences."""
-    kernel = np.ones(5) / 5
-    smooth = np.stack([np.convolve(c, kernel, mode="same") for c in dq.T], axis=1)
-    return np.gradient(smooth, dt, axis=0)
+def round_samples(robot: RobotSpec, rec: Recording, period: float) -> ArmSamples:
+    """One sample per round: the state of reply ``k-1``, the torque command ``k`` asked for there, and the
+    acceleration ``(dq_k - dq_{k-1}) / dt`` that followed.
+
+    The torque is the MIT law's at that state, ``Kp (q* - q) + Kd (dq* - dq) + ff``, not the reading of
+    one instant: at one physics step per round (the emulator at ``--rate`` 500 Hz: 2 ms) this is exactly
+    the torque the firmware applied over the step that produced the acceleration; on a real robot, whose
+    firmware runs the law faster than the bus, it is the round's torque to O(dt). A joint whose loop rings
+    faster than a slower round (a wrist at Kp 50 on a few g*m^2 rings at ~20 Hz) would bias a fit of
+    instantaneous readings. Strength is then the torque produced per torque the law asked for (the
+    budget keeps the law off its cap: no saturation).
+    """
+    _, q, dq, _ = rec.arrays()
+    q_cmd, dq_cmd, ff = np.array(rec.q_cmd), np.array(rec.dq_cmd), np.array(rec.ff)
+    qdd = (dq[1:] - dq[:-1]) / period
+    tau = robot.kp * (q_cmd - q[:-1]) + robot.kd * (dq_cmd - dq[:-1]) + ff
+    return ArmSamples(q[:-1], dq[:-1], qdd, tau)
 
 
 def fit_recording(
     robot: RobotSpec, rec: Recording, arms: tuple[str, ...], period: float, *, trim: int = 5
 ) -> dict[str, ArmFit]:
     """Fit each arm of ``arms`` to ``rec`` (``trim`` rounds dropped at both ends: the smoothing's edges)."""
-    _, q, dq, tau = rec.arrays()
-    qdd = differentiate(dq, period)
-    sl = slice(trim, len(q) - trim)
-    samples = ArmSamples(q[sl], dq[sl], qdd[sl], tau[sl])
+    full = round_samples(robot, rec, period)
+    sl = slice(trim, len(full.q) - trim)
+    samples = ArmSamples(full.q[sl], full.dq[sl], full.qdd[sl], full.tau[sl])
     model = load_model(robot.mode)
     fits: dict[str, ArmFit] = {}
     id_base = None
