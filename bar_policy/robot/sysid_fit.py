@@ -118,6 +118,12 @@ class PayloadRegressor:
         self, base: mujoco.MjModel, spec_factory: Callable[[], mujoco.MjSpec], names: Sequence[str], hand: str
     ) -> None:
         self.base = rigid_model(base)
+        self.friction_model = copy.deepcopy(base)
+        """The model with every joint's friction loss unbounded: its inverse gives the soft friction
+        constraint's force before the clamp to ``+-f`` (``friction_force``)."""
+        self.friction_model.dof_damping[:] = 0.0
+        self.friction_model.dof_frictionloss[:] = 1e6
+        self.friction_model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
         self.spec_factory = spec_factory
         self.names = tuple(names)
         self.hand = hand
@@ -131,6 +137,30 @@ class PayloadRegressor:
             d.qpos[idx.qpos], d.qvel[idx.dof], d.qacc[idx.dof] = s.q[k], s.dq[k], s.qdd[k]
             mujoco.mj_inverse(m, d)
             out[k] = d.qfrc_inverse[idx.dof]
+        return out
+
+    def friction_force(self, s: ArmSamples) -> np.ndarray:
+        """The friction constraint's force at each sample before its clamp, shape (N, num_joints), N*m.
+
+        MuJoCo's friction loss is a soft constraint: in inverse dynamics each dof's force is
+        ``-(qdd - aref) / R`` (``aref = -b dq``, ``R`` from the solver's impedance and the dof's inertia),
+        clamped to ``+-frictionloss``. A joint slides (force ``+-f``) only when this exceeds ``f``; below it
+        the joint is held by a force that is not ``f sign(dq)`` (light joints like the wrists are held up
+        to speeds of rad/s). The fit uses it to tell the two apart.
+        """
+        m = self.friction_model
+        d = mujoco.MjData(m)
+        idx = RobotIndex.from_model(m, self.names)
+        out = np.zeros_like(s.q)
+        col = np.full(m.nv, -1)
+        col[idx.dof] = np.arange(len(self.names))
+        for k in range(len(s.q)):
+            d.qpos[idx.qpos], d.qvel[idx.dof], d.qacc[idx.dof] = s.q[k], s.dq[k], s.qdd[k]
+            mujoco.mj_inverse(m, d)
+            rows = np.flatnonzero(d.efc_type[: d.nefc] == int(mujoco.mjtConstraint.mjCNSTR_FRICTION_DOF))
+            dofs = col[d.efc_id[rows]]
+            ok = dofs >= 0
+            out[k, dofs[ok]] = d.efc_force[rows[ok]]
         return out
 
     def columns(self, s: ArmSamples, id_base: np.ndarray, com: np.ndarray) -> np.ndarray:
@@ -153,6 +183,24 @@ class PayloadRegressor:
         return out
 
 
+def _moving_average(x: np.ndarray, n: int) -> np.ndarray:
+    """Centred moving average of ``n`` samples along axis 0, shape kept (the edges average fewer)."""
+    if n <= 1:
+        return x
+    c = np.cumsum(np.vstack([np.zeros((1, x.shape[1])), x]), axis=0)
+    lo = np.clip(np.arange(len(x)) - n // 2, 0, len(x))
+    hi = np.clip(np.arange(len(x)) - n // 2 + n, 0, len(x))
+    return (c[hi] - c[lo]) / (hi - lo)[:, None]
+
+
+def _min_window(x: np.ndarray, n: int) -> np.ndarray:
+    """Centred running minimum of ``n`` samples, shape kept."""
+    if n <= 1:
+        return x
+    pad = np.pad(x, (n // 2, n - 1 - n // 2), mode="edge")
+    return np.lib.stride_tricks.sliding_window_view(pad, n).min(axis=1)
+
+
 def fit_arm(
     samples: ArmSamples,
     joints: Sequence[int],
@@ -162,11 +210,22 @@ def fit_arm(
     v_min: float = 0.05,
     iterations: int = 3,
     id_base: np.ndarray | None = None,
+    smooth: int = 1,
+    friction_u: np.ndarray | None = None,
+    strength: np.ndarray | None = None,
 ) -> ArmFit:
     """Fit one arm (module docstring).
 
     ``joints``: canonical indices of the arm's joints; ``regressor``: the arm's hand payload (None: no
-    payload term, mass 0); ``id_base``: precomputed ``ID`` (else computed).
+    payload term, mass 0); ``id_base``: precomputed ``ID`` (else computed); ``smooth``: a moving
+    average of this many samples on every column and the target alike (the equation holds sample by sample,
+    so it holds for the averages exactly, with the measurement noise averaged down: noise in the torque
+    column would bias the strength toward 0). Rows are kept where the averaged speed is ``>= v_min`` and
+    no sample of the window is below ``v_min / 2`` (no sign change of the friction inside a window).
+    ``friction_u``: ``PayloadRegressor.friction_force`` of the samples: MuJoCo's soft friction (each pass
+    classifies a sample as sliding where ``|u| >`` the friction estimate, the force ``+-f`` there, ``u``
+    itself elsewhere); None: Coulomb ``f sign(dq)`` on every moving sample. ``strength``: known strengths
+    of the joints, shape (joints,) (from an unloaded run): fitted otherwise.
     """
     joints = list(joints)
     nj = len(joints)
@@ -176,28 +235,47 @@ def fit_arm(
         id_base = regressor.inverse(samples)
     com = np.zeros(3)
     n_p = 4 if regressor is not None else 0
-    for _ in range(iterations if regressor is not None else 1):
+    u = friction_u
+    fric = np.full(nj, np.inf) if u is None else np.zeros(nj)
+    for _ in range(iterations):
         cols = regressor.columns(samples, id_base, com) if regressor is not None else None
         blocks, rhs = [], []
         for c, j in enumerate(joints):
-            keep = np.abs(samples.dq[:, j]) >= v_min
-            n = int(keep.sum())
-            a = np.zeros((n, 4 * nj + n_p))
-            a[:, 4 * c + 0] = samples.tau[keep, j]
-            a[:, 4 * c + 1] = -np.sign(samples.dq[keep, j])
-            a[:, 4 * c + 2] = -samples.dq[keep, j]
-            a[:, 4 * c + 3] = -samples.qdd[keep, j]
+            a = np.zeros((len(samples.q), 4 * nj + n_p))
+            y = id_base[:, j].copy()
+            if strength is None:
+                a[:, 4 * c + 0] = samples.tau[:, j]
+            else:  # known: its torque moves to the right-hand side (the column stays 0, its value fixed)
+                y -= strength[c] * samples.tau[:, j]
+            if u is None:  # Coulomb: sliding wherever the joint moves
+                a[:, 4 * c + 1] = -np.sign(samples.dq[:, j])
+            else:  # the soft constraint: slides where its unclamped force exceeds the friction estimate
+                slide = np.abs(u[:, j]) > fric[c]
+                a[slide, 4 * c + 1] = np.sign(u[slide, j])
+                y[~slide] -= u[~slide, j]
+                held = ~slide
+            a[:, 4 * c + 2] = -samples.dq[:, j]
+            a[:, 4 * c + 3] = -samples.qdd[:, j]
             if cols is not None:
-                a[:, 4 * nj :] = -cols[keep, j, :]
-            blocks.append(a)
-            rhs.append(id_base[keep, j])
+                a[:, 4 * nj :] = -cols[:, j, :]
+            if smooth > 1:  # the same linear filter on both sides keeps every sample's equation exact
+                a, y = _moving_average(a, smooth), _moving_average(y[:, None], smooth)[:, 0]
+            keep = np.abs(_moving_average(samples.dq[:, j : j + 1], smooth)[:, 0]) >= v_min
+            keep &= _min_window(np.abs(samples.dq[:, j]), smooth) >= v_min / 2
+            if u is not None and np.isfinite(fric[c]) and fric[c] > 0:
+                # a joint held by the constraint says nothing of the motor: its force is the constraint's,
+                # as stiff as the solver's impedance (a wrist's: ~0.3 N*m per rad/s), so drop those rows
+                keep &= _min_window((~held).astype(np.float64), smooth) > 0
+            blocks.append(a[keep])
+            rhs.append(y[keep])
         a_mat, b = np.concatenate(blocks), np.concatenate(rhs)
         scale = np.linalg.norm(a_mat, axis=0)
         scale[scale == 0] = 1.0
         x, *_ = np.linalg.lstsq(a_mat / scale, b, rcond=None)
         x = x / scale
+        fric = np.maximum(x[1 : 4 * nj : 4], 0.0)
         if regressor is None:
-            break
+            continue
         m = x[4 * nj]
         dc = x[4 * nj + 1 :] / m if abs(m) > 1e-6 else np.zeros(3)
         com = com + dc
@@ -206,7 +284,9 @@ def fit_arm(
     sigma2 = float(resid @ resid) / dof
     cov = sigma2 * np.linalg.pinv((a_mat / scale).T @ (a_mat / scale)) / np.outer(scale, scale)
     half = Z95 * np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    per = x[: 4 * nj].reshape(nj, 4)
+    per = x[: 4 * nj].reshape(nj, 4).copy()
+    if strength is not None:
+        per[:, 0] = strength
     hper = half[: 4 * nj].reshape(nj, 4)
     if regressor is not None:
         m = float(x[4 * nj])

@@ -33,7 +33,15 @@ from bar_policy.robot.sysid_fit import ArmFit, ArmSamples, PayloadRegressor, fit
 from bar_policy.robstride.errors import RobstrideError
 from bar_policy.robstride.group import RobstrideGroup
 
-__all__ = ["BudgetError", "Recording", "Supervisor", "fit_recording", "round_samples", "run_excitation", "to_params"]
+__all__ = [
+    "BudgetError",
+    "Recording",
+    "Supervisor",
+    "fit_recording",
+    "round_samples",
+    "run_excitation",
+    "to_params",
+]
 
 log = logging.getLogger(__name__)
 
@@ -132,7 +140,7 @@ def run_excitation(
     gravity = _gravity(model, index)
     kp, kd = robot.kp, robot.kd
     rec = Recording()
-    n = int(round(excitation.duration / period))
+    n = round(excitation.duration / period)
     reading = group.last_reading
     q = reading.q.copy() if reading is not None else excitation.start.copy()
     dq = np.zeros_like(q)
@@ -170,8 +178,9 @@ def run_excitation(
 
 
 def round_samples(robot: RobotSpec, rec: Recording, period: float) -> ArmSamples:
-    """One sample per round: the state of reply ``k-1``, the torque command ``k`` asked for there, and the
-    acceleration ``(dq_k - dq_{k-1}) / dt`` that followed.
+    """One sample per round: the state of reply ``k-1``, the torque command ``k`` asked for there.
+
+    The acceleration is ``(dq_k - dq_{k-1}) / dt``, what followed.
 
     The torque is the MIT law's at that state, ``Kp (q* - q) + Kd (dq* - dq) + ff``, not the reading of
     one instant: at one physics step per round (the emulator at ``--rate`` 500 Hz: 2 ms) this is exactly
@@ -189,21 +198,54 @@ def round_samples(robot: RobotSpec, rec: Recording, period: float) -> ArmSamples
 
 
 def fit_recording(
-    robot: RobotSpec, rec: Recording, arms: tuple[str, ...], period: float, *, trim: int = 5
+    robot: RobotSpec,
+    rec: Recording,
+    arms: tuple[str, ...],
+    period: float,
+    *,
+    trim: int = 5,
+    smooth_s: float = 0.02,
+    strength: dict[str, np.ndarray] | None = None,
+    payload: bool = True,
 ) -> dict[str, ArmFit]:
-    """Fit each arm of ``arms`` to ``rec`` (``trim`` rounds dropped at both ends: the smoothing's edges)."""
+    """Fit each arm of ``arms`` to ``rec``.
+
+    ``trim`` rounds are dropped at both ends; ``smooth_s``: the moving average of ``fit_arm``, s (the wire's
+    16-bit quantization of q and dq averaged down).
+
+    Strength and payload: both scale the torque a pose needs, and for a slow excitation the payload's
+    gravity has nearly the shape of the arm's own on every joint (the payload sits on the line of the
+    forearm's and hand's centres), so one run cannot tell a weak motor from a loaded hand. They are
+    separated by two runs: an unloaded one (``payload=False``: the mass is known to be 0) fits the
+    strengths; a loaded one with those strengths known (``strength``: arm -> per-joint values) fits the
+    payload. With neither, the strengths are held at the model's 1.
+    """
     full = round_samples(robot, rec, period)
     sl = slice(trim, len(full.q) - trim)
     samples = ArmSamples(full.q[sl], full.dq[sl], full.qdd[sl], full.tau[sl])
     model = load_model(robot.mode)
     fits: dict[str, ArmFit] = {}
-    id_base = None
+    id_base: np.ndarray | None = None
+    u: np.ndarray | None = None
     for arm in arms:
         idx = [j.index for j in robot.joints if j.group == f"{arm}_arm"]
         reg = PayloadRegressor(model, lambda: robot_spec(robot.mode), robot.joint_names, HANDS[arm])
         if id_base is None:
             id_base = reg.inverse(samples)
-        fits[arm] = fit_arm(samples, idx, robot.joint_names, reg, id_base=id_base)
+            u = reg.friction_force(samples)
+        known = None if not payload else (strength or {}).get(arm, np.ones(len(idx)))
+        fits[arm] = fit_arm(
+            samples,
+            idx,
+            robot.joint_names,
+            reg if payload else None,
+            id_base=id_base,
+            smooth=max(1, round(smooth_s / period)),
+            friction_u=u,
+            v_min=0.0,
+            iterations=6,
+            strength=known,
+        )
     return fits
 
 
@@ -212,8 +254,11 @@ def _est(v: float, h: float) -> Estimate:
 
 
 def to_params(fits: dict[str, ArmFit], source: dict[str, object]) -> RobotParams:
-    """The params file of the fits; a negative friction, damping, armature or mass is written as 0 and
-    counted in ``source.notes`` (a value the file cannot hold; its interval says how sure the fit was)."""
+    """The params file of the fits.
+
+    A negative friction, damping, armature or mass is written as 0 and counted in ``source.notes`` (a value
+    the file cannot hold; its interval says how sure the fit was).
+    """
     joints: dict[str, JointParams] = {}
     floored: list[str] = []
 
@@ -229,10 +274,14 @@ def to_params(fits: dict[str, ArmFit], source: dict[str, object]) -> RobotParams
                 friction_nm=nonneg(f"{name}.friction_nm", fit.friction[c], fit.half95["friction"][c]),
                 damping=nonneg(f"{name}.damping", fit.damping[c], fit.half95["damping"][c]),
                 armature=nonneg(f"{name}.armature", fit.armature[c], fit.half95["armature"][c]),
-                strength=_est(fit.strength[c], fit.half95["strength"][c]),
+                strength=_est(fit.strength[c], fit.half95["strength"][c])
+                if fit.half95["strength"][c] > 0
+                else Estimate(float(fit.strength[c])),  # held, not fitted: no interval
             )
     payload: dict[str, Payload] = {}
     for arm, fit in fits.items():
+        if fit.mass == 0.0 and fit.mass_half95 == 0.0:  # an unloaded run: no payload term was fitted
+            continue
         mass = nonneg(f"payload.{arm}.mass_kg", fit.mass, fit.mass_half95)
         com = tuple(float(x) for x in np.clip(fit.com, -0.5, 0.5))
         if mass.value == 0.0 or not np.allclose(com, fit.com):

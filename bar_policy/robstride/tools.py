@@ -73,7 +73,7 @@ def model_guess(limit_torque: float) -> str:
 
 
 @contextlib.contextmanager
-def _emulator(args: argparse.Namespace, channels: dict[str, str]) -> Iterator[None]:
+def _emulator(args: argparse.Namespace, channels: dict[str, str], **kwargs: object) -> Iterator[None]:
     if not getattr(args, "emulate", False):
         if getattr(args, "emulate_perturb", None) is not None:
             raise ValueError("--emulate-perturb perturbs the emulator's robot: give --emulate too")
@@ -84,7 +84,8 @@ def _emulator(args: argparse.Namespace, channels: dict[str, str]) -> Iterator[No
     from bar_policy.robstride.emulator_perturb import emulator
 
     perturb = getattr(args, "emulate_perturb", None)
-    with emulator(load_robot(args.mode), channels, mode="realtime", perturbation=perturb):
+    kwargs.setdefault("mode", "realtime")
+    with emulator(load_robot(args.mode), channels, perturbation=perturb, **kwargs):  # type: ignore[arg-type]
         yield
 
 
@@ -194,6 +195,93 @@ def _calibrate(args: argparse.Namespace) -> int:
     for w in result.warnings:
         print(f"WARNING: {w}")
     return 0
+
+
+def _identify(args: argparse.Namespace) -> int:
+    """``bar-bus identify``: excitation, fit, parameters file (``robstride.identify``)."""
+    import datetime
+
+    from bar_policy.robot.params import ParamsError, load_params
+    from bar_policy.robot.sysid_excitation import Excitation
+    from bar_policy.robstride.can_record import CanRecorder
+    from bar_policy.robstride.identify import Supervisor, fit_recording, run_excitation, to_params
+
+    robot = load_robot(args.mode)
+    if args.interface == "virtual":
+        args.emulate = True  # nothing else answers on the in-process bus
+    channels = _robot_channels(args)
+    arms = tuple(args.arms)
+    period = 1.0 / args.rate
+    strength = None
+    if args.strength_from:
+        try:
+            prior = load_params(args.strength_from, robot)
+        except ParamsError as exc:
+            raise _UsageError(str(exc)) from None
+        strength = {
+            arm: np.array([prior.joints[j.name].strength.value if j.name in prior.joints else 1.0
+                           for j in robot.joints if j.group == f"{arm}_arm"])
+            for arm in arms
+        }  # fmt: skip
+    calibration = Calibration.load(args.calibration) if args.calibration else None
+    supervisor = Supervisor(robot, budget=args.budget)
+    emu_kw = {"mode": "lockstep", "control_dt": period} if args.emulate else {}
+    if args.emulate and args.timeout < 1.0:  # the lockstep emulator shares this host's CPU: no deadline
+        print(f"identify: emulated bus: reply timeout {args.timeout:g} s raised to 1 s", flush=True)
+        args.timeout = 1.0
+    with StopSignals() as stop, _emulator(args, channels, **emu_kw):
+        group = RobstrideGroup.from_robot(
+            robot, open_can_buses(args.interface, channels), calibration=calibration,
+            reply_timeout=args.timeout, can_timeout=0.0 if args.emulate else proto.DEFAULT_CAN_TIMEOUT,
+        )  # fmt: skip
+        recorder = CanRecorder(args.can_log) if args.can_log else None
+        for bus in group.buses:
+            bus.record_to(recorder)
+        try:
+            reading = group.activate(lower=robot.lower, upper=robot.upper)
+            excitation = Excitation.plan(robot, reading.q, arms, args.seconds)
+            print(f"identify: {excitation.duration:.1f} s of excitation of the {'+'.join(arms)} arm(s) at "
+                  f"{args.rate:g} Hz, torque budget {args.budget:.0%} of each cap", flush=True)  # fmt: skip
+            rec = run_excitation(
+                group, robot, excitation, supervisor, period=period, stop=lambda: stop.requested,
+                realtime=not args.emulate,
+            )  # fmt: skip
+        except KeyboardInterrupt:
+            print(f"stopped by {stop.reason}: damping and stop frames sent; nothing written", file=sys.stderr)
+            return 130
+        finally:
+            group.shutdown()
+            if recorder is not None:
+                recorder.stop()
+    print(f"excitation done: {len(rec.t) - 1} rounds, peak torque {rec.peak_fraction:.0%} of a cap; "
+          "damping and stop frames sent; fitting", flush=True)  # fmt: skip
+    fits = fit_recording(robot, rec, arms, period, strength=strength, payload=not args.unloaded)
+    perturb = getattr(args, "emulate_perturb", None)
+    source: dict[str, object] = {
+        "kind": "identify",
+        "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "command": "bar-bus " + " ".join(sys.argv[1:])
+        if sys.argv[1:2] == ["identify"]
+        else "bar-bus identify",
+        "mode": args.mode,
+        "emulated": bool(args.emulate),
+        "can_log": args.can_log,
+        "excitation_s": round(len(rec.t) * period, 3),
+        "samples": len(rec.t) - 1,
+    }
+    if perturb is not None:
+        source["notes"] = f"hidden emulator perturbation: {perturb.describe()}"
+    params = to_params(fits, source)
+    params.save(args.out)
+    print(f"wrote {args.out} (sha256 {params.sha256[:16]}...)")
+    for arm, f in fits.items():
+        pay = "" if args.unloaded else f"; payload {f.mass:.3f} +- {f.mass_half95:.3f} kg"
+        print(f"  {arm}: residual {f.rms:.3f} N*m over {f.rows} rows{pay}")
+    return 0
+
+
+class _UsageError(ValueError):
+    """A bad argument found after parsing (a file's content): one line, exit 2."""
 
 
 def _print_sweep(names: Sequence[str], raw: np.ndarray, rec: SweepRecorder) -> None:
@@ -312,22 +400,103 @@ def _parser() -> argparse.ArgumentParser:
     w.add_argument("--id", type=int_range(1, 127), required=True, help="motor CAN id (1..127)")
     w.add_argument("--model", choices=sorted(ROBSTRIDE_MODELS), default=None,
                    help="motor model (default: from the robot data for --id)")  # fmt: skip
-    w.add_argument("--can-timeout", type=can_timeout_arg, default=proto.DEFAULT_CAN_TIMEOUT, metavar="S",
-                   help=f"watchdog to arm and measure, s (default {proto.DEFAULT_CAN_TIMEOUT})")  # fmt: skip
-    w.add_argument("--silences", type=float_list(positive("s")), default=None, metavar="S,S,...",
-                   help="silences to probe, s, comma separated (default 0.5,0.9,1.1,1.5 x it)")  # fmt: skip
+    w.add_argument(
+        "--can-timeout",
+        type=can_timeout_arg,
+        default=proto.DEFAULT_CAN_TIMEOUT,
+        metavar="S",
+        help=f"watchdog to arm and measure, s (default {proto.DEFAULT_CAN_TIMEOUT})",
+    )
+    w.add_argument(
+        "--silences",
+        type=float_list(positive("s")),
+        default=None,
+        metavar="S,S,...",
+        help="silences to probe, s, comma separated (default 0.5,0.9,1.1,1.5 x it)",
+    )
+    ident = sub.add_parser("identify", help="excite the arms, fit friction, armature, strength, payload")
+    common(ident)
+    ident.add_argument("--channels", default=None, metavar="SPEC", help=HELP["--channels"])
+    ident.add_argument("--out", required=True, metavar="FILE", help="robot-parameters JSON to write")
+    ident.add_argument(
+        "--arms",
+        type=_arms,
+        default=["left", "right"],
+        metavar="ARMS",
+        help="arms to excite, comma separated: left,right (default both, at once)",
+    )
+    ident.add_argument(
+        "--seconds",
+        type=positive("s"),
+        default=40.0,
+        metavar="S",
+        help="excitation time per arm, ramps included (default 40; at most 60)",
+    )
+    ident.add_argument(
+        "--rate",
+        type=positive("Hz"),
+        default=500.0,
+        metavar="HZ",
+        help="command rounds per second (default 500: one 2 ms physics step per round)",
+    )
+    ident.add_argument(
+        "--budget",
+        type=positive("x"),
+        default=0.5,
+        metavar="FRACTION",
+        help="torque budget, fraction of each joint's cap, at most 0.5 (default 0.5)",
+    )
+    ident.add_argument(
+        "--calibration", default=None, metavar="PATH", help="calibration JSON (default: zeros)"
+    )
+    ident.add_argument(
+        "--can-log",
+        default=None,
+        metavar="FILE",
+        help="raw CAN traffic to this .blf or .asc file (as bar-deploy's run.blf)",
+    )
+    ident.add_argument(
+        "--unloaded",
+        action="store_true",
+        help="the hands carry nothing: fit each joint's strength (payload held at 0)",
+    )
+    ident.add_argument(
+        "--strength-from",
+        default=None,
+        metavar="FILE",
+        help="parameters file of an --unloaded run: its strengths are held while the payload "
+        "is fitted (default: strength 1)",
+    )
     return p
+
+
+def _arms(text: str) -> list[str]:
+    arms = [a.strip() for a in text.split(",") if a.strip()]
+    bad = [a for a in arms if a not in ("left", "right")]
+    if bad or not arms or len(set(arms)) != len(arms):
+        raise argparse.ArgumentTypeError(f"arms must be left, right or left,right; got {text!r}")
+    return arms
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``bar-bus``; returns the exit status."""
     parser = _parser()
     args = parser.parse_args(argv)
-    if getattr(args, "emulate_perturb", None) is not None and not args.emulate:
+    implied = args.command == "identify" and args.interface == "virtual"
+    if getattr(args, "emulate_perturb", None) is not None and not args.emulate and not implied:
         parser.error("--emulate-perturb perturbs the in-process emulator's robot: give --emulate too")
-    commands = {"discover": _discover, "calibrate": _calibrate, "param": _param, "watchdog": _watchdog}
+    commands = {
+        "discover": _discover,
+        "calibrate": _calibrate,
+        "param": _param,
+        "watchdog": _watchdog,
+        "identify": _identify,
+    }
     try:
         return commands[args.command](args)
+    except _UsageError as exc:
+        print(f"bar-bus: error: {exc}", file=sys.stderr)
+        return 2
     except (RobstrideError, can.CanError, OSError, ValueError) as exc:
         print(f"bar-bus: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 1
