@@ -1,0 +1,100 @@
+"""``bar-bus identify``'s procedure on the lockstep emulator: the budget, the end on a fault, and the fit of
+a hidden robot within the targets (the shoulder and elbow joints; the wrists are not within them, see
+docs/sysid.md)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bar_policy.robot.perturb_spec import parse_perturbation
+from bar_policy.robot.sysid_excitation import Excitation
+from bar_policy.robstride.canbus import open_can_buses
+from bar_policy.robstride.emulator_perturb import PerturbedEmulator
+from bar_policy.robstride.errors import FaultError
+from bar_policy.robstride.group import RobstrideGroup
+from bar_policy.robstride.identify import BudgetError, Supervisor, fit_recording, run_excitation
+
+from .conftest import assert_ends_with_damping_then_stop
+
+PERIOD = 0.002
+"""One physics step per round (``bar-bus identify``'s default rate on the emulated bus)."""
+
+
+def test_supervisor_budget_is_half_of_each_cap(robot) -> None:
+    sup = Supervisor(robot)
+    caps = np.array([j.torque_cap for j in robot.joints])
+    # shoulder pitch cap 17 N*m: budget 8.5; wrist caps 4 N*m: budget 2
+    assert caps[0] == 17.0 and caps[4] == 4.0
+    ok = 0.5 * caps
+    sup.check(ok, "commanded")  # exactly at the budget: allowed
+    over = ok.copy()
+    over[4] = 2.01
+    with pytest.raises(
+        BudgetError, match=r"left_wrist_yaw: commanded torque \+2.01 N\*m exceeds the budget \+-2.00"
+    ):
+        sup.check(over, "commanded")
+    with pytest.raises(ValueError, match=r"valid \(0, 0.5\]"):
+        Supervisor(robot, budget=0.6)
+
+
+def _group(robot, channels) -> RobstrideGroup:
+    return RobstrideGroup.from_robot(
+        robot, open_can_buses("virtual", channels), reply_timeout=1.0, can_timeout=0.0
+    )
+
+
+def test_fault_mid_excitation_ends_in_damping_then_stop(robot, channels, make_emulator, listeners) -> None:
+    emu = make_emulator(control_dt=PERIOD)
+    group = _group(robot, channels)
+    start = group.activate(lower=robot.lower, upper=robot.upper).q
+    ex = Excitation.plan(robot, start, ("left",), 21.0)
+    sup = Supervisor(robot)
+
+    def fault(k: int, q: np.ndarray) -> None:
+        if k == 200:
+            emu.inject("left_elbow_pitch", fault_bits=0b000100)
+
+    with pytest.raises(FaultError, match="left_elbow_pitch"):
+        run_excitation(group, robot, ex, sup, period=PERIOD, realtime=False, on_round=fault)
+    group.shutdown()
+    for iface, ids in (("can0", list(range(11, 18))), ("can1", list(range(21, 28)))):
+        assert_ends_with_damping_then_stop(listeners[iface], ids)
+    assert 0 < sup.peak <= 0.5
+    assert not any(emu.enabled().values())
+
+
+def test_budget_breach_ends_in_damping_then_stop(robot, channels, make_emulator, listeners) -> None:
+    make_emulator(control_dt=PERIOD)
+    group = _group(robot, channels)
+    start = group.activate(lower=robot.lower, upper=robot.upper).q
+    ex = Excitation.plan(robot, start, ("left",), 21.0)
+    # a 2 % budget: the first ramp's gravity feed-forward of the shoulder already exceeds 0.34 N*m
+    sup = Supervisor(robot, budget=0.02)
+    with pytest.raises(BudgetError, match="exceeds the budget"):
+        run_excitation(group, robot, ex, sup, period=PERIOD, realtime=False)
+    group.shutdown()
+    for iface, ids in (("can0", list(range(11, 18))), ("can1", list(range(21, 28)))):
+        assert_ends_with_damping_then_stop(listeners[iface], ids)
+
+
+@pytest.mark.slow
+def test_identifies_a_hidden_payload_and_friction(robot, channels) -> None:
+    """0.4 kg at the fingertip, friction + 0.5 N*m (total 0.6), hidden; one arm, 21 s of excitation."""
+    hidden = parse_perturbation("payload_kg=0.4,friction_nm=0.5")
+    with PerturbedEmulator(robot, channels, perturbation=hidden, mode="lockstep", control_dt=PERIOD):
+        group = _group(robot, channels)
+        start = group.activate(lower=robot.lower, upper=robot.upper).q
+        ex = Excitation.plan(robot, start, ("left",), 21.0)
+        sup = Supervisor(robot)
+        rec = run_excitation(group, robot, ex, sup, period=PERIOD, realtime=False)
+        group.shutdown()
+    reported = np.abs(np.array(rec.tau)) / sup.cap
+    assert reported.max() <= 0.5 and sup.peak <= 0.5  # never above half a cap, asked or reported
+    fit = fit_recording(robot, rec, ("left",), PERIOD)["left"]
+    # targets: payload mass within 15 %, friction within 20 %, armature within 25 % (shoulder pitch, roll,
+    # elbow: the model's armature 0.005, 0.002, 0.002 kg*m^2 is the truth; friction 0.1 + 0.5)
+    assert fit.mass == pytest.approx(0.4, rel=0.15)
+    for c in (0, 1, 3):
+        assert fit.friction[c] == pytest.approx(0.6, rel=0.2), fit.joints[c]
+        assert fit.armature[c] == pytest.approx([0.005, 0.002, 0.002, 0.002][c], rel=0.25), fit.joints[c]
