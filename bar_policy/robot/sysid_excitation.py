@@ -2,7 +2,7 @@
 
 ``Excitation.plan(robot, arms, seconds)`` lays out, per selected arm, ``POSES`` (left arm; the right arm is
 mirrored): a 2.5 s smooth ramp (cosine) from where the arm is to each pose, then a multisine around it
-(each joint its own set of frequencies, 0.13-1.2 Hz, so the joints move together but not in step; amplitude
+(each joint its own set of frequencies, 0.11-1.07 Hz, so the joints move together but not in step; amplitude
 ``AMPLITUDE_RAD`` per joint). ``at(t)`` gives the position and velocity targets; the firmware's MIT law
 (the robot's own Kp, Kd) tracks them, with the model's gravity torque at the target as feed-forward.
 
@@ -33,7 +33,7 @@ POSES: tuple[tuple[float, ...], ...] = (
 wrist roll negated)."""
 MIRROR = np.array([1.0, -1.0, -1.0, 1.0, -1.0, -1.0, 1.0])
 """Sign from the left arm's pose to the right arm's, per joint."""
-AMPLITUDE_RAD = np.array([0.2, 0.2, 0.25, 0.25, 0.25, 0.12, 0.2])
+AMPLITUDE_RAD = np.array([0.2, 0.2, 0.25, 0.25, 0.15, 0.1, 0.12])
 """Multisine amplitude per joint (the sum of its sines peaks at this), rad."""
 FREQS_HZ = np.array(
     [
@@ -41,9 +41,9 @@ FREQS_HZ = np.array(
         [0.17, 0.49, 0.97],
         [0.23, 0.59, 1.07],
         [0.14, 0.47, 0.91],
-        [0.23, 0.67, 1.19],
-        [0.29, 0.73, 1.13],
-        [0.31, 0.53, 1.03],
+        [0.19, 0.43, 0.79],
+        [0.21, 0.37, 0.71],
+        [0.11, 0.33, 0.67],
     ]
 )
 """Multisine frequencies per joint, Hz (three each, none shared)."""

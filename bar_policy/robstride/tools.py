@@ -280,6 +280,41 @@ def _identify(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_calibration(args: argparse.Namespace) -> int:
+    """``bar-bus check-calibration``: the joints read (motors disabled) against a named resting pose."""
+    from bar_policy.robot.calibration_check import check_pose
+
+    robot = load_robot(args.mode)
+    channels = _robot_channels(args)
+    try:
+        calibration = Calibration.load(args.calibration)
+    except (OSError, ValueError) as exc:
+        raise _UsageError(" ".join(str(exc).split())) from None
+    try:
+        pose = robot.pose(args.pose)
+    except ValueError as exc:
+        raise _UsageError(str(exc)) from None
+    with _emulator(args, channels):
+        group = RobstrideGroup.from_robot(
+            robot, open_can_buses(args.interface, channels), calibration=calibration,
+            reply_timeout=args.timeout, can_timeout=0.0,
+        )  # fmt: skip
+        try:
+            group.scan_and_verify(range(1, 128), timeout=args.timeout)
+            if args.settle:
+                time.sleep(args.settle)
+            q = np.mean([group.poll_disabled(strict=True).q for _ in range(args.reads)], axis=0)
+        finally:
+            group.stop()
+            group.shutdown()
+    ok, text = check_pose(robot, q, pose, threshold=args.threshold, pose_name=args.pose)
+    if not ok:
+        print(f"bar-bus: error: {text}", file=sys.stderr)
+        return 2
+    print(text)
+    return 0
+
+
 class _UsageError(ValueError):
     """A bad argument found after parsing (a file's content): one line, exit 2."""
 
@@ -467,6 +502,20 @@ def _parser() -> argparse.ArgumentParser:
         help="parameters file of an --unloaded run: its strengths are held while the payload "
         "is fitted (default: strength 1)",
     )
+    ck = sub.add_parser("check-calibration", help="verify a saved calibration against a known resting pose")
+    common(ck)
+    ck.add_argument("--channels", default=None, metavar="SPEC", help=HELP["--channels"])
+    ck.add_argument("--calibration", default="calibration.json", metavar="PATH",
+                    help="calibration JSON to check (default calibration.json)")  # fmt: skip
+    ck.add_argument("--pose", default="arms_hanging", metavar="NAME",
+                    help="the pose the robot rests in, disabled (default arms_hanging: arms hanging at their "
+                         "stops)")  # fmt: skip
+    ck.add_argument("--threshold", type=positive("rad"), default=0.005, metavar="RAD",
+                    help="largest error on any joint, rad (default 0.005); beyond it: exit 2")  # fmt: skip
+    ck.add_argument("--reads", type=int_range(1, 1000), default=10, metavar="N",
+                    help="readings averaged (default 10)")  # fmt: skip
+    ck.add_argument("--settle", type=positive("s"), default=None, metavar="S",
+                    help="wait this long before reading, s (default: none)")  # fmt: skip
     return p
 
 
@@ -491,6 +540,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "param": _param,
         "watchdog": _watchdog,
         "identify": _identify,
+        "check-calibration": _check_calibration,
     }
     try:
         return commands[args.command](args)
