@@ -25,15 +25,15 @@ __all__ = ["AMPLITUDE_RAD", "LIMIT_MARGIN_RAD", "POSES", "Excitation"]
 
 POSES: tuple[tuple[float, ...], ...] = (
     (-0.5, -1.1, 0.0, -1.0, 0.0, 0.0, 0.0),
-    (-1.2, -0.8, 0.4, -0.5, 0.5, 0.25, 0.3),
-    (-0.15, -1.2, -0.4, -1.6, -0.5, -0.25, -0.3),
-    (-0.9, -0.6, -0.3, -1.2, 0.3, -0.2, 0.35),
+    (-1.2, -0.8, 0.4, -0.5, 0.5, 0.1, 0.2),
+    (-0.15, -1.2, -0.4, -1.6, -0.5, -0.1, -0.2),
+    (-0.9, -0.6, -0.3, -1.2, 0.3, -0.1, 0.2),
 )
 """Held poses of the left arm, rad, shoulder pitch to wrist pitch (the right arm: roll, yaw, wrist yaw and
 wrist roll negated)."""
 MIRROR = np.array([1.0, -1.0, -1.0, 1.0, -1.0, -1.0, 1.0])
 """Sign from the left arm's pose to the right arm's, per joint."""
-AMPLITUDE_RAD = np.array([0.2, 0.2, 0.25, 0.25, 0.15, 0.1, 0.12])
+AMPLITUDE_RAD = np.array([0.2, 0.2, 0.25, 0.25, 0.15, 0.08, 0.1])
 """Multisine amplitude per joint (the sum of its sines peaks at this), rad."""
 FREQS_HZ = np.array(
     [
