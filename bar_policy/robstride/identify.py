@@ -46,6 +46,27 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 HANDS = {"left": "left_hand", "right": "right_hand"}
+PAYLOAD_JOINTS = 4
+"""The first joints of each arm (shoulder pitch, roll, yaw, elbow) whose rows fit the payload."""
+
+
+def merge_fits(a: ArmFit, b: ArmFit) -> ArmFit:
+    """One arm's fit of two joint sets: ``a``'s joints then ``b``'s; the payload is ``a``'s."""
+    cat = np.concatenate
+    return ArmFit(
+        joints=a.joints + b.joints,
+        strength=cat([a.strength, b.strength]),
+        friction=cat([a.friction, b.friction]),
+        damping=cat([a.damping, b.damping]),
+        armature=cat([a.armature, b.armature]),
+        half95={k: cat([a.half95[k], b.half95[k]]) for k in a.half95},
+        mass=a.mass,
+        mass_half95=a.mass_half95,
+        com=a.com,
+        com_half95=a.com_half95,
+        rows=a.rows + b.rows,
+        rms=float(np.sqrt((a.rms**2 * a.rows + b.rms**2 * b.rows) / (a.rows + b.rows))),
+    )
 
 
 class BudgetError(RobstrideError):
@@ -234,18 +255,24 @@ def fit_recording(
             id_base = reg.inverse(samples)
             u = reg.friction_force(samples)
         known = None if not payload else (strength or {}).get(arm, np.ones(len(idx)))
-        fits[arm] = fit_arm(
-            samples,
-            idx,
-            robot.joint_names,
-            reg if payload else None,
+        common = dict(
             id_base=id_base,
             smooth=max(1, round(smooth_s / period)),
             friction_u=u,
             v_min=0.0,
             iterations=6,
-            strength=known,
         )
+        # stage 1: shoulders and elbow, with the payload; stage 2: the wrists, with that payload's force
+        # known (a wrist's few g*m^2 and its soft friction make its rows noisy: they would pull the mass)
+        big, wrists = idx[:PAYLOAD_JOINTS], idx[PAYLOAD_JOINTS:]
+        k_big = None if known is None else known[:PAYLOAD_JOINTS]
+        k_wr = None if known is None else known[PAYLOAD_JOINTS:]
+        f1 = fit_arm(samples, big, robot.joint_names, reg if payload else None, strength=k_big, **common)
+        base2 = id_base
+        if payload:
+            base2 = id_base + f1.mass * reg.columns(samples, id_base, f1.com)[:, :, 0]
+        f2 = fit_arm(samples, wrists, robot.joint_names, None, strength=k_wr, **{**common, "id_base": base2})
+        fits[arm] = merge_fits(f1, f2)
     return fits
 
 
@@ -275,7 +302,7 @@ def to_params(fits: dict[str, ArmFit], source: dict[str, object]) -> RobotParams
                 damping=nonneg(f"{name}.damping", fit.damping[c], fit.half95["damping"][c]),
                 armature=nonneg(f"{name}.armature", fit.armature[c], fit.half95["armature"][c]),
                 strength=_est(fit.strength[c], fit.half95["strength"][c])
-                if fit.half95["strength"][c] > 0
+                if fit.half95["strength"][c] > 1e-9
                 else Estimate(float(fit.strength[c])),  # held, not fitted: no interval
             )
     payload: dict[str, Payload] = {}
@@ -285,6 +312,7 @@ def to_params(fits: dict[str, ArmFit], source: dict[str, object]) -> RobotParams
         mass = nonneg(f"payload.{arm}.mass_kg", fit.mass, fit.mass_half95)
         com = tuple(float(x) for x in np.clip(fit.com, -0.5, 0.5))
         if mass.value == 0.0 or not np.allclose(com, fit.com):
+            floored.append(f"payload.{arm}.com_m={np.round(fit.com, 3).tolist()} (written as 0)")
             com = (0.0, 0.0, 0.0)
             cis = None
         else:
@@ -292,6 +320,7 @@ def to_params(fits: dict[str, ArmFit], source: dict[str, object]) -> RobotParams
         payload[arm] = Payload(mass, com, cis)  # type: ignore[arg-type]
     src = dict(source)
     if floored:
-        log.warning("identify: %d negative estimates written as 0: %s", len(floored), ", ".join(floored))
-        src["notes"] = f"{len(floored)} negative estimates written as 0: " + ", ".join(floored)
+        log.warning("identify: %d estimates out of range written as 0: %s", len(floored), ", ".join(floored))
+        note = f"{len(floored)} estimates out of the file's range written as 0: " + ", ".join(floored)
+        src["notes"] = f"{src['notes']}; {note}" if src.get("notes") else note
     return RobotParams(joints, payload, src)
