@@ -33,6 +33,7 @@ No jax, no torch.
 from __future__ import annotations
 
 import copy
+import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -43,8 +44,12 @@ from bar_policy.robot.index import RobotIndex
 
 __all__ = ["ArmFit", "ArmSamples", "PayloadRegressor", "fit_arm", "rigid_model", "unit_payload_model"]
 
+log = logging.getLogger(__name__)
+
 PAYLOAD_RADIUS = 0.01
 """The unit payload's inertia is a 1 cm sphere's, as the perturbed model's and the params file's."""
+COM_SEARCH_M = 0.5
+"""The centre iteration stays within this of the hand's origin, m (a hand is ~0.2 m long)."""
 Z95 = 1.959963984540054
 """Two-sided 95 % normal quantile."""
 
@@ -278,6 +283,9 @@ def fit_arm(
             continue
         m = x[4 * nj]
         dc = x[4 * nj + 1 :] / m if abs(m) > 1e-6 else np.zeros(3)
+        if np.abs(com + dc).max() > COM_SEARCH_M:  # no payload to place (m ~ 0): keep the last centre
+            log.warning("payload centre left +-%.1f m (mass %.3g kg): kept at %s", COM_SEARCH_M, m, com)
+            dc = np.zeros(3)
         com = com + dc
     resid = b - a_mat @ x
     dof = max(len(b) - len(x), 1)

@@ -26,7 +26,7 @@ import numpy as np
 from bar_policy.robot.constants import RobotSpec
 from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.mit import MitCommand
-from bar_policy.robot.params import Estimate, JointParams, Payload, RobotParams
+from bar_policy.robot.params import JOINT_KEYS, MASS_RANGE, Estimate, JointParams, Payload, RobotParams
 from bar_policy.robot.scene import load_model, robot_spec
 from bar_policy.robot.sysid_excitation import Excitation
 from bar_policy.robot.sysid_fit import ArmFit, ArmSamples, PayloadRegressor, fit_arm
@@ -283,16 +283,21 @@ def _est(v: float, h: float) -> Estimate:
 def to_params(fits: dict[str, ArmFit], source: dict[str, object]) -> RobotParams:
     """The params file of the fits.
 
-    A negative friction, damping, armature or mass is written as 0 and counted in ``source.notes`` (a value
-    the file cannot hold; its interval says how sure the fit was).
+    An estimate out of the file's range (a negative friction, damping, armature or mass; one above the
+    range) is written at the range's end and listed in ``source.notes`` and the log, with the value found
+    (a value the file cannot hold; its interval, widened to hold what is written, says how sure the fit
+    was).
     """
     joints: dict[str, JointParams] = {}
     floored: list[str] = []
 
     def nonneg(name: str, v: float, h: float) -> Estimate:
-        if v < 0:
-            floored.append(f"{name}={v:.4g}")
-            return Estimate(0.0, (min(0.0, float(v - h)), max(0.0, float(v + h))))
+        key = name.rsplit(".", 1)[-1]
+        lo, hi = JOINT_KEYS.get(key, (*MASS_RANGE, ""))[:2]
+        if not lo <= v <= hi:
+            w = min(max(v, lo), hi)
+            floored.append(f"{name}={v:.4g} (written as {w:g})")
+            return Estimate(float(w), (min(w, float(v - h)), max(w, float(v + h))))
         return _est(v, h)
 
     for fit in fits.values():
@@ -312,7 +317,7 @@ def to_params(fits: dict[str, ArmFit], source: dict[str, object]) -> RobotParams
         mass = nonneg(f"payload.{arm}.mass_kg", fit.mass, fit.mass_half95)
         com = tuple(float(x) for x in np.clip(fit.com, -0.5, 0.5))
         if mass.value == 0.0 or not np.allclose(com, fit.com):
-            floored.append(f"payload.{arm}.com_m={np.round(fit.com, 3).tolist()} (written as 0)")
+            floored.append(f"payload.{arm}.com_m={np.round(fit.com, 3).tolist()} (written as [0, 0, 0])")
             com = (0.0, 0.0, 0.0)
             cis = None
         else:
@@ -321,6 +326,6 @@ def to_params(fits: dict[str, ArmFit], source: dict[str, object]) -> RobotParams
     src = dict(source)
     if floored:
         log.warning("identify: %d estimates out of range written as 0: %s", len(floored), ", ".join(floored))
-        note = f"{len(floored)} estimates out of the file's range written as 0: " + ", ".join(floored)
+        note = f"{len(floored)} estimates out of the file's range: " + ", ".join(floored)
         src["notes"] = f"{src['notes']}; {note}" if src.get("notes") else note
     return RobotParams(joints, payload, src)

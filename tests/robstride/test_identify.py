@@ -102,3 +102,36 @@ def test_identifies_a_hidden_payload_and_friction(robot, channels) -> None:
     assert fit.mass == pytest.approx(0.4, rel=0.15)
     for c in (0, 1, 3):
         assert fit.friction[c] == pytest.approx(0.6, rel=0.2), fit.joints[c]
+
+
+def test_out_of_range_estimates_are_written_at_the_range_end_and_noted() -> None:
+    from bar_policy.robot.sysid_fit import ArmFit
+    from bar_policy.robstride.identify import to_params
+
+    z = np.zeros(2)
+    fit = ArmFit(
+        joints=("left_elbow_pitch", "left_wrist_yaw"),
+        strength=np.array([1.0, 0.95]),
+        friction=np.array([0.6, -0.01]),
+        damping=np.array([-0.2, 25.0]),
+        armature=np.array([0.002, 0.003]),
+        half95={"strength": np.array([0.0, 0.01]), "friction": z + 0.05, "damping": z + 0.1, "armature": z},
+        mass=0.4,
+        mass_half95=0.01,
+        com=np.array([0.0, -0.1, 0.0]),
+        com_half95=np.array([0.01, 0.01, 0.01]),
+        rows=100,
+        rms=0.01,
+    )
+    p = to_params({"left": fit}, {"kind": "identify", "notes": "hidden: x"})
+    e, w = p.joints["left_elbow_pitch"], p.joints["left_wrist_yaw"]
+    assert e.damping.value == 0.0 and e.damping.ci95 == (-0.30000000000000004, 0.0)  # -0.2 -+ 0.1
+    assert w.damping.value == 20.0 and w.damping.ci95 == (20.0, 25.1)
+    assert w.friction_nm.value == 0.0
+    assert e.strength.ci95 is None  # held (half-width 0): no interval
+    assert w.strength.ci95 == (0.94, 0.96)
+    notes = p.source["notes"]
+    assert notes.startswith("hidden: x; 3 estimates out of the file's range: ")
+    assert "left_elbow_pitch.damping=-0.2 (written as 0)" in notes
+    assert "left_wrist_yaw.damping=25 (written as 20)" in notes
+    assert p.payload["left"].mass_kg.value == 0.4
