@@ -135,3 +135,25 @@ def test_out_of_range_estimates_are_written_at_the_range_end_and_noted() -> None
     assert "left_elbow_pitch.damping=-0.2 (written as 0)" in notes
     assert "left_wrist_yaw.damping=25 (written as 20)" in notes
     assert p.payload["left"].mass_kg.value == 0.4
+
+
+def test_identify_cli_refusals_exit_2(tmp_path, capsys) -> None:
+    from bar_policy.robstride.tools import main
+
+    base = ["identify", "--can-interface", "virtual", "--out", str(tmp_path / "p.json")]
+    with pytest.raises(SystemExit) as e:
+        main([*base, "--arms", "left,middle"])
+    assert e.value.code == 2
+    assert "arms must be left, right or left,right; got 'left,middle'" in capsys.readouterr().err
+    for budget in ("0", "0.6"):
+        with pytest.raises(SystemExit) as e:
+            main([*base, "--budget", budget])
+        assert e.value.code == 2
+    assert "must be a fraction of the cap in (0, 0.5], got '0.6'" in capsys.readouterr().err
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"version": 1, "joints": {"left_elbow_pitch": {"strength": {"value": NaN}}}}')
+    assert main([*base, "--strength-from", str(bad)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("bar-bus: error: ") and "\n" not in err
+    assert err.endswith("bad.json: joints.left_elbow_pitch: missing 'friction_nm', 'damping', 'armature'")
+    assert not (tmp_path / "p.json").exists()
