@@ -325,7 +325,9 @@ def to_params(fits: dict[str, ArmFit], source: dict[str, object]) -> RobotParams
         payload[arm] = Payload(mass, com, cis)  # type: ignore[arg-type]
     src = dict(source)
     if floored:
-        log.warning("identify: %d estimates out of range written as 0: %s", len(floored), ", ".join(floored))
+        log.warning(
+            "identify: %d estimates out of range, written at its end: %s", len(floored), ", ".join(floored)
+        )
         note = f"{len(floored)} estimates out of the file's range: " + ", ".join(floored)
         src["notes"] = f"{src['notes']}; {note}" if src.get("notes") else note
     return RobotParams(joints, payload, src)
