@@ -283,10 +283,10 @@ def _est(v: float, h: float) -> Estimate:
 def to_params(fits: dict[str, ArmFit], source: dict[str, object]) -> RobotParams:
     """The params file of the fits.
 
-    An estimate out of the file's range (a negative friction, damping, armature or mass; one above the
-    range) is written at the range's end and listed in ``source.notes`` and the log, with the value found
-    (a value the file cannot hold; its interval, widened to hold what is written, says how sure the fit
-    was).
+    An estimate out of the file's range (a negative friction, damping, armature or mass; a strength
+    outside 0.3..1.5; one above the range) is written at the range's end and listed in ``source.notes``
+    and the log, with the value found (a value the file cannot hold; its interval, widened to hold what
+    is written, says how sure the fit was).
     """
     joints: dict[str, JointParams] = {}
     floored: list[str] = []
@@ -306,7 +306,7 @@ def to_params(fits: dict[str, ArmFit], source: dict[str, object]) -> RobotParams
                 friction_nm=nonneg(f"{name}.friction_nm", fit.friction[c], fit.half95["friction"][c]),
                 damping=nonneg(f"{name}.damping", fit.damping[c], fit.half95["damping"][c]),
                 armature=nonneg(f"{name}.armature", fit.armature[c], fit.half95["armature"][c]),
-                strength=_est(fit.strength[c], fit.half95["strength"][c])
+                strength=nonneg(f"{name}.strength", fit.strength[c], fit.half95["strength"][c])
                 if fit.half95["strength"][c] > 1e-9
                 else Estimate(float(fit.strength[c])),  # held, not fitted: no interval
             )

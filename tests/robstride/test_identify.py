@@ -111,7 +111,7 @@ def test_out_of_range_estimates_are_written_at_the_range_end_and_noted() -> None
     z = np.zeros(2)
     fit = ArmFit(
         joints=("left_elbow_pitch", "left_wrist_yaw"),
-        strength=np.array([1.0, 0.95]),
+        strength=np.array([1.0, 0.05]),
         friction=np.array([0.6, -0.01]),
         damping=np.array([-0.2, 25.0]),
         armature=np.array([0.002, 0.003]),
@@ -129,9 +129,10 @@ def test_out_of_range_estimates_are_written_at_the_range_end_and_noted() -> None
     assert w.damping.value == 20.0 and w.damping.ci95 == (20.0, 25.1)
     assert w.friction_nm.value == 0.0
     assert e.strength.ci95 is None  # held (half-width 0): no interval
-    assert w.strength.ci95 == (0.94, 0.96)
+    assert w.strength.value == 0.3 and w.strength.ci95 == (0.04, 0.3)  # 0.05 -+ 0.01, widened to 0.3
     notes = p.source["notes"]
-    assert notes.startswith("hidden: x; 3 estimates out of the file's range: ")
+    assert notes.startswith("hidden: x; 4 estimates out of the file's range: ")
+    assert "left_wrist_yaw.strength=0.05 (written as 0.3)" in notes
     assert "left_elbow_pitch.damping=-0.2 (written as 0)" in notes
     assert "left_wrist_yaw.damping=25 (written as 20)" in notes
     assert p.payload["left"].mass_kg.value == 0.4
