@@ -158,3 +158,25 @@ def test_identify_cli_refusals_exit_2(tmp_path, capsys) -> None:
     assert err.startswith("bar-bus: error: ") and "\n" not in err
     assert err.endswith("bad.json: joints.left_elbow_pitch: missing 'friction_nm', 'damping', 'armature'")
     assert not (tmp_path / "p.json").exists()
+
+
+@pytest.mark.slow
+def test_identifies_a_hidden_strength_unloaded(robot, channels) -> None:
+    """Strength 0.9 and friction + 0.5 N*m hidden, hands empty (``--unloaded``); one arm, 21 s."""
+    hidden = parse_perturbation("strength=0.9,friction_nm=0.5")
+    with PerturbedEmulator(robot, channels, perturbation=hidden, mode="lockstep", control_dt=PERIOD):
+        group = _group(robot, channels)
+        start = group.activate(lower=robot.lower, upper=robot.upper).q
+        rec = run_excitation(
+            group, robot, Excitation.plan(robot, start, ("left",), 21.0), Supervisor(robot), period=PERIOD,
+            realtime=False,
+        )  # fmt: skip
+        group.shutdown()
+    fit = fit_recording(robot, rec, ("left",), PERIOD, payload=False)["left"]
+    print(f"strength {np.round(fit.strength, 3)}; friction {np.round(fit.friction, 3)}")
+    # target: strength within 5 %; met at 21 s on the shoulder pitch, roll and elbow (measured 0.894, 0.910,
+    # 0.887); the shoulder yaw needs the CLI's 40 s (0.849 here, 0.881 at 40 s); the wrists are not met
+    # (docs/sysid.md)
+    for c in (0, 1, 3):
+        assert fit.strength[c] == pytest.approx(0.9, rel=0.05), fit.joints[c]
+    assert fit.mass == 0.0
