@@ -153,8 +153,8 @@ def run_excitation(
 
     ``realtime``: pace the rounds on the wall clock (the real robot); False: back to back (the lockstep
     emulator, whose physics advances one period per round). ``on_round(k, q)``: called after each reading
-    (tests inject faults there). Raises what ended the run (after damping then stop); ``StopIteration`` is
-    never raised: a stop request ends early and the caller sees a short recording with ``stopped``.
+    (tests inject faults there). Raises what ended the run, after damping then stop: ``BudgetError``, a
+    ``RobstrideError`` (a fault, a missing reply), or ``KeyboardInterrupt`` when ``stop()`` turned true.
     """
     model = load_model(robot.mode)
     index = RobotIndex.from_model(model, robot.joint_names)

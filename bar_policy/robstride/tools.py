@@ -5,6 +5,8 @@
     bar-bus param read  --channel can0 --id 11 --index 0x700B [--type f32]
     bar-bus param write --channel can0 --id 11 --index 0x700B --value 12.0 [--type f32]
     bar-bus watchdog --channel can0 --id 11 [--can-timeout 0.2] [--silences 0.1,0.18,0.22,0.3]
+    bar-bus identify --out params.json [--arms left,right] [--seconds 40] [--budget 0.5] [--unloaded]
+    bar-bus check-calibration [--calibration cal.json] [--pose arms_hanging] [--threshold 0.005]
 
 Option names are ``bar-deploy``'s for the same things (``robstride.cli_args``): ``--can-interface``,
 ``--channel`` / ``--channels``, ``--calibration``, ``--reply-timeout``, ``--scan-to``, ``--can-timeout``.
@@ -18,8 +20,14 @@ JSON on Ctrl+C (or after ``--duration``). ``watchdog`` measures the CAN watchdog
 (``watchdog.probe_watchdog``; the motor is enabled with zero torque). ``--emulate`` (with ``--can-interface
 virtual``) answers with the in-process emulator, for a demonstration without hardware.
 
-Stop path of ``calibrate`` and ``watchdog`` (the commands that command motors): SIGINT, SIGTERM and SIGHUP
-(``StopSignals``) and any exception end the same way: damping frames, then stop frames, on every bus
+``identify`` (``robstride.identify``, docs/sysid.md) excites each arm in turn around held poses inside a
+torque budget, then fits friction, damping, armature, strength and the hand's payload and writes a
+robot-parameters file (``robot.params``); on ``--can-interface virtual`` the lockstep emulator answers.
+``check-calibration`` reads the joints (motors disabled) through a saved calibration against a resting pose
+and exits 2 beyond the threshold.
+
+Stop path of ``calibrate``, ``identify`` and ``watchdog`` (the commands that command motors): SIGINT,
+SIGTERM and SIGHUP (``StopSignals``) and any exception end the same way: damping frames, then stop frames, on every bus
 (``RobstrideGroup.damping_then_stop``); a second signal is counted and cannot skip them. Then ``calibrate``
 writes the calibration (a stop signal is its documented way to finish: exit 0) or discards it (an exception:
 exit 1). Errors are one line on stderr (``bar-bus: error: ...``), never a traceback: exit 1 at run time,
