@@ -29,9 +29,9 @@ and exits 2 beyond the threshold.
 Stop path of ``calibrate``, ``identify`` and ``watchdog`` (the commands that command motors): SIGINT,
 SIGTERM and SIGHUP (``StopSignals``) and any exception end the same way: damping frames, then stop frames,
 on every bus (``RobstrideGroup.damping_then_stop``); a second signal is counted and cannot skip them. Then
-``calibrate`` writes the calibration (a stop signal is its documented way to finish: exit 0) or discards it (an exception:
-exit 1). Errors are one line on stderr (``bar-bus: error: ...``), never a traceback: exit 1 at run time,
-2 for bad arguments.
+``calibrate`` writes the calibration (a stop signal is its documented way to finish: exit 0) or discards it
+(an exception: exit 1). Errors are one line on stderr (``bar-bus: error: ...``), never a traceback: exit 1
+at run time, 2 for bad arguments.
 """
 
 from __future__ import annotations
