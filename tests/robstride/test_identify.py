@@ -180,3 +180,27 @@ def test_identifies_a_hidden_strength_unloaded(robot, channels) -> None:
     for c in (0, 1, 3):
         assert fit.strength[c] == pytest.approx(0.9, rel=0.05), fit.joints[c]
     assert fit.mass == 0.0
+
+
+@pytest.mark.slow
+def test_identify_cli_end_to_end(tmp_path, capsys) -> None:
+    """``bar-bus identify`` on the emulated bus writes a valid parameters file, its run and the CAN log."""
+    import can
+
+    from bar_policy.robot.params import load_params
+    from bar_policy.robstride.tools import main
+
+    out, blf = tmp_path / "p.json", tmp_path / "id.blf"
+    argv = ["identify", "--can-interface", "virtual", "--emulate-perturb", "payload_kg=0.4,friction_nm=0.5",
+            "--arms", "left", "--seconds", "21", "--out", str(out), "--can-log", str(blf)]  # fmt: skip
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    assert "peak torque" in text and f"wrote {out}" in text
+    p = load_params(out)
+    assert sorted(p.joints) == sorted(j for j in p.joints if j.startswith("left_")) and len(p.joints) == 7
+    assert p.source["emulated"] is True and p.source["samples"] == 10501  # 21 s at 2 ms, rounds 0..10500
+    assert "hidden emulator perturbation: payload_kg=0.4,friction_nm=0.5" in p.source["notes"]
+    assert p.payload["left"].mass_kg.value == pytest.approx(0.4, rel=0.15)
+    # the raw CAN log: every MIT command of the run went out (14 motors per round, 10501 rounds at least)
+    frames = sum(1 for m in can.LogReader(str(blf)) if not m.is_rx and m.arbitration_id >> 24 == 1)
+    assert frames >= 14 * 10501
