@@ -102,7 +102,7 @@ def test_refusals_are_one_line(edit, message) -> None:
 def test_nan_in_the_file_text_is_refused(tmp_path) -> None:
     path = tmp_path / "p.json"
     path.write_text(json.dumps(_params().to_json()).replace('"value": 0.6', '"value": NaN'))
-    with pytest.raises(ParamsError, match="friction_nm.value: nan is not a finite number"):
+    with pytest.raises(ParamsError, match=r"friction_nm\.value: nan is not a finite number"):
         load_params(path)
 
 
