@@ -21,7 +21,7 @@ import numpy as np
 
 from bar_policy.robot.constants import RobotSpec
 
-__all__ = ["AMPLITUDE_RAD", "LIMIT_MARGIN_RAD", "POSES", "Excitation"]
+__all__ = ["AMPLITUDE_RAD", "LIMIT_MARGIN_RAD", "POSES", "Excitation", "min_seconds"]
 
 POSES: tuple[tuple[float, ...], ...] = (
     (-0.5, -1.1, 0.0, -1.0, 0.0, 0.0, 0.0),
@@ -96,7 +96,7 @@ class Excitation:
         p = np.concatenate(poses, axis=1)
         hold = (seconds - RAMP_S) / len(POSES) - RAMP_S
         if hold < 2.0:
-            raise ValueError(f"excitation of {seconds:g} s is too short: needs >= {_min_seconds():g} s")
+            raise ValueError(f"excitation of {seconds:g} s is too short: needs >= {min_seconds():g} s")
         reps = len(joints) // len(MIRROR)
         ex = cls(
             joints=np.array(joints),
@@ -145,5 +145,6 @@ class Excitation:
         return q, dq
 
 
-def _min_seconds() -> float:
+def min_seconds() -> float:
+    """The shortest excitation ``plan`` accepts, s (2 s of multisine at each pose)."""
     return len(POSES) * (RAMP_S + 2.0) + RAMP_S

@@ -476,10 +476,10 @@ def _parser() -> argparse.ArgumentParser:
     )
     ident.add_argument(
         "--seconds",
-        type=positive("s"),
+        type=_seconds,
         default=40.0,
         metavar="S",
-        help="excitation time per arm, ramps included (default 40; at most 60)",
+        help="excitation time per arm, ramps included, 20.5..60 s (default 40)",
     )
     ident.add_argument(
         "--rate",
@@ -531,6 +531,17 @@ def _parser() -> argparse.ArgumentParser:
     ck.add_argument("--settle", type=positive("s"), default=None, metavar="S",
                     help="wait this long before reading, s (default: none)")  # fmt: skip
     return p
+
+
+def _seconds(text: str) -> float:
+    from bar_policy.robot.sysid_excitation import min_seconds
+
+    value = positive("s")(text)
+    if not min_seconds() <= value <= 60.0:
+        raise argparse.ArgumentTypeError(
+            f"must be {min_seconds():g}..60 s of excitation per arm, got {text!r}"
+        )
+    return value
 
 
 def _budget(text: str) -> float:

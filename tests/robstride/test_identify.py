@@ -146,6 +146,10 @@ def test_identify_cli_refusals_exit_2(tmp_path, capsys) -> None:
         main([*base, "--arms", "left,middle"])
     assert e.value.code == 2
     assert "arms must be left, right or left,right; got 'left,middle'" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as e:
+        main([*base, "--seconds", "61"])
+    assert e.value.code == 2
+    assert "must be 20.5..60 s of excitation per arm, got '61'" in capsys.readouterr().err
     for budget in ("0", "0.6"):
         with pytest.raises(SystemExit) as e:
             main([*base, "--budget", budget])
