@@ -219,7 +219,10 @@ def _run_session(
                 damping=training_damping(policy.metadata.randomization),
             )
             scene = task.scene(policy)  # type: ignore[attr-defined]
-            target = sim_target(args.mode, sim_cfg, scene=scene, perturbation=args.perturb)
+            target = sim_target(
+                args.mode, sim_cfg, scene=scene, perturbation=args.perturb,
+                robot_params=getattr(args, "robot_params", None),
+            )  # fmt: skip
         elif args.target == "mock":
             from bar_policy.deploy.targets.mock import MockTarget
 

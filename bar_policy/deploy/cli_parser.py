@@ -19,7 +19,15 @@ from bar_policy.tasks.cli_types import priority as _priority
 from bar_policy.tasks.cli_types import seconds as _seconds
 from bar_policy.tasks.cli_types import seconds0 as _seconds0
 
-__all__ = ["SUBCOMMANDS", "TARGETS", "common_options", "perturb_option", "run_parser", "target_of"]
+__all__ = [
+    "SUBCOMMANDS",
+    "TARGETS",
+    "common_options",
+    "perturb_option",
+    "robot_params_option",
+    "run_parser",
+    "target_of",
+]
 
 TARGETS = ("sim", "mock", "real")
 SUBCOMMANDS = ("run", "plot", "eval", "log")
@@ -130,9 +138,30 @@ def run_parser() -> argparse.ArgumentParser:
     p.add_argument("--video", type=Path, metavar="PATH",
                    help="sim: write a video (.mp4, or .gif without ffmpeg)")  # fmt: skip
     perturb_option(p, suite=False)
+    robot_params_option(p)
     for task in all_tasks():
         task.add_run_arguments(p)
     return p
+
+
+def robot_params_option(p: argparse.ArgumentParser) -> None:
+    """``--robot-params FILE``: sim target and emulator model the identified robot (``robot.params``).
+
+    A bad file is refused by argparse in one line (exit 2).
+    """
+
+    def parse(text: str) -> object:
+        from bar_policy.robot.params import ParamsError, load_params
+
+        try:
+            return load_params(text)
+        except ParamsError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+
+    p.add_argument("--robot-params", type=parse, default=None, metavar="FILE",
+                   help="robot-parameters file (bar-bus identify --out): the sim target and the in-process "
+                        "emulator model that robot (friction, damping, armature, payloads, "
+                        "strength)")  # fmt: skip
 
 
 def target_of(argv: Sequence[str]) -> str | None:

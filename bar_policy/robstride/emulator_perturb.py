@@ -22,6 +22,7 @@ from __future__ import annotations
 import logging
 from collections import deque
 from collections.abc import Callable, Mapping
+from dataclasses import replace
 from typing import Any
 
 import mujoco
@@ -29,6 +30,7 @@ import numpy as np
 
 from bar_policy.robot.constants import RobotSpec
 from bar_policy.robot.mit import MitCommand, firmware_torque
+from bar_policy.robot.params import RobotParams, motor_strength, scene_edit
 from bar_policy.robot.perturb import MotorPerturbation, Pusher, perturbed_scene
 from bar_policy.robot.perturb_spec import Perturbation
 from bar_policy.robot.scene import SceneEdit
@@ -176,9 +178,25 @@ class PerturbedEmulator(RobstrideEmulator):
 
 
 def emulator(
-    robot: RobotSpec, channels: Mapping[str, str], *, perturbation: Perturbation | None, **kwargs: Any
+    robot: RobotSpec,
+    channels: Mapping[str, str],
+    *,
+    perturbation: Perturbation | None,
+    robot_params: RobotParams | None = None,
+    **kwargs: Any,
 ) -> RobstrideEmulator:
-    """A ``RobstrideEmulator``, or a ``PerturbedEmulator`` when ``perturbation`` is given and not nominal."""
-    if perturbation is None or perturbation.nominal:
-        return RobstrideEmulator(robot, channels, **kwargs)
-    return PerturbedEmulator(robot, channels, perturbation=perturbation, **kwargs)
+    """A ``RobstrideEmulator``, or a ``PerturbedEmulator`` when ``perturbation`` is given and not nominal.
+
+    ``robot_params``: the emulated robot is the identified one (``robot.params``: its model edits and its
+    motors' strength), with ``perturbation`` on top (its strength multiplies the file's).
+    """
+    if robot_params is None:
+        if perturbation is None or perturbation.nominal:
+            return RobstrideEmulator(robot, channels, **kwargs)
+        return PerturbedEmulator(robot, channels, perturbation=perturbation, **kwargs)
+    kwargs["scene"] = scene_edit(robot_params, kwargs.get("scene"))
+    emu = PerturbedEmulator(robot, channels, perturbation=perturbation or Perturbation(), **kwargs)
+    mp = emu.motor_perturbation
+    emu.motor_perturbation = replace(mp, strength=mp.strength * motor_strength(robot_params, robot))
+    log.info("emulated robot from the parameters file (sha256 %s)", robot_params.sha256[:16])
+    return emu

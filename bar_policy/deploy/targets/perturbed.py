@@ -31,6 +31,7 @@ from bar_policy.deploy.targets.base import JointState
 from bar_policy.deploy.targets.sim import SimConfig, SimTarget
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.mit import MitCommand, mit_torque
+from bar_policy.robot.params import RobotParams, motor_strength, scene_edit
 from bar_policy.robot.perturb import MotorPerturbation, Pusher, perturbed_scene
 from bar_policy.robot.perturb_spec import Perturbation
 from bar_policy.robot.scene import SceneEdit
@@ -138,9 +139,27 @@ class PerturbedSimTarget(SimTarget):
 
 
 def sim_target(
-    mode: str, config: SimConfig, *, scene: SceneEdit | None, perturbation: Perturbation | None
+    mode: str,
+    config: SimConfig,
+    *,
+    scene: SceneEdit | None,
+    perturbation: Perturbation | None,
+    robot_params: RobotParams | None = None,
 ) -> SimTarget:
-    """A ``SimTarget``, or a ``PerturbedSimTarget`` when ``perturbation`` is given and not nominal."""
-    if perturbation is None or perturbation.nominal:
-        return SimTarget(mode, config, scene=scene)
-    return PerturbedSimTarget(mode, config, scene=scene, perturbation=perturbation)
+    """A ``SimTarget``, or a ``PerturbedSimTarget`` when ``perturbation`` is given and not nominal.
+
+    ``robot_params`` (``bar-deploy --robot-params``): the identified robot is the model (its friction,
+    damping, armature and payloads, ``robot.params.scene_edit``) and its motors' strength; a perturbation
+    applies on top of it (its strength multiplies the file's).
+    """
+    if robot_params is None:
+        if perturbation is None or perturbation.nominal:
+            return SimTarget(mode, config, scene=scene)
+        return PerturbedSimTarget(mode, config, scene=scene, perturbation=perturbation)
+    target = PerturbedSimTarget(
+        mode, config, scene=scene_edit(robot_params, scene), perturbation=perturbation or Perturbation()
+    )
+    strength = target.motors.strength * motor_strength(robot_params, load_robot(mode))
+    target.motors = dataclasses.replace(target.motors, strength=strength)
+    log.info("sim target of the identified robot (parameters sha256 %s)", robot_params.sha256[:16])
+    return target

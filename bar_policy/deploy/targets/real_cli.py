@@ -132,6 +132,8 @@ def _make_target(args: argparse.Namespace, mode: str, scene: SceneEdit | None = 
         )
     companions: list[object] = []
     perturbation = emulated_perturbation(args, emulate)
+    if getattr(args, "robot_params", None) is not None and emulate == "none":
+        log.info("--robot-params: a real robot is what it is; the file models only sim and emulated targets")
     if emulate != "none":
         from bar_policy.robstride.emulator_perturb import emulator as make_emulator
 
@@ -140,6 +142,7 @@ def _make_target(args: argparse.Namespace, mode: str, scene: SceneEdit | None = 
             robot, channels, interface=interface, mode=emulate,
             control_dt=getattr(args, "emulate_dt", None) or getattr(args, "control_dt", 0.02),
             offsets=offsets, scene=scene, perturbation=perturbation,
+            robot_params=getattr(args, "robot_params", None),
         )  # fmt: skip
         companions.append(emulator.start())
         log.info("started the %s Robstride emulator on %s", emulate, channels)

@@ -1,0 +1,333 @@
+"""``bar-bus identify``'s procedure: a supervised excitation over the bus, then the fit, then the params file.
+
+1. The excitation (``robot.sysid_excitation``) runs on the enabled motors at the robot's own Kp, Kd, with
+   the nominal model's gravity torque at the target as feed-forward, one MIT round per period.
+2. The supervisor, every round: the torque the law will ask for (``Kp (q* - q) + Kd (dq* - dq) + ff``, from
+   the last reading) and the torque each motor reports must stay within the budget (``budget`` x the
+   joint's cap, 50 % by default), every joint inside its limits; a motor fault, a missing reply, a stop
+   request (a signal) or any exception ends the run. Every end, normal or not, sends damping frames then
+   stop frames on every bus (``RobstrideGroup.damping_then_stop``); a run cut short writes no file.
+3. The fit (``robot.sysid_fit``), per arm, of round-averaged samples (``round_samples``).
+4. ``RobotParams`` with the values, their 95 % intervals and the run (``source``).
+
+No jax, no torch.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from bar_policy.robot.constants import RobotSpec
+from bar_policy.robot.index import RobotIndex
+from bar_policy.robot.mit import MitCommand
+from bar_policy.robot.params import JOINT_KEYS, MASS_RANGE, Estimate, JointParams, Payload, RobotParams
+from bar_policy.robot.scene import load_model, robot_spec
+from bar_policy.robot.sysid_excitation import Excitation
+from bar_policy.robot.sysid_fit import ArmFit, ArmSamples, PayloadRegressor, fit_arm
+from bar_policy.robstride.errors import RobstrideError
+from bar_policy.robstride.group import RobstrideGroup
+
+__all__ = [
+    "BudgetError",
+    "Recording",
+    "Supervisor",
+    "fit_recording",
+    "round_samples",
+    "run_excitation",
+    "to_params",
+]
+
+log = logging.getLogger(__name__)
+
+HANDS = {"left": "left_hand", "right": "right_hand"}
+PAYLOAD_JOINTS = 4
+"""The first joints of each arm (shoulder pitch, roll, yaw, elbow) whose rows fit the payload."""
+
+
+def merge_fits(a: ArmFit, b: ArmFit) -> ArmFit:
+    """One arm's fit of two joint sets: ``a``'s joints then ``b``'s; the payload is ``a``'s."""
+    cat = np.concatenate
+    return ArmFit(
+        joints=a.joints + b.joints,
+        strength=cat([a.strength, b.strength]),
+        friction=cat([a.friction, b.friction]),
+        damping=cat([a.damping, b.damping]),
+        armature=cat([a.armature, b.armature]),
+        half95={k: cat([a.half95[k], b.half95[k]]) for k in a.half95},
+        mass=a.mass,
+        mass_half95=a.mass_half95,
+        com=a.com,
+        com_half95=a.com_half95,
+        rows=a.rows + b.rows,
+        rms=float(np.sqrt((a.rms**2 * a.rows + b.rms**2 * b.rows) / (a.rows + b.rows))),
+    )
+
+
+class BudgetError(RobstrideError):
+    """The excitation would exceed (or a motor reported above) the torque budget, or left the joint limits."""
+
+
+@dataclass
+class Recording:
+    """What the excitation measured, one row per round: shapes (N,) and (N, num_joints)."""
+
+    t: list[float] = field(default_factory=list)
+    q: list[np.ndarray] = field(default_factory=list)
+    dq: list[np.ndarray] = field(default_factory=list)
+    tau: list[np.ndarray] = field(default_factory=list)
+    q_cmd: list[np.ndarray] = field(default_factory=list)
+    """Position target of each round's command (the state rows are the replies to it), rad."""
+    dq_cmd: list[np.ndarray] = field(default_factory=list)
+    ff: list[np.ndarray] = field(default_factory=list)
+    """Feed-forward torque of each round's command, N*m."""
+    peak_fraction: float = 0.0
+    """Largest ``|tau| / cap`` reported or asked for over the run (the budget's use)."""
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``t`` (N,), ``q``, ``dq``, ``tau`` (N, num_joints)."""
+        return np.array(self.t), np.array(self.q), np.array(self.dq), np.array(self.tau)
+
+
+class Supervisor:
+    """The torque budget and the joint limits, checked before each command and on each reading."""
+
+    def __init__(self, robot: RobotSpec, budget: float = 0.5, limit_margin: float = 0.05) -> None:
+        if not 0 < budget <= 0.5:
+            raise ValueError(f"torque budget {budget:g} of the cap: valid (0, 0.5]")
+        self.cap = np.array([j.torque_cap for j in robot.joints])
+        """Each joint's torque cap, N*m (the firmware's)."""
+        self.limit = budget * self.cap
+        self.lower = robot.lower - limit_margin
+        self.upper = robot.upper + limit_margin
+        self.names = robot.joint_names
+        self.peak = 0.0
+
+    def check(self, tau: np.ndarray, what: str, q: np.ndarray | None = None) -> None:
+        """``BudgetError`` naming the joint when ``|tau|`` > budget (or ``q`` is outside the limits)."""
+        frac = np.abs(tau) / self.cap
+        self.peak = max(self.peak, float(np.nanmax(frac)))
+        over = np.flatnonzero(~(np.abs(tau) <= self.limit))
+        if over.size:
+            i = int(over[0])
+            raise BudgetError(
+                f"{self.names[i]}: {what} torque {tau[i]:+.2f} N*m exceeds the budget "
+                f"+-{self.limit[i]:.2f} N*m ({self.limit[i] / self.cap[i]:.0%} of the cap)"
+            )
+        if q is not None:
+            out = np.flatnonzero(~((q >= self.lower) & (q <= self.upper)))
+            if out.size:
+                i = int(out[0])
+                raise BudgetError(f"{self.names[i]}: q={q[i]:+.3f} rad left its limits")
+
+
+def _gravity(model: mujoco.MjModel, index: RobotIndex) -> Callable[[np.ndarray], np.ndarray]:
+    d = mujoco.MjData(model)
+
+    def g(q: np.ndarray) -> np.ndarray:
+        d.qpos[index.qpos] = q
+        d.qvel[:] = 0.0
+        mujoco.mj_forward(model, d)
+        return d.qfrc_bias[index.dof].copy()
+
+    return g
+
+
+def run_excitation(
+    group: RobstrideGroup,
+    robot: RobotSpec,
+    excitation: Excitation,
+    supervisor: Supervisor,
+    *,
+    period: float,
+    stop: Callable[[], bool] = lambda: False,
+    realtime: bool = True,
+    on_round: Callable[[int, np.ndarray], None] | None = None,
+) -> Recording:
+    """Run ``excitation`` on the (enabled) ``group`` one round per ``period`` s; damping then stop at the end.
+
+    ``realtime``: pace the rounds on the wall clock (the real robot); False: back to back (the lockstep
+    emulator, whose physics advances one period per round). ``on_round(k, q)``: called after each reading
+    (tests inject faults there). Raises what ended the run, after damping then stop: ``BudgetError``, a
+    ``RobstrideError`` (a fault, a missing reply), or ``KeyboardInterrupt`` when ``stop()`` turned true.
+    """
+    model = load_model(robot.mode)
+    index = RobotIndex.from_model(model, robot.joint_names)
+    gravity = _gravity(model, index)
+    kp, kd = robot.kp, robot.kd
+    rec = Recording()
+    n = round(excitation.duration / period)
+    reading = group.last_reading
+    q = reading.q.copy() if reading is not None else excitation.start.copy()
+    dq = np.zeros_like(q)
+    t0 = time.monotonic()
+    rec.t.append(-period)  # the state before the first command
+    rec.q.append(q.copy())
+    rec.dq.append(dq.copy())
+    rec.tau.append(reading.tau.copy() if reading is not None else np.zeros_like(q))
+    try:
+        for k in range(n + 1):
+            if stop():
+                raise KeyboardInterrupt("stop requested")
+            t = k * period
+            q_des, dq_des = excitation.at(t)
+            ff = gravity(q_des)
+            supervisor.check(kp * (q_des - q) + kd * (dq_des - dq) + ff, "commanded")
+            if realtime:
+                time.sleep(max(0.0, t0 + t - time.monotonic()))
+            reading = group.exchange_mit(MitCommand(q_des, dq_des, kp, kd, ff))
+            q, dq = reading.q, reading.dq
+            if on_round is not None:
+                on_round(k, q)
+            supervisor.check(reading.tau, "reported", q)
+            rec.t.append(t)
+            rec.q.append(q.copy())
+            rec.dq.append(dq.copy())
+            rec.tau.append(reading.tau.copy())
+            rec.q_cmd.append(q_des)
+            rec.dq_cmd.append(dq_des)
+            rec.ff.append(ff)
+    finally:
+        rec.peak_fraction = supervisor.peak
+        group.damping_then_stop(hold_s=0.3 if realtime else 0.0)
+    return rec
+
+
+def round_samples(robot: RobotSpec, rec: Recording, period: float) -> ArmSamples:
+    """One sample per round: the state of reply ``k-1``, the torque command ``k`` asked for there.
+
+    The acceleration is ``(dq_k - dq_{k-1}) / dt``, what followed.
+
+    The torque is the MIT law's at that state, ``Kp (q* - q) + Kd (dq* - dq) + ff``, not the reading of
+    one instant: at one physics step per round (the emulator at ``--rate`` 500 Hz: 2 ms) this is exactly
+    the torque the firmware applied over the step that produced the acceleration; on a real robot, whose
+    firmware runs the law faster than the bus, it is the round's torque to O(dt). A joint whose loop rings
+    faster than a slower round (a wrist at Kp 50 on a few g*m^2 rings at ~20 Hz) would bias a fit of
+    instantaneous readings. Strength is then the torque produced per torque the law asked for (the
+    budget keeps the law off its cap: no saturation).
+    """
+    _, q, dq, _ = rec.arrays()
+    q_cmd, dq_cmd, ff = np.array(rec.q_cmd), np.array(rec.dq_cmd), np.array(rec.ff)
+    qdd = (dq[1:] - dq[:-1]) / period
+    tau = robot.kp * (q_cmd - q[:-1]) + robot.kd * (dq_cmd - dq[:-1]) + ff
+    return ArmSamples(q[:-1], dq[:-1], qdd, tau)
+
+
+def fit_recording(
+    robot: RobotSpec,
+    rec: Recording,
+    arms: tuple[str, ...],
+    period: float,
+    *,
+    trim: int = 5,
+    smooth_s: float = 0.02,
+    strength: dict[str, np.ndarray] | None = None,
+    payload: bool = True,
+) -> dict[str, ArmFit]:
+    """Fit each arm of ``arms`` to ``rec``.
+
+    ``trim`` rounds are dropped at both ends; ``smooth_s``: the moving average of ``fit_arm``, s (the wire's
+    16-bit quantization of q and dq averaged down).
+
+    Strength and payload: both scale the torque a pose needs, and for a slow excitation the payload's
+    gravity has nearly the shape of the arm's own on every joint (the payload sits on the line of the
+    forearm's and hand's centres), so one run cannot tell a weak motor from a loaded hand. They are
+    separated by two runs: an unloaded one (``payload=False``: the mass is known to be 0) fits the
+    strengths; a loaded one with those strengths known (``strength``: arm -> per-joint values) fits the
+    payload. With neither, the strengths are held at the model's 1.
+    """
+    full = round_samples(robot, rec, period)
+    sl = slice(trim, len(full.q) - trim)
+    samples = ArmSamples(full.q[sl], full.dq[sl], full.qdd[sl], full.tau[sl])
+    model = load_model(robot.mode)
+    fits: dict[str, ArmFit] = {}
+    id_base: np.ndarray | None = None
+    u: np.ndarray | None = None
+    for arm in arms:
+        idx = [j.index for j in robot.joints if j.group == f"{arm}_arm"]
+        reg = PayloadRegressor(model, lambda: robot_spec(robot.mode), robot.joint_names, HANDS[arm])
+        if id_base is None:
+            id_base = reg.inverse(samples)
+            u = reg.friction_force(samples)
+        known = None if not payload else (strength or {}).get(arm, np.ones(len(idx)))
+        common = dict(
+            id_base=id_base,
+            smooth=max(1, round(smooth_s / period)),
+            friction_u=u,
+            v_min=0.0,
+            iterations=6,
+        )
+        # stage 1: shoulders and elbow, with the payload; stage 2: the wrists, with that payload's force
+        # known (a wrist's few g*m^2 and its soft friction make its rows noisy: they would pull the mass)
+        big, wrists = idx[:PAYLOAD_JOINTS], idx[PAYLOAD_JOINTS:]
+        k_big = None if known is None else known[:PAYLOAD_JOINTS]
+        k_wr = None if known is None else known[PAYLOAD_JOINTS:]
+        f1 = fit_arm(samples, big, robot.joint_names, reg if payload else None, strength=k_big, **common)
+        base2 = id_base
+        if payload:
+            base2 = id_base + f1.mass * reg.columns(samples, id_base, f1.com)[:, :, 0]
+        f2 = fit_arm(samples, wrists, robot.joint_names, None, strength=k_wr, **{**common, "id_base": base2})
+        fits[arm] = merge_fits(f1, f2)
+    return fits
+
+
+def _est(v: float, h: float) -> Estimate:
+    return Estimate(float(v), (float(v - h), float(v + h)))
+
+
+def to_params(fits: dict[str, ArmFit], source: dict[str, object]) -> RobotParams:
+    """The params file of the fits.
+
+    An estimate out of the file's range (a negative friction, damping, armature or mass; a strength
+    outside 0.3..1.5; one above the range) is written at the range's end and listed in ``source.notes``
+    and the log, with the value found (a value the file cannot hold; its interval, widened to hold what
+    is written, says how sure the fit was).
+    """
+    joints: dict[str, JointParams] = {}
+    floored: list[str] = []
+
+    def nonneg(name: str, v: float, h: float) -> Estimate:
+        key = name.rsplit(".", 1)[-1]
+        lo, hi = JOINT_KEYS.get(key, (*MASS_RANGE, ""))[:2]
+        if not lo <= v <= hi:
+            w = min(max(v, lo), hi)
+            floored.append(f"{name}={v:.4g} (written as {w:g})")
+            return Estimate(float(w), (min(w, float(v - h)), max(w, float(v + h))))
+        return _est(v, h)
+
+    for fit in fits.values():
+        for c, name in enumerate(fit.joints):
+            joints[name] = JointParams(
+                friction_nm=nonneg(f"{name}.friction_nm", fit.friction[c], fit.half95["friction"][c]),
+                damping=nonneg(f"{name}.damping", fit.damping[c], fit.half95["damping"][c]),
+                armature=nonneg(f"{name}.armature", fit.armature[c], fit.half95["armature"][c]),
+                strength=nonneg(f"{name}.strength", fit.strength[c], fit.half95["strength"][c])
+                if fit.half95["strength"][c] > 1e-9
+                else Estimate(float(fit.strength[c])),  # held, not fitted: no interval
+            )
+    payload: dict[str, Payload] = {}
+    for arm, fit in fits.items():
+        if fit.mass == 0.0 and fit.mass_half95 == 0.0:  # an unloaded run: no payload term was fitted
+            continue
+        mass = nonneg(f"payload.{arm}.mass_kg", fit.mass, fit.mass_half95)
+        com = tuple(float(x) for x in np.clip(fit.com, -0.5, 0.5))
+        if mass.value == 0.0 or not np.allclose(com, fit.com):
+            floored.append(f"payload.{arm}.com_m={np.round(fit.com, 3).tolist()} (written as [0, 0, 0])")
+            com = (0.0, 0.0, 0.0)
+            cis = None
+        else:
+            cis = tuple((c - h, c + h) for c, h in zip(com, fit.com_half95, strict=True))
+        payload[arm] = Payload(mass, com, cis)  # type: ignore[arg-type]
+    src = dict(source)
+    if floored:
+        log.warning(
+            "identify: %d estimates out of range, written at its end: %s", len(floored), ", ".join(floored)
+        )
+        note = f"{len(floored)} estimates out of the file's range: " + ", ".join(floored)
+        src["notes"] = f"{src['notes']}; {note}" if src.get("notes") else note
+    return RobotParams(joints, payload, src)

@@ -1,0 +1,70 @@
+"""``bar-deploy --robot-params FILE``: the sim target and the emulator are built from the identified robot."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from bar_policy.deploy.cli_parser import run_parser
+from bar_policy.deploy.targets.perturbed import sim_target
+from bar_policy.deploy.targets.sim import SimConfig
+from bar_policy.robot.constants import load_robot
+from bar_policy.robot.params import Estimate, JointParams, Payload, RobotParams
+from bar_policy.robot.perturb_spec import parse_perturbation
+from bar_policy.robstride.emulator_perturb import emulator
+
+ROBOT = load_robot("arms")
+
+
+def _params() -> RobotParams:
+    jp = JointParams(Estimate(0.7), Estimate(0.05), Estimate(0.004), Estimate(0.8))
+    return RobotParams({"left_elbow_pitch": jp}, {"right": Payload(Estimate(0.3), (0.0, -0.1, 0.0))})
+
+
+def test_sim_target_models_the_file() -> None:
+    t = sim_target("arms", SimConfig(), scene=None, perturbation=None, robot_params=_params())
+    dof = t.model.joint("left_elbow_pitch").dofadr[0]
+    assert (t.model.dof_frictionloss[dof], t.model.dof_damping[dof], t.model.dof_armature[dof]) == (
+        0.7,
+        0.05,
+        0.004,
+    )
+    assert t.model.body("right_hand_payload").mass[0] == pytest.approx(0.3)
+    expect = np.ones(ROBOT.num_joints)
+    expect[ROBOT.joint_names.index("left_elbow_pitch")] = 0.8
+    np.testing.assert_array_equal(t.motors.strength, expect)
+    # a perturbation on top: its strength multiplies the file's (0.8 * 0.5 = 0.4 on the elbow)
+    t2 = sim_target(
+        "arms",
+        SimConfig(),
+        scene=None,
+        perturbation=parse_perturbation("strength=0.5"),
+        robot_params=_params(),
+    )
+    assert t2.motors.strength[ROBOT.joint_names.index("left_elbow_pitch")] == pytest.approx(0.4)
+
+
+def test_emulator_models_the_file() -> None:
+    ch = {"can0": "rp-test-0", "can1": "rp-test-1"}
+    emu = emulator(ROBOT, ch, perturbation=None, robot_params=_params(), mode="lockstep")
+    try:
+        dof = emu.model.joint("left_elbow_pitch").dofadr[0]
+        assert emu.model.dof_frictionloss[dof] == 0.7
+        assert emu.model.body("right_hand_payload").mass[0] == pytest.approx(0.3)
+        assert emu.motor_perturbation.strength[ROBOT.joint_names.index("left_elbow_pitch")] == 0.8
+    finally:
+        emu.close()
+
+
+def test_bad_file_is_refused_by_the_parser(tmp_path, capsys) -> None:
+    path = tmp_path / "p.json"
+    obj = _params().to_json()
+    obj["joints"]["left_elbow_pitch"]["friction"] = obj["joints"]["left_elbow_pitch"].pop("friction_nm")
+    path.write_text(json.dumps(obj))
+    with pytest.raises(SystemExit) as e:
+        run_parser().parse_args(["--target", "sim", "--robot-params", str(path)])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "unknown key 'friction'; did you mean 'friction_nm'?" in err

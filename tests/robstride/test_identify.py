@@ -1,0 +1,210 @@
+"""``bar-bus identify``'s procedure on the lockstep emulator: the budget, the end on a fault, and the fit of
+a hidden robot (the payload's mass and the shoulder and elbow joints' friction within the targets; the
+armature and the wrists are not, see docs/sysid.md)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bar_policy.robot.perturb_spec import parse_perturbation
+from bar_policy.robot.sysid_excitation import Excitation
+from bar_policy.robstride.canbus import open_can_buses
+from bar_policy.robstride.emulator_perturb import PerturbedEmulator
+from bar_policy.robstride.errors import FaultError
+from bar_policy.robstride.group import RobstrideGroup
+from bar_policy.robstride.identify import BudgetError, Supervisor, fit_recording, run_excitation
+
+from .conftest import assert_ends_with_damping_then_stop
+
+PERIOD = 0.002
+"""One physics step per round (``bar-bus identify``'s default rate on the emulated bus)."""
+
+
+def test_supervisor_budget_is_half_of_each_cap(robot) -> None:
+    sup = Supervisor(robot)
+    caps = np.array([j.torque_cap for j in robot.joints])
+    # shoulder pitch cap 17 N*m: budget 8.5; wrist caps 4 N*m: budget 2
+    assert caps[0] == 17.0 and caps[4] == 4.0
+    ok = 0.5 * caps
+    sup.check(ok, "commanded")  # exactly at the budget: allowed
+    over = ok.copy()
+    over[4] = 2.01
+    with pytest.raises(
+        BudgetError, match=r"left_wrist_yaw: commanded torque \+2.01 N\*m exceeds the budget \+-2.00"
+    ):
+        sup.check(over, "commanded")
+    with pytest.raises(ValueError, match=r"valid \(0, 0.5\]"):
+        Supervisor(robot, budget=0.6)
+
+
+def _group(robot, channels) -> RobstrideGroup:
+    return RobstrideGroup.from_robot(
+        robot, open_can_buses("virtual", channels), reply_timeout=1.0, can_timeout=0.0
+    )
+
+
+def test_fault_mid_excitation_ends_in_damping_then_stop(robot, channels, make_emulator, listeners) -> None:
+    emu = make_emulator(control_dt=PERIOD)
+    group = _group(robot, channels)
+    start = group.activate(lower=robot.lower, upper=robot.upper).q
+    ex = Excitation.plan(robot, start, ("left",), 21.0)
+    sup = Supervisor(robot)
+
+    def fault(k: int, q: np.ndarray) -> None:
+        if k == 200:
+            emu.inject("left_elbow_pitch", fault_bits=0b000100)
+
+    with pytest.raises(FaultError, match="left_elbow_pitch"):
+        run_excitation(group, robot, ex, sup, period=PERIOD, realtime=False, on_round=fault)
+    group.shutdown()
+    for iface, ids in (("can0", list(range(11, 18))), ("can1", list(range(21, 28)))):
+        assert_ends_with_damping_then_stop(listeners[iface], ids)
+    assert 0 < sup.peak <= 0.5
+    assert not any(emu.enabled().values())
+
+
+def test_budget_breach_ends_in_damping_then_stop(robot, channels, make_emulator, listeners) -> None:
+    make_emulator(control_dt=PERIOD)
+    group = _group(robot, channels)
+    start = group.activate(lower=robot.lower, upper=robot.upper).q
+    ex = Excitation.plan(robot, start, ("left",), 21.0)
+    # a 2 % budget: the first ramp's gravity feed-forward of the shoulder already exceeds 0.34 N*m
+    sup = Supervisor(robot, budget=0.02)
+    with pytest.raises(BudgetError, match="exceeds the budget"):
+        run_excitation(group, robot, ex, sup, period=PERIOD, realtime=False)
+    group.shutdown()
+    for iface, ids in (("can0", list(range(11, 18))), ("can1", list(range(21, 28)))):
+        assert_ends_with_damping_then_stop(listeners[iface], ids)
+
+
+@pytest.mark.slow
+def test_identifies_a_hidden_payload_and_friction(robot, channels) -> None:
+    """0.4 kg at the fingertip, friction + 0.5 N*m (total 0.6), hidden; one arm, 21 s of excitation."""
+    hidden = parse_perturbation("payload_kg=0.4,friction_nm=0.5")
+    with PerturbedEmulator(robot, channels, perturbation=hidden, mode="lockstep", control_dt=PERIOD):
+        group = _group(robot, channels)
+        start = group.activate(lower=robot.lower, upper=robot.upper).q
+        ex = Excitation.plan(robot, start, ("left",), 21.0)
+        sup = Supervisor(robot)
+        rec = run_excitation(group, robot, ex, sup, period=PERIOD, realtime=False)
+        group.shutdown()
+    reported = np.abs(np.array(rec.tau)) / sup.cap
+    assert reported.max() <= 0.5 and sup.peak <= 0.5  # never above half a cap, asked or reported
+    fit = fit_recording(robot, rec, ("left",), PERIOD)["left"]
+    # targets met here: payload mass within 15 % (measured 0.393 kg), friction within 20 % on the shoulder
+    # pitch, roll and elbow (truth: 0.1 of the model + 0.5; measured 0.602, 0.593, 0.597). Not met, so not
+    # asserted: the shoulder yaw's friction (0.431), the armature (a few % of a shoulder's inertia: the
+    # fit's error is larger than it), the wrists (docs/sysid.md)
+    print(
+        f"mass {fit.mass:.3f} kg; friction {np.round(fit.friction, 3)}; armature {np.round(fit.armature, 4)}"
+    )
+    assert fit.mass == pytest.approx(0.4, rel=0.15)
+    for c in (0, 1, 3):
+        assert fit.friction[c] == pytest.approx(0.6, rel=0.2), fit.joints[c]
+
+
+def test_out_of_range_estimates_are_written_at_the_range_end_and_noted() -> None:
+    from bar_policy.robot.sysid_fit import ArmFit
+    from bar_policy.robstride.identify import to_params
+
+    z = np.zeros(2)
+    fit = ArmFit(
+        joints=("left_elbow_pitch", "left_wrist_yaw"),
+        strength=np.array([1.0, 0.05]),
+        friction=np.array([0.6, -0.01]),
+        damping=np.array([-0.2, 25.0]),
+        armature=np.array([0.002, 0.003]),
+        half95={"strength": np.array([0.0, 0.01]), "friction": z + 0.05, "damping": z + 0.1, "armature": z},
+        mass=0.4,
+        mass_half95=0.01,
+        com=np.array([0.0, -0.1, 0.0]),
+        com_half95=np.array([0.01, 0.01, 0.01]),
+        rows=100,
+        rms=0.01,
+    )
+    p = to_params({"left": fit}, {"kind": "identify", "notes": "hidden: x"})
+    e, w = p.joints["left_elbow_pitch"], p.joints["left_wrist_yaw"]
+    assert e.damping.value == 0.0 and e.damping.ci95 == (-0.30000000000000004, 0.0)  # -0.2 -+ 0.1
+    assert w.damping.value == 20.0 and w.damping.ci95 == (20.0, 25.1)
+    assert w.friction_nm.value == 0.0
+    assert e.strength.ci95 is None  # held (half-width 0): no interval
+    assert w.strength.value == 0.3 and w.strength.ci95 == (0.04, 0.3)  # 0.05 -+ 0.01, widened to 0.3
+    notes = p.source["notes"]
+    assert notes.startswith("hidden: x; 4 estimates out of the file's range: ")
+    assert "left_wrist_yaw.strength=0.05 (written as 0.3)" in notes
+    assert "left_elbow_pitch.damping=-0.2 (written as 0)" in notes
+    assert "left_wrist_yaw.damping=25 (written as 20)" in notes
+    assert p.payload["left"].mass_kg.value == 0.4
+
+
+def test_identify_cli_refusals_exit_2(tmp_path, capsys) -> None:
+    from bar_policy.robstride.tools import main
+
+    base = ["identify", "--can-interface", "virtual", "--out", str(tmp_path / "p.json")]
+    with pytest.raises(SystemExit) as e:
+        main([*base, "--arms", "left,middle"])
+    assert e.value.code == 2
+    assert "arms must be left, right or left,right; got 'left,middle'" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as e:
+        main([*base, "--seconds", "61"])
+    assert e.value.code == 2
+    assert "must be 20.5..60 s of excitation per arm, got '61'" in capsys.readouterr().err
+    for budget in ("0", "0.6"):
+        with pytest.raises(SystemExit) as e:
+            main([*base, "--budget", budget])
+        assert e.value.code == 2
+    assert "must be a fraction of the cap in (0, 0.5], got '0.6'" in capsys.readouterr().err
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"version": 1, "joints": {"left_elbow_pitch": {"strength": {"value": NaN}}}}')
+    assert main([*base, "--strength-from", str(bad)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("bar-bus: error: ") and "\n" not in err
+    assert err.endswith("bad.json: joints.left_elbow_pitch: missing 'friction_nm', 'damping', 'armature'")
+    assert not (tmp_path / "p.json").exists()
+
+
+@pytest.mark.slow
+def test_identifies_a_hidden_strength_unloaded(robot, channels) -> None:
+    """Strength 0.9 and friction + 0.5 N*m hidden, hands empty (``--unloaded``); one arm, 21 s."""
+    hidden = parse_perturbation("strength=0.9,friction_nm=0.5")
+    with PerturbedEmulator(robot, channels, perturbation=hidden, mode="lockstep", control_dt=PERIOD):
+        group = _group(robot, channels)
+        start = group.activate(lower=robot.lower, upper=robot.upper).q
+        rec = run_excitation(
+            group, robot, Excitation.plan(robot, start, ("left",), 21.0), Supervisor(robot), period=PERIOD,
+            realtime=False,
+        )  # fmt: skip
+        group.shutdown()
+    fit = fit_recording(robot, rec, ("left",), PERIOD, payload=False)["left"]
+    print(f"strength {np.round(fit.strength, 3)}; friction {np.round(fit.friction, 3)}")
+    # target: strength within 5 %; met at 21 s on the shoulder pitch, roll and elbow (measured 0.894, 0.910,
+    # 0.887); the shoulder yaw needs the CLI's 40 s (0.849 here, 0.881 at 40 s); the wrists are not met
+    # (docs/sysid.md)
+    for c in (0, 1, 3):
+        assert fit.strength[c] == pytest.approx(0.9, rel=0.05), fit.joints[c]
+    assert fit.mass == 0.0
+
+
+@pytest.mark.slow
+def test_identify_cli_end_to_end(tmp_path, capsys) -> None:
+    """``bar-bus identify`` on the emulated bus writes a valid parameters file, its run and the CAN log."""
+    import can
+
+    from bar_policy.robot.params import load_params
+    from bar_policy.robstride.tools import main
+
+    out, blf = tmp_path / "p.json", tmp_path / "id.blf"
+    argv = ["identify", "--can-interface", "virtual", "--emulate-perturb", "payload_kg=0.4,friction_nm=0.5",
+            "--arms", "left", "--seconds", "21", "--out", str(out), "--can-log", str(blf)]  # fmt: skip
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    assert "peak torque" in text and f"wrote {out}" in text
+    p = load_params(out)
+    assert sorted(p.joints) == sorted(j for j in p.joints if j.startswith("left_")) and len(p.joints) == 7
+    assert p.source["emulated"] is True and p.source["samples"] == 10501  # 21 s at 2 ms, rounds 0..10500
+    assert "hidden emulator perturbation: payload_kg=0.4,friction_nm=0.5" in p.source["notes"]
+    assert p.payload["left"].mass_kg.value == pytest.approx(0.4, rel=0.15)
+    # the raw CAN log: every MIT command of the run went out (14 motors per round, 10501 rounds at least)
+    frames = sum(1 for m in can.LogReader(str(blf)) if not m.is_rx and m.arbitration_id >> 24 == 1)
+    assert frames >= 14 * 10501
