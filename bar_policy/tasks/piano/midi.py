@@ -14,7 +14,15 @@ from __future__ import annotations
 from pathlib import Path
 
 from bar_policy.tasks.piano.keyboard import HAND_SPLIT_MIDI, KeyboardConfig, note_name
-from bar_policy.tasks.piano.songs import Note, Song, SongError, TempoLimits, playable
+from bar_policy.tasks.piano.songs import (
+    Note,
+    Song,
+    SongError,
+    TempoLimits,
+    check_song_file,
+    check_song_size,
+    playable,
+)
 
 __all__ = ["load_midi", "midi_notes"]
 
@@ -22,11 +30,13 @@ __all__ = ["load_midi", "midi_notes"]
 def midi_notes(path: str | Path, split: int = HAND_SPLIT_MIDI) -> list[Note]:
     """The notes of a standard MIDI file, hands by ``split``, times in s; not checked against the arms.
 
-    ``SongError`` for a file ``mido`` cannot read, a key pressed again while held, or a key never released.
+    ``SongError`` for a file ``mido`` cannot read, a key pressed again while held, a key never released, or a
+    file or song past ``songs``' limits (file size, note count, length: read no further than the first).
     """
     import mido
 
     path = Path(path)
+    check_song_file(path)
     try:
         midi = mido.MidiFile(path)
     except (OSError, EOFError, ValueError, KeyError, IndexError) as e:
@@ -46,6 +56,7 @@ def midi_notes(path: str | Path, split: int = HAND_SPLIT_MIDI) -> list[Note]:
         elif key in held:
             start = held.pop(key)
             notes.append(Note(msg.note, start, now, "left" if msg.note < split else "right"))
+            check_song_size(str(path), len(notes), now)  # while reading: stop at the first note past a limit
     if held:
         (channel, key), start = next(iter(held.items()))
         raise SongError(
