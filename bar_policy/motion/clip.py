@@ -49,6 +49,7 @@ import numpy as np
 
 from bar_policy._files import InputError, shorten
 from bar_policy.robot.constants import MODES, RobotSpec, load_robot
+from bar_policy.signals import check_stop
 
 __all__ = [
     "CLIP_FORMAT",
@@ -425,6 +426,7 @@ def _csv_values(path: Path, f: Iterable[str], width: int) -> np.ndarray:
             raise ClipError(f"{path}: rows have [{chunk.shape[1]}] values, the header {width}")
         n += len(chunk)
         check_clip_size(str(path), n)
+        check_stop(f"reading {path}")  # a stop request acts between two chunks
         chunks.append(chunk.reshape(-1, width))
     return np.concatenate(chunks) if chunks else np.zeros((0, width))
 

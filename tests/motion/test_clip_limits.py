@@ -29,6 +29,7 @@ from bar_policy.motion.clip import (
     save_clip,
 )
 from bar_policy.robot.constants import load_robot
+from bar_policy.signals import StopRequested, StopSignals
 
 ROBOT = load_robot("arms")
 MID = (ROBOT.lower + ROBOT.upper) / 2
@@ -161,4 +162,64 @@ def test_sigint_interrupts_a_large_csv_load_within_half_a_second(tmp_path):
         proc.kill()
         proc.wait()
     assert "KeyboardInterrupt" in proc.stderr.read()
+    assert latency < 0.5, f"SIGINT took {latency:.3f} s to end the load"
+
+
+def test_stop_request_ends_a_csv_load_within_one_chunk(tmp_path, monkeypatch):
+    """A stop asked for while a clip loads (StopSignals entered, as in bar-deploy) acts between chunks."""
+    n = 119_000  # 12 chunks of 10000 rows
+    q = MID + 0.001 * np.sin(np.arange(n)[:, None] * 0.01 + np.arange(14))
+    path = _csv(tmp_path / "big.csv", q)
+    chunks = []
+    real = clip_mod.check_clip_size
+
+    def counting(what, frames, rate_hz=None):
+        chunks.append(frames)
+        if len(chunks) == 3:
+            stop.request("SIGINT received")  # arrives while the third chunk is read
+        return real(what, frames, rate_hz)
+
+    monkeypatch.setattr(clip_mod, "check_clip_size", counting)
+    with (
+        StopSignals() as stop,
+        pytest.raises(StopRequested, match=r"SIGINT received: reading .*big.csv interrupted"),
+    ):
+        load_csv(path, rate_hz=200.0)
+    assert chunks == [10_000, 20_000, 30_000]  # no chunk read after the request
+    load_csv(path, rate_hz=200.0)  # outside the context: no stop to check
+
+
+_CLI = """
+import sys
+from bar_policy.deploy.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.skipif(not hasattr(signal, "SIGINT"), reason="needs SIGINT")
+def test_bar_deploy_sigint_during_the_clip_load_ends_it_quietly(tmp_path):
+    """``bar-deploy --motion big.csv``: a SIGINT during the load ends the run before its start, status 0."""
+    sys.path.insert(0, str(REPO / "tests" / "deploy"))
+    from policy_factory import default_metadata, make_policy_file
+
+    policy = make_policy_file(tmp_path / "track.onnx", metadata=default_metadata(task="track"))
+    n = 119_000
+    q = MID + 0.001 * np.sin(np.arange(n)[:, None] * 0.01 + np.arange(14))
+    path = _csv(tmp_path / "big.csv", q)
+    env = dict(
+        os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))
+    )
+    argv = ["--policy", str(policy), "--motion", str(path), "--motion-rate", "200", "--target", "mock",
+            "--duration", "5", "--log", str(tmp_path / "runs"), "-v"]  # fmt: skip
+    proc = subprocess.Popen([sys.executable, "-c", _CLI, *argv], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env)  # fmt: skip
+    # Wait for the policy's provenance line: printed after the policy load, just before the clip load.
+    assert "provenance" in proc.stdout.readline()
+    t0 = time.perf_counter()
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=30)
+    latency = time.perf_counter() - t0
+    assert proc.returncode == 0 and "Traceback" not in err, err
+    assert "before the start: nothing was started" in out
+    assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
     assert latency < 0.5, f"SIGINT took {latency:.3f} s to end the load"

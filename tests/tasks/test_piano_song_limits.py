@@ -18,6 +18,7 @@ sys.path.insert(0, str(Path(__file__).parents[1] / "deploy"))
 from policy_factory import default_metadata, make_policy_file
 
 from bar_policy.deploy.cli import main
+from bar_policy.signals import StopRequested, StopSignals
 from bar_policy.tasks.piano.bank import PlaybackConfig
 from bar_policy.tasks.piano.keyboard import compact_config
 from bar_policy.tasks.piano.midi import load_midi
@@ -147,3 +148,23 @@ def test_cli_refuses_an_unbounded_song_in_one_line(tmp_path, capsys):
     lines = [ln for ln in cap.err.splitlines() if ln.strip()]
     assert "Traceback" not in cap.err and len(lines) == 1, cap.err
     assert "a song must end by 600 s" in lines[0] and "MAX_SONG_S" in lines[0]
+
+
+def test_stop_request_ends_a_song_load(tmp_path):
+    """A stop asked for before or while a song file is read ends the read (StopSignals entered)."""
+    notes = [{"key": 60, "start_s": 0.5 * i, "end_s": 0.5 * i + 0.2} for i in range(300)]  # playable
+    path = _json_song(tmp_path / "s.json", notes)
+    events = []
+    for _ in range(300):
+        events += [
+            (96, mido.Message("note_on", note=60, velocity=64)),
+            (48, mido.Message("note_off", note=60)),
+        ]
+    mid = _midi(tmp_path / "s.mid", events)
+    with StopSignals() as stop:
+        stop.request("SIGTERM received")
+        with pytest.raises(StopRequested, match=r"SIGTERM received: reading .*s\.json interrupted"):
+            read_song(path, KB)
+        with pytest.raises(StopRequested, match=r"SIGTERM received: reading .*s\.mid interrupted"):
+            load_midi(mid, KB)
+    assert len(read_song(path, KB).notes) == 300  # outside the context: read in full

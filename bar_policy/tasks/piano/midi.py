@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from bar_policy.signals import check_stop
 from bar_policy.tasks.piano.keyboard import HAND_SPLIT_MIDI, KeyboardConfig, note_name
 from bar_policy.tasks.piano.songs import (
     Note,
@@ -44,7 +45,9 @@ def midi_notes(path: str | Path, split: int = HAND_SPLIT_MIDI) -> list[Note]:
     held: dict[tuple[int, int], float] = {}
     notes: list[Note] = []
     now = 0.0
-    for msg in midi:  # merged tracks; msg.time is the delta in seconds
+    for k, msg in enumerate(midi):  # merged tracks; msg.time is the delta in seconds
+        if k % 256 == 0:
+            check_stop(f"reading {path}")  # a stop request acts within 256 messages
         now += msg.time
         if msg.type not in ("note_on", "note_off"):
             continue

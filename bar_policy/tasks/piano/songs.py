@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from bar_policy._files import InputError, loads_json, shorten, strict_json
+from bar_policy.signals import check_stop
 from bar_policy.tasks.piano.keyboard import (
     HAND_SPLIT_MIDI,
     LEFT_REACH,
@@ -358,6 +359,8 @@ def song_from_json(text: str | bytes, what: str = "song") -> Song:
     check_song_size(what, len(notes), 0.0)
     out = []
     for i, n in enumerate(notes):
+        if i % 256 == 0:
+            check_stop(f"reading {what}")  # a stop request acts within 256 notes
         if (
             not isinstance(n, dict)
             or set(n) - {"key", "start_s", "end_s", "hand"}
