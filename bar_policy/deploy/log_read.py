@@ -42,7 +42,13 @@ def _load_mcap(path: Path, run_json: dict[str, Any]) -> tuple[dict[str, np.ndarr
             f"{path} is not a run log (MCAP written by bar-deploy): {shorten(e, 500)}"
         ) from None
     meta = run_json | rec.meta
-    if not rec.complete:
+    if not rec.complete and run_json.get("status") == "closed":
+        # The run closed, but run.mcap could not be finished (a full disk): run.json has the end.
+        meta = rec.meta | run_json
+        meta["recovered_from"] = path.name
+        if rec.error:
+            meta["recovery_stopped_at"] = rec.error
+    elif not rec.complete:
         meta["status"] = "running"
         meta["end_reason"] = NOT_CLOSED
         meta["recovered_from"] = path.name
