@@ -42,6 +42,7 @@ runtime applies it and counts every clipped entry.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from dataclasses import dataclass
@@ -221,11 +222,22 @@ def load_policy(
     if meta.mode not in MODES:
         raise refuse(path, f"unknown joint set (mode) {shorten(repr(meta.mode))}; valid: {list(MODES)}")
     if mode is not None and meta.mode != mode:
+        theirs, ours = load_robot(meta.mode), load_robot(mode)
+        extra = [n for n in theirs.joint_names if n not in ours.joint_names]
+        missing = [n for n in ours.joint_names if n not in theirs.joint_names]
+        parts = [f"it adds {extra}"] if extra else []
+        parts += [f"it lacks {missing}"] if missing else []
+        listed = ""
+        if len(meta.joint_names) != theirs.num_joints:
+            listed = (
+                f"; its joint_names list {len(meta.joint_names)} joints, not {theirs.num_joints}: the file "
+                "is inconsistent, re-export it"
+            )
         raise refuse(
             path,
-            f"joint set mismatch: the policy is for mode {meta.mode!r} "
-            f"({len(meta.joint_names)} joints), the robot runs mode {mode!r} "
-            f"({load_robot(mode).num_joints} joints)",
+            f"joint set mismatch: the policy drives mode {meta.mode!r} ({theirs.num_joints} joints), this "
+            f"run drives mode {mode!r} ({ours.num_joints} joints; {', '.join(parts)}); give --mode "
+            f"{meta.mode} to run it on that joint set, or a policy trained for {mode!r}{listed}",
         )
     if task is not None and deploy_task(meta) != task:
         raise refuse(
@@ -337,6 +349,16 @@ def load_policy(
     check_default_output(policy)
     # Action scale against the joint ranges (the runtime checks again with its configured margin).
     problems = action_reach_problems(policy)
+    if problems and policy.action_clip is not None and policy.action_clip > 1.0:
+        at_one = dataclasses.replace(policy, action_clip=1.0)
+        if not action_reach_problems(at_one):  # the scale is fine over +-1: the clip's bound is what reaches
+            raise refuse(
+                path,
+                f"metadata key {ACTION_CLIP_KEY!r} = {policy.action_clip:.4g} lets the actions reach beyond "
+                f"the joint ranges ({len(problems)} of {policy.n_actions} joints; the action_scale is fine "
+                f"over +-1): {shorten(problems[0], 300)}. Export the clip the policy was trained with (the "
+                "LiteReach env clips to +-1)",
+            )
     if problems:
         raise refuse(path, shorten(f"action_scale beyond the joint ranges: {'; '.join(problems)}", 1000))
     return policy

@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bar_policy._files import InputError, shorten
+from bar_policy._files import InputError, npz_problem, shorten
 from bar_policy.robot.constants import MODES, RobotSpec, load_robot
 from bar_policy.signals import check_stop
 
@@ -256,7 +256,7 @@ def validate_clip(clip: Clip, robot: RobotSpec | None = None, *, max_speed: floa
     bad = np.argwhere(~np.isfinite(q))
     if bad.size:
         f, j = bad[0]
-        raise ClipError(f"{where(f, j)}: non-finite value {q[f, j]!r}")
+        raise ClipError(f"{where(f, j)}: non-finite value {float(q[f, j])}")
     lo, hi = robot.lower - LIMIT_TOLERANCE, robot.upper + LIMIT_TOLERANCE
     bad = np.argwhere((q < lo) | (q > hi))
     if bad.size:
@@ -311,9 +311,19 @@ def load_clip(path: str | Path, mode: str = "arms", *, max_speed: float = MAX_JO
     try:
         with np.load(Path(path), allow_pickle=False) as f:
             data = {k: f[k] for k in f.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, KeyError, AttributeError) as e:
-        # AttributeError: a bare .npy array (no ``files``); the others: empty, truncated or corrupt archives
-        raise ClipError(f"{path}: not a readable NPZ clip ({shorten(e)})") from None
+    except (
+        OSError,
+        ValueError,
+        EOFError,
+        zipfile.BadZipFile,
+        zlib.error,
+        KeyError,
+        AttributeError,
+        TypeError,
+    ) as e:
+        # AttributeError / TypeError: a bare .npy array (no ``files``, no context manager);
+        # the others: empty, truncated or corrupt archives
+        raise ClipError(f"{path}: not a readable NPZ clip ({npz_problem(path, e)})") from None
     keys = ("format", "name", "rate_hz", "joint_names", "joint_pos", "content_hash")
     missing = [k for k in keys if k not in data]
     if missing:
