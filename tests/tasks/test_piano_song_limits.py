@@ -168,3 +168,33 @@ def test_stop_request_ends_a_song_load(tmp_path):
         with pytest.raises(StopRequested, match=r"SIGTERM received: reading .*s\.mid interrupted"):
             load_midi(mid, KB)
     assert len(read_song(path, KB).notes) == 300  # outside the context: read in full
+
+
+def test_stop_request_during_the_midi_parse(tmp_path):
+    """mido parses byte by byte: the bytes it reads check for a stop request every 4096 reads."""
+    from bar_policy.tasks.piano import midi as midi_mod
+
+    events = []
+    for _ in range(2000):  # 4000 messages, 3 or more reads each: past 4096 reads
+        events += [
+            (96, mido.Message("note_on", note=60, velocity=64)),
+            (48, mido.Message("note_off", note=60)),
+        ]
+    path = _midi(tmp_path / "long.mid", events)
+    reads = []
+    real_read = midi_mod._StoppableBytes.read
+
+    def counting(self, size=-1):
+        reads.append(size)
+        if len(reads) == 5000:
+            stop.request("SIGINT received")
+        return real_read(self, size)
+
+    with StopSignals() as stop:
+        midi_mod._StoppableBytes.read = counting
+        try:
+            with pytest.raises(StopRequested, match=r"SIGINT received: reading .*long\.mid interrupted"):
+                midi_mod.midi_notes(path)
+        finally:
+            midi_mod._StoppableBytes.read = real_read
+    assert len(reads) == 8192  # the request at read 5000 acts at the next check, read 2 * 4096

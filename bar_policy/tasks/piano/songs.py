@@ -77,8 +77,10 @@ MAX_SONG_S = 600.0
 """Latest end of a song's last note, s (10 min: the library's songs last under a minute)."""
 MAX_SONG_NOTES = 5000
 """Most notes in one song (5000 notes in 10 min is 8 a second, past what the arms' tempo allows)."""
-MAX_SONG_FILE_BYTES = 2 * 1024 * 1024
-"""Largest song file (JSON or MIDI) read, bytes: 5000 notes take about 350 kB as JSON, 40 kB as MIDI."""
+MAX_SONG_FILE_BYTES = 512 * 1024
+"""Largest song file (JSON or MIDI) read, bytes: 5000 notes take about 350 kB as JSON, 40 kB as MIDI (a
+performance's pedal and controller messages add to that). ``mido`` parses MIDI at about 0.1 MB/s on the
+project's loaded 2-core CPU (450 kB in 31 s): a larger bound would be a long wait before any refusal."""
 MAX_SONG_TABLE_BYTES = 256 * 1024 * 1024
 """Largest goal-key tables built for playback, bytes, at their peak: 10 bytes per key and control step
 (``bank.song_bank`` keeps float32 keys down and a uint8 per hand, 6 bytes, and ``goal_keys`` builds a
