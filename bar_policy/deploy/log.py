@@ -199,6 +199,8 @@ class RunLog:
         self.incomplete: str | None = None
         """Why the log is incomplete (set by ``close``; None: complete), as ``run.json`` says."""
         self.flushes = 0
+        self.durable_ticks = 0
+        """Ticks in ``run.mcap`` as of its last durable flush (what a crash now would keep)."""
         """Durable flushes of ``run.mcap`` so far."""
         self.max_backlog = 0
         """Most ticks ever waiting for the writer thread (what a crash could lose beyond a flush period)."""
@@ -343,11 +345,13 @@ class RunLog:
         return self.chunk_ticks if index < last else self.ticks - last * self.chunk_ticks
 
     def _durable_flush(self) -> None:
+        written = self._written
         try:
             self._mcap.flush()
             self._mcap_file.flush()
             os.fsync(self._mcap_file.fileno())
             self.flushes += 1
+            self.durable_ticks = written
         except (OSError, ValueError) as e:
             self._error("flush run.mcap", e)
 
