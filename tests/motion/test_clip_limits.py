@@ -141,7 +141,7 @@ while True:  # every moment of the run is inside a load
 
 
 @pytest.mark.skipif(not hasattr(signal, "SIGINT"), reason="needs SIGINT")
-def test_sigint_interrupts_a_large_csv_load_within_half_a_second(tmp_path):
+def test_sigint_interrupts_a_large_csv_load(tmp_path):
     # 119000 frames at 200 Hz (595 s, inside every limit), 15 MiB of text.
     n = 119_000
     q = MID + 0.001 * np.sin(np.arange(n)[:, None] * 0.01 + np.arange(14))
@@ -161,8 +161,11 @@ def test_sigint_interrupts_a_large_csv_load_within_half_a_second(tmp_path):
     finally:
         proc.kill()
         proc.wait()
+    # The child loads forever, so ending at all is the interrupt acting inside a load. The bound is loose:
+    # it includes the interpreter's exit, which a loaded host stretches; the stop's own latency is
+    # measured in process (``test_stop_request_latency_within_half_a_second``).
     assert "KeyboardInterrupt" in proc.stderr.read()
-    assert latency < 0.5, f"SIGINT took {latency:.3f} s to end the load"
+    assert latency < 5.0, f"SIGINT took {latency:.3f} s to end the load"
 
 
 def test_stop_request_ends_a_csv_load_within_one_chunk(tmp_path, monkeypatch):
@@ -198,7 +201,11 @@ sys.exit(main(sys.argv[1:]))
 
 @pytest.mark.skipif(not hasattr(signal, "SIGINT"), reason="needs SIGINT")
 def test_bar_deploy_sigint_during_the_clip_load_ends_it_quietly(tmp_path):
-    """``bar-deploy --motion big.csv``: a SIGINT during the load ends the run before its start, status 0."""
+    """``bar-deploy --motion big.csv``: a SIGINT during the load ends the run before its start, status 0.
+
+    The latency is measured in process (``test_stop_request_latency_within_half_a_second``): here it would
+    include the interpreter's exit with onnxruntime and MuJoCo loaded, which a loaded host stretches.
+    """
     sys.path.insert(0, str(REPO / "tests" / "deploy"))
     from policy_factory import default_metadata, make_policy_file
 
@@ -215,11 +222,31 @@ def test_bar_deploy_sigint_during_the_clip_load_ends_it_quietly(tmp_path):
                             stderr=subprocess.PIPE, text=True, env=env)  # fmt: skip
     # Wait for the policy's provenance line: printed after the policy load, just before the clip load.
     assert "provenance" in proc.stdout.readline()
-    t0 = time.perf_counter()
     proc.send_signal(signal.SIGINT)
-    out, err = proc.communicate(timeout=30)
-    latency = time.perf_counter() - t0
+    out, err = proc.communicate(timeout=60)
     assert proc.returncode == 0 and "Traceback" not in err, err
     assert "before the start: nothing was started" in out
     assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
-    assert latency < 0.5, f"SIGINT took {latency:.3f} s to end the load"
+
+
+def test_stop_request_latency_within_half_a_second(tmp_path):
+    """A stop requested from another thread 0.1 s into a 119000-row load ends it within 0.5 s (one chunk)."""
+    import threading
+
+    n = 119_000
+    q = MID + 0.001 * np.sin(np.arange(n)[:, None] * 0.01 + np.arange(14))
+    path = _csv(tmp_path / "big.csv", q)
+    asked: list[float] = []
+    with StopSignals() as stop:
+
+        def ask() -> None:
+            asked.append(time.perf_counter())
+            stop.request("SIGINT received")
+
+        timer = threading.Timer(0.1, ask)
+        timer.start()
+        with pytest.raises(StopRequested):
+            load_csv(path, rate_hz=200.0)
+        ended = time.perf_counter()
+        timer.join()
+    assert asked and ended - asked[0] < 0.5, f"the stop took {ended - asked[0]:.3f} s to act"
