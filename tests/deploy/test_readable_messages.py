@@ -130,3 +130,29 @@ def test_random_bytes_npz_is_not_called_pickled_data(random_npz):
     npy.with_suffix(".npy").rename(npy)
     with pytest.raises(ClipError, match=r"a single \.npy array, not an NPZ archive of named arrays"):
         load_clip(npy)
+
+
+def test_a_refused_clip_file_is_named_once(tmp_path, capsys):
+    """``--motion big.csv``: the loader's message starts with the path; the option does not repeat it."""
+    from policy_factory import default_metadata
+
+    from bar_policy.motion.clip import MAX_CLIP_BYTES
+
+    policy = make_policy_file(tmp_path / "track.onnx", metadata=default_metadata(task="track"))
+    big = tmp_path / "big.csv"
+    with big.open("wb") as f:
+        f.truncate(2 * MAX_CLIP_BYTES)  # sparse: 128 MiB without writing them
+    argv = [
+        "--policy",
+        str(policy),
+        "--motion",
+        str(big),
+        "--motion-rate",
+        "50",
+        "--log",
+        str(tmp_path / "r"),
+    ]
+    assert _status(argv) == 2
+    (line,) = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert line.count(str(big)) == 1, line
+    assert f"--motion {big}: 128 MiB of clip data; a clip file may hold at most 64 MiB" in line
