@@ -88,6 +88,27 @@ def shorten(value: object, limit: int = ECHO_LIMIT) -> str:
     return f"{text[:limit]}... ({len(text)} chars)"
 
 
+def npz_problem(path: str | Path, error: BaseException) -> str:
+    """What is wrong with a file that ``np.load(path, allow_pickle=False)`` refused, for a user.
+
+    numpy reads any file that is neither a zip archive nor a ``.npy`` array as a pickle and, with pickles
+    refused, says "contains pickled (object) data ... load it unsafely": for a corrupt or random file that
+    is misleading advice. A file without the zip header is named as such (with its first bytes); any other
+    failure keeps numpy's or zipfile's own words.
+    """
+    try:
+        with open(path, "rb") as f:
+            head = f.read(6)
+    except OSError as e:
+        return f"cannot read it: {e.strerror or e}"
+    if head.startswith(b"\x93NUMPY"):
+        return "a single .npy array, not an NPZ archive of named arrays"
+    if not head.startswith(b"PK"):
+        shown = head[:4].hex(" ") or "nothing"
+        return f"not an NPZ archive: it does not start with a zip header (50 4b), but with {shown}"
+    return shorten(error)
+
+
 def json_depth(value: object) -> int:
     """Nesting depth of a parsed JSON value (a scalar is 0, ``[]`` 1), without recursion."""
     deepest = 0

@@ -7,6 +7,10 @@ frames on every bus, then the log. The handler never raises: a second signal whi
 runs is counted and logged, and cannot cut the stop frames short. SIGKILL cannot be caught; on the real
 robot the motors' CAN watchdog (``canTimeout``) then ends the last command (docs/can.md).
 
+While a ``StopSignals`` context is entered, long loads of user files (songs, clips) call ``check_stop``
+between chunks: a stop asked for while ``bar-deploy`` reads them ends the load within one chunk
+(``StopRequested``, a ``KeyboardInterrupt``) instead of after the whole file.
+
 Handlers can only be installed from the main thread; elsewhere ``StopSignals`` installs nothing and the
 flag can still be set with ``request`` (tests, embedding code).
 
@@ -23,12 +27,35 @@ import threading
 from types import FrameType
 from typing import Any
 
-__all__ = ["STOP_SIGNALS", "StopSignals"]
+__all__ = ["STOP_SIGNALS", "StopRequested", "StopSignals", "check_stop"]
 
 log = logging.getLogger(__name__)
 
 STOP_SIGNALS: tuple[signal.Signals, ...] = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 """Signals that request a safe stop."""
+
+
+class StopRequested(KeyboardInterrupt):
+    """A stop request met by a long load (``check_stop``): the load ends where it is, nothing was started.
+
+    A ``KeyboardInterrupt``, so it unwinds like the SIGINT that usually causes it and ``bar-deploy`` ends
+    as for any stop before the start (status 0, no traceback).
+    """
+
+
+_ACTIVE: list[StopSignals] = []
+"""The ``StopSignals`` contexts entered and not yet left, innermost last."""
+
+
+def check_stop(what: str) -> None:
+    """Raise ``StopRequested`` when an entered ``StopSignals`` has a stop request; else return at once.
+
+    Loaders of user files (song, clip, CSV) call it between chunks, so a stop asked for during a long load
+    acts within one chunk's time instead of after the whole load. ``what``: the load, for the message.
+    """
+    for stop in _ACTIVE:
+        if stop.requested:
+            raise StopRequested(f"{stop.reason}: {what} interrupted")
 
 
 class StopSignals:
@@ -58,12 +85,15 @@ class StopSignals:
         if threading.current_thread() is threading.main_thread():
             for s in self.signals:
                 self._previous[s] = signal.signal(s, self._handle)
+        _ACTIVE.append(self)  # ``check_stop`` sees its requests
         return self
 
     def __exit__(self, *exc: object) -> None:
         for s, previous in self._previous.items():
             signal.signal(s, previous)
         self._previous.clear()
+        if self in _ACTIVE:
+            _ACTIVE.remove(self)
 
     @property
     def installed(self) -> bool:

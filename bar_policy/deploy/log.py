@@ -45,6 +45,8 @@ import queue
 import shutil
 import threading
 import time
+import zipfile
+import zlib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
@@ -82,6 +84,39 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+HELD_TICKS = 30_000
+"""Most ticks of spill chunks kept in memory when they cannot be written (disk full, read-only), 10 min
+at 50 Hz (45 MB for a reach policy on the arms: 1486 B a tick): ``log.npz`` gets them if it can be written
+at close. Ticks past it are dropped and counted (``log_ticks_dropped``)."""
+
+RUN_JSON_RESERVE = 64 * 1024
+"""Bytes the ``running`` version of ``run.json`` takes on disk (the JSON, then spaces): room that closing
+the log can rewrite in place when the disk is full or the directory read-only, so ``run.json`` never stays
+``running`` after a close. A closing record longer than this is cut to its essentials."""
+
+
+def _save_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
+    """Write ``arrays`` as an NPZ at ``path``; a partial file is removed when writing fails."""
+    try:
+        with path.open("wb") as f:
+            np.savez(f, **arrays)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            path.unlink(missing_ok=True)
+        raise
+
+
+def _rewrite_in_place(path: Path, data: bytes) -> None:
+    """Overwrite the existing file ``path`` with ``data``, then ``fsync``.
+
+    No new file: a read-only directory allows it, and a full disk too while ``data`` fits the file's blocks.
+    """
+    with path.open("r+b") as f:
+        f.write(data)
+        f.truncate()
+        f.flush()
+        os.fsync(f.fileno())
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -153,18 +188,28 @@ class RunLog:
         self._n = 0
         self._chunk = 0
         self._buf = self._new_buffer()
-        self._chunk_files: list[Path] = []
+        self._spilled: dict[int, Path] = {}
+        """Chunk index -> its NPZ, written (by the writer thread)."""
+        self._held: dict[int, dict[str, np.ndarray]] = {}
+        """Chunk index -> its arrays, kept in memory because the spill failed (at most ``HELD_TICKS``)."""
+        self._held_ticks = 0
+        self.dropped_ticks = 0
+        """Ticks lost: spills that failed once ``HELD_TICKS`` were held, or a spill unreadable at close."""
         self._write_errors: list[str] = []
+        self.incomplete: str | None = None
+        """Why the log is incomplete (set by ``close``; None: complete), as ``run.json`` says."""
         self.flushes = 0
+        self.durable_ticks = 0
+        """Ticks in ``run.mcap`` as of its last durable flush (what a crash now would keep)."""
         """Durable flushes of ``run.mcap`` so far."""
         self.max_backlog = 0
         """Most ticks ever waiting for the writer thread (what a crash could lose beyond a flush period)."""
         self._written = 0
         self.closed = False
         try:
-            _write_durable(
-                self.path / "run.json", lambda f: f.write(_json_bytes(self.meta | {"status": "running"}))
-            )
+            running = _json_bytes(self.meta | {"status": "running"})
+            reserve = b" " * max(RUN_JSON_RESERVE - len(running) - 1, 0) + b"\n"  # room to close in place
+            _write_durable(self.path / "run.json", lambda f: f.write(running + reserve))
             self._mcap_file = (self.path / MCAP_FILE).open("wb")
             self._mcap = McapRunWriter(
                 self._mcap_file,
@@ -252,8 +297,7 @@ class RunLog:
             return
         arrays = {k: v[: self._n] for k, v in self._buf.items()}
         path = self.path / "chunks" / f"chunk_{self._chunk:06d}.npz"
-        self._chunk_files.append(path)
-        self._queue.put(("chunk", path, arrays))
+        self._queue.put(("chunk", self._chunk, path, arrays))
         self._chunk += 1
         self._buf = self._new_buffer()
         self._n = 0
@@ -265,12 +309,49 @@ class RunLog:
             log.error("run log: %s (further errors counted)", msg)
         self._write_errors.append(msg)
 
+    def _hold(self, index: int, arrays: dict[str, np.ndarray]) -> None:
+        """Keep a failed spill in memory for ``log.npz``; past ``HELD_TICKS``, drop it (counted)."""
+        n = len(next(iter(arrays.values()))) if arrays else 0
+        if self._held_ticks + n <= HELD_TICKS:
+            self._held[index] = arrays
+            self._held_ticks += n
+        else:
+            self.dropped_ticks += n
+
+    def _kept_arrays(self) -> dict[str, np.ndarray]:
+        """Every tick kept, in order: the spilled chunks read back and the held ones (writer thread joined).
+
+        A spilled chunk that cannot be read back (the disk failed under it) is dropped and counted.
+        """
+        parts: list[dict[str, np.ndarray]] = []
+        for index in sorted(self._spilled.keys() | self._held.keys()):
+            if index in self._held:
+                parts.append(self._held[index])
+                continue
+            path = self._spilled[index]
+            try:
+                with np.load(path, allow_pickle=False) as z:
+                    parts.append({k: z[k] for k in z.files})
+            except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as e:
+                self._error(f"read back {path.name}", e)
+                self.dropped_ticks += self._chunk_len(index)
+        if not parts:
+            return _concat_chunks([], self.fields)
+        return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+    def _chunk_len(self, index: int) -> int:
+        """Ticks of chunk ``index``: ``chunk_ticks``, the last one (the close's spill) ``ticks`` mod it."""
+        last = (self.ticks - 1) // self.chunk_ticks if self.ticks else 0
+        return self.chunk_ticks if index < last else self.ticks - last * self.chunk_ticks
+
     def _durable_flush(self) -> None:
+        written = self._written
         try:
             self._mcap.flush()
             self._mcap_file.flush()
             os.fsync(self._mcap_file.fileno())
             self.flushes += 1
+            self.durable_ticks = written
         except (OSError, ValueError) as e:
             self._error("flush run.mcap", e)
 
@@ -305,11 +386,13 @@ class RunLog:
                     self._error("log line to run.mcap", e)
                 dirty = True
             elif kind == "chunk":
-                _, path, arrays = item
+                _, index, path, arrays = item
                 try:
-                    np.savez(path, **arrays)
-                except OSError as e:
+                    _save_npz(path, arrays)
+                    self._spilled[index] = path
+                except Exception as e:  # OSError: disk full, read-only; or numpy's zip writer failing on it
                     self._error(f"spill {path.name}", e)
+                    self._hold(index, arrays)
             elif kind == "close":
                 try:
                     self._mcap.finish(item[1])
@@ -349,17 +432,66 @@ class RunLog:
         self._writer.join()
         self.meta["log_flushes"] = self.flushes
         self.meta["log_max_backlog_ticks"] = self.max_backlog
-        if self._write_errors:
-            self.meta["log_write_errors"] = self._write_errors[:20]
-            self.meta["log_write_error_count"] = len(self._write_errors)
-        arrays = _concat_chunks(self._chunk_files, self.fields)
-        meta_json = np.array(_json_text(self.meta))
+        arrays = self._kept_arrays()
+        self._note_errors()
 
         def write_npz(f: IO[bytes]) -> None:
-            np.savez(f, meta_json=meta_json, **arrays)
+            np.savez(f, meta_json=np.array(_json_text(self.meta)), **arrays)
 
-        _write_durable(out, write_npz)
-        _write_durable(self.path / "run.json", lambda f: f.write(_json_bytes(self.meta)))
-        shutil.rmtree(self.path / "chunks", ignore_errors=True)
-        log.info("run log written to %s (%d ticks)", out, self.ticks)
+        npz_written = True
+        try:
+            _write_durable(out, write_npz)
+        except (OSError, ValueError) as e:  # a full disk, a read-only directory (numpy's writer: ValueError)
+            npz_written = False
+            self._error("write log.npz", e)
+            self.meta["log_npz"] = "not written"
+            self._note_errors()
+        self._write_run_json()
+        if npz_written:
+            shutil.rmtree(self.path / "chunks", ignore_errors=True)
+            log.info("run log written to %s (%d ticks)", out, self.ticks)
+        if self.incomplete:
+            log.error("run log incomplete: %s", self.incomplete)
         return out
+
+    def _note_errors(self) -> None:
+        """Put the write errors so far into the metadata, with ``log_incomplete`` saying what was lost."""
+        if not self._write_errors:
+            return
+        self.meta["log_write_errors"] = self._write_errors[:20]
+        self.meta["log_write_error_count"] = len(self._write_errors)
+        self.meta["log_ticks_dropped"] = self.dropped_ticks
+        lost = [f"{self.dropped_ticks} of {self.ticks} ticks dropped"] if self.dropped_ticks else []
+        if self.meta.get("log_npz") == "not written":
+            lost.append("no log.npz (run.mcap holds the ticks up to the failure)")
+        self.incomplete = f"logging failed ({self._write_errors[0]})"
+        if lost:
+            self.incomplete += ": " + "; ".join(lost)
+        self.meta["log_incomplete"] = self.incomplete
+
+    def _write_run_json(self) -> None:
+        """The closing ``run.json``: never left ``running`` while the file can be written at all.
+
+        Atomically (a new file, renamed), else in place (a read-only directory, a full disk: the ``running``
+        version reserved ``RUN_JSON_RESERVE`` bytes), else only its essentials in place.
+        """
+        path = self.path / "run.json"
+        data = _json_bytes(self.meta)
+        try:
+            _write_durable(path, lambda f: f.write(data))
+            return
+        except OSError as e:
+            self._error("write run.json", e)
+            self._note_errors()
+            data = _json_bytes(self.meta)
+        keys = ("status", "end_reason", "ticks", "log_incomplete", "log_write_error_count")
+        cut = {k: self.meta[k] for k in keys if k in self.meta}
+        cut["cut"] = f"the full record exceeded the {RUN_JSON_RESERVE} B reserved"
+        last: OSError | None = None
+        for version in (data, _json_bytes(cut)):
+            try:
+                _rewrite_in_place(path, version)
+                return
+            except OSError as e:
+                last = e
+        log.error("run.json could not be updated (%s); it still says 'running'", last)

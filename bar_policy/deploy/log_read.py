@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from bar_policy._files import loads_json, shorten
+from bar_policy._files import loads_json, npz_problem, shorten
 from bar_policy.deploy.log_files import NOT_CLOSED, LogReadError, _concat_chunks
 from bar_policy.deploy.mcap_read import read_mcap_log
 from bar_policy.deploy.mcap_schema import MCAP_FILE
@@ -42,7 +42,13 @@ def _load_mcap(path: Path, run_json: dict[str, Any]) -> tuple[dict[str, np.ndarr
             f"{path} is not a run log (MCAP written by bar-deploy): {shorten(e, 500)}"
         ) from None
     meta = run_json | rec.meta
-    if not rec.complete:
+    if not rec.complete and run_json.get("status") == "closed":
+        # The run closed, but run.mcap could not be finished (a full disk): run.json has the end.
+        meta = rec.meta | run_json
+        meta["recovered_from"] = path.name
+        if rec.error:
+            meta["recovery_stopped_at"] = rec.error
+    elif not rec.complete:
         meta["status"] = "running"
         meta["end_reason"] = NOT_CLOSED
         meta["recovered_from"] = path.name
@@ -109,7 +115,7 @@ def load_log(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
             raise ValueError(f"meta_json is a JSON {type(meta).__name__}, not an object")
     except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, KeyError) as e:
         raise LogReadError(
-            f"{path} is not a run log (NPZ written by bar-deploy): {shorten(e, 500)}"
+            f"{path} is not a run log (NPZ written by bar-deploy): {shorten(npz_problem(path, e), 500)}"
         ) from None
     return arrays, meta
 

@@ -18,7 +18,10 @@ differ:
 - the gains Kp / Kd: ``bar`` files against the robot data; HC-only files within each motor's MIT wire range
   (the file's gains are used);
 - the graph's I/O: one float32 input ``obs`` of shape ``[batch, obs_size]`` and a float32 output
-  ``actions`` of shape ``[batch, n_action_joints]``.
+  ``actions`` of shape ``[batch, n_action_joints]``;
+- the network's action on the default observation (``default_observation``: at rest in the default pose,
+  upright, zero commands) must be finite (``check_default_output``): a network that answers NaN there is
+  refused at load, not on its first POLICY tick.
 
 The accepted policy is an ``OnnxPolicy``: ``policy(obs)`` runs one inference and ``policy.q_command(action)``
 turns an action into the unclipped joint target ``default + action_scale * action`` for the joints the
@@ -39,6 +42,7 @@ runtime applies it and counts every clipped entry.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from dataclasses import dataclass
@@ -74,6 +78,8 @@ __all__ = [
     "OnnxPolicy",
     "PolicyLoadError",
     "action_reach_problems",
+    "check_default_output",
+    "default_observation",
     "deploy_task",
     "load_policy",
     "read_metadata",
@@ -216,11 +222,22 @@ def load_policy(
     if meta.mode not in MODES:
         raise refuse(path, f"unknown joint set (mode) {shorten(repr(meta.mode))}; valid: {list(MODES)}")
     if mode is not None and meta.mode != mode:
+        theirs, ours = load_robot(meta.mode), load_robot(mode)
+        extra = [n for n in theirs.joint_names if n not in ours.joint_names]
+        missing = [n for n in ours.joint_names if n not in theirs.joint_names]
+        parts = [f"it adds {extra}"] if extra else []
+        parts += [f"it lacks {missing}"] if missing else []
+        listed = ""
+        if len(meta.joint_names) != theirs.num_joints:
+            listed = (
+                f"; its joint_names list {len(meta.joint_names)} joints, not {theirs.num_joints}: the file "
+                "is inconsistent, re-export it"
+            )
         raise refuse(
             path,
-            f"joint set mismatch: the policy is for mode {meta.mode!r} "
-            f"({len(meta.joint_names)} joints), the robot runs mode {mode!r} "
-            f"({load_robot(mode).num_joints} joints)",
+            f"joint set mismatch: the policy drives mode {meta.mode!r} ({theirs.num_joints} joints), this "
+            f"run drives mode {mode!r} ({ours.num_joints} joints; {', '.join(parts)}); give --mode "
+            f"{meta.mode} to run it on that joint set, or a policy trained for {mode!r}{listed}",
         )
     if task is not None and deploy_task(meta) != task:
         raise refuse(
@@ -329,11 +346,63 @@ def load_policy(
         action_clip=action_clip(path, sess) if meta.dialect == "bar" else None,
         task=deploy_task(meta),
     )
+    check_default_output(policy)
     # Action scale against the joint ranges (the runtime checks again with its configured margin).
     problems = action_reach_problems(policy)
+    if problems and policy.action_clip is not None and policy.action_clip > 1.0:
+        at_one = dataclasses.replace(policy, action_clip=1.0)
+        if not action_reach_problems(at_one):  # the scale is fine over +-1: the clip's bound is what reaches
+            raise refuse(
+                path,
+                f"metadata key {ACTION_CLIP_KEY!r} = {policy.action_clip:.4g} lets the actions reach beyond "
+                f"the joint ranges ({len(problems)} of {policy.n_actions} joints; the action_scale is fine "
+                f"over +-1): {shorten(problems[0], 300)}. Export the clip the policy was trained with (the "
+                "LiteReach env clips to +-1)",
+            )
     if problems:
         raise refuse(path, shorten(f"action_scale beyond the joint ranges: {'; '.join(problems)}", 1000))
     return policy
+
+
+def default_observation(om: ObservationManager) -> np.ndarray:
+    """The observation of the robot at rest in its default pose: what the policy sees as POLICY begins.
+
+    Every term's input is zero except ``joint_pos`` (the default pose, so 0 after its offset),
+    ``projected_gravity`` (0, 0, -1: upright) and ``imu_quaternion`` (1, 0, 0, 0: identity). Shape
+    ``(om.size,)``, float32.
+    """
+    upright = {"projected_gravity": (0.0, 0.0, -1.0), "imu_quaternion": (1.0, 0.0, 0.0, 0.0)}
+    inputs = {}
+    for t in om.schema.terms:
+        x = np.zeros(t.size, np.float32)
+        if t.name == "joint_pos":
+            x = np.asarray(om.schema.default_joint_pos, np.float32)
+        elif t.name in upright and t.size == len(upright[t.name]):
+            x = np.asarray(upright[t.name], np.float32)
+        inputs[t.name] = x
+    return np.asarray(om.compute(inputs), np.float32)
+
+
+def check_default_output(policy: OnnxPolicy) -> None:
+    """Refuse (``PolicyLoadError``) a policy whose action on ``default_observation`` is not finite.
+
+    Such a network (NaN weights, a broken normalisation) would fault on its first POLICY tick; at load the
+    user learns it before anything moves. The message names the action joints and their values.
+    """
+    action = np.asarray(policy(default_observation(policy.obs_manager)), np.float64)
+    bad = np.flatnonzero(~np.isfinite(action))
+    if bad.size:
+        names = [policy.metadata.action_joint_names[i] for i in bad]
+        values = ", ".join(f"{n} {action[i]}" for n, i in zip(names, bad, strict=True))
+        raise refuse(
+            policy.path,
+            shorten(
+                f"the network's action on the default observation (robot at rest in the default pose, "
+                f"upright, zero commands) is not finite for {len(bad)} of {action.size} joints ({values}); "
+                "the weights or the input normalisation are broken: re-export the policy",
+                1000,
+            ),
+        )
 
 
 def action_reach_problems(policy: OnnxPolicy, margin: float = DEFAULT_REACH_MARGIN) -> list[str]:

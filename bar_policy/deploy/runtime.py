@@ -182,6 +182,8 @@ class Runtime(RunLoop):
         self.last_commands: dict[str, np.ndarray] = {}
         self.last_command: MitCommand | None = None
         """The MIT command the last tick wrote (after the supervisor's clip and any fault's damping)."""
+        self.dry_saturations = 0
+        """Ticks whose demand was at the cap too long on a target that applies no command (a dry run)."""
         self._end_t: float | None = None
         """Target time the run started to end (first fault or stop request), s."""
         self._end_reason = ""
@@ -236,6 +238,19 @@ class Runtime(RunLoop):
             raise PolicyLoadError(
                 f"{policy.path}: action_scale beyond the joint ranges: {'; '.join(problems)}"
             )
+
+    def _unapplied_saturation(self, detail: str) -> None:
+        """A torque saturation on a target whose commands never reach the joints (a dry run): no fault.
+
+        The joints cannot follow a command that is not sent, so the demand ``Kp * (q_cmd - q)`` at the
+        measured state grows with the ramp; it says nothing about the run. Counted (``dry_saturations``,
+        ticks) and logged once; the demand stays in the log each tick.
+        """
+        if not self.dry_saturations:
+            log.warning(
+                "commands are not applied (dry run): %s - not a fault, the joints cannot follow", detail
+            )
+        self.dry_saturations += 1
 
     def _fault(self, kind: str, detail: str, t: float) -> None:
         if self._first_fault is None:
@@ -362,6 +377,9 @@ class Runtime(RunLoop):
         cmd = self._with_stop_torque(sf.command(t, q_policy), state.q)
         sat = sf.check_torque(cmd, state, self.config.control_dt)
         demand = sf.last_demand
+        if sat is not None and not self.target.applies_commands:
+            self._unapplied_saturation(sat[1])
+            sat = None
         if q_policy is not None:
             ref = self.commands.target_q()
             self.quality.update(demand, state.q, self.actions.last, cmd.q if ref is None else cmd.q - ref)

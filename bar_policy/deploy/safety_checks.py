@@ -49,14 +49,16 @@ def check_action_scale(
     problems = []
     for i, name in enumerate(names):
         if not (np.isfinite(s[i]) and s[i] >= 0):
-            problems.append(f"{name}: action_scale {s[i]!r} is not a finite number >= 0 rad per action unit")
+            problems.append(
+                f"{name}: action_scale {float(s[i])} is not a finite number >= 0 rad per action unit"
+            )
             continue
         reach_lo, reach_hi = d[i] - s[i] * bound, d[i] + s[i] * bound
         if reach_lo < lo[i] - margin or reach_hi > up[i] + margin:
             problems.append(
-                f"{name}: action_scale {s[i]:g} rad x +-{bound:g} from the default {d[i]:+.3f} rad reaches "
-                f"[{reach_lo:+.3f}, {reach_hi:+.3f}] rad, beyond its range [{lo[i]:+.3f}, {up[i]:+.3f}] rad "
-                f"by more than {margin:g} rad"
+                f"{name}: action_scale {s[i]:.4g} rad x +-{bound:.4g} from the default {d[i]:+.4g} rad "
+                f"reaches [{reach_lo:+.4g}, {reach_hi:+.4g}] rad, beyond its range [{lo[i]:+.4g}, "
+                f"{up[i]:+.4g}] rad by more than {margin:.4g} rad"
             )
     return problems
 

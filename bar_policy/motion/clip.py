@@ -24,29 +24,44 @@ pass ``rate_hz``.
 Every load validates the clip (``validate_clip``) and refuses, naming the frame (index and time) and the
 joint, a clip that leaves the joint limits, moves a joint faster than ``MAX_JOINT_SPEED`` between two
 frames, has non-finite values, or does not hold exactly the mode's joints in canonical order.
+
+Loads are bounded before the frames are read, each refusal naming the limit and its value: a file of at
+most ``MAX_CLIP_BYTES`` (an NPZ's members counted uncompressed), at most ``MAX_CLIP_FRAMES`` frames, and at
+most ``MAX_CLIP_S`` long. A CSV is parsed ``CSV_CHUNK_ROWS`` rows at a time by numpy's C parser: a
+10^6-row file took 83 s and 2 GB row by row, and a SIGINT (``KeyboardInterrupt``) now acts between two
+chunks, within a few tens of ms.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import hashlib
+import itertools
 import math
 import zipfile
 import zlib
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from bar_policy._files import InputError, shorten
+from bar_policy._files import InputError, npz_problem, shorten
 from bar_policy.robot.constants import MODES, RobotSpec, load_robot
+from bar_policy.signals import check_stop
 
 __all__ = [
     "CLIP_FORMAT",
+    "CSV_CHUNK_ROWS",
     "LIMIT_TOLERANCE",
+    "MAX_CLIP_BYTES",
+    "MAX_CLIP_FRAMES",
+    "MAX_CLIP_S",
     "MAX_JOINT_SPEED",
     "Clip",
     "ClipError",
+    "check_clip_size",
     "content_hash",
     "load_clip",
     "load_csv",
@@ -65,6 +80,19 @@ real recordings pass, and it is 0.1 rad per 50 Hz control step: a larger jump be
 glitch (a dropped teleoperation frame, an angle wrapping by 2*pi, degrees read as radians) that would ask
 the MIT law for a torque step of Kp * 0.1 = 5 N*m from rest. The actuators' own limits are far higher
 (33-76 rad/s, ``RobstrideSpec.velocity_limit``) and are not what limits a safe reference."""
+
+MAX_CLIP_S = 600.0
+"""Longest clip, s (time of its last frame; 10 min: the gestures last seconds, recordings minutes)."""
+
+MAX_CLIP_FRAMES = 120_000
+"""Most frames in a clip (10 min at 200 Hz; a clip is resampled to the 50 Hz control rate)."""
+
+MAX_CLIP_BYTES = 64 * 1024 * 1024
+"""Largest clip file, bytes (an NPZ's members uncompressed): 120 000 frames of 17 joints are 8 MB as
+float32 and about 25 MB as CSV text."""
+
+CSV_CHUNK_ROWS = 10_000
+"""CSV rows parsed per call of numpy's parser (about 10 ms each): a SIGINT acts between two calls."""
 
 LIMIT_TOLERANCE = 1e-6
 """Frames may pass a joint limit by this much, rad (float32 storage of a value on the limit)."""
@@ -163,12 +191,40 @@ def _robot(mode: str) -> RobotSpec:
     return load_robot(mode)
 
 
+def check_file_size(path: Path, size: int) -> None:
+    """Refuse more than ``MAX_CLIP_BYTES`` of clip data (``size``: the file's bytes, or an NPZ's unpacked)."""
+    if size > MAX_CLIP_BYTES:
+        raise ClipError(
+            f"{path}: {size / 2**20:.4g} MiB of clip data; a clip file may hold at most "
+            f"{MAX_CLIP_BYTES / 2**20:.4g} MiB (bar_policy.motion.clip.MAX_CLIP_BYTES): cut the clip or "
+            "lower its rate"
+        )
+
+
+def check_clip_size(what: str, frames: int, rate_hz: float | None = None) -> None:
+    """Refuse more than ``MAX_CLIP_FRAMES`` frames, or (with ``rate_hz``) a clip longer than ``MAX_CLIP_S``.
+
+    ``ClipError`` naming the limit and its value. Loaders call it while they read, to stop early.
+    """
+    if frames > MAX_CLIP_FRAMES:
+        raise ClipError(
+            f"{what}: more than {MAX_CLIP_FRAMES} frames; a clip may have at most {MAX_CLIP_FRAMES} "
+            "(bar_policy.motion.clip.MAX_CLIP_FRAMES): cut the clip or lower its rate"
+        )
+    if rate_hz is not None and rate_hz > 0 and (frames - 1) / rate_hz > MAX_CLIP_S:
+        raise ClipError(
+            f"{what}: {frames} frames at {rate_hz:.4g} Hz last {(frames - 1) / rate_hz:.4g} s; a clip may "
+            f"last at most {MAX_CLIP_S:g} s (bar_policy.motion.clip.MAX_CLIP_S): cut it into shorter clips"
+        )
+
+
 def validate_clip(clip: Clip, robot: RobotSpec | None = None, *, max_speed: float = MAX_JOINT_SPEED) -> None:
     """Refuse a clip that the robot cannot or must not follow.
 
     Checks, in order: rate > 0; joint set and order equal to ``robot``'s (default: the mode holding the
-    clip's joints, else arms); frames shaped (T >= 2, n) and finite; every frame within the joint limits
-    (+- ``LIMIT_TOLERANCE``); every joint's speed between consecutive frames <= ``max_speed`` rad/s.
+    clip's joints, else arms); frames shaped (T >= 2, n), within ``check_clip_size``, and finite; every
+    frame within the joint limits (+- ``LIMIT_TOLERANCE``); every joint's speed between consecutive frames
+    <= ``max_speed`` rad/s.
 
     Raises:
         ClipError: the message names the clip, the frame (index and time) and the joint.
@@ -192,6 +248,7 @@ def validate_clip(clip: Clip, robot: RobotSpec | None = None, *, max_speed: floa
     q = clip.joint_pos
     if q.ndim != 2 or q.shape[1] != len(want) or q.shape[0] < 2:
         raise ClipError(f"clip {name!r}: frames must have shape (T >= 2, {len(want)}), got {q.shape}")
+    check_clip_size(f"clip {name!r}", q.shape[0], clip.rate_hz)
 
     def where(frame: int, joint: int) -> str:
         return f"clip {name!r}, frame {frame} (t = {frame / clip.rate_hz:.3f} s), joint {want[joint]!r}"
@@ -199,7 +256,7 @@ def validate_clip(clip: Clip, robot: RobotSpec | None = None, *, max_speed: floa
     bad = np.argwhere(~np.isfinite(q))
     if bad.size:
         f, j = bad[0]
-        raise ClipError(f"{where(f, j)}: non-finite value {q[f, j]!r}")
+        raise ClipError(f"{where(f, j)}: non-finite value {float(q[f, j])}")
     lo, hi = robot.lower - LIMIT_TOLERANCE, robot.upper + LIMIT_TOLERANCE
     bad = np.argwhere((q < lo) | (q > hi))
     if bad.size:
@@ -244,12 +301,29 @@ def load_clip(path: str | Path, mode: str = "arms", *, max_speed: float = MAX_JO
     robot = _robot(mode)
     if Path(path).is_file() and Path(path).stat().st_size == 0:
         raise ClipError(f"{path}: not a readable NPZ clip (the file is empty)")
+    if Path(path).is_file():
+        check_file_size(Path(path), Path(path).stat().st_size)
+        # The members' unpacked sizes bound the memory; np.load names a file that is no zip archive below.
+        unpacked = 0
+        with contextlib.suppress(zipfile.BadZipFile, OSError, ValueError), zipfile.ZipFile(path) as z:
+            unpacked = sum(i.file_size for i in z.infolist())
+        check_file_size(Path(path), unpacked)
     try:
         with np.load(Path(path), allow_pickle=False) as f:
             data = {k: f[k] for k in f.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, KeyError, AttributeError) as e:
-        # AttributeError: a bare .npy array (no ``files``); the others: empty, truncated or corrupt archives
-        raise ClipError(f"{path}: not a readable NPZ clip ({shorten(e)})") from None
+    except (
+        OSError,
+        ValueError,
+        EOFError,
+        zipfile.BadZipFile,
+        zlib.error,
+        KeyError,
+        AttributeError,
+        TypeError,
+    ) as e:
+        # AttributeError / TypeError: a bare .npy array (no ``files``, no context manager);
+        # the others: empty, truncated or corrupt archives
+        raise ClipError(f"{path}: not a readable NPZ clip ({npz_problem(path, e)})") from None
     keys = ("format", "name", "rate_hz", "joint_names", "joint_pos", "content_hash")
     missing = [k for k in keys if k not in data]
     if missing:
@@ -305,29 +379,16 @@ def load_csv(
     robot = _robot(mode)
     path = Path(path)
     try:
+        check_file_size(path, path.stat().st_size)
         with path.open(newline="") as f:
-            rows = list(csv.reader(f))
+            header = [h.strip() for h in next(csv.reader([f.readline()]), [])]
+            if header:
+                _check_columns(path, header, robot, mode)
+                values = _csv_values(path, f, len(header))
     except (OSError, UnicodeDecodeError, csv.Error) as e:
         raise ClipError(f"{path}: not a readable CSV clip ({shorten(e)})") from None
-    rows = rows[:1] + [r for r in rows[1:] if r]  # blank lines are no frames
-    if len(rows) < 3:
+    if not header or len(values) < 2:
         raise ClipError(f"{path}: needs a header row and at least two frames")
-    header = [h.strip() for h in rows[0]]
-    cols = [h for h in header if h != "time"]
-    missing = [j for j in robot.joint_names if j not in cols]
-    unknown = [c for c in cols if c not in robot.joint_names]
-    if missing or unknown or len(set(cols)) != len(cols):
-        raise ClipError(
-            f"{path}: columns must be exactly the joints of mode {mode!r} (plus an optional 'time'); "
-            f"missing {missing}, unknown {shorten(unknown)}; joints: {list(robot.joint_names)}"
-        )
-    widths = sorted({len(r) for r in rows[1:]})
-    if widths != [len(header)]:
-        raise ClipError(f"{path}: rows have {widths} values, the header {len(header)}")
-    try:
-        values = np.array([[float(x) for x in r] for r in rows[1:]], dtype=np.float64)
-    except ValueError as e:
-        raise ClipError(f"{path}: not a number ({shorten(e)})") from None
     if "time" in header:
         if rate_hz is not None:
             raise ClipError(f"{path}: give either a 'time' column or rate_hz, not both")
@@ -338,5 +399,55 @@ def load_csv(
         rate_hz = 1.0 / float(dt.mean())
     elif rate_hz is None:
         raise ClipError(f"{path}: no 'time' column; pass rate_hz")
+    check_clip_size(str(path), len(values), rate_hz)
     q = values[:, [header.index(j) for j in robot.joint_names]]
     return Clip.make(name or path.stem, rate_hz, q, mode, max_speed=max_speed)
+
+
+def _check_columns(path: Path, header: list[str], robot: RobotSpec, mode: str) -> None:
+    """The header must name exactly the mode's joints (any order) plus an optional ``time``."""
+    cols = [h for h in header if h != "time"]
+    missing = [j for j in robot.joint_names if j not in cols]
+    unknown = [c for c in cols if c not in robot.joint_names]
+    if missing or unknown or len(set(cols)) != len(cols):
+        raise ClipError(
+            f"{path}: columns must be exactly the joints of mode {mode!r} (plus an optional 'time'); "
+            f"missing {missing}, unknown {shorten(unknown)}; joints: {list(robot.joint_names)}"
+        )
+
+
+def _csv_values(path: Path, f: Iterable[str], width: int) -> np.ndarray:
+    """The CSV's frames after its header, float64 (T, width): ``CSV_CHUNK_ROWS`` rows per numpy call.
+
+    Blank lines are no frames. More than ``MAX_CLIP_FRAMES`` rows stop the read (``check_clip_size``); a
+    chunk numpy cannot parse is read again row by row to name the problem (ragged rows, not a number).
+    """
+    chunks: list[np.ndarray] = []
+    n = 0
+    while lines := list(itertools.islice(f, CSV_CHUNK_ROWS)):
+        lines = [ln for ln in lines if ln.strip()]  # blank lines are no frames
+        if not lines:
+            continue
+        try:
+            chunk = np.loadtxt(lines, delimiter=",", dtype=np.float64, ndmin=2, comments=None)
+        except ValueError:
+            chunk = _csv_rows(path, lines, width)
+        if chunk.size and chunk.shape[1] != width:
+            raise ClipError(f"{path}: rows have [{chunk.shape[1]}] values, the header {width}")
+        n += len(chunk)
+        check_clip_size(str(path), n)
+        check_stop(f"reading {path}")  # a stop request acts between two chunks
+        chunks.append(chunk.reshape(-1, width))
+    return np.concatenate(chunks) if chunks else np.zeros((0, width))
+
+
+def _csv_rows(path: Path, lines: list[str], width: int) -> np.ndarray:
+    """One chunk parsed row by row (the csv module, ``float``): the refusal that numpy's parser gave."""
+    rows = [r for r in csv.reader(lines) if r]
+    widths = sorted({len(r) for r in rows})
+    if widths != [width]:
+        raise ClipError(f"{path}: rows have {widths} values, the header {width}")
+    try:
+        return np.array([[float(x) for x in r] for r in rows], dtype=np.float64).reshape(-1, width)
+    except ValueError as e:
+        raise ClipError(f"{path}: not a number ({shorten(e)})") from None

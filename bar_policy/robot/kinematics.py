@@ -20,6 +20,7 @@ import numpy as np
 from bar_policy.robot.constants import FINGERTIP_SITES, load_robot
 from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.scene import SceneEdit, load_model
+from bar_policy.signals import check_stop
 
 __all__ = ["Kinematics", "rotation_to_6d"]
 
@@ -108,6 +109,8 @@ class Kinematics:
         rot = np.empty((len(q), len(b), 3, 3))
         spos = np.empty((len(q), len(s), 3))
         for t, qt in enumerate(q):
+            if t % 1000 == 0:
+                check_stop("forward kinematics of a trajectory")  # a stop request acts within ~10 ms
             self._set(qt)
             pos[t] = self.data.xpos[b]
             rot[t] = self.data.xmat[b].reshape(-1, 3, 3)

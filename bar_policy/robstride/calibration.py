@@ -143,30 +143,27 @@ class Calibration:
 
     @classmethod
     def from_json(cls, text: str | bytes) -> Calibration:
-        """Parse the file text (str or UTF-8 bytes); raises ``CalibrationError`` naming what is wrong."""
-        try:
-            data = loads_json(text, "calibration file", CalibrationError)
-            raw = data.get("joints", data) if isinstance(data, dict) else None
-            if not isinstance(raw, dict):
-                raise TypeError("top level must be an object")
-            joints = {
-                str(name): JointCalibration(
-                    name=str(name),
-                    can_id=int(v["id"]),
-                    direction=int(v["direction"]),
-                    homing_offset=float(v["homing_offset"]),
-                )
-                for name, v in raw.items()
-                if name != "robot"
-            }
-        except CalibrationError:
-            raise
-        except (ValueError, TypeError, KeyError, AttributeError, OverflowError) as exc:
+        """Parse the file text (str or UTF-8 bytes); raises ``CalibrationError`` naming what is wrong.
+
+        Values are taken exactly as written, never rounded: ``id`` an integer 0..127 (JSON ``11``, not
+        ``11.5`` or ``"11"``), ``direction`` the integer 1 or -1 (``-1.9`` is refused, not truncated to
+        -1), ``homing_offset`` a finite number of radians. The message names the joint and the key.
+        """
+        data = loads_json(text, "calibration file", CalibrationError)
+        raw = data.get("joints", data) if isinstance(data, dict) else None
+        if not isinstance(raw, dict):
+            raise CalibrationError(f"invalid calibration file: the top level must be an object; {_SHAPE}")
+        joints = {}
+        for name, v in raw.items():
+            if name == "robot":
+                continue
+            joints[str(name)] = _joint_from_json(str(name), v)
+        robot = data.get("robot", "lite_dummy")
+        if not isinstance(robot, str):
             raise CalibrationError(
-                f"invalid calibration file: {shorten(exc)}; expected "
-                '{"joints": {"<joint>": {"id": int, "direction": 1 or -1, "homing_offset": float}}}'
-            ) from exc
-        return cls(robot=str(data.get("robot", "lite_dummy")), joints=joints)
+                f"invalid calibration file: 'robot' = {shorten(repr(robot))} is not a string"
+            )
+        return cls(robot=robot, joints=joints)
 
     def save(self, path: str | Path) -> None:
         """Write the JSON file atomically (a temporary file, then a rename: never half a file)."""
@@ -183,6 +180,32 @@ class Calibration:
             return cls.from_json(text)
         except CalibrationError as exc:
             raise CalibrationError(f"{path}: {exc}") from None
+
+
+_SHAPE = 'expected {"joints": {"<joint>": {"id": int, "direction": 1 or -1, "homing_offset": float}}}'
+"""The file's shape, as refusals state it."""
+
+
+def _joint_from_json(name: str, v: object) -> JointCalibration:
+    """One joint's entry, every value checked exactly (``CalibrationError`` naming the joint and key)."""
+    where = f"invalid calibration file: joint {shorten(name)!r}"
+    if not isinstance(v, dict):
+        raise CalibrationError(f"{where}: must be an object; {_SHAPE}")
+    keys = ("id", "direction", "homing_offset")
+    missing = [k for k in keys if k not in v]
+    if missing:
+        raise CalibrationError(f"{where}: lacks {missing}; {_SHAPE}")
+    can_id, direction, offset = (v[k] for k in keys)
+    if isinstance(can_id, bool) or not isinstance(can_id, int) or not 0 <= can_id <= 127:
+        raise CalibrationError(f"{where}: 'id' = {shorten(repr(can_id))} is not a CAN id (an integer 0..127)")
+    if isinstance(direction, bool) or not isinstance(direction, int) or direction not in (-1, 1):
+        shown = shorten(repr(direction))
+        raise CalibrationError(f"{where}: 'direction' = {shown} must be 1 or -1 (an integer)")
+    if isinstance(offset, bool) or not isinstance(offset, int | float) or not math.isfinite(offset):
+        raise CalibrationError(
+            f"{where}: 'homing_offset' = {shorten(repr(offset))} must be a finite number of radians"
+        )
+    return JointCalibration(name=name, can_id=can_id, direction=direction, homing_offset=float(offset))
 
 
 @dataclass(frozen=True, kw_only=True)

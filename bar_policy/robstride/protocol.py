@@ -205,7 +205,7 @@ def encode_mit_batch(
     if not np.isfinite(values).all():
         f, j = np.argwhere(~np.isfinite(values))[0]
         raise CommandError(
-            f"non-finite MIT {MIT_FIELDS[f]}={values[f, j]!r} for CAN id {can_ids[j]}; nothing was sent"
+            f"non-finite MIT {MIT_FIELDS[f]}={float(values[f, j])} for CAN id {can_ids[j]}; nothing was sent"
         )
     for can_id in can_ids:
         check_motor_id(can_id)

@@ -40,7 +40,7 @@ RUN_ROWS = [
     ("motion-for-reach", ["--motion", "wave"], "--motion wave is for 'track' policies (motion tracking)"),
     ("video-not-sim", ["--target", "mock", "--video", "x.mp4"], "--video needs --target sim"),
     ("policy-missing", ["--policy", "missing.onnx"], "cannot read the file: No such file or directory"),
-    ("mode-mismatch", ["--mode", "arms_neck"], "joint set mismatch: the policy is for mode 'arms'"),
+    ("mode-mismatch", ["--mode", "arms_neck"], "joint set mismatch: the policy drives mode 'arms'"),
     ("real-channels", ["--target", "real", "--can-interface", "virtual", "--channels", "a,b,c"],
      "target real: cannot build the real target: --channels 'a,b,c': give 2 channels"),
     # No SocketCAN here (or no can0): the driver's own message, printed on one line, with the fix.

@@ -251,7 +251,7 @@ def test_hc_only_17_joint_file_is_the_neck_mode(tmp_path):
     assert load_policy(path).robot.mode == "arms_neck"
     with pytest.raises(
         PolicyLoadError,
-        match="the policy is for mode 'arms_neck' \\(17 joints\\), the robot runs mode 'arms'",
+        match="the policy drives mode 'arms_neck' \\(17 joints\\), this run drives mode 'arms'",
     ):
         load_policy(path, mode="arms")
 

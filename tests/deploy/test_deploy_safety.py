@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import signal
@@ -122,10 +123,25 @@ def test_hold_ramps_pose_and_gains_then_hands_over_to_policy(zero_policy):
     np.testing.assert_allclose(target.commands[50].kp, 50.0)
 
 
+class _NanAfterLoad:
+    """An onnxruntime session stand-in: the loaded network's answer with action 5 NaN.
+
+    A network that is finite on the default observation (``load_policy`` refuses one that is not) but turns
+    NaN on a live one: the runtime's own check must catch it.
+    """
+
+    def __init__(self, session) -> None:
+        self.session = session
+
+    def run(self, names, feeds):
+        out = self.session.run(names, feeds)
+        out[0][0, 5] = np.nan
+        return out
+
+
 def test_nan_action_goes_to_damping(make_policy):
-    b = np.zeros(14)
-    b[5] = np.nan
-    pol = load_policy(make_policy(bias=b))
+    pol = load_policy(make_policy())
+    pol = dataclasses.replace(pol, session=_NanAfterLoad(pol.session))
     target = SteppedMock()
     _, res = _run(pol, target)
     tr = _fault_transition(res)

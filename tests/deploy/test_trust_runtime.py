@@ -219,8 +219,8 @@ def test_action_scale_beyond_the_joint_range_is_refused(make_policy):
     with pytest.raises(PolicyLoadError) as err:
         _runtime(pol, SteppedMock(), duration=0.1)
     msg = str(err.value)
-    assert "left_elbow_pitch: action_scale 3 rad x +-1 from the default -1.700 rad" in msg
-    assert "reaches [-4.700, +1.300] rad, beyond its range [-2.356, +0.000] rad by more than 0.5 rad" in msg
+    assert "left_elbow_pitch: action_scale 3 rad x +-1 from the default -1.7 rad" in msg  # 4 digits
+    assert "reaches [-4.7, +1.3] rad, beyond its range [-2.356, +0] rad by more than 0.5 rad" in msg
     assert msg.count("action_scale 3 ") == 1  # the other joints (0.25) are fine
 
 

@@ -26,8 +26,9 @@ def drive(can_timeout: float) -> int:
     robot = load_robot("arms")
     interfaces = dict.fromkeys(j.can_interface for j in robot.joints)
     buses = {i: can.Bus(interface="virtual", channel=i) for i in interfaces}
-    group = RobstrideGroup.from_robot(robot, buses, reply_timeout=0.5, can_timeout=can_timeout)
-    reading = group.activate(lower=robot.lower, upper=robot.upper, scan_ids=range(1, 33), scan_timeout=0.5)
+    # 2 s deadlines: the replies cross a TCP bridge between two processes on a possibly loaded host.
+    group = RobstrideGroup.from_robot(robot, buses, reply_timeout=2.0, can_timeout=can_timeout)
+    reading = group.activate(lower=robot.lower, upper=robot.upper, scan_ids=range(1, 33), scan_timeout=2.0)
     cmd = MitCommand.position(reading.q + 0.1, robot.kp, robot.kd)  # 0.1 rad off: a visible holding torque
     for k in itertools.count():
         group.exchange_mit(cmd)

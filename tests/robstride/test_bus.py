@@ -21,7 +21,7 @@ from bar_policy.robstride.bus_types import MotorConfig
 from bar_policy.robstride.calibration import Calibration, JointCalibration
 from bar_policy.robstride.errors import InitializationError
 
-from .helpers import make_group, make_target
+from .helpers import TEST_TIMEOUT, make_group, make_target
 
 LSB_P = 8 * math.pi / 65535  # one position step, rad
 
@@ -90,7 +90,7 @@ def test_cap_of_zero_skips_the_write(robot, channels, listeners, make_emulator, 
     ]
     caplog.set_level(logging.INFO, logger="bar_policy.robstride.bus")
     with RobstrideBus(can.Bus(interface="virtual", channel=channels["can0"]), motors, interface="can0",
-                      reply_timeout=0.2) as bus:  # fmt: skip
+                      reply_timeout=TEST_TIMEOUT) as bus:  # fmt: skip
         written = write_caps(bus)
     assert written == [(11, "current_limit", 5.0), (12, "torque_limit", 9.0)]
     frames = [(m.arbitration_id & 0xFF, struct.unpack("<HHf", bytes(m.data))[0]) for m in

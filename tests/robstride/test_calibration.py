@@ -104,3 +104,38 @@ def test_file_errors_name_the_problem(tmp_path, robot):
     del joints["left_wrist_yaw"]
     with pytest.raises(InitializationError, match="lacks joints"):
         Calibration(joints=joints).offsets(robot)
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "message"),
+    [
+        ("direction", -1.9, "'direction' = -1.9 must be 1 or -1"),  # was truncated to -1
+        ("direction", 1.0, "'direction' = 1.0 must be 1 or -1"),  # a float, even an integral one
+        ("direction", 2, "'direction' = 2 must be 1 or -1"),
+        ("direction", True, "'direction' = True must be 1 or -1"),
+        ("id", 11.5, r"'id' = 11.5 is not a CAN id \(an integer 0..127\)"),
+        ("id", "11", r"'id' = '11' is not a CAN id \(an integer 0..127\)"),
+        ("id", 128, r"'id' = 128 is not a CAN id \(an integer 0..127\)"),
+        ("homing_offset", "0.2", "'homing_offset' = '0.2' must be a finite number of radians"),
+        ("homing_offset", 1e400, "'homing_offset' = inf must be a finite number of radians"),  # JSON 1e400
+    ],
+)
+def test_calibration_values_are_checked_exactly(tmp_path, robot, key, value, message):
+    """Every value is taken as written or refused with one line naming the joint, the key and the choices."""
+    cal = json.loads(Calibration.zeros(robot).to_json())
+    cal["joints"]["left_shoulder_pitch"][key] = value
+    path = tmp_path / "cal.json"
+    path.write_text(json.dumps(cal))  # json writes 1e400 as Infinity, which the reader maps to inf
+    with pytest.raises(InitializationError, match=f"joint 'left_shoulder_pitch': {message}") as err:
+        Calibration.load(path)
+    assert "\n" not in str(err.value)
+
+
+def test_calibration_written_values_load_unchanged(tmp_path, robot):
+    """An integral id and direction and a finite offset (an int too) are kept exactly."""
+    cal = json.loads(Calibration.zeros(robot).to_json())
+    cal["joints"]["left_shoulder_pitch"]["homing_offset"] = 1  # JSON int: 1.0 rad
+    path = tmp_path / "cal.json"
+    path.write_text(json.dumps(cal))
+    j = Calibration.load(path).joints["left_shoulder_pitch"]
+    assert (j.can_id, j.direction, j.homing_offset) == (11, -1, 1.0)

@@ -16,9 +16,12 @@ from bar_policy.robot.mjcf import load_model
 from bar_policy.robstride.calibration import Calibration, JointCalibration
 from bar_policy.robstride.cli_args import parse_channels
 
+from .helpers import TEST_TIMEOUT
+
 # Bus timing is not what these tests check: on a loaded CI host a 50 ms reply deadline or the 0.2 s CAN
-# watchdog can trip between two ticks (seen at load 4-8 on 2 cores), so the loops here get generous ones.
-_LOADED_HOST = ["--reply-timeout", "0.5", "--can-timeout", "2"]
+# watchdog can trip between two ticks (seen at load 4-8 on 2 cores), so the loops here get generous ones
+# (the reply deadline is the tests' shared one, ``helpers.TEST_TIMEOUT``).
+_LOADED_HOST = ["--reply-timeout", str(TEST_TIMEOUT), "--can-timeout", "2"]
 
 
 def _args(argv):

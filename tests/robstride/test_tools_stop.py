@@ -17,7 +17,7 @@ from bar_policy.robstride.tools import main
 
 from .bridge import SocketcandBridge
 from .conftest import assert_ends_with_damping_then_stop, swept_emulator
-from .helpers import Child
+from .helpers import TEST_TIMEOUT, Child
 
 LEFT = [11, 12, 13, 14, 15, 16, 17]
 RIGHT = [21, 22, 23, 24, 25, 26, 27]
@@ -34,7 +34,7 @@ def sweeping(robot, make_emulator):
 def _calibrate_child(bridge, out, *extra):
     return Child(
         ["bar-bus", "calibrate", "--can-interface", "virtual", "--calibration", str(out),
-         "--reply-timeout", "0.5", "--rate", "100", *extra],
+         "--reply-timeout", str(TEST_TIMEOUT), "--rate", "100", *extra],
         bridge.port,
     )  # fmt: skip
 
@@ -105,7 +105,7 @@ def test_exception_damps_stops_and_discards(tmp_path, channels, listeners, sweep
     monkeypatch.setattr(RobstrideGroup, "poll_disabled", failing_poll)
     chans = f"{channels['can0']},{channels['can1']}"
     code = main(["calibrate", "--can-interface", "virtual", "--channels", chans, "--calibration", str(out),
-                 "--reply-timeout", "0.5", "--rate", "200"])  # fmt: skip
+                 "--reply-timeout", str(TEST_TIMEOUT), "--rate", "200"])  # fmt: skip
     err = capsys.readouterr().err
     assert code == 1
     assert err == "bar-bus: error: can1: cannot send: CAN interface can1 is down\n"
@@ -119,7 +119,7 @@ def test_nothing_swept_writes_nothing(tmp_path, channels, make_emulator, capsys)
     out = tmp_path / "cal.json"
     chans = f"{channels['can0']},{channels['can1']}"
     code = main(["calibrate", "--can-interface", "virtual", "--channels", chans, "--calibration", str(out),
-                 "--reply-timeout", "0.5", "--duration", "0.2"])  # fmt: skip
+                 "--reply-timeout", str(TEST_TIMEOUT), "--duration", "0.2"])  # fmt: skip
     assert code == 1 and not out.exists()
     assert "no joint was swept by 0.5 rad or more" in capsys.readouterr().err
 

@@ -119,6 +119,10 @@ class Target(abc.ABC):
 
     synchronous: bool = False
     """True when ``advance`` steps a simulated clock (no sleeping needed)."""
+    applies_commands: bool = True
+    """False when written commands never reach the joints (a dry run): the measured state cannot follow
+    them, so the torque a command would demand at that state is no fault of the run (``Runtime`` skips the
+    saturation rule and logs it once)."""
 
     def __init__(self, joint_names: tuple[str, ...]) -> None:
         self.joint_names = tuple(joint_names)

@@ -84,6 +84,7 @@ class RealTarget(Target):
         self.robot = robot
         self.group = group
         self.dry_run = dry_run
+        self.applies_commands = not dry_run  # a dry run sends no command: the arms never follow one
         self.refresh_on_read = refresh_on_read
         self.damping_kd = damping_kd
         self.damping_hold_s = damping_hold_s

@@ -61,7 +61,8 @@ def resolve_song(spec: str) -> Song:
 
         return load_midi(path, kb)
     except SongError as e:
-        raise OptionError(f"--song {spec}: {e}") from None
+        msg = str(e).removeprefix(f"{spec}: ")  # the loader names the file first: once is enough
+        raise OptionError(f"--song {spec}: {msg}") from None
 
 
 def key_source(

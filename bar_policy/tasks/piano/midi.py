@@ -11,30 +11,66 @@ with the note named. ``mido`` comes with the ``deploy`` extra; it is imported wh
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
+from bar_policy.signals import check_stop
 from bar_policy.tasks.piano.keyboard import HAND_SPLIT_MIDI, KeyboardConfig, note_name
-from bar_policy.tasks.piano.songs import Note, Song, SongError, TempoLimits, playable
+from bar_policy.tasks.piano.songs import (
+    Note,
+    Song,
+    SongError,
+    TempoLimits,
+    check_song_file,
+    check_song_size,
+    playable,
+)
 
 __all__ = ["load_midi", "midi_notes"]
+
+
+class _StoppableBytes(io.BytesIO):
+    """A MIDI file's bytes for ``mido``, checking for a stop request (``check_stop``) as it is read.
+
+    ``mido`` parses a byte at a time in Python (about 0.1 MB/s on the project's loaded 2-core CPU); every
+    ``STOP_CHECK_READS`` reads this checks for a stop request.
+    """
+
+    STOP_CHECK_READS = 4096
+
+    def __init__(self, data: bytes, what: str) -> None:
+        super().__init__(data)
+        self._what = what
+        self._reads = 0
+
+    def read(self, size: int | None = -1) -> bytes:
+        """``BytesIO.read``, checking for a stop request every ``STOP_CHECK_READS`` calls."""
+        self._reads += 1
+        if self._reads % self.STOP_CHECK_READS == 0:
+            check_stop(self._what)
+        return super().read(size)
 
 
 def midi_notes(path: str | Path, split: int = HAND_SPLIT_MIDI) -> list[Note]:
     """The notes of a standard MIDI file, hands by ``split``, times in s; not checked against the arms.
 
-    ``SongError`` for a file ``mido`` cannot read, a key pressed again while held, or a key never released.
+    ``SongError`` for a file ``mido`` cannot read, a key pressed again while held, a key never released, or a
+    file or song past ``songs``' limits (file size, note count, length: read no further than the first).
     """
     import mido
 
     path = Path(path)
+    check_song_file(path)
     try:
-        midi = mido.MidiFile(path)
+        midi = mido.MidiFile(path, file=_StoppableBytes(path.read_bytes(), f"reading {path}"))
     except (OSError, EOFError, ValueError, KeyError, IndexError) as e:
         raise SongError(f"{path}: not a readable MIDI file ({e})") from None
     held: dict[tuple[int, int], float] = {}
     notes: list[Note] = []
     now = 0.0
-    for msg in midi:  # merged tracks; msg.time is the delta in seconds
+    for k, msg in enumerate(midi):  # merged tracks; msg.time is the delta in seconds
+        if k % 256 == 0:
+            check_stop(f"reading {path}")  # a stop request acts within 256 messages
         now += msg.time
         if msg.type not in ("note_on", "note_off"):
             continue
@@ -46,6 +82,7 @@ def midi_notes(path: str | Path, split: int = HAND_SPLIT_MIDI) -> list[Note]:
         elif key in held:
             start = held.pop(key)
             notes.append(Note(msg.note, start, now, "left" if msg.note < split else "right"))
+            check_song_size(str(path), len(notes), now)  # while reading: stop at the first note past a limit
     if held:
         (channel, key), start = next(iter(held.items()))
         raise SongError(

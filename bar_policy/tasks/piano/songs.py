@@ -15,6 +15,11 @@ notes of one hand the fingertip must lift and move from one key's aim point to t
 ``max_speed``, so the next note may start no sooner than ``required_gap`` after the previous one ends.
 ``either`` notes are given, in time order, to the one hand that can play them, or when both can to the
 hand on the note's side of ``split`` (below middle C: left). numpy only.
+
+Every song read from a file is bounded before anything is built from it (``check_song_size``): a file of at
+most ``MAX_SONG_FILE_BYTES``, at most ``MAX_SONG_NOTES`` notes, its last note ending by ``MAX_SONG_S``; the
+goal-key tables played from it (``source.SongCommands``) must fit ``MAX_SONG_TABLE_BYTES``. Each refusal
+names the limit and its value: a note held for 4.5e9 s would otherwise ask for 40 TiB of tables.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from bar_policy._files import InputError, loads_json, shorten, strict_json
+from bar_policy.signals import check_stop
 from bar_policy.tasks.piano.keyboard import (
     HAND_SPLIT_MIDI,
     LEFT_REACH,
@@ -40,10 +46,17 @@ from bar_policy.tasks.piano.keyboard import (
 __all__ = [
     "FORMAT",
     "HANDS",
+    "MAX_SONG_FILE_BYTES",
+    "MAX_SONG_NOTES",
+    "MAX_SONG_S",
+    "MAX_SONG_TABLE_BYTES",
     "Note",
     "Song",
     "SongError",
     "TempoLimits",
+    "check_song_file",
+    "check_song_size",
+    "check_table_size",
     "count_in",
     "goal_keys",
     "key_distance",
@@ -60,9 +73,64 @@ FORMAT = "bar_policy.piano.song/1"
 HANDS: tuple[str, ...] = ("left", "right", "either")
 """Valid ``Note.hand`` values."""
 
+MAX_SONG_S = 600.0
+"""Latest end of a song's last note, s (10 min: the library's songs last under a minute)."""
+MAX_SONG_NOTES = 5000
+"""Most notes in one song (5000 notes in 10 min is 8 a second, past what the arms' tempo allows)."""
+MAX_SONG_FILE_BYTES = 512 * 1024
+"""Largest song file (JSON or MIDI) read, bytes: 5000 notes take about 350 kB as JSON, 40 kB as MIDI (a
+performance's pedal and controller messages add to that). ``mido`` parses MIDI at about 0.1 MB/s on the
+project's loaded 2-core CPU (450 kB in 31 s): a larger bound would be a long wait before any refusal."""
+MAX_SONG_TABLE_BYTES = 256 * 1024 * 1024
+"""Largest goal-key tables built for playback, bytes, at their peak: 10 bytes per key and control step
+(``bank.song_bank`` keeps float32 keys down and a uint8 per hand, 6 bytes, and ``goal_keys`` builds a
+float32 working table, 4). 600 s at 50 Hz is 30 000 steps: 15 MB on the 49-key compact keyboard; the
+limit binds only at a control period far below 20 ms."""
+TABLE_BYTES_PER_KEY_STEP = 10
+"""Peak bytes of goal-key tables per key and control step (``MAX_SONG_TABLE_BYTES``)."""
+
 
 class SongError(InputError):
     """A song that cannot be read or played (the message names the note)."""
+
+
+def check_song_file(path: Path) -> None:
+    """Refuse a song file larger than ``MAX_SONG_FILE_BYTES`` before reading it (``SongError``)."""
+    size = path.stat().st_size
+    if size > MAX_SONG_FILE_BYTES:
+        raise SongError(
+            f"{path}: the file has {size} bytes; a song file may have at most {MAX_SONG_FILE_BYTES} "
+            f"(bar_policy.tasks.piano.songs.MAX_SONG_FILE_BYTES, {MAX_SONG_NOTES} notes fit in far less)"
+        )
+
+
+def check_song_size(what: str, n_notes: int, end_s: float) -> None:
+    """Refuse a song of more than ``MAX_SONG_NOTES`` notes or one ending after ``MAX_SONG_S`` (``SongError``).
+
+    ``end_s``: the end of its last note so far, s (loaders call this while they read, to stop early).
+    """
+    if n_notes > MAX_SONG_NOTES:
+        raise SongError(
+            f"{what}: more than {MAX_SONG_NOTES} notes; a song may have at most {MAX_SONG_NOTES} "
+            "(bar_policy.tasks.piano.songs.MAX_SONG_NOTES): split it into shorter songs"
+        )
+    if end_s > MAX_SONG_S:
+        raise SongError(
+            f"{what}: a note ends at {end_s:.4g} s; a song must end by {MAX_SONG_S:g} s "
+            "(bar_policy.tasks.piano.songs.MAX_SONG_S): cut it or split it into shorter songs"
+        )
+
+
+def check_table_size(what: str, steps: int, n_keys: int) -> None:
+    """Refuse goal-key tables of ``steps`` x ``n_keys`` past ``MAX_SONG_TABLE_BYTES`` (``SongError``)."""
+    need = TABLE_BYTES_PER_KEY_STEP * steps * n_keys
+    if need > MAX_SONG_TABLE_BYTES:
+        raise SongError(
+            f"{what}: playing it needs {need / 2**20:.4g} MiB of goal-key tables ({steps} control steps x "
+            f"{n_keys} keys x {TABLE_BYTES_PER_KEY_STEP} bytes); the limit is "
+            f"{MAX_SONG_TABLE_BYTES / 2**20:.4g} MiB "
+            "(bar_policy.tasks.piano.songs.MAX_SONG_TABLE_BYTES): a shorter song or a longer control period"
+        )
 
 
 @dataclass(frozen=True)
@@ -280,15 +348,21 @@ def song_to_json(song: Song) -> str:
 
 
 def song_from_json(text: str | bytes, what: str = "song") -> Song:
-    """Parse a song file's text (``SongError`` for anything malformed; not checked against the keyboard)."""
+    """Parse a song file's text; not checked against the keyboard.
+
+    ``SongError`` for anything malformed or past ``check_song_size``'s limits.
+    """
     data = loads_json(text, what, SongError)
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise SongError(f"{what}: not a song file (format must be {FORMAT!r})")
     name, notes = data.get("name"), data.get("notes")
     if not isinstance(name, str) or not isinstance(notes, list):
         raise SongError(f"{what}: needs a string 'name' and a list 'notes'")
+    check_song_size(what, len(notes), 0.0)
     out = []
     for i, n in enumerate(notes):
+        if i % 256 == 0:
+            check_stop(f"reading {what}")  # a stop request acts within 256 notes
         if (
             not isinstance(n, dict)
             or set(n) - {"key", "start_s", "end_s", "hand"}
@@ -299,6 +373,7 @@ def song_from_json(text: str | bytes, what: str = "song") -> Song:
         if not all(isinstance(t, int | float) and not isinstance(t, bool) for t in times):
             raise SongError(f"{what}, note {i}: start_s and end_s must be numbers; got {shorten(n)}")
         out.append(Note(n["key"], float(times[0]), float(times[1]), n.get("hand", "either")))
+        check_song_size(what, len(out), out[-1].end_s)
     return Song(name, tuple(out))
 
 
@@ -307,6 +382,7 @@ def read_song(
 ) -> Song:
     """Read a song file and check it (``playable``): hands resolved, or ``SongError`` naming the note."""
     path = Path(path)
+    check_song_file(path)
     return playable(song_from_json(path.read_bytes(), str(path)), config, limits)
 
 

@@ -40,7 +40,7 @@ from bar_policy.tasks.interfaces import CommandSource
 from bar_policy.tasks.piano.bank import PlaybackConfig, song_bank
 from bar_policy.tasks.piano.key_input import KeySource, SimKeys
 from bar_policy.tasks.piano.keyboard import KeyboardConfig
-from bar_policy.tasks.piano.songs import Song
+from bar_policy.tasks.piano.songs import Song, check_table_size
 from bar_policy.tasks.piano.terms import PIANO_KEYS, TARGET_FRAMES
 
 if TYPE_CHECKING:
@@ -90,6 +90,7 @@ class SongCommands(CommandSource):
         self.playback = PlaybackConfig() if playback is None else playback
         # Room for the song after any count-in: the bank plays it (count-in, rounding) and gives its length.
         room = math.ceil((song.duration_s + self.playback.count_in_s) / dt) + 1
+        check_table_size(f"song {song.name!r}", room + TARGET_FRAMES, keyboard.n_keys)  # before allocating
         bank = song_bank([song], keyboard, dt, room, TARGET_FRAMES - 1, self.playback)
         self.song_steps = int(bank.steps[0])
         """The song's length as played, control steps: its last note's end, count-in included."""

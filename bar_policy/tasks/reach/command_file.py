@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bar_policy._files import loads_json, shorten
+from bar_policy._files import loads_json, npz_problem, shorten
 from bar_policy.tasks.reach.shared import ReachTargetConfig
 from bar_policy.tasks.reach.sources import COMMAND_SIZES, CommandError, ReachSource, _vector
 
@@ -110,10 +110,20 @@ class FileCommands(ReachSource):
         try:
             with np.load(self.path, allow_pickle=False) as z:
                 arrays = {k: z[k] for k in z.files}
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, KeyError, AttributeError) as e:
-            # AttributeError: a bare .npy array (no ``files``); the rest: empty, truncated or corrupt archives
+        except (
+            OSError,
+            ValueError,
+            EOFError,
+            zipfile.BadZipFile,
+            zlib.error,
+            KeyError,
+            AttributeError,
+            TypeError,
+        ) as e:
+            # AttributeError / TypeError: a bare .npy array (no ``files``, no context manager);
+            # the rest: empty, truncated or corrupt archives
             raise CommandError(
-                f"command file {str(self.path)!r} is not a readable NPZ: {shorten(e)}"
+                f"command file {str(self.path)!r} is not a readable NPZ: {npz_problem(self.path, e)}"
             ) from None
         missing = [k for k in ("t", *self.names) if k not in arrays]
         if missing:

@@ -84,7 +84,8 @@ class TrackTask(DeployTask):
         try:
             clip = load_motion(spec, policy.robot.mode, rate)
         except ValueError as e:  # ClipError is a ValueError
-            raise OptionError(f"--motion {spec}: {e}") from None
+            msg = str(e).removeprefix(f"{spec}: ")  # the loader names the file first: once is enough
+            raise OptionError(f"--motion {spec}: {msg}") from None
         return reference_for(policy, clip)
 
     def evaluate(self, policy: Policy, args: argparse.Namespace, runner: EpisodeRunner) -> EvalReport:
