@@ -1,4 +1,5 @@
-"""No text of the project points at a work period ("session 12", "issue 7") instead of saying what it means.
+"""No text of the project points at a work period (a session or an issue by number) instead of saying what it
+means.
 
 A reader has no such sessions or issues: a figure cites its device, commit and date; a decision gives its
 reason. This scans the tracked text files of the package, the tests, the benches, the training scripts,
@@ -11,13 +12,13 @@ import re
 import subprocess
 from pathlib import Path
 
-import pytest
-
 REPO = Path(__file__).resolve().parents[1]
 SCANNED = ("bar_policy", "tests", "bench", "train", "docs", "README.md")
 """The project's text: package, tests, benches, training scripts, docs, README (paths from the root)."""
 WORK_PERIOD = re.compile(r"\b(session|issue)s? [0-9]+", re.IGNORECASE)
-"""A work period's name: "session 45", "Sessions 41-44", "issue 19"."""
+"""A work period's name: the word session or issue (or their plurals), a space, a number. The examples in this
+file are assembled from parts (``_S``, ``_I``) so that the file itself passes the scan."""
+_S, _I = "sess" + "ion", "iss" + "ue"
 
 
 def _tracked_files() -> list[Path]:
@@ -53,18 +54,17 @@ def test_the_pattern_finds_work_periods_and_nothing_else(tmp_path):
     """Hand-made lines: the names of work periods are found, a figure's device/commit/date is not."""
     f = tmp_path / "a.md"
     f.write_text(
-        "measured in session 45\nSessions 41-44 answered it\n(issue 19: time to a policy)\n"
+        f"measured in {_S} 45\n{_S.title()}s 41-44 answered it\n({_I} 19: time to a policy)\n"
         "one H200, commit 280175b, 2026-11-28\nthe session fixtures\nan issue with 3 causes\n",
         encoding="utf-8",
     )
-    (tmp_path / "b.bin").write_bytes(b"\xff\xfe session 3")  # not UTF-8: skipped, as the npz files are
+    (tmp_path / "b.bin").write_bytes(
+        b"\xff\xfe " + _S.encode() + b" 3"
+    )  # not UTF-8: skipped, as the npz files are
     found = hits([f, tmp_path / "b.bin"], root=tmp_path)
     assert [h.split(":")[1] for h in found] == ["1", "2", "3"]
 
 
-@pytest.mark.xfail(
-    strict=False, reason="deploy/, robstride/ and docs/ are being cleaned in parallel"
-)  # remove once tests/deploy and docs/ are merged clean
 def test_no_text_names_a_work_period():
     files = _tracked_files()
     assert len(files) > 100, len(files)  # the tree was found

@@ -1,9 +1,9 @@
 """The policies in ``checkpoints/``: what their files declare, and what they do on the C MuJoCo sim target.
 
 Figures come from ``bar-deploy eval`` on the sim target, the path a user runs; the thresholds are the
-issues' targets (reach: >= 95 % segment success, issue 9's "the shipped policy still reaches 95 %"; track:
-issue 10's <= 2 cm fingertip error, and its 0.05 rad joint error with 25 % room for the two gestures alone,
-whose mean the shipped tracker holds at 0.056 rad: see docs/tracking.md).
+project's targets (reach: the shipped policy still reaches >= 95 % segment success; track: <= 2 cm
+fingertip error, and a 0.05 rad joint error with 25 % room for the two gestures alone, whose mean the
+shipped tracker holds at 0.056 rad: see docs/tracking.md).
 """
 
 from __future__ import annotations
