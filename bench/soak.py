@@ -36,9 +36,15 @@ from bar_policy.deploy.mcap_log import MCAP_FILE, read_mcap_log
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def _as_ordinary_load() -> None:
+    """In the busy child: the normal scheduler (not a SCHED_FIFO the soak may run under) on CPU 0."""
+    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    os.sched_setaffinity(0, {0})
+
+
 def _spin() -> subprocess.Popen:
-    """One busy process (pure Python, one core)."""
-    return subprocess.Popen([sys.executable, "-c", "while True:\n    pass"])
+    """One busy process (pure Python) on one core, under the normal scheduler whatever the soak's own policy."""
+    return subprocess.Popen([sys.executable, "-c", "while True:\n    pass"], preexec_fn=_as_ordinary_load)
 
 
 def _indexed_ok(path: Path) -> bool:
