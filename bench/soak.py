@@ -43,7 +43,7 @@ def _as_ordinary_load() -> None:
 
 
 def _spin() -> subprocess.Popen:
-    """One busy process (pure Python) on one core, under the normal scheduler whatever the soak's own policy."""
+    """One busy process (pure Python) on one core, under the normal scheduler whatever the soak runs under."""
     return subprocess.Popen([sys.executable, "-c", "while True:\n    pass"], preexec_fn=_as_ordinary_load)
 
 
