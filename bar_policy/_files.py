@@ -8,6 +8,8 @@ import json
 import math
 import os
 import tempfile
+import zipfile
+import zlib
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -86,6 +88,21 @@ def shorten(value: object, limit: int = ECHO_LIMIT) -> str:
     if len(text) <= limit:
         return text
     return f"{text[:limit]}... ({len(text)} chars)"
+
+
+NPZ_LOAD_ERRORS: tuple[type[BaseException], ...] = (
+    OSError,
+    ValueError,
+    EOFError,
+    zipfile.BadZipFile,
+    zlib.error,
+    KeyError,
+    AttributeError,
+    TypeError,
+)
+"""What ``np.load(path, allow_pickle=False)`` and reading its members raise for a file that is not a usable
+NPZ: AttributeError / TypeError for a bare ``.npy`` array (no ``files``, no context manager); the others for
+an empty, truncated or corrupt archive. Catch these and report them with :func:`npz_problem`."""
 
 
 def npz_problem(path: str | Path, error: BaseException) -> str:

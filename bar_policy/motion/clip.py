@@ -40,14 +40,13 @@ import hashlib
 import itertools
 import math
 import zipfile
-import zlib
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from bar_policy._files import InputError, npz_problem, shorten
+from bar_policy._files import NPZ_LOAD_ERRORS, InputError, npz_problem, shorten
 from bar_policy.robot.constants import MODES, RobotSpec, load_robot
 from bar_policy.signals import check_stop
 
@@ -311,18 +310,7 @@ def load_clip(path: str | Path, mode: str = "arms", *, max_speed: float = MAX_JO
     try:
         with np.load(Path(path), allow_pickle=False) as f:
             data = {k: f[k] for k in f.files}
-    except (
-        OSError,
-        ValueError,
-        EOFError,
-        zipfile.BadZipFile,
-        zlib.error,
-        KeyError,
-        AttributeError,
-        TypeError,
-    ) as e:
-        # AttributeError / TypeError: a bare .npy array (no ``files``, no context manager);
-        # the others: empty, truncated or corrupt archives
+    except NPZ_LOAD_ERRORS as e:
         raise ClipError(f"{path}: not a readable NPZ clip ({npz_problem(path, e)})") from None
     keys = ("format", "name", "rate_hz", "joint_names", "joint_pos", "content_hash")
     missing = [k for k in keys if k not in data]

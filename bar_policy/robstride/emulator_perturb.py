@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import logging
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import replace
 from typing import Any
 
@@ -29,7 +29,6 @@ import mujoco
 import numpy as np
 
 from bar_policy.robot.constants import RobotSpec
-from bar_policy.robot.mit import MitCommand, firmware_torque
 from bar_policy.robot.params import RobotParams, motor_strength, scene_edit
 from bar_policy.robot.perturb import MotorPerturbation, Pusher, perturbed_scene
 from bar_policy.robot.perturb_spec import Perturbation
@@ -139,22 +138,9 @@ class PerturbedEmulator(RobstrideEmulator):
             self._snapshot(reset=True)
 
     # -- physics -------------------------------------------------------------------------------------
-    def _law(self) -> tuple[Callable[[], np.ndarray], np.ndarray, np.ndarray]:
-        """``EmulatorPhysics._law`` with the commands of ``action_delay_ticks`` periods ago."""
-        ms, idx, d, ranges, t_max = self._static()
-        off = np.array([m.offset for m in ms])
-        on = np.array([m.enabled for m in ms], dtype=np.float64)
-        cmd = self._delayed_cmd(np.array([m.cmd for m in ms], dtype=np.float64).T)
-        cap = np.clip(np.array([float(m.params[0x700B]) for m in ms]), 0.0, t_max)
-        mit = MitCommand(cmd[0], cmd[1], cmd[2], cmd[3], cmd[4])
-        qadr, dadr = self._qadr[idx], self._dadr[idx]
-
-        def torque() -> np.ndarray:
-            q_raw = d * self.data.qpos[qadr] + off
-            dq_raw = d * self.data.qvel[dadr]
-            return on * firmware_torque(mit, q_raw, dq_raw, ranges, cap, quantize_wire=False)
-
-        return torque, idx, d
+    def _command_matrix(self, cmd: np.ndarray) -> np.ndarray:
+        """The law acts on the commands of ``action_delay_ticks`` periods ago."""
+        return self._delayed_cmd(cmd)
 
     def applied_torques(self) -> np.ndarray:
         """Torque each joint motor applies now, joint frame, canonical order, N*m: ``strength`` x the law."""

@@ -58,6 +58,13 @@ class EmulatorPhysics:
             )
         return self._static_cache
 
+    def _command_matrix(self, cmd: np.ndarray) -> np.ndarray:
+        """The MIT command matrix (5, motors) the law acts on: the motors' latest commands.
+
+        A hook for a robot whose commands arrive late (``emulator_perturb``).
+        """
+        return cmd
+
     def _law(self) -> tuple[Callable[[], np.ndarray], np.ndarray, np.ndarray]:
         """The motors' MIT law at the present state (lock held): (torque function, joint index, direction).
 
@@ -66,7 +73,7 @@ class EmulatorPhysics:
         ms, idx, d, ranges, t_max = self._static()
         off = np.array([m.offset for m in ms])
         on = np.array([m.enabled for m in ms], dtype=np.float64)
-        cmd = np.array([m.cmd for m in ms]).T
+        cmd = self._command_matrix(np.array([m.cmd for m in ms], dtype=np.float64).T)
         cap = np.clip(np.array([float(m.params[0x700B]) for m in ms]), 0.0, t_max)
         mit = MitCommand(cmd[0], cmd[1], cmd[2], cmd[3], cmd[4])
         qadr, dadr = self._qadr[idx], self._dadr[idx]

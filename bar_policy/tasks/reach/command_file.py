@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 import csv
-import zipfile
-import zlib
 from pathlib import Path
 
 import numpy as np
 
-from bar_policy._files import loads_json, npz_problem, shorten
+from bar_policy._files import NPZ_LOAD_ERRORS, loads_json, npz_problem, shorten
 from bar_policy.tasks.reach.shared import ReachTargetConfig
 from bar_policy.tasks.reach.sources import COMMAND_SIZES, CommandError, ReachSource, _vector
 
@@ -110,18 +108,7 @@ class FileCommands(ReachSource):
         try:
             with np.load(self.path, allow_pickle=False) as z:
                 arrays = {k: z[k] for k in z.files}
-        except (
-            OSError,
-            ValueError,
-            EOFError,
-            zipfile.BadZipFile,
-            zlib.error,
-            KeyError,
-            AttributeError,
-            TypeError,
-        ) as e:
-            # AttributeError / TypeError: a bare .npy array (no ``files``, no context manager);
-            # the rest: empty, truncated or corrupt archives
+        except NPZ_LOAD_ERRORS as e:
             raise CommandError(
                 f"command file {str(self.path)!r} is not a readable NPZ: {npz_problem(self.path, e)}"
             ) from None
