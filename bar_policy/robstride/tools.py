@@ -32,6 +32,12 @@ on every bus (``RobstrideGroup.damping_then_stop``); a second signal is counted 
 ``calibrate`` writes the calibration (a stop signal is its documented way to finish: exit 0) or discards it
 (an exception: exit 1). Errors are one line on stderr (``bar-bus: error: ...``), never a traceback: exit 1
 at run time, 2 for bad arguments.
+
+One unit: this is the ``bar-bus`` command line, one parser whose six commands share the bus options
+(``common``), the in-process emulator's context, the stop path and the error-to-exit-status policy; each
+command's work lives in its own module (``identify``, ``calibration``, ``watchdog``, ``bus``) and what
+remains here per command is its options and the calls in order. Split per command, those shared parts would
+have to be passed around or duplicated.
 """
 
 from __future__ import annotations
