@@ -188,10 +188,7 @@ def test_target_error_during_the_run_is_a_fault_with_the_end_line_status_1(
     # The target failing mid-run (a bus error) is a fault: the run ends through the one safe ending, with
     # the end line (the first fault as its reason, on one line) and status 1, the log closed.
     error = TargetError("can0: no reply within 5 ms\nfrom ids [11]")
-    fake = types.ModuleType("bar_policy.deploy.targets.real")
-    fake.add_arguments = lambda parser: None
-    fake.make_target = lambda args, mode: _FailingMock(mode, error)
-    monkeypatch.setitem(sys.modules, "bar_policy.deploy.targets.real", fake)
+    _fake_real(monkeypatch, lambda mode: _FailingMock(mode, error))
     runs = tmp_path / "runs"
     argv = ["--policy", str(policy_path), "--target", "real", "--ramp-time", "2", "--log", str(runs)]
     assert main(argv) == 1
@@ -215,10 +212,7 @@ def test_error_during_the_run_is_one_line_status_1_and_the_log_closed(
         "the run ended on RuntimeError: a bug (safe stop: stop confirmed (damping and stop frames "
         "answered by all 14 joints)"
     )
-    fake = types.ModuleType("bar_policy.deploy.targets.real")
-    fake.add_arguments = lambda parser: None
-    fake.make_target = lambda args, mode: _FailingMock(mode, error)
-    monkeypatch.setitem(sys.modules, "bar_policy.deploy.targets.real", fake)
+    _fake_real(monkeypatch, lambda mode: _FailingMock(mode, error))
     runs = tmp_path / "runs"
     argv = ["--policy", str(policy_path), "--target", "real", "--ramp-time", "2", "--log", str(runs)]
     assert main(argv) == 1

@@ -78,17 +78,24 @@ def test_budget_breach_ends_in_damping_then_stop(robot, channels, make_emulator,
         assert_ends_with_damping_then_stop(listeners[iface], ids)
 
 
-@pytest.mark.slow
-def test_identifies_a_hidden_payload_and_friction(robot, channels) -> None:
-    """0.4 kg at the fingertip, friction + 0.5 N*m (total 0.6), hidden; one arm, 21 s of excitation."""
-    hidden = parse_perturbation("payload_kg=0.4,friction_nm=0.5")
-    with PerturbedEmulator(robot, channels, perturbation=hidden, mode="lockstep", control_dt=PERIOD):
+def _excite_left_arm(robot, channels, hidden: str, sup: Supervisor):
+    """21 s of the left arm's excitation on the lockstep emulator whose robot is ``hidden`` (a spec)."""
+    with PerturbedEmulator(
+        robot, channels, perturbation=parse_perturbation(hidden), mode="lockstep", control_dt=PERIOD
+    ):
         group = _group(robot, channels)
         start = group.activate(lower=robot.lower, upper=robot.upper).q
         ex = Excitation.plan(robot, start, ("left",), 21.0)
-        sup = Supervisor(robot)
         rec = run_excitation(group, robot, ex, sup, period=PERIOD, realtime=False)
         group.shutdown()
+    return rec
+
+
+@pytest.mark.slow
+def test_identifies_a_hidden_payload_and_friction(robot, channels) -> None:
+    """0.4 kg at the fingertip, friction + 0.5 N*m (total 0.6), hidden; one arm, 21 s of excitation."""
+    sup = Supervisor(robot)
+    rec = _excite_left_arm(robot, channels, "payload_kg=0.4,friction_nm=0.5", sup)
     reported = np.abs(np.array(rec.tau)) / sup.cap
     assert reported.max() <= 0.5 and sup.peak <= 0.5  # never above half a cap, asked or reported
     fit = fit_recording(robot, rec, ("left",), PERIOD)["left"]
@@ -167,15 +174,7 @@ def test_identify_cli_refusals_exit_2(tmp_path, capsys) -> None:
 @pytest.mark.slow
 def test_identifies_a_hidden_strength_unloaded(robot, channels) -> None:
     """Strength 0.9 and friction + 0.5 N*m hidden, hands empty (``--unloaded``); one arm, 21 s."""
-    hidden = parse_perturbation("strength=0.9,friction_nm=0.5")
-    with PerturbedEmulator(robot, channels, perturbation=hidden, mode="lockstep", control_dt=PERIOD):
-        group = _group(robot, channels)
-        start = group.activate(lower=robot.lower, upper=robot.upper).q
-        rec = run_excitation(
-            group, robot, Excitation.plan(robot, start, ("left",), 21.0), Supervisor(robot), period=PERIOD,
-            realtime=False,
-        )  # fmt: skip
-        group.shutdown()
+    rec = _excite_left_arm(robot, channels, "strength=0.9,friction_nm=0.5", Supervisor(robot))
     fit = fit_recording(robot, rec, ("left",), PERIOD, payload=False)["left"]
     print(f"strength {np.round(fit.strength, 3)}; friction {np.round(fit.friction, 3)}")
     # target: strength within 5 %; met at 21 s on the shoulder pitch, roll and elbow (measured 0.894, 0.910,
