@@ -282,6 +282,7 @@ def _run_session(
         log.error("the run ended on an exception (safe stop: %s)", _stop_text(rt), exc_info=True)
         if rt.result is not None:
             print(rt.result.end_line())
+            _print_summary(commands)
         where = f"; log: {rt.log_path.parent}" if rt.log_path is not None else ""
         msg = f"the run ended on {type(e).__name__}: {e} (safe stop: {_stop_text(rt)}{where})"
         return _fail(msg, _after_exception(rt))
@@ -293,6 +294,7 @@ def _run_session(
             log.exception("closing the %s target failed", args.target)
     print(result.timing.format())
     print(result.end_line())
+    _print_summary(commands)
     print(run_quality_line(result.quality))
     for tr in result.transitions:
         print(f"  t={tr['t']:.3f} s  {tr['from']} -> {tr['to']}: {tr['reason']}")
@@ -304,6 +306,17 @@ def _run_session(
     if video is not None:
         print(f"video: {video}")
     return result.exit_status
+
+
+def _print_summary(commands: object) -> None:
+    """The command source's own summary lines (the piano's F1 and per-colour recall), after ``end:``."""
+    try:
+        lines = commands.summary_lines()  # type: ignore[attr-defined]
+    except Exception:  # a summary must not hide the run's own outcome
+        log.exception("the command source's summary failed")
+        return
+    for line in lines:
+        print(line)
 
 
 def _start_refusal(args: argparse.Namespace, policy: object, hold: object) -> str | None:

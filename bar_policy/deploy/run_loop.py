@@ -206,6 +206,8 @@ class RunLoop:
                         if ov is not None:
                             self._fault(*ov, t)
                     self._log_transitions()
+                    if self.safety.mode == Mode.POLICY:  # the ticks a task scores (the piano's F1)
+                        self.commands.after_policy_tick()
                     if self.on_tick is not None:
                         self.on_tick(k, t, self)
                     k += 1

@@ -7,7 +7,9 @@ follows the source's schedule:
 - ``hold_pose``: the pose the start-up HOLD ramp goes to before the policy (None: the policy's hold pose);
 - ``begin(t)``: called on the tick POLICY starts (the source's phase 0, e.g. a motion clip's first frame);
 - ``finished(t)``: a reason once the commands are over (a motion clip's last frame); the runtime then
-  enters HOLD at ``end_pose`` (gains kept) and ends the run as completed after ``RuntimeConfig.end_hold``.
+  enters HOLD at ``end_pose`` (gains kept) and ends the run as completed after ``RuntimeConfig.end_hold``;
+- ``after_policy_tick()``: called after each tick that ended in POLICY (a task's scored ticks), and
+  ``summary_lines()``: what ``bar-deploy`` prints after the run's ``end:`` line (the piano's F1).
 
 A source feeds the terms of exactly one task (``task``); a policy of another task refuses it (the
 runtime's message names both tasks). ``DeployTask`` is one task's entry for ``bar-deploy``: its
@@ -101,6 +103,17 @@ class CommandSource(abc.ABC):
     def finished(self, t: float) -> str | None:
         """Why the commands are over at run time ``t`` (a completed run), or None while they last."""
         return None
+
+    def after_policy_tick(self) -> None:  # noqa: B027 - optional hook
+        """The tick of the last call ended in POLICY: a tick the task may score (the piano's song ticks).
+
+        The runtime calls it after the tick's log record and transitions, on exactly the ticks
+        ``bar-deploy eval``'s per-tick hook sees in POLICY.
+        """
+
+    def summary_lines(self) -> list[str]:
+        """Lines the run's summary prints after its ``end:`` line (the task's score); default none."""
+        return []
 
     # -- misc ----------------------------------------------------------------------------------------
     def describe(self) -> str:

@@ -1,18 +1,19 @@
 """``bar-deploy eval`` for piano policies: each song on the C MuJoCo sim target, scored as RoboPianist does.
 
-Each song runs from the held default pose (``held.held_pose``, as the env starts), with the policy from
-the first tick (no ramp), through the deploy code path (the runner ``bar-deploy eval`` hands in,
-``tasks.episodes.EpisodeRunner``: ``Runtime``, the safety supervisor, the firmware MIT law in the sim), in
-the keyboard's scene with the simulated keys, each song with the env's count-in (``bank.PlaybackConfig``).
-At every policy tick the goal keys of the song's step are compared with the keys down
-(``SongCommands.goal_now``, ``keys_down``): true positives, false positives and false negatives give each
-tick's precision, recall and F1 (``metrics``; the count-in's ticks and those after the last note included,
-as the env counts every step: each such tick with no key down scores 1, which the pooled F1 ignores). A
-song's figures are the means over its ticks (RoboPianist's), with the F1 of the summed counts beside them
-(pooled), and the recall of its black and of its white goal key-ticks (pooled, as the MJX evaluation's
-``recall_black`` / ``recall_white``; 1 in the JSON, ``-`` in the lines, for a song without a goal key of
-that colour). The ship gate reads the mean F1 over every song's ticks (``success_pct`` = 100 x F1) and the
-songs' safety and smoothness.
+Each song runs from the held default pose (``held.held_pose``, as the env starts), with the policy from the
+first tick (no ramp), through the deploy code path (the runner ``bar-deploy eval`` hands in,
+``tasks.episodes.EpisodeRunner``: ``Runtime``, the safety supervisor, the firmware MIT law in the sim), in the
+keyboard's scene with the simulated keys, each song with the env's count-in (``bank.PlaybackConfig``). At
+every policy tick the goal keys of the song's step are compared with the keys down (``SongCommands.goal_now``,
+``keys_down``): true positives, false positives and false negatives give each tick's precision, recall and F1
+(``metrics``). Only the song's ticks count: from its first note's start to its last note's end
+(``metrics.song_window``; ``SongCommands.tally``, the ticks the run summary of ``bar-deploy --song`` scores
+too): keys pressed during the start-up, the count-in's silence or the final hold are not the song's. A song's
+figures are the means over its ticks (RoboPianist's), with the F1 of the summed counts beside them (pooled),
+and the recall of its black and of its white goal key-ticks (pooled, as the MJX evaluation's ``recall_black``
+/ ``recall_white``; 1 in the JSON, ``-`` in the lines, for a song without a goal key of that colour). The ship
+gate reads the mean F1 over every song's ticks (``success_pct`` = 100 x F1) and the songs' safety and
+smoothness.
 
 Chatter: the gate's is measured on ``q_cmd`` minus the song's key-pose reference (``reference.py``: the
 key-pose prior's command for the tick's goal keys, through the policy's action filter; the source's
@@ -44,9 +45,8 @@ from bar_policy.tasks.episodes import EpisodeRunner, Policy
 from bar_policy.tasks.piano.bank import PlaybackConfig
 from bar_policy.tasks.piano.held import held_pose
 from bar_policy.tasks.piano.key_input import KeySource, SimMidiKeys
-from bar_policy.tasks.piano.keyboard import KeyboardConfig, black_keys, compact_config
+from bar_policy.tasks.piano.keyboard import KeyboardConfig, compact_config
 from bar_policy.tasks.piano.keys import KinematicKeys
-from bar_policy.tasks.piano.metrics import colour_counts, episode_scores, step_counts
 from bar_policy.tasks.piano.reference import KeyPoseReference
 from bar_policy.tasks.piano.results import PianoEval, SongResult, SongTicks
 from bar_policy.tasks.piano.scene import keyboard_scene
@@ -94,52 +94,37 @@ def evaluate(
         sim.reset(q0)
         source, truth = _key_sources(keys, sim, kb, fingertips)
         commands = SongCommands(song, kb, policy.policy_dt, source, playback, reference, truth=truth)
-        downs: list[np.ndarray] = []
         reads: list[np.ndarray] = []
-        goals: list[np.ndarray] = []
         q_cmds: list[np.ndarray] = []
-        steps: list[int] = []
 
         def score(
-            k: int,
-            t: float,
-            rt: Any,
-            c: SongCommands = commands,
-            d: list = downs,
-            r: list = reads,
-            g: list = goals,
-            qc: list = q_cmds,
-            st: list = steps,
+            k: int, t: float, rt: Any, c: SongCommands = commands, r: list = reads, qc: list = q_cmds
         ) -> None:
             if rt.safety.mode != runner.policy_mode:  # the hold after the song's end is not scored
                 return
-            d.append(c.scored_keys())  # the simulated keys, whatever fed key_pressed
-            rec = c.record()
-            r.append(rec["keys_down"])  # what fed key_pressed
-            st.append(rec["song_step"])
-            g.append(c.goal_now())
             qc.append(rt.last_command.q)  # the tick's q_cmd as the supervisor wrote it
+            if c.in_song():  # the runtime scored it in c.tally (after_policy_tick): the song's window
+                r.append(c.record()["keys_down"])  # what fed key_pressed
 
         duration = commands.song_steps * policy.policy_dt + END_HOLD_S + 1.0
         res = runner.run(sim, commands, duration, on_tick=score)
         commands.close()
-        down = np.array(downs, bool).reshape(-1, kb.n_keys)
+        tally = commands.tally
+        down, goal = tally.down, tally.goal
         read = np.array(reads, bool).reshape(-1, kb.n_keys)
-        goal = np.array(goals, bool).reshape(-1, kb.n_keys)
-        counts = step_counts(down, goal)
-        by_colour = colour_counts(down, goal, black_keys(kb))
-        ep = episode_scores(down, goal)
+        counts = tally.counts()
+        precision, recall, f1 = tally.means()
         raw = chatter_mrad(np.array(q_cmds), policy.policy_dt) if q_cmds else math.nan
         result = SongResult(
             song=song.name,
             ticks=int(res.ticks),
-            scored=len(downs),
-            true_pos=int(np.sum(counts.tp)),
-            false_pos=int(np.sum(counts.fp)),
-            false_neg=int(np.sum(counts.fn)),
-            precision=float(ep.precision),
-            recall=float(ep.recall),
-            f1=float(ep.f1),
+            scored=tally.ticks,
+            true_pos=counts.tp,
+            false_pos=counts.fp,
+            false_neg=counts.fn,
+            precision=precision,
+            recall=recall,
+            f1=f1,
             faulted=res.fault_count > 0,
             end_reason=res.end_reason,
             quality={**res.quality["episode"], "name": song.name},
@@ -148,14 +133,11 @@ def evaluate(
             keys_extra=int(np.sum(read & ~down)),
             keys_missed=int(np.sum(down & ~read)),
             keys_down=int(np.sum(down)),
-            true_pos_black=int(np.sum(by_colour.black.tp)),
-            false_neg_black=int(np.sum(by_colour.black.fn)),
-            true_pos_white=int(np.sum(by_colour.white.tp)),
-            false_neg_white=int(np.sum(by_colour.white.fn)),
+            **tally.colour(),
         )
         results.append(result)
         if on_song is not None:
-            on_song(result, SongTicks(song, np.array(steps, int), down, goal, pb.count_in_s))
+            on_song(result, SongTicks(song, tally.steps, down, goal, pb.count_in_s))
     return PianoEval(songs=results, policy=str(policy.path), fingerprint=policy.obs_manager.fingerprint)
 
 

@@ -29,8 +29,17 @@ restricted to a subset of the keys (``keyboard.black_keys`` and its complement):
 and a miss count only where the key is in the subset. The per-colour recall is pooled (``TP / (TP + FN)`` of
 the summed counts): most steps have no black goal key, so a step mean would be mostly empty steps scored 1.
 
+**The song's window** (``song_window``): a run is scored over the song only, from its first note's start
+to its last note's end (the control steps ``[first, stop)`` of the goal table as played, count-in included:
+the first row with a goal key, and one past the last). The start-up hold, the count-in before the first
+note and the final hold after the last are not scored: keys pressed while the arms settle are not the
+song's. ``bar-deploy eval``, the run summary of ``bar-deploy --song`` and the piano roll of
+``bar-deploy plot`` all score these steps. (The MJX env scores every step of its episodes: its figures are
+training signals, not this one.)
+
 Every function is plain array arithmetic (``array_namespace``): numpy in, numpy out; jax in, jax out, safe
-under ``jit`` and ``vmap`` (no Python branch on a value, only on static shapes).
+under ``jit`` and ``vmap`` (no Python branch on a value, only on static shapes); ``song_window`` is
+host-side numpy (it returns Python ints).
 """
 
 from __future__ import annotations
@@ -47,6 +56,7 @@ __all__ = [
     "colour_counts",
     "episode_scores",
     "scores",
+    "song_window",
     "step_counts",
     "step_scores",
 ]
@@ -201,3 +211,20 @@ def episode_scores(
         recall_pooled=xp.where(n > 0, pooled.recall, nan),
         f1_pooled=xp.where(n > 0, pooled.f1, nan),
     )
+
+
+def song_window(goal: Array) -> tuple[int, int]:
+    """The song's steps ``[first, stop)`` of a goal table: its first note's start to its last note's end.
+
+    Args:
+        goal: goal keys per control step, bool or 0/1, shape ``(T, n_keys)`` (a song as played:
+            ``bank.song_bank``'s rows, count-in included).
+
+    Returns:
+        ``(first, stop)``: the first step with a goal key and one past the last (note ends are exclusive,
+        as ``songs.goal_keys`` rounds them); ``(0, 0)`` for a table without a goal key (nothing is scored).
+    """
+    import numpy as np  # host-side: the window is a pair of Python ints
+
+    rows = np.flatnonzero((np.asarray(goal) > 0.5).any(axis=-1))
+    return (int(rows[0]), int(rows[-1]) + 1) if rows.size else (0, 0)

@@ -56,7 +56,7 @@ class SongResult:
     song: str
     ticks: int
     scored: int
-    """Policy ticks scored (the hold after the song is not)."""
+    """Policy ticks scored: those of the song's window (``metrics.song_window``), first note to last end."""
     true_pos: int
     false_pos: int
     false_neg: int
@@ -144,7 +144,7 @@ class PianoEval(EvalReport):
     def f1(self) -> float:
         """The headline: the mean over every song's ticks of each tick's F1 (RoboPianist's)."""
         ticks = sum(s.scored for s in self.songs)
-        return sum(s.f1 * s.scored for s in self.songs) / ticks if ticks else float("nan")
+        return sum(s.f1 * s.scored for s in self.songs if s.scored) / ticks if ticks else float("nan")
 
     def f1_pooled(self) -> float:
         """F1 of the counts summed over every song."""

@@ -19,6 +19,12 @@ note no earlier than ``count_in_s`` after POLICY's first tick. The run finishes 
 song's last note. The log records the goal keys of the step, the
 keys down and the step, so a run can be drawn as a piano roll and scored (``step_counts``).
 
+Score: ``tally`` (``tally.KeyTally``) holds each tick that ended in POLICY (``after_policy_tick``) and lies
+in the song's window (``window``, ``metrics.song_window``: its first note's start to its last note's end,
+so neither the start-up hold nor the count-in's silence nor the final hold counts); ``summary_lines`` gives
+its precision, recall, F1 and per-colour recall, which ``bar-deploy`` prints after the run's ``end:`` line
+and ``bar-deploy eval`` reports per song.
+
 With a ``reference`` (``reference.KeyPoseReference``, which ``bar-deploy`` and ``bar-deploy eval`` give),
 the source also keeps the song's joint-space reference: the key-pose prior's command for each tick's
 ``target_keys``, through the policy's action filter, one filter step per POLICY tick from ``begin`` on
@@ -39,8 +45,10 @@ import numpy as np
 from bar_policy.tasks.interfaces import CommandSource
 from bar_policy.tasks.piano.bank import PlaybackConfig, song_bank
 from bar_policy.tasks.piano.key_input import KeySource, SimKeys
-from bar_policy.tasks.piano.keyboard import KeyboardConfig
+from bar_policy.tasks.piano.keyboard import KeyboardConfig, black_keys
+from bar_policy.tasks.piano.metrics import song_window
 from bar_policy.tasks.piano.songs import Song, check_table_size
+from bar_policy.tasks.piano.tally import KeyTally
 from bar_policy.tasks.piano.terms import PIANO_KEYS, TARGET_FRAMES
 
 if TYPE_CHECKING:
@@ -96,6 +104,10 @@ class SongCommands(CommandSource):
         """The song's length as played, control steps: its last note's end, count-in included."""
         self.down = bank.down[0, : self.song_steps + TARGET_FRAMES]
         """Goal keys, 0/1 float32, shape (song steps + TARGET_FRAMES, n_keys)."""
+        self.window = song_window(self.down)
+        """The scored steps ``[first, stop)``: the first note's start to the last note's end, as played."""
+        self.tally = KeyTally(black_keys(keyboard), self.window)
+        """The scored ticks (``after_policy_tick``) and their figures."""
         self.scale = max(EPISODE_STEPS, self.song_steps)
         self.keys = keys
         self._t0: float | None = None
@@ -158,6 +170,18 @@ class SongCommands(CommandSource):
         """The keys down at the last call by ``truth`` (without one: ``key_pressed``'s), bool (n_keys,)."""
         return self._true.copy()
 
+    def in_song(self) -> bool:
+        """True when the last call's step lies in the song's window (a tick that is scored)."""
+        return self.tally.in_window(self._step)
+
+    def after_policy_tick(self) -> None:
+        """Score the last call's tick (it ended in POLICY) if its step lies in the song's window."""
+        self.tally.add(self._step, self._true, self.goal_now())
+
+    def summary_lines(self) -> list[str]:
+        """The song's precision, recall, F1 and per-colour recall over its window (``KeyTally.lines``)."""
+        return self.tally.lines(self.song.name, self.dt)
+
     def target_q(self) -> np.ndarray | None:
         """The key-pose reference of the last call's tick, rad (canonical order); None without one."""
         if self.reference is None:
@@ -201,6 +225,7 @@ class SongCommands(CommandSource):
             **super().metadata(),
             "song": self.song.name,
             "song_steps": self.song_steps,
+            "song_window_steps": list(self.window),
             "count_in_s": self.playback.count_in_s,
             "keys": keys,
             "reference": None if self.reference is None else self.reference.prior.label,
