@@ -97,7 +97,7 @@ def gate_record(task: str, report: Mapping[str, Any], misses: list[Miss]) -> dic
     """The gate's record for the published JSON: task, thresholds, verdict, misses, the report's figures."""
     return {
         "task": task,
-        "thresholds": {k: v for k, v in asdict(gate_for(task)).items() if v is not None},
+        "thresholds": {k: v for k, v in asdict(gate_for(task)).items() if v is not None and v != ()},
         "verdict": "pass" if not misses else "miss",
         "misses": [m.text for m in misses],
         "report": {k: v for k, v in report.items() if k != "episodes"},  # the summary judges chatter too

@@ -1,12 +1,12 @@
 """The ship gate: the thresholds a policy file must meet on held-out data before it ships, in one place.
 
 A held-out report is a dict with the ``summarise`` figures of ``bar_policy.quality.report`` under
-``"quality"``, every episode's record under ``"episodes"`` (``EpisodeQuality.to_dict``; optional: without
-them chatter is judged on the summary's worst episode, as the MJX evaluation reports it), and the task's
-accuracy figures at the top level (``joint_error_rad``, ``fingertip_error_cm`` for tracking,
-``success_pct`` for reach). ``check`` lists every miss, each naming the metric, its value and the threshold;
-``train/ship.py`` refuses a file with any, and the trainer ranks iterates with ``score`` (by ``excess``: how
-far beyond the thresholds, summed).
+``"quality"``, every episode's record under ``"episodes"`` (``EpisodeQuality.to_dict``; optional: without them
+chatter is judged on the summary's worst episode, as the MJX evaluation reports it), and the task's accuracy
+figures at the top level (``joint_error_rad``, ``fingertip_error_cm`` for tracking, ``success_pct`` for reach
+and the piano, the piano's ``recall_pct``: recall % per named group). ``check`` lists every miss, each naming
+the metric, its value and the threshold; ``train/ship.py`` refuses a file with any, and the trainer ranks
+iterates with ``score`` (by ``excess``: how far beyond the thresholds, summed).
 """
 
 from __future__ import annotations
@@ -45,6 +45,12 @@ class GateThresholds:
     """Mean fingertip tracking error, cm (tracking)."""
     min_success_pct: float | None = None
     """Task success, % (reach: target segments reached)."""
+    min_recall_pct: float | None = None
+    """Recall of every group of ``recall_groups``, %: each at least this (piano: the goal key-ticks of each
+    key colour, on the held-out songs and on random songs)."""
+    recall_groups: tuple[str, ...] = ()
+    """The groups the report's ``recall_pct`` mapping must hold (group name -> recall %); a group it lacks
+    is a miss (not measured)."""
 
 
 _GATES: dict[str, GateThresholds] = {}
@@ -96,7 +102,11 @@ def gate_for(task: str) -> GateThresholds:
 def thresholds_text(task: str) -> str:
     """One line listing the task's thresholds (printed by ``ship.py`` and ``bar-deploy eval``)."""
     g = gate_for(task)
-    parts = [f"{k}={v:g}" for k, v in asdict(g).items() if v is not None]
+    parts = [
+        f"{k}={v:g}" if isinstance(v, (int, float)) else f"{k}=({', '.join(v)})"
+        for k, v in asdict(g).items()
+        if v is not None and v != ()
+    ]
     return f"ship gate ({task}): " + ", ".join(parts)
 
 
@@ -194,6 +204,11 @@ def check(task: str, report: Mapping[str, Any]) -> list[Miss]:
         _bound(
             out, "min_success_pct", False, report.get("success_pct"), g.min_success_pct, False, "success", "%"
         )
+    if g.min_recall_pct is not None:
+        recalls = report.get("recall_pct") or {}
+        for group in g.recall_groups:
+            what = f"recall of {group}"
+            _bound(out, "min_recall_pct", False, recalls.get(group), g.min_recall_pct, False, what, "%")
     return out
 
 
@@ -218,6 +233,10 @@ def excess(task: str, report: Mapping[str, Any]) -> float:
         (report.get("joint_error_rad"), g.max_joint_error_rad, True),
         (report.get("fingertip_error_cm"), g.max_fingertip_error_cm, True),
         (report.get("success_pct"), g.min_success_pct, False),
+        *(
+            ((report.get("recall_pct") or {}).get(group), g.min_recall_pct, False)
+            for group in g.recall_groups
+        ),
     ]
     total = 0.0
     for value, limit, upper in pairs:

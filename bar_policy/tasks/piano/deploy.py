@@ -5,9 +5,11 @@
 checked for playability (the loader's refusal names the note). The sim target carries the keyboard
 (``scene``), and ``--keys`` defaults to its simulated keys there; on the mock and real targets the default is
 the fingertips' kinematics, or ``--keys midi:PORT`` reads a MIDI keyboard. ``bar-deploy eval`` plays every
-held-out song on the sim target and reports precision, recall and F1 per song (``evaluate.py``), its
-``--keys`` (``EVAL_KEY_SOURCES``) feeding ``key_pressed`` while the score counts the simulated keys. Both
-measure chatter against the song's key-pose reference (``reference.py``). No jax, no torch.
+held-out song (``heldout.EVAL_HELDOUT``) and 32 random songs of the training bank's kind (a seed never trained
+on; ``--random-songs``, ``--random-seed``) on the sim target and reports precision, recall and F1 per song and
+the per-colour recall of each set (``evaluate.py``), its ``--keys`` (``EVAL_KEY_SOURCES``) feeding
+``key_pressed`` while the score counts the simulated keys. Both measure chatter against the song's key-pose
+reference (``reference.py``). No jax, no torch.
 """
 
 from __future__ import annotations
@@ -19,6 +21,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from bar_policy.tasks.interfaces import DeployTask, EvalReport, OptionError
+from bar_policy.tasks.piano.heldout import (
+    BLACK_HELDOUT,
+    EVAL_HELDOUT,
+    RANDOM_EVAL_SEED,
+    RANDOM_EVAL_SONGS,
+    heldout_song,
+    random_eval_songs,
+)
 from bar_policy.tasks.piano.key_input import KeySource, MidiKeys
 from bar_policy.tasks.piano.keyboard import compact_config
 from bar_policy.tasks.piano.keys import KinematicKeys
@@ -46,6 +56,8 @@ def resolve_song(spec: str) -> Song:
     kb = compact_config()
     if spec in SONG_NAMES:
         return library_song(spec)
+    if spec in BLACK_HELDOUT:
+        return heldout_song(spec)
     path = Path(spec)
     suffix = path.suffix.lower()
     if suffix not in (".json", ".mid", ".midi"):
@@ -121,7 +133,12 @@ class PianoTask(DeployTask):
     usage = "give --song NAME|PATH (a library song, a song .json or a .mid file)"
     run_options = (("--song", "song"), ("--keys", "keys"))
     example_run = ("--song", "ode_to_joy")
-    eval_options = (("--songs", "songs"), ("--keys", "keys"))
+    eval_options = (
+        ("--songs", "songs"),
+        ("--keys", "keys"),
+        ("--random-songs", "random_songs"),
+        ("--random-seed", "random_seed"),
+    )
     default_duration = None
 
     def add_run_arguments(self, parser: argparse.ArgumentParser) -> None:
@@ -148,7 +165,20 @@ class PianoTask(DeployTask):
         g.add_argument(
             "--songs",
             metavar="NAME[,NAME...]",
-            help=f"songs to play (default the held-out ones: {', '.join(HELDOUT)})",
+            help=f"songs to play (default the held-out ones: {', '.join(EVAL_HELDOUT)})",
+        )
+        g.add_argument(
+            "--random-songs",
+            type=int,
+            metavar="N",
+            help=f"random songs of the training bank's kind to play after them (default {RANDOM_EVAL_SONGS}; "
+            "0: none, and the gate's random recall rows are not measured)",
+        )
+        g.add_argument(
+            "--random-seed",
+            type=int,
+            metavar="SEED",
+            help=f"their seed (default {RANDOM_EVAL_SEED}, never a training bank's)",
         )
         g.add_argument(
             "--keys",
@@ -193,8 +223,18 @@ class PianoTask(DeployTask):
 
         keys = eval_key_source(getattr(args, "keys", None))  # refused before any song plays
         names = getattr(args, "songs", None)
-        songs = [resolve_song(s) for s in names.split(",")] if names else [library_song(n) for n in HELDOUT]
-        return evaluate(policy, songs, runner=runner, keys=keys)
+        songs = (
+            [resolve_song(s) for s in names.split(",")] if names else [heldout_song(n) for n in EVAL_HELDOUT]
+        )
+        count = getattr(args, "random_songs", None)
+        count = RANDOM_EVAL_SONGS if count is None else count
+        seed = getattr(args, "random_seed", None)
+        seed = RANDOM_EVAL_SEED if seed is None else seed
+        if count < 0:
+            raise OptionError(f"--random-songs {count}: give a count >= 0 (0: no random songs)")
+        randoms = random_eval_songs(count, seed)
+        label = f"{count} of the bank's kind, seed {seed}, never trained on"
+        return evaluate(policy, songs, runner=runner, keys=keys, random_songs=randoms, random_label=label)
 
 
 TASK = PianoTask()

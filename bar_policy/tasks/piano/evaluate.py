@@ -35,7 +35,7 @@ simulated keys disagree. The result types are ``results.py``'s.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -68,14 +68,18 @@ def evaluate(
     playback: PlaybackConfig | None = None,
     keys: str = "sim",
     on_song: Callable[[SongResult, SongTicks], None] | None = None,
+    group: str = "held-out",
+    random_songs: Sequence[Song] = (),
+    random_label: str = "",
 ) -> PianoEval:
     """Play each song once on ``target`` (default: ``runner``'s in the keyboard's scene; module docstring).
 
     ``playback``: the count-in (default ``PlaybackConfig()``, the env's and ``bar-deploy``'s). ``keys``: where
     the policy's ``key_pressed`` comes from, one of ``EVAL_KEY_SOURCES`` (the score counts the simulated
     keys whatever it is). ``on_song``: called after each song with its result and its scored ticks as arrays
-    (``SongTicks``), for analyses beyond the means. Raises ``ValueError`` for another ``keys``, naming the
-    valid ones.
+    (``SongTicks``), for analyses beyond the means. ``group``: the group of ``songs`` (``SongResult.group``);
+    ``random_songs`` are played after them as the ``random`` group, ``random_label`` saying how they were
+    drawn. Raises ``ValueError`` for another ``keys``, naming the valid ones.
     """
     if keys not in EVAL_KEY_SOURCES:
         raise ValueError(f"keys = {keys!r}; valid: {', '.join(EVAL_KEY_SOURCES)}")
@@ -90,7 +94,7 @@ def evaluate(
 
         fingertips = Kinematics(policy.robot.mode).fingertips
     results = []
-    for song in songs:
+    for song, in_group in [*((s, group) for s in songs), *((s, "random") for s in random_songs)]:
         sim.reset(q0)
         source, truth = _key_sources(keys, sim, kb, fingertips)
         commands = SongCommands(song, kb, policy.policy_dt, source, playback, reference, truth=truth)
@@ -134,11 +138,17 @@ def evaluate(
             keys_missed=int(np.sum(down & ~read)),
             keys_down=int(np.sum(down)),
             **tally.colour(),
+            group=in_group,
         )
         results.append(result)
         if on_song is not None:
             on_song(result, SongTicks(song, tally.steps, down, goal, pb.count_in_s))
-    return PianoEval(songs=results, policy=str(policy.path), fingerprint=policy.obs_manager.fingerprint)
+    return PianoEval(
+        songs=results,
+        policy=str(policy.path),
+        fingerprint=policy.obs_manager.fingerprint,
+        random_songs=random_label,
+    )
 
 
 def _key_sources(

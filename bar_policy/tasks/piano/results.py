@@ -13,6 +13,7 @@ without jax.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from typing import Any
@@ -80,6 +81,9 @@ class SongResult:
     """Key-ticks the simulated key was down and the source read up."""
     keys_down: int = 0
     """Key-ticks the simulated key was down (the scale of ``keys_missed``)."""
+    group: str = "held-out"
+    """The song set it belongs to: ``held-out`` (gated on F1, safety and smoothness) or ``random`` (the
+    random songs of the bank's kind: gated on their per-colour recall; their F1 and faults reported)."""
     true_pos_black: int = 0
     """Black goal key-ticks pressed (``metrics.colour_counts``)."""
     false_neg_black: int = 0
@@ -140,34 +144,76 @@ class PianoEval(EvalReport):
     songs: list[SongResult]
     policy: str
     fingerprint: str
+    random_songs: str = ""
+    """How the ``random`` group's songs were drawn (count, seed, tempos), for the printed lines."""
 
-    def f1(self) -> float:
-        """The headline: the mean over every song's ticks of each tick's F1 (RoboPianist's)."""
-        ticks = sum(s.scored for s in self.songs)
-        return sum(s.f1 * s.scored for s in self.songs if s.scored) / ticks if ticks else float("nan")
+    def group(self, group: str = "held-out") -> list[SongResult]:
+        """The songs of one group (``SongResult.group``)."""
+        return [s for s in self.songs if s.group == group]
 
-    def f1_pooled(self) -> float:
-        """F1 of the counts summed over every song."""
-        c = Counts(*(sum(getattr(s, k) for s in self.songs) for k in ("true_pos", "false_pos", "false_neg")))
+    def f1(self, group: str = "held-out") -> float:
+        """The headline: the mean over the group's songs' ticks of each tick's F1 (RoboPianist's)."""
+        songs = self.group(group)
+        ticks = sum(s.scored for s in songs)
+        return sum(s.f1 * s.scored for s in songs if s.scored) / ticks if ticks else float("nan")
+
+    def f1_pooled(self, group: str = "held-out") -> float:
+        """F1 of the counts summed over the group's songs."""
+        songs = self.group(group)
+        c = Counts(*(sum(getattr(s, k) for s in songs) for k in ("true_pos", "false_pos", "false_neg")))
         return float(scores(c).f1)
 
-    def colour_totals(self) -> dict[str, int]:
-        """Every song's ``COLOUR_COUNTS`` (TP and FN of each key colour's goal key-ticks) summed."""
-        return {k: sum(getattr(s, k) for s in self.songs) for k in COLOUR_COUNTS}
+    def colour_totals(self, group: str = "held-out") -> dict[str, int]:
+        """The group's songs' ``COLOUR_COUNTS`` (TP and FN of each key colour's goal key-ticks) summed."""
+        return {k: sum(getattr(s, k) for s in self.group(group)) for k in COLOUR_COUNTS}
+
+    def recall_pct(self) -> dict[str, float]:
+        """The gate's recall rows (``gate.RECALL_GROUPS``): ``"<group> <colour> keys"`` -> pooled recall, %.
+
+        Only groups with songs (``--random-songs 0`` plays none: its rows are then not measured).
+        """
+        out = {}
+        for group in ("held-out", "random"):
+            if self.group(group):
+                for name, r in colour_recalls(self.colour_totals(group)).items():
+                    out[f"{group} {name.removeprefix('recall_')} keys"] = 100.0 * r
+        return out
 
     def gate_report(self) -> dict[str, Any]:
-        """F1 % over the songs, and their safety and smoothness (the ship gate's input)."""
-        records = [EpisodeQuality.from_dict(s.quality) for s in self.songs if s.quality]
+        """F1 % over the held-out songs, their safety and smoothness, the per-colour recalls (gate input).
+
+        Safety and smoothness are the held-out songs' (the random songs' faults are reported, not gated).
+        """
+        records = [EpisodeQuality.from_dict(s.quality) for s in self.group() if s.quality]
         return {
             "task": "piano",
             "quality": summarise(records),
             "episodes": [r.to_dict() for r in records],
             "success_pct": 100.0 * self.f1(),
+            "recall_pct": self.recall_pct(),
         }
 
+    def random_line(self) -> str | None:
+        """The random songs in one line (None without them).
+
+        F1 (step mean over their ticks, and mean over songs), pooled F1, the per-colour recall, faults and
+        ticks at a cap.
+        """
+        songs = self.group("random")
+        if not songs:
+            return None
+        mean = float(np.mean([s.f1 for s in songs if s.scored])) if any(s.scored for s in songs) else math.nan
+        faulted = sum(s.faulted for s in songs)
+        caps = sum(int(s.quality.get("cap_ticks", 0)) for s in songs)
+        return (
+            f"random songs ({self.random_songs or len(songs)}): F1 {self.f1('random'):.3f} (step mean over "
+            f"their ticks; mean over songs {mean:.3f}), pooled {self.f1_pooled('random'):.3f}; "
+            f"{colour_text(self.colour_totals('random'))}; {faulted} faulted, {caps} ticks at a cap"
+        )
+
     def raw_chatter_line(self) -> str:
-        """The chatter of ``q_cmd`` itself over the songs that completed (not gated), one line."""
-        done = [s for s in self.songs if not s.faulted and s.chatter_raw_mrad is not None]
+        """The chatter of ``q_cmd`` itself over the held-out songs that completed (not gated), one line."""
+        done = [s for s in self.group() if not s.faulted and s.chatter_raw_mrad is not None]
         if not done:
             return "chatter of q_cmd itself (not gated): n/a"
         worst = max(done, key=lambda s: s.chatter_raw_mrad or 0.0)
@@ -185,6 +231,14 @@ class PianoEval(EvalReport):
             "f1": self.f1(),
             "f1_pooled": self.f1_pooled(),
             **colour_recalls(self.colour_totals()),
+            "random_songs": self.random_songs,
+            "random": {
+                "f1": self.f1("random"),
+                "f1_pooled": self.f1_pooled("random"),
+                **colour_recalls(self.colour_totals("random")),
+            }
+            if self.group("random")
+            else None,
             "songs": [
                 {
                     **asdict(s),
@@ -203,7 +257,7 @@ class PianoEval(EvalReport):
         keys = sorted({s.keys for s in self.songs} - {"sim"})
         if keys:
             lines.append(f"key_pressed from {', '.join(keys)}; scored against the simulated keys")
-        for s in self.songs:
+        for s in self.group():
             end = "faulted" if s.faulted else "completed"
             figs = (
                 f"precision {s.precision:.3f} recall {s.recall:.3f} F1 {s.f1:.3f} (pooled {s.f1_pooled:.3f})"
@@ -216,9 +270,12 @@ class PianoEval(EvalReport):
                     f"extra, {s.keys_missed} of {s.keys_down} missed"
                 )
         lines.append(
-            f"all songs: F1 {self.f1():.3f} (step mean, RoboPianist's), pooled {self.f1_pooled():.3f}; "
+            f"held-out songs: F1 {self.f1():.3f} (step mean, RoboPianist's), pooled {self.f1_pooled():.3f}; "
             f"{colour_text(self.colour_totals())}"
         )
+        random = self.random_line()
+        if random is not None:
+            lines.append(random)
         lines.append(quality_summary_line(self.gate_report()["quality"]))
         lines.append(self.raw_chatter_line())
         lines.extend(self.gate_lines())

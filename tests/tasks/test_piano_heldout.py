@@ -1,0 +1,103 @@
+"""The held-out set with black keys, the random evaluation songs, and the gate's per-colour recall rows.
+
+Black shares are counted from the notes' own times (independent of the bank's step tables); the gate's rows
+and the report's recalls are worked out by hand from small counts (ratios of integers: exact to 1e-9 %).
+"""
+
+from __future__ import annotations
+
+import pytest
+
+import bar_policy.tasks.registry  # noqa: F401 - registers every task's gate
+from bar_policy.quality.gate import check, excess, thresholds_text
+from bar_policy.tasks.piano.heldout import (
+    BLACK_HELDOUT,
+    EVAL_HELDOUT,
+    RANDOM_EVAL_SEED,
+    heldout_song,
+    random_eval_songs,
+)
+from bar_policy.tasks.piano.keyboard import compact_config, is_black
+from bar_policy.tasks.piano.results import PianoEval, SongResult
+from bar_policy.tasks.piano.song_library import HELDOUT, TRAIN
+from bar_policy.tasks.piano.songs import playable
+
+KB = compact_config()
+
+
+def _black_share(name: str) -> float:
+    notes = heldout_song(name).notes
+    total = sum(n.end_s - n.start_s for n in notes)
+    return sum(n.end_s - n.start_s for n in notes if is_black(n.key)) / total
+
+
+def test_the_black_key_songs_are_held_out_playable_and_mostly_black() -> None:
+    assert (*HELDOUT, *BLACK_HELDOUT) == EVAL_HELDOUT and not set(BLACK_HELDOUT) & set(TRAIN)
+    for name in BLACK_HELDOUT:
+        song = heldout_song(name)
+        playable(song, KB)  # raises naming the note otherwise
+        # Every hand on its side of middle C (the prior's split at 60).
+        assert all((n.key < 60) == (n.hand == "left") for n in song.notes)
+        assert _black_share(name) >= 0.20
+    # Amazing Grace in F-sharp major is pentatonic: the right hand plays black keys only (C#4..C#5); the
+    # left's B2 (3 of its 26 beats) is its one white key.
+    grace = heldout_song("amazing_grace_f_sharp")
+    assert {n.key for n in grace.notes if n.hand == "right"} == {61, 63, 66, 68, 70, 73}
+    assert {n.key for n in grace.notes if not is_black(n.key)} == {47}
+    # The library's held-out songs: one black key (F#) in g_major_scales_two_hands, none in the others.
+    assert [round(_black_share(n), 3) > 0 for n in HELDOUT] == [False, False, True]
+
+
+def test_random_eval_songs_are_the_banks_kind_from_another_seed() -> None:
+    songs = random_eval_songs()
+    assert len(songs) == 32 and RANDOM_EVAL_SEED == 2026
+    assert songs[0].name == "random-2026-0000" and songs[-1].name == "random-2026-0031"
+    assert all(max(n.end_s for n in s.notes) <= 9.5 + 1e-9 for s in songs)
+    assert [s.notes for s in random_eval_songs(2, 2026)] == [s.notes for s in songs[:2]]  # deterministic
+    assert random_eval_songs(1, 0)[0].notes != songs[0].notes  # seed 0 (the training bank's) differs
+
+
+def _song(group: str, tp_b: int, fn_b: int, tp_w: int, fn_w: int, f1: float = 0.95) -> SongResult:
+    q = {"name": "x", "ticks": 100, "faulted": False, "cap_ticks": 0, "chatter_mrad": 1.0, "limit_ticks": 0}
+    q["action_rate_sum"] = 0.0
+    return SongResult(
+        song="x", ticks=100, scored=100, true_pos=tp_b + tp_w, false_pos=0, false_neg=fn_b + fn_w,
+        precision=1.0, recall=0.9, f1=f1, faulted=False, end_reason="done", quality=q,
+        true_pos_black=tp_b, false_neg_black=fn_b, true_pos_white=tp_w, false_neg_white=fn_w, group=group,
+    )  # fmt: skip
+
+
+def test_recall_rows_by_hand() -> None:
+    # Held-out: black 30 of 40 (75 %), white 190 of 200 (95 %); random: black 9 of 10 (90 %), white 50 of 50.
+    report = PianoEval(
+        songs=[
+            _song("held-out", 10, 10, 100, 10),
+            _song("held-out", 20, 0, 90, 0),
+            _song("random", 9, 1, 50, 0),
+        ],
+        policy="p",
+        fingerprint="f",
+    )
+    rec = report.recall_pct()
+    assert rec == pytest.approx(
+        {"held-out black keys": 75.0, "held-out white keys": 95.0, "random black keys": 90.0,
+         "random white keys": 100.0}, abs=1e-9)  # fmt: skip
+    gate = report.gate_report()
+    assert gate["success_pct"] == pytest.approx(95.0, abs=1e-9)  # the held-out songs' F1 only
+    assert len(gate["episodes"]) == 2  # safety and smoothness: the held-out songs
+    misses = check("piano", gate)
+    assert [m.text for m in misses] == ["recall of held-out black keys 75 % < 85 % (min_recall_pct)"]
+    assert not misses[0].safety
+    # Excess: 1 - 75 / 85 for the one row below its bound.
+    assert excess("piano", gate) == pytest.approx(1 - 75 / 85, rel=1e-12)
+    assert "min_recall_pct=85" in thresholds_text("piano")
+
+
+def test_a_missing_recall_row_is_a_miss() -> None:
+    """``--random-songs 0`` plays no random song: its rows are not measured, so the gate cannot pass."""
+    report = PianoEval(songs=[_song("held-out", 40, 0, 200, 0)], policy="p", fingerprint="f")
+    texts = [m.text for m in check("piano", report.gate_report())]
+    assert texts == [
+        "recall of random black keys: not measured (the report lacks it; min_recall_pct=85)",
+        "recall of random white keys: not measured (the report lacks it; min_recall_pct=85)",
+    ]
