@@ -308,6 +308,7 @@ class LitePiano(LiteRobotEnv):
             "key_depression": rewards.key_depression(angles, self._angle_max),
             "keys_down": down,
             "goal_keys": goal,
+            "black_goal_keys": goal * self._black,  # the static mask: 0/1 of goal's dtype
             "fingertips": data.site_xpos[self._tip_sites],
             "key_sites": data.site_xpos[self._key_sites],
             "hand_goal": rewards.next_goal(windows),

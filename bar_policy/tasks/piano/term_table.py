@@ -2,13 +2,13 @@
 
 Every row reads the step's signals: the robot's (``LiteRobotEnv.robot_signals``: ``q``, ``dq``, ``action``,
 ...) and the piano's (``LitePiano.task_step``), for the goal row ``t`` of the step: ``key_depression``
-(fraction of travel each key is down, (n_keys,)), ``keys_down`` (past the press threshold, bool
-(n_keys,)), ``goal_keys`` (0/1 (n_keys,)), ``fingertips`` (m, (2, 3)), ``key_sites`` (the keys' top
-sites, m, (n_keys, 3)), ``hand_goal`` (each hand's next goal keys, bool (2, n_keys)) and ``tau_applied``
-(the motor torque the last substep applied, N m, (n,)). The key terms are the piano's own (``rewards``,
-after RoboPianist), the robot's costs ``bar_policy.envs.rewards``'. The weights are the config's
-``reward.scales`` (``RewardScales``, here: what each is and why; the programs' runtime argument). The
-piano ends an episode only on the robot's non-finite state: it has no termination of its own.
+(fraction of travel each key is down, (n_keys,)), ``keys_down`` (past the press threshold, bool (n_keys,)),
+``goal_keys`` (0/1 (n_keys,)), ``black_goal_keys`` (its black keys, 0/1 (n_keys,)), ``fingertips`` (m, (2,
+3)), ``key_sites`` (the keys' top sites, m, (n_keys, 3)), ``hand_goal`` (each hand's next goal keys, bool (2,
+n_keys)) and ``tau_applied`` (the motor torque the last substep applied, N m, (n,)). The key terms are the
+piano's own (``rewards``, after RoboPianist), the robot's costs ``bar_policy.envs.rewards``'. The weights are
+the config's ``reward.scales`` (``RewardScales``, here: what each is and why; the programs' runtime argument).
+The piano ends an episode only on the robot's non-finite state: it has no termination of its own.
 """
 
 from __future__ import annotations
@@ -29,6 +29,13 @@ class RewardScales:
     key_press: float = 1.0
     """Goal keys pressed (``rewards.goal_keys_pressed``: mean over the goal keys of a kernel on how far each
     is from the bottom of its travel; RoboPianist's 0.5 x, here with the whole key weight)."""
+    key_press_black: float = 0.0
+    """Black goal keys pressed, on top of ``key_press`` (``rewards.goal_keys_pressed`` over the black goal
+    keys only: 0 at a step without one), so a black goal key pressed earns ``key_press + key_press_black``
+    where a white one earns ``key_press``. 0 (the default) leaves the table as it was; the ``piano`` preset
+    sets 1.0: the key-pose prior alone presses black keys (held-out black recall 0.884) and files trained
+    without it unlearn them (0.494), with the physics, reach and torques alike for both colours
+    (docs/piano.md, "Black keys")."""
     wrong_keys: float = -0.5
     """Keys down that are not goal keys (``rewards.wrong_keys_pressed``: their count)."""
     fingertip_near: float = 0.5
@@ -64,6 +71,12 @@ def reward_terms(rc: RewardConfig) -> tuple[RewardTerm, ...]:
     w = rc.scales
     return (
         RewardTerm("key_press", rewards.goal_keys_pressed, w.key_press, ("key_depression", "goal_keys")),
+        RewardTerm(
+            "key_press_black",
+            rewards.goal_keys_pressed,
+            w.key_press_black,
+            ("key_depression", "black_goal_keys"),
+        ),
         RewardTerm("wrong_keys", rewards.wrong_keys_pressed, w.wrong_keys, ("keys_down", "goal_keys")),
         RewardTerm(
             "fingertip_near",

@@ -1,0 +1,62 @@
+"""The black goal keys' extra press reward (``term_table``'s ``key_press_black``), worked out by hand.
+
+Kernel (``rewards.goal_keys_pressed``): a goal key at depression ``x`` scores 1 for ``x >= 0.95`` and
+``0.1 ** (((0.95 - x) / 0.5) ** 2)`` below; at ``x = 0.5``: ``0.1 ** 0.81 = 0.154882`` (float64 here: the
+sums are compared to 1e-12).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bar_policy.envs import rewards  # noqa: F401 - first: term_table is imported through the registry
+from bar_policy.tasks.piano.keyboard import black_keys, compact_config
+from bar_policy.tasks.piano.preset import PIANO
+from bar_policy.tasks.piano.term_table import RewardConfig, RewardScales, reward_terms
+
+KB = compact_config()
+BLACK = black_keys(KB)
+HALF = 0.1**0.81  # a goal key at the press threshold (half travel)
+
+
+def _key_rewards(scales: RewardScales, depression: np.ndarray, goal: np.ndarray) -> dict[str, float]:
+    """The two press rows of the table, weighted, on the env's signals (``black_goal_keys`` = goal x mask)."""
+    signals = {"key_depression": depression, "goal_keys": goal, "black_goal_keys": goal * BLACK}
+    rows = [
+        t for t in reward_terms(RewardConfig(scales=scales)) if t.name in ("key_press", "key_press_black")
+    ]
+    return {t.name: float(t.weight * t.fn(*(signals[i] for i in t.inputs), **t.params)) for t in rows}
+
+
+def test_a_black_goal_earns_the_extra_press_reward() -> None:
+    c4, cs4, e4 = 60 - KB.lowest, 61 - KB.lowest, 64 - KB.lowest
+    assert BLACK[cs4] and not BLACK[c4] and not BLACK[e4]
+    depression = np.zeros(KB.n_keys)
+    depression[cs4], depression[e4] = 1.0, 0.5
+    goal = np.zeros(KB.n_keys)
+    goal[[cs4, e4]] = 1.0
+    on = RewardScales(key_press_black=1.0)
+    # C#4 (black) at the bottom, E4 (white) at half travel: key_press is the mean over both goal keys,
+    # (1 + HALF) / 2; key_press_black the mean over the black one alone, 1.
+    r = _key_rewards(on, depression, goal)
+    assert r["key_press"] == pytest.approx((1 + HALF) / 2, rel=1e-12)
+    assert r["key_press_black"] == pytest.approx(1.0, rel=1e-12)
+    # C#4 at half travel alone: both rows HALF; a white goal alone (C4 down): nothing extra.
+    goal[:], depression[:] = 0.0, 0.0
+    goal[cs4], depression[cs4] = 1.0, 0.5
+    assert _key_rewards(on, depression, goal) == pytest.approx({"key_press": HALF, "key_press_black": HALF})
+    goal[:], depression[:] = 0.0, 0.0
+    goal[c4], depression[c4] = 1.0, 1.0
+    assert _key_rewards(on, depression, goal) == {"key_press": 1.0, "key_press_black": 0.0}
+    # The default weight 0 leaves the table's sum as it was.
+    assert RewardScales().key_press_black == 0.0
+    assert _key_rewards(RewardScales(), depression, goal)["key_press_black"] == 0.0
+
+
+def test_the_piano_preset_sets_it_and_the_override_reaches_the_env_config() -> None:
+    from bar_policy import envs
+
+    assert PIANO["env_overrides"] == ("reward.scales.key_press_black=1.0",)
+    cfg = envs.apply_overrides(envs.default_config("LitePiano"), PIANO["env_overrides"])
+    assert cfg.reward.scales.key_press_black == 1.0 and cfg.reward.scales.key_press == 1.0
