@@ -171,8 +171,8 @@ class PianoTask(DeployTask):
             "--random-songs",
             type=int,
             metavar="N",
-            help=f"random songs of the training bank's kind to play after them (default {RANDOM_EVAL_SONGS}; "
-            "0: none, and the gate's random recall rows are not measured)",
+            help=f"random songs of the training bank's kind to play after them (default {RANDOM_EVAL_SONGS}, "
+            "none with --songs; 0: none, and the gate's random recall rows are not measured)",
         )
         g.add_argument(
             "--random-seed",
@@ -227,7 +227,7 @@ class PianoTask(DeployTask):
             [resolve_song(s) for s in names.split(",")] if names else [heldout_song(n) for n in EVAL_HELDOUT]
         )
         count = getattr(args, "random_songs", None)
-        count = RANDOM_EVAL_SONGS if count is None else count
+        count = (0 if names else RANDOM_EVAL_SONGS) if count is None else count  # --songs: those alone
         seed = getattr(args, "random_seed", None)
         seed = RANDOM_EVAL_SEED if seed is None else seed
         if count < 0:
