@@ -101,3 +101,21 @@ def test_a_missing_recall_row_is_a_miss() -> None:
         "recall of random black keys: not measured (the report lacks it; min_recall_pct=85)",
         "recall of random white keys: not measured (the report lacks it; min_recall_pct=85)",
     ]
+
+
+def test_the_mjx_evaluation_fills_the_recall_rows_for_the_best_iterate() -> None:
+    """``training.best.held_out_report``: the MJX evaluation's pooled ``recall_black`` / ``recall_white`` (the
+    training bank's songs) stand in for both song sets; an iterate at black recall 0.5 scores an excess of
+    2 x (1 - 50 / 85) beyond one at 0.9 (both rows of each colour, the other figures equal)."""
+    from bar_policy.training.best import held_out_report
+
+    base = {"success_rate": 0.95, "quality/completion_pct": 100.0, "quality/cap_share_pct": 0.0}
+    base["quality/chatter_max_mrad"] = 1.0
+    low = held_out_report({**base, "recall_black": 0.5, "recall_white": 0.9})
+    assert low["recall_pct"] == pytest.approx(
+        {"held-out black keys": 50.0, "held-out white keys": 90.0, "random black keys": 50.0,
+         "random white keys": 90.0}, abs=1e-9)  # fmt: skip
+    high = held_out_report({**base, "recall_black": 0.9, "recall_white": 0.9})
+    assert excess("piano", high) == 0.0
+    assert excess("piano", low) == pytest.approx(2 * (1 - 50 / 85), rel=1e-12)
+    assert "recall_pct" not in held_out_report(base)  # another task's evaluation: no rows
