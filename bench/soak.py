@@ -30,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bar_policy.deploy.log import load_log
-from bar_policy.deploy.mcap_log import MCAP_FILE, read_mcap_log
+from bar_policy.deploy.log.mcap_write import MCAP_FILE, read_mcap_log
+from bar_policy.deploy.log.run_log import load_log
 
 ROOT = Path(__file__).resolve().parents[1]
 

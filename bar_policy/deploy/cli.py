@@ -46,7 +46,7 @@ from pathlib import Path
 from bar_policy.deploy import cli_parser
 from bar_policy.deploy.cli_tools import fail as _fail
 from bar_policy.deploy.cli_tools import log_command, plot_command
-from bar_policy.deploy.log_files import CAN_LOG_FILE
+from bar_policy.deploy.log.files import CAN_LOG_FILE
 from bar_policy.deploy.signals import early_interrupt, signal_name_of
 from bar_policy.tasks.cli_types import Parser as _Parser
 from bar_policy.tasks.cli_types import asks_help as _asks_help
@@ -121,7 +121,7 @@ def _run(argv: Sequence[str]) -> int:
     if args.live is not None and args.no_log:
         return _fail("--live serves the run log's channels: drop --no-log")
     if not args.no_log:
-        from bar_policy.deploy.log import LogDirError, check_log_dir
+        from bar_policy.deploy.log.run_log import LogDirError, check_log_dir
 
         try:
             check_log_dir(args.log)
@@ -139,7 +139,7 @@ def _run(argv: Sequence[str]) -> int:
     with StopSignals() as stop:
         live = None
         if args.live is not None:
-            from bar_policy.deploy.live import LiveError, LiveServer
+            from bar_policy.deploy.log.live import LiveError, LiveServer
 
             try:
                 live = LiveServer(args.live)
@@ -257,7 +257,7 @@ def _run_session(
         f"policy {args.policy} [{policy.obs_manager.fingerprint}] ({task.name}: {task.summary}) on "
         f"{args.target}, commands {commands.describe()}"
     )
-    from bar_policy.deploy.log import LogDirError
+    from bar_policy.deploy.log.run_log import LogDirError
     from bar_policy.quality.report import run_quality_line
 
     try:

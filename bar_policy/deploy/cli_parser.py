@@ -9,7 +9,7 @@ import argparse
 from collections.abc import Sequence
 from pathlib import Path
 
-from bar_policy.deploy.live import LIVE_PORT
+from bar_policy.deploy.log.live import LIVE_PORT
 from bar_policy.tasks.cli_types import Parser as _Parser
 from bar_policy.tasks.cli_types import count0 as _count0
 from bar_policy.tasks.cli_types import duration as _duration

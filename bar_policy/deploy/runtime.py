@@ -70,8 +70,8 @@ from bar_policy.deploy.action_path import ActionPath
 from bar_policy.deploy.contract import PolicyLoadError
 from bar_policy.deploy.gravity import GravityTorque
 from bar_policy.deploy.inputs import StateInputs
-from bar_policy.deploy.live import LiveServer
-from bar_policy.deploy.log import RunLog
+from bar_policy.deploy.log.live import LiveServer
+from bar_policy.deploy.log.run_log import RunLog
 from bar_policy.deploy.policy import OnnxPolicy, action_reach_problems
 from bar_policy.deploy.run_config import RunResult, RuntimeConfig
 from bar_policy.deploy.run_loop import RunLoop

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from fault_targets import SteppedMock
 
-from bar_policy.deploy.log import LogDirError, RunLog, check_log_dir, load_log, log_fields
-from bar_policy.deploy.log_channels import WELL_KNOWN_TOPICS
-from bar_policy.deploy.mcap_log import MCAP_FILE, TICK_TOPICS, TRANSITION_TOPIC, read_mcap_log
+from bar_policy.deploy.log.channels import WELL_KNOWN_TOPICS
+from bar_policy.deploy.log.mcap_write import MCAP_FILE, TICK_TOPICS, TRANSITION_TOPIC, read_mcap_log
+from bar_policy.deploy.log.run_log import LogDirError, RunLog, check_log_dir, load_log, log_fields
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import Mode, SafetyConfig
 from bar_policy.tasks.reach.commands import SampledCommands

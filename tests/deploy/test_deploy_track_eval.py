@@ -13,7 +13,7 @@ from policy_factory import default_metadata, make_policy_file
 
 from bar_policy.deploy.cli import main
 from bar_policy.deploy.episodes import SimEpisodes
-from bar_policy.deploy.log import load_log
+from bar_policy.deploy.log.run_log import load_log
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import SafetyConfig
@@ -143,7 +143,7 @@ def test_plot_overlays_the_reference(track_policy, tmp_path, monkeypatch):
     matplotlib.use("Agg")
     from matplotlib.axes import Axes
 
-    from bar_policy.deploy.plot import plot_log, tracking_errors
+    from bar_policy.deploy.log.plot import plot_log, tracking_errors
 
     piano = ROBOT.pose("piano_ready")
     clip = Clip.make("tiny", 50.0, piano + 0.01 * np.arange(4)[:, None])

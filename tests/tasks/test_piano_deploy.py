@@ -18,7 +18,7 @@ sys.path.insert(0, str(Path(__file__).parents[1] / "deploy"))
 from policy_factory import default_metadata, make_policy_file
 
 from bar_policy.deploy.cli import main
-from bar_policy.deploy.log import load_log
+from bar_policy.deploy.log.run_log import load_log
 from bar_policy.tasks.interfaces import OptionError
 from bar_policy.tasks.piano.bank import PlaybackConfig
 from bar_policy.tasks.piano.deploy import eval_key_source, key_source, resolve_song
@@ -269,6 +269,6 @@ def test_song_on_the_mock_sim_and_emulated_targets(piano_policy, tmp_path, targe
     late = bool(np.asarray(log["overrun"])[first - 1]) or float(np.asarray(log["jitter"])[first]) > dt / 2
     assert steps[first] == 25 or (target != "sim" and late)
     # bar-deploy plot draws the piano roll from those two arrays.
-    from bar_policy.deploy.plot import plot_log
+    from bar_policy.deploy.log.plot import plot_log
 
     assert "piano_roll.png" in {p.name for p in plot_log(run)}

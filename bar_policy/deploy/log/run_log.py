@@ -54,7 +54,7 @@ from typing import IO, TYPE_CHECKING, Any
 import numpy as np
 
 from bar_policy._files import fsync_dir
-from bar_policy.deploy.log_files import (
+from bar_policy.deploy.log.files import (
     FLUSH_INTERVAL,
     NOT_CLOSED,  # noqa: F401 (re-exported: callers import it from here)
     LogDirError,
@@ -66,12 +66,12 @@ from bar_policy.deploy.log_files import (
     check_log_dir,
     log_fields,
 )
-from bar_policy.deploy.log_read import load_log
-from bar_policy.deploy.mcap_log import MCAP_FILE, McapRunWriter
+from bar_policy.deploy.log.mcap_write import MCAP_FILE, McapRunWriter
+from bar_policy.deploy.log.read import load_log
 
 if TYPE_CHECKING:
-    from bar_policy.deploy.foxglove_scene import RobotScene
-    from bar_policy.deploy.live import LiveServer
+    from bar_policy.deploy.log.foxglove_scene import RobotScene
+    from bar_policy.deploy.log.live import LiveServer
 
 __all__ = [
     "FLUSH_INTERVAL",

@@ -58,11 +58,11 @@ from typing import IO, Any
 import numpy as np
 
 from bar_policy._files import strict_json
-from bar_policy.deploy.foxglove_scene import RobotScene
-from bar_policy.deploy.live import LiveServer
-from bar_policy.deploy.log_channels import WellKnownChannels, encode_log
-from bar_policy.deploy.mcap_read import McapLog, read_mcap_log
-from bar_policy.deploy.mcap_schema import (  # noqa: F401 (COMMANDS_TOPIC: re-exported)
+from bar_policy.deploy.log.channels import WellKnownChannels, encode_log
+from bar_policy.deploy.log.foxglove_scene import RobotScene
+from bar_policy.deploy.log.live import LiveServer
+from bar_policy.deploy.log.mcap_read import McapLog, read_mcap_log
+from bar_policy.deploy.log.mcap_schema import (  # noqa: F401 (COMMANDS_TOPIC: re-exported)
     _SCHEMA_NAMES,
     _TRANSITION_SCHEMA,
     COMMANDS_TOPIC,

@@ -13,9 +13,9 @@ from typing import Any
 import numpy as np
 
 from bar_policy._files import loads_json, npz_problem, shorten
-from bar_policy.deploy.log_files import NOT_CLOSED, LogReadError, _concat_chunks
-from bar_policy.deploy.mcap_read import read_mcap_log
-from bar_policy.deploy.mcap_schema import MCAP_FILE
+from bar_policy.deploy.log.files import NOT_CLOSED, LogReadError, _concat_chunks
+from bar_policy.deploy.log.mcap_read import read_mcap_log
+from bar_policy.deploy.log.mcap_schema import MCAP_FILE
 
 __all__ = ["load_log"]
 

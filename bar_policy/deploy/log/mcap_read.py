@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from bar_policy.deploy.mcap_schema import OPTIONAL_TICK_TOPICS, TICK_TOPICS, TRANSITION_TOPIC, _routes
+from bar_policy.deploy.log.mcap_schema import OPTIONAL_TICK_TOPICS, TICK_TOPICS, TRANSITION_TOPIC, _routes
 
 __all__ = ["McapLog", "read_mcap_log"]
 
