@@ -30,8 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from bar_policy.deploy.log.mcap_write import MCAP_FILE, read_mcap_log
-from bar_policy.deploy.log.run_log import load_log
+from bar_policy.deploy.log.mcap_read import read_mcap_log
+from bar_policy.deploy.log.mcap_schema import MCAP_FILE
+from bar_policy.deploy.log.read import load_log
 
 ROOT = Path(__file__).resolve().parents[1]
 

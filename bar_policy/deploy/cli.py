@@ -121,7 +121,7 @@ def _run(argv: Sequence[str]) -> int:
     if args.live is not None and args.no_log:
         return _fail("--live serves the run log's channels: drop --no-log")
     if not args.no_log:
-        from bar_policy.deploy.log.run_log import LogDirError, check_log_dir
+        from bar_policy.deploy.log.files import LogDirError, check_log_dir
 
         try:
             check_log_dir(args.log)
@@ -257,7 +257,7 @@ def _run_session(
         f"policy {args.policy} [{policy.obs_manager.fingerprint}] ({task.name}: {task.summary}) on "
         f"{args.target}, commands {commands.describe()}"
     )
-    from bar_policy.deploy.log.run_log import LogDirError
+    from bar_policy.deploy.log.files import LogDirError
     from bar_policy.quality.report import run_quality_line
 
     try:

@@ -16,9 +16,9 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from bar_policy.deploy.log.files import CAN_LOG_FILE
+from bar_policy.deploy.log.files import CAN_LOG_FILE, LogDirError, log_fields
 from bar_policy.deploy.log.foxglove_scene import RobotScene
-from bar_policy.deploy.log.run_log import LogDirError, RunLog, log_fields
+from bar_policy.deploy.log.run_log import RunLog
 from bar_policy.deploy.run_config import RunResult
 from bar_policy.deploy.safety import Mode
 from bar_policy.deploy.targets.base import StopReport, TargetError, run_metadata_of

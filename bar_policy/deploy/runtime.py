@@ -118,7 +118,7 @@ class Runtime(RunLoop):
             log_name: suffix of the run directory.
             kinematics: fingertip FK (built for the policy's mode when the layout has fingertips and None).
             on_tick: called after every tick with (tick, run time, runtime) (tests, evaluation).
-            live: a live server (``deploy.live``) that gets the run log's channels too (needs ``log_dir``;
+            live: a live server (``deploy.log.live``) that gets the run log's channels too (needs ``log_dir``;
                 the caller starts and stops it).
         """
         self.policy = policy

@@ -11,8 +11,11 @@ import pytest
 from fault_targets import SteppedMock
 
 from bar_policy.deploy.log.channels import WELL_KNOWN_TOPICS
-from bar_policy.deploy.log.mcap_write import MCAP_FILE, TICK_TOPICS, TRANSITION_TOPIC, read_mcap_log
-from bar_policy.deploy.log.run_log import LogDirError, RunLog, check_log_dir, load_log, log_fields
+from bar_policy.deploy.log.files import LogDirError, check_log_dir, log_fields
+from bar_policy.deploy.log.mcap_read import read_mcap_log
+from bar_policy.deploy.log.mcap_schema import MCAP_FILE, TICK_TOPICS, TRANSITION_TOPIC
+from bar_policy.deploy.log.read import load_log
+from bar_policy.deploy.log.run_log import RunLog
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import Mode, SafetyConfig
 from bar_policy.tasks.reach.commands import SampledCommands

@@ -14,8 +14,10 @@ import pytest
 from policy_factory import default_metadata, make_policy_file
 
 from bar_policy.deploy.episodes import SimEpisodes
+from bar_policy.deploy.log.files import log_fields
 from bar_policy.deploy.log.plot import plot_log
-from bar_policy.deploy.log.run_log import RunLog, load_log, log_fields
+from bar_policy.deploy.log.read import load_log
+from bar_policy.deploy.log.run_log import RunLog
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig, sleep_until
 from bar_policy.deploy.safety import Mode, SafetyConfig

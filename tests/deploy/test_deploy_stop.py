@@ -20,8 +20,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bar_policy.deploy.log.mcap_write import MCAP_FILE, read_mcap_log
-from bar_policy.deploy.log.run_log import load_log
+from bar_policy.deploy.log.mcap_read import read_mcap_log
+from bar_policy.deploy.log.mcap_schema import MCAP_FILE
+from bar_policy.deploy.log.read import load_log
 from bar_policy.deploy.safety import Mode
 
 CHILD = Path(__file__).parent / "deploy_child.py"

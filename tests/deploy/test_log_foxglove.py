@@ -18,10 +18,10 @@ from policy_factory import default_metadata, make_policy_file
 
 from bar_policy.deploy.log.foxglove_scene import GHOST_COLOR, RobotScene
 from bar_policy.deploy.log.live import LiveServer
-from bar_policy.deploy.log.mcap_schema import TRANSITION_TOPIC
-from bar_policy.deploy.log.mcap_write import MCAP_FILE, MODEL_ATTACHMENT, OPTIONAL_TICK_TOPICS, TICK_TOPICS
+from bar_policy.deploy.log.mcap_schema import MCAP_FILE, OPTIONAL_TICK_TOPICS, TICK_TOPICS, TRANSITION_TOPIC
+from bar_policy.deploy.log.mcap_write import MODEL_ATTACHMENT
+from bar_policy.deploy.log.read import load_log
 from bar_policy.deploy.log.ros2_schema import JOINT_STATE_SCHEMA, JOINT_STATE_TYPE, encode_joint_state
-from bar_policy.deploy.log.run_log import load_log
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import SafetyConfig

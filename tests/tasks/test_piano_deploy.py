@@ -18,7 +18,7 @@ sys.path.insert(0, str(Path(__file__).parents[1] / "deploy"))
 from policy_factory import default_metadata, make_policy_file
 
 from bar_policy.deploy.cli import main
-from bar_policy.deploy.log.run_log import load_log
+from bar_policy.deploy.log.read import load_log
 from bar_policy.tasks.interfaces import OptionError
 from bar_policy.tasks.piano.bank import PlaybackConfig
 from bar_policy.tasks.piano.deploy import eval_key_source, key_source, resolve_song

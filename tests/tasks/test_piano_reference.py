@@ -30,7 +30,7 @@ from piano_blend import hand_blend
 from policy_factory import default_metadata
 
 from bar_policy.deploy.cli import main
-from bar_policy.deploy.log.run_log import load_log
+from bar_policy.deploy.log.read import load_log
 from bar_policy.deploy.safety import Mode
 from bar_policy.obs import ObservationManager
 from bar_policy.quality import QualityMeter

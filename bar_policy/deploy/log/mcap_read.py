@@ -31,7 +31,7 @@ class McapLog:
     """Mode changes from ``/safety/transition``."""
     complete: bool = False
     """True when the run closed: the file has its footer and the ``bar_deploy.end`` record. False for a
-    truncated file, and for one that ``mcap_recover.recover_mcap`` rewrote (a footer, but no end record:
+    truncated file, and for one that ``recover.recover_mcap`` rewrote (a footer, but no end record:
     never closed)."""
     error: str = ""
     """Why reading stopped early (empty for a complete file)."""

@@ -1,8 +1,8 @@
-"""The MCAP run log's topics and JSON Schemas, and the JSON form of a tick's values (``deploy.mcap_log``).
+"""The MCAP run log's topics and JSON Schemas, and the JSON form of a tick's values (``mcap_write``).
 
 ``FIELD_ROUTES`` maps each per-tick field to its topic and key; ``_tick_schema`` / ``_TRANSITION_SCHEMA``
 give each topic's JSON Schema; ``_value`` writes a numpy value as plain JSON (non-finite -> null).
-``deploy.mcap_log`` documents the file's layout.
+``mcap_write`` documents the file's layout.
 """
 
 from __future__ import annotations

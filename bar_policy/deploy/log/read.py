@@ -1,6 +1,6 @@
 """Reading a run log back: ``load_log`` (``log.npz``, else ``run.mcap``, else the NPZ chunks of older runs).
 
-``deploy.log`` documents the run directory and the per-tick arrays; ``deploy.mcap_log`` the MCAP schema.
+``run_log`` documents the run directory and the per-tick arrays; ``mcap_write`` the MCAP schema.
 """
 
 from __future__ import annotations
