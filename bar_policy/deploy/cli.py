@@ -220,9 +220,12 @@ def _run_session(
             )
             scene = task.scene(policy)  # type: ignore[attr-defined]
             target = sim_target(
-                args.mode, sim_cfg, scene=scene, perturbation=args.perturb,
+                args.mode,
+                sim_cfg,
+                scene=scene,
+                perturbation=args.perturb,
                 robot_params=getattr(args, "robot_params", None),
-            )  # fmt: skip
+            )
         elif args.target == "mock":
             from bar_policy.deploy.targets.mock import MockTarget
 

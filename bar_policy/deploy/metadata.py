@@ -66,19 +66,43 @@ ACTION_SEMANTICS = ("delta_from_default",)
 """Supported action meanings: ``q_cmd = default_joint_pos + action_scale * action`` (clipped to limits)."""
 
 HC_KEYS = (
-    "task_type", "joint_names", "action_joint_names", "joint_stiffness", "joint_damping",
-    "default_joint_pos", "observation_names", "command_names", "action_scale", "policy_dt",
-    "body_names", "dataset_repo_id", "lookahead_steps",
-)  # fmt: skip
+    "task_type",
+    "joint_names",
+    "action_joint_names",
+    "joint_stiffness",
+    "joint_damping",
+    "default_joint_pos",
+    "observation_names",
+    "command_names",
+    "action_scale",
+    "policy_dt",
+    "body_names",
+    "dataset_repo_id",
+    "lookahead_steps",
+)
 """Keys the Humanoid Control ONNX runner refuses to run without (lite-model.md 2.1)."""
 
 BAR_KEYS = (
-    "bar.metadata_version", "bar.task", "bar.robot", "bar.mode", "bar.joint_names",
-    "bar.action_joint_names", "bar.joint_stiffness", "bar.joint_damping", "bar.default_joint_pos",
-    "bar.action_scale", "bar.action_semantics", "bar.policy_dt", "bar.physics_dt", "bar.obs_schema",
-    "bar.obs_fingerprint", "bar.command_names", "bar.randomization", "bar.code_version",
+    "bar.metadata_version",
+    "bar.task",
+    "bar.robot",
+    "bar.mode",
+    "bar.joint_names",
+    "bar.action_joint_names",
+    "bar.joint_stiffness",
+    "bar.joint_damping",
+    "bar.default_joint_pos",
+    "bar.action_scale",
+    "bar.action_semantics",
+    "bar.policy_dt",
+    "bar.physics_dt",
+    "bar.obs_schema",
+    "bar.obs_fingerprint",
+    "bar.command_names",
+    "bar.randomization",
+    "bar.code_version",
     "bar.training",
-)  # fmt: skip
+)
 """Keys every ``bar`` file carries (``from_props`` refuses a file that lacks one)."""
 
 OPTIONAL_BAR_KEYS = ("bar.action_filter", "bar.command_transition", "bar.provenance")
