@@ -143,6 +143,15 @@ class Arrangement:
             ],
         }
 
+    def brief(self) -> str:
+        """``tempo x0.800 (96 bpm), 40 notes shortened, 2 lengthened, 0 across the split``."""
+        bpm = "" if self.written_bpm is None else f" ({self.written_bpm * self.tempo:.4g} bpm)"
+        shorter = sum(c.played_s < c.written_s for c in self.changes)
+        return (
+            f"tempo x{self.tempo:.3f}{bpm}, {shorter} notes shortened, {len(self.changes) - shorter} "
+            f"lengthened, {len(self.against_split)} across the split"
+        )
+
     def lines(self) -> list[str]:
         """The summary printed at a run's start: tempo, hands, then every changed note (a few per line)."""
         bpm = "" if self.written_bpm is None else f" ({self.written_bpm * self.tempo:.4g} bpm, written "
