@@ -7,10 +7,12 @@ accepts and lists every change it made (``Arrangement``):
 1. **Hands** (``assign_hands``): notes that start together (within ``CHORD_S``) are a chord: two go to the
    two hands, lower left, higher right; three or more are refused (one fingertip per arm). A note alone
    goes to a hand whose reach (``keyboard.LEFT_REACH`` / ``RIGHT_REACH``, cut to the keyboard) holds its
-   key, choosing, in this order: a hand that can take it at the written tempo (below), then a hand whose
-   previous note has ended (a held note is not cut), then the hand on the note's side of ``split`` (the
-   key-pose prior's split at middle C, which the shipped policy plays by: its observation has no hand),
-   then the faster hand. Greedy, in time order. Given hands (``left`` / ``right``) are kept.
+   key, choosing, in this order: a hand that takes it in time at the tempo played (below), then the hand
+   on the note's side of ``split`` (the key-pose prior's split at middle C, which the shipped policy plays
+   by: its observation has no hand, so a note given the other hand is listed), then a hand whose previous
+   note has ended (a held note is not cut), then the faster hand. Greedy, in time order; ``auto`` assigns
+   once for the written tempo and again for the tempo that allows. Given hands (``left`` / ``right``) are
+   kept.
 2. **Tempo**: hand ``h`` can take note ``b`` after its note ``a`` at tempo factor ``f`` (times divided by
    ``f``) when ``(b.start - a.start) / f >= min_note_s + required_gap(a, b)``: ``a`` shortened to leave
    the gap still lasts the shortest note. The fastest factor (``fastest_tempo``) is the least of
@@ -192,8 +194,11 @@ def assign_hands(
     config: KeyboardConfig | None = None,
     limits: TempoLimits | None = None,
     split: int = HAND_SPLIT_MIDI,
+    tempo: float = 1.0,
 ) -> Song:
     """``song`` with every ``either`` note given a hand (module docstring, 1); ``SongError`` naming the note.
+
+    ``tempo``: the factor the song will play at; a hand "takes a note in time" when it can at that factor.
 
     Refused: a key off the keyboard or out of its hand's reach, a chord of three or more notes, a chord of
     two whose lower key the left cannot reach or whose higher key the right cannot.
@@ -249,7 +254,7 @@ def assign_hands(
                 rate = _rate(prev, n, cfg, lim)
                 free = prev is None or prev.end_s <= n.start_s + 1e-9
                 home = (h == "left") == (n.key < split)
-                return (min(rate, 1.0), free, home, rate)
+                return (min(rate, tempo), home, free, rate)
 
             hand = max(ok, key=rank)
             last[hand] = replace(n, hand=hand)
@@ -307,16 +312,17 @@ def arrange(
     """
     cfg = default_config() if config is None else config
     lim = TempoLimits() if limits is None else limits
-    assigned = assign_hands(song, cfg, lim, split)
-    fastest = fastest_tempo(assigned, cfg, lim)
-    if tempo == "auto":
+    if tempo == "auto":  # the hands for the written tempo, then again for the tempo they allow
+        first = fastest_tempo(assign_hands(song, cfg, lim, split), cfg, lim)
+        assigned = assign_hands(song, cfg, lim, split, min(1.0, first))
+        fastest = fastest_tempo(assigned, cfg, lim)
         factor = min(1.0, _round_down(fastest))
         if factor <= 0.0:
             factor = fastest  # below 0.001: refused below with the figure
-    elif tempo is None:
-        factor = 1.0
     else:
-        factor = float(tempo)
+        factor = 1.0 if tempo is None else float(tempo)
+        assigned = assign_hands(song, cfg, lim, split, factor)
+        fastest = fastest_tempo(assigned, cfg, lim)
     if factor > fastest * (1 + 1e-9) or factor <= 0.0:
         pairs = _pairs(assigned)
         i, a, b = next(
