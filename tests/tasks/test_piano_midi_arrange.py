@@ -217,3 +217,24 @@ def test_the_melody_set_plays_at_the_tempo_the_loader_chooses():
     # 164.5 mm, 0.329 s of move): 0.2143 / (0.15 + 0.329) = x0.4473 -> x0.447.
     assert arrange_midi(MELODIES / "can_can.mid", "auto", KB).tempo == 0.447
     assert math.isclose(arrange_midi(MELODIES / "ode_to_joy.mid", "auto", KB).tempo, 1.0)
+
+
+def test_auto_tempo_keeps_the_split_s_hands():
+    # E4 0-0.25 s, F#4 0.25-0.5 s, E4 0.5-1.0 s, all in both arms' reach, on the right's side of the split.
+    # E4 <-> F#4: 66.420 mm (the black key's aim point 55 mm back, 12 mm up, 35.25 mm across) -> 0.13284 s.
+    # The right alone: each note 0.25 s after the last, needing 0.15 + 0.13284 = 0.28284 s: x0.88389.
+    song = Song("s", (Note(64, 0.0, 0.25), Note(66, 0.25, 0.5), Note(64, 0.5, 1.0)))
+    auto = arrange(song, "auto", KB)
+    assert auto.tempo == 0.883 and auto.against_split == ()
+    assert auto.fastest == pytest.approx(0.25 / (0.15 + 0.13284), abs=1e-5)
+    # With F#4 on the left the right repeats E4 0.5 s apart, needing 0.15 + 0.05 s: x2.5, one note across.
+    assert auto.fastest_across == (2.5, 1)
+    # As written (x1) the right cannot take F#4 in time; the left can: it does, listed across the split.
+    written = arrange(song, None, KB)
+    assert written.tempo == 1.0 and [n.key for n in written.against_split] == [66]
+    with pytest.raises(SongError) as e:
+        arrange(song, 3.0, KB)
+    assert str(e.value).endswith(
+        "the song plays at x0.883 with the split's hands (--tempo 0.883 or --tempo auto), at x2.5 with 1 "
+        "notes across the split"
+    )

@@ -8,18 +8,22 @@ accepts and lists every change it made (``Arrangement``):
    two hands, lower left, higher right; three or more are refused (one fingertip per arm). A note alone
    goes to a hand whose reach (``keyboard.LEFT_REACH`` / ``RIGHT_REACH``, cut to the keyboard) holds its
    key, choosing, in this order: a hand that takes it in time at the tempo played (below), then the hand
-   on the note's side of ``split`` (the key-pose prior's split at middle C, which the shipped policy plays
-   by: its observation has no hand, so a note given the other hand is listed), then a hand whose previous
-   note has ended (a held note is not cut), then the faster hand. Greedy, in time order; ``auto`` assigns
-   once for the written tempo and again for the tempo that allows. Given hands (``left`` / ``right``) are
-   kept.
+   on the note's side of ``split``, then a hand whose previous note has ended (a held note is not cut),
+   then the faster hand. Greedy, in time order. Given hands (``left`` / ``right``) are kept. The split is
+   the key-pose prior's (middle C), which every piano policy of this layout plays by: its observation has
+   no hand, so a note given the arm across the split is listed (``Arrangement.against_split``): the
+   policy plays it with the split's arm all the same.
 2. **Tempo**: hand ``h`` can take note ``b`` after its note ``a`` at tempo factor ``f`` (times divided by
    ``f``) when ``(b.start - a.start) / f >= min_note_s + required_gap(a, b)``: ``a`` shortened to leave
-   the gap still lasts the shortest note. The fastest factor (``fastest_tempo``) is the least of
-   ``(b.start - a.start) / (min_note_s + required_gap(a, b))`` over each hand's consecutive notes.
-   ``tempo`` None plays the written tempo (factor 1), a number that factor, ``"auto"`` the fastest factor
-   capped at 1 and rounded down to 3 decimals. A factor past the fastest is refused, naming the first note
-   it cannot reach and the factor that plays the song.
+   the gap still lasts the shortest note. The fastest factor of an assignment (``fastest_tempo``) is the
+   least of ``(b.start - a.start) / (min_note_s + required_gap(a, b))`` over each hand's consecutive
+   notes. ``tempo`` None plays the written tempo (factor 1), a number that factor, ``"auto"`` the fastest
+   factor with the split's hands (``Arrangement.fastest``), capped at 1 and rounded down to 3 decimals:
+   the fastest the policy plays as the loader plans it (Greensleeves of the melody set: F1 0.813 at x1
+   with four notes across the split, 0.866 at x0.88 with none; docs/piano.md). A faster factor with notes
+   across the split, when there is one and the split's hands cannot play the written tempo, is given
+   beside it (``fastest_across``). A factor past what the
+   hands picked at it allow is refused, naming the first note it cannot reach and the factor that plays.
 3. **Articulation**: the times are divided by the factor; a note shorter than ``min_note_s`` is
    lengthened to it, and every note is ended ``required_gap`` before its hand's next note
    (``generator.articulate``, the library's own). Each note whose length changed is listed with the change.
@@ -110,7 +114,11 @@ class Arrangement:
     tempo: float
     """The factor applied (1: as written; 0.5: half speed)."""
     fastest: float
-    """The fastest factor that plays it (inf: a song with no two notes in one hand)."""
+    """The fastest factor that plays it with the hands of the key-pose prior's split (each note, but for
+    chords, by the arm on its side of ``split``; inf: a song with no two notes in one hand)."""
+    fastest_across: tuple[float, int] | None
+    """A faster factor with some notes given the arm across the split, and how many (None: none faster,
+    or the split's hands play the written tempo)."""
     written_bpm: float | None
     """The song's written tempo at its start, bpm (None: not known, a song file of times)."""
     changes: tuple[NoteChange, ...]
@@ -127,6 +135,7 @@ class Arrangement:
         return {
             "tempo": self.tempo,
             "fastest_tempo": None if math.isinf(self.fastest) else self.fastest,
+            "fastest_tempo_across_split": None if self.fastest_across is None else self.fastest_across[0],
             "written_bpm": self.written_bpm,
             "played_bpm": None if self.written_bpm is None else self.written_bpm * self.tempo,
             "hands": dict(self.hands),
@@ -158,7 +167,10 @@ class Arrangement:
         """The summary printed at a run's start: tempo, hands, then every changed note (a few per line)."""
         bpm = "" if self.written_bpm is None else f" ({self.written_bpm * self.tempo:.4g} bpm, written "
         bpm += "" if self.written_bpm is None else f"{self.written_bpm:.4g})"
-        fastest = "any" if math.isinf(self.fastest) else f"x{self.fastest:.3f}"
+        fastest = "any" if math.isinf(self.fastest) else f"x{_round_down(self.fastest):.3f}"  # still plays
+        if self.fastest_across is not None:
+            x, n_across = self.fastest_across
+            fastest += f" (x{x:.3f} with {n_across} notes across the split)"
         n = len(self.song.notes)
         shorter = sum(c.played_s < c.written_s for c in self.changes)
         out = [
@@ -288,6 +300,8 @@ def fastest_tempo(
 
 
 def _round_down(x: float) -> float:
+    if math.isinf(x):
+        return x
     scale = 10**_TEMPO_DECIMALS
     return math.floor(x * scale + 1e-9) / scale
 
@@ -312,31 +326,31 @@ def arrange(
     """
     cfg = default_config() if config is None else config
     lim = TempoLimits() if limits is None else limits
-    if tempo == "auto":  # the hands for the written tempo, then again for the tempo they allow
-        first = fastest_tempo(assign_hands(song, cfg, lim, split), cfg, lim)
-        assigned = assign_hands(song, cfg, lim, split, min(1.0, first))
-        fastest = fastest_tempo(assigned, cfg, lim)
-        factor = min(1.0, _round_down(fastest))
-        if factor <= 0.0:
-            factor = fastest  # below 0.001: refused below with the figure
+    split_fastest = fastest_tempo(assign_hands(song, cfg, lim, split, 0.0), cfg, lim)  # the split's hands
+    across = _fastest_across(song, cfg, lim, split, split_fastest)
+    if tempo == "auto":
+        factor = min(1.0, _round_down(split_fastest)) or split_fastest  # below 0.001: refused below
     else:
         factor = 1.0 if tempo is None else float(tempo)
-        assigned = assign_hands(song, cfg, lim, split, factor)
-        fastest = fastest_tempo(assigned, cfg, lim)
-    if factor > fastest * (1 + 1e-9) or factor <= 0.0:
+    assigned = assign_hands(song, cfg, lim, split, factor)
+    if factor > fastest_tempo(assigned, cfg, lim) * (1 + 1e-9) or factor <= 0.0:
         pairs = _pairs(assigned)
         i, a, b = next(
             (p for p in pairs if _rate(p[1], p[2], cfg, lim) < factor),
             min(pairs, key=lambda p: _rate(p[1], p[2], cfg, lim)),
         )
         gap = required_gap(a.key, b.key, cfg, lim)
-        works = _round_down(fastest)
-        hint = (
-            f"the song plays at x{works:g}{_bpm(written_bpm, works)} at most: give --tempo {works:g} or "
-            "--tempo auto"
-            if works > 0.0
-            else "no tempo plays it (two notes at once in one hand)"
-        )
+        works = _round_down(split_fastest)
+        if works <= 0.0:
+            hint = "no tempo plays it (two notes at once in one hand)"
+        elif across is None:
+            hint = (
+                f"the song plays at x{works:g}{_bpm(written_bpm, works)} at most: give --tempo {works:g} or "
+            )
+            hint += "--tempo auto"
+        else:
+            hint = f"the song plays at x{works:g}{_bpm(written_bpm, works)} with the split's hands (--tempo "
+            hint += f"{works:g} or --tempo auto), at x{across[0]:g} with {across[1]} notes across the split"
         at = f"x{factor:g}{_bpm(written_bpm, factor)}" if factor > 0.0 else "any tempo"
         after = (b.start_s - a.start_s) / factor if factor > 0.0 else 0.0
         raise SongError(
@@ -366,4 +380,26 @@ def arrange(
     result = playable(Song(song.name, played), cfg, lim, split)  # the arrangement's own check
     hands = {h: sum(n.hand == h for n in result.notes) for h in ("left", "right")}
     against = tuple(n for n in result.notes if (n.hand == "left") != (n.key < split))
-    return Arrangement(result, factor, fastest, written_bpm, tuple(changes), hands, against, split)
+    return Arrangement(
+        result, factor, split_fastest, across, written_bpm, tuple(changes), hands, against, split
+    )
+
+
+def _fastest_across(
+    song: Song, cfg: KeyboardConfig, lim: TempoLimits, split: int, split_fastest: float
+) -> tuple[float, int] | None:
+    """A faster factor than the split's hands allow, with notes given the other arm, and how many; or None.
+
+    Only sought when the split's hands cannot play the written tempo.
+    The hands that maximise each note's own rate (``assign_hands`` at an unbounded tempo) give a candidate,
+    rounded down to 3 decimals; it counts when the hands ``assign_hands`` picks at that factor play it.
+    """
+    if _round_down(split_fastest) >= 1.0:  # the written tempo plays with the split's hands
+        return None
+    candidate = _round_down(fastest_tempo(assign_hands(song, cfg, lim, split, math.inf), cfg, lim))
+    if not candidate > _round_down(split_fastest):
+        return None
+    hands = assign_hands(song, cfg, lim, split, candidate)
+    if fastest_tempo(hands, cfg, lim) < candidate * (1 - 1e-9):
+        return None
+    return candidate, sum((n.hand == "left") != (n.key < split) for n in hands.notes)
