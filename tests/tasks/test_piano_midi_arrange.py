@@ -238,3 +238,22 @@ def test_auto_tempo_keeps_the_split_s_hands():
         "the song plays at x0.883 with the split's hands (--tempo 0.883 or --tempo auto), at x2.5 with 1 "
         "notes across the split"
     )
+
+
+def test_a_key_struck_again_before_its_release_at_the_same_tick(tmp_path):
+    # C4 C4 at 120 bpm, exported with the second note-on before the first note-off at tick 480 (0.5 s): two
+    # notes, 0-0.5 s and 0.5-1.0 s; the off at 480 ends the first, not the second.
+    mid, track = mido.MidiFile(type=0, ticks_per_beat=480), mido.MidiTrack()
+    for delta, msg in [
+        (0, mido.Message("note_on", note=60, velocity=80)),
+        (480, mido.Message("note_on", note=60, velocity=80)),
+        (0, mido.Message("note_off", note=60)),
+        (480, mido.Message("note_off", note=60)),
+    ]:
+        track.append(msg.copy(time=delta))
+    mid.tracks.append(track)
+    mid.save(tmp_path / "again.mid")
+    assert [(n.key, n.start_s, n.end_s) for n in read_midi(tmp_path / "again.mid").notes] == [
+        (60, 0.0, 0.5),
+        (60, 0.5, 1.0),
+    ]

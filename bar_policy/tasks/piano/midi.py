@@ -94,6 +94,7 @@ def read_midi(path: str | Path) -> WrittenMidi:
             f"{path}: a type {midi.type} MIDI file (independent sequences); give a type 0 or 1 file"
         )
     held: dict[tuple[int, int], float] = {}
+    restruck: dict[tuple[int, int], float] = {}  # key -> when it was struck again while held
     notes: list[Note] = []
     bpm, changes, now = 120.0, 0, 0.0
     for k, msg in enumerate(midi):  # merged tracks; msg.time is the delta in seconds
@@ -109,12 +110,18 @@ def read_midi(path: str | Path) -> WrittenMidi:
         if msg.type not in ("note_on", "note_off"):
             continue
         key = (msg.channel, msg.note)
-        if key in held and (msg.type == "note_off" or msg.velocity == 0 or now > held[key]):
+        press = msg.type == "note_on" and msg.velocity > 0
+        if not press and key in held and restruck.get(key) == now == held[key]:
+            del restruck[key]  # the release of the note the strike at this tick ended, not of the new one
+            continue
+        if key in held and (not press or now > held[key]):
             start = held.pop(key)  # a release, or a key struck again while held: the held note ends here
+            if press:
+                restruck[key] = now
             if now > start:
                 notes.append(Note(msg.note, start, now))
                 check_song_size(str(path), len(notes), now)  # while reading: stop at the first past a limit
-        if msg.type == "note_on" and msg.velocity > 0:
+        if press:
             held[key] = now
     if held:
         (channel, key), start = next(iter(held.items()))
