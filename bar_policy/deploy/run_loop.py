@@ -175,7 +175,7 @@ class RunLoop:
         t = 0.0
         end_reason = "duration reached"
         t0_target = self.target.now()
-        pacer = Pacer(dt, paced=paced, spin_s=cfg.spin_s)
+        pacer = Pacer(dt, paced=paced, spin_s=cfg.spin_s, n_deadlines=n_deadlines)
         error: BaseException | None = None
         try:
             with RealtimePriority(cfg.rt_priority):
