@@ -27,6 +27,7 @@ from dataclasses import replace
 from bar_policy.overrides import merge_overrides
 from bar_policy.tasks.registry import TASKS
 from bar_policy.training.config import PRESETS, TrainConfig, preset
+from bar_policy.training.writers import check_logger
 
 __all__ = ["check_env_overrides", "main", "parse_config", "preset_of"]
 
@@ -71,6 +72,11 @@ def parse_config(argv: Sequence[str] | None = None) -> TrainConfig:
         check_env_overrides(cfg)
     except ValueError as e:
         print(f"{PROG}: error: --env-overrides: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
+    try:
+        check_logger(cfg.logger)  # wandb is optional: refused here, before anything compiles
+    except ValueError as e:
+        print(f"{PROG}: error: {e}", file=sys.stderr)
         raise SystemExit(2) from None
     return cfg
 

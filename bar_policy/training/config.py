@@ -23,6 +23,7 @@ import tyro
 from bar_policy.overrides import apply_overrides, split_override
 from bar_policy.task_records import default_env, resolve
 from bar_policy.tasks.registry import TASKS
+from bar_policy.training.writers import LOGGERS
 
 __all__ = [
     "ACTION_PRIORS",
@@ -298,6 +299,12 @@ class TrainConfig:
     """Training iterations per progress line (one compiled epoch); 0 = auto, about 2 lines per evaluation."""
     checkpoint_every: int = 1
     """Save a checkpoint every this many evaluation periods (0 = only at the end)."""
+    logger: Literal["tensorboard", "wandb", "none"] = "tensorboard"
+    """Where the scalars go besides metrics.jsonl (``training.writers``): TensorBoard event files in
+    ``<run>/tb``; ``wandb``, those and a Weights & Biases run (optional package; ``WANDB_MODE=offline``
+    works without a network); ``none``. Tags: ``training.log_tags`` (docs/training.md)."""
+    wandb_project: str = "bar_policy"
+    """Weights & Biases project of ``--logger wandb``."""
     max_minutes: float = 0.0
     """Wall-clock budget of training, min (0 = no limit; counted from the start of the process): no epoch
     starts that would end past it (by the last epoch's and evaluation's lengths); then export."""
@@ -346,6 +353,8 @@ class TrainConfig:
             )
         for o in self.env_overrides:
             split_override(o)
+        if self.logger not in LOGGERS:
+            raise ValueError(f"unknown logger {self.logger!r}; choices: {', '.join(LOGGERS)}")
 
 
 # ----------------------------------------------------------------------------------------------------------
