@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import io
 
 import pytest
 
@@ -145,3 +146,25 @@ def test_logger_choices_and_a_missing_wandb(monkeypatch, capsys):
     err = capsys.readouterr().err
     assert e.value.code == 2 and err.count("\n") == 1 and "pip install 'bar-policy[wandb]'" in err
     assert parse_config(["--logger", "none"]).logger == "none"
+
+
+def test_wandb_offline_writes_a_local_run_and_the_event_files(tmp_path, monkeypatch):
+    # wandb is optional (the wandb extra): this runs where it is installed. Offline, no network.
+    pytest.importorskip("wandb")
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from bar_policy.training.progress import RunLogger
+
+    monkeypatch.setenv("WANDB_MODE", "offline")
+    monkeypatch.setenv("WANDB_SILENT", "true")
+    logger = RunLogger(tmp_path / "run", 100, logger="wandb", stream=io.StringIO())
+    logger.log(10, {"episode_reward": 1.5, "reward/reach": 1.0, "success_rate": 0.5}, kind="train")
+    logger.log(20, {"episode_reward": 2.5, "reward/reach": 2.0, "success_rate": 0.75}, kind="train")
+    logger.log(0, {"success_rate": 0.0, "episode_reward": 0.1}, kind="eval")  # step 0 after training
+    logger.close()
+    (run,) = (tmp_path / "run" / "wandb").glob("offline-run-*")
+    assert list(run.glob("run-*.wandb"))  # the local run file that `wandb sync` uploads
+    acc = EventAccumulator(str(tmp_path / "run" / "tb"))
+    acc.Reload()
+    assert [(e.step, e.value) for e in acc.Scalars("Episode_Reward/reach")] == [(10, 1.0), (20, 2.0)]
+    assert [e.step for e in acc.Scalars("Eval/success_rate")] == [0]
