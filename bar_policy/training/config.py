@@ -285,7 +285,8 @@ class TrainConfig:
     backend: Literal["brax", "rsl-rl"] = "brax"
     """brax = brax's PPO pieces, JAX end to end (default); rsl-rl = rsl-rl-lib (torch) on the same env."""
     preset: PresetName = "gpu"
-    """Preset supplying every default shown: gpu (one H100), rsl (gpu on rsl-rl at the field's values), cpu,
+    """Preset supplying every default shown: gpu (one H100; the default), gpu-rsl (the default with
+    --backend rsl-rl: gpu on rsl-rl, fast sizes, fixed rate), rsl (gpu on rsl-rl at the field's values), cpu,
     tiny (tests), track (LiteTrack, H100), track-rsl (track on rsl-rl), piano (LitePiano, H100)."""
     seed: int = 0
     """Seed of parameter init, env resets and evaluation."""
