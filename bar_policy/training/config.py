@@ -285,8 +285,8 @@ class TrainConfig:
     backend: Literal["brax", "rsl-rl"] = "brax"
     """brax = brax's PPO pieces, JAX end to end (default); rsl-rl = rsl-rl-lib (torch) on the same env."""
     preset: PresetName = "gpu"
-    """Preset supplying every default shown: gpu (one H100; the default), gpu-rsl (the default with
-    --backend rsl-rl: gpu on rsl-rl, fast sizes, fixed rate), rsl (gpu on rsl-rl at the field's values), cpu,
+    """Preset supplying every default shown: gpu (one H100; the default), gpu-rsl (the rsl-rl backend's
+    default: gpu on rsl-rl, fast sizes, fixed rate), rsl (gpu on rsl-rl at the field's values), cpu,
     tiny (tests), track (LiteTrack, H100), track-rsl (track on rsl-rl), piano (LitePiano, H100)."""
     seed: int = 0
     """Seed of parameter init, env resets and evaluation."""
@@ -305,7 +305,7 @@ class TrainConfig:
     ``<run>/tb``; ``wandb``, those and a Weights & Biases run (optional package; ``WANDB_MODE=offline``
     works without a network); ``none``. Tags: ``training.log_tags`` (docs/training.md)."""
     wandb_project: str = "bar_policy"
-    """Weights & Biases project of ``--logger wandb``."""
+    """Weights & Biases project (for the wandb logger)."""
     max_minutes: float = 0.0
     """Wall-clock budget of training, min (0 = no limit; counted from the start of the process): no epoch
     starts that would end past it (by the last epoch's and evaluation's lengths); then export."""
