@@ -4,6 +4,7 @@ Examples::
 
     bar-train                                             # gpu preset, brax backend
     bar-train --preset tiny --ppo.num-timesteps 4096
+    bar-train --backend rsl-rl                            # rsl-rl: the gpu-rsl preset unless --preset
     bar-train --backend rsl-rl --ppo.num-envs 2048
     bar-train --env-overrides episode_length_s=4.0 reward.scales.reach_fine=2.0
     bar-train --resume runs/LiteReach-brax-20260101-120000 --ppo.num-timesteps 80000000
@@ -27,26 +28,41 @@ from dataclasses import replace
 from bar_policy.overrides import merge_overrides
 from bar_policy.tasks.registry import TASKS
 from bar_policy.training.config import PRESETS, TrainConfig, preset
+from bar_policy.training.writers import check_logger
 
-__all__ = ["check_env_overrides", "main", "parse_config", "preset_of"]
+__all__ = ["BACKEND_PRESETS", "check_env_overrides", "main", "parse_config", "preset_of"]
 
 PROG = "bar-train"
 """Program name in messages (``python train/ppo.py`` runs the same parser)."""
 
 
-def preset_of(argv: Sequence[str]) -> str:
-    """The ``--preset`` value in ``argv`` (the last one wins, as in tyro); ``gpu`` when absent or unknown.
+BACKEND_PRESETS: dict[str, str] = {"rsl-rl": "gpu-rsl"}
+"""The preset a backend runs when no ``--preset`` is given (else ``gpu``): ``--backend rsl-rl`` alone runs
+``gpu-rsl``, the gpu preset's env at rsl-rl's fast sizes with a fixed rate (``tasks/reach/preset.py``)."""
 
-    An unknown name is left for tyro to refuse with the valid choices.
+
+def preset_of(argv: Sequence[str]) -> str:
+    """The ``--preset`` value in ``argv`` (the last one wins, as in tyro).
+
+    Without one: the ``--backend``'s own (``BACKEND_PRESETS``), else ``gpu``. An unknown name is left for
+    tyro to refuse with the valid choices (``gpu`` meanwhile).
     """
-    name = "gpu"
+    name = backend = None
     for i, a in enumerate(argv):
         if a == "--":
             break
-        if a == "--preset" and i + 1 < len(argv):
-            name = argv[i + 1]
-        elif a.startswith("--preset="):
-            name = a.split("=", 1)[1]
+        for flag in ("--preset", "--backend"):
+            value = None
+            if a == flag and i + 1 < len(argv):
+                value = argv[i + 1]
+            elif a.startswith(flag + "="):
+                value = a.split("=", 1)[1]
+            if value is not None and flag == "--preset":
+                name = value
+            elif value is not None:
+                backend = value
+    if name is None:
+        name = BACKEND_PRESETS.get(backend or "", "gpu")
     return name if name in PRESETS else "gpu"
 
 
@@ -71,6 +87,11 @@ def parse_config(argv: Sequence[str] | None = None) -> TrainConfig:
         check_env_overrides(cfg)
     except ValueError as e:
         print(f"{PROG}: error: --env-overrides: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
+    try:
+        check_logger(cfg.logger)  # wandb is optional: refused here, before anything compiles
+    except ValueError as e:
+        print(f"{PROG}: error: {e}", file=sys.stderr)
         raise SystemExit(2) from None
     return cfg
 

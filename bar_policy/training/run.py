@@ -113,7 +113,9 @@ def _open_run(cfg: TrainConfig, env: Any, is_main: bool, notes: list[str]) -> tu
     from bar_policy.provenance import collect, describe
 
     run_dir = resolve_run_dir(cfg, check=is_main)
-    logger = RunLogger(run_dir, cfg.ppo.num_timesteps, enabled=is_main)
+    logger = RunLogger(
+        run_dir, cfg.ppo.num_timesteps, enabled=is_main, logger=cfg.logger, wandb_project=cfg.wandb_project
+    )
     provenance = collect()
     record = {
         "provenance": provenance,
