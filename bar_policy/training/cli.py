@@ -24,14 +24,12 @@ import sys
 from collections.abc import Sequence
 from dataclasses import replace
 
-from bar_policy.overrides import merge_overrides
+from bar_policy.overrides import changed_overrides, merge_overrides
 from bar_policy.tasks.registry import TASKS
 from bar_policy.training.config import PRESETS, TrainConfig, preset
+from bar_policy.training.env_flags import PROG, command_for, fail, parse_command, train_config_of
 
-__all__ = ["check_env_overrides", "main", "parse_config", "preset_of"]
-
-PROG = "bar-train"
-"""Program name in messages (``python train/ppo.py`` runs the same parser)."""
+__all__ = ["check_env_overrides", "env_of", "main", "parse_config", "preset_of"]
 
 
 def preset_of(argv: Sequence[str]) -> str:
@@ -50,51 +48,71 @@ def preset_of(argv: Sequence[str]) -> str:
     return name if name in PRESETS else "gpu"
 
 
-def parse_config(argv: Sequence[str] | None = None) -> TrainConfig:
-    """Parse a command line into a ``TrainConfig`` (tyro; defaults from the named preset).
+def env_of(argv: Sequence[str], default: str) -> str:
+    """The ``--env`` (``--env-name``) value in ``argv`` (the last one wins); ``default`` if absent or unknown.
 
-    Exits with status 2 and a one-line message on a bad flag, value or env override.
+    ``--env.<field>`` flags are the env's settings, not its name. An unknown name is left for tyro to refuse
+    with the valid choices.
     """
-    import tyro
+    name = default
+    for i, a in enumerate(argv):
+        if a == "--":
+            break
+        if a in ("--env", "--env-name") and i + 1 < len(argv):
+            name = argv[i + 1]
+        elif a.startswith(("--env=", "--env-name=")):
+            name = a.split("=", 1)[1]
+    return name if name in {e.name for r in TASKS for e in r.envs} else default
 
+
+def parse_config(argv: Sequence[str] | None = None) -> TrainConfig:
+    """Parse a command line into a ``TrainConfig`` (tyro; defaults from the named preset and env).
+
+    The env's settings are typed flags (``--env.reward.scales.action-rate -0.1``, ``training.env_flags``)
+    whose defaults are the env's config with the preset's own items; the ones a command line changes join
+    the run's ``env_overrides`` after the preset's and ``--env-overrides``' items (so a flag wins).
+    Exits with status 2 and a one-line message (``bar-train: error: ...``) on a bad flag, value or override.
+    """
     args = list(sys.argv[1:] if argv is None else argv)
     name = preset_of(args)
+    base = preset(name)
+    env_name = env_of(args, base.env_name)
+    preset_items, dropped = _preset_items(name, base.env_overrides, env_name)
     description = (
         __doc__.split("\n\n")[0]
-        + f"\n\nDefaults shown: the {name} preset's. Env and reward settings: dotted.path=value items "
-        + "(docs/training.md lists them)."
+        + f"\n\nDefaults shown: the {name} preset's. The --env.* settings are {env_name}'s (--env picks "
+        + "another env's); --env-overrides path=value items are a shorthand for them."
     )
-    base = preset(name)
-    cfg = tyro.cli(TrainConfig, default=base, args=args, description=description, prog=PROG)
+    command, default = command_for(base, env_name, preset_items)
+    parsed = parse_command(command, default, args, description=description, prog=PROG)
+    if dropped:
+        print(
+            f"{PROG}: note: preset {name}'s env settings {list(base.env_overrides)} are the {dropped} "
+            f"task's; not applied to {parsed.env_name}",
+            file=sys.stderr,
+        )
+    cfg = train_config_of(parsed)
+    # Equal to the preset's items: tyro's default, so nothing was given on the command line.
+    given = () if cfg.env_overrides == base.env_overrides else cfg.env_overrides
+    flags = changed_overrides(parsed.env, default.env)
     try:
-        cfg = replace(cfg, env_overrides=_on_preset(name, base.env_overrides, cfg))
+        cfg = replace(cfg, env_overrides=merge_overrides(merge_overrides(preset_items, given), flags))
         check_env_overrides(cfg)
     except ValueError as e:
-        print(f"{PROG}: error: --env-overrides: {e}", file=sys.stderr)
-        raise SystemExit(2) from None
+        fail(f"--env-overrides: {e}")
     return cfg
 
 
-def _on_preset(name: str, preset_items: tuple[str, ...], cfg: TrainConfig) -> tuple[str, ...]:
-    """The run's env overrides: ``--env-overrides`` on top of the preset's own items.
+def _preset_items(name: str, items: tuple[str, ...], env_name: str) -> tuple[tuple[str, ...], str]:
+    """The preset's env items that apply to ``env_name``, and the preset's task name when they do not.
 
-    A path given on the command line replaces the preset's value for it; the preset's other items stay
-    (``overrides.merge_overrides``). A preset's items are its task's settings (the reach gpu preset's
-    ``sim_dt=0.004``): with an env of another task (``--env LitePiano``) they are left out, with a note.
+    A preset's items are its task's settings (the reach gpu preset's ``sim_dt=0.004``): with an env of
+    another task (``--env LitePiano``) they are left out (``parse_config`` prints a note).
     """
-    if not preset_items:
-        return cfg.env_overrides
-    # Equal to the preset's items: tyro's default, so nothing was given on the command line.
-    given = () if cfg.env_overrides == preset_items else cfg.env_overrides
+    if not items:
+        return (), ""
     own = next(r for r in TASKS if name in dict(r.presets))
-    if cfg.env_name in {e.name for e in own.envs}:
-        return merge_overrides(preset_items, given)
-    print(
-        f"{PROG}: note: preset {name}'s env settings {list(preset_items)} are the {own.name} task's; "
-        f"not applied to {cfg.env_name}",
-        file=sys.stderr,
-    )
-    return given
+    return ((), own.name) if env_name not in {e.name for e in own.envs} else (items, "")
 
 
 def check_env_overrides(cfg: TrainConfig) -> None:
