@@ -136,6 +136,9 @@ def test_eval_cli_reports_the_tracking_metric(track_policy, tmp_path, capsys):
         f"{g['body_pos_error_cm']:.2f} cm, fingertip error {g['fingertip_error_cm']:.2f} cm"
     )
     assert want in out
+    # The progress line's figure is the clip's own (one clip: the same means as the summary).
+    figure = f"joint error {g['joint_error_rad']:.4f} rad, fingertip {g['fingertip_error_cm']:.2f} cm ("
+    assert progress.startswith(f"eval clip 1/1: tiny, {figure}")
 
 
 def test_plot_overlays_the_reference(track_policy, tmp_path, monkeypatch):
@@ -194,7 +197,3 @@ def test_emulated_bus_column_follows_the_sim(track_policy):
     for key in ("joint_error", "body_pos_error", "fingertip_error"):
         assert bus.sums[key] == pytest.approx(sim.sums[key], rel=0.02), key
     assert sim.mean("joint_error") > 0.3  # a real swing, not a trivially equal standstill
-    # The progress line's figure is the clip's own (one clip: the same means as the summary).
-    assert progress.startswith(
-        f"eval clip 1/1: tiny, joint error {g['joint_error_rad']:.4f} rad, fingertip {g['fingertip_error_cm']:.2f} cm ("
-    )
