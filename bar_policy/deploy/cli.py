@@ -200,6 +200,8 @@ def _run_session(
             safety=safety,
         )
         commands = task.command_source(policy, args, kin)
+        # The task's figure of the run (reach: success and final distance; track: errors), after end:.
+        figure = task.run_figure(policy, commands, kin)
     except ValueError as e:  # PolicyLoadError, OptionError, bad settings
         return _fail(e)
     if args.target == "real":
@@ -242,6 +244,7 @@ def _run_session(
             log_name=args.target,
             live=live,  # type: ignore[arg-type]
             kinematics=kin,
+            on_tick=None if figure is None else figure.on_tick,
         )
     except (TargetError, ValueError) as e:
         commands.close()
@@ -283,6 +286,8 @@ def _run_session(
         log.error("the run ended on an exception (safe stop: %s)", _stop_text(rt), exc_info=True)
         if rt.result is not None:
             print(rt.result.end_line())
+            if figure is not None:
+                print(figure.line())
         where = f"; log: {rt.log_path.parent}" if rt.log_path is not None else ""
         msg = f"the run ended on {type(e).__name__}: {e} (safe stop: {_stop_text(rt)}{where})"
         return _fail(msg, _after_exception(rt))
@@ -294,6 +299,8 @@ def _run_session(
             log.exception("closing the %s target failed", args.target)
     print(result.timing.format())
     print(result.end_line())
+    if figure is not None:
+        print(figure.line())
     print(run_quality_line(result.quality))
     for tr in result.transitions:
         print(f"  t={tr['t']:.3f} s  {tr['from']} -> {tr['to']}: {tr['reason']}")
