@@ -5,7 +5,8 @@ Examples::
     bar-train                                             # gpu preset, brax backend
     bar-train --preset tiny --ppo.num-timesteps 4096
     bar-train --backend rsl-rl --ppo.num-envs 2048
-    bar-train --env-overrides episode_length_s=4.0 reward.scales.reach_fine=2.0
+    bar-train --env.episode-length-s 4.0 --env.reward.scales.reach-fine 2.0    # the env's typed settings
+    bar-train --env-overrides episode_length_s=4.0 reward.scales.reach_fine=2.0  # the same, as a shorthand
     bar-train --resume runs/LiteReach-brax-20260101-120000 --ppo.num-timesteps 80000000
     bar-train --env LiteReach                             # --env is short for --env-name
     bar-train --no-compile-cache                          # compile everything afresh
@@ -14,8 +15,11 @@ Examples::
 tyro parses every flag, ``--preset`` included. Because a preset supplies the defaults of every other flag
 (and ``--help`` shows them), its value is looked up in the arguments first (``preset_of``) and handed to
 tyro as the default instance; tyro then parses the whole line, ``--preset`` validated with its choices.
-``--env-overrides`` items are checked against the chosen env's config before training starts (an unknown
-path is refused naming the valid ones), with the one override syntax of ``bar_policy.overrides``.
+The env is looked up the same way (``env_of``): its config dataclass is the ``--env.*`` group
+(``training.env_flags``), defaults the env's config with the preset's items. ``--env-overrides`` items, the
+shorthand, are checked against that config before training starts (an unknown path is refused naming the
+valid ones and the closest), with the one override syntax of ``bar_policy.overrides``. Every error is one
+line, ``bar-train: error: ...``, exit status 2.
 """
 
 from __future__ import annotations

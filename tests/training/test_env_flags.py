@@ -8,6 +8,7 @@ the config (and env config) it did before the flags existed: its own items, noth
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import pytest
 
@@ -137,3 +138,22 @@ def test_the_header_prints_every_non_default_setting():
     # Every line fits the width, and a default config says so.
     assert all(len(x) <= 110 for x in lines)
     assert setting_lines(TrainConfig(), None) == ["settings (not the defaults): none"]
+
+
+@pytest.mark.parametrize("env_name", ["LiteReach", "LiteTrack", "LitePiano"])
+def test_every_env_setting_is_listed_with_its_help(env_name, capsys, monkeypatch):
+    """``bar-train --env X --help`` lists each field of X's config with its docstring (units are there)."""
+    from bar_policy.training.env_flags import env_default, option_names
+
+    monkeypatch.setenv("COLUMNS", "80")
+    with pytest.raises(SystemExit):
+        parse_config(["--env", env_name, "--help"])
+    text = " ".join(capsys.readouterr().out.replace("│", " ").split())
+    flags = [f for f in option_names(env_default(env_name), "env.") if ".no-" not in f and "--no-" not in f]
+    assert len(flags) > 40  # the robot's settings and the task's own
+    for flag in flags:
+        after = re.split(re.escape(flag) + r"(?=[ ,])", text, maxsplit=1)[1]
+        entry = re.split(r" --(?!no-|env\.\S*no-)", after, maxsplit=1)[0]
+        # Without the metavar ({None}|FLOAT, INT INT, {implicit,explicit}), a help text is left.
+        words = re.sub(r"\{[^}]*\}", "", entry.split("(default:", 1)[0])
+        assert re.search(r"[a-z]{3,}", words), (flag, entry)
