@@ -244,7 +244,7 @@ def _run_session(
             log_name=args.target,
             live=live,  # type: ignore[arg-type]
             kinematics=kin,
-            on_tick=None if figure is None else figure.on_tick,
+            on_tick=None if figure is None else figure.tick,
         )
     except (TargetError, ValueError) as e:
         commands.close()
@@ -287,7 +287,7 @@ def _run_session(
         if rt.result is not None:
             print(rt.result.end_line())
             if figure is not None:
-                print(figure.line())
+                print(figure.final_line())
         where = f"; log: {rt.log_path.parent}" if rt.log_path is not None else ""
         msg = f"the run ended on {type(e).__name__}: {e} (safe stop: {_stop_text(rt)}{where})"
         return _fail(msg, _after_exception(rt))
@@ -300,7 +300,7 @@ def _run_session(
     print(result.timing.format())
     print(result.end_line())
     if figure is not None:
-        print(figure.line())
+        print(figure.final_line())
     print(run_quality_line(result.quality))
     for tr in result.transitions:
         print(f"  t={tr['t']:.3f} s  {tr['from']} -> {tr['to']}: {tr['reason']}")

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import abc
 import argparse
+import logging
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -145,10 +146,29 @@ class RunFigure(abc.ABC):
     """A task's figure of one ``bar-deploy`` run (reach: success rate and final distance; track: errors).
 
     The CLI gets one from the task (``DeployTask.run_figure``, the task found through the registry by the
-    policy's ``bar.task``), hands ``on_tick`` to the runtime (called after every tick with the tick index,
+    policy's ``bar.task``), hands ``tick`` to the runtime (called after every tick with the tick index,
     the run time in s and the runtime: ``safety.mode``, ``last_state.q``, ``last_commands``) and prints
-    ``line()`` after the ``end:`` line. Only the ticks the policy drove count (``policy_ticks``).
+    ``final_line()`` after the ``end:`` line. Only the ticks the policy drove count (``policy_ticks``).
+    A task implements ``on_tick``, ``line`` and ``to_dict``; ``tick`` keeps a failing figure from ending a
+    run on the robot (the error is logged once, the figure stops, ``final_line`` says so).
     """
+
+    error: str = ""
+    """Why the figure stopped (``tick`` caught an exception), empty while it runs."""
+
+    def tick(self, k: int, t: float, rt: Any) -> None:
+        """``on_tick``, guarded: an exception is logged once and stops the figure, never the run."""
+        if self.error:
+            return
+        try:
+            self.on_tick(k, t, rt)
+        except Exception as e:  # a bug in a figure must not stop the robot
+            self.error = f"stopped at tick {k}: {type(e).__name__}: {e}"
+            logging.getLogger(__name__).warning("the run's task figure %s", self.error, exc_info=True)
+
+    def final_line(self) -> str:
+        """``line()``, or the task's name and why its figure stopped."""
+        return f"{type(self).__name__}: no figure ({self.error})" if self.error else self.line()
 
     @staticmethod
     def policy_ticking(rt: Any) -> bool:

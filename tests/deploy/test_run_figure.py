@@ -141,3 +141,14 @@ def test_the_figure_is_found_through_the_task_registry():
     fig = task.run_figure(policy, None, None)
     assert isinstance(fig, RunFigure) and type(fig).__name__ == "ReachRunFigure"
     assert get_task("state").run_figure(policy, None, None) is None  # a task without a figure: none
+
+
+def test_a_failing_figure_stops_itself_not_the_run(caplog):
+    fig = ReachRunFigure(_Tips(), control_dt=0.1)  # type: ignore[arg-type]
+    broken = _tick((0, 0, 0), (0, 0, 0), (0, 0, 0), (0, 0, 0))
+    broken.last_state.q = "not joints"  # np.asarray(..., float64) raises ValueError
+    fig.tick(7, 0.7, broken)
+    fig.tick(8, 0.8, _tick((0, 0, 0), (0, 0, 0), (0, 0, 0), (0, 0, 0)))  # stopped: not taken in
+    assert fig.policy_ticks == 0 and fig.error.startswith("stopped at tick 7: ValueError")
+    assert fig.final_line() == f"ReachRunFigure: no figure ({fig.error})"
+    assert sum("task figure stopped at tick 7" in r.getMessage() for r in caplog.records) == 1
