@@ -133,12 +133,14 @@ def parse_command(command: type, default: Any, args: Sequence[str], *, descripti
     captured = io.StringIO()
     try:
         with contextlib.redirect_stderr(captured):
-            return tyro.cli(command, default=default, args=list(args), description=description, prog=prog)
+            parsed = tyro.cli(command, default=default, args=list(args), description=description, prog=prog)
     except SystemExit as e:
         if e.code in (0, None):
             sys.stderr.write(captured.getvalue())
             raise
         fail(condense(captured.getvalue()) or f"bad command line {' '.join(args)}")
+    sys.stderr.write(captured.getvalue())  # anything else tyro said (a warning) is passed on
+    return parsed
 
 
 def condense(box: str) -> str:
