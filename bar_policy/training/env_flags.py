@@ -73,8 +73,9 @@ def command_for(base: TrainConfig, env_name: str, preset_items: Sequence[str]) -
     """
     shown = apply_overrides(env_default(env_name), preset_items)
     env_type = Annotated[type(shown), _tyro().conf.arg(help=ENV_HELP)]
+    # Named as its base: tyro's message for a failed check of the root names the class (TrainConfig).
     command = dataclasses.make_dataclass(
-        "TrainCommand",
+        "TrainConfig",
         [("env", env_type, dataclasses.field(default_factory=lambda: shown))],
         bases=(TrainConfig,),
         frozen=True,
@@ -144,16 +145,18 @@ def parse_command(command: type, default: Any, args: Sequence[str], *, descripti
 
 
 def condense(box: str) -> str:
-    """Tyro's boxed error as one line: its message lines, without the frame and the help pointers."""
+    """Tyro's error as one line: its message lines, without its title, frame, rules and help pointers.
+
+    Tyro draws a box on a terminal (``╭─ Value error ─╮``, ``│ ... │``) and a plain block elsewhere (the
+    title, then rules of ``-``); the first line is the title (the kind of error) either way.
+    """
+    lines = [line.strip().strip("│╭╮╰╯─").strip() for line in box.splitlines()]
+    lines = [x for x in lines if x and set(x) - set("-─")]  # no blanks, no rules
     kept = []
-    for line in box.splitlines():
-        if line.strip().startswith(("╭", "╰")):  # the frame's top (the error's kind) and bottom
-            continue
-        body = line.strip().strip("│╭╮╰╯─ ").strip()
+    for body in lines[1:]:  # lines[0]: the title
         if body.startswith(("Argument helptext", "For full helptext", "Perhaps you meant")):
             break
-        if body and set(body) != {"─"}:
-            kept.append(body)
+        kept.append(body)
     return " ".join(kept)
 
 

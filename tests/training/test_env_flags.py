@@ -24,6 +24,7 @@ def _refused(argv, capsys) -> str:
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("bar-train: error: "), err  # one line
+    assert "----" not in err and "──" not in err and "helptext" not in err, err  # no frame, no pointers
     return err.strip()
 
 
@@ -173,3 +174,27 @@ def test_the_run_header_carries_the_settings(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "env settings (LiteReach, not its defaults): init_noise=0.02" in out
     assert "settings (not the defaults): preset=tiny " in out and f"runs_dir={tmp_path}" in out
+
+
+def test_a_failed_check_of_the_root_names_its_config(capsys):
+    err = _refused(["--preset", "tiny", "--max-minutes", "-1"], capsys)
+    assert (
+        err.startswith("bar-train: error: Error parsing TrainConfig: ")
+        and "max_minutes" in err
+        and "-1.0" in err
+    )
+
+
+def test_condense_reads_both_of_tyros_layouts():
+    from bar_policy.training.env_flags import condense
+
+    boxed = (
+        "╭─ Value error ──────────────╮\n│ Error parsing env: init_noise must │\n│ be >= 0 rad, got -1.0 │\n"
+        "│ ──────────────────────────── │\n│ For full helptext, see bar-train --help │\n╰──────────────╯\n"
+    )
+    plain = (
+        " Value error   \n ---------------- \n  Error parsing env: init_noise must   \n"
+        "  be >= 0 rad, got -1.0 \n  ----------------\n  For full helptext, see bar-train --help   \n      \n"
+    )
+    want = "Error parsing env: init_noise must be >= 0 rad, got -1.0"
+    assert condense(boxed) == condense(plain) == want
