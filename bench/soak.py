@@ -13,7 +13,7 @@ reports:
   the worst jitter p99 over any minute (from ``log.npz``'s per-tick ``jitter``);
 - faults: ``fault_count``, the end reason, the safe stop's outcome, the exit status;
 - log completeness: ticks expected (duration / dt deadlines of wall clock, less those skipped after late
-  ticks), ticks in ``log.npz``, ``/joint_state`` messages in
+  ticks), ticks in ``log.npz``, ``/joint_state_json`` messages in
   ``run.mcap`` (``read_mcap_log``) and whether the ``mcap`` library's indexed reader opens it.
 """
 

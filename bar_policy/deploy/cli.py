@@ -48,6 +48,7 @@ from bar_policy.deploy.cli_tools import fail as _fail
 from bar_policy.deploy.cli_tools import log_command, plot_command
 from bar_policy.deploy.log.files import CAN_LOG_FILE
 from bar_policy.deploy.signals import early_interrupt, signal_name_of
+from bar_policy.deploy.warning_tally import WarningTally
 from bar_policy.tasks.cli_types import Parser as _Parser
 from bar_policy.tasks.cli_types import asks_help as _asks_help
 from bar_policy.tasks.cli_types import one_line as _one_line
@@ -199,6 +200,8 @@ def _run_session(
             safety=safety,
         )
         commands = task.command_source(policy, args, kin)
+        # The task's figure of the run (reach: success and final distance; track: errors), after end:.
+        figure = task.run_figure(policy, commands, kin)
     except ValueError as e:  # PolicyLoadError, OptionError, bad settings
         return _fail(e)
     if args.target == "real":
@@ -244,6 +247,7 @@ def _run_session(
             log_name=args.target,
             live=live,  # type: ignore[arg-type]
             kinematics=kin,
+            on_tick=None if figure is None else figure.tick,
         )
     except (TargetError, ValueError) as e:
         commands.close()
@@ -285,6 +289,8 @@ def _run_session(
         log.error("the run ended on an exception (safe stop: %s)", _stop_text(rt), exc_info=True)
         if rt.result is not None:
             print(rt.result.end_line())
+            if figure is not None:
+                print(figure.final_line())
         where = f"; log: {rt.log_path.parent}" if rt.log_path is not None else ""
         msg = f"the run ended on {type(e).__name__}: {e} (safe stop: {_stop_text(rt)}{where})"
         return _fail(msg, _after_exception(rt))
@@ -296,6 +302,8 @@ def _run_session(
             log.exception("closing the %s target failed", args.target)
     print(result.timing.format())
     print(result.end_line())
+    if figure is not None:
+        print(figure.final_line())
     print(run_quality_line(result.quality))
     for tr in result.transitions:
         print(f"  t={tr['t']:.3f} s  {tr['from']} -> {tr['to']}: {tr['reason']}")
@@ -351,6 +359,20 @@ def _after_exception(rt: object) -> int:
     return EXIT_FAULT if report is not None and report.confirmed else EXIT_STOP_UNCONFIRMED
 
 
+def _say(line: str) -> None:
+    """A progress line of ``bar-deploy eval``, flushed (the episodes take seconds each)."""
+    print(line, flush=True)
+
+
+def _print_warnings(tally: WarningTally) -> None:
+    """The counted warnings of an evaluation: ``warnings: N ...`` then one line per kind (none: nothing)."""
+    lines = tally.lines()
+    if lines:
+        print(f"warnings: {tally.total} in {len(lines)} kind(s), each kind once with its count:")
+        for line in lines:
+            print(f"  {line}")
+
+
 def _eval(argv: Sequence[str]) -> int:
     p = _Parser(
         prog="bar-deploy eval",
@@ -364,6 +386,9 @@ def _eval(argv: Sequence[str]) -> int:
     _common(p)
     cli_parser.perturb_option(p, suite=True)
     p.add_argument("--json", type=Path, help="write the per-episode / per-clip results here")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="no progress line per episode, clip or song (the result and the counted warnings "
+                        "are printed all the same)")  # fmt: skip
     for task in all_tasks():
         task.add_eval_arguments(p)
     args = p.parse_args(argv)
@@ -371,20 +396,27 @@ def _eval(argv: Sequence[str]) -> int:
         return _fail(f"--json {str(args.json)!r}: its directory does not exist or is not writable")
     _configure_logging(args.verbose)
     logging.getLogger("bar_policy.deploy.safety").setLevel(logging.WARNING)
-    try:
-        policy, task = _policy_task(args, "eval")
-        if args.perturb is None:
-            result = task.evaluate(policy, args, SimEpisodes(policy))
-        else:
-            from bar_policy.deploy.robustness import evaluate_perturbed
-
-            result = evaluate_perturbed(policy, task, args, args.perturb, print)
-    except ValueError as e:  # PolicyLoadError, OptionError, bad settings
-        return _fail(e)
-    print(result.format())
-    if args.json:
+    say = None if args.quiet else _say
+    # Warnings repeat across episodes (one clip warning per joint and episode): each kind is counted and
+    # printed once after the result, never dropped.
+    with WarningTally() as tally:
         try:
-            args.json.write_text(json.dumps(result.to_dict(), indent=2))
+            policy, task = _policy_task(args, "eval")
+            if args.perturb is None:
+                result = task.evaluate(policy, args, SimEpisodes(policy, say=say))
+            else:
+                from bar_policy.deploy.robustness import evaluate_perturbed
+
+                result = evaluate_perturbed(policy, task, args, args.perturb, _say, progress=not args.quiet)
+        except ValueError as e:  # PolicyLoadError, OptionError, bad settings
+            _print_warnings(tally)
+            return _fail(e)
+    print(result.format())
+    _print_warnings(tally)
+    if args.json:
+        data = {**result.to_dict(), "warnings": tally.to_dict()}
+        try:
+            args.json.write_text(json.dumps(data, indent=2))
         except OSError as e:
             return _fail(f"cannot write --json {str(args.json)!r}: {e.strerror or e}")
         print(f"per-episode / per-clip results: {args.json}")

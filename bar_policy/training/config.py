@@ -281,7 +281,9 @@ class TrainConfig:
     env_name: Annotated[EnvName, tyro.conf.arg(aliases=("--env",))] = DEFAULT_ENV
     """Registered environment (``bar_policy.envs.load``); ``--env`` is short for it."""
     env_overrides: tuple[str, ...] = ()
-    """Env/reward settings, ``path=value`` in the env config's units: ``reward.scales.action_rate=-0.1``."""
+    """Env/reward settings, ``path=value`` in the env config's units: ``reward.scales.action_rate=-0.1``; a
+    shorthand for the typed ``--env.*`` flags (``--env.reward.scales.action-rate -0.1``), which the run
+    records here too."""
     backend: Literal["brax", "rsl-rl"] = "brax"
     """brax = brax's PPO pieces, JAX end to end (default); rsl-rl = rsl-rl-lib (torch) on the same env."""
     preset: PresetName = "gpu"

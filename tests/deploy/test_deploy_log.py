@@ -66,7 +66,7 @@ def test_mcap_messages_follow_their_json_schema_and_match_the_npz(zero_policy, t
     assert policy_msgs[0]["action"] == [None] * 14 and policy_msgs[-1]["action"] == [0.0] * 14
     assert [m["mode_name"] for m in by_topic["/safety"][:2]] == ["HOLD", "HOLD"]
     assert by_topic["/safety"][-1]["mode_name"] == "POLICY"
-    assert by_topic["/joint_state"][3]["q"] == arrays["q"][3].tolist()  # exact: floats as shortest repr
+    assert by_topic["/joint_state_json"][3]["q"] == arrays["q"][3].tolist()  # exact: floats as shortest repr
     # The MCAP alone gives back every NPZ array exactly (NaN where NaN).
     rec = read_mcap_log(path)
     assert rec.complete and sorted(rec.arrays) == sorted(arrays)

@@ -219,7 +219,7 @@ def test_cli_recovers_a_cut_run_of_the_runtime(zero_policy, tmp_path, capsys, ca
     assert main(["log", "recover", str(run)]) == 0
     out = capsys.readouterr().out.strip().splitlines()
     n = sum(streamed.values())
-    assert len(out) == 1 and f"recovered {n} messages" in out[0] and "/joint_state 20" in out[0]
+    assert len(out) == 1 and f"recovered {n} messages" in out[0] and "/joint_state_json 20" in out[0]
     assert "/joint_states 20" in out[0]
     assert "dropped 5 bytes" in out[0] and "run.mcap.cut" in out[0]
     assert (run / "run.mcap.cut").read_bytes() == cut

@@ -9,7 +9,7 @@ Layout of ``run.mcap`` (written by ``McapRunWriter``, read back by ``read_mcap_l
   ``tick`` (int) and ``t`` (target clock, s):
 
   ========================  ==========================================================================
-  ``/joint_state``          ``q`` (rad), ``dq`` (rad/s), ``tau`` (N*m): the measured state
+  ``/joint_state_json``     ``q`` (rad), ``dq`` (rad/s), ``tau`` (N*m): the measured state
   ``/mit_command``          ``q``, ``dq``, ``kp``, ``kd``, ``tau_ff``: the MIT command written;
                             ``tau_cmd``: the host's capped MIT torque of that command at the state
   ``/policy``               ``obs`` (the observation), ``action`` (raw policy output; null entries when
@@ -64,6 +64,7 @@ from bar_policy.deploy.log.live import LiveServer
 from bar_policy.deploy.log.mcap_schema import (
     _SCHEMA_NAMES,
     _TRANSITION_SCHEMA,
+    JOINT_STATE_TOPIC,
     TRANSITION_TOPIC,
     Fields,
     _finite_or_none,
@@ -130,7 +131,7 @@ class McapRunWriter:
                 else _tick_schema(topic, self._routes[topic], self.fields, self.labels)
             )
             chan_meta = {}
-            if joint_names and topic in ("/joint_state", "/mit_command"):
+            if joint_names and topic in (JOINT_STATE_TOPIC, "/mit_command"):
                 chan_meta["joint_names"] = ",".join(joint_names)
             record = (_SCHEMA_NAMES[topic], "jsonschema", json.dumps(schema).encode())
             self._channels[topic] = self.register(topic, record, "json", chan_meta)

@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from bar_policy.quality.metrics import chatter_mrad
-from bar_policy.tasks.episodes import EpisodeRunner, Policy
+from bar_policy.tasks.episodes import EpisodeRunner, Policy, report_progress
 from bar_policy.tasks.piano.bank import PlaybackConfig
 from bar_policy.tasks.piano.held import held_pose
 from bar_policy.tasks.piano.key_input import KeySource, SimMidiKeys
@@ -90,7 +90,7 @@ def evaluate(
 
         fingertips = Kinematics(policy.robot.mode).fingertips
     results = []
-    for song in songs:
+    for index, song in enumerate(songs, 1):
         sim.reset(q0)
         source, truth = _key_sources(keys, sim, kb, fingertips)
         commands = SongCommands(song, kb, policy.policy_dt, source, playback, reference, truth=truth)
@@ -154,6 +154,9 @@ def evaluate(
             false_neg_white=int(np.sum(by_colour.white.fn)),
         )
         results.append(result)
+        fault = ", faulted" if result.faulted else ""
+        figure = f"{song.name}, precision {ep.precision:.3f} recall {ep.recall:.3f} F1 {ep.f1:.3f}{fault}"
+        report_progress(runner, "song", index, len(songs), figure)
         if on_song is not None:
             on_song(result, SongTicks(song, np.array(steps, int), down, goal, pb.count_in_s))
     return PianoEval(songs=results, policy=str(policy.path), fingerprint=policy.obs_manager.fingerprint)
