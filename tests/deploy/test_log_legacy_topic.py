@@ -14,8 +14,8 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 from test_deploy_log import _run_hold_then_policy
 
-from bar_policy.deploy.mcap_log import MCAP_FILE, read_mcap_log
-from bar_policy.deploy.mcap_schema import JOINT_STATE_TOPIC, LEGACY_TOPICS
+from bar_policy.deploy.log.mcap_read import read_mcap_log
+from bar_policy.deploy.log.mcap_schema import JOINT_STATE_TOPIC, LEGACY_TOPICS, MCAP_FILE
 
 
 def _with_old_topic(src: Path, dst: Path) -> None:

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from bar_policy.deploy.cli import main
-from bar_policy.deploy.log_read import load_log
+from bar_policy.deploy.log.read import load_log
 from bar_policy.deploy.safety_config import Mode
 from bar_policy.deploy.tasks import get_task
 from bar_policy.robot.kinematics import Kinematics
