@@ -161,7 +161,8 @@ def robot_params_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robot-params", type=parse, default=None, metavar="FILE",
                    help="robot-parameters file (bar-bus identify --out): the sim target and the in-process "
                         "emulator model that robot (friction, damping, armature, payloads, "
-                        "strength)")  # fmt: skip
+                        "strength); a policy trained on other parameters (its bar.robot_params hash) "
+                        "gets a warning, counted in run.json")  # fmt: skip
 
 
 def target_of(argv: Sequence[str]) -> str | None:

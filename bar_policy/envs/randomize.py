@@ -33,6 +33,7 @@ from bar_policy.envs.robot_config import RobotEnvConfig
 from bar_policy.robot.actuators import ROBSTRIDE_MODELS
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.index import RobotIndex, model_names
+from bar_policy.robot.params import HANDS, load_params
 from bar_policy.robot.perturb import HAND_BODIES, PAYLOAD_POS, PAYLOAD_RADIUS, payload_body_name
 from bar_policy.robot.scene import SceneEdit
 
@@ -43,19 +44,22 @@ _OPTIONAL_KEY = 0x524F42
 the default fields keep their keys."""
 
 
-def payload_scene(scene: SceneEdit | None = None) -> SceneEdit:
+def payload_scene(scene: SceneEdit | None = None, skip: tuple[str, ...] = ()) -> SceneEdit:
     """The scene edit that runs ``scene`` (a task's additions, or None), then adds a payload body per hand.
 
     Each payload body (``perturb.payload_body_name(hand)``) is a child of its hand at the fingertip site
     (``perturb.PAYLOAD_POS["fingertip"]``), with zero mass and inertia and no geom and no joint: it changes
     nothing until the randomiser gives it a mass (a massless body welded to its parent adds nothing to the
-    composite rigid body).
+    composite rigid body). ``skip``: hands (``HAND_BODIES`` names) that ``scene`` gave a payload body
+    already (a robot-parameters file's, ``robot.params.scene_edit``).
     """
 
     def edit(spec: mujoco.MjSpec) -> None:
         if scene is not None:
             scene(spec)
         for hand in HAND_BODIES:
+            if hand in skip:
+                continue
             body = spec.body(hand).add_body(name=payload_body_name(hand), pos=PAYLOAD_POS["fingertip"][hand])
             body.explicitinertial = True
             body.mass = 0.0
@@ -102,7 +106,19 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
     """
     rc = config.randomization
     arm_lo, arm_hi = (x.astype(np.float32) for x in armature_bounds(config.mode))
-    joint_names = load_robot(config.mode).joint_names
+    robot = load_robot(config.mode)
+    joint_names = robot.joint_names
+    # With a robot-parameters file the model holds the identified values (the env's scene edit) and the
+    # additive draws are centred on them; its listed joints' armature is the file's, not drawn.
+    params = None if config.robot_params is None else load_params(config.robot_params, robot)
+    centred = params is not None
+    from_file = np.zeros(len(HAND_BODIES), bool)
+    if params is not None:
+        for name, jp in params.joints.items():
+            i = joint_names.index(name)
+            arm_lo[i] = arm_hi[i] = np.float32(jp.armature.value)
+        placed = {HANDS[k] for k, pay in params.payload.items() if pay.mass_kg.value > 0}
+        from_file = np.array([h in placed for h in HAND_BODIES])
     tip = np.array([PAYLOAD_POS["fingertip"][h] for h in HAND_BODIES], dtype=np.float32)
     palm = np.array([PAYLOAD_POS["palm"][h] for h in HAND_BODIES], dtype=np.float32)
 
@@ -136,6 +152,8 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
                 # Joint Coulomb friction: U(frictionloss) per joint, N*m (MJCF 0.1, identified 0.16-0.31).
                 lo, hi = rc.frictionloss
                 fric = jax.random.uniform(k_fric, (index.num_joints,), minval=lo, maxval=hi)
+                if centred:  # the file's friction + U(lo, hi) - (lo + hi) / 2, at least 0
+                    fric = jnp.maximum(index.dq(model.dof_frictionloss) + fric - (lo + hi) / 2, 0.0)
                 out["dof_frictionloss"] = robot_dofs(model.dof_frictionloss, fric)
             if rc.link_mass_scale is not None:
                 # Link mass and inertia: *U(link_mass_scale) per body (same factor: density scaling).
@@ -148,7 +166,10 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
                 # Added passive damping: MJCF dof_damping + U(damping) per joint, N*m*s/rad.
                 lo, hi = rc.damping
                 d = jax.random.uniform(k_damp, (index.num_joints,), minval=lo, maxval=hi)
-                out["dof_damping"] = robot_dofs(model.dof_damping, index.dq(model.dof_damping) + d)
+                total = index.dq(model.dof_damping) + d
+                if centred:  # the file's damping + U(lo, hi) - (lo + hi) / 2, at least 0
+                    total = jnp.maximum(total - (lo + hi) / 2, 0.0)
+                out["dof_damping"] = robot_dofs(model.dof_damping, total)
             if rc.armature_scale is not None:
                 # Armature x U(armature_scale) per joint, on the drawn armature when that is randomised.
                 lo, hi = rc.armature_scale
@@ -159,6 +180,8 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
                 # Payload: U(payload_kg) per hand, a 1 cm sphere's inertia, at the fingertip or the palm.
                 lo, hi = rc.payload_kg
                 m = jax.random.uniform(k_pay, (len(HAND_BODIES),), minval=lo, maxval=hi)
+                if centred:  # the file's payload (0 for a hand it gives none) + U(lo, hi) - (lo + hi) / 2
+                    m = jnp.maximum(model.body_mass[payload_ids] + m - (lo + hi) / 2, 0.0)
                 mass = out.get("body_mass", model.body_mass)
                 inertia = out.get("body_inertia", model.body_inertia)
                 out["body_mass"] = mass.at[payload_ids].set(m)
@@ -170,6 +193,8 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
                         else jnp.ones(len(HAND_BODIES), bool)
                     )
                     pos = jnp.where(at_palm[:, None], palm, tip)
+                    # A payload the file placed keeps its identified centre.
+                    pos = jnp.where(from_file[:, None], model.body_pos[payload_ids], pos)
                     out["body_pos"] = model.body_pos.at[payload_ids].set(pos)
             return out
 

@@ -77,6 +77,8 @@ from bar_policy.robot.actuators import armature_gains
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.mit import MitCommand, mit_torque
+from bar_policy.robot.params import HANDS, RobotParams, load_params, motor_strength
+from bar_policy.robot.params import scene_edit as params_scene_edit
 from bar_policy.robot.scene import SceneEdit, load_model
 
 __all__ = ["NEAR_CAP_FRACTION", "NON_FINITE", "LiteRobotEnv"]
@@ -115,8 +117,17 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         cfg = config
         self.config = cfg
         self.robot = load_robot(cfg.mode)
+        self.robot_params: RobotParams | None = None
+        """The robot-parameters file the model is built from (``config.robot_params``), or None."""
+        with_payload = set()
+        if cfg.robot_params is not None:
+            self.robot_params = load_params(cfg.robot_params, self.robot)
+            scene = params_scene_edit(self.robot_params, scene)  # the identified joints and payloads
+            with_payload = {HANDS[h] for h, p in self.robot_params.payload.items() if p.mass_kg.value > 0}
         if cfg.randomization.payload_kg is not None:
-            scene = payload_scene(scene)  # massless payload bodies, given their mass by the randomiser
+            # Massless payload bodies, given their mass by the randomiser; a hand the file gives a payload
+            # has its body already (the randomiser centres its draw on that mass).
+            scene = payload_scene(scene, skip=tuple(with_payload))
         with phase(MODEL_BUILD):
             mj_model = load_model(cfg.mode, scene)
         mj_model.opt.timestep = cfg.sim_dt
@@ -149,6 +160,12 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         self._kd = np.asarray(kd, dtype=f32)
         self._filter_alpha = filter_alpha(cfg.action_filter_hz, cfg.ctrl_dt)
         self._cap = self.robot.torque_cap.astype(f32)
+        # Per-joint strength the draws multiply: the file's (identified), else 1.
+        self._strength = (
+            np.ones(n, f32)
+            if self.robot_params is None
+            else motor_strength(self.robot_params, self.robot).astype(f32)
+        )
         self._act = ActuatorParams.from_robot(
             self.robot,
             quantize_wire=cfg.actuator.quantize_wire,
@@ -376,9 +393,11 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         optional = {}
         if act.strength != (1.0, 1.0):
             k_strength = jax.random.fold_in(ks[3], _OPTIONAL_KEY)
-            optional["strength"] = jax.random.uniform(
+            optional["strength"] = self._strength * jax.random.uniform(
                 k_strength, (n,), minval=act.strength[0], maxval=act.strength[1]
             )
+        elif self.robot_params is not None:
+            optional["strength"] = jnp.asarray(self._strength)  # the identified strengths, not drawn
         obs_lo, obs_hi = act.obs_latency_steps
         if obs_hi > 0:
             k_obs = jax.random.fold_in(ks[2], _OPTIONAL_KEY)

@@ -189,6 +189,11 @@ class RobotEnvConfig:
     """Observation noise."""
     randomization: ModelRandomizationConfig = field(default_factory=ModelRandomizationConfig)
     """Model-level randomisation used by ``get_randomizer``."""
+    robot_params: str | None = None
+    """Path of a robot-parameters file (``bar_policy.robot.params``, ``bar-bus identify --out``;
+    ``bar-train --robot-params FILE``): the model is the identified robot (the file's friction, damping,
+    armature and payloads; the motors its strengths) and the randomisation is centred on its values
+    (``envs.randomize``, docs/sysid.md). None (default): the description's model."""
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -209,6 +214,10 @@ class RobotEnvConfig:
         if self.gains not in GAINS:
             raise ValueError(f"unknown gains {self.gains!r}; valid: {list(GAINS)}")
         filter_alpha(self.action_filter_hz, self.ctrl_dt)  # validates the cutoff
+        if self.robot_params is not None:
+            from bar_policy.robot.params import load_params
+
+            load_params(self.robot_params, load_robot(self.mode))  # ParamsError (a ValueError): one line
 
     @property
     def n_substeps(self) -> int:

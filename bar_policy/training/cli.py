@@ -9,6 +9,7 @@ Examples::
     bar-train --resume runs/LiteReach-brax-20260101-120000 --ppo.num-timesteps 80000000
     bar-train --env LiteReach                             # --env is short for --env-name
     bar-train --no-compile-cache                          # compile everything afresh
+    bar-train --preset reach-robust --robot-params p.json # the identified robot (bar-bus identify --out)
     bar-train --help                                      # every option once, grouped, with units
 
 tyro parses every flag, ``--preset`` included. Because a preset supplies the defaults of every other flag
@@ -28,7 +29,7 @@ from bar_policy.overrides import merge_overrides
 from bar_policy.tasks.registry import TASKS
 from bar_policy.training.config import PRESETS, TrainConfig, preset
 
-__all__ = ["check_env_overrides", "main", "parse_config", "preset_of"]
+__all__ = ["check_env_overrides", "main", "parse_config", "preset_of", "robot_params_of"]
 
 PROG = "bar-train"
 """Program name in messages (``python train/ppo.py`` runs the same parser)."""
@@ -50,6 +51,34 @@ def preset_of(argv: Sequence[str]) -> str:
     return name if name in PRESETS else "gpu"
 
 
+def robot_params_of(argv: list[str]) -> tuple[list[str], str | None]:
+    """``argv`` without ``--robot-params FILE`` (or ``--robot-params=FILE``), and that FILE (None: absent).
+
+    ``--robot-params FILE`` is short for ``--env-overrides robot_params=FILE`` (``RobotEnvConfig.
+    robot_params``: train on the identified robot, randomisation centred on its values); a bad file is
+    refused like any env override (one line, exit 2).
+    """
+    out: list[str] = []
+    found: str | None = None
+    it = iter(range(len(argv)))
+    for i in it:
+        a = argv[i]
+        if a == "--":
+            out.extend(argv[i:])
+            break
+        if a == "--robot-params":
+            if i + 1 >= len(argv):
+                print(f"{PROG}: error: --robot-params needs a FILE", file=sys.stderr)
+                raise SystemExit(2)
+            found = argv[i + 1]
+            next(it, None)
+        elif a.startswith("--robot-params="):
+            found = a.split("=", 1)[1]
+        else:
+            out.append(a)
+    return out, found
+
+
 def parse_config(argv: Sequence[str] | None = None) -> TrainConfig:
     """Parse a command line into a ``TrainConfig`` (tyro; defaults from the named preset).
 
@@ -57,17 +86,22 @@ def parse_config(argv: Sequence[str] | None = None) -> TrainConfig:
     """
     import tyro
 
-    args = list(sys.argv[1:] if argv is None else argv)
+    args, params_file = robot_params_of(list(sys.argv[1:] if argv is None else argv))
     name = preset_of(args)
     description = (
         __doc__.split("\n\n")[0]
         + f"\n\nDefaults shown: the {name} preset's. Env and reward settings: dotted.path=value items "
-        + "(docs/training.md lists them)."
+        + "(docs/training.md lists them). --robot-params FILE: train on the identified robot "
+        + "(robot_params=FILE; docs/sysid.md)."
     )
     base = preset(name)
     cfg = tyro.cli(TrainConfig, default=base, args=args, description=description, prog=PROG)
     try:
         cfg = replace(cfg, env_overrides=_on_preset(name, base.env_overrides, cfg))
+        if params_file is not None:
+            cfg = replace(
+                cfg, env_overrides=merge_overrides(cfg.env_overrides, (f"robot_params={params_file}",))
+            )
         check_env_overrides(cfg)
     except ValueError as e:
         print(f"{PROG}: error: --env-overrides: {e}", file=sys.stderr)
