@@ -72,9 +72,11 @@ from bar_policy.envs.term_table import TerminationTerm, check_names, reward_valu
 from bar_policy.envs.terminations import non_finite
 from bar_policy.obs import ObservationManager
 from bar_policy.obs.action_prior import Prior
+from bar_policy.obs.robot_layout import with_error_ema
 from bar_policy.robot.action_filter import filter_alpha, lowpass_step, pose_action
 from bar_policy.robot.actuators import armature_gains
 from bar_policy.robot.constants import load_robot
+from bar_policy.robot.error_ema import error_ema_alpha, error_ema_step
 from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.mit import MitCommand, mit_torque
 from bar_policy.robot.params import HANDS, RobotParams, load_params, motor_strength
@@ -135,6 +137,9 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         # Static dof addresses for scattering the robot's forces; None: the scene is the robot alone, whose
         # arrays are used as they are (no gather or scatter, bit-identical to the robot-only env).
         self._dof = None if self._index.robot_only else self._index.dof
+        if cfg.joint_error_ema:  # the task's layout with the integral-like term, the next version
+            obs_manager = ObservationManager(with_error_ema(obs_manager.schema))
+        self._ema_alpha = error_ema_alpha(cfg.ctrl_dt) if cfg.joint_error_ema else 0.0
         if obs_manager.joint_names != self.robot.joint_names:
             raise ValueError(f"layout {obs_manager.schema.name} is for mode {obs_manager.schema.mode!r}")
         self._mj_model = mj_model
@@ -403,6 +408,8 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
             k_obs = jax.random.fold_in(ks[2], _OPTIONAL_KEY)
             optional["obs_latency"] = jax.random.randint(k_obs, (), obs_lo, obs_hi + 1)
             optional["obs_buf"] = jnp.broadcast_to(self._true_state(data), (obs_hi + 1, 2, n))
+        if cfg.joint_error_ema:
+            optional["error_ema"] = jnp.zeros(n)  # z = 0 when a policy starts (robot.error_ema)
         info = {
             "rng": ks[6],
             "step": jnp.zeros((), jnp.int32),
@@ -476,7 +483,12 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         if "obs_buf" in info:
             newest = self._true_state(data)[None]
             new_info["obs_buf"] = jnp.concatenate([newest, info["obs_buf"][:-1]], axis=0)
-        obs = self._observe(model, data, new_info, action, k_noise)
+        measured = self._measured(data, new_info, k_noise)
+        if "error_ema" in info:  # the command this step's action issued against the q the policy reads
+            new_info["error_ema"] = error_ema_step(
+                info["error_ema"], self.q_command(action), measured[0], self._ema_alpha
+            )
+        obs = self._observe(model, data, new_info, action, k_noise, measured)
         metrics = {f"reward/{k}": v for k, v in scaled.items()}
         metrics.update(task.metrics)
         return State(data=data, obs=obs, reward=reward, done=done, metrics=metrics, info=new_info)
@@ -485,10 +497,11 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         """The robot's true ``(q, dq)`` stacked, shape (2, n) (rad, rad/s): an ``obs_buf`` entry."""
         return jnp.stack([self.robot_q(data), self.robot_dq(data)])
 
-    def _observe(
-        self, model: mjx.Model, data: mjx.Data, info: dict, action: jax.Array, key: jax.Array
-    ) -> jax.Array:
-        """Observation from the measured state: q + offset (+ noise), dq (+ noise), the task's inputs."""
+    def _measured(self, data: mjx.Data, info: dict, key: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """The measured ``(q, dq)`` the observation reads, rad and rad/s, (n,) each.
+
+        q + offset (+ noise) and dq (+ noise), of ``obs_latency`` steps ago when that latency is on.
+        """
         nz = self.config.obs_noise
         if "obs_buf" in info:  # observation latency: the true state of ``obs_latency`` steps ago
             q, dq = info["obs_buf"][info["obs_latency"]]
@@ -501,6 +514,25 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
             q = q + jax.random.uniform(kq, q.shape, minval=-nz.joint_pos, maxval=nz.joint_pos)
         if nz.joint_vel > 0:
             dq = dq + jax.random.uniform(kv, dq.shape, minval=-nz.joint_vel, maxval=nz.joint_vel)
+        return q, dq
+
+    def _observe(
+        self,
+        model: mjx.Model,
+        data: mjx.Data,
+        info: dict,
+        action: jax.Array,
+        key: jax.Array,
+        measured: tuple[jax.Array, jax.Array] | None = None,
+    ) -> jax.Array:
+        """Observation from the measured state, the last action and the task's inputs.
+
+        ``measured``: the ``(q, dq)`` of ``_measured`` (None: drawn here with ``key``); with
+        ``joint_error_ema`` on, the term is ``info["error_ema"]`` (the step advances it first).
+        """
+        q, dq = self._measured(data, info, key) if measured is None else measured
         inputs = {"joint_pos": q, "joint_vel": dq, "actions": action}
+        if "error_ema" in info:
+            inputs["joint_error_ema"] = info["error_ema"]
         inputs.update(self.task_obs(model, data, q, info))
         return self.obs_manager.compute(inputs)

@@ -189,6 +189,10 @@ class RobotEnvConfig:
     """Observation noise."""
     randomization: ModelRandomizationConfig = field(default_factory=ModelRandomizationConfig)
     """Model-level randomisation used by ``get_randomizer``."""
+    joint_error_ema: bool = False
+    """Add the integral-like observation term ``joint_error_ema`` (``robot.error_ema``: the moving average
+    of the joint command minus the measured position, tau 0.5 s) to the task's layout, as its next version
+    (``obs.robot_layout.with_error_ema``: ``lite_reach_arms`` v2). False (default): the shipped layout."""
     robot_params: str | None = None
     """Path of a robot-parameters file (``bar_policy.robot.params``, ``bar-bus identify --out``;
     ``bar-train --robot-params FILE``): the model is the identified robot (the file's friction, damping,
