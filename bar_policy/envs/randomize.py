@@ -79,6 +79,22 @@ def payload_inertia(mass: jax.Array) -> jax.Array:
     return jnp.stack([i, i, i], axis=-1)
 
 
+_NOMINAL_KEY = 0x4E4F4D
+"""Folded into each slot's key for its nominal-slot draw (``nominal_share``)."""
+
+DEFAULT_FRICTION = (0.05, 0.35)
+"""The default friction range, N*m (``ModelRandomizationConfig.frictionloss``): a nominal slot's."""
+DEFAULT_MASS_SCALE = (0.9, 1.1)
+"""The default link-mass range, x (``ModelRandomizationConfig.link_mass_scale``): a nominal slot's."""
+
+
+def _remap(x: jax.Array, lo: float, hi: float, to: tuple[float, float]) -> jax.Array:
+    """``x`` drawn in U(lo, hi) mapped affinely onto U(to): the same draw in the other range."""
+    if hi <= lo:
+        return jnp.full_like(x, (to[0] + to[1]) / 2)
+    return to[0] + (x - lo) * ((to[1] - to[0]) / (hi - lo))
+
+
 Randomizer = Callable[[mjx.Model, jax.Array], tuple[mjx.Model, mjx.Model]]
 
 
@@ -144,6 +160,12 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
         def one(key: jax.Array) -> dict[str, jax.Array]:
             k_arm, k_fric, k_mass = jax.random.split(key, 3)
             out = {}
+            # A nominal slot (``nominal_share``): default ranges for friction and mass, no robust addition.
+            nom = (
+                jax.random.bernoulli(jax.random.fold_in(key, _NOMINAL_KEY), rc.nominal_share)
+                if rc.nominal_share > 0
+                else None
+            )
             if rc.armature:
                 # Armature: U(description, identified) per joint (up to 7.4x for rs-00).
                 arm = jax.random.uniform(k_arm, arm_lo.shape, minval=arm_lo, maxval=arm_hi)
@@ -154,11 +176,20 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
                 fric = jax.random.uniform(k_fric, (index.num_joints,), minval=lo, maxval=hi)
                 if centred:  # the file's friction + U(lo, hi) - (lo + hi) / 2, at least 0
                     fric = jnp.maximum(index.dq(model.dof_frictionloss) + fric - (lo + hi) / 2, 0.0)
+                if nom is not None:
+                    base = (
+                        index.dq(model.dof_frictionloss)
+                        if centred
+                        else _remap(fric, lo, hi, DEFAULT_FRICTION)
+                    )
+                    fric = jnp.where(nom, base, fric)
                 out["dof_frictionloss"] = robot_dofs(model.dof_frictionloss, fric)
             if rc.link_mass_scale is not None:
                 # Link mass and inertia: *U(link_mass_scale) per body (same factor: density scaling).
                 lo, hi = rc.link_mass_scale
                 s = jax.random.uniform(k_mass, model.body_mass.shape, minval=lo, maxval=hi)
+                if nom is not None:
+                    s = jnp.where(nom, _remap(s, lo, hi, DEFAULT_MASS_SCALE), s)
                 out["body_mass"] = model.body_mass * s
                 out["body_inertia"] = model.body_inertia * s[:, None]
             k_damp, k_ascale, k_pay, k_site = jax.random.split(jax.random.fold_in(key, _OPTIONAL_KEY), 4)
@@ -169,11 +200,15 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
                 total = index.dq(model.dof_damping) + d
                 if centred:  # the file's damping + U(lo, hi) - (lo + hi) / 2, at least 0
                     total = jnp.maximum(total - (lo + hi) / 2, 0.0)
+                if nom is not None:
+                    total = jnp.where(nom, index.dq(model.dof_damping), total)
                 out["dof_damping"] = robot_dofs(model.dof_damping, total)
             if rc.armature_scale is not None:
                 # Armature x U(armature_scale) per joint, on the drawn armature when that is randomised.
                 lo, hi = rc.armature_scale
                 a = jax.random.uniform(k_ascale, (index.num_joints,), minval=lo, maxval=hi)
+                if nom is not None:
+                    a = jnp.where(nom, 1.0, a)
                 base = out.get("dof_armature", model.dof_armature)
                 out["dof_armature"] = robot_dofs(base, index.dq(base) * a)
             if payload_ids is not None:
@@ -182,6 +217,8 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
                 m = jax.random.uniform(k_pay, (len(HAND_BODIES),), minval=lo, maxval=hi)
                 if centred:  # the file's payload (0 for a hand it gives none) + U(lo, hi) - (lo + hi) / 2
                     m = jnp.maximum(model.body_mass[payload_ids] + m - (lo + hi) / 2, 0.0)
+                if nom is not None:
+                    m = jnp.where(nom, model.body_mass[payload_ids], m)  # none (or the file's)
                 mass = out.get("body_mass", model.body_mass)
                 inertia = out.get("body_inertia", model.body_inertia)
                 out["body_mass"] = mass.at[payload_ids].set(m)

@@ -66,7 +66,7 @@ from bar_policy.envs.actuator import (
 )
 from bar_policy.envs.base import MjxEnv, State
 from bar_policy.envs.randomize import payload_scene
-from bar_policy.envs.robot_config import RobotEnvConfig
+from bar_policy.envs.robot_config import RobotEnvConfig, nominal
 from bar_policy.envs.task import TaskHooks, Transition
 from bar_policy.envs.term_table import TerminationTerm, check_names, reward_values, terminated, weighted_sum
 from bar_policy.envs.terminations import non_finite
@@ -296,7 +296,13 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         return jnp.clip(self._default + self._scale * a, self._lower, self._upper)
 
     def evaluation_env(self) -> LiteRobotEnv:
-        """The env the trainer evaluates on: held-out data where the task has it (default: this env)."""
+        """The env the trainer evaluates on: held-out data where the task has it (default: this env).
+
+        With ``config.evaluate_nominal``: the same task on ``nominal(config)`` (a task constructed from its
+        config alone; the trainer evaluates a distinct env without model randomisation).
+        """
+        if self.config.evaluate_nominal:
+            return type(self)(nominal(self.config))  # type: ignore[call-arg]
         return self
 
     def initial_action(self, q_start: jax.Array) -> jax.Array:
