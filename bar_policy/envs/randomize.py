@@ -17,6 +17,12 @@ set), and the randomiser writes its drawn ``body_mass`` and ``body_inertia`` (an
 its ``body_pos``). The draws the default config makes are unchanged by the optional ones (their keys are
 folded from the slot's key, and a field left at its default draws nothing), so today's presets randomise
 bit for bit as before.
+
+With a robot-parameters file (``RobotEnvConfig.robot_params``) the env's model holds the identified values
+and the additive draws (friction, damping, payload mass) are centred on them: the model's value plus
+``U(lo, hi) - (lo + hi) / 2``, at least 0; the file's joints keep its armature (no motor-range draw); a
+payload the file places keeps its centre. ``nominal_share`` draws that share of the slots as the nominal
+robot (friction and link mass mapped onto the default ranges, the robust additions off).
 """
 
 from __future__ import annotations

@@ -22,7 +22,11 @@ robot env does the rest, identically for every task:
 - **Strength** (``ActuatorConfig.strength``, off by default): per episode and joint, the joint receives
   ``s * clip(law, cap)`` and the implicit Kd term is ``s * Kd`` (the deploy side's ``strength``).
 - **Observation**: ``obs_manager.compute`` of the measured q (with encoder offset and noise), dq (with
-  noise), the previous action (the clipped policy output, before latency), and the task's inputs.
+  noise), the previous action (the clipped policy output, before latency), and the task's inputs. With
+  ``joint_error_ema`` the layout is the task's next version and ``info["error_ema"]`` (``robot.error_ema``:
+  the average of the step's command minus the measured q, 0 at reset) is its last term.
+- **Robot parameters** (``config.robot_params``): the model is the file's robot (``robot.params.scene_edit``)
+  and the motors its strengths (``info["strength"]``, times the strength draw when that is on).
 - **Reward and termination**: the task's term table (``reward_terms``, ``termination_terms``; rows of
   ``envs.term_table``) evaluated on the step's signals (``robot_signals`` and the task's
   ``TaskStep.signals``): each reward term weighted by ``config.reward.scales.<name>`` (per control step,
@@ -36,6 +40,11 @@ robot env does the rest, identically for every task:
   docs/scenes.md). Every robot quantity above is read and written at the robot joints' addresses
   (``robot_index``; ``robot_q``, ``robot_dq``, ``with_robot_q``); the scene's other joints start at
   ``qpos0`` at rest and move only by physics.
+
+One unit: the reset and the step share one state (``info``) whose keys each optional feature adds or
+leaves out, and one PRNG layout pinned by a golden file; the actuator, randomisation, physics and term
+arithmetic already live in their own modules (``actuator``, ``randomize``, ``physics_step``,
+``term_table``, ``robot.error_ema``), what is left is the order in which a step applies them.
 
 PRNG use is fixed (reach's outputs are pinned by tests/data/reach_golden.npz): ``reset`` splits its key in 8
 (0 initial noise, 1 the task, 2 latency, 3 Kp scale, 4 Kd scale, 5 encoder offset, 6 the next step's key,
