@@ -89,7 +89,10 @@ def test_the_randomisation_is_centred_on_the_files_values(params_file):
     # The robust preset's ranges: friction (0.05, 1.35) N*m, damping (0, 1) N*m*s/rad, payload (0, 0.6) kg.
     # With the file, each drawn value is the file's + (the same key's draw without it - the range's
     # centre), at least 0: checked against the draw of the same keys on the description's model.
-    base = envs.apply_overrides(envs.default_config("LiteReach"), ROBUST_ENV_OVERRIDES)
+    # No nominal slots: every slot's draw is the centred one (a nominal slot takes the file's values).
+    base = envs.apply_overrides(
+        envs.default_config("LiteReach"), (*ROBUST_ENV_OVERRIDES, "randomization.nominal_share=0.0")
+    )
     with_file = replace(base, robot_params=str(params_file))
     plain = envs.load("LiteReach", config=base)
     filed = envs.load("LiteReach", config=with_file)
