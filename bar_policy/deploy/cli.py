@@ -243,7 +243,7 @@ def _run_session(
             commands,
             config,
             log_dir=None if args.no_log else args.log,
-            log_meta={"argv": list(argv), "seed": args.seed},
+            log_meta={"argv": list(argv), "seed": args.seed, **_params_check(args, policy)},
             log_name=args.target,
             live=live,  # type: ignore[arg-type]
             kinematics=kin,
@@ -315,6 +315,31 @@ def _run_session(
     if video is not None:
         print(f"video: {video}")
     return result.exit_status
+
+
+def _params_check(args: argparse.Namespace, policy: object) -> dict[str, object]:
+    """Warn (one line, stderr) when the run's robot parameters are not the ones the policy trained on.
+
+    The policy's ``bar.robot_params`` (its training file's sha256; none: the nominal model) against
+    ``--robot-params`` (none: the nominal model). Returns the ``run.json`` record ``robot_params``: both
+    hashes (None: nominal) and ``mismatch_warnings`` (0 or 1), so a log shows the warning was given. The
+    mock target models no robot: nothing to compare, an empty record.
+    """
+    if args.target == "mock":
+        return {}
+    from bar_policy.robot.params import training_mismatch
+
+    trained = policy.metadata.robot_params  # type: ignore[attr-defined]
+    params = getattr(args, "robot_params", None)
+    line = training_mismatch(trained, params)
+    if line is not None:
+        print(f"WARNING: {line}", file=sys.stderr, flush=True)
+    record = {
+        "trained_sha256": trained.get("sha256") or None,
+        "run_sha256": None if params is None else params.sha256,
+        "mismatch_warnings": int(line is not None),
+    }
+    return {"robot_params": record}
 
 
 def _start_refusal(args: argparse.Namespace, policy: object, hold: object) -> str | None:

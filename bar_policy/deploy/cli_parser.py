@@ -229,8 +229,8 @@ def robot_params_option(p: argparse.ArgumentParser) -> None:
         default=None,
         metavar="FILE",
         help="robot-parameters file (bar-bus identify --out): the sim target and the in-process "
-        "emulator model that robot (friction, damping, armature, payloads, "
-        "strength)",
+        "emulator model that robot (friction, damping, armature, payloads, strength); a policy trained "
+        "on other parameters (its bar.robot_params hash) gets a warning, counted in run.json",
     )
 
 

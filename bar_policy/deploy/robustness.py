@@ -8,7 +8,8 @@ mean fingertip and joint errors; reach, the median segment-end distance and the 
 ticks at a torque cap %, the worst episode's chatter (mrad), the verdict (PASS, MISS, or ``report`` for a
 row not judged) and the first metric's ratio to the nominal row's.
 
-The ship gate (``train/ship.py``) does not read this yet: the printed verdicts inform.
+``train/ship.py --robustness ROWS`` runs stated rows through ``run_suite`` after the nominal gate and records
+each row's verdict in the published JSON (refusing on a miss only with ``--robustness-enforce``).
 """
 
 from __future__ import annotations

@@ -11,6 +11,7 @@ Examples::
     bar-train --resume runs/LiteReach-brax-20260101-120000 --ppo.num-timesteps 80000000
     bar-train --env LiteReach                             # --env is short for --env-name
     bar-train --no-compile-cache                          # compile everything afresh
+    bar-train --preset reach-robust --robot-params p.json # the identified robot (bar-bus identify --out)
     bar-train --help                                      # every option once, grouped, with units
 
 tyro parses every flag, ``--preset`` included. Because a preset supplies the defaults of every other flag
@@ -35,7 +36,15 @@ from bar_policy.training.config import PRESETS, TrainConfig, preset
 from bar_policy.training.env_flags import PROG, command_for, fail, parse_command, train_config_of
 from bar_policy.training.writers import check_logger
 
-__all__ = ["BACKEND_PRESETS", "check_env_overrides", "env_of", "main", "parse_config", "preset_of"]
+__all__ = [
+    "BACKEND_PRESETS",
+    "check_env_overrides",
+    "env_of",
+    "main",
+    "parse_config",
+    "preset_of",
+    "robot_params_of",
+]
 
 
 BACKEND_PRESETS: dict[str, str] = {"rsl-rl": "gpu-rsl"}
@@ -68,6 +77,33 @@ def preset_of(argv: Sequence[str]) -> str:
     return name if name in PRESETS else "gpu"
 
 
+def robot_params_of(argv: list[str]) -> tuple[list[str], str | None]:
+    """``argv`` without ``--robot-params FILE`` (or ``--robot-params=FILE``), and that FILE (None: absent).
+
+    ``--robot-params FILE`` is short for ``--env-overrides robot_params=FILE`` (``RobotEnvConfig.
+    robot_params``: train on the identified robot, randomisation centred on its values); a bad file is
+    refused like any env override (one line, exit 2).
+    """
+    out: list[str] = []
+    found: str | None = None
+    it = iter(range(len(argv)))
+    for i in it:
+        a = argv[i]
+        if a == "--":
+            out.extend(argv[i:])
+            break
+        if a == "--robot-params":
+            if i + 1 >= len(argv):
+                fail("--robot-params needs a FILE")
+            found = argv[i + 1]
+            next(it, None)
+        elif a.startswith("--robot-params="):
+            found = a.split("=", 1)[1]
+        else:
+            out.append(a)
+    return out, found
+
+
 def env_of(argv: Sequence[str], default: str) -> str:
     """The ``--env`` (``--env-name``) value in ``argv`` (the last one wins); ``default`` if absent or unknown.
 
@@ -92,8 +128,9 @@ def parse_config(argv: Sequence[str] | None = None) -> TrainConfig:
     whose defaults are the env's config with the preset's own items; the ones a command line changes join
     the run's ``env_overrides`` after the preset's and ``--env-overrides``' items (so a flag wins).
     Exits with status 2 and a one-line message (``bar-train: error: ...``) on a bad flag, value or override.
+    ``--robot-params FILE`` is short for the item ``robot_params=FILE``.
     """
-    args = list(sys.argv[1:] if argv is None else argv)
+    args, params_file = robot_params_of(list(sys.argv[1:] if argv is None else argv))
     name = preset_of(args)
     base = preset(name)
     env_name = env_of(args, base.env_name)
@@ -101,7 +138,8 @@ def parse_config(argv: Sequence[str] | None = None) -> TrainConfig:
     description = (
         __doc__.split("\n\n")[0]
         + f"\n\nDefaults shown: the {name} preset's. The --env.* settings are {env_name}'s (--env picks "
-        + "another env's); --env-overrides path=value items are a shorthand for them."
+        + "another env's); --env-overrides path=value items are a shorthand for them. "
+        + "--robot-params FILE: train on the identified robot (robot_params=FILE; docs/sysid.md)."
     )
     command, default = command_for(base, env_name, preset_items)
     parsed = parse_command(command, default, args, description=description, prog=PROG)
@@ -117,6 +155,10 @@ def parse_config(argv: Sequence[str] | None = None) -> TrainConfig:
     flags = changed_overrides(parsed.env, default.env)
     try:
         cfg = replace(cfg, env_overrides=merge_overrides(merge_overrides(preset_items, given), flags))
+        if params_file is not None:
+            cfg = replace(
+                cfg, env_overrides=merge_overrides(cfg.env_overrides, (f"robot_params={params_file}",))
+            )
         check_env_overrides(cfg)
     except ValueError as e:
         fail(f"--env-overrides: {e}")
