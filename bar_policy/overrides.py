@@ -25,7 +25,16 @@ import typing
 from collections.abc import Iterable, Mapping
 from typing import Any, Literal, Union, get_args, get_origin
 
-__all__ = ["OverrideError", "apply_overrides", "field_paths", "merge_overrides", "split_override"]
+__all__ = [
+    "OverrideError",
+    "apply_overrides",
+    "changed_overrides",
+    "did_you_mean",
+    "field_paths",
+    "merge_overrides",
+    "override_text",
+    "split_override",
+]
 
 _NONE_WORDS = ("None", "null")
 """Texts read as None for an optional field."""
@@ -93,6 +102,45 @@ def field_paths(config: Any, prefix: str = "") -> list[str]:
     return out
 
 
+def did_you_mean(name: str, choices: Iterable[str]) -> str:
+    """``"; did you mean 'x'?"``: the closest of ``choices`` to a mistyped ``name`` (difflib), else ``""``."""
+    import difflib
+
+    close = difflib.get_close_matches(name, list(choices), n=1, cutoff=0.6)
+    return f"; did you mean {close[0]!r}?" if close else ""
+
+
+def override_text(value: Any) -> str:
+    """The override text of a leaf value that ``apply_overrides`` reads back to an equal value.
+
+    Floats by ``repr`` (the shortest text that round-trips exactly), booleans ``true``/``false``, None as
+    ``None``, tuples as ``(a, b)`` of their items, strings as they are.
+    """
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, tuple):
+        items = ", ".join(override_text(v) for v in value)
+        return f"({items},)" if len(value) == 1 else f"({items})"
+    return str(value) if isinstance(value, str) else repr(value)
+
+
+def changed_overrides(config: Any, base: Any, prefix: str = "") -> tuple[str, ...]:
+    """The ``path=value`` items that turn ``base`` into ``config`` (two dataclass trees of one shape).
+
+    Leaves in field order; ``apply_overrides(base, changed_overrides(config, base)) == config``. How the
+    typed ``--env.*`` flags of ``bar-train`` become the run's ``env_overrides``, and what the run header
+    prints as the settings that differ from the defaults.
+    """
+    out: list[str] = []
+    for f in dataclasses.fields(config):
+        value, old = getattr(config, f.name), getattr(base, f.name)
+        if dataclasses.is_dataclass(value) and dataclasses.is_dataclass(old):
+            out += changed_overrides(value, old, f"{prefix}{f.name}.")
+        elif value != old or type(value) is not type(old):
+            out.append(f"{prefix}{f.name}={override_text(value)}")
+    return tuple(out)
+
+
 def _apply(obj: Any, items: list[tuple[list[str], Any, str, bool]]) -> Any:
     """Apply ``(keys, value, path, is_text)`` items to one dataclass level with one ``replace``."""
     if not dataclasses.is_dataclass(obj):
@@ -106,6 +154,7 @@ def _apply(obj: Any, items: list[tuple[list[str], Any, str, bool]]) -> Any:
         if head not in names:
             raise OverrideError(
                 f"override {path!r}: no field {head!r} in {type(obj).__name__}; valid fields: {names}"
+                + did_you_mean(head, names)
             )
         current = getattr(obj, head)
         if len(keys) > 1:

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bar_policy.deploy.log import load_log
+from bar_policy.deploy.log.read import load_log
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.safety_config import Mode
 

@@ -27,8 +27,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "deploy"))
 
-from bar_policy.deploy.log import log_fields
-from bar_policy.deploy.mcap_log import McapRunWriter
+from bar_policy.deploy.log.files import log_fields
+from bar_policy.deploy.log.mcap_write import McapRunWriter
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import Mode, SafetyConfig

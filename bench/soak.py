@@ -13,7 +13,7 @@ reports:
   the worst jitter p99 over any minute (from ``log.npz``'s per-tick ``jitter``);
 - faults: ``fault_count``, the end reason, the safe stop's outcome, the exit status;
 - log completeness: ticks expected (duration / dt deadlines of wall clock, less those skipped after late
-  ticks), ticks in ``log.npz``, ``/joint_state`` messages in
+  ticks), ticks in ``log.npz``, ``/joint_state_json`` messages in
   ``run.mcap`` (``read_mcap_log``) and whether the ``mcap`` library's indexed reader opens it.
 """
 
@@ -30,8 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from bar_policy.deploy.log import load_log
-from bar_policy.deploy.mcap_log import MCAP_FILE, read_mcap_log
+from bar_policy.deploy.log.mcap_read import read_mcap_log
+from bar_policy.deploy.log.mcap_schema import MCAP_FILE
+from bar_policy.deploy.log.read import load_log
 
 ROOT = Path(__file__).resolve().parents[1]
 

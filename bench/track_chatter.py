@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bar_policy.deploy.log import load_log
+from bar_policy.deploy.log.read import load_log
 
 
 def reversal_share(action: np.ndarray) -> np.ndarray:

@@ -7,7 +7,14 @@ from typing import Literal
 
 import pytest
 
-from bar_policy.overrides import OverrideError, apply_overrides, field_paths, split_override
+from bar_policy.overrides import (
+    OverrideError,
+    apply_overrides,
+    changed_overrides,
+    did_you_mean,
+    field_paths,
+    split_override,
+)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -106,3 +113,37 @@ def test_env_and_training_use_the_same_function():
 
     assert envs.apply_overrides is overrides.apply_overrides
     assert config.apply_overrides is overrides.apply_overrides
+
+
+def test_changed_overrides_are_the_items_that_rebuild_a_config():
+    base = Cfg()
+    changed = Cfg(
+        scales=Scales(action_rate=0.1 + 0.2, steps=3),  # 0.30000000000000004: repr round-trips it exactly
+        latency=(1, 1),
+        hidden=(7,),
+        flag=False,
+        resume=None,
+        scale=None,
+        name="a b",
+    )
+    items = changed_overrides(changed, base)
+    # Field order, leaves only, one item per changed leaf (steps and kind kept theirs).
+    assert items == (
+        "scales.action_rate=0.30000000000000004",
+        "latency=(1, 1)",
+        "hidden=(7,)",
+        "flag=false",
+        "name=a b",
+        "scale=None",
+    )
+    assert apply_overrides(base, items) == changed
+    assert changed_overrides(base, base) == ()
+
+
+def test_did_you_mean():
+    assert did_you_mean("action_rat", ["action_rate", "torque"]) == "; did you mean 'action_rate'?"
+    assert did_you_mean("zzz", ["action_rate", "torque"]) == ""
+    with pytest.raises(
+        OverrideError, match=r"valid fields: \['action_rate', 'steps'\]; did you mean 'steps'"
+    ):
+        apply_overrides(Cfg(), ["scales.step=1"])

@@ -5,6 +5,8 @@
     python train/ship.py --from-run runs/X --iterate auto   # ship policy_best.onnx if it scores higher
     python train/ship.py --from-run runs/T --name lite_track_arms   # a LiteTrack run: the tracker
     python train/ship.py --ppo.num-timesteps 60000000   # any train/ppo.py flag passes through
+    python train/ship.py --from-run runs/X --robustness suite   # and the robustness tier, recorded
+    python train/ship.py --from-run runs/X --robustness "payload 0.5 kg palm,push 10 N" --robustness-enforce
 
 The task comes from the run (``env_name`` in its ``final_eval.json`` / ``config.json``: LiteReach and
 LiteReachNeck -> reach, LiteTrack -> track); the default name is ``lite_<task>_<mode>``.
@@ -17,6 +19,14 @@ is written. A file that passes is published: ``checkpoints/<name>.onnx`` and ``c
 (with the gate's record under ``ship_gate``: task, thresholds, verdict, the report's figures); for reach
 also ``docs/training_curve.png`` and the results block of ``docs/reach.md`` (they describe the reach
 policy, so a tracker run leaves them alone), then whether the issue's reach targets were met.
+
+The robustness tier (``--robustness ROWS``: names of ``robot/perturb_suite.py``'s rows, comma-separated,
+or ``suite`` for every row but ``nominal``) runs after the nominal gate passed: each row is the same held-out
+evaluation on the perturbed sim target (``deploy.robustness.run_suite``), judged by the gate as far as the
+row's ``gating`` says; the table is printed and every row's verdict (PASS, MISS, ``report``), its misses and
+figures go into the published JSON under ``ship_gate.robustness``. It informs: a file that passes the
+nominal gate is published whatever the rows say, unless ``--robustness-enforce``, which refuses a file that
+misses a gated row (exit 3, naming the rows). Without ``--robustness`` nothing changes.
 
 Exit status:
     0: published (reach: and the final MJX evaluation reached >= 95 % success).
@@ -39,6 +49,7 @@ from pathlib import Path
 from typing import Any
 
 from bar_policy.quality.gate import Miss, check, gate_for, thresholds_text
+from bar_policy.robot.perturb_suite import SUITE, SuiteRow
 from bar_policy.tasks.registry import TASKS
 from bar_policy.training.cli import parse_config
 from bar_policy.training.publish import ITERATES, choose_iterate, publish
@@ -93,6 +104,56 @@ def held_out_evaluation(onnx: str | Path, task: str, options: Mapping[str, Any] 
     return get_task(task).evaluate(policy, argparse.Namespace(**dict(options or {})), SimEpisodes(policy))
 
 
+def robustness_rows(text: str) -> tuple[SuiteRow, ...]:
+    """The suite rows ``--robustness`` names (comma-separated, or ``suite``: every row but nominal).
+
+    Raises:
+        ValueError: an unknown row name (the valid ones listed), or none given.
+    """
+    if text.strip() == "suite":
+        return tuple(r for r in SUITE if r.spec)
+    by_name = {r.name: r for r in SUITE}
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    unknown = [n for n in names if n not in by_name]
+    if unknown or not names:
+        raise ValueError(
+            f"--robustness: unknown suite row(s) {unknown or [text]}; valid: 'suite' or any of "
+            f"{list(by_name)}"
+        )
+    return tuple(by_name[n] for n in names)
+
+
+def robustness_tier(
+    onnx: str | Path, task: str, rows: tuple[SuiteRow, ...], options: Mapping[str, Any] | None = None
+) -> Any:
+    """Each row's held-out evaluation on the perturbed sim target, judged (``deploy.robustness.SuiteResult``).
+
+    ``options``: as ``held_out_evaluation``'s (None: the eval's defaults).
+    """
+    from bar_policy.deploy.episodes import SimEpisodes
+    from bar_policy.deploy.policy import load_policy
+    from bar_policy.deploy.robustness import run_suite
+    from bar_policy.deploy.tasks import get_task
+
+    policy = load_policy(onnx, task=task)
+    args = argparse.Namespace(**dict(options or {}))
+    return run_suite(
+        policy, get_task(task), args, lambda p: SimEpisodes(policy, perturbation=p), rows,
+        progress=lambda line: print(line, flush=True),
+    )  # fmt: skip
+
+
+def robustness_record(suite: Any, enforced: bool) -> dict[str, Any]:
+    """``ship_gate.robustness``: each row's name, spec, gating, verdict, misses and figures; the verdict."""
+    rows = []
+    for r in suite.rows:
+        d = r.to_dict()
+        d.pop("gate_report", None)
+        d["report"] = {k: v for k, v in r.report.items() if k != "episodes"}
+        rows.append(d)
+    return {"verdict": "pass" if suite.passed else "miss", "enforced": enforced, "rows": rows}
+
+
 def gate_record(task: str, report: Mapping[str, Any], misses: list[Miss]) -> dict[str, Any]:
     """The gate's record for the published JSON: task, thresholds, verdict, misses, the report's figures."""
     return {
@@ -133,9 +194,30 @@ def main(argv: list[str] | None = None, *, eval_options: Mapping[str, Any] | Non
         help="after training, time the batched env alone at this batch size (0 = skip); recorded in the JSON "
         "(default: 4096 after training here, 0 with --from-run: the machine that trained is not this one)",
     )
+    pre.add_argument(
+        "--robustness",
+        default=None,
+        metavar="ROWS",
+        help="after the nominal gate, run these robustness-suite rows (names from robot/perturb_suite.py, "
+        "comma-separated, or 'suite': every row but nominal) and record each row's verdict in the JSON",
+    )
+    pre.add_argument(
+        "--robustness-enforce",
+        action="store_true",
+        help="refuse (exit 3) a file that misses a gated --robustness row (default: the rows inform only)",
+    )
     pre.add_argument("--checkpoints-dir", default="checkpoints", help="where the ONNX and JSON go")
     pre.add_argument("--docs-dir", default="docs", help="where the reach curve and reach.md results go")
     known, rest = pre.parse_known_args(sys.argv[1:] if argv is None else argv)
+    rows: tuple[SuiteRow, ...] = ()
+    try:
+        if known.robustness is not None:
+            rows = robustness_rows(known.robustness)
+        elif known.robustness_enforce:
+            raise ValueError("--robustness-enforce needs --robustness ROWS")
+    except ValueError as e:
+        print(f"ship: error: {e}", file=sys.stderr)
+        return NOT_EVALUATED
     if known.from_run is None:
         if not any(a.startswith("--run-name") for a in rest):
             rest = [*rest, "--run-name", f"ship-{time.strftime('%Y%m%d-%H%M%S')}"]
@@ -168,6 +250,20 @@ def main(argv: list[str] | None = None, *, eval_options: Mapping[str, Any] | Non
         )
         return REFUSED
 
+    ship_gate = gate_record(task, report, misses)
+    if rows:
+        print(f"robustness tier: {len(rows)} row(s), each the held-out evaluation on a perturbed sim target")
+        suite = robustness_tier(onnx, task, rows, eval_options)
+        print(suite.format())
+        ship_gate["robustness"] = robustness_record(suite, known.robustness_enforce)
+        if known.robustness_enforce and not suite.passed:
+            missed = [r.row.name for r in suite.rows if r.verdict == "MISS"]
+            print(
+                f"ship: refused: {onnx} misses the robustness tier on {len(missed)} row(s): "
+                f"{', '.join(missed)}; nothing written to {known.checkpoints_dir}/"
+            )
+            return REFUSED
+
     mode = run_config(run_dir).get("env", {}).get("mode", "arms")
     name = known.name or f"lite_{task}_{mode}"
     paths = publish(
@@ -176,7 +272,7 @@ def main(argv: list[str] | None = None, *, eval_options: Mapping[str, Any] | Non
         iterate=known.iterate,
         checkpoints_dir=known.checkpoints_dir,
         docs_dir=known.docs_dir if task == "reach" else None,
-        extra={"ship_gate": gate_record(task, report, misses)},
+        extra={"ship_gate": ship_gate},
     )
     final = json.loads(paths["json"].read_text())
     if known.raw_throughput is None:

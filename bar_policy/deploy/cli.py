@@ -46,8 +46,9 @@ from pathlib import Path
 from bar_policy.deploy import cli_parser
 from bar_policy.deploy.cli_tools import fail as _fail
 from bar_policy.deploy.cli_tools import log_command, plot_command
-from bar_policy.deploy.log_files import CAN_LOG_FILE
+from bar_policy.deploy.log.files import CAN_LOG_FILE
 from bar_policy.deploy.signals import early_interrupt, signal_name_of
+from bar_policy.deploy.warning_tally import WarningTally
 from bar_policy.tasks.cli_types import Parser as _Parser
 from bar_policy.tasks.cli_types import asks_help as _asks_help
 from bar_policy.tasks.cli_types import one_line as _one_line
@@ -121,7 +122,7 @@ def _run(argv: Sequence[str]) -> int:
     if args.live is not None and args.no_log:
         return _fail("--live serves the run log's channels: drop --no-log")
     if not args.no_log:
-        from bar_policy.deploy.log import LogDirError, check_log_dir
+        from bar_policy.deploy.log.files import LogDirError, check_log_dir
 
         try:
             check_log_dir(args.log)
@@ -139,7 +140,7 @@ def _run(argv: Sequence[str]) -> int:
     with StopSignals() as stop:
         live = None
         if args.live is not None:
-            from bar_policy.deploy.live import LiveError, LiveServer
+            from bar_policy.deploy.log.live import LiveError, LiveServer
 
             try:
                 live = LiveServer(args.live)
@@ -199,6 +200,8 @@ def _run_session(
             safety=safety,
         )
         commands = task.command_source(policy, args, kin)
+        # The task's figure of the run (reach: success and final distance; track: errors), after end:.
+        figure = task.run_figure(policy, commands, kin)
     except ValueError as e:  # PolicyLoadError, OptionError, bad settings
         return _fail(e)
     if args.target == "real":
@@ -220,9 +223,12 @@ def _run_session(
             )
             scene = task.scene(policy)  # type: ignore[attr-defined]
             target = sim_target(
-                args.mode, sim_cfg, scene=scene, perturbation=args.perturb,
+                args.mode,
+                sim_cfg,
+                scene=scene,
+                perturbation=args.perturb,
                 robot_params=getattr(args, "robot_params", None),
-            )  # fmt: skip
+            )
         elif args.target == "mock":
             from bar_policy.deploy.targets.mock import MockTarget
 
@@ -237,10 +243,11 @@ def _run_session(
             commands,
             config,
             log_dir=None if args.no_log else args.log,
-            log_meta={"argv": list(argv), "seed": args.seed},
+            log_meta={"argv": list(argv), "seed": args.seed, **_params_check(args, policy)},
             log_name=args.target,
             live=live,  # type: ignore[arg-type]
             kinematics=kin,
+            on_tick=None if figure is None else figure.tick,
         )
     except (TargetError, ValueError) as e:
         commands.close()
@@ -257,7 +264,7 @@ def _run_session(
         f"policy {args.policy} [{policy.obs_manager.fingerprint}] ({task.name}: {task.summary}) on "
         f"{args.target}, commands {commands.describe()}"
     )
-    from bar_policy.deploy.log import LogDirError
+    from bar_policy.deploy.log.files import LogDirError
     from bar_policy.quality.report import run_quality_line
 
     try:
@@ -282,7 +289,8 @@ def _run_session(
         log.error("the run ended on an exception (safe stop: %s)", _stop_text(rt), exc_info=True)
         if rt.result is not None:
             print(rt.result.end_line())
-            _print_summary(commands)
+            if figure is not None:
+                print(figure.final_line())
         where = f"; log: {rt.log_path.parent}" if rt.log_path is not None else ""
         msg = f"the run ended on {type(e).__name__}: {e} (safe stop: {_stop_text(rt)}{where})"
         return _fail(msg, _after_exception(rt))
@@ -294,7 +302,8 @@ def _run_session(
             log.exception("closing the %s target failed", args.target)
     print(result.timing.format())
     print(result.end_line())
-    _print_summary(commands)
+    if figure is not None:
+        print(figure.final_line())
     print(run_quality_line(result.quality))
     for tr in result.transitions:
         print(f"  t={tr['t']:.3f} s  {tr['from']} -> {tr['to']}: {tr['reason']}")
@@ -308,15 +317,29 @@ def _run_session(
     return result.exit_status
 
 
-def _print_summary(commands: object) -> None:
-    """The command source's own summary lines (the piano's F1 and per-colour recall), after ``end:``."""
-    try:
-        lines = commands.summary_lines()  # type: ignore[attr-defined]
-    except Exception:  # a summary must not hide the run's own outcome
-        log.exception("the command source's summary failed")
-        return
-    for line in lines:
-        print(line)
+def _params_check(args: argparse.Namespace, policy: object) -> dict[str, object]:
+    """Warn (one line, stderr) when the run's robot parameters are not the ones the policy trained on.
+
+    The policy's ``bar.robot_params`` (its training file's sha256; none: the nominal model) against
+    ``--robot-params`` (none: the nominal model). Returns the ``run.json`` record ``robot_params``: both
+    hashes (None: nominal) and ``mismatch_warnings`` (0 or 1), so a log shows the warning was given. The
+    mock target models no robot: nothing to compare, an empty record.
+    """
+    if args.target == "mock":
+        return {}
+    from bar_policy.robot.params import training_mismatch
+
+    trained = policy.metadata.robot_params  # type: ignore[attr-defined]
+    params = getattr(args, "robot_params", None)
+    line = training_mismatch(trained, params)
+    if line is not None:
+        print(f"WARNING: {line}", file=sys.stderr, flush=True)
+    record = {
+        "trained_sha256": trained.get("sha256") or None,
+        "run_sha256": None if params is None else params.sha256,
+        "mismatch_warnings": int(line is not None),
+    }
+    return {"robot_params": record}
 
 
 def _start_refusal(args: argparse.Namespace, policy: object, hold: object) -> str | None:
@@ -361,6 +384,20 @@ def _after_exception(rt: object) -> int:
     return EXIT_FAULT if report is not None and report.confirmed else EXIT_STOP_UNCONFIRMED
 
 
+def _say(line: str) -> None:
+    """A progress line of ``bar-deploy eval``, flushed (the episodes take seconds each)."""
+    print(line, flush=True)
+
+
+def _print_warnings(tally: WarningTally) -> None:
+    """The counted warnings of an evaluation: ``warnings: N ...`` then one line per kind (none: nothing)."""
+    lines = tally.lines()
+    if lines:
+        print(f"warnings: {tally.total} in {len(lines)} kind(s), each kind once with its count:")
+        for line in lines:
+            print(f"  {line}")
+
+
 def _eval(argv: Sequence[str]) -> int:
     p = _Parser(
         prog="bar-deploy eval",
@@ -374,6 +411,9 @@ def _eval(argv: Sequence[str]) -> int:
     _common(p)
     cli_parser.perturb_option(p, suite=True)
     p.add_argument("--json", type=Path, help="write the per-episode / per-clip results here")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="no progress line per episode, clip or song (the result and the counted warnings "
+                        "are printed all the same)")  # fmt: skip
     for task in all_tasks():
         task.add_eval_arguments(p)
     args = p.parse_args(argv)
@@ -381,20 +421,27 @@ def _eval(argv: Sequence[str]) -> int:
         return _fail(f"--json {str(args.json)!r}: its directory does not exist or is not writable")
     _configure_logging(args.verbose)
     logging.getLogger("bar_policy.deploy.safety").setLevel(logging.WARNING)
-    try:
-        policy, task = _policy_task(args, "eval")
-        if args.perturb is None:
-            result = task.evaluate(policy, args, SimEpisodes(policy))
-        else:
-            from bar_policy.deploy.robustness import evaluate_perturbed
-
-            result = evaluate_perturbed(policy, task, args, args.perturb, print)
-    except ValueError as e:  # PolicyLoadError, OptionError, bad settings
-        return _fail(e)
-    print(result.format())
-    if args.json:
+    say = None if args.quiet else _say
+    # Warnings repeat across episodes (one clip warning per joint and episode): each kind is counted and
+    # printed once after the result, never dropped.
+    with WarningTally() as tally:
         try:
-            args.json.write_text(json.dumps(result.to_dict(), indent=2))
+            policy, task = _policy_task(args, "eval")
+            if args.perturb is None:
+                result = task.evaluate(policy, args, SimEpisodes(policy, say=say))
+            else:
+                from bar_policy.deploy.robustness import evaluate_perturbed
+
+                result = evaluate_perturbed(policy, task, args, args.perturb, _say, progress=not args.quiet)
+        except ValueError as e:  # PolicyLoadError, OptionError, bad settings
+            _print_warnings(tally)
+            return _fail(e)
+    print(result.format())
+    _print_warnings(tally)
+    if args.json:
+        data = {**result.to_dict(), "warnings": tally.to_dict()}
+        try:
+            args.json.write_text(json.dumps(data, indent=2))
         except OSError as e:
             return _fail(f"cannot write --json {str(args.json)!r}: {e.strerror or e}")
         print(f"per-episode / per-clip results: {args.json}")

@@ -9,7 +9,7 @@ import argparse
 from collections.abc import Sequence
 from pathlib import Path
 
-from bar_policy.deploy.live import LIVE_PORT
+from bar_policy.deploy.log.live import LIVE_PORT
 from bar_policy.tasks.cli_types import Parser as _Parser
 from bar_policy.tasks.cli_types import count0 as _count0
 from bar_policy.tasks.cli_types import duration as _duration
@@ -50,14 +50,28 @@ safe minimum, unless --unsafe-allow-step-start), 3 the safe stop was not confirm
 
 def common_options(p: argparse.ArgumentParser) -> None:
     """The options ``run`` and ``eval`` share (policy, mode, control period, action clip, verbosity)."""
-    p.add_argument("--policy", required=True, type=Path, metavar="PATH",
-                   help="ONNX policy file (bar_policy's, or one with the Humanoid Control keys)")  # fmt: skip
+    p.add_argument(
+        "--policy",
+        required=True,
+        type=Path,
+        metavar="PATH",
+        help="ONNX policy file (bar_policy's, or one with the Humanoid Control keys)",
+    )
     p.add_argument("--mode", default="arms", choices=("arms", "arms_neck"), help="joint set of the robot")
-    p.add_argument("--control-dt", type=_seconds, default=0.02, metavar="S",
-                   help="control period, s: the policy's dt (default 0.02)")  # fmt: skip
-    p.add_argument("--action-clip", type=_number("a number >= 0", lambda v: v >= 0), metavar="A",
-                   help="clip raw actions to +-A, action units (default: the file's bar.action_clip, else "
-                        "1.0 as in training; 0: none)")  # fmt: skip
+    p.add_argument(
+        "--control-dt",
+        type=_seconds,
+        default=0.02,
+        metavar="S",
+        help="control period, s: the policy's dt (default 0.02)",
+    )
+    p.add_argument(
+        "--action-clip",
+        type=_number("a number >= 0", lambda v: v >= 0),
+        metavar="A",
+        help="clip raw actions to +-A, action units (default: the file's bar.action_clip, else "
+        "1.0 as in training; 0: none)",
+    )
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
 
 
@@ -84,8 +98,13 @@ def perturb_option(p: argparse.ArgumentParser, *, suite: bool) -> None:
         else "; on the real target's virtual bus the in-process emulator's robot, hidden from the "
         "runtime (there the same as --emulate-perturb)"
     )
-    p.add_argument("--perturb", type=parse, default=None, metavar="KEY=VALUE,..." + ("|suite" * suite),
-                   help=f"perturb {where}. Keys: {help_text()}")  # fmt: skip
+    p.add_argument(
+        "--perturb",
+        type=parse,
+        default=None,
+        metavar="KEY=VALUE,..." + ("|suite" * suite),
+        help=f"perturb {where}. Keys: {help_text()}",
+    )
 
 
 def run_parser() -> argparse.ArgumentParser:
@@ -101,42 +120,88 @@ def run_parser() -> argparse.ArgumentParser:
     )
     common_options(p)
     p.add_argument("--target", default="sim", choices=TARGETS, help="where to run (default: sim)")
-    p.add_argument("--duration", type=_duration, metavar="S|inf",
-                   help="run length in s, or 'inf' until stopped (default: 10 s; track policies: until the "
-                        "clip ends)")  # fmt: skip
+    p.add_argument(
+        "--duration",
+        type=_duration,
+        metavar="S|inf",
+        help="run length in s, or 'inf' until stopped (default: 10 s; track policies: until the clip ends)",
+    )
     p.add_argument("--seed", type=int, default=0, metavar="N", help=f"{seed_help} (default 0)")
-    p.add_argument("--log", type=Path, default=Path("runs/deploy"), metavar="DIR",
-                   help="directory of run logs (default: runs/deploy)")  # fmt: skip
+    p.add_argument(
+        "--log",
+        type=Path,
+        default=Path("runs/deploy"),
+        metavar="DIR",
+        help="directory of run logs (default: runs/deploy)",
+    )
     p.add_argument("--no-log", action="store_true", help="record no run log")
-    p.add_argument("--live", nargs="?", const=LIVE_PORT, type=_port, metavar="PORT",
-                   help="serve the run log's channels live on 127.0.0.1:PORT for the Foxglove app (Open "
-                        f"connection -> Foxglove WebSocket -> ws://localhost:PORT; default {LIVE_PORT}; 0: "
-                        "any free port)")  # fmt: skip
-    p.add_argument("--ramp-time", type=_seconds0, default=3.0, metavar="S",
-                   help="HOLD ramp to the default pose, s (default 3)")  # fmt: skip
+    p.add_argument(
+        "--live",
+        nargs="?",
+        const=LIVE_PORT,
+        type=_port,
+        metavar="PORT",
+        help="serve the run log's channels live on 127.0.0.1:PORT for the Foxglove app (Open "
+        f"connection -> Foxglove WebSocket -> ws://localhost:PORT; default {LIVE_PORT}; 0: "
+        "any free port)",
+    )
+    p.add_argument(
+        "--ramp-time",
+        type=_seconds0,
+        default=3.0,
+        metavar="S",
+        help="HOLD ramp to the default pose, s (default 3)",
+    )
     p.add_argument(
         "--start", default="hold", choices=("hold", "policy"), help="start with the ramp or the policy"
     )
-    p.add_argument("--max-overruns", type=_count0, default=5, metavar="N",
-                   help="consecutive overrun ticks that trip damping (0: off; default 5)")  # fmt: skip
-    p.add_argument("--stale-timeout", type=_seconds, default=0.1, metavar="S",
-                   help="state age that trips damping, s (default 0.1)")  # fmt: skip
-    p.add_argument("--damping-time", type=_seconds0, default=1.0, metavar="S",
-                   help="after a fault or a stop signal, damp this long before the stop frames, s "
-                        "(default 1)")  # fmt: skip
-    p.add_argument("--stop-damping", default="gravity", choices=("gravity", "plain"),
-                   help="damping of the fault and end stops: gravity = Kd plus the model's gravity torque at "
-                        "the measured q as feed-forward, within the torque caps (default); plain = Kd alone "
-                        "(the arms sag)")  # fmt: skip
-    p.add_argument("--end-hold", type=_seconds0, default=1.0, metavar="S",
-                   help="after the commands end (a motion clip's last frame), HOLD that pose this long, s "
-                        "(default 1)")  # fmt: skip
-    p.add_argument("--rt-priority", type=_priority, metavar="1-99",
-                   help="run the loop under SCHED_FIFO at this priority (root or CAP_SYS_NICE)")  # fmt: skip
+    p.add_argument(
+        "--max-overruns",
+        type=_count0,
+        default=5,
+        metavar="N",
+        help="consecutive overrun ticks that trip damping (0: off; default 5)",
+    )
+    p.add_argument(
+        "--stale-timeout",
+        type=_seconds,
+        default=0.1,
+        metavar="S",
+        help="state age that trips damping, s (default 0.1)",
+    )
+    p.add_argument(
+        "--damping-time",
+        type=_seconds0,
+        default=1.0,
+        metavar="S",
+        help="after a fault or a stop signal, damp this long before the stop frames, s (default 1)",
+    )
+    p.add_argument(
+        "--stop-damping",
+        default="gravity",
+        choices=("gravity", "plain"),
+        help="damping of the fault and end stops: gravity = Kd plus the model's gravity torque at "
+        "the measured q as feed-forward, within the torque caps (default); plain = Kd alone "
+        "(the arms sag)",
+    )
+    p.add_argument(
+        "--end-hold",
+        type=_seconds0,
+        default=1.0,
+        metavar="S",
+        help="after the commands end (a motion clip's last frame), HOLD that pose this long, s (default 1)",
+    )
+    p.add_argument(
+        "--rt-priority",
+        type=_priority,
+        metavar="1-99",
+        help="run the loop under SCHED_FIFO at this priority (root or CAP_SYS_NICE)",
+    )
     p.add_argument("--viewer", action="store_true", help="sim: live MuJoCo viewer (runs at real time)")
     p.add_argument("--realtime", action="store_true", help="sim: pace at wall-clock rate")
-    p.add_argument("--video", type=Path, metavar="PATH",
-                   help="sim: write a video (.mp4, or .gif without ffmpeg)")  # fmt: skip
+    p.add_argument(
+        "--video", type=Path, metavar="PATH", help="sim: write a video (.mp4, or .gif without ffmpeg)"
+    )
     perturb_option(p, suite=False)
     robot_params_option(p)
     for task in all_tasks():
@@ -158,10 +223,15 @@ def robot_params_option(p: argparse.ArgumentParser) -> None:
         except ParamsError as e:
             raise argparse.ArgumentTypeError(str(e)) from None
 
-    p.add_argument("--robot-params", type=parse, default=None, metavar="FILE",
-                   help="robot-parameters file (bar-bus identify --out): the sim target and the in-process "
-                        "emulator model that robot (friction, damping, armature, payloads, "
-                        "strength)")  # fmt: skip
+    p.add_argument(
+        "--robot-params",
+        type=parse,
+        default=None,
+        metavar="FILE",
+        help="robot-parameters file (bar-bus identify --out): the sim target and the in-process "
+        "emulator model that robot (friction, damping, armature, payloads, strength); a policy trained "
+        "on other parameters (its bar.robot_params hash) gets a warning, counted in run.json",
+    )
 
 
 def target_of(argv: Sequence[str]) -> str | None:

@@ -28,7 +28,7 @@ def plot_command(argv: Sequence[str]) -> int:
     p.add_argument("log", type=Path, help="run directory, its log.npz or its run.mcap")
     p.add_argument("--out", type=Path, help="output directory (default: the run directory)")
     args = p.parse_args(argv)
-    from bar_policy.deploy.plot import plot_log
+    from bar_policy.deploy.log.plot import plot_log
 
     try:
         files = plot_log(args.log, args.out)
@@ -54,7 +54,7 @@ def log_command(argv: Sequence[str]) -> int:
     )
     r.add_argument("run", type=Path, metavar="RUN_DIR", help="run directory, or its run.mcap")
     args = p.parse_args(argv)
-    from bar_policy.deploy.mcap_recover import recover_mcap
+    from bar_policy.deploy.log.recover import recover_mcap
 
     try:
         report = recover_mcap(args.run)

@@ -9,6 +9,8 @@ runtime: every episode starts in POLICY with no ramp, a fault damps nothing, no 
 from __future__ import annotations
 
 import dataclasses
+import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from bar_policy.deploy.run_config import RunResult, RuntimeConfig
@@ -40,14 +42,27 @@ class SimEpisodes:
         safety: SafetyConfig | None = None,
         *,
         perturbation: Perturbation | None = None,
+        say: Callable[[str], None] | None = None,
     ) -> None:
         """``safety``: the supervisor's thresholds (default ``SafetyConfig()``; the ramp is always 0).
 
         ``perturbation``: the sim target's robot differs from the model so (``--perturb``; None: nominal).
+        ``say``: where the progress lines go (``progress``; ``bar-deploy eval`` passes ``print``, ``--quiet``
+        None: no lines).
         """
         self.policy = policy
         self.safety = dataclasses.replace(safety or SafetyConfig(), ramp_time=0.0)
         self.perturbation = perturbation
+        self.say = say
+        self.started = time.monotonic()
+
+    def progress(self, kind: str, index: int, total: int, figure: str) -> None:
+        """One progress line: ``eval episode 3/100: <figure> (12.3 s)``, the time since the runner was made.
+
+        Called by the task's evaluation after each episode, clip or song (``tasks.episodes.report_progress``).
+        """
+        if self.say is not None:
+            self.say(f"eval {kind} {index}/{total}: {figure} ({time.monotonic() - self.started:.1f} s)")
 
     def target(self, *, initial_pose: str | None = None, scene: SceneEdit | None = None) -> SimTarget:
         """A sim target integrating the law's damping as the policy was trained (``training_damping``).

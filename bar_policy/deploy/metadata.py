@@ -46,6 +46,7 @@ from bar_policy.deploy.metadata_fields import (
     csv_names,
     int_prop,
     provenance_key,
+    robot_params_key,
 )
 
 __all__ = [
@@ -66,25 +67,50 @@ ACTION_SEMANTICS = ("delta_from_default",)
 """Supported action meanings: ``q_cmd = default_joint_pos + action_scale * action`` (clipped to limits)."""
 
 HC_KEYS = (
-    "task_type", "joint_names", "action_joint_names", "joint_stiffness", "joint_damping",
-    "default_joint_pos", "observation_names", "command_names", "action_scale", "policy_dt",
-    "body_names", "dataset_repo_id", "lookahead_steps",
-)  # fmt: skip
+    "task_type",
+    "joint_names",
+    "action_joint_names",
+    "joint_stiffness",
+    "joint_damping",
+    "default_joint_pos",
+    "observation_names",
+    "command_names",
+    "action_scale",
+    "policy_dt",
+    "body_names",
+    "dataset_repo_id",
+    "lookahead_steps",
+)
 """Keys the Humanoid Control ONNX runner refuses to run without (lite-model.md 2.1)."""
 
 BAR_KEYS = (
-    "bar.metadata_version", "bar.task", "bar.robot", "bar.mode", "bar.joint_names",
-    "bar.action_joint_names", "bar.joint_stiffness", "bar.joint_damping", "bar.default_joint_pos",
-    "bar.action_scale", "bar.action_semantics", "bar.policy_dt", "bar.physics_dt", "bar.obs_schema",
-    "bar.obs_fingerprint", "bar.command_names", "bar.randomization", "bar.code_version",
+    "bar.metadata_version",
+    "bar.task",
+    "bar.robot",
+    "bar.mode",
+    "bar.joint_names",
+    "bar.action_joint_names",
+    "bar.joint_stiffness",
+    "bar.joint_damping",
+    "bar.default_joint_pos",
+    "bar.action_scale",
+    "bar.action_semantics",
+    "bar.policy_dt",
+    "bar.physics_dt",
+    "bar.obs_schema",
+    "bar.obs_fingerprint",
+    "bar.command_names",
+    "bar.randomization",
+    "bar.code_version",
     "bar.training",
-)  # fmt: skip
+)
 """Keys every ``bar`` file carries (``from_props`` refuses a file that lacks one)."""
 
-OPTIONAL_BAR_KEYS = ("bar.action_filter", "bar.command_transition", "bar.provenance")
+OPTIONAL_BAR_KEYS = ("bar.action_filter", "bar.command_transition", "bar.provenance", "bar.robot_params")
 """``bar.*`` keys a file may lack (older files): read when present, never required. ``bar.action_filter``
 and ``bar.command_transition`` are validated when present; ``bar.provenance`` informs only and is never
-checked."""
+checked; ``bar.robot_params`` (the robot-parameters file a policy trained on: ``{"sha256", "summary"}``,
+``robot.params.params_record``) must be an object with a hex ``sha256``; absent: the nominal model."""
 
 DIALECTS = ("bar", "hc")
 """Metadata dialects: ``bar`` (``bar.*`` keys plus the HC keys, checked to agree), ``hc`` (HC keys only)."""
@@ -150,6 +176,9 @@ class PolicyMetadata:
     provenance: Mapping[str, Any] = field(default_factory=dict)
     """``bar.provenance``: git commit and dirty flag, library versions, training command
     (``bar_policy.provenance.collect``); empty when the file has none."""
+    robot_params: Mapping[str, Any] = field(default_factory=dict)
+    """``bar.robot_params``: the robot-parameters file the policy trained on (``sha256`` of its canonical
+    JSON and a ``summary`` of its values, ``robot.params.params_record``); empty: the nominal model."""
 
     def __post_init__(self) -> None:
         if self.dialect not in DIALECTS:
@@ -226,6 +255,8 @@ class PolicyMetadata:
             bar["bar.command_transition"] = {"duration_s": self.command_transition_s, "profile": "min_jerk"}
         if self.provenance:
             bar["bar.provenance"] = dict(self.provenance)
+        if self.robot_params:
+            bar["bar.robot_params"] = dict(self.robot_params)
         props = {k: json.dumps(v, sort_keys=True) for k, v in bar.items()}
 
         def csv(values: Any) -> str:
@@ -337,6 +368,7 @@ class PolicyMetadata:
             action_filter_hz=action_filter_key(props),
             command_transition_s=command_transition_key(props),
             provenance=provenance_key(props.get("bar.provenance")),
+            robot_params=robot_params_key(props),
         )
 
     @classmethod

@@ -23,6 +23,7 @@ __all__ = [
     "csv_names",
     "int_prop",
     "provenance_key",
+    "robot_params_key",
 ]
 
 _HC_REL_TOL = 1e-5
@@ -67,6 +68,23 @@ def action_filter_key(props: Mapping[str, str]) -> float | None:
             f"{shorten(repr(text))}"
         )
     return v["cutoff_hz"]
+
+
+def robot_params_key(props: Mapping[str, str]) -> dict[str, Any]:
+    """The optional ``bar.robot_params`` key: ``{"sha256": <64 hex>, "summary": {...}}``; ``{}`` if absent."""
+    text = props.get("bar.robot_params")
+    if text is None:
+        return {}
+    v = loads_json(text, "metadata key 'bar.robot_params'", MetadataError)
+    sha = v.get("sha256") if isinstance(v, dict) else None
+    if not (
+        isinstance(sha, str) and len(sha) == 64 and all(c in "0123456789abcdef" for c in sha)
+    ) or not isinstance(v.get("summary", {}), dict):
+        raise MetadataError(
+            'metadata key \'bar.robot_params\' must be {"sha256": <64 lower-case hex digits>, "summary": '
+            f"{{...}}}}, got {shorten(repr(text))}"
+        )
+    return v
 
 
 def csv_names(props: Mapping[str, str], key: str) -> tuple[str, ...]:

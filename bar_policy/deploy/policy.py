@@ -66,6 +66,7 @@ from bar_policy.deploy.onnx_file import (
 )
 from bar_policy.deploy.safety import DEFAULT_REACH_MARGIN, check_action_scale
 from bar_policy.obs.manager import ObservationManager, ObservationSchema
+from bar_policy.obs.robot_layout import ERROR_EMA_TERM, with_error_ema
 from bar_policy.robot.constants import MODES, RobotSpec, load_robot
 from bar_policy.robot.mjcf import PHYSICS_DT
 
@@ -272,6 +273,8 @@ def load_policy(
             om = ObservationManager.for_task(meta.task, meta.mode)
         except ValueError as e:  # an unknown task: its name is echoed, cut
             raise refuse(path, shorten(str(e), 500)) from None
+        if ERROR_EMA_TERM in {t.name for t in schema.terms}:  # the task's opt-in next version
+            om = ObservationManager(with_error_ema(om.schema))
     if schema.fingerprint != om.fingerprint or schema != om.schema:
         theirs, ours = schema.to_dict(), om.schema.to_dict()
         keys = sorted(k for k in set(theirs) | set(ours) if theirs.get(k) != ours.get(k))

@@ -8,7 +8,8 @@ mean fingertip and joint errors; reach, the median segment-end distance and the 
 ticks at a torque cap %, the worst episode's chatter (mrad), the verdict (PASS, MISS, or ``report`` for a
 row not judged) and the first metric's ratio to the nominal row's.
 
-The ship gate (``train/ship.py``) does not read this yet: the printed verdicts inform.
+``train/ship.py --robustness ROWS`` runs stated rows through ``run_suite`` after the nominal gate and records
+each row's verdict in the published JSON (refusing on a miss only with ``--robustness-enforce``).
 """
 
 from __future__ import annotations
@@ -221,19 +222,32 @@ def run_suite(
 
 
 def evaluate_perturbed(
-    policy: Any, task: Any, args: argparse.Namespace, perturb: Perturbation | str, say: Callable[[str], None]
+    policy: Any,
+    task: Any,
+    args: argparse.Namespace,
+    perturb: Perturbation | str,
+    say: Callable[[str], None],
+    *,
+    progress: bool = True,
 ) -> Any:
     """``bar-deploy eval --perturb``: the suite (``"suite"``) or one perturbed evaluation (its result).
 
-    ``say`` gets the progress lines (the perturbation, each suite row as it ends).
+    ``say`` gets the perturbation's line and, with ``progress`` (``bar-deploy eval`` without ``--quiet``),
+    each suite row as it ends or each episode's progress line of one perturbed evaluation.
     """
     from bar_policy.deploy.episodes import SimEpisodes
 
     if perturb == "suite":
         say(f"robustness suite: {len(SUITE)} rows, each the task's whole evaluation")
         return run_suite(
-            policy, task, args, lambda p: SimEpisodes(policy, perturbation=p), progress=lambda s: say(s)
+            policy,
+            task,
+            args,
+            lambda p: SimEpisodes(policy, perturbation=p),
+            progress=(lambda s: say(s)) if progress else None,
         )
     assert isinstance(perturb, Perturbation)
     say(f"perturbed sim target (hidden from the policy): {perturb.describe()}")
-    return task.evaluate(policy, args, SimEpisodes(policy, perturbation=perturb))
+    return task.evaluate(
+        policy, args, SimEpisodes(policy, perturbation=perturb, say=say if progress else None)
+    )

@@ -16,9 +16,9 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from bar_policy.deploy.foxglove_scene import RobotScene
-from bar_policy.deploy.log import LogDirError, RunLog, log_fields
-from bar_policy.deploy.log_files import CAN_LOG_FILE
+from bar_policy.deploy.log.files import CAN_LOG_FILE, LogDirError, log_fields
+from bar_policy.deploy.log.foxglove_scene import RobotScene
+from bar_policy.deploy.log.run_log import RunLog
 from bar_policy.deploy.run_config import RunResult
 from bar_policy.deploy.safety import Mode
 from bar_policy.deploy.targets.base import StopReport, TargetError, run_metadata_of
@@ -175,7 +175,7 @@ class RunLoop:
         t = 0.0
         end_reason = "duration reached"
         t0_target = self.target.now()
-        pacer = Pacer(dt, paced=paced, spin_s=cfg.spin_s)
+        pacer = Pacer(dt, paced=paced, spin_s=cfg.spin_s, n_deadlines=n_deadlines)
         error: BaseException | None = None
         try:
             with RealtimePriority(cfg.rt_priority):

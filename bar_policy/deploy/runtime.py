@@ -70,8 +70,8 @@ from bar_policy.deploy.action_path import ActionPath
 from bar_policy.deploy.contract import PolicyLoadError
 from bar_policy.deploy.gravity import GravityTorque
 from bar_policy.deploy.inputs import StateInputs
-from bar_policy.deploy.live import LiveServer
-from bar_policy.deploy.log import RunLog
+from bar_policy.deploy.log.live import LiveServer
+from bar_policy.deploy.log.run_log import RunLog
 from bar_policy.deploy.policy import OnnxPolicy, action_reach_problems
 from bar_policy.deploy.run_config import RunResult, RuntimeConfig
 from bar_policy.deploy.run_loop import RunLoop
@@ -118,7 +118,7 @@ class Runtime(RunLoop):
             log_name: suffix of the run directory.
             kinematics: fingertip FK (built for the policy's mode when the layout has fingertips and None).
             on_tick: called after every tick with (tick, run time, runtime) (tests, evaluation).
-            live: a live server (``deploy.live``) that gets the run log's channels too (needs ``log_dir``;
+            live: a live server (``deploy.log.live``) that gets the run log's channels too (needs ``log_dir``;
                 the caller starts and stops it).
         """
         self.policy = policy
@@ -163,7 +163,9 @@ class Runtime(RunLoop):
         use_stop_torque = getattr(target, "use_stop_torque", None)
         if use_stop_torque is not None:
             use_stop_torque(self.gravity)
-        self.inputs = StateInputs(policy.obs_manager, robot.mode, kinematics)
+        self.inputs = StateInputs(policy.obs_manager, robot.mode, kinematics, policy.policy_dt)
+        self._policy_q_cmd: np.ndarray | None = None
+        """The joint command the last tick wrote when it ran the policy, else None (``joint_error_ema``)."""
         """The observation's state terms (``deploy.inputs``)."""
         self.log_dir = None if log_dir is None else Path(log_dir)
         self.log_meta = dict(log_meta or {})
@@ -355,7 +357,7 @@ class Runtime(RunLoop):
         self.commands.observe(state.q, state.dq)
         cmds = self.commands(t)
         self.last_commands = cmds
-        inputs = self.inputs(state.q, state.dq, self.last_action)
+        inputs = self.inputs(state.q, state.dq, self.last_action, self._policy_q_cmd)
         inputs.update(cmds)
         obs = self.policy.obs_manager.compute(inputs)
         action = None
@@ -389,6 +391,7 @@ class Runtime(RunLoop):
             demand = mit_torque(cmd, state.q, state.dq)
         self.target.write_command(cmd)
         self.last_command = cmd
+        self._policy_q_cmd = cmd.q.copy() if q_policy is not None and sf.mode == Mode.POLICY else None
         compute = time.perf_counter() - t_start
         return {
             "t": t,

@@ -141,11 +141,18 @@ class Pacer:
     overruns; its ``index`` counts the ticks.
     """
 
-    def __init__(self, dt: float, paced: bool, spin_s: float = 0.0003) -> None:
-        """Args: control period (s), whether to pace against the wall clock, busy-wait margin (s)."""
+    def __init__(
+        self, dt: float, paced: bool, spin_s: float = 0.0003, n_deadlines: int | None = None
+    ) -> None:
+        """Args: control period (s), whether to pace, busy-wait margin (s), run length in deadlines.
+
+        ``n_deadlines`` None is open-ended. A late last tick passes deadlines after the run's end; those are
+        not the run's and are not counted as skipped.
+        """
         self.dt = dt
         self.paced = paced
         self.spin_s = spin_s
+        self.n_deadlines = n_deadlines
         self.wall0 = time.perf_counter()
         """Wall clock of the loop's start, s (``time.perf_counter``)."""
         self.index = 0
@@ -184,6 +191,8 @@ class Pacer:
             return False
         self.overruns += 1
         skip = math.ceil((end - deadline) / self.dt)  # skip the missed deadlines, keep the grid
+        if self.n_deadlines is not None:  # only the run's own deadlines count as skipped
+            skip = max(min(skip, self.n_deadlines - self.index), 0)
         self.index += skip
         self.skipped += skip
         return True

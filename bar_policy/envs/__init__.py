@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable, Iterable, Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bar_policy import _mjx_quiet  # noqa: F401 - first: mujoco.mjx without the Warp notice
 from bar_policy.envs.base import MjxEnv, State
@@ -32,6 +32,11 @@ from bar_policy.envs.robot import LiteRobotEnv
 from bar_policy.envs.robot_config import RobotEnvConfig, nominal
 from bar_policy.overrides import apply_overrides
 from bar_policy.task_records import default_env, records, resolve
+
+if TYPE_CHECKING:
+    import jax
+
+    from bar_policy.envs.wrappers import BatchedEnv
 
 __all__ = [
     "ALL_ENVS",
@@ -113,18 +118,41 @@ def get_randomizer(name: str = DEFAULT_ENV, config: Any | None = None) -> Callab
     return make(config if config is not None else default())
 
 
-def make_batched_env(*args: Any, **kwargs: Any) -> Any:
-    """See ``bar_policy.envs.wrappers.make_batched_env`` (jitted batched reset/step for rsl-rl)."""
+def make_batched_env(
+    env: MjxEnv,
+    num_envs: int,
+    *,
+    seed: int = 0,
+    randomize: bool = True,
+    episode_length: int | None = None,
+) -> tuple[BatchedEnv, Callable[[jax.Array], State], Callable[[State, jax.Array], State]]:
+    """A batched env and its jitted ``reset(keys[B, 2])`` / ``step(state, action[B, n])``, for rsl-rl.
+
+    ``bar_policy.envs.wrappers.make_batched_env`` (imported on first use; its docstring has the details):
+    ``num_envs`` = B, ``seed`` of the model randomisation keys, ``randomize`` with the env's model-level
+    randomiser, ``episode_length`` in control steps (default ``env.episode_length``).
+    """
     from bar_policy.envs.wrappers import make_batched_env as _make
 
-    return _make(*args, **kwargs)
+    return _make(env, num_envs, seed=seed, randomize=randomize, episode_length=episode_length)
 
 
-def wrap_for_brax_training(*args: Any, **kwargs: Any) -> Any:
-    """See ``bar_policy.envs.wrappers.wrap_for_brax_training`` (imported lazily)."""
+def wrap_for_brax_training(
+    env: MjxEnv,
+    episode_length: int | None = None,
+    action_repeat: int = 1,
+    randomization_fn: Callable[[Any], tuple[Any, Any]] | None = None,
+    *,
+    auto_reset: bool = True,
+) -> BatchedEnv:
+    """``wrap_env_fn`` for brax's ``ppo.train``, with brax's ``envs.training.wrap`` keywords.
+
+    ``auto_reset=False`` builds an evaluation batch without the in-step reset.
+    ``bar_policy.envs.wrappers.wrap_for_brax_training``, imported on first use.
+    """
     from bar_policy.envs.wrappers import wrap_for_brax_training as _wrap
 
-    return _wrap(*args, **kwargs)
+    return _wrap(env, episode_length, action_repeat, randomization_fn, auto_reset=auto_reset)
 
 
 def __getattr__(name: str) -> Any:

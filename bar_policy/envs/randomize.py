@@ -17,6 +17,12 @@ set), and the randomiser writes its drawn ``body_mass`` and ``body_inertia`` (an
 its ``body_pos``). The draws the default config makes are unchanged by the optional ones (their keys are
 folded from the slot's key, and a field left at its default draws nothing), so today's presets randomise
 bit for bit as before.
+
+With a robot-parameters file (``RobotEnvConfig.robot_params``) the env's model holds the identified values
+and the additive draws (friction, damping, payload mass) are centred on them: the model's value plus
+``U(lo, hi) - (lo + hi) / 2``, at least 0; the file's joints keep its armature (no motor-range draw); a
+payload the file places keeps its centre. ``nominal_share`` draws that share of the slots as the nominal
+robot (friction and link mass mapped onto the default ranges, the robust additions off).
 """
 
 from __future__ import annotations
@@ -33,6 +39,7 @@ from bar_policy.envs.robot_config import RobotEnvConfig
 from bar_policy.robot.actuators import ROBSTRIDE_MODELS
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.index import RobotIndex, model_names
+from bar_policy.robot.params import HANDS, load_params
 from bar_policy.robot.perturb import HAND_BODIES, PAYLOAD_POS, PAYLOAD_RADIUS, payload_body_name
 from bar_policy.robot.scene import SceneEdit
 
@@ -43,19 +50,22 @@ _OPTIONAL_KEY = 0x524F42
 the default fields keep their keys."""
 
 
-def payload_scene(scene: SceneEdit | None = None) -> SceneEdit:
+def payload_scene(scene: SceneEdit | None = None, skip: tuple[str, ...] = ()) -> SceneEdit:
     """The scene edit that runs ``scene`` (a task's additions, or None), then adds a payload body per hand.
 
     Each payload body (``perturb.payload_body_name(hand)``) is a child of its hand at the fingertip site
     (``perturb.PAYLOAD_POS["fingertip"]``), with zero mass and inertia and no geom and no joint: it changes
     nothing until the randomiser gives it a mass (a massless body welded to its parent adds nothing to the
-    composite rigid body).
+    composite rigid body). ``skip``: hands (``HAND_BODIES`` names) that ``scene`` gave a payload body
+    already (a robot-parameters file's, ``robot.params.scene_edit``).
     """
 
     def edit(spec: mujoco.MjSpec) -> None:
         if scene is not None:
             scene(spec)
         for hand in HAND_BODIES:
+            if hand in skip:
+                continue
             body = spec.body(hand).add_body(name=payload_body_name(hand), pos=PAYLOAD_POS["fingertip"][hand])
             body.explicitinertial = True
             body.mass = 0.0
@@ -73,6 +83,22 @@ def payload_inertia(mass: jax.Array) -> jax.Array:
     """
     i = 0.4 * mass * PAYLOAD_RADIUS**2
     return jnp.stack([i, i, i], axis=-1)
+
+
+_NOMINAL_KEY = 0x4E4F4D
+"""Folded into each slot's key for its nominal-slot draw (``nominal_share``)."""
+
+DEFAULT_FRICTION = (0.05, 0.35)
+"""The default friction range, N*m (``ModelRandomizationConfig.frictionloss``): a nominal slot's."""
+DEFAULT_MASS_SCALE = (0.9, 1.1)
+"""The default link-mass range, x (``ModelRandomizationConfig.link_mass_scale``): a nominal slot's."""
+
+
+def _remap(x: jax.Array, lo: float, hi: float, to: tuple[float, float]) -> jax.Array:
+    """``x`` drawn in U(lo, hi) mapped affinely onto U(to): the same draw in the other range."""
+    if hi <= lo:
+        return jnp.full_like(x, (to[0] + to[1]) / 2)
+    return to[0] + (x - lo) * ((to[1] - to[0]) / (hi - lo))
 
 
 Randomizer = Callable[[mjx.Model, jax.Array], tuple[mjx.Model, mjx.Model]]
@@ -102,7 +128,19 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
     """
     rc = config.randomization
     arm_lo, arm_hi = (x.astype(np.float32) for x in armature_bounds(config.mode))
-    joint_names = load_robot(config.mode).joint_names
+    robot = load_robot(config.mode)
+    joint_names = robot.joint_names
+    # With a robot-parameters file the model holds the identified values (the env's scene edit) and the
+    # additive draws are centred on them; its listed joints' armature is the file's, not drawn.
+    params = None if config.robot_params is None else load_params(config.robot_params, robot)
+    centred = params is not None
+    from_file = np.zeros(len(HAND_BODIES), bool)
+    if params is not None:
+        for name, jp in params.joints.items():
+            i = joint_names.index(name)
+            arm_lo[i] = arm_hi[i] = np.float32(jp.armature.value)
+        placed = {HANDS[k] for k, pay in params.payload.items() if pay.mass_kg.value > 0}
+        from_file = np.array([h in placed for h in HAND_BODIES])
     tip = np.array([PAYLOAD_POS["fingertip"][h] for h in HAND_BODIES], dtype=np.float32)
     palm = np.array([PAYLOAD_POS["palm"][h] for h in HAND_BODIES], dtype=np.float32)
 
@@ -128,6 +166,12 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
         def one(key: jax.Array) -> dict[str, jax.Array]:
             k_arm, k_fric, k_mass = jax.random.split(key, 3)
             out = {}
+            # A nominal slot (``nominal_share``): default ranges for friction and mass, no robust addition.
+            nom = (
+                jax.random.bernoulli(jax.random.fold_in(key, _NOMINAL_KEY), rc.nominal_share)
+                if rc.nominal_share > 0
+                else None
+            )
             if rc.armature:
                 # Armature: U(description, identified) per joint (up to 7.4x for rs-00).
                 arm = jax.random.uniform(k_arm, arm_lo.shape, minval=arm_lo, maxval=arm_hi)
@@ -136,11 +180,22 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
                 # Joint Coulomb friction: U(frictionloss) per joint, N*m (MJCF 0.1, identified 0.16-0.31).
                 lo, hi = rc.frictionloss
                 fric = jax.random.uniform(k_fric, (index.num_joints,), minval=lo, maxval=hi)
+                if centred:  # the file's friction + U(lo, hi) - (lo + hi) / 2, at least 0
+                    fric = jnp.maximum(index.dq(model.dof_frictionloss) + fric - (lo + hi) / 2, 0.0)
+                if nom is not None:
+                    base = (
+                        index.dq(model.dof_frictionloss)
+                        if centred
+                        else _remap(fric, lo, hi, DEFAULT_FRICTION)
+                    )
+                    fric = jnp.where(nom, base, fric)
                 out["dof_frictionloss"] = robot_dofs(model.dof_frictionloss, fric)
             if rc.link_mass_scale is not None:
                 # Link mass and inertia: *U(link_mass_scale) per body (same factor: density scaling).
                 lo, hi = rc.link_mass_scale
                 s = jax.random.uniform(k_mass, model.body_mass.shape, minval=lo, maxval=hi)
+                if nom is not None:
+                    s = jnp.where(nom, _remap(s, lo, hi, DEFAULT_MASS_SCALE), s)
                 out["body_mass"] = model.body_mass * s
                 out["body_inertia"] = model.body_inertia * s[:, None]
             k_damp, k_ascale, k_pay, k_site = jax.random.split(jax.random.fold_in(key, _OPTIONAL_KEY), 4)
@@ -148,17 +203,28 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
                 # Added passive damping: MJCF dof_damping + U(damping) per joint, N*m*s/rad.
                 lo, hi = rc.damping
                 d = jax.random.uniform(k_damp, (index.num_joints,), minval=lo, maxval=hi)
-                out["dof_damping"] = robot_dofs(model.dof_damping, index.dq(model.dof_damping) + d)
+                total = index.dq(model.dof_damping) + d
+                if centred:  # the file's damping + U(lo, hi) - (lo + hi) / 2, at least 0
+                    total = jnp.maximum(total - (lo + hi) / 2, 0.0)
+                if nom is not None:
+                    total = jnp.where(nom, index.dq(model.dof_damping), total)
+                out["dof_damping"] = robot_dofs(model.dof_damping, total)
             if rc.armature_scale is not None:
                 # Armature x U(armature_scale) per joint, on the drawn armature when that is randomised.
                 lo, hi = rc.armature_scale
                 a = jax.random.uniform(k_ascale, (index.num_joints,), minval=lo, maxval=hi)
+                if nom is not None:
+                    a = jnp.where(nom, 1.0, a)
                 base = out.get("dof_armature", model.dof_armature)
                 out["dof_armature"] = robot_dofs(base, index.dq(base) * a)
             if payload_ids is not None:
                 # Payload: U(payload_kg) per hand, a 1 cm sphere's inertia, at the fingertip or the palm.
                 lo, hi = rc.payload_kg
                 m = jax.random.uniform(k_pay, (len(HAND_BODIES),), minval=lo, maxval=hi)
+                if centred:  # the file's payload (0 for a hand it gives none) + U(lo, hi) - (lo + hi) / 2
+                    m = jnp.maximum(model.body_mass[payload_ids] + m - (lo + hi) / 2, 0.0)
+                if nom is not None:
+                    m = jnp.where(nom, model.body_mass[payload_ids], m)  # none (or the file's)
                 mass = out.get("body_mass", model.body_mass)
                 inertia = out.get("body_inertia", model.body_inertia)
                 out["body_mass"] = mass.at[payload_ids].set(m)
@@ -170,6 +236,8 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
                         else jnp.ones(len(HAND_BODIES), bool)
                     )
                     pos = jnp.where(at_palm[:, None], palm, tip)
+                    # A payload the file placed keeps its identified centre.
+                    pos = jnp.where(from_file[:, None], model.body_pos[payload_ids], pos)
                     out["body_pos"] = model.body_pos.at[payload_ids].set(pos)
             return out
 

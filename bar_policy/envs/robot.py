@@ -22,7 +22,11 @@ robot env does the rest, identically for every task:
 - **Strength** (``ActuatorConfig.strength``, off by default): per episode and joint, the joint receives
   ``s * clip(law, cap)`` and the implicit Kd term is ``s * Kd`` (the deploy side's ``strength``).
 - **Observation**: ``obs_manager.compute`` of the measured q (with encoder offset and noise), dq (with
-  noise), the previous action (the clipped policy output, before latency), and the task's inputs.
+  noise), the previous action (the clipped policy output, before latency), and the task's inputs. With
+  ``joint_error_ema`` the layout is the task's next version and ``info["error_ema"]`` (``robot.error_ema``:
+  the average of the step's command minus the measured q, 0 at reset) is its last term.
+- **Robot parameters** (``config.robot_params``): the model is the file's robot (``robot.params.scene_edit``)
+  and the motors its strengths (``info["strength"]``, times the strength draw when that is on).
 - **Reward and termination**: the task's term table (``reward_terms``, ``termination_terms``; rows of
   ``envs.term_table``) evaluated on the step's signals (``robot_signals`` and the task's
   ``TaskStep.signals``): each reward term weighted by ``config.reward.scales.<name>`` (per control step,
@@ -36,6 +40,11 @@ robot env does the rest, identically for every task:
   docs/scenes.md). Every robot quantity above is read and written at the robot joints' addresses
   (``robot_index``; ``robot_q``, ``robot_dq``, ``with_robot_q``); the scene's other joints start at
   ``qpos0`` at rest and move only by physics.
+
+One unit: the reset and the step share one state (``info``) whose keys each optional feature adds or
+leaves out, and one PRNG layout pinned by a golden file; the actuator, randomisation, physics and term
+arithmetic already live in their own modules (``actuator``, ``randomize``, ``physics_step``,
+``term_table``, ``robot.error_ema``), what is left is the order in which a step applies them.
 
 PRNG use is fixed (reach's outputs are pinned by tests/data/reach_golden.npz): ``reset`` splits its key in 8
 (0 initial noise, 1 the task, 2 latency, 3 Kp scale, 4 Kd scale, 5 encoder offset, 6 the next step's key,
@@ -66,17 +75,21 @@ from bar_policy.envs.actuator import (
 )
 from bar_policy.envs.base import MjxEnv, State
 from bar_policy.envs.randomize import payload_scene
-from bar_policy.envs.robot_config import RobotEnvConfig
+from bar_policy.envs.robot_config import RobotEnvConfig, nominal
 from bar_policy.envs.task import TaskHooks, Transition
 from bar_policy.envs.term_table import TerminationTerm, check_names, reward_values, terminated, weighted_sum
 from bar_policy.envs.terminations import non_finite
 from bar_policy.obs import ObservationManager
 from bar_policy.obs.action_prior import Prior
+from bar_policy.obs.robot_layout import with_error_ema
 from bar_policy.robot.action_filter import filter_alpha, lowpass_step, pose_action
 from bar_policy.robot.actuators import armature_gains
 from bar_policy.robot.constants import load_robot
+from bar_policy.robot.error_ema import error_ema_alpha, error_ema_step
 from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.mit import MitCommand, mit_torque
+from bar_policy.robot.params import HANDS, RobotParams, load_params, motor_strength
+from bar_policy.robot.params import scene_edit as params_scene_edit
 from bar_policy.robot.scene import SceneEdit, load_model
 
 __all__ = ["NEAR_CAP_FRACTION", "NON_FINITE", "LiteRobotEnv"]
@@ -115,8 +128,17 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         cfg = config
         self.config = cfg
         self.robot = load_robot(cfg.mode)
+        self.robot_params: RobotParams | None = None
+        """The robot-parameters file the model is built from (``config.robot_params``), or None."""
+        with_payload = set()
+        if cfg.robot_params is not None:
+            self.robot_params = load_params(cfg.robot_params, self.robot)
+            scene = params_scene_edit(self.robot_params, scene)  # the identified joints and payloads
+            with_payload = {HANDS[h] for h, p in self.robot_params.payload.items() if p.mass_kg.value > 0}
         if cfg.randomization.payload_kg is not None:
-            scene = payload_scene(scene)  # massless payload bodies, given their mass by the randomiser
+            # Massless payload bodies, given their mass by the randomiser; a hand the file gives a payload
+            # has its body already (the randomiser centres its draw on that mass).
+            scene = payload_scene(scene, skip=tuple(with_payload))
         with phase(MODEL_BUILD):
             mj_model = load_model(cfg.mode, scene)
         mj_model.opt.timestep = cfg.sim_dt
@@ -124,6 +146,9 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         # Static dof addresses for scattering the robot's forces; None: the scene is the robot alone, whose
         # arrays are used as they are (no gather or scatter, bit-identical to the robot-only env).
         self._dof = None if self._index.robot_only else self._index.dof
+        if cfg.joint_error_ema:  # the task's layout with the integral-like term, the next version
+            obs_manager = ObservationManager(with_error_ema(obs_manager.schema))
+        self._ema_alpha = error_ema_alpha(cfg.ctrl_dt) if cfg.joint_error_ema else 0.0
         if obs_manager.joint_names != self.robot.joint_names:
             raise ValueError(f"layout {obs_manager.schema.name} is for mode {obs_manager.schema.mode!r}")
         self._mj_model = mj_model
@@ -149,6 +174,12 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         self._kd = np.asarray(kd, dtype=f32)
         self._filter_alpha = filter_alpha(cfg.action_filter_hz, cfg.ctrl_dt)
         self._cap = self.robot.torque_cap.astype(f32)
+        # Per-joint strength the draws multiply: the file's (identified), else 1.
+        self._strength = (
+            np.ones(n, f32)
+            if self.robot_params is None
+            else motor_strength(self.robot_params, self.robot).astype(f32)
+        )
         self._act = ActuatorParams.from_robot(
             self.robot,
             quantize_wire=cfg.actuator.quantize_wire,
@@ -274,7 +305,13 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         return jnp.clip(self._default + self._scale * a, self._lower, self._upper)
 
     def evaluation_env(self) -> LiteRobotEnv:
-        """The env the trainer evaluates on: held-out data where the task has it (default: this env)."""
+        """The env the trainer evaluates on: held-out data where the task has it (default: this env).
+
+        With ``config.evaluate_nominal``: the same task on ``nominal(config)`` (a task constructed from its
+        config alone; the trainer evaluates a distinct env without model randomisation).
+        """
+        if self.config.evaluate_nominal:
+            return type(self)(nominal(self.config))  # type: ignore[call-arg]
         return self
 
     def initial_action(self, q_start: jax.Array) -> jax.Array:
@@ -376,14 +413,18 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         optional = {}
         if act.strength != (1.0, 1.0):
             k_strength = jax.random.fold_in(ks[3], _OPTIONAL_KEY)
-            optional["strength"] = jax.random.uniform(
+            optional["strength"] = self._strength * jax.random.uniform(
                 k_strength, (n,), minval=act.strength[0], maxval=act.strength[1]
             )
+        elif self.robot_params is not None:
+            optional["strength"] = jnp.asarray(self._strength)  # the identified strengths, not drawn
         obs_lo, obs_hi = act.obs_latency_steps
         if obs_hi > 0:
             k_obs = jax.random.fold_in(ks[2], _OPTIONAL_KEY)
             optional["obs_latency"] = jax.random.randint(k_obs, (), obs_lo, obs_hi + 1)
             optional["obs_buf"] = jnp.broadcast_to(self._true_state(data), (obs_hi + 1, 2, n))
+        if cfg.joint_error_ema:
+            optional["error_ema"] = jnp.zeros(n)  # z = 0 when a policy starts (robot.error_ema)
         info = {
             "rng": ks[6],
             "step": jnp.zeros((), jnp.int32),
@@ -457,7 +498,12 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         if "obs_buf" in info:
             newest = self._true_state(data)[None]
             new_info["obs_buf"] = jnp.concatenate([newest, info["obs_buf"][:-1]], axis=0)
-        obs = self._observe(model, data, new_info, action, k_noise)
+        measured = self._measured(data, new_info, k_noise)
+        if "error_ema" in info:  # the command this step's action issued against the q the policy reads
+            new_info["error_ema"] = error_ema_step(
+                info["error_ema"], self.q_command(action), measured[0], self._ema_alpha
+            )
+        obs = self._observe(model, data, new_info, action, k_noise, measured)
         metrics = {f"reward/{k}": v for k, v in scaled.items()}
         metrics.update(task.metrics)
         return State(data=data, obs=obs, reward=reward, done=done, metrics=metrics, info=new_info)
@@ -466,10 +512,11 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         """The robot's true ``(q, dq)`` stacked, shape (2, n) (rad, rad/s): an ``obs_buf`` entry."""
         return jnp.stack([self.robot_q(data), self.robot_dq(data)])
 
-    def _observe(
-        self, model: mjx.Model, data: mjx.Data, info: dict, action: jax.Array, key: jax.Array
-    ) -> jax.Array:
-        """Observation from the measured state: q + offset (+ noise), dq (+ noise), the task's inputs."""
+    def _measured(self, data: mjx.Data, info: dict, key: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """The measured ``(q, dq)`` the observation reads, rad and rad/s, (n,) each.
+
+        q + offset (+ noise) and dq (+ noise), of ``obs_latency`` steps ago when that latency is on.
+        """
         nz = self.config.obs_noise
         if "obs_buf" in info:  # observation latency: the true state of ``obs_latency`` steps ago
             q, dq = info["obs_buf"][info["obs_latency"]]
@@ -482,6 +529,25 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
             q = q + jax.random.uniform(kq, q.shape, minval=-nz.joint_pos, maxval=nz.joint_pos)
         if nz.joint_vel > 0:
             dq = dq + jax.random.uniform(kv, dq.shape, minval=-nz.joint_vel, maxval=nz.joint_vel)
+        return q, dq
+
+    def _observe(
+        self,
+        model: mjx.Model,
+        data: mjx.Data,
+        info: dict,
+        action: jax.Array,
+        key: jax.Array,
+        measured: tuple[jax.Array, jax.Array] | None = None,
+    ) -> jax.Array:
+        """Observation from the measured state, the last action and the task's inputs.
+
+        ``measured``: the ``(q, dq)`` of ``_measured`` (None: drawn here with ``key``); with
+        ``joint_error_ema`` on, the term is ``info["error_ema"]`` (the step advances it first).
+        """
+        q, dq = self._measured(data, info, key) if measured is None else measured
         inputs = {"joint_pos": q, "joint_vel": dq, "actions": action}
+        if "error_ema" in info:
+            inputs["joint_error_ema"] = info["error_ema"]
         inputs.update(self.task_obs(model, data, q, info))
         return self.obs_manager.compute(inputs)

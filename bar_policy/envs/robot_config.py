@@ -134,6 +134,13 @@ class ModelRandomizationConfig:
     None adds a massless payload body to each hand of the training scene (``randomize.payload_scene``),
     whose ``body_mass`` and ``body_inertia`` (a 1 cm solid sphere's) the randomiser sets; None (default)
     leaves the scene as it is."""
+    nominal_share: float = 0.0
+    """Share of env slots, 0..1, drawn as a nominal robot: in such a slot friction and link mass are drawn
+    from the default ranges (0.05-0.35 N*m, x0.9-1.1; the same uniform draw mapped onto them), and the
+    added damping, armature scale and payload are off (with a robot-parameters file: its values). 0
+    (default): no such slot. Why: the wide ranges are drawn per joint independently, so a slot whose 14
+    joints are all near the nominal robot (the one the ship gate's sim target runs) essentially never
+    occurs (friction U(0.05, 1.35): P(all 14 below 0.35) = (0.3 / 1.3)^14 = 1e-9); docs/robustness.md."""
     payload_at: str = "fingertip"
     """Where the payload sits in the hand (``PAYLOAD_AT``): ``fingertip`` (the finger2 tip site), ``palm``
     (the palm collider's centre), or ``either`` (one of the two per env slot and hand, even odds)."""
@@ -149,6 +156,8 @@ class ModelRandomizationConfig:
             check_range("armature_scale", self.armature_scale, low=1e-3)
         if self.payload_kg is not None:
             check_range("payload_kg", self.payload_kg, low=0.0)
+        if not 0.0 <= self.nominal_share <= 1.0:
+            raise ValueError(f"nominal_share must be in [0, 1], got {self.nominal_share}")
         if self.payload_at not in PAYLOAD_AT:
             raise ValueError(f"unknown payload_at {self.payload_at!r}; valid: {list(PAYLOAD_AT)}")
 
@@ -189,6 +198,20 @@ class RobotEnvConfig:
     """Observation noise."""
     randomization: ModelRandomizationConfig = field(default_factory=ModelRandomizationConfig)
     """Model-level randomisation used by ``get_randomizer``."""
+    evaluate_nominal: bool = False
+    """The trainer's evaluations (and the best-iterate choice and early stop that read them) run the task on
+    its nominal robot (``nominal(config)``: no randomisation, no noise), the robot the ship gate's sim target
+    runs, instead of the training randomisation. False (default): as the task does (reach, piano: the
+    training env; the tracker always evaluates nominal)."""
+    joint_error_ema: bool = False
+    """Add the integral-like observation term ``joint_error_ema`` (``robot.error_ema``: the moving average
+    of the joint command minus the measured position, tau 0.5 s) to the task's layout, as its next version
+    (``obs.robot_layout.with_error_ema``: ``lite_reach_arms`` v2). False (default): the shipped layout."""
+    robot_params: str | None = None
+    """Path of a robot-parameters file (``bar_policy.robot.params``, ``bar-bus identify --out``;
+    ``bar-train --robot-params FILE``): the model is the identified robot (the file's friction, damping,
+    armature and payloads; the motors its strengths) and the randomisation is centred on its values
+    (``envs.randomize``, docs/sysid.md). None (default): the description's model."""
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -209,6 +232,10 @@ class RobotEnvConfig:
         if self.gains not in GAINS:
             raise ValueError(f"unknown gains {self.gains!r}; valid: {list(GAINS)}")
         filter_alpha(self.action_filter_hz, self.ctrl_dt)  # validates the cutoff
+        if self.robot_params is not None:
+            from bar_policy.robot.params import load_params
+
+            load_params(self.robot_params, load_robot(self.mode))  # ParamsError (a ValueError): one line
 
     @property
     def n_substeps(self) -> int:

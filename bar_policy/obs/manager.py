@@ -46,6 +46,10 @@ class _ShippedLayouts(Mapping[str, tuple[str, str]]):
     def __len__(self) -> int:
         return len(self._load())
 
+    def __repr__(self) -> str:
+        """``SHIPPED_LAYOUTS({'lite_reach_arms': ('reach', 'arms'), ...})``: what ``print`` shows."""
+        return f"SHIPPED_LAYOUTS({self._load()!r})"
+
 
 SHIPPED_LAYOUTS: Mapping[str, tuple[str, str]] = _ShippedLayouts()
 """Golden layouts committed under ``bar_policy/obs/schemas/``: name -> (task, mode), from the registered
@@ -61,7 +65,8 @@ class ObsTerm:
     size: int
     """Number of entries."""
     scale: float = 1.0
-    """Multiplier applied after the offset."""
+    """Multiplier applied after the offset (a term has one only when its catalog entry says so:
+    ``TERM_CATALOG[name].offset_default_pose``, the schema's ``default_joint_pos`` subtracted first)."""
     clip: float = 100.0
     """Symmetric clip applied after scaling (> 0)."""
 
@@ -287,7 +292,12 @@ class ObservationManager:
 
     @classmethod
     def from_json(cls, text: str) -> ObservationManager:
-        """Load a schema from JSON text (e.g. an ONNX file's metadata); validates it."""
+        """Load a schema from JSON text; validates it.
+
+        ``text`` is what ``to_json`` writes: an ONNX file carries it in its ``bar.obs_schema`` metadata key
+        (``PolicyMetadata.obs_schema``; read it with ``onnx.load(path).metadata_props`` or
+        ``deploy.policy.load_policy(path).obs_manager``).
+        """
         return cls(ObservationSchema.from_json(text))
 
     @classmethod
@@ -330,7 +340,11 @@ class ObservationManager:
         return self._slices[name]
 
     def term(self, name: str) -> ObsTerm:
-        """A term of the layout by name (its size, scale, clip, offset)."""
+        """A term of the layout by name: its ``size``, ``scale`` and ``clip`` (``ObsTerm``).
+
+        A term has no offset of its own: the one ``compute`` subtracts is the schema's ``default_joint_pos``,
+        for the terms whose catalog entry asks for it (``TERM_CATALOG[name].offset_default_pose``).
+        """
         if name not in self._terms:
             raise ValueError(f"no term {name!r} in layout {self.schema.name}; terms: {list(self._terms)}")
         return self._terms[name]
@@ -342,6 +356,9 @@ class ObservationManager:
     # -- computation -------------------------------------------------------------------------------
     def compute(self, inputs: Mapping[str, Array]) -> Array:
         """Concatenate ``clip((input - offset) * scale, -clip, clip)`` over the terms.
+
+        ``offset`` is the schema's ``default_joint_pos`` for a term whose catalog entry has
+        ``offset_default_pose`` (``joint_pos``), else 0.
 
         Args:
             inputs: one array per term name, shape ``(..., term.size)``; extra keys are ignored.

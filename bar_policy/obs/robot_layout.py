@@ -8,12 +8,17 @@ action, every one clipped at 100.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any
 
 from bar_policy.obs.manager import ObservationSchema, ObsTerm
 from bar_policy.robot.constants import load_robot
+from bar_policy.robot.error_ema import ERROR_EMA_SCALE
 
-__all__ = ["CLIP", "robot_schema", "state_terms", "term"]
+__all__ = ["CLIP", "ERROR_EMA_TERM", "robot_schema", "state_terms", "term", "with_error_ema"]
+
+ERROR_EMA_TERM = "joint_error_ema"
+"""The opt-in integral-like term (``robot.error_ema``)."""
 
 CLIP = 100.0
 """Clip of every shipped layout's terms (after scaling)."""
@@ -53,4 +58,16 @@ def robot_schema(
         default_joint_pos=tuple(float(x) for x in pose),
         terms=tuple(terms),
         **extra,
+    )
+
+
+def with_error_ema(schema: ObservationSchema) -> ObservationSchema:
+    """``schema`` with ``joint_error_ema`` appended (one per joint, x ``ERROR_EMA_SCALE``), version + 1.
+
+    The opt-in layout of a task (``RobotEnvConfig.joint_error_ema``; the robust presets): same name, the
+    next version (``lite_reach_arms`` v2), a new fingerprint; the task's own layout is unchanged.
+    """
+    n = len(schema.joint_names)
+    return replace(
+        schema, version=schema.version + 1, terms=(*schema.terms, term(ERROR_EMA_TERM, n, ERROR_EMA_SCALE))
     )

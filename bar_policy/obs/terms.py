@@ -60,6 +60,12 @@ ROBOT_TERMS: dict[str, TermKind] = {
     "fingertip_pos_right": TermKind(
         size=3, category="state", unit="m", doc="right finger2_tip site in the chest frame"
     ),
+    "joint_error_ema": TermKind(
+        size="joints",
+        category="state",
+        unit="rad",
+        doc="moving average of q_cmd (last step) - q, tau 0.5 s (robot.error_ema); opt-in layouts only",
+    ),
     "projected_gravity": TermKind(size=3, category="imu", unit="1", doc="gravity direction, IMU frame"),
     "imu_quaternion": TermKind(size=4, category="imu", unit="1", doc="orientation (w, x, y, z)"),
     "imu_angular_velocity": TermKind(size=3, category="imu", unit="rad/s", doc="gyroscope"),

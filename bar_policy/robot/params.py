@@ -74,8 +74,10 @@ __all__ = [
     "RobotParams",
     "load_params",
     "motor_strength",
+    "params_record",
     "parse_params",
     "scene_edit",
+    "training_mismatch",
 ]
 
 PARAMS_VERSION = 1
@@ -321,6 +323,11 @@ def apply_to_spec(spec: mujoco.MjSpec, params: RobotParams) -> None:
         body.fullinertia = [i, i, i, 0.0, 0.0, 0.0]
 
 
+def _payload_hands(params: RobotParams) -> tuple[str, ...]:
+    """The hands (``HANDS`` keys) whose payload ``apply_to_spec`` adds (mass above 0)."""
+    return tuple(h for h, p in params.payload.items() if p.mass_kg.value > 0)
+
+
 def scene_edit(params: RobotParams, scene: SceneEdit | None = None) -> SceneEdit:
     """The scene edit of the identified robot: ``scene`` (a task's additions, or None), then the params."""
 
@@ -338,3 +345,39 @@ def motor_strength(params: RobotParams, robot: RobotSpec) -> np.ndarray:
     for name, jp in params.joints.items():
         out[robot.joint_names.index(name)] = jp.strength.value
     return out
+
+
+def params_record(params: RobotParams) -> dict[str, Any]:
+    """What a policy file records of the parameters it trained on (``bar.robot_params``), plain JSON.
+
+    ``sha256``: the file's identity (``RobotParams.sha256``); ``summary``: the values at a glance, each
+    joint quantity's lowest and highest over the listed joints (``friction_nm`` N*m, ``damping``
+    N*m*s/rad, ``armature`` kg*m^2, ``strength`` x), ``joints`` (how many are listed), ``payload_kg`` per
+    hand listed, and the source's ``kind`` and ``date`` when given.
+    """
+    summary: dict[str, Any] = {"joints": len(params.joints)}
+    for key in JOINT_KEYS:
+        values = [getattr(jp, key).value for jp in params.joints.values()]
+        if values:
+            summary[key] = [min(values), max(values)]
+    summary["payload_kg"] = {hand: p.mass_kg.value for hand, p in sorted(params.payload.items())}
+    for key in ("kind", "date"):
+        if key in params.source:
+            summary[f"source_{key}"] = params.source[key]
+    return {"sha256": params.sha256, "summary": summary}
+
+
+def training_mismatch(trained: Mapping[str, Any] | None, params: RobotParams | None) -> str | None:
+    """One line when the run's parameters differ from the ones the policy trained on; None when they agree.
+
+    ``trained``: the policy file's ``bar.robot_params`` record (``params_record``; empty or None: trained on
+    the nominal model); ``params``: the run's ``--robot-params`` file (None: the nominal model). Agreement
+    is equal ``sha256``; a policy trained nominal and run nominal agrees.
+    """
+    trained_hash = str(trained.get("sha256", "")) if trained else ""
+    run_hash = "" if params is None else params.sha256
+    if trained_hash == run_hash:
+        return None
+    was = f"robot parameters sha256 {trained_hash[:12]}" if trained_hash else "the nominal model"
+    now = f"--robot-params sha256 {run_hash[:12]}" if run_hash else "the nominal model (no --robot-params)"
+    return f"robot parameters mismatch: the policy was trained on {was}, this run models {now}"

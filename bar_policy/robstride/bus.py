@@ -380,8 +380,12 @@ class RobstrideBus(BusParams):
                     self._logged_clamps.add((can_id, fname))
                     log.warning(
                         "%s: clamped MIT %s=%g of %s (id %d) to its wire range (counted in .clamps)",
-                        self.interface, fname, values[f, j], self.name_of(can_id), can_id,
-                    )  # fmt: skip
+                        self.interface,
+                        fname,
+                        values[f, j],
+                        self.name_of(can_id),
+                        can_id,
+                    )
         return frames
 
     def exchange(self, frames: Sequence[proto.Frame], *, strict: bool = True) -> BusReading:

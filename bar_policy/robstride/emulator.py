@@ -343,8 +343,12 @@ class RobstrideEmulator(EmulatorPhysics):
             self._commanded.discard((m.interface, m.can_id))
             log.info(
                 "%s id %d (%s): canTimeout %.3f s expired (%.3f s since the last frame): reset mode",
-                m.interface, m.can_id, m.name, w, trip - m.last_rx,
-            )  # fmt: skip
+                m.interface,
+                m.can_id,
+                m.name,
+                w,
+                trip - m.last_rx,
+            )
             self._maybe_complete_round()
         return max(wait, 0.0)
 

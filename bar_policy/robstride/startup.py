@@ -91,9 +91,13 @@ class StartupControl:
                 pause = self.backoff * 2**k
                 self.retries_used[step] = self.retries_used.get(step, 0) + 1
                 log.warning(
-                    "%s: missing reply (%s); retry %d of %d in %.0f ms", step, exc, k + 1, self.retries,
+                    "%s: missing reply (%s); retry %d of %d in %.0f ms",
+                    step,
+                    exc,
+                    k + 1,
+                    self.retries,
                     pause * 1e3,
-                )  # fmt: skip
+                )
                 time.sleep(pause)
                 self.check_stop(f"retry {k + 1} of {step}")
         raise AssertionError("unreachable")  # pragma: no cover

@@ -114,8 +114,11 @@ class TemperatureMonitor:
             log.warning(
                 "%s: temperature %.1f degC at or above the %g degC warning threshold (fault at %g degC); "
                 "warned once per joint, counted (1 reading so far)",
-                self.joint_names[i], t[i], self.warning[i], self.fault[i],
-            )  # fmt: skip
+                self.joint_names[i],
+                t[i],
+                self.warning[i],
+                self.fault[i],
+            )
         return tuple(
             f"{self.joint_names[i]}: over-temperature {t[i]:.1f} degC >= {self.fault[i]:g} degC (host limit)"
             for i in np.flatnonzero(faulted)

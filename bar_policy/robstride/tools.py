@@ -112,8 +112,10 @@ def _robot_channels(args: argparse.Namespace) -> dict[str, str]:
 
 def _discover(args: argparse.Namespace) -> int:
     channels = {i: i for i in dict.fromkeys(j.can_interface for j in load_robot(args.mode).joints)}
-    with _emulator(args, channels), RobstrideBus(open_can_bus(args.interface, args.iface), [],
-                                                 interface=args.iface) as bus:  # fmt: skip
+    with (
+        _emulator(args, channels),
+        RobstrideBus(open_can_bus(args.interface, args.iface), [], interface=args.iface) as bus,
+    ):
         found = bus.scan(range(1, args.scan_to + 1), timeout=args.timeout)
         print(f"{args.iface}: {len(found)} device(s) answered ids 1..{args.scan_to}")
         print(f"{'id':>4}  {'uid':<16}  {'model guess':<22} {'run_mode':>8}  {'faultSta':>10}  status")
@@ -181,8 +183,10 @@ def _calibrate(args: argparse.Namespace) -> int:
             try:
                 group.scan_and_verify(range(1, 128), timeout=args.timeout)
                 d = robot.direction
-                print("Motors are disabled. Move each joint to both mechanical stops, then Ctrl+C to save.",
-                      flush=True)  # fmt: skip
+                print(
+                    "Motors are disabled. Move each joint to both mechanical stops, then Ctrl+C to save.",
+                    flush=True,
+                )
                 end = time.monotonic() + args.duration if args.duration else None
                 last_print = 0.0
                 while not stop.requested and (end is None or time.monotonic() < end):
@@ -233,10 +237,15 @@ def _identify(args: argparse.Namespace) -> int:
         except ParamsError as exc:
             raise _UsageError(str(exc)) from None
         strength = {
-            arm: np.array([prior.joints[j.name].strength.value if j.name in prior.joints else 1.0
-                           for j in robot.joints if j.group == f"{arm}_arm"])
+            arm: np.array(
+                [
+                    prior.joints[j.name].strength.value if j.name in prior.joints else 1.0
+                    for j in robot.joints
+                    if j.group == f"{arm}_arm"
+                ]
+            )
             for arm in arms
-        }  # fmt: skip
+        }
     calibration = Calibration.load(args.calibration) if args.calibration else None
     supervisor = Supervisor(robot, budget=args.budget)
     emu_kw = {"mode": "lockstep", "control_dt": period} if args.emulate else {}
@@ -245,9 +254,12 @@ def _identify(args: argparse.Namespace) -> int:
         args.timeout = 1.0
     with StopSignals() as stop, _emulator(args, channels, **emu_kw):
         group = RobstrideGroup.from_robot(
-            robot, open_can_buses(args.interface, channels), calibration=calibration,
-            reply_timeout=args.timeout, can_timeout=0.0 if args.emulate else proto.DEFAULT_CAN_TIMEOUT,
-        )  # fmt: skip
+            robot,
+            open_can_buses(args.interface, channels),
+            calibration=calibration,
+            reply_timeout=args.timeout,
+            can_timeout=0.0 if args.emulate else proto.DEFAULT_CAN_TIMEOUT,
+        )
         recorder = CanRecorder(args.can_log) if args.can_log else None
         for bus in group.buses:
             bus.record_to(recorder)
@@ -256,12 +268,20 @@ def _identify(args: argparse.Namespace) -> int:
             for arm in arms:  # one arm at a time (measured: both at once fit worse, 0.2 vs 0.03 N*m)
                 reading = group.activate(lower=robot.lower, upper=robot.upper)
                 excitation = Excitation.plan(robot, reading.q, (arm,), args.seconds)
-                print(f"identify: {excitation.duration:.1f} s of excitation of the {arm} arm at "
-                      f"{args.rate:g} Hz, budget {args.budget:.0%} of each cap", flush=True)  # fmt: skip
+                print(
+                    f"identify: {excitation.duration:.1f} s of excitation of the {arm} arm at "
+                    f"{args.rate:g} Hz, budget {args.budget:.0%} of each cap",
+                    flush=True,
+                )
                 recs[arm] = run_excitation(
-                    group, robot, excitation, supervisor, period=period, stop=lambda: stop.requested,
+                    group,
+                    robot,
+                    excitation,
+                    supervisor,
+                    period=period,
+                    stop=lambda: stop.requested,
                     realtime=not args.emulate,
-                )  # fmt: skip
+                )
         except KeyboardInterrupt:
             print(f"stopped by {stop.reason}: damping and stop frames sent; nothing written", file=sys.stderr)
             return 130
@@ -271,8 +291,11 @@ def _identify(args: argparse.Namespace) -> int:
                 recorder.stop()
     rounds = sum(len(r.t) - 1 for r in recs.values())
     peak = max(r.peak_fraction for r in recs.values())
-    print(f"excitation done: {rounds} rounds, peak torque {peak:.0%} of a cap; damping and stop frames "
-          "sent; fitting", flush=True)  # fmt: skip
+    print(
+        f"excitation done: {rounds} rounds, peak torque {peak:.0%} of a cap; damping and stop frames "
+        "sent; fitting",
+        flush=True,
+    )
     fits = {}
     for arm, rec in recs.items():
         fits.update(fit_recording(robot, rec, (arm,), period, strength=strength, payload=not args.unloaded))
@@ -316,9 +339,12 @@ def _check_calibration(args: argparse.Namespace) -> int:
         raise _UsageError(str(exc)) from None
     with _emulator(args, channels):
         group = RobstrideGroup.from_robot(
-            robot, open_can_buses(args.interface, channels), calibration=calibration,
-            reply_timeout=args.timeout, can_timeout=0.0,
-        )  # fmt: skip
+            robot,
+            open_can_buses(args.interface, channels),
+            calibration=calibration,
+            reply_timeout=args.timeout,
+            can_timeout=0.0,
+        )
         try:
             group.scan_and_verify(range(1, 128), timeout=args.timeout)
             if args.settle:
@@ -359,16 +385,23 @@ def _watchdog(args: argparse.Namespace) -> int:
     motor = MotorConfig(name=name, can_id=args.id, model=model, can_timeout=args.can_timeout)
     results = []
     with StopSignals() as stop, _emulator(args, channels):
-        bus = RobstrideBus(open_can_bus(args.interface, args.iface), [motor], interface=args.iface,
-                           reply_timeout=args.timeout)  # fmt: skip
+        bus = RobstrideBus(
+            open_can_bus(args.interface, args.iface),
+            [motor],
+            interface=args.iface,
+            reply_timeout=args.timeout,
+        )
         group = RobstrideGroup([bus], [name])
         try:
             if args.id not in bus.scan([args.id], timeout=args.timeout):
                 raise InitializationError(f"{args.iface}: id {args.id} does not answer a scan")
             read_can_timeouts(bus)
             arm_can_timeout(bus)
-            print(f"{args.iface} id {args.id} ({model}): canTimeout armed at {args.can_timeout:g} s; "
-                  f"probing silences {silences} s with zero torque (free shaft)", flush=True)  # fmt: skip
+            print(
+                f"{args.iface} id {args.id} ({model}): canTimeout armed at {args.can_timeout:g} s; "
+                f"probing silences {silences} s with zero torque (free shaft)",
+                flush=True,
+            )
             results = probe_watchdog(bus, silences, timeout=args.timeout, stop=lambda: stop.requested)
         finally:
             group.damping_then_stop()
@@ -397,17 +430,36 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
 
     def common(sp: argparse.ArgumentParser) -> None:
-        iface = sp.add_argument("--can-interface", dest="interface", choices=CAN_INTERFACES,
-                                default="socketcan", help=HELP["--can-interface"])  # fmt: skip
+        iface = sp.add_argument(
+            "--can-interface",
+            dest="interface",
+            choices=CAN_INTERFACES,
+            default="socketcan",
+            help=HELP["--can-interface"],
+        )
         deprecated_alias(sp, "--interface", iface)
-        timeout = sp.add_argument("--reply-timeout", dest="timeout", type=positive("s"), default=0.05,
-                                  metavar="S", help=f"{HELP['--reply-timeout']} (default 0.05)")  # fmt: skip
+        timeout = sp.add_argument(
+            "--reply-timeout",
+            dest="timeout",
+            type=positive("s"),
+            default=0.05,
+            metavar="S",
+            help=f"{HELP['--reply-timeout']} (default 0.05)",
+        )
         deprecated_alias(sp, "--timeout", timeout)
         sp.add_argument("--mode", choices=MODES, default="arms", help="robot joint set")
-        sp.add_argument("--emulate", action="store_true",
-                        help="answer with the in-process emulator (--can-interface virtual)")  # fmt: skip
-        sp.add_argument("--emulate-perturb", type=perturbation_arg, default=None, metavar="KEY=VALUE,...",
-                        help=emulate_perturb_help())  # fmt: skip
+        sp.add_argument(
+            "--emulate",
+            action="store_true",
+            help="answer with the in-process emulator (--can-interface virtual)",
+        )
+        sp.add_argument(
+            "--emulate-perturb",
+            type=perturbation_arg,
+            default=None,
+            metavar="KEY=VALUE,...",
+            help=emulate_perturb_help(),
+        )
 
     def channel(sp: argparse.ArgumentParser) -> None:
         one = sp.add_argument(
@@ -418,26 +470,50 @@ def _parser() -> argparse.ArgumentParser:
     d = sub.add_parser("discover", help="read-only scan: id, model guess, run mode, faults")
     common(d)
     channel(d)
-    d.add_argument("--scan-to", type=int_range(1, 127), default=32, metavar="ID",
-                   help=f"{HELP['--scan-to']} (default 32)")  # fmt: skip
+    d.add_argument(
+        "--scan-to",
+        type=int_range(1, 127),
+        default=32,
+        metavar="ID",
+        help=f"{HELP['--scan-to']} (default 32)",
+    )
     d.add_argument("--status", action="store_true", help="also send a stop frame to read mode and fault bits")
 
     c = sub.add_parser("calibrate", help="record homing offsets from swept extremes")
     common(c)
     c.add_argument("--channels", default=None, metavar="SPEC", help=HELP["--channels"])
-    out = c.add_argument("--calibration", dest="out", default="calibration.json", metavar="PATH",
-                         help="calibration JSON to write (bar-deploy --target real --calibration reads it; "
-                              "default calibration.json)")  # fmt: skip
+    out = c.add_argument(
+        "--calibration",
+        dest="out",
+        default="calibration.json",
+        metavar="PATH",
+        help="calibration JSON to write (bar-deploy --target real --calibration reads it; "
+        "default calibration.json)",
+    )
     deprecated_alias(c, "--out", out)
-    c.add_argument("--prior", default=None, metavar="PATH",
-                   help="previous calibration JSON: un-swept joints keep its offsets")  # fmt: skip
-    c.add_argument("--sweep-threshold", type=positive("rad"), default=0.5, metavar="RAD",
-                   help="minimum sweep to recompute a joint's offset, rad (default 0.5)")  # fmt: skip
+    c.add_argument(
+        "--prior",
+        default=None,
+        metavar="PATH",
+        help="previous calibration JSON: un-swept joints keep its offsets",
+    )
+    c.add_argument(
+        "--sweep-threshold",
+        type=positive("rad"),
+        default=0.5,
+        metavar="RAD",
+        help="minimum sweep to recompute a joint's offset, rad (default 0.5)",
+    )
     c.add_argument(
         "--rate", type=positive("Hz"), default=50.0, metavar="HZ", help="sampling rate, Hz (default 50)"
     )
-    c.add_argument("--duration", type=positive("s"), default=None, metavar="S",
-                   help="stop after this long, s (default: at Ctrl+C)")  # fmt: skip
+    c.add_argument(
+        "--duration",
+        type=positive("s"),
+        default=None,
+        metavar="S",
+        help="stop after this long, s (default: at Ctrl+C)",
+    )
 
     pa = sub.add_parser("param", help="read or write one parameter")
     pa.add_argument("action", choices=("read", "write"))
@@ -446,15 +522,23 @@ def _parser() -> argparse.ArgumentParser:
     pa.add_argument("--id", type=int_range(1, 127), required=True, help="motor CAN id (1..127)")
     pa.add_argument("--index", type=int_range(0, 0xFFFF), required=True, help="parameter index, e.g. 0x700B")
     pa.add_argument("--value", default=None, help="value to write (in the parameter's unit)")
-    pa.add_argument("--type", default=None, choices=("f32", "u8", "u16", "u32", "i16"),
-                    help="wire type (default: from the known-parameter table)")  # fmt: skip
+    pa.add_argument(
+        "--type",
+        default=None,
+        choices=("f32", "u8", "u16", "u32", "i16"),
+        help="wire type (default: from the known-parameter table)",
+    )
 
     w = sub.add_parser("watchdog", help="measure one motor's CAN watchdog (enables it with zero torque)")
     common(w)
     channel(w)
     w.add_argument("--id", type=int_range(1, 127), required=True, help="motor CAN id (1..127)")
-    w.add_argument("--model", choices=sorted(ROBSTRIDE_MODELS), default=None,
-                   help="motor model (default: from the robot data for --id)")  # fmt: skip
+    w.add_argument(
+        "--model",
+        choices=sorted(ROBSTRIDE_MODELS),
+        default=None,
+        help="motor model (default: from the robot data for --id)",
+    )
     w.add_argument(
         "--can-timeout",
         type=can_timeout_arg,
@@ -525,17 +609,35 @@ def _parser() -> argparse.ArgumentParser:
     ck = sub.add_parser("check-calibration", help="verify a saved calibration against a known resting pose")
     common(ck)
     ck.add_argument("--channels", default=None, metavar="SPEC", help=HELP["--channels"])
-    ck.add_argument("--calibration", default="calibration.json", metavar="PATH",
-                    help="calibration JSON to check (default calibration.json)")  # fmt: skip
-    ck.add_argument("--pose", default="arms_hanging", metavar="NAME",
-                    help="the pose the robot rests in, disabled (default arms_hanging: arms hanging at their "
-                         "stops)")  # fmt: skip
-    ck.add_argument("--threshold", type=positive("rad"), default=0.005, metavar="RAD",
-                    help="largest error on any joint, rad (default 0.005); beyond it: exit 2")  # fmt: skip
-    ck.add_argument("--reads", type=int_range(1, 1000), default=10, metavar="N",
-                    help="readings averaged (default 10)")  # fmt: skip
-    ck.add_argument("--settle", type=positive("s"), default=None, metavar="S",
-                    help="wait this long before reading, s (default: none)")  # fmt: skip
+    ck.add_argument(
+        "--calibration",
+        default="calibration.json",
+        metavar="PATH",
+        help="calibration JSON to check (default calibration.json)",
+    )
+    ck.add_argument(
+        "--pose",
+        default="arms_hanging",
+        metavar="NAME",
+        help="the pose the robot rests in, disabled (default arms_hanging: arms hanging at their stops)",
+    )
+    ck.add_argument(
+        "--threshold",
+        type=positive("rad"),
+        default=0.005,
+        metavar="RAD",
+        help="largest error on any joint, rad (default 0.005); beyond it: exit 2",
+    )
+    ck.add_argument(
+        "--reads", type=int_range(1, 1000), default=10, metavar="N", help="readings averaged (default 10)"
+    )
+    ck.add_argument(
+        "--settle",
+        type=positive("s"),
+        default=None,
+        metavar="S",
+        help="wait this long before reading, s (default: none)",
+    )
     return p
 
 

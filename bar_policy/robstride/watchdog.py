@@ -64,8 +64,12 @@ def read_can_timeouts(bus: RobstrideBus) -> dict[int, int]:
             ) from exc
         log.info(
             "%s: canTimeout of can_id=%d (%s) is %d ticks (%g s) before arming",
-            bus.interface, m.can_id, m.name, out[m.can_id], out[m.can_id] * proto.CAN_TIMEOUT_TICK,
-        )  # fmt: skip
+            bus.interface,
+            m.can_id,
+            m.name,
+            out[m.can_id],
+            out[m.can_id] * proto.CAN_TIMEOUT_TICK,
+        )
     return out
 
 
@@ -82,8 +86,10 @@ def arm_can_timeout(bus: RobstrideBus, *, verify: bool = True) -> list[tuple[int
         if m.can_timeout == 0:
             log.info(
                 "skipped canTimeout (0) for can_id=%d (%s) on %s: the motor keeps its own watchdog setting",
-                m.can_id, m.name, bus.interface,
-            )  # fmt: skip
+                m.can_id,
+                m.name,
+                bus.interface,
+            )
             continue
         ticks = proto.can_timeout_ticks(m.can_timeout)
         try:
@@ -101,8 +107,12 @@ def arm_can_timeout(bus: RobstrideBus, *, verify: bool = True) -> list[tuple[int
             )
         log.info(
             "wrote canTimeout=%d ticks (%g s) to can_id=%d (%s) on %s",
-            ticks, ticks * proto.CAN_TIMEOUT_TICK, m.can_id, m.name, bus.interface,
-        )  # fmt: skip
+            ticks,
+            ticks * proto.CAN_TIMEOUT_TICK,
+            m.can_id,
+            m.name,
+            bus.interface,
+        )
         written.append((m.can_id, ticks))
     return written
 

@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from bar_policy.robot.kinematics import Kinematics
     from bar_policy.robot.scene import SceneEdit
 
-__all__ = ["EpisodeRunner", "Policy", "RunOutcome", "TickHook", "true_q"]
+__all__ = ["EpisodeRunner", "Policy", "RunOutcome", "TickHook", "report_progress", "true_q"]
 
 
 class Policy(Protocol):
@@ -89,6 +89,18 @@ class EpisodeRunner(Protocol):
         ``commands`` is the episode's ``tasks.interfaces.CommandSource``.
         """
         ...
+
+
+def report_progress(runner: Any, kind: str, index: int, total: int, figure: str) -> None:
+    """Tell ``runner`` that episode ``index`` of ``total`` (1-based) ended with ``figure`` (one line's worth).
+
+    ``kind`` names the unit (``episode``, ``clip``, ``song``). A runner with a ``progress`` method (the
+    runtime's ``SimEpisodes``: ``bar-deploy eval``'s progress line) receives it; others ignore it, so an
+    evaluation works with any runner.
+    """
+    fn = getattr(runner, "progress", None)
+    if fn is not None:
+        fn(kind, index, total, figure)
 
 
 def true_q(target: Any) -> np.ndarray:

@@ -8,13 +8,14 @@ follows the source's schedule:
 - ``begin(t)``: called on the tick POLICY starts (the source's phase 0, e.g. a motion clip's first frame);
 - ``finished(t)``: a reason once the commands are over (a motion clip's last frame); the runtime then
   enters HOLD at ``end_pose`` (gains kept) and ends the run as completed after ``RuntimeConfig.end_hold``;
-- ``after_policy_tick()``: called after each tick that ended in POLICY (a task's scored ticks), and
-  ``summary_lines()``: what ``bar-deploy`` prints after the run's ``end:`` line (the piano's F1).
+- ``after_policy_tick()``: called after each tick that ended in POLICY (a task's scored ticks: the piano's
+  song window, counted alike by ``bar-deploy eval`` and the run's figure).
 
 A source feeds the terms of exactly one task (``task``); a policy of another task refuses it (the
 runtime's message names both tasks). ``DeployTask`` is one task's entry for ``bar-deploy``: its
-``run`` / ``eval`` options, the command source built from them, and its evaluation with its own metric
-(run by the ``tasks.episodes.EpisodeRunner`` the runtime hands in).
+``run`` / ``eval`` options, the command source built from them, its evaluation with its own metric
+(run by the ``tasks.episodes.EpisodeRunner`` the runtime hands in), and the figure a ``bar-deploy`` run
+ends with (``run_figure``: a ``RunFigure`` fed every tick, whose ``line()`` follows the ``end:`` line).
 
 These are the interfaces a task's deploy part implements (``bar_policy/tasks/<task>/deploy.py``), so they
 live here, below the runtime that calls them (``deploy.runtime``, ``deploy.cli``), not inside it.
@@ -24,6 +25,7 @@ from __future__ import annotations
 
 import abc
 import argparse
+import logging
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -34,7 +36,7 @@ if TYPE_CHECKING:
     from bar_policy.robot.scene import SceneEdit
     from bar_policy.tasks.episodes import EpisodeRunner, Policy
 
-__all__ = ["CommandSource", "DeployTask", "EvalReport", "OptionError"]
+__all__ = ["CommandSource", "DeployTask", "EvalReport", "OptionError", "RunFigure"]
 
 LogFields = dict[str, tuple[tuple[int, ...], type]]
 
@@ -111,10 +113,6 @@ class CommandSource(abc.ABC):
         ``bar-deploy eval``'s per-tick hook sees in POLICY.
         """
 
-    def summary_lines(self) -> list[str]:
-        """Lines the run's summary prints after its ``end:`` line (the task's score); default none."""
-        return []
-
     # -- misc ----------------------------------------------------------------------------------------
     def describe(self) -> str:
         """One line for logs."""
@@ -151,6 +149,53 @@ class EvalReport(abc.ABC):
         misses = check(rep["task"], rep)
         verdict = ["gate: PASS"] if not misses else [f"gate: MISS {m}" for m in misses]
         return [thresholds_text(rep["task"]), *verdict]
+
+
+class RunFigure(abc.ABC):
+    """A task's figure of one ``bar-deploy`` run (reach: success rate and final distance; track: errors).
+
+    The CLI gets one from the task (``DeployTask.run_figure``, the task found through the registry by the
+    policy's ``bar.task``), hands ``tick`` to the runtime (called after every tick with the tick index,
+    the run time in s and the runtime: ``safety.mode``, ``last_state.q``, ``last_commands``) and prints
+    ``final_line()`` after the ``end:`` line. Only the ticks the policy drove count (``policy_ticks``).
+    A task implements ``on_tick``, ``line`` and ``to_dict``; ``tick`` keeps a failing figure from ending a
+    run on the robot (the error is logged once, the figure stops, ``final_line`` says so).
+    """
+
+    error: str = ""
+    """Why the figure stopped (``tick`` caught an exception), empty while it runs."""
+
+    def tick(self, k: int, t: float, rt: Any) -> None:
+        """``on_tick``, guarded: an exception is logged once and stops the figure, never the run."""
+        if self.error:
+            return
+        try:
+            self.on_tick(k, t, rt)
+        except Exception as e:  # a bug in a figure must not stop the robot
+            self.error = f"stopped at tick {k}: {type(e).__name__}: {e}"
+            logging.getLogger(__name__).warning("the run's task figure %s", self.error, exc_info=True)
+
+    def final_line(self) -> str:
+        """``line()``, or the task's name and why its figure stopped."""
+        return f"{type(self).__name__}: no figure ({self.error})" if self.error else self.line()
+
+    @staticmethod
+    def policy_ticking(rt: Any) -> bool:
+        """Whether the runtime's tick was a POLICY one (the mode's name: the task does not import it)."""
+        mode = getattr(getattr(rt, "safety", None), "mode", None)
+        return getattr(mode, "name", "") == "POLICY" and getattr(rt, "last_state", None) is not None
+
+    @abc.abstractmethod
+    def on_tick(self, k: int, t: float, rt: Any) -> None:
+        """Take in one tick (the runtime's ``on_tick`` hook)."""
+
+    @abc.abstractmethod
+    def line(self) -> str:
+        """One line, ``<task>: <figure>`` (``<task>: no policy ticks`` when the policy never drove)."""
+
+    @abc.abstractmethod
+    def to_dict(self) -> dict[str, Any]:
+        """The figure's numbers (SI units: m, rad), for a result file."""
 
 
 class DeployTask(abc.ABC):
@@ -197,6 +242,16 @@ class DeployTask(abc.ABC):
     def plot(self, arrays: dict[str, np.ndarray], meta: dict[str, Any], out: Path) -> list[Path]:
         """The task's own PNGs of a run log (``bar-deploy plot``) written under ``out``; default none."""
         return []
+
+    def run_figure(
+        self, policy: Policy, commands: CommandSource, kinematics: Kinematics | None = None
+    ) -> RunFigure | None:
+        """The figure a ``bar-deploy`` run of this task ends with (fed every tick); None: the task has none.
+
+        ``commands`` is the run's source (``command_source``'s), ``kinematics`` the robot's forward
+        kinematics when the CLI built it (None: build one if needed).
+        """
+        return None
 
     def evaluate(self, policy: Policy, args: argparse.Namespace, runner: EpisodeRunner) -> EvalReport:
         """Sim2sim evaluation with this task's metric, its episodes run by ``runner``.

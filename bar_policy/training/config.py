@@ -23,6 +23,7 @@ import tyro
 from bar_policy.overrides import apply_overrides, split_override
 from bar_policy.task_records import default_env, resolve
 from bar_policy.tasks.registry import TASKS
+from bar_policy.training.writers import LOGGERS
 
 __all__ = [
     "ACTION_PRIORS",
@@ -280,11 +281,14 @@ class TrainConfig:
     env_name: Annotated[EnvName, tyro.conf.arg(aliases=("--env",))] = DEFAULT_ENV
     """Registered environment (``bar_policy.envs.load``); ``--env`` is short for it."""
     env_overrides: tuple[str, ...] = ()
-    """Env/reward settings, ``path=value`` in the env config's units: ``reward.scales.action_rate=-0.1``."""
+    """Env/reward settings, ``path=value`` in the env config's units: ``reward.scales.action_rate=-0.1``; a
+    shorthand for the typed ``--env.*`` flags (``--env.reward.scales.action-rate -0.1``), which the run
+    records here too."""
     backend: Literal["brax", "rsl-rl"] = "brax"
     """brax = brax's PPO pieces, JAX end to end (default); rsl-rl = rsl-rl-lib (torch) on the same env."""
     preset: PresetName = "gpu"
-    """Preset supplying every default shown: gpu (one H100), rsl (gpu on rsl-rl at the field's values), cpu,
+    """Preset supplying every default shown: gpu (one H100; the default), gpu-rsl (the rsl-rl backend's
+    default: gpu on rsl-rl, fast sizes, fixed rate), rsl (gpu on rsl-rl at the field's values), cpu,
     tiny (tests), track (LiteTrack, H100), track-rsl (track on rsl-rl), piano (LitePiano, H100)."""
     seed: int = 0
     """Seed of parameter init, env resets and evaluation."""
@@ -298,6 +302,12 @@ class TrainConfig:
     """Training iterations per progress line (one compiled epoch); 0 = auto, about 2 lines per evaluation."""
     checkpoint_every: int = 1
     """Save a checkpoint every this many evaluation periods (0 = only at the end)."""
+    logger: Literal["tensorboard", "wandb", "none"] = "tensorboard"
+    """Where the scalars go besides metrics.jsonl (``training.writers``): TensorBoard event files in
+    ``<run>/tb``; ``wandb``, those and a Weights & Biases run (optional package; ``WANDB_MODE=offline``
+    works without a network); ``none``. Tags: ``training.log_tags`` (docs/training.md)."""
+    wandb_project: str = "bar_policy"
+    """Weights & Biases project (for the wandb logger)."""
     max_minutes: float = 0.0
     """Wall-clock budget of training, min (0 = no limit; counted from the start of the process): no epoch
     starts that would end past it (by the last epoch's and evaluation's lengths); then export."""
@@ -346,6 +356,8 @@ class TrainConfig:
             )
         for o in self.env_overrides:
             split_override(o)
+        if self.logger not in LOGGERS:
+            raise ValueError(f"unknown logger {self.logger!r}; choices: {', '.join(LOGGERS)}")
 
 
 # ----------------------------------------------------------------------------------------------------------

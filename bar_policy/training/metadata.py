@@ -54,7 +54,8 @@ def policy_metadata(
     ``env.kp``/``env.kd`` (N*m/rad, N*m*s/rad), the default pose and per-joint action scale (rad) from
     ``env.default_pose``/``env.action_scale``, the policy period from ``env.dt`` (s), the physics step from
     ``env.config.sim_dt``, the randomisation ranges from ``env.config`` and the action filter's cutoff from
-    ``env.action_filter_hz`` (Hz; None: no filter).
+    ``env.action_filter_hz`` (Hz; None: no filter), and the robot-parameters file's hash and summary from
+    ``env.robot_params`` (``bar.robot_params``; none for the nominal model).
 
     Args:
         env: the (unwrapped) training env.
@@ -92,4 +93,14 @@ def policy_metadata(
         dataset_repo_id=str(extra.get("dataset_repo_id", "")),
         command_transition_s=float(extra.get("command_transition_s", 0.0)),
         provenance=_jsonable(dict(provenance) if provenance is not None else collect()),
+        robot_params=_params_record(getattr(env, "robot_params", None)),
     )
+
+
+def _params_record(params: Any) -> dict[str, Any]:
+    """``bar.robot_params`` of an env built from a robot-parameters file (``robot.params``); {} without."""
+    if params is None:
+        return {}
+    from bar_policy.robot.params import params_record
+
+    return _jsonable(params_record(params))

@@ -1,8 +1,9 @@
-"""Run directory, progress lines, TensorBoard and a JSON-lines metric log.
+"""Run directory, progress lines, TensorBoard / wandb and a JSON-lines metric log.
 
 Every metric record goes to three places: ``<run>/metrics.jsonl`` (one JSON object per line, the source of
-``docs/training_curve.png``), TensorBoard (tensorboardX, ``<run>/tb``) and, for the main numbers, one
-terminal line::
+``docs/training_curve.png``), the run's writer (``--logger``: TensorBoard event files in ``<run>/tb``, also
+wandb, or none; ``training.writers``), under the tags of ``training.log_tags``, and, for the main numbers,
+one terminal line::
 
     [ 37%] 14.7M/40.0M steps | 301k steps/s | reward 312.4 | success 91.2% (eval 93.0%) | 1m04s, ETA 1m23s
 """
@@ -15,6 +16,9 @@ import sys
 import time
 from pathlib import Path
 from typing import Any, TextIO
+
+from bar_policy.training.log_tags import tag
+from bar_policy.training.writers import check_logger, make_writer
 
 __all__ = ["RunLogger", "format_duration", "format_steps", "next_would_overrun"]
 
@@ -58,15 +62,30 @@ class RunLogger:
         total_steps: target env steps (for percentages and ETA).
         enabled: False makes every method a no-op (non-zero processes).
         stream: where progress lines go (default stdout).
+        logger: ``--logger``: ``tensorboard``, ``wandb`` or ``none`` (``training.writers``).
+        wandb_project: the wandb project (``logger="wandb"``).
+
+    The writer is made at the first scalar, unless a backend hands its own over first (``attach_writer``:
+    the rsl-rl backend's is made by rsl-rl's runner logger).
     """
 
     def __init__(
-        self, run_dir: str | Path, total_steps: int, *, enabled: bool = True, stream: TextIO | None = None
+        self,
+        run_dir: str | Path,
+        total_steps: int,
+        *,
+        enabled: bool = True,
+        stream: TextIO | None = None,
+        logger: str = "tensorboard",
+        wandb_project: str = "bar_policy",
     ) -> None:
+        check_logger(logger)
         self.run_dir = Path(run_dir)
         self.total_steps = int(total_steps)
         self.enabled = enabled
         self.stream = stream or sys.stdout
+        self.logger = logger
+        self.wandb_project = wandb_project
         self.t0 = time.monotonic()
         self._tb: Any = None
         self._jsonl: TextIO | None = None
@@ -74,10 +93,33 @@ class RunLogger:
         if enabled:
             self.run_dir.mkdir(parents=True, exist_ok=True)
             self._jsonl = (self.run_dir / "metrics.jsonl").open("a")
-            try:
-                self._tb = _summary_writer_class()(str(self.run_dir / "tb"))
-            except ImportError:  # pragma: no cover - tensorboardX is a train dependency
-                self._tb = None
+
+    @property
+    def tb_dir(self) -> Path:
+        """The event files' directory, ``<run>/tb``."""
+        return self.run_dir / "tb"
+
+    @property
+    def writes_scalars(self) -> bool:
+        """Whether this process writes scalars (enabled, and a logger other than ``none``)."""
+        return self.enabled and self.logger != "none"
+
+    def attach_writer(self, writer: Any) -> None:
+        """Write the scalars through ``writer`` (``add_scalar(tag, value, step)``, ``flush``, ``close``).
+
+        The rsl-rl backend hands over the writer rsl-rl's runner logger made (same directory, same tags).
+        A writer this logger had already made is closed (its event file stays; TensorBoard reads both).
+        """
+        if self._tb is not None and self._tb is not writer:
+            self._tb.close()
+        self._tb = writer
+
+    def _writer(self) -> Any:
+        if self._tb is None and self.writes_scalars:
+            self._tb = make_writer(
+                self.logger, self.tb_dir, project=self.wandb_project, run_name=self.run_dir.name
+            )
+        return self._tb
 
     def elapsed(self) -> float:
         """Seconds since the logger was created."""
@@ -92,10 +134,11 @@ class RunLogger:
         assert self._jsonl is not None
         self._jsonl.write(json.dumps(record) + "\n")
         self._jsonl.flush()
-        if self._tb is not None:
+        writer = self._writer()
+        if writer is not None:
             for k, v in clean.items():
-                self._tb.add_scalar(f"{kind}/{k}" if "/" not in k else k, v, int(step))
-            self._tb.flush()
+                writer.add_scalar(tag(kind, k), v, int(step))
+            writer.flush()
         if kind == "eval":
             self.last_eval = clean
 
@@ -188,27 +231,10 @@ class RunLogger:
             self._jsonl = None
         if self._tb is not None:
             self._tb.close()
+            stop = getattr(self._tb, "stop", None)  # a wandb writer: finish its run
+            if stop is not None:
+                stop()
             self._tb = None
-
-
-def _summary_writer_class() -> type:
-    """TensorboardX's ``SummaryWriter``, imported without pulling in torch.
-
-    ``tensorboardX.writer`` runs ``try: import torch`` at import time only to accept torch tensors; we log
-    Python floats. Importing torch would bring torch's own CUDA and NCCL libraries into a JAX process (the
-    brax backend must not load them), so while tensorboardX is first imported ``import torch`` fails (a
-    ``None`` entry in ``sys.modules``, which tensorboardX's ``except ImportError`` handles). When torch is
-    already loaded (the rsl-rl backend) the import is left alone.
-    """
-    if "tensorboardX" not in sys.modules and "torch" not in sys.modules:
-        sys.modules["torch"] = None  # type: ignore[assignment]
-        try:
-            from tensorboardX import SummaryWriter
-        finally:
-            del sys.modules["torch"]
-    from tensorboardX import SummaryWriter
-
-    return SummaryWriter
 
 
 def _finite_number(v: Any) -> bool:

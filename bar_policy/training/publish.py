@@ -55,8 +55,9 @@ def plot_curve(run_dir: str | Path, out: str | Path, threshold: float = 0.95) ->
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
     steps = [r["step"] / 1e6 for r in ev]
     ax1.plot(steps, [100 * r["success_rate"] for r in ev], "o-", label="eval success (deterministic)")
-    if tr:
-        ax1.plot([r["step"] / 1e6 for r in tr], [100 * r["success_rate"] for r in tr], ".-", alpha=0.6,
+    rated = [r for r in tr if "success_rate" in r]  # none before the first segment end (rollout_sums)
+    if rated:
+        ax1.plot([r["step"] / 1e6 for r in rated], [100 * r["success_rate"] for r in rated], ".-", alpha=0.6,
                  label="training success (stochastic)")  # fmt: skip
     ax1.axhline(100 * threshold, color="gray", ls="--", lw=1, label=f"{100 * threshold:.0f}%")
     ax1.set(xlabel="env steps (M)", ylabel="success rate (%)", ylim=(0, 101), title="Reach success")

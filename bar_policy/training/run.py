@@ -25,6 +25,7 @@ from bar_policy.training.best import finish_best
 from bar_policy.training.config import TrainConfig, config_to_dict
 from bar_policy.training.distributed import init_distributed, local_default_devices, shutdown_distributed
 from bar_policy.training.progress import RunLogger, format_duration, format_steps
+from bar_policy.training.run_header import setting_lines
 from bar_policy.training.startup import breakdown as sb
 from bar_policy.training.startup.session import StartUp
 
@@ -113,7 +114,9 @@ def _open_run(cfg: TrainConfig, env: Any, is_main: bool, notes: list[str]) -> tu
     from bar_policy.provenance import collect, describe
 
     run_dir = resolve_run_dir(cfg, check=is_main)
-    logger = RunLogger(run_dir, cfg.ppo.num_timesteps, enabled=is_main)
+    logger = RunLogger(
+        run_dir, cfg.ppo.num_timesteps, enabled=is_main, logger=cfg.logger, wandb_project=cfg.wandb_project
+    )
     provenance = collect()
     record = {
         "provenance": provenance,
@@ -132,9 +135,18 @@ def _open_run(cfg: TrainConfig, env: Any, is_main: bool, notes: list[str]) -> tu
             f"dt {env.dt} s) | backend {cfg.backend} | {record['device']['device_kind']} x "
             f"{jax.device_count()} | {format_steps(cfg.ppo.num_timesteps)} steps, {cfg.ppo.num_envs} envs"
         )
+        for line in setting_lines(cfg, getattr(env, "config", None), _env_default(cfg.env_name)):
+            logger.print(line)
         for line in notes:
             logger.print(line)
     return run_dir, logger, record
+
+
+def _env_default(name: str) -> Any:
+    """The registered env's default config (None for a name the registry lacks: a test's stand-in)."""
+    from bar_policy import envs
+
+    return envs.default_config(name) if name in envs.ALL_ENVS else None
 
 
 def run(

@@ -10,7 +10,7 @@ import pytest
 from policy_factory import default_metadata, make_policy_file
 
 from bar_policy.deploy.cli import main
-from bar_policy.deploy.log import load_log
+from bar_policy.deploy.log.read import load_log
 from bar_policy.deploy.targets.base import TargetError
 from bar_policy.deploy.targets.mock import MockTarget
 

@@ -15,7 +15,7 @@ from fault_targets import SteppedMock
 from policy_factory import default_metadata, hc_props, make_hc_policy_file, make_policy_file
 
 from bar_policy.deploy.cli import main
-from bar_policy.deploy.log import load_log
+from bar_policy.deploy.log.read import load_log
 from bar_policy.deploy.policy import PolicyLoadError, load_policy, read_metadata
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import SafetyConfig

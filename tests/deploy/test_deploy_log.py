@@ -10,9 +10,12 @@ import numpy as np
 import pytest
 from fault_targets import SteppedMock
 
-from bar_policy.deploy.log import LogDirError, RunLog, check_log_dir, load_log, log_fields
-from bar_policy.deploy.log_channels import WELL_KNOWN_TOPICS
-from bar_policy.deploy.mcap_log import MCAP_FILE, TICK_TOPICS, TRANSITION_TOPIC, read_mcap_log
+from bar_policy.deploy.log.channels import WELL_KNOWN_TOPICS
+from bar_policy.deploy.log.files import LogDirError, check_log_dir, log_fields
+from bar_policy.deploy.log.mcap_read import read_mcap_log
+from bar_policy.deploy.log.mcap_schema import MCAP_FILE, TICK_TOPICS, TRANSITION_TOPIC
+from bar_policy.deploy.log.read import load_log
+from bar_policy.deploy.log.run_log import RunLog
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import Mode, SafetyConfig
 from bar_policy.tasks.reach.commands import SampledCommands
@@ -63,7 +66,7 @@ def test_mcap_messages_follow_their_json_schema_and_match_the_npz(zero_policy, t
     assert policy_msgs[0]["action"] == [None] * 14 and policy_msgs[-1]["action"] == [0.0] * 14
     assert [m["mode_name"] for m in by_topic["/safety"][:2]] == ["HOLD", "HOLD"]
     assert by_topic["/safety"][-1]["mode_name"] == "POLICY"
-    assert by_topic["/joint_state"][3]["q"] == arrays["q"][3].tolist()  # exact: floats as shortest repr
+    assert by_topic["/joint_state_json"][3]["q"] == arrays["q"][3].tolist()  # exact: floats as shortest repr
     # The MCAP alone gives back every NPZ array exactly (NaN where NaN).
     rec = read_mcap_log(path)
     assert rec.complete and sorted(rec.arrays) == sorted(arrays)

@@ -14,8 +14,10 @@ import pytest
 from policy_factory import default_metadata, make_policy_file
 
 from bar_policy.deploy.episodes import SimEpisodes
-from bar_policy.deploy.log import RunLog, load_log, log_fields
-from bar_policy.deploy.plot import plot_log
+from bar_policy.deploy.log.files import log_fields
+from bar_policy.deploy.log.plot import plot_log
+from bar_policy.deploy.log.read import load_log
+from bar_policy.deploy.log.run_log import RunLog
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig, sleep_until
 from bar_policy.deploy.safety import Mode, SafetyConfig
@@ -182,7 +184,8 @@ def test_deploy_never_imports_jax_torch_or_onnx():
     code = (
         "import sys\n"
         "import bar_policy.deploy.cli, bar_policy.deploy.runtime, bar_policy.deploy.policy\n"
-        "import bar_policy.tasks.reach.evaluate, bar_policy.deploy.plot, bar_policy.tasks.reach.commands\n"
+        "import bar_policy.tasks.reach.evaluate, bar_policy.tasks.reach.commands\n"
+        "import bar_policy.deploy.log.plot\n"
         "import bar_policy.deploy.targets.sim, bar_policy.deploy.targets.mock\n"
         "print(sorted(m for m in ('jax', 'torch', 'onnx') if m in sys.modules))\n"
     )

@@ -12,7 +12,7 @@ import pytest
 from fault_targets import SlowMock, SteppedMock
 from policy_factory import default_metadata, make_policy_file
 
-from bar_policy.deploy.log import load_log
+from bar_policy.deploy.log.read import load_log
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import CapDwell, Mode, SafetyConfig, SafetySupervisor

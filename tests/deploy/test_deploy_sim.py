@@ -145,7 +145,7 @@ def test_runtime_on_sim_builds_the_observation_from_the_measured_state(make_poli
     )
     res = rt.run()
     assert res.ticks == 25 and res.fault_count == 0
-    from bar_policy.deploy.log import load_log
+    from bar_policy.deploy.log.read import load_log
 
     a, _ = load_log(res.log_path)
     kin = Kinematics("arms")

@@ -20,8 +20,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bar_policy.deploy.log import load_log
-from bar_policy.deploy.mcap_log import MCAP_FILE, read_mcap_log
+from bar_policy.deploy.log.mcap_read import read_mcap_log
+from bar_policy.deploy.log.mcap_schema import MCAP_FILE
+from bar_policy.deploy.log.read import load_log
 from bar_policy.deploy.safety import Mode
 
 CHILD = Path(__file__).parent / "deploy_child.py"
@@ -214,7 +215,7 @@ def test_sigkill_leaves_a_readable_log_missing_at_most_one_second(policy_path, t
     published = read_mcap_log(run / MCAP_FILE).publish_unix
     assert published.size == n and np.all(np.diff(published) > 0)
     assert 0.0 < killed_at - published[-1] <= 1.0, killed_at - published[-1]
-    from bar_policy.deploy.plot import plot_log
+    from bar_policy.deploy.log.plot import plot_log
 
     files = plot_log(run, tmp_path / "png")
     assert [f.name for f in files] == ["joints.png", "torques.png", "timing.png"]

@@ -13,8 +13,9 @@ from fault_targets import SteppedMock
 from policy_factory import default_metadata, make_hc_policy_file, make_policy_file
 
 from bar_policy.deploy.cli import main
-from bar_policy.deploy.log import load_log
-from bar_policy.deploy.mcap_log import MCAP_FILE, read_mcap_log
+from bar_policy.deploy.log.mcap_read import read_mcap_log
+from bar_policy.deploy.log.mcap_schema import MCAP_FILE
+from bar_policy.deploy.log.read import load_log
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import Mode, SafetyConfig

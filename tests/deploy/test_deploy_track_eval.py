@@ -13,7 +13,7 @@ from policy_factory import default_metadata, make_policy_file
 
 from bar_policy.deploy.cli import main
 from bar_policy.deploy.episodes import SimEpisodes
-from bar_policy.deploy.log import load_log
+from bar_policy.deploy.log.read import load_log
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import SafetyConfig
@@ -121,8 +121,9 @@ def test_eval_cli_reports_the_tracking_metric(track_policy, tmp_path, capsys):
                "--json", str(out_json)])  # fmt: skip
     out = capsys.readouterr().out
     assert rc == 0, out
-    first, report = out.split("\n", 1)
+    first, progress, report = out.split("\n", 2)
     assert first.startswith("provenance: not recorded")  # bar-deploy's first line: the file's provenance
+    assert progress.startswith("eval clip 1/1: tiny, joint error ")  # then one progress line per clip
     assert report.startswith(f"tracking (SimTarget) policy {track_policy.path}")
     data = json.loads(out_json.read_text())
     assert [c["clip"] for c in data["clips"]] == ["tiny"] and data["clips"][0]["steps"] == 3 + 5
@@ -135,6 +136,9 @@ def test_eval_cli_reports_the_tracking_metric(track_policy, tmp_path, capsys):
         f"{g['body_pos_error_cm']:.2f} cm, fingertip error {g['fingertip_error_cm']:.2f} cm"
     )
     assert want in out
+    # The progress line's figure is the clip's own (one clip: the same means as the summary).
+    figure = f"joint error {g['joint_error_rad']:.4f} rad, fingertip {g['fingertip_error_cm']:.2f} cm ("
+    assert progress.startswith(f"eval clip 1/1: tiny, {figure}")
 
 
 def test_plot_overlays_the_reference(track_policy, tmp_path, monkeypatch):
@@ -143,7 +147,7 @@ def test_plot_overlays_the_reference(track_policy, tmp_path, monkeypatch):
     matplotlib.use("Agg")
     from matplotlib.axes import Axes
 
-    from bar_policy.deploy.plot import plot_log, tracking_errors
+    from bar_policy.deploy.log.plot import plot_log, tracking_errors
 
     piano = ROBOT.pose("piano_ready")
     clip = Clip.make("tiny", 50.0, piano + 0.01 * np.arange(4)[:, None])

@@ -23,7 +23,8 @@ from bar_policy._files import ECHO_LIMIT, InputError, shorten
 from bar_policy.deploy import cli, cli_tools
 from bar_policy.deploy.cli import main
 from bar_policy.deploy.contract import PolicyLoadError
-from bar_policy.deploy.log import RunLog, log_fields
+from bar_policy.deploy.log.files import log_fields
+from bar_policy.deploy.log.run_log import RunLog
 from bar_policy.deploy.metadata import MetadataError, PolicyMetadata
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.signals import INTERRUPT_STATUS, early_interrupt

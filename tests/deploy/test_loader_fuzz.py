@@ -24,7 +24,7 @@ from hypothesis.extra import numpy as hnp
 from policy_factory import default_metadata, make_policy_file
 
 from bar_policy._files import InputError
-from bar_policy.deploy.log import load_log
+from bar_policy.deploy.log.read import load_log
 from bar_policy.deploy.metadata import PolicyMetadata
 from bar_policy.deploy.policy import load_policy
 from bar_policy.motion.clip import Clip, load_clip, load_csv, save_clip

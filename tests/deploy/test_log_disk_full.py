@@ -20,8 +20,11 @@ import numpy as np
 import pytest
 from fault_targets import SteppedMock
 
-from bar_policy.deploy.log import RUN_JSON_RESERVE, RunLog, load_log, log_fields
-from bar_policy.deploy.mcap_log import MCAP_FILE, read_mcap_log
+from bar_policy.deploy.log.files import log_fields
+from bar_policy.deploy.log.mcap_read import read_mcap_log
+from bar_policy.deploy.log.mcap_schema import MCAP_FILE
+from bar_policy.deploy.log.read import load_log
+from bar_policy.deploy.log.run_log import RUN_JSON_RESERVE, RunLog
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import SafetyConfig
 from bar_policy.tasks.reach.commands import SampledCommands

@@ -16,13 +16,13 @@ import numpy as np
 import pytest
 from policy_factory import default_metadata, make_policy_file
 
-from bar_policy.deploy.foxglove_scene import GHOST_COLOR, RobotScene
-from bar_policy.deploy.live import LiveServer
-from bar_policy.deploy.log import load_log
-from bar_policy.deploy.mcap_log import MCAP_FILE, MODEL_ATTACHMENT, OPTIONAL_TICK_TOPICS, TICK_TOPICS
-from bar_policy.deploy.mcap_schema import TRANSITION_TOPIC
+from bar_policy.deploy.log.foxglove_scene import GHOST_COLOR, RobotScene
+from bar_policy.deploy.log.live import LiveServer
+from bar_policy.deploy.log.mcap_schema import MCAP_FILE, OPTIONAL_TICK_TOPICS, TICK_TOPICS, TRANSITION_TOPIC
+from bar_policy.deploy.log.mcap_write import MODEL_ATTACHMENT
+from bar_policy.deploy.log.read import load_log
+from bar_policy.deploy.log.ros2_schema import JOINT_STATE_SCHEMA, JOINT_STATE_TYPE, encode_joint_state
 from bar_policy.deploy.policy import load_policy
-from bar_policy.deploy.ros2_schema import JOINT_STATE_SCHEMA, JOINT_STATE_TYPE, encode_joint_state
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import SafetyConfig
 from bar_policy.deploy.targets.sim import SimTarget
@@ -314,7 +314,7 @@ def test_shipped_layout_has_a_3d_panel_a_joint_position_plot_and_a_log_panel():
     channels the log writes: the robot and ghost scenes, ``/joint_states.position[i]`` per joint, ``/log``."""
     from pathlib import Path
 
-    from bar_policy.deploy.log_channels import WELL_KNOWN_TOPICS
+    from bar_policy.deploy.log.channels import WELL_KNOWN_TOPICS
 
     layout = json.loads((Path(__file__).parents[2] / "docs" / "foxglove_layout.json").read_text())
     panels = layout["configById"]

@@ -13,9 +13,12 @@ import pytest
 from fault_targets import SteppedMock
 
 from bar_policy.deploy.cli import main
-from bar_policy.deploy.log import NOT_CLOSED, LogReadError, RunLog, load_log, log_fields
-from bar_policy.deploy.mcap_log import MCAP_FILE, TICK_TOPICS, TRANSITION_TOPIC, read_mcap_log
-from bar_policy.deploy.mcap_recover import recover_mcap
+from bar_policy.deploy.log.files import NOT_CLOSED, LogReadError, log_fields
+from bar_policy.deploy.log.mcap_read import read_mcap_log
+from bar_policy.deploy.log.mcap_schema import MCAP_FILE, TICK_TOPICS, TRANSITION_TOPIC
+from bar_policy.deploy.log.read import load_log
+from bar_policy.deploy.log.recover import recover_mcap
+from bar_policy.deploy.log.run_log import RunLog
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import SafetyConfig
 from bar_policy.tasks.reach.commands import SampledCommands
@@ -216,7 +219,7 @@ def test_cli_recovers_a_cut_run_of_the_runtime(zero_policy, tmp_path, capsys, ca
     assert main(["log", "recover", str(run)]) == 0
     out = capsys.readouterr().out.strip().splitlines()
     n = sum(streamed.values())
-    assert len(out) == 1 and f"recovered {n} messages" in out[0] and "/joint_state 20" in out[0]
+    assert len(out) == 1 and f"recovered {n} messages" in out[0] and "/joint_state_json 20" in out[0]
     assert "/joint_states 20" in out[0]
     assert "dropped 5 bytes" in out[0] and "run.mcap.cut" in out[0]
     assert (run / "run.mcap.cut").read_bytes() == cut

@@ -15,7 +15,7 @@ from policy_factory import make_policy_file
 
 from bar_policy.deploy.cli import main
 from bar_policy.deploy.contract import PolicyLoadError
-from bar_policy.deploy.log import load_log
+from bar_policy.deploy.log.read import load_log
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.safety_checks import check_action_scale
 from bar_policy.motion.clip import Clip, ClipError, load_clip

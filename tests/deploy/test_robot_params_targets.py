@@ -68,3 +68,58 @@ def test_bad_file_is_refused_by_the_parser(tmp_path, capsys) -> None:
     assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert "unknown key 'friction'; did you mean 'friction_nm'?" in err
+
+
+def _run(policy, tmp_path, capsys, *extra: str) -> tuple[list[str], dict]:
+    """``bar-deploy`` on the sim target for 0.1 s: (its WARNING lines on stderr, run.json)."""
+    from bar_policy.deploy.cli import main
+
+    logs = tmp_path / f"runs{len(list(tmp_path.glob('runs*')))}"
+    argv = ["--policy", str(policy), "--target", "sim", "--duration", "0.1", "--log", str(logs), *extra]
+    assert main(argv) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("WARNING:")]
+    (run,) = logs.iterdir()
+    return warnings, json.loads((run / "run.json").read_text())
+
+
+def test_runtime_warns_on_robot_parameters_other_than_the_trained_ones(tmp_path, capsys) -> None:
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from policy_factory import default_metadata, make_policy_file
+
+    from bar_policy.robot.params import params_record
+
+    trained, other = _params(), RobotParams({}, {"left": Payload(Estimate(0.5), (0.0, 0.1, 0.0))})
+    trained_file, other_file = tmp_path / "trained.json", tmp_path / "other.json"
+    trained.save(trained_file)
+    other.save(other_file)
+    policy = make_policy_file(
+        tmp_path / "p.onnx", metadata=default_metadata(robot_params=params_record(trained))
+    )
+    # The same file: no warning, the record says 0.
+    warnings, rec = _run(policy, tmp_path, capsys, "--robot-params", str(trained_file))
+    assert warnings == []
+    assert rec["robot_params"] == {
+        "trained_sha256": trained.sha256, "run_sha256": trained.sha256, "mismatch_warnings": 0
+    }  # fmt: skip
+    # Another file: one line naming both hashes' first 12 digits, counted once.
+    warnings, rec = _run(policy, tmp_path, capsys, "--robot-params", str(other_file))
+    assert warnings == [
+        f"WARNING: robot parameters mismatch: the policy was trained on robot parameters sha256 "
+        f"{trained.sha256[:12]}, this run models --robot-params sha256 {other.sha256[:12]}"
+    ]
+    assert rec["robot_params"]["mismatch_warnings"] == 1 and rec["robot_params"]["run_sha256"] == other.sha256
+    # No file: the nominal model, which the policy was not trained on.
+    warnings, rec = _run(policy, tmp_path, capsys)
+    assert len(warnings) == 1 and "this run models the nominal model (no --robot-params)" in warnings[0]
+    assert rec["robot_params"] == {
+        "trained_sha256": trained.sha256,
+        "run_sha256": None,
+        "mismatch_warnings": 1,
+    }
+    # A policy trained on the nominal model, run nominal: no warning.
+    nominal = make_policy_file(tmp_path / "n.onnx")
+    warnings, rec = _run(nominal, tmp_path, capsys)
+    assert warnings == [] and rec["robot_params"]["mismatch_warnings"] == 0

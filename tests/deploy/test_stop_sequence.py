@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 from fault_targets import SlowMock, SteppedMock
 
-from bar_policy.deploy.log import load_log
+from bar_policy.deploy.log.read import load_log
 from bar_policy.deploy.run_config import EXIT_FAULT, EXIT_OK, EXIT_STOP_UNCONFIRMED
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import SafetyConfig

@@ -14,7 +14,7 @@ from policy_factory import default_metadata
 
 from bar_policy.deploy.action_path import check_action_scale
 from bar_policy.deploy.contract import PolicyLoadError
-from bar_policy.deploy.log import load_log
+from bar_policy.deploy.log.read import load_log
 from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.run_config import EXIT_FAULT, EXIT_OK, EXIT_STOP_UNCONFIRMED
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig

@@ -141,7 +141,7 @@ def test_first_policy_tick_after_the_hold_ramp_sees_the_env_reset_observation(
     0.5 s, so the env's reset velocity is 0 as the robot's is) and echoes each command, so the measured
     state at that tick is the frame exactly. Float32 observation rounding: 1e-6.
     """
-    from bar_policy.deploy.log import load_log
+    from bar_policy.deploy.log.read import load_log
     from bar_policy.deploy.runtime import Runtime, RuntimeConfig
     from bar_policy.deploy.safety import Mode, SafetyConfig
     from bar_policy.tasks.track.reference import reference_for

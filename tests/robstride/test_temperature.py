@@ -89,7 +89,7 @@ def test_fault_temperature_ends_a_run_damped_and_stopped(robot, channels, listen
     sys.path.insert(0, str(Path(__file__).parents[1] / "deploy"))
     from policy_factory import make_policy_file
 
-    from bar_policy.deploy.log import load_log
+    from bar_policy.deploy.log.read import load_log
     from bar_policy.deploy.policy import load_policy
     from bar_policy.deploy.runtime import Runtime, RuntimeConfig
     from bar_policy.deploy.safety import SafetyConfig

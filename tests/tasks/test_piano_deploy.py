@@ -18,7 +18,7 @@ sys.path.insert(0, str(Path(__file__).parents[1] / "deploy"))
 from policy_factory import default_metadata, make_policy_file
 
 from bar_policy.deploy.cli import main
-from bar_policy.deploy.log import load_log
+from bar_policy.deploy.log.read import load_log
 from bar_policy.tasks.interfaces import OptionError
 from bar_policy.tasks.piano.bank import PlaybackConfig
 from bar_policy.tasks.piano.deploy import eval_key_source, key_source, resolve_song
@@ -269,6 +269,49 @@ def test_song_on_the_mock_sim_and_emulated_targets(piano_policy, tmp_path, targe
     late = bool(np.asarray(log["overrun"])[first - 1]) or float(np.asarray(log["jitter"])[first]) > dt / 2
     assert steps[first] == 25 or (target != "sim" and late)
     # bar-deploy plot draws the piano roll from those two arrays.
-    from bar_policy.deploy.plot import plot_log
+    from bar_policy.deploy.log.plot import plot_log
 
     assert "piano_roll.png" in {p.name for p in plot_log(run)}
+
+
+def _midi_file(path: Path, notes: list[tuple[int, int, int]]) -> Path:
+    """A type 0 file at 120 bpm, 480 ticks per beat, of (key, on tick, off tick) notes."""
+    events = [(on, mido.Message("note_on", note=k, velocity=80)) for k, on, _ in notes]
+    events += [(off, mido.Message("note_off", note=k)) for k, _, off in notes]
+    mid, track, now = mido.MidiFile(type=0, ticks_per_beat=480), mido.MidiTrack(), 0
+    for tick, msg in sorted(events, key=lambda e: (e[0], e[1].type == "note_on")):
+        track.append(msg.copy(time=tick - now))
+        now = tick
+    mid.tracks.append(track)
+    mid.save(path)
+    return path
+
+
+def test_midi_song_refused_in_one_line_with_the_tempo_that_plays_it(piano_policy, tmp_path, capsys) -> None:
+    # C5 G5 C5, legato eighths at 120 bpm (240 ticks, 0.25 s): G5 needs 0.15 s of C5 and 0.188 s to move 4
+    # white keys (94 mm at 0.5 m/s) = 0.338 s after C5 starts; it has 0.25: x(0.25 / 0.338) = x0.7396 plays.
+    song = _midi_file(tmp_path / "tiny.mid", [(72, 0, 240), (79, 240, 480), (72, 480, 720)])
+    assert main(["--policy", str(piano_policy), "--target", "mock", "--song", str(song)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(
+        f"bar-deploy: error: --song {song}: song 'tiny', note 1 (G5"
+    )
+    assert "the song plays at x0.739 (88.68 bpm) at most: give --tempo 0.739 or --tempo auto" in err
+    assert main(["--policy", str(piano_policy), "--target", "mock", "--song", str(song), "--tempo", "x"]) == 2
+    assert "--tempo 'x': give a factor > 0 (0.5 plays at half speed) or auto" in capsys.readouterr().err
+
+
+def test_midi_song_arrangement_in_the_run_log(piano_policy, tmp_path) -> None:
+    # The tiny song at --tempo auto (x0.739, above): notes 0.25 / 0.739 = 0.3383 s apart; C5 and G5 shortened
+    # to 0.3383 - 0.188 = 0.1503 s (by 0.188 s), the last C5 kept. The log's metadata lists both changes.
+    song = _midi_file(tmp_path / "tiny.mid", [(72, 0, 240), (79, 240, 480), (72, 480, 720)])
+    rc = main(["--policy", str(piano_policy), "--target", "mock", "--song", str(song), "--tempo", "auto",
+               "--max-overruns", "0", "--duration", "0.5", "--log", str(tmp_path / "runs")])  # fmt: skip
+    assert rc == 0
+    (run,) = (tmp_path / "runs").iterdir()
+    _, meta = load_log(run)
+    arr = meta["command_source"]["arrangement"]
+    assert arr["tempo"] == 0.739 and arr["written_bpm"] == 120.0 and arr["hands"] == {"left": 0, "right": 3}
+    assert [(c["key"], c["before"]) for c in arr["changed"]] == [(72, 79), (79, 72)]
+    assert [c["played_s"] for c in arr["changed"]] == pytest.approx([0.150295, 0.150295], abs=1e-5)
+    assert "tempo x0.739 (88.68 bpm), 2 notes shortened, 0 lengthened" in meta["commands"]

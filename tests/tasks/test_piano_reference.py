@@ -30,7 +30,7 @@ from piano_blend import hand_blend
 from policy_factory import default_metadata
 
 from bar_policy.deploy.cli import main
-from bar_policy.deploy.log import load_log
+from bar_policy.deploy.log.read import load_log
 from bar_policy.deploy.safety import Mode
 from bar_policy.obs import ObservationManager
 from bar_policy.quality import QualityMeter
@@ -123,7 +123,7 @@ def test_prior_alone_commands_the_reference_tick_by_tick(prior_run) -> None:
     assert chatter < CHATTER_TOL_MRAD
     assert chatter_mrad(q_cmd[policy] - ref[policy], DT) < CHATTER_TOL_MRAD
     assert chatter_mrad(q_cmd[policy], DT) > 5.0  # the keystrokes (6.9 mrad on ode_to_joy)
-    from bar_policy.deploy.plot import plot_log
+    from bar_policy.deploy.log.plot import plot_log
 
     assert {"joints.png", "tracking.png", "piano_roll.png"} <= {p.name for p in plot_log(run)}
 

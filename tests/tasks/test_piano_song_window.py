@@ -138,7 +138,7 @@ def test_the_run_summary_prints_the_song_figures_on_the_sim_target(piano_policy,
     out = capsys.readouterr().out.splitlines()
     end = next(i for i, line in enumerate(out) if line.startswith("end: "))
     assert out[end + 1 : end + 3] == [
-        "song 'one' from its first note to its last note's end (0.50-0.80 s): precision 1.000 recall 0.000 "
-        "F1 0.000 (step means over 15 ticks; pooled F1 0.000)",
+        "piano: song 'one' from its first note to its last note's end (0.50-0.80 s): precision 1.000 "
+        "recall 0.000 F1 0.000 (step means over 15 ticks; pooled F1 0.000)",
         "  recall of goal key-ticks (pooled): black - of 0, white 0.000 of 15",
     ]

@@ -106,15 +106,24 @@ def test_refusals_name_the_note():
         "right: one key per hand at a time"
     )
     msg = _refusal(Note(60, 0.0, 0.5, "right"), Note(67, 0.6, 1.0, "right"))
+    # A 0.100 s gap of the 0.188 s needed: at x(0.1 / 0.188) = x0.5319 it is 0.188 s; printed rounded down.
     assert msg == (
         "song 's', note 1 (G4 (67) at 0.600-1.000 s, right): it starts 0.100 s after C4 (60) at "
         "0.000-0.500 s, right ends; the right fingertip needs 0.188 s (94 mm at 0.5 m/s, at least "
-        "0.05 s): a tempo beyond the arms"
+        "0.05 s): a tempo beyond the arms (x0.531 of it leaves the gap)"
     )
     msg = _refusal(Note(60, 0.0, 0.1, "right"))
-    assert (
-        msg
-        == "song 's', note 0 (C4 (60) at 0.000-0.100 s, right): shorter than 0.15 s, a tempo beyond the arms"
+    assert msg == (  # 0.1 s / 0.15 s = x0.6667, rounded down
+        "song 's', note 0 (C4 (60) at 0.000-0.100 s, right): shorter than 0.15 s, a tempo beyond the arms "
+        "(x0.666 of it plays it)"
+    )
+    # Legato (C4 ends as D4 starts): no tempo opens the 0.05 s gap; the message blames the gap.
+    msg = _refusal(Note(60, 0.0, 0.5, "right"), Note(62, 0.5, 1.0, "right"))
+    assert msg == (
+        "song 's', note 1 (D4 (62) at 0.500-1.000 s, right): it starts as C4 (60) at 0.000-0.500 s, right "
+        "ends, with no gap; the right fingertip needs 0.050 s (24 mm at 0.5 m/s, at least 0.05 s) to lift "
+        "and move: a missing gap, not a tempo (end the note before it sooner; bar-deploy --tempo 1 has the "
+        "loader do it)"
     )
     msg = _refusal(Note(84, 0.0, 0.5, "left"))
     assert msg.endswith("the left fingertip reaches B0..F#4 only")
@@ -187,7 +196,9 @@ def test_midi_times_from_ticks_and_tempo(tmp_path):
 
 
 def test_midi_refusals(tmp_path):
-    # Default tempo 120 bpm: 480 ticks = 0.5 s. C4 0.0-1.0 s and D4 0.5-1.5 s, both right: overlap.
+    # Default tempo 120 bpm: 480 ticks = 0.5 s. C4 0.0-1.0 s, then D4 0.5-1.5 s while C4 is held (an
+    # overlap, as a performance's export may have). Both arms reach both keys and each takes D4 in time
+    # (0.5 s >= 0.15 s of C4 + 0.05 s), so the split decides: both the right's, C4 ended 0.05 s before D4.
     _write_midi(
         tmp_path / "o.mid",
         [
@@ -197,8 +208,19 @@ def test_midi_refusals(tmp_path):
             (480, mido.Message("note_off", note=62)),
         ],
     )
-    with pytest.raises(SongError, match=r"note 1 \(D4 \(62\) at 0.500-1.500 s, right\): it overlaps C4"):
-        load_midi(tmp_path / "o.mid", CFG)
+    got = [(n.key, n.start_s, n.end_s, n.hand) for n in load_midi(tmp_path / "o.mid", CFG).notes]
+    assert got == [(60, 0.0, 0.45, "right"), (62, 0.5, 1.5, "right")]
+    # C4, E4 and G4 struck together: three keys, two fingertips.
+    _write_midi(
+        tmp_path / "c.mid",
+        [
+            *[(0, mido.Message("note_on", note=k, velocity=64)) for k in (60, 64, 67)],
+            (480, mido.Message("note_off", note=60)),
+            *[(0, mido.Message("note_off", note=k)) for k in (64, 67)],
+        ],
+    )
+    with pytest.raises(SongError, match=r"note 0 \(C4 .*: a chord of 3 notes \(C4, E4, G4\); the arms play"):
+        load_midi(tmp_path / "c.mid", CFG)
     _write_midi(tmp_path / "h.mid", [(0, mido.Message("note_on", note=60, velocity=64))])
     with pytest.raises(SongError, match=r"C4 on channel 0 pressed at 0\.000 s never released"):
         load_midi(tmp_path / "h.mid", CFG)

@@ -14,6 +14,7 @@ import pytest
 
 from bar_policy.training.cli import parse_config, preset_of
 from bar_policy.training.config import PRESETS, PresetName, TrainConfig
+from bar_policy.training.env_flags import env_default
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -54,16 +55,19 @@ def _listed(text: str) -> list[str]:
 def test_help_lists_every_option_once_grouped(preset, capsys, monkeypatch):
     text = _help(capsys, monkeypatch, ["--preset", preset])
     listed = _listed(text)
-    # Booleans have a --no- twin on the same line; --env is the alias of --env-name on its line.
-    expected = _flags(TrainConfig) | {"-h", "--help", "--env"}
+    # Booleans have a --no- twin on the same line; --env is the alias of --env-name on its line. The env's
+    # settings are the --env.* group: the preset's env's config fields.
+    env_config = type(env_default(PRESETS[preset]().env_name))
+    expected = _flags(TrainConfig) | _flags(env_config, "env.") | {"-h", "--help", "--env"}
     assert sorted(listed) == sorted(expected), sorted(set(listed) ^ expected)
     assert text.count("--preset") == 1  # once: its own entry (it was listed twice)
     # Grouped: one box per nested config, with the group's own docstring.
-    for group in ("ppo", "network", "eval", "rsl-rl", "distributed"):
+    for group in ("ppo", "network", "eval", "rsl-rl", "distributed", "env", "env.reward.scales"):
         assert re.search(rf"^\W*{group} options", text, re.M), group
     # Units and the preset's defaults (the track preset's 8.9 min limit, the gpu preset's none).
     one = " ".join(text.split())
     assert "min (0 = no limit;" in one and "Total environment steps" in one
+    assert "Episode length, s" in one and "--env.actuator.latency-steps" in one  # the env's, with units
     assert f"(default: {PRESETS[preset]().max_minutes})" in one
     assert f"Defaults shown: the {preset} preset's." in one
 

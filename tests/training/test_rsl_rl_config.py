@@ -255,3 +255,29 @@ def test_the_run_logger_says_and_records_the_settings_a_backend_runs_without(tmp
     assert out.getvalue().splitlines() == lines
     (record,) = [json.loads(x) for x in (tmp_path / "metrics.jsonl").read_text().splitlines()]
     assert record["kind"] == "not_applied" and record["settings"] == lines
+
+
+def test_backend_rsl_rl_alone_runs_the_rsl_preset_at_a_fixed_rate():
+    """``bar-train --backend rsl-rl`` (no ``--preset``) runs ``gpu-rsl``: ``--preset rsl``'s sizes (24 steps
+    per env, 5 epochs x 4 minibatches: 98,304 env steps and 20 Adam steps per iteration, where its speed
+    comes from) with a fixed rate of 1e-3 and entropy cost 1e-3 in place of the field's adaptive rate and
+    5e-3; nothing else differs and nothing goes unapplied. A ``--preset`` given wins."""
+    rsl = preset("rsl")
+    expected = dataclasses.replace(
+        rsl,
+        preset="gpu-rsl",
+        ppo=dataclasses.replace(rsl.ppo, schedule="fixed", learning_rate=1e-3, entropy_cost=1e-3),
+        rsl_rl=dataclasses.replace(rsl.rsl_rl, schedule="fixed"),
+    )
+    for argv in (["--backend", "rsl-rl"], ["--backend=rsl-rl"]):
+        assert parse_config(argv) == expected
+    cfg = expected
+    assert not_applied(cfg) == []
+    train_cfg = rsl_rl_train_cfg(cfg)
+    alg = train_cfg["algorithm"]
+    assert (alg["schedule"], alg["learning_rate"], alg["entropy_coef"]) == ("fixed", 1e-3, 1e-3)
+    assert train_cfg["num_steps_per_env"] * cfg.ppo.num_envs == 98_304 == rsl.ppo.steps_per_iteration
+    assert alg["num_learning_epochs"] * alg["num_mini_batches"] == 20
+    assert parse_config(["--backend", "rsl-rl", "--preset", "rsl"]).preset == "rsl"
+    assert parse_config(["--preset", "tiny", "--backend", "rsl-rl"]).preset == "tiny"
+    assert parse_config([]).preset == "gpu" and parse_config(["--backend", "brax"]).preset == "gpu"

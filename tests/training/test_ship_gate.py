@@ -183,3 +183,46 @@ def test_a_run_without_an_env_name_has_no_task(tmp_path):
     (tmp_path / "final_eval.json").write_text(json.dumps({"config": {"train": {}}}))
     with pytest.raises(ValueError, match="env_name None"):
         ship.run_task(tmp_path)
+
+
+def test_robustness_tier_records_each_row_and_refuses_only_when_enforced(tmp_path, monkeypatch, capsys):
+    # The nominal gate passes (a faked held-out evaluation); the tier runs two rows for real on the
+    # perturbed sim target with the zero-weight tracker (the arms hold the default pose: decimetres of
+    # fingertip error): the gated friction row misses the 1 cm threshold, the offset row is reported only.
+    monkeypatch.chdir(tmp_path)
+    run_dir = _run(tmp_path, "LiteTrack", "track")
+    monkeypatch.setattr(
+        ship, "held_out_evaluation", lambda onnx, task, options=None: _Passing(_passing_track_report())
+    )
+    rows = "friction +1.0 N*m,offset 0.01 rad"
+    rc = ship.main(_args(tmp_path, run_dir, "--name", "t", "--robustness", rows), eval_options=SHORT["track"])
+    out = capsys.readouterr().out
+    assert rc == ship.SHIPPED  # informs only: the nominal gate decides
+    rec = json.loads((tmp_path / "ck" / "t.json").read_text())["ship_gate"]
+    assert rec["verdict"] == "pass"
+    tier = rec["robustness"]
+    assert tier["verdict"] == "miss" and tier["enforced"] is False
+    assert [(r["name"], r["spec"], r["gating"], r["verdict"]) for r in tier["rows"]] == [
+        ("friction +1.0 N*m", "friction_nm=1.0", "all", "MISS"),
+        ("offset 0.01 rad", "offset_rad=0.01", "none", "report"),
+    ]
+    assert any("max_fingertip_error_cm" in m for m in tier["rows"][0]["misses"])
+    assert "suite: MISS on 1 of 1 gated rows: friction +1.0 N*m" in out
+    # Enforced: the same file is refused, the row named, nothing written.
+    ck = tmp_path / "ck2"
+    args = [*_args(tmp_path, run_dir, "--robustness", rows, "--robustness-enforce")]
+    args[args.index(str(tmp_path / "ck"))] = str(ck)
+    rc = ship.main(args, eval_options=SHORT["track"])
+    out = capsys.readouterr().out
+    assert rc == ship.REFUSED
+    assert "misses the robustness tier on 1 row(s): friction +1.0 N*m" in out and not ck.exists()
+
+
+def test_robustness_rows_are_named_or_refused(capsys):
+    assert [r.name for r in ship.robustness_rows("push 10 N, mass x0.8")] == ["push 10 N", "mass x0.8"]
+    assert "nominal" not in [r.name for r in ship.robustness_rows("suite")]
+    assert len(ship.robustness_rows("suite")) == 12
+    with pytest.raises(ValueError, match=r"unknown suite row\(s\) \['mass x9'\]; valid: 'suite' or any of"):
+        ship.robustness_rows("mass x9")
+    assert ship.main(["--robustness-enforce", "--from-run", "x"]) == ship.NOT_EVALUATED
+    assert "--robustness-enforce needs --robustness ROWS" in capsys.readouterr().err

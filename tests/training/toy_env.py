@@ -3,8 +3,10 @@
 14 first-order joints ``q += gain * (q_cmd - q)`` with ``q_cmd = default + scale * action``; each
 "fingertip" is a fixed linear map of its arm's 7 joints; targets are fingertips of random reachable
 poses. Observation = the real reach schema (54 entries, ``ObservationManager.for_task("reach", "arms")``).
-Reward = mean over hands of ``1 - tanh(d / 0.15)`` (the coarse reach kernel). Metrics as LiteReach:
-``success``, ``success_end``, ``segment_end``, ``dist_left``, ``dist_right``.
+Reward = mean over hands of ``1 - tanh(d / 0.15)`` (the coarse reach kernel), logged as two terms as the
+robot env logs its table: ``reward/reach_left`` and ``reward/reach_right``, each ``0.5 * (1 - tanh(d /
+0.15))`` of its hand, summing to the reward. Metrics as LiteReach: ``success``, ``success_end``,
+``segment_end``, ``dist_left``, ``dist_right``.
 
 It compiles in seconds on a CPU and PPO improves it within a few iterations, so the trainer's tests
 measure the trainer, not MJX compile time.
@@ -56,6 +58,10 @@ class ToyReach(MjxEnv):
 
     # properties -------------------------------------------------------------------------------------
     mj_model = None  # type: ignore[assignment]
+    reward_names = ("reach_left", "reach_right")
+    """The reward terms (metrics ``reward/<name>``), as ``LiteRobotEnv.reward_names``."""
+    metric_keys = ("dist_left", "dist_right", "success", "success_end", "segment_end")
+    """The task metrics besides the reward terms, as ``TaskHooks.metric_keys``."""
 
     @property
     def mjx_model(self) -> dict:
@@ -132,7 +138,8 @@ class ToyReach(MjxEnv):
         q = jnp.asarray(self._default)
         info = {"rng": k_rng, "step": jnp.zeros((), jnp.int32), "target_left": tl, "target_right": tr}
         zeros = jnp.zeros(())
-        metrics = {k: zeros for k in ("dist_left", "dist_right", "success", "success_end", "segment_end")}
+        keys = (*self.metric_keys, *(f"reward/{t}" for t in self.reward_names))
+        metrics = {k: zeros for k in keys}
         obs = self._obs(q, jnp.zeros(14), jnp.zeros(14), info)
         return State(data={"q": q}, obs=obs, reward=zeros, done=zeros, metrics=metrics, info=info)
 
@@ -145,7 +152,8 @@ class ToyReach(MjxEnv):
         pl, pr = self._tips(q)
         d_l = jnp.linalg.norm(pl - info["target_left"])
         d_r = jnp.linalg.norm(pr - info["target_right"])
-        reward = 1.0 - 0.5 * (jnp.tanh(d_l / 0.15) + jnp.tanh(d_r / 0.15))
+        term_l, term_r = 0.5 * (1.0 - jnp.tanh(d_l / 0.15)), 0.5 * (1.0 - jnp.tanh(d_r / 0.15))
+        reward = term_l + term_r
         success = ((d_l < 0.03) & (d_r < 0.03)).astype(jnp.float32)
         step = info["step"] + 1
         seg = (step % self.config.segment_steps) == 0
@@ -165,6 +173,8 @@ class ToyReach(MjxEnv):
             "success": success,
             "success_end": success * segf,
             "segment_end": segf,
+            "reward/reach_left": term_l,
+            "reward/reach_right": term_r,
         }
         return State(
             data={"q": q},

@@ -64,35 +64,84 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add = g.add_argument
     add("--can-interface", choices=CAN_INTERFACES, default="socketcan", help=HELP["--can-interface"])
     add("--channels", metavar="SPEC", default=None, help=HELP["--channels"])
-    add("--calibration", metavar="PATH|none", default=None,
+    add(
+        "--calibration",
+        metavar="PATH|none",
+        default=None,
         help="calibration JSON written by bar-bus calibrate --calibration PATH; 'none': zero offsets "
-             "(required on socketcan)")  # fmt: skip
-    add("--dry-run", action="store_true",
-        help="scan, verify, decode and log commands; write no caps, enable nothing")  # fmt: skip
-    add("--emulate", choices=("auto", "none", "realtime", "lockstep"), default="auto",
-        help="in-process emulator: auto = realtime on virtual, none on socketcan")  # fmt: skip
-    add("--emulate-perturb", type=perturbation_arg, default=None, metavar="KEY=VALUE,...",
-        help=emulate_perturb_help() + " (the same as --perturb on this target)")  # fmt: skip
-    add("--emulate-dt", type=positive("s"), default=None, metavar="S",
-        help="lockstep emulator: physics s per command round (default: --control-dt, else 0.02)")  # fmt: skip
-    add("--reply-timeout", type=positive("s"), default=None, metavar="S",
+        "(required on socketcan)",
+    )
+    add(
+        "--dry-run",
+        action="store_true",
+        help="scan, verify, decode and log commands; write no caps, enable nothing",
+    )
+    add(
+        "--emulate",
+        choices=("auto", "none", "realtime", "lockstep"),
+        default="auto",
+        help="in-process emulator: auto = realtime on virtual, none on socketcan",
+    )
+    add(
+        "--emulate-perturb",
+        type=perturbation_arg,
+        default=None,
+        metavar="KEY=VALUE,...",
+        help=emulate_perturb_help() + " (the same as --perturb on this target)",
+    )
+    add(
+        "--emulate-dt",
+        type=positive("s"),
+        default=None,
+        metavar="S",
+        help="lockstep emulator: physics s per command round (default: --control-dt, else 0.02)",
+    )
+    add(
+        "--reply-timeout",
+        type=positive("s"),
+        default=None,
+        metavar="S",
         help=f"{HELP['--reply-timeout']} (default {DEFAULT_REPLY_TIMEOUT} socketcan, "
-             f"{VIRTUAL_REPLY_TIMEOUT} virtual)")  # fmt: skip
-    add("--can-timeout", type=can_timeout_arg, default=DEFAULT_CAN_TIMEOUT, metavar="S",
+        f"{VIRTUAL_REPLY_TIMEOUT} virtual)",
+    )
+    add(
+        "--can-timeout",
+        type=can_timeout_arg,
+        default=DEFAULT_CAN_TIMEOUT,
+        metavar="S",
         help="motor-side CAN watchdog canTimeout (0x7028), s: a motor that hears no frame for this long "
-             f"disables itself; 0 leaves the motors' setting (default {DEFAULT_CAN_TIMEOUT})")  # fmt: skip
-    add("--damping-kd", type=non_negative("N*m*s/rad"), default=1.0, metavar="KD",
-        help="Kd of the damping fail-safe, N*m*s/rad (default 1.0)")  # fmt: skip
-    add("--scan-to", type=int_range(1, 127), default=127, metavar="ID",
-        help=f"{HELP['--scan-to']}, before enabling (default 127)")  # fmt: skip
-    add(UNSAFE_FLAG, action="store_true",
+        f"disables itself; 0 leaves the motors' setting (default {DEFAULT_CAN_TIMEOUT})",
+    )
+    add(
+        "--damping-kd",
+        type=non_negative("N*m*s/rad"),
+        default=1.0,
+        metavar="KD",
+        help="Kd of the damping fail-safe, N*m*s/rad (default 1.0)",
+    )
+    add(
+        "--scan-to",
+        type=int_range(1, 127),
+        default=127,
+        metavar="ID",
+        help=f"{HELP['--scan-to']}, before enabling (default 127)",
+    )
+    add(
+        UNSAFE_FLAG,
+        action="store_true",
         help="UNSAFE: allow --start policy or a --ramp-time below the safe minimum on the real target "
-             "(refused without it: the step can snap the arms; the minimum is derived from the policy's Kp, "
-             "the torque caps and the joint ranges, deploy.ramp_limit)")  # fmt: skip
-    add("--activation-retries", type=int_range(0, 20), default=DEFAULT_RETRIES, metavar="N",
+        "(refused without it: the step can snap the arms; the minimum is derived from the policy's Kp, "
+        "the torque caps and the joint ranges, deploy.ramp_limit)",
+    )
+    add(
+        "--activation-retries",
+        type=int_range(0, 20),
+        default=DEFAULT_RETRIES,
+        metavar="N",
         help="start-up: tries again after a missing reply this many times (backoff "
-             f"{DEFAULT_RETRY_BACKOFF * 1e3:g} ms, doubling) before refusing "
-             f"(default {DEFAULT_RETRIES})")  # fmt: skip
+        f"{DEFAULT_RETRY_BACKOFF * 1e3:g} ms, doubling) before refusing "
+        f"(default {DEFAULT_RETRIES})",
+    )
 
 
 def make_target(args: argparse.Namespace, mode: str, scene: SceneEdit | None = None) -> Target:
@@ -139,11 +188,16 @@ def _make_target(args: argparse.Namespace, mode: str, scene: SceneEdit | None = 
 
         offsets = dict(zip(robot.joint_names, calibration.offsets(robot), strict=True))
         emulator = make_emulator(
-            robot, channels, interface=interface, mode=emulate,
+            robot,
+            channels,
+            interface=interface,
+            mode=emulate,
             control_dt=getattr(args, "emulate_dt", None) or getattr(args, "control_dt", 0.02),
-            offsets=offsets, scene=scene, perturbation=perturbation,
+            offsets=offsets,
+            scene=scene,
+            perturbation=perturbation,
             robot_params=getattr(args, "robot_params", None),
-        )  # fmt: skip
+        )
         companions.append(emulator.start())
         log.info("started the %s Robstride emulator on %s", emulate, channels)
     try:

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from bar_policy.quality.metrics import chatter_mrad
-from bar_policy.tasks.episodes import EpisodeRunner, Policy
+from bar_policy.tasks.episodes import EpisodeRunner, Policy, report_progress
 from bar_policy.tasks.piano.bank import PlaybackConfig
 from bar_policy.tasks.piano.held import held_pose
 from bar_policy.tasks.piano.key_input import KeySource, SimMidiKeys
@@ -94,7 +94,8 @@ def evaluate(
 
         fingertips = Kinematics(policy.robot.mode).fingertips
     results = []
-    for song, in_group in [*((s, group) for s in songs), *((s, "random") for s in random_songs)]:
+    played = [*((s, group) for s in songs), *((s, "random") for s in random_songs)]
+    for index, (song, in_group) in enumerate(played, 1):
         sim.reset(q0)
         source, truth = _key_sources(keys, sim, kb, fingertips)
         commands = SongCommands(song, kb, policy.policy_dt, source, playback, reference, truth=truth)
@@ -141,6 +142,9 @@ def evaluate(
             group=in_group,
         )
         results.append(result)
+        fault = ", faulted" if result.faulted else ""
+        figure = f"{song.name}, precision {precision:.3f} recall {recall:.3f} F1 {f1:.3f}{fault}"
+        report_progress(runner, "song", index, len(played), figure)
         if on_song is not None:
             on_song(result, SongTicks(song, tally.steps, down, goal, pb.count_in_s))
     return PianoEval(

@@ -23,7 +23,7 @@ from bar_policy.tasks.piano.generator import articulate
 from bar_policy.tasks.piano.keyboard import note_number
 from bar_policy.tasks.piano.songs import Note, Song
 
-__all__ = ["HELDOUT", "RETIRED", "SONG_NAMES", "TRAIN", "library_song"]
+__all__ = ["HELDOUT", "RETIRED", "SONG_NAMES", "TRAIN", "library_bpm", "library_song"]
 
 
 def _part(hand: str, text: str, bpm: float) -> list[Note]:
@@ -126,6 +126,13 @@ TRAIN: tuple[str, ...] = tuple(n for n in _SONGS if n not in HELDOUT and n not i
 """Songs to train on."""
 SONG_NAMES: tuple[str, ...] = tuple(_SONGS)
 """Every song of the library."""
+
+
+def library_bpm(name: str) -> float:
+    """The written tempo of the library's song ``name``, bpm; ``ValueError`` listing the names."""
+    if name not in _SONGS:
+        raise ValueError(f"unknown song {name!r}; songs: {list(_SONGS)}")
+    return float(_SONGS[name][0])
 
 
 @cache

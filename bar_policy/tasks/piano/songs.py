@@ -12,7 +12,10 @@ The format (JSON, ``song_to_json`` / ``song_from_json``, ``read_song`` / ``write
 (``keyboard.LEFT_REACH`` / ``RIGHT_REACH``); two notes of one hand that overlap (one key per hand at a
 time); a note shorter than ``TempoLimits.min_note_s``; and a tempo beyond the arms: between two consecutive
 notes of one hand the fingertip must lift and move from one key's aim point to the next at no more than
-``max_speed``, so the next note may start no sooner than ``required_gap`` after the previous one ends.
+``max_speed``, so the next note may start no sooner than ``required_gap`` after the previous one ends. A
+tempo refusal gives the factor that plays the note (``x0.5``: half speed); a note that starts as the
+previous one ends (legato) is refused for its missing gap, which no tempo opens (``arrange.arrange``, which
+the MIDI loader and ``--tempo`` use, ends each note in time).
 ``either`` notes are given, in time order, to the one hand that can play them, or when both can to the
 hand on the note's side of ``split`` (below middle C: left). numpy only.
 
@@ -256,11 +259,21 @@ def playable(
         if n.start_s < prev.end_s:
             return f"it overlaps {prev.describe()}: one key per hand at a time"
         need = required_gap(prev.key, n.key, cfg, lim)
-        if n.start_s - prev.end_s < need - 1e-9:
+        gap = n.start_s - prev.end_s
+        if gap < need - 1e-9:
+            why = (
+                f"the {hand} fingertip needs {need:.3f} s ({1000 * key_distance(prev.key, n.key, cfg):.0f} "
+                f"mm at {lim.max_speed} m/s, at least {lim.min_gap_s} s)"
+            )
+            if gap < 1e-9:  # legato: no tempo opens a gap that is not there
+                return (
+                    f"it starts as {prev.describe()} ends, with no gap; {why} to lift and move: a missing "
+                    "gap, not a tempo (end the note before it sooner; bar-deploy --tempo 1 has the loader "
+                    "do it)"
+                )
             return (
-                f"it starts {n.start_s - prev.end_s:.3f} s after {prev.describe()} ends; the {hand} "
-                f"fingertip needs {need:.3f} s ({1000 * key_distance(prev.key, n.key, cfg):.0f} mm at "
-                f"{lim.max_speed} m/s, at least {lim.min_gap_s} s): a tempo beyond the arms"
+                f"it starts {gap:.3f} s after {prev.describe()} ends; {why}: a tempo beyond the arms "
+                f"(x{_floor3(gap / need):g} of it leaves the gap)"
             )
         return None
 
@@ -271,7 +284,11 @@ def playable(
             lo, hi = note_name(cfg.lowest), note_name(cfg.highest)
             raise SongError(f"{where}: off the keyboard ({lo}..{hi})")
         if n.end_s - n.start_s < lim.min_note_s - 1e-9:
-            raise SongError(f"{where}: shorter than {lim.min_note_s} s, a tempo beyond the arms")
+            slower = _floor3((n.end_s - n.start_s) / lim.min_note_s)
+            raise SongError(
+                f"{where}: shorter than {lim.min_note_s} s, a tempo beyond the arms "
+                f"(x{slower:g} of it plays it)"
+            )
         hands = ("left", "right") if n.hand == "either" else (n.hand,)
         reasons = {h: why_not(n, h) for h in hands}
         ok = [h for h in hands if reasons[h] is None]
@@ -282,6 +299,11 @@ def playable(
         last[hand] = resolved
         out.append(resolved)
     return Song(song.name, tuple(out))
+
+
+def _floor3(x: float) -> float:
+    """``x`` rounded down to 3 decimals (a tempo factor that still plays: the printed one)."""
+    return math.floor(x * 1000 + 1e-9) / 1000
 
 
 def check_count_in(count_in_s: float) -> None:

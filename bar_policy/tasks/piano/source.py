@@ -23,7 +23,7 @@ Score: ``tally`` (``tally.KeyTally``) holds each tick that ended in POLICY (``af
 in the song's window (``window``, ``metrics.song_window``: its first note's start to its last note's end,
 so neither the start-up hold nor the count-in's silence nor the final hold counts); ``summary_lines`` gives
 its precision, recall, F1 and per-colour recall, which ``bar-deploy`` prints after the run's ``end:`` line
-and ``bar-deploy eval`` reports per song.
+(``tally.SongFigure``) and ``bar-deploy eval`` reports per song.
 
 With a ``reference`` (``reference.KeyPoseReference``, which ``bar-deploy`` and ``bar-deploy eval`` give),
 the source also keeps the song's joint-space reference: the key-pose prior's command for each tick's
@@ -52,6 +52,7 @@ from bar_policy.tasks.piano.tally import KeyTally
 from bar_policy.tasks.piano.terms import PIANO_KEYS, TARGET_FRAMES
 
 if TYPE_CHECKING:
+    from bar_policy.tasks.piano.arrange import Arrangement
     from bar_policy.tasks.piano.reference import KeyPoseReference
 
 __all__ = ["END_HOLD_S", "EPISODE_STEPS", "SongCommands", "sim_keys"]
@@ -79,6 +80,7 @@ class SongCommands(CommandSource):
         playback: PlaybackConfig | None = None,
         reference: KeyPoseReference | None = None,
         truth: KeySource | None = None,
+        arrangement: Arrangement | None = None,
     ) -> None:
         """Play ``song`` on ``keyboard`` at control period ``dt`` s, reading keys from ``keys``.
 
@@ -87,12 +89,16 @@ class SongCommands(CommandSource):
         ``reference``: the key-pose reference ``target_q`` returns (None: no reference; module docstring).
         ``truth``: the keys a tick is scored against (``scored_keys``), read just before ``keys`` so both
         see one state; None: ``keys`` itself (the simulated keys, where they feed the policy).
+        ``arrangement``: what the loader changed to make ``song`` playable (``arrange.Arrangement``: tempo,
+        hands, every note shortened or lengthened), in ``metadata`` (the run's log); None: as written.
         Raises ``ValueError`` for a keyboard of another size than the layout's.
         """
         if keyboard.n_keys != PIANO_KEYS:
             raise ValueError(f"the piano layout has {PIANO_KEYS} keys; the keyboard has {keyboard.n_keys}")
         self.song = song
         """The song as given (its file's times); ``down`` holds it as played, after the count-in."""
+        self.arrangement = arrangement
+        """What the loader changed to play the song (None: played as written)."""
         self.keyboard = keyboard
         self.dt = dt
         self.playback = PlaybackConfig() if playback is None else playback
@@ -229,6 +235,7 @@ class SongCommands(CommandSource):
             "count_in_s": self.playback.count_in_s,
             "keys": keys,
             "reference": None if self.reference is None else self.reference.prior.label,
+            "arrangement": None if self.arrangement is None else self.arrangement.to_dict(),
         }
 
     def describe(self) -> str:
@@ -236,7 +243,11 @@ class SongCommands(CommandSource):
         keys = "the sim's keys" if self.keys is None else _describe(self.keys)
         length, c = self.song_steps * self.dt, self.playback.count_in_s
         notes = len(self.song.notes)
-        return f"song {self.song.name!r} ({notes} notes, {length:g} s with a {c:g} s count-in), keys {keys}"
+        arranged = "" if self.arrangement is None else f", {self.arrangement.brief()}"
+        return (
+            f"song {self.song.name!r} ({notes} notes, {length:g} s with a {c:g} s count-in{arranged}), "
+            f"keys {keys}"
+        )
 
     def close(self) -> None:
         """Close the key source and log what it could not use (``KeySource.counts``)."""

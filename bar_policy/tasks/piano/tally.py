@@ -4,7 +4,8 @@
 (``CommandSource.after_policy_tick``: the runtime calls it when the tick ends in POLICY) whose song step
 lies in the song's window (``metrics.song_window``: its first note's start to its last note's end; the
 start-up hold, the count-in's silence and the final hold are not scored). ``bar-deploy eval`` reads its
-figures for each song and the run summary of ``bar-deploy --song`` prints them (``lines``), so both count
+figures for each song and the run's figure (``SongFigure``, which ``bar-deploy --song`` prints after its
+``end:`` line) prints them (``lines``), so both count
 the same ticks the same way; ``bar-deploy plot``'s piano roll scores the logged ticks of the same window
 (``plot.py``). numpy only.
 """
@@ -15,10 +16,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bar_policy.tasks.interfaces import RunFigure
 from bar_policy.tasks.piano.metrics import Counts, colour_counts, episode_scores, scores, step_counts
 from bar_policy.tasks.piano.results import colour_text
 
-__all__ = ["KeyTally"]
+__all__ = ["KeyTally", "SongFigure"]
 
 
 @dataclass
@@ -102,3 +104,38 @@ class KeyTally:
             f"pooled F1 {pooled:.3f})",
             f"  {colour_text(self.colour())}",
         ]
+
+
+class SongFigure(RunFigure):
+    """The piano's figure of a ``bar-deploy --song`` run: ``KeyTally.lines`` of the song's tally.
+
+    The tally is fed by the runtime (``SongCommands.after_policy_tick``: the ticks that ended in POLICY,
+    those ``bar-deploy eval`` scores), not by ``on_tick``, so the run and the evaluation count alike.
+    """
+
+    def __init__(self, tally: KeyTally, song: str, dt: float) -> None:
+        """``tally``: the run's ``SongCommands.tally``; ``song``: its name; ``dt``: the control period, s."""
+        self.tally = tally
+        self.song = song
+        self.dt = dt
+
+    def on_tick(self, k: int, t: float, rt: object) -> None:
+        """Nothing: the runtime feeds the tally (class docstring)."""
+
+    def line(self) -> str:
+        """``piano: song ...: precision, recall, F1`` and the per-colour recall on a second line."""
+        first, *rest = self.tally.lines(self.song, self.dt)
+        return "\n".join([f"piano: {first}", *rest])
+
+    def to_dict(self) -> dict[str, object]:
+        """The window (steps), ticks, means, pooled counts and per-colour counts."""
+        p, r, f1 = self.tally.means() if self.tally.ticks else (float("nan"),) * 3
+        return {
+            "window_steps": list(self.tally.window),
+            "ticks": self.tally.ticks,
+            "precision": p,
+            "recall": r,
+            "f1": f1,
+            "counts": dict(zip(("tp", "fp", "fn"), self.tally.counts(), strict=True)),
+            **self.tally.colour(),
+        }

@@ -8,8 +8,8 @@ blocked) and re-exports the shared definitions:
 ``terms.py``        the observation terms it adds (the fingertip targets)
 ``layout.py``       its observation layout ``lite_reach_<mode>``
 ``env.py``          ``LiteReach`` (MJX): rewards, metrics, episode, ``ReachEnvConfig``        jax
-``preset.py``       the training presets ``gpu``, ``rsl`` (rsl-rl at the field's values), ``cpu``, ``tiny``,
-                    ``reach-robust``
+``preset.py``       the training presets ``gpu``, ``rsl`` (rsl-rl at the field's values), ``gpu-rsl``
+                    (``--backend rsl-rl``'s default), ``cpu``, ``tiny``, ``reach-robust``
 ``commands.py``     deploy command sources (``--commands sampled|file:|stream:``)         numpy
 ``transition.py``   the deploy side of the command transition (``TransitionCommands``)
 ``evaluate.py``     ``bar-deploy eval``: segment success rate on the C MuJoCo sim target
@@ -54,6 +54,7 @@ RECORD = TaskRecord(
     metric="segment success rate (both fingertips within 3 cm at a segment's end)",
     presets=(
         *((p, f"{_HERE}.preset:{p.upper()}") for p in ("gpu", "rsl", "cpu", "tiny")),
+        ("gpu-rsl", f"{_HERE}.preset:GPU_RSL"),
         ("reach-robust", f"{_HERE}.preset:REACH_ROBUST"),
     ),
     gate=f"{_HERE}.gate:GATE",

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 from bar_policy.tasks.cli_types import count1, number, seconds, seconds0
 from bar_policy.tasks.interfaces import DeployTask, EvalReport, OptionError
 from bar_policy.tasks.reach.commands import CommandError, ReachSource, make_command_source
+from bar_policy.tasks.reach.run_figure import ReachRunFigure
 from bar_policy.tasks.reach.transition import TransitionCommands, with_transition
 
 if TYPE_CHECKING:
@@ -97,6 +98,15 @@ class ReachTask(DeployTask):
         except CommandError as e:
             raise OptionError(str(e)) from None
         return with_transition(source, policy, initial)
+
+    def run_figure(
+        self, policy: Policy, commands: object, kinematics: Kinematics | None = None
+    ) -> ReachRunFigure:
+        """Segment-end success rate and final fingertip distances of the run (``run_figure``)."""
+        from bar_policy.robot.kinematics import Kinematics
+
+        kin = kinematics if kinematics is not None else Kinematics(policy.robot.mode)
+        return ReachRunFigure(kin, policy.policy_dt)
 
     def evaluate(self, policy: Policy, args: argparse.Namespace, runner: EpisodeRunner) -> EvalReport:
         """Segment success rate on the C MuJoCo sim target (``evaluate.evaluate``)."""

@@ -37,7 +37,7 @@ import numpy as np
 from bar_policy.quality import EpisodeQuality, summarise
 from bar_policy.quality.report import quality_summary_line
 from bar_policy.robot.kinematics import Kinematics
-from bar_policy.tasks.episodes import EpisodeRunner, Policy, true_q
+from bar_policy.tasks.episodes import EpisodeRunner, Policy, report_progress, true_q
 from bar_policy.tasks.interfaces import EvalReport
 from bar_policy.tasks.reach.commands import SampledCommands
 from bar_policy.tasks.reach.shared import SUCCESS_RADIUS
@@ -207,6 +207,14 @@ def evaluate(
         n_segments = n_ticks // seg_ticks + (1 if n_ticks % seg_ticks else 0)
         dists += [(math.inf, math.inf)] * (n_segments - len(dists))  # segments cut short by a fault fail
         ok = [dl < cfg.success_radius and dr < cfg.success_radius for dl, dr in dists]
+        ok_count, n_seg = int(sum(ok)), len(dists)
+        fault = ", faulted" if faulted else ""
+        worst = max(max(d) for d in dists) if dists else math.inf
+        figure = (
+            f"seed {seed}, {ok_count}/{n_seg} segments reached, farthest segment end "
+            f"{worst * 100:.1f} cm{fault}"
+        )
+        report_progress(runner, "episode", e + 1, cfg.episodes, figure)
         results.append(
             EpisodeResult(
                 seed=seed,

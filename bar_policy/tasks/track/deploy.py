@@ -15,6 +15,7 @@ from bar_policy.motion.gestures import GESTURES
 from bar_policy.tasks.cli_types import number, seconds0
 from bar_policy.tasks.interfaces import DeployTask, EvalReport, OptionError
 from bar_policy.tasks.track.reference import MotionReference, load_motion, reference_for
+from bar_policy.tasks.track.run_figure import TrackRunFigure
 
 if TYPE_CHECKING:
     from bar_policy.robot.kinematics import Kinematics
@@ -87,6 +88,17 @@ class TrackTask(DeployTask):
             msg = str(e).removeprefix(f"{spec}: ")  # the loader names the file first: once is enough
             raise OptionError(f"--motion {spec}: {msg}") from None
         return reference_for(policy, clip)
+
+    def run_figure(
+        self, policy: Policy, commands: object, kinematics: Kinematics | None = None
+    ) -> TrackRunFigure | None:
+        """Tracking errors of the run against its reference (``run_figure``); None for another source."""
+        if not isinstance(commands, MotionReference):
+            return None
+        from bar_policy.robot.kinematics import Kinematics
+
+        kin = kinematics if kinematics is not None else Kinematics(policy.robot.mode)
+        return TrackRunFigure(commands, kin)
 
     def evaluate(self, policy: Policy, args: argparse.Namespace, runner: EpisodeRunner) -> EvalReport:
         """Tracking errors on the C MuJoCo sim target (``evaluate.evaluate_track``)."""

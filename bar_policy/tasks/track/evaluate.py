@@ -41,7 +41,7 @@ from bar_policy.quality import summarise as summarise_quality
 from bar_policy.quality.report import quality_summary_line
 from bar_policy.robot.constants import FINGERTIP_SITES
 from bar_policy.robot.kinematics import Kinematics
-from bar_policy.tasks.episodes import EpisodeRunner, Policy, true_q
+from bar_policy.tasks.episodes import EpisodeRunner, Policy, report_progress, true_q
 from bar_policy.tasks.interfaces import EvalReport
 from bar_policy.tasks.track.reference import load_motion, reference_for
 from bar_policy.tasks.track.shared import (
@@ -290,7 +290,7 @@ def evaluate_track(
     dt = policy.policy_dt
     kin = Kinematics(policy.robot.mode)
     results = []
-    for clip in clips:
+    for index, clip in enumerate(clips, 1):
         ref = reference_for(policy, clip, tail_s=hold_s, kinematics=kin)
         table, last = ref.table, ref.last
         n_ticks = last + ref.tail_ticks
@@ -318,6 +318,12 @@ def evaluate_track(
         quality = {**res.quality["episode"], "name": clip.name}
         result = ClipResult(clip.name, steps[0], sums, res.fault_count > 0, res.end_reason, quality=quality)
         results.append(result)
+        fault = ", faulted" if result.faulted else ""
+        figure = (
+            f"{clip.name}, joint error {result.mean('joint_error'):.4f} rad, fingertip "
+            f"{100 * result.mean('fingertip_error'):.2f} cm{fault}"
+        )
+        report_progress(runner, "clip", index, len(clips), figure)
         if on_clip is not None:
             on_clip(result)
     return TrackEvalResult(

@@ -38,6 +38,7 @@ from bar_policy.training.brax.networks import make_networks
 from bar_policy.training.brax.ppo_loss import ppo_loss, with_value_targets
 from bar_policy.training.config import NetworkConfig, PPOConfig
 from bar_policy.training.parallel import AXIS
+from bar_policy.training.rollout_sums import step_sums, sum_layout
 
 __all__ = [
     "Learner",
@@ -164,18 +165,18 @@ class Learner:
     def collect_step(self, ts: TrainingState, env: Any) -> Callable[[tuple, Any], tuple]:
         """``rollout``'s scan body: one control step of every slot of ``env`` under ``ts``'s policy.
 
-        ``((env_state, key), _) -> ((env_state, key), (transition, sums))``; ``sums``: ``rollout``'s
-        ``stats`` of that step.
+        ``((env_state, key), _) -> ((env_state, key), (transition, sums))``; ``sums``: that step's
+        ``rollout_sums.step_sums`` (``rollout``'s ``stats`` sum them).
         """
         policy = self.make_policy((ts.normalizer_params, ts.params.policy, ts.params.value))
         task = env.unwrapped
+        layout = sum_layout(task)
 
         def env_step(c: tuple, _: Any) -> tuple:
             s, kk = c
             kk, k_act = jax.random.split(kk)
             action, extras = policy(s.obs, k_act)
             ns = env.step(s, action)
-            num, den = eval_ratios(task, ns.metrics)["success_rate"]
             tr = types.Transition(
                 observation=s.obs,
                 action=action,
@@ -184,7 +185,7 @@ class Learner:
                 next_observation=ns.obs,
                 extras={"policy_extras": extras, "state_extras": {"truncation": ns.info["truncation"]}},
             )
-            return (ns, kk), (tr, jnp.stack([ns.reward.sum(), num.sum(), den.sum()]))
+            return (ns, kk), (tr, step_sums(layout, task, ns))
 
         return env_step
 
@@ -202,7 +203,8 @@ class Learner:
 
         Returns:
             ``(env_state, data, stats)``: ``data`` = transitions, leaves ``(unrolls * envs, T, ...)``;
-            ``stats`` = this device's sums of ``[reward, success numerator, success denominator]``.
+            ``stats`` = this device's sums of ``rollout_sums.step_sums`` (columns: ``sum_layout(task)``;
+            the first three: reward, success numerator, success denominator).
         """
         env_step = self.collect_step(ts, env)
 

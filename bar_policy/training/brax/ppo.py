@@ -69,8 +69,10 @@ from bar_policy.training.brax.programs import (
 from bar_policy.training.brax.result import BraxTrainResult
 from bar_policy.training.checkpoint import load_checkpoint, resume_changes, save_checkpoint
 from bar_policy.training.config import TrainConfig
+from bar_policy.training.log_tags import brax_losses
 from bar_policy.training.parallel import DataParallel, barrier, make_data_parallel
 from bar_policy.training.progress import RunLogger, next_would_overrun
+from bar_policy.training.rollout_sums import RatioWindow, sum_layout, window_metrics
 from bar_policy.training.startup import breakdown as sb
 from bar_policy.training.startup.session import CompiledPrograms, StartUp, compile_programs
 
@@ -225,6 +227,8 @@ class _Run:
         self.eval_model_key, self.weights = dev["eval_model"], dev["weights"]
         self.epochs = 0
         self.keeper = BestKeeper(self.env_steps, getattr(env, "task_name", None))
+        self.layout = sum_layout(env)  # the rollout's logged sums (rollout_sums)
+        self.ratios: dict[str, RatioWindow] = {}  # the training ratios, carried over event-less epochs
         self.evals: list[dict[str, float]] = []
         self.time_to_threshold: list[float] = []
         self.last_eval_s = 0.0
@@ -246,10 +250,10 @@ class _Run:
         self.iteration += self.iters_per_epoch
         self.env_steps += steps
         self.epochs += 1
+        ppo = self.cfg.ppo
         train_metrics = {
-            **{f"loss/{k}": float(v) for k, v in metrics.items()},
-            "episode_reward": float(stats[0]) / steps * self.env.episode_length,
-            "success_rate": float(stats[1]) / max(float(stats[2]), 1.0),
+            **window_metrics(self.layout.named(stats), steps, self.env.episode_length, self.ratios),
+            **brax_losses(metrics, ppo.entropy_cost, ppo.vf_loss_coefficient),
             "sps": steps / seconds,
         }
         self.logger.log(self.env_steps, train_metrics, kind="train")

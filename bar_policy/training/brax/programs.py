@@ -149,7 +149,8 @@ def run_epoch(
 def epoch_totals(metrics: list[dict[str, Any]], stats: list[Any]) -> tuple[dict[str, float], np.ndarray]:
     """Host copies of ``run_epoch``'s lists -> each loss metric's mean over the epoch, the stats' sums.
 
-    ``stats`` rows are ``[reward, success numerator, success denominator]`` over every device's slots.
+    ``stats`` rows are ``rollout_sums.step_sums`` vectors (reward, success numerator and denominator, then
+    the columns of ``rollout_sums.sum_layout``) over every device's slots.
     """
     means = {k: float(np.mean([m[k] for m in metrics])) for k in metrics[0]}
     return means, np.sum(np.stack(stats), axis=0)

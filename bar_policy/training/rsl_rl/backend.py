@@ -55,12 +55,15 @@ from typing import Any
 import numpy as np
 import torch
 
+import bar_policy
 from bar_policy.export.policy import export_policy
 from bar_policy.obs.action_prior import Prior
 from bar_policy.training.best import BestIterate, BestKeeper
 from bar_policy.training.checkpoint import latest_checkpoint, resume_changes, save_checkpoint
 from bar_policy.training.config import TrainConfig
+from bar_policy.training.log_tags import rsl_rl_losses
 from bar_policy.training.progress import RunLogger, next_would_overrun
+from bar_policy.training.rollout_sums import RatioWindow, window_metrics
 from bar_policy.training.rsl_rl.config import not_applied, rsl_rl_train_cfg
 from bar_policy.training.rsl_rl.env import RslRlVecEnv
 from bar_policy.training.rsl_rl.policy import (
@@ -81,6 +84,7 @@ from bar_policy.training.rsl_rl.torch_bridge import COPIES, torch_device_for_jax
 from bar_policy.training.rsl_rl.torch_precision import update_precision
 from bar_policy.training.startup import breakdown as sb
 from bar_policy.training.startup.session import StartUp
+from bar_policy.training.writers import rsl_rl_logger_cfg
 
 __all__ = [
     "RslRlTrainResult",
@@ -197,7 +201,19 @@ def train_rsl_rl(
         eval_vec = RslRlVecEnv(programs=programs.eval, device=device, log_metrics=False)
         with timer.phase(sb.RSL_RESET):  # the runner reads the first observations
             vec_env.get_observations()
-        runner = OnPolicyRunner(vec_env, rsl_rl_train_cfg(cfg), log_dir=None, device=device)
+        # rsl-rl's own runner logger, writing into the run's tb/ (its writer: TensorBoard or wandb, as
+        # --logger says; it also stores the code state, tb/git/*.diff). Our loop writes the scalars
+        # through it, under the tags both backends share (log_tags), from the sums read once per iteration.
+        train_cfg = rsl_rl_train_cfg(cfg)
+        log_dir = str(logger.tb_dir) if logger.writes_scalars else None
+        train_cfg["logger"] = rsl_rl_logger_cfg(
+            logger.logger, project=logger.wandb_project, run_name=logger.run_dir.name
+        )
+        runner = OnPolicyRunner(vec_env, train_cfg, log_dir=log_dir, device=device)
+        if log_dir is not None:
+            runner.logger.git_status_repos.append(bar_policy.__file__)  # our tree's diff beside rsl-rl's
+            runner.logger.init_logging_writer()
+            logger.attach_writer(runner.logger.writer)
         logger.not_applied(not_applied(cfg))  # brax settings rsl-rl runs without: said and recorded
         alg = runner.alg
         if prior is not None:
@@ -216,6 +232,13 @@ def train_rsl_rl(
     evals: list[dict[str, float]] = []
     ttt: list[float] = []
     episode_length = int(env.episode_length)
+    # The training figures (rollout_sums): each iteration's record, and each progress line over the
+    # iterations since the previous line (as brax's line covers its epoch); ratios carried over windows
+    # without an event (reach: segment ends, which all envs reach at the same steps).
+    record_ratios: dict[str, RatioWindow] = {}
+    line_ratios: dict[str, RatioWindow] = {}
+    line_sums: dict[str, float] = {}
+    line_steps, line_s = 0, 0.0
 
     last_eval_s = 0.0
 
@@ -270,20 +293,25 @@ def train_rsl_rl(
         env_steps += steps_per_iter
         dt = time.monotonic() - t0
         compiled.epoch_ended(dt, step0_waiting=eval_at_start)
+        window = stats["window"]
         train_metrics = {
-            **{f"loss/{k}": float(v) for k, v in losses.items()},
-            "episode_reward": stats["reward"] / steps_per_iter * episode_length,
-            "success_rate": stats["success"][0] / max(stats["success"][1], 1.0),
+            **window_metrics(window, steps_per_iter, episode_length, record_ratios),
+            **rsl_rl_losses(losses, alg.learning_rate),
+            "policy_std": float(alg.get_policy().output_std.detach().mean()),
             "sps": steps_per_iter / dt,
-            "learning_rate": float(alg.learning_rate),
         }
         logger.log(env_steps, train_metrics, kind="train")
+        for k, v in window.items():
+            line_sums[k] = line_sums.get(k, 0.0) + v
+        line_steps, line_s = line_steps + steps_per_iter, line_s + dt
         last = iteration >= total_iters
         # Room for the step-0 evaluation when it runs after training (the periodic ones are not counted).
         reserve = last_eval_s if eval_at_end else 0.0
         over_budget = next_would_overrun(logger.elapsed(), dt + reserve, 60 * cfg.max_minutes)
         if iteration % max(1, iters_per_eval // 2) == 0 or last or over_budget:
-            logger.progress(env_steps, steps_per_iter / dt, train_metrics)
+            line = window_metrics(line_sums, line_steps, episode_length, line_ratios)
+            logger.progress(env_steps, line_steps / line_s, line)
+            line_sums, line_steps, line_s = {}, 0, 0.0
         eval_due = iteration % iters_per_eval == 0 or last or over_budget
         if eval_at_start and (eval_due or compiled.ready("eval step")):
             eval_at_start = False
@@ -308,6 +336,8 @@ def train_rsl_rl(
     if eval_at_start or eval_at_end:  # start: no iteration ran (nothing to train); it is still evaluated
         eval_at_zero()
     logger.print(f"trained {env_steps - start_steps:,} env steps in {loop_s:.1f} s of loop")
+    if runner.logger.writer is not None:
+        runner.logger.stop_logging_writer()  # rsl-rl's own end of logging (a wandb run is finished)
     alg.eval_mode()
     return RslRlTrainResult(
         actor=alg.actor,

@@ -88,7 +88,9 @@ class RslRlVecEnv(VecEnv):
     Accumulated on the device since the last ``take_stats`` (or reset): ``reward`` and ``success``
     (numerator, denominator of the task's ``success_rate``) summed over every step and env, as the training
     line reports them; and per env slot the return and every ratio of ``eval_ratios`` counted only while
-    the slot's first episode is alive (up to and including its first ``done``), as an evaluation counts.
+    the slot's first episode is alive (up to and including its first ``done``), as an evaluation counts;
+    and the training sums of every step and env that the brax rollout logs (``rollout_sums.step_sums``:
+    reward terms, the task's ratios, finished episodes and their lengths).
     """
 
     def __init__(
@@ -216,7 +218,8 @@ class RslRlVecEnv(VecEnv):
 
         Returns:
             ``{"reward": float, "success": (num, den), "return": np.ndarray (num_envs,), "ratios":
-            {name: (num, den)}}``: sums as described in the class docstring; with ``quality``, also
+            {name: (num, den)}, "window": {column: float}}``: sums as described in the class docstring
+            (``window``: the training sums of every step, ``rollout_sums``' columns); with ``quality``, also
             ``"quality": {"quality/<figure>": float}`` (``eval_quality.finish``'s figures).
         """
         dev = dict(self.stats)
@@ -230,6 +233,7 @@ class RslRlVecEnv(VecEnv):
             "success": (float(host["success"][0]), float(host["success"][1])),
             "return": np.asarray(host["return"]),
             "ratios": {k: (float(np.sum(n)), float(np.sum(d))) for k, (n, d) in host["ratios"].items()},
+            "window": self.programs.layout.named(host["window"]),
         }
         if self.quality:
             out["quality"] = {k: float(v) for k, v in host["quality"].items()}

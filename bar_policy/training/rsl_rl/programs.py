@@ -32,6 +32,7 @@ from bar_policy.obs.action_prior import Prior, check_fits
 from bar_policy.training import eval_quality
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.parallel import AXIS
+from bar_policy.training.rollout_sums import step_sums, sum_layout
 from bar_policy.training.rsl_rl.prior import commanded_action, rsl_rl_prior
 from bar_policy.training.startup.session import CompiledPrograms, Program, StartUp, compile_programs
 
@@ -79,6 +80,8 @@ class EnvPrograms:
         self.prior = prior
         """The action prior added to the step's actions, or None."""
         self.name = name
+        self.layout = sum_layout(env)
+        """The columns of the training sums ``stats["window"]`` (``rollout_sums``; as brax's rollout)."""
         key = jax.random.PRNGKey(seed)
         k_rand, self._key = jax.random.split(key)
         rfn = None
@@ -171,6 +174,7 @@ class EnvPrograms:
             "alive": zeros + 1.0,
             "return": zeros,
             "ratios": {k: (zeros, zeros) for k in ratios},
+            "window": jnp.zeros(len(self.layout.columns)),
         }
         if self.quality:
             n = self.num_actions
@@ -197,6 +201,7 @@ class EnvPrograms:
                 k: (stats["ratios"][k][0] + n * alive, stats["ratios"][k][1] + d * alive)
                 for k, (n, d) in ratios.items()
             },
+            "window": stats["window"] + step_sums(self.layout, self.task, ns),
         }
         if self.quality:  # as Learner.evaluate: the applied action's signals, before the step
             t, task, f32 = stats_in["t"], self.task, lambda x: jnp.asarray(x, jnp.float32)

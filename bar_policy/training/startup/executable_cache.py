@@ -124,8 +124,10 @@ class ExecutableCache:
                     (self.directory / f"{key}.banned").touch()
                     _log.warning(
                         "executable cache: process %d died running programs loaded from entry %s; "
-                        "deleted, never stored again", pid, key,
-                    )  # fmt: skip
+                        "deleted, never stored again",
+                        pid,
+                        key,
+                    )
             record.unlink(missing_ok=True)
 
     def _record_loaded(self, key: str) -> None:
@@ -187,8 +189,11 @@ class ExecutableCache:
         except Exception as e:  # any failure means: compile afresh
             _log.warning(
                 "executable cache: entry %s of program %r unusable (%s: %s); deleted, compiling afresh",
-                path.name, name, type(e).__name__, str(e)[:200],
-            )  # fmt: skip
+                path.name,
+                name,
+                type(e).__name__,
+                str(e)[:200],
+            )
             self.delete(key)
             self.rejected.add(key)
             return None
@@ -355,8 +360,9 @@ def executable_cache_for(
     if _crashed_marker(cache.directory).exists():
         _log.warning(
             "executable cache: off, a run crashed after loading from it on this backend and jaxlib (delete "
-            "%s to try again)", _crashed_marker(cache.directory),
-        )  # fmt: skip
+            "%s to try again)",
+            _crashed_marker(cache.directory),
+        )
         return None
     return cache
 

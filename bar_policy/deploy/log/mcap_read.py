@@ -11,7 +11,13 @@ from typing import Any
 
 import numpy as np
 
-from bar_policy.deploy.mcap_schema import OPTIONAL_TICK_TOPICS, TICK_TOPICS, TRANSITION_TOPIC, _routes
+from bar_policy.deploy.log.mcap_schema import (
+    LEGACY_TOPICS,
+    OPTIONAL_TICK_TOPICS,
+    TICK_TOPICS,
+    TRANSITION_TOPIC,
+    _routes,
+)
 
 __all__ = ["McapLog", "read_mcap_log"]
 
@@ -31,7 +37,7 @@ class McapLog:
     """Mode changes from ``/safety/transition``."""
     complete: bool = False
     """True when the run closed: the file has its footer and the ``bar_deploy.end`` record. False for a
-    truncated file, and for one that ``mcap_recover.recover_mcap`` rewrote (a footer, but no end record:
+    truncated file, and for one that ``recover.recover_mcap`` rewrote (a footer, but no end record:
     never closed)."""
     error: str = ""
     """Why reading stopped early (empty for a complete file)."""
@@ -58,6 +64,9 @@ def _decode_column(values: list[Any], shape: tuple[int, ...], dtype: np.dtype) -
 def read_mcap_log(path: str | Path) -> McapLog:
     """Read a run's MCAP log, complete or truncated (no footer, a cut chunk: read up to the last good chunk).
 
+    A log written before a topic's rename (``mcap_schema.LEGACY_TOPICS``: ``/joint_state``, now
+    ``/joint_state_json``) reads the same.
+
     Raises:
         ValueError: the file is not an MCAP log written by ``McapRunWriter`` (bad magic, no field record).
     """
@@ -81,7 +90,7 @@ def read_mcap_log(path: str | Path) -> McapLog:
         try:
             for rec in reader.records:
                 if isinstance(rec, Channel):
-                    channels[rec.id] = rec.topic
+                    channels[rec.id] = LEGACY_TOPICS.get(rec.topic, rec.topic)  # an older log's names
                 elif isinstance(rec, Message):
                     topic = channels.get(rec.channel_id)
                     if topic == TRANSITION_TOPIC:

@@ -1,6 +1,6 @@
-"""The run log's per-tick fields, its errors and the durable file helpers (``deploy.log``'s lower layer).
+"""The run log's per-tick fields, its errors and the durable file helpers (``run_log``'s lower layer).
 
-``log_fields`` gives the per-tick arrays (``deploy.log`` documents each); ``_write_durable`` writes a file
+``log_fields`` gives the per-tick arrays (``run_log`` documents each); ``_write_durable`` writes a file
 through ``<path>.partial`` with fsyncs; ``_json_text`` / ``_json_bytes`` give strict JSON of the run
 metadata; ``check_log_dir`` checks a log directory before anything moves.
 """

@@ -21,7 +21,8 @@ from pathlib import Path
 from typing import IO, Any
 
 from bar_policy._files import fsync_dir, shorten, strict_json
-from bar_policy.deploy.mcap_log import MCAP_FILE
+from bar_policy.deploy.log.files import LogReadError
+from bar_policy.deploy.log.mcap_schema import MCAP_FILE
 
 __all__ = ["CUT_SUFFIX", "RecoverReport", "recover_mcap"]
 
@@ -254,12 +255,10 @@ def recover_mcap(path: str | Path) -> RecoverReport:
 
     Raises:
         FileNotFoundError: nothing at ``path``.
-        LogReadError: (``bar_policy.deploy.log``; an ``InputError``) not an MCAP file, or not even its
+        LogReadError: (``bar_policy.deploy.log.run_log``; an ``InputError``) not an MCAP file, or not even its
             header can be read.
         OSError: the directory cannot be written.
     """
-    from bar_policy.deploy.log import LogReadError
-
     path = Path(path)
     if path.is_dir():
         path = path / MCAP_FILE

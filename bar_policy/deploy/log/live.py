@@ -2,7 +2,7 @@
 
 ``LiveServer`` starts the Foxglove SDK's WebSocket server on the loopback interface only (``127.0.0.1``:
 nothing outside the machine can connect; from another machine, forward the port over SSH). The run log's
-writer (``mcap_log.McapRunWriter``) advertises every channel it writes (same topic, schema and encoding)
+writer (``mcap_write.McapRunWriter``) advertises every channel it writes (same topic, schema and encoding)
 and sends every message it writes to the file to the server too, stamped with the same log time. In the
 Foxglove app: *Open connection* -> *Foxglove WebSocket* -> ``ws://localhost:8765``.
 """

@@ -1,8 +1,8 @@
-"""The MCAP run log's topics and JSON Schemas, and the JSON form of a tick's values (``deploy.mcap_log``).
+"""The MCAP run log's topics and JSON Schemas, and the JSON form of a tick's values (``mcap_write``).
 
 ``FIELD_ROUTES`` maps each per-tick field to its topic and key; ``_tick_schema`` / ``_TRANSITION_SCHEMA``
 give each topic's JSON Schema; ``_value`` writes a numpy value as plain JSON (non-finite -> null).
-``deploy.mcap_log`` documents the file's layout.
+``mcap_write`` documents the file's layout.
 """
 
 from __future__ import annotations
@@ -16,6 +16,8 @@ import numpy as np
 __all__ = [
     "COMMANDS_TOPIC",
     "FIELD_ROUTES",
+    "JOINT_STATE_TOPIC",
+    "LEGACY_TOPICS",
     "MCAP_FILE",
     "OPTIONAL_TICK_TOPICS",
     "TICK_TOPICS",
@@ -26,7 +28,13 @@ __all__ = [
 MCAP_FILE = "run.mcap"
 """File name of the MCAP log inside a run directory."""
 
-TICK_TOPICS = ("/joint_state", "/mit_command", "/policy", "/commands", "/safety", "/timing")
+JOINT_STATE_TOPIC = "/joint_state_json"
+"""Topic of the measured joint state as JSON. Named apart from ROS 2's ``/joint_states`` (the same values as
+``sensor_msgs/msg/JointState``, ``log_channels``): logs written before the rename call it ``/joint_state``."""
+LEGACY_TOPICS = {"/joint_state": JOINT_STATE_TOPIC}
+"""Old topic name -> current one: the reader (``mcap_read``) accepts logs that use the old names."""
+
+TICK_TOPICS = (JOINT_STATE_TOPIC, "/mit_command", "/policy", "/commands", "/safety", "/timing")
 """Topics with one message per control tick, in the order they are written."""
 OPTIONAL_TICK_TOPICS = ("/reference",)
 """Per-tick topics written only when some field routes there (a tracking run's reference)."""
@@ -35,9 +43,9 @@ TRANSITION_TOPIC = "/safety/transition"
 COMMANDS_TOPIC = "/commands"
 
 FIELD_ROUTES: dict[str, tuple[str, str]] = {
-    "q": ("/joint_state", "q"),
-    "dq": ("/joint_state", "dq"),
-    "tau": ("/joint_state", "tau"),
+    "q": (JOINT_STATE_TOPIC, "q"),
+    "dq": (JOINT_STATE_TOPIC, "dq"),
+    "tau": (JOINT_STATE_TOPIC, "tau"),
     "q_cmd": ("/mit_command", "q"),
     "dq_cmd": ("/mit_command", "dq"),
     "kp": ("/mit_command", "kp"),
@@ -60,7 +68,7 @@ FIELD_ROUTES: dict[str, tuple[str, str]] = {
 """Per-tick field -> (topic, JSON key). ``t`` is in every message; other fields go to ``/commands``."""
 
 _SCHEMA_NAMES = {
-    "/joint_state": "bar_deploy.JointState",
+    JOINT_STATE_TOPIC: "bar_deploy.JointState",
     "/mit_command": "bar_deploy.MitCommand",
     "/policy": "bar_deploy.Policy",
     "/commands": "bar_deploy.Commands",
@@ -70,7 +78,7 @@ _SCHEMA_NAMES = {
     TRANSITION_TOPIC: "bar_deploy.Transition",
 }
 _DESCRIPTIONS = {
-    "/joint_state": "Measured joint state, canonical joint order (rad, rad/s, N*m).",
+    JOINT_STATE_TOPIC: "Measured joint state, canonical joint order (rad, rad/s, N*m).",
     "/mit_command": "MIT command written to the joints; tau_cmd is the host's capped MIT torque of it (N*m).",
     "/policy": "Observation fed to the policy and its raw action (null where the policy did not run).",
     "/commands": "Command terms fed to the observation (chest frame, m).",

@@ -1,6 +1,6 @@
 """Reading a run log back: ``load_log`` (``log.npz``, else ``run.mcap``, else the NPZ chunks of older runs).
 
-``deploy.log`` documents the run directory and the per-tick arrays; ``deploy.mcap_log`` the MCAP schema.
+``run_log`` documents the run directory and the per-tick arrays; ``mcap_write`` the MCAP schema.
 """
 
 from __future__ import annotations
@@ -13,9 +13,9 @@ from typing import Any
 import numpy as np
 
 from bar_policy._files import loads_json, npz_problem, shorten
-from bar_policy.deploy.log_files import NOT_CLOSED, LogReadError, _concat_chunks
-from bar_policy.deploy.mcap_read import read_mcap_log
-from bar_policy.deploy.mcap_schema import MCAP_FILE
+from bar_policy.deploy.log.files import NOT_CLOSED, LogReadError, _concat_chunks
+from bar_policy.deploy.log.mcap_read import read_mcap_log
+from bar_policy.deploy.log.mcap_schema import MCAP_FILE
 
 __all__ = ["load_log"]
 

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from bar_policy.deploy.log import load_log
+from bar_policy.deploy.log.read import load_log
 
 __all__ = ["plot_log", "tracking_errors"]
 

@@ -2,12 +2,12 @@
 
 A run directory ``<dir>/<YYYYmmdd-HHMMSS>-<target>/`` holds:
 
-- ``run.mcap``: every tick as JSON messages on named topics (``mcap_log`` documents the schema), written by a
+- ``run.mcap``: every tick as JSON messages on named topics (``mcap_write``: the schema), written by a
   background thread as the ticks arrive. Every ``flush_interval`` s of wall time (0.5 s) the chunk in
   progress is closed, written and ``fsync``-ed, so a SIGKILL or a power loss loses at most the last
   ``flush_interval`` s plus the writer's backlog (counted: ``log_max_backlog_ticks``). Foxglove and the
   ``mcap`` CLI open it; ``read_mcap_log`` reads it back even without its footer. Beside the JSON topics it
-  holds the same values in well-known schemas (``log_channels``): ROS 2 joint states, the robot drawn in
+  holds the same values in well-known schemas (``channels``): ROS 2 joint states, the robot drawn in
   Foxglove's 3D panel (transforms and the MJCF's geometry, the tracking reference as a ghost), the run's
   log lines as ``foxglove.Log``; with ``live``, every message also goes to the live server.
 - ``run.blf`` (real target): the raw CAN traffic of every bus (``robstride.can_record``).
@@ -54,34 +54,22 @@ from typing import IO, TYPE_CHECKING, Any
 import numpy as np
 
 from bar_policy._files import fsync_dir
-from bar_policy.deploy.log_files import (
+from bar_policy.deploy.log.files import (
     FLUSH_INTERVAL,
-    NOT_CLOSED,  # noqa: F401 (re-exported: callers import it from here)
     LogDirError,
-    LogReadError,
     _concat_chunks,
     _json_bytes,
     _json_text,
     _write_durable,
-    check_log_dir,
-    log_fields,
 )
-from bar_policy.deploy.log_read import load_log
-from bar_policy.deploy.mcap_log import MCAP_FILE, McapRunWriter
+from bar_policy.deploy.log.mcap_schema import MCAP_FILE
+from bar_policy.deploy.log.mcap_write import McapRunWriter
 
 if TYPE_CHECKING:
-    from bar_policy.deploy.foxglove_scene import RobotScene
-    from bar_policy.deploy.live import LiveServer
+    from bar_policy.deploy.log.foxglove_scene import RobotScene
+    from bar_policy.deploy.log.live import LiveServer
 
-__all__ = [
-    "FLUSH_INTERVAL",
-    "LogDirError",
-    "LogReadError",
-    "RunLog",
-    "check_log_dir",
-    "load_log",
-    "log_fields",
-]
+__all__ = ["RunLog"]
 
 log = logging.getLogger(__name__)
 

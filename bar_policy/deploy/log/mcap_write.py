@@ -9,7 +9,7 @@ Layout of ``run.mcap`` (written by ``McapRunWriter``, read back by ``read_mcap_l
   ``tick`` (int) and ``t`` (target clock, s):
 
   ========================  ==========================================================================
-  ``/joint_state``          ``q`` (rad), ``dq`` (rad/s), ``tau`` (N*m): the measured state
+  ``/joint_state_json``     ``q`` (rad), ``dq`` (rad/s), ``tau`` (N*m): the measured state
   ``/mit_command``          ``q``, ``dq``, ``kp``, ``kd``, ``tau_ff``: the MIT command written;
                             ``tau_cmd``: the host's capped MIT torque of that command at the state
   ``/policy``               ``obs`` (the observation), ``action`` (raw policy output; null entries when
@@ -28,7 +28,7 @@ Layout of ``run.mcap`` (written by ``McapRunWriter``, read back by ``read_mcap_l
 - metadata record ``bar_deploy.end`` (only when the run closed): the final metadata (end reason, timing
   summary, counts, the stop path's outcome);
 - the same values again in well-known schemas that Foxglove and ROS 2 tools read without set-up
-  (``log_channels`` lists them): ``/joint_states``, ``/joint_commands`` and ``/reference/joint_states`` as
+  (``channels`` lists them): ``/joint_states``, ``/joint_commands`` and ``/reference/joint_states`` as
   ROS 2 ``sensor_msgs/msg/JointState`` (CDR), the robot's body transforms ``/tf`` (and the reference's
   ghost, ``/reference/tf``) as ``foxglove.FrameTransforms``, its geometry ``/robot/scene`` (and
   ``/reference/scene``) as ``foxglove.SceneUpdate``, and the run's log lines ``/log`` as ``foxglove.Log``;
@@ -40,7 +40,7 @@ JSON ``null`` (JSON has no NaN; the sign of an infinity is lost) and read back a
 
 Durability: chunks (zstd) are closed by ``flush()``; the log writer calls it every ``flush_interval`` s of
 wall time and then ``os.fsync``. A file that ends without a footer (SIGKILL, power loss) is read up to its
-last complete chunk by ``read_mcap_log``; ``mcap_recover.recover_mcap`` (``bar-deploy log recover RUN``)
+last complete chunk by ``read_mcap_log``; ``recover.recover_mcap`` (``bar-deploy log recover RUN``)
 rewrites it as a complete, indexed MCAP (what the ``mcap`` library's indexed reader and Foxglove's seeking
 need), keeping the original as ``run.mcap.cut``.
 
@@ -58,18 +58,13 @@ from typing import IO, Any
 import numpy as np
 
 from bar_policy._files import strict_json
-from bar_policy.deploy.foxglove_scene import RobotScene
-from bar_policy.deploy.live import LiveServer
-from bar_policy.deploy.log_channels import WellKnownChannels, encode_log
-from bar_policy.deploy.mcap_read import McapLog, read_mcap_log
-from bar_policy.deploy.mcap_schema import (  # noqa: F401 (COMMANDS_TOPIC: re-exported)
+from bar_policy.deploy.log.channels import WellKnownChannels, encode_log
+from bar_policy.deploy.log.foxglove_scene import RobotScene
+from bar_policy.deploy.log.live import LiveServer
+from bar_policy.deploy.log.mcap_schema import (
     _SCHEMA_NAMES,
     _TRANSITION_SCHEMA,
-    COMMANDS_TOPIC,
-    FIELD_ROUTES,
-    MCAP_FILE,
-    OPTIONAL_TICK_TOPICS,
-    TICK_TOPICS,
+    JOINT_STATE_TOPIC,
     TRANSITION_TOPIC,
     Fields,
     _finite_or_none,
@@ -78,17 +73,7 @@ from bar_policy.deploy.mcap_schema import (  # noqa: F401 (COMMANDS_TOPIC: re-ex
     _value,
 )
 
-__all__ = [
-    "FIELD_ROUTES",
-    "MCAP_FILE",
-    "MODEL_ATTACHMENT",
-    "OPTIONAL_TICK_TOPICS",
-    "TICK_TOPICS",
-    "TRANSITION_TOPIC",
-    "McapLog",
-    "McapRunWriter",
-    "read_mcap_log",
-]
+__all__ = ["MODEL_ATTACHMENT", "McapRunWriter"]
 
 
 MODEL_ATTACHMENT = "robot.xml"
@@ -96,7 +81,7 @@ MODEL_ATTACHMENT = "robot.xml"
 
 
 class McapRunWriter:
-    """Writes one run as MCAP (the JSON topics, and the well-known ones of ``log_channels``) to a stream."""
+    """Writes one run as MCAP (the JSON topics, and the well-known ones of ``channels``) to a stream."""
 
     def __init__(
         self,
@@ -146,7 +131,7 @@ class McapRunWriter:
                 else _tick_schema(topic, self._routes[topic], self.fields, self.labels)
             )
             chan_meta = {}
-            if joint_names and topic in ("/joint_state", "/mit_command"):
+            if joint_names and topic in (JOINT_STATE_TOPIC, "/mit_command"):
                 chan_meta["joint_names"] = ",".join(joint_names)
             record = (_SCHEMA_NAMES[topic], "jsonschema", json.dumps(schema).encode())
             self._channels[topic] = self.register(topic, record, "json", chan_meta)

@@ -32,8 +32,8 @@ from typing import Any
 
 import numpy as np
 
-from bar_policy.deploy.foxglove_scene import GHOST_COLOR, GHOST_PREFIX, RobotScene, foxglove_schema
-from bar_policy.deploy.ros2_schema import JOINT_STATE_SCHEMA, JOINT_STATE_TYPE, encode_joint_state
+from bar_policy.deploy.log.foxglove_scene import GHOST_COLOR, GHOST_PREFIX, RobotScene, foxglove_schema
+from bar_policy.deploy.log.ros2_schema import JOINT_STATE_SCHEMA, JOINT_STATE_TYPE, encode_joint_state
 
 __all__ = [
     "JOINT_COMMANDS_TOPIC",
