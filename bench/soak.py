@@ -58,16 +58,19 @@ def _spin() -> subprocess.Popen:
 
 STALL_WATCHER = """
 import sys, time
+unix = time.time() - time.perf_counter()
 last = time.perf_counter()
 while True:
     time.sleep(0.001)
     now = time.perf_counter()
     if now - last > 0.005:
-        sys.stdout.write(f"{last:.6f} {now:.6f}\\n")
+        sys.stdout.write(f"{unix + last:.6f} {unix + now:.6f}\\n")
         sys.stdout.flush()
     last = now
 """
-"""The watcher's program: one line ``start end`` (``time.perf_counter``, s) per wake-up gap over 5 ms."""
+"""The watcher's program: one line ``start end`` per wake-up gap over 5 ms, s since the epoch (measured
+with ``time.perf_counter``, placed on the wall clock once at its start, like the run log's
+``started_unix``)."""
 
 
 def watcher_priority(rt_priority: int | None) -> int | None:
@@ -98,7 +101,7 @@ def start_stall_watcher(out: Path, priority: int | None = None) -> subprocess.Po
 
 
 def read_stalls(path: Path) -> list[tuple[float, float]]:
-    """The watcher's gaps: (start, end) pairs, s (``time.perf_counter``).
+    """The watcher's gaps: (start, end) pairs, s since the epoch.
 
     Only whole lines count: a last line without its newline was cut by the kill mid-write.
     """
@@ -112,8 +115,8 @@ def read_stalls(path: Path) -> list[tuple[float, float]]:
 def stall_summary(gaps: list[tuple[float, float]], t0: float) -> dict:
     """Counts of gaps over 5, 20 and 50 ms, the longest (ms), and the gaps over 20 ms as (start, length).
 
-    ``t0``: the soak's start (``time.perf_counter``, the same clock in every process on Linux); a gap's
-    start is given in s after it (the run's start-up comes first: a few s).
+    ``t0``: the soak's start, s since the epoch; a gap's start is given in s after it (the run's start-up
+    comes first: about 1 s).
     """
     ms = [1e3 * (b - a) for a, b in gaps]
     long = [(round(a - t0, 3), round(1e3 * (b - a), 1)) for a, b in gaps if 1e3 * (b - a) > 20.0]
@@ -123,6 +126,47 @@ def stall_summary(gaps: list[tuple[float, float]], t0: float) -> dict:
         "stall_gaps_over_50ms": sum(m > 50.0 for m in ms),
         "stall_max_ms": max(ms, default=0.0),
         "stalls_over_20ms_at": long,
+    }
+
+
+SLOW_TICK_MS = 40.0
+"""A tick slower than this (compute, ms) is checked against the watcher's gaps (``slow_ticks_vs_stalls``)."""
+STALL_WINDOW_S = 0.2
+"""Slack around a slow tick within which a watcher gap counts as its stall, s (the tick times are placed on
+the wall clock through the log's ``started_unix``, taken just before the loop's first deadline)."""
+
+
+def slow_ticks_vs_stalls(
+    tick_unix: np.ndarray, compute_s: np.ndarray, gaps: list[tuple[float, float]], end_unix: float | None
+) -> dict:
+    """Which slow ticks came with a stall of the machine, and the stall before a fault's end.
+
+    Args:
+        tick_unix: each tick's start, s since the epoch (ticks,).
+        compute_s: each tick's compute, s (ticks,).
+        gaps: the watcher's gaps (``read_stalls``).
+        end_unix: when the loop ended on a fault (the last tick's end), s since the epoch; None: no fault.
+
+    Returns:
+        ``slow_ticks`` (compute over ``SLOW_TICK_MS``), ``slow_ticks_with_a_stall`` (a gap overlapping the
+        tick widened by ``STALL_WINDOW_S`` each side), and ``stall_before_end_ms``: the longest gap within
+        the second before ``end_unix`` (to ``STALL_WINDOW_S`` after it; None without a fault, 0.0 without a
+        gap).
+    """
+    slow = np.flatnonzero(1e3 * np.asarray(compute_s) > SLOW_TICK_MS)
+    with_stall = 0
+    for k in slow:
+        lo = float(tick_unix[k]) - STALL_WINDOW_S
+        hi = float(tick_unix[k] + compute_s[k]) + STALL_WINDOW_S
+        with_stall += any(a < hi and b > lo for a, b in gaps)
+    before = None
+    if end_unix is not None:
+        near = [1e3 * (b - a) for a, b in gaps if a < end_unix + STALL_WINDOW_S and b > end_unix - 1.0]
+        before = max(near, default=0.0)
+    return {
+        "slow_ticks": int(slow.size),
+        "slow_ticks_with_a_stall": with_stall,
+        "stall_before_end_ms": before,
     }
 
 
@@ -147,6 +191,7 @@ def soak(policy: str, minutes: float, load_procs: int, log_dir: Path, rt_priorit
     load = [_spin() for _ in range(load_procs)]
     stall_file = log_dir / "stalls.txt"
     t0 = time.perf_counter()
+    t0_unix = time.time()
     watcher = start_stall_watcher(stall_file, watcher_priority(rt_priority))
     try:
         cmd = [
@@ -173,6 +218,11 @@ def soak(policy: str, minutes: float, load_procs: int, log_dir: Path, rt_priorit
     mcap = read_mcap_log(run_dir / MCAP_FILE)
     mcap_ticks = int(np.asarray(mcap.arrays["t"]).size)
     timing = meta["timing"]
+    gaps = read_stalls(stall_file)
+    tick_unix = float(meta["started_unix"]) + np.asarray(arrays["wall"], dtype=np.float64)
+    compute_s = np.asarray(arrays["compute"], dtype=np.float64)
+    faulted = meta["fault_count"] > 0 and tick_unix.size > 0
+    end_unix = float(tick_unix[-1] + compute_s[-1]) if faulted else None
     return {
         "policy": policy,
         "minutes": minutes,
@@ -193,7 +243,8 @@ def soak(policy: str, minutes: float, load_procs: int, log_dir: Path, rt_priorit
         "ticks_mcap": mcap_ticks,
         "mcap_complete": bool(mcap.complete),
         "mcap_indexed_reader_ok": _indexed_ok(run_dir / MCAP_FILE),
-        **stall_summary(read_stalls(stall_file), t0),
+        **stall_summary(gaps, t0_unix),
+        **slow_ticks_vs_stalls(tick_unix, compute_s, gaps, end_unix),
         "run_dir": str(run_dir),
         "loadavg": os.getloadavg(),
         "cpus": os.cpu_count(),
@@ -222,6 +273,10 @@ def markdown(r: dict) -> str:
         ("overruns", f"{t['overruns']} (ticks flagged in the log: {r['overrun_ticks_in_log']})"),
         ("host stalls (idle watcher's wake-ups late by > 20 / > 50 ms; longest)",
          f"{r['stall_gaps_over_20ms']} / {r['stall_gaps_over_50ms']}; {r['stall_max_ms']:.1f} ms"),
+        (f"ticks slower than {SLOW_TICK_MS:g} ms / with a host stall", f"{r['slow_ticks']} / "
+                                                                       f"{r['slow_ticks_with_a_stall']}"),
+        ("longest host stall in the second before a fault", "-" if r["stall_before_end_ms"] is None
+                                                            else f"{r['stall_before_end_ms']:.1f} ms"),
     ]  # fmt: skip
     return "\n".join(["| quantity | value |", "|---|---|", *(f"| {a} | {b} |" for a, b in rows)])
 

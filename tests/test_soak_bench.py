@@ -14,6 +14,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 BENCH = Path(__file__).resolve().parents[1] / "bench"
@@ -46,10 +47,10 @@ def test_the_watcher_records_a_stall_of_its_process(tmp_path):
     try:
         time.sleep(0.5)  # past the interpreter's start-up (a slow start is not the stall under test)
         start_lines = len(soak.read_stalls(out))
-        t_stop = time.perf_counter()
+        t_stop = time.time()
         os.kill(proc.pid, signal.SIGSTOP)
         time.sleep(0.2)
-        t_cont = time.perf_counter()
+        t_cont = time.time()
         os.kill(proc.pid, signal.SIGCONT)
         assert _wait_for(lambda: len(soak.read_stalls(out)) > start_lines, 10.0), "no gap reported"
     finally:
@@ -119,3 +120,19 @@ def test_the_watcher_runs_above_the_soak_and_its_loop():
     assert _priority_under_fifo(60) == 61  # the loop at 60 above the soak's 50: one above the loop
     assert _priority_under_fifo(None) == 51  # no loop priority: one above the soak's own 50
     assert _priority_under_fifo(99) == 99  # capped at the highest SCHED_FIFO priority
+
+
+def test_slow_ticks_are_matched_to_the_stalls_around_them():
+    # Ticks every 20 ms from t = 1000 s; ticks 2 and 5 slow (45 and 60 ms; the threshold is 40 ms).
+    tick_unix = 1000.0 + 0.02 * np.arange(8)
+    compute = np.array([0.005, 0.005, 0.045, 0.005, 0.005, 0.060, 0.005, 0.005])
+    # Tick 2 spans [1000.04, 1000.085]: a gap at [1000.30, 1000.33] starts 0.215 s after its end, outside
+    # the 0.2 s window; tick 5 spans [1000.10, 1000.16]: the same gap starts 0.14 s after it, inside.
+    gaps = [(1000.30, 1000.33)]
+    r = soak.slow_ticks_vs_stalls(tick_unix, compute, gaps, end_unix=None)
+    assert r == {"slow_ticks": 2, "slow_ticks_with_a_stall": 1, "stall_before_end_ms": None}
+    # A fault ending at 1000.5: gaps from 999.5 on count; the 30 ms one and a 70 ms one at 999.6.
+    gaps_f = [(999.2, 999.4), (999.6, 999.67), (1000.30, 1000.33)]  # the first ends before 999.5
+    r = soak.slow_ticks_vs_stalls(tick_unix, compute, gaps_f, end_unix=1000.5)
+    assert r["stall_before_end_ms"] == pytest.approx(70.0, abs=1e-6)  # (999.67 - 999.6) s to ~1e-10 ms
+    assert soak.slow_ticks_vs_stalls(tick_unix, compute, [], end_unix=1000.5)["stall_before_end_ms"] == 0.0
