@@ -15,14 +15,14 @@ reports:
 - log completeness: ticks expected (duration / dt deadlines of wall clock, less those skipped after late
   ticks), ticks in ``log.npz``, ``/joint_state`` messages in
   ``run.mcap`` (``read_mcap_log``) and whether the ``mcap`` library's indexed reader opens it;
-- host stalls: an idle watcher process (``STALL_WATCHER``; under ``chrt``, SCHED_FIFO one above the
-  run's loop and threads, ``watcher_priority``) wakes every 1 ms during the run and records each wake-up
-  later than 5 ms: the counts over 20 and 50 ms, the longest, and when the long ones came (s after the
-  soak's start). The emulator runs in the deploy process, so a stall of the whole machine (a virtual
-  machine's CPU taken away, a kernel stall) delays its replies as it delays the loop: a "no reply within
-  50 ms" fault with stalls of tens of ms in the watcher at the same time is the machine's, not the code's
-  (a real motor answers during a host stall, and ``collect_round`` counts the replies queued by the
-  deadline).
+- host stalls: an idle watcher process pinned to each CPU (``STALL_WATCHER``; under ``chrt``, SCHED_FIFO
+  one above the run's loop and threads, ``watcher_priority``) wakes every 1 ms during the run and records
+  each wake-up later than 5 ms: the counts over 20 and 50 ms, the longest, and when the long ones came (s
+  after the soak's start); the slow ticks that came with one, and the longest in the second before a
+  fault. The emulator runs in the deploy process, so a stall of the machine (a virtual machine's CPU taken
+  away by its host, a kernel stall) delays its replies as it delays the loop: a "no reply within 50 ms"
+  fault with stalls of tens of ms in a watcher at the same time is the machine's, not the code's (a real
+  motor answers during a host stall, and ``collect_round`` counts the replies queued by the deadline).
 """
 
 from __future__ import annotations
@@ -86,15 +86,19 @@ def watcher_priority(rt_priority: int | None) -> int | None:
     return min(99, max(os.sched_getparam(0).sched_priority, rt_priority or 0) + 1)
 
 
-def start_stall_watcher(out: Path, priority: int | None = None) -> subprocess.Popen:
+def start_stall_watcher(out: Path, priority: int | None = None, cpu: int | None = None) -> subprocess.Popen:
     """Start the idle watcher (``STALL_WATCHER``) writing its gaps to ``out``; stop it with ``kill``.
 
     ``priority``: SCHED_FIFO at this priority (``watcher_priority``); None: the soak's own scheduler.
+    ``cpu``: pinned to this CPU (the soak runs one per CPU: a virtual machine's CPU taken away by its host
+    stops the threads on it, and an unpinned watcher would just run on the other); None: not pinned.
     """
 
     def as_watcher() -> None:
         if priority is not None:
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        if cpu is not None:
+            os.sched_setaffinity(0, {cpu})
 
     with out.open("w") as f:
         return subprocess.Popen([sys.executable, "-c", STALL_WATCHER], stdout=f, preexec_fn=as_watcher)
@@ -189,10 +193,12 @@ def soak(policy: str, minutes: float, load_procs: int, log_dir: Path, rt_priorit
     """
     duration = 60.0 * minutes
     load = [_spin() for _ in range(load_procs)]
-    stall_file = log_dir / "stalls.txt"
+    cpus = sorted(os.sched_getaffinity(0))
+    stall_files = [log_dir / f"stalls_cpu{c}.txt" for c in cpus]
     t0 = time.perf_counter()
     t0_unix = time.time()
-    watcher = start_stall_watcher(stall_file, watcher_priority(rt_priority))
+    prio = watcher_priority(rt_priority)
+    watchers = [start_stall_watcher(f, prio, c) for f, c in zip(stall_files, cpus, strict=True)]
     try:
         cmd = [
             sys.executable, "-m", "bar_policy.deploy.cli", "--policy", policy, "--target", "real",
@@ -202,7 +208,7 @@ def soak(policy: str, minutes: float, load_procs: int, log_dir: Path, rt_priorit
             cmd += ["--rt-priority", str(rt_priority)]
         proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
     finally:
-        for p in (*load, watcher):
+        for p in (*load, *watchers):
             p.kill()
             p.wait()
     wall = time.perf_counter() - t0
@@ -218,7 +224,7 @@ def soak(policy: str, minutes: float, load_procs: int, log_dir: Path, rt_priorit
     mcap = read_mcap_log(run_dir / MCAP_FILE)
     mcap_ticks = int(np.asarray(mcap.arrays["t"]).size)
     timing = meta["timing"]
-    gaps = read_stalls(stall_file)
+    gaps = sorted(g for f in stall_files for g in read_stalls(f))
     tick_unix = float(meta["started_unix"]) + np.asarray(arrays["wall"], dtype=np.float64)
     compute_s = np.asarray(arrays["compute"], dtype=np.float64)
     faulted = meta["fault_count"] > 0 and tick_unix.size > 0
