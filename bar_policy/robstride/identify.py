@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import mujoco
 import numpy as np
@@ -28,8 +28,16 @@ from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.mit import MitCommand
 from bar_policy.robot.params import JOINT_KEYS, MASS_RANGE, Estimate, JointParams, Payload, RobotParams
 from bar_policy.robot.scene import load_model, robot_spec
-from bar_policy.robot.sysid_excitation import Excitation
-from bar_policy.robot.sysid_fit import ArmFit, ArmSamples, PayloadRegressor, fit_arm
+from bar_policy.robot.sysid_excitation import RAMP_S, Excitation
+from bar_policy.robot.sysid_fit import (
+    HAC_LAG_S,
+    ArmFit,
+    ArmSamples,
+    FastFit,
+    PayloadRegressor,
+    fit_arm,
+    fit_fast,
+)
 from bar_policy.robstride.errors import RobstrideError
 from bar_policy.robstride.group import RobstrideGroup
 
@@ -88,6 +96,9 @@ class Recording:
     """Feed-forward torque of each round's command, N*m."""
     peak_fraction: float = 0.0
     """Largest ``|tau| / cap`` reported or asked for over the run (the budget's use)."""
+    fast_segments: list[tuple[float, float, int]] = field(default_factory=list)
+    """``Excitation.fast_segments`` of the run: ``(t0, t1, joint)``, s on the excitation's clock (command
+    ``k`` at ``k * period``), where one joint moved alone and fast."""
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``t`` (N,), ``q``, ``dq``, ``tau`` (N, num_joints)."""
@@ -160,7 +171,7 @@ def run_excitation(
     index = RobotIndex.from_model(model, robot.joint_names)
     gravity = _gravity(model, index)
     kp, kd = robot.kp, robot.kd
-    rec = Recording()
+    rec = Recording(fast_segments=excitation.fast_segments())
     n = round(excitation.duration / period)
     reading = group.last_reading
     q = reading.q.copy() if reading is not None else excitation.start.copy()
@@ -243,24 +254,34 @@ def fit_recording(
     """
     full = round_samples(robot, rec, period)
     sl = slice(trim, len(full.q) - trim)
-    samples = ArmSamples(full.q[sl], full.dq[sl], full.qdd[sl], full.tau[sl])
+    everything = ArmSamples(full.q[sl], full.dq[sl], full.qdd[sl], full.tau[sl])
+    # the poses' part (stages 1, 2) and the fast single-joint segments (stage 3), in rows of `everything`
+    fast = [
+        (slice(round(t0 / period) - trim, round(t1 / period) - trim), j) for t0, t1, j in rec.fast_segments
+    ]
+    n_slow = fast[0][0].start - round(RAMP_S / period) if fast else len(everything.q)
+    samples = ArmSamples(*(x[:n_slow] for x in (everything.q, everything.dq, everything.qdd, everything.tau)))
     model = load_model(robot.mode)
     fits: dict[str, ArmFit] = {}
-    id_base: np.ndarray | None = None
-    u: np.ndarray | None = None
+    id_all: np.ndarray | None = None
+    u_all: np.ndarray | None = None
+    smooth = max(1, round(smooth_s / period))
+    lag = max(1, round(HAC_LAG_S / period))
     for arm in arms:
         idx = [j.index for j in robot.joints if j.group == f"{arm}_arm"]
         reg = PayloadRegressor(model, lambda: robot_spec(robot.mode), robot.joint_names, HANDS[arm])
-        if id_base is None:
-            id_base = reg.inverse(samples)
-            u = reg.friction_force(samples)
+        if id_all is None:
+            id_all = reg.inverse(everything)
+            u_all = reg.friction_force(everything)
+        id_base, u = id_all[:n_slow], u_all[:n_slow]
         known = None if not payload else (strength or {}).get(arm, np.ones(len(idx)))
         common = dict(
             id_base=id_base,
-            smooth=max(1, round(smooth_s / period)),
+            smooth=smooth,
             friction_u=u,
             v_min=0.0,
             iterations=6,
+            hac_lag=lag,
         )
         # stage 1: shoulders and elbow, with the payload; stage 2: the wrists, with that payload's force
         # known (a wrist's few g*m^2 and its soft friction make its rows noisy: they would pull the mass)
@@ -272,8 +293,51 @@ def fit_recording(
         if payload:
             base2 = id_base + f1.mass * reg.columns(samples, id_base, f1.com)[:, :, 0]
         f2 = fit_arm(samples, wrists, robot.joint_names, None, strength=k_wr, **{**common, "id_base": base2})
-        fits[arm] = merge_fits(f1, f2)
+        fit = merge_fits(f1, f2)
+        segs = [(r, j) for r, j in fast if j in idx]
+        if segs:  # stage 3: each joint alone and fast: armature (all), friction and damping (wrists)
+            col = reg.columns(everything, id_all, fit.com)[:, :, 0] if payload else None
+            f3 = fit_fast(
+                everything,
+                segs,
+                robot.joint_names,
+                id_all,
+                u_all,
+                np.array([fit.strength[idx.index(j)] for j in dict.fromkeys(j for _, j in segs)]),
+                payload_col=col,
+                mass=fit.mass,
+                fit_mass=payload,
+                smooth=smooth,
+                hac_lag=lag,
+            )
+            log.info(
+                "%s arm, fast segments: payload %.3f +- %.3f kg (slow: %.3f), residual %s N*m",
+                arm, f3.mass, f3.mass_half95, fit.mass, np.round(f3.rms, 3),
+            )  # fmt: skip
+            fit = with_fast(fit, f3)
+        fits[arm] = fit
     return fits
+
+
+def with_fast(fit: ArmFit, fast: FastFit) -> ArmFit:
+    """``fit`` with the fast segments' values where the slow excitation cannot resolve them.
+
+    The armature of every joint they cover; the friction and damping of the wrists (``PAYLOAD_JOINTS``
+    onward: a wrist slides through MuJoCo's soft friction loss only above ~2 rad/s).
+    """
+    est = {k: getattr(fit, k).copy() for k in ("friction", "damping", "armature")}
+    half = {k: v.copy() for k, v in fit.half95.items()}
+    for c, name in enumerate(fit.joints):
+        if name not in fast.joints:
+            continue
+        i = fast.joints.index(name)
+        keys = ("armature",) if c < PAYLOAD_JOINTS else ("armature", "friction", "damping")
+        for k in keys:
+            est[k][c] = getattr(fast, k)[i]
+            half[k][c] = fast.half95[k][i]
+    return replace(
+        fit, friction=est["friction"], damping=est["damping"], armature=est["armature"], half95=half
+    )
 
 
 def _est(v: float, h: float) -> Estimate:
