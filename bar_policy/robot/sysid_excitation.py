@@ -53,13 +53,14 @@ LIMIT_MARGIN_RAD = 0.1
 """Targets stay this far inside the joint limits, rad."""
 FAST_POSE = 0
 """Index in ``POSES`` of the pose the fast single-joint phase holds."""
-FAST_AMPLITUDE_RAD = np.array([0.06, 0.08, 0.08, 0.08, 0.12, 0.12, 0.12])
+FAST_AMPLITUDE_RAD = np.array([0.06, 0.08, 0.08, 0.08, 0.12, 0.07, 0.07])
 """Fast phase: amplitude of each joint's two-sine sum, rad (peak speed ~0.8-1.1 rad/s on the shoulders and
-elbow, ~2.2 rad/s on the wrists: about the ~2 rad/s an unloaded wrist needs to slide through MuJoCo's soft
-friction loss of 0.6 N*m). Set by the budget with 0.4 kg in the hand (its inertia about a wrist is ~5x the
-wrist's own): measured, 0.1 rad on the shoulder pitch (3 Hz: its resonance at Kp 50) asked 8.52 N*m of its
-8.5, and 0.2 rad at 2.3 and 4.7 Hz on the wrist roll 2.0 of its 2.0."""
-FAST_FREQS_HZ = np.array([[1.3, 3.1]] * 4 + [[1.9, 3.9]] * 3)
+elbow, 2.2 rad/s on the wrist yaw: about the ~2 rad/s an unloaded wrist needs to slide through MuJoCo's soft
+friction loss of 0.6 N*m; 0.9 rad/s on the wrist roll and pitch). Set by the budget with 0.4 kg in the hand
+(its inertia about a wrist is ~5x the wrist's own, its gravity ~0.9 N*m on the wrist roll and pitch, of a
+2 N*m budget): measured, 0.1 rad on the shoulder pitch (3 Hz: its resonance at Kp 50) asked 8.52 N*m of its
+8.5, and 0.07 rad at 1.9 and 3.9 Hz on the wrist roll 2.00 of its 2.0."""
+FAST_FREQS_HZ = np.array([[1.3, 3.1]] * 4 + [[1.9, 3.9]] + [[1.3, 2.9]] * 2)
 """Fast phase frequencies per joint, Hz: where the inertia torque (``I w^2 A``) dominates the gravity
 stiffness and the friction, so armature (a few % of a shoulder's inertia) shows; two of them so a stiffness
 (``~ q``) and an inertia (``~ w^2 q``) do not alias."""
@@ -104,6 +105,11 @@ class Excitation:
     def duration(self) -> float:
         """Total time, s: per pose a ramp and a hold, the fast phase, then a ramp back to ``start``."""
         return len(self.poses) * (RAMP_S + self.hold_s) + self.fast_s + RAMP_S
+
+    def pose_segments(self) -> list[tuple[float, float]]:
+        """``(t0, t1)`` of each pose's ramp in and multisine, s."""
+        seg = RAMP_S + self.hold_s
+        return [(k * seg, (k + 1) * seg) for k in range(len(self.poses))]
 
     def fast_segments(self) -> list[tuple[float, float, int]]:
         """``(t0, t1, joint)`` of each joint's fast segment, s and canonical index (empty without it)."""
