@@ -267,7 +267,9 @@ class _ArmContext:
         # known (a wrist's few g*m^2 and its soft friction make its rows noisy: they would pull the mass)
         big, wrists = idx[:PAYLOAD_JOINTS], idx[PAYLOAD_JOINTS:]
         k_big = None if known is None else known[:PAYLOAD_JOINTS]
-        k_wr = None if known is None else known[PAYLOAD_JOINTS:]
+        # a wrist's strength is not resolvable (its gravity torque is ~0.1 N*m, and its inertia torque trades
+        # with its armature): held at the given value, else the model's 1 (fitted: 0.08-0.81 for 0.9)
+        k_wr = np.ones(len(wrists)) if known is None else known[PAYLOAD_JOINTS:]
         f1 = fit_arm(smp, big, robot.joint_names, reg if payload else None, strength=k_big, **common)
         base2 = id_base
         if payload:
