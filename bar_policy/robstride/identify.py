@@ -279,7 +279,13 @@ class _ArmContext:
         if not self.segs:
             return fit
         # stage 3: each joint alone and fast: armature (all), friction and damping (wrists)
-        col = reg.columns(self.everything, self.id_all, fit.com)[:, :, 0] if payload else None
+        col = None
+        if payload:  # the unit payload's column on the fast rows only (the others are never read)
+            rows = np.concatenate([np.arange(r.start, r.stop) for r, _ in self.segs])
+            e = self.everything
+            fast = ArmSamples(e.q[rows], e.dq[rows], e.qdd[rows], e.tau[rows])
+            col = np.zeros_like(self.id_all)
+            col[rows] = reg.columns(fast, self.id_all[rows], fit.com)[:, :, 0]
         f3 = fit_fast(
             self.everything,
             self.segs,
