@@ -6,6 +6,10 @@ mirrored): a 2.5 s smooth ramp (cosine) from where the arm is to each pose, then
 ``AMPLITUDE_RAD`` per joint). ``at(t)`` gives the position and velocity targets; the firmware's MIT law
 (the robot's own Kp, Kd) tracks them, with the model's gravity torque at the target as feed-forward.
 
+Then (``fast``, the default) the fast phase: a ramp to ``POSES[FAST_POSE]`` and each excited joint alone
+for ``FAST_S`` on two sines at ``FAST_FREQS_HZ`` (``fast_segments`` gives where): the inertia torque
+dominates there, so armature shows, and a wrist slides through MuJoCo's soft friction loss.
+
 Several poses, not one: gravity loads each joint differently at each, which is what separates strength
 from payload (``sysid_fit``). Every target stays ``LIMIT_MARGIN_RAD`` inside the joint limits (checked at
 plan time, ``ValueError`` otherwise). The torque budget is the supervisor's (``robstride.identify``): 50 %

@@ -7,7 +7,10 @@
    joint's cap, 50 % by default), every joint inside its limits; a motor fault, a missing reply, a stop
    request (a signal) or any exception ends the run. Every end, normal or not, sends damping frames then
    stop frames on every bus (``RobstrideGroup.damping_then_stop``); a run cut short writes no file.
-3. The fit (``robot.sysid_fit``), per arm, of round-averaged samples (``round_samples``).
+3. The fit (``robot.sysid_fit``), per arm, of one sample per round (``round_samples``): the poses' part
+   (strength, friction, damping, payload), then the fast single-joint segments (armature; the wrists'
+   friction and damping); intervals the larger of the residual's Newey-West one and a delete-one-pose
+   jackknife's (``widen_by_jackknife``).
 4. ``RobotParams`` with the values, their 95 % intervals and the run (``source``).
 
 No jax, no torch.
