@@ -7,7 +7,10 @@
    joint's cap, 50 % by default), every joint inside its limits; a motor fault, a missing reply, a stop
    request (a signal) or any exception ends the run. Every end, normal or not, sends damping frames then
    stop frames on every bus (``RobstrideGroup.damping_then_stop``); a run cut short writes no file.
-3. The fit (``robot.sysid_fit``), per arm, of round-averaged samples (``round_samples``).
+3. The fit (``robot.sysid_fit``), per arm, of one sample per round (``round_samples``): the poses' part
+   (strength, friction, damping, payload), then the fast single-joint segments (armature; the wrists'
+   friction and damping); intervals the larger of the residual's Newey-West one and a delete-one-pose
+   jackknife's (``widen_by_jackknife``).
 4. ``RobotParams`` with the values, their 95 % intervals and the run (``source``).
 
 No jax, no torch.
@@ -18,7 +21,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import mujoco
 import numpy as np
@@ -28,8 +31,17 @@ from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.mit import MitCommand
 from bar_policy.robot.params import JOINT_KEYS, MASS_RANGE, Estimate, JointParams, Payload, RobotParams
 from bar_policy.robot.scene import load_model, robot_spec
-from bar_policy.robot.sysid_excitation import Excitation
-from bar_policy.robot.sysid_fit import ArmFit, ArmSamples, PayloadRegressor, fit_arm
+from bar_policy.robot.sysid_excitation import RAMP_S, Excitation
+from bar_policy.robot.sysid_fit import (
+    HAC_LAG_S,
+    Z95,
+    ArmFit,
+    ArmSamples,
+    FastFit,
+    PayloadRegressor,
+    fit_arm,
+    fit_fast,
+)
 from bar_policy.robstride.errors import RobstrideError
 from bar_policy.robstride.group import RobstrideGroup
 
@@ -88,6 +100,11 @@ class Recording:
     """Feed-forward torque of each round's command, N*m."""
     peak_fraction: float = 0.0
     """Largest ``|tau| / cap`` reported or asked for over the run (the budget's use)."""
+    pose_segments: list[tuple[float, float]] = field(default_factory=list)
+    """``Excitation.pose_segments`` of the run: ``(t0, t1)`` of each held pose (its ramp in), s."""
+    fast_segments: list[tuple[float, float, int]] = field(default_factory=list)
+    """``Excitation.fast_segments`` of the run: ``(t0, t1, joint)``, s on the excitation's clock (command
+    ``k`` at ``k * period``), where one joint moved alone and fast."""
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``t`` (N,), ``q``, ``dq``, ``tau`` (N, num_joints)."""
@@ -160,7 +177,7 @@ def run_excitation(
     index = RobotIndex.from_model(model, robot.joint_names)
     gravity = _gravity(model, index)
     kp, kd = robot.kp, robot.kd
-    rec = Recording()
+    rec = Recording(pose_segments=excitation.pose_segments(), fast_segments=excitation.fast_segments())
     n = round(excitation.duration / period)
     reading = group.last_reading
     q = reading.q.copy() if reading is not None else excitation.start.copy()
@@ -218,6 +235,80 @@ def round_samples(robot: RobotSpec, rec: Recording, period: float) -> ArmSamples
     return ArmSamples(q[:-1], dq[:-1], qdd, tau)
 
 
+@dataclass(frozen=True)
+class _ArmContext:
+    """What ``fit_recording``'s stages of one arm share: the samples, their ``ID`` and friction force."""
+
+    robot: RobotSpec
+    arm: str
+    idx: list[int]
+    reg: PayloadRegressor
+    samples: ArmSamples
+    """The poses' part, rows 0..n_slow of ``everything``."""
+    everything: ArmSamples
+    id_all: np.ndarray
+    u_all: np.ndarray
+    segs: list[tuple[slice, int]]
+    known: np.ndarray | None
+    payload: bool
+    smooth: int
+    lag: int
+
+    def stages(self, rows: np.ndarray | None) -> ArmFit:
+        """Stages 1-3 on the poses' ``rows`` of ``samples`` (None: all of them)."""
+        robot, idx, reg, known, payload = self.robot, self.idx, self.reg, self.known, self.payload
+        sel = slice(0, len(self.samples.q)) if rows is None else rows
+        smp = ArmSamples(
+            *(x[sel] for x in (self.samples.q, self.samples.dq, self.samples.qdd, self.samples.tau))
+        )
+        id_base = self.id_all[sel]
+        common = dict(
+            id_base=id_base, smooth=self.smooth, friction_u=self.u_all[sel], v_min=0.0, iterations=6,
+            hac_lag=self.lag,
+        )  # fmt: skip
+        # stage 1: shoulders and elbow, with the payload; stage 2: the wrists, with that payload's force
+        # known (a wrist's few g*m^2 and its soft friction make its rows noisy: they would pull the mass)
+        big, wrists = idx[:PAYLOAD_JOINTS], idx[PAYLOAD_JOINTS:]
+        k_big = None if known is None else known[:PAYLOAD_JOINTS]
+        # a wrist's strength is not resolvable (its gravity torque is ~0.1 N*m, and its inertia torque trades
+        # with its armature): held at the given value, else the model's 1 (fitted: 0.08-0.81 for 0.9)
+        k_wr = np.ones(len(wrists)) if known is None else known[PAYLOAD_JOINTS:]
+        f1 = fit_arm(smp, big, robot.joint_names, reg if payload else None, strength=k_big, **common)
+        base2 = id_base
+        if payload:
+            base2 = id_base + f1.mass * reg.columns(smp, id_base, f1.com)[:, :, 0]
+        f2 = fit_arm(smp, wrists, robot.joint_names, None, strength=k_wr, **{**common, "id_base": base2})
+        fit = merge_fits(f1, f2)
+        if not self.segs:
+            return fit
+        # stage 3: each joint alone and fast: armature (all), friction and damping (wrists)
+        col = None
+        if payload:  # the unit payload's column on the fast rows only (the others are never read)
+            rows = np.concatenate([np.arange(r.start, r.stop) for r, _ in self.segs])
+            e = self.everything
+            fast = ArmSamples(e.q[rows], e.dq[rows], e.qdd[rows], e.tau[rows])
+            col = np.zeros_like(self.id_all)
+            col[rows] = reg.columns(fast, self.id_all[rows], fit.com)[:, :, 0]
+        f3 = fit_fast(
+            self.everything,
+            self.segs,
+            robot.joint_names,
+            self.id_all,
+            self.u_all,
+            np.array([fit.strength[idx.index(j)] for j in dict.fromkeys(j for _, j in self.segs)]),
+            payload_col=col,
+            mass=fit.mass,
+            fit_mass=payload,
+            smooth=self.smooth,
+            hac_lag=self.lag,
+        )
+        log.info(
+            "%s arm, fast segments: payload %.3f +- %.3f kg (slow: %.3f), residual %s N*m",
+            self.arm, f3.mass, f3.mass_half95, fit.mass, np.round(f3.rms, 3),
+        )  # fmt: skip
+        return with_fast(fit, f3)
+
+
 def fit_recording(
     robot: RobotSpec,
     rec: Recording,
@@ -228,6 +319,7 @@ def fit_recording(
     smooth_s: float = 0.02,
     strength: dict[str, np.ndarray] | None = None,
     payload: bool = True,
+    jackknife: bool = True,
 ) -> dict[str, ArmFit]:
     """Fit each arm of ``arms`` to ``rec``.
 
@@ -243,37 +335,94 @@ def fit_recording(
     """
     full = round_samples(robot, rec, period)
     sl = slice(trim, len(full.q) - trim)
-    samples = ArmSamples(full.q[sl], full.dq[sl], full.qdd[sl], full.tau[sl])
+    everything = ArmSamples(full.q[sl], full.dq[sl], full.qdd[sl], full.tau[sl])
+    # the poses' part (stages 1, 2) and the fast single-joint segments (stage 3), in rows of `everything`
+    fast = [
+        (slice(round(t0 / period) - trim, round(t1 / period) - trim), j) for t0, t1, j in rec.fast_segments
+    ]
+    n_slow = fast[0][0].start - round(RAMP_S / period) if fast else len(everything.q)
+    samples = ArmSamples(*(x[:n_slow] for x in (everything.q, everything.dq, everything.qdd, everything.tau)))
     model = load_model(robot.mode)
     fits: dict[str, ArmFit] = {}
-    id_base: np.ndarray | None = None
-    u: np.ndarray | None = None
+    id_all: np.ndarray | None = None
+    u_all: np.ndarray | None = None
+    smooth = max(1, round(smooth_s / period))
+    lag = max(1, round(HAC_LAG_S / period))
+    poses = [
+        np.arange(max(round(t0 / period) - trim, 0), min(round(t1 / period) - trim, n_slow))
+        for t0, t1 in rec.pose_segments
+    ]
     for arm in arms:
         idx = [j.index for j in robot.joints if j.group == f"{arm}_arm"]
         reg = PayloadRegressor(model, lambda: robot_spec(robot.mode), robot.joint_names, HANDS[arm])
-        if id_base is None:
-            id_base = reg.inverse(samples)
-            u = reg.friction_force(samples)
+        if id_all is None:
+            id_all = reg.inverse(everything)
+            u_all = reg.friction_force(everything)
         known = None if not payload else (strength or {}).get(arm, np.ones(len(idx)))
-        common = dict(
-            id_base=id_base,
-            smooth=max(1, round(smooth_s / period)),
-            friction_u=u,
-            v_min=0.0,
-            iterations=6,
+        segs = [(r, j) for r, j in fast if j in idx]
+        ctx = _ArmContext(
+            robot, arm, idx, reg, samples, everything, id_all, u_all, segs, known, payload, smooth, lag
         )
-        # stage 1: shoulders and elbow, with the payload; stage 2: the wrists, with that payload's force
-        # known (a wrist's few g*m^2 and its soft friction make its rows noisy: they would pull the mass)
-        big, wrists = idx[:PAYLOAD_JOINTS], idx[PAYLOAD_JOINTS:]
-        k_big = None if known is None else known[:PAYLOAD_JOINTS]
-        k_wr = None if known is None else known[PAYLOAD_JOINTS:]
-        f1 = fit_arm(samples, big, robot.joint_names, reg if payload else None, strength=k_big, **common)
-        base2 = id_base
-        if payload:
-            base2 = id_base + f1.mass * reg.columns(samples, id_base, f1.com)[:, :, 0]
-        f2 = fit_arm(samples, wrists, robot.joint_names, None, strength=k_wr, **{**common, "id_base": base2})
-        fits[arm] = merge_fits(f1, f2)
+        fit = ctx.stages(None)
+        if jackknife and len(poses) >= 3:  # each pose left out in turn: the spread between poses
+            keep = [np.concatenate([p for i, p in enumerate(poses) if i != k]) for k in range(len(poses))]
+            reps = [ctx.stages(rows) for rows in keep]
+            fit = widen_by_jackknife(fit, reps)
+        fits[arm] = fit
     return fits
+
+
+T95 = {2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571}
+"""Two-sided 95 % Student t quantiles by degrees of freedom (the jackknife's: replicates - 1)."""
+
+
+def widen_by_jackknife(fit: ArmFit, reps: list[ArmFit]) -> ArmFit:
+    """``fit`` with each half-width at least the delete-one-pose jackknife's.
+
+    ``reps``: the fit with each pose left out in turn (``g`` of them). The jackknife's standard error is
+    ``sqrt((g-1)/g sum (x_i - mean)^2)``, times the t quantile at ``g-1`` degrees of freedom. It holds
+    what the residual's covariance cannot: a model error that differs from pose to pose (the soft
+    friction, the payload's and strength's trade-off) shows as a spread of the replicates, where the
+    residual only shows noise. An error common to every pose is in neither.
+    """
+    g = len(reps)
+    t = T95.get(g - 1, Z95)
+
+    def jk(values: list[np.ndarray]) -> np.ndarray:
+        v = np.array(values, dtype=np.float64)
+        return t * np.sqrt((g - 1) / g * ((v - v.mean(axis=0)) ** 2).sum(axis=0))
+
+    half = {
+        k: np.maximum(fit.half95[k], jk([getattr(r, k) for r in reps]) * (fit.half95[k] > 0))
+        for k in fit.half95
+    }
+    return replace(
+        fit,
+        half95=half,
+        mass_half95=max(fit.mass_half95, float(jk([r.mass for r in reps])) if fit.mass_half95 > 0 else 0.0),
+        com_half95=np.maximum(fit.com_half95, jk([r.com for r in reps])),
+    )
+
+
+def with_fast(fit: ArmFit, fast: FastFit) -> ArmFit:
+    """``fit`` with the fast segments' values where the slow excitation cannot resolve them.
+
+    The armature of every joint they cover; the friction and damping of the wrists (``PAYLOAD_JOINTS``
+    onward: a wrist slides through MuJoCo's soft friction loss only above ~2 rad/s).
+    """
+    est = {k: getattr(fit, k).copy() for k in ("friction", "damping", "armature")}
+    half = {k: v.copy() for k, v in fit.half95.items()}
+    for c, name in enumerate(fit.joints):
+        if name not in fast.joints:
+            continue
+        i = fast.joints.index(name)
+        keys = ("armature",) if c < PAYLOAD_JOINTS else ("armature", "friction", "damping")
+        for k in keys:
+            est[k][c] = getattr(fast, k)[i]
+            half[k][c] = fast.half95[k][i]
+    return replace(
+        fit, friction=est["friction"], damping=est["damping"], armature=est["armature"], half95=half
+    )
 
 
 def _est(v: float, h: float) -> Estimate:
