@@ -272,14 +272,17 @@ class _Run:
     def evaluate(self, params: tuple[Any, Any], step: int) -> None:
         """Evaluate replicated ``(normalizer, policy)`` params on step ``step``'s keys; log, rank, keep."""
         t_eval = time.monotonic()
-        key = self.dp.replicate(host_key(self.cfg.seed, _K_EVAL, step))
-        m = self.programs["evaluate"](params, key, self.eval_model_key, self.weights)
-        m = {k: float(v) for k, v in self.dp.to_host(m).items()}
+        m = self.evaluation(params, host_key(self.cfg.seed, _K_EVAL, step))
         if step:  # the step-0 evaluation's time includes its compile
             self.last_eval_s = time.monotonic() - t_eval
         threshold = self.cfg.eval.success_threshold
         self.logger.record_eval(step, m, self.evals, self.time_to_threshold, threshold, keep=self._keep(step))
         self.programs.confirm()  # every loaded program has run: none is a suspect of a crash
+
+    def evaluation(self, params: tuple[Any, Any], key: np.ndarray) -> dict[str, float]:
+        """The evaluation program's figures, as host floats, for replicated ``(normalizer, policy)``."""
+        m = self.programs["evaluate"](params, self.dp.replicate(key), self.eval_model_key, self.weights)
+        return {k: float(v) for k, v in self.dp.to_host(m).items()}
 
     def _keep(self, step: int) -> Callable[[dict[str, float]], str | None]:
         """Offer step ``step``'s recorded evaluation to the keeper (a host copy of the params if kept)."""
@@ -308,13 +311,10 @@ class _Run:
 
     def result(self, learner: Any, prior: Any, start_steps: int, train_seconds: float) -> BraxTrainResult:
         """The run's result: host params, the records, and an evaluator on the compiled evaluation."""
-        dp, programs = self.dp, self.programs
+        dp = self.dp
 
         def evaluator(params: Any, eval_seed: int) -> dict[str, float]:
-            key = dp.replicate(host_key(eval_seed, _K_EVAL))
-            policy = dp.replicate(tuple(params[:2]))
-            metrics = programs["evaluate"](policy, key, self.eval_model_key, self.weights)
-            return {k: float(v) for k, v in dp.to_host(metrics).items()}
+            return self.evaluation(dp.replicate(tuple(params[:2])), host_key(eval_seed, _K_EVAL))
 
         return BraxTrainResult(
             params=_host_params(dp.to_host(self.ts)),
