@@ -197,8 +197,8 @@ def train_rsl_rl(
     with timer.phase(sb.RSL_RUNNER):
         # Both envs add the prior to the actor's actions. Our loop records its own sums on the device
         # (take_stats); extras["log"] is for OnPolicyRunner.learn.
-        vec_env = RslRlVecEnv(programs=programs.train, device=device, log_metrics=False)
-        eval_vec = RslRlVecEnv(programs=programs.eval, device=device, log_metrics=False)
+        vec_env = RslRlVecEnv(programs.train, device=device, log_metrics=False)
+        eval_vec = RslRlVecEnv(programs.eval, device=device, log_metrics=False)
         with timer.phase(sb.RSL_RESET):  # the runner reads the first observations
             vec_env.get_observations()
         # rsl-rl's own runner logger, writing into the run's tb/ (its writer: TensorBoard or wandb, as
