@@ -63,7 +63,7 @@ def main() -> int:
     configure_compile_cache(True)
     env = load_env(args.env, cfg)
     device = torch_device_for_jax()
-    vec = RslRlVecEnv(
+    vec = RslRlVecEnv.from_env(
         env,
         cfg.ppo.num_envs,
         wrap_fn=envs.wrap_for_brax_training,

@@ -74,7 +74,8 @@ def score(metrics: Mapping[str, float], task: str | None = None) -> tuple[float,
     otherwise ``(success_rate, episode_reward)``.
     """
     if task is not None and "quality/completion_pct" in metrics:
-        return gate.score(task, held_out_report(metrics))
+        report = held_out_report(metrics)
+        return gate.score(task, report)
 
     def clean(x: float) -> float:
         return -math.inf if math.isnan(x) else x

@@ -14,6 +14,7 @@ import json
 import math
 import sys
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -160,6 +161,7 @@ class RunLogger:
         evals: list[dict[str, float]],
         time_to_threshold: list[float],
         threshold: float,
+        keep: Callable[[dict[str, float]], str | None] | None = None,
     ) -> None:
         """Log, keep and print one evaluation; note the first time success reaches ``threshold``.
 
@@ -175,6 +177,8 @@ class RunLogger:
             evals: the run's evaluation records, in step order; the record is inserted.
             time_to_threshold: empty until the threshold is first reached, then holds that time, s.
             threshold: success rate that counts as solved (0..1).
+            keep: offered the recorded evaluation (``time_s`` added) last, to rank it against the run's best
+                (``training.best.BestKeeper``); returns the line to print when it is kept, else None.
         """
         metrics["time_s"] = self.elapsed()
         self.log(step, metrics, kind="eval")
@@ -192,6 +196,48 @@ class RunLogger:
         self.print(text)
         if later is None and not time_to_threshold and metrics["success_rate"] >= threshold:
             time_to_threshold.append(metrics["time_s"])
+        kept = None if keep is None else keep(metrics)
+        if kept is not None:
+            self.print(kept)
+
+    def epoch_end(
+        self,
+        step: int,
+        metrics: dict[str, float],
+        *,
+        next_s: float,
+        budget_s: float,
+        line: Callable[[], tuple[float, dict[str, float]]] | None = None,
+        line_due: bool = True,
+        notes: Sequence[str] = (),
+    ) -> bool:
+        """Record one epoch's training figures, print its progress line, and check the wall-clock budget.
+
+        The one call a trainer makes at each epoch end: ``metrics`` (with ``sps``, env steps/s) logged as
+        ``train`` at env step ``step``; then whether a next epoch expected to take ``next_s`` s would end
+        past ``budget_s`` s (``next_would_overrun``); then the progress line.
+
+        Args:
+            step: env steps so far.
+            metrics: the epoch's training figures, ``sps`` among them.
+            next_s: the next epoch's expected length, s (with the evaluations due in it).
+            budget_s: the wall-clock budget, s (``<= 0``: none).
+            line: the progress line's ``(steps/s, figures)``, called only when a line is printed (rsl-rl's
+                covers the iterations since its previous line); default: ``(metrics["sps"], metrics)``.
+            line_due: whether this epoch prints a line (rsl-rl: every few iterations); the last one before
+                the budget runs out always does.
+            notes: lines said first, before the figures (rsl-rl: the torch->jax copies, when there are new).
+
+        Returns:
+            Whether the next epoch would overrun the budget (this process's answer).
+        """
+        for text in notes:
+            self.print(text)
+        self.log(step, metrics, kind="train")
+        over = next_would_overrun(self.elapsed(), next_s, budget_s)
+        if line_due or over:
+            self.progress(step, *((metrics["sps"], metrics) if line is None else line()))
+        return over
 
     def progress(self, step: int, sps: float, metrics: dict[str, float]) -> None:
         """Print the progress line for env step ``step`` at ``sps`` env steps/s."""
@@ -216,6 +262,15 @@ class RunLogger:
         """A line on the terminal (flushed)."""
         if self.enabled:
             print(text, file=self.stream, flush=True)
+
+    def resumed(self, path: str | Path, env_steps: int, iteration: int, changes: list[str]) -> None:
+        """Say which checkpoint a run resumed, where, and the settings that differ from the resumed run's.
+
+        ``changes``: ``training.checkpoint.resume_changes``'s lines (none when nothing differs).
+        """
+        self.print(f"resumed {path} at {env_steps} env steps (iteration {iteration})")
+        for line in changes:
+            self.print(line)
 
     def not_applied(self, settings: list[str]) -> None:
         """Print each setting the backend runs without, and record them as one ``not_applied`` line."""

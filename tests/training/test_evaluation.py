@@ -68,7 +68,7 @@ def test_brax_evaluator_counts_one_episode_per_slot(toy_env):
 
 
 def test_rsl_rl_vec_env_accumulates_on_device(toy_env):
-    vec = RslRlVecEnv(toy_env, N, wrap_fn=wrap_for_brax_training, seed=0, device="cpu")
+    vec = RslRlVecEnv.from_env(toy_env, N, wrap_fn=wrap_for_brax_training, seed=0, device="cpu")
     vec.reset_all(seed=5)
     actions = torch.full((N, 14), 0.3)
     for _ in range(STEPS):

@@ -23,7 +23,7 @@ pytestmark = pytest.mark.slow
 
 
 def test_vec_env_shares_buffers_with_jax(toy_env):
-    env = RslRlVecEnv(toy_env, 8, wrap_fn=wrap_for_brax_training, seed=0, device="cpu")
+    env = RslRlVecEnv.from_env(toy_env, 8, wrap_fn=wrap_for_brax_training, seed=0, device="cpu")
     obs = env.get_observations()["policy"]
     assert obs.shape == (8, 54) and obs.dtype == torch.float32
     # Zero copy: the torch tensor points at the jax buffer.
@@ -170,7 +170,9 @@ def test_rsl_rls_own_runner_learns_and_logs_on_the_adapter(toy_env, tmp_path):
     from bar_policy.training.rsl_rl.config import rsl_rl_train_cfg
 
     cfg = toy_config(tmp_path, "own-runner", TOY_RSL)
-    env = RslRlVecEnv(toy_env, cfg.ppo.num_envs, wrap_fn=wrap_for_brax_training, seed=0, device="cpu")
+    env = RslRlVecEnv.from_env(
+        toy_env, cfg.ppo.num_envs, wrap_fn=wrap_for_brax_training, seed=0, device="cpu"
+    )
     runner = OnPolicyRunner(env, rsl_rl_train_cfg(cfg), log_dir=str(tmp_path / "tb"), device="cpu")
     # Random initial episode lengths (written into the wrapper's step counter): episodes end within the
     # 2 x 8 steps, so rsl-rl's own episode statistics have entries.
@@ -214,7 +216,7 @@ def test_both_backends_write_the_same_run_record(brax_run, rsl_run):
 def test_vec_env_quality_figures_by_hand(toy_env):
     # Actions alternating +-0.3 on every joint: each tick after the first moves 0.6 on 14 joints, so the
     # action rate is 14 * 0.6^2 = 5.04 per tick; the toy never terminates, so all 8 episodes complete.
-    env = RslRlVecEnv(toy_env, 8, wrap_fn=wrap_for_brax_training, seed=0, device="cpu", quality=True)
+    env = RslRlVecEnv.from_env(toy_env, 8, wrap_fn=wrap_for_brax_training, seed=0, device="cpu", quality=True)
     env.reset_all(seed=3)
     for t in range(env.max_episode_length):
         env.step(torch.full((8, 14), 0.3 if t % 2 == 0 else -0.3))

@@ -53,7 +53,7 @@ def test_vec_env_commands_prior_plus_residual(toy_env):
     [-1, 1]; after one step obs[28:42] = a and obs[0:14] = 0.3 * 0.8 * a (float32: 1e-5 relative)."""
     index = (*range(48, 54), *range(48, 54), 0, 1)
     prior = ActionPrior(index=index, gain=(2.0,) * N, offset=(0.1,) * N)
-    env = RslRlVecEnv(toy_env, 4, wrap_fn=wrap_for_brax_training, seed=0, device="cpu", prior=prior)
+    env = RslRlVecEnv.from_env(toy_env, 4, wrap_fn=wrap_for_brax_training, seed=0, device="cpu", prior=prior)
     obs0 = env.get_observations()["policy"].numpy().copy()
     want = 2.0 * obs0[:, list(index)] + 0.1 + 0.25
     assert np.all(np.abs(want) < 1.0) and np.ptp(want[:, 0]) > 0  # inside the clip; differs per env
@@ -62,7 +62,7 @@ def test_vec_env_commands_prior_plus_residual(toy_env):
     np.testing.assert_allclose(obs1[:, 28:42], want, rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(obs1[:, :14], 0.3 * 0.8 * want, rtol=1e-5, atol=1e-7)
     with pytest.raises(ValueError, match="the action prior has 3 actions, the env 14"):
-        RslRlVecEnv(
+        RslRlVecEnv.from_env(
             toy_env,
             4,
             wrap_fn=wrap_for_brax_training,

@@ -100,7 +100,7 @@ def test_torch_device_for_jax_on_cpu():
 
 @pytest.mark.slow
 def test_vec_env_step_crosses_without_copies(toy_env):
-    env = RslRlVecEnv(toy_env, 8, wrap_fn=wrap_for_brax_training, seed=0, device="cpu")
+    env = RslRlVecEnv.from_env(toy_env, 8, wrap_fn=wrap_for_brax_training, seed=0, device="cpu")
     actions = torch.full((8, 14), 0.25)
     obs, rew, done, extras = env.step(actions)
     s = env.state
@@ -133,7 +133,7 @@ def test_vec_env_steps_make_no_host_round_trip(toy_env, monkeypatch):
     # float(), device_get) goes through ArrayImpl._value, replaced by a trap.
     from jax._src.array import ArrayImpl
 
-    env = RslRlVecEnv(toy_env, 8, wrap_fn=wrap_for_brax_training, seed=0, device="cpu", quality=True)
+    env = RslRlVecEnv.from_env(toy_env, 8, wrap_fn=wrap_for_brax_training, seed=0, device="cpu", quality=True)
     actions = torch.full((8, 14), 0.1)
     env.step(actions)
 

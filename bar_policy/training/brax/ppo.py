@@ -71,7 +71,7 @@ from bar_policy.training.checkpoint import load_checkpoint, resume_changes, save
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.log_tags import brax_losses
 from bar_policy.training.parallel import DataParallel, barrier, make_data_parallel
-from bar_policy.training.progress import RunLogger, next_would_overrun
+from bar_policy.training.progress import RunLogger
 from bar_policy.training.rollout_sums import RatioWindow, sum_layout, window_metrics
 from bar_policy.training.startup import breakdown as sb
 from bar_policy.training.startup.session import CompiledPrograms, StartUp, compile_programs
@@ -138,9 +138,8 @@ def train_brax(
     total_iters = math.ceil(cfg.ppo.num_timesteps / cfg.ppo.steps_per_iteration)
     start_steps, t_loop = run.env_steps, time.monotonic()
     while run.iteration < total_iters:
-        seconds = run.rollout_and_update()
+        seconds, over_budget = run.rollout_and_update()
         programs.epoch_ended(seconds, step0_waiting=run.eval_at_start)
-        over_budget = run.over_budget(seconds)
         last = run.iteration >= total_iters or over_budget
         eval_due = last or run.epochs % _LINES_PER_EVAL == 0
         # eval.initial=start: the step-0 evaluation runs at the first epoch end where the evaluation
@@ -200,9 +199,7 @@ class _Run:
             ckpt = load_checkpoint(cfg.resume, template)
             self.env_steps, self.iteration, state = ckpt.env_steps, ckpt.iteration, ckpt.state
             changes = resume_changes(ckpt.path, config_record)
-            logger.print(f"resumed {ckpt.path} at {self.env_steps} env steps (iteration {self.iteration})")
-            for line in changes:
-                logger.print(line)
+            logger.resumed(ckpt.path, self.env_steps, self.iteration, changes)
         self.iters_per_epoch = epoch_iterations(cfg)
         # Every host value the run starts from, on the devices at once (replicated).
         host = {
@@ -237,8 +234,13 @@ class _Run:
         self.eval_at_start = self.iteration == 0 and cfg.eval.initial == "start"
         self.eval_at_end = self.iteration == 0 and cfg.eval.initial == "end"
 
-    def rollout_and_update(self) -> float:
-        """One epoch (``iters_per_epoch`` PPO iterations), logged as a progress line; returns its seconds."""
+    def rollout_and_update(self) -> tuple[float, bool]:
+        """One epoch (``iters_per_epoch`` PPO iterations), logged as a progress line.
+
+        Returns its seconds, and whether the next epoch would end past ``max_minutes`` (every process gets
+        process 0's answer). The next epoch's expected length: this one's, plus an evaluation's when the
+        next epoch ends with one, plus one more while the step-0 evaluation waits for the end of training.
+        """
         t0 = time.monotonic()
         epoch_key = self.dp.replicate(host_key(self.cfg.seed, _K_EPOCH, self.iteration))
         self.ts, self.envs, metrics, stats = run_epoch(
@@ -256,37 +258,41 @@ class _Run:
             **brax_losses(metrics, ppo.entropy_cost, ppo.vf_loss_coefficient),
             "sps": steps / seconds,
         }
-        self.logger.log(self.env_steps, train_metrics, kind="train")
-        self.logger.progress(self.env_steps, steps / seconds, train_metrics)
-        return seconds
-
-    def over_budget(self, epoch_s: float) -> bool:
-        """Whether the next epoch would end past ``max_minutes`` (every process gets process 0's answer).
-
-        Its expected length: this epoch's, plus an evaluation's when the next epoch ends with one, plus one
-        more while the step-0 evaluation waits for the end of training.
-        """
         next_eval_due = (self.epochs + 1) % _LINES_PER_EVAL == 0
         evals_s = self.last_eval_s * (next_eval_due + self.eval_at_end)
-        over = next_would_overrun(self.logger.elapsed(), epoch_s + evals_s, 60 * self.cfg.max_minutes)
+        over = self.logger.epoch_end(
+            self.env_steps, train_metrics, next_s=seconds + evals_s, budget_s=60 * self.cfg.max_minutes
+        )
         if jax.process_count() > 1:
             from jax.experimental import multihost_utils
 
             over = bool(multihost_utils.broadcast_one_to_all(np.asarray(over)))
-        return over
+        return seconds, over
 
     def evaluate(self, params: tuple[Any, Any], step: int) -> None:
         """Evaluate replicated ``(normalizer, policy)`` params on step ``step``'s keys; log, rank, keep."""
         t_eval = time.monotonic()
-        key = self.dp.replicate(host_key(self.cfg.seed, _K_EVAL, step))
-        m = self.programs["evaluate"](params, key, self.eval_model_key, self.weights)
-        m = {k: float(v) for k, v in self.dp.to_host(m).items()}
+        m = self.evaluation(params, host_key(self.cfg.seed, _K_EVAL, step))
         if step:  # the step-0 evaluation's time includes its compile
             self.last_eval_s = time.monotonic() - t_eval
-        self.logger.record_eval(step, m, self.evals, self.time_to_threshold, self.cfg.eval.success_threshold)
-        if self.keeper.offer(step, m, lambda: _host_params(self.dp.to_host(self.ts))):
-            self.logger.print(f"  best so far: the parameters at {step:,} steps are kept")
+        threshold = self.cfg.eval.success_threshold
+        self.logger.record_eval(step, m, self.evals, self.time_to_threshold, threshold, keep=self._keep(step))
         self.programs.confirm()  # every loaded program has run: none is a suspect of a crash
+
+    def evaluation(self, params: tuple[Any, Any], key: np.ndarray) -> dict[str, float]:
+        """The evaluation program's figures, as host floats, for replicated ``(normalizer, policy)``."""
+        m = self.programs["evaluate"](params, self.dp.replicate(key), self.eval_model_key, self.weights)
+        return {k: float(v) for k, v in self.dp.to_host(m).items()}
+
+    def _keep(self, step: int) -> Callable[[dict[str, float]], str | None]:
+        """Offer step ``step``'s recorded evaluation to the keeper (a host copy of the params if kept)."""
+
+        def keep(m: dict[str, float]) -> str | None:
+            if self.keeper.offer(step, m, lambda: _host_params(self.dp.to_host(self.ts))):
+                return f"  best so far: the parameters at {step:,} steps are kept"
+            return None
+
+        return keep
 
     def evaluate_initial(self) -> None:
         """The untrained policy's evaluation (its params re-created by ``init``), logged as step 0."""
@@ -305,13 +311,10 @@ class _Run:
 
     def result(self, learner: Any, prior: Any, start_steps: int, train_seconds: float) -> BraxTrainResult:
         """The run's result: host params, the records, and an evaluator on the compiled evaluation."""
-        dp, programs = self.dp, self.programs
+        dp = self.dp
 
         def evaluator(params: Any, eval_seed: int) -> dict[str, float]:
-            key = dp.replicate(host_key(eval_seed, _K_EVAL))
-            policy = dp.replicate(tuple(params[:2]))
-            metrics = programs["evaluate"](policy, key, self.eval_model_key, self.weights)
-            return {k: float(v) for k, v in dp.to_host(metrics).items()}
+            return self.evaluation(dp.replicate(tuple(params[:2])), host_key(eval_seed, _K_EVAL))
 
         return BraxTrainResult(
             params=_host_params(dp.to_host(self.ts)),

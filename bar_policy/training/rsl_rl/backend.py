@@ -62,7 +62,7 @@ from bar_policy.training.best import BestIterate, BestKeeper
 from bar_policy.training.checkpoint import latest_checkpoint, resume_changes, save_checkpoint
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.log_tags import rsl_rl_losses
-from bar_policy.training.progress import RunLogger, next_would_overrun
+from bar_policy.training.progress import RunLogger
 from bar_policy.training.rollout_sums import RatioWindow, window_metrics
 from bar_policy.training.rsl_rl.config import not_applied, rsl_rl_train_cfg
 from bar_policy.training.rsl_rl.env import RslRlVecEnv
@@ -197,8 +197,8 @@ def train_rsl_rl(
     with timer.phase(sb.RSL_RUNNER):
         # Both envs add the prior to the actor's actions. Our loop records its own sums on the device
         # (take_stats); extras["log"] is for OnPolicyRunner.learn.
-        vec_env = RslRlVecEnv(programs=programs.train, device=device, log_metrics=False)
-        eval_vec = RslRlVecEnv(programs=programs.eval, device=device, log_metrics=False)
+        vec_env = RslRlVecEnv(programs.train, device=device, log_metrics=False)
+        eval_vec = RslRlVecEnv(programs.eval, device=device, log_metrics=False)
         with timer.phase(sb.RSL_RESET):  # the runner reads the first observations
             vec_env.get_observations()
         # rsl-rl's own runner logger, writing into the run's tb/ (its writer: TensorBoard or wandb, as
@@ -242,6 +242,13 @@ def train_rsl_rl(
 
     last_eval_s = 0.0
 
+    def line() -> tuple[float, dict[str, float]]:
+        """The progress line's steps/s and figures over the iterations since the previous line."""
+        nonlocal line_sums, line_steps, line_s
+        shown = line_steps / line_s, window_metrics(line_sums, line_steps, episode_length, line_ratios)
+        line_sums, line_steps, line_s = {}, 0, 0.0
+        return shown
+
     def run_eval(step: int, actor: torch.nn.Module) -> None:
         """Evaluate ``actor`` (the current one, or the initial one at step 0) and offer it to the keeper."""
         nonlocal last_eval_s
@@ -252,9 +259,13 @@ def train_rsl_rl(
         m = evaluate_torch_policy(lambda o: module(o), eval_vec, episode_length, seed=cfg.seed + 1000 + step)
         if step:  # the step-0 evaluation's time may include a wait for its compile
             last_eval_s = time.monotonic() - t_eval
-        logger.record_eval(step, m, evals, ttt, cfg.eval.success_threshold)
-        if keeper.offer(step, m, lambda: {k: v.detach().clone() for k, v in actor.state_dict().items()}):
-            logger.print(f"  best so far: the actor at {step:,} steps is kept")
+
+        def keep(m: dict[str, float]) -> str | None:
+            if keeper.offer(step, m, lambda: {k: v.detach().clone() for k, v in actor.state_dict().items()}):
+                return f"  best so far: the actor at {step:,} steps is kept"
+            return None
+
+        logger.record_eval(step, m, evals, ttt, cfg.eval.success_threshold, keep=keep)
         actor.train(training)
         compiled.confirm()  # every loaded program has run: none is a suspect of a crash
 
@@ -286,9 +297,10 @@ def train_rsl_rl(
         with update_precision(ppo.update_precision):  # the SGD passes only, as brax's
             losses = alg.update()
         stats = vec_env.take_stats()
+        notes: list[str] = []
         if COPIES.count > copies_seen:  # never silent: a torch->jax crossing that could not share
             copies_seen = COPIES.count
-            logger.print(f"  torch->jax bridge copies so far: {dict(COPIES.by_reason)}")
+            notes.append(f"  torch->jax bridge copies so far: {dict(COPIES.by_reason)}")
         iteration += 1
         env_steps += steps_per_iter
         dt = time.monotonic() - t0
@@ -300,18 +312,21 @@ def train_rsl_rl(
             "policy_std": float(alg.get_policy().output_std.detach().mean()),
             "sps": steps_per_iter / dt,
         }
-        logger.log(env_steps, train_metrics, kind="train")
         for k, v in window.items():
             line_sums[k] = line_sums.get(k, 0.0) + v
         line_steps, line_s = line_steps + steps_per_iter, line_s + dt
         last = iteration >= total_iters
         # Room for the step-0 evaluation when it runs after training (the periodic ones are not counted).
         reserve = last_eval_s if eval_at_end else 0.0
-        over_budget = next_would_overrun(logger.elapsed(), dt + reserve, 60 * cfg.max_minutes)
-        if iteration % max(1, iters_per_eval // 2) == 0 or last or over_budget:
-            line = window_metrics(line_sums, line_steps, episode_length, line_ratios)
-            logger.progress(env_steps, line_steps / line_s, line)
-            line_sums, line_steps, line_s = {}, 0, 0.0
+        over_budget = logger.epoch_end(
+            env_steps,
+            train_metrics,
+            next_s=dt + reserve,
+            budget_s=60 * cfg.max_minutes,
+            line=line,
+            line_due=iteration % max(1, iters_per_eval // 2) == 0 or last,
+            notes=notes,
+        )
         eval_due = iteration % iters_per_eval == 0 or last or over_budget
         if eval_at_start and (eval_due or compiled.ready("eval step")):
             eval_at_start = False
@@ -364,6 +379,7 @@ def _resume(
     from flax import serialization
 
     path = latest_checkpoint(resume)
+    changes = resume_changes(path, config_record)
     payload = serialization.msgpack_restore(path.read_bytes())
     st = payload["state"]
     load_module_state(alg.actor, st["actor"], device)
@@ -371,9 +387,7 @@ def _resume(
     load_optimizer_state(alg.optimizer, st["optimizer"], device)
     alg.learning_rate = float(st["learning_rate"])
     env_steps, iteration = int(payload["env_steps"]), int(payload["iteration"])
-    logger.print(f"resumed {path} at {env_steps} env steps (iteration {iteration})")
-    for line in resume_changes(path, config_record):
-        logger.print(line)
+    logger.resumed(path, env_steps, iteration, changes)
     return env_steps, iteration
 
 

@@ -60,24 +60,29 @@ __all__ = ["RslRlVecEnv", "torch_device_for_jax"]
 class RslRlVecEnv(VecEnv):
     """A batch of ``num_envs`` copies of a ``bar_policy.envs`` env as an rsl-rl ``VecEnv``.
 
+    Made over the env's jax side already built (``programs``: ``rsl_rl.programs.EnvPrograms``, e.g.
+    compiling since ``prepare_rsl_rl``, before torch was imported; the trainer's form), or from the env
+    itself (``from_env``, which builds them).
+
     Args:
-        env: the unwrapped jax env (None with ``programs``).
-        num_envs: batch size (None with ``programs``).
+        programs: the env's jax side (wrapped env, reset/step/quality programs, the reset keys).
+        device: torch device; must be where jax's arrays live (``torch_device_for_jax()``).
+        log_metrics: put the env's per-step metrics in ``extras["log"]`` (``Metrics/<name>``); off for
+            an evaluation env, whose steps no rsl-rl logger reads.
+
+    ``from_env``'s arguments:
+        env: the unwrapped jax env.
+        num_envs: batch size.
         wrap_fn: ``wrap_for_brax_training(env, episode_length=, action_repeat=, randomization_fn=)``.
         randomizer: ``(model, rng) -> (model, in_axes)``, or None for the nominal model.
         seed: seed of the randomisation and of the resets.
-        device: torch device; must be where jax's arrays live (``torch_device_for_jax()``).
         name: the programs' name prefix (``EnvPrograms``).
-        log_metrics: put the env's per-step metrics in ``extras["log"]`` (``Metrics/<name>``); off for
-            an evaluation env, whose steps no rsl-rl logger reads.
         quality: also measure the evaluation's safety and smoothness figures (``eval_quality``, as the
             brax evaluator does: ``quality/<figure>`` in ``take_stats()["quality"]``) on each slot's first
             episode; for an evaluation env (it keeps every step's chatter signal, episode_length x
             num_envs x joints).
         prior: the action prior, or None: ``step``'s actions are then residuals added to ``prior(obs)``
             of the current observations (``commanded_action``).
-        programs: the env's jax side already built (``rsl_rl.programs.EnvPrograms``, e.g. compiling since
-            ``prepare_rsl_rl``, before torch was imported); ``env`` to ``prior`` are then not given.
 
     The first reset runs when the state is first needed (``state``, ``get_observations``, ``step``), from
     the keys drawn at construction; a ``reset_all`` before it replaces it.
@@ -93,12 +98,13 @@ class RslRlVecEnv(VecEnv):
     reward terms, the task's ratios, finished episodes and their lengths).
     """
 
-    def __init__(
-        self,
-        env: Any = None,
-        num_envs: int | None = None,
+    @classmethod
+    def from_env(
+        cls,
+        env: Any,
+        num_envs: int,
         *,
-        wrap_fn: Callable[..., Any] | None = None,
+        wrap_fn: Callable[..., Any],
         randomizer: Callable[..., Any] | None = None,
         seed: int = 0,
         device: str | None = None,
@@ -106,15 +112,21 @@ class RslRlVecEnv(VecEnv):
         log_metrics: bool = True,
         quality: bool = False,
         prior: Prior | None = None,
-        programs: EnvPrograms | None = None,
-    ) -> None:
-        if programs is None:
-            if env is None or num_envs is None or wrap_fn is None:
-                raise ValueError("RslRlVecEnv needs env, num_envs and wrap_fn, or programs")
-            programs = EnvPrograms(
-                env, num_envs, wrap_fn=wrap_fn, randomizer=randomizer, seed=seed, quality=quality,
-                prior=prior, name=name,
-            )  # fmt: skip
+    ) -> RslRlVecEnv:
+        """``num_envs`` copies of ``env``, its jax side built here (``EnvPrograms``); see the class."""
+        programs = EnvPrograms(
+            env,
+            num_envs,
+            wrap_fn=wrap_fn,
+            randomizer=randomizer,
+            seed=seed,
+            quality=quality,
+            prior=prior,
+            name=name,
+        )
+        return cls(programs, device=device, log_metrics=log_metrics)
+
+    def __init__(self, programs: EnvPrograms, *, device: str | None = None, log_metrics: bool = True) -> None:
         self.programs = programs
         """The jax side: wrapped env, reset/step/quality programs, the reset keys."""
         self.num_envs = programs.num_envs

@@ -7,9 +7,9 @@ and the env is commanded
 
     a = prior(obs) + r          (action units, shape (num_envs, A); the env then clips a to [-1, 1])
 
-computed on the device in JAX inside the jitted step (``RslRlVecEnv(prior=...)``, ``commanded_action``)
-from the same raw observation the actor was given (``state.obs``, before the actor's normaliser). The prior
-is a deterministic function of the observation, so ``r ~ N(mu(obs), sigma)`` is exactly
+computed on the device in JAX inside the jitted step (``RslRlVecEnv.from_env(prior=...)``,
+``commanded_action``) from the same raw observation the actor was given (``state.obs``, before the actor's
+normaliser). The prior is a deterministic function of the observation, so ``r ~ N(mu(obs), sigma)`` is exactly
 ``a ~ N(prior(obs) + mu(obs), sigma)``: rsl-rl's log-probabilities, entropy and KL of the residual are those
 of a Gaussian policy whose mean is shifted by the prior, and its PPO, runner, storage and distribution run
 unchanged. The evaluations (inside training and the final one) step an env built with the same prior.
