@@ -28,7 +28,7 @@ from bar_policy.training.progress import RunLogger, format_duration, format_eval
 from bar_policy.training.startup import breakdown as sb
 from bar_policy.training.startup.session import StartUp
 
-__all__ = ["RunSummary", "evaluation_set", "init_distributed", "resolve_run_dir", "run"]
+__all__ = ["RunSummary", "evaluation_set", "final_eval_line", "init_distributed", "resolve_run_dir", "run"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -72,6 +72,11 @@ def evaluation_set(episodes: float, *, held_out: bool) -> str:
     if held_out:
         return f"{episodes:,.0f} episodes of the held-out evaluation set, nominal model"
     return f"{episodes:,.0f} fresh episodes, randomised as in training"
+
+
+def final_eval_line(env_steps: int, evaluated_on: str, final: dict[str, float]) -> str:
+    """The run's last evaluation, labelled: ``final evaluation (N env steps, on <what>): <figures>``."""
+    return f"final evaluation ({env_steps:,} env steps, on {evaluated_on}): {format_eval(final)}"
 
 
 def resolve_run_dir(cfg: TrainConfig, *, check: bool = True) -> Path:
@@ -256,8 +261,7 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
 
     logger.log(result.env_steps, final, kind="final")
     evaluated_on = evaluation_set(final.get("episodes", cfg.final_eval_envs), held_out=eval_env is not None)
-    head = f"final evaluation ({result.env_steps:,} env steps, on {evaluated_on})"
-    logger.print(f"{head}: {format_eval(final)}")
+    logger.print(final_eval_line(result.env_steps, evaluated_on, final))
     sps = result.run_env_steps / max(result.train_seconds, 1e-9)
     training_record = {
         "iterate": "last",

@@ -111,11 +111,23 @@ TINY = {
     "ppo.learning_rate": 1e-3,
     "network.policy_hidden": (32, 32),
     "network.value_hidden": (32, 32),
-    "eval.num_evals": 3,
+    "eval.num_evals": 2,
     "eval.num_eval_envs": 16,
-    "final_eval_envs": 32,
+    "final_eval_envs": 16,
+    "quick_compile": True,
+    "env_overrides": ("sim_dt=0.004",),
 }
-"""Seconds of training on a CPU, for tests and smoke runs (not expected to solve the task)."""
+"""The smoke run: a cold ``bar-train --preset tiny`` on a 2-core CPU in about a minute and a half, for
+tests and a first try (not expected to solve the task). What it chooses for that, each a CPU's cost:
+
+- ``quick_compile``: XLA's LLVM optimisations off, the programs compile in a fraction of the time
+  (``startup.compiler.QUICK_COMPILE``); they run slower, which four iterations do not notice.
+- ``eval.num_evals`` 2: one evaluation, at the end (the periodic one is the last); with the step-0 one
+  (``eval.initial=end``) and the final evaluation, three runs of the one compiled evaluation.
+- ``final_eval_envs`` = ``eval.num_eval_envs``: the final evaluation is one batch, not two.
+- ``sim_dt=0.004``: 5 physics steps per control step (the gpu preset's), half the evaluation's physics.
+
+Measured in docs/training.md ("Smoke run")."""
 
 REACH_ROBUST = robust(GPU, "reach-robust")
 """The ``gpu`` preset with the robustness randomisation (``tasks.robust_preset.ROBUST_ENV_OVERRIDES``;

@@ -47,6 +47,7 @@ __all__ = [
     "configure_compile_cache",
     "default_cache_dir",
     "process_uptime",
+    "quiet_xla_alarms",
 ]
 
 _T_IMPORT = time.monotonic()
@@ -62,6 +63,21 @@ QUICK_COMPILE_NOTE = (
     "quick compile: XLA's LLVM optimisations off (smoke-run programs: compile fast, run slower; "
     "--no-quick-compile turns it off)"
 )
+
+
+def quiet_xla_alarms() -> str:
+    """Keep XLA's C++ log to fatal messages; returns the note that says so.
+
+    XLA logs ``slow_operation_alarm`` errors ("Very slow compile?", "Constant folding an instruction is
+    taking > 1s") while a CPU compile runs long: a newcomer's smoke run showed nothing else for minutes
+    and read them as a fault. The start-up's own lines (``startup.heartbeat``) say what compiles instead.
+    jax's ``jax_logging_level`` sets the same absl level but also re-levels jax's Python loggers; this
+    sets the C++ one only (process-wide, from now on). Failures still raise in Python.
+    """
+    from jax._src.lib import utils
+
+    utils.absl_set_min_log_level(3)  # absl: 0 info, 1 warning, 2 error, 3 fatal
+    return "XLA's C++ log: fatal only (its slow-compile alarms; the start-up lines say what compiles)"
 
 
 def process_uptime() -> float:

@@ -34,6 +34,7 @@ from bar_policy.training.startup.compiler import (
     Compiler,
     CompileStats,
     configure_compile_cache,
+    quiet_xla_alarms,
 )
 from bar_policy.training.startup.executable_cache import (
     ExecutableCache,
@@ -101,7 +102,7 @@ class StartUp:
         notes = [cache_note, partitioner_note, *env_notes]
         options = dict(QUICK_COMPILE) if getattr(cfg, "quick_compile", False) else {}
         if options:
-            notes.append(QUICK_COMPILE_NOTE)
+            notes += [QUICK_COMPILE_NOTE, quiet_xla_alarms()]
         return cls(timer=timer, cache_dir=cache_dir, notes=notes, seeding=seeding, compiler_options=options)
 
     def open(self, cfg: Any, record: dict[str, Any], env: Any) -> list[str]:
