@@ -120,8 +120,7 @@ def env() -> LitePiano:
 
 @pytest.fixture(scope="module")
 def fns(env: LitePiano):
-    # Quick compiles (LLVM's optimisations off, as the tiny training preset): the same program, compiled
-    # in a fraction of the time; these tests step it a few times.
+    # Quick compiles (LLVM at -O1, as the tiny training preset): the same programs, compiled sooner.
     quick = {"compiler_options": QUICK_COMPILE}
     return jax.jit(env.reset, **quick), jax.jit(env.step, **quick)
 

@@ -60,7 +60,7 @@ def test_evaluation_labels_by_hand():
 @pytest.mark.slow
 def test_smoke_run_says_what_it_compiles_and_labels_its_evaluations(smoke):
     _, summary, lines = smoke
-    assert any(s.startswith("quick compile: XLA's LLVM optimisations off") for s in lines)
+    assert any(s.startswith("quick compile: XLA's LLVM at -O1") for s in lines)
     # A line per program once it is ready: compiled, or loaded from the suite's persistent cache.
     ready = {}
     for s in lines:
