@@ -116,7 +116,7 @@ TINY = {
     "final_eval_envs": 16,
     "quick_compile": True,
 }
-"""The smoke run: ``bar-train --preset tiny``, chosen for a cold start on a 2-core CPU (about 140 CPU-s), for
+"""The smoke run: ``bar-train --preset tiny``, chosen for a cold start on a 2-core CPU, for
 tests and a first try (not expected to solve the task). What it chooses for that, each a CPU's cost:
 
 - ``quick_compile``: XLA's LLVM at -O1 (``startup.compiler.QUICK_COMPILE``): the programs compile sooner
