@@ -329,6 +329,10 @@ class TrainConfig:
     """Seed XLA's per-fusion autotune cache (in the compile cache) with the results shipped for this GPU
     and jaxlib (``training/startup/autotune.py``); GPUs only, never overwrites. H100, LiteReach gpu preset,
     empty compile cache: first evaluation at 68.6 s instead of 99.4 s, same training speed (2026-11-27)."""
+    quick_compile: bool = False
+    """Compile every program with XLA's LLVM at -O1 (``startup.compiler.QUICK_COMPILE``): a shorter compile
+    at about the same speed on a CPU. For smoke runs and tests on a CPU (the tiny preset sets it); not
+    measured on GPUs (docs/training.md, "Smoke run")."""
     executable_cache: bool = True
     """Executable cache in <cache directory>/executables (with the compile cache): a rerun of the same
     command and code loads each program without tracing, lowering or compiling it. Used on GPU backends;

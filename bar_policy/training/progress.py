@@ -21,7 +21,7 @@ from typing import Any, TextIO
 from bar_policy.training.log_tags import tag
 from bar_policy.training.writers import check_logger, make_writer
 
-__all__ = ["RunLogger", "format_duration", "format_steps", "next_would_overrun"]
+__all__ = ["RunLogger", "format_duration", "format_eval", "format_steps", "next_would_overrun"]
 
 
 def format_steps(n: float) -> str:
@@ -41,6 +41,22 @@ def next_would_overrun(elapsed_s: float, next_s: float, budget_s: float) -> bool
     overshot by up to one epoch; ``budget_s <= 0`` means no budget.
     """
     return budget_s > 0 and elapsed_s + next_s > budget_s
+
+
+def format_eval(metrics: dict[str, float]) -> str:
+    """An evaluation's figures on one line.
+
+    Success, episode reward, final distance (cm) when the task has one, then every other figure (``time_s``
+    and ``episodes`` left out: the line's head says them).
+    """
+    text = f"success {100 * metrics['success_rate']:.1f}%, episode reward {metrics['episode_reward']:.2f}"
+    if "final_distance" in metrics:
+        text += f", final distance {100 * metrics['final_distance']:.2f} cm"
+    skip = ("success_rate", "episode_reward", "episode_reward_std", "final_distance", "time_s", "episodes")
+    for k, v in metrics.items():
+        if k not in skip:
+            text += f", {k} {v:.4g}"
+    return text
 
 
 def format_duration(seconds: float) -> str:
@@ -91,6 +107,8 @@ class RunLogger:
         self._tb: Any = None
         self._jsonl: TextIO | None = None
         self.last_eval: dict[str, float] = {}
+        self.evaluated_on = ""
+        """What the evaluations run on, for their lines' heads (``run``: ``held-out set`` or '')."""
         if enabled:
             self.run_dir.mkdir(parents=True, exist_ok=True)
             self._jsonl = (self.run_dir / "metrics.jsonl").open("a")
@@ -184,16 +202,10 @@ class RunLogger:
         self.log(step, metrics, kind="eval")
         later = next((i for i, e in enumerate(evals) if e["step"] > step), None)
         evals.insert(len(evals) if later is None else later, {"step": step, **metrics})
-        text = (
-            f"  eval @ {step:,} steps: success {100 * metrics['success_rate']:.1f}%, "
-            f"episode reward {metrics['episode_reward']:.2f}"
-        )
-        if "final_distance" in metrics:
-            text += f", final distance {100 * metrics['final_distance']:.2f} cm"
-        for k, v in metrics.items():
-            if k not in ("success_rate", "episode_reward", "episode_reward_std", "final_distance", "time_s"):
-                text += f", {k} {v:.4g}"
-        self.print(text)
+        on = f", {self.evaluated_on}" if self.evaluated_on else ""
+        head = f"initial evaluation (the untrained policy{on})" if step == 0 else f"eval @ {step:,} steps"
+        head += f" ({self.evaluated_on})" if step and self.evaluated_on else ""
+        self.print(f"  {head}: {format_eval(metrics)}")
         if later is None and not time_to_threshold and metrics["success_rate"] >= threshold:
             time_to_threshold.append(metrics["time_s"])
         kept = None if keep is None else keep(metrics)

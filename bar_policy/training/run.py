@@ -24,12 +24,12 @@ from typing import Any
 from bar_policy.training.best import finish_best
 from bar_policy.training.config import TrainConfig, config_to_dict
 from bar_policy.training.distributed import init_distributed, local_default_devices, shutdown_distributed
-from bar_policy.training.progress import RunLogger, format_duration, format_steps
+from bar_policy.training.progress import RunLogger, format_duration, format_eval, format_steps
 from bar_policy.training.run_header import setting_lines
 from bar_policy.training.startup import breakdown as sb
 from bar_policy.training.startup.session import StartUp
 
-__all__ = ["RunSummary", "init_distributed", "resolve_run_dir", "run"]
+__all__ = ["RunSummary", "evaluation_set", "final_eval_line", "init_distributed", "resolve_run_dir", "run"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -46,6 +46,8 @@ class RunSummary:
     """Env steps of this run / wall time of training (compile and evaluations included), steps/s."""
     final_eval: dict[str, float]
     """Final evaluation (``success_rate``, ``episode_reward``, ... over ``final_eval_envs`` episodes)."""
+    final_eval_on: str = ""
+    """What the final evaluation ran on (``evaluation_set``: episodes, held-out set or training env)."""
     time_to_threshold_s: float | None
     """Seconds from start to the first evaluation at or above ``eval.success_threshold`` (None: never)."""
     onnx_path: Path | None
@@ -60,6 +62,22 @@ class RunSummary:
     best: dict[str, Any] = dataclasses.field(default_factory=dict)
     """The best evaluated iterate (``bar_policy.training.best.finish_best``): ``step``, ``is_last``, and
     when it is not the last iterate its ``final_eval`` and ``onnx``."""
+
+
+def evaluation_set(episodes: float, *, held_out: bool) -> str:
+    """What an evaluation ran on, for its printed label.
+
+    ``episodes`` on the task's held-out evaluation env (``held_out``: its ``evaluation_env()``, evaluated on
+    its nominal model) or fresh episodes of the training env (its randomisation kept).
+    """
+    if held_out:
+        return f"{episodes:,.0f} episodes of the held-out evaluation set, nominal model"
+    return f"{episodes:,.0f} fresh episodes, randomised as in training"
+
+
+def final_eval_line(env_steps: int, evaluated_on: str, final: dict[str, float]) -> str:
+    """The run's last evaluation, labelled: ``final evaluation (N env steps, on <what>): <figures>``."""
+    return f"final evaluation ({env_steps:,} env steps, on {evaluated_on}): {format_eval(final)}"
 
 
 def resolve_run_dir(cfg: TrainConfig, *, check: bool = True) -> Path:
@@ -218,6 +236,8 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
         for line in start.open(cfg, record, env):  # the autotune seeding waited for; the executable cache
             logger.print(line)
     logger.t0 = timer.origin
+    logger.evaluated_on = "held-out set" if eval_env is not None else ""
+    start.say = logger.print  # the start-up says what it is doing while its programs compile
     provenance = record["provenance"]
 
     ckpt_dir = str(run_dir / "checkpoints")
@@ -252,6 +272,8 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
         )
 
     logger.log(result.env_steps, final, kind="final")
+    evaluated_on = evaluation_set(final.get("episodes", cfg.final_eval_envs), held_out=eval_env is not None)
+    logger.print(final_eval_line(result.env_steps, evaluated_on, final))
     sps = result.run_env_steps / max(result.train_seconds, 1e-9)
     training_record = {
         "iterate": "last",
@@ -289,6 +311,7 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
     final_record = {
         "final_eval": final,
         "final_eval_episodes": cfg.final_eval_envs,
+        "final_eval_on": evaluated_on,
         "env_steps": result.env_steps,
         "wall_s": round(wall, 2),
         "train_seconds": round(result.train_seconds, 2),
@@ -309,6 +332,7 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
         wall_s=wall,
         train_sps_end_to_end=sps,
         final_eval=final,
+        final_eval_on=evaluated_on,
         time_to_threshold_s=result.time_to_threshold_s,
         onnx_path=onnx_path,
         export=export,
@@ -343,6 +367,7 @@ def summary_table(s: RunSummary, cfg: TrainConfig) -> list[str]:
         ("wall time", format_duration(s.wall_s)),
         ("training env steps/s (end to end)", f"{s.train_sps_end_to_end:,.0f}"),
         (f"time to {thr} eval success", ttt),
+        ("final evaluation", f"{s.env_steps:,} env steps, on {s.final_eval_on or '?'}"),
         ("final success rate", f"{100 * s.final_eval.get('success_rate', math.nan):.2f}%"),
         ("final episode reward", f"{s.final_eval.get('episode_reward', math.nan):.2f}"),
         *(

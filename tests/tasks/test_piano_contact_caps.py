@@ -28,6 +28,7 @@ from bar_policy.tasks.piano.scene import (
     MAX_GEOM_PAIRS,
     keyboard_scene,
 )
+from bar_policy.training.startup.compiler import QUICK_COMPILE
 
 KB = compact_config()
 ROBOT = load_robot("arms")
@@ -169,7 +170,10 @@ def _run_mjx(model: mujoco.MjModel, q: np.ndarray, dq: np.ndarray) -> tuple[np.n
         d = mjx.step(mx, d)
         return d, (d.qpos[14:], d.qacc)
 
-    roll = jax.jit(lambda d: jax.lax.scan(body, d, (jnp.asarray(q), jnp.asarray(dq)))[1])
+    # Quick compile (LLVM at -O1, as the tiny training preset): the same program, compiled sooner.
+    roll = jax.jit(
+        lambda d: jax.lax.scan(body, d, (jnp.asarray(q), jnp.asarray(dq)))[1], compiler_options=QUICK_COMPILE
+    )
     angles, qacc = roll(mjx.make_data(model))
     return np.asarray(angles), np.asarray(qacc)
 

@@ -25,6 +25,7 @@ from bar_policy.tasks.piano.keyboard import black_keys, compact_config, press_th
 from bar_policy.tasks.piano.songs import Note, Song
 from bar_policy.tasks.piano.source import SongCommands
 from bar_policy.tasks.piano.terms import PIANO_KEYS, TARGET_FRAMES
+from bar_policy.training.startup.compiler import QUICK_COMPILE
 
 NO_COUNT_IN = PlaybackConfig(count_in_s=0.0)
 
@@ -119,7 +120,9 @@ def env() -> LitePiano:
 
 @pytest.fixture(scope="module")
 def fns(env: LitePiano):
-    return jax.jit(env.reset), jax.jit(env.step)
+    # Quick compiles (LLVM at -O1, as the tiny training preset): the same programs, compiled sooner.
+    quick = {"compiler_options": QUICK_COMPILE}
+    return jax.jit(env.reset, **quick), jax.jit(env.step, **quick)
 
 
 def test_layout_and_sizes(env: LitePiano) -> None:

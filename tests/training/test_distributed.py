@@ -46,7 +46,15 @@ def _launch(out: Path, cache: Path, run_name: str) -> Path:
         "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])),
     }
     port = str(_free_port())
-    args = ["export_onnx=False", f"compile_cache_dir={cache}", f"run_name={run_name}", "--toy"]
+    # Three evaluation periods (the tiny preset has one): a progress line per 2 iterations, evaluations at
+    # 1,024 and 2,048 env steps, as the assertions below count them.
+    args = [
+        "export_onnx=False",
+        "eval.num_evals=3",
+        f"compile_cache_dir={cache}",
+        f"run_name={run_name}",
+        "--toy",
+    ]
     procs = [
         subprocess.Popen(
             [sys.executable, str(WORKER), port, str(pid), str(out), *args],

@@ -141,11 +141,21 @@ TINY = {
     "ppo.learning_rate": 1e-3,
     "network.policy_hidden": (32, 32),
     "network.value_hidden": (32, 32),
-    "eval.num_evals": 3,
+    "eval.num_evals": 2,
     "eval.num_eval_envs": 16,
-    "final_eval_envs": 32,
+    "final_eval_envs": 16,
+    "quick_compile": True,
 }
-"""Seconds of training on a CPU, for tests and smoke runs (not expected to solve the task)."""
+"""The smoke run: ``bar-train --preset tiny``, chosen for a cold start on a 2-core CPU, for
+tests and a first try (not expected to solve the task). What it chooses for that, each a CPU's cost:
+
+- ``quick_compile``: XLA's LLVM at -O1 (``startup.compiler.QUICK_COMPILE``): the programs compile sooner
+  and run about as fast.
+- ``eval.num_evals`` 2: one evaluation, at the end (the periodic one is the last); with the step-0 one
+  (``eval.initial=end``) and the final evaluation, three runs of the one compiled evaluation.
+- ``final_eval_envs`` = ``eval.num_eval_envs``: the final evaluation is one batch, not two.
+
+Measured in docs/training.md ("Smoke run")."""
 
 REACH_ROBUST = robust(GPU, "reach-robust")
 """The ``gpu`` preset with the robustness randomisation (``tasks.robust_preset.ROBUST_ENV_OVERRIDES``;

@@ -37,16 +37,46 @@ from bar_policy.training.startup.breakdown import ProgramTimes, StartupTimer
 
 if TYPE_CHECKING:
     from bar_policy.training.startup.executable_cache import ExecutableCache
+    from bar_policy.training.startup.heartbeat import Heartbeat
 
 __all__ = [
+    "QUICK_COMPILE",
+    "QUICK_COMPILE_NOTE",
     "CompileStats",
     "Compiler",
     "configure_compile_cache",
     "default_cache_dir",
     "process_uptime",
+    "quiet_xla_alarms",
 ]
 
 _T_IMPORT = time.monotonic()
+
+QUICK_COMPILE: dict[str, Any] = {"xla_backend_optimization_level": 1}
+"""XLA options of ``TrainConfig.quick_compile`` (the tiny preset's): LLVM's code generation at -O1 instead
+of the default -O2/-O3 pipeline; XLA's HLO passes (fusion, layout) still run. The tiny preset's evaluation
+on the 2-core CPU (process CPU seconds, jaxlib 0.10.2, 2026-12-02): compile 39.2 s at -O1, 48.8 s with only
+``xla_llvm_disable_expensive_passes``, one run 2.07 and 2.01 s; at -O0 it compiled faster still but ran
+several times slower, which three evaluations per run paid back (docs/training.md, "Smoke run")."""
+QUICK_COMPILE_NOTE = (
+    "quick compile: XLA's LLVM at -O1 (smoke-run programs: compile sooner, run about as fast; "
+    "--no-quick-compile turns it off)"
+)
+
+
+def quiet_xla_alarms() -> str:
+    """Keep XLA's C++ log to fatal messages; returns the note that says so.
+
+    XLA logs ``slow_operation_alarm`` errors ("Very slow compile?", "Constant folding an instruction is
+    taking > 1s") while a CPU compile runs long: a newcomer's smoke run showed nothing else for minutes
+    and read them as a fault. The start-up's own lines (``startup.heartbeat``) say what compiles instead.
+    jax's ``jax_logging_level`` sets the same absl level but also re-levels jax's Python loggers; this
+    sets the C++ one only (process-wide, from now on). Failures still raise in Python.
+    """
+    from jax._src.lib import utils
+
+    utils.absl_set_min_log_level(3)  # absl: 0 info, 1 warning, 2 error, 3 fatal
+    return "XLA's C++ log: fatal only (its slow-compile alarms; the start-up lines say what compiles)"
 
 
 def process_uptime() -> float:
@@ -195,13 +225,24 @@ class Compiler:
     With an ``executable_cache`` (``bar_policy.training.startup.executable_cache``) a program whose key is
     stored is loaded instead (in the calling thread, or on the worker with ``background=True``): no trace, no
     lowering, no compile; a miss is compiled as above and its executable stored.
+
+    ``heartbeat`` (``startup.heartbeat``) is told each program's stage and prints what the start-up is doing;
+    ``compiler_options`` go to every ``Lowered.compile`` (XLA debug options, e.g. ``QUICK_COMPILE``).
     """
 
     def __init__(
-        self, timer: StartupTimer, max_workers: int = 4, executable_cache: ExecutableCache | None = None
+        self,
+        timer: StartupTimer,
+        max_workers: int = 4,
+        executable_cache: ExecutableCache | None = None,
+        *,
+        heartbeat: Heartbeat | None = None,
+        compiler_options: dict[str, Any] | None = None,
     ) -> None:
         self.timer = timer
         self.executable_cache = executable_cache
+        self.heartbeat = heartbeat
+        self.compiler_options = dict(compiler_options or {})
         self._pool = ThreadPoolExecutor(max_workers=max_workers, thread_name_prefix="xla-compile")
         self._futures: dict[str, Future] = {}
         self._stats = CompileStats.get()
@@ -236,21 +277,35 @@ class Compiler:
             background = True
         times = self.timer.program(name)
         times.thread = "worker" if background else "main"
+        beat = self.heartbeat
+        stage = (lambda s: beat.set(name, s)) if beat is not None else (lambda s: None)
+        stage("queued")
 
         def load() -> Any:
             t = time.monotonic()
+            if cache is not None and stored:
+                stage("loading")
             compiled = cache.load(key, name) if cache is not None and stored else None
             if compiled is not None:
                 times.executable, times.exec_load_s = "hit", time.monotonic() - t
                 if not background:
                     self.timer.add(EXEC_LOAD, times.exec_load_s)
+                if beat is not None:
+                    beat.finished(name, f"loaded from the executable cache in {times.exec_load_s:.1f} s")
             return compiled
 
         def trace_and_lower() -> Any:
             t0 = time.monotonic()
-            traced = jitted.trace(*args)  # type: ignore[attr-defined]
-            t1 = time.monotonic()
-            lowered = traced.lower()
+            try:
+                stage("tracing")
+                traced = jitted.trace(*args)  # type: ignore[attr-defined]
+                t1 = time.monotonic()
+                stage("lowering")
+                lowered = traced.lower()
+            except BaseException as e:
+                if beat is not None:
+                    beat.failed(name, e)
+                raise
             t2 = time.monotonic()
             times.trace_s, times.lower_s = t1 - t0, t2 - t1
             if not background:
@@ -260,9 +315,18 @@ class Compiler:
 
         def compile_it(lowered: Any) -> Any:
             t = time.monotonic()
-            with self._stats.attribute(times):
-                compiled = lowered.compile()
+            stage("compiling")
+            try:
+                with self._stats.attribute(times):
+                    compiled = lowered.compile(self.compiler_options or None)
+            except BaseException as e:
+                if beat is not None:
+                    beat.failed(name, e)
+                raise
             times.compile_s = time.monotonic() - t
+            if beat is not None:
+                how = "loaded from the compile cache" if times.cache_hits else "compiled"
+                beat.finished(name, f"{how} in {times.compile_s:.1f} s")
             if cache is not None and times.cache_hits:
                 # An executable jax's persistent cache served does not re-serialise whole on a CPU (jaxlib
                 # 0.10.2: its reload misses the fused functions, "Function ... not found"): not stored.
@@ -304,5 +368,7 @@ class Compiler:
             self.executable_cache.confirm()
 
     def close(self) -> None:
-        """Release the worker threads."""
+        """Release the worker threads (and stop the heartbeat's)."""
         self._pool.shutdown(wait=False)
+        if self.heartbeat is not None:
+            self.heartbeat.close()

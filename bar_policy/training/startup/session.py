@@ -28,12 +28,20 @@ from typing import Any
 
 from bar_policy.training.startup import breakdown as sb
 from bar_policy.training.startup.breakdown import StartupTimer
-from bar_policy.training.startup.compiler import Compiler, CompileStats, configure_compile_cache
+from bar_policy.training.startup.compiler import (
+    QUICK_COMPILE,
+    QUICK_COMPILE_NOTE,
+    Compiler,
+    CompileStats,
+    configure_compile_cache,
+    quiet_xla_alarms,
+)
 from bar_policy.training.startup.executable_cache import (
     ExecutableCache,
     executable_cache_for,
     executable_cache_line,
 )
+from bar_policy.training.startup.heartbeat import Heartbeat
 
 __all__ = ["CompiledPrograms", "Program", "StartUp", "compile_programs"]
 
@@ -52,6 +60,11 @@ class StartUp:
     """Where the programs' executables are loaded from and stored (``open``; None: compiled every run)."""
     seeding: Future | None = None
     """The autotune seeding running on a thread (``autotune.seed_in_background``); ``open`` waits for it."""
+    say: Callable[[str], None] | None = None
+    """Prints a line (the run logger's ``print``, set once it exists): with it ``compile_programs`` prints
+    what the start-up is doing (``startup.heartbeat``); None: nothing is printed."""
+    compiler_options: dict[str, Any] = field(default_factory=dict)
+    """XLA options every program compiles with (``compiler.QUICK_COMPILE`` for ``quick_compile``)."""
 
     @classmethod
     def begin(cls, cfg: Any, started_at: float | None = None) -> StartUp:
@@ -87,7 +100,10 @@ class StartUp:
             f"partitioner: {partitioner} (JAX_USE_SHARDY_PARTITIONER in the environment chooses)"
         )
         notes = [cache_note, partitioner_note, *env_notes]
-        return cls(timer=timer, cache_dir=cache_dir, notes=notes, seeding=seeding)
+        options = dict(QUICK_COMPILE) if getattr(cfg, "quick_compile", False) else {}
+        if options:
+            notes += [QUICK_COMPILE_NOTE, quiet_xla_alarms()]
+        return cls(timer=timer, cache_dir=cache_dir, notes=notes, seeding=seeding, compiler_options=options)
 
     def open(self, cfg: Any, record: dict[str, Any], env: Any) -> list[str]:
         """Wait for the autotune seeding and open the executable cache; returns the two lines saying so.
@@ -130,7 +146,14 @@ def compile_programs(programs: Sequence[Program], start: StartUp | None = None) 
     breakdown, no executable cache.
     """
     start = start or StartUp()
-    compiled = CompiledPrograms(Compiler(start.timer, executable_cache=start.executable_cache), start.timer)
+    beat = Heartbeat(start.say, start.timer.origin) if start.say is not None else None
+    compiler = Compiler(
+        start.timer,
+        executable_cache=start.executable_cache,
+        heartbeat=beat,
+        compiler_options=start.compiler_options,
+    )
+    compiled = CompiledPrograms(compiler, start.timer)
     out: dict[str, Any] = {}
     for p in programs:
         args = p.args(out) if callable(p.args) else p.args
