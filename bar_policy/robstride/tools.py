@@ -569,7 +569,8 @@ def _parser() -> argparse.ArgumentParser:
         type=_seconds,
         default=40.0,
         metavar="S",
-        help="excitation time per arm, ramps included, 20.5..60 s (default 40)",
+        help="excitation time per arm at the four poses, ramps included, 20.5..60 s (default 40); the fast "
+        "single-joint phase adds 16.5 s (a 2.5 s ramp, then 2 s per joint)",
     )
     ident.add_argument(
         "--rate",
