@@ -13,7 +13,7 @@ import pytest
 from policy_factory import default_metadata, make_policy_file
 
 from bar_policy.deploy.cli import main
-from bar_policy.deploy.log_read import load_log
+from bar_policy.deploy.log.read import load_log
 from bar_policy.obs.manager import SHIPPED_LAYOUTS, ObservationManager, shipped_managers
 from bar_policy.obs.robot_layout import with_error_ema
 from bar_policy.robot.error_ema import error_ema_alpha
