@@ -24,9 +24,9 @@ would not. Friction separates by the sign of the velocity, damping by its size, 
 acceleration (the chirps).
 
 Rows where ``|dq_j| < v_min`` are left out for that joint (static friction there is not ``f sign(dq)``).
-Armature is a few % of a shoulder's link inertia: ``fit_fast`` fits it per joint from segments where that
-joint alone moves fast (inertia-dominated), its own equation only, the links' inertia from ``mj_inverse``
-held.
+Armature is a few % of a shoulder's link inertia: ``sysid_fast.fit_fast`` fits it per joint from segments
+where that joint alone moves fast (inertia-dominated), its own equation only, the links' inertia from
+``mj_inverse`` held.
 
 Confidence intervals: with ``hac_lag``, ``hac_cov``'s Newey-West covariance (the residuals of neighbouring
 samples are correlated); without, the ordinary least-squares ``1.96 sigma sqrt(diag((A^T A)^-1))``
@@ -50,11 +50,11 @@ from bar_policy.robot.index import RobotIndex
 __all__ = [
     "ArmFit",
     "ArmSamples",
-    "FastFit",
     "PayloadRegressor",
     "fit_arm",
-    "fit_fast",
     "hac_cov",
+    "min_window",
+    "moving_average",
     "rigid_model",
     "unit_payload_model",
 ]
@@ -231,7 +231,7 @@ class PayloadRegressor:
         return out
 
 
-def _moving_average(x: np.ndarray, n: int) -> np.ndarray:
+def moving_average(x: np.ndarray, n: int) -> np.ndarray:
     """Centred moving average of ``n`` samples along axis 0, shape kept (the edges average fewer)."""
     if n <= 1:
         return x
@@ -241,7 +241,7 @@ def _moving_average(x: np.ndarray, n: int) -> np.ndarray:
     return (c[hi] - c[lo]) / (hi - lo)[:, None]
 
 
-def _min_window(x: np.ndarray, n: int) -> np.ndarray:
+def min_window(x: np.ndarray, n: int) -> np.ndarray:
     """Centred running minimum of ``n`` samples, shape kept."""
     if n <= 1:
         return x
@@ -310,13 +310,13 @@ def fit_arm(
             if cols is not None:
                 a[:, 4 * nj :] = -cols[:, j, :]
             if smooth > 1:  # the same linear filter on both sides keeps every sample's equation exact
-                a, y = _moving_average(a, smooth), _moving_average(y[:, None], smooth)[:, 0]
-            keep = np.abs(_moving_average(samples.dq[:, j : j + 1], smooth)[:, 0]) >= v_min
-            keep &= _min_window(np.abs(samples.dq[:, j]), smooth) >= v_min / 2
+                a, y = moving_average(a, smooth), moving_average(y[:, None], smooth)[:, 0]
+            keep = np.abs(moving_average(samples.dq[:, j : j + 1], smooth)[:, 0]) >= v_min
+            keep &= min_window(np.abs(samples.dq[:, j]), smooth) >= v_min / 2
             if u is not None and np.isfinite(fric[c]) and fric[c] > 0:
                 # a joint held by the constraint says nothing of the motor: its force is the constraint's,
                 # as stiff as the solver's impedance (a wrist's: ~0.3 N*m per rad/s), so drop those rows
-                keep &= _min_window((~held).astype(np.float64), smooth) > 0
+                keep &= min_window((~held).astype(np.float64), smooth) > 0
             blocks.append(a[keep])
             rhs.append(y[keep])
         a_mat, b = np.concatenate(blocks), np.concatenate(rhs)
@@ -371,133 +371,4 @@ def fit_arm(
         com_half95=com_half,
         rows=len(b),
         rms=float(np.sqrt(resid @ resid / len(b))),
-    )
-
-
-@dataclass(frozen=True)
-class FastFit:
-    """Per-joint fit of the fast single-joint segments: values and 95 % half-widths, shape (joints,)."""
-
-    joints: tuple[str, ...]
-    friction: np.ndarray
-    damping: np.ndarray
-    armature: np.ndarray
-    strength: np.ndarray
-    """Fitted, or the strengths given (held: half-width 0)."""
-    half95: dict[str, np.ndarray]
-    """Key (``friction``, ``damping``, ``armature``, ``strength``) -> 95 % half-widths, shape (joints,)."""
-    mass: float
-    """The payload's mass refitted on these segments (its centre held), kg; the given one when held."""
-    mass_half95: float
-    rows: np.ndarray
-    """Rows used per joint, shape (joints,)."""
-    rms: np.ndarray
-    """Residual RMS per joint, N*m, shape (joints,)."""
-
-
-def fit_fast(
-    samples: ArmSamples,
-    segments: Sequence[tuple[slice, int]],
-    names: Sequence[str],
-    id_base: np.ndarray,
-    friction_u: np.ndarray,
-    strength: np.ndarray | None,
-    *,
-    payload_col: np.ndarray | None = None,
-    mass: float = 0.0,
-    fit_mass: bool = False,
-    smooth: int = 1,
-    iterations: int = 6,
-    hac_lag: int | None = None,
-) -> FastFit:
-    """Friction, damping and armature of each joint from the segments where it moves alone.
-
-    ``segments``: ``(rows, j)``: the slice of ``samples`` where canonical joint ``j`` alone is excited (a
-    joint may have several); only ``j``'s own equation is used there, so each joint's armature is fitted
-    against its own acceleration with the links' inertia from ``mj_inverse`` held (the fit's unknowns per
-    joint: ``f_j``, ``b_j``, ``a_j``)::
-
-        s_j tau_j - F_j - b_j dq_j - a_j qdd_j - m Y_j = ID_j
-
-    ``F_j``: MuJoCo's soft friction loss as in ``fit_arm`` (``+-f_j`` where the unclamped force
-    ``friction_u`` exceeds the estimate, that force itself elsewhere, rows held by it dropped);
-    ``strength``: the joints' strengths, held (shape (joints,), in the order of first appearance in
-    ``segments``), or None: fitted (a strength scales the links' inertia torque, known from the model, so
-    an error of it moves the armature by that fraction of the links' inertia: held, it must be exact);
-    ``payload_col``: the unit payload's column at its centre (``PayloadRegressor.columns``'s first, shape
-    (N, num_joints)); ``mass``: its mass, subtracted (``fit_mass``: one mass shared by all the segments
-    refitted: a payload's inertia about a joint is ``m r^2``, larger than a shoulder's armature, and its
-    gravity stiffness ``m g r`` at two frequencies tells it from an armature, so a few % error of
-    a held mass would be the whole armature). ``smooth``, ``hac_lag``: as ``fit_arm``.
-    """
-    order: list[int] = []
-    for _, j in segments:
-        if j not in order:
-            order.append(j)
-    nj = len(order)
-    n_p = 1 if fit_mass and payload_col is not None else 0
-    w = 3 if strength is not None else 4  # unknowns per joint: f, b, a (and s)
-    fric = np.zeros(nj)
-    for _ in range(iterations):
-        blocks, rhs, ids, which = [], [], [], []
-        for k, (sl, j) in enumerate(segments):
-            c = order.index(j)
-            u = friction_u[sl, j]
-            a = np.zeros((len(u), w * nj + n_p))
-            y = id_base[sl, j].copy()
-            if strength is None:
-                a[:, w * c + 3] = samples.tau[sl, j]
-            else:
-                y -= strength[c] * samples.tau[sl, j]
-            slide = np.abs(u) > fric[c]
-            a[slide, w * c] = np.sign(u[slide])
-            y[~slide] -= u[~slide]
-            a[:, w * c + 1] = -samples.dq[sl, j]
-            a[:, w * c + 2] = -samples.qdd[sl, j]
-            if payload_col is not None:
-                if n_p:
-                    a[:, w * nj] = -payload_col[sl, j]
-                else:
-                    y -= mass * payload_col[sl, j]
-            a, y = _moving_average(a, smooth), _moving_average(y[:, None], smooth)[:, 0]
-            keep = np.ones(len(u), dtype=bool)
-            if fric[c] > 0:  # rows held by the constraint say nothing of the motor (fit_arm)
-                keep &= _min_window(slide.astype(np.float64), smooth) > 0
-            blocks.append(a[keep])
-            rhs.append(y[keep])
-            ids.append(np.full(int(keep.sum()), k))
-            which.append(np.full(int(keep.sum()), c))
-        a_mat, b = np.concatenate(blocks), np.concatenate(rhs)
-        scale = np.linalg.norm(a_mat, axis=0)
-        scale[scale == 0] = 1.0
-        x, *_ = np.linalg.lstsq(a_mat / scale, b, rcond=None)
-        x = x / scale
-        fric = np.maximum(x[0 : w * nj : w], 0.0)
-    resid = b - a_mat @ x
-    block_id, col = np.concatenate(ids), np.concatenate(which)
-    if hac_lag is None:
-        sigma2 = float(resid @ resid) / max(len(b) - len(x), 1)
-        cov = sigma2 * np.linalg.pinv((a_mat / scale).T @ (a_mat / scale)) / np.outer(scale, scale)
-    else:
-        cov = hac_cov(a_mat / scale, resid, block_id, hac_lag) / np.outer(scale, scale)
-    half = Z95 * np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    per, hper = x[: w * nj].reshape(nj, w), half[: w * nj].reshape(nj, w)
-    rows = np.array([int((col == c).sum()) for c in range(nj)])
-    rms = np.array([float(np.sqrt(np.mean(resid[col == c] ** 2))) if rows[c] else np.nan for c in range(nj)])
-    return FastFit(
-        joints=tuple(names[j] for j in order),
-        friction=per[:, 0],
-        damping=per[:, 1],
-        armature=per[:, 2],
-        strength=per[:, 3] if strength is None else np.asarray(strength, dtype=np.float64),
-        half95={
-            "friction": hper[:, 0],
-            "damping": hper[:, 1],
-            "armature": hper[:, 2],
-            "strength": hper[:, 3] if strength is None else np.zeros(nj),
-        },
-        mass=float(x[w * nj]) if n_p else float(mass),
-        mass_half95=float(half[w * nj]) if n_p else 0.0,
-        rows=rows,
-        rms=rms,
     )

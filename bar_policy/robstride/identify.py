@@ -32,15 +32,14 @@ from bar_policy.robot.mit import MitCommand
 from bar_policy.robot.params import JOINT_KEYS, MASS_RANGE, Estimate, JointParams, Payload, RobotParams
 from bar_policy.robot.scene import load_model, robot_spec
 from bar_policy.robot.sysid_excitation import RAMP_S, Excitation
+from bar_policy.robot.sysid_fast import FastFit, fit_fast
 from bar_policy.robot.sysid_fit import (
     HAC_LAG_S,
     Z95,
     ArmFit,
     ArmSamples,
-    FastFit,
     PayloadRegressor,
     fit_arm,
-    fit_fast,
 )
 from bar_policy.robstride.errors import RobstrideError
 from bar_policy.robstride.group import RobstrideGroup

@@ -111,7 +111,7 @@ def _ar1(rng: np.random.Generator, n: int, sigma: float) -> np.ndarray:
 
 
 def _fit_noisy(samples, id_base, noise, hac_lag):
-    from bar_policy.robot.sysid_fit import fit_fast
+    from bar_policy.robot.sysid_fast import fit_fast
 
     tau = samples.tau.copy()
     tau[:, ELBOW] += noise
