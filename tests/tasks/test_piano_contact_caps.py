@@ -1,6 +1,6 @@
 """MJX's contact caps in the keyboard scene (scene.py: ``max_geom_pairs``, ``max_contact_points``).
 
-The caps make the piano's MJX step cheaper (docs/piano.md, "A cheaper keyboard step") and must drop no
+The caps make the piano's MJX step cheaper (docs/physics.md, "A cheaper keyboard step") and must drop no
 contact that touches. Checked here: the structural counts before and after, worked out by hand; the two
 geometric bounds the caps rest on; an MJX step with the caps against one without, in contact; and a
 fingertip pressing a key in MJX as in C MuJoCo.

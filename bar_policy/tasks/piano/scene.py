@@ -7,7 +7,7 @@ contype 0 and conaffinity 8, so keys touch the two fingertip spheres and nothing
 the palm or wrist: a task that cares checks those itself). The robot's own geoms keep their bits
 (``links.COLLISION_BITS``: 1 torso, 2 left arm, 4 right arm), so its own contact pairs are unchanged.
 
-MJX's contact caps (docs/piano.md, "A cheaper keyboard step"): MJX carries every candidate contact of the
+MJX's contact caps (docs/physics.md, "A cheaper keyboard step"): MJX carries every candidate contact of the
 scene as a constraint row, every physics step, whether it touches or not: 98 fingertip-key pairs with 49
 keys, beside the robot's 54 contacts. The scene sets MJX's two numerics (C MuJoCo ignores them), with
 values that drop no contact that touches:
