@@ -27,9 +27,9 @@ from bar_policy.tasks.piano.song_library import (
     RETIRED,
     SONG_NAMES,
     TRAIN,
-    _part,
     _scale,
     library_song,
+    part,
 )
 from bar_policy.tasks.piano.songs import (
     Note,
@@ -260,7 +260,7 @@ def test_library_keeps_to_the_prior_hand_split():
     # The retired two-hand scales (left from C3, right from C5, 90 bpm: a beat is 2/3 s): the left's
     # C4 (beat 7) and the right's C6 (beat 7) both go to the right arm, from 7 * 2/3 = 4.667 s to the next
     # note's start less the 0.05 s gap (23.5 mm to B3 / B5 at 0.5 m/s is 0.047 s): 5.333 - 0.05 = 5.283 s.
-    notes = _part("left", _scale(3), 90) + _part("right", _scale(5), 90)
+    notes = part("left", _scale(3), 90) + part("right", _scale(5), 90)
     old = playable(Song("old", articulate(tuple(notes))), CFG)
     assert old.notes == library_song("c_major_scales_two_hands").notes  # kept as it was
     [(a, b)] = split_clashes(old)

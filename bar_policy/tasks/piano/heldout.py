@@ -25,9 +25,9 @@ from functools import cache
 
 from bar_policy.tasks.piano.bank import random_songs
 from bar_policy.tasks.piano.generator import TRAIN_TEMPO_BPM, articulate
-from bar_policy.tasks.piano.keyboard import compact_config, note_number
-from bar_policy.tasks.piano.song_library import HELDOUT, library_song
-from bar_policy.tasks.piano.songs import Note, Song
+from bar_policy.tasks.piano.keyboard import compact_config
+from bar_policy.tasks.piano.song_library import HELDOUT, library_song, part
+from bar_policy.tasks.piano.songs import Song
 
 __all__ = [
     "BLACK_HELDOUT",
@@ -85,18 +85,6 @@ def random_eval_songs(count: int = RANDOM_EVAL_SONGS, seed: int = RANDOM_EVAL_SE
     return [song for song, _ in drawn]
 
 
-def _part(hand: str, text: str, bpm: float) -> list[Note]:
-    """One hand's notes from ``NAME[:beats]`` tokens at ``bpm`` (``r`` a rest), each spanning its beats."""
-    beat, t, out = 60.0 / bpm, 0.0, []
-    for token in text.split():
-        name, _, beats = token.partition(":")
-        length = beat * float(beats or 1)
-        if name != "r":
-            out.append(Note(note_number(name), round(t, 6), round(t + length, 6), hand))
-        t += length
-    return out
-
-
 @cache
 def heldout_song(name: str) -> Song:
     """The held-out song ``name`` (the library's or this module's); ``ValueError`` listing the names."""
@@ -105,5 +93,5 @@ def heldout_song(name: str) -> Song:
     if name not in _BLACK:
         raise ValueError(f"unknown held-out song {name!r}; held-out songs: {list(EVAL_HELDOUT)}")
     bpm, parts = _BLACK[name]
-    notes = tuple(n for hand, text in parts.items() for n in _part(hand, text, bpm))
+    notes = tuple(n for hand, text in parts.items() for n in part(hand, text, bpm))
     return Song(name, articulate(notes))

@@ -23,11 +23,14 @@ from bar_policy.tasks.piano.generator import articulate
 from bar_policy.tasks.piano.keyboard import note_number
 from bar_policy.tasks.piano.songs import Note, Song
 
-__all__ = ["HELDOUT", "RETIRED", "SONG_NAMES", "TRAIN", "library_bpm", "library_song"]
+__all__ = ["HELDOUT", "RETIRED", "SONG_NAMES", "TRAIN", "library_bpm", "library_song", "part"]
 
 
-def _part(hand: str, text: str, bpm: float) -> list[Note]:
-    """One hand's notes from ``NAME[:beats]`` tokens at ``bpm``, each spanning its beats (not articulated)."""
+def part(hand: str, text: str, bpm: float) -> list[Note]:
+    """One hand's notes from ``NAME[:beats]`` tokens at ``bpm`` (``r`` a rest), each spanning its beats.
+
+    Not articulated. The songs of ``heldout`` are written the same way.
+    """
     beat, t, out = 60.0 / bpm, 0.0, []
     for token in text.split():
         name, _, beats = token.partition(":")
@@ -141,5 +144,5 @@ def library_song(name: str) -> Song:
     if name not in _SONGS:
         raise ValueError(f"unknown song {name!r}; songs: {list(_SONGS)}")
     bpm, parts = _SONGS[name]
-    notes = tuple(n for hand, text in parts.items() for n in _part(hand, text, bpm))
+    notes = tuple(n for hand, text in parts.items() for n in part(hand, text, bpm))
     return Song(name, articulate(notes))
