@@ -315,3 +315,23 @@ def test_midi_song_arrangement_in_the_run_log(piano_policy, tmp_path) -> None:
     assert [(c["key"], c["before"]) for c in arr["changed"]] == [(72, 79), (79, 72)]
     assert [c["played_s"] for c in arr["changed"]] == pytest.approx([0.150295, 0.150295], abs=1e-5)
     assert "tempo x0.739 (88.68 bpm), 2 notes shortened, 0 lengthened" in meta["commands"]
+
+
+def test_eval_json_carries_each_arranged_songs_arrangement(piano_policy, tmp_path) -> None:
+    # The tiny song of the two tests above at --tempo auto: x0.739, C5 and G5 shortened (by hand, above). A
+    # .json song is arranged only when --tempo is given; without it, it is played as written and carries none.
+    song = _midi_file(tmp_path / "tiny.mid", [(72, 0, 240), (79, 240, 480), (72, 480, 720)])
+    plain = tmp_path / "plain.json"
+    write_song(plain, Song("plain", (Note(60, 0.0, 0.2, "right"),)))
+    out = tmp_path / "eval.json"
+    base = ["eval", "--policy", str(piano_policy), "-q", "--json", str(out)]
+    assert main([*base, "--songs", f"{song},{plain}", "--tempo", "auto"]) == 0
+    tiny, arranged_plain = json.loads(out.read_text())["songs"]
+    arr = tiny["arrangement"]
+    assert (tiny["song"], arr["tempo"], arr["written_bpm"]) == ("tiny", 0.739, 120.0)
+    assert [(c["key"], c["before"]) for c in arr["changed"]] == [(72, 79), (79, 72)]
+    # One note: nothing to articulate, any tempo plays it (auto: the written one, x1).
+    assert arranged_plain["arrangement"]["tempo"] == 1.0 and arranged_plain["arrangement"]["changed"] == []
+    assert main([*base, "--songs", str(plain)]) == 0
+    (as_written,) = json.loads(out.read_text())["songs"]
+    assert as_written["arrangement"] is None  # no MIDI file, no --tempo: played as written

@@ -286,11 +286,12 @@ class PianoTask(DeployTask):
         keys = eval_key_source(getattr(args, "keys", None))  # refused before any song plays
         names = getattr(args, "songs", None)
         tempo = song_tempo(args)
-        songs = []
+        songs, arrangements = [], {}
         for name in names.split(",") if names else EVAL_HELDOUT:
             song, arrangement = resolve_arrangement(name, tempo)
             if arrangement is not None:
                 log.info("%s", "\n".join(arrangement.lines()))
+                arrangements[song.name] = arrangement.to_dict()
             songs.append(song)
         count = getattr(args, "random_songs", None)
         count = (0 if names else RANDOM_EVAL_SONGS) if count is None else count  # --songs: those alone
@@ -300,7 +301,15 @@ class PianoTask(DeployTask):
             raise OptionError(f"--random-songs {count}: give a count >= 0 (0: no random songs)")
         randoms = random_eval_songs(count, seed)
         label = f"{count} of the bank's kind, seed {seed}, never trained on"
-        return evaluate(policy, songs, runner=runner, keys=keys, random_songs=randoms, random_label=label)
+        return evaluate(
+            policy,
+            songs,
+            runner=runner,
+            keys=keys,
+            random_songs=randoms,
+            random_label=label,
+            arrangements=arrangements,
+        )
 
 
 def _tempo_argument(group: argparse._ArgumentGroup) -> None:

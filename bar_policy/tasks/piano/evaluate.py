@@ -35,7 +35,7 @@ simulated keys disagree. The result types are ``results.py``'s.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -71,6 +71,7 @@ def evaluate(
     group: str = "held-out",
     random_songs: Sequence[Song] = (),
     random_label: str = "",
+    arrangements: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> PianoEval:
     """Play each song once on ``target`` (default: ``runner``'s in the keyboard's scene; module docstring).
 
@@ -79,7 +80,8 @@ def evaluate(
     keys whatever it is). ``on_song``: called after each song with its result and its scored ticks as arrays
     (``SongTicks``), for analyses beyond the means. ``group``: the group of ``songs`` (``SongResult.group``);
     ``random_songs`` are played after them as the ``random`` group, ``random_label`` saying how they were
-    drawn. Raises ``ValueError`` for another ``keys``, naming the valid ones.
+    drawn. ``arrangements``: song name -> ``Arrangement.to_dict`` of the songs played arranged, carried into
+    the report's JSON. Raises ``ValueError`` for another ``keys``, naming the valid ones.
     """
     if keys not in EVAL_KEY_SOURCES:
         raise ValueError(f"keys = {keys!r}; valid: {', '.join(EVAL_KEY_SOURCES)}")
@@ -152,6 +154,7 @@ def evaluate(
         policy=str(policy.path),
         fingerprint=policy.obs_manager.fingerprint,
         random_songs=random_label,
+        arrangements=dict(arrangements or {}),
     )
 
 

@@ -146,6 +146,9 @@ class PianoEval(EvalReport):
     fingerprint: str
     random_songs: str = ""
     """How the ``random`` group's songs were drawn (count, seed, tempos), for the printed lines."""
+    arrangements: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    """Song name -> its arrangement (``arrange.Arrangement.to_dict``: tempo, hands, every note shortened) for
+    the songs played arranged (a MIDI file, or ``--tempo``); the others are played as written."""
 
     def group(self, group: str = "held-out") -> list[SongResult]:
         """The songs of one group (``SongResult.group``)."""
@@ -245,6 +248,7 @@ class PianoEval(EvalReport):
                     "f1_pooled": s.f1_pooled,
                     **colour_recalls(s.colour_counts()),
                     "chatter_mrad": s.chatter_mrad,
+                    "arrangement": self.arrangements.get(s.song),
                 }
                 for s in self.songs
             ],
