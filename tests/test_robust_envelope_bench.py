@@ -1,0 +1,101 @@
+"""bench/robust_envelope.py: the sweeps hold the suite's values, each point perturbs what it names, and the
+points are read back onto the right magnitudes with the nominal robot at each key's nominal value."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+from bar_policy.robot.perturb_suite import SUITE
+
+BENCH = Path(__file__).resolve().parents[1] / "bench"
+
+
+def _load(name: str):
+    spec = importlib.util.spec_from_file_location(name, BENCH / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+env = _load("robust_envelope")
+
+
+def test_every_sweep_holds_its_suite_rows_value_and_gating() -> None:
+    # Each single-key row of the suite (the combined row aside) is a point of its key's sweep, judged alike,
+    # so the envelope and the suite table agree there. Not swept: the palm payload (the sweep's payload sits
+    # at the fingertip), the observation delay and the pushes.
+    by_key = {s.key: s for s in env.SWEEPS}
+    swept, not_swept = [], []
+    for row in SUITE:
+        pairs = dict(kv.split("=") for kv in row.spec.split(",")) if row.spec else {}
+        if len(pairs) != 1 and set(pairs) != {"payload_kg", "payload_at"}:
+            continue  # nominal, combined
+        key = next(iter(pairs))
+        sweep = by_key.get(key)
+        if sweep is None or pairs.get("payload_at", "fingertip") != "fingertip":
+            not_swept.append(row.name)
+            continue
+        assert float(pairs[key]) in sweep.values and sweep.gating == row.gating, row.name
+        swept.append(row.name)
+    assert not_swept == ["payload 0.5 kg palm", "obs delay 1 tick", "push 10 N"]
+    assert (
+        len(swept) == 8
+    )  # mass x0.8 and x1.2, fingertip payload, friction, damping, strength, delay, offset
+    assert by_key["offset_rad"].gating == "none"  # invisible to any policy: reported, not judged
+
+
+def test_rows_perturb_exactly_what_they_name() -> None:
+    rows = env.sweep_rows(["payload_kg", "strength"])
+    assert [r.name for r in rows] == [
+        "nominal",
+        "payload_kg 0.1", "payload_kg 0.3", "payload_kg 0.5", "payload_kg 0.75",
+        "strength 0.6", "strength 0.7", "strength 0.8", "strength 0.9",
+    ]  # fmt: skip
+    assert rows[0].spec == ""
+    p = rows[3].perturbation  # payload 0.5 kg at each fingertip, nothing else
+    assert (p.payload_kg, p.payload_at, p.strength, p.mass_scale, p.friction_nm) == (
+        0.5,
+        "fingertip",
+        1.0,
+        1.0,
+        0.0,
+    )
+    q = rows[5].perturbation
+    assert (q.strength, q.payload_kg) == (0.6, 0.0)
+    with pytest.raises(ValueError, match=r"unknown sweep key\(s\) \['mass'\]; valid: \['mass_scale'"):
+        env.sweep_rows(["mass"])
+
+
+def test_points_put_each_figure_at_its_magnitude_and_nominal_at_the_keys_nominal() -> None:
+    # A made-up run of two sweeps (figures by hand): strength's nominal is 1.0, payload's 0 kg.
+    rows = [
+        {"name": "nominal", "verdict": "PASS", "gate_report": {"success_pct": 100.0}},
+        {"name": "strength 0.6", "verdict": "MISS", "gate_report": {"success_pct": 80.0}},
+        {"name": "strength 0.8", "verdict": "PASS", "gate_report": {"success_pct": 99.5}},
+        {"name": "payload_kg 0.5", "verdict": "MISS", "gate_report": {"success_pct": 90.0}},
+    ]
+    pts = env.points(rows, "reach")
+    assert pts == {
+        "payload_kg": [(0.0, 100.0, "PASS"), (0.5, 90.0, "MISS")],
+        "strength": [(0.6, 80.0, "MISS"), (0.8, 99.5, "PASS"), (1.0, 100.0, "PASS")],
+    }
+
+
+def test_plot_draws_the_gates_line_and_the_points(tmp_path, monkeypatch) -> None:
+    import matplotlib.axes
+
+    lines: list[float] = []
+    real = matplotlib.axes.Axes.axhline
+    monkeypatch.setattr(
+        matplotlib.axes.Axes, "axhline", lambda ax, y, **kw: lines.append(y) or real(ax, y, **kw)
+    )
+    pts = {"strength": [(0.6, 80.0, "MISS"), (1.0, 100.0, "PASS")]}
+    out = tmp_path / "env.png"
+    env.plot("reach", "x.onnx", pts, out)
+    assert lines == [95.0]  # the reach gate's min_success_pct (tasks/reach/gate.py), one panel
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
