@@ -74,15 +74,15 @@ def test_rows_perturb_exactly_what_they_name() -> None:
 def test_points_put_each_figure_at_its_magnitude_and_nominal_at_the_keys_nominal() -> None:
     # A made-up run of two sweeps (figures by hand): strength's nominal is 1.0, payload's 0 kg.
     rows = [
-        {"name": "nominal", "verdict": "PASS", "gate_report": {"success_pct": 100.0}},
-        {"name": "strength 0.6", "verdict": "MISS", "gate_report": {"success_pct": 80.0}},
-        {"name": "strength 0.8", "verdict": "PASS", "gate_report": {"success_pct": 99.5}},
-        {"name": "payload_kg 0.5", "verdict": "MISS", "gate_report": {"success_pct": 90.0}},
+        {"name": "nominal", "verdict": "PASS", "metrics": {"median end cm": 0.26, "success %": 100.0}},
+        {"name": "strength 0.6", "verdict": "MISS", "metrics": {"median end cm": 0.72, "success %": 80.0}},
+        {"name": "strength 0.8", "verdict": "PASS", "metrics": {"median end cm": 0.35, "success %": 100.0}},
+        {"name": "payload_kg 0.5", "verdict": "MISS", "metrics": {"median end cm": 1.74, "success %": 90.0}},
     ]
-    pts = env.points(rows, "reach")
+    pts = env.points(rows, "reach")  # reach: the median segment-end distance
     assert pts == {
-        "payload_kg": [(0.0, 100.0, "PASS"), (0.5, 90.0, "MISS")],
-        "strength": [(0.6, 80.0, "MISS"), (0.8, 99.5, "PASS"), (1.0, 100.0, "PASS")],
+        "payload_kg": [(0.0, 0.26, "PASS"), (0.5, 1.74, "MISS")],
+        "strength": [(0.6, 0.72, "MISS"), (0.8, 0.35, "PASS"), (1.0, 0.26, "PASS")],
     }
 
 
@@ -96,6 +96,9 @@ def test_plot_draws_the_gates_line_and_the_points(tmp_path, monkeypatch) -> None
     )
     pts = {"strength": [(0.6, 80.0, "MISS"), (1.0, 100.0, "PASS")]}
     out = tmp_path / "env.png"
+    env.plot("piano", "x.onnx", pts, out)
+    assert lines == [90.0]  # the piano gate's min_success_pct, F1 in % (tasks/piano/gate.py), one panel
+    lines.clear()
     env.plot("reach", "x.onnx", pts, out)
-    assert lines == [95.0]  # the reach gate's min_success_pct (tasks/reach/gate.py), one panel
+    assert lines == [0.6]  # reach: the robustness target on the median end distance, cm
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
