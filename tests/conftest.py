@@ -1,9 +1,20 @@
-"""Suite-wide settings: CPU jax with a persistent compile cache (JIT compiles dominate CPU test time)."""
+"""Suite-wide settings: CPU jax with a persistent compile cache (JIT compiles dominate CPU test time).
+
+SIGINT: a suite started in the background by a shell without job control (``nohup pytest &``) inherits
+SIGINT ignored, and so would every child it starts, whose Python then installs no KeyboardInterrupt
+handler: the tests that interrupt a child's start-up with SIGINT would see it ignored. Python's own handler
+here makes the children start with the default disposition, as from a terminal (a handler, unlike an
+ignore, is reset at exec).
+"""
 
 from __future__ import annotations
 
 import os
+import signal
 from pathlib import Path
+
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(Path.home() / ".cache" / "bar_policy" / "jax"))
