@@ -200,8 +200,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     from bar_policy.training.startup.compiler import process_uptime
 
     started_at = time.monotonic() - process_uptime()
-    cfg = parse_config(argv)
+    try:
+        cfg = parse_config(argv)
+    except BrokenPipeError:  # ``--help`` into a reader that stopped reading (``| head``): no traceback
+        return _reader_gone()
     from bar_policy.training.run import run
 
     summary = run(cfg, started_at=started_at)
     return 0 if summary.env_steps > 0 else 1
+
+
+def _reader_gone() -> int:
+    """Status 1 after stdout's reader closed the pipe; stdout then points at /dev/null.
+
+    The interpreter's flush at exit then raises nothing more (Python's advice for SIGPIPE, ``signal`` docs).
+    """
+    import os
+    import sys
+
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    return 1

@@ -128,3 +128,20 @@ def test_bar_train_entry_point_and_train_ppo_py_are_one_command():
     )
     assert via_script.returncode == via_entry.returncode == 0
     assert via_script.stdout == via_entry.stdout and via_script.stdout.startswith("usage: bar-train")
+
+
+def test_help_into_a_reader_that_stops_reading_ends_without_a_traceback():
+    # `bar-train --help | head -1`: the reader is gone while the help is written; the write fails with EPIPE
+    # (Python ignores SIGPIPE, so a BrokenPipeError). Made certain here by closing the pipe's read end before
+    # the process starts. Status 1, nothing on stderr (before: a BrokenPipeError traceback, status 1).
+    env = dict(os.environ, PYTHONPATH=str(REPO), COLUMNS="100")
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        proc = subprocess.run(
+            [sys.executable, "train/ppo.py", "--help"], cwd=REPO, env=env, stdout=write_end,
+            stderr=subprocess.PIPE, text=True, timeout=120,
+        )  # fmt: skip
+    finally:
+        os.close(write_end)
+    assert (proc.returncode, proc.stderr) == (1, "")
