@@ -8,30 +8,18 @@ visual only, so the physics is the real one.
 
 from __future__ import annotations
 
-import importlib.util
 import io
 import json
 import math
 import struct
-import sys
 import tarfile
 from pathlib import Path
 
 import numpy as np
 import pytest
+from script_modules import load_bench
 
-BENCH = Path(__file__).resolve().parents[1] / "bench"
-
-
-def _load(name: str):
-    spec = importlib.util.spec_from_file_location(name, BENCH / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-peer_assets = _load("peer_assets")
+peer_assets = load_bench("peer_assets")
 
 
 def test_box_stl_is_a_closed_box_with_outward_normals():
@@ -65,7 +53,7 @@ def _stand_in_archive(tmp_path: Path) -> Path:
 
 
 def test_ratios_by_hand():
-    peer = _load("peer_playground")
+    peer = load_bench("peer_playground")
     result = {
         "ours": "LiteReach",
         "peers": ["P"],
@@ -96,7 +84,7 @@ def test_ratios_by_hand():
 
 
 def test_menagerie_errors_name_what_is_missing(tmp_path):
-    peer = _load("peer_playground")
+    peer = load_bench("peer_playground")
     with pytest.raises(SystemExit, match="--menagerie"):
         peer.use_menagerie(None, ["berkeley_humanoid"])
     with pytest.raises(SystemExit, match="berkeley_humanoid"):
@@ -107,7 +95,7 @@ def test_menagerie_errors_name_what_is_missing(tmp_path):
 @pytest.mark.slow
 def test_smoke_ours_and_berkeley_humanoid_side_by_side(tmp_path):
     pytest.importorskip("mujoco_playground")
-    peer = _load("peer_playground")
+    peer = load_bench("peer_playground")
     out = tmp_path / "peer.json"
     result = peer.main(["--smoke", "--menagerie", str(_stand_in_archive(tmp_path)), "--out", str(out)])
     saved = json.loads(out.read_text())

@@ -3,26 +3,12 @@ points are read back onto the right magnitudes with the nominal robot at each ke
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
+from script_modules import load_bench
 
 from bar_policy.robot.perturb_suite import SUITE
 
-BENCH = Path(__file__).resolve().parents[1] / "bench"
-
-
-def _load(name: str):
-    spec = importlib.util.spec_from_file_location(name, BENCH / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-env = _load("robust_envelope")
+env = load_bench("robust_envelope")
 
 
 def test_every_sweep_holds_its_suite_rows_value_and_gating() -> None:

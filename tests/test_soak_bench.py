@@ -7,7 +7,6 @@ the process was continued.
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import signal
 import sys
@@ -16,19 +15,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from script_modules import load_bench
 
 BENCH = Path(__file__).resolve().parents[1] / "bench"
 
 
-def _load(name: str):
-    spec = importlib.util.spec_from_file_location(name, BENCH / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-soak = _load("soak")
+soak = load_bench("soak")
 
 
 def _wait_for(predicate, timeout: float) -> bool:

@@ -49,12 +49,12 @@ step; the bound on ``reward`` is ~1e-5 over 10 steps).
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pytest
 from env_support import BATCH
+from script_modules import load_script
 
 pytestmark = pytest.mark.numerics  # compares XLA floats with another implementation / a recording
 
@@ -100,14 +100,7 @@ def _scale(key: str, w: np.ndarray) -> float:
     return s
 
 
-def _maker():
-    spec = importlib.util.spec_from_file_location("make_reach_golden", _DATA / "make_reach_golden.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-MAKER = _maker()
+MAKER = load_script(_DATA / "make_reach_golden.py", "make_reach_golden")
 
 
 @pytest.fixture(scope="module")

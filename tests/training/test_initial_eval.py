@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 
 import pytest
+from script_modules import load_bench
 from toy_configs import TOY_BRAX, TOY_RSL, toy_config
 
 from bar_policy.training.progress import RunLogger
@@ -141,17 +142,6 @@ def test_off_has_no_step_0_evaluation(mode_runs, backend):
     assert all(e["step"] > 0 for e in summary.result.evals)
 
 
-def _load_bench(name: str):
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[2] / "bench" / f"{name}.py"
-    spec = importlib.util.spec_from_file_location(f"bench_{name}", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_readers_of_metrics_jsonl_take_a_late_step_0_as_step_0(tmp_path):
     """A run with eval.initial=end writes its step-0 evaluation last. By hand: evaluations at 1M (40 %,
     at 50 s), 2M (96 %, at 80 s), then step 0 (100 %, at 90 s: a toy untrained policy that succeeds)."""
@@ -166,10 +156,10 @@ def test_readers_of_metrics_jsonl_take_a_late_step_0_as_step_0(tmp_path):
     ]
     (tmp_path / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
     # The session table's time to 95 %: the 2M evaluation at 80 s, as the run's own figure (not step 0).
-    row = _load_bench("session_summary").summarize(tmp_path)
+    row = load_bench("session_summary").summarize(tmp_path)
     assert row["to 95% s"] == "80" and row["steps at 95%"] == "2,000,000"
     # The tracking tables: evaluations in step order, then the final one.
-    got = [(r["kind"], r["step"]) for r in _load_bench("track_curves").evaluations(tmp_path)]
+    got = [(r["kind"], r["step"]) for r in load_bench("track_curves").evaluations(tmp_path)]
     assert got == [("eval", 0), ("eval", 1_000_000), ("eval", 2_000_000), ("final", 2_000_000)]
     # The curve's time axis runs through 1M -> 50 s and 2M -> 80 s, not through step 0's 90 s.
     evals = sorted((r for r in rows if r["kind"] == "eval"), key=lambda r: r["step"])

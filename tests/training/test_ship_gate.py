@@ -7,7 +7,6 @@ held-out evaluations are ``bar-deploy eval``'s, cut short through ``main``'s tes
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import sys
 from pathlib import Path
@@ -21,16 +20,9 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests" / "deploy"))
 
 from policy_factory import default_metadata, make_policy_file  # noqa: E402
+from script_modules import load_script  # noqa: E402
 
-
-def _load_ship():
-    spec = importlib.util.spec_from_file_location("ship_script", ROOT / "train" / "ship.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-ship = _load_ship()
+ship = load_script(ROOT / "train" / "ship.py", "ship_script")
 
 SHORT = {
     "reach": {"episodes": 2, "episode_length": 1.0},
