@@ -186,8 +186,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     task = get_task(policy.task)  # type: ignore[attr-defined]
     if task.name not in PLOTTED:
         raise SystemExit(f"no envelope metric for task {task.name!r}; tasks: {sorted(PLOTTED)}")
-    options = {k: v for k, v in vars(a).items() if k in ("episodes", "clips", "songs", "random_songs")}
-    args = argparse.Namespace(**{k: v for k, v in options.items() if v is not None})
+    eval_options = ("episodes", "clips", "songs", "random_songs")  # unset ones keep the task's defaults
+    args = argparse.Namespace(**{k: getattr(a, k) for k in eval_options if getattr(a, k) is not None})
     t0 = time.perf_counter()
     suite = run_suite(
         policy, task, args, lambda pert: SimEpisodes(policy, perturbation=pert), rows,

@@ -3,6 +3,8 @@ points are read back onto the right magnitudes with the nominal robot at each ke
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 from script_modules import load_bench
 
@@ -16,22 +18,20 @@ def test_every_sweep_holds_its_suite_rows_value_and_gating() -> None:
     # so the envelope and the suite table agree there. Not swept: the palm payload (the sweep's payload sits
     # at the fingertip), the observation delay and the pushes.
     by_key = {s.key: s for s in env.SWEEPS}
+
+    def values(row):  # the perturbation's values, its spec's spelling aside (friction_nm=1 and =1.0 alike)
+        return dataclasses.replace(row.perturbation, text="")
+
+    points = env.sweep_rows()
     swept, not_swept = [], []
     for row in SUITE:
-        pairs = dict(kv.split("=") for kv in row.spec.split(",")) if row.spec else {}
-        if len(pairs) != 1 and set(pairs) != {"payload_kg", "payload_at"}:
-            continue  # nominal, combined
-        key = next(iter(pairs))
-        sweep = by_key.get(key)
-        if sweep is None or pairs.get("payload_at", "fingertip") != "fingertip":
-            not_swept.append(row.name)
+        if not row.spec or row.name == "combined":
             continue
-        assert float(pairs[key]) in sweep.values and sweep.gating == row.gating, row.name
-        swept.append(row.name)
+        same = any(values(p) == values(row) and p.gating == row.gating for p in points)
+        (swept if same else not_swept).append(row.name)
     assert not_swept == ["payload 0.5 kg palm", "obs delay 1 tick", "push 10 N"]
-    assert (
-        len(swept) == 8
-    )  # mass x0.8 and x1.2, fingertip payload, friction, damping, strength, delay, offset
+    # mass x0.8 and x1.2, fingertip payload, friction, damping, strength, delay, offset
+    assert len(swept) == 8
     assert by_key["offset_rad"].gating == "none"  # invisible to any policy: reported, not judged
 
 
