@@ -54,6 +54,30 @@ def test_a_black_goal_earns_the_extra_press_reward() -> None:
     assert _key_rewards(RewardScales(), depression, goal)["key_press_black"] == 0.0
 
 
+def test_wrong_keys_at_a_black_goal_carry_their_own_weight() -> None:
+    c4, cs4, d4, ds4, e4 = (m - KB.lowest for m in (60, 61, 62, 63, 64))
+    rows = {
+        t.name: t
+        for t in reward_terms(RewardConfig(scales=RewardScales(wrong_keys_black_goal=0.25)))
+        if t.name in ("wrong_keys", "wrong_keys_black_goal")
+    }
+
+    def cost(goal_keys: list[int], down: list[int]) -> dict[str, float]:
+        goal, pressed = np.zeros(KB.n_keys), np.zeros(KB.n_keys)
+        goal[goal_keys], pressed[down] = 1.0, 1.0
+        signals = {"keys_down": pressed, "goal_keys": goal, "black_goal_keys": goal * BLACK}
+        return {n: float(t.weight * t.fn(*(signals[i] for i in t.inputs))) for n, t in rows.items()}
+
+    # Goal C#4 (black), down C#4, C4 and D4: two wrong keys, -0.5 each, 0.25 each given back: -0.5 in all.
+    assert cost([cs4], [cs4, c4, d4]) == {"wrong_keys": -1.0, "wrong_keys_black_goal": 0.5}
+    # Goal E4 (white), down E4 and D#4: one wrong key at a white goal: no relief.
+    assert cost([e4], [e4, ds4]) == {"wrong_keys": -0.5, "wrong_keys_black_goal": 0.0}
+    # A chord of both colours counts as a black goal; no goal at all does not.
+    assert cost([c4, ds4], [c4, ds4, d4]) == {"wrong_keys": -0.5, "wrong_keys_black_goal": 0.25}
+    assert cost([], [d4]) == {"wrong_keys": -0.5, "wrong_keys_black_goal": 0.0}
+    assert RewardScales().wrong_keys_black_goal == 0.0
+
+
 def test_the_piano_preset_sets_it_and_the_override_reaches_the_env_config() -> None:
     from bar_policy import envs
 

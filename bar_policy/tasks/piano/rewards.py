@@ -45,6 +45,7 @@ __all__ = [
     "key_depression",
     "next_goal",
     "tolerance",
+    "wrong_keys_at_black_goal",
     "wrong_keys_pressed",
 ]
 
@@ -128,6 +129,18 @@ def wrong_keys_pressed(pressed: Array, goal: Array) -> Array:
     """
     xp = array_namespace(pressed, goal)
     return xp.sum((pressed > 0.5) & ~(goal > 0.5), axis=-1) * 1.0
+
+
+def wrong_keys_at_black_goal(pressed: Array, goal: Array, black_goal: Array) -> Array:
+    """The wrong-key count (``wrong_keys_pressed``) at a step whose goal holds a black key, else 0, ``(...)``.
+
+    ``pressed``, ``goal`` and ``black_goal`` (the goal's black keys): bool or 0/1, shape ``(..., n_keys)``.
+    A second weight on it moves the wrong-key cost at black goals alone: pressing a black key between two
+    raised white ones brushes neighbours more often than a white press does (docs/piano.md, "Black keys").
+    """
+    xp = array_namespace(pressed, goal, black_goal)
+    any_black = xp.any(black_goal > 0.5, axis=-1)
+    return xp.where(any_black, wrong_keys_pressed(pressed, goal), 0.0)
 
 
 def fingertip_distance(fingertips: Array, key_sites: Array, hand_goal: Array) -> Array:

@@ -38,6 +38,11 @@ class RewardScales:
     (docs/piano.md, "Black keys")."""
     wrong_keys: float = -0.5
     """Keys down that are not goal keys (``rewards.wrong_keys_pressed``: their count)."""
+    wrong_keys_black_goal: float = 0.0
+    """Wrong keys at a step whose goal holds a black key (``rewards.wrong_keys_at_black_goal``), on top of
+    ``wrong_keys``: a wrong key there costs ``wrong_keys + wrong_keys_black_goal``. 0 (the default) leaves
+    the table as it was; a positive weight relieves the trade a residual learns against the prior's black
+    presses, which brush more neighbours than white ones (docs/piano.md, "Black keys")."""
     fingertip_near: float = 0.5
     """Each hand's fingertip near its next goal key (``rewards.fingertip_to_goal``: 1 within 1 cm)."""
     energy: float = -2e-3
@@ -78,6 +83,12 @@ def reward_terms(rc: RewardConfig) -> tuple[RewardTerm, ...]:
             ("key_depression", "black_goal_keys"),
         ),
         RewardTerm("wrong_keys", rewards.wrong_keys_pressed, w.wrong_keys, ("keys_down", "goal_keys")),
+        RewardTerm(
+            "wrong_keys_black_goal",
+            rewards.wrong_keys_at_black_goal,
+            w.wrong_keys_black_goal,
+            ("keys_down", "goal_keys", "black_goal_keys"),
+        ),
         RewardTerm(
             "fingertip_near",
             rewards.fingertip_to_goal,
