@@ -325,7 +325,7 @@ def _params_check(args: argparse.Namespace, policy: object) -> dict[str, object]
     hashes (None: nominal) and ``mismatch_warnings`` (0 or 1), so a log shows the warning was given. The
     mock target models no robot: nothing to compare, an empty record.
     """
-    if args.target == "mock":
+    if getattr(args, "target", "sim") == "mock":  # eval has no --target: the sim target
         return {}
     from bar_policy.robot.params import training_mismatch
 
@@ -410,6 +410,7 @@ def _eval(argv: Sequence[str]) -> int:
 
     _common(p)
     cli_parser.perturb_option(p, suite=True)
+    cli_parser.robot_params_option(p)
     p.add_argument("--json", type=Path, help="write the per-episode / per-clip results here")
     p.add_argument("-q", "--quiet", action="store_true",
                    help="no progress line per episode, clip or song (the result and the counted warnings "
@@ -427,19 +428,29 @@ def _eval(argv: Sequence[str]) -> int:
     with WarningTally() as tally:
         try:
             policy, task = _policy_task(args, "eval")
+            params_record = _params_check(args, policy)
             if args.perturb is None:
-                result = task.evaluate(policy, args, SimEpisodes(policy, say=say))
+                runner = SimEpisodes(policy, robot_params=args.robot_params, say=say)
+                result = task.evaluate(policy, args, runner)
             else:
                 from bar_policy.deploy.robustness import evaluate_perturbed
 
-                result = evaluate_perturbed(policy, task, args, args.perturb, _say, progress=not args.quiet)
+                result = evaluate_perturbed(
+                    policy,
+                    task,
+                    args,
+                    args.perturb,
+                    _say,
+                    progress=not args.quiet,
+                    robot_params=args.robot_params,
+                )
         except ValueError as e:  # PolicyLoadError, OptionError, bad settings
             _print_warnings(tally)
             return _fail(e)
     print(result.format())
     _print_warnings(tally)
     if args.json:
-        data = {**result.to_dict(), "warnings": tally.to_dict()}
+        data = {**result.to_dict(), **params_record, "warnings": tally.to_dict()}
         try:
             args.json.write_text(json.dumps(data, indent=2))
         except OSError as e:

@@ -23,6 +23,7 @@ if TYPE_CHECKING:
     from bar_policy.deploy.targets.base import Target
     from bar_policy.deploy.targets.sim import SimTarget
     from bar_policy.robot.kinematics import Kinematics
+    from bar_policy.robot.params import RobotParams
     from bar_policy.robot.perturb_spec import Perturbation
     from bar_policy.robot.scene import SceneEdit
     from bar_policy.tasks.episodes import TickHook
@@ -42,17 +43,21 @@ class SimEpisodes:
         safety: SafetyConfig | None = None,
         *,
         perturbation: Perturbation | None = None,
+        robot_params: RobotParams | None = None,
         say: Callable[[str], None] | None = None,
     ) -> None:
         """``safety``: the supervisor's thresholds (default ``SafetyConfig()``; the ramp is always 0).
 
         ``perturbation``: the sim target's robot differs from the model so (``--perturb``; None: nominal).
+        ``robot_params``: the model is that identified robot (``--robot-params``; a perturbation applies on
+        top of it; None: the description's robot).
         ``say``: where the progress lines go (``progress``; ``bar-deploy eval`` passes ``print``, ``--quiet``
         None: no lines).
         """
         self.policy = policy
         self.safety = dataclasses.replace(safety or SafetyConfig(), ramp_time=0.0)
         self.perturbation = perturbation
+        self.robot_params = robot_params
         self.say = say
         self.started = time.monotonic()
 
@@ -67,7 +72,8 @@ class SimEpisodes:
     def target(self, *, initial_pose: str | None = None, scene: SceneEdit | None = None) -> SimTarget:
         """A sim target integrating the law's damping as the policy was trained (``training_damping``).
 
-        Of the perturbed robot when the runner has a perturbation (``targets.perturbed``).
+        Of the identified robot when the runner has robot parameters, perturbed when it has a perturbation
+        (``targets.perturbed.sim_target``).
         """
         from bar_policy.deploy.targets.perturbed import sim_target
         from bar_policy.deploy.targets.sim import SimConfig, training_damping
@@ -75,7 +81,13 @@ class SimEpisodes:
         damping = training_damping(self.policy.metadata.randomization)
         pose = {} if initial_pose is None else {"initial_pose": initial_pose}
         config = SimConfig(damping=damping, **pose)
-        return sim_target(self.policy.robot.mode, config, scene=scene, perturbation=self.perturbation)
+        return sim_target(
+            self.policy.robot.mode,
+            config,
+            scene=scene,
+            perturbation=self.perturbation,
+            robot_params=self.robot_params,
+        )
 
     def run(
         self,

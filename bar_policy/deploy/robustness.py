@@ -18,13 +18,16 @@ import argparse
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from bar_policy.quality.gate import Miss, check, thresholds_text
 from bar_policy.robot.perturb_spec import Perturbation
 from bar_policy.robot.perturb_suite import SUITE, SuiteRow
+
+if TYPE_CHECKING:
+    from bar_policy.robot.params import RobotParams
 
 __all__ = [
     "SAFETY_METRICS",
@@ -229,11 +232,13 @@ def evaluate_perturbed(
     say: Callable[[str], None],
     *,
     progress: bool = True,
+    robot_params: RobotParams | None = None,
 ) -> Any:
     """``bar-deploy eval --perturb``: the suite (``"suite"``) or one perturbed evaluation (its result).
 
     ``say`` gets the perturbation's line and, with ``progress`` (``bar-deploy eval`` without ``--quiet``),
     each suite row as it ends or each episode's progress line of one perturbed evaluation.
+    ``robot_params`` (``--robot-params``): every row perturbs that identified robot instead of the model.
     """
     from bar_policy.deploy.episodes import SimEpisodes
 
@@ -243,11 +248,13 @@ def evaluate_perturbed(
             policy,
             task,
             args,
-            lambda p: SimEpisodes(policy, perturbation=p),
+            lambda p: SimEpisodes(policy, perturbation=p, robot_params=robot_params),
             progress=(lambda s: say(s)) if progress else None,
         )
     assert isinstance(perturb, Perturbation)
     say(f"perturbed sim target (hidden from the policy): {perturb.describe()}")
     return task.evaluate(
-        policy, args, SimEpisodes(policy, perturbation=perturb, say=say if progress else None)
+        policy,
+        args,
+        SimEpisodes(policy, perturbation=perturb, robot_params=robot_params, say=say if progress else None),
     )

@@ -57,7 +57,7 @@ LIMIT_MARGIN_RAD = 0.1
 """Targets stay this far inside the joint limits, rad."""
 FAST_POSE = 0
 """Index in ``POSES`` of the pose the fast single-joint phase holds."""
-FAST_AMPLITUDE_RAD = np.array([0.06, 0.08, 0.08, 0.08, 0.12, 0.07, 0.07])
+FAST_AMPLITUDE_RAD = np.array([0.06, 0.08, 0.08, 0.08, 0.12, 0.05, 0.05])
 """Fast phase: amplitude of each joint's two-sine sum, rad (peak speed ~0.8-1.1 rad/s on the shoulders and
 elbow, 2.2 rad/s on the wrist yaw: about the ~2 rad/s an unloaded wrist needs to slide through MuJoCo's soft
 friction loss of 0.6 N*m; 0.9 rad/s on the wrist roll and pitch). Set by the budget with 0.4 kg in the hand

@@ -59,6 +59,7 @@ def fit_fast(
     payload_col: np.ndarray | None = None,
     mass: float = 0.0,
     fit_mass: bool = False,
+    armature: np.ndarray | None = None,
     smooth: int = 1,
     iterations: int = 6,
     hac_lag: int | None = None,
@@ -81,7 +82,9 @@ def fit_fast(
     (N, num_joints)); ``mass``: its mass, subtracted (``fit_mass``: one mass shared by all the segments
     refitted: a payload's inertia about a joint is ``m r^2``, larger than a shoulder's armature, and its
     gravity stiffness ``m g r`` at two frequencies tells it from an armature, so a few % error of
-    a held mass would be the whole armature). ``smooth``, ``hac_lag``: as ``fit_arm``.
+    a held mass would be the whole armature); ``armature``: the joints' armatures, held (shape (joints,),
+    in ``strength``'s order; an unloaded run's, given to a loaded one: with a payload its inertia is 4-12x
+    a joint's armature and the two trade), or None: fitted. ``smooth``, ``hac_lag``: as ``fit_arm``.
     """
     order: list[int] = []
     for _, j in segments:
@@ -106,7 +109,10 @@ def fit_fast(
             a[slide, w * c] = np.sign(u[slide])
             y[~slide] -= u[~slide]
             a[:, w * c + 1] = -samples.dq[sl, j]
-            a[:, w * c + 2] = -samples.qdd[sl, j]
+            if armature is None:
+                a[:, w * c + 2] = -samples.qdd[sl, j]
+            else:  # held: its torque moves to the known side (the column stays 0: its unknown is 0)
+                y += armature[c] * samples.qdd[sl, j]
             if payload_col is not None:
                 if n_p:
                     a[:, w * nj] = -payload_col[sl, j]
@@ -141,12 +147,12 @@ def fit_fast(
         joints=tuple(names[j] for j in order),
         friction=per[:, 0],
         damping=per[:, 1],
-        armature=per[:, 2],
+        armature=per[:, 2] if armature is None else np.asarray(armature, dtype=np.float64),
         strength=per[:, 3] if strength is None else np.asarray(strength, dtype=np.float64),
         half95={
             "friction": hper[:, 0],
             "damping": hper[:, 1],
-            "armature": hper[:, 2],
+            "armature": hper[:, 2] if armature is None else np.zeros(nj),
             "strength": hper[:, 3] if strength is None else np.zeros(nj),
         },
         mass=float(x[w * nj]) if n_p else float(mass),

@@ -49,6 +49,7 @@ __all__ = [
     "Recording",
     "Supervisor",
     "fit_recording",
+    "held_from",
     "round_samples",
     "run_excitation",
     "to_params",
@@ -252,6 +253,8 @@ class _ArmContext:
     payload: bool
     smooth: int
     lag: int
+    armature: np.ndarray | None = None
+    """Held armatures of the arm's joints (``idx`` order; an unloaded run's), or None: fitted."""
 
     def stages(self, rows: np.ndarray | None) -> ArmFit:
         """Stages 1-3 on the poses' ``rows`` of ``samples`` (None: all of them)."""
@@ -281,6 +284,7 @@ class _ArmContext:
         if not self.segs:
             return fit
         # stage 3: each joint alone and fast: armature (all), friction and damping (wrists)
+        order = list(dict.fromkeys(j for _, j in self.segs))
         col = None
         if payload:  # the unit payload's column on the fast rows only (the others are never read)
             rows = np.concatenate([np.arange(r.start, r.stop) for r, _ in self.segs])
@@ -294,10 +298,11 @@ class _ArmContext:
             robot.joint_names,
             self.id_all,
             self.u_all,
-            np.array([fit.strength[idx.index(j)] for j in dict.fromkeys(j for _, j in self.segs)]),
+            np.array([fit.strength[idx.index(j)] for j in order]),
             payload_col=col,
             mass=fit.mass,
             fit_mass=payload,
+            armature=None if self.armature is None else self.armature[[idx.index(j) for j in order]],
             smooth=self.smooth,
             hac_lag=self.lag,
         )
@@ -317,6 +322,7 @@ def fit_recording(
     trim: int = 5,
     smooth_s: float = 0.02,
     strength: dict[str, np.ndarray] | None = None,
+    armature: dict[str, np.ndarray] | None = None,
     payload: bool = True,
     jackknife: bool = True,
 ) -> dict[str, ArmFit]:
@@ -330,7 +336,9 @@ def fit_recording(
     forearm's and hand's centres), so one run cannot tell a weak motor from a loaded hand. They are
     separated by two runs: an unloaded one (``payload=False``: the mass is known to be 0) fits the
     strengths; a loaded one with those strengths known (``strength``: arm -> per-joint values) fits the
-    payload. With neither, the strengths are held at the model's 1.
+    payload. With neither, the strengths are held at the model's 1. ``armature`` (arm -> per-joint values,
+    an unloaded run's) is held in the fast stage the same way: with a payload in the hand its inertia
+    about a joint is 4-12x the joint's armature, and a few % of payload error would go into it whole.
     """
     full = round_samples(robot, rec, period)
     sl = slice(trim, len(full.q) - trim)
@@ -359,8 +367,9 @@ def fit_recording(
             u_all = reg.friction_force(everything)
         known = None if not payload else (strength or {}).get(arm, np.ones(len(idx)))
         segs = [(r, j) for r, j in fast if j in idx]
+        held = None if armature is None else armature.get(arm)
         ctx = _ArmContext(
-            robot, arm, idx, reg, samples, everything, id_all, u_all, segs, known, payload, smooth, lag
+            robot, arm, idx, reg, samples, everything, id_all, u_all, segs, known, payload, smooth, lag, held
         )
         fit = ctx.stages(None)
         if jackknife and len(poses) >= 3:  # each pose left out in turn: the spread between poses
@@ -422,6 +431,24 @@ def with_fast(fit: ArmFit, fast: FastFit) -> ArmFit:
     return replace(
         fit, friction=est["friction"], damping=est["damping"], armature=est["armature"], half95=half
     )
+
+
+def held_from(params: RobotParams, prior: RobotParams, path: object) -> RobotParams:
+    """``params`` with each joint's strength and armature those of ``prior`` (an unloaded run's file).
+
+    The loaded run held them in its fit (``fit_recording``'s ``strength`` and ``armature``); the file
+    writes them as the unloaded run measured them, intervals included, and says so in ``source.notes``.
+    """
+    joints = {
+        name: replace(jp, strength=prior.joints[name].strength, armature=prior.joints[name].armature)
+        if name in prior.joints
+        else jp
+        for name, jp in params.joints.items()
+    }
+    src = dict(params.source)
+    note = f"strength and armature held from {path} (sha256 {prior.sha256[:16]})"
+    src["notes"] = f"{note}; {src['notes']}" if src.get("notes") else note
+    return RobotParams(joints, dict(params.payload), src)
 
 
 def _est(v: float, h: float) -> Estimate:

@@ -222,7 +222,13 @@ def _identify(args: argparse.Namespace) -> int:
     from bar_policy.robot.params import ParamsError, load_params
     from bar_policy.robot.sysid_excitation import Excitation
     from bar_policy.robstride.can_record import CanRecorder
-    from bar_policy.robstride.identify import Supervisor, fit_recording, run_excitation, to_params
+    from bar_policy.robstride.identify import (
+        Supervisor,
+        fit_recording,
+        held_from,
+        run_excitation,
+        to_params,
+    )
 
     robot = load_robot(args.mode)
     if args.interface == "virtual":
@@ -230,22 +236,21 @@ def _identify(args: argparse.Namespace) -> int:
     channels = _robot_channels(args)
     arms = tuple(args.arms)
     period = 1.0 / args.rate
-    strength = None
-    if args.strength_from:
+    strength = armature = prior = None
+    if args.unloaded_from:
         try:
-            prior = load_params(args.strength_from, robot)
+            prior = load_params(args.unloaded_from, robot)
         except ParamsError as exc:
             raise _UsageError(str(exc)) from None
-        strength = {
-            arm: np.array(
-                [
-                    prior.joints[j.name].strength.value if j.name in prior.joints else 1.0
-                    for j in robot.joints
-                    if j.group == f"{arm}_arm"
-                ]
+        names = {arm: [j.name for j in robot.joints if j.group == f"{arm}_arm"] for arm in arms}
+        missing = [n for arm in arms for n in names[arm] if n not in prior.joints]
+        if missing:
+            raise _UsageError(
+                f"--unloaded-from {args.unloaded_from}: no values for {', '.join(missing)} "
+                f"(identify those arms --unloaded first)"
             )
-            for arm in arms
-        }
+        strength = {a: np.array([prior.joints[n].strength.value for n in names[a]]) for a in arms}
+        armature = {a: np.array([prior.joints[n].armature.value for n in names[a]]) for a in arms}
     calibration = Calibration.load(args.calibration) if args.calibration else None
     supervisor = Supervisor(robot, budget=args.budget)
     emu_kw = {"mode": "lockstep", "control_dt": period} if args.emulate else {}
@@ -298,7 +303,11 @@ def _identify(args: argparse.Namespace) -> int:
     )
     fits = {}
     for arm, rec in recs.items():
-        fits.update(fit_recording(robot, rec, (arm,), period, strength=strength, payload=not args.unloaded))
+        fits.update(
+            fit_recording(
+                robot, rec, (arm,), period, strength=strength, armature=armature, payload=not args.unloaded
+            )
+        )
     perturb = getattr(args, "emulate_perturb", None)
     source: dict[str, object] = {
         "kind": "identify",
@@ -315,6 +324,8 @@ def _identify(args: argparse.Namespace) -> int:
     if perturb is not None:
         source["notes"] = f"hidden emulator perturbation: {perturb.describe()}"
     params = to_params(fits, source)
+    if prior is not None:  # held: the unloaded run's own estimates, intervals included
+        params = held_from(params, prior, args.unloaded_from)
     params.save(args.out)
     print(f"wrote {args.out} (sha256 {params.sha256[:16]}...)")
     for arm, f in fits.items():
@@ -601,11 +612,12 @@ def _parser() -> argparse.ArgumentParser:
         help="the hands carry nothing: fit each joint's strength (payload held at 0)",
     )
     ident.add_argument(
-        "--strength-from",
+        "--unloaded-from",
         default=None,
         metavar="FILE",
-        help="parameters file of an --unloaded run: its strengths are held while the payload "
-        "is fitted (default: strength 1)",
+        help="parameters file of an --unloaded run of the same arms: its strengths and armatures are "
+        "held (written as that file has them) while the payload is fitted (default: strength 1, "
+        "armature fitted)",
     )
     ck = sub.add_parser("check-calibration", help="verify a saved calibration against a known resting pose")
     common(ck)

@@ -123,3 +123,32 @@ def test_runtime_warns_on_robot_parameters_other_than_the_trained_ones(tmp_path,
     nominal = make_policy_file(tmp_path / "n.onnx")
     warnings, rec = _run(nominal, tmp_path, capsys)
     assert warnings == [] and rec["robot_params"]["mismatch_warnings"] == 0
+
+
+def test_eval_runs_on_the_identified_robot_and_warns_on_a_mismatch(tmp_path, capsys) -> None:
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from policy_factory import make_policy_file
+
+    from bar_policy.deploy.cli import main
+    from bar_policy.deploy.episodes import SimEpisodes
+    from bar_policy.deploy.policy import load_policy
+
+    params_file = tmp_path / "p.json"
+    _params().save(params_file)
+    policy_file = make_policy_file(tmp_path / "n.onnx")  # trained on the nominal model
+    # The runner's target is the file's robot (the same values as test_sim_target_models_the_file).
+    target = SimEpisodes(load_policy(policy_file), robot_params=_params()).target()
+    dof = target.model.joint("left_elbow_pitch").dofadr[0]
+    assert target.model.dof_frictionloss[dof] == 0.7
+    assert target.model.body("right_hand_payload").mass[0] == pytest.approx(0.3)
+    assert target.motors.strength[ROBOT.joint_names.index("left_elbow_pitch")] == 0.8
+    out = tmp_path / "eval.json"
+    argv = ["--policy", str(policy_file), "--robot-params", str(params_file), "--episodes", "1"]
+    assert main(["eval", *argv, "--episode-length", "0.2", "-q", "--json", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "WARNING: robot parameters mismatch: the policy was trained on the nominal model" in err
+    rec = json.loads(out.read_text())["robot_params"]
+    assert rec == {"trained_sha256": None, "run_sha256": _params().sha256, "mismatch_warnings": 1}

@@ -151,3 +151,27 @@ def test_fast_fit_intervals_cover_the_truth_with_correlated_noise() -> None:
                 counts[key] += abs(getattr(fit, key)[0] - FAST_TRUTH[key]) <= fit.half95[key][0]
     assert min(hac.values()) >= 34, hac
     assert max(ols.values()) <= 28, ols
+
+
+def test_fast_fit_holds_a_given_armature_and_fits_the_rest_around_it() -> None:
+    """Noise-free elbow: holding the true armature gives friction and damping exactly; holding one 0.001
+    kg*m^2 too high leaves ``0.001 qdd`` in the equation, which the fit's other columns (sign(dq), dq) absorb
+    as far as they can: the estimates move by the least-squares projection of it on them, worked out here
+    apart with numpy."""
+    from bar_policy.robot.sysid_fast import fit_fast
+
+    samples, id_base = _elbow_alone()
+    sliding = -np.sign(samples.dq) * 1e3
+    seg = [(slice(0, len(samples.q)), ELBOW)]
+    exact = fit_fast(samples, seg, ROBOT.joint_names, id_base, sliding, np.ones(1),
+                     armature=np.array([FAST_TRUTH["armature"]]))  # fmt: skip
+    assert exact.armature[0] == FAST_TRUTH["armature"] and exact.half95["armature"][0] == 0.0
+    for key in ("friction", "damping"):  # float64 least squares on exact data: to 1e-9 of the value
+        assert getattr(exact, key)[0] == pytest.approx(FAST_TRUTH[key], rel=1e-9, abs=1e-12), key
+    off = fit_fast(samples, seg, ROBOT.joint_names, id_base, sliding, np.ones(1),
+                   armature=np.array([FAST_TRUTH["armature"] + 1e-3]))  # fmt: skip
+    a = np.column_stack([np.sign(samples.dq[:, ELBOW]), samples.dq[:, ELBOW]])
+    delta, *_ = np.linalg.lstsq(a, -1e-3 * samples.qdd[:, ELBOW], rcond=None)
+    assert off.armature[0] == FAST_TRUTH["armature"] + 1e-3
+    assert off.friction[0] == pytest.approx(FAST_TRUTH["friction"] + delta[0], rel=1e-9, abs=1e-12)
+    assert off.damping[0] == pytest.approx(FAST_TRUTH["damping"] + delta[1], rel=1e-9, abs=1e-12)

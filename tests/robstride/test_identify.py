@@ -164,10 +164,20 @@ def test_identify_cli_refusals_exit_2(tmp_path, capsys) -> None:
     assert "must be a fraction of the cap in (0, 0.5], got '0.6'" in capsys.readouterr().err
     bad = tmp_path / "bad.json"
     bad.write_text('{"version": 1, "joints": {"left_elbow_pitch": {"strength": {"value": NaN}}}}')
-    assert main([*base, "--strength-from", str(bad)]) == 2
+    assert main([*base, "--unloaded-from", str(bad)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("bar-bus: error: ") and "\n" not in err
     assert err.endswith("bad.json: joints.left_elbow_pitch: missing 'friction_nm', 'damping', 'armature'")
+    # a valid file without the excited arm's joints: refused naming them, before anything moves
+    from bar_policy.robot.params import Estimate, JointParams, RobotParams
+
+    one = JointParams(Estimate(0.1), Estimate(0.0), Estimate(0.002), Estimate(1.0))
+    partial = tmp_path / "partial.json"
+    RobotParams({"left_elbow_pitch": one}).save(partial)
+    assert main([*base, "--arms", "left", "--unloaded-from", str(partial)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"bar-bus: error: --unloaded-from {partial}: no values for left_shoulder_pitch, ")
+    assert "left_elbow_pitch" not in err and err.endswith("(identify those arms --unloaded first)")
     assert not (tmp_path / "p.json").exists()
 
 
@@ -260,3 +270,37 @@ def test_fast_phase_moves_one_joint_at_a_time_inside_the_limits(robot) -> None:
         # ends q'' steps by up to A (pi^2 / 2) / 0.3^2 = 0.12 * 55 = 6.6 rad/s^2: dt / 4 of it, 1.6e-3 rad/s
         num = np.gradient(q[:, j], dt)[1:-1]
         assert np.abs(num - dq[1:-1, j]).max() < 2e-3
+
+
+def test_a_loaded_file_writes_the_unloaded_runs_strength_and_armature() -> None:
+    from bar_policy.robot.params import Estimate, JointParams, Payload, RobotParams
+    from bar_policy.robstride.identify import held_from
+
+    unloaded = RobotParams(
+        {
+            "left_elbow_pitch": JointParams(
+                Estimate(0.6),
+                Estimate(0.01),
+                Estimate(0.0021, (0.0018, 0.0024)),
+                Estimate(0.97, (0.96, 0.98)),
+            )
+        }
+    )
+    fitted = JointParams(Estimate(0.61, (0.6, 0.62)), Estimate(0.02), Estimate(0.0021), Estimate(0.97))
+    loaded = RobotParams(
+        {"left_elbow_pitch": fitted, "right_elbow_pitch": fitted},
+        {"left": Payload(Estimate(0.4), (0.0, 0.2, 0.0))},
+        {"kind": "identify", "notes": "hidden emulator perturbation: payload_kg=0.4"},
+    )
+    out = held_from(loaded, unloaded, "u.json")
+    left = out.joints["left_elbow_pitch"]
+    assert left.strength == Estimate(0.97, (0.96, 0.98)) and left.armature == Estimate(
+        0.0021, (0.0018, 0.0024)
+    )
+    assert left.friction_nm == fitted.friction_nm and left.damping == fitted.damping  # the loaded run's own
+    assert out.joints["right_elbow_pitch"] == fitted  # not in the unloaded file: as fitted
+    assert out.payload == loaded.payload
+    assert out.source["notes"] == (
+        f"strength and armature held from u.json (sha256 {unloaded.sha256[:16]}); "
+        "hidden emulator perturbation: payload_kg=0.4"
+    )
