@@ -221,14 +221,9 @@ def _identify(args: argparse.Namespace) -> int:
 
     from bar_policy.robot.params import ParamsError, load_params
     from bar_policy.robot.sysid_excitation import Excitation
+    from bar_policy.robot.sysid_file import held_from, to_params
     from bar_policy.robstride.can_record import CanRecorder
-    from bar_policy.robstride.identify import (
-        Supervisor,
-        fit_recording,
-        held_from,
-        run_excitation,
-        to_params,
-    )
+    from bar_policy.robstride.identify import Supervisor, fit_recording, run_excitation
 
     robot = load_robot(args.mode)
     if args.interface == "virtual":

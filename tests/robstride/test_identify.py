@@ -112,8 +112,8 @@ def test_identifies_a_hidden_payload_and_friction(robot, channels) -> None:
 
 
 def test_out_of_range_estimates_are_written_at_the_range_end_and_noted() -> None:
+    from bar_policy.robot.sysid_file import to_params
     from bar_policy.robot.sysid_fit import ArmFit
-    from bar_policy.robstride.identify import to_params
 
     z = np.zeros(2)
     fit = ArmFit(
@@ -274,7 +274,7 @@ def test_fast_phase_moves_one_joint_at_a_time_inside_the_limits(robot) -> None:
 
 def test_a_loaded_file_writes_the_unloaded_runs_strength_and_armature() -> None:
     from bar_policy.robot.params import Estimate, JointParams, Payload, RobotParams
-    from bar_policy.robstride.identify import held_from
+    from bar_policy.robot.sysid_file import held_from
 
     unloaded = RobotParams(
         {
