@@ -1,4 +1,5 @@
-"""Suite-wide settings: CPU jax with a persistent compile cache (JIT compiles dominate CPU test time).
+"""Suite-wide settings: CPU jax with a persistent compile cache (JIT compiles dominate CPU test time), and
+the two tiers of the suite (``tiers.py``).
 
 SIGINT: a suite started in the background by a shell without job control (``nohup pytest &``) inherits
 SIGINT ignored, and so would every child it starts, whose Python then installs no KeyboardInterrupt
@@ -12,6 +13,8 @@ from __future__ import annotations
 import os
 import signal
 from pathlib import Path
+
+pytest_plugins = ["tiers", "pytester"]  # tiers.py: the default run leaves the slow tests out
 
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)

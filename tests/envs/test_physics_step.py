@@ -121,6 +121,7 @@ def _compare(m: mujoco.MjModel, states: list[mujoco.MjData], cholesky: str = "li
     return most
 
 
+@pytest.mark.slow
 def test_piano_step_equals_mjx_step_in_contact(piano) -> None:
     states = _press_states(piano)
     # The states push keys down (> 0.01 rad; a key's full travel is 0.067-0.105 rad) in C MuJoCo.
@@ -128,6 +129,7 @@ def test_piano_step_equals_mjx_step_in_contact(piano) -> None:
     assert _compare(piano, states) >= 2  # both fingertips on keys (contact rows active)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cholesky", physics_step.CHOLESKY)
 def test_reach_step_equals_mjx_step(cholesky: str) -> None:
     # scalar / columns: every Cholesky of the step written out (small_spd; opt-in, for the GPU's graphs).
@@ -204,6 +206,7 @@ def _cuda_library_calls(m: mujoco.MjModel, cholesky: str) -> tuple[list[str], in
     return sorted(set(re.findall(r"custom_call @([\w$]+)", text))), text.count("triangular_solve")
 
 
+@pytest.mark.slow
 def test_written_out_step_has_no_library_call_on_cuda() -> None:
     # XLA records no cuSOLVER potrf and no cuBLAS triangular solve into a command buffer (a CUDA graph), so
     # those split the step's graphs (physics_step, item 4). Lowered for CUDA (no GPU needed): the default
@@ -215,6 +218,7 @@ def test_written_out_step_has_no_library_call_on_cuda() -> None:
         assert _cuda_library_calls(m, form) == ([], 0), form
 
 
+@pytest.mark.slow
 def test_while_newton_loop_gives_the_same_step(piano, monkeypatch) -> None:
     # The env's Newton loop is written out, keeping a body's result only where the loop's condition held
     # before it; MJX's while_loop gives the same step (compared at the module's float64 tolerance, _compare).

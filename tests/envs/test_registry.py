@@ -42,7 +42,9 @@ def test_default_env_is_the_registry_first_not_a_literal():
     assert type(envs.default_config()) is type(envs.default_config("LiteReach"))
 
 
-@pytest.mark.parametrize("name", envs.ALL_ENVS)
+@pytest.mark.parametrize(
+    "name", [pytest.param(n, marks=pytest.mark.slow) if n == "LitePiano" else n for n in envs.ALL_ENVS]
+)
 def test_every_env_traces_and_keeps_the_trainer_contract(name):
     env = envs.load(name)
     record = env_entries()[name][0]

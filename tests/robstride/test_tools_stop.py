@@ -39,7 +39,14 @@ def _calibrate_child(bridge, out, *extra):
     )  # fmt: skip
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+@pytest.mark.parametrize(
+    "sig",
+    [
+        signal.SIGINT,
+        pytest.param(signal.SIGTERM, marks=pytest.mark.slow),
+        pytest.param(signal.SIGHUP, marks=pytest.mark.slow),
+    ],
+)
 def test_stop_signal_damps_stops_then_writes(sig, tmp_path, robot, channels, listeners, sweeping):
     emu, true = sweeping
     out = tmp_path / "cal.json"
@@ -61,6 +68,7 @@ def test_stop_signal_damps_stops_then_writes(sig, tmp_path, robot, channels, lis
     assert not any(emu.enabled().values())
 
 
+@pytest.mark.slow
 def test_second_signal_during_shutdown_cannot_skip_the_stop_frames(tmp_path, channels, listeners, sweeping):
     """SIGINT and SIGHUP land while the damping round waits for replies (can1 silenced: 0.5 s deadline)."""
     emu, _ = sweeping

@@ -113,6 +113,7 @@ def test_missing_joint_read_replies_are_retried(robot, channels, make_emulator, 
     assert f"activation needed {n} retries of a missing reply" in caplog.text
 
 
+@pytest.mark.slow
 def test_too_many_missing_replies_refuse_with_the_tries(robot, channels, listeners, make_emulator):
     emu = make_emulator()
     for name in LEFT:

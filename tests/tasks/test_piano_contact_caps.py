@@ -178,6 +178,7 @@ def _run_mjx(model: mujoco.MjModel, q: np.ndarray, dq: np.ndarray) -> tuple[np.n
     return np.asarray(angles), np.asarray(qacc)
 
 
+@pytest.mark.slow
 def test_mjx_caps_change_no_step_and_press_as_c_mujoco(model) -> None:
     """The fingertip pressing C5 (72): MJX with the caps steps as MJX without them (float32 rounding: the
     kept contacts come in another order), and ends as C MuJoCo does: C5 alone pressed, its angle within

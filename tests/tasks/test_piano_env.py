@@ -146,6 +146,7 @@ def test_registered_env_sizes() -> None:
     assert (env.observation_size, env.action_size) == (11 * 49 + 1 + 49 + 3 * 14, 14)
 
 
+@pytest.mark.slow
 def test_observation_counts_and_f1(env: LitePiano, fns) -> None:
     reset, step = fns
     s = reset(jax.random.PRNGKey(0))
@@ -206,6 +207,7 @@ def test_observation_counts_and_f1(env: LitePiano, fns) -> None:
     assert ratios["success_rate"] is ratios["f1"]
 
 
+@pytest.mark.slow
 def test_key_counts_and_recall_per_colour(env: LitePiano, fns) -> None:
     """The step's TP and FN over the black and over the white goal keys, and the evaluation's pooled
     ``recall_black`` / ``recall_white`` of them (the observation is untouched: a metric, not an input)."""

@@ -107,6 +107,7 @@ def test_edge_blend_pushes_before_a_note_and_lifts_before_its_end(prior, poses) 
     np.testing.assert_array_equal(prior.numer_bias[1], np.zeros(14))
 
 
+@pytest.mark.slow
 def test_edge_gain_zero_is_the_single_place_blend(poses) -> None:
     """``edge_gain=0`` (and no release blend): one blend, the prior before the edge blend (key k in frame 0:
     press / 1.05)."""
@@ -155,6 +156,7 @@ def test_frame_weights_and_edge_factors() -> None:
             KeyPosePriorConfig(**bad)
 
 
+@pytest.mark.slow
 def test_release_blend_lifts_a_key_held_down_off_its_goal(prior, poses) -> None:
     """The release blend (feedback from ``key_pressed``): a key observed down adds
     ``0.2 (hover(k) - press(k))`` to its hand, divided by ``1 + 100 goal_0(k)`` (its own frame-0 goal bit).

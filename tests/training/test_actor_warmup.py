@@ -61,6 +61,7 @@ def _changed(a, b) -> bool:
     return any(not np.array_equal(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True))
 
 
+@pytest.mark.slow
 def test_warmup_freezes_the_policy_exactly_and_trains_the_critic():
     ts0, (after1, after2) = _updates(warmup=1, iterations=2)
     assert int(adam_count(after1.optimizer_state)) == 4 and int(adam_count(after2.optimizer_state)) == 8

@@ -171,6 +171,7 @@ AFFECTED = (
 )
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not AFFECTED, reason="this machine's run would not set PJRT_NPROC (jaxlib or cores)")
 def test_batched_choleskys_that_deadlocked_run_with_the_setting():
     script = textwrap.dedent(

@@ -124,6 +124,7 @@ def test_changed_code_and_another_jaxlib_make_new_keys(tmp_cache, monkeypatch):
     assert len(_entries(tmp_cache) - keys) == 2  # the edited program's and the other jaxlib's
 
 
+@pytest.mark.slow
 def test_a_reward_weight_is_part_of_the_lowered_program_unless_it_is_an_argument():
     """LiteReach's step for another reward weight lowers to another module (so another cache key).
 

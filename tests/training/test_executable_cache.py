@@ -478,6 +478,7 @@ SMALL_BRAX = [
 """The smallest brax run on the stand-in env: two iterations of 64 env steps, two evaluations."""
 
 
+@pytest.mark.slow
 def test_a_rerun_loads_every_program_and_trains_the_same(
     tmp_path, toy_env, restore_cache_config, monkeypatch
 ):

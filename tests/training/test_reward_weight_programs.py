@@ -12,6 +12,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from jax.sharding import Mesh
 
 from bar_policy import envs
@@ -25,6 +26,7 @@ from bar_policy.training.rsl_rl.programs import EnvPrograms
 WEIGHT = "reward.scales.success=0.6"
 
 
+@pytest.mark.slow
 def test_brax_rollout_and_evaluation_lower_alike_for_any_weights():
     """Lowering only (a few seconds a program on a CPU), no compile."""
     cfg = apply_overrides(preset("tiny"), [])
@@ -49,6 +51,7 @@ def test_brax_rollout_and_evaluation_lower_alike_for_any_weights():
     assert changed[1] == default[1]
 
 
+@pytest.mark.slow
 def test_rsl_rl_step_weights_the_reward_by_its_argument():
     env = envs.load("LiteReach", config=envs.nominal_config())
     progs = EnvPrograms(env, 2, wrap_fn=envs.wrap_for_brax_training, seed=0)
