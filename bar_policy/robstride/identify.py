@@ -28,7 +28,7 @@ import numpy as np
 
 from bar_policy.robot.constants import RobotSpec
 from bar_policy.robot.index import RobotIndex
-from bar_policy.robot.mit import MitCommand
+from bar_policy.robot.mit import U16_MAX, MitCommand, quantize, wire_ranges
 from bar_policy.robot.scene import load_model, robot_spec
 from bar_policy.robot.sysid_excitation import RAMP_S, Excitation
 from bar_policy.robot.sysid_fast import FastFit, fit_fast
@@ -102,6 +102,11 @@ class Recording:
     fast_segments: list[tuple[float, float, int]] = field(default_factory=list)
     """``Excitation.fast_segments`` of the run: ``(t0, t1, joint)``, s on the excitation's clock (command
     ``k`` at ``k * period``), where one joint moved alone and fast."""
+    direction: np.ndarray | None = None
+    """Each joint's motor direction (+-1, canonical order; None: the robot data's), as the bus used it."""
+    homing_offset: np.ndarray | None = None
+    """Each joint's homing offset, rad (canonical order; None: 0), as the bus used it: with ``direction``,
+    the motor frame the wire's 16-bit fields are quantised in (``round_samples``)."""
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``t`` (N,), ``q``, ``dq``, ``tau`` (N, num_joints)."""
@@ -175,6 +180,10 @@ def run_excitation(
     gravity = _gravity(model, index)
     kp, kd = robot.kp, robot.kd
     rec = Recording(pose_segments=excitation.pose_segments(), fast_segments=excitation.fast_segments())
+    motors = {m.name: m for bus in group.buses for m in bus.motors}  # the frame the bus encodes in
+    if all(n in motors for n in robot.joint_names):
+        rec.direction = np.array([motors[n].direction for n in robot.joint_names], dtype=np.float64)
+        rec.homing_offset = np.array([motors[n].homing_offset for n in robot.joint_names])
     n = round(excitation.duration / period)
     reading = group.last_reading
     q = reading.q.copy() if reading is not None else excitation.start.copy()
@@ -224,12 +233,35 @@ def round_samples(robot: RobotSpec, rec: Recording, period: float) -> ArmSamples
     faster than a slower round (a wrist at Kp 50 on a few g*m^2 rings at ~20 Hz) would bias a fit of
     instantaneous readings. Strength is then the torque produced per torque the law asked for (the
     budget keeps the law off its cap: no saturation).
+
+    The law is evaluated as the firmware sees the wire (``robot.mit``): every command field as decoded after
+    the official 16-bit truncation (``quantize``, in the motor frame ``raw = direction * joint + offset``),
+    and the state at the middle of the feedback's least significant bit (the firmware truncates it too, so
+    the true value lies in ``[reported, reported + LSB)``). Truncation is a bias, not noise: the host's own
+    command and the raw reading put a constant ~``Kp * LSB`` (0.02 N*m at Kp 50) into every sample, which a
+    fit without an intercept takes up in the strengths (measured: 0.976..1.024 for 1) and, through them, in
+    the armatures (-87..+37 %); evaluated so, strengths 1.0000 and armatures within a few % on the emulator.
     """
     _, q, dq, _ = rec.arrays()
     q_cmd, dq_cmd, ff = np.array(rec.q_cmd), np.array(rec.dq_cmd), np.array(rec.ff)
+    rg = wire_ranges(robot.models)
+    d = np.asarray(robot.direction if rec.direction is None else rec.direction, dtype=np.float64)
+    off = np.zeros(robot.num_joints) if rec.homing_offset is None else np.asarray(rec.homing_offset)
+    zero = np.zeros(robot.num_joints)
+
+    def wire(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, shift: np.ndarray = zero) -> np.ndarray:
+        return d * (quantize(d * x + shift, lo, hi) - shift)  # joint frame, as decoded by the firmware
+
+    q_mid = q + d * rg.p_max / U16_MAX  # half of the LSB 2 * p_max / 65535, in the motor frame
+    dq_mid = dq + d * rg.v_max / U16_MAX
+    kp = quantize(np.asarray(robot.kp, dtype=np.float64), zero, rg.kp_max)
+    kd = quantize(np.asarray(robot.kd, dtype=np.float64), zero, rg.kd_max)
+    q_star = wire(q_cmd, -rg.p_max, rg.p_max, off)
+    dq_star = wire(dq_cmd, -rg.v_max, rg.v_max)
+    tau_ff = wire(ff, -rg.t_max, rg.t_max)
     qdd = (dq[1:] - dq[:-1]) / period
-    tau = robot.kp * (q_cmd - q[:-1]) + robot.kd * (dq_cmd - dq[:-1]) + ff
-    return ArmSamples(q[:-1], dq[:-1], qdd, tau)
+    tau = kp * (q_star - q_mid[:-1]) + kd * (dq_star - dq_mid[:-1]) + tau_ff
+    return ArmSamples(q_mid[:-1], dq_mid[:-1], qdd, tau)
 
 
 @dataclass(frozen=True)
