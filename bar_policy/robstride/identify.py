@@ -28,7 +28,7 @@ import numpy as np
 
 from bar_policy.robot.constants import RobotSpec
 from bar_policy.robot.index import RobotIndex
-from bar_policy.robot.mit import U16_MAX, MitCommand, quantize, wire_ranges
+from bar_policy.robot.mit import U16_MAX, MitCommand, firmware_torque, wire_ranges
 from bar_policy.robot.scene import load_model, robot_spec
 from bar_policy.robot.sysid_excitation import RAMP_S, Excitation
 from bar_policy.robot.sysid_fast import FastFit, fit_fast
@@ -234,33 +234,26 @@ def round_samples(robot: RobotSpec, rec: Recording, period: float) -> ArmSamples
     instantaneous readings. Strength is then the torque produced per torque the law asked for (the
     budget keeps the law off its cap: no saturation).
 
-    The law is evaluated as the firmware sees the wire (``robot.mit``): every command field as decoded after
-    the official 16-bit truncation (``quantize``, in the motor frame ``raw = direction * joint + offset``),
-    and the state at the middle of the feedback's least significant bit (the firmware truncates it too, so
-    the true value lies in ``[reported, reported + LSB)``). Truncation is a bias, not noise: the host's own
-    command and the raw reading put a constant ~``Kp * LSB`` (0.02 N*m at Kp 50) into every sample, which a
-    fit without an intercept takes up in the strengths (measured: 0.976..1.024 for 1) and, through them, in
-    the armatures (-87..+37 %); evaluated so, strengths 1.0000 and armatures within a few % on the emulator.
+    The law is ``robot.mit.firmware_torque``, the firmware's own (the emulator's), on the wire: every
+    command field as decoded after the official 16-bit truncation, in the motor frame ``raw = direction *
+    joint + offset``, and the state at the middle of the feedback's least significant bit (the firmware
+    truncates it too, so the true value lies in ``[reported, reported + LSB)``); the cap is the robot's
+    (the budget keeps the law under half of it). Truncation is a bias, not noise: the host's own command and
+    the raw reading put a constant ~``Kp * LSB`` (0.02 N*m at Kp 50) into every sample, which a fit without
+    an intercept takes up in the strengths (measured: 0.976..1.024 for 1) and, through them, in the
+    armatures (-87..+37 %); evaluated so, strengths 1.0000 and armatures within a few % on the emulator.
     """
     _, q, dq, _ = rec.arrays()
     q_cmd, dq_cmd, ff = np.array(rec.q_cmd), np.array(rec.dq_cmd), np.array(rec.ff)
     rg = wire_ranges(robot.models)
     d = np.asarray(robot.direction if rec.direction is None else rec.direction, dtype=np.float64)
     off = np.zeros(robot.num_joints) if rec.homing_offset is None else np.asarray(rec.homing_offset)
-    zero = np.zeros(robot.num_joints)
-
-    def wire(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, shift: np.ndarray = zero) -> np.ndarray:
-        return d * (quantize(d * x + shift, lo, hi) - shift)  # joint frame, as decoded by the firmware
-
     q_mid = q + d * rg.p_max / U16_MAX  # half of the LSB 2 * p_max / 65535, in the motor frame
     dq_mid = dq + d * rg.v_max / U16_MAX
-    kp = quantize(np.asarray(robot.kp, dtype=np.float64), zero, rg.kp_max)
-    kd = quantize(np.asarray(robot.kd, dtype=np.float64), zero, rg.kd_max)
-    q_star = wire(q_cmd, -rg.p_max, rg.p_max, off)
-    dq_star = wire(dq_cmd, -rg.v_max, rg.v_max)
-    tau_ff = wire(ff, -rg.t_max, rg.t_max)
+    # the firmware's own law (the emulator's and the sim target's) on the motor-frame command and state
+    raw = MitCommand(d * q_cmd + off, d * dq_cmd, np.asarray(robot.kp), np.asarray(robot.kd), d * ff)
+    tau = d * firmware_torque(raw, d * q_mid[:-1] + off, d * dq_mid[:-1], rg, robot.torque_cap)
     qdd = (dq[1:] - dq[:-1]) / period
-    tau = kp * (q_star - q_mid[:-1]) + kd * (dq_star - dq_mid[:-1]) + tau_ff
     return ArmSamples(q_mid[:-1], dq_mid[:-1], qdd, tau)
 
 
