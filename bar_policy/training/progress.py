@@ -6,6 +6,9 @@ wandb, or none; ``training.writers``), under the tags of ``training.log_tags``, 
 one terminal line::
 
     [ 37%] 14.7M/40.0M steps | 301k steps/s | reward 312.4 | success 91.2% (eval 93.0%) | 1m04s, ETA 1m23s
+
+The trainers never call it: they yield records (``training.records``), and ``RunLogger.follow`` reports each
+as it comes, the one place a run's figures are printed and written.
 """
 
 from __future__ import annotations
@@ -14,14 +17,17 @@ import json
 import math
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Generator, Sequence
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, TextIO, TypeVar
 
 from bar_policy.training.log_tags import tag
+from bar_policy.training.records import Epoch, Evaluated, NotApplied, Record, Resumed, ScalarWriter
 from bar_policy.training.writers import check_logger, make_writer
 
 __all__ = ["RunLogger", "format_duration", "format_eval", "format_steps", "next_would_overrun"]
+
+R = TypeVar("R")
 
 
 def format_steps(n: float) -> str:
@@ -172,45 +178,65 @@ class RunLogger:
         self._jsonl.write(json.dumps({"kind": kind, "time_s": round(self.elapsed(), 3), **payload}) + "\n")
         self._jsonl.flush()
 
-    def record_eval(
-        self,
-        step: int,
-        metrics: dict[str, float],
-        evals: list[dict[str, float]],
-        time_to_threshold: list[float],
-        threshold: float,
-        keep: Callable[[dict[str, float]], str | None] | None = None,
-    ) -> None:
-        """Log, keep and print one evaluation; note the first time success reaches ``threshold``.
+    def follow(self, trainer: Generator[Record, Any, R]) -> R:
+        """Report every record a trainer yields, as it comes, and send back its answer; returns its result.
 
-        ``evals`` stays in step order: a record of an earlier step than one already kept (the step-0
-        evaluation run after training, ``eval.initial=end``) goes in before it, and is written to
-        ``metrics.jsonl`` when it ran, so there it comes last. Such a late record does not count for the
-        time to threshold (its time says when it ran, not how long training took).
+        ``trainer``: a trainer's generator (``training.records``); its return value is the result.
+        """
+        answer: Any = None
+        while True:
+            try:
+                record = trainer.send(answer)
+            except StopIteration as end:
+                return end.value
+            answer = self.report(record)
+
+    def report(self, record: Record) -> Any:
+        """Print, write and answer one record (``training.records``).
+
+        An ``Epoch`` is answered by ``epoch_end``'s budget answer, an ``Evaluated`` by ``evaluated``'s
+        record; the others by None.
+        """
+        if isinstance(record, Epoch):
+            return self.epoch_end(
+                record.step,
+                record.metrics,
+                next_s=record.next_s,
+                budget_s=record.budget_s,
+                line=record.line,
+                line_due=record.line_due,
+                notes=record.notes,
+            )
+        if isinstance(record, Evaluated):
+            return self.evaluated(record.step, record.metrics)
+        if isinstance(record, Resumed):
+            self.resumed(record.path, record.env_steps, record.iteration, list(record.changes))
+        elif isinstance(record, NotApplied):
+            self.not_applied(list(record.settings))
+        elif isinstance(record, ScalarWriter):
+            self.attach_writer(record.writer)
+        else:
+            for line in record.lines:
+                self.print(line)
+            if record.note:
+                self.note(record.note, dict(record.payload))
+        return None
+
+    def evaluated(self, step: int, metrics: dict[str, float]) -> dict[str, float]:
+        """Log and print one evaluation; returns it as recorded, ``time_s`` (seconds since ``t0``) added.
 
         Args:
             step: env steps so far (or 0, for the untrained policy).
             metrics: the evaluation (``success_rate``, ``episode_reward``, optionally ``final_distance``, m,
-                and the task's other ratios); ``time_s`` is added.
-            evals: the run's evaluation records, in step order; the record is inserted.
-            time_to_threshold: empty until the threshold is first reached, then holds that time, s.
-            threshold: success rate that counts as solved (0..1).
-            keep: offered the recorded evaluation (``time_s`` added) last, to rank it against the run's best
-                (``training.best.BestKeeper``); returns the line to print when it is kept, else None.
+                and the task's other ratios); ``time_s`` is added in place.
         """
         metrics["time_s"] = self.elapsed()
         self.log(step, metrics, kind="eval")
-        later = next((i for i, e in enumerate(evals) if e["step"] > step), None)
-        evals.insert(len(evals) if later is None else later, {"step": step, **metrics})
         on = f", {self.evaluated_on}" if self.evaluated_on else ""
         head = f"initial evaluation (the untrained policy{on})" if step == 0 else f"eval @ {step:,} steps"
         head += f" ({self.evaluated_on})" if step and self.evaluated_on else ""
         self.print(f"  {head}: {format_eval(metrics)}")
-        if later is None and not time_to_threshold and metrics["success_rate"] >= threshold:
-            time_to_threshold.append(metrics["time_s"])
-        kept = None if keep is None else keep(metrics)
-        if kept is not None:
-            self.print(kept)
+        return metrics
 
     def epoch_end(
         self,
@@ -225,7 +251,7 @@ class RunLogger:
     ) -> bool:
         """Record one epoch's training figures, print its progress line, and check the wall-clock budget.
 
-        The one call a trainer makes at each epoch end: ``metrics`` (with ``sps``, env steps/s) logged as
+        A trainer's ``records.Epoch``, at each epoch end: ``metrics`` (with ``sps``, env steps/s) logged as
         ``train`` at env step ``step``; then whether a next epoch expected to take ``next_s`` s would end
         past ``budget_s`` s (``next_would_overrun``); then the progress line.
 

@@ -241,16 +241,19 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
     provenance = record["provenance"]
 
     ckpt_dir = str(run_dir / "checkpoints")
+    # The trainer yields what it reports as it trains; the logger reports each record as it comes.
     if cfg.backend == "brax":
-        result = train_brax(
-            env, cfg, logger, wrap_fn=envs.wrap_for_brax_training, randomizer=randomizer,
+        trainer = train_brax(
+            env, cfg, wrap_fn=envs.wrap_for_brax_training, randomizer=randomizer,
             checkpoint_dir=ckpt_dir, config_record=record, start=start, eval_env=eval_env,
         )  # fmt: skip
     else:
-        result = run_rsl_rl(
-            env, cfg, logger, wrap_fn=envs.wrap_for_brax_training, randomizer=randomizer,
+        trainer = run_rsl_rl(
+            env, cfg, wrap_fn=envs.wrap_for_brax_training, randomizer=randomizer,
             checkpoint_dir=ckpt_dir, config_record=record, start=start, eval_env=eval_env,
+            scalars_dir=logger.tb_dir if logger.writes_scalars else None,
         )  # fmt: skip
+    result = logger.follow(trainer)
 
     # Every process evaluates (the brax evaluation is one program over all devices); process 0 reports.
     final = result.final_evaluation(cfg.final_eval_envs, seed=cfg.seed + 10_000)

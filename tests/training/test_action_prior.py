@@ -186,7 +186,7 @@ def test_reach_has_no_prior_and_rsl_rl_refuses_one():
 
     cfg = TrainConfig(env_name="LiteReach", network=NetworkConfig(action_prior="reference"))
     with pytest.raises(ValueError, match=r"LiteReach has no action prior; valid values for it: \['none'\]"):
-        run_rsl_rl(reach, cfg, None, randomizer=None, checkpoint_dir=None)
+        run_rsl_rl(reach, cfg, randomizer=None, checkpoint_dir=None)
 
 
 def test_prior_noise_std_sets_the_initial_std(layout, pose_scale):

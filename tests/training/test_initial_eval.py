@@ -13,6 +13,7 @@ import pytest
 from script_modules import load_bench
 from toy_configs import TOY_BRAX, TOY_RSL, toy_config
 
+from bar_policy.training.evaluations import Evaluations
 from bar_policy.training.progress import RunLogger
 from bar_policy.training.startup import breakdown as sb
 
@@ -51,23 +52,27 @@ def _metrics(record: dict) -> dict:
     return {k: v for k, v in record.items() if k != "time_s"}
 
 
-def test_record_eval_keeps_step_order_and_a_late_step_0_out_of_the_time_to_threshold(tmp_path):
-    logger = RunLogger(tmp_path, 300, enabled=False)  # writes nothing; record_eval still keeps the lists
-    evals: list[dict] = []
-    ttt: list[float] = []
+def test_evaluations_keep_step_order_and_a_late_step_0_out_of_the_time_to_threshold(tmp_path):
+    logger = RunLogger(tmp_path, 300, enabled=False)  # writes nothing; the evaluations are still kept
+
+    def record(evals: Evaluations, step: int, success: float) -> None:
+        logger.follow(evals.record(step, {"success_rate": success, "episode_reward": 1.0}, lambda: None, ""))
+
+    evals = Evaluations(0, None, 0.95)
     for step, success in ((100, 0.5), (200, 0.97), (300, 0.99), (0, 1.0)):
-        logger.record_eval(step, {"success_rate": success, "episode_reward": 1.0}, evals, ttt, 0.95)
-    assert [e["step"] for e in evals] == [0, 100, 200, 300]
-    assert ttt == [evals[2]["time_s"]]  # step 200's: the first at >= 95 %, in the order they ran
+        record(evals, step, success)
+    assert [e["step"] for e in evals.records] == [0, 100, 200, 300]
+    # step 200's: the first at >= 95 %, in the order they ran
+    assert evals.time_to_threshold_s == evals.records[2]["time_s"]
     # A late step 0 that alone reaches the threshold does not count: no trained policy reached it.
-    evals, ttt = [], []
+    evals = Evaluations(0, None, 0.95)
     for step, success in ((100, 0.5), (0, 1.0)):
-        logger.record_eval(step, {"success_rate": success, "episode_reward": 1.0}, evals, ttt, 0.95)
-    assert [e["step"] for e in evals] == [0, 100] and ttt == []
+        record(evals, step, success)
+    assert [e["step"] for e in evals.records] == [0, 100] and evals.time_to_threshold_s is None
     # In step order (eval.initial=start), step 0 counts as before.
-    evals, ttt = [], []
-    logger.record_eval(0, {"success_rate": 1.0, "episode_reward": 1.0}, evals, ttt, 0.95)
-    assert ttt == [evals[0]["time_s"]]
+    evals = Evaluations(0, None, 0.95)
+    record(evals, 0, 1.0)
+    assert evals.time_to_threshold_s == evals.records[0]["time_s"]
 
 
 @pytest.mark.slow

@@ -193,7 +193,7 @@ def test_actor_warmup_stays_refused_on_rsl_rl(toy_env, tmp_path):
     with pytest.raises(
         ValueError, match=r"actor_warmup_iterations=2 is a brax-backend option.*valid here: 0"
     ):
-        run_rsl_rl(toy_env, cfg, None, randomizer=None, checkpoint_dir=None)
+        run_rsl_rl(toy_env, cfg, randomizer=None, checkpoint_dir=None)
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -1,8 +1,8 @@
 """RunLogger's per-epoch and per-evaluation calls: what each records, prints and answers.
 
-The trainers make one ``epoch_end`` call per epoch (the train record, the budget check, the progress line)
-and one ``record_eval`` per evaluation (with the best keeper's offer); these tests hold the lines and
-records they write against values worked out by hand.
+The trainers yield one ``Epoch`` record per epoch (``epoch_end``: the train record, the budget check, the
+progress line) and one ``Evaluated`` per evaluation (kept, and offered to the best keeper, by
+``Evaluations``); these tests hold the lines and records they write against values worked out by hand.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ import json
 import time
 from pathlib import Path
 
+from bar_policy.training.evaluations import Evaluations
 from bar_policy.training.progress import RunLogger
 
 
@@ -62,18 +63,21 @@ def test_epoch_end_prints_a_line_only_when_due_or_at_the_budget(tmp_path: Path) 
     assert out.getvalue() == "  a note\n[ 20%] 200/1k steps | 100 steps/s | success 50.0% | 10s, ETA 8s\n"
 
 
-def test_record_eval_offers_the_recorded_evaluation_and_prints_the_keepers_line(tmp_path: Path) -> None:
+def test_an_evaluation_is_recorded_then_offered_and_the_keepers_line_printed(tmp_path: Path) -> None:
     logger, out = _logger(tmp_path, 5.0)
     offered: list[dict[str, float]] = []
+    evaluations = Evaluations(0, None, 0.9)
 
-    def keep(m: dict[str, float]) -> str | None:
+    def offer(step: int, m: dict[str, float], snapshot: object) -> bool:
         offered.append(dict(m))
-        return "  best so far" if m["success_rate"] > 0.5 else None
+        return m["success_rate"] > 0.5
 
-    evals: list[dict[str, float]] = []
-    ttt: list[float] = []
-    logger.record_eval(100, {"success_rate": 0.25, "episode_reward": 2.0}, evals, ttt, 0.9, keep=keep)
-    logger.record_eval(200, {"success_rate": 0.75, "episode_reward": 3.0}, evals, ttt, 0.9, keep=keep)
+    evaluations.keeper.offer = offer  # type: ignore[method-assign]
+    for step, m in (
+        (100, {"success_rate": 0.25, "episode_reward": 2.0}),
+        (200, {"success_rate": 0.75, "episode_reward": 3.0}),
+    ):
+        logger.follow(evaluations.record(step, m, lambda: None, "  best so far"))
     assert out.getvalue() == (
         "  eval @ 100 steps: success 25.0%, episode reward 2.00\n"
         "  eval @ 200 steps: success 75.0%, episode reward 3.00\n"
@@ -81,7 +85,7 @@ def test_record_eval_offers_the_recorded_evaluation_and_prints_the_keepers_line(
     )
     # The keeper sees the record as logged, its time included.
     assert [sorted(m) for m in offered] == [["episode_reward", "success_rate", "time_s"]] * 2
-    assert [e["step"] for e in evals] == [100, 200] and ttt == []
+    assert [e["step"] for e in evaluations.records] == [100, 200] and evaluations.time_to_threshold_s is None
 
 
 def test_resumed_names_the_checkpoint_and_each_changed_setting(tmp_path: Path) -> None:

@@ -12,23 +12,25 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from bar_policy.training.records import Said
 from bar_policy.training.startup import breakdown as sb
 from bar_policy.training.startup.breakdown import StartupTimer
 from bar_policy.training.startup.session import Program, StartUp, compile_programs
 
 
 class _Logger:
-    """What ``CompiledPrograms.report`` writes to: printed lines and ``note`` records."""
+    """What the run's logger makes of ``CompiledPrograms.report``'s record: printed lines and notes."""
 
     def __init__(self) -> None:
         self.lines: list[str] = []
         self.notes: list[tuple[str, dict[str, Any]]] = []
 
-    def print(self, text: str) -> None:
-        self.lines.append(text)
-
-    def note(self, kind: str, payload: dict[str, Any]) -> None:
-        self.notes.append((kind, payload))
+    def report(self, record: Said | None) -> None:
+        if record is None:  # not reported (yet)
+            return
+        self.lines.extend(record.lines)
+        if record.note:
+            self.notes.append((record.note, dict(record.payload)))
 
 
 def _toy(timer: StartupTimer) -> Any:
@@ -65,8 +67,8 @@ def test_the_start_up_ends_with_the_first_epoch_and_is_reported_once():
     compiled.epoch_ended(0.5, step0_waiting=False)
     compiled.epoch_ended(0.25, step0_waiting=False)  # no step-0 evaluation waits: not a start-up row
     assert timer.phases[sb.FIRST_EPOCH] == 0.5 and sb.MORE_EPOCHS not in timer.phases
-    compiled.after_epoch(logger, 4096, ("cube",), step0_waiting=False, eval_due=True)
-    compiled.after_epoch(logger, 8192, ("cube",), step0_waiting=False, eval_due=True)
+    logger.report(compiled.after_epoch(4096, ("cube",), step0_waiting=False, eval_due=True))
+    logger.report(compiled.after_epoch(8192, ("cube",), step0_waiting=False, eval_due=True))
     ((kind, rec),) = logger.notes
     assert kind == "startup" and rec["step"] == 4096 and rec["until"] == sb.UNTIL_EPOCH
     assert rec["phases"][sb.FIRST_EVAL] == 0.0 and set(rec["programs"]) == {"double", "total", "cube"}
@@ -81,13 +83,13 @@ def test_a_step0_evaluation_first_ends_the_start_up_after_it():
     timer = StartupTimer()
     compiled, logger = _toy(timer), _Logger()
     compiled.epoch_ended(0.5, step0_waiting=True)
-    compiled.after_epoch(logger, 4096, ("cube",), step0_waiting=True, eval_due=False)
+    logger.report(compiled.after_epoch(4096, ("cube",), step0_waiting=True, eval_due=False))
     assert not compiled.reported  # the step-0 evaluation has not run: the start-up goes on
     compiled.epoch_ended(0.25, step0_waiting=True)
     with compiled.step0():
         time.sleep(0.05)
     compiled["cube"]  # the evaluation's program is ready: the report needs no evaluation due
-    compiled.after_epoch(logger, 8192, ("cube",), step0_waiting=False, eval_due=False)
+    logger.report(compiled.after_epoch(8192, ("cube",), step0_waiting=False, eval_due=False))
     ((_, rec),) = logger.notes
     assert rec["until"] == sb.UNTIL_EVAL and rec["step"] == 8192
     assert rec["phases"][sb.FIRST_EPOCH] == 0.5 and rec["phases"][sb.MORE_EPOCHS] == 0.25

@@ -38,16 +38,15 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from typing import Any
 
 import jax
 import numpy as np
 
 from bar_policy.envs import reward_weights
-from bar_policy.training.best import BestKeeper
 from bar_policy.training.brax.ignored_settings import brax_not_applied
-from bar_policy.training.brax.learner import TrainingState, make_learner
+from bar_policy.training.brax.learner import make_learner
 from bar_policy.training.brax.programs import (
     _K_EPOCH,
     _K_EVAL,
@@ -67,11 +66,12 @@ from bar_policy.training.brax.programs import (
     to_compile,
 )
 from bar_policy.training.brax.result import BraxTrainResult
-from bar_policy.training.checkpoint import load_checkpoint, resume_changes, save_checkpoint
+from bar_policy.training.checkpoint import Checkpoint, load_checkpoint, resume_changes, save_checkpoint
 from bar_policy.training.config import TrainConfig
+from bar_policy.training.evaluations import Evaluations
 from bar_policy.training.log_tags import brax_losses
 from bar_policy.training.parallel import DataParallel, barrier, make_data_parallel
-from bar_policy.training.progress import RunLogger
+from bar_policy.training.records import Epoch, NotApplied, Record, Resumed, Said
 from bar_policy.training.rollout_sums import RatioWindow, sum_layout, window_metrics
 from bar_policy.training.startup import breakdown as sb
 from bar_policy.training.startup.session import CompiledPrograms, StartUp, compile_programs
@@ -82,7 +82,6 @@ __all__ = ["train_brax"]
 def train_brax(
     env: Any,
     cfg: TrainConfig,
-    logger: RunLogger,
     *,
     wrap_fn: Callable[..., Any],
     randomizer: Callable[..., Any] | None,
@@ -91,18 +90,20 @@ def train_brax(
     start: StartUp | None = None,
     eval_env: Any | None = None,
     eval_randomizer: Callable[..., Any] | None = None,
-) -> BraxTrainResult:
+) -> Generator[Record, Any, BraxTrainResult]:
     """Train with brax PPO pieces on every device; see the module docstring.
+
+    A generator: it yields what the run reports as it trains (``training.records``; ``RunLogger.follow``
+    reports them and answers) and returns the result.
 
     Args:
         env: unwrapped env (``reset``/``step``, ``observation_size``, ``action_size``, ``episode_length``).
         cfg: the run's config (``cfg.ppo``, ``cfg.network``, ``cfg.eval``, ``cfg.resume``, ...).
-        logger: progress/metric sink (disabled on processes other than 0).
         wrap_fn: ``wrap_for_brax_training(env, episode_length=, action_repeat=, randomization_fn=)``.
         randomizer: ``(model, rng) -> (model, in_axes)`` domain randomiser, or None.
         checkpoint_dir: where checkpoints go (None: no checkpoints).
         config_record: JSON record stored in checkpoint sidecars.
-        start: the run's start-up (``startup.session.StartUp``: its breakdown, printed once the first epoch
+        start: the run's start-up (``startup.session.StartUp``: its breakdown, reported once the first epoch
             is done and every program compiled, and its executable cache); None: a fresh one, no cache.
         eval_env: the env every evaluation runs (the task's held-out variant, ``evaluation_env()``) with
             ``eval_randomizer``; None: ``env`` with ``randomizer``.
@@ -129,16 +130,21 @@ def train_brax(
         template = jax.eval_shape(learner.init, dp.abstract(np.zeros(2, np.uint32), sharded=False))
         weights = reward_weights.weights(env)  # the rollout's and evaluation's argument
     programs = compile_programs(to_compile(jitted, dp, template, weights), start)
-    logger.not_applied(brax_not_applied(cfg))  # rsl-rl-only settings a brax run ignores: said and recorded
+    yield NotApplied(tuple(brax_not_applied(cfg)))  # rsl-rl-only settings a brax run ignores
     with start.timer.phase(sb.WAIT):
-        run = _Run(cfg, env, logger, dp, programs, template, weights, config_record)
+        ckpt = load_checkpoint(cfg.resume, template) if cfg.resume else None
+        if ckpt is not None:
+            changes = tuple(resume_changes(ckpt.path, config_record))
+            yield Resumed(ckpt.path, ckpt.env_steps, ckpt.iteration, changes)
+        run = _Run(cfg, env, dp, programs, weights, ckpt, config_record)
 
     # The loop: rollout -> update for an epoch of iterations, then its progress line, and every
     # _LINES_PER_EVAL epochs an evaluation (and a checkpoint).
     total_iters = math.ceil(cfg.ppo.num_timesteps / cfg.ppo.steps_per_iteration)
     start_steps, t_loop = run.env_steps, time.monotonic()
     while run.iteration < total_iters:
-        seconds, over_budget = run.rollout_and_update()
+        seconds, epoch = run.rollout_and_update()
+        over_budget = _agreed((yield epoch))
         programs.epoch_ended(seconds, step0_waiting=run.eval_at_start)
         last = run.iteration >= total_iters or over_budget
         eval_due = last or run.epochs % _LINES_PER_EVAL == 0
@@ -146,60 +152,70 @@ def train_brax(
         # program is ready, and always before the first periodic one. Under jax.distributed it was compiled
         # before the start on every process, so every process takes the same branch.
         if run.eval_at_start and (eval_due or programs.ready("evaluate")):
-            run.evaluate_initial()
-        programs.after_epoch(
-            logger, run.env_steps, ("evaluate",), step0_waiting=run.eval_at_start, eval_due=eval_due
+            yield from run.evaluate_initial()
+        report = programs.after_epoch(
+            run.env_steps, ("evaluate",), step0_waiting=run.eval_at_start, eval_due=eval_due
         )
+        if report is not None:
+            yield report
         if eval_due:
-            run.evaluate(_policy_params(run.ts), run.env_steps)
+            yield from run.evaluate(_policy_params(run.ts), run.env_steps)
             if last or (cfg.checkpoint_every and (run.epochs // _LINES_PER_EVAL) % cfg.checkpoint_every == 0):
                 run.checkpoint(checkpoint_dir)
         if over_budget and run.iteration < total_iters:
-            logger.print(f"stopping: wall-clock budget of {cfg.max_minutes} min reached")
+            yield Said((f"stopping: wall-clock budget of {cfg.max_minutes} min reached",))
             break
     programs["evaluate"]  # surface a compile error even when no evaluation ran
-    programs.report(logger, run.env_steps)  # unless reported in the loop
+    report = programs.report(run.env_steps)  # unless reported in the loop
+    if report is not None:
+        yield report
     loop_s = time.monotonic() - t_loop
     if run.eval_at_end:  # eval.initial=end: the untrained policy, once the trained one is out
-        logger.print("step-0 evaluation (the untrained policy; after training: --eval.initial end)")
-        run.evaluate_initial()
+        yield Said(("step-0 evaluation (the untrained policy; after training: --eval.initial end)",))
+        yield from run.evaluate_initial()
     train_seconds = time.monotonic() - t_start
     if run.epochs:
-        logger.print(
-            f"trained {run.env_steps - start_steps:,} env steps in {loop_s:.1f} s of loop "
-            f"({train_seconds:.1f} s with setup and compile)"
+        yield Said(
+            (
+                f"trained {run.env_steps - start_steps:,} env steps in {loop_s:.1f} s of loop "
+                f"({train_seconds:.1f} s with setup and compile)",
+            )
         )
     return run.result(learner, prior, start_steps, train_seconds)
+
+
+def _agreed(over: bool) -> bool:
+    """Process 0's answer to whether the next epoch would overrun the budget, on every process."""
+    if jax.process_count() > 1:
+        from jax.experimental import multihost_utils
+
+        return bool(multihost_utils.broadcast_one_to_all(np.asarray(over)))
+    return over
 
 
 class _Run:
     """One brax run's state between set-up and result: the training state, the envs, the counts.
 
-    Made once the programs are submitted (the ``WAIT`` row): the training state resumed from
-    ``cfg.resume`` or made by ``init``, every env slot reset. Every process holds one; only process 0
-    writes (the logger of the others is disabled).
+    Made once the programs are submitted (the ``WAIT`` row): the training state resumed from ``ckpt`` or
+    made by ``init``, every env slot reset. Every process holds one (only process 0's logger writes).
     """
 
     def __init__(
         self,
         cfg: TrainConfig,
         env: Any,
-        logger: RunLogger,
         dp: DataParallel,
         programs: CompiledPrograms,
-        template: TrainingState,
         weights: dict[str, Any],
+        ckpt: Checkpoint | None,
         config_record: dict[str, Any] | None,
     ) -> None:
-        self.cfg, self.env, self.logger, self.dp, self.programs = cfg, env, logger, dp, programs
+        self.cfg, self.env, self.dp, self.programs = cfg, env, dp, programs
         self.config_record = config_record
         seed = cfg.seed
         self.env_steps, self.iteration, state = 0, 0, None
-        if cfg.resume:
-            ckpt = load_checkpoint(cfg.resume, template)
+        if ckpt is not None:
             self.env_steps, self.iteration, state = ckpt.env_steps, ckpt.iteration, ckpt.state
-            changes = resume_changes(ckpt.path, config_record)
-            logger.resumed(ckpt.path, self.env_steps, self.iteration, changes)
         self.iters_per_epoch = epoch_iterations(cfg)
         # Every host value the run starts from, on the devices at once (replicated).
         host = {
@@ -212,7 +228,7 @@ class _Run:
             "state": state,
         }
         dev = dp.replicate(host)
-        self.ts = dev["state"] if cfg.resume else programs["init"](dev["init"])
+        self.ts = dev["state"] if ckpt is not None else programs["init"](dev["init"])
         self.envs = programs["reset"](dev["reset"], dev["model"])
         self.rollout, self.update = programs["rollout"], programs["update"]
         self.iteration_index = dev["iterations"]
@@ -223,23 +239,22 @@ class _Run:
             barrier("bar_policy: programs compiled")
         self.eval_model_key, self.weights = dev["eval_model"], dev["weights"]
         self.epochs = 0
-        self.keeper = BestKeeper(self.env_steps, getattr(env, "task_name", None))
+        task = getattr(env, "task_name", None)
+        self.evaluations = Evaluations(self.env_steps, task, cfg.eval.success_threshold)
         self.layout = sum_layout(env)  # the rollout's logged sums (rollout_sums)
         self.ratios: dict[str, RatioWindow] = {}  # the training ratios, carried over event-less epochs
-        self.evals: list[dict[str, float]] = []
-        self.time_to_threshold: list[float] = []
         self.last_eval_s = 0.0
         # The step-0 evaluation: none after a resume. Every process decides alike (config and checkpoint),
         # so under jax.distributed all of them run it, collectively, at the same point.
         self.eval_at_start = self.iteration == 0 and cfg.eval.initial == "start"
         self.eval_at_end = self.iteration == 0 and cfg.eval.initial == "end"
 
-    def rollout_and_update(self) -> tuple[float, bool]:
-        """One epoch (``iters_per_epoch`` PPO iterations), logged as a progress line.
+    def rollout_and_update(self) -> tuple[float, Epoch]:
+        """One epoch (``iters_per_epoch`` PPO iterations); returns its seconds and its record.
 
-        Returns its seconds, and whether the next epoch would end past ``max_minutes`` (every process gets
-        process 0's answer). The next epoch's expected length: this one's, plus an evaluation's when the
-        next epoch ends with one, plus one more while the step-0 evaluation waits for the end of training.
+        The record's look-ahead for the wall-clock budget (``Epoch.next_s``): this epoch's length, plus an
+        evaluation's when the next epoch ends with one, plus one more while the step-0 evaluation waits for
+        the end of training.
         """
         t0 = time.monotonic()
         epoch_key = self.dp.replicate(host_key(self.cfg.seed, _K_EPOCH, self.iteration))
@@ -260,23 +275,17 @@ class _Run:
         }
         next_eval_due = (self.epochs + 1) % _LINES_PER_EVAL == 0
         evals_s = self.last_eval_s * (next_eval_due + self.eval_at_end)
-        over = self.logger.epoch_end(
-            self.env_steps, train_metrics, next_s=seconds + evals_s, budget_s=60 * self.cfg.max_minutes
-        )
-        if jax.process_count() > 1:
-            from jax.experimental import multihost_utils
+        budget_s = 60 * self.cfg.max_minutes
+        return seconds, Epoch(self.env_steps, train_metrics, next_s=seconds + evals_s, budget_s=budget_s)
 
-            over = bool(multihost_utils.broadcast_one_to_all(np.asarray(over)))
-        return seconds, over
-
-    def evaluate(self, params: tuple[Any, Any], step: int) -> None:
-        """Evaluate replicated ``(normalizer, policy)`` params on step ``step``'s keys; log, rank, keep."""
+    def evaluate(self, params: tuple[Any, Any], step: int) -> Generator[Record, Any, None]:
+        """Evaluate replicated ``(normalizer, policy)`` params on step ``step``'s keys; report, rank, keep."""
         t_eval = time.monotonic()
         m = self.evaluation(params, host_key(self.cfg.seed, _K_EVAL, step))
         if step:  # the step-0 evaluation's time includes its compile
             self.last_eval_s = time.monotonic() - t_eval
-        threshold = self.cfg.eval.success_threshold
-        self.logger.record_eval(step, m, self.evals, self.time_to_threshold, threshold, keep=self._keep(step))
+        kept = f"  best so far: the parameters at {step:,} steps are kept"
+        yield from self.evaluations.record(step, m, lambda: _host_params(self.dp.to_host(self.ts)), kept)
         self.programs.confirm()  # every loaded program has run: none is a suspect of a crash
 
     def evaluation(self, params: tuple[Any, Any], key: np.ndarray) -> dict[str, float]:
@@ -284,22 +293,12 @@ class _Run:
         m = self.programs["evaluate"](params, self.dp.replicate(key), self.eval_model_key, self.weights)
         return {k: float(v) for k, v in self.dp.to_host(m).items()}
 
-    def _keep(self, step: int) -> Callable[[dict[str, float]], str | None]:
-        """Offer step ``step``'s recorded evaluation to the keeper (a host copy of the params if kept)."""
-
-        def keep(m: dict[str, float]) -> str | None:
-            if self.keeper.offer(step, m, lambda: _host_params(self.dp.to_host(self.ts))):
-                return f"  best so far: the parameters at {step:,} steps are kept"
-            return None
-
-        return keep
-
-    def evaluate_initial(self) -> None:
-        """The untrained policy's evaluation (its params re-created by ``init``), logged as step 0."""
+    def evaluate_initial(self) -> Generator[Record, Any, None]:
+        """The untrained policy's evaluation (its params re-created by ``init``), reported as step 0."""
         self.eval_at_start = False
         with self.programs.step0():
             initial = self.programs["init"](self.dp.replicate(host_key(self.cfg.seed, _K_INIT)))
-            self.evaluate(_policy_params(initial), 0)
+            yield from self.evaluate(_policy_params(initial), 0)
 
     def checkpoint(self, directory: str | None) -> None:
         """Save the training state (every process fetches its own replica; only process 0 writes)."""
@@ -322,11 +321,11 @@ class _Run:
             env_steps=self.env_steps,
             run_env_steps=self.env_steps - start_steps,
             train_seconds=train_seconds,
-            evals=self.evals,
-            time_to_threshold_s=self.time_to_threshold[0] if self.time_to_threshold else None,
+            evals=self.evaluations.records,
+            time_to_threshold_s=self.evaluations.time_to_threshold_s,
             evaluator=evaluator,
             num_eval_envs=self.cfg.eval.num_eval_envs,
             activation=self.cfg.network.activation,
-            best=self.keeper.best,
+            best=self.evaluations.best,
             prior=prior,
         )

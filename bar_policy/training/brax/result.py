@@ -35,7 +35,7 @@ class BraxTrainResult:
     (step 0 first, whenever it ran: ``eval.initial``)."""
     time_to_threshold_s: float | None = None
     """Seconds from logger start to the first evaluation at or above the success threshold (a step-0
-    evaluation run after training does not count: ``RunLogger.record_eval``)."""
+    evaluation run after training does not count: ``training.evaluations``)."""
     evaluator: Callable[[Any, int], dict[str, float]] | None = None
     """``evaluator(host_params, seed)``: the run's compiled evaluation (``num_eval_envs`` episodes)."""
     num_eval_envs: int = 0

@@ -48,8 +48,9 @@ import copy
 import dataclasses
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -58,11 +59,12 @@ import torch
 import bar_policy
 from bar_policy.export.policy import export_policy
 from bar_policy.obs.action_prior import Prior
-from bar_policy.training.best import BestIterate, BestKeeper
+from bar_policy.training.best import BestIterate
 from bar_policy.training.checkpoint import latest_checkpoint, resume_changes, save_checkpoint
 from bar_policy.training.config import TrainConfig
+from bar_policy.training.evaluations import Evaluations
 from bar_policy.training.log_tags import rsl_rl_losses
-from bar_policy.training.progress import RunLogger
+from bar_policy.training.records import Epoch, NotApplied, Record, Resumed, Said, ScalarWriter
 from bar_policy.training.rollout_sums import RatioWindow, window_metrics
 from bar_policy.training.rsl_rl.config import not_applied, rsl_rl_train_cfg
 from bar_policy.training.rsl_rl.env import RslRlVecEnv
@@ -165,7 +167,6 @@ class RslRlTrainResult:
 def train_rsl_rl(
     env: Any,
     cfg: TrainConfig,
-    logger: RunLogger,
     *,
     programs: RslRlPrograms,
     randomizer: Callable[..., Any] | None,
@@ -173,13 +174,16 @@ def train_rsl_rl(
     config_record: dict[str, Any] | None = None,
     start: StartUp | None = None,
     eval_env: Any | None = None,
-) -> RslRlTrainResult:
-    """Train with rsl-rl-lib's PPO on ``env``; same arguments and outputs as ``train_brax``.
+    scalars_dir: Path | None = None,
+) -> Generator[Record, Any, RslRlTrainResult]:
+    """Train with rsl-rl-lib's PPO on ``env``; same arguments, records and outputs as ``train_brax``.
 
     ``programs``: the envs' jax programs, compiling since ``rsl_rl.programs.prepare_rsl_rl`` (which
     ``rsl_rl.entry.run_rsl_rl``, the backend's entry, calls before it imports this module).
     ``eval_env``: the env the evaluations run (the task's held-out variant) on its nominal model, as brax's;
-    None: ``env`` with ``randomizer``.
+    None: ``env`` with ``randomizer``. ``scalars_dir``: where rsl-rl's runner logger writes the scalars
+    (the run's ``tb/``, with ``cfg.logger``'s writer, which the run's logger then writes through:
+    ``records.ScalarWriter``); None: no scalars.
     """
     from rsl_rl.runners import OnPolicyRunner
 
@@ -205,16 +209,15 @@ def train_rsl_rl(
         # --logger says; it also stores the code state, tb/git/*.diff). Our loop writes the scalars
         # through it, under the tags both backends share (log_tags), from the sums read once per iteration.
         train_cfg = rsl_rl_train_cfg(cfg)
-        log_dir = str(logger.tb_dir) if logger.writes_scalars else None
-        train_cfg["logger"] = rsl_rl_logger_cfg(
-            logger.logger, project=logger.wandb_project, run_name=logger.run_dir.name
-        )
+        log_dir = None if scalars_dir is None else str(scalars_dir)
+        run_name = "" if scalars_dir is None else scalars_dir.parent.name
+        train_cfg["logger"] = rsl_rl_logger_cfg(cfg.logger, project=cfg.wandb_project, run_name=run_name)
         runner = OnPolicyRunner(vec_env, train_cfg, log_dir=log_dir, device=device)
         if log_dir is not None:
             runner.logger.git_status_repos.append(bar_policy.__file__)  # our tree's diff beside rsl-rl's
             runner.logger.init_logging_writer()
-            logger.attach_writer(runner.logger.writer)
-        logger.not_applied(not_applied(cfg))  # brax settings rsl-rl runs without: said and recorded
+            yield ScalarWriter(runner.logger.writer)
+        yield NotApplied(tuple(not_applied(cfg)))  # brax settings rsl-rl runs without
         alg = runner.alg
         if prior is not None:
             start_actor_at_prior(alg.actor)  # a resume loads its own parameters over it
@@ -222,15 +225,14 @@ def train_rsl_rl(
         # below); frozen in eval mode.
         initial_actor = copy.deepcopy(alg.actor).eval()
         if cfg.resume:
-            env_steps, iteration = _resume(alg, cfg.resume, device, logger, config_record)
+            env_steps, iteration = yield from _resume(alg, cfg.resume, device, config_record)
         # Copied before any forward pass: later the Gaussian head holds non-leaf tensors deepcopy refuses.
         spare_actor = copy.deepcopy(alg.actor)
     start_steps = env_steps
-    keeper = BestKeeper(start_steps, getattr(env, "task_name", None))  # ranked as brax ranks
+    # Ranked as brax ranks.
+    evaluations = Evaluations(start_steps, getattr(env, "task_name", None), cfg.eval.success_threshold)
     periods = max((cfg.eval.num_evals - 1), 1)
     iters_per_eval = max(1, math.ceil(total_iters / periods))
-    evals: list[dict[str, float]] = []
-    ttt: list[float] = []
     episode_length = int(env.episode_length)
     # The training figures (rollout_sums): each iteration's record, and each progress line over the
     # iterations since the previous line (as brax's line covers its epoch); ratios carried over windows
@@ -249,8 +251,8 @@ def train_rsl_rl(
         line_sums, line_steps, line_s = {}, 0, 0.0
         return shown
 
-    def run_eval(step: int, actor: torch.nn.Module) -> None:
-        """Evaluate ``actor`` (the current one, or the initial one at step 0) and offer it to the keeper."""
+    def run_eval(step: int, actor: torch.nn.Module) -> Generator[Record, Any, None]:
+        """Evaluate ``actor`` (the current one, or the initial one at step 0), report it and keep it."""
         nonlocal last_eval_s
         t_eval = time.monotonic()
         training = actor.training
@@ -260,18 +262,17 @@ def train_rsl_rl(
         if step:  # the step-0 evaluation's time may include a wait for its compile
             last_eval_s = time.monotonic() - t_eval
 
-        def keep(m: dict[str, float]) -> str | None:
-            if keeper.offer(step, m, lambda: {k: v.detach().clone() for k, v in actor.state_dict().items()}):
-                return f"  best so far: the actor at {step:,} steps is kept"
-            return None
+        def snapshot() -> dict[str, torch.Tensor]:
+            return {k: v.detach().clone() for k, v in actor.state_dict().items()}
 
-        logger.record_eval(step, m, evals, ttt, cfg.eval.success_threshold, keep=keep)
+        kept = f"  best so far: the actor at {step:,} steps is kept"
+        yield from evaluations.record(step, m, snapshot, kept)
         actor.train(training)
         compiled.confirm()  # every loaded program has run: none is a suspect of a crash
 
-    def eval_at_zero() -> None:
+    def eval_at_zero() -> Generator[Record, Any, None]:
         with compiled.step0():
-            run_eval(0, initial_actor)
+            yield from run_eval(0, initial_actor)
 
     # As the brax backend: the step-0 evaluation (of the initial actor; a resume has none) runs after the
     # last periodic one (eval.initial=end), or (start) after the first iteration where the evaluation step
@@ -297,10 +298,10 @@ def train_rsl_rl(
         with update_precision(ppo.update_precision):  # the SGD passes only, as brax's
             losses = alg.update()
         stats = vec_env.take_stats()
-        notes: list[str] = []
+        notes: tuple[str, ...] = ()
         if COPIES.count > copies_seen:  # never silent: a torch->jax crossing that could not share
             copies_seen = COPIES.count
-            notes.append(f"  torch->jax bridge copies so far: {dict(COPIES.by_reason)}")
+            notes = (f"  torch->jax bridge copies so far: {dict(COPIES.by_reason)}",)
         iteration += 1
         env_steps += steps_per_iter
         dt = time.monotonic() - t0
@@ -318,7 +319,7 @@ def train_rsl_rl(
         last = iteration >= total_iters
         # Room for the step-0 evaluation when it runs after training (the periodic ones are not counted).
         reserve = last_eval_s if eval_at_end else 0.0
-        over_budget = logger.epoch_end(
+        over_budget = yield Epoch(
             env_steps,
             train_metrics,
             next_s=dt + reserve,
@@ -330,12 +331,14 @@ def train_rsl_rl(
         eval_due = iteration % iters_per_eval == 0 or last or over_budget
         if eval_at_start and (eval_due or compiled.ready("eval step")):
             eval_at_start = False
-            eval_at_zero()  # always before a periodic evaluation
-        compiled.after_epoch(
-            logger, env_steps, _EVAL_PROGRAMS, step0_waiting=eval_at_start, eval_due=eval_due
+            yield from eval_at_zero()  # always before a periodic evaluation
+        report = compiled.after_epoch(
+            env_steps, _EVAL_PROGRAMS, step0_waiting=eval_at_start, eval_due=eval_due
         )
+        if report is not None:
+            yield report
         if eval_due:
-            run_eval(env_steps, alg.actor)
+            yield from run_eval(env_steps, alg.actor)
             if (
                 last
                 or over_budget
@@ -343,14 +346,14 @@ def train_rsl_rl(
             ):
                 _checkpoint(alg, checkpoint_dir, env_steps, iteration, config_record)
         if over_budget and not last:
-            logger.print(f"stopping: wall-clock budget of {cfg.max_minutes} min reached")
+            yield Said((f"stopping: wall-clock budget of {cfg.max_minutes} min reached",))
             break
     loop_s = time.monotonic() - t_loop
     if eval_at_end:  # eval.initial=end: the untrained actor, once the trained one is out
-        logger.print("step-0 evaluation (the untrained policy; after training: --eval.initial end)")
+        yield Said(("step-0 evaluation (the untrained policy; after training: --eval.initial end)",))
     if eval_at_start or eval_at_end:  # start: no iteration ran (nothing to train); it is still evaluated
-        eval_at_zero()
-    logger.print(f"trained {env_steps - start_steps:,} env steps in {loop_s:.1f} s of loop")
+        yield from eval_at_zero()
+    yield Said((f"trained {env_steps - start_steps:,} env steps in {loop_s:.1f} s of loop",))
     if runner.logger.writer is not None:
         runner.logger.stop_logging_writer()  # rsl-rl's own end of logging (a wandb run is finished)
     alg.eval_mode()
@@ -361,20 +364,20 @@ def train_rsl_rl(
         env_steps=env_steps,
         run_env_steps=env_steps - start_steps,
         train_seconds=time.monotonic() - t_start,
-        evals=evals,
-        time_to_threshold_s=ttt[0] if ttt else None,
-        best=keeper.best,
+        evals=evaluations.records,
+        time_to_threshold_s=evaluations.time_to_threshold_s,
+        best=evaluations.best,
         spare_actor=spare_actor,
         prior=prior,
     )
 
 
 def _resume(
-    alg: Any, resume: str, device: str, logger: RunLogger, config_record: dict[str, Any] | None
-) -> tuple[int, int]:
+    alg: Any, resume: str, device: str, config_record: dict[str, Any] | None
+) -> Generator[Record, Any, tuple[int, int]]:
     """Load the actor, critic, optimizer and learning rate of ``resume``'s latest checkpoint into ``alg``.
 
-    Returns ``(env_steps, iteration)`` it was saved at; prints what the resumed run changes.
+    Returns ``(env_steps, iteration)`` it was saved at; yields what the resumed run changes.
     """
     from flax import serialization
 
@@ -387,7 +390,7 @@ def _resume(
     load_optimizer_state(alg.optimizer, st["optimizer"], device)
     alg.learning_rate = float(st["learning_rate"])
     env_steps, iteration = int(payload["env_steps"]), int(payload["iteration"])
-    logger.resumed(path, env_steps, iteration, changes)
+    yield Resumed(path, env_steps, iteration, tuple(changes))
     return env_steps, iteration
 
 

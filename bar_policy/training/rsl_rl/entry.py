@@ -8,10 +8,12 @@ the compiles; ``tests/training/test_rsl_rl_start.py``), then its loop, ``backend
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Generator
+from pathlib import Path
 from typing import Any
 
 from bar_policy.training.config import TrainConfig
+from bar_policy.training.records import Record
 from bar_policy.training.rsl_rl.programs import prepare_rsl_rl
 from bar_policy.training.startup import breakdown as sb
 from bar_policy.training.startup.session import StartUp
@@ -22,7 +24,6 @@ __all__ = ["run_rsl_rl"]
 def run_rsl_rl(
     env: Any,
     cfg: TrainConfig,
-    logger: Any,
     *,
     wrap_fn: Callable[..., Any] | None = None,
     randomizer: Callable[..., Any] | None,
@@ -30,11 +31,13 @@ def run_rsl_rl(
     config_record: dict[str, Any] | None = None,
     start: StartUp | None = None,
     eval_env: Any | None = None,
-) -> Any:
-    """The rsl-rl trainer as ``run`` calls it; same arguments as ``brax.ppo.train_brax``.
+    scalars_dir: Path | None = None,
+) -> Generator[Record, Any, Any]:
+    """The rsl-rl trainer as ``run`` calls it; the arguments of ``brax.ppo.train_brax``, and ``scalars_dir``.
 
     The jax programs first (traced, lowered, compiling on worker threads), then torch's side imported
-    (``rsl_rl.backend``: seconds of this thread, overlapping the compiles), then ``backend.train_rsl_rl``.
+    (``rsl_rl.backend``: seconds of this thread, overlapping the compiles); returns ``backend.train_rsl_rl``,
+    the generator that trains (``scalars_dir``: where rsl-rl's runner logger writes the scalars).
     """
     start = start or StartUp()
     with start.timer.phase(sb.RSL_PROGRAMS):
@@ -46,11 +49,11 @@ def run_rsl_rl(
     return train_rsl_rl(
         env,
         cfg,
-        logger,
         programs=programs,
         randomizer=randomizer,
         checkpoint_dir=checkpoint_dir,
         config_record=config_record,
         start=start,
         eval_env=eval_env,
+        scalars_dir=scalars_dir,
     )

@@ -12,8 +12,8 @@ order to submit them) in, ``CompiledPrograms`` out. Each is traced and lowered o
 worker) and compiled on worker threads, or loaded from the executable cache (``compiler.Compiler``); every
 stage is timed into the start-up breakdown (``breakdown``). The trainer's loop only says when an epoch ends
 and when the step-0 evaluation runs (``epoch_ended``, ``step0``, ``after_epoch``): the start-up's end, and
-the printed and recorded breakdown once no program is still compiling, are decided here, alike for both
-trainers.
+the breakdown once no program is still compiling (a record the trainer yields to the run's logger, which
+prints and records it: ``training.records``), are decided here, alike for both trainers.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bar_policy.training.records import Said
 from bar_policy.training.startup import breakdown as sb
 from bar_policy.training.startup.breakdown import StartupTimer
 from bar_policy.training.startup.compiler import (
@@ -220,12 +221,13 @@ class CompiledPrograms:
             self._step0_ran = True
 
     def after_epoch(
-        self, logger: Any, step: int, eval_programs: Sequence[str], *, step0_waiting: bool, eval_due: bool
-    ) -> None:
+        self, step: int, eval_programs: Sequence[str], *, step0_waiting: bool, eval_due: bool
+    ) -> Said | None:
         """End the start-up once no step-0 evaluation waits; report it once ``eval_programs`` are ready.
 
         Reported when an evaluation is due at the latest (it would wait for its programs anyway), so that
-        no row of the breakdown is a program still compiling on a worker.
+        no row of the breakdown is a program still compiling on a worker. Returns the report (``report``),
+        None while it is not due.
         """
         if self._end_s is None and not step0_waiting:
             self._end_s = self.timer.elapsed()
@@ -233,19 +235,21 @@ class CompiledPrograms:
         if not self.reported and self._end_s is not None and (eval_due or self.ready(*eval_programs)):
             for name in eval_programs:
                 self[name]
-            self.report(logger, step)
+            return self.report(step)
+        return None
 
-    def report(self, logger: Any, step: int) -> None:
-        """Print and record the start-up breakdown (once; none before an epoch ran)."""
+    def report(self, step: int) -> Said | None:
+        """The start-up breakdown, for the run's logger to print and record (``startup``).
+
+        Once: None when already reported, or before an epoch ran.
+        """
         if self.reported or not self._epochs:
-            return
+            return None
         self.reported = True
         stats1 = CompileStats.get().snapshot()
         compiles = {k: stats1[k] - self._stats0[k] for k in stats1}
         rec = self.timer.finish(self._first_epoch_end, compiles, total_s=self._end_s, until=self._until)
-        for line in self.timer.lines(rec):
-            logger.print(line)
-        logger.note("startup", {"step": step, **rec})
+        return Said(tuple(self.timer.lines(rec)), note="startup", payload={"step": step, **rec})
 
     def close(self) -> None:
         """Release the worker threads."""
