@@ -25,10 +25,13 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import bar_policy.tasks.registry  # noqa: F401 - registers every task's gate
 from bar_policy.quality import gate
+
+if TYPE_CHECKING:
+    from bar_policy.deploy.metadata import PolicyMetadata
 
 __all__ = [
     "BestIterate",
@@ -141,8 +144,7 @@ def finish_best(
     episodes: int,
     seed: int,
     export_to: Path | None,
-    metadata_fn: Callable[[dict[str, Any]], Any] | None = None,
-    training_record: Mapping[str, Any] | None = None,
+    metadata: PolicyMetadata | None = None,
 ) -> dict[str, Any]:
     """Evaluate (and export) the run's best iterate when it is not the last one; returns its record.
 
@@ -157,9 +159,9 @@ def finish_best(
         seed: seed of the final evaluation (same as the last iterate's, for a paired comparison).
         export_to: the last iterate's ONNX path; the best one goes to ``best_onnx_path(export_to)``. None:
             no export.
-        metadata_fn: builds the ONNX metadata from a training record (required with ``export_to``).
-        training_record: the last iterate's training record; the best one's copies it with its own step,
-            final evaluation and selection.
+        metadata: the last iterate's ONNX metadata (required with ``export_to``); the best one's is the same
+            with a training record that copies the last one's with its own step, final evaluation and
+            selection.
 
     Returns:
         ``{"step", "is_last"}``, plus, when the best is not the last iterate, ``eval_during_training``,
@@ -177,11 +179,11 @@ def finish_best(
         "final_eval": final,
     }
     if export_to is not None:
-        if metadata_fn is None:
-            raise ValueError("finish_best: export_to needs metadata_fn")
+        if metadata is None:
+            raise ValueError("finish_best: export_to needs metadata")
         path = best_onnx_path(export_to)
         training = {
-            **dict(training_record or {}),
+            **metadata.training,
             "env_steps": best.step,
             "final_eval": final,
             "iterate": "best",
@@ -189,6 +191,8 @@ def finish_best(
             "excess beyond the thresholds, then accuracy), or success rate then reward without them",
             "eval_during_training": best.metrics,
         }
+        from bar_policy.training.metadata import with_training  # the export's side: onnx, deploy metadata
+
         record["onnx"] = str(path)
-        record["export"] = chosen.export_onnx(metadata_fn(training), path)
+        record["export"] = chosen.export_onnx(with_training(metadata, training), path)
     return record

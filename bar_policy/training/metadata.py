@@ -11,7 +11,7 @@ from bar_policy.export.policy import code_version
 from bar_policy.provenance import collect
 from bar_policy.robot.mjcf import PHYSICS_DT
 
-__all__ = ["policy_metadata", "randomization_record"]
+__all__ = ["policy_metadata", "randomization_record", "with_training"]
 
 _RANDOMIZATION_FIELDS = ("actuator", "obs_noise", "randomization", "init_noise")
 """Env config fields that describe training randomisation (recorded in ``bar.randomization``)."""
@@ -95,6 +95,11 @@ def policy_metadata(
         provenance=_jsonable(dict(provenance) if provenance is not None else collect()),
         robot_params=_params_record(getattr(env, "robot_params", None)),
     )
+
+
+def with_training(metadata: PolicyMetadata, training: Mapping[str, Any]) -> PolicyMetadata:
+    """``metadata`` with another training record (``bar.training``; e.g. the best iterate's), as JSON."""
+    return dataclasses.replace(metadata, training=_jsonable(dict(training)))
 
 
 def _params_record(params: Any) -> dict[str, Any]:

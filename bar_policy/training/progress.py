@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any, TextIO, TypeVar
 
 from bar_policy.training.log_tags import tag
-from bar_policy.training.records import Epoch, Evaluated, NotApplied, Record, Resumed, ScalarWriter
+from bar_policy.training.records import Epoch, Evaluated, Final, NotApplied, Record, Resumed, ScalarWriter
 from bar_policy.training.writers import check_logger, make_writer
 
 __all__ = ["RunLogger", "format_duration", "format_eval", "format_steps", "next_would_overrun"]
@@ -167,6 +167,12 @@ class RunLogger:
         if kind == "eval":
             self.last_eval = clean
 
+    def opened(self, provenance: dict[str, Any], header: Sequence[str]) -> None:
+        """A run's first records: its ``provenance`` as a ``metrics.jsonl`` line, then its header printed."""
+        self.note("provenance", {"provenance": provenance})
+        for line in header:
+            self.print(line)
+
     def note(self, kind: str, payload: dict[str, Any]) -> None:
         """One non-metric JSON line in ``metrics.jsonl``: ``{"kind": kind, "time_s": ..., **payload}``.
 
@@ -209,7 +215,10 @@ class RunLogger:
             )
         if isinstance(record, Evaluated):
             return self.evaluated(record.step, record.metrics)
-        if isinstance(record, Resumed):
+        if isinstance(record, Final):
+            self.log(record.step, record.metrics, kind="final")
+            self.print(record.line)
+        elif isinstance(record, Resumed):
             self.resumed(record.path, record.env_steps, record.iteration, list(record.changes))
         elif isinstance(record, NotApplied):
             self.not_applied(list(record.settings))

@@ -1,7 +1,8 @@
 """What a trainer tells its run while it trains: records, reported as they come by the run's logger.
 
 The trainers (``brax.ppo.train_brax``, ``rsl_rl.backend.train_rsl_rl``) are generators: each yields these
-records as its training produces them and returns its result. ``training.run`` hands the generator to
+records as its training produces them and returns its result (and so is the end of a run,
+``summary.finish_run``: the final evaluation, the summary table). ``training.run`` hands the generator to
 ``RunLogger.follow``, the one place that prints, writes ``metrics.jsonl`` and the scalars, so a trainer never
 holds the logger and its loop reads as its algorithm (rollout, update, evaluate).
 
@@ -17,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["Epoch", "Evaluated", "NotApplied", "Record", "Resumed", "Said", "ScalarWriter"]
+__all__ = ["Epoch", "Evaluated", "Final", "NotApplied", "Record", "Resumed", "Said", "ScalarWriter"]
 
 
 @dataclass(frozen=True)
@@ -67,6 +68,15 @@ class Evaluated:
 
 
 @dataclass(frozen=True)
+class Final:
+    """The run's final evaluation at env step ``step``: logged as ``final``, and its ``line`` printed."""
+
+    step: int
+    metrics: dict[str, float]
+    line: str
+
+
+@dataclass(frozen=True)
 class Resumed:
     """A run resumed ``path`` at ``env_steps`` (``iteration``); ``changes``: the settings that differ."""
 
@@ -95,5 +105,5 @@ class ScalarWriter:
     """``add_scalar(tag, value, step)``, ``flush``, ``close``."""
 
 
-Record = Said | Epoch | Evaluated | Resumed | NotApplied | ScalarWriter
+Record = Said | Epoch | Evaluated | Final | Resumed | NotApplied | ScalarWriter
 """Everything a trainer yields."""

@@ -1,6 +1,7 @@
-"""The run header's settings lines: every setting of a run that differs from its default.
+"""The run header: the provenance line, the run line, and every setting that differs from its default.
 
-Printed after the run line (``training.run``): the training config against ``TrainConfig()``'s defaults
+``header_lines`` is what a run prints first (``training.run_dir.open_run``). The settings lines follow the
+run line: the training config against ``TrainConfig()``'s defaults
 (the preset's changes included, so a reader sees what ``--preset tiny`` set) and the env config against the
 env's default config (the preset's and the command line's env items), as ``path=value`` items of the one
 override syntax (``bar_policy.overrides``): a line can be pasted back as ``--env-overrides``.
@@ -10,15 +11,38 @@ from __future__ import annotations
 
 import dataclasses
 import textwrap
+from pathlib import Path
 from typing import Any
 
 from bar_policy.overrides import changed_overrides
 from bar_policy.training.config import TrainConfig
+from bar_policy.training.progress import format_steps
 
-__all__ = ["setting_lines"]
+__all__ = ["header_lines", "setting_lines"]
 
 WIDTH = 110
 """Wrap width of the lines, characters."""
+
+
+def header_lines(cfg: TrainConfig, env: Any, record: dict[str, Any], run_dir: Path) -> list[str]:
+    """The provenance line, the run line (directory, env sizes, backend, devices, steps), the settings lines.
+
+    ``record``: the run's record (``run_dir.open_run``: its ``provenance`` and ``device``); ``env``: the env
+    trained on (a registered env's settings are compared with its default config, a stand-in's are not).
+    """
+    import jax
+
+    from bar_policy import envs
+    from bar_policy.provenance import describe
+
+    run_line = (
+        f"run {run_dir} | {cfg.env_name} ({env.observation_size} obs, {env.action_size} actions, "
+        f"dt {env.dt} s) | backend {cfg.backend} | {record['device']['device_kind']} x "
+        f"{jax.device_count()} | {format_steps(cfg.ppo.num_timesteps)} steps, {cfg.ppo.num_envs} envs"
+    )
+    default = envs.default_config(cfg.env_name) if cfg.env_name in envs.ALL_ENVS else None
+    settings = setting_lines(cfg, getattr(env, "config", None), default)
+    return [describe(record["provenance"])[0], run_line, *settings]
 
 
 def setting_lines(cfg: TrainConfig, env_config: Any = None, env_default: Any = None) -> list[str]:

@@ -104,8 +104,7 @@ def _brax_best_at_mid(summary, toy_env, scale: float, export_to, **record) -> tu
         episodes=128,
         seed=10_000,
         export_to=export_to,
-        metadata_fn=lambda tr: policy_metadata(toy_env, training=tr),
-        training_record=record,
+        metadata=policy_metadata(toy_env, training=record),
     )
     return rec, params, mid
 
@@ -176,8 +175,7 @@ def test_rsl_rl_best_iterate_loads_into_a_spare_actor_and_exports(rsl_run, toy_e
         episodes=32,
         seed=10_000,
         export_to=tmp_path / "policy.onnx",
-        metadata_fn=lambda tr: policy_metadata(toy_env, training=tr),
-        training_record={"backend": "rsl-rl"},
+        metadata=policy_metadata(toy_env, training={"backend": "rsl-rl"}),
     )
     assert rec["export"]["max_abs_error"] <= 1e-5 and rec["final_eval"]["episodes"] == 32
     # The trained actor is untouched; the exported file is the halved MLP on the same normaliser.

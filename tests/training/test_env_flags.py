@@ -161,16 +161,17 @@ def test_every_env_setting_is_listed_with_its_help(env_name, capsys, monkeypatch
 
 
 def test_the_run_header_carries_the_settings(tmp_path, capsys):
-    """``training.run``'s header (``_open_run``): the run line, then the settings lines, env included."""
+    """The run's header (``run_dir.open_run``): the run line, then the settings lines, env included."""
     from types import SimpleNamespace
 
-    from bar_policy.training import run as run_mod
+    from bar_policy.training.run_dir import open_run
+    from bar_policy.training.startup.session import StartUp
 
     argv = ["--preset", "tiny", "--runs-dir", str(tmp_path), "--run-name", "h", "--env.init-noise", "0.02"]
     cfg = parse_config(argv)
     config = envs.apply_overrides(envs.default_config("LiteReach"), cfg.env_overrides)
     env = SimpleNamespace(config=config, observation_size=54, action_size=14, dt=0.02)
-    run_mod._open_run(cfg, env, True, [])
+    open_run(cfg, env, StartUp(), True)
     out = capsys.readouterr().out
     assert "env settings (LiteReach, not its defaults): init_noise=0.02" in out
     assert "settings (not the defaults): preset=tiny " in out and f"runs_dir={tmp_path}" in out

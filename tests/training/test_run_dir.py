@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from bar_policy.training.config import preset
-from bar_policy.training.run import resolve_run_dir
+from bar_policy.training.run_dir import resolve_run_dir
 
 
 def test_reused_run_dir_is_refused_without_resume(tmp_path: Path) -> None:

@@ -15,7 +15,7 @@ import re
 import pytest
 
 from bar_policy.training.config import apply_overrides, preset
-from bar_policy.training.run import evaluation_set, final_eval_line, summary_table
+from bar_policy.training.summary import evaluation_set, final_eval_line, summary_table
 
 BRAX_PROGRAMS = ("reset", "rollout", "update", "init", "evaluate")
 """The brax trainer's programs (``training.brax.programs.to_compile``)."""

@@ -1,10 +1,11 @@
 """What ``python train/ppo.py`` (brax backend, LiteReach: the defaults) imports before it trains.
 
-The command runs in a fresh interpreter up to the end of its env build (``run``'s run-directory step is
-replaced by a stop): the CLI's imports and parsing, ``run``'s imports phase and the env build. By then it
-has the training stack (jax, MJX, flax, brax's training code) and none of what the brax start does not use:
-torch and the rsl-rl backend's packages, the ONNX export's (imported when the policy is exported), TensorBoard
-(the run's logger imports tensorboardX later, without torch), the deploy side's log and plot libraries.
+The command runs in a fresh interpreter up to the end of its env build (``run``'s run-directory step,
+``open_run``, is replaced by a stop): the CLI's imports and parsing, ``run``'s imports phase and the env
+build. By then it has the training stack (jax, MJX, flax, brax's training code) and none of what the brax
+start does not use: torch and the rsl-rl backend's packages, the ONNX export's (imported when the policy is
+exported), TensorBoard (the run's logger imports tensorboardX later, without torch), the deploy side's log
+and plot libraries.
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ class StopError(Exception):
 def stop(cfg, env, *args):
     print(json.dumps({"env": type(env).__name__, "modules": sorted(sys.modules)}))
     raise StopError
-run_mod._open_run = stop
+run_mod.open_run = stop
 with contextlib.suppress(StopError):
     run_mod.run(cfg)
 sys.stdout.flush()
