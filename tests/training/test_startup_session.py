@@ -61,14 +61,18 @@ def test_programs_compile_in_order_each_on_the_outputs_of_those_before():
     compiled.close()
 
 
+def _epoch(compiled: Any, seconds: float, step: int, **kw: Any) -> Any:
+    """``compiled.epoch_ended`` for an epoch that ended now, the evaluation's program being ``cube``."""
+    return compiled.epoch_ended(seconds, ended_at=time.monotonic(), step=step, eval_programs=("cube",), **kw)
+
+
 def test_the_start_up_ends_with_the_first_epoch_and_is_reported_once():
     timer = StartupTimer(origin=time.monotonic() - 1.0)
     compiled, logger = _toy(timer), _Logger()
-    compiled.epoch_ended(0.5, step0_waiting=False)
-    compiled.epoch_ended(0.25, step0_waiting=False)  # no step-0 evaluation waits: not a start-up row
+    logger.report(_epoch(compiled, 0.5, 4096, step0_s=None, step0_waiting=False, eval_due=True))
+    # No step-0 evaluation waits: not a start-up row.
+    logger.report(_epoch(compiled, 0.25, 8192, step0_s=None, step0_waiting=False, eval_due=True))
     assert timer.phases[sb.FIRST_EPOCH] == 0.5 and sb.MORE_EPOCHS not in timer.phases
-    logger.report(compiled.after_epoch(4096, ("cube",), step0_waiting=False, eval_due=True))
-    logger.report(compiled.after_epoch(8192, ("cube",), step0_waiting=False, eval_due=True))
     ((kind, rec),) = logger.notes
     assert kind == "startup" and rec["step"] == 4096 and rec["until"] == sb.UNTIL_EPOCH
     assert rec["phases"][sb.FIRST_EVAL] == 0.0 and set(rec["programs"]) == {"double", "total", "cube"}
@@ -82,20 +86,19 @@ def test_a_step0_evaluation_first_ends_the_start_up_after_it():
     """eval.initial=start: epochs while the step-0 evaluation waits count, and the start-up ends with it."""
     timer = StartupTimer()
     compiled, logger = _toy(timer), _Logger()
-    compiled.epoch_ended(0.5, step0_waiting=True)
-    logger.report(compiled.after_epoch(4096, ("cube",), step0_waiting=True, eval_due=False))
+    logger.report(_epoch(compiled, 0.5, 4096, step0_s=None, step0_waiting=True, eval_due=False))
     assert not compiled.reported  # the step-0 evaluation has not run: the start-up goes on
-    compiled.epoch_ended(0.25, step0_waiting=True)
-    with compiled.step0():
-        time.sleep(0.05)
+    t = time.monotonic()
+    time.sleep(0.05)  # the step-0 evaluation, after the second epoch
     compiled["cube"]  # the evaluation's program is ready: the report needs no evaluation due
-    logger.report(compiled.after_epoch(8192, ("cube",), step0_waiting=False, eval_due=False))
+    step0_s = time.monotonic() - t
+    logger.report(_epoch(compiled, 0.25, 8192, step0_s=step0_s, step0_waiting=False, eval_due=False))
     ((_, rec),) = logger.notes
     assert rec["until"] == sb.UNTIL_EVAL and rec["step"] == 8192
     assert rec["phases"][sb.FIRST_EPOCH] == 0.5 and rec["phases"][sb.MORE_EPOCHS] == 0.25
     assert rec["phases"][sb.FIRST_EVAL] >= 0.05  # the sleep, at least
     before = timer.phases[sb.FIRST_EVAL]
-    with compiled.step0():  # after the report, an evaluation is no start-up row
-        time.sleep(0.01)
+    # After the report, an evaluation is no start-up row.
+    logger.report(_epoch(compiled, 0.25, 12288, step0_s=0.01, step0_waiting=False, eval_due=False))
     assert timer.phases[sb.FIRST_EVAL] == before
     compiled.close()

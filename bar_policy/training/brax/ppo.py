@@ -44,9 +44,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from bar_policy.envs import reward_weights
 from bar_policy.training.brax.ignored_settings import brax_not_applied
-from bar_policy.training.brax.learner import make_learner
 from bar_policy.training.brax.programs import (
     _K_EPOCH,
     _K_EVAL,
@@ -57,20 +55,18 @@ from bar_policy.training.brax.programs import (
     _LINES_PER_EVAL,
     _host_params,
     _policy_params,
-    action_prior,
     epoch_iterations,
     epoch_totals,
     host_key,
-    make_programs,
     run_epoch,
-    to_compile,
+    set_up,
 )
 from bar_policy.training.brax.result import BraxTrainResult
 from bar_policy.training.checkpoint import Checkpoint, load_checkpoint, resume_changes, save_checkpoint
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.evaluations import Evaluations
 from bar_policy.training.log_tags import brax_losses
-from bar_policy.training.parallel import DataParallel, barrier, make_data_parallel
+from bar_policy.training.parallel import DataParallel, barrier
 from bar_policy.training.records import Epoch, NotApplied, Record, Resumed, Said
 from bar_policy.training.rollout_sums import RatioWindow, sum_layout, window_metrics
 from bar_policy.training.startup import breakdown as sb
@@ -114,48 +110,37 @@ def train_brax(
     """
     t_start = time.monotonic()
     start = start or StartUp()
-    # Set-up: the mesh, the learner, its programs (compiling on worker threads from here on).
+    # Set-up: the mesh, the learner, its programs, compiling on worker threads from the one call on.
     with start.timer.phase(sb.PROGRAMS):
-        dp = make_data_parallel(cfg.distributed.max_devices_per_host)
-        dp.check_divisible(
-            **{
-                "ppo.num_envs": cfg.ppo.num_envs,
-                "ppo.batch_size": cfg.ppo.batch_size,
-                "eval.num_eval_envs": cfg.eval.num_eval_envs,
-            }
-        )
-        prior = action_prior(env, cfg.network, cfg.env_name)
-        learner = make_learner(env.observation_size, env.action_size, cfg.ppo, cfg.network, prior)
-        jitted = make_programs(env, cfg, learner, dp, wrap_fn, randomizer, eval_env, eval_randomizer)
-        template = jax.eval_shape(learner.init, dp.abstract(np.zeros(2, np.uint32), sharded=False))
-        weights = reward_weights.weights(env)  # the rollout's and evaluation's argument
-    programs = compile_programs(to_compile(jitted, dp, template, weights), start)
+        setup = set_up(env, cfg, wrap_fn, randomizer, eval_env, eval_randomizer)
+    programs = compile_programs(setup.to_compile(), start)
     yield NotApplied(tuple(brax_not_applied(cfg)))  # rsl-rl-only settings a brax run ignores
     with start.timer.phase(sb.WAIT):
-        ckpt = load_checkpoint(cfg.resume, template) if cfg.resume else None
+        ckpt = load_checkpoint(cfg.resume, setup.template) if cfg.resume else None
         if ckpt is not None:
             changes = tuple(resume_changes(ckpt.path, config_record))
             yield Resumed(ckpt.path, ckpt.env_steps, ckpt.iteration, changes)
-        run = _Run(cfg, env, dp, programs, weights, ckpt, config_record)
+        run = _Run(cfg, env, setup.dp, programs, setup.weights, ckpt, config_record)
 
     # The loop: rollout -> update for an epoch of iterations, then its progress line, and every
     # _LINES_PER_EVAL epochs an evaluation (and a checkpoint).
     total_iters = math.ceil(cfg.ppo.num_timesteps / cfg.ppo.steps_per_iteration)
     start_steps, t_loop = run.env_steps, time.monotonic()
     while run.iteration < total_iters:
-        seconds, epoch = run.rollout_and_update()
+        epoch = run.rollout_and_update()
         over_budget = _agreed((yield epoch))
-        programs.epoch_ended(seconds, step0_waiting=run.eval_at_start)
         last = run.iteration >= total_iters or over_budget
         eval_due = last or run.epochs % _LINES_PER_EVAL == 0
         # eval.initial=start: the step-0 evaluation runs at the first epoch end where the evaluation
         # program is ready, and always before the first periodic one. Under jax.distributed it was compiled
         # before the start on every process, so every process takes the same branch.
+        step0_s = None
         if run.eval_at_start and (eval_due or programs.ready("evaluate")):
-            yield from run.evaluate_initial()
-        report = programs.after_epoch(
-            run.env_steps, ("evaluate",), step0_waiting=run.eval_at_start, eval_due=eval_due
-        )
+            step0_s = yield from run.evaluate_initial()
+        report = programs.epoch_ended(
+            run.epoch_s, ended_at=run.epoch_end, step=run.env_steps, step0_s=step0_s,
+            step0_waiting=run.eval_at_start, eval_due=eval_due, eval_programs=("evaluate",),
+        )  # fmt: skip
         if report is not None:
             yield report
         if eval_due:
@@ -181,7 +166,7 @@ def train_brax(
                 f"({train_seconds:.1f} s with setup and compile)",
             )
         )
-    return run.result(learner, prior, start_steps, train_seconds)
+    return run.result(setup.learner, setup.prior, start_steps, train_seconds)
 
 
 def _agreed(over: bool) -> bool:
@@ -239,6 +224,7 @@ class _Run:
             barrier("bar_policy: programs compiled")
         self.eval_model_key, self.weights = dev["eval_model"], dev["weights"]
         self.epochs = 0
+        self.epoch_s = self.epoch_end = 0.0  # the last epoch's seconds and end (time.monotonic())
         task = getattr(env, "task_name", None)
         self.evaluations = Evaluations(self.env_steps, task, cfg.eval.success_threshold)
         self.layout = sum_layout(env)  # the rollout's logged sums (rollout_sums)
@@ -249,8 +235,8 @@ class _Run:
         self.eval_at_start = self.iteration == 0 and cfg.eval.initial == "start"
         self.eval_at_end = self.iteration == 0 and cfg.eval.initial == "end"
 
-    def rollout_and_update(self) -> tuple[float, Epoch]:
-        """One epoch (``iters_per_epoch`` PPO iterations); returns its seconds and its record.
+    def rollout_and_update(self) -> Epoch:
+        """One epoch (``iters_per_epoch`` PPO iterations); returns its record (its seconds: ``epoch_s``).
 
         The record's look-ahead for the wall-clock budget (``Epoch.next_s``): this epoch's length, plus an
         evaluation's when the next epoch ends with one, plus one more while the step-0 evaluation waits for
@@ -262,7 +248,8 @@ class _Run:
             self.rollout, self.update, self.ts, self.envs, epoch_key, self.iteration_index, self.weights
         )
         metrics, stats = epoch_totals(*self.dp.to_host((metrics, stats)))
-        seconds = time.monotonic() - t0
+        self.epoch_end = time.monotonic()
+        self.epoch_s = seconds = self.epoch_end - t0
         steps = self.iters_per_epoch * self.cfg.ppo.steps_per_iteration
         self.iteration += self.iters_per_epoch
         self.env_steps += steps
@@ -276,7 +263,7 @@ class _Run:
         next_eval_due = (self.epochs + 1) % _LINES_PER_EVAL == 0
         evals_s = self.last_eval_s * (next_eval_due + self.eval_at_end)
         budget_s = 60 * self.cfg.max_minutes
-        return seconds, Epoch(self.env_steps, train_metrics, next_s=seconds + evals_s, budget_s=budget_s)
+        return Epoch(self.env_steps, train_metrics, next_s=seconds + evals_s, budget_s=budget_s)
 
     def evaluate(self, params: tuple[Any, Any], step: int) -> Generator[Record, Any, None]:
         """Evaluate replicated ``(normalizer, policy)`` params on step ``step``'s keys; report, rank, keep."""
@@ -293,12 +280,16 @@ class _Run:
         m = self.programs["evaluate"](params, self.dp.replicate(key), self.eval_model_key, self.weights)
         return {k: float(v) for k, v in self.dp.to_host(m).items()}
 
-    def evaluate_initial(self) -> Generator[Record, Any, None]:
-        """The untrained policy's evaluation (its params re-created by ``init``), reported as step 0."""
+    def evaluate_initial(self) -> Generator[Record, Any, float]:
+        """The untrained policy's evaluation (its params re-created by ``init``), reported as step 0.
+
+        Returns its seconds (with its report, and its wait for the evaluation program: a start-up row).
+        """
         self.eval_at_start = False
-        with self.programs.step0():
-            initial = self.programs["init"](self.dp.replicate(host_key(self.cfg.seed, _K_INIT)))
-            yield from self.evaluate(_policy_params(initial), 0)
+        t = time.monotonic()
+        initial = self.programs["init"](self.dp.replicate(host_key(self.cfg.seed, _K_INIT)))
+        yield from self.evaluate(_policy_params(initial), 0)
+        return time.monotonic() - t
 
     def checkpoint(self, directory: str | None) -> None:
         """Save the training state (every process fetches its own replica; only process 0 writes)."""

@@ -1,11 +1,11 @@
 """The data-parallel programs of ``train_brax`` and their pure helpers (``training.brax.ppo``).
 
-``make_programs`` builds the ``init`` / ``reset`` / ``rollout`` / ``update`` / ``evaluate`` programs
-(``training.brax.ppo`` documents each) and ``to_compile`` lists them with their abstract arguments, in the
-order ``startup.session.compile_programs`` submits them; ``run_epoch`` / ``epoch_totals`` run an epoch of
-them and total it;
-``slot_keys`` / ``slot_env`` give every env slot its own key and randomised model whatever the device count;
-``host_key`` derives keys on the host; ``epoch_iterations`` sizes an epoch.
+``set_up`` makes a run's mesh, learner and programs (``SetUp``): ``make_programs`` builds the ``init`` /
+``reset`` / ``rollout`` / ``update`` / ``evaluate`` programs (``training.brax.ppo`` documents each) and
+``to_compile`` lists them with their abstract arguments, in the order ``startup.session.compile_programs``
+submits them; ``run_epoch`` / ``epoch_totals`` run an epoch of them and total it; ``slot_keys`` /
+``slot_env`` give every env slot its own key and randomised model whatever the device count; ``host_key``
+derives keys on the host; ``epoch_iterations`` sizes an epoch.
 """
 
 from __future__ import annotations
@@ -19,22 +19,24 @@ import jax
 import numpy as np
 from jax.sharding import PartitionSpec as P
 
-from bar_policy.envs.reward_weights import with_weights
+from bar_policy.envs.reward_weights import weights, with_weights
 from bar_policy.obs.action_prior import Prior
 from bar_policy.tasks.registry import env_entries
-from bar_policy.training.brax.learner import Learner, TrainingState, strip_weak_type
+from bar_policy.training.brax.learner import Learner, TrainingState, make_learner, strip_weak_type
 from bar_policy.training.config import NetworkConfig, TrainConfig
-from bar_policy.training.parallel import AXIS, DataParallel
+from bar_policy.training.parallel import AXIS, DataParallel, make_data_parallel
 from bar_policy.training.startup.session import Program
 
 __all__ = [
     "Programs",
+    "SetUp",
     "action_prior",
     "epoch_iterations",
     "epoch_totals",
     "host_key",
     "make_programs",
     "run_epoch",
+    "set_up",
     "slot_env",
     "slot_keys",
     "to_compile",
@@ -119,6 +121,57 @@ class Programs:
     rollout: Callable[..., Any]
     update: Callable[..., Any]
     evaluate: Callable[..., Any]
+
+
+@dataclass(frozen=True)
+class SetUp:
+    """A brax run before its programs compile: the mesh, the learner and its five programs (``set_up``)."""
+
+    dp: DataParallel
+    """The mesh over the run's devices (``training.parallel``)."""
+    prior: Prior | None
+    """The policy's action prior (``action_prior``), None without one."""
+    learner: Learner
+    """brax's PPO as per-device functions (``brax.learner``)."""
+    programs: Programs
+    """The five jitted programs (``make_programs``)."""
+    template: TrainingState
+    """The training state's shapes (``eval_shape`` of ``learner.init``): a resumed checkpoint's structure."""
+    weights: dict[str, Any]
+    """The reward weights (``envs.reward_weights``), the rollout's and evaluation's last argument."""
+
+    def to_compile(self) -> list[Program]:
+        """The programs with their abstract arguments, in submission order (``to_compile``)."""
+        return to_compile(self.programs, self.dp, self.template, self.weights)
+
+
+def set_up(
+    env: Any,
+    cfg: TrainConfig,
+    wrap_fn: Callable[..., Any],
+    randomizer: Callable[..., Any] | None,
+    eval_env: Any | None = None,
+    eval_randomizer: Callable[..., Any] | None = None,
+) -> SetUp:
+    """The mesh (every device, or ``distributed.max_devices_per_host``), the learner and its programs.
+
+    Refuses, before anything is traced, a prior the env does not serve (``action_prior``) and batch sizes
+    that do not split over the devices (``DataParallel.check_divisible``). ``eval_env`` and
+    ``eval_randomizer``: as ``make_programs``'.
+    """
+    prior = action_prior(env, cfg.network, cfg.env_name)
+    dp = make_data_parallel(cfg.distributed.max_devices_per_host)
+    dp.check_divisible(
+        **{
+            "ppo.num_envs": cfg.ppo.num_envs,
+            "ppo.batch_size": cfg.ppo.batch_size,
+            "eval.num_eval_envs": cfg.eval.num_eval_envs,
+        }
+    )
+    learner = make_learner(env.observation_size, env.action_size, cfg.ppo, cfg.network, prior)
+    programs = make_programs(env, cfg, learner, dp, wrap_fn, randomizer, eval_env, eval_randomizer)
+    template = jax.eval_shape(learner.init, dp.abstract(np.zeros(2, np.uint32), sharded=False))
+    return SetUp(dp, prior, learner, programs, template, weights(env))
 
 
 def run_epoch(

@@ -270,9 +270,11 @@ def train_rsl_rl(
         actor.train(training)
         compiled.confirm()  # every loaded program has run: none is a suspect of a crash
 
-    def eval_at_zero() -> Generator[Record, Any, None]:
-        with compiled.step0():
-            yield from run_eval(0, initial_actor)
+    def eval_at_zero() -> Generator[Record, Any, float]:
+        """The initial actor's evaluation; returns its seconds (a start-up row when it runs inside it)."""
+        t = time.monotonic()
+        yield from run_eval(0, initial_actor)
+        return time.monotonic() - t
 
     # As the brax backend: the step-0 evaluation (of the initial actor; a resume has none) runs after the
     # last periodic one (eval.initial=end), or (start) after the first iteration where the evaluation step
@@ -304,8 +306,8 @@ def train_rsl_rl(
             notes = (f"  torch->jax bridge copies so far: {dict(COPIES.by_reason)}",)
         iteration += 1
         env_steps += steps_per_iter
-        dt = time.monotonic() - t0
-        compiled.epoch_ended(dt, step0_waiting=eval_at_start)
+        ended_at = time.monotonic()
+        dt = ended_at - t0
         window = stats["window"]
         train_metrics = {
             **window_metrics(window, steps_per_iter, episode_length, record_ratios),
@@ -329,12 +331,14 @@ def train_rsl_rl(
             notes=notes,
         )
         eval_due = iteration % iters_per_eval == 0 or last or over_budget
+        step0_s = None
         if eval_at_start and (eval_due or compiled.ready("eval step")):
             eval_at_start = False
-            yield from eval_at_zero()  # always before a periodic evaluation
-        report = compiled.after_epoch(
-            env_steps, _EVAL_PROGRAMS, step0_waiting=eval_at_start, eval_due=eval_due
-        )
+            step0_s = yield from eval_at_zero()  # always before a periodic evaluation
+        report = compiled.epoch_ended(
+            dt, ended_at=ended_at, step=env_steps, step0_s=step0_s, step0_waiting=eval_at_start,
+            eval_due=eval_due, eval_programs=_EVAL_PROGRAMS,
+        )  # fmt: skip
         if report is not None:
             yield report
         if eval_due:

@@ -11,16 +11,15 @@ A trainer then calls ``compile_programs(programs, start)`` once: its jitted prog
 order to submit them) in, ``CompiledPrograms`` out. Each is traced and lowered on the calling thread (or a
 worker) and compiled on worker threads, or loaded from the executable cache (``compiler.Compiler``); every
 stage is timed into the start-up breakdown (``breakdown``). The trainer's loop only says when an epoch ends
-and when the step-0 evaluation runs (``epoch_ended``, ``step0``, ``after_epoch``): the start-up's end, and
+and what the step-0 evaluation took (``epoch_ended``, once per epoch): the start-up's end, and
 the breakdown once no program is still compiling (a record the trainer yields to the run's logger, which
 prints and records it: ``training.records``), are decided here, alike for both trainers.
 """
 
 from __future__ import annotations
 
-import contextlib
 import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -170,9 +169,10 @@ class CompiledPrograms:
     """A trainer's programs, compiling or compiled (``compile_programs``), and the end of its start-up.
 
     ``programs[name]`` is the executable (waits for its compile or load; re-raises its error). The loop
-    reports its first epochs and the step-0 evaluation here; the start-up ends with the first epoch, or
-    with the step-0 evaluation when it runs first (``eval.initial=start``), and its breakdown is printed
-    and recorded once the evaluation's programs are ready, before the first evaluation at the latest.
+    reports each epoch and the step-0 evaluation after it here (``epoch_ended``); the start-up ends with the
+    first epoch, or with the step-0 evaluation when it runs first (``eval.initial=start``), and its
+    breakdown is reported once the evaluation's programs are ready, before the first evaluation at the
+    latest.
     """
 
     def __init__(self, compiler: Compiler, timer: StartupTimer) -> None:
@@ -198,37 +198,37 @@ class CompiledPrograms:
         """Every program loaded from the executable cache ran: none is a suspect of a crash."""
         self.compiler.confirm()
 
-    def epoch_ended(self, seconds: float, *, step0_waiting: bool) -> None:
-        """Time a training epoch (rsl-rl: an iteration) into the breakdown while the start-up lasts.
+    def epoch_ended(
+        self,
+        seconds: float,
+        *,
+        ended_at: float,
+        step: int,
+        step0_s: float | None,
+        step0_waiting: bool,
+        eval_due: bool,
+        eval_programs: Sequence[str],
+    ) -> Said | None:
+        """A training epoch (rsl-rl: an iteration) of ``seconds`` ended at ``ended_at`` (``time.monotonic``).
 
-        The first is ``FIRST_EPOCH``; later ones count (``MORE_EPOCHS``) while the step-0 evaluation still
-        waits for its program (``eval.initial=start``).
+        While the start-up lasts the epoch is timed into the breakdown: the first is ``FIRST_EPOCH``; later
+        ones count (``MORE_EPOCHS``) while the step-0 evaluation waited for its program (``eval.initial=
+        start``); that evaluation, when it ran after this epoch, took ``step0_s`` (``FIRST_EVAL``; None: it
+        did not run). The start-up ends once no step-0 evaluation waits (``step0_waiting``: it still does).
+
+        Returns the start-up's report (``report``) once it ended and ``eval_programs`` are ready, or an
+        evaluation is due at the latest (it would wait for its programs anyway), so that no row of the
+        breakdown is a program still compiling on a worker; None otherwise.
         """
         self._epochs += 1
         if self._epochs == 1:
             self.timer.add(sb.FIRST_EPOCH, seconds)
-            self._first_epoch_end = self.timer.elapsed()
-        elif step0_waiting:
+            self._first_epoch_end = ended_at - self.timer.origin
+        elif step0_waiting or step0_s is not None:
             self.timer.add(sb.MORE_EPOCHS, seconds)
-
-    @contextlib.contextmanager
-    def step0(self) -> Iterator[None]:
-        """Time the step-0 evaluation (``FIRST_EVAL``) when it runs inside the start-up."""
-        t = time.monotonic()
-        yield
-        if not self.reported:
-            self.timer.add(sb.FIRST_EVAL, time.monotonic() - t)
+        if step0_s is not None and not self.reported:
+            self.timer.add(sb.FIRST_EVAL, step0_s)
             self._step0_ran = True
-
-    def after_epoch(
-        self, step: int, eval_programs: Sequence[str], *, step0_waiting: bool, eval_due: bool
-    ) -> Said | None:
-        """End the start-up once no step-0 evaluation waits; report it once ``eval_programs`` are ready.
-
-        Reported when an evaluation is due at the latest (it would wait for its programs anyway), so that
-        no row of the breakdown is a program still compiling on a worker. Returns the report (``report``),
-        None while it is not due.
-        """
         if self._end_s is None and not step0_waiting:
             self._end_s = self.timer.elapsed()
             self._until = sb.UNTIL_EVAL if self._step0_ran else sb.UNTIL_EPOCH
