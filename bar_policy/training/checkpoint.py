@@ -4,10 +4,15 @@ A checkpoint ``<run>/checkpoints/step_<env_steps>.msgpack`` holds a state tree (
 normaliser, policy and value params, optimizer state) plus the step count and iteration; a small JSON
 sidecar of the same name records the step count and the config for humans. ``latest_checkpoint(run_dir)``
 finds the newest one, so ``--resume runs/<name>`` works.
+
+A run writes them through its logger (``records.SaveCheckpoint``, from either trainer) and reads the one it
+resumes before its trainer starts (``read_checkpoint``); the brax trainer restores the state into its
+training state's structure (``restore_state``), the rsl-rl trainer into its torch modules.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import re
@@ -20,7 +25,15 @@ from flax import serialization
 from bar_policy._files import write_atomic
 from bar_policy.training.startup.executable_cache import program_fields
 
-__all__ = ["Checkpoint", "latest_checkpoint", "load_checkpoint", "resume_changes", "save_checkpoint"]
+__all__ = [
+    "Checkpoint",
+    "latest_checkpoint",
+    "load_checkpoint",
+    "read_checkpoint",
+    "restore_state",
+    "resume_changes",
+    "save_checkpoint",
+]
 
 _NAME = re.compile(r"step_(\d+)\.msgpack$")
 
@@ -40,6 +53,9 @@ class Checkpoint:
     """Training iterations done so far."""
     path: Path
     """File it came from."""
+    changes: tuple[str, ...] = ()
+    """What a resume trains differently from the checkpoint's run (``resume_changes``; ``read_checkpoint``
+    with the resuming run's record)."""
 
 
 def save_checkpoint(
@@ -93,8 +109,55 @@ def latest_checkpoint(path: str | os.PathLike[str]) -> Path:
     return max(candidates, key=lambda c: int(_NAME.search(c.name).group(1)))  # type: ignore[union-attr]
 
 
+def read_checkpoint(path: str | os.PathLike[str], record: dict[str, Any] | None = None) -> Checkpoint:
+    """The newest checkpoint at ``path``, its state as saved (a state dict: ``restore_state`` shapes it).
+
+    What a resume reads first (``training.run``), before its trainer has the structure to restore into.
+
+    Args:
+        path: a checkpoint file, its folder, or a run directory (the newest checkpoint is used).
+        record: the resuming run's record: the checkpoint's ``changes`` are then what it trains differently
+            (``resume_changes``).
+
+    Raises:
+        FileNotFoundError: no checkpoint found.
+        ValueError: the file is not a checkpoint.
+    """
+    file = latest_checkpoint(path)
+    try:
+        payload = serialization.msgpack_restore(file.read_bytes())
+        state, env_steps, iteration = payload["state"], int(payload["env_steps"]), int(payload["iteration"])
+    except (KeyError, ValueError, TypeError) as e:
+        raise ValueError(f"cannot restore {file}: {e} (was it written by another network/config?)") from e
+    changes = tuple(resume_changes(file, record))
+    return Checkpoint(state=state, env_steps=env_steps, iteration=iteration, path=file, changes=changes)
+
+
+def restore_state(checkpoint: Checkpoint, template: Any) -> Any:
+    """A read checkpoint's state in the structure of ``template`` (same tree as the one saved).
+
+    Raises:
+        ValueError: the state is not of this structure or these shapes (e.g. another network size).
+    """
+    try:
+        state = serialization.from_state_dict(template, checkpoint.state)
+    except (KeyError, ValueError, TypeError) as e:
+        raise ValueError(
+            f"cannot restore {checkpoint.path}: {e} (was it written by another network/config?)"
+        ) from e
+    import jax
+    import numpy as np
+
+    shapes_ok = jax.tree_util.tree_all(
+        jax.tree_util.tree_map(lambda a, b: np.shape(a) == np.shape(b), template, state)
+    )
+    if not shapes_ok:
+        raise ValueError(f"cannot restore {checkpoint.path}: array shapes differ from this run's networks")
+    return state
+
+
 def load_checkpoint(path: str | os.PathLike[str], template: Any) -> Checkpoint:
-    """Read a checkpoint into the structure of ``template`` (same tree as the one saved).
+    """Read a checkpoint into the structure of ``template`` (``read_checkpoint``, then ``restore_state``).
 
     Args:
         path: a checkpoint file, its folder, or a run directory (the newest checkpoint is used).
@@ -104,23 +167,8 @@ def load_checkpoint(path: str | os.PathLike[str], template: Any) -> Checkpoint:
         FileNotFoundError: no checkpoint found.
         ValueError: the file is not a checkpoint of this structure (e.g. another network size).
     """
-    file = latest_checkpoint(path)
-    try:
-        payload = serialization.msgpack_restore(file.read_bytes())
-        state = serialization.from_state_dict(template, payload["state"])
-    except (KeyError, ValueError, TypeError) as e:
-        raise ValueError(f"cannot restore {file}: {e} (was it written by another network/config?)") from e
-    import jax
-    import numpy as np
-
-    shapes_ok = jax.tree_util.tree_all(
-        jax.tree_util.tree_map(lambda a, b: np.shape(a) == np.shape(b), template, state)
-    )
-    if not shapes_ok:
-        raise ValueError(f"cannot restore {file}: array shapes differ from this run's networks")
-    return Checkpoint(
-        state=state, env_steps=int(payload["env_steps"]), iteration=int(payload["iteration"]), path=file
-    )
+    checkpoint = read_checkpoint(path)
+    return dataclasses.replace(checkpoint, state=restore_state(checkpoint, template))
 
 
 def _flat(tree: Any, prefix: str = "") -> dict[str, Any]:

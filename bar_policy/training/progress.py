@@ -1,4 +1,4 @@
-"""Run directory, progress lines, TensorBoard / wandb and a JSON-lines metric log.
+"""Run directory, progress lines, TensorBoard / wandb, a JSON-lines metric log and the checkpoints.
 
 Every metric record goes to three places: ``<run>/metrics.jsonl`` (one JSON object per line, the source of
 ``docs/training_curve.png``), the run's writer (``--logger``: TensorBoard event files in ``<run>/tb``, also
@@ -22,7 +22,16 @@ from pathlib import Path
 from typing import Any, TextIO, TypeVar
 
 from bar_policy.training.log_tags import tag
-from bar_policy.training.records import Epoch, Evaluated, Final, NotApplied, Record, Resumed, ScalarWriter
+from bar_policy.training.records import (
+    Epoch,
+    Evaluated,
+    Final,
+    NotApplied,
+    Record,
+    Resumed,
+    SaveCheckpoint,
+    ScalarWriter,
+)
 from bar_policy.training.writers import check_logger, make_writer
 
 __all__ = ["RunLogger", "format_duration", "format_eval", "format_steps", "next_would_overrun"]
@@ -115,6 +124,8 @@ class RunLogger:
         self.last_eval: dict[str, float] = {}
         self.evaluated_on = ""
         """What the evaluations run on, for their lines' heads (``run``: ``held-out set`` or '')."""
+        self.config_record: dict[str, Any] | None = None
+        """The run's record, which checkpoint sidecars carry (``run_dir.open_run`` sets it)."""
         if enabled:
             self.run_dir.mkdir(parents=True, exist_ok=True)
             self._jsonl = (self.run_dir / "metrics.jsonl").open("a")
@@ -224,6 +235,8 @@ class RunLogger:
             self.not_applied(list(record.settings))
         elif isinstance(record, ScalarWriter):
             self.attach_writer(record.writer)
+        elif isinstance(record, SaveCheckpoint):
+            self.save_checkpoint(record.state, record.env_steps, record.iteration)
         else:
             for line in record.lines:
                 self.print(line)
@@ -325,6 +338,19 @@ class RunLogger:
             self.print(line)
         if settings:
             self.note("not_applied", {"settings": settings})
+
+    def save_checkpoint(self, state: Any, env_steps: int, iteration: int) -> None:
+        """Write a checkpoint into ``<run>/checkpoints``, its sidecar carrying ``config_record``."""
+        from bar_policy.training.checkpoint import save_checkpoint  # flax's serialization
+
+        if self.enabled:
+            save_checkpoint(
+                self.run_dir / "checkpoints",
+                state,
+                env_steps=env_steps,
+                iteration=iteration,
+                extra=self.config_record,
+            )
 
     def close(self) -> None:
         """Flush and close the files."""

@@ -18,7 +18,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["Epoch", "Evaluated", "Final", "NotApplied", "Record", "Resumed", "Said", "ScalarWriter"]
+__all__ = [
+    "Epoch",
+    "Evaluated",
+    "Final",
+    "NotApplied",
+    "Record",
+    "Resumed",
+    "Said",
+    "SaveCheckpoint",
+    "ScalarWriter",
+]
 
 
 @dataclass(frozen=True)
@@ -88,6 +98,19 @@ class Resumed:
 
 
 @dataclass(frozen=True)
+class SaveCheckpoint:
+    """A checkpoint to write (``checkpoint.save_checkpoint``, into ``<run>/checkpoints``, process 0 only).
+
+    Its sidecar carries the run's record. ``state``: a tree of host arrays (brax: the training state; rsl-rl:
+    the actor's, critic's and optimizer's state dicts and the learning rate).
+    """
+
+    state: Any
+    env_steps: int
+    iteration: int
+
+
+@dataclass(frozen=True)
 class NotApplied:
     """The settings a backend runs without (one line each), said and recorded as ``not_applied``."""
 
@@ -105,5 +128,5 @@ class ScalarWriter:
     """``add_scalar(tag, value, step)``, ``flush``, ``close``."""
 
 
-Record = Said | Epoch | Evaluated | Final | Resumed | NotApplied | ScalarWriter
+Record = Said | Epoch | Evaluated | Final | Resumed | SaveCheckpoint | NotApplied | ScalarWriter
 """Everything a trainer yields."""

@@ -18,8 +18,10 @@ from __future__ import annotations
 import time
 from typing import Any
 
+from bar_policy.training.checkpoint import read_checkpoint
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.distributed import init_distributed, local_default_devices, shutdown_distributed
+from bar_policy.training.evaluations import Evaluations
 from bar_policy.training.run_dir import open_run
 from bar_policy.training.startup import breakdown as sb
 from bar_policy.training.startup.session import StartUp
@@ -98,17 +100,21 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
     logger.evaluated_on = "held-out set" if eval_env is not None else ""
     start.say = logger.print  # the start-up says what it is doing while its programs compile
 
+    # The checkpoint a resume continues from, read before anything compiles (its changes said by the
+    # trainer), and the run's evaluations, which both trainers record into.
+    resume = read_checkpoint(cfg.resume, record) if cfg.resume else None
+    first_step = resume.env_steps if resume is not None else 0
+    evaluations = Evaluations(first_step, getattr(env, "task_name", None), cfg.eval.success_threshold)
     # The trainer yields what it reports as it trains; the logger reports each record as it comes.
-    ckpt_dir = str(run_dir / "checkpoints")
     if cfg.backend == "brax":
         trainer = train_brax(
-            env, cfg, wrap_fn=envs.wrap_for_brax_training, randomizer=randomizer,
-            checkpoint_dir=ckpt_dir, config_record=record, start=start, eval_env=eval_env,
+            env, cfg, evaluations=evaluations, wrap_fn=envs.wrap_for_brax_training, randomizer=randomizer,
+            resume=resume, start=start, eval_env=eval_env,
         )  # fmt: skip
     else:
         trainer = run_rsl_rl(
-            env, cfg, wrap_fn=envs.wrap_for_brax_training, randomizer=randomizer,
-            checkpoint_dir=ckpt_dir, config_record=record, start=start, eval_env=eval_env,
+            env, cfg, evaluations=evaluations, wrap_fn=envs.wrap_for_brax_training, randomizer=randomizer,
+            resume=resume, start=start, eval_env=eval_env,
             scalars_dir=logger.tb_dir if logger.writes_scalars else None,
         )  # fmt: skip
     result = logger.follow(trainer)

@@ -91,6 +91,7 @@ def open_run(cfg: TrainConfig, env: Any, start: StartUp, is_main: bool) -> tuple
     logger = RunLogger(
         run_dir, cfg.ppo.num_timesteps, enabled=is_main, logger=cfg.logger, wandb_project=cfg.wandb_project
     )
+    logger.config_record = record  # checkpoint sidecars carry it
     if is_main:
         (run_dir / "config.json").write_text(json.dumps(record, indent=2, sort_keys=True))
     logger.opened(provenance, [*header, *start.notes, *opened])

@@ -182,11 +182,12 @@ def test_reach_has_no_prior_and_rsl_rl_refuses_one():
     with pytest.raises(ValueError, match=r"no action prior.*valid network.action_prior values for it: none"):
         reach.action_prior(5)
     from bar_policy.training.config import TrainConfig
+    from bar_policy.training.evaluations import Evaluations
     from bar_policy.training.rsl_rl.entry import run_rsl_rl
 
     cfg = TrainConfig(env_name="LiteReach", network=NetworkConfig(action_prior="reference"))
     with pytest.raises(ValueError, match=r"LiteReach has no action prior; valid values for it: \['none'\]"):
-        run_rsl_rl(reach, cfg, randomizer=None, checkpoint_dir=None)
+        run_rsl_rl(reach, cfg, evaluations=Evaluations(0, None, 0.9), randomizer=None)
 
 
 def test_prior_noise_std_sets_the_initial_std(layout, pose_scale):

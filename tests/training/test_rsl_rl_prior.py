@@ -187,13 +187,14 @@ def test_start_at_prior_makes_the_first_mean_the_prior(track_setup):
 
 def test_actor_warmup_stays_refused_on_rsl_rl(toy_env, tmp_path):
     """network.action_prior is accepted now; ppo.actor_warmup_iterations is still a brax-only option."""
+    from bar_policy.training.evaluations import Evaluations
     from bar_policy.training.rsl_rl.entry import run_rsl_rl
 
     cfg = toy_config(tmp_path, "warm", [*TOY_RSL, "ppo.actor_warmup_iterations=2"])
     with pytest.raises(
         ValueError, match=r"actor_warmup_iterations=2 is a brax-backend option.*valid here: 0"
     ):
-        run_rsl_rl(toy_env, cfg, randomizer=None, checkpoint_dir=None)
+        run_rsl_rl(toy_env, cfg, evaluations=Evaluations(0, None, 0.9), randomizer=None)
 
 
 # ----------------------------------------------------------------------------------------------------------

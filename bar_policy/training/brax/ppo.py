@@ -45,6 +45,7 @@ import jax
 import numpy as np
 
 from bar_policy.training.brax.ignored_settings import brax_not_applied
+from bar_policy.training.brax.learner import TrainingState
 from bar_policy.training.brax.programs import (
     _K_EPOCH,
     _K_EVAL,
@@ -62,12 +63,12 @@ from bar_policy.training.brax.programs import (
     set_up,
 )
 from bar_policy.training.brax.result import BraxTrainResult
-from bar_policy.training.checkpoint import Checkpoint, load_checkpoint, resume_changes, save_checkpoint
+from bar_policy.training.checkpoint import Checkpoint, restore_state
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.evaluations import Evaluations
 from bar_policy.training.log_tags import brax_losses
 from bar_policy.training.parallel import DataParallel, barrier
-from bar_policy.training.records import Epoch, NotApplied, Record, Resumed, Said
+from bar_policy.training.records import Epoch, NotApplied, Record, Resumed, Said, SaveCheckpoint
 from bar_policy.training.rollout_sums import RatioWindow, sum_layout, window_metrics
 from bar_policy.training.startup import breakdown as sb
 from bar_policy.training.startup.session import CompiledPrograms, StartUp, compile_programs
@@ -79,10 +80,10 @@ def train_brax(
     env: Any,
     cfg: TrainConfig,
     *,
+    evaluations: Evaluations,
     wrap_fn: Callable[..., Any],
     randomizer: Callable[..., Any] | None,
-    checkpoint_dir: str | None,
-    config_record: dict[str, Any] | None = None,
+    resume: Checkpoint | None = None,
     start: StartUp | None = None,
     eval_env: Any | None = None,
     eval_randomizer: Callable[..., Any] | None = None,
@@ -94,11 +95,12 @@ def train_brax(
 
     Args:
         env: unwrapped env (``reset``/``step``, ``observation_size``, ``action_size``, ``episode_length``).
-        cfg: the run's config (``cfg.ppo``, ``cfg.network``, ``cfg.eval``, ``cfg.resume``, ...).
+        cfg: the run's config (``cfg.ppo``, ``cfg.network``, ``cfg.eval``, ...).
+        evaluations: the run's evaluations (``training.evaluations``), which every evaluation joins.
         wrap_fn: ``wrap_for_brax_training(env, episode_length=, action_repeat=, randomization_fn=)``.
         randomizer: ``(model, rng) -> (model, in_axes)`` domain randomiser, or None.
-        checkpoint_dir: where checkpoints go (None: no checkpoints).
-        config_record: JSON record stored in checkpoint sidecars.
+        resume: the checkpoint the run resumes (``checkpoint.read_checkpoint``), restored into the
+            training state; None: a fresh start.
         start: the run's start-up (``startup.session.StartUp``: its breakdown, reported once the first epoch
             is done and every program compiled, and its executable cache); None: a fresh one, no cache.
         eval_env: the env every evaluation runs (the task's held-out variant, ``evaluation_env()``) with
@@ -116,11 +118,11 @@ def train_brax(
     programs = compile_programs(setup.to_compile(), start)
     yield NotApplied(tuple(brax_not_applied(cfg)))  # rsl-rl-only settings a brax run ignores
     with start.timer.phase(sb.WAIT):
-        ckpt = load_checkpoint(cfg.resume, setup.template) if cfg.resume else None
-        if ckpt is not None:
-            changes = tuple(resume_changes(ckpt.path, config_record))
-            yield Resumed(ckpt.path, ckpt.env_steps, ckpt.iteration, changes)
-        run = _Run(cfg, env, setup.dp, programs, setup.weights, ckpt, config_record)
+        state = None
+        if resume is not None:
+            state = restore_state(resume, setup.template)
+            yield Resumed(resume.path, resume.env_steps, resume.iteration, resume.changes)
+        run = _Run(cfg, env, setup.dp, programs, setup.weights, resume, state, evaluations)
 
     # The loop: rollout -> update for an epoch of iterations, then its progress line, and every
     # _LINES_PER_EVAL epochs an evaluation (and a checkpoint).
@@ -146,7 +148,7 @@ def train_brax(
         if eval_due:
             yield from run.evaluate(_policy_params(run.ts), run.env_steps)
             if last or (cfg.checkpoint_every and (run.epochs // _LINES_PER_EVAL) % cfg.checkpoint_every == 0):
-                run.checkpoint(checkpoint_dir)
+                yield run.checkpoint()
         if over_budget and run.iteration < total_iters:
             yield Said((f"stopping: wall-clock budget of {cfg.max_minutes} min reached",))
             break
@@ -181,8 +183,9 @@ def _agreed(over: bool) -> bool:
 class _Run:
     """One brax run's state between set-up and result: the training state, the envs, the counts.
 
-    Made once the programs are submitted (the ``WAIT`` row): the training state resumed from ``ckpt`` or
-    made by ``init``, every env slot reset. Every process holds one (only process 0's logger writes).
+    Made once the programs are submitted (the ``WAIT`` row): the training state resumed (``state``, restored
+    from ``resume``) or made by ``init``, every env slot reset. Every process holds one (only process 0's
+    logger writes).
     """
 
     def __init__(
@@ -192,15 +195,15 @@ class _Run:
         dp: DataParallel,
         programs: CompiledPrograms,
         weights: dict[str, Any],
-        ckpt: Checkpoint | None,
-        config_record: dict[str, Any] | None,
+        resume: Checkpoint | None,
+        state: TrainingState | None,
+        evaluations: Evaluations,
     ) -> None:
         self.cfg, self.env, self.dp, self.programs = cfg, env, dp, programs
-        self.config_record = config_record
         seed = cfg.seed
-        self.env_steps, self.iteration, state = 0, 0, None
-        if ckpt is not None:
-            self.env_steps, self.iteration, state = ckpt.env_steps, ckpt.iteration, ckpt.state
+        self.env_steps, self.iteration = 0, 0
+        if resume is not None:
+            self.env_steps, self.iteration = resume.env_steps, resume.iteration
         self.iters_per_epoch = epoch_iterations(cfg)
         # Every host value the run starts from, on the devices at once (replicated).
         host = {
@@ -213,7 +216,7 @@ class _Run:
             "state": state,
         }
         dev = dp.replicate(host)
-        self.ts = dev["state"] if ckpt is not None else programs["init"](dev["init"])
+        self.ts = dev["state"] if state is not None else programs["init"](dev["init"])
         self.envs = programs["reset"](dev["reset"], dev["model"])
         self.rollout, self.update = programs["rollout"], programs["update"]
         self.iteration_index = dev["iterations"]
@@ -225,8 +228,7 @@ class _Run:
         self.eval_model_key, self.weights = dev["eval_model"], dev["weights"]
         self.epochs = 0
         self.epoch_s = self.epoch_end = 0.0  # the last epoch's seconds and end (time.monotonic())
-        task = getattr(env, "task_name", None)
-        self.evaluations = Evaluations(self.env_steps, task, cfg.eval.success_threshold)
+        self.evaluations = evaluations
         self.layout = sum_layout(env)  # the rollout's logged sums (rollout_sums)
         self.ratios: dict[str, RatioWindow] = {}  # the training ratios, carried over event-less epochs
         self.last_eval_s = 0.0
@@ -291,13 +293,9 @@ class _Run:
         yield from self.evaluate(_policy_params(initial), 0)
         return time.monotonic() - t
 
-    def checkpoint(self, directory: str | None) -> None:
-        """Save the training state (every process fetches its own replica; only process 0 writes)."""
-        host = self.dp.to_host(self.ts)
-        if jax.process_index() == 0 and directory is not None:
-            save_checkpoint(
-                directory, host, env_steps=self.env_steps, iteration=self.iteration, extra=self.config_record
-            )
+    def checkpoint(self) -> SaveCheckpoint:
+        """The training state to save (every process fetches its own replica; only process 0 writes)."""
+        return SaveCheckpoint(self.dp.to_host(self.ts), self.env_steps, self.iteration)
 
     def result(self, learner: Any, prior: Any, start_steps: int, train_seconds: float) -> BraxTrainResult:
         """The run's result: host params, the records, and an evaluator on the compiled evaluation."""

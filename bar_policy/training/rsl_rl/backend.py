@@ -60,11 +60,11 @@ import bar_policy
 from bar_policy.export.policy import export_policy
 from bar_policy.obs.action_prior import Prior
 from bar_policy.training.best import BestIterate
-from bar_policy.training.checkpoint import latest_checkpoint, resume_changes, save_checkpoint
+from bar_policy.training.checkpoint import Checkpoint
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.evaluations import Evaluations
 from bar_policy.training.log_tags import rsl_rl_losses
-from bar_policy.training.records import Epoch, NotApplied, Record, Resumed, Said, ScalarWriter
+from bar_policy.training.records import Epoch, NotApplied, Record, Resumed, Said, SaveCheckpoint, ScalarWriter
 from bar_policy.training.rollout_sums import RatioWindow, window_metrics
 from bar_policy.training.rsl_rl.config import not_applied, rsl_rl_train_cfg
 from bar_policy.training.rsl_rl.env import RslRlVecEnv
@@ -168,10 +168,10 @@ def train_rsl_rl(
     env: Any,
     cfg: TrainConfig,
     *,
+    evaluations: Evaluations,
     programs: RslRlPrograms,
     randomizer: Callable[..., Any] | None,
-    checkpoint_dir: str | None,
-    config_record: dict[str, Any] | None = None,
+    resume: Checkpoint | None = None,
     start: StartUp | None = None,
     eval_env: Any | None = None,
     scalars_dir: Path | None = None,
@@ -180,10 +180,11 @@ def train_rsl_rl(
 
     ``programs``: the envs' jax programs, compiling since ``rsl_rl.programs.prepare_rsl_rl`` (which
     ``rsl_rl.entry.run_rsl_rl``, the backend's entry, calls before it imports this module).
-    ``eval_env``: the env the evaluations run (the task's held-out variant) on its nominal model, as brax's;
-    None: ``env`` with ``randomizer``. ``scalars_dir``: where rsl-rl's runner logger writes the scalars
-    (the run's ``tb/``, with ``cfg.logger``'s writer, which the run's logger then writes through:
-    ``records.ScalarWriter``); None: no scalars.
+    ``resume``: the checkpoint the run resumes (``checkpoint.read_checkpoint``), loaded into the actor,
+    critic and optimizer. ``eval_env``: the env the evaluations run (the task's held-out variant) on its
+    nominal model, as brax's; None: ``env`` with ``randomizer``. ``scalars_dir``: where rsl-rl's runner
+    logger writes the scalars (the run's ``tb/``, with ``cfg.logger``'s writer, which the run's logger then
+    writes through: ``records.ScalarWriter``); None: no scalars.
     """
     from rsl_rl.runners import OnPolicyRunner
 
@@ -224,13 +225,12 @@ def train_rsl_rl(
         # The untrained actor, for the step-0 evaluation (copied before any forward pass, as spare_actor
         # below); frozen in eval mode.
         initial_actor = copy.deepcopy(alg.actor).eval()
-        if cfg.resume:
-            env_steps, iteration = yield from _resume(alg, cfg.resume, device, config_record)
+        if resume is not None:
+            env_steps, iteration = _restore(alg, resume, device)
+            yield Resumed(resume.path, env_steps, iteration, resume.changes)
         # Copied before any forward pass: later the Gaussian head holds non-leaf tensors deepcopy refuses.
         spare_actor = copy.deepcopy(alg.actor)
     start_steps = env_steps
-    # Ranked as brax ranks.
-    evaluations = Evaluations(start_steps, getattr(env, "task_name", None), cfg.eval.success_threshold)
     periods = max((cfg.eval.num_evals - 1), 1)
     iters_per_eval = max(1, math.ceil(total_iters / periods))
     episode_length = int(env.episode_length)
@@ -348,7 +348,7 @@ def train_rsl_rl(
                 or over_budget
                 or (cfg.checkpoint_every and (iteration // iters_per_eval) % cfg.checkpoint_every == 0)
             ):
-                _checkpoint(alg, checkpoint_dir, env_steps, iteration, config_record)
+                yield _checkpoint(alg, env_steps, iteration)
         if over_budget and not last:
             yield Said((f"stopping: wall-clock budget of {cfg.max_minutes} min reached",))
             break
@@ -376,38 +376,25 @@ def train_rsl_rl(
     )
 
 
-def _resume(
-    alg: Any, resume: str, device: str, config_record: dict[str, Any] | None
-) -> Generator[Record, Any, tuple[int, int]]:
-    """Load the actor, critic, optimizer and learning rate of ``resume``'s latest checkpoint into ``alg``.
+def _restore(alg: Any, resume: Checkpoint, device: str) -> tuple[int, int]:
+    """Load the actor, critic, optimizer and learning rate of a read checkpoint into ``alg``.
 
-    Returns ``(env_steps, iteration)`` it was saved at; yields what the resumed run changes.
+    Returns ``(env_steps, iteration)`` it was saved at.
     """
-    from flax import serialization
-
-    path = latest_checkpoint(resume)
-    changes = resume_changes(path, config_record)
-    payload = serialization.msgpack_restore(path.read_bytes())
-    st = payload["state"]
+    st = resume.state
     load_module_state(alg.actor, st["actor"], device)
     load_module_state(alg.critic, st["critic"], device)
     load_optimizer_state(alg.optimizer, st["optimizer"], device)
     alg.learning_rate = float(st["learning_rate"])
-    env_steps, iteration = int(payload["env_steps"]), int(payload["iteration"])
-    yield Resumed(path, env_steps, iteration, tuple(changes))
-    return env_steps, iteration
+    return resume.env_steps, resume.iteration
 
 
-def _checkpoint(
-    alg: Any, directory: str | None, step: int, iteration: int, config_record: dict[str, Any] | None
-) -> None:
-    """Save the actor, critic, optimizer state and learning rate (torch state dicts as numpy)."""
-    if directory is None:
-        return
+def _checkpoint(alg: Any, step: int, iteration: int) -> SaveCheckpoint:
+    """The actor, critic, optimizer state and learning rate to save (torch state dicts as numpy)."""
     state = {
         "actor": module_state(alg.actor),
         "critic": module_state(alg.critic),
         "optimizer": optimizer_state(alg.optimizer),
         "learning_rate": np.asarray(alg.learning_rate),
     }
-    save_checkpoint(directory, state, env_steps=step, iteration=iteration, extra=config_record)
+    return SaveCheckpoint(state, step, iteration)

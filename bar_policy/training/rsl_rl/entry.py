@@ -12,7 +12,9 @@ from collections.abc import Callable, Generator
 from pathlib import Path
 from typing import Any
 
+from bar_policy.training.checkpoint import Checkpoint
 from bar_policy.training.config import TrainConfig
+from bar_policy.training.evaluations import Evaluations
 from bar_policy.training.records import Record
 from bar_policy.training.rsl_rl.programs import prepare_rsl_rl
 from bar_policy.training.startup import breakdown as sb
@@ -25,10 +27,10 @@ def run_rsl_rl(
     env: Any,
     cfg: TrainConfig,
     *,
+    evaluations: Evaluations,
     wrap_fn: Callable[..., Any] | None = None,
     randomizer: Callable[..., Any] | None,
-    checkpoint_dir: str | None,
-    config_record: dict[str, Any] | None = None,
+    resume: Checkpoint | None = None,
     start: StartUp | None = None,
     eval_env: Any | None = None,
     scalars_dir: Path | None = None,
@@ -49,10 +51,10 @@ def run_rsl_rl(
     return train_rsl_rl(
         env,
         cfg,
+        evaluations=evaluations,
         programs=programs,
         randomizer=randomizer,
-        checkpoint_dir=checkpoint_dir,
-        config_record=config_record,
+        resume=resume,
         start=start,
         eval_env=eval_env,
         scalars_dir=scalars_dir,
