@@ -63,7 +63,8 @@ def run(args: argparse.Namespace) -> str:
     from bar_policy import envs
     from bar_policy.envs.reward_weights import weights
     from bar_policy.training.brax.learner import make_learner
-    from bar_policy.training.brax.programs import host_key, make_programs, run_epoch
+    from bar_policy.training.brax.programs import make_programs
+    from bar_policy.training.brax.state import host_key, run_epoch
     from bar_policy.training.parallel import AXIS, DataParallel
 
     cfg = config_of(args)

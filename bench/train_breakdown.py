@@ -8,7 +8,7 @@ iteration), on one device, every part compiled once and timed over ``--iters`` c
 - ``rollout``: env + policy sampling + transitions (``Learner.rollout``), the same steps;
 - ``update``: normaliser update + ``num_updates_per_batch`` x ``num_minibatches`` Adam steps on one
   iteration's data (``Learner.update``);
-- ``epoch``: the trainer's epoch (its rollout and update programs, ``training.brax.programs.run_epoch``) over
+- ``epoch``: the trainer's epoch (its rollout and update programs, ``training.brax.state.run_epoch``) over
   ``--epoch-iters`` iterations, per iteration;
 - ``loop``: the same epoch called as the training loop calls it (host sync and metrics read each call);
 - ``env random, mid-training`` and ``rollout, mid-training``: the same as above, from the envs' state and the
@@ -57,14 +57,8 @@ from trace_summary import device_summary, ops_tables, profiled
 from bar_policy import envs
 from bar_policy.envs import reward_weights
 from bar_policy.training.brax.learner import make_learner
-from bar_policy.training.brax.programs import (
-    _policy_params,
-    epoch_iterations,
-    host_key,
-    make_programs,
-    run_epoch,
-    slot_env,
-)
+from bar_policy.training.brax.programs import _policy_params, make_programs, slot_env
+from bar_policy.training.brax.state import epoch_iterations, host_key, run_epoch
 from bar_policy.training.parallel import AXIS, DataParallel
 from bar_policy.training.startup.autotune import seed_autotune_cache
 from bar_policy.training.startup.breakdown import StartupTimer

@@ -1,8 +1,8 @@
 """Safety and smoothness in the MJX evaluation: ``bar_policy.quality``'s definitions on device.
 
-The evaluation (``Learner.evaluate``) runs one deterministic episode per env slot. Per tick, each slot's
-``quality_signals`` (the env's: unclipped torque demand of the command it applies, true q, applied action,
-chatter signal) feed the same functions the deploy side uses (``at_cap``, ``near_limit``,
+The evaluation (``brax.evaluation.evaluate``) runs one deterministic episode per env slot. Per tick, each
+slot's ``quality_signals`` (the env's: unclipped torque demand of the command it applies, true q, applied
+action, chatter signal) feed the same functions the deploy side uses (``at_cap``, ``near_limit``,
 ``cap_dwell_step``, ``action_rate``, ``chatter_mrad``):
 
 - an episode **faults** when the task ends it (a lost reference, a non-finite state: not the time limit)

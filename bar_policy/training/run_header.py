@@ -35,13 +35,15 @@ def header_lines(cfg: TrainConfig, env: Any, record: dict[str, Any], run_dir: Pa
     from bar_policy import envs
     from bar_policy.provenance import describe
 
+    registered = cfg.env_name in envs.ALL_ENVS
+    settings = setting_lines(
+        cfg, getattr(env, "config", None), envs.default_config(cfg.env_name) if registered else None
+    )
     run_line = (
         f"run {run_dir} | {cfg.env_name} ({env.observation_size} obs, {env.action_size} actions, "
         f"dt {env.dt} s) | backend {cfg.backend} | {record['device']['device_kind']} x "
         f"{jax.device_count()} | {format_steps(cfg.ppo.num_timesteps)} steps, {cfg.ppo.num_envs} envs"
     )
-    default = envs.default_config(cfg.env_name) if cfg.env_name in envs.ALL_ENVS else None
-    settings = setting_lines(cfg, getattr(env, "config", None), default)
     return [describe(record["provenance"])[0], run_line, *settings]
 
 

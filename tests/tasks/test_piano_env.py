@@ -252,7 +252,7 @@ def test_key_counts_and_recall_per_colour(env: LitePiano, fns) -> None:
     assert sums["recall_black"] == (1, 2 * nb) and sums["recall_white"] == (1, 2 * nw)
     assert sums["recall_pooled"] == (2, 2 * nb + 2 * nw)
     # The reset's metrics (zeros, as a count-in step with nothing asked): no goal key of either colour. The
-    # evaluators divide sum(num) / max(sum(den), 1): 0, not NaN (Learner.evaluate, evaluate_torch_policy).
+    # evaluators divide sum(num) / max(sum(den), 1): 0, not NaN (brax.evaluation, evaluate_torch_policy).
     for k in ("recall_black", "recall_white"):
         num, den = (float(np.sum(np.asarray(x))) for x in env.eval_ratios(s.metrics)[k])
         assert (num, den) == (0, 0) and num / max(den, 1.0) == 0.0

@@ -128,7 +128,7 @@ def test_gpu_presets_first_evaluation_follows_the_measured_crossing():
     """40M steps / 40,960 per iteration = 977 iterations; 23 periods x 2 lines -> 22-iteration epochs, an
     evaluation every 44 iterations = 1,802,240 env steps, just past the 1.64M at which five runs of five
     crossed 95 % (docs/performance.md, 2026-11-27)."""
-    from bar_policy.training.brax.programs import epoch_iterations
+    from bar_policy.training.brax.state import epoch_iterations
 
     cfg = preset("gpu")
     assert cfg.ppo.steps_per_iteration == 256 * 16 * 10 == 40_960

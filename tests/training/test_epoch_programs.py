@@ -1,4 +1,4 @@
-"""The epoch as two programs (``rollout``, ``update``: ``brax.programs.run_epoch``) against one ``lax.scan``.
+"""The epoch as two programs (``rollout``, ``update``: ``brax.state.run_epoch``) against one ``lax.scan``.
 
 Until 2026-11-27 the trainer compiled an epoch as one program, a scan of ``Learner.iteration`` whose keys
 came from one chain (``k, k_it = split(k)`` per iteration after folding in the device index). Since then
@@ -19,7 +19,8 @@ from toy_configs import TOY_BRAX, toy_config
 from bar_policy import envs
 from bar_policy.envs.reward_weights import weights
 from bar_policy.training.brax.learner import make_learner
-from bar_policy.training.brax.programs import epoch_totals, host_key, make_programs, run_epoch, slot_env
+from bar_policy.training.brax.programs import make_programs, slot_env
+from bar_policy.training.brax.state import epoch_totals, host_key, run_epoch
 from bar_policy.training.parallel import AXIS, DataParallel
 
 ITERS = 3

@@ -17,8 +17,10 @@ from jax.sharding import PartitionSpec as P
 
 from bar_policy.envs import wrap_for_brax_training
 from bar_policy.envs.base import reach_eval_ratios
+from bar_policy.training.brax import evaluation
 from bar_policy.training.brax.learner import make_learner
-from bar_policy.training.brax.programs import host_key, slot_env, slot_keys
+from bar_policy.training.brax.programs import slot_env, slot_keys
+from bar_policy.training.brax.state import host_key
 from bar_policy.training.config import preset
 from bar_policy.training.parallel import make_data_parallel
 from bar_policy.training.rsl_rl.env import RslRlVecEnv
@@ -54,7 +56,8 @@ def test_brax_evaluator_counts_one_episode_per_slot(toy_env):
         batch = slot_env(
             toy_env, wrap_for_brax_training, None, jnp.zeros((N, 2), jnp.uint32), auto_reset=False
         )
-        return learner.evaluate(params, batch, batch.reset(slot_keys(key, N, N)), key, STEPS)
+        state = batch.reset(slot_keys(key, N, N))
+        return evaluation.evaluate(learner.make_policy, params, batch, state, key, STEPS)
 
     got = dp.map(evaluate, (P(), P()), P())(dp.replicate(params), dp.replicate(key))
     policy = jax.jit(learner.make_policy(params, deterministic=True))

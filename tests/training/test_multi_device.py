@@ -29,7 +29,8 @@ SCRIPT = textwrap.dedent(
     from toy_configs import toy_config
     from bar_policy.envs import wrap_for_brax_training
     from bar_policy.training.run import run
-    from bar_policy.training.brax.programs import host_key, slot_env, slot_keys
+    from bar_policy.training.brax.programs import slot_env, slot_keys
+    from bar_policy.training.brax.state import host_key
     from bar_policy.training.parallel import AXIS, DataParallel
 
     cfg = toy_config({tmp!r}, "md", [
@@ -101,7 +102,7 @@ def test_training_runs_data_parallel_on_two_devices(two_device_run):
 def test_every_slot_steps_on_its_own_model_whatever_the_device_count(two_device_run):
     import jax
 
-    from bar_policy.training.brax.programs import host_key
+    from bar_policy.training.brax.state import host_key
 
     _, result = two_device_run
     # Toy dynamics from the default pose: q - default = gain * action_scale * action = gain * 0.8 * 0.5.

@@ -1,4 +1,4 @@
-"""brax's PPO as per-device functions: training state, one iteration, one evaluation.
+"""brax's PPO as per-device functions: training state, one iteration (rollout, then update).
 
 The networks are ``networks``'.
 
@@ -31,9 +31,7 @@ from brax.training.acme import running_statistics, specs
 from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import networks as ppo_networks
 
-from bar_policy.envs.base import eval_ratios
 from bar_policy.obs.action_prior import Prior
-from bar_policy.training import eval_quality
 from bar_policy.training.brax.networks import make_networks
 from bar_policy.training.brax.ppo_loss import ppo_loss, with_value_targets
 from bar_policy.training.config import NetworkConfig, PPOConfig
@@ -255,57 +253,6 @@ class Learner:
         env_state, data, stats = self.rollout(ts, env_state, k_roll, env, unrolls)
         ts, metrics = self.update(ts, data, k_sgd)
         return ts, env_state, metrics, stats
-
-    def evaluate(
-        self, params: Any, env: Any, env_state: Any, key: jax.Array, episode_length: int
-    ) -> dict[str, jax.Array]:
-        """Deterministic episodes of ``episode_length`` steps from ``env_state`` (this device's slots).
-
-        Every step's task ratios (``eval_ratios``) and rewards count while the episode is alive (up to and
-        including its first ``done``), as brax's evaluator counts episode metrics. Sums are reduced over the
-        mesh, so the results are global.
-
-        Safety and smoothness (``eval_quality``: completion, torque-cap and joint-limit shares, action rate,
-        chatter) are measured on the same episodes, with the definitions the deploy side uses.
-
-        Returns:
-            ``{"episode_reward", "episode_reward_std", <ratio>..., "quality/<figure>"...}`` (scalars): mean
-            and std of the episode returns over every slot, per ratio the sum of its numerators / the sum of
-            its denominators, and the quality figures.
-        """
-        policy = self.make_policy(params, deterministic=True)
-        task = env.unwrapped
-        robot = task.robot
-        f32 = lambda x: jnp.asarray(x, dtype=jnp.float32)  # noqa: E731
-        limits = {"cap": f32(robot.torque_cap), "lower": f32(robot.lower), "upper": f32(robot.upper)}
-
-        def step(c: tuple, t: jax.Array) -> tuple:
-            s, alive, qc = c
-            action, _ = policy(s.obs, key)
-            sig = jax.vmap(task.quality_signals)(s, action)
-            ns = env.step(s, action)
-            sums = {
-                k: ((n * alive).sum(), (d * alive).sum())
-                for k, (n, d) in eval_ratios(task, ns.metrics).items()
-            }
-            terminated = ns.done * (1.0 - ns.info["truncation"])
-            qc, _ = eval_quality.update(qc, sig, alive, terminated, t == 0, dt=task.dt, **limits)
-            return (ns, alive * (1.0 - ns.done), qc), (ns.reward * alive, sums, sig["signal"])
-
-        alive = jnp.ones(env_state.reward.shape)
-        qc = eval_quality.init(alive.shape[0], task.action_size)
-        (_, _, qc), (rewards, sums, signals) = jax.lax.scan(
-            step, (env_state, alive, qc), jnp.arange(episode_length)
-        )
-        ret = rewards.sum(axis=0)
-        n_eps = jax.lax.psum(jnp.float32(ret.shape[0]), AXIS)
-        mean = jax.lax.psum(ret.sum(), AXIS) / n_eps
-        var = jax.lax.psum(((ret - mean) ** 2).sum(), AXIS) / n_eps
-        out = {"episode_reward": mean, "episode_reward_std": jnp.sqrt(var)}
-        for k, (n, d) in sums.items():
-            out[k] = jax.lax.psum(n.sum(), AXIS) / jnp.maximum(jax.lax.psum(d.sum(), AXIS), 1.0)
-        out.update(eval_quality.finish(qc, signals, task.dt))
-        return out
 
 
 def learning_rate(opt_state: Any) -> jax.Array:

@@ -3,14 +3,12 @@
 ``set_up`` makes a run's mesh, learner and programs (``SetUp``): ``make_programs`` builds the ``init`` /
 ``reset`` / ``rollout`` / ``update`` / ``evaluate`` programs (``training.brax.ppo`` documents each) and
 ``to_compile`` lists them with their abstract arguments, in the order ``startup.session.compile_programs``
-submits them; ``run_epoch`` / ``epoch_totals`` run an epoch of them and total it; ``slot_keys`` /
-``slot_env`` give every env slot its own key and randomised model whatever the device count; ``host_key``
-derives keys on the host; ``epoch_iterations`` sizes an epoch.
+submits them; ``slot_keys`` / ``slot_env`` give every env slot its own key and randomised model whatever
+the device count. ``training.brax.state`` runs them.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -22,6 +20,7 @@ from jax.sharding import PartitionSpec as P
 from bar_policy.envs.reward_weights import weights, with_weights
 from bar_policy.obs.action_prior import Prior
 from bar_policy.tasks.registry import env_entries
+from bar_policy.training.brax import evaluation
 from bar_policy.training.brax.learner import Learner, TrainingState, make_learner, strip_weak_type
 from bar_policy.training.config import NetworkConfig, TrainConfig
 from bar_policy.training.parallel import AXIS, DataParallel, make_data_parallel
@@ -31,27 +30,12 @@ __all__ = [
     "Programs",
     "SetUp",
     "action_prior",
-    "epoch_iterations",
-    "epoch_totals",
-    "host_key",
     "make_programs",
-    "run_epoch",
     "set_up",
     "slot_env",
     "slot_keys",
     "to_compile",
 ]
-
-_LINES_PER_EVAL = 2
-"""Progress lines (training epochs) per evaluation period."""
-
-
-def host_key(seed: int, *path: int) -> np.ndarray:
-    """A raw threefry key (uint32[2]) derived on the host from ``seed`` and a path of ints (no device op)."""
-    return np.random.default_rng([seed, *path]).integers(0, 2**32, 2, dtype=np.uint32)
-
-
-_K_INIT, _K_MODEL, _K_RESET, _K_EPOCH, _K_EVAL, _K_EVAL_MODEL = range(6)
 
 
 def action_prior(env: Any, net: NetworkConfig, env_name: str) -> Prior | None:
@@ -70,16 +54,6 @@ def action_prior(env: Any, net: NetworkConfig, env_name: str) -> Prior | None:
             f"{'the ' + repr(kind) + ' prior' if kind else 'no action prior'}; valid values for it: {valid}"
         )
     return env.action_prior(net.prior_lead_steps)
-
-
-def epoch_iterations(cfg: TrainConfig) -> int:
-    """Training iterations per compiled epoch (one progress line).
-
-    ``log_every_iterations``, or when it is 0 about ``_LINES_PER_EVAL`` lines per evaluation period.
-    """
-    total_iters = math.ceil(cfg.ppo.num_timesteps / cfg.ppo.steps_per_iteration)
-    periods = max((cfg.eval.num_evals - 1) * _LINES_PER_EVAL, 1)
-    return cfg.log_every_iterations or max(1, math.ceil(total_iters / periods))
 
 
 def slot_keys(key: jax.Array, total: int, local: int) -> jax.Array:
@@ -174,41 +148,6 @@ def set_up(
     return SetUp(dp, prior, learner, programs, template, weights(env))
 
 
-def run_epoch(
-    rollout: Callable[..., Any],
-    update: Callable[..., Any],
-    ts: TrainingState,
-    envs: Any,
-    key: jax.Array,
-    iterations: list[jax.Array],
-    weights: dict[str, jax.Array],
-) -> tuple[TrainingState, Any, list[Any], list[Any]]:
-    """One epoch: ``rollout`` then ``update`` (compiled programs) for each iteration index in ``iterations``.
-
-    Dispatched without a host sync (the calls queue on the device); returns ``(ts, envs, metrics, stats)``
-    with one entry per iteration in ``metrics`` and ``stats``, to reduce with ``epoch_totals`` once on
-    the host. ``iterations``: replicated int32 scalars 0 .. iters - 1, made once; ``weights``: the reward
-    weights, replicated (``envs.reward_weights``).
-    """
-    metrics, stats = [], []
-    for i in iterations:
-        envs, data, st = rollout(ts, envs, key, i, weights)
-        ts, m = update(ts, data, key, i)
-        metrics.append(m)
-        stats.append(st)
-    return ts, envs, metrics, stats
-
-
-def epoch_totals(metrics: list[dict[str, Any]], stats: list[Any]) -> tuple[dict[str, float], np.ndarray]:
-    """Host copies of ``run_epoch``'s lists -> each loss metric's mean over the epoch, the stats' sums.
-
-    ``stats`` rows are ``rollout_sums.step_sums`` vectors (reward, success numerator and denominator, then
-    the columns of ``rollout_sums.sum_layout``) over every device's slots.
-    """
-    means = {k: float(np.mean([m[k] for m in metrics])) for k in metrics[0]}
-    return means, np.sum(np.stack(stats), axis=0)
-
-
 def make_programs(
     env: Any,
     cfg: TrainConfig,
@@ -270,7 +209,7 @@ def make_programs(
         e_env, e_rand = (env, randomizer) if eval_env is None else (eval_env, eval_randomizer)
         env_e = slot_env(with_weights(e_env, weights), wrap_fn, e_rand, keys, auto_reset=False)
         state = env_e.reset(slot_keys(key, cfg.eval.num_eval_envs, eval_local))
-        return learner.evaluate(params, env_e, state, key, episode_length)
+        return evaluation.evaluate(learner.make_policy, params, env_e, state, key, episode_length)
 
     rep, shard = P(), P(AXIS)
     return Programs(
@@ -312,11 +251,6 @@ def to_compile(
         Program("init", programs.init, (key,)),
         Program("evaluate", programs.evaluate, (_policy_params(ts), key, key, w), background=True),
     ]
-
-
-def _host_params(host: TrainingState) -> tuple[Any, Any, Any]:
-    """``(normalizer, policy, value)`` of a host copy of the training state (brax's layout)."""
-    return (host.normalizer_params, host.params.policy, host.params.value)
 
 
 def _policy_params(ts: TrainingState) -> tuple[Any, Any]:

@@ -203,7 +203,7 @@ class EnvPrograms:
             },
             "window": stats["window"] + step_sums(self.layout, self.task, ns),
         }
-        if self.quality:  # as Learner.evaluate: the applied action's signals, before the step
+        if self.quality:  # as brax.evaluation.evaluate: the applied action's signals, before the step
             t, task, f32 = stats_in["t"], self.task, lambda x: jnp.asarray(x, jnp.float32)
             sig = jax.vmap(task.quality_signals)(state, actions)
             robot = task.robot

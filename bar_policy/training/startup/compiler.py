@@ -34,10 +34,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from bar_policy.training.startup.breakdown import ProgramTimes, StartupTimer
+from bar_policy.training.startup.heartbeat import Heartbeat
 
 if TYPE_CHECKING:
     from bar_policy.training.startup.executable_cache import ExecutableCache
-    from bar_policy.training.startup.heartbeat import Heartbeat
 
 __all__ = [
     "QUICK_COMPILE",
@@ -226,8 +226,9 @@ class Compiler:
     stored is loaded instead (in the calling thread, or on the worker with ``background=True``): no trace, no
     lowering, no compile; a miss is compiled as above and its executable stored.
 
-    ``heartbeat`` (``startup.heartbeat``) is told each program's stage and prints what the start-up is doing;
-    ``compiler_options`` go to every ``Lowered.compile`` (XLA debug options, e.g. ``QUICK_COMPILE``).
+    With ``say`` (prints a line) its heartbeat (``startup.heartbeat``) is told each program's stage and says
+    what the start-up is doing; ``compiler_options`` go to every ``Lowered.compile`` (XLA debug options, e.g.
+    ``QUICK_COMPILE``).
     """
 
     def __init__(
@@ -236,12 +237,12 @@ class Compiler:
         max_workers: int = 4,
         executable_cache: ExecutableCache | None = None,
         *,
-        heartbeat: Heartbeat | None = None,
+        say: Callable[[str], None] | None = None,
         compiler_options: dict[str, Any] | None = None,
     ) -> None:
         self.timer = timer
         self.executable_cache = executable_cache
-        self.heartbeat = heartbeat
+        self.heartbeat = Heartbeat(say, timer.origin) if say is not None else None
         self.compiler_options = dict(compiler_options or {})
         self._pool = ThreadPoolExecutor(max_workers=max_workers, thread_name_prefix="xla-compile")
         self._futures: dict[str, Future] = {}

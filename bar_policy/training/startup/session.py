@@ -41,7 +41,6 @@ from bar_policy.training.startup.executable_cache import (
     executable_cache_for,
     executable_cache_line,
 )
-from bar_policy.training.startup.heartbeat import Heartbeat
 
 __all__ = ["CompiledPrograms", "Program", "StartUp", "compile_programs"]
 
@@ -145,15 +144,7 @@ def compile_programs(programs: Sequence[Program], start: StartUp | None = None) 
     holds the GIL. ``start``: the run's ``StartUp`` (its breakdown and executable cache); None: a fresh
     breakdown, no executable cache.
     """
-    start = start or StartUp()
-    beat = Heartbeat(start.say, start.timer.origin) if start.say is not None else None
-    compiler = Compiler(
-        start.timer,
-        executable_cache=start.executable_cache,
-        heartbeat=beat,
-        compiler_options=start.compiler_options,
-    )
-    compiled = CompiledPrograms(compiler, start.timer)
+    compiled = CompiledPrograms(start or StartUp())
     out: dict[str, Any] = {}
     for p in programs:
         args = p.args(out) if callable(p.args) else p.args
@@ -175,9 +166,15 @@ class CompiledPrograms:
     latest.
     """
 
-    def __init__(self, compiler: Compiler, timer: StartupTimer) -> None:
-        self.compiler = compiler
-        self.timer = timer
+    def __init__(self, start: StartUp) -> None:
+        """Programs compiled for ``start``: its breakdown, its executable cache, its lines, its options."""
+        self.timer = start.timer
+        self.compiler = Compiler(
+            start.timer,
+            executable_cache=start.executable_cache,
+            say=start.say,
+            compiler_options=start.compiler_options,
+        )
         self._stats0 = CompileStats.get().snapshot()
         self._epochs = 0
         self._first_epoch_end = 0.0
