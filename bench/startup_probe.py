@@ -82,7 +82,7 @@ def child(train_args: list[str], profile: bool) -> None:
     def stop(*args: Any, **kwargs: Any) -> None:
         raise StopError
 
-    run_mod.StartupTimer, run_mod._open_run = Timer, stop
+    run_mod.StartupTimer, run_mod.open_run = Timer, stop
     prof = cProfile.Profile()
     if profile:  # the env build: envs.load, model build included
         from bar_policy import envs

@@ -23,7 +23,7 @@ from typing import Any
 from flax import serialization
 
 from bar_policy._files import write_atomic
-from bar_policy.training.startup.executable_cache import program_fields
+from bar_policy.training.startup.executable_key import program_fields
 
 __all__ = [
     "Checkpoint",
@@ -189,7 +189,7 @@ def resume_changes(checkpoint: str | os.PathLike[str], record: dict[str, Any] | 
     physics step on 2026-11-27) would change the training without a word, so every difference between the
     checkpoint's sidecar record and this run's (``train`` and ``env`` sections, flattened to dotted names)
     is listed, except the fields a resume is expected to change: those no program reads (where it writes,
-    when it stops, what it exports, its caches: ``executable_cache.program_fields`` leaves them out) and the
+    when it stops, what it exports, its caches: ``executable_key.program_fields`` leaves them out) and the
     step count. ``[]`` when both agree or when ``record`` is None; one line when the checkpoint has no
     readable sidecar.
 

@@ -330,7 +330,7 @@ def test_run_name_budget_and_paths_stay_out_of_the_key(tmp_path, monkeypatch):
     assert ctx[0] != ctx[2] and ctx[0] != ctx[3]
     assert "initial" in base["eval"] and "initial" not in ctx[0]["train"]["eval"]
     assert base["eval"]["initial"] == "end"  # the record itself is left whole
-    for name in ec.OUTSIDE_PROGRAMS:  # every name left out is a real field (of a section, when dotted)
+    for name in ek.OUTSIDE_PROGRAMS:  # every name left out is a real field (of a section, when dotted)
         section, _, leaf = name.partition(".")
         assert section in base and (not leaf or leaf in base[section]), name
 
@@ -364,11 +364,11 @@ def test_the_key_holds_reward_weights_by_name(tmp_path, monkeypatch):
         assert ctx[0] == ctx[1], backend
         assert ctx[0] != ctx[2], backend
     train = {"seed": 0, "env_overrides": ["sim_dt=0.004", "reward.scales.success=0.6"]}
-    t, e = ec.weights_by_name(train, records[1])
+    t, e = ek.weights_by_name(train, records[1])
     assert e["reward"]["scales"] == sorted(records[1]["reward"]["scales"])  # the names stay
     assert t == {"seed": 0, "env_overrides": ["sim_dt=0.004"]}
     assert records[1]["reward"]["scales"]["success"] == 0.6  # the record itself is left whole
-    assert ec.weights_by_name(train, {"gain": 0.3}) == (train, {"gain": 0.3})  # no weights: as it is
+    assert ek.weights_by_name(train, {"gain": 0.3}) == (train, {"gain": 0.3})  # no weights: as it is
 
 
 def test_key_covers_config_code_versions_platform_and_signature():

@@ -77,10 +77,8 @@ from bar_policy.training.rsl_rl.policy import (
 from bar_policy.training.rsl_rl.prior import start_actor_at_prior
 from bar_policy.training.rsl_rl.programs import RslRlPrograms
 from bar_policy.training.rsl_rl.state import (
-    load_module_state,
-    load_optimizer_state,
-    module_state,
-    optimizer_state,
+    load_ppo_state,
+    ppo_state,
 )
 from bar_policy.training.rsl_rl.torch_bridge import COPIES, torch_device_for_jax
 from bar_policy.training.rsl_rl.torch_precision import update_precision
@@ -209,7 +207,7 @@ def train_rsl_rl(
         # rsl-rl's own runner logger, writing into the run's tb/ (its writer: TensorBoard or wandb, as
         # --logger says; it also stores the code state, tb/git/*.diff). Our loop writes the scalars
         # through it, under the tags both backends share (log_tags), from the sums read once per iteration.
-        train_cfg = rsl_rl_train_cfg(cfg)
+        train_cfg, unused = rsl_rl_train_cfg(cfg), not_applied(cfg)  # unused: brax settings rsl-rl ignores
         log_dir = None if scalars_dir is None else str(scalars_dir)
         run_name = "" if scalars_dir is None else scalars_dir.parent.name
         train_cfg["logger"] = rsl_rl_logger_cfg(cfg.logger, project=cfg.wandb_project, run_name=run_name)
@@ -218,7 +216,7 @@ def train_rsl_rl(
             runner.logger.git_status_repos.append(bar_policy.__file__)  # our tree's diff beside rsl-rl's
             runner.logger.init_logging_writer()
             yield ScalarWriter(runner.logger.writer)
-        yield NotApplied(tuple(not_applied(cfg)))  # brax settings rsl-rl runs without
+        yield NotApplied(tuple(unused))
         alg = runner.alg
         if prior is not None:
             start_actor_at_prior(alg.actor)  # a resume loads its own parameters over it
@@ -226,7 +224,8 @@ def train_rsl_rl(
         # below); frozen in eval mode.
         initial_actor = copy.deepcopy(alg.actor).eval()
         if resume is not None:
-            env_steps, iteration = _restore(alg, resume, device)
+            load_ppo_state(alg, resume.state, device)
+            env_steps, iteration = resume.env_steps, resume.iteration
             yield Resumed(resume.path, env_steps, iteration, resume.changes)
         # Copied before any forward pass: later the Gaussian head holds non-leaf tensors deepcopy refuses.
         spare_actor = copy.deepcopy(alg.actor)
@@ -348,7 +347,7 @@ def train_rsl_rl(
                 or over_budget
                 or (cfg.checkpoint_every and (iteration // iters_per_eval) % cfg.checkpoint_every == 0)
             ):
-                yield _checkpoint(alg, env_steps, iteration)
+                yield SaveCheckpoint(ppo_state(alg), env_steps, iteration)
         if over_budget and not last:
             yield Said((f"stopping: wall-clock budget of {cfg.max_minutes} min reached",))
             break
@@ -374,27 +373,3 @@ def train_rsl_rl(
         spare_actor=spare_actor,
         prior=prior,
     )
-
-
-def _restore(alg: Any, resume: Checkpoint, device: str) -> tuple[int, int]:
-    """Load the actor, critic, optimizer and learning rate of a read checkpoint into ``alg``.
-
-    Returns ``(env_steps, iteration)`` it was saved at.
-    """
-    st = resume.state
-    load_module_state(alg.actor, st["actor"], device)
-    load_module_state(alg.critic, st["critic"], device)
-    load_optimizer_state(alg.optimizer, st["optimizer"], device)
-    alg.learning_rate = float(st["learning_rate"])
-    return resume.env_steps, resume.iteration
-
-
-def _checkpoint(alg: Any, step: int, iteration: int) -> SaveCheckpoint:
-    """The actor, critic, optimizer state and learning rate to save (torch state dicts as numpy)."""
-    state = {
-        "actor": module_state(alg.actor),
-        "critic": module_state(alg.critic),
-        "optimizer": optimizer_state(alg.optimizer),
-        "learning_rate": np.asarray(alg.learning_rate),
-    }
-    return SaveCheckpoint(state, step, iteration)

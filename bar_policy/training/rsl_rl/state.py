@@ -1,4 +1,8 @@
-"""Torch state <-> msgpack-able numpy trees (no pickle): the rsl-rl backend's checkpoint contents."""
+"""Torch state <-> msgpack-able numpy trees (no pickle): the rsl-rl backend's checkpoint contents.
+
+A checkpoint's state is ``ppo_state``'s: the actor's and critic's state dicts, the optimizer's state and the
+learning rate (``load_ppo_state`` puts them back, a resume's).
+"""
 
 from __future__ import annotations
 
@@ -8,7 +12,14 @@ from typing import Any
 import numpy as np
 import torch
 
-__all__ = ["load_module_state", "load_optimizer_state", "module_state", "optimizer_state"]
+__all__ = [
+    "load_module_state",
+    "load_optimizer_state",
+    "load_ppo_state",
+    "module_state",
+    "optimizer_state",
+    "ppo_state",
+]
 
 
 def module_state(module: torch.nn.Module) -> dict[str, np.ndarray]:
@@ -43,3 +54,21 @@ def load_optimizer_state(opt: torch.optim.Optimizer, data: dict[str, Any], devic
 def load_module_state(module: torch.nn.Module, data: dict[str, Any], device: str) -> None:
     """Restore ``module_state``'s output into ``module`` (tensors on ``device``)."""
     module.load_state_dict({k: torch.as_tensor(np.array(v), device=device) for k, v in data.items()})
+
+
+def ppo_state(alg: Any) -> dict[str, Any]:
+    """What a checkpoint saves of rsl-rl's ``PPO``: actor, critic, optimizer state, learning rate."""
+    return {
+        "actor": module_state(alg.actor),
+        "critic": module_state(alg.critic),
+        "optimizer": optimizer_state(alg.optimizer),
+        "learning_rate": np.asarray(alg.learning_rate),
+    }
+
+
+def load_ppo_state(alg: Any, state: dict[str, Any], device: str) -> None:
+    """Put ``ppo_state``'s output (as read back from a checkpoint) into ``alg``, tensors on ``device``."""
+    load_module_state(alg.actor, state["actor"], device)
+    load_module_state(alg.critic, state["critic"], device)
+    load_optimizer_state(alg.optimizer, state["optimizer"], device)
+    alg.learning_rate = float(state["learning_rate"])

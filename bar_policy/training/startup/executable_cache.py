@@ -9,11 +9,10 @@ submits; ``docs/training.md`` has the measurements.
 **The key** (``ExecutableCache.key``): a SHA-256 over a JSON document of
 
 - the program's name and the jitted function's module and qualified name;
-- the run's context, passed in explicitly (``run.py``: the training config ``config_to_dict(cfg)`` less
-  ``OUTSIDE_PROGRAMS``, the env config (its reward weights by name only: ``weights_by_name``), the
-  env's class and, for an env class outside ``bar_policy``, its
-  source file's hash);
-  the seed and every randomisation setting the programs close over live in those configs;
+- the run's context, passed in explicitly (``executable_key.run_context`` of the run's record: the training
+  config ``config_to_dict(cfg)`` less ``OUTSIDE_PROGRAMS``, the env config (its reward weights by name
+  only: ``weights_by_name``), the env's class and, for an env class outside ``bar_policy``, its source
+  file's hash); the seed and every randomisation setting the programs close over live in those configs;
 - ``package_hash()`` (these helpers live in ``executable_key``): the content of every file under
   ``bar_policy/`` (code, XML, JSON, meshes), once per process;
 - ``library_versions()``: jax, jaxlib, the PJRT plugins, mujoco, mujoco-mjx, brax, flax, optax, numpy;
@@ -56,20 +55,16 @@ from pathlib import Path
 from typing import Any
 
 from bar_policy._files import write_atomic
-from bar_policy.overrides import split_override
 from bar_policy.training.startup import executable_key as ek
 
 __all__ = [
     "CPU_ENV",
     "FORMAT",
     "MAX_BYTES",
-    "OUTSIDE_PROGRAMS",
     "ExecutableCache",
     "executable_cache_for",
     "executable_cache_line",
     "off_reason",
-    "program_fields",
-    "weights_by_name",
 ]
 
 FORMAT = 1
@@ -276,60 +271,6 @@ def _alive(pid: int) -> bool:
     return pid > 0
 
 
-OUTSIDE_PROGRAMS = (
-    "run_name",
-    "runs_dir",
-    "resume",
-    "max_minutes",
-    "export_onnx",
-    "onnx_path",
-    "compile_cache",
-    "compile_cache_dir",
-    "executable_cache",
-    "autotune_seed",
-    "eval.initial",
-    "distributed.coordinator_address",
-)
-"""Training-config fields no compiled program reads (where the run is written, when it stops, what is
-exported, where caches live, whether XLA's autotune cache is seeded: that changes which implementation
-XLA picks for a fusion, never what the program computes; when the step-0 evaluation runs; where the
-coordinator listens: the process count and index are in the key's platform part): left out of the
-key (a dotted name: a field of a section), so a rerun under another run name or wall-clock budget is
-served. Until stop 31 they were in it, and the GPU's warm runs missed (docs/training.md)."""
-
-
-def program_fields(train: Mapping[str, Any]) -> dict[str, Any]:
-    """``train`` (a ``config_to_dict`` record) less ``OUTSIDE_PROGRAMS``.
-
-    The key's part of it, and what ``checkpoint.resume_changes`` compares.
-    """
-    out = {k: v for k, v in train.items() if k not in OUTSIDE_PROGRAMS}
-    for name in OUTSIDE_PROGRAMS:
-        section, _, leaf = name.partition(".")
-        if leaf and isinstance(out.get(section), Mapping):
-            out[section] = {k: v for k, v in out[section].items() if k != leaf}
-    return out
-
-
-def weights_by_name(
-    train: Mapping[str, Any], env: Mapping[str, Any] | None
-) -> tuple[Mapping[str, Any], Mapping[str, Any] | None]:
-    """The key's training and env config parts, with the reward weights by name only.
-
-    Every program that steps the env takes the weights as an argument (the brax rollout and evaluation,
-    ``training.brax.programs``; the rsl-rl steps, ``rsl_rl.programs``), so their values are left out. The env
-    record keeps the terms' names, and the training config's ``env_overrides`` lose their
-    ``reward.scales.*`` items. A run that changes only a weight is then served.
-    """
-    reward = env.get("reward") if isinstance(env, Mapping) else None
-    scales = reward.get("scales") if isinstance(reward, Mapping) else None
-    if not isinstance(scales, Mapping):
-        return train, env
-    overrides = train.get("env_overrides", ())
-    kept = [o for o in overrides if not split_override(o)[0].startswith("reward.scales.")]
-    return {**train, "env_overrides": kept}, {**env, "reward": {**reward, "scales": sorted(scales)}}
-
-
 def executable_cache_for(
     cfg: Any, cache_dir: Path | None, record: Mapping[str, Any], env: Any
 ) -> ExecutableCache | None:
@@ -341,21 +282,15 @@ def executable_cache_for(
     Args:
         cfg: the run's ``TrainConfig``.
         cache_dir: jax's persistent cache directory (``compiler.configure_compile_cache``'s answer).
-        record: the run's config record (``run._open_run``): its ``train`` and ``env`` configs go in the key.
+        record: the run's config record (``run_dir.open_run``): its ``train`` and ``env`` configs go in the
+            key (``executable_key.run_context``).
         env: the env trained on: its class (and source, when outside ``bar_policy``) go in the key.
     """
     import jax
 
     if off_reason(cfg, cache_dir, jax.default_backend()):
         return None
-    cls = type(env)
-    train, env_record = weights_by_name(program_fields(record["train"]), record["env"])
-    context = {
-        "train": train,
-        "env": env_record or repr(getattr(env, "config", None)),
-        "env_class": f"{cls.__module__}.{cls.__qualname__}",
-        "env_source": ek.source_hash(env),
-    }
+    context = ek.run_context(record, env)
     cache = ExecutableCache(Path(cache_dir) / "executables", context)
     if _crashed_marker(cache.directory).exists():
         _log.warning(

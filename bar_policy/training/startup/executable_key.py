@@ -1,6 +1,8 @@
-"""The executable cache's key parts: package content, versions, platform, flags, argument signature.
+"""The executable cache's key parts: the run's context, package content, versions, platform, flags, signature.
 
-Each is described the same way in every process (``executable_cache`` hashes them).
+Each is described the same way in every process (``executable_cache`` hashes them). The run's context
+(``run_context``) is its record less what no program reads (``program_fields``, ``weights_by_name``) and its
+env's class and source.
 
 Seeding XLA's autotune cache (``autotune``) changes none of these parts but ``package_hash`` (its
 archive is a package file: replacing it misses once): a seed only changes which implementation XLA picks
@@ -15,6 +17,7 @@ import functools
 import hashlib
 import json
 import os
+from collections.abc import Mapping
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -22,8 +25,20 @@ from typing import Any
 import numpy as np
 
 from bar_policy._files import PACKAGE_ROOT, package_hash
+from bar_policy.overrides import split_override
 
-__all__ = ["library_versions", "package_hash", "platform", "runtime_flags", "signature", "source_hash"]
+__all__ = [
+    "OUTSIDE_PROGRAMS",
+    "library_versions",
+    "package_hash",
+    "platform",
+    "program_fields",
+    "run_context",
+    "runtime_flags",
+    "signature",
+    "source_hash",
+    "weights_by_name",
+]
 
 LIBRARIES = (
     "jax",
@@ -183,3 +198,77 @@ def signature(args: Any) -> dict[str, Any]:
 
     leaves, tree = jax.tree_util.tree_flatten(args)
     return {"tree": _tree(tree), "leaves": [_leaf(x) for x in leaves]}
+
+
+OUTSIDE_PROGRAMS = (
+    "run_name",
+    "runs_dir",
+    "resume",
+    "max_minutes",
+    "export_onnx",
+    "onnx_path",
+    "compile_cache",
+    "compile_cache_dir",
+    "executable_cache",
+    "autotune_seed",
+    "eval.initial",
+    "distributed.coordinator_address",
+)
+"""Training-config fields no compiled program reads (where the run is written, when it stops, what is
+exported, where caches live, whether XLA's autotune cache is seeded: that changes which implementation
+XLA picks for a fusion, never what the program computes; when the step-0 evaluation runs; where the
+coordinator listens: the process count and index are in the key's platform part): left out of the
+key (a dotted name: a field of a section), so a rerun under another run name or wall-clock budget is
+served. Until stop 31 they were in it, and the GPU's warm runs missed (docs/training.md)."""
+
+
+def program_fields(train: Mapping[str, Any]) -> dict[str, Any]:
+    """``train`` (a ``config_to_dict`` record) less ``OUTSIDE_PROGRAMS``.
+
+    The key's part of it, and what ``checkpoint.resume_changes`` compares.
+    """
+    out = {k: v for k, v in train.items() if k not in OUTSIDE_PROGRAMS}
+    for name in OUTSIDE_PROGRAMS:
+        section, _, leaf = name.partition(".")
+        if leaf and isinstance(out.get(section), Mapping):
+            out[section] = {k: v for k, v in out[section].items() if k != leaf}
+    return out
+
+
+def weights_by_name(
+    train: Mapping[str, Any], env: Mapping[str, Any] | None
+) -> tuple[Mapping[str, Any], Mapping[str, Any] | None]:
+    """The key's training and env config parts, with the reward weights by name only.
+
+    Every program that steps the env takes the weights as an argument (the brax rollout and evaluation,
+    ``training.brax.programs``; the rsl-rl steps, ``rsl_rl.programs``), so their values are left out. The env
+    record keeps the terms' names, and the training config's ``env_overrides`` lose their
+    ``reward.scales.*`` items. A run that changes only a weight is then served.
+    """
+    reward = env.get("reward") if isinstance(env, Mapping) else None
+    scales = reward.get("scales") if isinstance(reward, Mapping) else None
+    if not isinstance(scales, Mapping):
+        return train, env
+    overrides = train.get("env_overrides", ())
+    kept = [o for o in overrides if not split_override(o)[0].startswith("reward.scales.")]
+    return {**train, "env_overrides": kept}, {**env, "reward": {**reward, "scales": sorted(scales)}}
+
+
+def run_context(record: Mapping[str, Any], env: Any) -> dict[str, Any]:
+    """What a run's programs close over that their code does not say: the key's ``context`` part.
+
+    ``record``: the run's record (``run_dir.open_run``): its ``train`` config less ``OUTSIDE_PROGRAMS`` and
+    its ``env`` config, both with the reward weights by name only (``weights_by_name``); ``env``: the env
+    trained on: its class, and its source file's hash (``source_hash``; None for ``bar_policy``'s own, which
+    the package hash covers).
+    """
+    cls = type(env)
+    env_source = source_hash(env)
+    train = program_fields(record["train"])
+    train, env_record = weights_by_name(train, record["env"])
+    return {
+        "train": train,
+        "env": env_record or repr(getattr(env, "config", None)),
+        "env_class": f"{cls.__module__}.{cls.__qualname__}",
+        "env_source": env_source,
+    }
