@@ -71,18 +71,14 @@ def child(train_args: list[str], profile: bool) -> None:
     autotune_seed.local_platform = timed_platform
     timers: list[Any] = []
 
-    class Timer(run_mod.StartupTimer):
-        def __init__(self, *args: Any, **kwargs: Any) -> None:
-            super().__init__(*args, **kwargs)
-            timers.append(self)
-
     class StopError(Exception):
         pass
 
-    def stop(*args: Any, **kwargs: Any) -> None:
+    def stop(cfg: Any, env: Any, start: Any, is_main: bool) -> None:  # run_dir.open_run's signature
+        timers.append(start.timer)
         raise StopError
 
-    run_mod.StartupTimer, run_mod.open_run = Timer, stop
+    run_mod.open_run = stop
     prof = cProfile.Profile()
     if profile:  # the env build: envs.load, model build included
         from bar_policy import envs
