@@ -58,7 +58,7 @@ def main() -> int:
     from bar_policy.training.rsl_rl.env import RslRlVecEnv, torch_device_for_jax
     from bar_policy.training.rsl_rl.torch_bridge import jax_to_torch, torch_to_jax
     from bar_policy.training.rsl_rl.torch_precision import update_precision
-    from bar_policy.training.startup.compiler import configure_compile_cache
+    from bar_policy.training.startup.compile_cache import configure_compile_cache
 
     configure_compile_cache(True)
     env = load_env(args.env, cfg)

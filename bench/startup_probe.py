@@ -49,7 +49,7 @@ PYC_PACKAGES += ("bar_policy",)
 def child(train_args: list[str], profile: bool) -> None:
     """One start, stopped before the run directory; prints one JSON line (``profile``: the env build's)."""
     os.environ.setdefault("MUJOCO_GL", "disable")  # as train/ppo.py does, before MuJoCo is imported
-    from bar_policy.training.startup.compiler import process_uptime
+    from bar_policy.training.startup.breakdown import process_uptime
 
     started_at = time.monotonic() - process_uptime()
     from bar_policy.training.cli import parse_config

@@ -62,7 +62,8 @@ from bar_policy.training.brax.state import epoch_iterations, host_key, run_epoch
 from bar_policy.training.parallel import AXIS, DataParallel
 from bar_policy.training.startup.autotune import seed_autotune_cache
 from bar_policy.training.startup.breakdown import StartupTimer
-from bar_policy.training.startup.compiler import Compiler, configure_compile_cache
+from bar_policy.training.startup.compile_cache import configure_compile_cache
+from bar_policy.training.startup.compiler import Compiler
 
 
 def best_time(fn: Any, iters: int) -> float:

@@ -55,7 +55,7 @@ from train_breakdown import best_time
 from bar_policy.training.brax.learner import make_learner
 from bar_policy.training.parallel import AXIS, DataParallel
 from bar_policy.training.startup.autotune import seed_autotune_cache
-from bar_policy.training.startup.compiler import configure_compile_cache
+from bar_policy.training.startup.compile_cache import configure_compile_cache
 
 
 def transitions(rows: int, steps: int, obs: int, act: int, seed: int) -> types.Transition:

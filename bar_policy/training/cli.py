@@ -197,7 +197,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``bar-train``: parse, train, evaluate, export; prints progress and a summary table."""
     import time
 
-    from bar_policy.training.startup.compiler import process_uptime
+    from bar_policy.training.startup.breakdown import process_uptime
 
     started_at = time.monotonic() - process_uptime()
     try:

@@ -28,7 +28,7 @@ from bar_policy.tasks.piano.scene import (
     MAX_GEOM_PAIRS,
     keyboard_scene,
 )
-from bar_policy.training.startup.compiler import QUICK_COMPILE
+from bar_policy.training.startup.compile_cache import QUICK_COMPILE
 
 KB = compact_config()
 ROBOT = load_robot("arms")

@@ -25,7 +25,7 @@ from bar_policy.tasks.piano.keyboard import black_keys, compact_config, press_th
 from bar_policy.tasks.piano.songs import Note, Song
 from bar_policy.tasks.piano.source import SongCommands
 from bar_policy.tasks.piano.terms import PIANO_KEYS, TARGET_FRAMES
-from bar_policy.training.startup.compiler import QUICK_COMPILE
+from bar_policy.training.startup.compile_cache import QUICK_COMPILE
 
 NO_COUNT_IN = PlaybackConfig(count_in_s=0.0)
 

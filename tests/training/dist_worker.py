@@ -17,7 +17,7 @@ import numpy as np
 
 from bar_policy.training.config import apply_overrides, preset
 from bar_policy.training.run import run
-from bar_policy.training.startup.compiler import process_uptime
+from bar_policy.training.startup.breakdown import process_uptime
 
 
 def _count(c: object) -> int:

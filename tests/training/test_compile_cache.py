@@ -19,7 +19,8 @@ import pytest
 from toy_env import ToyConfig, ToyReach
 
 from bar_policy.training.startup.breakdown import StartupTimer
-from bar_policy.training.startup.compiler import Compiler, CompileStats, configure_compile_cache
+from bar_policy.training.startup.compile_cache import configure_compile_cache
+from bar_policy.training.startup.compiler import Compiler, CompileStats
 
 ACTION = np.linspace(-1.5, 1.5, 14, dtype=np.float32)
 """One action; entries beyond +-1 are clipped by the env."""

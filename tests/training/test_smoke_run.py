@@ -2,9 +2,9 @@
 
 One run of the tiny preset (the real env, its programs compiled with ``quick_compile``) through ``run``,
 as the command line runs it; its printed lines are checked: the start-up's lines about its programs
-(``startup.heartbeat``), the labelled evaluations and the final evaluation with its env steps and what it
-ran on. Its wall time is a benchmark (docs/training.md, "Smoke run"), not checked here. The labels on both
-backends are checked on the shared stand-in runs (``brax_run``, ``rsl_run``).
+(``startup.compiler.Heartbeat``), the labelled evaluations and the final evaluation with its env steps and
+what it ran on. Its wall time is a benchmark (docs/training.md, "Smoke run"), not checked here. The labels on
+both backends are checked on the shared stand-in runs (``brax_run``, ``rsl_run``).
 """
 
 from __future__ import annotations

@@ -11,12 +11,8 @@ import pytest
 
 from bar_policy.training.startup import breakdown as sb
 from bar_policy.training.startup.breakdown import StartupTimer
-from bar_policy.training.startup.compiler import (
-    Compiler,
-    CompileStats,
-    configure_compile_cache,
-    default_cache_dir,
-)
+from bar_policy.training.startup.compile_cache import configure_compile_cache, default_cache_dir
+from bar_policy.training.startup.compiler import Compiler, CompileStats
 
 
 def test_default_cache_dir_follows_xdg(monkeypatch, tmp_path):

@@ -13,8 +13,8 @@ import jax.numpy as jnp
 import pytest
 
 from bar_policy.training.startup.breakdown import StartupTimer
-from bar_policy.training.startup.compiler import QUICK_COMPILE
-from bar_policy.training.startup.heartbeat import Heartbeat
+from bar_policy.training.startup.compile_cache import QUICK_COMPILE
+from bar_policy.training.startup.compiler import Heartbeat
 from bar_policy.training.startup.session import Program, StartUp, compile_programs
 
 

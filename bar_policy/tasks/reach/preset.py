@@ -149,7 +149,7 @@ TINY = {
 """The smoke run: ``bar-train --preset tiny``, chosen for a cold start on a 2-core CPU, for
 tests and a first try (not expected to solve the task). What it chooses for that, each a CPU's cost:
 
-- ``quick_compile``: XLA's LLVM at -O1 (``startup.compiler.QUICK_COMPILE``): the programs compile sooner
+- ``quick_compile``: XLA's LLVM at -O1 (``startup.compile_cache.QUICK_COMPILE``): the programs compile sooner
   and run about as fast.
 - ``eval.num_evals`` 2: one evaluation, at the end (the periodic one is the last); with the step-0 one
   (``eval.initial=end``) and the final evaluation, three runs of the one compiled evaluation.

@@ -3,8 +3,8 @@
 ``session`` is the face the rest of training sees: ``StartUp`` (begun before jax's backend starts, opened
 once the run's record exists) and ``compile_programs``, the one call a trainer makes, its programs in and
 compiled out. Behind it: ``backend_env`` sets the environment jax and torch read when their backends start;
-``compiler`` configures jax's persistent compile cache and compiles the programs ahead of time,
-concurrently; ``executable_cache`` (keyed by ``executable_key``) loads a warm run's executables instead of
-tracing them; ``autotune`` seeds XLA's GPU autotune cache from the shipped results; ``breakdown`` records
-where the start-up's seconds went.
+``compile_cache`` configures jax's persistent compile cache; ``compiler`` compiles the programs ahead of
+time, concurrently, and says what is compiling; ``executable_cache`` (keyed by ``executable_key``) loads a
+warm run's executables instead of tracing them; ``autotune`` seeds XLA's GPU autotune cache from the shipped
+results; ``breakdown`` records where the start-up's seconds went.
 """

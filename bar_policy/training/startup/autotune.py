@@ -185,7 +185,7 @@ def seed_autotune_cache(
     unreadable manifest or archive is the ``reason`` and training goes on without it.
 
     Args:
-        cache_dir: jax's compile cache directory (``compiler.configure_compile_cache``), None when off.
+        cache_dir: jax's compile cache directory (``compile_cache.configure_compile_cache``), None when off.
         enabled: ``TrainConfig.autotune_seed``.
         seeds_dir: where the manifests and archives are (the package's ``autotune/`` folder).
     """

@@ -15,17 +15,21 @@ Two views of the same start:
 The record also says what seeding XLA's autotune cache did (``startup.autotune``, one ``autotune seed: ...``
 line in the table), since a cold GPU compile is about 30 s shorter with it.
 
-``StartupTimer.finish`` makes the JSON record of both (``final_eval.json`` and ``metrics.jsonl`` keep it
-under ``startup``); ``lines`` prints it as a table.
+The breakdown counts from the process start when the command line passes it (``process_uptime``), so the
+interpreter's start and the parsing are its ``BEFORE_RUN`` row. ``StartupTimer.finish`` makes the JSON
+record of both (``final_eval.json`` and ``metrics.jsonl`` keep it under ``startup``); ``lines`` prints it as a
+table.
 """
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from collections.abc import Iterator
 from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from bar_policy._phases import MODEL_BUILD, PhaseClock
@@ -33,7 +37,9 @@ from bar_policy._phases import MODEL_BUILD, PhaseClock
 if TYPE_CHECKING:
     from bar_policy.training.startup.autotune import SeedOutcome
 
-__all__ = ["PHASES", "UNTIL_EPOCH", "UNTIL_EVAL", "ProgramTimes", "StartupTimer"]
+__all__ = ["PHASES", "UNTIL_EPOCH", "UNTIL_EVAL", "ProgramTimes", "StartupTimer", "process_uptime"]
+
+_T_IMPORT = time.monotonic()
 
 BEFORE_RUN = "before run (interpreter, CLI, parsing, env check)"
 """The env check: with ``--env-overrides`` (the reach gpu preset has one) the parser checks them against the
@@ -99,6 +105,16 @@ _ORDER: tuple[str, ...] = (
     *PHASES[PHASES.index(WAIT) :],
 )
 """Print order of every known row; a backend's rows that are not in it go after them, before ``OTHER``."""
+
+
+def process_uptime() -> float:
+    """Seconds since this process started (Linux ``/proc``; elsewhere since ``breakdown`` was imported)."""
+    try:
+        start_ticks = int(Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()[19])
+        boot_uptime = float(Path("/proc/uptime").read_text().split()[0])
+        return max(0.0, boot_uptime - start_ticks / os.sysconf("SC_CLK_TCK"))
+    except (OSError, ValueError, IndexError):
+        return time.monotonic() - _T_IMPORT
 
 
 @dataclass

@@ -1,126 +1,150 @@
-"""Cold start: the persistent compilation cache, concurrent ahead-of-time compiles, a start-up breakdown.
+"""Ahead-of-time compiles on worker threads, what jax compiled meanwhile, and the lines saying what compiles.
 
 Most of a short run's wall time is XLA compiling the MJX programs (the env step inside the training epoch,
-the evaluation, the reset). Five things cut it:
+the evaluation, the reset). Besides jax's persistent cache (``startup.compile_cache``) and XLA's autotune
+seed (``startup.autotune``), three things here cut it or make it visible:
 
-- **Persistent cache** (``configure_compile_cache``): on by default in ``$XDG_CACHE_HOME/bar_policy/jax``
-  (``~/.cache/bar_policy/jax``), every program cached whatever its compile time, so a rerun of the same
-  command loads executables instead of compiling them.
+- **Concurrent compiles** (``Compiler``): each program is traced in the calling thread (Python, holds the
+  GIL) and handed to a thread for XLA's compile (releases the GIL), so the epoch, evaluation and reset
+  compile side by side while the next program is traced.
 - **Executable cache** (``bar_policy.training.startup.executable_cache``, handed to ``Compiler``): jax's
   cache is keyed on the lowered program, so a warm run still traces and lowers every program; this one
   stores the serialised executable under a key of everything that determines it (config, package content,
   library versions, devices, argument signature), so a rerun loads it without tracing
   (``docs/training.md``). On by default on GPUs.
-- **Autotune seed** (``bar_policy.training.startup.autotune``): XLA's GPU autotuning results shipped for a
-  device kind and jaxlib, copied into the cache's per-fusion autotune directory, so a cold compile skips
-  timing fusions already timed (about 30 s of an H100's cold start).
-- **Concurrent compiles** (``Compiler``): each program is traced in the calling thread (Python, holds the
-  GIL) and handed to a thread for XLA's compile (releases the GIL), so the epoch, evaluation and reset
-  compile side by side while the next program is traced.
-- **A breakdown** (``StartupTimer``, ``bar_policy.training.startup.breakdown``): where the seconds before
-  training went (imports, model build, env, each trace, lowering, compile or cache load, first epoch and
-  evaluation), printed at the top of a run and kept in its record, so a slow start is visible.
+- **What it is doing** (``Heartbeat``, driven by ``Compiler``): a cold start on a CPU spends minutes in XLA,
+  and without these lines the terminal showed nothing but the run header (and, past two minutes of one
+  compile, XLA's own ``slow_operation_alarm`` "Very slow compile?", which reads like a fault). The
+  heartbeat keeps each program's stage (``STAGES``) and
+
+  - prints one line when a program is done (``rollout: compiled in 35.1 s``, ``... loaded from the
+    compile cache in 0.4 s``, ``... loaded from the executable cache in 0.2 s``);
+  - every ``interval_s`` while any program is unfinished, one line of what each unfinished program is
+    doing and for how long: ``start-up 23 s: rollout compiling (XLA, 12 s), evaluate tracing (3 s); done:
+    reset``.
+
+  Its lines start with ``start-up`` or ``  program`` so a reader (and tests/training/test_smoke_run.py) can
+  tell them from the progress lines. The printing thread stops once every program is done (``close``).
+
+Every stage's seconds go into the start-up breakdown (``StartupTimer``, ``startup.breakdown``): where the
+seconds before training went (imports, model build, env, each trace, lowering, compile or cache load, first
+epoch and evaluation), printed at the top of a run and kept in its record, so a slow start is visible;
+``CompileStats`` counts the compiles and persistent-cache outcomes jax reports.
 """
 
 from __future__ import annotations
 
 import contextlib
-import os
 import threading
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
-from pathlib import Path
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from bar_policy.training.startup.breakdown import ProgramTimes, StartupTimer
-from bar_policy.training.startup.heartbeat import Heartbeat
 
 if TYPE_CHECKING:
     from bar_policy.training.startup.executable_cache import ExecutableCache
 
-__all__ = [
-    "QUICK_COMPILE",
-    "QUICK_COMPILE_NOTE",
-    "CompileStats",
-    "Compiler",
-    "configure_compile_cache",
-    "default_cache_dir",
-    "process_uptime",
-    "quiet_xla_alarms",
-]
-
-_T_IMPORT = time.monotonic()
-
-QUICK_COMPILE: dict[str, Any] = {"xla_backend_optimization_level": 1}
-"""XLA options of ``TrainConfig.quick_compile`` (the tiny preset's): LLVM's code generation at -O1 instead
-of the default -O2/-O3 pipeline; XLA's HLO passes (fusion, layout) still run. The tiny preset's evaluation
-on the 2-core CPU (process CPU seconds, jaxlib 0.10.2, 2026-12-02): compile 39.2 s at -O1, 48.8 s with only
-``xla_llvm_disable_expensive_passes``, one run 2.07 and 2.01 s; at -O0 it compiled faster still but ran
-several times slower, which three evaluations per run paid back (docs/training.md, "Smoke run")."""
-QUICK_COMPILE_NOTE = (
-    "quick compile: XLA's LLVM at -O1 (smoke-run programs: compile sooner, run about as fast; "
-    "--no-quick-compile turns it off)"
-)
+__all__ = ["STAGES", "CompileStats", "Compiler", "Heartbeat"]
 
 
-def quiet_xla_alarms() -> str:
-    """Keep XLA's C++ log to fatal messages; returns the note that says so.
+STAGES = ("queued", "tracing", "lowering", "compiling", "loading", "done", "failed")
+"""A program's stages in order: ``compiling`` is XLA's compile (or jax's persistent-cache lookup and load:
+which of the two is known only once it ends), ``loading`` an executable-cache load."""
 
-    XLA logs ``slow_operation_alarm`` errors ("Very slow compile?", "Constant folding an instruction is
-    taking > 1s") while a CPU compile runs long: a newcomer's smoke run showed nothing else for minutes
-    and read them as a fault. The start-up's own lines (``startup.heartbeat``) say what compiles instead.
-    jax's ``jax_logging_level`` sets the same absl level but also re-levels jax's Python loggers; this
-    sets the C++ one only (process-wide, from now on). Failures still raise in Python.
-    """
-    from jax._src.lib import utils
-
-    utils.absl_set_min_log_level(3)  # absl: 0 info, 1 warning, 2 error, 3 fatal
-    return "XLA's C++ log: fatal only (its slow-compile alarms; the start-up lines say what compiles)"
+_SAY_STAGE = {
+    "queued": "queued",
+    "tracing": "tracing",
+    "lowering": "lowering",
+    "compiling": "compiling (XLA)",
+    "loading": "loading from the executable cache",
+}
 
 
-def process_uptime() -> float:
-    """Seconds since this process started (Linux ``/proc``; elsewhere since this module was imported)."""
-    try:
-        start_ticks = int(Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()[19])
-        boot_uptime = float(Path("/proc/uptime").read_text().split()[0])
-        return max(0.0, boot_uptime - start_ticks / os.sysconf("SC_CLK_TCK"))
-    except (OSError, ValueError, IndexError):
-        return time.monotonic() - _T_IMPORT
+@dataclass
+class _Stage:
+    stage: str = "queued"
+    since: float = 0.0
 
 
-def default_cache_dir() -> Path:
-    """``$XDG_CACHE_HOME/bar_policy/jax``, or ``~/.cache/bar_policy/jax`` without XDG_CACHE_HOME."""
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "bar_policy" / "jax"
-
-
-def configure_compile_cache(enabled: bool = True, directory: str = "") -> Path | None:
-    """Switch jax's persistent compilation cache on (every program) or off; returns the directory used.
-
-    Precedence of the directory: ``directory`` (``--compile-cache-dir``), then ``JAX_COMPILATION_CACHE_DIR``,
-    then ``default_cache_dir()``. Call before the first compile: jax opens the cache once per process.
+class Heartbeat:
+    """Stages of a run's programs and the lines about them (module docstring).
 
     Args:
-        enabled: False turns the cache off (``jax_enable_compilation_cache``).
-        directory: explicit cache directory ('' = the precedence above).
-
-    Returns:
-        The cache directory, or None when the cache is off.
+        say: prints one line (the run logger's ``print``).
+        clock_origin: ``time.monotonic()`` the ``start-up N s`` figure counts from (the timer's origin).
+        interval_s: seconds between two status lines while a program is unfinished.
     """
-    import jax
 
-    if not enabled:
-        jax.config.update("jax_enable_compilation_cache", False)
-        return None
-    path = Path(directory or os.environ.get("JAX_COMPILATION_CACHE_DIR") or default_cache_dir()).expanduser()
-    path.mkdir(parents=True, exist_ok=True)
-    jax.config.update("jax_enable_compilation_cache", True)
-    jax.config.update("jax_compilation_cache_dir", str(path))
-    # Every program, however quick to compile: a warm start then compiles nothing at all.
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-    return path
+    def __init__(self, say: Callable[[str], None], clock_origin: float, interval_s: float = 5.0) -> None:
+        self.say = say
+        self.origin = clock_origin
+        self.interval_s = interval_s
+        self._stages: dict[str, _Stage] = {}
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._stop = False
+        self._thread: threading.Thread | None = None
+
+    def set(self, name: str, stage: str) -> None:
+        """Program ``name`` entered ``stage`` (one of ``STAGES``); starts the printing thread at first use."""
+        if stage not in STAGES:
+            raise ValueError(f"unknown stage {stage!r}; valid: {list(STAGES)}")
+        with self._lock:
+            self._stages[name] = _Stage(stage, time.monotonic())
+            if self._thread is None and not self._stop:
+                self._thread = threading.Thread(target=self._loop, name="startup-heartbeat", daemon=True)
+                self._thread.start()
+
+    def finished(self, name: str, how: str) -> None:
+        """Program ``name`` is ready: ``how`` it got so (``compiled in 35.1 s``); prints that line."""
+        self.set(name, "done")
+        self.say(f"  program {name}: {how}")
+        if self.all_done():
+            self._wake.set()
+
+    def failed(self, name: str, error: BaseException) -> None:
+        """Program ``name`` failed (its error is raised where the program is read)."""
+        self.set(name, "failed")
+        self.say(f"  program {name}: failed ({type(error).__name__})")
+
+    def all_done(self) -> bool:
+        """Whether every program known so far is done or failed."""
+        with self._lock:
+            return all(s.stage in ("done", "failed") for s in self._stages.values())
+
+    def status_line(self, now: float | None = None) -> str | None:
+        """The line about the unfinished programs (None when every one is done)."""
+        now = time.monotonic() if now is None else now
+        with self._lock:
+            items = list(self._stages.items())
+        busy = [
+            f"{n} {_SAY_STAGE[s.stage]} ({now - s.since:.0f} s)"
+            for n, s in items
+            if s.stage not in ("done", "failed")
+        ]
+        if not busy:
+            return None
+        done = [n for n, s in items if s.stage == "done"]
+        tail = f"; done: {', '.join(done)}" if done else ""
+        return f"start-up {now - self.origin:.0f} s: {', '.join(busy)}{tail}"
+
+    def close(self) -> None:
+        """Stop the printing thread (its last line is not printed)."""
+        self._stop = True
+        self._wake.set()
+
+    def _loop(self) -> None:
+        while not self._stop:
+            self._wake.wait(self.interval_s)
+            self._wake.clear()
+            if self._stop or self.all_done():
+                return
+            line = self.status_line()
+            if line is not None:
+                self.say(line)
 
 
 class CompileStats:
@@ -226,9 +250,9 @@ class Compiler:
     stored is loaded instead (in the calling thread, or on the worker with ``background=True``): no trace, no
     lowering, no compile; a miss is compiled as above and its executable stored.
 
-    With ``say`` (prints a line) its heartbeat (``startup.heartbeat``) is told each program's stage and says
+    With ``say`` (prints a line) its heartbeat (``Heartbeat``) is told each program's stage and says
     what the start-up is doing; ``compiler_options`` go to every ``Lowered.compile`` (XLA debug options, e.g.
-    ``QUICK_COMPILE``).
+    ``compile_cache.QUICK_COMPILE``).
     """
 
     def __init__(

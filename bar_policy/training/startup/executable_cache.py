@@ -281,7 +281,7 @@ def executable_cache_for(
 
     Args:
         cfg: the run's ``TrainConfig``.
-        cache_dir: jax's persistent cache directory (``compiler.configure_compile_cache``'s answer).
+        cache_dir: jax's persistent cache directory (``compile_cache.configure_compile_cache``'s answer).
         record: the run's config record (``run_dir.open_run``): its ``train`` and ``env`` configs go in the
             key (``executable_key.run_context``).
         env: the env trained on: its class (and source, when outside ``bar_policy``) go in the key.

@@ -2,7 +2,7 @@
 
 ``StartUp.begin(cfg)`` is the first thing a run does (``training.run``): it sets the environment jax and
 torch read when their backends start (``backend_env``), switches jax's persistent compile cache on
-(``compiler.configure_compile_cache``), chooses the partitioner, connects ``jax.distributed`` and starts
+(``compile_cache.configure_compile_cache``), chooses the partitioner, connects ``jax.distributed`` and starts
 seeding XLA's GPU autotune cache on a thread (``autotune``), so the seeding overlaps the env build.
 ``StartUp.open(cfg, record, env)``, once the run's record exists, waits for the seeding and opens the
 executable cache (``executable_cache``, keyed by the record); it returns the lines that say what both did.
@@ -28,14 +28,13 @@ from typing import Any
 from bar_policy.training.records import Said
 from bar_policy.training.startup import breakdown as sb
 from bar_policy.training.startup.breakdown import StartupTimer
-from bar_policy.training.startup.compiler import (
+from bar_policy.training.startup.compile_cache import (
     QUICK_COMPILE,
     QUICK_COMPILE_NOTE,
-    Compiler,
-    CompileStats,
     configure_compile_cache,
     quiet_xla_alarms,
 )
+from bar_policy.training.startup.compiler import Compiler, CompileStats
 from bar_policy.training.startup.executable_cache import (
     ExecutableCache,
     executable_cache_for,
@@ -61,9 +60,9 @@ class StartUp:
     """The autotune seeding running on a thread (``autotune.seed_in_background``); ``open`` waits for it."""
     say: Callable[[str], None] | None = None
     """Prints a line (the run logger's ``print``, set once it exists): with it ``compile_programs`` prints
-    what the start-up is doing (``startup.heartbeat``); None: nothing is printed."""
+    what the start-up is doing (``compiler.Heartbeat``); None: nothing is printed."""
     compiler_options: dict[str, Any] = field(default_factory=dict)
-    """XLA options every program compiles with (``compiler.QUICK_COMPILE`` for ``quick_compile``)."""
+    """XLA options every program compiles with (``compile_cache.QUICK_COMPILE`` for ``quick_compile``)."""
 
     @classmethod
     def begin(cls, cfg: Any, started_at: float | None = None) -> StartUp:
