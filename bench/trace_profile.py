@@ -48,8 +48,9 @@ def build(args: argparse.Namespace) -> tuple[Any, dict[str, float]]:
     from bar_policy import envs
     from bar_policy.envs import reward_weights
     from bar_policy.training.brax.learner import make_learner
-    from bar_policy.training.brax.programs import action_prior, make_programs
+    from bar_policy.training.brax.programs import make_programs
     from bar_policy.training.parallel import AXIS, DataParallel
+    from bar_policy.training.prior import action_prior
 
     steps: dict[str, float] = {}
     t = time.perf_counter()

@@ -212,7 +212,7 @@ def test_prior_noise_std_sets_the_initial_std(layout, pose_scale):
 def test_env_serves_only_its_own_prior():
     """network.action_prior must name the prior the env serves: the message names the valid values."""
     from bar_policy import envs
-    from bar_policy.training.brax.programs import action_prior
+    from bar_policy.training.prior import action_prior
 
     reach = envs.load("LiteReach", config=envs.nominal_config())
     with pytest.raises(ValueError, match=r"LiteReach has no action prior; valid values for it: \['none'\]"):

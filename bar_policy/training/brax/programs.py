@@ -19,41 +19,22 @@ from jax.sharding import PartitionSpec as P
 
 from bar_policy.envs.reward_weights import weights, with_weights
 from bar_policy.obs.action_prior import Prior
-from bar_policy.tasks.registry import env_entries
 from bar_policy.training.brax import evaluation
 from bar_policy.training.brax.learner import Learner, TrainingState, make_learner, strip_weak_type
-from bar_policy.training.config import NetworkConfig, TrainConfig
+from bar_policy.training.config import TrainConfig
 from bar_policy.training.parallel import AXIS, DataParallel, make_data_parallel
+from bar_policy.training.prior import action_prior
 from bar_policy.training.startup.session import Program
 
 __all__ = [
     "Programs",
     "SetUp",
-    "action_prior",
     "make_programs",
     "set_up",
     "slot_env",
     "slot_keys",
     "to_compile",
 ]
-
-
-def action_prior(env: Any, net: NetworkConfig, env_name: str) -> Prior | None:
-    """The env's action prior that ``net.action_prior`` asks for (``LiteRobotEnv.action_prior``), or None.
-
-    ``env_name`` is the env's registered name: its task record's ``EnvEntry.action_prior`` names the prior
-    it serves.
-    """
-    if net.action_prior == "none":
-        return None
-    kind = env_entries()[env_name][1].action_prior
-    if net.action_prior != kind:
-        valid = ["none"] + ([kind] if kind else [])
-        raise ValueError(
-            f"network.action_prior={net.action_prior!r}: {type(env).__name__} has "
-            f"{'the ' + repr(kind) + ' prior' if kind else 'no action prior'}; valid values for it: {valid}"
-        )
-    return env.action_prior(net.prior_lead_steps)
 
 
 def slot_keys(key: jax.Array, total: int, local: int) -> jax.Array:
@@ -104,7 +85,7 @@ class SetUp:
     dp: DataParallel
     """The mesh over the run's devices (``training.parallel``)."""
     prior: Prior | None
-    """The policy's action prior (``action_prior``), None without one."""
+    """The policy's action prior (``training.prior.action_prior``), None without one."""
     learner: Learner
     """brax's PPO as per-device functions (``brax.learner``)."""
     programs: Programs
@@ -129,8 +110,8 @@ def set_up(
 ) -> SetUp:
     """The mesh (every device, or ``distributed.max_devices_per_host``), the learner and its programs.
 
-    Refuses, before anything is traced, a prior the env does not serve (``action_prior``) and batch sizes
-    that do not split over the devices (``DataParallel.check_divisible``). ``eval_env`` and
+    Refuses, before anything is traced, a prior the env does not serve (``training.prior.action_prior``) and
+    batch sizes that do not split over the devices (``DataParallel.check_divisible``). ``eval_env`` and
     ``eval_randomizer``: as ``make_programs``'.
     """
     prior = action_prior(env, cfg.network, cfg.env_name)

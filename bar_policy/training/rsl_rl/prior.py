@@ -39,8 +39,8 @@ import jax
 
 from bar_policy.obs.action_prior import Prior, check_fits
 from bar_policy.training.brax.networks import PRIOR_INIT_SCALE
-from bar_policy.training.brax.programs import action_prior
 from bar_policy.training.config import TrainConfig
+from bar_policy.training.prior import action_prior
 
 if TYPE_CHECKING:
     import torch
