@@ -23,6 +23,12 @@ and the additive draws (friction, damping, payload mass) are centred on them: th
 ``U(lo, hi) - (lo + hi) / 2``, at least 0; the file's joints keep its armature (no motor-range draw); a
 payload the file places keeps its centre. ``nominal_share`` draws that share of the slots as the nominal
 robot (friction and link mass mapped onto the default ranges, the robust additions off).
+
+``factor_share`` turns each robust factor on independently, per slot and factor (``MODEL_FACTORS``), with
+that probability; a factor that is off takes the nominal slot's value. The env's per-episode actuator
+draws (``episode_draws``: latency, encoder offset, strength, observation latency) apply the same share per
+episode and factor (``EPISODE_FACTORS``), a factor that is off drawn as the default ``ActuatorConfig``
+draws it. Both fold their own constant into the key, and a share of 1 (the default) draws nothing.
 """
 
 from __future__ import annotations
@@ -35,7 +41,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from bar_policy.envs.robot_config import RobotEnvConfig
+from bar_policy.envs.robot_config import ActuatorConfig, RobotEnvConfig
 from bar_policy.robot.actuators import ROBSTRIDE_MODELS
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.index import RobotIndex, model_names
@@ -43,7 +49,17 @@ from bar_policy.robot.params import HANDS, load_params
 from bar_policy.robot.perturb import HAND_BODIES, PAYLOAD_POS, PAYLOAD_RADIUS, payload_body_name
 from bar_policy.robot.scene import SceneEdit
 
-__all__ = ["armature_bounds", "make_randomizer", "payload_inertia", "payload_scene"]
+__all__ = [
+    "EPISODE_FACTORS",
+    "MODEL_FACTORS",
+    "armature_bounds",
+    "episode_draws",
+    "factors_on",
+    "latency_buffers",
+    "make_randomizer",
+    "payload_inertia",
+    "payload_scene",
+]
 
 _OPTIONAL_KEY = 0x524F42
 """Folded into each slot's key for the optional draws (damping, armature scale, payload), so the draws of
@@ -87,6 +103,104 @@ def payload_inertia(mass: jax.Array) -> jax.Array:
 
 _NOMINAL_KEY = 0x4E4F4D
 """Folded into each slot's key for its nominal-slot draw (``nominal_share``)."""
+
+_FACTOR_KEY = 0x464143
+"""Folded into each slot's key (and an episode's reset key) for the per-factor draws (``factor_share``)."""
+
+MODEL_FACTORS = ("frictionloss", "link_mass_scale", "damping", "armature_scale", "payload_kg")
+"""The model's robust factors, in the order of a slot's ``factor_share`` draws."""
+
+
+def factors_on(key: jax.Array, share: float, n: int) -> jax.Array | None:
+    """Whether each of ``n`` factors is on: Bernoulli(``share``) each, independent, shape (n,) bool.
+
+    ``key`` is the slot's (or the episode's) own; the draw uses ``fold_in(key, _FACTOR_KEY)``, so no other
+    draw's key changes. ``share`` 1 (``factor_share``'s default): every factor on, nothing drawn (None).
+    """
+    if share >= 1.0:
+        return None
+    return jax.random.bernoulli(jax.random.fold_in(key, _FACTOR_KEY), share, (n,))
+
+
+EPISODE_FACTORS = ("strength", "latency_steps", "obs_latency_steps", "encoder_offset")
+"""The actuator's robust factors (``ActuatorConfig`` fields), in the order of an episode's ``factor_share``
+draws."""
+
+_DEFAULT_ACTUATOR = ActuatorConfig()
+"""The default actuator config: an episode factor that is off takes its draw (``episode_draws``)."""
+
+
+def latency_buffers(act: ActuatorConfig, factor_share: float) -> tuple[int, int]:
+    """The longest action and observation latency a reset can draw, control steps.
+
+    The config's, and with ``factor_share`` below 1 at least the default config's (a factor that is off
+    draws in the default's range).
+    """
+    lat_hi, obs_hi = act.latency_steps[1], act.obs_latency_steps[1]
+    if factor_share < 1.0:
+        lat_hi = max(lat_hi, _DEFAULT_ACTUATOR.latency_steps[1])
+        obs_hi = max(obs_hi, _DEFAULT_ACTUATOR.obs_latency_steps[1])
+    return lat_hi, obs_hi
+
+
+def episode_draws(
+    act: ActuatorConfig, factor_share: float, ks: jax.Array, n: int, strength: np.ndarray | None
+) -> dict[str, jax.Array]:
+    """An episode's actuator draws (``LiteRobotEnv._reset``) from its reset keys ``ks`` (shape (8, 2)).
+
+    Returns ``latency`` (action latency, control steps, int32 scalar; key 2), ``encoder_offset`` (rad,
+    shape (n,); key 5), and ``strength`` (x, shape (n,); the config's draw from ``fold_in(key 3)`` times
+    ``strength``, the identified strengths, when the config draws one, else ``strength`` when given) and
+    ``obs_latency`` (control steps; ``fold_in(key 2)``) when ``latency_buffers`` has room for one.
+
+    ``factor_share`` below 1: each of ``EPISODE_FACTORS`` is on with that probability (``factors_on``,
+    from key 5); one that is off takes the default ``ActuatorConfig``'s draw from the same key (strength
+    1, no observation latency, action latency in (0, 2), encoder offset in U(-0.01, 0.01) rad, the same
+    uniform mapped onto it). 1: every factor as the config draws it, nothing else drawn.
+    """
+    d = _DEFAULT_ACTUATOR
+    on = factors_on(ks[5], factor_share, len(EPISODE_FACTORS))
+
+    def pick(i: int, field: str, draw: Callable[[ActuatorConfig], jax.Array]) -> jax.Array:
+        """The config's draw, or (factor ``i`` off) the default config's; only the first when they agree."""
+        value = draw(act)
+        if on is None or getattr(act, field) == getattr(d, field):
+            return value
+        return jnp.where(on[i], value, draw(d))
+
+    def latency(a: ActuatorConfig) -> jax.Array:
+        return jax.random.randint(ks[2], (), a.latency_steps[0], a.latency_steps[1] + 1)
+
+    def offset(a: ActuatorConfig) -> jax.Array:
+        return jax.random.uniform(ks[5], (n,), minval=-a.encoder_offset, maxval=a.encoder_offset)
+
+    def scale(a: ActuatorConfig) -> jax.Array:
+        k = jax.random.fold_in(ks[3], _OPTIONAL_KEY)
+        return (1.0 if strength is None else strength) * jax.random.uniform(
+            k, (n,), minval=a.strength[0], maxval=a.strength[1]
+        )
+
+    def obs_latency(a: ActuatorConfig) -> jax.Array:
+        k = jax.random.fold_in(ks[2], _OPTIONAL_KEY)
+        return jax.random.randint(k, (), a.obs_latency_steps[0], a.obs_latency_steps[1] + 1)
+
+    out = {"latency": pick(1, "latency_steps", latency), "encoder_offset": pick(3, "encoder_offset", offset)}
+    if act.strength != (1.0, 1.0):
+        out["strength"] = pick(0, "strength", scale)
+    elif strength is not None:
+        out["strength"] = jnp.asarray(strength)  # the identified strengths, not drawn
+    if latency_buffers(act, factor_share)[1] > 0:
+        out["obs_latency"] = pick(2, "obs_latency_steps", obs_latency)
+    return out
+
+
+def _off(nom: jax.Array | None, on: jax.Array | None, i: int) -> jax.Array | None:
+    """Whether factor ``i`` takes its nominal value: a nominal slot, or the factor drawn off; None: never."""
+    if on is None:
+        return nom
+    off = ~on[i]
+    return off if nom is None else nom | off
+
 
 DEFAULT_FRICTION = (0.05, 0.35)
 """The default friction range, N*m (``ModelRandomizationConfig.frictionloss``): a nominal slot's."""
@@ -172,6 +286,8 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
                 if rc.nominal_share > 0
                 else None
             )
+            # Each robust factor on with probability ``factor_share``, else as in a nominal slot.
+            on = factors_on(key, rc.factor_share, len(MODEL_FACTORS))
             if rc.armature:
                 # Armature: U(description, identified) per joint (up to 7.4x for rs-00).
                 arm = jax.random.uniform(k_arm, arm_lo.shape, minval=arm_lo, maxval=arm_hi)
@@ -182,20 +298,22 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
                 fric = jax.random.uniform(k_fric, (index.num_joints,), minval=lo, maxval=hi)
                 if centred:  # the file's friction + U(lo, hi) - (lo + hi) / 2, at least 0
                     fric = jnp.maximum(index.dq(model.dof_frictionloss) + fric - (lo + hi) / 2, 0.0)
-                if nom is not None:
+                off = _off(nom, on, 0)
+                if off is not None:
                     base = (
                         index.dq(model.dof_frictionloss)
                         if centred
                         else _remap(fric, lo, hi, DEFAULT_FRICTION)
                     )
-                    fric = jnp.where(nom, base, fric)
+                    fric = jnp.where(off, base, fric)
                 out["dof_frictionloss"] = robot_dofs(model.dof_frictionloss, fric)
             if rc.link_mass_scale is not None:
                 # Link mass and inertia: *U(link_mass_scale) per body (same factor: density scaling).
                 lo, hi = rc.link_mass_scale
                 s = jax.random.uniform(k_mass, model.body_mass.shape, minval=lo, maxval=hi)
-                if nom is not None:
-                    s = jnp.where(nom, _remap(s, lo, hi, DEFAULT_MASS_SCALE), s)
+                off = _off(nom, on, 1)
+                if off is not None:
+                    s = jnp.where(off, _remap(s, lo, hi, DEFAULT_MASS_SCALE), s)
                 out["body_mass"] = model.body_mass * s
                 out["body_inertia"] = model.body_inertia * s[:, None]
             k_damp, k_ascale, k_pay, k_site = jax.random.split(jax.random.fold_in(key, _OPTIONAL_KEY), 4)
@@ -206,15 +324,17 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
                 total = index.dq(model.dof_damping) + d
                 if centred:  # the file's damping + U(lo, hi) - (lo + hi) / 2, at least 0
                     total = jnp.maximum(total - (lo + hi) / 2, 0.0)
-                if nom is not None:
-                    total = jnp.where(nom, index.dq(model.dof_damping), total)
+                off = _off(nom, on, 2)
+                if off is not None:
+                    total = jnp.where(off, index.dq(model.dof_damping), total)
                 out["dof_damping"] = robot_dofs(model.dof_damping, total)
             if rc.armature_scale is not None:
                 # Armature x U(armature_scale) per joint, on the drawn armature when that is randomised.
                 lo, hi = rc.armature_scale
                 a = jax.random.uniform(k_ascale, (index.num_joints,), minval=lo, maxval=hi)
-                if nom is not None:
-                    a = jnp.where(nom, 1.0, a)
+                off = _off(nom, on, 3)
+                if off is not None:
+                    a = jnp.where(off, 1.0, a)
                 base = out.get("dof_armature", model.dof_armature)
                 out["dof_armature"] = robot_dofs(base, index.dq(base) * a)
             if payload_ids is not None:
@@ -223,8 +343,9 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
                 m = jax.random.uniform(k_pay, (len(HAND_BODIES),), minval=lo, maxval=hi)
                 if centred:  # the file's payload (0 for a hand it gives none) + U(lo, hi) - (lo + hi) / 2
                     m = jnp.maximum(model.body_mass[payload_ids] + m - (lo + hi) / 2, 0.0)
-                if nom is not None:
-                    m = jnp.where(nom, model.body_mass[payload_ids], m)  # none (or the file's)
+                off = _off(nom, on, 4)
+                if off is not None:
+                    m = jnp.where(off, model.body_mass[payload_ids], m)  # none (or the file's)
                 mass = out.get("body_mass", model.body_mass)
                 inertia = out.get("body_inertia", model.body_inertia)
                 out["body_mass"] = mass.at[payload_ids].set(m)

@@ -50,7 +50,9 @@ PRNG use is fixed (reach's outputs are pinned by tests/data/reach_golden.npz): `
 (0 initial noise, 1 the task, 2 latency, 3 Kp scale, 4 Kd scale, 5 encoder offset, 6 the next step's key,
 7 observation noise); ``step`` splits ``info["rng"]`` in 3 (next key, observation noise, the task). The
 optional draws (strength, observation latency) fold a constant into key 3 and key 2 and happen only when
-their field is not at its default, whose state then has no ``strength``, ``obs_latency`` or ``obs_buf``.
+their field is not at its default, whose state then has no ``strength``, ``obs_latency`` or ``obs_buf``;
+the draws of latency, encoder offset, strength and observation latency are ``randomize.episode_draws``,
+whose per-factor draws (``randomization.factor_share`` below 1) fold another constant into key 5.
 """
 
 from __future__ import annotations
@@ -74,7 +76,7 @@ from bar_policy.envs.actuator import (
     robot_force,
 )
 from bar_policy.envs.base import MjxEnv, State
-from bar_policy.envs.randomize import payload_scene
+from bar_policy.envs.randomize import episode_draws, latency_buffers, payload_scene
 from bar_policy.envs.robot_config import RobotEnvConfig, nominal
 from bar_policy.envs.task import TaskHooks, Transition
 from bar_policy.envs.term_table import TerminationTerm, check_names, reward_values, terminated, weighted_sum
@@ -93,9 +95,6 @@ from bar_policy.robot.params import scene_edit as params_scene_edit
 from bar_policy.robot.scene import SceneEdit, load_model
 
 __all__ = ["NEAR_CAP_FRACTION", "NON_FINITE", "LiteRobotEnv"]
-
-_OPTIONAL_KEY = 0x524F42
-"""Folded into a reset key for the optional per-episode draws (strength, observation latency)."""
 
 NEAR_CAP_FRACTION = 0.8
 """Share of a joint's torque cap above which its unclipped MIT demand counts towards ``Transition.near_cap``
@@ -404,24 +403,15 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
             qpos = init.qpos.at[self._index.qpos].set(q0)
             data = init.replace(qpos=qpos, qvel=init.qvel.at[self._dof].set(qvel_init))
         act = cfg.actuator
-        lat_lo, lat_hi = act.latency_steps
-        latency = jax.random.randint(ks[2], (), lat_lo, lat_hi + 1)
+        share = cfg.randomization.factor_share
         kp = self._kp * jax.random.uniform(ks[3], (n,), minval=act.kp_scale[0], maxval=act.kp_scale[1])
         kd = self._kd * jax.random.uniform(ks[4], (n,), minval=act.kd_scale[0], maxval=act.kd_scale[1])
-        off = jax.random.uniform(ks[5], (n,), minval=-act.encoder_offset, maxval=act.encoder_offset)
+        drawn = episode_draws(act, share, ks, n, None if self.robot_params is None else self._strength)
+        latency, off = drawn.pop("latency"), drawn.pop("encoder_offset")
+        lat_hi, obs_hi = latency_buffers(act, share)
         a_init = self.initial_action(q_init)
-        optional = {}
-        if act.strength != (1.0, 1.0):
-            k_strength = jax.random.fold_in(ks[3], _OPTIONAL_KEY)
-            optional["strength"] = self._strength * jax.random.uniform(
-                k_strength, (n,), minval=act.strength[0], maxval=act.strength[1]
-            )
-        elif self.robot_params is not None:
-            optional["strength"] = jnp.asarray(self._strength)  # the identified strengths, not drawn
-        obs_lo, obs_hi = act.obs_latency_steps
-        if obs_hi > 0:
-            k_obs = jax.random.fold_in(ks[2], _OPTIONAL_KEY)
-            optional["obs_latency"] = jax.random.randint(k_obs, (), obs_lo, obs_hi + 1)
+        optional = drawn  # strength, obs_latency: when drawn (or the file's strengths)
+        if "obs_latency" in optional:
             optional["obs_buf"] = jnp.broadcast_to(self._true_state(data), (obs_hi + 1, 2, n))
         if cfg.joint_error_ema:
             optional["error_ema"] = jnp.zeros(n)  # z = 0 when a policy starts (robot.error_ema)

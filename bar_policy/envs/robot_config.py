@@ -141,6 +141,19 @@ class ModelRandomizationConfig:
     (default): no such slot. Why: the wide ranges are drawn per joint independently, so a slot whose 14
     joints are all near the nominal robot (the one the ship gate's sim target runs) essentially never
     occurs (friction U(0.05, 1.35): P(all 14 below 0.35) = (0.3 / 1.3)^14 = 1e-9); docs/robustness.md."""
+    factor_share: float = 1.0
+    """Probability, 0..1, that each robust factor is on, drawn independently per factor and env slot (the
+    model's: friction's robust addition, link mass scale, added damping, armature scale, payload) and per
+    factor and episode (the actuator's: ``strength``, ``latency_steps``, ``obs_latency_steps``,
+    ``encoder_offset``). A factor that is off takes the value a nominal slot gives it: friction and link
+    mass the same draw mapped onto the default ranges (0.05-0.35 N*m, x0.9-1.1), no added damping,
+    armature scale 1, no payload (with a robot-parameters file: its values); the actuator's factors the
+    default ``ActuatorConfig``'s draw (strength 1, no observation latency, action latency in (0, 2) steps,
+    encoder offset U(-0.01, 0.01) rad). A nominal slot (``nominal_share``) stays nominal in every factor. 1
+    (default): every factor on, the draws as without it, bit for bit. Why: the wide ranges drawn all at
+    once make a slot where everything is hard at once common, unlike the deploy suite's rows, which perturb
+    one factor at a time (plus one combined row); with share p a slot carries 5p model perturbations on
+    average (docs/robustness.md)."""
     payload_at: str = "fingertip"
     """Where the payload sits in the hand (``PAYLOAD_AT``): ``fingertip`` (the finger2 tip site), ``palm``
     (the palm collider's centre), or ``either`` (one of the two per env slot and hand, even odds)."""
@@ -158,6 +171,8 @@ class ModelRandomizationConfig:
             check_range("payload_kg", self.payload_kg, low=0.0)
         if not 0.0 <= self.nominal_share <= 1.0:
             raise ValueError(f"nominal_share must be in [0, 1], got {self.nominal_share}")
+        if not 0.0 <= self.factor_share <= 1.0:
+            raise ValueError(f"factor_share must be in [0, 1], got {self.factor_share}")
         if self.payload_at not in PAYLOAD_AT:
             raise ValueError(f"unknown payload_at {self.payload_at!r}; valid: {list(PAYLOAD_AT)}")
 

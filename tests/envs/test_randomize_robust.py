@@ -1,4 +1,5 @@
-"""The robustness randomisation (payload, damping, armature scale, strength, observation latency).
+"""The robustness randomisation (payload, damping, armature scale, strength, observation latency, the
+per-factor share).
 
 Each draw must change exactly the model field it names, inside its range; the defaults must change nothing
 (today's presets randomise bit for bit as before); the payload must be the body the deploy side's
@@ -17,7 +18,7 @@ import pytest
 from mujoco import mjx
 
 from bar_policy.envs.actuator import ActuatorParams, motor_torque
-from bar_policy.envs.randomize import make_randomizer, payload_scene
+from bar_policy.envs.randomize import episode_draws, latency_buffers, make_randomizer, payload_scene
 from bar_policy.envs.robot_config import ActuatorConfig, ModelRandomizationConfig, RobotEnvConfig
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.mit import MitCommand
@@ -249,3 +250,172 @@ def test_robust_presets_turn_the_randomisation_on(name, env_name):
         armature=False, frictionloss=None, link_mass_scale=None
     )
     assert nom.actuator.strength == (1.0, 1.0) and nom.actuator.obs_latency_steps == (0, 0)
+
+
+# ``factor_share``: each robust factor on per slot (model) or episode (actuator) with that probability.
+
+ROBUST = ModelRandomizationConfig(
+    frictionloss=(0.05, 1.35), link_mass_scale=(0.8, 1.2), damping=(0.0, 1.0), armature_scale=(0.8, 1.2),
+    payload_kg=(0.0, 0.6), payload_at="either",
+)  # fmt: skip
+"""The robust preset's model ranges (``tasks/robust_preset.py``)."""
+FIELDS = ("dof_frictionloss", "body_mass", "body_inertia", "dof_damping", "dof_armature", "body_pos")
+"""Every model field the robust ranges write."""
+N_SHARE = 400
+"""Slots (and episodes) of the share statistics: 4 binomial sigmas are 0.1 at p = 0.5."""
+OPTIONAL_KEY = 0x524F42
+"""The optional draws' key constant, as documented (``randomize``, ``envs.robot``)."""
+
+
+@pytest.fixture(scope="module")
+def shares(with_payload):
+    """The robust ranges drawn on the same ``N_SHARE`` slot keys under each share: name -> field -> array."""
+    _, model = with_payload
+    keys = jax.random.split(jax.random.PRNGKey(7), N_SHARE)
+
+    def fields(rc: ModelRandomizationConfig) -> dict[str, np.ndarray]:
+        batched, _ = make_randomizer(RobotEnvConfig(randomization=rc))(model, keys)
+        return {f: np.asarray(getattr(batched, f)) for f in FIELDS}
+
+    return {
+        "wide": fields(ROBUST),
+        "nominal": fields(replace(ROBUST, nominal_share=1.0)),
+        "none": fields(replace(ROBUST, factor_share=0.0)),
+        "half": fields(replace(ROBUST, factor_share=0.5)),
+    }
+
+
+def test_factor_share_one_draws_as_without_it(with_payload, shares):
+    m, model = with_payload
+    explicit, _ = draw(model, replace(ROBUST, factor_share=1.0))
+    plain, _ = draw(model, ROBUST)
+    for f in FIELDS:
+        np.testing.assert_array_equal(np.asarray(getattr(explicit, f)), np.asarray(getattr(plain, f)), f)
+    # The draws are the documented recipe's, from the keys it documents (no draw taken from them).
+    keys = jax.random.split(jax.random.PRNGKey(7), N_SHARE)
+    ids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, payload_body_name(h)) for h in HAND_BODIES]
+    wide = shares["wide"]
+    for b in (0, 123, N_SHARE - 1):
+        _, k_fric, _ = jax.random.split(keys[b], 3)
+        k_damp, _, k_pay, _ = jax.random.split(jax.random.fold_in(keys[b], OPTIONAL_KEY), 4)
+        fric = jax.random.uniform(k_fric, (14,), minval=0.05, maxval=1.35)
+        damp = m.dof_damping.astype(np.float32) + np.asarray(jax.random.uniform(k_damp, (14,), maxval=1.0))
+        pay = jax.random.uniform(k_pay, (2,), maxval=0.6)
+        np.testing.assert_array_equal(wide["dof_frictionloss"][b], np.asarray(fric))
+        np.testing.assert_array_equal(wide["dof_damping"][b], damp)
+        np.testing.assert_array_equal(wide["body_mass"][b, ids], np.asarray(pay))
+
+
+def test_factor_share_zero_is_the_nominal_slot(with_payload, shares):
+    m, model = with_payload
+    for f in FIELDS:
+        np.testing.assert_array_equal(shares["none"][f], shares["nominal"][f], f)
+    # The comparison has content: the nominal slot has no added damping and no payload, the wide one has.
+    nom, wide = shares["nominal"], shares["wide"]
+    np.testing.assert_array_equal(nom["dof_damping"], np.broadcast_to(m.dof_damping, (N_SHARE, m.nv)))
+    assert np.all(wide["dof_damping"] > m.dof_damping)
+    assert nom["dof_frictionloss"].max() <= 0.35 + 1e-6 < wide["dof_frictionloss"].max()
+    # A nominal slot stays nominal in every factor, whatever the share.
+    both, _ = draw(model, replace(ROBUST, nominal_share=1.0, factor_share=0.5))
+    only, _ = draw(model, replace(ROBUST, nominal_share=1.0))
+    for f in FIELDS:
+        np.testing.assert_array_equal(np.asarray(getattr(both, f)), np.asarray(getattr(only, f)), f)
+
+
+def test_factor_share_half_turns_each_factor_on_independently(with_payload, shares):
+    m, _ = with_payload
+    half, wide, nom = shares["half"], shares["wide"], shares["nominal"]
+    ids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, payload_body_name(h)) for h in HAND_BODIES]
+    links = np.setdiff1d(np.arange(m.nbody), ids)
+
+    def on(field: str, cols=slice(None)) -> np.ndarray:
+        """Per slot: the factor's whole draw is the wide one (True) or the nominal one (False), no mix."""
+        h, w, n = half[field][:, cols], wide[field][:, cols], nom[field][:, cols]
+        is_wide, is_nom = np.all(h == w, axis=1), np.all(h == n, axis=1)
+        assert not np.any(np.all(w == n, axis=1)), field  # the two differ in every slot
+        assert np.all(is_wide ^ is_nom), field
+        return is_wide
+
+    damping = on("dof_damping")
+    payload = on("body_mass", ids)
+    # The brief's reading: the slot's damping addition is nonzero; the payload mass is nonzero.
+    np.testing.assert_array_equal(damping, np.any(half["dof_damping"] != m.dof_damping, axis=1))
+    np.testing.assert_array_equal(payload, np.any(half["body_mass"][:, ids] > 0, axis=1))
+    factors = np.stack(
+        [on("dof_frictionloss"), on("body_mass", links), damping, on("dof_armature"), payload], axis=1
+    )
+    # Binomial(400, p) fractions: sd sqrt(p (1 - p) / 400); tolerance 4 sd. p = 0.5: 4 * 0.025 = 0.1.
+    for k in range(5):
+        assert abs(factors[:, k].mean() - 0.5) <= 0.1, (k, factors[:, k].mean())
+    # Independent factors: both on with p = 0.25, 4 * sqrt(0.25 * 0.75 / 400) = 0.087.
+    assert abs((damping & payload).mean() - 0.25) <= 0.087, (damping & payload).mean()
+    # Factors on per slot: mean 5 * 0.5 = 2.5, sd of the mean sqrt(5 * 0.25 / 400) = 0.056; 4 sd = 0.224.
+    assert abs(factors.sum(axis=1).mean() - 2.5) <= 0.224
+
+
+def test_factor_share_is_validated():
+    for bad in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ValueError, match=r"factor_share must be in \[0, 1\], got"):
+            ModelRandomizationConfig(factor_share=bad)
+    with pytest.raises(ValueError, match=r"got 1\.5$"):
+        ModelRandomizationConfig(factor_share=1.5)
+    assert ModelRandomizationConfig().factor_share == 1.0
+    ModelRandomizationConfig(factor_share=0.0)
+
+
+WIDE_ACT = ActuatorConfig(
+    strength=(0.8, 1.0), latency_steps=(1, 4), obs_latency_steps=(0, 1), encoder_offset=0.03
+)
+"""Every episode factor's range other than the default's (latency and offset too, so that off differs)."""
+
+
+def _episodes(act: ActuatorConfig, share: float, n: int = 64, strength=None) -> dict[str, np.ndarray]:
+    """``episode_draws`` of ``n`` episodes' reset keys (``split(key, 8)`` each, as ``reset``)."""
+    ks = jax.vmap(lambda k: jax.random.split(k, 8))(jax.random.split(jax.random.PRNGKey(11), n))
+    out = jax.vmap(lambda k: episode_draws(act, share, k, 14, strength))(ks)
+    return {k: np.asarray(v) for k, v in out.items()} | {"ks": ks}
+
+
+def test_episode_factor_share_one_draws_as_before():
+    d = _episodes(WIDE_ACT, 1.0)
+    assert set(d) == {"latency", "encoder_offset", "strength", "obs_latency", "ks"}
+    assert set(_episodes(ActuatorConfig(), 1.0)) == {"latency", "encoder_offset", "ks"}
+    assert latency_buffers(WIDE_ACT, 1.0) == (4, 1) and latency_buffers(ActuatorConfig(), 1.0) == (2, 0)
+    # The recipe the env documents: key 2 latency, key 5 offset, fold_in(key 3) strength, fold_in(key 2)
+    # observation latency.
+    for b in (0, 63):
+        ks = d["ks"][b]
+        assert d["latency"][b] == jax.random.randint(ks[2], (), 1, 5)
+        np.testing.assert_array_equal(
+            d["encoder_offset"][b], np.asarray(jax.random.uniform(ks[5], (14,), minval=-0.03, maxval=0.03))
+        )
+        k_s, k_o = jax.random.fold_in(ks[3], OPTIONAL_KEY), jax.random.fold_in(ks[2], OPTIONAL_KEY)
+        np.testing.assert_array_equal(
+            d["strength"][b], np.asarray(jax.random.uniform(k_s, (14,), minval=0.8, maxval=1.0))
+        )
+        assert d["obs_latency"][b] == jax.random.randint(k_o, (), 0, 2)
+
+
+def test_episode_factor_share_zero_draws_the_default_actuator():
+    off, default = _episodes(WIDE_ACT, 0.0), _episodes(ActuatorConfig(), 1.0)
+    np.testing.assert_array_equal(off["latency"], default["latency"])  # U{0, 1, 2}, key 2
+    np.testing.assert_array_equal(off["encoder_offset"], default["encoder_offset"])  # U(-0.01, 0.01), key 5
+    np.testing.assert_array_equal(off["strength"], 1.0)
+    np.testing.assert_array_equal(off["obs_latency"], 0)
+    assert set(np.unique(off["latency"])) == {0, 1, 2} and np.abs(off["encoder_offset"]).max() <= 0.01
+    # Room for the default's latency when the config's range is shorter; a file's strengths stay.
+    assert latency_buffers(replace(WIDE_ACT, latency_steps=(0, 1)), 0.5) == (2, 1)
+    identified = np.linspace(0.9, 1.0, 14, dtype=np.float32)
+    np.testing.assert_array_equal(
+        _episodes(WIDE_ACT, 0.0, 4, identified)["strength"], np.tile(identified, (4, 1))
+    )
+
+
+def test_episode_factor_share_half():
+    half, wide = _episodes(WIDE_ACT, 0.5, N_SHARE), _episodes(WIDE_ACT, 1.0, N_SHARE)
+    strength = np.all(half["strength"] != 1.0, axis=1)  # U(0.8, 1.0) never gives 1
+    assert np.all(strength == np.all(half["strength"] == wide["strength"], axis=1))
+    offset = np.all(half["encoder_offset"] == wide["encoder_offset"], axis=1)
+    # 4 binomial sd, as for the model factors: 0.1 at p = 0.5, 0.087 at p = 0.25.
+    assert abs(strength.mean() - 0.5) <= 0.1 and abs(offset.mean() - 0.5) <= 0.1
+    assert abs((strength & offset).mean() - 0.25) <= 0.087

@@ -71,3 +71,23 @@ def test_strength_equals_scaled_gains_below_the_cap(delayed):
         a, b = step(a, action), s_step(b, action)
         np.testing.assert_allclose(np.asarray(a.data.qpos), np.asarray(b.data.qpos), atol=1e-5)
     assert np.abs(np.asarray(a.data.qpos) - start).max() > 1e-2  # it moved: the comparison has content
+
+
+def test_factor_share_reaches_the_reset():
+    # ``randomization.factor_share`` 0: every episode factor as the default actuator draws it (strength 1,
+    # no observation latency, action latency in 0..2 with a buffer for it), the reset's keys as
+    # ``randomize.episode_draws`` takes them. A reset only: no step compiled.
+    from bar_policy.envs.randomize import episode_draws
+
+    cfg = _config(strength=(0.8, 1.0), latency_steps=(0, 1), obs_latency_steps=(0, 1))
+    cfg = replace(cfg, randomization=replace(cfg.randomization, factor_share=0.0))
+    env = envs.load("LiteReach", config=cfg)
+    keys = jax.random.split(jax.random.PRNGKey(3), 8)
+    info = jax.jit(jax.vmap(env.reset))(keys).info
+    np.testing.assert_array_equal(np.asarray(info["strength"]), 1.0)
+    np.testing.assert_array_equal(np.asarray(info["obs_latency"]), 0)
+    assert info["act_buf"].shape == (8, 3, 14) and info["obs_buf"].shape == (8, 2, 2, 14)
+    ks = jax.vmap(lambda k: jax.random.split(k, 8))(keys)
+    ref = jax.vmap(lambda k: episode_draws(cfg.actuator, 0.0, k, 14, None))(ks)
+    np.testing.assert_array_equal(np.asarray(info["latency"]), np.asarray(ref["latency"]))
+    np.testing.assert_array_equal(np.asarray(info["encoder_offset"]), np.asarray(ref["encoder_offset"]))
