@@ -35,10 +35,13 @@ inside the training distribution and measured by the evaluations (docs/robustnes
 of the first robust reach file")."""
 
 
-def robust(preset: dict[str, Any], name: str) -> dict[str, Any]:
-    """``preset`` renamed ``name``, with ``ROBUST_ENV_OVERRIDES`` after its own env overrides."""
+def robust(preset: dict[str, Any], name: str, extra: tuple[str, ...] = ()) -> dict[str, Any]:
+    """``preset`` renamed ``name``: its own env overrides, ``ROBUST_ENV_OVERRIDES``, then ``extra``.
+
+    ``extra``: the task's own items for the robust case (reward weights, observation terms).
+    """
     return {
         **preset,
         "preset": name,
-        "env_overrides": (*preset.get("env_overrides", ()), *ROBUST_ENV_OVERRIDES),
+        "env_overrides": (*preset.get("env_overrides", ()), *ROBUST_ENV_OVERRIDES, *extra),
     }

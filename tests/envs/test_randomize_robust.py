@@ -235,8 +235,13 @@ def test_robust_presets_turn_the_randomisation_on(name, env_name):
 
     cfg = preset(name)
     base = preset(name.replace("-robust", "") if name != "reach-robust" else "gpu")
-    # The base preset's own overrides first, then the robust ones; nothing else differs.
-    assert cfg.env_overrides == (*base.env_overrides, *ROBUST_ENV_OVERRIDES)
+    # The base preset's own overrides first, then the robust ones, then reach's own three; nothing else.
+    extra = (
+        ("reward.scales.torque_near_cap=-1.0", "reward.scales.wrist_posture=-0.5", "joint_error_ema=true")
+        if name == "reach-robust"
+        else ()
+    )
+    assert cfg.env_overrides == (*base.env_overrides, *ROBUST_ENV_OVERRIDES, *extra)
     assert replace(cfg, preset=base.preset, env_overrides=base.env_overrides) == base
     env_cfg = envs.apply_overrides(envs.default_config(env_name), cfg.env_overrides)
     rc, act = env_cfg.randomization, env_cfg.actuator
