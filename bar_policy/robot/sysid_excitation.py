@@ -57,18 +57,21 @@ LIMIT_MARGIN_RAD = 0.1
 """Targets stay this far inside the joint limits, rad."""
 FAST_POSE = 0
 """Index in ``POSES`` of the pose the fast single-joint phase holds."""
-FAST_AMPLITUDE_RAD = np.array([0.06, 0.08, 0.08, 0.08, 0.12, 0.05, 0.05])
+FAST_AMPLITUDE_RAD = np.array([0.06, 0.16, 0.12, 0.08, 0.12, 0.05, 0.05])
 """Fast phase: amplitude of each joint's two-sine sum, rad (peak speed ~0.8-1.1 rad/s on the shoulders and
 elbow, 2.2 rad/s on the wrist yaw: about the ~2 rad/s an unloaded wrist needs to slide through MuJoCo's soft
 friction loss of 0.6 N*m; 0.65 rad/s on the wrist roll and pitch). Set by the budget with 0.4 kg in the hand
 (its inertia about a wrist is ~5x the wrist's own, its gravity ~0.9 N*m on the wrist roll and pitch, of a
 2 N*m budget): measured, 0.1 rad on the shoulder pitch (3 Hz: its resonance at Kp 50) asked 8.52 N*m of its
 8.5; 0.07 rad at 1.3 and 2.9 Hz on the wrist roll asked 2.00 of its 2.0 with 0.6 N*m of friction and
-tripped the budget with 0.7, so the wrist roll and pitch take 0.05 (0.4 kg and 0.7 N*m: 48 % of a cap)."""
-FAST_FREQS_HZ = np.array([[1.3, 3.1]] * 4 + [[1.9, 3.9]] + [[1.3, 2.9]] * 2)
+tripped the budget with 0.7, so the wrist roll and pitch take 0.05 (0.4 kg and 0.7 N*m: 48 % of a cap). The
+shoulder roll and yaw move slower and further (``FAST_FREQS_HZ``)."""
+FAST_FREQS_HZ = np.array([[1.3, 3.1], [0.6, 1.5], [0.8, 2.0], [1.3, 3.1], [1.9, 3.9]] + [[1.3, 2.9]] * 2)
 """Fast phase frequencies per joint, Hz: where the inertia torque (``I w^2 A``) dominates the gravity
 stiffness and the friction, so armature (a few % of a shoulder's inertia) shows; two of them so a stiffness
-(``~ q``) and an inertia (``~ w^2 q``) do not alias."""
+(``~ q``) and an inertia (``~ w^2 q``) do not alias. The shoulder roll and yaw take lower ones (0.6 / 1.5
+and 0.8 / 2.0 Hz, 0.16 and 0.12 rad): their fitted armature falls with frequency (left arm, friction +0.6
+N*m, unloaded: roll -41 / -27 / -18 / -15 % at 2.3-5.3, 1.3-3.1, 0.8-2.0, 0.6-1.5 Hz; docs/sysid.md)."""
 FAST_S = 2.0
 """Fast phase: seconds per joint (0.3 s fade in and out)."""
 FAST_FADE_S = 0.3
