@@ -161,12 +161,12 @@ def episode_draws(
     d = _DEFAULT_ACTUATOR
     on = factors_on(ks[5], factor_share, len(EPISODE_FACTORS))
 
-    def pick(i: int, field: str, draw: Callable[[ActuatorConfig], jax.Array]) -> jax.Array:
-        """The config's draw, or (factor ``i`` off) the default config's; only the first when they agree."""
+    def pick(field: str, draw: Callable[[ActuatorConfig], jax.Array]) -> jax.Array:
+        """The config's draw, or (``field``'s factor off) the default config's; one draw when they agree."""
         value = draw(act)
         if on is None or getattr(act, field) == getattr(d, field):
             return value
-        return jnp.where(on[i], value, draw(d))
+        return jnp.where(on[EPISODE_FACTORS.index(field)], value, draw(d))
 
     def latency(a: ActuatorConfig) -> jax.Array:
         return jax.random.randint(ks[2], (), a.latency_steps[0], a.latency_steps[1] + 1)
@@ -184,22 +184,24 @@ def episode_draws(
         k = jax.random.fold_in(ks[2], _OPTIONAL_KEY)
         return jax.random.randint(k, (), a.obs_latency_steps[0], a.obs_latency_steps[1] + 1)
 
-    out = {"latency": pick(1, "latency_steps", latency), "encoder_offset": pick(3, "encoder_offset", offset)}
+    out = {"latency": pick("latency_steps", latency), "encoder_offset": pick("encoder_offset", offset)}
     if act.strength != (1.0, 1.0):
-        out["strength"] = pick(0, "strength", scale)
+        out["strength"] = pick("strength", scale)
     elif strength is not None:
         out["strength"] = jnp.asarray(strength)  # the identified strengths, not drawn
     if latency_buffers(act, factor_share)[1] > 0:
-        out["obs_latency"] = pick(2, "obs_latency_steps", obs_latency)
+        out["obs_latency"] = pick("obs_latency_steps", obs_latency)
     return out
 
 
-def _off(nom: jax.Array | None, on: jax.Array | None, i: int) -> jax.Array | None:
-    """Whether factor ``i`` takes its nominal value: a nominal slot, or the factor drawn off; None: never."""
+def _nominal_factors(nom: jax.Array | None, on: jax.Array | None) -> dict[str, jax.Array | None]:
+    """Per ``MODEL_FACTORS`` name: whether the slot takes that factor's nominal value (None: never).
+
+    A nominal slot (``nom``) takes every one; otherwise a factor drawn off (``on``, ``factors_on``).
+    """
     if on is None:
-        return nom
-    off = ~on[i]
-    return off if nom is None else nom | off
+        return dict.fromkeys(MODEL_FACTORS, nom)
+    return {f: ~on[i] if nom is None else nom | ~on[i] for i, f in enumerate(MODEL_FACTORS)}
 
 
 DEFAULT_FRICTION = (0.05, 0.35)
@@ -287,7 +289,7 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
                 else None
             )
             # Each robust factor on with probability ``factor_share``, else as in a nominal slot.
-            on = factors_on(key, rc.factor_share, len(MODEL_FACTORS))
+            nominal = _nominal_factors(nom, factors_on(key, rc.factor_share, len(MODEL_FACTORS)))
             if rc.armature:
                 # Armature: U(description, identified) per joint (up to 7.4x for rs-00).
                 arm = jax.random.uniform(k_arm, arm_lo.shape, minval=arm_lo, maxval=arm_hi)
@@ -298,7 +300,7 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
                 fric = jax.random.uniform(k_fric, (index.num_joints,), minval=lo, maxval=hi)
                 if centred:  # the file's friction + U(lo, hi) - (lo + hi) / 2, at least 0
                     fric = jnp.maximum(index.dq(model.dof_frictionloss) + fric - (lo + hi) / 2, 0.0)
-                off = _off(nom, on, 0)
+                off = nominal["frictionloss"]
                 if off is not None:
                     base = (
                         index.dq(model.dof_frictionloss)
@@ -311,7 +313,7 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
                 # Link mass and inertia: *U(link_mass_scale) per body (same factor: density scaling).
                 lo, hi = rc.link_mass_scale
                 s = jax.random.uniform(k_mass, model.body_mass.shape, minval=lo, maxval=hi)
-                off = _off(nom, on, 1)
+                off = nominal["link_mass_scale"]
                 if off is not None:
                     s = jnp.where(off, _remap(s, lo, hi, DEFAULT_MASS_SCALE), s)
                 out["body_mass"] = model.body_mass * s
@@ -324,7 +326,7 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
                 total = index.dq(model.dof_damping) + d
                 if centred:  # the file's damping + U(lo, hi) - (lo + hi) / 2, at least 0
                     total = jnp.maximum(total - (lo + hi) / 2, 0.0)
-                off = _off(nom, on, 2)
+                off = nominal["damping"]
                 if off is not None:
                     total = jnp.where(off, index.dq(model.dof_damping), total)
                 out["dof_damping"] = robot_dofs(model.dof_damping, total)
@@ -332,7 +334,7 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
                 # Armature x U(armature_scale) per joint, on the drawn armature when that is randomised.
                 lo, hi = rc.armature_scale
                 a = jax.random.uniform(k_ascale, (index.num_joints,), minval=lo, maxval=hi)
-                off = _off(nom, on, 3)
+                off = nominal["armature_scale"]
                 if off is not None:
                     a = jnp.where(off, 1.0, a)
                 base = out.get("dof_armature", model.dof_armature)
@@ -343,7 +345,7 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
                 m = jax.random.uniform(k_pay, (len(HAND_BODIES),), minval=lo, maxval=hi)
                 if centred:  # the file's payload (0 for a hand it gives none) + U(lo, hi) - (lo + hi) / 2
                     m = jnp.maximum(model.body_mass[payload_ids] + m - (lo + hi) / 2, 0.0)
-                off = _off(nom, on, 4)
+                off = nominal["payload_kg"]
                 if off is not None:
                     m = jnp.where(off, model.body_mass[payload_ids], m)  # none (or the file's)
                 mass = out.get("body_mass", model.body_mass)
