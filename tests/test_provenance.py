@@ -56,15 +56,16 @@ def test_a_file_without_provenance_loads_and_says_so():
 
 
 def test_the_shipped_reach_policy_says_what_trained_it():
-    """The reach policy shipped from the H100 run (docs/training.md): its commit, a clean tree,
+    """The reach policy shipped from the robust run (docs/robustness.md, "Reach: shipped"): its commit, the
+    tree flagged dirty (the only difference: the untracked script that launched the run on the GPU host),
     the command, and the 1 s command transition it was trained with."""
     from bar_policy.deploy.policy import load_policy
 
     meta = load_policy(REPO / "checkpoints" / "lite_reach_arms.onnx").metadata
-    assert meta.provenance["git_commit"].startswith("8f95bf2") and meta.provenance["git_dirty"] is False
+    assert meta.provenance["git_commit"].startswith("6b82b70") and meta.provenance["git_dirty"] is True
     head, command = provenance.describe(meta.provenance, meta.code_version)
-    assert head.startswith("provenance: commit 8f95bf2596ce (clean tree") and "jax 0.11.2" in head
-    assert "train/ship.py --run-name reachA" in command
+    assert head.startswith("provenance: commit 6b82b701df30 (dirty tree") and "jax 0.11.2" in head
+    assert "train/ppo.py --preset reach-robust" in command and "--seed 0" in command
     assert meta.command_transition_s == 1.0 and meta.action_filter_hz == 3.0
 
 

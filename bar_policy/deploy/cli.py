@@ -214,8 +214,9 @@ def _run_session(
     try:
         if args.target == "sim":
             from bar_policy.deploy.targets.perturbed import sim_target
-            from bar_policy.deploy.targets.sim import SimConfig, training_damping
+            from bar_policy.deploy.targets.sim import SimConfig, note_physics_dt, training_damping
 
+            note_physics_dt(policy.metadata.physics_dt)
             sim_cfg = SimConfig(
                 viewer=args.viewer,
                 video_path=str(args.video) if args.video else None,

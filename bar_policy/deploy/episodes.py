@@ -60,6 +60,9 @@ class SimEpisodes:
         self.robot_params = robot_params
         self.say = say
         self.started = time.monotonic()
+        from bar_policy.deploy.targets.sim import note_physics_dt
+
+        note_physics_dt(policy.metadata.physics_dt)  # once per evaluation, not per episode
 
     def progress(self, kind: str, index: int, total: int, figure: str) -> None:
         """One progress line: ``eval episode 3/100: <figure> (12.3 s)``, the time since the runner was made.

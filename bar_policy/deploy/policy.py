@@ -68,7 +68,6 @@ from bar_policy.deploy.safety import DEFAULT_REACH_MARGIN, check_action_scale
 from bar_policy.obs.manager import ObservationManager, ObservationSchema
 from bar_policy.obs.robot_layout import ERROR_EMA_TERM, with_error_ema
 from bar_policy.robot.constants import MODES, RobotSpec, load_robot
-from bar_policy.robot.mjcf import PHYSICS_DT
 
 __all__ = [
     "ACTION_CLIP_KEY",
@@ -310,12 +309,6 @@ def load_policy(
             path,
             f"policy dt {meta.policy_dt} s differs from the runtime's control dt {control_dt} s "
             f"({1 / meta.policy_dt:g} Hz vs {1 / control_dt:g} Hz)",
-        )
-    if meta.physics_dt is not None and not math.isclose(
-        meta.physics_dt, PHYSICS_DT, rel_tol=0.0, abs_tol=_DT_TOL
-    ):
-        log.warning(
-            "policy was trained with physics dt %g s; the sim target steps %g s", meta.physics_dt, PHYSICS_DT
         )
 
     # Gains: a bar file's must be the robot data's; an HC-only file's are used as they are (in range).

@@ -108,6 +108,8 @@ def results_markdown(final: dict[str, Any], name: str) -> str:
     thr = 100 * final.get("success_threshold", 0.95)
     ttt_text = f"{ttt:.0f} s" if ttt is not None else "not reached"
     train = final["config"]["train"]
+    # What the final evaluation ran on, as the run summary says it (a run before that record: the count).
+    evaluated_on = final.get("final_eval_on") or f"{int(fe.get('episodes', 0))} episodes, randomisation on"
     lines = [
         RESULTS_START,
         f"Shipped policy: `checkpoints/{name}.onnx` (config and evaluation: `checkpoints/{name}.json`).",
@@ -121,8 +123,7 @@ def results_markdown(final: dict[str, Any], name: str) -> str:
         f"| wall time, start to exported ONNX | {final['wall_s']:.0f} s |",
         f"| time to {thr:.0f}% eval success (compile included) | {ttt_text} |",
         f"| training env steps/s, end to end | {final['train_sps_end_to_end']:,.0f} |",
-        f"| final success rate ({int(fe.get('episodes', 0))} episodes, randomisation on) | "
-        f"{100 * fe['success_rate']:.2f}% |",
+        f"| final success rate ({evaluated_on}) | {100 * fe['success_rate']:.2f}% |",
         f"| final episode reward | {fe['episode_reward']:.2f} |",
         f"| mean fingertip distance at segment end | {100 * fe['final_distance']:.2f} cm |",
         f"| ONNX parity (max abs error, 4096 obs) | {final['export'].get('max_abs_error', math.nan):.2e} |",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 import subprocess
 import sys
@@ -14,7 +15,7 @@ from bar_policy.deploy.policy import load_policy
 from bar_policy.deploy.runtime import Runtime, RuntimeConfig
 from bar_policy.deploy.safety import SafetyConfig
 from bar_policy.deploy.targets.base import TargetError
-from bar_policy.deploy.targets.sim import SimConfig, SimTarget
+from bar_policy.deploy.targets.sim import SimConfig, SimTarget, note_physics_dt
 from bar_policy.robot.kinematics import Kinematics
 from bar_policy.robot.mit import MitCommand, firmware_torque, wire_ranges
 from bar_policy.tasks.reach.commands import SampledCommands
@@ -245,3 +246,15 @@ def test_sim_config_validates():
         SimConfig(video_path="out.avi")
     with pytest.raises(ValueError, match="video_fps"):
         SimConfig(video_fps=0.0)
+
+
+def test_a_coarser_training_step_is_noted_at_info_on_the_sim_target_only(caplog):
+    """A file trained at 4 ms (the gpu preset) on the 2 ms sim target: one INFO line naming both steps; a
+    file at the sim's own step or one that does not say: nothing. Not a warning: the gate judges at 2 ms."""
+    with caplog.at_level(logging.DEBUG, logger="bar_policy.deploy.targets.sim"):
+        note_physics_dt(0.004)
+        note_physics_dt(0.002)
+        note_physics_dt(None)
+    assert [(r.levelname, r.getMessage()) for r in caplog.records] == [
+        ("INFO", "policy was trained with physics dt 0.004 s; the sim target steps 0.002 s")
+    ]

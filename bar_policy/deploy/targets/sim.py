@@ -42,7 +42,14 @@ from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.mit import MitCommand, mit_torque, quantize, wire_ranges
 from bar_policy.robot.scene import PHYSICS_DT, SceneEdit, load_model
 
-__all__ = ["SimConfig", "SimTarget", "VideoRecorder", "ffmpeg_available", "training_damping"]
+__all__ = [
+    "SimConfig",
+    "SimTarget",
+    "VideoRecorder",
+    "ffmpeg_available",
+    "note_physics_dt",
+    "training_damping",
+]
 
 log = logging.getLogger(__name__)
 
@@ -91,6 +98,17 @@ def training_damping(randomization: Mapping[str, Any]) -> str:
     actuator = randomization.get("actuator") if isinstance(randomization, Mapping) else None
     value = actuator.get("damping") if isinstance(actuator, Mapping) else None
     return value if value in ("implicit", "explicit") else "implicit"
+
+
+def note_physics_dt(physics_dt: float | None) -> None:
+    """Log (INFO) that a policy trained at another physics step than the sim target's ``PHYSICS_DT``.
+
+    Information, not a fault: the training presets may step MJX coarser (the gpu preset: 4 ms) and the ship
+    gate judges every file on this target's 2 ms. ``physics_dt``: the file's ``bar.physics_dt``, s (None: a
+    file that does not say). Only the sim target has a physics step to compare; the real one does not.
+    """
+    if physics_dt is not None and abs(physics_dt - PHYSICS_DT) > 1e-9:
+        log.info("policy was trained with physics dt %g s; the sim target steps %g s", physics_dt, PHYSICS_DT)
 
 
 def ffmpeg_available() -> bool:
