@@ -118,22 +118,29 @@ def main() -> int:
     args = p.parse_args()
     modes = ("realtime", "lockstep") if args.mode == "both" else (args.mode,)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    print(f"python {sys.version.split()[0]}, python-can {can.__version__}, {args.ticks} ticks per mode, "
-          f"{os.cpu_count()} CPUs, load average {load:.2f}")  # fmt: skip
+    print(
+        f"python {sys.version.split()[0]}, python-can {can.__version__}, {args.ticks} ticks per mode, "
+        f"{os.cpu_count()} CPUs, load average {load:.2f}"
+    )
     print("host time per tick (14 MIT frames out, 14 replies in, two virtual buses + emulator threads):")
     wire = None
     for mode in modes:
         r = bench(mode, args.ticks)
         wire = r
-        print(f"  {mode:<9} wall p50 {r['p50_ms']:.3f} ms  p99 {r['p99_ms']:.3f} ms  "
-              f"mean {r['mean_ms']:.3f} ms  max {r['max_ms']:.3f} ms | driver-thread CPU "
-              f"p50 {r['cpu_p50_ms']:.3f} ms  p99 {r['cpu_p99_ms']:.3f} ms | process CPU (driver + "
-              f"emulator threads) {r['proc_ms']:.3f} ms/tick")  # fmt: skip
+        print(
+            f"  {mode:<9} wall p50 {r['p50_ms']:.3f} ms  p99 {r['p99_ms']:.3f} ms  "
+            f"mean {r['mean_ms']:.3f} ms  max {r['max_ms']:.3f} ms | driver-thread CPU "
+            f"p50 {r['cpu_p50_ms']:.3f} ms  p99 {r['cpu_p99_ms']:.3f} ms | process CPU (driver + "
+            f"emulator threads) {r['proc_ms']:.3f} ms/tick"
+        )
     assert wire is not None
     bits = wire["wire_bits"]
     print("wire limit at 1 Mbit/s per bus (7 motors, 7 commands + 7 replies per tick, buses in parallel):")
-    for name, b in (("nominal 131-bit frames", 14 * 131), ("worst-case 160-bit frames", 14 * 160),
-                    (f"this tick's frames, stuffed ({wire['n_frames']} frames)", bits)):  # fmt: skip
+    for name, b in (
+        ("nominal 131-bit frames", 14 * 131),
+        ("worst-case 160-bit frames", 14 * 160),
+        (f"this tick's frames, stuffed ({wire['n_frames']} frames)", bits),
+    ):
         t = b / BITRATE
         print(f"  {name:<42} {b:5d} bits = {t * 1e3:.3f} ms -> {1 / t:6.0f} Hz (70% load: {0.7 / t:4.0f} Hz)")
     lo = frame_bits(0x01000000 | 0x555500 | 0x0B, bytes([0x55] * 8))

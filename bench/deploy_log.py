@@ -56,8 +56,11 @@ def bench_writer(ticks: int) -> dict[str, float]:
     w.finish({})
     npz = io.BytesIO()
     np.savez(npz, **rows)
-    return {"cpu_ms_per_tick": cpu / ticks * 1e3, "mcap_bytes_per_tick": out.tell() / ticks,
-            "npz_bytes_per_tick": npz.tell() / ticks}  # fmt: skip
+    return {
+        "cpu_ms_per_tick": cpu / ticks * 1e3,
+        "mcap_bytes_per_tick": out.tell() / ticks,
+        "npz_bytes_per_tick": npz.tell() / ticks,
+    }
 
 
 def bench_loop(path: Path, seconds: float, log_dir: Path | None) -> dict[str, float]:

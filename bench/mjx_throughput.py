@@ -230,10 +230,23 @@ def measure(
             break
     _block(state)
     dt = time.perf_counter() - t0
-    r = Result(name, batch, phys_per_call, env_per_call, compile_s, dt / n * 1e3, n,
-               COMPILES.count - c0, TRACES["n"] - tr0, note)  # fmt: skip
-    print(f"  {name:<22} B={batch:<6} {r.ms_per_call:9.3f} ms/call  {r.phys_sps:12.4g} phys/s  "
-          f"compile {compile_s:6.1f} s  compiles/traces {r.compiles}/{r.traces}", flush=True)  # fmt: skip
+    r = Result(
+        name,
+        batch,
+        phys_per_call,
+        env_per_call,
+        compile_s,
+        dt / n * 1e3,
+        n,
+        COMPILES.count - c0,
+        TRACES["n"] - tr0,
+        note,
+    )
+    print(
+        f"  {name:<22} B={batch:<6} {r.ms_per_call:9.3f} ms/call  {r.phys_sps:12.4g} phys/s  "
+        f"compile {compile_s:6.1f} s  compiles/traces {r.compiles}/{r.traces}",
+        flush=True,
+    )
     return r, state
 
 
@@ -263,20 +276,40 @@ def run_throughput(args: argparse.Namespace, env: Any, humanoid: str | None) -> 
         print(f"batch {batch}", flush=True)
         if "a" in args.harness:
             d = batched_data(m, mj, batch)
-            r, _ = measure("a raw mjx.step", lambda d: raw(m, d), d, batch=batch,
-                           phys_per_call=batch, env_per_call=0, args=args)  # fmt: skip
+            r, _ = measure(
+                "a raw mjx.step",
+                lambda d: raw(m, d),
+                d,
+                batch=batch,
+                phys_per_call=batch,
+                env_per_call=0,
+                args=args,
+            )
             out.append(r)
         if "a10" in args.harness and batch in args.a10_batches:
             d = batched_data(m, mj, batch)
-            r, _ = measure("a10 raw scan x10", lambda d: raw10(m, d), d, batch=batch,
-                           phys_per_call=batch * n_sub, env_per_call=batch, args=args)  # fmt: skip
+            r, _ = measure(
+                "a10 raw scan x10",
+                lambda d: raw10(m, d),
+                d,
+                batch=batch,
+                phys_per_call=batch * n_sub,
+                env_per_call=batch,
+                args=args,
+            )
             out.append(r)
         if "b" in args.harness:
             d = batched_data(m, mj, batch)
             q_cmd = jnp.broadcast_to(jnp.asarray(env.default_pose), (batch, env.action_size))
-            r, _ = measure("b MIT law + scan x10", functools.partial(lambda d, q: ctrl(m, d, q), q=q_cmd),
-                           d, batch=batch,
-                           phys_per_call=batch * n_sub, env_per_call=batch, args=args)  # fmt: skip
+            r, _ = measure(
+                "b MIT law + scan x10",
+                functools.partial(lambda d, q: ctrl(m, d, q), q=q_cmd),
+                d,
+                batch=batch,
+                phys_per_call=batch * n_sub,
+                env_per_call=batch,
+                args=args,
+            )
             out.append(r)
         if "c" in args.harness:
             keys = jax.random.split(jax.random.PRNGKey(0), batch)
@@ -285,16 +318,29 @@ def run_throughput(args: argparse.Namespace, env: Any, humanoid: str | None) -> 
             reset, step = jax.jit(w.reset), jax.jit(w.step, donate_argnums=(0,))
             act = jax.random.uniform(jax.random.PRNGKey(1), (batch, env.action_size), minval=-1, maxval=1)
             s = reset(keys)
-            r, _ = measure("c full env step", functools.partial(lambda s, f, a: f(s, a), f=step, a=act),
-                           s, batch=batch,
-                           phys_per_call=batch * n_sub, env_per_call=batch, args=args,
-                           note="DR + auto-reset")  # fmt: skip
+            r, _ = measure(
+                "c full env step",
+                functools.partial(lambda s, f, a: f(s, a), f=step, a=act),
+                s,
+                batch=batch,
+                phys_per_call=batch * n_sub,
+                env_per_call=batch,
+                args=args,
+                note="DR + auto-reset",
+            )
             out.append(r)
             del s, w
         if hm is not None:
             d = batched_data(hm, hmj, batch, noise=0.01)
-            r, _ = measure("d humanoid raw step", lambda d: raw(hm, d), d, batch=batch,
-                           phys_per_call=batch, env_per_call=0, args=args)  # fmt: skip
+            r, _ = measure(
+                "d humanoid raw step",
+                lambda d: raw(hm, d),
+                d,
+                batch=batch,
+                phys_per_call=batch,
+                env_per_call=0,
+                args=args,
+            )
             out.append(r)
     return out
 
@@ -319,19 +365,42 @@ def run_diagnosis(args: argparse.Namespace, env: Any) -> list[Result]:
     d = batched_data(m, mj, batch)
     fast = jax.jit(vf)
     run("D0 jit, reused", lambda d: fast(m, d, q_cmd), d, note="reference")
-    run("D1 no jit (eager vmap)", lambda d: vf(m, d, q_cmd), d, max_calls=args.slow_calls,
-        note="op-by-op dispatch")  # fmt: skip
-    run("D2 jit rebuilt per call", lambda d: jax.jit(vf)(m, d, q_cmd), d, max_calls=args.slow_calls,
-        note="new jit object: retrace")  # fmt: skip
-    run("D3 jit(lambda) per call", lambda d: jax.jit(lambda m, d, q: vf(m, d, q))(m, d, q_cmd), d,
-        max_calls=args.slow_calls, note="new function: retrace")  # fmt: skip
+    run(
+        "D1 no jit (eager vmap)",
+        lambda d: vf(m, d, q_cmd),
+        d,
+        max_calls=args.slow_calls,
+        note="op-by-op dispatch",
+    )
+    run(
+        "D2 jit rebuilt per call",
+        lambda d: jax.jit(vf)(m, d, q_cmd),
+        d,
+        max_calls=args.slow_calls,
+        note="new jit object: retrace",
+    )
+    run(
+        "D3 jit(lambda) per call",
+        lambda d: jax.jit(lambda m, d, q: vf(m, d, q))(m, d, q_cmd),
+        d,
+        max_calls=args.slow_calls,
+        note="new function: retrace",
+    )
 
     def eager_scan(d: mjx.Data) -> mjx.Data:
         return jax.lax.scan(lambda d, _: (vf(m, d, q_cmd), None), d, None, length=5)[0]
 
-    r, _ = measure("D4 eager lax.scan x5", eager_scan, d, batch=batch, phys_per_call=batch * 5,
-                   env_per_call=0, args=args, max_calls=args.slow_calls,
-                   note="scan outside jit: retrace")  # fmt: skip
+    r, _ = measure(
+        "D4 eager lax.scan x5",
+        eager_scan,
+        d,
+        batch=batch,
+        phys_per_call=batch * 5,
+        env_per_call=0,
+        args=args,
+        max_calls=args.slow_calls,
+        note="scan outside jit: retrace",
+    )
     res.append(r)
     host = jax.tree.map(np.asarray, jax.device_get(d))
     q_host = np.asarray(q_cmd)
@@ -357,8 +426,13 @@ def run_diagnosis(args: argparse.Namespace, env: Any) -> list[Result]:
     if jax.default_backend() != "cpu" and cpus:
         d_cpu = jax.device_put(d, cpus[0])
         m_cpu, q_cpu = jax.device_put(m, cpus[0]), jax.device_put(q_cmd, cpus[0])
-        run("D10 inputs on CPU", lambda d: fast(m_cpu, d, q_cpu), d_cpu, max_calls=args.slow_calls,
-            note="committed to CPU: runs there")  # fmt: skip
+        run(
+            "D10 inputs on CPU",
+            lambda d: fast(m_cpu, d, q_cpu),
+            d_cpu,
+            max_calls=args.slow_calls,
+            note="committed to CPU: runs there",
+        )
     if args.profile:
         with jax.profiler.trace(args.profile):
             _block(fast(m, d, q_cmd))
@@ -373,8 +447,13 @@ def run_diagnosis(args: argparse.Namespace, env: Any) -> list[Result]:
 # ---------------------------------------------------------------------------------------------------
 def _commit() -> str:
     try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                              check=True, cwd=Path(__file__).parent).stdout.strip()  # fmt: skip
+        return subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"],
+            capture_output=True,
+            text=True,
+            check=True,
+            cwd=Path(__file__).parent,
+        ).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
 
@@ -404,11 +483,16 @@ def report(args: argparse.Namespace, thr: list[Result], diag: list[Result], huma
         ]
         for r in thr:
             env_sps = _fmt(r.env_sps) if r.env_per_call else "-"
-            lines.append(f"| {r.name} | {r.batch} | {_fmt(r.phys_sps)} | {env_sps} | {r.ms_per_call:.3f} | "
-                         f"{r.compile_s:.1f} | {r.compiles}/{r.traces} |")  # fmt: skip
+            lines.append(
+                f"| {r.name} | {r.batch} | {_fmt(r.phys_sps)} | {env_sps} | {r.ms_per_call:.3f} | "
+                f"{r.compile_s:.1f} | {r.compiles}/{r.traces} |"
+            )
         by = {(r.name.split()[0], r.batch): r for r in thr}
-        lines += ["", "| batch | env overhead c vs b | c vs a10 | b vs a10 (MIT law cost) "
-                  "| Lite a / humanoid d |", "|---:|---:|---:|---:|---:|"]  # fmt: skip
+        lines += [
+            "",
+            "| batch | env overhead c vs b | c vs a10 | b vs a10 (MIT law cost) | Lite a / humanoid d |",
+            "|---:|---:|---:|---:|---:|",
+        ]
         for b in args.batches:
 
             def ratio(x: str, y: str, b: int = b) -> str:
@@ -432,8 +516,10 @@ def report(args: argparse.Namespace, thr: list[Result], diag: list[Result], huma
             "|---|---:|---:|---:|---|---|",
         ]
         for r in diag:
-            lines.append(f"| {r.name} | {r.ms_per_call:.3f} | {_fmt(r.phys_sps)} | {r.calls} | "
-                         f"{r.compiles}/{r.traces} | {r.note} |")  # fmt: skip
+            lines.append(
+                f"| {r.name} | {r.ms_per_call:.3f} | {_fmt(r.phys_sps)} | {r.calls} | "
+                f"{r.compiles}/{r.traces} | {r.note} |"
+            )
     return "\n".join(lines) + "\n"
 
 
@@ -455,9 +541,12 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--profile", default=None, help="write a jax.profiler trace of D0/D2/D1 here")
     p.add_argument("--out", default=None, help="also write the markdown here")
     p.add_argument("--commit", default=None)
-    p.add_argument("--cache-dir", default=None,
-                   help="enable jax's persistent compilation cache here (off by default: with it, the "
-                        "recompile-per-call variants turn into retrace + cache load)")  # fmt: skip
+    p.add_argument(
+        "--cache-dir",
+        default=None,
+        help="enable jax's persistent compilation cache here (off by default: with it, the "
+        "recompile-per-call variants turn into retrace + cache load)",
+    )
     p.add_argument("--smoke", action="store_true", help="CPU sanity check: batch 4, 1-2 calls")
     args = p.parse_args(argv)
     if args.quick:

@@ -120,8 +120,14 @@ def use_menagerie(path: str | None, needed: list[str]) -> str | None:
 def load_ours(name: str, overrides: list[str]) -> Side:
     """Our env, its brax training wrapper and randomiser."""
     env = envs.load(name, overrides=overrides or None)
-    return Side("ours", name, env, envs.wrap_for_brax_training, envs.get_randomizer(name, env.config),
-                int(env.episode_length))  # fmt: skip
+    return Side(
+        "ours",
+        name,
+        env,
+        envs.wrap_for_brax_training,
+        envs.get_randomizer(name, env.config),
+        int(env.episode_length),
+    )
 
 
 def load_peer(name: str, impl: str) -> Side:
@@ -130,8 +136,14 @@ def load_peer(name: str, impl: str) -> Side:
 
     env = registry.load(name, config_overrides={"impl": impl})
     cfg = registry.get_default_config(name)
-    return Side("peer", name, env, wrapper.wrap_for_brax_training, registry.get_domain_randomizer(name),
-                int(cfg.episode_length))  # fmt: skip
+    return Side(
+        "peer",
+        name,
+        env,
+        wrapper.wrap_for_brax_training,
+        registry.get_domain_randomizer(name),
+        int(cfg.episode_length),
+    )
 
 
 def peer_ppo_config(name: str) -> dict[str, Any]:
@@ -199,9 +211,12 @@ def physics_row(side: Side, args: argparse.Namespace) -> dict[str, Any]:
         "compile_s": compile_s,
         "reset_s": reset_s,
     }
-    print(f"  physics {side.label:<4} {side.name:<38} {row['ms_per_call']:9.3f} ms/call  "
-          f"{row['physics_sps']:11.4g} phys/s  x{side.joints} joints {row['physics_sps_x_joints']:11.4g}  "
-          f"compile {compile_s:.1f} s", flush=True)  # fmt: skip
+    print(
+        f"  physics {side.label:<4} {side.name:<38} {row['ms_per_call']:9.3f} ms/call  "
+        f"{row['physics_sps']:11.4g} phys/s  x{side.joints} joints {row['physics_sps_x_joints']:11.4g}  "
+        f"compile {compile_s:.1f} s",
+        flush=True,
+    )
     return row
 
 
@@ -220,15 +235,23 @@ def ppo_kwargs(cfg: dict[str, Any], side: Side, args: argparse.Namespace) -> tup
     for k in ("policy_obs_key", "value_obs_key"):
         if k in net and isinstance(obs_size, dict) and net[k] in obs_size:
             net_kw[k] = net[k]
-    cfg.update(num_envs=args.batch, num_timesteps=args.train_steps, num_evals=args.train_chunks + 1,
-               run_evals=False, episode_length=side.episode_length, seed=0)  # fmt: skip
+    cfg.update(
+        num_envs=args.batch,
+        num_timesteps=args.train_steps,
+        num_evals=args.train_chunks + 1,
+        run_evals=False,
+        episode_length=side.episode_length,
+        seed=0,
+    )
     accepted = set(inspect.signature(ppo.train).parameters)
     dropped = sorted(k for k in cfg if k not in accepted)
     kw = {k: v for k, v in cfg.items() if k in accepted}
     if (kw["batch_size"] * kw["num_minibatches"]) % kw["num_envs"]:
         prod = kw["batch_size"] * kw["num_minibatches"]
-        raise SystemExit(f"batch_size x num_minibatches = {prod} is not a multiple of --batch "
-                         f"{args.batch} (brax needs it); pick another --batch")  # fmt: skip
+        raise SystemExit(
+            f"batch_size x num_minibatches = {prod} is not a multiple of --batch "
+            f"{args.batch} (brax needs it); pick another --batch"
+        )
     kw["network_factory"] = functools.partial(ppo_networks.make_ppo_networks, **net_kw)
     kw["randomization_fn"] = None if args.no_dr else side.randomizer
     return kw, dropped
@@ -297,9 +320,11 @@ def train_row(side: Side, cfg: dict[str, Any], args: argparse.Namespace) -> dict
         "network": {k: v for k, v in kw["network_factory"].keywords.items()},
         "config_keys_not_passed": dropped,
     }
-    print(f"  train   {side.label:<4} {side.name:<38} {steps:>10} steps  {total:7.1f} s  steady "
-          f"{steady:11.4g}  end to end {row['end_to_end_env_sps']:11.4g} env steps/s",
-          flush=True)  # fmt: skip
+    print(
+        f"  train   {side.label:<4} {side.name:<38} {steps:>10} steps  {total:7.1f} s  steady "
+        f"{steady:11.4g}  end to end {row['end_to_end_env_sps']:11.4g} env steps/s",
+        flush=True,
+    )
     return row
 
 
@@ -346,23 +371,37 @@ def table(result: dict[str, Any]) -> str:
         "|---|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in result["physics"]:
-        lines.append(f"| {r['side']} | {r['env']} | {r['joints']} | {r['substeps']} | {_g(r['env_sps'])} | "
-                     f"{_g(r['physics_sps'])} | {_g(r['physics_sps_x_joints'])} | {r['ms_per_call']:.3f} | "
-                     f"{r['compile_s']:.1f} |")  # fmt: skip
+        lines.append(
+            f"| {r['side']} | {r['env']} | {r['joints']} | {r['substeps']} | {_g(r['env_sps'])} | "
+            f"{_g(r['physics_sps'])} | {_g(r['physics_sps_x_joints'])} | {r['ms_per_call']:.3f} | "
+            f"{r['compile_s']:.1f} |"
+        )
     if result["train"]:
-        lines += ["", "| side | env | envs | env steps | wall s | first chunk s | steady env steps/s "
-                  "| end to end env steps/s |", "|---|---|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+        lines += [
+            "",
+            "| side | env | envs | env steps | wall s | first chunk s | steady env steps/s "
+            "| end to end env steps/s |",
+            "|---|---|---:|---:|---:|---:|---:|---:|",
+        ]
         for r in result["train"]:
-            lines.append(f"| {r['side']} | {r['env']} | {r['num_envs']} | {r['env_steps']} | "
-                         f"{r['wall_s']:.1f} | {r['first_chunk_s']:.1f} | {_g(r['steady_env_sps'])} | "
-                         f"{_g(r['end_to_end_env_sps'])} |")  # fmt: skip
-    lines += ["", "| ours / peer | env steps/s | physics steps/s | per actuated joint (target >= 1) "
-              "| training steady | training end to end |", "|---|---:|---:|---:|---:|---:|"]  # fmt: skip
+            lines.append(
+                f"| {r['side']} | {r['env']} | {r['num_envs']} | {r['env_steps']} | "
+                f"{r['wall_s']:.1f} | {r['first_chunk_s']:.1f} | {_g(r['steady_env_sps'])} | "
+                f"{_g(r['end_to_end_env_sps'])} |"
+            )
+    lines += [
+        "",
+        "| ours / peer | env steps/s | physics steps/s | per actuated joint (target >= 1) "
+        "| training steady | training end to end |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
     for r in result["ratios"]:
         met = {True: " (met)", False: " (NOT met)"}.get(r.get("target_met"), "")
-        lines.append(f"| {r['peer']} | {_g(r.get('env_sps'))} | {_g(r.get('physics_sps'))} | "
-                     f"{_g(r.get('physics_sps_x_joints'))}{met} | {_g(r.get('train_steady_env_sps'))} | "
-                     f"{_g(r.get('train_end_to_end_env_sps'))} |")  # fmt: skip
+        lines.append(
+            f"| {r['peer']} | {_g(r.get('env_sps'))} | {_g(r.get('physics_sps'))} | "
+            f"{_g(r.get('physics_sps_x_joints'))}{met} | {_g(r.get('train_steady_env_sps'))} | "
+            f"{_g(r.get('train_end_to_end_env_sps'))} |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -385,17 +424,30 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--min-time", type=float, default=2.0, help="s of timed physics calls per env")
     p.add_argument("--min-iters", type=int, default=10)
     p.add_argument("--max-iters", type=int, default=5000)
-    p.add_argument("--train-steps", type=int, default=4_900_000,
-                   help="env steps of PPO per env (brax rounds up to whole epochs: 4.92M at the Berkeley "
-                   "Humanoid's settings); 0: no training")  # fmt: skip
+    p.add_argument(
+        "--train-steps",
+        type=int,
+        default=4_900_000,
+        help="env steps of PPO per env (brax rounds up to whole epochs: 4.92M at the Berkeley "
+        "Humanoid's settings); 0: no training",
+    )
     p.add_argument("--train-chunks", type=int, default=3, help="progress calls (the first holds the compile)")
-    p.add_argument("--train-envs", default=None, help="envs to train, comma-separated (default: ours and "
-                   "the first peer)")  # fmt: skip
+    p.add_argument(
+        "--train-envs", default=None, help="envs to train, comma-separated (default: ours and the first peer)"
+    )
     p.add_argument("--no-physics", action="store_true", help="skip the physics rows")
-    p.add_argument("--ppo-config-from", default=None, help="Playground env whose PPO settings all use "
-                   "(default: the first peer)")  # fmt: skip
-    p.add_argument("--ppo-set", action="append", default=[], metavar="KEY=JSON",
-                   help="override one PPO setting for every env, e.g. batch_size=4")  # fmt: skip
+    p.add_argument(
+        "--ppo-config-from",
+        default=None,
+        help="Playground env whose PPO settings all use (default: the first peer)",
+    )
+    p.add_argument(
+        "--ppo-set",
+        action="append",
+        default=[],
+        metavar="KEY=JSON",
+        help="override one PPO setting for every env, e.g. batch_size=4",
+    )
     p.add_argument("--cache-dir", default=None, help="jax persistent compilation cache")
     p.add_argument("--out", default=None, help="JSON result (rewritten after every row)")
     p.add_argument("--markdown", default=None, help="also write the tables here")

@@ -127,8 +127,14 @@ def main() -> None:
         print(f"wrote {args.out} ({time.perf_counter() - t0:.0f} s, parity {summary['max_abs_error']:.1e})")
     playback = PlaybackConfig() if args.count_in is None else PlaybackConfig(count_in_s=args.count_in)
     songs = args.songs.split(",")
-    out = {"policy": str(args.out), "prior": args.prior, "lead": args.lead, "filter_hz": args.filter_hz,
-           "count_in_s": playback.count_in_s, "columns": {}}  # fmt: skip
+    out = {
+        "policy": str(args.out),
+        "prior": args.prior,
+        "lead": args.lead,
+        "filter_hz": args.filter_hz,
+        "count_in_s": playback.count_in_s,
+        "columns": {},
+    }
     if args.eval:
         print(f"count-in {playback.count_in_s} s, prior {args.prior or 'default'}, lead {args.lead}")
         print("| column | song | F1 | precision | recall | pooled F1 | faulted |")
@@ -137,8 +143,10 @@ def main() -> None:
         t0 = time.perf_counter()
         res = run_column(column, args.out, songs, playback)
         for s in res.songs:
-            print(f"| {column} | {s.song} | {s.f1:.3f} | {s.precision:.3f} | {s.recall:.3f} | "
-                  f"{s.f1_pooled:.3f} | {'yes, ' + s.end_reason if s.faulted else 'no'} |")  # fmt: skip
+            print(
+                f"| {column} | {s.song} | {s.f1:.3f} | {s.precision:.3f} | {s.recall:.3f} | "
+                f"{s.f1_pooled:.3f} | {'yes, ' + s.end_reason if s.faulted else 'no'} |"
+            )
         mean = float(np.mean([s.f1 for s in res.songs]))
         print(f"| {column} | mean over songs ({time.perf_counter() - t0:.0f} s) | {mean:.3f} | | | | |")
         out["columns"][column] = res.to_dict()

@@ -48,8 +48,18 @@ from bar_policy.tasks.piano.songs import Note, Song, count_in
 
 ONSET_S = 0.1
 """A tick within this long of its note's start is ``onset``; within it of the note's end, ``release``."""
-DIMENSIONS = ("tempo", "note length", "jump", "gap before", "key", "hand", "place in note", "other hand",
-              "key and hand", "key and place")  # fmt: skip
+DIMENSIONS = (
+    "tempo",
+    "note length",
+    "jump",
+    "gap before",
+    "key",
+    "hand",
+    "place in note",
+    "other hand",
+    "key and hand",
+    "key and place",
+)
 """The breakdown's dimensions, in the table's order."""
 MISS_ONLY = "hand's keys at a miss"
 """Counted at missed key-ticks only (its rate: share of the policy's misses): the hand's keys then."""
@@ -93,9 +103,9 @@ def _jump_bin(semitones: int | None) -> str:
     return "1-2" if semitones <= 2 else ("3-7" if semitones <= 7 else "8+")
 
 
-def categorise(ticks: SongTicks, bpm: float, tempo: tuple[float, float], dt: float, split: int) -> tuple[
-    Counter[tuple[str, str]], Counter[tuple[str, str]]
-]:  # fmt: skip
+def categorise(
+    ticks: SongTicks, bpm: float, tempo: tuple[float, float], dt: float, split: int
+) -> tuple[Counter[tuple[str, str]], Counter[tuple[str, str]]]:
     """Goal and missed key-ticks of one song per (dimension, category), the misses' ``MISS_ONLY`` and
     ``NEVER`` (the goal's ``NEVER`` counts the notes)."""
     lowest = compact_config().lowest

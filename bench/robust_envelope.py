@@ -190,9 +190,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = argparse.Namespace(**{k: getattr(a, k) for k in eval_options if getattr(a, k) is not None})
     t0 = time.perf_counter()
     suite = run_suite(
-        policy, task, args, lambda pert: SimEpisodes(policy, perturbation=pert), rows,
+        policy,
+        task,
+        args,
+        lambda pert: SimEpisodes(policy, perturbation=pert),
+        rows,
         progress=lambda line: print(f"[{time.perf_counter() - t0:6.0f} s] {line}", flush=True),
-    )  # fmt: skip
+    )
     record = suite.to_dict()
     pts = points(record["rows"], task.name)
     plot(task.name, a.policy, pts, a.out)

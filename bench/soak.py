@@ -201,9 +201,20 @@ def soak(policy: str, minutes: float, load_procs: int, log_dir: Path, rt_priorit
     watchers = [start_stall_watcher(f, prio, c) for f, c in zip(stall_files, cpus, strict=True)]
     try:
         cmd = [
-            sys.executable, "-m", "bar_policy.deploy.cli", "--policy", policy, "--target", "real",
-            "--can-interface", "virtual", "--duration", f"{duration:g}", "--log", str(log_dir),
-        ]  # fmt: skip
+            sys.executable,
+            "-m",
+            "bar_policy.deploy.cli",
+            "--policy",
+            policy,
+            "--target",
+            "real",
+            "--can-interface",
+            "virtual",
+            "--duration",
+            f"{duration:g}",
+            "--log",
+            str(log_dir),
+        ]
         if rt_priority is not None:
             cmd += ["--rt-priority", str(rt_priority)]
         proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
@@ -261,29 +272,44 @@ def markdown(r: dict) -> str:
     """The figures as a table."""
     t = r["timing"]
     rows = [
-        ("run", f"{r['minutes']:g} min, real target on the emulator (virtual CAN, realtime), "
-                f"{r['load_procs']} busy process(es) on {r['cpus']} CPUs, loop priority "
-                f"{'SCHED_FIFO ' + str(r['rt_priority']) if r.get('rt_priority') else 'normal'}"),
+        (
+            "run",
+            f"{r['minutes']:g} min, real target on the emulator (virtual CAN, realtime), "
+            f"{r['load_procs']} busy process(es) on {r['cpus']} CPUs, loop priority "
+            f"{'SCHED_FIFO ' + str(r['rt_priority']) if r.get('rt_priority') else 'normal'}",
+        ),
         ("exit status / end", f"{r['exit_status']} / {r['end_reason']}"),
         ("faults", str(r["fault_count"])),
         ("safe stop", r["safe_stop"]),
-        ("ticks expected / run.json / log.npz / MCAP", f"{r['ticks_expected']} / {r['ticks_run_json']} / "
-                                                       f"{r['ticks_log_npz']} / {r['ticks_mcap']}"),
+        (
+            "ticks expected / run.json / log.npz / MCAP",
+            f"{r['ticks_expected']} / {r['ticks_run_json']} / {r['ticks_log_npz']} / {r['ticks_mcap']}",
+        ),
         ("MCAP opens in the indexed reader", str(r["mcap_indexed_reader_ok"])),
         ("rate", f"{t['rate_hz']:.2f} Hz"),
-        ("compute p50 / p99 / max", f"{t['compute_p50_ms']:.2f} / {t['compute_p99_ms']:.2f} / "
-                                    f"{t['compute_max_ms']:.2f} ms"),
-        ("jitter p99 / max (whole run)", f"{t.get('jitter_p99_ms', float('nan')):.3f} / "
-                                         f"{t.get('jitter_max_ms', float('nan')):.3f} ms"),
+        (
+            "compute p50 / p99 / max",
+            f"{t['compute_p50_ms']:.2f} / {t['compute_p99_ms']:.2f} / {t['compute_max_ms']:.2f} ms",
+        ),
+        (
+            "jitter p99 / max (whole run)",
+            f"{t.get('jitter_p99_ms', float('nan')):.3f} / {t.get('jitter_max_ms', float('nan')):.3f} ms",
+        ),
         ("jitter p99, worst minute", f"{r['worst_minute_jitter_p99_ms']:.3f} ms"),
         ("overruns", f"{t['overruns']} (ticks flagged in the log: {r['overrun_ticks_in_log']})"),
-        ("host stalls (idle watcher's wake-ups late by > 20 / > 50 ms; longest)",
-         f"{r['stall_gaps_over_20ms']} / {r['stall_gaps_over_50ms']}; {r['stall_max_ms']:.1f} ms"),
-        (f"ticks slower than {SLOW_TICK_MS:g} ms / with a host stall", f"{r['slow_ticks']} / "
-                                                                       f"{r['slow_ticks_with_a_stall']}"),
-        ("longest host stall in the second before a fault", "-" if r["stall_before_end_ms"] is None
-                                                            else f"{r['stall_before_end_ms']:.1f} ms"),
-    ]  # fmt: skip
+        (
+            "host stalls (idle watcher's wake-ups late by > 20 / > 50 ms; longest)",
+            f"{r['stall_gaps_over_20ms']} / {r['stall_gaps_over_50ms']}; {r['stall_max_ms']:.1f} ms",
+        ),
+        (
+            f"ticks slower than {SLOW_TICK_MS:g} ms / with a host stall",
+            f"{r['slow_ticks']} / {r['slow_ticks_with_a_stall']}",
+        ),
+        (
+            "longest host stall in the second before a fault",
+            "-" if r["stall_before_end_ms"] is None else f"{r['stall_before_end_ms']:.1f} ms",
+        ),
+    ]
     return "\n".join(["| quantity | value |", "|---|---|", *(f"| {a} | {b} |" for a, b in rows)])
 
 

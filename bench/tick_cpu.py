@@ -70,10 +70,17 @@ def measure(seconds: float, policy: str, extra: list[str]) -> dict:
         with contextlib.redirect_stdout(out):
             rc = cli.main(
                 [
-                    "--policy", policy, "--target", "real", "--can-interface", "virtual",
-                    "--duration", f"{seconds:g}", *extra,
+                    "--policy",
+                    policy,
+                    "--target",
+                    "real",
+                    "--can-interface",
+                    "virtual",
+                    "--duration",
+                    f"{seconds:g}",
+                    *extra,
                 ]
-            )  # fmt: skip
+            )
     finally:
         runtime.Runtime._tick, run_loop.RunLoop._safe_end = orig_tick, orig_end
     lines = out.getvalue().splitlines()

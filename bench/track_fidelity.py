@@ -152,9 +152,12 @@ def _safety(args: argparse.Namespace) -> SafetyConfig:
 def run_sim(policy: OnnxPolicy, clips: Sequence[Clip], args: argparse.Namespace) -> list[ClipResult]:
     """The deploy path on the C MuJoCo sim target (training's damping integration), nominal physics."""
     res = evaluate_track(
-        policy, clips, runner=SimEpisodes(policy, _safety(args)), hold_s=args.hold_s,
+        policy,
+        clips,
+        runner=SimEpisodes(policy, _safety(args)),
+        hold_s=args.hold_s,
         on_clip=_progress("sim") if args.verbose else None,
-    )  # fmt: skip
+    )
     return res.clips
 
 
@@ -165,9 +168,13 @@ def run_bus(policy: OnnxPolicy, clips: Sequence[Clip], args: argparse.Namespace)
     target = EmulatedBusTarget(policy.robot.mode, policy.policy_dt)
     try:
         res = evaluate_track(
-            policy, clips, runner=SimEpisodes(policy, _safety(args)), hold_s=args.hold_s, target=target,
+            policy,
+            clips,
+            runner=SimEpisodes(policy, _safety(args)),
+            hold_s=args.hold_s,
+            target=target,
             on_clip=_progress("bus") if args.verbose else None,
-        )  # fmt: skip
+        )
     finally:
         target.close()
     return res.clips
@@ -340,14 +347,30 @@ def main(argv: Sequence[str] | None = None) -> int:
         head = ("clip", "steps", "joint rad", "body cm", "tip cm", "success %", "lost", "fault")
         print("{:<26}{:>7}{:>11}{:>9}{:>8}{:>11}{:>6}{:>7}".format(*head))
         rows = [
-            (r.clip, r.steps, r.mean("joint_error"), 100 * r.mean("body_pos_error"),
-             100 * r.mean("fingertip_error"), 100 * r.mean("success"), int(r.sums["lost"]), int(r.faulted))
+            (
+                r.clip,
+                r.steps,
+                r.mean("joint_error"),
+                100 * r.mean("body_pos_error"),
+                100 * r.mean("fingertip_error"),
+                100 * r.mean("success"),
+                int(r.sums["lost"]),
+                int(r.faulted),
+            )
             for r in results
         ] + [
-            ("= " + g["group"], g["steps"], g["joint_error_rad"], g["body_pos_error_cm"],
-             g["fingertip_error_cm"], g["success_pct"], g["lost_steps"], g["faults"])
+            (
+                "= " + g["group"],
+                g["steps"],
+                g["joint_error_rad"],
+                g["body_pos_error_cm"],
+                g["fingertip_error_cm"],
+                g["success_pct"],
+                g["lost_steps"],
+                g["faults"],
+            )
             for g in grp
-        ]  # fmt: skip
+        ]
         for c, st, j, b, f, su, lo, fa in rows:
             print(f"{c:<26}{st:>7}{j:>11.4f}{b:>9.2f}{f:>8.2f}{su:>11.1f}{lo:>6}{fa:>7}")
         for r in results:

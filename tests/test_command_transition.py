@@ -103,8 +103,11 @@ def test_metadata_key_round_trip_and_refusals() -> None:
     assert "bar.command_transition" not in make().to_props()  # 0 s: no key, as in older files
     del props["bar.command_transition"]
     assert PolicyMetadata.from_props(props).command_transition_s == 0.0
-    for bad in ('{"duration_s": 1.0}', '{"duration_s": 1.0, "profile": "cubic"}', '{"duration_s": true, '
-                '"profile": "min_jerk"}'):  # fmt: skip
+    for bad in (
+        '{"duration_s": 1.0}',
+        '{"duration_s": 1.0, "profile": "cubic"}',
+        '{"duration_s": true, "profile": "min_jerk"}',
+    ):
         props["bar.command_transition"] = bad
         with pytest.raises(MetadataError, match=r"'bar\.command_transition' must be"):
             PolicyMetadata.from_props(props)

@@ -125,12 +125,19 @@ def test_no_import_cycles() -> None:
 
 
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("bar_policy.robot", "bar_policy.task_records", "bar_policy._", "bar_policy.overrides",
-     "bar_policy.provenance", "bar_policy.signals", "bar_policy.quality"),
+    (
+        "bar_policy.robot",
+        "bar_policy.task_records",
+        "bar_policy._",
+        "bar_policy.overrides",
+        "bar_policy.provenance",
+        "bar_policy.signals",
+        "bar_policy.quality",
+    ),
     ("bar_policy.obs", "bar_policy.envs", "bar_policy.robstride", "bar_policy.motion"),
     ("bar_policy.tasks",),
     ("bar_policy.training", "bar_policy.deploy", "bar_policy.export", "bar_policy.entry"),
-)  # fmt: skip
+)
 """From the ground up: the robot (and the task records, the helpers, the quality metrics); the observation
 contract, the robot env, the driver and the motions; the tasks; training, the deploy runtime, the export and
 the ``bar-deploy`` console entry point.

@@ -15,14 +15,25 @@ def make(**changes: object) -> PolicyMetadata:
     robot = load_robot("arms")
     om = ObservationManager.for_task("reach", "arms")
     base = {
-        "task": "reach", "robot": "lite_dummy", "mode": "arms", "joint_names": robot.joint_names,
-        "action_joint_names": robot.joint_names, "joint_stiffness": tuple(robot.kp),
-        "joint_damping": tuple(robot.kd), "default_joint_pos": tuple(robot.pose("piano_ready")),
-        "action_scale": (0.5,) * 14, "action_semantics": "delta_from_default", "policy_dt": 0.02,
-        "physics_dt": 0.002, "obs_schema": om.to_json(), "obs_fingerprint": om.fingerprint,
-        "command_names": om.command_names, "randomization": {"kp_scale": [0.9, 1.1]},
-        "code_version": "0.1.0+abc", "training": {"steps": 1},
-    }  # fmt: skip
+        "task": "reach",
+        "robot": "lite_dummy",
+        "mode": "arms",
+        "joint_names": robot.joint_names,
+        "action_joint_names": robot.joint_names,
+        "joint_stiffness": tuple(robot.kp),
+        "joint_damping": tuple(robot.kd),
+        "default_joint_pos": tuple(robot.pose("piano_ready")),
+        "action_scale": (0.5,) * 14,
+        "action_semantics": "delta_from_default",
+        "policy_dt": 0.02,
+        "physics_dt": 0.002,
+        "obs_schema": om.to_json(),
+        "obs_fingerprint": om.fingerprint,
+        "command_names": om.command_names,
+        "randomization": {"kp_scale": [0.9, 1.1]},
+        "code_version": "0.1.0+abc",
+        "training": {"steps": 1},
+    }
     base.update(changes)
     return PolicyMetadata(**base)  # type: ignore[arg-type]
 

@@ -95,9 +95,12 @@ def test_numpy_and_jax_give_the_same_torque() -> None:
     rng = np.random.default_rng(1)
     b = 8
     c = MitCommand(
-        rng.uniform(-1, 1, (b, 14)), rng.uniform(-1, 1, (b, 14)), np.broadcast_to(robot.kp, (b, 14)),
-        np.broadcast_to(robot.kd, (b, 14)), rng.uniform(-1, 1, (b, 14)),
-    )  # fmt: skip
+        rng.uniform(-1, 1, (b, 14)),
+        rng.uniform(-1, 1, (b, 14)),
+        np.broadcast_to(robot.kp, (b, 14)),
+        np.broadcast_to(robot.kd, (b, 14)),
+        rng.uniform(-1, 1, (b, 14)),
+    )
     q, dq = rng.uniform(-1, 1, (b, 14)), rng.uniform(-3, 3, (b, 14))
     want = firmware_torque(c, q, dq, ranges, robot.torque_cap)
     assert isinstance(want, np.ndarray)

@@ -16,16 +16,30 @@ from bar_policy.robot import load_robot
 
 def inputs(batch: tuple[int, ...] = (), n: int = 14, seed: int = 0) -> dict[str, np.ndarray]:
     rng = np.random.default_rng(seed)
-    shapes = {"joint_pos": n, "joint_vel": n, "actions": n, "fingertip_pos_left": 3,
-              "fingertip_pos_right": 3, "target_pos_left": 3, "target_pos_right": 3}  # fmt: skip
+    shapes = {
+        "joint_pos": n,
+        "joint_vel": n,
+        "actions": n,
+        "fingertip_pos_left": 3,
+        "fingertip_pos_right": 3,
+        "target_pos_left": 3,
+        "target_pos_right": 3,
+    }
     return {k: rng.normal(size=(*batch, s)) for k, s in shapes.items()}
 
 
 def test_layout_of_reach_arms() -> None:
     om = ObservationManager.for_task("reach", "arms")
     assert om.size == 14 * 3 + 4 * 3 == 54
-    assert om.term_names == ("joint_pos", "joint_vel", "actions", "fingertip_pos_left",
-                             "fingertip_pos_right", "target_pos_left", "target_pos_right")  # fmt: skip
+    assert om.term_names == (
+        "joint_pos",
+        "joint_vel",
+        "actions",
+        "fingertip_pos_left",
+        "fingertip_pos_right",
+        "target_pos_left",
+        "target_pos_right",
+    )
     assert om.term_slice("actions") == slice(28, 42)
     assert om.command_names == ("target_pos_left", "target_pos_right")
     assert ObservationManager.for_task("reach", "arms_neck").size == 17 * 3 + 12 == 63
@@ -48,8 +62,9 @@ def test_compute_by_hand() -> None:
     np.testing.assert_allclose(obs[:14], 0.1, atol=1e-6)
     np.testing.assert_allclose(obs[14:28], 0.2, atol=1e-6)
     np.testing.assert_allclose(obs[28:42], np.linspace(-1, 1, 14), atol=1e-6)
-    np.testing.assert_allclose(obs[42:], [0.3, 0.2, 0.1, 0.3, -0.2, 0.1, 0.4, 0.1, 0.2, 0.4, -0.1, 0.2],
-                               atol=1e-6)  # fmt: skip
+    np.testing.assert_allclose(
+        obs[42:], [0.3, 0.2, 0.1, 0.3, -0.2, 0.1, 0.4, 0.1, 0.2, 0.4, -0.1, 0.2], atol=1e-6
+    )
     # Clip at 100 after scaling: a 5000 rad/s reading becomes 500 -> 100.
     x["joint_vel"] = np.full(14, 5000.0)
     assert om.compute(x)[14] == 100.0

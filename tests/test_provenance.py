@@ -125,8 +125,12 @@ def _git(repo: Path, *args: str) -> str:
     }
     return subprocess.run(
         ["git", "-c", "core.hooksPath=/dev/null", "-c", "commit.gpgsign=false", *args],
-        cwd=repo, env=env, capture_output=True, text=True, check=True,
-    ).stdout  # fmt: skip
+        cwd=repo,
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
 
 
 def _expected_commit(content: bytes, message: str) -> str:

@@ -36,8 +36,13 @@ def test_arms_table_matches_reference() -> None:
     for idx, name, can_id, bus, model, direction, lo, hi, tcap, ccap in REFERENCE:
         j = robot.joints[idx]
         assert (j.index, j.name, j.can_id, j.can_interface, j.model, j.direction) == (
-            idx, name, can_id, bus, model, direction,
-        )  # fmt: skip
+            idx,
+            name,
+            can_id,
+            bus,
+            model,
+            direction,
+        )
         assert j.lower == pytest.approx(lo, abs=1e-5) and j.upper == pytest.approx(hi, abs=1e-5)
         assert (j.torque_limit, j.current_limit) == (tcap, ccap)
         # First-activation gains of the hardware spec: Kp 50, Kd 2 on every arm joint.
@@ -117,14 +122,35 @@ def test_reads_upstream_ros2_control_shape() -> None:
         ],
         "modes": {"arms": ["left_arm", "right_arm"]},
         "joints": [
-            {"name": "a", "group": "left_arm", "can_id": 11, "model": "rs-02", "direction": -1,
-             "torque_limit": 17, "current_limit": 27},
-            {"name": "b", "group": "right_arm", "can_id": 21, "model": "rs-05", "direction": 1,
-             "torque_limit": 0, "current_limit": 0},
+            {
+                "name": "a",
+                "group": "left_arm",
+                "can_id": 11,
+                "model": "rs-02",
+                "direction": -1,
+                "torque_limit": 17,
+                "current_limit": 27,
+            },
+            {
+                "name": "b",
+                "group": "right_arm",
+                "can_id": 21,
+                "model": "rs-05",
+                "direction": 1,
+                "torque_limit": 0,
+                "current_limit": 0,
+            },
         ],
-    }  # fmt: skip
-    extra = {"lower": -1.0, "upper": 1.0, "kp": 20.0, "kd": 1.0, "armature": 0.01, "frictionloss": 0.0,
-             "sim_effort": 5.0}  # fmt: skip
+    }
+    extra = {
+        "lower": -1.0,
+        "upper": 1.0,
+        "kp": 20.0,
+        "kd": 1.0,
+        "armature": 0.01,
+        "frictionloss": 0.0,
+        "sim_effort": 5.0,
+    }
     robot = robot_from_ros2_control(upstream, "arms", joint_extras={"a": extra, "b": extra})
     assert robot.joint_names == ("a", "b")
     assert [j.can_interface for j in robot.joints] == ["can0", "can1"]
@@ -140,9 +166,22 @@ def test_validation_rejects_inconsistent_rows() -> None:
         "modes": {"arms": ["g"]},
         "joints": [],
     }
-    row = {"name": "x", "group": "g", "can_id": 11, "model": "rs-05", "direction": 1, "lower": -1,
-           "upper": 1, "torque_limit": 4, "current_limit": 1, "kp": 1, "kd": 0, "armature": 0,
-           "frictionloss": 0, "sim_effort": 1}  # fmt: skip
+    row = {
+        "name": "x",
+        "group": "g",
+        "can_id": 11,
+        "model": "rs-05",
+        "direction": 1,
+        "lower": -1,
+        "upper": 1,
+        "torque_limit": 4,
+        "current_limit": 1,
+        "kp": 1,
+        "kd": 0,
+        "armature": 0,
+        "frictionloss": 0,
+        "sim_effort": 1,
+    }
     with pytest.raises(ValueError, match="duplicate joint names"):
         robot_from_ros2_control({**base, "joints": [row, {**row, "can_id": 12}]})
     with pytest.raises(ValueError, match="direction must be"):

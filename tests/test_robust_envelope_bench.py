@@ -39,9 +39,15 @@ def test_rows_perturb_exactly_what_they_name() -> None:
     rows = env.sweep_rows(["payload_kg", "strength"])
     assert [r.name for r in rows] == [
         "nominal",
-        "payload_kg 0.1", "payload_kg 0.3", "payload_kg 0.5", "payload_kg 0.75",
-        "strength 0.6", "strength 0.7", "strength 0.8", "strength 0.9",
-    ]  # fmt: skip
+        "payload_kg 0.1",
+        "payload_kg 0.3",
+        "payload_kg 0.5",
+        "payload_kg 0.75",
+        "strength 0.6",
+        "strength 0.7",
+        "strength 0.8",
+        "strength 0.9",
+    ]
     assert rows[0].spec == ""
     p = rows[3].perturbation  # payload 0.5 kg at each fingertip, nothing else
     assert (p.payload_kg, p.payload_at, p.strength, p.mass_scale, p.friction_nm) == (

@@ -174,8 +174,11 @@ def test_env_names_of_the_moved_modules_stay_on_envs():
     importing a task would point up); their public names are still ``bar_policy.envs.<name>``."""
     import bar_policy.envs as envs
 
-    for old, new in {"reach": "bar_policy.tasks.reach.env", "track": "bar_policy.tasks.track.env",
-                     "track_config": "bar_policy.tasks.track.config"}.items():  # fmt: skip
+    for old, new in {
+        "reach": "bar_policy.tasks.reach.env",
+        "track": "bar_policy.tasks.track.env",
+        "track_config": "bar_policy.tasks.track.config",
+    }.items():
         assert not (Path(envs.__file__).parent / f"{old}.py").exists(), old
         module = importlib.import_module(new)
         for name in ("LiteReach", "ReachEnvConfig", "LiteTrack", "TrackEnvConfig"):

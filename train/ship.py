@@ -138,9 +138,13 @@ def robustness_tier(
     policy = load_policy(onnx, task=task)
     args = argparse.Namespace(**dict(options or {}))
     return run_suite(
-        policy, get_task(task), args, lambda p: SimEpisodes(policy, perturbation=p), rows,
+        policy,
+        get_task(task),
+        args,
+        lambda p: SimEpisodes(policy, perturbation=p),
+        rows,
         progress=lambda line: print(line, flush=True),
-    )  # fmt: skip
+    )
 
 
 def robustness_record(suite: Any, enforced: bool) -> dict[str, Any]:

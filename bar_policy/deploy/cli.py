@@ -413,9 +413,13 @@ def _eval(argv: Sequence[str]) -> int:
     cli_parser.perturb_option(p, suite=True)
     cli_parser.robot_params_option(p)
     p.add_argument("--json", type=Path, help="write the per-episode / per-clip results here")
-    p.add_argument("-q", "--quiet", action="store_true",
-                   help="no progress line per episode, clip or song (the result and the counted warnings "
-                        "are printed all the same)")  # fmt: skip
+    p.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no progress line per episode, clip or song (the result and the counted warnings "
+        "are printed all the same)",
+    )
     for task in all_tasks():
         task.add_eval_arguments(p)
     args = p.parse_args(argv)

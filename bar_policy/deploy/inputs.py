@@ -22,8 +22,13 @@ from bar_policy.robot.kinematics import Kinematics
 __all__ = ["RUNTIME_INPUTS", "StateInputs"]
 
 RUNTIME_INPUTS = (
-    "joint_pos", "joint_vel", "actions", "fingertip_pos_left", "fingertip_pos_right", "joint_error_ema",
-)  # fmt: skip
+    "joint_pos",
+    "joint_vel",
+    "actions",
+    "fingertip_pos_left",
+    "fingertip_pos_right",
+    "joint_error_ema",
+)
 """Observation inputs the runtime computes each tick (measured q and dq, the previous action, fingertip
 forward kinematics). Command-category terms come from the command source."""
 

@@ -287,9 +287,13 @@ class _ArmContext:
         )
         id_base = self.id_all[sel]
         common = dict(
-            id_base=id_base, smooth=self.smooth, friction_u=self.u_all[sel], v_min=0.0, iterations=6,
+            id_base=id_base,
+            smooth=self.smooth,
+            friction_u=self.u_all[sel],
+            v_min=0.0,
+            iterations=6,
             hac_lag=self.lag,
-        )  # fmt: skip
+        )
         # stage 1: shoulders and elbow, with the payload; stage 2: the wrists, with that payload's force
         # known (a wrist's few g*m^2 and its soft friction make its rows noisy: they would pull the mass)
         big, wrists = idx[:PAYLOAD_JOINTS], idx[PAYLOAD_JOINTS:]
@@ -330,8 +334,12 @@ class _ArmContext:
         )
         log.info(
             "%s arm, fast segments: payload %.3f +- %.3f kg (slow: %.3f), residual %s N*m",
-            self.arm, f3.mass, f3.mass_half95, fit.mass, np.round(f3.rms, 3),
-        )  # fmt: skip
+            self.arm,
+            f3.mass,
+            f3.mass_half95,
+            fit.mass,
+            np.round(f3.rms, 3),
+        )
         return with_fast(fit, f3)
 
 

@@ -57,8 +57,13 @@ def plot_curve(run_dir: str | Path, out: str | Path, threshold: float = 0.95) ->
     ax1.plot(steps, [100 * r["success_rate"] for r in ev], "o-", label="eval success (deterministic)")
     rated = [r for r in tr if "success_rate" in r]  # none before the first segment end (rollout_sums)
     if rated:
-        ax1.plot([r["step"] / 1e6 for r in rated], [100 * r["success_rate"] for r in rated], ".-", alpha=0.6,
-                 label="training success (stochastic)")  # fmt: skip
+        ax1.plot(
+            [r["step"] / 1e6 for r in rated],
+            [100 * r["success_rate"] for r in rated],
+            ".-",
+            alpha=0.6,
+            label="training success (stochastic)",
+        )
     ax1.axhline(100 * threshold, color="gray", ls="--", lw=1, label=f"{100 * threshold:.0f}%")
     ax1.set(xlabel="env steps (M)", ylabel="success rate (%)", ylim=(0, 101), title="Reach success")
     ax1.legend(loc="lower right", fontsize=8)

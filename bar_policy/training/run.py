@@ -108,21 +108,40 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
     # The trainer yields what it reports as it trains; the logger reports each record as it comes.
     if cfg.backend == "brax":
         trainer = train_brax(
-            env, cfg, evaluations=evaluations, wrap_fn=envs.wrap_for_brax_training, randomizer=randomizer,
-            resume=resume, start=start, eval_env=eval_env,
-        )  # fmt: skip
+            env,
+            cfg,
+            evaluations=evaluations,
+            wrap_fn=envs.wrap_for_brax_training,
+            randomizer=randomizer,
+            resume=resume,
+            start=start,
+            eval_env=eval_env,
+        )
     else:
         trainer = run_rsl_rl(
-            env, cfg, evaluations=evaluations, wrap_fn=envs.wrap_for_brax_training, randomizer=randomizer,
-            resume=resume, start=start, eval_env=eval_env,
+            env,
+            cfg,
+            evaluations=evaluations,
+            wrap_fn=envs.wrap_for_brax_training,
+            randomizer=randomizer,
+            resume=resume,
+            start=start,
+            eval_env=eval_env,
             scalars_dir=logger.tb_dir if logger.writes_scalars else None,
-        )  # fmt: skip
+        )
     result = logger.follow(trainer)
     # The final evaluation, the best iterate, the export and the summary, alike for both backends.
     finish = finish_run(
-        cfg, env, result, run_dir=run_dir, record=record, is_main=is_main,
-        held_out=eval_env is not None, t0=t0, startup=timer.report,
-    )  # fmt: skip
+        cfg,
+        env,
+        result,
+        run_dir=run_dir,
+        record=record,
+        is_main=is_main,
+        held_out=eval_env is not None,
+        t0=t0,
+        startup=timer.report,
+    )
     summary = logger.follow(finish)
     logger.close()
     return summary

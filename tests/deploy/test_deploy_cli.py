@@ -21,10 +21,21 @@ def test_run_on_mock_then_plot(policy_path, tmp_path, capsys):
     # own in test_deploy_safety.py::test_loop_overruns_go_to_damping. This test is the run, its log and plot.
     rc = main(
         [
-            "run", "--policy", str(policy_path), "--target", "mock", "--duration", "0.3",
-            "--ramp-time", "0.1", "--max-overruns", "0", "--log", str(tmp_path / "runs"),
+            "run",
+            "--policy",
+            str(policy_path),
+            "--target",
+            "mock",
+            "--duration",
+            "0.3",
+            "--ramp-time",
+            "0.1",
+            "--max-overruns",
+            "0",
+            "--log",
+            str(tmp_path / "runs"),
         ]
-    )  # fmt: skip
+    )
     out = capsys.readouterr().out
     assert rc == 0, out
     assert "HOLD -> POLICY: ramp complete" in out and "jitter p50" in out
@@ -85,10 +96,20 @@ def test_real_target_plugs_in_through_add_arguments_and_make_target(policy_path,
     monkeypatch.setitem(sys.modules, "bar_policy.deploy.targets.real", fake)
     rc = main(
         [
-            "--policy", str(policy_path), "--target", "real", "--can-interface", "vcan0", "--dry-run",
-            "--duration", "0.1", "--no-log", "--ramp-time", "2",
+            "--policy",
+            str(policy_path),
+            "--target",
+            "real",
+            "--can-interface",
+            "vcan0",
+            "--dry-run",
+            "--duration",
+            "0.1",
+            "--no-log",
+            "--ramp-time",
+            "2",
         ]
-    )  # fmt: skip
+    )
     assert rc == 0
     assert seen == {"iface": "vcan0", "dry": True, "mode": "arms"}
 
@@ -96,9 +117,20 @@ def test_real_target_plugs_in_through_add_arguments_and_make_target(policy_path,
 def test_eval_prints_success_rate_with_seeds(policy_path, capsys, tmp_path):
     out_json = tmp_path / "eval.json"
     rc = main(
-        ["eval", "--policy", str(policy_path), "--episodes", "2", "--seed", "5", "--episode-length", "0.2",
-         "--json", str(out_json)]
-    )  # fmt: skip
+        [
+            "eval",
+            "--policy",
+            str(policy_path),
+            "--episodes",
+            "2",
+            "--seed",
+            "5",
+            "--episode-length",
+            "0.2",
+            "--json",
+            str(out_json),
+        ]
+    )
     assert rc == 0
     out = capsys.readouterr().out
     assert "episodes 2 (seeds 5..6)" in out and "success rate 0.0 %" in out
@@ -136,13 +168,26 @@ def test_real_target_on_the_virtual_bus_emulator(policy_path, tmp_path, capsys):
         pytest.skip(f"real target not importable: {e}")
     rc = main(
         [
-            "--policy", str(policy_path), "--target", "real", "--can-interface", "virtual",
-            "--duration", "1.6", "--ramp-time", "1.2", "--log", str(tmp_path / "runs"),
+            "--policy",
+            str(policy_path),
+            "--target",
+            "real",
+            "--can-interface",
+            "virtual",
+            "--duration",
+            "1.6",
+            "--ramp-time",
+            "1.2",
+            "--log",
+            str(tmp_path / "runs"),
             # The realtime emulator is threads on a loaded CI machine: a generous reply deadline and CAN
             # watchdog, since bus timing is not what this test checks (tests/robstride checks it).
-            "--reply-timeout", "0.5", "--can-timeout", "2",
+            "--reply-timeout",
+            "0.5",
+            "--can-timeout",
+            "2",
         ]
-    )  # fmt: skip
+    )
     out = capsys.readouterr().out
     assert rc == 0, out
     assert "HOLD -> POLICY: ramp complete" in out and "run ended: duration reached" in out

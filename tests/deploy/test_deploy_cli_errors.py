@@ -41,12 +41,18 @@ RUN_ROWS = [
     ("video-not-sim", ["--target", "mock", "--video", "x.mp4"], "--video needs --target sim"),
     ("policy-missing", ["--policy", "missing.onnx"], "cannot read the file: No such file or directory"),
     ("mode-mismatch", ["--mode", "arms_neck"], "joint set mismatch: the policy drives mode 'arms'"),
-    ("real-channels", ["--target", "real", "--can-interface", "virtual", "--channels", "a,b,c"],
-     "target real: cannot build the real target: --channels 'a,b,c': give 2 channels"),
+    (
+        "real-channels",
+        ["--target", "real", "--can-interface", "virtual", "--channels", "a,b,c"],
+        "target real: cannot build the real target: --channels 'a,b,c': give 2 channels",
+    ),
     # No SocketCAN here (or no can0): the driver's own message, printed on one line, with the fix.
-    ("real-socketcan", ["--target", "real", "--can-interface", "socketcan", "--calibration", "none"],
-     "ip link set can0 up type can bitrate 1000000"),
-]  # fmt: skip
+    (
+        "real-socketcan",
+        ["--target", "real", "--can-interface", "socketcan", "--calibration", "none"],
+        "ip link set can0 up type can bitrate 1000000",
+    ),
+]
 
 OTHER_ROWS = [
     ("eval-episodes", ["eval", "--episodes", "0"], "bar-deploy eval: error: argument --episodes"),
@@ -105,8 +111,11 @@ def test_bad_argument_in_a_child_process(argv, policy_path):
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))
     r = subprocess.run(
         [sys.executable, "-m", "bar_policy.deploy.cli", "--policy", str(policy_path), *argv],
-        capture_output=True, text=True, timeout=120, env=env,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=env,
+    )
     assert r.returncode == 2 and r.stdout == ""
     assert len(r.stderr.splitlines()) == 1 and r.stderr.startswith("bar-deploy: error: "), r.stderr
 

@@ -92,8 +92,22 @@ def test_seed_draws_the_same_targets_in_run_and_eval(policy_path, monkeypatch):
             made.append(self)
 
     monkeypatch.setattr(sim2sim, "SampledCommands", Recording)
-    assert main(["eval", "--policy", str(policy_path), "--seed", "7", "--episodes", "1",
-                 "--episode-length", "0.1"]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "eval",
+                "--policy",
+                str(policy_path),
+                "--seed",
+                "7",
+                "--episodes",
+                "1",
+                "--episode-length",
+                "0.1",
+            ]
+        )
+        == 0
+    )
     (episode0,) = made
     policy = load_policy(policy_path)
     run_source = get_task(policy.task).command_source(policy, ap.Namespace(seed=7, commands=None))

@@ -25,13 +25,23 @@ from bar_policy.tasks.reach.commands import SampledCommands
 D = np.array([0.3, -1.0, 0.0, -1.7, -1.2, 0.0, 0.3, 0.3, 1.0, 0.0, -1.7, 1.2, 0.0, -0.3])
 """piano_ready, rad (canonical order: 7 left-arm joints, then 7 right-arm joints)."""
 LEFT = (
-    "left_shoulder_pitch", "left_shoulder_roll", "left_shoulder_yaw", "left_elbow_pitch",
-    "left_wrist_yaw", "left_wrist_roll", "left_wrist_pitch",
-)  # fmt: skip
+    "left_shoulder_pitch",
+    "left_shoulder_roll",
+    "left_shoulder_yaw",
+    "left_elbow_pitch",
+    "left_wrist_yaw",
+    "left_wrist_roll",
+    "left_wrist_pitch",
+)
 REACH_TERMS = (
-    "joint_pos", "joint_vel", "actions", "fingertip_pos_left", "fingertip_pos_right",
-    "target_pos_left", "target_pos_right",
-)  # fmt: skip
+    "joint_pos",
+    "joint_vel",
+    "actions",
+    "fingertip_pos_left",
+    "fingertip_pos_right",
+    "target_pos_left",
+    "target_pos_right",
+)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -160,9 +170,19 @@ def test_hc_only_reach_file_runs_through_bar_deploy_on_sim(tmp_path, capsys):
     )
     path = make_hc_policy_file(tmp_path / "hc_reach.onnx", props, obs_size=54, bias=0.1)
     rc = main(
-        ["--policy", str(path), "--target", "sim", "--duration", "0.3", "--ramp-time", "0.1",
-         "--log", str(tmp_path / "runs")]
-    )  # fmt: skip
+        [
+            "--policy",
+            str(path),
+            "--target",
+            "sim",
+            "--duration",
+            "0.3",
+            "--ramp-time",
+            "0.1",
+            "--log",
+            str(tmp_path / "runs"),
+        ]
+    )
     out = capsys.readouterr().out
     assert rc == 0, out
     arrays, meta = load_log(next((tmp_path / "runs").iterdir()))

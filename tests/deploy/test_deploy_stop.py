@@ -39,9 +39,21 @@ def _env() -> dict[str, str]:
 
 def _start(argv: list[str], log_dir: Path, frames: Path | None = None, ramp: float = 0.2) -> subprocess.Popen:
     common = [
-        "--duration", "60", "--ramp-time", str(ramp), "--start", "hold", "--log", str(log_dir),
-        "--damping-time", str(DAMPING_TIME), "--max-overruns", "0", "--stale-timeout", "2",
-    ]  # fmt: skip
+        "--duration",
+        "60",
+        "--ramp-time",
+        str(ramp),
+        "--start",
+        "hold",
+        "--log",
+        str(log_dir),
+        "--damping-time",
+        str(DAMPING_TIME),
+        "--max-overruns",
+        "0",
+        "--stale-timeout",
+        "2",
+    ]
     if frames is None:
         cmd = [sys.executable, "-m", "bar_policy.deploy.cli", *argv, *common]
     else:

@@ -71,9 +71,12 @@ def test_lookahead_observation_and_hold_policy_hold_sequence(track_policy, tiny_
     assert res.completed and res.fault_count == 0 and res.ticks == 11
     assert res.end_reason == "motion 'tiny' complete (4 frames, 0.06 s)"
     assert [(tr["from"], tr["to"], round(tr["t"], 6)) for tr in res.transitions] == [
-        ("ZERO_TORQUE", "DAMPING", 0.0), ("DAMPING", "HOLD", 0.0), ("HOLD", "POLICY", 0.04),
-        ("POLICY", "HOLD", 0.1), ("HOLD", "DAMPING", 0.22),
-    ]  # fmt: skip
+        ("ZERO_TORQUE", "DAMPING", 0.0),
+        ("DAMPING", "HOLD", 0.0),
+        ("HOLD", "POLICY", 0.04),
+        ("POLICY", "HOLD", 0.1),
+        ("HOLD", "DAMPING", 0.22),
+    ]
     assert res.transitions[3]["reason"].startswith("commands finished: motion 'tiny' complete")
     arrays, meta = load_log(res.log_path)
     H, P = int(Mode.HOLD), int(Mode.POLICY)
@@ -200,8 +203,9 @@ def test_reach_policy_refuses_motion(policy_path, tiny_clip, capsys):
     # A motion reference cannot feed a reach layout's terms.
     pol = load_policy(policy_path)
     with pytest.raises(ValueError, match=r"a motion reference cannot feed \['target_pos_left'"):
-        MotionReference(tiny_clip[0], pol.obs_manager.command_names, body_names=BODIES, lookahead_steps=5,
-                        control_dt=0.02)  # fmt: skip
+        MotionReference(
+            tiny_clip[0], pol.obs_manager.command_names, body_names=BODIES, lookahead_steps=5, control_dt=0.02
+        )
 
 
 def test_eval_options_of_the_other_task_are_refused(track_policy, policy_path, capsys):
@@ -224,8 +228,20 @@ def test_state_only_hc_policy_takes_no_command_source(tmp_path, capsys):
         assert main(["--policy", str(path), "--target", "mock", "--no-log", *opt]) == 2
         err = capsys.readouterr().err
         assert "is a 'state' policy (robot state only, no commands); it takes no command source" in err
-    rc = main(["--policy", str(path), "--target", "mock", "--duration", "0.06", "--ramp-time", "0",
-               "--log", str(tmp_path / "runs")])  # fmt: skip
+    rc = main(
+        [
+            "--policy",
+            str(path),
+            "--target",
+            "mock",
+            "--duration",
+            "0.06",
+            "--ramp-time",
+            "0",
+            "--log",
+            str(tmp_path / "runs"),
+        ]
+    )
     assert rc == 0 and "commands none (state-only policy)" in capsys.readouterr().out
     assert main(["eval", "--policy", str(path)]) == 2
     assert "there is no task metric to evaluate" in capsys.readouterr().err
@@ -281,8 +297,22 @@ def test_motion_file_refused_by_the_clip_loader(track_policy, tmp_path, capsys):
 
 def test_cli_runs_a_motion_to_completion(track_policy, tiny_clip, tmp_path, capsys):
     _, path = tiny_clip
-    rc = main(["--policy", str(track_policy), "--target", "sim", "--motion", str(path), "--ramp-time", "0.1",
-               "--end-hold", "0.2", "--log", str(tmp_path / "runs")])  # fmt: skip
+    rc = main(
+        [
+            "--policy",
+            str(track_policy),
+            "--target",
+            "sim",
+            "--motion",
+            str(path),
+            "--ramp-time",
+            "0.1",
+            "--end-hold",
+            "0.2",
+            "--log",
+            str(tmp_path / "runs"),
+        ]
+    )
     out = capsys.readouterr().out
     assert rc == 0, out
     assert "commands motion(tiny, 4 frames at 50 Hz, 0.06 s, lookahead 5)" in out

@@ -60,8 +60,10 @@ def test_tracking_metrics_by_hand(track_policy):
     runs 3 + 2 = 5 steps, and step k is scored against frame min(k + 1, 3): frames 1, 2, 3, 3, 3."""
     q_c = np.asarray(track_policy.obs_manager.schema.default_joint_pos) + 0.25 * np.float32(0.1)
     piano = ROBOT.pose("piano_ready")
-    clips = [Clip.make("near", 50.0, q_c + 0.01 * np.arange(4)[:, None]),
-             Clip.make("far", 50.0, piano + 0.01 * np.arange(4)[:, None])]  # fmt: skip
+    clips = [
+        Clip.make("near", 50.0, q_c + 0.01 * np.arange(4)[:, None]),
+        Clip.make("far", 50.0, piano + 0.01 * np.arange(4)[:, None]),
+    ]
     res = evaluate_track(
         track_policy,
         clips,
@@ -117,8 +119,19 @@ def test_eval_cli_reports_the_tracking_metric(track_policy, tmp_path, capsys):
     clip = Clip.make("tiny", 50.0, piano + 0.01 * np.arange(4)[:, None])
     path = save_clip(clip, tmp_path / "tiny.npz")
     out_json = tmp_path / "eval.json"
-    rc = main(["eval", "--policy", str(track_policy.path), "--clips", str(path), "--hold-s", "0.1",
-               "--json", str(out_json)])  # fmt: skip
+    rc = main(
+        [
+            "eval",
+            "--policy",
+            str(track_policy.path),
+            "--clips",
+            str(path),
+            "--hold-s",
+            "0.1",
+            "--json",
+            str(out_json),
+        ]
+    )
     out = capsys.readouterr().out
     assert rc == 0, out
     first, progress, report = out.split("\n", 2)

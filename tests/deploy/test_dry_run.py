@@ -53,8 +53,19 @@ def test_dry_run_counts_the_saturation_it_cannot_cause(zero_policy, caplog):
 
 def test_cli_dry_run_on_the_emulated_bus_ends_as_asked(policy_path, tmp_path):
     """The issue's case end to end: the start-up ramp (3 s) is where the fault came, at 1.5 s."""
-    argv = ["--policy", str(policy_path), "--target", "real", "--can-interface", "virtual", "--dry-run",
-            "--duration", "2", "--log", str(tmp_path / "runs")]  # fmt: skip
+    argv = [
+        "--policy",
+        str(policy_path),
+        "--target",
+        "real",
+        "--can-interface",
+        "virtual",
+        "--dry-run",
+        "--duration",
+        "2",
+        "--log",
+        str(tmp_path / "runs"),
+    ]
     assert main(argv) == 0
     (run,) = (tmp_path / "runs").iterdir()
     record = json.loads((run / "run.json").read_text())

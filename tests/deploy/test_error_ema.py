@@ -40,8 +40,18 @@ def test_runtime_term_is_the_average_of_the_logged_states(tmp_path) -> None:
     meta = default_metadata(obs_schema=om.schema.to_json(), obs_fingerprint=om.fingerprint)
     policy = make_policy_file(tmp_path / "ema.onnx", metadata=meta, bias=0.3)  # a constant action: a step
     logs = tmp_path / "runs"
-    argv = ["--policy", str(policy), "--target", "sim", "--start", "policy", "--duration", "0.6",
-            "--log", str(logs)]  # fmt: skip
+    argv = [
+        "--policy",
+        str(policy),
+        "--target",
+        "sim",
+        "--start",
+        "policy",
+        "--duration",
+        "0.6",
+        "--log",
+        str(logs),
+    ]
     assert main(argv) == 0
     (run,) = logs.iterdir()
     arrays, _ = load_log(run)

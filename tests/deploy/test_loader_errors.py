@@ -236,8 +236,11 @@ def test_real_sigint_before_the_handlers_in_a_child(policy_path, tmp_path):
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))
     r = subprocess.run(
         [sys.executable, "-c", _CHILD, "--policy", str(policy_path), "--log", str(tmp_path / "runs")],
-        capture_output=True, text=True, timeout=60, env=env,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=env,
+    )
     assert "Traceback" not in r.stderr and "KeyboardInterrupt" not in r.stderr, r.stderr
     assert r.returncode == 0 and r.stderr == ""
     assert r.stdout.strip() == "SIGINT received before the start: nothing was started"

@@ -122,8 +122,10 @@ def test_full_disk_mid_run(disk, tmp_path):
     assert meta["status"] == "closed" and meta["recovered_from"] == MCAP_FILE and meta["x"] == 1
     # The spill chunks written before stay too (removed only once log.npz is on disk).
     assert sorted(p.name for p in (log.path / "chunks").iterdir()) == [
-        "chunk_000000.npz", "chunk_000001.npz", "chunk_000002.npz"
-    ]  # fmt: skip
+        "chunk_000000.npz",
+        "chunk_000001.npz",
+        "chunk_000002.npz",
+    ]
 
 
 def test_full_disk_then_space_again_keeps_every_tick(disk, tmp_path):

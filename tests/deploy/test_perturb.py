@@ -207,9 +207,16 @@ def test_the_runtime_does_not_see_the_emulators_perturbation():
 
 
 def _report(completion: float, caps: float, chatter: float, tip_cm: float) -> dict:
-    ep = EpisodeQuality(name="c0", ticks=100, cap_ticks=0, limit_ticks=0, action_rate_sum=0.0,
-                        chatter_mrad=chatter, chatter_joint="left_elbow_pitch",
-                        faulted=completion < 100)  # fmt: skip
+    ep = EpisodeQuality(
+        name="c0",
+        ticks=100,
+        cap_ticks=0,
+        limit_ticks=0,
+        action_rate_sum=0.0,
+        chatter_mrad=chatter,
+        chatter_joint="left_elbow_pitch",
+        faulted=completion < 100,
+    )
     q = summarise([ep])
     q["cap_share_pct"] = caps
     return {"quality": q, "episodes": [ep.to_dict()], "joint_error_rad": 0.01, "fingertip_error_cm": tip_cm}
@@ -260,9 +267,20 @@ def test_run_suite_table_ratios_and_verdict():
     lines = text.splitlines()
     header = next(i for i, line in enumerate(lines) if line.startswith("perturbation"))
     assert lines[header].split() == [
-        "perturbation", "completion", "%", "fingertip", "cm", "joint", "rad", "caps", "%", "chatter",
-        "mrad", "gate", "ratio",
-    ]  # fmt: skip
+        "perturbation",
+        "completion",
+        "%",
+        "fingertip",
+        "cm",
+        "joint",
+        "rad",
+        "caps",
+        "%",
+        "chatter",
+        "mrad",
+        "gate",
+        "ratio",
+    ]
     assert (
         lines[header + 3].split()[:3] == ["mass", "x1.2", "100.0"] and lines[header + 3].split()[-1] == "1.50"
     )
@@ -324,8 +342,20 @@ def test_real_target_perturbation_needs_the_emulator(tmp_path, capsys):
         == 2
     )
     assert "a real robot is what it is" in capsys.readouterr().err
-    assert main([*base, "--can-interface", "virtual", "--perturb", "strength=0.9",
-                 "--emulate-perturb", "strength=0.8"]) == 2  # fmt: skip
+    assert (
+        main(
+            [
+                *base,
+                "--can-interface",
+                "virtual",
+                "--perturb",
+                "strength=0.9",
+                "--emulate-perturb",
+                "strength=0.8",
+            ]
+        )
+        == 2
+    )
     assert "differ" in capsys.readouterr().err
 
 
@@ -345,9 +375,24 @@ def test_virtual_real_target_runs_the_perturbed_emulator(tmp_path, capsys):
     emulator_perturb.PerturbedEmulator.__init__ = spy
     try:
         for opt in ("--perturb", "--emulate-perturb"):
-            argv = ["--policy", str(path), "--no-log", "--target", "real", "--can-interface", "virtual",
-                    "--emulate", "lockstep", "--duration", "0.2", "--ramp-time", "0",
-                    "--unsafe-allow-step-start", opt, "payload_kg=0.3"]  # fmt: skip
+            argv = [
+                "--policy",
+                str(path),
+                "--no-log",
+                "--target",
+                "real",
+                "--can-interface",
+                "virtual",
+                "--emulate",
+                "lockstep",
+                "--duration",
+                "0.2",
+                "--ramp-time",
+                "0",
+                "--unsafe-allow-step-start",
+                opt,
+                "payload_kg=0.3",
+            ]
             assert main(argv) == 0, capsys.readouterr().err
     finally:
         emulator_perturb.PerturbedEmulator.__init__ = real_init
@@ -363,8 +408,21 @@ def test_bar_bus_emulate_perturb(capsys):
     with pytest.raises(SystemExit) as e:
         bus_main(["discover", "--can-interface", "virtual", "--emulate", "--emulate-perturb", "strenght=0.9"])
     assert e.value.code == 2 and "did you mean 'strength'" in capsys.readouterr().err
-    assert bus_main(["discover", "--can-interface", "virtual", "--emulate", "--emulate-perturb",
-                     "offset_rad=0.01", "--scan-to", "16"]) == 0  # fmt: skip
+    assert (
+        bus_main(
+            [
+                "discover",
+                "--can-interface",
+                "virtual",
+                "--emulate",
+                "--emulate-perturb",
+                "offset_rad=0.01",
+                "--scan-to",
+                "16",
+            ]
+        )
+        == 0
+    )
 
 
 def test_eval_perturb_spec_on_the_cli_changes_the_score(tmp_path, capsys):

@@ -102,8 +102,10 @@ def test_runtime_warns_on_robot_parameters_other_than_the_trained_ones(tmp_path,
     warnings, rec = _run(policy, tmp_path, capsys, "--robot-params", str(trained_file))
     assert warnings == []
     assert rec["robot_params"] == {
-        "trained_sha256": trained.sha256, "run_sha256": trained.sha256, "mismatch_warnings": 0
-    }  # fmt: skip
+        "trained_sha256": trained.sha256,
+        "run_sha256": trained.sha256,
+        "mismatch_warnings": 0,
+    }
     # Another file: one line naming both hashes' first 12 digits, counted once.
     warnings, rec = _run(policy, tmp_path, capsys, "--robot-params", str(other_file))
     assert warnings == [

@@ -390,9 +390,19 @@ def test_stop_during_the_real_start_up_exits_0(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(RobstrideGroup, "activate", interrupted)
     k = next(_ids)
     status = main(
-        ["--policy", SHIPPED, "--target", "real", "--can-interface", "virtual", "--log", str(tmp_path),
-         "--channels", f"can0=su{os.getpid()}-{k}-0,can1=su{os.getpid()}-{k}-1"]
-    )  # fmt: skip
+        [
+            "--policy",
+            SHIPPED,
+            "--target",
+            "real",
+            "--can-interface",
+            "virtual",
+            "--log",
+            str(tmp_path),
+            "--channels",
+            f"can0=su{os.getpid()}-{k}-0,can1=su{os.getpid()}-{k}-1",
+        ]
+    )
     out = capsys.readouterr().out
     assert status == 0
     assert "SIGINT received during the start-up: start-up stopped" in out

@@ -20,9 +20,12 @@ from bar_policy.envs.robot_config import ModelRandomizationConfig, RobotEnvConfi
 from bar_policy.robot.scene import load_model
 
 ROBUST = ModelRandomizationConfig(
-    frictionloss=(0.05, 1.35), link_mass_scale=(0.8, 1.2), damping=(0.0, 1.0), armature_scale=(0.8, 1.2),
+    frictionloss=(0.05, 1.35),
+    link_mass_scale=(0.8, 1.2),
+    damping=(0.0, 1.0),
+    armature_scale=(0.8, 1.2),
     payload_kg=(0.0, 0.6),
-)  # fmt: skip
+)
 B = 64
 
 

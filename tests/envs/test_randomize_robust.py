@@ -226,8 +226,10 @@ def test_config_errors():
         ActuatorConfig(obs_latency_steps=(0, 11))
 
 
-@pytest.mark.parametrize(("name", "env_name"), [("reach-robust", "LiteReach"), ("track-robust", "LiteTrack"),
-                                                ("piano-robust", "LitePiano")])  # fmt: skip
+@pytest.mark.parametrize(
+    ("name", "env_name"),
+    [("reach-robust", "LiteReach"), ("track-robust", "LiteTrack"), ("piano-robust", "LitePiano")],
+)
 def test_robust_presets_turn_the_randomisation_on(name, env_name):
     from bar_policy import envs
     from bar_policy.tasks.robust_preset import ROBUST_ENV_OVERRIDES
@@ -260,9 +262,13 @@ def test_robust_presets_turn_the_randomisation_on(name, env_name):
 # ``factor_share``: each robust factor on per slot (model) or episode (actuator) with that probability.
 
 ROBUST = ModelRandomizationConfig(
-    frictionloss=(0.05, 1.35), link_mass_scale=(0.8, 1.2), damping=(0.0, 1.0), armature_scale=(0.8, 1.2),
-    payload_kg=(0.0, 0.6), payload_at="either",
-)  # fmt: skip
+    frictionloss=(0.05, 1.35),
+    link_mass_scale=(0.8, 1.2),
+    damping=(0.0, 1.0),
+    armature_scale=(0.8, 1.2),
+    payload_kg=(0.0, 0.6),
+    payload_at="either",
+)
 """The robust preset's model ranges (``tasks/robust_preset.py``)."""
 FIELDS = ("dof_frictionloss", "body_mass", "body_inertia", "dof_damping", "dof_armature", "body_pos")
 """Every model field the robust ranges write."""

@@ -44,8 +44,11 @@ def test_env_and_deploy_targets_agree(nominal_env, nominal_fns) -> None:
             {f"target_pos_{h}": np.asarray(s.info[f"goal_{h}"], np.float64) for h in ("left", "right")}
         )
     left, right = Kinematics("arms").fingertips(np.asarray(env.default_pose, np.float64))
-    src = TransitionCommands(_EnvGoals(goals, env.dt), env.config.target_transition_s,
-                             {"target_pos_left": left, "target_pos_right": right})  # fmt: skip
+    src = TransitionCommands(
+        _EnvGoals(goals, env.dt),
+        env.config.target_transition_s,
+        {"target_pos_left": left, "target_pos_right": right},
+    )
     src.begin(0.0)
     for k in range(n + 1):
         out = src(k * env.dt)

@@ -54,8 +54,9 @@ def params_file(tmp_path_factory) -> Path:
 
 
 def _config(path: Path, *overrides: str):
-    return envs.apply_overrides(envs.nominal_config(envs.default_config("LiteReach")),
-                                (f"robot_params={path}", *overrides))  # fmt: skip
+    return envs.apply_overrides(
+        envs.nominal_config(envs.default_config("LiteReach")), (f"robot_params={path}", *overrides)
+    )
 
 
 def test_the_trained_model_is_the_files(params_file):

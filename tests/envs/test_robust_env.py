@@ -58,8 +58,9 @@ def test_strength_equals_scaled_gains_below_the_cap(delayed):
     # torque (the implicit Kd term too: s Kd both ways), so the two envs move alike. Small action: no cap.
     # float32 over 40 physics steps of products reordered: 1e-5 rad.
     env, reset, step = delayed
-    scaled = envs.load("LiteReach", config=_config(obs_latency_steps=(1, 1), kp_scale=(0.8, 0.8),
-                                                   kd_scale=(0.8, 0.8)))  # fmt: skip
+    scaled = envs.load(
+        "LiteReach", config=_config(obs_latency_steps=(1, 1), kp_scale=(0.8, 0.8), kd_scale=(0.8, 0.8))
+    )
     s_reset, s_step = jax.jit(scaled.reset), jax.jit(scaled.step)
     a, b = reset(jax.random.PRNGKey(0)), s_reset(jax.random.PRNGKey(0))
     np.testing.assert_allclose(np.asarray(a.info["strength"]), 0.8)

@@ -40,8 +40,14 @@ def test_lookahead_observation_by_hand(track_env, track_fns):
     env = track_env
     _, step, reset_at = track_fns
     om = env.obs_manager
-    assert om.term_names == ("motion_joint_pos", "motion_body_pos_b", "motion_body_ori_b",
-                             "joint_pos", "joint_vel", "actions")  # fmt: skip
+    assert om.term_names == (
+        "motion_joint_pos",
+        "motion_body_pos_b",
+        "motion_body_ori_b",
+        "joint_pos",
+        "joint_vel",
+        "actions",
+    )
     assert env.observation_size == 5 * 14 + 5 * 4 * 3 + 5 * 4 * 6 + 3 * 14 == 292
     q = [PIANO + 0.01 * k for k in range(3)]
     s = reset_at(jax.random.PRNGKey(0), 0, 0)
@@ -52,10 +58,12 @@ def test_lookahead_observation_by_hand(track_env, track_fns):
     # (ulp <= 2.4e-7) and one in the chest-frame transform: 1e-6 = 4 ulps.
     np.testing.assert_allclose(parts["motion_joint_pos"], np.concatenate([q[k] for k in frames]), atol=1e-6)
     fk = {k: c_fk(q[k]) for k in (1, 2)}
-    np.testing.assert_allclose(parts["motion_body_pos_b"], np.concatenate([fk[k][0].ravel() for k in frames]),
-                               atol=1e-6)  # fmt: skip
-    np.testing.assert_allclose(parts["motion_body_ori_b"], np.concatenate([fk[k][1].ravel() for k in frames]),
-                               atol=1e-6)  # fmt: skip
+    np.testing.assert_allclose(
+        parts["motion_body_pos_b"], np.concatenate([fk[k][0].ravel() for k in frames]), atol=1e-6
+    )
+    np.testing.assert_allclose(
+        parts["motion_body_ori_b"], np.concatenate([fk[k][1].ravel() for k in frames]), atol=1e-6
+    )
     # The robot starts on frame 0 (nominal: no noise) at the reference velocity: (q1 - q0) / 0.02 s
     # = 0.5 rad/s (one-sided difference at the clip's start); joint_vel has scale 0.1.
     np.testing.assert_allclose(parts["joint_pos"], q[0] - track_default_pose(), atol=1e-6)
@@ -91,8 +99,16 @@ def test_step_rewards_and_metrics_wiring(track_env, track_fns):
     qpos = np.asarray(s1.data.qpos, np.float64)
     q_ref = ref.joint_pos[f].astype(np.float64)
     terms = {k: float(v) for k, v in s1.metrics.items() if k.startswith("reward/")}
-    names = ("joint_pos", "body_pos", "body_ori", "fingertip_pos", "action_rate", "action_accel", "torque",
-             "torque_near_cap")  # fmt: skip
+    names = (
+        "joint_pos",
+        "body_pos",
+        "body_ori",
+        "fingertip_pos",
+        "action_rate",
+        "action_accel",
+        "torque",
+        "torque_near_cap",
+    )
     assert set(terms) == {f"reward/{n}" for n in names}
     assert float(s1.reward) == pytest.approx(sum(terms.values()), rel=1e-5, abs=1e-6)
     # joint_pos = exp(-mean (q - q_ref)^2 / 0.08^2), weight 1 (the default joint_std); errors against the

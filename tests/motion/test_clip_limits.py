@@ -149,8 +149,13 @@ def test_sigint_interrupts_a_large_csv_load(tmp_path):
     env = dict(
         os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))
     )
-    proc = subprocess.Popen([sys.executable, "-c", _LOADER, str(path)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=env)  # fmt: skip
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _LOADER, str(path)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
     try:
         assert proc.stdout.readline().strip() == "loading"
         time.sleep(0.3)  # inside the first load
@@ -216,10 +221,28 @@ def test_bar_deploy_sigint_during_the_clip_load_ends_it_quietly(tmp_path):
     env = dict(
         os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))
     )
-    argv = ["--policy", str(policy), "--motion", str(path), "--motion-rate", "200", "--target", "mock",
-            "--duration", "5", "--log", str(tmp_path / "runs"), "-v"]  # fmt: skip
-    proc = subprocess.Popen([sys.executable, "-c", _CLI, *argv], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=env)  # fmt: skip
+    argv = [
+        "--policy",
+        str(policy),
+        "--motion",
+        str(path),
+        "--motion-rate",
+        "200",
+        "--target",
+        "mock",
+        "--duration",
+        "5",
+        "--log",
+        str(tmp_path / "runs"),
+        "-v",
+    ]
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _CLI, *argv],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
     # Wait for the policy's provenance line: printed after the policy load, just before the clip load.
     assert "provenance" in proc.stdout.readline()
     proc.send_signal(signal.SIGINT)

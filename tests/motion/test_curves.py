@@ -19,8 +19,9 @@ from bar_policy.motion.curves import (
 def test_minimum_jerk_hand_values_and_peaks():
     # s(u) = 10u^3 - 15u^4 + 6u^5: s(0.5) = 1.25 - 0.9375 + 0.1875 = 0.5;
     # s(0.25) = 0.15625 - 0.05859375 + 0.005859375 = 0.103515625.
-    np.testing.assert_allclose(minimum_jerk(np.array([0.0, 0.25, 0.5, 1.0, 1.5])),
-                               [0.0, 0.103515625, 0.5, 1.0, 1.0], atol=1e-12)  # fmt: skip
+    np.testing.assert_allclose(
+        minimum_jerk(np.array([0.0, 0.25, 0.5, 1.0, 1.5])), [0.0, 0.103515625, 0.5, 1.0, 1.0], atol=1e-12
+    )
     # ds/du = 30u^2 (1-u)^2 peaks at u = 1/2: 30/16 = 1.875; d2s/du2 = 60u - 180u^2 + 120u^3 peaks at
     # u = 1/2 - sqrt(3)/6 with 10/sqrt(3).
     assert MINJERK_PEAK_VEL == 30 / 16

@@ -63,9 +63,15 @@ def test_known_strength_is_held_and_the_rest_recovered() -> None:
     com, mass = np.array([0.0, -0.09, 0.0]), 0.35
     samples, reg, id_base, truth = _synthetic(300, com, mass, seed=1)
     fit = fit_arm(
-        samples, LEFT, ROBOT.joint_names, reg, id_base=id_base, v_min=0.0, iterations=8,
+        samples,
+        LEFT,
+        ROBOT.joint_names,
+        reg,
+        id_base=id_base,
+        v_min=0.0,
+        iterations=8,
         strength=truth["strength"],
-    )  # fmt: skip
+    )
     np.testing.assert_array_equal(fit.strength, truth["strength"])
     np.testing.assert_allclose(fit.friction, truth["friction"], atol=1e-6)
     assert fit.mass == pytest.approx(mass, abs=1e-6)
@@ -118,8 +124,9 @@ def _fit_noisy(samples, id_base, noise, hac_lag):
     s = ArmSamples(samples.q, samples.dq, samples.qdd, tau)
     # the friction constraint's unclamped force: opposing the motion, far above f (always sliding)
     sliding = -np.sign(samples.dq) * 1e3
-    return fit_fast(s, [(slice(0, len(tau)), ELBOW)], ROBOT.joint_names, id_base, sliding, np.ones(1),
-                    hac_lag=hac_lag)  # fmt: skip
+    return fit_fast(
+        s, [(slice(0, len(tau)), ELBOW)], ROBOT.joint_names, id_base, sliding, np.ones(1), hac_lag=hac_lag
+    )
 
 
 def test_fast_fit_recovers_armature_and_friction_within_the_noise() -> None:
@@ -163,13 +170,27 @@ def test_fast_fit_holds_a_given_armature_and_fits_the_rest_around_it() -> None:
     samples, id_base = _elbow_alone()
     sliding = -np.sign(samples.dq) * 1e3
     seg = [(slice(0, len(samples.q)), ELBOW)]
-    exact = fit_fast(samples, seg, ROBOT.joint_names, id_base, sliding, np.ones(1),
-                     armature=np.array([FAST_TRUTH["armature"]]))  # fmt: skip
+    exact = fit_fast(
+        samples,
+        seg,
+        ROBOT.joint_names,
+        id_base,
+        sliding,
+        np.ones(1),
+        armature=np.array([FAST_TRUTH["armature"]]),
+    )
     assert exact.armature[0] == FAST_TRUTH["armature"] and exact.half95["armature"][0] == 0.0
     for key in ("friction", "damping"):  # float64 least squares on exact data: to 1e-9 of the value
         assert getattr(exact, key)[0] == pytest.approx(FAST_TRUTH[key], rel=1e-9, abs=1e-12), key
-    off = fit_fast(samples, seg, ROBOT.joint_names, id_base, sliding, np.ones(1),
-                   armature=np.array([FAST_TRUTH["armature"] + 1e-3]))  # fmt: skip
+    off = fit_fast(
+        samples,
+        seg,
+        ROBOT.joint_names,
+        id_base,
+        sliding,
+        np.ones(1),
+        armature=np.array([FAST_TRUTH["armature"] + 1e-3]),
+    )
     a = np.column_stack([np.sign(samples.dq[:, ELBOW]), samples.dq[:, ELBOW]])
     delta, *_ = np.linalg.lstsq(a, -1e-3 * samples.qdd[:, ELBOW], rcond=None)
     assert off.armature[0] == FAST_TRUTH["armature"] + 1e-3

@@ -89,12 +89,18 @@ def test_cap_of_zero_skips_the_write(robot, channels, listeners, make_emulator, 
         MotorConfig(name="b", can_id=12, model="rs-00", torque_limit=9.0, current_limit=0.0),
     ]
     caplog.set_level(logging.INFO, logger="bar_policy.robstride.bus")
-    with RobstrideBus(can.Bus(interface="virtual", channel=channels["can0"]), motors, interface="can0",
-                      reply_timeout=TEST_TIMEOUT) as bus:  # fmt: skip
+    with RobstrideBus(
+        can.Bus(interface="virtual", channel=channels["can0"]),
+        motors,
+        interface="can0",
+        reply_timeout=TEST_TIMEOUT,
+    ) as bus:
         written = write_caps(bus)
     assert written == [(11, "current_limit", 5.0), (12, "torque_limit", 9.0)]
-    frames = [(m.arbitration_id & 0xFF, struct.unpack("<HHf", bytes(m.data))[0]) for m in
-              listeners["can0"].host_frames((18,))]  # fmt: skip
+    frames = [
+        (m.arbitration_id & 0xFF, struct.unpack("<HHf", bytes(m.data))[0])
+        for m in listeners["can0"].host_frames((18,))
+    ]
     assert frames == [(11, 0x7018), (12, 0x700B)]
     assert emu.motor(11).params[0x700B] == 17.0  # untouched power-on value (rs-02 T_max)
     assert "skipped torque_limit (cap 0) for can_id=11 (a)" in caplog.text
@@ -116,9 +122,13 @@ def test_direction_and_homing_offsets(robot, channels, make_emulator):
     np.testing.assert_allclose(r0.q, q_true + d * off, atol=LSB_P)
     # 2) the right calibration: q_read = q_true within one position step
     cal = Calibration(
-        joints={j.name: JointCalibration(name=j.name, can_id=j.can_id, direction=j.direction,
-                                         homing_offset=offsets[j.name]) for j in robot.joints}
-    )  # fmt: skip
+        joints={
+            j.name: JointCalibration(
+                name=j.name, can_id=j.can_id, direction=j.direction, homing_offset=offsets[j.name]
+            )
+            for j in robot.joints
+        }
+    )
     group = make_group(robot, channels, calibration=cal)
     try:
         r1 = group.poll_disabled(strict=True)

@@ -57,9 +57,13 @@ def test_short_sweep_keeps_prior_and_long_sweep_warns(robot):
     prior = Calibration.zeros(robot)
     prior = Calibration(
         robot=prior.robot,
-        joints={**prior.joints, "left_elbow_pitch": JointCalibration(name="left_elbow_pitch", can_id=14,
-                                                                      direction=-1, homing_offset=0.42)},
-    )  # fmt: skip
+        joints={
+            **prior.joints,
+            "left_elbow_pitch": JointCalibration(
+                name="left_elbow_pitch", can_id=14, direction=-1, homing_offset=0.42
+            ),
+        },
+    )
     rec = SweepRecorder(robot)
     i_elbow, i_wroll = robot.index("left_elbow_pitch"), robot.index("left_wrist_roll")
     q = np.zeros(robot.num_joints)
@@ -82,8 +86,10 @@ def test_file_round_trip_and_lite_format(tmp_path, robot):
     assert data["joints"]["left_shoulder_pitch"] == {"id": 11, "direction": -1, "homing_offset": 0.0}
     assert Calibration.load(path) == cal
     # a bare {joint: {...}} mapping (Lite-Lowlevel style) loads too
-    bare = {n: {"id": j.can_id, "direction": j.direction, "homing_offset": 0.1} for n, j in
-            zip(robot.joint_names, robot.joints, strict=True)}  # fmt: skip
+    bare = {
+        n: {"id": j.can_id, "direction": j.direction, "homing_offset": 0.1}
+        for n, j in zip(robot.joint_names, robot.joints, strict=True)
+    }
     path.write_text(json.dumps(bare))
     np.testing.assert_allclose(Calibration.load(path).offsets(robot), 0.1)
 

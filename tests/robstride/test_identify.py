@@ -208,8 +208,21 @@ def test_identify_cli_end_to_end(tmp_path, capsys) -> None:
     from bar_policy.robstride.tools import main
 
     out, blf = tmp_path / "p.json", tmp_path / "id.blf"
-    argv = ["identify", "--can-interface", "virtual", "--emulate-perturb", "payload_kg=0.4,friction_nm=0.5",
-            "--arms", "left", "--seconds", "21", "--out", str(out), "--can-log", str(blf)]  # fmt: skip
+    argv = [
+        "identify",
+        "--can-interface",
+        "virtual",
+        "--emulate-perturb",
+        "payload_kg=0.4,friction_nm=0.5",
+        "--arms",
+        "left",
+        "--seconds",
+        "21",
+        "--out",
+        str(out),
+        "--can-log",
+        str(blf),
+    ]
     assert main(argv) == 0
     text = capsys.readouterr().out
     assert "peak torque" in text and f"wrote {out}" in text
@@ -232,12 +245,24 @@ def test_jackknife_widens_an_interval_narrower_than_the_spread_between_poses() -
     def fit(mass: float, arm: float, arm_half: float, mass_half: float) -> ArmFit:
         one = np.ones(1)
         return ArmFit(
-            joints=("left_elbow_pitch",), strength=one, friction=one * 0.6, damping=one * 0.0,
+            joints=("left_elbow_pitch",),
+            strength=one,
+            friction=one * 0.6,
+            damping=one * 0.0,
             armature=one * arm,
-            half95={"strength": one * 0.0, "friction": one * 0.01, "damping": one * 0.01,
-                    "armature": one * arm_half},
-            mass=mass, mass_half95=mass_half, com=np.zeros(3), com_half95=np.full(3, 0.001), rows=10, rms=0.0,
-        )  # fmt: skip
+            half95={
+                "strength": one * 0.0,
+                "friction": one * 0.01,
+                "damping": one * 0.01,
+                "armature": one * arm_half,
+            },
+            mass=mass,
+            mass_half95=mass_half,
+            com=np.zeros(3),
+            com_half95=np.full(3, 0.001),
+            rows=10,
+            rms=0.0,
+        )
 
     # four poses left out in turn: masses 0.38, 0.40, 0.42, 0.40 (mean 0.40, squared deviations 0.0008):
     # standard error sqrt(3/4 * 0.0008) = 0.024495, times t(3 dof, 97.5 %) = 3.182 -> 0.077943

@@ -252,8 +252,9 @@ def test_feedback_round_trip_within_one_step(model, data):
     temp = data.draw(st.floats(0.0, 200.0))
     mode = data.draw(st.integers(0, 2))
     faults = data.draw(st.integers(0, 63))
-    frame = proto.feedback_frame(9, model, position=p, velocity=v, torque=t, temperature=temp, mode=mode,
-                                 faults=faults)  # fmt: skip
+    frame = proto.feedback_frame(
+        9, model, position=p, velocity=v, torque=t, temperature=temp, mode=mode, faults=faults
+    )
     fb = proto.decode_reply(*frame, models={9: model})
     assert (fb.motor_id, fb.mode, fb.faults) == (9, mode, faults)
     assert abs(fb.position - p) <= 2 * s.p_max / 65535 + 1e-9

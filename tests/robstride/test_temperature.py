@@ -20,9 +20,16 @@ HOT = "left_elbow_pitch"  # an rs-00
 
 @pytest.mark.parametrize(
     ("model", "warning", "fault"),
-    [("rs-00", 120, 130), ("rs-01", 93, 103), ("rs-02", 120, 130), ("rs-03", 120, 130), ("rs-04", 120, 130),
-     ("rs-05", 120, 130), ("rs-06", 120, 130)],
-)  # fmt: skip
+    [
+        ("rs-00", 120, 130),
+        ("rs-01", 93, 103),
+        ("rs-02", 120, 130),
+        ("rs-03", 120, 130),
+        ("rs-04", 120, 130),
+        ("rs-05", 120, 130),
+        ("rs-06", 120, 130),
+    ],
+)
 def test_thresholds_per_model(model, warning, fault):
     lim = temperature_limits(model)
     assert (lim.warning, lim.fault) == (warning, fault)
@@ -115,9 +122,13 @@ def test_fault_temperature_ends_a_run_damped_and_stopped(robot, channels, listen
             emu.inject(HOT, temperature=131.0)
 
     rt = Runtime(
-        policy, target, SampledCommands(policy.obs_manager.command_names), cfg, log_dir=tmp_path,
+        policy,
+        target,
+        SampledCommands(policy.obs_manager.command_names),
+        cfg,
+        log_dir=tmp_path,
         on_tick=on_tick,
-    )  # fmt: skip
+    )
     target.start()
     try:
         res = rt.run()

@@ -41,28 +41,47 @@ BAD_ARGS = [
     (["calibrate", "--duration", "-5"], 2, "argument --duration: must be a number > 0 s, got '-5'"),
     (["calibrate", "--sweep-threshold", "0"], 2, "argument --sweep-threshold: must be a number > 0 rad"),
     (["param", "read", "--id", "0", "--index", "0x700B"], 2, "argument --id: must be an integer in 1..127"),
-    (["param", "read", "--id", "11", "--index", "0x10000"], 2,
-     "argument --index: must be an integer in 0..65535"),
+    (
+        ["param", "read", "--id", "11", "--index", "0x10000"],
+        2,
+        "argument --index: must be an integer in 0..65535",
+    ),
     (["param", "read", "--index", "0x700B"], 2, "the following arguments are required: --id"),
-    (["watchdog", "--id", "11", "--can-timeout", "0.001"], 2,
-     "argument --can-timeout: the CAN watchdog must be 0 (leave the motors' watchdog setting) or 0.01..10 s"),
-    (["watchdog", "--id", "11", "--can-timeout", "-0.2"], 2,
-     "argument --can-timeout: the CAN watchdog must be"),
-    (["watchdog", "--id", "11", "--silences", "0.1,-1"], 2,
-     "argument --silences: must be a number > 0 s, got '-1'"),
+    (
+        ["watchdog", "--id", "11", "--can-timeout", "0.001"],
+        2,
+        "argument --can-timeout: the CAN watchdog must be 0 (leave the motors' watchdog setting) "
+        "or 0.01..10 s",
+    ),
+    (
+        ["watchdog", "--id", "11", "--can-timeout", "-0.2"],
+        2,
+        "argument --can-timeout: the CAN watchdog must be",
+    ),
+    (
+        ["watchdog", "--id", "11", "--silences", "0.1,-1"],
+        2,
+        "argument --silences: must be a number > 0 s, got '-1'",
+    ),
     (["watchdog", "--id", "11", "--silences", ","], 2, "argument --silences: must be a comma-separated list"),
     (["frobnicate"], 2, "argument command: invalid choice: 'frobnicate'"),
     (["watchdog", "--id", "11", "--can-timeout", "0"], 1, "watchdog needs --can-timeout > 0"),
     (["watchdog", "--id", "99"], 1, "id 99 is not a joint of the arms robot data: pass --model"),
-    (["param", "write", "--id", "11", "--index", "0x7028", "--value", "lots"], 1,
-     "--value 'lots' is not a valid u32"),
+    (
+        ["param", "write", "--id", "11", "--index", "0x7028", "--value", "lots"],
+        1,
+        "--value 'lots' is not a valid u32",
+    ),
     (["param", "write", "--id", "11", "--index", "0x7028"], 1, "param write needs --value"),
     (["param", "read", "--id", "11", "--index", "0x1234"], 1, "parameter 0x1234 is not in the known table"),
     (["discover", "--emulate"], 1, "--emulate needs --can-interface virtual"),
     (["calibrate", "--channels", "a,b,c"], 1, "--channels 'a,b,c': give 2 channels"),
-    (["calibrate", "--prior", "/nonexistent/cal.json"], 1,
-     "cannot read calibration file /nonexistent/cal.json"),
-]  # fmt: skip
+    (
+        ["calibrate", "--prior", "/nonexistent/cal.json"],
+        1,
+        "cannot read calibration file /nonexistent/cal.json",
+    ),
+]
 
 
 def _run(argv):
@@ -86,8 +105,10 @@ def test_missing_socketcan_or_interface_one_line_from_the_console():
     """A real process: whatever this machine lacks (no SocketCAN, or no interface of that name)."""
     r = subprocess.run(
         [sys.executable, "-m", "bar_policy.robstride.tools", "discover", "--channel", "nocan7"],
-        capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 1 and r.stdout == ""
     assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
     assert r.stderr.startswith("bar-bus: error: cannot open socketcan channel nocan7: ")
@@ -97,12 +118,14 @@ def test_missing_socketcan_or_interface_one_line_from_the_console():
 @pytest.mark.parametrize(
     ("exc", "fragment"),
     [
-        (OSError(errno.EAFNOSUPPORT, "Address family not supported by protocol"),
-         "SocketCAN is not available on this machine"),
+        (
+            OSError(errno.EAFNOSUPPORT, "Address family not supported by protocol"),
+            "SocketCAN is not available on this machine",
+        ),
         (OSError(errno.ENODEV, "No such device"), "no CAN interface named can0"),
         (can.CanInterfaceNotImplementedError("Unknown interface type"), "CanInterfaceNotImplementedError"),
     ],
-)  # fmt: skip
+)
 def test_open_errors_are_typed_one_line_with_the_fix(monkeypatch, exc, fragment):
     def refuse(**kw):
         raise exc
@@ -229,14 +252,29 @@ SHARED = {"--can-interface", "--reply-timeout", "--mode"}
     ("command", "own"),
     [
         (["discover"], {"--channel", "--scan-to", "--status", "--emulate", "--emulate-perturb"}),
-        (["calibrate"], {"--channels", "--calibration", "--prior", "--sweep-threshold", "--rate",
-                         "--duration", "--emulate", "--emulate-perturb"}),
-        (["param", "read"], {"--channel", "--id", "--index", "--value", "--type", "--emulate",
-                             "--emulate-perturb"}),
-        (["watchdog"], {"--channel", "--id", "--model", "--can-timeout", "--silences", "--emulate",
-                        "--emulate-perturb"}),
+        (
+            ["calibrate"],
+            {
+                "--channels",
+                "--calibration",
+                "--prior",
+                "--sweep-threshold",
+                "--rate",
+                "--duration",
+                "--emulate",
+                "--emulate-perturb",
+            },
+        ),
+        (
+            ["param", "read"],
+            {"--channel", "--id", "--index", "--value", "--type", "--emulate", "--emulate-perturb"},
+        ),
+        (
+            ["watchdog"],
+            {"--channel", "--id", "--model", "--can-timeout", "--silences", "--emulate", "--emulate-perturb"},
+        ),
     ],
-)  # fmt: skip
+)
 def test_bar_bus_help_lists_each_option_once_and_hides_the_old_spellings(command, own, capsys):
     text, names = _bus_help(command, capsys)
     assert sorted(names) == sorted({"-h", "--help"} | SHARED | own)
@@ -250,8 +288,14 @@ def test_the_shared_concepts_have_one_name_in_both_tools(capsys):
     with pytest.raises(SystemExit):
         deploy(["--help"])
     deploy_help = capsys.readouterr().out
-    for name in ("--can-interface", "--channels", "--calibration", "--reply-timeout", "--scan-to",
-                 "--can-timeout"):  # fmt: skip
+    for name in (
+        "--can-interface",
+        "--channels",
+        "--calibration",
+        "--reply-timeout",
+        "--scan-to",
+        "--can-timeout",
+    ):
         assert f"\n  {name} " in deploy_help, name
     tools = {
         name
@@ -272,14 +316,22 @@ def test_the_shared_concepts_have_one_name_in_both_tools(capsys):
     ("old", "new", "value", "dest"),
     [
         (["discover", "--iface", "vcan3"], ["discover", "--channel", "vcan3"], "vcan3", "iface"),
-        (["discover", "--interface", "virtual"], ["discover", "--can-interface", "virtual"], "virtual",
-         "interface"),
+        (
+            ["discover", "--interface", "virtual"],
+            ["discover", "--can-interface", "virtual"],
+            "virtual",
+            "interface",
+        ),
         (["discover", "--timeout", "0.5"], ["discover", "--reply-timeout", "0.5"], 0.5, "timeout"),
         (["calibrate", "--out", "c.json"], ["calibrate", "--calibration", "c.json"], "c.json", "out"),
-        (["watchdog", "--id", "11", "--iface", "can1"], ["watchdog", "--id", "11", "--channel", "can1"],
-         "can1", "iface"),
+        (
+            ["watchdog", "--id", "11", "--iface", "can1"],
+            ["watchdog", "--id", "11", "--channel", "can1"],
+            "can1",
+            "iface",
+        ),
     ],
-)  # fmt: skip
+)
 def test_deprecated_spellings_still_work_with_a_one_line_notice(old, new, value, dest, capsys):
     from bar_policy.robstride.tools import _parser
 
@@ -295,8 +347,10 @@ def test_deprecated_spelling_in_a_child_process_runs_the_command():
     """The old console line still runs: one notice line, then the command's own (here: no SocketCAN)."""
     r = subprocess.run(
         [sys.executable, "-m", "bar_policy.robstride.tools", "discover", "--iface", "nocan7"],
-        capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     notice, error = r.stderr.splitlines()
     assert notice == "bar-bus discover: note: --iface is deprecated; use --channel"
     assert r.returncode == 1 and error.startswith("bar-bus: error: cannot open socketcan channel nocan7: ")

@@ -33,10 +33,21 @@ def sweeping(robot, make_emulator):
 
 def _calibrate_child(bridge, out, *extra):
     return Child(
-        ["bar-bus", "calibrate", "--can-interface", "virtual", "--calibration", str(out),
-         "--reply-timeout", str(TEST_TIMEOUT), "--rate", "100", *extra],
+        [
+            "bar-bus",
+            "calibrate",
+            "--can-interface",
+            "virtual",
+            "--calibration",
+            str(out),
+            "--reply-timeout",
+            str(TEST_TIMEOUT),
+            "--rate",
+            "100",
+            *extra,
+        ],
         bridge.port,
-    )  # fmt: skip
+    )
 
 
 @pytest.mark.parametrize(
@@ -112,8 +123,21 @@ def test_exception_damps_stops_and_discards(tmp_path, channels, listeners, sweep
 
     monkeypatch.setattr(RobstrideGroup, "poll_disabled", failing_poll)
     chans = f"{channels['can0']},{channels['can1']}"
-    code = main(["calibrate", "--can-interface", "virtual", "--channels", chans, "--calibration", str(out),
-                 "--reply-timeout", str(TEST_TIMEOUT), "--rate", "200"])  # fmt: skip
+    code = main(
+        [
+            "calibrate",
+            "--can-interface",
+            "virtual",
+            "--channels",
+            chans,
+            "--calibration",
+            str(out),
+            "--reply-timeout",
+            str(TEST_TIMEOUT),
+            "--rate",
+            "200",
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 1
     assert err == "bar-bus: error: can1: cannot send: CAN interface can1 is down\n"
@@ -126,8 +150,21 @@ def test_nothing_swept_writes_nothing(tmp_path, channels, make_emulator, capsys)
     make_emulator()  # nobody moves the joints
     out = tmp_path / "cal.json"
     chans = f"{channels['can0']},{channels['can1']}"
-    code = main(["calibrate", "--can-interface", "virtual", "--channels", chans, "--calibration", str(out),
-                 "--reply-timeout", str(TEST_TIMEOUT), "--duration", "0.2"])  # fmt: skip
+    code = main(
+        [
+            "calibrate",
+            "--can-interface",
+            "virtual",
+            "--channels",
+            chans,
+            "--calibration",
+            str(out),
+            "--reply-timeout",
+            str(TEST_TIMEOUT),
+            "--duration",
+            "0.2",
+        ]
+    )
     assert code == 1 and not out.exists()
     assert "no joint was swept by 0.5 rad or more" in capsys.readouterr().err
 
@@ -135,8 +172,23 @@ def test_nothing_swept_writes_nothing(tmp_path, channels, make_emulator, capsys)
 def test_watchdog_probe_stopped_by_sigterm_damps_then_stops(channels, listeners, make_emulator):
     emu = make_emulator()
     with SocketcandBridge(channels) as bridge:
-        child = Child(["bar-bus", "watchdog", "--can-interface", "virtual", "--channel", "can0", "--id", "11",
-                       "--reply-timeout", "0.5", "--silences", "0.3,0.3,0.3,0.3"], bridge.port)  # fmt: skip
+        child = Child(
+            [
+                "bar-bus",
+                "watchdog",
+                "--can-interface",
+                "virtual",
+                "--channel",
+                "can0",
+                "--id",
+                "11",
+                "--reply-timeout",
+                "0.5",
+                "--silences",
+                "0.3,0.3,0.3,0.3",
+            ],
+            bridge.port,
+        )
         try:
             child.wait_for("probing silences")
             time.sleep(0.2)

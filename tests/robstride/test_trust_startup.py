@@ -16,8 +16,15 @@ from bar_policy.signals import StopSignals
 
 from .helpers import make_target
 
-LEFT = ["left_shoulder_pitch", "left_shoulder_roll", "left_shoulder_yaw", "left_elbow_pitch",
-        "left_wrist_yaw", "left_wrist_roll", "left_wrist_pitch"]  # fmt: skip
+LEFT = [
+    "left_shoulder_pitch",
+    "left_shoulder_roll",
+    "left_shoulder_yaw",
+    "left_elbow_pitch",
+    "left_wrist_yaw",
+    "left_wrist_roll",
+    "left_wrist_pitch",
+]
 
 
 def _cap_write_seen(listener) -> bool:
@@ -193,9 +200,23 @@ def test_bar_deploy_sigint_after_the_limits_write(robot, tmp_path, monkeypatch, 
 
     monkeypatch.setattr(group, "write_caps", write_caps)
     policy = make_policy_file(tmp_path / "zero.onnx")
-    rc = cli.main(["--policy", str(policy), "--target", "real", "--can-interface", "virtual", "--emulate",
-                   "lockstep", "--no-log", "--duration", "1", "--channels",
-                   f"can0=rs-cli{os.getpid()}-0,can1=rs-cli{os.getpid()}-1"])  # fmt: skip
+    rc = cli.main(
+        [
+            "--policy",
+            str(policy),
+            "--target",
+            "real",
+            "--can-interface",
+            "virtual",
+            "--emulate",
+            "lockstep",
+            "--no-log",
+            "--duration",
+            "1",
+            "--channels",
+            f"can0=rs-cli{os.getpid()}-0,can1=rs-cli{os.getpid()}-1",
+        ]
+    )
     out = capsys.readouterr().out
     # A requested stop: status 0 at every moment, the start-up included (it ends the start-up there).
     assert fired == ["can0"] and rc == 0

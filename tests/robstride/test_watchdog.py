@@ -158,8 +158,11 @@ def test_emulated_watchdog_trips_after_the_window_and_the_target_says_why(
         assert WINDOW <= trip - last < WINDOW + LATE, (m.name, trip - last)
     assert not any(emu.enabled().values())
     np.testing.assert_array_equal(emu.applied_torques(), 0.0)
-    with pytest.raises(TargetError, match=r"left run mode while commanded: left_shoulder_pitch \(reset\).*"
-                                          r"the CAN watchdog tripped") as info:  # fmt: skip
+    with pytest.raises(
+        TargetError,
+        match=r"left run mode while commanded: left_shoulder_pitch \(reset\).*"
+        r"the CAN watchdog tripped",
+    ) as info:
         target.write_command(hold)
     cause = info.value.__cause__
     assert isinstance(cause, DisabledError) and sorted(cause.can_ids) == LEFT + RIGHT

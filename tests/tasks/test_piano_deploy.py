@@ -235,8 +235,23 @@ def test_song_on_the_mock_sim_and_emulated_targets(piano_policy, tmp_path, targe
     # The paced targets run on the wall clock: on a loaded CI machine 5 overruns in a row would end the run in
     # a fault, so the overrun check is off (it has its own test, test_deploy_safety's
     # test_loop_overruns_go_to_damping); this test is the song's stream and its log.
-    rc = main(["--policy", str(piano_policy), *where, "--song", "twinkle_twinkle", "--max-overruns", "0",
-               "--duration", "1.5", "--ramp-time", "0.5", "--log", str(tmp_path)])  # fmt: skip
+    rc = main(
+        [
+            "--policy",
+            str(piano_policy),
+            *where,
+            "--song",
+            "twinkle_twinkle",
+            "--max-overruns",
+            "0",
+            "--duration",
+            "1.5",
+            "--ramp-time",
+            "0.5",
+            "--log",
+            str(tmp_path),
+        ]
+    )
     assert rc == 0
     (run,) = tmp_path.iterdir()
     log, meta = load_log(run)
@@ -305,8 +320,24 @@ def test_midi_song_arrangement_in_the_run_log(piano_policy, tmp_path) -> None:
     # The tiny song at --tempo auto (x0.739, above): notes 0.25 / 0.739 = 0.3383 s apart; C5 and G5 shortened
     # to 0.3383 - 0.188 = 0.1503 s (by 0.188 s), the last C5 kept. The log's metadata lists both changes.
     song = _midi_file(tmp_path / "tiny.mid", [(72, 0, 240), (79, 240, 480), (72, 480, 720)])
-    rc = main(["--policy", str(piano_policy), "--target", "mock", "--song", str(song), "--tempo", "auto",
-               "--max-overruns", "0", "--duration", "0.5", "--log", str(tmp_path / "runs")])  # fmt: skip
+    rc = main(
+        [
+            "--policy",
+            str(piano_policy),
+            "--target",
+            "mock",
+            "--song",
+            str(song),
+            "--tempo",
+            "auto",
+            "--max-overruns",
+            "0",
+            "--duration",
+            "0.5",
+            "--log",
+            str(tmp_path / "runs"),
+        ]
+    )
     assert rc == 0
     (run,) = (tmp_path / "runs").iterdir()
     _, meta = load_log(run)

@@ -298,7 +298,17 @@ def test_reference_feeds_nothing_else(env, rollout, prior_run, start) -> None:
         out["ref"] - prior_run["ref"], np.repeat(shift[:, None], 14, 1), rtol=0, atol=1e-6
     )
     assert set(start.info) == {
-        "rng", "step", "song", "ref_act", "ref_keys", "last_act", "act_prev", "act_buf", "latency", "kp",
-        "kd", "encoder_offset",
-    }  # fmt: skip
+        "rng",
+        "step",
+        "song",
+        "ref_act",
+        "ref_keys",
+        "last_act",
+        "act_prev",
+        "act_buf",
+        "latency",
+        "kp",
+        "kd",
+        "encoder_offset",
+    }
     np.testing.assert_array_equal(start.info["ref_act"], start.info["last_act"])  # started with the policy's

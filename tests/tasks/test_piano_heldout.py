@@ -61,10 +61,24 @@ def _song(group: str, tp_b: int, fn_b: int, tp_w: int, fn_w: int, f1: float = 0.
     q = {"name": "x", "ticks": 100, "faulted": False, "cap_ticks": 0, "chatter_mrad": 1.0, "limit_ticks": 0}
     q["action_rate_sum"] = 0.0
     return SongResult(
-        song="x", ticks=100, scored=100, true_pos=tp_b + tp_w, false_pos=0, false_neg=fn_b + fn_w,
-        precision=1.0, recall=0.9, f1=f1, faulted=False, end_reason="done", quality=q,
-        true_pos_black=tp_b, false_neg_black=fn_b, true_pos_white=tp_w, false_neg_white=fn_w, group=group,
-    )  # fmt: skip
+        song="x",
+        ticks=100,
+        scored=100,
+        true_pos=tp_b + tp_w,
+        false_pos=0,
+        false_neg=fn_b + fn_w,
+        precision=1.0,
+        recall=0.9,
+        f1=f1,
+        faulted=False,
+        end_reason="done",
+        quality=q,
+        true_pos_black=tp_b,
+        false_neg_black=fn_b,
+        true_pos_white=tp_w,
+        false_neg_white=fn_w,
+        group=group,
+    )
 
 
 def test_recall_rows_by_hand() -> None:
@@ -80,8 +94,14 @@ def test_recall_rows_by_hand() -> None:
     )
     rec = report.recall_pct()
     assert rec == pytest.approx(
-        {"held-out black keys": 75.0, "held-out white keys": 95.0, "random black keys": 90.0,
-         "random white keys": 100.0}, abs=1e-9)  # fmt: skip
+        {
+            "held-out black keys": 75.0,
+            "held-out white keys": 95.0,
+            "random black keys": 90.0,
+            "random white keys": 100.0,
+        },
+        abs=1e-9,
+    )
     gate = report.gate_report()
     assert gate["success_pct"] == pytest.approx(95.0, abs=1e-9)  # the held-out songs' F1 only
     assert len(gate["episodes"]) == 2  # safety and smoothness: the held-out songs
@@ -113,8 +133,14 @@ def test_the_mjx_evaluation_fills_the_recall_rows_for_the_best_iterate() -> None
     base["quality/chatter_max_mrad"] = 1.0
     low = held_out_report({**base, "recall_black": 0.5, "recall_white": 0.9})
     assert low["recall_pct"] == pytest.approx(
-        {"held-out black keys": 50.0, "held-out white keys": 90.0, "random black keys": 50.0,
-         "random white keys": 90.0}, abs=1e-9)  # fmt: skip
+        {
+            "held-out black keys": 50.0,
+            "held-out white keys": 90.0,
+            "random black keys": 50.0,
+            "random white keys": 90.0,
+        },
+        abs=1e-9,
+    )
     high = held_out_report({**base, "recall_black": 0.9, "recall_white": 0.9})
     assert excess("piano", high) == 0.0
     assert excess("piano", low) == pytest.approx(2 * (1 - 50 / 85), rel=1e-12)

@@ -88,8 +88,13 @@ def test_legato_file_is_articulated_to_the_required_gap(tmp_path):
         (67, -0.094, 64),
     ]
     assert a.to_dict()["changed"][1] == {
-        "key": 62, "hand": "right", "start_s": 0.5, "written_s": 0.5, "played_s": 0.359, "before": 67
-    }  # fmt: skip
+        "key": 62,
+        "hand": "right",
+        "start_s": 0.5,
+        "written_s": 0.5,
+        "played_s": 0.359,
+        "before": 67,
+    }
     # Fastest: the tightest pair, D4->G4: 0.5 s apart / (0.15 + 0.141) s = x1.7182 (C4->D4: 0.5 / 0.2 = x2.5).
     assert a.lines()[0] == (
         "song 'legato': tempo x1.000 (120 bpm, written 120), fastest playable x1.718; hands: 0 left, "

@@ -99,8 +99,20 @@ def prior_file(tmp_path_factory) -> Path:
 def prior_run(prior_file, tmp_path_factory) -> tuple[dict, dict, Path]:
     """``bar-deploy --song ode_to_joy`` on the sim target with the prior alone: the log and its run."""
     out = tmp_path_factory.mktemp("piano_ref_run")
-    rc = main(["--policy", str(prior_file), "--target", "sim", "--song", "ode_to_joy",
-               "--ramp-time", "0.5", "--log", str(out)])  # fmt: skip
+    rc = main(
+        [
+            "--policy",
+            str(prior_file),
+            "--target",
+            "sim",
+            "--song",
+            "ode_to_joy",
+            "--ramp-time",
+            "0.5",
+            "--log",
+            str(out),
+        ]
+    )
     assert rc == 0
     (run,) = out.iterdir()
     return (*load_log(run), run)
@@ -245,8 +257,16 @@ def test_eval_prints_both_chatters(prior_file) -> None:
     from bar_policy.tasks.piano.evaluate import evaluate
 
     policy = load_policy(str(prior_file))
-    song = Song("two", (Note(60, 0.0, 0.5, "right"), Note(64, 0.5, 1.0, "right"), Note(48, 1.0, 1.5, "left"),
-                        Note(67, 1.5, 2.0, "right"), Note(60, 2.0, 2.5, "right")))  # fmt: skip
+    song = Song(
+        "two",
+        (
+            Note(60, 0.0, 0.5, "right"),
+            Note(64, 0.5, 1.0, "right"),
+            Note(48, 1.0, 1.5, "left"),
+            Note(67, 1.5, 2.0, "right"),
+            Note(60, 2.0, 2.5, "right"),
+        ),
+    )
     res = evaluate(policy, [song], runner=SimEpisodes(policy))
     (s,) = res.songs
     assert not s.faulted and s.chatter_mrad is not None and s.chatter_mrad < CHATTER_TOL_MRAD

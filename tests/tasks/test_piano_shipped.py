@@ -32,8 +32,13 @@ def test_shipped_piano_declares_its_task_for_humanoid_control() -> None:
     assert md["task_type"] == "piano"
     # Humanoid Control's piano terms, in its order (lite-model.md, "Policy deployment").
     assert md["observation_names"].split(",") == [
-        "target_keys", "progress", "key_pressed", "joint_pos", "joint_vel", "actions"
-    ]  # fmt: skip
+        "target_keys",
+        "progress",
+        "key_pressed",
+        "joint_pos",
+        "joint_vel",
+        "actions",
+    ]
     assert json.loads(md["bar.obs_fingerprint"]) == ObservationManager.golden("lite_piano_arms").fingerprint
     # Trained on the bank of 256 random songs and the training library, never the held-out songs.
     assert md["dataset_repo_id"].startswith("bar_policy.piano:random256-seed0-")

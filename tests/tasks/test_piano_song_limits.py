@@ -108,8 +108,11 @@ def test_note_count_limit(tmp_path):
 def test_file_size_limit(tmp_path):
     path = tmp_path / "big.json"
     path.write_bytes(b" " * (MAX_SONG_FILE_BYTES + 1))  # read no further than its size
-    with pytest.raises(SongError, match=f"has {MAX_SONG_FILE_BYTES + 1} bytes; a song file may have at most "
-                       f"{MAX_SONG_FILE_BYTES} .*MAX_SONG_FILE_BYTES"):  # fmt: skip
+    with pytest.raises(
+        SongError,
+        match=f"has {MAX_SONG_FILE_BYTES + 1} bytes; a song file may have at most "
+        f"{MAX_SONG_FILE_BYTES} .*MAX_SONG_FILE_BYTES",
+    ):
         read_song(path, KB)
     mid = tmp_path / "big.mid"
     mid.write_bytes(b"MThd" + b"\0" * MAX_SONG_FILE_BYTES)

@@ -45,8 +45,16 @@ def _song_source() -> SongCommands:
     C4 0.51-0.69 s (read down at steps 26..34: step 25 missed), C#4 0.79-0.89 s (steps 40..44: 45..49
     missed), C5 1.09-1.19 s (steps 55..59: after the song's last note)."""
     song = Song("two", (Note(60, 0.10, 0.30, "right"), Note(61, 0.40, 0.60, "right")))
-    events = [(0.0, 48, True), (0.29, 48, False), (0.51, 60, True), (0.69, 60, False),
-              (0.79, 61, True), (0.89, 61, False), (1.09, 72, True), (1.19, 72, False)]  # fmt: skip
+    events = [
+        (0.0, 48, True),
+        (0.29, 48, False),
+        (0.51, 60, True),
+        (0.69, 60, False),
+        (0.79, 61, True),
+        (0.89, 61, False),
+        (1.09, 72, True),
+        (1.19, 72, False),
+    ]
     return SongCommands(song, KB, DT, ScheduledKeys(events, KB), PlaybackConfig())
 
 
@@ -132,8 +140,20 @@ def test_the_run_summary_prints_the_song_figures_on_the_sim_target(piano_policy,
     POLICY's start, the count-in), none pressed: P 1, R 0, F1 0 each tick; white recall 0 of 15."""
     song = tmp_path / "one.json"
     write_song(song, Song("one", (Note(60, 0.0, 0.3, "right"),)))
-    rc = main(["--policy", str(piano_policy), "--target", "sim", "--song", str(song), "--ramp-time", "0.5",
-               "--log", str(tmp_path / "runs")])  # fmt: skip
+    rc = main(
+        [
+            "--policy",
+            str(piano_policy),
+            "--target",
+            "sim",
+            "--song",
+            str(song),
+            "--ramp-time",
+            "0.5",
+            "--log",
+            str(tmp_path / "runs"),
+        ]
+    )
     assert rc == 0
     out = capsys.readouterr().out.splitlines()
     end = next(i for i, line in enumerate(out) if line.startswith("end: "))

@@ -155,8 +155,10 @@ def test_json_round_trip(tmp_path):
     got = read_song(tmp_path / "s.json", CFG)
     assert [n.hand for n in got.notes] == ["right", "left", "right"]  # either -> right (62 >= 60)
     with pytest.raises(SongError, match="note 0: start_s and end_s must be numbers"):
-        song_from_json('{"format": "bar_policy.piano.song/1", "name": "x", "notes": [{"key": 60, '
-                       '"start_s": "0", "end_s": 1}]}')  # fmt: skip
+        song_from_json(
+            '{"format": "bar_policy.piano.song/1", "name": "x", "notes": [{"key": 60, '
+            '"start_s": "0", "end_s": 1}]}'
+        )
     with pytest.raises(SongError, match="not a song file"):
         song_from_json('{"name": "x", "notes": []}')
 

@@ -17,8 +17,14 @@ N_OBS, N_ACT, SEGMENTS, T = 6, 3, 8, 5
 
 def _learner(warmup: int):
     # 2 minibatches x 2 passes = 4 Adam steps per iteration.
-    ppo = PPOConfig(num_envs=4, batch_size=4, num_minibatches=2, unroll_length=T, num_updates_per_batch=2,
-                    actor_warmup_iterations=warmup)  # fmt: skip
+    ppo = PPOConfig(
+        num_envs=4,
+        batch_size=4,
+        num_minibatches=2,
+        unroll_length=T,
+        num_updates_per_batch=2,
+        actor_warmup_iterations=warmup,
+    )
     return make_learner(N_OBS, N_ACT, ppo, NetworkConfig(policy_hidden=(8,), value_hidden=(8,)))
 
 
@@ -36,9 +42,11 @@ def _data(learner, ts, key) -> types.Transition:
         reward=jax.random.normal(k_rew, (SEGMENTS, T)),
         discount=jnp.ones((SEGMENTS, T)),
         next_observation=obs[:, 1:],
-        extras={"policy_extras": jax.tree.map(unflat, extras),
-                "state_extras": {"truncation": jnp.zeros((SEGMENTS, T))}},
-    )  # fmt: skip
+        extras={
+            "policy_extras": jax.tree.map(unflat, extras),
+            "state_extras": {"truncation": jnp.zeros((SEGMENTS, T))},
+        },
+    )
 
 
 def _updates(warmup: int, iterations: int):

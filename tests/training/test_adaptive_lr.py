@@ -20,8 +20,9 @@ from bar_policy.training.brax.learner import (
 )
 from bar_policy.training.config import NetworkConfig, PPOConfig
 
-PPO = PPOConfig(schedule="adaptive", desired_kl=0.01, learning_rate=1e-3, min_learning_rate=1e-4,
-                max_learning_rate=2e-3)  # fmt: skip
+PPO = PPOConfig(
+    schedule="adaptive", desired_kl=0.01, learning_rate=1e-3, min_learning_rate=1e-4, max_learning_rate=2e-3
+)
 
 
 @pytest.mark.parametrize(
@@ -63,9 +64,13 @@ def test_kl_estimate_is_zero_on_policy_and_matches_the_gaussian_kl():
     logits = nets.policy_network.apply(norm, old, obs)
     raw = dist.sample_no_postprocessing(logits, k_act)
     data = types.Transition(
-        observation=obs, action=raw, reward=None, discount=None, next_observation=None,
+        observation=obs,
+        action=raw,
+        reward=None,
+        discount=None,
+        next_observation=None,
         extras={"policy_extras": {"raw_action": raw, "log_prob": dist.log_prob(logits, raw)}},
-    )  # fmt: skip
+    )
     ppo_params = dataclasses.make_dataclass("P", ["policy"])
     assert float(approx_kl(learner, ppo_params(old), norm, data)) == pytest.approx(0.0, abs=1e-7)
     # Another policy: the estimate of KL(old || new) converges to the Gaussians' KL (the tanh's Jacobian

@@ -100,8 +100,17 @@ def test_a_stamped_archive_is_not_read_again_and_a_removed_folder_is_seeded_agai
 def test_a_seed_packed_from_a_seeded_cache_holds_the_entries_not_the_stamp(tmp_path, gpu):
     cache = tmp_path / "cache"
     assert ats.seed_autotune_cache(cache, seeds_dir=_seeds(tmp_path)).seeded == 3
-    pack_seed(cache / AUTOTUNE_DIR, tmp_path / "again", name="again", device_kind=KIND, jax_version="9.9.9",
-              jaxlib_version="9.9.9", commit="abc1234", programs=("reset",), made_with="a test")  # fmt: skip
+    pack_seed(
+        cache / AUTOTUNE_DIR,
+        tmp_path / "again",
+        name="again",
+        device_kind=KIND,
+        jax_version="9.9.9",
+        jaxlib_version="9.9.9",
+        commit="abc1234",
+        programs=("reset",),
+        made_with="a test",
+    )
     with tarfile.open(tmp_path / "again" / "again.tar.gz") as tar:
         names = sorted(t.name for t in tar if t.isfile())
     assert names == [f"{SUBDIR}/{n}" for n in sorted(ENTRIES)]
@@ -278,9 +287,17 @@ def test_pack_script_round_trips(tmp_path):
     assert m.programs == ("reset", "rollout", "update", "init", "evaluate")  # the trainer's, since 2026-11-27
     first = (tmp_path / "s" / "fake.tar.gz").read_bytes()
     # Reproducible: packing again gives the same bytes.
-    pack_seed(tmp_path / "made" / AUTOTUNE_DIR, tmp_path / "s2", name="fake", device_kind=KIND,
-              jax_version="9.9.9", jaxlib_version="9.9.9", commit="abc1234", programs=m.programs,
-              made_with=m.made_with)  # fmt: skip
+    pack_seed(
+        tmp_path / "made" / AUTOTUNE_DIR,
+        tmp_path / "s2",
+        name="fake",
+        device_kind=KIND,
+        jax_version="9.9.9",
+        jaxlib_version="9.9.9",
+        commit="abc1234",
+        programs=m.programs,
+        made_with=m.made_with,
+    )
     assert (tmp_path / "s2" / "fake.tar.gz").read_bytes() == first
 
 
@@ -319,8 +336,13 @@ def test_seed_outcome_is_in_the_startup_record_and_table():
     timer.autotune_seed = ats.SeedOutcome(seeded=868, source="h100.tar.gz", seconds=0.0123)
     rec = timer.finish(1.0)
     assert rec["autotune_seed"] == {
-        "seeded": 868, "present": 0, "refused": 0, "source": "h100.tar.gz", "reason": "", "seconds": 0.012,
-    }  # fmt: skip
+        "seeded": 868,
+        "present": 0,
+        "refused": 0,
+        "source": "h100.tar.gz",
+        "reason": "",
+        "seconds": 0.012,
+    }
     lines = StartupTimer.lines(rec)
     assert lines[-1].startswith("  autotune seed: 868 entries seeded, 0 already present, from h100.tar.gz")
     assert "autotune_seed" not in StartupTimer().finish(1.0)  # not tried: not recorded

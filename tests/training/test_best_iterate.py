@@ -46,8 +46,15 @@ def test_keeper_skips_untrained_and_resumed_steps_and_snapshots_only_improvement
 
     k = BestKeeper(first_step=1000)
     # step 0 and the resume point are not this run's parameters; then 0.5, 0.9, 0.7, 0.9 (tie), 0.95.
-    seq = [(0, 1.0, 9.0), (1000, 1.0, 9.0), (2000, 0.5, 1.0), (3000, 0.9, 2.0), (4000, 0.7, 3.0),
-           (5000, 0.9, 2.0), (6000, 0.95, 0.5)]  # fmt: skip
+    seq = [
+        (0, 1.0, 9.0),
+        (1000, 1.0, 9.0),
+        (2000, 0.5, 1.0),
+        (3000, 0.9, 2.0),
+        (4000, 0.7, 3.0),
+        (5000, 0.9, 2.0),
+        (6000, 0.95, 0.5),
+    ]
     kept = [k.offer(s, _ev(a, r), snap(s)) for s, a, r in seq]
     assert kept == [False, False, True, True, False, False, True]
     assert calls == [2000, 3000, 6000]

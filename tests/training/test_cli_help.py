@@ -100,15 +100,17 @@ def test_env_overrides_reach_the_env_config():
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--env-overrides", "reward.scales.nope=1"],
-         "bar-train: error: --env-overrides: override 'reward.scales.nope': no field 'nope' in RewardScales; "
-         "valid fields: ['reach_coarse', 'reach_fine', 'success', 'action_rate', 'action_accel', "
-         "'joint_limit', 'torque', 'torque_near_cap', 'joint_vel', 'wrist_posture']"),
+        (
+            ["--env-overrides", "reward.scales.nope=1"],
+            "bar-train: error: --env-overrides: override 'reward.scales.nope': no field 'nope' in "
+            "RewardScales; valid fields: ['reach_coarse', 'reach_fine', 'success', 'action_rate', "
+            "'action_accel', 'joint_limit', 'torque', 'torque_near_cap', 'joint_vel', 'wrist_posture']",
+        ),
         (["--env", "LiteTrack", "--env-overrides", "motion.clip_set=mocap"], "clip sets"),
         (["--env-overrides", "episode_length_s=long"], "episode_length_s=long: expected a number"),
         (["--env-overrides", "episode_length_s"], "must look like 'dotted.path=value'"),
     ],
-)  # fmt: skip
+)
 def test_bad_env_overrides_are_refused_before_training(argv, message, capsys):
     with pytest.raises(SystemExit) as exc:
         parse_config(argv)
@@ -139,9 +141,14 @@ def test_help_into_a_reader_that_stops_reading_ends_without_a_traceback():
     os.close(read_end)
     try:
         proc = subprocess.run(
-            [sys.executable, "train/ppo.py", "--help"], cwd=REPO, env=env, stdout=write_end,
-            stderr=subprocess.PIPE, text=True, timeout=120,
-        )  # fmt: skip
+            [sys.executable, "train/ppo.py", "--help"],
+            cwd=REPO,
+            env=env,
+            stdout=write_end,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=120,
+        )
     finally:
         os.close(write_end)
     assert (proc.returncode, proc.stderr) == (1, "")

@@ -54,9 +54,16 @@ def test_config_json_round_trip():
 
 def test_cli_applies_preset_then_flags():
     cfg = parse_config(
-        ["--preset", "tiny", "--ppo.learning-rate", "0.002", "--env-overrides", "reward.scales.success=1",
-         "episode_length_s=4"]
-    )  # fmt: skip
+        [
+            "--preset",
+            "tiny",
+            "--ppo.learning-rate",
+            "0.002",
+            "--env-overrides",
+            "reward.scales.success=1",
+            "episode_length_s=4",
+        ]
+    )
     assert cfg.preset == "tiny"
     assert cfg.ppo.learning_rate == 0.002
     assert cfg.ppo.num_envs == preset("tiny").ppo.num_envs

@@ -66,9 +66,17 @@ def test_bad_values_are_one_line_naming_the_field(argv, words, capsys):
 
 def test_typed_env_flags_reach_the_env_config():
     cfg = parse_config(
-        ["--preset", "tiny", "--env.reward.scales.action-rate", "-0.5",
-         "--env.actuator.latency-steps", "0", "1", "--env.actuator.no-quantize-wire"]
-    )  # fmt: skip
+        [
+            "--preset",
+            "tiny",
+            "--env.reward.scales.action-rate",
+            "-0.5",
+            "--env.actuator.latency-steps",
+            "0",
+            "1",
+            "--env.actuator.no-quantize-wire",
+        ]
+    )
     assert cfg.env_overrides == (
         "actuator.quantize_wire=false",
         "actuator.latency_steps=(0, 1)",
@@ -81,9 +89,16 @@ def test_typed_env_flags_reach_the_env_config():
 
 def test_a_flag_wins_over_the_shorthand_and_the_preset_items_stay():
     cfg = parse_config(
-        ["--preset", "gpu", "--env-overrides", "reward.scales.action_rate=-0.2", "episode_length_s=4",
-         "--env.reward.scales.action-rate", "-0.3"]
-    )  # fmt: skip
+        [
+            "--preset",
+            "gpu",
+            "--env-overrides",
+            "reward.scales.action_rate=-0.2",
+            "episode_length_s=4",
+            "--env.reward.scales.action-rate",
+            "-0.3",
+        ]
+    )
     # The gpu preset's sim_dt=0.004 first, the shorthand's items, then the flag replacing its path's item.
     assert cfg.env_overrides == ("sim_dt=0.004", "episode_length_s=4", "reward.scales.action_rate=-0.3")
 
@@ -130,9 +145,14 @@ def test_the_header_prints_every_non_default_setting():
     lines = setting_lines(cfg, config, envs.default_config("LiteReach"))
     text = " ".join(" ".join(lines).split())
     expected_train = [
-        f"{p}" for p in ("preset=tiny", "seed=3", f"ppo.num_envs={cfg.ppo.num_envs}",
-                         f"eval.num_evals={cfg.eval.num_evals}")
-    ]  # fmt: skip
+        f"{p}"
+        for p in (
+            "preset=tiny",
+            "seed=3",
+            f"ppo.num_envs={cfg.ppo.num_envs}",
+            f"eval.num_evals={cfg.eval.num_evals}",
+        )
+    ]
     for item in expected_train:
         assert item in text
     assert text.endswith("env settings (LiteReach, not its defaults): reward.scales.action_rate=-0.5")

@@ -45,8 +45,10 @@ def _episodes() -> dict[str, dict[str, np.ndarray]]:
 def _mjx(episodes: dict) -> dict[str, float]:
     """The evaluation's accounting over the episodes as env slots (one device: axis of size 1)."""
     names = list(episodes)
-    stack = {k: jnp.asarray(np.stack([episodes[n][k] for n in names], axis=1), jnp.float32) for k in
-             ("demand", "q", "action", "signal")}  # fmt: skip
+    stack = {
+        k: jnp.asarray(np.stack([episodes[n][k] for n in names], axis=1), jnp.float32)
+        for k in ("demand", "q", "action", "signal")
+    }
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
 
     def run(_: jax.Array) -> dict:
@@ -54,8 +56,17 @@ def _mjx(episodes: dict) -> dict[str, float]:
         alive = jnp.ones(len(names))
         for k in range(T):
             sig = {key: v[k] for key, v in stack.items()}
-            c, _ = eval_quality.update(c, sig, alive, jnp.zeros(len(names)), k == 0, cap=f32(CAP),
-                                       lower=f32(LOWER), upper=f32(UPPER), dt=DT)  # fmt: skip
+            c, _ = eval_quality.update(
+                c,
+                sig,
+                alive,
+                jnp.zeros(len(names)),
+                k == 0,
+                cap=f32(CAP),
+                lower=f32(LOWER),
+                upper=f32(UPPER),
+                dt=DT,
+            )
         return eval_quality.finish(c, stack["signal"], DT)
 
     out = jax.vmap(run, axis_name=AXIS)(jnp.zeros(1))

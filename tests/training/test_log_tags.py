@@ -36,11 +36,18 @@ def test_both_backends_losses_get_the_same_names_and_units():
     # 0.005: v_loss 0.25 is a mean squared error of 0.25 / (0.5 * 0.5) = 1.0; entropy_loss -0.015 is an
     # entropy of 3.0 nats (exact in binary to well under 1e-12).
     brax = brax_losses(
-        {"total_loss": 0.1, "policy_loss": -0.02, "v_loss": 0.25, "entropy_loss": -0.015, "kl": 0.01,
-         "learning_rate": 5e-4, "policy_dist_mean_std": 0.7},
+        {
+            "total_loss": 0.1,
+            "policy_loss": -0.02,
+            "v_loss": 0.25,
+            "entropy_loss": -0.015,
+            "kl": 0.01,
+            "learning_rate": 5e-4,
+            "policy_dist_mean_std": 0.7,
+        },
         entropy_cost=0.005,
         vf_coefficient=0.5,
-    )  # fmt: skip
+    )
     assert brax["loss/value_function"] == pytest.approx(1.0, abs=1e-12)
     assert brax["loss/entropy"] == pytest.approx(3.0, abs=1e-12)
     assert brax["loss/surrogate"] == -0.02 and brax["policy_std"] == 0.7
@@ -116,9 +123,16 @@ def test_window_figures_by_hand():
     # 250 each. final_distance 0.3 m over 20 segment ends = 1.5 cm. Exact in binary but for 0.3 / 20.
     layout = SumLayout(terms=("reach", "action_rate"), ratios=("final_distance",))
     assert layout.columns == (
-        "reward", "success_rate/num", "success_rate/den", "episodes", "episode_steps",
-        "reward/reach", "reward/action_rate", "final_distance/num", "final_distance/den",
-    )  # fmt: skip
+        "reward",
+        "success_rate/num",
+        "success_rate/den",
+        "episodes",
+        "episode_steps",
+        "reward/reach",
+        "reward/action_rate",
+        "final_distance/num",
+        "final_distance/den",
+    )
     sums = layout.named([120.0, 19.0, 20.0, 2.0, 500.0, 90.0, 30.0, 0.3, 20.0])
     m = window_metrics(sums, 240, 250, {})
     assert m["episode_reward"] == 125.0

@@ -76,17 +76,32 @@ def case():
     raw = dist.sample_no_postprocessing(logits, ks[5])
     trunc = _flags(ks[6], 0.1).T
     data = types.Transition(
-        observation=obs, action=dist.postprocess(raw), reward=jax.random.normal(ks[7], (B, T)),
-        discount=1.0 - _flags(ks[8], 0.05).T * (1 - trunc), next_observation=next_obs,
-        extras={"state_extras": {"truncation": trunc},
-                "policy_extras": {"raw_action": raw, "log_prob": dist.log_prob(logits, raw),
-                                  "distribution_params": logits}},
-    )  # fmt: skip
+        observation=obs,
+        action=dist.postprocess(raw),
+        reward=jax.random.normal(ks[7], (B, T)),
+        discount=1.0 - _flags(ks[8], 0.05).T * (1 - trunc),
+        next_observation=next_obs,
+        extras={
+            "state_extras": {"truncation": trunc},
+            "policy_extras": {
+                "raw_action": raw,
+                "log_prob": dist.log_prob(logits, raw),
+                "distribution_params": logits,
+            },
+        },
+    )
     return learner, params, norm, data
 
 
-KW = dict(entropy_cost=5e-3, discounting=0.97, reward_scaling=1.0, gae_lambda=0.95, clipping_epsilon=0.2,
-          normalize_advantage=True, vf_coefficient=0.5)  # fmt: skip
+KW = dict(
+    entropy_cost=5e-3,
+    discounting=0.97,
+    reward_scaling=1.0,
+    gae_lambda=0.95,
+    clipping_epsilon=0.2,
+    normalize_advantage=True,
+    vf_coefficient=0.5,
+)
 
 
 def test_loss_gradients_and_metrics_match_brax(case):

@@ -24,8 +24,9 @@ def test_samples_equal_rsl_rls_bit_for_bit_from_the_same_seed(std_type):
     ref = GaussianDistribution(14, init_std=0.3, std_type=std_type)
     ours = GaussianNoSync(14, init_std=0.3, std_type=std_type)
     with torch.no_grad():
-        next(ours.parameters()).copy_(torch.linspace(-1.5, -0.5, 14) if std_type == "log" else
-                                      torch.linspace(0.05, 0.9, 14))  # fmt: skip
+        next(ours.parameters()).copy_(
+            torch.linspace(-1.5, -0.5, 14) if std_type == "log" else torch.linspace(0.05, 0.9, 14)
+        )
     ref.load_state_dict(ours.state_dict())  # the same keys: a checkpoint of one loads into the other
     mean = torch.randn(256, 14, generator=torch.Generator().manual_seed(1)) * 2.0
     ref.update(mean)

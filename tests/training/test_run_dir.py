@@ -31,18 +31,28 @@ def test_a_resume_lists_the_settings_that_differ_from_the_resumed_run(tmp_path: 
 
     ckpt = tmp_path / "step_000000000100.msgpack"
     old = {
-        "train": {"run_name": "a", "max_minutes": 0, "export_onnx": True, "env_overrides": [],
-                  "ppo": {"batch_size": 512, "num_timesteps": 100, "learning_rate": 5e-4}},
+        "train": {
+            "run_name": "a",
+            "max_minutes": 0,
+            "export_onnx": True,
+            "env_overrides": [],
+            "ppo": {"batch_size": 512, "num_timesteps": 100, "learning_rate": 5e-4},
+        },
         "env": {"sim_dt": 0.002, "reward": {"scales": {"success": 0.5}}},
-    }  # fmt: skip
+    }
     ckpt.with_suffix(".json").write_text(json.dumps({"env_steps": 100, "iteration": 1, **old}))
     assert resume_changes(ckpt, old) == []
     assert resume_changes(ckpt, None) == []
     new = {
-        "train": {"run_name": "b", "max_minutes": 5, "export_onnx": False, "env_overrides": ["sim_dt=0.004"],
-                  "ppo": {"batch_size": 256, "num_timesteps": 900, "learning_rate": 5e-4}},
+        "train": {
+            "run_name": "b",
+            "max_minutes": 5,
+            "export_onnx": False,
+            "env_overrides": ["sim_dt=0.004"],
+            "ppo": {"batch_size": 256, "num_timesteps": 900, "learning_rate": 5e-4},
+        },
         "env": {"sim_dt": 0.004, "reward": {"scales": {"success": 0.5}}},
-    }  # fmt: skip
+    }
     assert resume_changes(ckpt, new) == [
         "resume: 3 settings differ from the resumed run's (step_000000000100.json):",
         "  train env_overrides: [] -> ['sim_dt=0.004']",

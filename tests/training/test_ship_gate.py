@@ -100,8 +100,13 @@ class _Passing:
 def _passing_track_report() -> dict:
     quality = {"completion_pct": 100.0, "cap_share_pct": 0.1, "chatter_max_mrad": 1.0}
     episodes = [{"name": "wave", "faulted": False, "chatter_mrad": 1.0}]
-    return {"task": "track", "quality": quality, "episodes": episodes, "joint_error_rad": 0.015,
-            "fingertip_error_cm": 0.8}  # fmt: skip
+    return {
+        "task": "track",
+        "quality": quality,
+        "episodes": episodes,
+        "joint_error_rad": 0.015,
+        "fingertip_error_cm": 0.8,
+    }
 
 
 def test_a_passing_file_is_published_with_the_gate_record(tmp_path, monkeypatch, capsys):

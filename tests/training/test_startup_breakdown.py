@@ -78,8 +78,11 @@ def test_record_names_every_phase_and_its_rows_add_up():
     timer.programs["evaluate"] = ProgramTimes(
         thread="worker", trace_s=1.0, compile_s=0.2, cache_requests=1, cache_hits=1, cache_load_s=0.15
     )
-    rec = timer.finish(7.0, {"compiles": 2, "compile_s": 3.2, "cache_hits": 1, "cache_misses": 0,
-                             "cache_load_s": 0.15}, total_s=9.0)  # fmt: skip
+    rec = timer.finish(
+        7.0,
+        {"compiles": 2, "compile_s": 3.2, "cache_hits": 1, "cache_misses": 0, "cache_load_s": 0.15},
+        total_s=9.0,
+    )
     assert timer.report is rec and rec["until"] == sb.UNTIL_EVAL  # the default: ended by the evaluation
     assert set(PHASES) <= set(rec["phases"]) and "a backend's own phase" in rec["phases"]
     assert list(rec["phases"])[-1] == sb.OTHER

@@ -19,14 +19,18 @@ TARGET_FRAMES = 11
 
 TERMS: dict[str, TermKind] = {
     "target_keys": TermKind(
-        size=TARGET_FRAMES * PIANO_KEYS, category="command", unit="1",
+        size=TARGET_FRAMES * PIANO_KEYS,
+        category="command",
+        unit="1",
         doc="goal keys (1: down) at the current and the next 10 control steps, frame-major, then key "
         "(keyboard order, lowest first)",
     ),
     "progress": TermKind(size=1, category="command", unit="1", doc="fraction of the song elapsed, 0..1"),
     "key_pressed": TermKind(
-        size=PIANO_KEYS, category="command", unit="1",
+        size=PIANO_KEYS,
+        category="command",
+        unit="1",
         doc="keys down now (1: past the press threshold), keyboard order; the key source's reading",
     ),
-}  # fmt: skip
+}
 """Term name -> meaning (``TaskRecord.terms``)."""

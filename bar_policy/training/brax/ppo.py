@@ -122,9 +122,14 @@ def train_brax(
         if run.eval_at_start and (eval_due or programs.ready("evaluate")):
             step0_s = yield from run.evaluate_initial()
         report = programs.epoch_ended(
-            run.epoch_s, ended_at=run.epoch_end, step=run.env_steps, step0_s=step0_s,
-            step0_waiting=run.eval_at_start, eval_due=eval_due, eval_programs=("evaluate",),
-        )  # fmt: skip
+            run.epoch_s,
+            ended_at=run.epoch_end,
+            step=run.env_steps,
+            step0_s=step0_s,
+            step0_waiting=run.eval_at_start,
+            eval_due=eval_due,
+            eval_programs=("evaluate",),
+        )
         if report is not None:
             yield report
         if eval_due:

@@ -335,9 +335,14 @@ def train_rsl_rl(
             eval_at_start = False
             step0_s = yield from eval_at_zero()  # always before a periodic evaluation
         report = compiled.epoch_ended(
-            dt, ended_at=ended_at, step=env_steps, step0_s=step0_s, step0_waiting=eval_at_start,
-            eval_due=eval_due, eval_programs=_EVAL_PROGRAMS,
-        )  # fmt: skip
+            dt,
+            ended_at=ended_at,
+            step=env_steps,
+            step0_s=step0_s,
+            step0_waiting=eval_at_start,
+            eval_due=eval_due,
+            eval_programs=_EVAL_PROGRAMS,
+        )
         if report is not None:
             yield report
         if eval_due:
