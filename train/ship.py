@@ -5,8 +5,8 @@
     python train/ship.py --from-run runs/X --iterate auto   # ship policy_best.onnx if it scores higher
     python train/ship.py --from-run runs/T --name lite_track_arms   # a LiteTrack run: the tracker
     python train/ship.py --ppo.num-timesteps 60000000   # any train/ppo.py flag passes through
-    python train/ship.py --from-run runs/X --robustness suite   # and the robustness tier, recorded
-    python train/ship.py --from-run runs/X --robustness "payload 0.5 kg palm,push 10 N" --robustness-enforce
+    python train/ship.py --from-run runs/X --robustness "payload 0.5 kg palm,push 10 N"   # those rows only
+    python train/ship.py --from-run runs/X --robustness none   # the nominal gate alone (recorded as such)
 
 The task comes from the run (``env_name`` in its ``final_eval.json`` / ``config.json``: LiteReach and
 LiteReachNeck -> reach, LiteTrack -> track); the default name is ``lite_<task>_<mode>``.
@@ -20,20 +20,23 @@ is written. A file that passes is published: ``checkpoints/<name>.onnx`` and ``c
 also ``docs/training_curve.png`` and the results block of ``docs/reach.md`` (they describe the reach
 policy, so a tracker run leaves them alone), then whether the issue's reach targets were met.
 
-The robustness tier (``--robustness ROWS``: names of ``robot/perturb_suite.py``'s rows, comma-separated,
-or ``suite`` for every row but ``nominal``) runs after the nominal gate passed: each row is the same held-out
-evaluation on the perturbed sim target (``deploy.robustness.run_suite``), judged by the gate as far as the
-row's ``gating`` says; the table is printed and every row's verdict (PASS, MISS, ``report``), its misses and
-figures go into the published JSON under ``ship_gate.robustness``. It informs: a file that passes the
-nominal gate is published whatever the rows say, unless ``--robustness-enforce``, which refuses a file that
-misses a gated row (exit 3, naming the rows). Without ``--robustness`` nothing changes.
+The robustness tier (``--robustness ROWS``: ``suite``, the default, for every row of
+``robot/perturb_suite.py`` but ``nominal``, or row names, comma-separated) runs after the nominal gate
+passed: each row is the same held-out evaluation on the perturbed sim target
+(``deploy.robustness.run_suite``), judged by the gate as far as the row's ``gating`` says; the table is
+printed and every row's verdict (PASS, MISS, ``report``), its misses and figures go into the published
+JSON under ``ship_gate.robustness``. A file that misses a gated row is refused (exit 3, the rows named,
+nothing written): a policy that fails on the robots the suite stands for does not ship. ``--robustness
+none`` publishes on the nominal gate alone, said on the terminal and recorded
+(``ship_gate.robustness.verdict`` ``not run``), for a file meant for the model only.
 
 Exit status:
     0: published (reach: and the final MJX evaluation reached >= 95 % success).
     1: published, but the reach run's final MJX evaluation missed 95 % success.
     2: nothing published: the run or its file could not be evaluated (missing files, no env name, a file
        the deploy loader refuses, a file of another task than the run's).
-    3: nothing published: the file misses the ship gate on held-out data (each miss is printed).
+    3: nothing published: the file misses the ship gate on held-out data, or a gated row of the
+       robustness tier (each miss is printed).
 """
 
 from __future__ import annotations
@@ -105,11 +108,13 @@ def held_out_evaluation(onnx: str | Path, task: str, options: Mapping[str, Any] 
 
 
 def robustness_rows(text: str) -> tuple[SuiteRow, ...]:
-    """The suite rows ``--robustness`` names (comma-separated, or ``suite``: every row but nominal).
+    """The suite rows ``--robustness`` names (comma-separated; ``suite``: every row but nominal; ``none``).
 
     Raises:
         ValueError: an unknown row name (the valid ones listed), or none given.
     """
+    if text.strip() == "none":
+        return ()
     if text.strip() == "suite":
         return tuple(r for r in SUITE if r.spec)
     by_name = {r.name: r for r in SUITE}
@@ -117,7 +122,7 @@ def robustness_rows(text: str) -> tuple[SuiteRow, ...]:
     unknown = [n for n in names if n not in by_name]
     if unknown or not names:
         raise ValueError(
-            f"--robustness: unknown suite row(s) {unknown or [text]}; valid: 'suite' or any of "
+            f"--robustness: unknown suite row(s) {unknown or [text]}; valid: 'suite', 'none' or any of "
             f"{list(by_name)}"
         )
     return tuple(by_name[n] for n in names)
@@ -147,15 +152,20 @@ def robustness_tier(
     )
 
 
-def robustness_record(suite: Any, enforced: bool) -> dict[str, Any]:
-    """``ship_gate.robustness``: each row's name, spec, gating, verdict, misses and figures; the verdict."""
+def robustness_record(suite: Any) -> dict[str, Any]:
+    """``ship_gate.robustness``: each row's name, spec, gating, verdict, misses and figures; the verdict.
+
+    ``suite`` None: the tier was not run (``--robustness none``).
+    """
+    if suite is None:
+        return {"verdict": "not run", "rows": []}
     rows = []
     for r in suite.rows:
         d = r.to_dict()
         d.pop("gate_report", None)
         d["report"] = {k: v for k, v in r.report.items() if k != "episodes"}
         rows.append(d)
-    return {"verdict": "pass" if suite.passed else "miss", "enforced": enforced, "rows": rows}
+    return {"verdict": "pass" if suite.passed else "miss", "rows": rows}
 
 
 def gate_record(task: str, report: Mapping[str, Any], misses: list[Miss]) -> dict[str, Any]:
@@ -200,27 +210,26 @@ def main(argv: list[str] | None = None, *, eval_options: Mapping[str, Any] | Non
     )
     pre.add_argument(
         "--robustness",
-        default=None,
+        default="suite",
         metavar="ROWS",
-        help="after the nominal gate, run these robustness-suite rows (names from robot/perturb_suite.py, "
-        "comma-separated, or 'suite': every row but nominal) and record each row's verdict in the JSON",
-    )
-    pre.add_argument(
-        "--robustness-enforce",
-        action="store_true",
-        help="refuse (exit 3) a file that misses a gated --robustness row (default: the rows inform only)",
+        help="after the nominal gate, run these robustness-suite rows and refuse (exit 3) a file that misses "
+        "a gated one: 'suite' (every row but nominal; the default), row names from robot/perturb_suite.py "
+        "(comma-separated), or 'none' (the nominal gate alone, recorded as not run)",
     )
     pre.add_argument("--checkpoints-dir", default="checkpoints", help="where the ONNX and JSON go")
     pre.add_argument("--docs-dir", default="docs", help="where the reach curve and reach.md results go")
     known, rest = pre.parse_known_args(sys.argv[1:] if argv is None else argv)
-    rows: tuple[SuiteRow, ...] = ()
     try:
-        if known.robustness is not None:
-            rows = robustness_rows(known.robustness)
-        elif known.robustness_enforce:
-            raise ValueError("--robustness-enforce needs --robustness ROWS")
+        rows = robustness_rows(known.robustness)
     except ValueError as e:
         print(f"ship: error: {e}", file=sys.stderr)
+        return NOT_EVALUATED
+    if known.from_run is not None and rest:
+        print(
+            f"ship: error: --from-run publishes an existing run; {rest} are not ship options and would "
+            "only apply to a training run (ship options: see --help)",
+            file=sys.stderr,
+        )
         return NOT_EVALUATED
     if known.from_run is None:
         if not any(a.startswith("--run-name") for a in rest):
@@ -255,12 +264,15 @@ def main(argv: list[str] | None = None, *, eval_options: Mapping[str, Any] | Non
         return REFUSED
 
     ship_gate = gate_record(task, report, misses)
-    if rows:
+    if not rows:
+        print("robustness tier: not run (--robustness none): published on the nominal gate alone")
+        ship_gate["robustness"] = robustness_record(None)
+    else:
         print(f"robustness tier: {len(rows)} row(s), each the held-out evaluation on a perturbed sim target")
         suite = robustness_tier(onnx, task, rows, eval_options)
         print(suite.format())
-        ship_gate["robustness"] = robustness_record(suite, known.robustness_enforce)
-        if known.robustness_enforce and not suite.passed:
+        ship_gate["robustness"] = robustness_record(suite)
+        if not suite.passed:
             missed = [r.row.name for r in suite.rows if r.verdict == "MISS"]
             print(
                 f"ship: refused: {onnx} misses the robustness tier on {len(missed)} row(s): "

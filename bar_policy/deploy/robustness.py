@@ -8,8 +8,9 @@ mean fingertip and joint errors; reach, the median segment-end distance and the 
 ticks at a torque cap %, the worst episode's chatter (mrad), the verdict (PASS, MISS, or ``report`` for a
 row not judged) and the first metric's ratio to the nominal row's.
 
-``train/ship.py --robustness ROWS`` runs stated rows through ``run_suite`` after the nominal gate and records
-each row's verdict in the published JSON (refusing on a miss only with ``--robustness-enforce``).
+``train/ship.py`` runs the suite's rows (``--robustness ROWS``, default every row) through ``run_suite``
+after the nominal gate, records each row's verdict in the published JSON and refuses a file that misses a
+gated row.
 """
 
 from __future__ import annotations
