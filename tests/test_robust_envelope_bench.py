@@ -92,5 +92,5 @@ def test_plot_draws_the_gates_line_and_the_points(tmp_path, monkeypatch) -> None
     assert lines == [90.0]  # the piano gate's min_success_pct, F1 in % (tasks/piano/gate.py), one panel
     lines.clear()
     env.plot("reach", "x.onnx", pts, out)
-    assert lines == [0.6]  # reach: the robustness target on the median end distance, cm
+    assert lines == [0.6]  # reach: the gate's max_median_end_cm (tasks/reach/gate.py), cm
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

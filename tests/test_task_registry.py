@@ -17,6 +17,7 @@ from blocked_imports import BLOCK_HEAVY
 
 from bar_policy.deploy.tasks import HC_TASKS, TASK_COMMAND_TERMS, get_task, implied_task
 from bar_policy.obs import SHIPPED_LAYOUTS, TERM_CATALOG, ObservationManager
+from bar_policy.obs.robot_layout import with_error_ema
 from bar_policy.task_records import EnvEntry, TaskRecord, resolve
 from bar_policy.tasks.registry import TASK_PACKAGES, TASKS, get_task_record
 from bar_policy.training.config import PRESETS, TrainConfig, preset
@@ -113,7 +114,9 @@ def test_layouts_and_command_terms_come_from_the_record(record):
 
 
 def test_shipped_files_keep_their_layouts():
-    """Every ONNX file in checkpoints/ carries a golden layout, and the code builds the same layout."""
+    """Every ONNX file in checkpoints/ carries a golden layout, or its opt-in next version with the
+    ``joint_error_ema`` term (``obs.robot_layout.with_error_ema``: the robust reach file), and the code
+    builds the same layout."""
     files = sorted(CHECKPOINTS.glob("*.onnx"))
     assert files
     for path in files:
@@ -121,7 +124,10 @@ def test_shipped_files_keep_their_layouts():
         schema = json.loads(props["bar.obs_schema"])
         task, mode = SHIPPED_LAYOUTS[schema["name"]]
         assert json.loads(props["bar.task"]) == task
-        assert json.loads(props["bar.obs_fingerprint"]) == ObservationManager.for_task(task, mode).fingerprint
+        expected = ObservationManager.for_task(task, mode)
+        if "joint_error_ema" in [t["name"] for t in schema["terms"]]:
+            expected = ObservationManager(with_error_ema(expected.schema))
+        assert json.loads(props["bar.obs_fingerprint"]) == expected.fingerprint
 
 
 def test_shared_and_deploy_parts_import_with_jax_and_torch_blocked():

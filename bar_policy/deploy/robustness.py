@@ -21,8 +21,6 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 from bar_policy.quality.gate import Miss, check, thresholds_text
 from bar_policy.robot.perturb_spec import Perturbation
 from bar_policy.robot.perturb_suite import SUITE, SuiteRow
@@ -62,20 +60,16 @@ def task_metrics(result: Any, report: Mapping[str, Any]) -> list[tuple[str, floa
     """The task's accuracy figures of one evaluation, the ratio's first: ``[(column, value), ...]``.
 
     track: mean fingertip error (cm), mean joint error (rad); reach: the median segment-end distance over
-    both hands (cm, from the episodes' ``dist_left`` / ``dist_right``), success %; piano (and any other
-    task): its ``success_pct`` (piano: 100 x F1).
+    both hands (cm, the report's ``median_end_cm``), success %; piano (and any other task): its
+    ``success_pct`` (piano: 100 x F1).
     """
     if "fingertip_error_cm" in report:
         return [
             ("fingertip cm", report.get("fingertip_error_cm")),
             ("joint rad", report.get("joint_error_rad")),
         ]
-    eps = getattr(result, "episodes", None) or []
-    raw = [getattr(e, side, None) for e in eps for side in ("dist_left", "dist_right")]
-    dists = [np.asarray(d, dtype=float) for d in raw if d is not None and len(d)]
-    if dists:
-        median = float(np.median(np.concatenate(dists))) * 100.0
-        return [("median end cm", median), ("success %", report.get("success_pct"))]
+    if "median_end_cm" in report:
+        return [("median end cm", report.get("median_end_cm")), ("success %", report.get("success_pct"))]
     return [("F1 %" if report.get("task") == "piano" else "success %", report.get("success_pct"))]
 
 

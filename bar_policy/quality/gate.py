@@ -4,9 +4,10 @@ A held-out report is a dict with the ``summarise`` figures of ``bar_policy.quali
 ``"quality"``, every episode's record under ``"episodes"`` (``EpisodeQuality.to_dict``; optional: without them
 chatter is judged on the summary's worst episode, as the MJX evaluation reports it), and the task's accuracy
 figures at the top level (``joint_error_rad``, ``fingertip_error_cm`` for tracking, ``success_pct`` for reach
-and the piano, the piano's ``recall_pct``: recall % per named group). ``check`` lists every miss, each naming
-the metric, its value and the threshold; ``train/ship.py`` refuses a file with any, and the trainer ranks
-iterates with ``score`` (by ``excess``: how far beyond the thresholds, summed).
+and the piano, the piano's ``recall_pct``: recall % per named group, reach's ``median_end_cm``).
+``check`` lists every miss, each naming the metric, its value and the threshold; ``train/ship.py`` refuses
+a file with any, and the trainer ranks iterates with ``score`` (by ``excess``: how far beyond the
+thresholds, summed).
 """
 
 from __future__ import annotations
@@ -45,6 +46,9 @@ class GateThresholds:
     """Mean fingertip tracking error, cm (tracking)."""
     min_success_pct: float | None = None
     """Task success, % (reach: target segments reached)."""
+    max_median_end_cm: float | None = None
+    """Median, over every target segment's end and both hands, of the fingertip's distance to its target,
+    cm (reach: the accuracy success hides, as a 3 cm success radius passes a 2 cm policy)."""
     min_recall_pct: float | None = None
     """Recall of every group of ``recall_groups``, %: each at least this (piano: the goal key-ticks of each
     key colour, on the held-out songs and on random songs)."""
@@ -204,6 +208,17 @@ def check(task: str, report: Mapping[str, Any]) -> list[Miss]:
         _bound(
             out, "min_success_pct", False, report.get("success_pct"), g.min_success_pct, False, "success", "%"
         )
+    if g.max_median_end_cm is not None:
+        _bound(
+            out,
+            "max_median_end_cm",
+            False,
+            report.get("median_end_cm"),
+            g.max_median_end_cm,
+            True,
+            "median segment-end distance",
+            "cm",
+        )
     if g.min_recall_pct is not None:
         recalls = report.get("recall_pct") or {}
         for group in g.recall_groups:
@@ -233,6 +248,7 @@ def excess(task: str, report: Mapping[str, Any]) -> float:
         (report.get("joint_error_rad"), g.max_joint_error_rad, True),
         (report.get("fingertip_error_cm"), g.max_fingertip_error_cm, True),
         (report.get("success_pct"), g.min_success_pct, False),
+        (report.get("median_end_cm"), g.max_median_end_cm, True),
         *(
             ((report.get("recall_pct") or {}).get(group), g.min_recall_pct, False)
             for group in g.recall_groups

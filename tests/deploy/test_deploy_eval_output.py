@@ -7,6 +7,7 @@ import logging
 import re
 
 import numpy as np
+import pytest
 from policy_factory import default_metadata
 
 from bar_policy.deploy.cli import main
@@ -105,3 +106,16 @@ def test_the_tally_counts_each_record_once_and_passes_the_rest():
         "ERROR bar_policy.test_tally: bus down [x1]",
     ]
     assert [k["count"] for k in tally.to_dict()] == [64, 1]
+
+
+def test_reach_gate_report_holds_the_median_end_distance_over_both_hands():
+    """Worked by hand: segment ends at 0.1, 0.5 cm (left) and 0.2, 0.9 cm (right) in one episode, 0.3 and
+    0.4 cm in another: six distances, median (0.3 + 0.4) / 2 = 0.35 cm."""
+    from bar_policy.tasks.reach.evaluate import EpisodeResult, EvalConfig, EvalResult
+
+    def ep(left: list[float], right: list[float]) -> EpisodeResult:
+        return EpisodeResult(0, len(left), len(left), left, right, False, "duration reached")
+
+    res = EvalResult(EvalConfig(), [ep([0.001, 0.005], [0.002, 0.009]), ep([0.003], [0.004])], "x.onnx", "f")
+    assert res.gate_report()["median_end_cm"] == pytest.approx(0.35, abs=1e-12)
+    assert EvalResult(EvalConfig(), [ep([], [])], "x.onnx", "f").median_end_cm() is None

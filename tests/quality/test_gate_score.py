@@ -21,9 +21,12 @@ def test_excess_by_hand():
     assert excess("track", _track(completion=98.0, cap=1.0, chatter=7.5, tip=1.5)) == pytest.approx(2.02)
     # A figure not measured counts 1.
     assert excess("track", _track(chatter=math.nan)) == pytest.approx(1.0)
-    # Reach: success 90 % against 95 %: 1 - 90 / 95.
-    reach = {"quality": _track()["quality"], "success_pct": 90.0}
+    # Reach: success 90 % against 95 %: 1 - 90 / 95; a median end distance of 0.9 cm against 0.6: +0.5;
+    # none (the MJX evaluation's sums have no median): +1, the same for every iterate.
+    reach = {"quality": _track()["quality"], "success_pct": 90.0, "median_end_cm": 0.3}
     assert excess("reach", reach) == pytest.approx(1 - 90 / 95)
+    assert excess("reach", {**reach, "median_end_cm": 0.9}) == pytest.approx(1 - 90 / 95 + 0.5)
+    assert excess("reach", {**reach, "median_end_cm": None}) == pytest.approx(1 - 90 / 95 + 1)
 
 
 def test_a_barely_trained_calm_iterate_loses_to_a_precise_one_that_chatters_a_little():

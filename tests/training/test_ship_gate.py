@@ -147,7 +147,7 @@ def test_default_name_comes_from_the_runs_task_and_mode(tmp_path, monkeypatch):
 
 def test_gate_record_of_hand_made_reports():
     quality = {"completion_pct": 100.0, "cap_share_pct": 0.0, "chatter_max_mrad": 0.5}
-    ok = {"task": "reach", "quality": quality, "success_pct": 97.0}
+    ok = {"task": "reach", "quality": quality, "success_pct": 97.0, "median_end_cm": 0.3}
     assert check("reach", ok) == []
     assert ship.gate_record("reach", ok, [])["verdict"] == "pass"
     bad = {**ok, "success_pct": 90.0}
@@ -155,11 +155,20 @@ def test_gate_record_of_hand_made_reports():
     rec = ship.gate_record("reach", bad, misses)
     assert rec["verdict"] == "miss"
     assert rec["misses"] == ["success 90 % < 95 % (min_success_pct)"]
+    # Success hides accuracy (a 3 cm radius): the median end distance is its own threshold.
+    far = {**ok, "median_end_cm": 0.8}
+    assert [m.text for m in check("reach", far)] == [
+        "median segment-end distance 0.8 cm > 0.6 cm (max_median_end_cm)"
+    ]
+    assert [m.text for m in check("reach", {**ok, "median_end_cm": None})] == [
+        "median segment-end distance: not measured (the report lacks it; max_median_end_cm=0.6)"
+    ]
     assert rec["thresholds"] == {
         "min_completion_pct": 100.0,
         "max_cap_share_pct": 0.5,
         "max_chatter_mrad": 5.0,
         "min_success_pct": 95.0,
+        "max_median_end_cm": 0.6,
     }
 
 

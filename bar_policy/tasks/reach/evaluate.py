@@ -135,14 +135,20 @@ class EvalResult(EvalReport):
             "gate_report": self.gate_report(),
         }
 
+    def median_end_cm(self) -> float | None:
+        """Median of every segment end's fingertip distance over both hands, cm (None: no segment)."""
+        dists = [np.asarray(d, float) for e in self.episodes for d in (e.dist_left, e.dist_right) if len(d)]
+        return float(np.median(np.concatenate(dists))) * 100.0 if dists else None
+
     def gate_report(self) -> dict[str, Any]:
-        """Success % of the segments, and the episodes' safety and smoothness (the ship gate's input)."""
+        """The ship gate's input: segment success %, median end distance, the episodes' quality."""
         records = [EpisodeQuality.from_dict(e.quality) for e in self.episodes if e.quality]
         return {
             "task": "reach",
             "quality": summarise(records),
             "episodes": [r.to_dict() for r in records],
             "success_pct": 100.0 * self.success_rate,
+            "median_end_cm": self.median_end_cm(),
         }
 
     def format(self) -> str:
