@@ -99,7 +99,11 @@ def apply_to_spec(spec: mujoco.MjSpec, p: Perturbation) -> None:
     ar = p.values("armature_scale", len(joints))
     for j, f, d, a in zip(joints, fr, dp, ar, strict=True):
         j.frictionloss = j.frictionloss + f
-        j.damping = j.damping + d
+        # MuJoCo 3.17's joint damping is [linear, then the polynomial's higher-order terms]: the key adds to
+        # the linear term only (adding to all three made the force d (v + v|v| + v^3): 14 N*m at 2 rad/s).
+        damping = np.array(j.damping, dtype=np.float64)
+        damping[0] += d
+        j.damping = damping
         j.armature = j.armature * a
     if p.payload_kg > 0:
         m = p.payload_kg

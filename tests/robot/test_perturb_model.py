@@ -80,8 +80,16 @@ def test_friction_damping_armature_of_the_arm_joints():
     # lite_dummy.json: frictionloss and armature per joint; no passive damping in the model
     np.testing.assert_allclose(m.dof_frictionloss[dof], ARMS.frictionloss + 1.0, atol=1e-15)
     np.testing.assert_allclose(m.dof_damping[dof], 0.5, atol=0)
+    np.testing.assert_array_equal(m.dof_dampingpoly[dof], NOMINAL.dof_dampingpoly[dof])  # linear term only
     np.testing.assert_allclose(m.dof_armature[dof], 2.0 * ARMS.armature, atol=1e-15)
     assert np.all(NOMINAL.dof_damping == 0.0)
+    # The passive force, by hand: -0.5 N*m*s/rad x 2 rad/s = -1 N*m on the joint moving alone (0.5 x 2 +
+    # 0.5 x 4 + 0.5 x 8 = 7 N*m if the damping polynomial's higher-order terms were set too).
+    d = mujoco.MjData(m)
+    d.qpos[:] = ARMS.pose("piano_ready")
+    d.qvel[dof[4]] = 2.0
+    mujoco.mj_forward(m, d)
+    assert d.qfrc_damper[dof[4]] == pytest.approx(-1.0, abs=1e-12)
     assert m.body_mass.sum() == pytest.approx(NOMINAL.body_mass.sum(), abs=1e-12)
 
 
