@@ -47,7 +47,14 @@ from bar_policy.quality import EpisodeQuality, QualityMeter
 from bar_policy.quality import summarise as summarise_quality
 from bar_policy.robot.action_filter import filter_alpha, lowpass_step
 from bar_policy.robot.mit import MitCommand, mit_torque
-from bar_policy.tasks.track.evaluate import METRICS, ClipResult, evaluate_track, groups
+from bar_policy.tasks.track.evaluate import (
+    METRICS,
+    ClipResult,
+    clip_columns,
+    evaluate_track,
+    group_columns,
+    groups,
+)
 
 Column = Callable[[OnnxPolicy, Sequence[Clip], argparse.Namespace], list[ClipResult]]
 """A target: runs every clip with the policy and returns one result per clip, in order."""
@@ -346,31 +353,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"\n[{name}] {wall:.0f} s")
         head = ("clip", "steps", "joint rad", "body cm", "tip cm", "success %", "lost", "fault")
         print("{:<26}{:>7}{:>11}{:>9}{:>8}{:>11}{:>6}{:>7}".format(*head))
-        rows = [
-            (
-                r.clip,
-                r.steps,
-                r.mean("joint_error"),
-                100 * r.mean("body_pos_error"),
-                100 * r.mean("fingertip_error"),
-                100 * r.mean("success"),
-                int(r.sums["lost"]),
-                int(r.faulted),
-            )
-            for r in results
-        ] + [
-            (
-                "= " + g["group"],
-                g["steps"],
-                g["joint_error_rad"],
-                g["body_pos_error_cm"],
-                g["fingertip_error_cm"],
-                g["success_pct"],
-                g["lost_steps"],
-                g["faults"],
-            )
-            for g in grp
-        ]
+        rows = [(*clip_columns(r), int(r.faulted)) for r in results] + [group_columns(g) for g in grp]
         for c, st, j, b, f, su, lo, fa in rows:
             print(f"{c:<26}{st:>7}{j:>11.4f}{b:>9.2f}{f:>8.2f}{su:>11.1f}{lo:>6}{fa:>7}")
         for r in results:

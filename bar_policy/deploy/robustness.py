@@ -56,8 +56,8 @@ def row_verdict(task: str, report: Mapping[str, Any], gating: str) -> tuple[str,
     return ("PASS" if not misses else "MISS"), misses
 
 
-def task_metrics(result: Any, report: Mapping[str, Any]) -> list[tuple[str, float | None]]:
-    """The task's accuracy figures of one evaluation, the ratio's first: ``[(column, value), ...]``.
+def task_metrics(report: Mapping[str, Any]) -> list[tuple[str, float | None]]:
+    """The accuracy figures of one evaluation's gate report, the ratio's first: ``[(column, value), ...]``.
 
     track: mean fingertip error (cm), mean joint error (rad); reach: the median segment-end distance over
     both hands (cm, the report's ``median_end_cm``), success %; piano (and any other task): its
@@ -206,7 +206,7 @@ def run_suite(
         result = task.evaluate(policy, args, make_runner(row.perturbation))
         report = result.gate_report()
         verdict, misses = row_verdict(task.name, report, row.gating)
-        metrics = task_metrics(result, report)
+        metrics = task_metrics(report)
         name, value = metrics[0]
         r = RowResult(row, report, verdict, misses, metrics)
         if not row.spec:

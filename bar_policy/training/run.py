@@ -106,29 +106,18 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
     first_step = resume.env_steps if resume is not None else 0
     evaluations = Evaluations(first_step, getattr(env, "task_name", None), cfg.eval.success_threshold)
     # The trainer yields what it reports as it trains; the logger reports each record as it comes.
+    common = {
+        "evaluations": evaluations,
+        "wrap_fn": envs.wrap_for_brax_training,
+        "randomizer": randomizer,
+        "resume": resume,
+        "start": start,
+        "eval_env": eval_env,
+    }
     if cfg.backend == "brax":
-        trainer = train_brax(
-            env,
-            cfg,
-            evaluations=evaluations,
-            wrap_fn=envs.wrap_for_brax_training,
-            randomizer=randomizer,
-            resume=resume,
-            start=start,
-            eval_env=eval_env,
-        )
-    else:
-        trainer = run_rsl_rl(
-            env,
-            cfg,
-            evaluations=evaluations,
-            wrap_fn=envs.wrap_for_brax_training,
-            randomizer=randomizer,
-            resume=resume,
-            start=start,
-            eval_env=eval_env,
-            scalars_dir=logger.tb_dir if logger.writes_scalars else None,
-        )
+        trainer = train_brax(env, cfg, **common)
+    else:  # rsl-rl's runner logger writes the scalars into the run's tb/ itself
+        trainer = run_rsl_rl(env, cfg, **common, scalars_dir=logger.tb_dir if logger.writes_scalars else None)
     result = logger.follow(trainer)
     # The final evaluation, the best iterate, the export and the summary, alike for both backends.
     finish = finish_run(

@@ -27,7 +27,7 @@ with the MJX column on nominal physics.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -56,8 +56,10 @@ __all__ = [
     "METRICS",
     "ClipResult",
     "TrackEvalResult",
+    "clip_columns",
     "eval_clips",
     "evaluate_track",
+    "group_columns",
     "step_errors",
     "summarise",
 ]
@@ -122,6 +124,36 @@ def summarise(results: Sequence[ClipResult], label: str) -> dict[str, Any]:
     }
 
 
+def clip_columns(r: ClipResult) -> tuple[Any, ...]:
+    """A clip's row of the clip table up to its fault column.
+
+    Clip, steps, joint rad, body cm, tip cm, success %, lost steps.
+    """
+    return (
+        r.clip,
+        r.steps,
+        r.mean("joint_error"),
+        100 * r.mean("body_pos_error"),
+        100 * r.mean("fingertip_error"),
+        100 * r.mean("success"),
+        int(r.sums["lost"]),
+    )
+
+
+def group_columns(g: Mapping[str, Any]) -> tuple[Any, ...]:
+    """A group's row of the clip table (one of ``groups``), as ``clip_columns`` then its faults."""
+    return (
+        "= " + g["group"],
+        g["steps"],
+        g["joint_error_rad"],
+        g["body_pos_error_cm"],
+        g["fingertip_error_cm"],
+        g["success_pct"],
+        g["lost_steps"],
+        g["faults"],
+    )
+
+
 def groups(results: Sequence[ClipResult]) -> list[dict[str, Any]]:
     """``summarise`` over all clips, then per group when there are several.
 
@@ -179,32 +211,12 @@ class TrackEvalResult(EvalReport):
             cap = f"{100 * q['cap_ticks'] / max(q['ticks'], 1):>8.2f}" if q else f"{'':>8}"
             chatter = q.get("chatter_mrad") if q else None
             lines.append(
-                row.format(
-                    r.clip,
-                    r.steps,
-                    r.mean("joint_error"),
-                    100 * r.mean("body_pos_error"),
-                    100 * r.mean("fingertip_error"),
-                    100 * r.mean("success"),
-                    int(r.sums["lost"]),
-                    "yes" if r.faulted else "",
-                )
+                row.format(*clip_columns(r), "yes" if r.faulted else "")
                 + cap
                 + (f"{'':>9}" if chatter is None else f"{chatter:>9.2f}")
             )
         for g in groups(self.clips):
-            lines.append(
-                row.format(
-                    "= " + g["group"],
-                    g["steps"],
-                    g["joint_error_rad"],
-                    g["body_pos_error_cm"],
-                    g["fingertip_error_cm"],
-                    g["success_pct"],
-                    g["lost_steps"],
-                    g["faults"],
-                )
-            )
+            lines.append(row.format(*group_columns(g)))
         s = self.summary
         if s["faults"]:
             lines.append(
