@@ -80,10 +80,11 @@ from bar_policy.envs.randomize import episode_draws, latency_buffers, payload_sc
 from bar_policy.envs.robot_config import RobotEnvConfig, nominal
 from bar_policy.envs.task import TaskHooks, Transition
 from bar_policy.envs.term_table import TerminationTerm, check_names, reward_values, terminated, weighted_sum
-from bar_policy.envs.terminations import non_finite
+from bar_policy.envs.terminations import cap_fault, non_finite
 from bar_policy.obs import ObservationManager
 from bar_policy.obs.action_prior import Prior
 from bar_policy.obs.robot_layout import with_error_ema
+from bar_policy.quality.metrics import at_cap, cap_dwell_step
 from bar_policy.robot.action_filter import filter_alpha, lowpass_step, pose_action
 from bar_policy.robot.actuators import armature_gains
 from bar_policy.robot.constants import load_robot
@@ -94,7 +95,7 @@ from bar_policy.robot.params import HANDS, RobotParams, load_params, motor_stren
 from bar_policy.robot.params import scene_edit as params_scene_edit
 from bar_policy.robot.scene import SceneEdit, load_model
 
-__all__ = ["NEAR_CAP_FRACTION", "NON_FINITE", "LiteRobotEnv"]
+__all__ = ["CAP_FAULT", "NEAR_CAP_FRACTION", "NON_FINITE", "LiteRobotEnv"]
 
 NEAR_CAP_FRACTION = 0.8
 """Share of a joint's torque cap above which its unclipped MIT demand counts towards ``Transition.near_cap``
@@ -103,6 +104,9 @@ its cap, up to 1 per joint (1.8 caps), so a random early policy's cost stays bou
 
 NON_FINITE = TerminationTerm("non_finite", non_finite, ("finite",))
 """The robot's termination, first of every task's: the physics state (the whole scene's) is not finite."""
+
+CAP_FAULT = TerminationTerm("cap_fault", cap_fault, ("cap_dwell",))
+"""The robot's second termination (``terminate_on_cap_fault``): the deploy supervisor's saturation fault."""
 
 
 class LiteRobotEnv(TaskHooks, MjxEnv):
@@ -415,6 +419,8 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
             optional["obs_buf"] = jnp.broadcast_to(self._true_state(data), (obs_hi + 1, 2, n))
         if cfg.joint_error_ema:
             optional["error_ema"] = jnp.zeros(n)  # z = 0 when a policy starts (robot.error_ema)
+        if cfg.terminate_on_cap_fault:
+            optional["cap_dwell"] = jnp.zeros(n)  # unbroken time at the cap, s per joint
         info = {
             "rng": ks[6],
             "step": jnp.zeros((), jnp.int32),
@@ -441,6 +447,10 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         action, buf, cmd = self._command(info, action)
         offset = info["encoder_offset"]
         strength = info.get("strength")
+        dwell = None
+        if "cap_dwell" in info:  # the supervisor's test: this command's demand at the step's start state
+            start_demand = mit_torque(cmd, self.robot_q(state.data) + offset, self.robot_dq(state.data))
+            dwell = cap_dwell_step(info["cap_dwell"], at_cap(start_demand, self._cap), cfg.ctrl_dt)
         tau_cap = self._act.tau_cap if strength is None else strength * self._act.tau_cap
         inv_cap = 1.0 / self._cap
         inv_cap_sq = 1.0 / np.square(self._cap)
@@ -474,7 +484,10 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         signals.update(task.signals)
         table = self.reward_terms()
         reward, scaled = weighted_sum(table, reward_values(table, signals), finite)
-        end, _ = terminated((NON_FINITE, *self.termination_terms()), signals)
+        robot_ends = (NON_FINITE,) if dwell is None else (NON_FINITE, CAP_FAULT)
+        if dwell is not None:
+            signals["cap_dwell"] = dwell
+        end, _ = terminated((*robot_ends, *self.termination_terms()), signals)
         done = end.astype(jnp.float32)
         new_info = {
             **info,
@@ -485,6 +498,8 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
             "last_act": action,
             "act_buf": buf,
         }
+        if dwell is not None:
+            new_info["cap_dwell"] = dwell
         if "obs_buf" in info:
             newest = self._true_state(data)[None]
             new_info["obs_buf"] = jnp.concatenate([newest, info["obs_buf"][:-1]], axis=0)
