@@ -237,14 +237,26 @@ def test_robust_presets_turn_the_randomisation_on(name, env_name):
 
     cfg = preset(name)
     base = preset(name.replace("-robust", "") if name != "reach-robust" else "gpu")
-    # The base preset's own overrides first, then the robust ones, then reach's own three; nothing else.
-    extra = (
-        ("reward.scales.torque_near_cap=-1.0", "reward.scales.wrist_posture=-0.5", "joint_error_ema=true")
-        if name == "reach-robust"
-        else ()
-    )
+    # The base preset's own overrides first, then the robust ones, then the task's own; nothing else.
+    extra = {
+        "reach-robust": (
+            "reward.scales.torque_near_cap=-1.0",
+            "reward.scales.wrist_posture=-0.5",
+            "joint_error_ema=true",
+        ),
+        "track-robust": (
+            "joint_error_ema=true",
+            "randomization.factor_share=0.5",
+            "reward.scales.torque_near_cap=-1.0",
+            "terminate_on_cap_fault=true",
+        ),
+    }.get(name, ())
     assert cfg.env_overrides == (*base.env_overrides, *ROBUST_ENV_OVERRIDES, *extra)
-    assert replace(cfg, preset=base.preset, env_overrides=base.env_overrides) == base
+    # The tracker's robust stage resumes a nominal run at a third of its learning rate (3e-4 -> 1e-4).
+    rate = {"track-robust": 1e-4}.get(name, base.ppo.learning_rate)
+    assert cfg.ppo.learning_rate == rate
+    same = replace(cfg, preset=base.preset, env_overrides=base.env_overrides, ppo=base.ppo)
+    assert same == base and replace(cfg.ppo, learning_rate=base.ppo.learning_rate) == base.ppo
     env_cfg = envs.apply_overrides(envs.default_config(env_name), cfg.env_overrides)
     rc, act = env_cfg.randomization, env_cfg.actuator
     assert (rc.link_mass_scale, rc.frictionloss, rc.damping) == ((0.8, 1.2), (0.05, 1.35), (0.0, 1.0))
