@@ -448,9 +448,9 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         offset = info["encoder_offset"]
         strength = info.get("strength")
         dwell = None
-        if "cap_dwell" in info:  # the supervisor's test: this command's demand at the step's start state
-            start_demand = mit_torque(cmd, self.robot_q(state.data) + offset, self.robot_dq(state.data))
-            dwell = cap_dwell_step(info["cap_dwell"], at_cap(start_demand, self._cap), cfg.ctrl_dt)
+        if "cap_dwell" in info:
+            demand = self._supervised_demand(state.data, info, action)
+            dwell = cap_dwell_step(info["cap_dwell"], at_cap(demand, self._cap), cfg.ctrl_dt)
         tau_cap = self._act.tau_cap if strength is None else strength * self._act.tau_cap
         inv_cap = 1.0 / self._cap
         inv_cap_sq = 1.0 / np.square(self._cap)
@@ -512,6 +512,24 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         metrics = {f"reward/{k}": v for k, v in scaled.items()}
         metrics.update(task.metrics)
         return State(data=data, obs=obs, reward=reward, done=done, metrics=metrics, info=new_info)
+
+    def _supervised_demand(self, data: mjx.Data, info: dict, sent: jax.Array) -> jax.Array:
+        """The torque the deploy supervisor checks against the cap this step, N*m, shape (n,).
+
+        As ``deploy.safety.Supervisor.check_torque`` computes it: the unclipped MIT torque of the command
+        the runtime sends (``sent``, the filtered action before any action latency, at the file's nominal
+        Kp and Kd) at the state it has just read (the true one of ``obs_latency`` steps ago when that
+        latency is on, plus the encoder offset; without the observation noise). Not the command the motor
+        applies: with latency that one is older and nearer the state, and a policy that leads a delayed
+        arm trips the supervisor while its motors sit well inside their caps.
+        """
+        if "obs_buf" in info:
+            q, dq = info["obs_buf"][info["obs_latency"]]
+        else:
+            q, dq = self.robot_q(data), self.robot_dq(data)
+        zero = jnp.zeros_like(q)
+        cmd = MitCommand(q=self.q_command(sent), dq=zero, kp=self._kp, kd=self._kd, tau_ff=zero)
+        return mit_torque(cmd, q + info["encoder_offset"], dq)
 
     def _true_state(self, data: mjx.Data) -> jax.Array:
         """The robot's true ``(q, dq)`` stacked, shape (2, n) (rad, rad/s): an ``obs_buf`` entry."""

@@ -223,12 +223,13 @@ class RobotEnvConfig:
     of the joint command minus the measured position, tau 0.5 s) to the task's layout, as its next version
     (``obs.robot_layout.with_error_ema``: ``lite_reach_arms`` v2). False (default): the shipped layout."""
     terminate_on_cap_fault: bool = False
-    """End an episode on the deploy supervisor's saturation fault: a joint whose unclipped MIT demand, at
-    the step's start state, sits at its torque cap for more than ``quality.metrics.CAP_DWELL_S`` (0.5 s)
-    unbroken (``info["cap_dwell"]``, s per joint; ``envs.terminations.cap_fault``). On the robot that fault
-    ends the run in damping; without the termination a training episode rides the cap and goes on (the
-    tracker's fast wrist-yaw clips under two ticks of action delay, docs/robustness.md). The MJX
-    evaluation counts the same fault either way. False (default): no such termination."""
+    """End an episode on the deploy supervisor's saturation fault: a joint whose unclipped MIT demand, as
+    the supervisor computes it (the command the runtime sends, before any action latency, at the state it
+    has read: ``LiteRobotEnv._supervised_demand``), sits at its torque cap for more than
+    ``quality.metrics.CAP_DWELL_S`` (0.5 s) unbroken (``info["cap_dwell"]``, s per joint;
+    ``envs.terminations.cap_fault``). On the robot that fault ends the run in damping; without the
+    termination a training episode rides on (the tracker's fast wrist-yaw clips under two ticks of action
+    delay, docs/robustness.md). False (default): no such termination."""
     robot_params: str | None = None
     """Path of a robot-parameters file (``bar_policy.robot.params``, ``bar-bus identify --out``;
     ``bar-train --robot-params FILE``): the model is the identified robot (the file's friction, damping,

@@ -4,10 +4,13 @@ The nominal reach env with the option on; the left wrist yaw is held still by a 
 1e4 N*m*s/rad put into the model (so a command away from it asks more than its 4 N*m cap for as long as
 the command stays away), and the policy's action on that joint steps to +1 for 10 steps, to 0.05 for 20
 (about 2 N*m once the 3 Hz action filter has settled: the run at the cap breaks and the dwell restarts),
-then +1 until the episode ends. The time at the cap is worked out here from the
-states the env reached: the MIT demand ``Kp (q_cmd - q) - Kd dq`` of each step's command at the state the
-step starts from (the supervisor's test, ``quality.metrics.at_cap``), summed over unbroken runs of 20 ms
-steps; the episode must end on the 26th step of an unbroken run (0.52 s > 0.5 s) and not before.
+then +1 until the episode ends. Two steps of action latency: the motor applies the command of two steps
+ago, while the deploy supervisor checks the one the runtime sends now, and so must the termination. The
+time at the cap is worked out here from the states the env reached: the MIT demand ``Kp (q_cmd - q) - Kd
+dq`` of each step's sent command (the filtered action, no latency) at the state the step starts from (the
+supervisor's test, ``quality.metrics.at_cap``), summed over unbroken runs of 20 ms steps; the episode must
+end on the 26th step of an unbroken run (0.52 s > 0.5 s) and not before. The first step already counts (the
+sent command asks 12.6 N*m; the applied one, the reset's hold, nothing).
 """
 
 from __future__ import annotations
@@ -23,7 +26,8 @@ CAP_DWELL_TICKS = 26  # the first step whose unbroken time at the cap, 26 x 0.02
 
 def test_the_episode_ends_on_the_26th_step_at_the_cap_and_a_break_restarts_the_count() -> None:
     config = envs.apply_overrides(
-        envs.nominal_config(envs.default_config("LiteReach")), ["terminate_on_cap_fault=true"]
+        envs.nominal_config(envs.default_config("LiteReach")),
+        ["terminate_on_cap_fault=true", "actuator.latency_steps=(2, 2)"],
     )
     env = envs.load("LiteReach", config=config)
     j = env.robot.joint_names.index("left_wrist_yaw")
@@ -42,11 +46,11 @@ def test_the_episode_ends_on_the_26th_step_at_the_cap_and_a_break_restarts_the_c
     for k, a_j in enumerate(pattern):
         q0 = float(env.robot_q(s.data)[j])
         dq0 = float(env.robot_dq(s.data)[j])
-        kp, kd = float(s.info["kp"][j]), float(s.info["kd"][j])
+        kp, kd = float(env.robot.kp[j]), float(env.robot.kd[j])  # the file's gains, as the runtime sends
         action = jnp.zeros(env.action_size).at[j].set(a_j)
         s = step(model, s, action)
-        applied = float(s.info["last_act"][j])  # after the env's action filter; no latency in nominal
-        q_cmd = float(np.clip(env.default_pose[j] + env.action_scale[j] * applied, lower, upper))
+        sent = float(s.info["last_act"][j])  # after the env's action filter, before the latency
+        q_cmd = float(np.clip(env.default_pose[j] + env.action_scale[j] * sent, lower, upper))
         demand = kp * (q_cmd - q0) - kd * dq0  # dq_cmd = 0, tau_ff = 0, no encoder offset (nominal)
         margins.append(abs(abs(demand) - cap) / cap)
         dwell_hand = dwell_hand + 0.02 if abs(demand) >= cap else 0.0
@@ -61,6 +65,7 @@ def test_the_episode_ends_on_the_26th_step_at_the_cap_and_a_break_restarts_the_c
     # The boolean at-cap test is exact only away from the cap: the command's 16-bit quantisation moves the
     # demand by at most Kp * 4e-4 rad = 0.02 N*m (0.5 % of 4 N*m); every step here is further than 1 %.
     assert min(margins) > 0.01, f"a step's demand within 1 % of the cap: {min(margins):.4f}"
+    assert dwells[0] == 0.02, "the sent command's first step at the cap must count"
     assert done_at is not None, "the episode never ended on the cap"
     broke = [k for k in range(1, len(dwells)) if dwells[k] == 0.0 and dwells[k - 1] > 0.0]
     assert broke and broke[0] < 30, "the 0.05 phase must bring the demand under the cap"
