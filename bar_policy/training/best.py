@@ -120,14 +120,21 @@ class BestKeeper:
         self.first_step = int(first_step)
         self.task = task
         self.best: BestIterate | None = None
+        self._best_score: tuple[float, ...] = ()
+        """``score`` of ``best``'s metrics, taken when it was kept (the ranking ``is_better`` applies)."""
 
     def offer(self, step: int, metrics: Mapping[str, float], snapshot: Callable[[], Any]) -> bool:
-        """Keep ``(step, metrics, snapshot())`` if it is a candidate and ranks above the kept one."""
+        """Keep ``(step, metrics, snapshot())`` if it is a candidate and ranks above the kept one.
+
+        The kept evaluation's score is taken once, when it is kept; each offer scores only the new one.
+        """
         if step <= self.first_step:
             return False
-        if not is_better(metrics, None if self.best is None else self.best.metrics, self.task):
+        new = score(metrics, self.task)
+        if self.best is not None and not new > self._best_score:
             return False
         self.best = BestIterate(step=int(step), metrics=dict(metrics), params=snapshot())
+        self._best_score = new
         return True
 
 
