@@ -32,8 +32,9 @@ from bar_policy.obs.action_prior import Prior, check_fits
 from bar_policy.training import eval_quality
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.parallel import AXIS
+from bar_policy.training.prior import action_prior
 from bar_policy.training.rollout_sums import step_sums, sum_layout
-from bar_policy.training.rsl_rl.prior import commanded_action, rsl_rl_prior
+from bar_policy.training.rsl_rl.prior import commanded_action
 from bar_policy.training.startup.session import CompiledPrograms, Program, StartUp, compile_programs
 
 __all__ = ["EnvPrograms", "RslRlPrograms", "prepare_rsl_rl"]
@@ -238,7 +239,7 @@ class RslRlPrograms:
     eval: EnvPrograms
     """The evaluation env's (``eval reset``, ``eval step``, ``eval quality``)."""
     prior: Prior | None
-    """The action prior both envs add (``rsl_rl.prior``), or None."""
+    """The action prior both envs add (``training.prior.action_prior``; ``rsl_rl.prior``), or None."""
 
 
 def prepare_rsl_rl(
@@ -260,14 +261,14 @@ def prepare_rsl_rl(
 
     Raises:
         ValueError: ``ppo.actor_warmup_iterations`` is set (a brax-backend option), or a prior the env does
-            not serve (``rsl_rl.prior``).
+            not serve (``training.prior.action_prior``) or that does not fit it (``EnvPrograms``).
     """
     if cfg.ppo.actor_warmup_iterations:
         raise ValueError(
             f"ppo.actor_warmup_iterations={cfg.ppo.actor_warmup_iterations} is a brax-backend option; the "
             "rsl-rl backend's PPO has no critic warm-up (valid here: 0; or --backend brax)"
         )
-    prior = rsl_rl_prior(env, cfg)  # refuses a prior the env does not serve, before any set-up
+    prior = action_prior(env, cfg.network, cfg.env_name)  # refuses a prior the env does not serve
     if wrap_fn is None:
         from bar_policy.envs import wrap_for_brax_training as wrap_fn
     kw = {"wrap_fn": wrap_fn, "randomizer": randomizer, "prior": prior}
