@@ -40,7 +40,8 @@ __all__ = [
 def slot_keys(key: jax.Array, total: int, local: int) -> jax.Array:
     """This device's keys among ``split(key, total)``: slot ``i`` gets key ``i`` on any device count.
 
-    Per-device code (inside ``DataParallel.map``); ``local = total / n_devices``. Shape ``(local, 2)``.
+    Per-device code (inside ``DataParallel.sharded_jit``); ``local = total / n_devices``.
+    Shape ``(local, 2)``.
     """
     keys = jax.random.split(key, total)
     return jax.lax.dynamic_slice_in_dim(keys, jax.lax.axis_index(AXIS) * local, local)
@@ -194,11 +195,13 @@ def make_programs(
 
     rep, shard = P(), P(AXIS)
     return Programs(
-        init=dp.map(learner.init, (rep,), rep),
-        reset=dp.map(reset, (rep, rep), shard),
-        rollout=dp.map(rollout, (rep, shard, rep, rep, rep), (shard, shard, rep), donate_argnums=(1,)),
-        update=dp.map(update, (rep, shard, rep, rep), (rep, rep), donate_argnums=(0,)),
-        evaluate=dp.map(evaluate, (rep, rep, rep, rep), rep),
+        init=dp.sharded_jit(learner.init, (rep,), rep),
+        reset=dp.sharded_jit(reset, (rep, rep), shard),
+        rollout=dp.sharded_jit(
+            rollout, (rep, shard, rep, rep, rep), (shard, shard, rep), donate_argnums=(1,)
+        ),
+        update=dp.sharded_jit(update, (rep, shard, rep, rep), (rep, rep), donate_argnums=(0,)),
+        evaluate=dp.sharded_jit(evaluate, (rep, rep, rep, rep), rep),
     )
 
 
