@@ -2,7 +2,7 @@
 
 ``set_up`` makes a run's mesh, learner and programs (``SetUp``): ``make_programs`` builds the ``init`` /
 ``reset`` / ``rollout`` / ``update`` / ``evaluate`` programs (``training.brax.ppo`` documents each) and
-``to_compile`` lists them with their abstract arguments, in the order ``startup.session.compile_programs``
+``to_compile`` lists them with their abstract arguments, in the order ``startup.compiled.compile_programs``
 submits them; ``slot_keys`` / ``slot_env`` give every env slot its own key and randomised model whatever
 the device count. ``training.brax.state`` runs them.
 """
@@ -24,7 +24,7 @@ from bar_policy.training.brax.learner import Learner, TrainingState, make_learne
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.parallel import AXIS, DataParallel, make_data_parallel
 from bar_policy.training.prior import action_prior
-from bar_policy.training.startup.session import Program
+from bar_policy.training.startup.compiled import Program
 
 __all__ = [
     "Programs",

@@ -4,7 +4,7 @@
 episode truncation, auto-reset, domain randomisation, exactly as for the brax backend), the pure jitted
 ``reset``, ``step`` and (for an evaluation env) ``quality`` functions with their logging-stats pytrees, and
 the stream of reset keys. ``to_compile`` lists them as programs of their own (``<name> reset``, ``<name>
-step``, ``<name> quality``) for the start-up's one call (``startup.session.compile_programs``): the step is
+step``, ``<name> quality``) for the start-up's one call (``startup.compiled.compile_programs``): the step is
 traced on the reset's abstract output (``out_info``), so nothing runs before the first state is needed, and
 after ``use`` the reset runs from its compiled executable. The step takes the reward weights as its last
 argument (``envs.reward_weights``): a run that changes only a weight loads it from the executable cache.
@@ -35,7 +35,8 @@ from bar_policy.training.parallel import AXIS
 from bar_policy.training.prior import action_prior
 from bar_policy.training.rollout_sums import step_sums, sum_layout
 from bar_policy.training.rsl_rl.prior import commanded_action
-from bar_policy.training.startup.session import CompiledPrograms, Program, StartUp, compile_programs
+from bar_policy.training.startup.compiled import CompiledPrograms, Program, compile_programs
+from bar_policy.training.startup.session import StartUp
 
 __all__ = ["EnvPrograms", "RslRlPrograms", "prepare_rsl_rl"]
 
@@ -120,7 +121,7 @@ class EnvPrograms:
         return jax.device_put(jax.random.split(k, self.num_envs), jax.local_devices()[0])
 
     def to_compile(self) -> list[Program]:
-        """The reset, step and (with ``quality``) quality programs, for ``startup.session.compile_programs``.
+        """The reset, step and (with ``quality``) quality programs, for ``startup.compiled.compile_programs``.
 
         The step and the quality reduction are traced on the reset's abstract output, so nothing runs
         before the first state is needed; the step's stored executable is loaded on a worker.
