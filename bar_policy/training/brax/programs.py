@@ -18,6 +18,7 @@ import numpy as np
 from jax.sharding import PartitionSpec as P
 
 from bar_policy.envs.reward_weights import weights, with_weights
+from bar_policy.envs.wrappers import BatchedEnv
 from bar_policy.obs.action_prior import Prior
 from bar_policy.training.brax import evaluation
 from bar_policy.training.brax.learner import Learner, TrainingState, make_learner, strip_weak_type
@@ -49,11 +50,11 @@ def slot_keys(key: jax.Array, total: int, local: int) -> jax.Array:
 
 def slot_env(
     env: Any,
-    wrap_fn: Callable[..., Any],
+    wrap_fn: Callable[..., BatchedEnv],
     randomizer: Callable[..., Any] | None,
     model_keys: jax.Array,
     **kw: Any,
-) -> Any:
+) -> BatchedEnv:
     """The batched env of this device's slots, each on the model its key draws (per-device code).
 
     The randomised model is built inside the program from the slots' keys (a traced value, sharded with
@@ -104,7 +105,7 @@ class SetUp:
 def set_up(
     env: Any,
     cfg: TrainConfig,
-    wrap_fn: Callable[..., Any],
+    wrap_fn: Callable[..., BatchedEnv],
     randomizer: Callable[..., Any] | None,
     eval_env: Any | None = None,
     eval_randomizer: Callable[..., Any] | None = None,
@@ -135,7 +136,7 @@ def make_programs(
     cfg: TrainConfig,
     learner: Learner,
     dp: DataParallel,
-    wrap_fn: Callable[..., Any],
+    wrap_fn: Callable[..., BatchedEnv],
     randomizer: Callable[..., Any] | None,
     eval_env: Any | None = None,
     eval_randomizer: Callable[..., Any] | None = None,
@@ -155,7 +156,7 @@ def make_programs(
     unrolls = ppo.batch_size * ppo.num_minibatches // ppo.num_envs
     episode_length = int(env.episode_length)
 
-    def batch(model_keys: jax.Array, weights: dict[str, jax.Array] | None = None, **kw: Any) -> Any:
+    def batch(model_keys: jax.Array, weights: dict[str, jax.Array] | None = None, **kw: Any) -> BatchedEnv:
         e = env if weights is None else with_weights(env, weights)
         return slot_env(e, wrap_fn, randomizer, model_keys, **kw)
 

@@ -28,6 +28,7 @@ import jax.numpy as jnp
 
 from bar_policy.envs.base import eval_ratios
 from bar_policy.envs.reward_weights import weights, with_weights
+from bar_policy.envs.wrappers import BatchedEnv
 from bar_policy.obs.action_prior import Prior, check_fits
 from bar_policy.training import eval_quality
 from bar_policy.training.config import TrainConfig
@@ -63,7 +64,7 @@ class EnvPrograms:
         env: Any,
         num_envs: int,
         *,
-        wrap_fn: Callable[..., Any],
+        wrap_fn: Callable[..., BatchedEnv],
         randomizer: Callable[..., Any] | None = None,
         seed: int = 0,
         quality: bool = False,
@@ -89,7 +90,7 @@ class EnvPrograms:
         rfn = None
         if randomizer is not None:
             rfn = functools.partial(randomizer, rng=jax.random.split(k_rand, self.num_envs))
-        self._env = wrap_fn(
+        self._env: BatchedEnv = wrap_fn(
             env, episode_length=self.max_episode_length, action_repeat=1, randomization_fn=rfn
         )
         self.weights = jax.device_put(weights(env), jax.local_devices()[0])
@@ -247,7 +248,7 @@ def prepare_rsl_rl(
     env: Any,
     cfg: TrainConfig,
     *,
-    wrap_fn: Callable[..., Any] | None = None,
+    wrap_fn: Callable[..., BatchedEnv] | None = None,
     randomizer: Callable[..., Any] | None,
     eval_env: Any | None = None,
     start: StartUp | None = None,
