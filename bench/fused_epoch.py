@@ -40,4 +40,4 @@ def fused_epoch(
         return strip_weak_type(ts), (env_state, model_keys), metrics, stats
 
     rep, shard = P(), P(AXIS)
-    return dp.map(epoch, (rep, shard, rep), (rep, shard, rep, rep), donate_argnums=(0, 1))
+    return dp.sharded_jit(epoch, (rep, shard, rep), (rep, shard, rep, rep), donate_argnums=(0, 1))

@@ -164,10 +164,10 @@ def main() -> int:
         return learner.rollout(ts, envs_carry[0], key, batch, unrolls)[1]
 
     rep, shard = P(), P(AXIS)
-    f_env = dp.map(functools.partial(env_only, scale=0.0), (shard, rep), shard)
-    f_env_random = dp.map(functools.partial(env_only, scale=1.0), (shard, rep), shard)
-    f_roll = dp.map(rollout, (rep, shard, rep), shard)
-    f_update = dp.map(lambda ts, data, key: learner.update(ts, data, key)[0], (rep, shard, rep), rep)
+    f_env = dp.sharded_jit(functools.partial(env_only, scale=0.0), (shard, rep), shard)
+    f_env_random = dp.sharded_jit(functools.partial(env_only, scale=1.0), (shard, rep), shard)
+    f_roll = dp.sharded_jit(rollout, (rep, shard, rep), shard)
+    f_update = dp.sharded_jit(lambda ts, data, key: learner.update(ts, data, key)[0], (rep, shard, rep), rep)
 
     timer = StartupTimer()
     compiler = Compiler(timer)

@@ -121,7 +121,7 @@ def main() -> int:
         ts = ts.replace(optimizer_state=dp.replicate(jax.device_get(learner.optimizer.init(ts.params))))
 
     def program(lr: object) -> object:
-        return dp.map(lambda t, d, k: lr.update(t, d, k)[0], (P(), P(AXIS), P()), P())
+        return dp.sharded_jit(lambda t, d, k: lr.update(t, d, k)[0], (P(), P(AXIS), P()), P())
 
     t0 = time.perf_counter()
     with jax.default_matmul_precision(args.precision or jax.config.jax_default_matmul_precision):

@@ -4,7 +4,8 @@ PPO is not monotone on hard tasks. The shipped tracker's run (``docs/tracking.md
 success at 57.7M env steps and ended at 36 %; only the last iterate was exported, so the better policy was
 lost. A run now keeps a host copy of the parameters at each evaluation that beats every earlier one, and at
 the end, when that iterate is not the last one, evaluates it again on the final evaluation's seeds and
-exports it as ``<policy>_best.onnx`` next to ``policy.onnx``.
+exports it as ``<policy>_best.onnx`` next to ``policy.onnx`` (``training.summary.finish_best``, a step of
+how a run ends).
 
 Order: when the evaluation measured safety and smoothness (the MJX evaluation's ``quality/*`` figures, on
 held-out data), the ship gate's ``score`` (``bar_policy.quality.gate``): the least total excess beyond the
@@ -25,19 +26,15 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import bar_policy.tasks.registry  # noqa: F401 - registers every task's gate
 from bar_policy.quality import gate
-
-if TYPE_CHECKING:
-    from bar_policy.deploy.metadata import PolicyMetadata
 
 __all__ = [
     "BestIterate",
     "BestKeeper",
     "best_onnx_path",
-    "finish_best",
     "held_out_report",
     "is_better",
     "score",
@@ -120,14 +117,21 @@ class BestKeeper:
         self.first_step = int(first_step)
         self.task = task
         self.best: BestIterate | None = None
+        self._best_score: tuple[float, ...] = ()
+        """``score`` of ``best``'s metrics, taken when it was kept (the ranking ``is_better`` applies)."""
 
     def offer(self, step: int, metrics: Mapping[str, float], snapshot: Callable[[], Any]) -> bool:
-        """Keep ``(step, metrics, snapshot())`` if it is a candidate and ranks above the kept one."""
+        """Keep ``(step, metrics, snapshot())`` if it is a candidate and ranks above the kept one.
+
+        The kept evaluation's score is taken once, when it is kept; each offer scores only the new one.
+        """
         if step <= self.first_step:
             return False
-        if not is_better(metrics, None if self.best is None else self.best.metrics, self.task):
+        new = score(metrics, self.task)
+        if self.best is not None and not new > self._best_score:
             return False
         self.best = BestIterate(step=int(step), metrics=dict(metrics), params=snapshot())
+        self._best_score = new
         return True
 
 
@@ -135,64 +139,3 @@ def best_onnx_path(onnx_path: str | Path) -> Path:
     """Where the best iterate is exported: ``policy.onnx`` -> ``policy_best.onnx`` (same folder)."""
     p = Path(onnx_path)
     return p.with_name(f"{p.stem}_best{p.suffix or '.onnx'}")
-
-
-def finish_best(
-    result: Any,
-    *,
-    final_step: int,
-    episodes: int,
-    seed: int,
-    export_to: Path | None,
-    metadata: PolicyMetadata | None = None,
-) -> dict[str, Any]:
-    """Evaluate (and export) the run's best iterate when it is not the last one; returns its record.
-
-    Under ``jax.distributed`` every process calls this (the brax evaluation is one program over all
-    devices); only the caller that passes ``export_to`` writes a file.
-
-    Args:
-        result: a backend result with ``best`` (``BestIterate`` or None), ``at(params)`` (the same result
-            with other parameters), ``final_evaluation`` and ``export_onnx``.
-        final_step: env steps of the last iterate.
-        episodes: episodes of the final evaluation (same as the last iterate's).
-        seed: seed of the final evaluation (same as the last iterate's, for a paired comparison).
-        export_to: the last iterate's ONNX path; the best one goes to ``best_onnx_path(export_to)``. None:
-            no export.
-        metadata: the last iterate's ONNX metadata (required with ``export_to``); the best one's is the same
-            with a training record that copies the last one's with its own step, final evaluation and
-            selection.
-
-    Returns:
-        ``{"step", "is_last"}``, plus, when the best is not the last iterate, ``eval_during_training``,
-        ``final_eval``, and with an export ``onnx`` and ``export``.
-    """
-    best = getattr(result, "best", None)
-    if best is None or best.step == final_step:
-        return {"step": final_step, "is_last": True}
-    chosen = result.at(best.params)
-    final = chosen.final_evaluation(episodes, seed=seed)
-    record: dict[str, Any] = {
-        "step": best.step,
-        "is_last": False,
-        "eval_during_training": best.metrics,
-        "final_eval": final,
-    }
-    if export_to is not None:
-        if metadata is None:
-            raise ValueError("finish_best: export_to needs metadata")
-        path = best_onnx_path(export_to)
-        training = {
-            **metadata.training,
-            "env_steps": best.step,
-            "final_eval": final,
-            "iterate": "best",
-            "selected_by": "the ship gate's score of the held-out evaluations during training (least "
-            "excess beyond the thresholds, then accuracy), or success rate then reward without them",
-            "eval_during_training": best.metrics,
-        }
-        from bar_policy.training.metadata import with_training  # the export's side: onnx, deploy metadata
-
-        record["onnx"] = str(path)
-        record["export"] = chosen.export_onnx(with_training(metadata, training), path)
-    return record

@@ -97,7 +97,7 @@ class DataParallel:
             is_leaf=lambda x: hasattr(x, "shape") and hasattr(x, "dtype"),
         )
 
-    def map(
+    def sharded_jit(
         self,
         fn: Callable[..., Any],
         in_specs: Sequence[Any],

@@ -3,7 +3,7 @@
 ``network.action_prior`` is ``none`` or the name of the prior the env serves (``EnvEntry.action_prior`` in
 its task record; ``obs.action_prior`` has the priors themselves). ``action_prior`` refuses any other name,
 before anything is traced, and builds the env's prior ``prior_lead_steps`` ahead. The brax backend hands it to
-its networks (``brax.programs.set_up``), the rsl-rl backend to its envs (``rsl_rl.prior.rsl_rl_prior``).
+its networks (``brax.programs.set_up``), the rsl-rl backend to its envs (``rsl_rl.programs.prepare_rsl_rl``).
 """
 
 from __future__ import annotations

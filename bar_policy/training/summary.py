@@ -15,14 +15,24 @@ import time
 from collections.abc import Generator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from bar_policy.training.best import finish_best
+from bar_policy.training.best import best_onnx_path
 from bar_policy.training.config import TrainConfig, config_to_dict
 from bar_policy.training.progress import format_duration, format_eval
 from bar_policy.training.records import Final, Record, Said
 
-__all__ = ["RunSummary", "evaluation_set", "final_eval_line", "finish_run", "summary_table"]
+if TYPE_CHECKING:
+    from bar_policy.deploy.metadata import PolicyMetadata
+
+__all__ = [
+    "RunSummary",
+    "evaluation_set",
+    "final_eval_line",
+    "finish_best",
+    "finish_run",
+    "summary_table",
+]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -53,7 +63,7 @@ class RunSummary:
     """The backend's result (``BraxTrainResult`` / ``RslRlTrainResult``): evaluate or export again, or
     reach ``result.best``, without retraining."""
     best: dict[str, Any] = dataclasses.field(default_factory=dict)
-    """The best evaluated iterate (``bar_policy.training.best.finish_best``): ``step``, ``is_last``, and
+    """The best evaluated iterate (``finish_best``): ``step``, ``is_last``, and
     when it is not the last iterate its ``final_eval`` and ``onnx``."""
 
 
@@ -71,6 +81,67 @@ def evaluation_set(episodes: float, *, held_out: bool) -> str:
 def final_eval_line(env_steps: int, evaluated_on: str, final: dict[str, float]) -> str:
     """The run's last evaluation, labelled: ``final evaluation (N env steps, on <what>): <figures>``."""
     return f"final evaluation ({env_steps:,} env steps, on {evaluated_on}): {format_eval(final)}"
+
+
+def finish_best(
+    result: Any,
+    *,
+    final_step: int,
+    episodes: int,
+    seed: int,
+    export_to: Path | None,
+    metadata: PolicyMetadata | None = None,
+) -> dict[str, Any]:
+    """Evaluate (and export) the run's best iterate when it is not the last one; returns its record.
+
+    Under ``jax.distributed`` every process calls this (the brax evaluation is one program over all
+    devices); only the caller that passes ``export_to`` writes a file.
+
+    Args:
+        result: a backend result with ``best`` (``BestIterate`` or None), ``at(params)`` (the same result
+            with other parameters), ``final_evaluation`` and ``export_onnx``.
+        final_step: env steps of the last iterate.
+        episodes: episodes of the final evaluation (same as the last iterate's).
+        seed: seed of the final evaluation (same as the last iterate's, for a paired comparison).
+        export_to: the last iterate's ONNX path; the best one goes to ``best_onnx_path(export_to)``. None:
+            no export.
+        metadata: the last iterate's ONNX metadata (required with ``export_to``); the best one's is the same
+            with a training record that copies the last one's with its own step, final evaluation and
+            selection.
+
+    Returns:
+        ``{"step", "is_last"}``, plus, when the best is not the last iterate, ``eval_during_training``,
+        ``final_eval``, and with an export ``onnx`` and ``export``.
+    """
+    best = getattr(result, "best", None)
+    if best is None or best.step == final_step:
+        return {"step": final_step, "is_last": True}
+    chosen = result.at(best.params)
+    final = chosen.final_evaluation(episodes, seed=seed)
+    record: dict[str, Any] = {
+        "step": best.step,
+        "is_last": False,
+        "eval_during_training": best.metrics,
+        "final_eval": final,
+    }
+    if export_to is not None:
+        if metadata is None:
+            raise ValueError("finish_best: export_to needs metadata")
+        path = best_onnx_path(export_to)
+        training = {
+            **metadata.training,
+            "env_steps": best.step,
+            "final_eval": final,
+            "iterate": "best",
+            "selected_by": "the ship gate's score of the held-out evaluations during training (least "
+            "excess beyond the thresholds, then accuracy), or success rate then reward without them",
+            "eval_during_training": best.metrics,
+        }
+        from bar_policy.training.metadata import with_training  # the export's side: onnx, deploy metadata
+
+        record["onnx"] = str(path)
+        record["export"] = chosen.export_onnx(with_training(metadata, training), path)
+    return record
 
 
 def finish_run(

@@ -17,11 +17,11 @@ from bar_policy.training.best import (
     BestIterate,
     BestKeeper,
     best_onnx_path,
-    finish_best,
     held_out_report,
     is_better,
     score,
 )
+from bar_policy.training.summary import finish_best
 
 
 def _ev(success: float, reward: float) -> dict[str, float]:

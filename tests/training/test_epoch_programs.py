@@ -46,7 +46,7 @@ def _fused_epoch(env, cfg, learner, dp):
         metrics = jax.lax.pmean(jax.tree.map(lambda x: x.mean(), metrics), axis_name=AXIS)
         return ts, env_state, metrics, jax.lax.psum(stats.sum(axis=0), axis_name=AXIS)
 
-    return dp.map(epoch, (P(), P(AXIS), P()), (P(), P(AXIS), P(), P()))
+    return dp.sharded_jit(epoch, (P(), P(AXIS), P()), (P(), P(AXIS), P(), P()))
 
 
 @pytest.fixture(scope="module")

@@ -59,7 +59,7 @@ def test_brax_evaluator_counts_one_episode_per_slot(toy_env):
         state = batch.reset(slot_keys(key, N, N))
         return evaluation.evaluate(learner.make_policy, params, batch, state, key, STEPS)
 
-    got = dp.map(evaluate, (P(), P()), P())(dp.replicate(params), dp.replicate(key))
+    got = dp.sharded_jit(evaluate, (P(), P()), P())(dp.replicate(params), dp.replicate(key))
     policy = jax.jit(learner.make_policy(params, deterministic=True))
     rew, succ, seg = _reference(toy_env, jax.random.split(key, N), lambda obs: policy(obs, key)[0])
     ret = rew[:EPISODE].sum(axis=0)

@@ -54,7 +54,7 @@ SCRIPT = textwrap.dedent(
     out = {{}}
     for n in (1, 2):
         dp = DataParallel(Mesh(np.asarray(jax.devices()[:n]), (AXIS,)))
-        f = dp.map(lambda a, b, n=n: probe(a, b, 8 // n), (P(), P()), P(AXIS))
+        f = dp.sharded_jit(lambda a, b, n=n: probe(a, b, 8 // n), (P(), P()), P(AXIS))
         q = f(dp.replicate(host_key(3, 1)), dp.replicate(host_key(3, 2)))
         out[n] = np.asarray(q).tolist()
     try:

@@ -27,7 +27,7 @@ def test_mapped_program_reduces_over_the_axis():
     dp = make_data_parallel()
     n = dp.n_devices
     # Each device sums its shard, psum adds the devices: the total of 0..(4n-1) = 4n(4n-1)/2.
-    f = dp.map(lambda x: jax.lax.psum(x.sum(), AXIS), (P(AXIS),), P())
+    f = dp.sharded_jit(lambda x: jax.lax.psum(x.sum(), AXIS), (P(AXIS),), P())
     x = jax.device_put(np.arange(4 * n, dtype=np.float32), dp.sharded)
     assert float(f(x)) == 4 * n * (4 * n - 1) / 2
 

@@ -1,7 +1,7 @@
 """The action prior on the rsl-rl backend: the env commands prior(obs) + the actor's action, the exported
 file carries the prior, and a tiny tracker run on LiteTrack trains with it and exports it.
 
-Expected values are worked out by hand or in numpy from the definitions (``rsl_rl_prior``,
+Expected values are worked out by hand or in numpy from the definitions (``rsl_rl.prior``,
 ``obs.action_prior``), never read back from the code under test.
 """
 

@@ -14,8 +14,9 @@ import pytest
 
 from bar_policy.training.startup.breakdown import StartupTimer
 from bar_policy.training.startup.compile_cache import QUICK_COMPILE
+from bar_policy.training.startup.compiled import Program, compile_programs
 from bar_policy.training.startup.compiler import Heartbeat
-from bar_policy.training.startup.session import Program, StartUp, compile_programs
+from bar_policy.training.startup.session import StartUp
 
 
 def test_status_line_names_each_unfinished_program_its_stage_and_seconds():

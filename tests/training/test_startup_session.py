@@ -15,7 +15,8 @@ import numpy as np
 from bar_policy.training.records import Said
 from bar_policy.training.startup import breakdown as sb
 from bar_policy.training.startup.breakdown import StartupTimer
-from bar_policy.training.startup.session import Program, StartUp, compile_programs
+from bar_policy.training.startup.compiled import Program, compile_programs
+from bar_policy.training.startup.session import StartUp
 
 
 class _Logger:

@@ -7,7 +7,7 @@ evaluation ratios on fresh seeds, several hosts, and a fast start.
 
 Programs (``jit`` of ``shard_map`` over the mesh of ``bar_policy.training.parallel``; env slots sharded,
 learner state replicated), each compiled once, ahead of time and concurrently, by the start-up's one call
-(``startup.session.compile_programs``; ``brax.programs.to_compile`` gives their order):
+(``startup.compiled.compile_programs``; ``brax.programs.to_compile`` gives their order):
 
 - ``init(key) -> state``: fresh params, Adam state, normaliser.
 - ``reset(key, model_key) -> envs``: every env slot reset, with its randomised model's key kept beside its
@@ -53,7 +53,8 @@ from bar_policy.training.config import TrainConfig
 from bar_policy.training.evaluations import Evaluations
 from bar_policy.training.records import NotApplied, Record, Resumed, Said
 from bar_policy.training.startup import breakdown as sb
-from bar_policy.training.startup.session import StartUp, compile_programs
+from bar_policy.training.startup.compiled import compile_programs
+from bar_policy.training.startup.session import StartUp
 
 __all__ = ["train_brax"]
 

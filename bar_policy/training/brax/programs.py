@@ -2,7 +2,7 @@
 
 ``set_up`` makes a run's mesh, learner and programs (``SetUp``): ``make_programs`` builds the ``init`` /
 ``reset`` / ``rollout`` / ``update`` / ``evaluate`` programs (``training.brax.ppo`` documents each) and
-``to_compile`` lists them with their abstract arguments, in the order ``startup.session.compile_programs``
+``to_compile`` lists them with their abstract arguments, in the order ``startup.compiled.compile_programs``
 submits them; ``slot_keys`` / ``slot_env`` give every env slot its own key and randomised model whatever
 the device count. ``training.brax.state`` runs them.
 """
@@ -18,13 +18,14 @@ import numpy as np
 from jax.sharding import PartitionSpec as P
 
 from bar_policy.envs.reward_weights import weights, with_weights
+from bar_policy.envs.wrappers import BatchedEnv
 from bar_policy.obs.action_prior import Prior
 from bar_policy.training.brax import evaluation
 from bar_policy.training.brax.learner import Learner, TrainingState, make_learner, strip_weak_type
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.parallel import AXIS, DataParallel, make_data_parallel
 from bar_policy.training.prior import action_prior
-from bar_policy.training.startup.session import Program
+from bar_policy.training.startup.compiled import Program
 
 __all__ = [
     "Programs",
@@ -40,7 +41,8 @@ __all__ = [
 def slot_keys(key: jax.Array, total: int, local: int) -> jax.Array:
     """This device's keys among ``split(key, total)``: slot ``i`` gets key ``i`` on any device count.
 
-    Per-device code (inside ``DataParallel.map``); ``local = total / n_devices``. Shape ``(local, 2)``.
+    Per-device code (inside ``DataParallel.sharded_jit``); ``local = total / n_devices``.
+    Shape ``(local, 2)``.
     """
     keys = jax.random.split(key, total)
     return jax.lax.dynamic_slice_in_dim(keys, jax.lax.axis_index(AXIS) * local, local)
@@ -48,11 +50,11 @@ def slot_keys(key: jax.Array, total: int, local: int) -> jax.Array:
 
 def slot_env(
     env: Any,
-    wrap_fn: Callable[..., Any],
+    wrap_fn: Callable[..., BatchedEnv],
     randomizer: Callable[..., Any] | None,
     model_keys: jax.Array,
     **kw: Any,
-) -> Any:
+) -> BatchedEnv:
     """The batched env of this device's slots, each on the model its key draws (per-device code).
 
     The randomised model is built inside the program from the slots' keys (a traced value, sharded with
@@ -103,7 +105,7 @@ class SetUp:
 def set_up(
     env: Any,
     cfg: TrainConfig,
-    wrap_fn: Callable[..., Any],
+    wrap_fn: Callable[..., BatchedEnv],
     randomizer: Callable[..., Any] | None,
     eval_env: Any | None = None,
     eval_randomizer: Callable[..., Any] | None = None,
@@ -134,7 +136,7 @@ def make_programs(
     cfg: TrainConfig,
     learner: Learner,
     dp: DataParallel,
-    wrap_fn: Callable[..., Any],
+    wrap_fn: Callable[..., BatchedEnv],
     randomizer: Callable[..., Any] | None,
     eval_env: Any | None = None,
     eval_randomizer: Callable[..., Any] | None = None,
@@ -154,7 +156,7 @@ def make_programs(
     unrolls = ppo.batch_size * ppo.num_minibatches // ppo.num_envs
     episode_length = int(env.episode_length)
 
-    def batch(model_keys: jax.Array, weights: dict[str, jax.Array] | None = None, **kw: Any) -> Any:
+    def batch(model_keys: jax.Array, weights: dict[str, jax.Array] | None = None, **kw: Any) -> BatchedEnv:
         e = env if weights is None else with_weights(env, weights)
         return slot_env(e, wrap_fn, randomizer, model_keys, **kw)
 
@@ -194,11 +196,13 @@ def make_programs(
 
     rep, shard = P(), P(AXIS)
     return Programs(
-        init=dp.map(learner.init, (rep,), rep),
-        reset=dp.map(reset, (rep, rep), shard),
-        rollout=dp.map(rollout, (rep, shard, rep, rep, rep), (shard, shard, rep), donate_argnums=(1,)),
-        update=dp.map(update, (rep, shard, rep, rep), (rep, rep), donate_argnums=(0,)),
-        evaluate=dp.map(evaluate, (rep, rep, rep, rep), rep),
+        init=dp.sharded_jit(learner.init, (rep,), rep),
+        reset=dp.sharded_jit(reset, (rep, rep), shard),
+        rollout=dp.sharded_jit(
+            rollout, (rep, shard, rep, rep, rep), (shard, shard, rep), donate_argnums=(1,)
+        ),
+        update=dp.sharded_jit(update, (rep, shard, rep, rep), (rep, rep), donate_argnums=(0,)),
+        evaluate=dp.sharded_jit(evaluate, (rep, rep, rep, rep), rep),
     )
 
 

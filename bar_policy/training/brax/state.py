@@ -28,7 +28,7 @@ from bar_policy.training.log_tags import brax_losses
 from bar_policy.training.parallel import DataParallel, barrier
 from bar_policy.training.records import Epoch, Record, SaveCheckpoint
 from bar_policy.training.rollout_sums import RatioWindow, sum_layout, window_metrics
-from bar_policy.training.startup.session import CompiledPrograms
+from bar_policy.training.startup.compiled import CompiledPrograms
 
 __all__ = ["BraxRun", "epoch_iterations", "epoch_totals", "host_key", "run_epoch"]
 

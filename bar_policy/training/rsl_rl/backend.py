@@ -26,7 +26,7 @@ evaluations step envs with the same prior, and the exported file carries it in i
 ``ppo.actor_warmup_iterations`` stays a brax-backend option.
 
 Start-up (``startup.breakdown``'s rows): the envs' jax programs (train reset and step, eval reset, step
-and quality; ``rsl_rl.programs``) are traced, lowered and compiling (``startup.session.compile_programs``)
+and quality; ``rsl_rl.programs``) are traced, lowered and compiling (``startup.compiled.compile_programs``)
 before this module (torch, rsl_rl, tensordict) is imported (``run`` calls ``rsl_rl.entry.run_rsl_rl``,
 which prepares them first), so the imports run while XLA compiles on worker threads. The
 training env's first reset waits for its program, the runner reads its observations, and training starts

@@ -28,39 +28,24 @@ prior; and ``network.prior_noise_std``, when set, is the initial action noise st
 (``rsl_rl.config.rsl_rl_train_cfg``).
 
 Torch-free at import (torch only inside ``start_actor_at_prior``): ``rsl_rl.programs`` builds the envs'
-programs with ``rsl_rl_prior`` and ``commanded_action`` before torch is imported.
+programs with ``commanded_action`` before torch is imported. The prior itself is the run's
+``training.prior.action_prior``, as on the brax backend; ``rsl_rl.programs.EnvPrograms`` checks that it fits
+the env it is added to.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import jax
 
-from bar_policy.obs.action_prior import Prior, check_fits
+from bar_policy.obs.action_prior import Prior
 from bar_policy.training.brax.networks import PRIOR_INIT_SCALE
-from bar_policy.training.config import TrainConfig
-from bar_policy.training.prior import action_prior
 
 if TYPE_CHECKING:
     import torch
 
-__all__ = ["commanded_action", "rsl_rl_prior", "start_actor_at_prior"]
-
-
-def rsl_rl_prior(env: Any, cfg: TrainConfig) -> Prior | None:
-    """The env's prior that ``cfg.network.action_prior`` names (as the brax backend gets it), or None.
-
-    Checks that it fits the env's observation and action sizes.
-
-    Raises:
-        ValueError: the env serves no such prior (the message names the valid values), or it does not fit.
-    """
-    prior = action_prior(env, cfg.network, cfg.env_name)
-    if prior is None:
-        return None
-    check_fits(prior, int(env.observation_size), int(env.action_size))
-    return prior
+__all__ = ["commanded_action", "start_actor_at_prior"]
 
 
 def commanded_action(prior: Prior | None, obs: jax.Array, residual: jax.Array) -> jax.Array:
@@ -85,7 +70,7 @@ def start_actor_at_prior(actor: torch.nn.Module, scale: float = PRIOR_INIT_SCALE
     With a prior, the first mean is then ``prior(obs)`` plus a few 1e-3 rather than the prior drowned in a
     random MLP's output (brax's ``make_networks`` does the same to its loc half).
     """
-    import torch  # here, not at the top: ``commanded_action`` and ``rsl_rl_prior`` serve torch-free code
+    import torch  # here, not at the top: ``commanded_action`` serves torch-free code
 
     last = [m for m in actor.mlp if isinstance(m, torch.nn.Linear)][-1]
     with torch.no_grad():

@@ -4,7 +4,7 @@
 episode truncation, auto-reset, domain randomisation, exactly as for the brax backend), the pure jitted
 ``reset``, ``step`` and (for an evaluation env) ``quality`` functions with their logging-stats pytrees, and
 the stream of reset keys. ``to_compile`` lists them as programs of their own (``<name> reset``, ``<name>
-step``, ``<name> quality``) for the start-up's one call (``startup.session.compile_programs``): the step is
+step``, ``<name> quality``) for the start-up's one call (``startup.compiled.compile_programs``): the step is
 traced on the reset's abstract output (``out_info``), so nothing runs before the first state is needed, and
 after ``use`` the reset runs from its compiled executable. The step takes the reward weights as its last
 argument (``envs.reward_weights``): a run that changes only a weight loads it from the executable cache.
@@ -28,13 +28,16 @@ import jax.numpy as jnp
 
 from bar_policy.envs.base import eval_ratios
 from bar_policy.envs.reward_weights import weights, with_weights
+from bar_policy.envs.wrappers import BatchedEnv
 from bar_policy.obs.action_prior import Prior, check_fits
 from bar_policy.training import eval_quality
 from bar_policy.training.config import TrainConfig
 from bar_policy.training.parallel import AXIS
+from bar_policy.training.prior import action_prior
 from bar_policy.training.rollout_sums import step_sums, sum_layout
-from bar_policy.training.rsl_rl.prior import commanded_action, rsl_rl_prior
-from bar_policy.training.startup.session import CompiledPrograms, Program, StartUp, compile_programs
+from bar_policy.training.rsl_rl.prior import commanded_action
+from bar_policy.training.startup.compiled import CompiledPrograms, Program, compile_programs
+from bar_policy.training.startup.session import StartUp
 
 __all__ = ["EnvPrograms", "RslRlPrograms", "prepare_rsl_rl"]
 
@@ -61,7 +64,7 @@ class EnvPrograms:
         env: Any,
         num_envs: int,
         *,
-        wrap_fn: Callable[..., Any],
+        wrap_fn: Callable[..., BatchedEnv],
         randomizer: Callable[..., Any] | None = None,
         seed: int = 0,
         quality: bool = False,
@@ -87,7 +90,7 @@ class EnvPrograms:
         rfn = None
         if randomizer is not None:
             rfn = functools.partial(randomizer, rng=jax.random.split(k_rand, self.num_envs))
-        self._env = wrap_fn(
+        self._env: BatchedEnv = wrap_fn(
             env, episode_length=self.max_episode_length, action_repeat=1, randomization_fn=rfn
         )
         self.weights = jax.device_put(weights(env), jax.local_devices()[0])
@@ -119,7 +122,7 @@ class EnvPrograms:
         return jax.device_put(jax.random.split(k, self.num_envs), jax.local_devices()[0])
 
     def to_compile(self) -> list[Program]:
-        """The reset, step and (with ``quality``) quality programs, for ``startup.session.compile_programs``.
+        """The reset, step and (with ``quality``) quality programs, for ``startup.compiled.compile_programs``.
 
         The step and the quality reduction are traced on the reset's abstract output, so nothing runs
         before the first state is needed; the step's stored executable is loaded on a worker.
@@ -238,14 +241,14 @@ class RslRlPrograms:
     eval: EnvPrograms
     """The evaluation env's (``eval reset``, ``eval step``, ``eval quality``)."""
     prior: Prior | None
-    """The action prior both envs add (``rsl_rl.prior``), or None."""
+    """The action prior both envs add (``training.prior.action_prior``; ``rsl_rl.prior``), or None."""
 
 
 def prepare_rsl_rl(
     env: Any,
     cfg: TrainConfig,
     *,
-    wrap_fn: Callable[..., Any] | None = None,
+    wrap_fn: Callable[..., BatchedEnv] | None = None,
     randomizer: Callable[..., Any] | None,
     eval_env: Any | None = None,
     start: StartUp | None = None,
@@ -260,14 +263,14 @@ def prepare_rsl_rl(
 
     Raises:
         ValueError: ``ppo.actor_warmup_iterations`` is set (a brax-backend option), or a prior the env does
-            not serve (``rsl_rl.prior``).
+            not serve (``training.prior.action_prior``) or that does not fit it (``EnvPrograms``).
     """
     if cfg.ppo.actor_warmup_iterations:
         raise ValueError(
             f"ppo.actor_warmup_iterations={cfg.ppo.actor_warmup_iterations} is a brax-backend option; the "
             "rsl-rl backend's PPO has no critic warm-up (valid here: 0; or --backend brax)"
         )
-    prior = rsl_rl_prior(env, cfg)  # refuses a prior the env does not serve, before any set-up
+    prior = action_prior(env, cfg.network, cfg.env_name)  # refuses a prior the env does not serve
     if wrap_fn is None:
         from bar_policy.envs import wrap_for_brax_training as wrap_fn
     kw = {"wrap_fn": wrap_fn, "randomizer": randomizer, "prior": prior}
