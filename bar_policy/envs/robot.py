@@ -484,9 +484,9 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         signals.update(task.signals)
         table = self.reward_terms()
         reward, scaled = weighted_sum(table, reward_values(table, signals), finite)
-        robot_ends = (NON_FINITE,) if dwell is None else (NON_FINITE, CAP_FAULT)
+        robot_ends = (NON_FINITE,)
         if dwell is not None:
-            signals["cap_dwell"] = dwell
+            robot_ends, signals["cap_dwell"] = (NON_FINITE, CAP_FAULT), dwell
         end, _ = terminated((*robot_ends, *self.termination_terms()), signals)
         done = end.astype(jnp.float32)
         new_info = {
@@ -518,22 +518,29 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
 
         As ``deploy.safety.Supervisor.check_torque`` computes it: the unclipped MIT torque of the command
         the runtime sends (``sent``, the filtered action before any action latency, at the file's nominal
-        Kp and Kd) at the state it has just read (the true one of ``obs_latency`` steps ago when that
-        latency is on, plus the encoder offset; without the observation noise). Not the command the motor
-        applies: with latency that one is older and nearer the state, and a policy that leads a delayed
-        arm trips the supervisor while its motors sit well inside their caps.
+        Kp and Kd) at the state it has just read (``_read_state``: the observation's, without its noise).
+        Not the command the motor applies: with latency that one is older and nearer the state, and a
+        policy that leads a delayed arm trips the supervisor while its motors sit well inside their caps.
         """
-        if "obs_buf" in info:
-            q, dq = info["obs_buf"][info["obs_latency"]]
-        else:
-            q, dq = self.robot_q(data), self.robot_dq(data)
+        q, dq = self._read_state(data, info)
         zero = jnp.zeros_like(q)
         cmd = MitCommand(q=self.q_command(sent), dq=zero, kp=self._kp, kd=self._kd, tau_ff=zero)
-        return mit_torque(cmd, q + info["encoder_offset"], dq)
+        return mit_torque(cmd, q, dq)
 
     def _true_state(self, data: mjx.Data) -> jax.Array:
         """The robot's true ``(q, dq)`` stacked, shape (2, n) (rad, rad/s): an ``obs_buf`` entry."""
         return jnp.stack([self.robot_q(data), self.robot_dq(data)])
+
+    def _read_state(self, data: mjx.Data, info: dict) -> tuple[jax.Array, jax.Array]:
+        """The ``(q, dq)`` a reading returns before noise, rad and rad/s, (n,) each.
+
+        q + the encoder offset and dq, of ``obs_latency`` steps ago when that latency is on (the true state
+        ``info["obs_buf"]`` holds): what the policy's observation and the supervisor both read.
+        """
+        if "obs_buf" in info:
+            q, dq = info["obs_buf"][info["obs_latency"]]
+            return q + info["encoder_offset"], dq
+        return self.robot_q(data) + info["encoder_offset"], self.robot_dq(data)
 
     def _measured(self, data: mjx.Data, info: dict, key: jax.Array) -> tuple[jax.Array, jax.Array]:
         """The measured ``(q, dq)`` the observation reads, rad and rad/s, (n,) each.
@@ -541,12 +548,7 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         q + offset (+ noise) and dq (+ noise), of ``obs_latency`` steps ago when that latency is on.
         """
         nz = self.config.obs_noise
-        if "obs_buf" in info:  # observation latency: the true state of ``obs_latency`` steps ago
-            q, dq = info["obs_buf"][info["obs_latency"]]
-            q = q + info["encoder_offset"]
-        else:
-            q = self.robot_q(data) + info["encoder_offset"]
-            dq = self.robot_dq(data)
+        q, dq = self._read_state(data, info)
         kq, kv = jax.random.split(key)
         if nz.joint_pos > 0:
             q = q + jax.random.uniform(kq, q.shape, minval=-nz.joint_pos, maxval=nz.joint_pos)
