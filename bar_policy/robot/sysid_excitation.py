@@ -10,12 +10,12 @@ Then (``fast``, the default) the fast phase: a ramp to ``POSES[FAST_POSE]`` and 
 for ``FAST_S`` on two sines at ``FAST_FREQS_HZ`` (``fast_segments`` gives where): the inertia torque
 dominates there, so armature shows, and a wrist slides through MuJoCo's soft friction loss.
 
-With a known payload in the hand (``plan``'s ``known_payload``): the fast phase at
-``KNOWN_PAYLOAD_FAST_AMPLITUDE_RAD``, then the lever phase: a ramp to ``lever_pose`` (the fast pose with the
-wrist bent, ``LEVER_WRIST``), then each arm's wrist yaw alone for ``LEVER_S`` on a wide, slow two-sine
-sweep (``lever_segments``): the payload swings about the yaw's axis, from which it is ~2 cm in every other
-pose, so its known gravity torque (~+-0.5 N*m at 0.4 kg) varies with the yaw and tells the yaw's strength
-from its friction.
+With a known payload in the hand (``plan``'s ``payload_moment_kgm``; a heavy one takes the wrist roll and
+pitch's fast amplitude down, ``HEAVY_PAYLOAD_KGM``), after the fast phase the lever phase: a ramp to
+``lever_pose`` (the fast pose with the wrist bent, ``LEVER_WRIST``), then each arm's wrist yaw alone for
+``LEVER_S`` on a wide, slow two-sine sweep (``lever_segments``): the payload swings about the yaw's axis,
+from which it is ~2 cm in every other pose, so its known gravity torque (~+-0.5 N*m at 0.4 kg) varies with
+the yaw and tells the yaw's strength from its friction.
 
 Several poses, not one: gravity loads each joint differently at each, which is what separates strength
 from payload (``sysid_fit``). Every target stays ``LIMIT_MARGIN_RAD`` inside the joint limits (checked at
@@ -35,7 +35,7 @@ from bar_policy.robot.constants import RobotSpec
 __all__ = [
     "AMPLITUDE_RAD",
     "FAST_AMPLITUDE_RAD",
-    "KNOWN_PAYLOAD_FAST_AMPLITUDE_RAD",
+    "HEAVY_PAYLOAD_KGM",
     "LEVER_WRIST",
     "LIMIT_MARGIN_RAD",
     "POSES",
@@ -108,11 +108,16 @@ LEVER_FREQS_HZ = (0.25, 0.6)
 these, 36 %); two, so a gravity stiffness (``~ q``) and an inertia (``~ w^2 q``) do not alias."""
 LEVER_S = 5.0
 """Lever phase: seconds per swept joint (``FAST_FADE_S`` fade in and out)."""
-KNOWN_PAYLOAD_FAST_AMPLITUDE_RAD = np.array([0.06, 0.16, 0.12, 0.08, 0.12, 0.04, 0.04])
-"""``FAST_AMPLITUDE_RAD`` with a known payload (``plan``'s ``known_payload``): the wrist roll and pitch at
-0.04 rad. Measured with 0.4 kg at the fingertip, strength 0.9 and friction 0.6 N*m: 0.05 rad asked the wrist
-roll 2.00 N*m of its 2.0 budget and tripped; 0.04 rad: 49 % of its cap, 0.03 rad: 47 % (its static load
-dominates: the payload's gravity ~0.96 N*m plus the friction, both / 0.9)."""
+HEAVY_PAYLOAD_KGM = 0.05
+"""A known payload whose moment about its hand's origin (mass x the centre's distance) exceeds this, kg*m,
+has the wrist roll and pitch's fast amplitude at ``HEAVY_PAYLOAD_WRIST_RAD`` (``plan``'s
+``payload_moment_kgm``). Measured, strength 0.9: 0.4 kg at the fingertip (0.090 kg*m) at 0.05 rad asked the
+wrist roll 2.00 N*m of its 2.0 budget with friction 0.6 N*m and tripped (its static load dominates: the
+payload's gravity ~0.96 N*m plus the friction, both / 0.9), at 0.04 rad 49 % of its cap, at 0.03 rad 47 %;
+0.4 kg at the palm (0.040 kg*m) at 0.05 rad: 45 % with friction 0.7, and at 0.04 rad its roll and pitch
+too slow to slide through that friction (pitch strength -7 %, armatures +90 and +127 %)."""
+HEAVY_PAYLOAD_WRIST_RAD = 0.04
+"""The wrist roll and pitch's fast amplitude with a heavy known payload (``HEAVY_PAYLOAD_KGM``), rad."""
 FAST_S = 2.0
 """Fast phase: seconds per joint (0.3 s fade in and out)."""
 FAST_FADE_S = 0.3
@@ -209,13 +214,14 @@ class Excitation:
         seconds: float,
         *,
         fast: bool = True,
-        known_payload: bool = False,
+        payload_moment_kgm: float | None = None,
     ) -> Excitation:
         """Excite ``arms`` (``left``, ``right``) from ``start``.
 
         ``seconds`` of poses and multisines (ramps included), then (``fast``) the fast single-joint phase,
-        ``fast_s`` more. ``known_payload`` (a calibration mass in each hand): the fast phase at
-        ``KNOWN_PAYLOAD_FAST_AMPLITUDE_RAD``, then the lever phase, ``lever_s`` more.
+        ``fast_s`` more. ``payload_moment_kgm``: a known payload in each hand, its mass times its centre's
+        distance from the hand's origin, kg*m (None: none known): the lever phase, ``lever_s`` more, and
+        above ``HEAVY_PAYLOAD_KGM`` the wrist roll and pitch's fast amplitude ``HEAVY_PAYLOAD_WRIST_RAD``.
         """
         joints: list[int] = []
         poses: list[np.ndarray] = []
@@ -233,8 +239,11 @@ class Excitation:
             raise ValueError(f"excitation of {seconds:g} s is too short: needs >= {min_seconds():g} s")
         reps = len(joints) // len(MIRROR)
         lever_pose = None
-        fast_amp = np.tile(KNOWN_PAYLOAD_FAST_AMPLITUDE_RAD if known_payload else FAST_AMPLITUDE_RAD, reps)
-        if known_payload:
+        arm_amp = FAST_AMPLITUDE_RAD.copy()
+        if payload_moment_kgm is not None and payload_moment_kgm > HEAVY_PAYLOAD_KGM:
+            arm_amp[5:7] = HEAVY_PAYLOAD_WRIST_RAD
+        fast_amp = np.tile(arm_amp, reps)
+        if payload_moment_kgm is not None:
             lever_pose = p[FAST_POSE].reshape(reps, len(MIRROR)).copy()
             lever_pose[:, 4:7] = np.array(LEVER_WRIST) * np.array(
                 [MIRROR[4:7] if arm == "right" else np.ones(3) for arm in arms]

@@ -278,8 +278,11 @@ def _identify(args: argparse.Namespace) -> int:
             recs = {}
             for arm in arms:  # one arm at a time (measured: both at once fit worse, 0.2 vs 0.03 N*m)
                 reading = group.activate(lower=robot.lower, upper=robot.upper)
+                moment = (
+                    None if known is None else known[arm].mass_kg.value * np.linalg.norm(known[arm].com_m)
+                )
                 excitation = Excitation.plan(
-                    robot, reading.q, (arm,), args.seconds, known_payload=known is not None
+                    robot, reading.q, (arm,), args.seconds, payload_moment_kgm=moment
                 )
                 load = "" if known is None else f", {known[arm].mass_kg.value:g} kg known in the hand"
                 print(
@@ -650,7 +653,7 @@ def _parser() -> argparse.ArgumentParser:
         type=_known_payload,
         default=None,
         metavar="KG",
-        help="a calibration mass of KG kg (0 < KG <= 2; the excitation is sized for 0.4 at the fingertip) "
+        help="a calibration mass of KG kg (0 < KG <= 2; measured within the budget: 0.4 at the fingertip) "
         "fixed in each hand at --known-payload-at: held known, every joint's strength fitted, the "
         "wrists' included; adds the lever phase (7.5 s per arm). Not with --unloaded or --unloaded-from",
     )

@@ -80,18 +80,18 @@ def test_budget_breach_ends_in_damping_then_stop(robot, channels, make_emulator,
         assert_ends_with_damping_then_stop(listeners[iface], ids)
 
 
-def _excite_left_arm(robot, channels, hidden: str, sup: Supervisor, *, known_payload: bool = False, poses=4):
+def _excite_left_arm(robot, channels, hidden: str, sup: Supervisor, *, moment=None, poses=4):
     """21 s of the left arm's excitation on the lockstep emulator whose robot is ``hidden`` (a spec).
 
-    ``known_payload``: the plan for a calibration mass (the lever phase); ``poses``: the first this many of
-    the held poses (fewer: a shorter run, the single-joint phases kept whole).
+    ``moment``: the plan for a known payload of this moment, kg*m (the lever phase); ``poses``: the first
+    this many of the held poses (fewer: a shorter run, the single-joint phases kept whole).
     """
     with PerturbedEmulator(
         robot, channels, perturbation=parse_perturbation(hidden), mode="lockstep", control_dt=PERIOD
     ):
         group = _group(robot, channels)
         start = group.activate(lower=robot.lower, upper=robot.upper).q
-        ex = Excitation.plan(robot, start, ("left",), 21.0, known_payload=known_payload)
+        ex = Excitation.plan(robot, start, ("left",), 21.0, payload_moment_kgm=moment)
         ex = replace(ex, poses=ex.poses[:poses])
         rec = run_excitation(group, robot, ex, sup, period=PERIOD, realtime=False)
         group.shutdown()
@@ -243,15 +243,15 @@ def test_identifies_the_wrists_strength_with_a_known_payload(robot, channels) ->
     from bar_policy.robot.perturb import PAYLOAD_POS
     from bar_policy.robot.scene import load_model
 
-    sup = Supervisor(robot)
-    rec = _excite_left_arm(
-        robot, channels, "strength=0.9,payload_kg=0.4,friction_nm=0.5", sup, known_payload=True, poses=1
-    )
-    assert sup.peak <= 0.5  # never above half a cap, asked or reported (the loaded wrist roll: 0.49)
-    assert [j for _, _, j in rec.lever_segments] == [robot.joint_names.index("left_wrist_yaw")]
     # the truth, from the hidden spec, not the fit: the fingertip site of the left hand, (0.0225, 0.225,
     # 0.007) m; friction 0.1 (the model's) + 0.5; armature the model's (the spec leaves it)
     known = {"left": Payload(Estimate(0.4), PAYLOAD_POS["fingertip"]["left_hand"])}
+    sup = Supervisor(robot)
+    moment = 0.4 * float(np.linalg.norm(known["left"].com_m))  # 0.090 kg*m: a heavy payload
+    hidden = "strength=0.9,payload_kg=0.4,friction_nm=0.5"
+    rec = _excite_left_arm(robot, channels, hidden, sup, moment=moment, poses=1)
+    assert sup.peak <= 0.5  # never above half a cap, asked or reported (the loaded wrist roll: 0.49)
+    assert [j for _, _, j in rec.lever_segments] == [robot.joint_names.index("left_wrist_yaw")]
     fit = fit_recording(robot, rec, ("left",), PERIOD, known_payload=known)["left"]
     print(f"strength {np.round(fit.strength, 4)}; friction {np.round(fit.friction, 3)}")
     print(f"armature {np.round(fit.armature, 5)}")
@@ -372,12 +372,15 @@ def test_lever_phase_sweeps_each_wrist_yaw_alone_with_the_hand_bent(robot) -> No
 
     start = np.zeros(robot.num_joints)
     plain = Excitation.plan(robot, start, ("left", "right"), 21.0)
-    ex = Excitation.plan(robot, start, ("left", "right"), 21.0, known_payload=True)
+    ex = Excitation.plan(robot, start, ("left", "right"), 21.0, payload_moment_kgm=0.04)  # 0.4 kg, palm
     assert plain.lever_segments() == [] and plain.lever_s == 0.0
     segs = ex.lever_segments()
     yaws = [robot.joint_names.index(f"{a}_wrist_yaw") for a in ("left", "right")]
     assert [j for _, _, j in segs] == yaws
     assert ex.fast_segments() == plain.fast_segments()  # the phases before it: as without a payload
+    assert np.array_equal(ex.fast_amplitude, plain.fast_amplitude)  # a light payload: the same amplitudes
+    heavy = Excitation.plan(robot, start, ("left",), 21.0, payload_moment_kgm=0.09)  # 0.4 kg, fingertip
+    assert heavy.fast_amplitude.tolist() == [0.06, 0.16, 0.12, 0.08, 0.12, 0.04, 0.04]
     assert ex.duration == pytest.approx(segs[-1][1] + RAMP_S) == pytest.approx(plain.duration + ex.lever_s)
     # the lever pose: the fast pose with the wrists bent as LEVER_WRIST (left), mirrored (right: yaw and
     # roll negated)
