@@ -100,8 +100,9 @@ of the payload's torque on the yaw over its sweep: every arm pose gave ~1 N*m wi
 LEVER_JOINT = 4
 """Lever phase: the joint swept, index in an arm (the wrist yaw)."""
 LEVER_AMPLITUDE_RAD = 0.9
-"""Lever phase: amplitude of the yaw's two-sine sum, rad (peak speed ~2.4 rad/s: above the speed a loaded
-yaw needs to slide through MuJoCo's soft friction loss, where its friction is ``+-f``)."""
+"""Lever phase: amplitude of the yaw's two-sine sum, rad (the targets' peak speed 2.4 rad/s, measured up to
+3.6 with 0.4 kg at the fingertip: above the speed a loaded yaw needs to slide through MuJoCo's soft friction
+loss, where its friction is ``+-f``)."""
 LEVER_FREQS_HZ = (0.25, 0.6)
 """Lever phase: the sweep's two frequencies, Hz: slow, so the gravity torque dominates the inertia's (at
 0.35 and 0.8 Hz, the yaw centred at 0: the payload's inertia asked 0.4 N*m, the yaw 46 % of its cap; at
