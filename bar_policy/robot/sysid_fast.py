@@ -76,8 +76,10 @@ def fit_fast(
     ``F_j``: MuJoCo's soft friction loss as in ``fit_arm`` (``+-f_j`` where the unclamped force
     ``friction_u`` exceeds the estimate, that force itself elsewhere, rows held by it dropped);
     ``strength``: the joints' strengths, held (shape (joints,), in the order of first appearance in
-    ``segments``), or None: fitted (a strength scales the links' inertia torque, known from the model, so
-    an error of it moves the armature by that fraction of the links' inertia: held, it must be exact);
+    ``segments``; NaN: that joint's fitted), or None: all fitted (a strength scales the links' inertia
+    torque, known from the model, so an error of it moves the armature by that fraction of the links'
+    inertia: held, it must be exact; fitted, a known torque that is not an inertia's must be in ``id_base``,
+    such as a known payload's gravity);
     ``payload_col``: the unit payload's column at its centre (``PayloadRegressor.columns``'s first, shape
     (N, num_joints)); ``mass``: its mass, subtracted (``fit_mass``: one mass shared by all the segments
     refitted: a payload's inertia about a joint is ``m r^2``, larger than a shoulder's armature, and its
@@ -92,7 +94,8 @@ def fit_fast(
             order.append(j)
     nj = len(order)
     n_p = 1 if fit_mass and payload_col is not None else 0
-    w = 3 if strength is not None else 4  # unknowns per joint: f, b, a (and s)
+    fitted = np.ones(nj, dtype=bool) if strength is None else ~np.isfinite(strength)
+    w = 4 if fitted.any() else 3  # unknowns per joint: f, b, a (and s)
     fric = np.zeros(nj)
     for _ in range(iterations):
         blocks, rhs, ids, which = [], [], [], []
@@ -101,10 +104,10 @@ def fit_fast(
             u = friction_u[sl, j]
             a = np.zeros((len(u), w * nj + n_p))
             y = id_base[sl, j].copy()
-            if strength is None:
+            if fitted[c]:
                 a[:, w * c + 3] = samples.tau[sl, j]
-            else:
-                y -= strength[c] * samples.tau[sl, j]
+            else:  # held (``strength`` is not None here)
+                y -= strength[c] * samples.tau[sl, j]  # type: ignore[index]
             slide = np.abs(u) > fric[c]
             a[slide, w * c] = np.sign(u[slide])
             y[~slide] -= u[~slide]
@@ -148,12 +151,12 @@ def fit_fast(
         friction=per[:, 0],
         damping=per[:, 1],
         armature=per[:, 2] if armature is None else np.asarray(armature, dtype=np.float64),
-        strength=per[:, 3] if strength is None else np.asarray(strength, dtype=np.float64),
+        strength=per[:, 3] if strength is None else np.where(fitted, per[:, -1], strength),
         half95={
             "friction": hper[:, 0],
             "damping": hper[:, 1],
             "armature": hper[:, 2] if armature is None else np.zeros(nj),
-            "strength": hper[:, 3] if strength is None else np.zeros(nj),
+            "strength": np.where(fitted, hper[:, -1], 0.0),
         },
         mass=float(x[w * nj]) if n_p else float(mass),
         mass_half95=float(half[w * nj]) if n_p else 0.0,

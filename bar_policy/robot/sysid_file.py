@@ -49,7 +49,8 @@ def to_params(fits: dict[str, ArmFit], source: dict[str, object]) -> RobotParams
     An estimate out of the file's range (a negative friction, damping, armature or mass; a strength
     outside 0.3..1.5; one above the range) is written at the range's end and listed in ``source.notes``
     and the log, with the value found (a value the file cannot hold; its interval, widened to hold what
-    is written, says how sure the fit was).
+    is written, says how sure the fit was). A payload held in the fit (half-width 0: a known one) is
+    written as given, without an interval.
     """
     joints: dict[str, JointParams] = {}
     floored: list[str] = []
@@ -76,6 +77,10 @@ def to_params(fits: dict[str, ArmFit], source: dict[str, object]) -> RobotParams
     payload: dict[str, Payload] = {}
     for arm, fit in fits.items():
         if fit.mass == 0.0 and fit.mass_half95 == 0.0:  # an unloaded run: no payload term was fitted
+            continue
+        if fit.mass_half95 == 0.0:  # held (a known payload): as given, no interval
+            com = tuple(float(x) for x in fit.com)
+            payload[arm] = Payload(Estimate(float(fit.mass)), com, None)  # type: ignore[arg-type]
             continue
         mass = nonneg(f"payload.{arm}.mass_kg", fit.mass, fit.mass_half95)
         com = tuple(float(x) for x in np.clip(fit.com, -0.5, 0.5))

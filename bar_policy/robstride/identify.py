@@ -10,7 +10,9 @@
 3. The fit (``robot.sysid_fit``), per arm, of one sample per round (``round_samples``): the poses' part
    (strength, friction, damping, payload), then the fast single-joint segments (armature; the wrists'
    friction and damping); intervals the larger of the residual's Newey-West one and a delete-one-pose
-   jackknife's (``widen_by_jackknife``).
+   jackknife's (``widen_by_jackknife``). With a known payload (``fit_recording``'s ``known_payload``) the
+   payload is part of the model and every strength is fitted, the wrists' on their single-joint segments
+   and the lever phase's yaw sweep.
 4. ``RobotParams`` with the values, their 95 % intervals and the run (``source``): ``robot.sysid_file``.
 
 No jax, no torch.
@@ -29,6 +31,7 @@ import numpy as np
 from bar_policy.robot.constants import RobotSpec
 from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.mit import U16_MAX, MitCommand, firmware_torque, wire_ranges
+from bar_policy.robot.params import Payload, RobotParams, apply_to_spec, scene_edit
 from bar_policy.robot.scene import load_model, robot_spec
 from bar_policy.robot.sysid_excitation import RAMP_S, Excitation
 from bar_policy.robot.sysid_fast import FastFit, fit_fast
@@ -102,6 +105,9 @@ class Recording:
     fast_segments: list[tuple[float, float, int]] = field(default_factory=list)
     """``Excitation.fast_segments`` of the run: ``(t0, t1, joint)``, s on the excitation's clock (command
     ``k`` at ``k * period``), where one joint moved alone and fast."""
+    lever_segments: list[tuple[float, float, int]] = field(default_factory=list)
+    """``Excitation.lever_segments`` of the run: ``(t0, t1, joint)``, s, where a wrist yaw swept alone in the
+    lever pose (a known payload's gravity large about it); empty without the lever phase."""
     direction: np.ndarray | None = None
     """Each joint's motor direction (+-1, canonical order; None: the robot data's), as the bus used it."""
     homing_offset: np.ndarray | None = None
@@ -179,7 +185,11 @@ def run_excitation(
     index = RobotIndex.from_model(model, robot.joint_names)
     gravity = _gravity(model, index)
     kp, kd = robot.kp, robot.kd
-    rec = Recording(pose_segments=excitation.pose_segments(), fast_segments=excitation.fast_segments())
+    rec = Recording(
+        pose_segments=excitation.pose_segments(),
+        fast_segments=excitation.fast_segments(),
+        lever_segments=excitation.lever_segments(),
+    )
     motors = {m.name: m for bus in group.buses for m in bus.motors}  # the frame the bus encodes in
     if all(n in motors for n in robot.joint_names):
         rec.direction = np.array([motors[n].direction for n in robot.joint_names], dtype=np.float64)
@@ -277,6 +287,10 @@ class _ArmContext:
     lag: int
     armature: np.ndarray | None = None
     """Held armatures of the arm's joints (``idx`` order; an unloaded run's), or None: fitted."""
+    wrist_strength: bool = False
+    """Fit the wrists' strength (a known payload in the hand, in ``reg``'s model); False: held."""
+    lever: list[tuple[slice, int]] = field(default_factory=list)
+    """The lever segments (rows of ``everything``, joint): with the fast ones, the wrists' strength."""
 
     def stages(self, rows: np.ndarray | None) -> ArmFit:
         """Stages 1-3 on the poses' ``rows`` of ``samples`` (None: all of them)."""
@@ -298,8 +312,9 @@ class _ArmContext:
         # known (a wrist's few g*m^2 and its soft friction make its rows noisy: they would pull the mass)
         big, wrists = idx[:PAYLOAD_JOINTS], idx[PAYLOAD_JOINTS:]
         k_big = None if known is None else known[:PAYLOAD_JOINTS]
-        # a wrist's strength is not resolvable (its gravity torque is ~0.1 N*m, and its inertia torque trades
-        # with its armature): held at the given value, else the model's 1 (fitted: 0.08-0.81 for 0.9)
+        # a wrist's strength is not resolvable from its own weight (its gravity torque is ~0.1 N*m, and its
+        # inertia torque trades with its armature): held at the given value, else the model's 1 (fitted:
+        # 0.08-0.81 for 0.9); with a known payload (``wrist_strength``), stage 3 fits it (below)
         k_wr = np.ones(len(wrists)) if known is None else known[PAYLOAD_JOINTS:]
         f1 = fit_arm(smp, big, robot.joint_names, reg if payload else None, strength=k_big, **common)
         base2 = id_base
@@ -309,7 +324,9 @@ class _ArmContext:
         fit = merge_fits(f1, f2)
         if not self.segs:
             return fit
-        # stage 3: each joint alone and fast: armature (all), friction and damping (wrists)
+        # stage 3: each joint alone and fast: armature (all), friction and damping (wrists); with a known
+        # payload also the wrists' strength, on their fast segments and the yaw's lever segment, where the
+        # payload's gravity (0.4-1 N*m, known) is what the strength scales
         order = list(dict.fromkeys(j for _, j in self.segs))
         col = None
         if payload:  # the unit payload's column on the fast rows only (the others are never read)
@@ -318,13 +335,16 @@ class _ArmContext:
             fast = ArmSamples(e.q[rows], e.dq[rows], e.qdd[rows], e.tau[rows])
             col = np.zeros_like(self.id_all)
             col[rows] = reg.columns(fast, self.id_all[rows], fit.com)[:, :, 0]
+        held_s = np.array([fit.strength[idx.index(j)] for j in order])
+        if self.wrist_strength:  # fitted there (NaN), with each wrist's friction, damping and armature
+            held_s[[c for c, j in enumerate(order) if idx.index(j) >= PAYLOAD_JOINTS]] = np.nan
         f3 = fit_fast(
             self.everything,
-            self.segs,
+            self.segs + self.lever,
             robot.joint_names,
             self.id_all,
             self.u_all,
-            np.array([fit.strength[idx.index(j)] for j in order]),
+            held_s,
             payload_col=col,
             mass=fit.mass,
             fit_mass=payload,
@@ -354,6 +374,7 @@ def fit_recording(
     strength: dict[str, np.ndarray] | None = None,
     armature: dict[str, np.ndarray] | None = None,
     payload: bool = True,
+    known_payload: dict[str, Payload] | None = None,
     jackknife: bool = True,
 ) -> dict[str, ArmFit]:
     """Fit each arm of ``arms`` to ``rec``.
@@ -369,7 +390,17 @@ def fit_recording(
     payload. With neither, the strengths are held at the model's 1. ``armature`` (arm -> per-joint values,
     an unloaded run's) is held in the fast stage the same way: with a payload in the hand its inertia
     about a joint is 4-12x the joint's armature, and a few % of payload error would go into it whole.
+
+    ``known_payload`` (arm -> ``Payload``: a calibration mass of known mass and centre in the hand frame):
+    the payload is part of the model (its gravity and inertia in ``ID``, its inertia in the soft friction's
+    impedance) and held; every joint's strength is fitted, the wrists' included (the payload's gravity is a
+    known torque of its own pose dependence, ~1 N*m on the wrist roll and pitch: what the strength scales),
+    and with it their friction and armature. Not with ``strength``, ``armature`` or ``payload=False``.
     """
+    if known_payload is not None and (strength is not None or armature is not None or not payload):
+        raise ValueError("a known payload fits every strength and armature: not with held ones or unloaded")
+    if known_payload is not None and set(arms) - set(known_payload):
+        raise ValueError(f"known payload of {sorted(known_payload)}: give every arm of {list(arms)}")
     full = round_samples(robot, rec, period)
     sl = slice(trim, len(full.q) - trim)
     everything = ArmSamples(full.q[sl], full.dq[sl], full.qdd[sl], full.tau[sl])
@@ -379,7 +410,14 @@ def fit_recording(
     ]
     n_slow = fast[0][0].start - round(RAMP_S / period) if fast else len(everything.q)
     samples = ArmSamples(*(x[:n_slow] for x in (everything.q, everything.dq, everything.qdd, everything.tau)))
-    model = load_model(robot.mode)
+    held = RobotParams({}, dict(known_payload or {}))
+
+    def spec_factory() -> mujoco.MjSpec:
+        spec = robot_spec(robot.mode)
+        apply_to_spec(spec, held)
+        return spec
+
+    model = load_model(robot.mode, scene_edit(held) if known_payload else None)
     fits: dict[str, ArmFit] = {}
     id_all: np.ndarray | None = None
     u_all: np.ndarray | None = None
@@ -391,21 +429,45 @@ def fit_recording(
     ]
     for arm in arms:
         idx = [j.index for j in robot.joints if j.group == f"{arm}_arm"]
-        reg = PayloadRegressor(model, lambda: robot_spec(robot.mode), robot.joint_names, HANDS[arm])
+        reg = PayloadRegressor(model, spec_factory, robot.joint_names, HANDS[arm])
         if id_all is None:
             id_all = reg.inverse(everything)
             u_all = reg.friction_force(everything)
-        known = None if not payload else (strength or {}).get(arm, np.ones(len(idx)))
+        load = (known_payload or {}).get(arm)
+        fit_payload = payload and known_payload is None
+        known = None if not fit_payload else (strength or {}).get(arm, np.ones(len(idx)))
         segs = [(r, j) for r, j in fast if j in idx]
-        held = None if armature is None else armature.get(arm)
+        lever = [
+            (slice(round(t0 / period) - trim, round(t1 / period) - trim), j)
+            for t0, t1, j in rec.lever_segments
+            if j in idx
+        ]
+        arm_held = None if armature is None else armature.get(arm)
         ctx = _ArmContext(
-            robot, arm, idx, reg, samples, everything, id_all, u_all, segs, known, payload, smooth, lag, held
+            robot,
+            arm,
+            idx,
+            reg,
+            samples,
+            everything,
+            id_all,
+            u_all,
+            segs,
+            known,
+            fit_payload,
+            smooth,
+            lag,
+            arm_held,
+            wrist_strength=load is not None and load.mass_kg.value > 0,
+            lever=lever,
         )
         fit = ctx.stages(None)
         if jackknife and len(poses) >= 3:  # each pose left out in turn: the spread between poses
             keep = [np.concatenate([p for i, p in enumerate(poses) if i != k]) for k in range(len(poses))]
             reps = [ctx.stages(rows) for rows in keep]
             fit = widen_by_jackknife(fit, reps)
+        if load is not None:  # held, not fitted: no interval
+            fit = replace(fit, mass=load.mass_kg.value, com=np.array(load.com_m), com_half95=np.zeros(3))
         fits[arm] = fit
     return fits
 
@@ -448,16 +510,23 @@ def with_fast(fit: ArmFit, fast: FastFit) -> ArmFit:
     The armature of every joint they cover; the friction and damping of the wrists (``PAYLOAD_JOINTS``
     onward: a wrist slides through MuJoCo's soft friction loss only above ~2 rad/s).
     """
-    est = {k: getattr(fit, k).copy() for k in ("friction", "damping", "armature")}
+    est = {k: getattr(fit, k).copy() for k in ("strength", "friction", "damping", "armature")}
     half = {k: v.copy() for k, v in fit.half95.items()}
     for c, name in enumerate(fit.joints):
         if name not in fast.joints:
             continue
         i = fast.joints.index(name)
         keys = ("armature",) if c < PAYLOAD_JOINTS else ("armature", "friction", "damping")
+        if fast.half95["strength"][i] > 0:  # fitted there (a wrist with a known payload)
+            keys = (*keys, "strength")
         for k in keys:
             est[k][c] = getattr(fast, k)[i]
             half[k][c] = fast.half95[k][i]
     return replace(
-        fit, friction=est["friction"], damping=est["damping"], armature=est["armature"], half95=half
+        fit,
+        strength=est["strength"],
+        friction=est["friction"],
+        damping=est["damping"],
+        armature=est["armature"],
+        half95=half,
     )

@@ -6,6 +6,7 @@
     bar-bus param write --channel can0 --id 11 --index 0x700B --value 12.0 [--type f32]
     bar-bus watchdog --channel can0 --id 11 [--can-timeout 0.2] [--silences 0.1,0.18,0.22,0.3]
     bar-bus identify --out params.json [--arms left,right] [--seconds 40] [--budget 0.5] [--unloaded]
+                     [--known-payload KG [--known-payload-at fingertip|palm]]
     bar-bus check-calibration [--calibration cal.json] [--pose arms_hanging] [--threshold 0.005]
 
 Option names are ``bar-deploy``'s for the same things (``robstride.cli_args``): ``--can-interface``,
@@ -55,6 +56,7 @@ import numpy as np
 
 from bar_policy.robot.actuators import ROBSTRIDE_MODELS
 from bar_policy.robot.constants import MODES, load_robot
+from bar_policy.robot.perturb_spec import PAYLOAD_SITES
 from bar_policy.robstride import protocol as proto
 from bar_policy.robstride.bus import RobstrideBus
 from bar_policy.robstride.bus_types import MotorConfig
@@ -219,7 +221,8 @@ def _identify(args: argparse.Namespace) -> int:
     """``bar-bus identify``: excitation, fit, parameters file (``robstride.identify``)."""
     import datetime
 
-    from bar_policy.robot.params import ParamsError, load_params
+    from bar_policy.robot.params import HANDS, Estimate, ParamsError, Payload, load_params
+    from bar_policy.robot.perturb import PAYLOAD_POS
     from bar_policy.robot.sysid_excitation import Excitation
     from bar_policy.robot.sysid_file import held_from, to_params
     from bar_policy.robstride.can_record import CanRecorder
@@ -231,7 +234,15 @@ def _identify(args: argparse.Namespace) -> int:
     channels = _robot_channels(args)
     arms = tuple(args.arms)
     period = 1.0 / args.rate
-    strength = armature = prior = None
+    strength = armature = prior = known = None
+    if args.known_payload is None and args.known_payload_at is not None:
+        raise _UsageError("--known-payload-at places the --known-payload mass: give --known-payload KG too")
+    if args.known_payload is not None:
+        if args.unloaded or args.unloaded_from:
+            other = "--unloaded" if args.unloaded else "--unloaded-from"
+            raise _UsageError(f"--known-payload fits every strength with the payload held: not with {other}")
+        site = args.known_payload_at or "fingertip"
+        known = {arm: Payload(Estimate(args.known_payload), PAYLOAD_POS[site][HANDS[arm]]) for arm in arms}
     if args.unloaded_from:
         try:
             prior = load_params(args.unloaded_from, robot)
@@ -267,10 +278,16 @@ def _identify(args: argparse.Namespace) -> int:
             recs = {}
             for arm in arms:  # one arm at a time (measured: both at once fit worse, 0.2 vs 0.03 N*m)
                 reading = group.activate(lower=robot.lower, upper=robot.upper)
-                excitation = Excitation.plan(robot, reading.q, (arm,), args.seconds)
+                moment = (
+                    None if known is None else known[arm].mass_kg.value * np.linalg.norm(known[arm].com_m)
+                )
+                excitation = Excitation.plan(
+                    robot, reading.q, (arm,), args.seconds, payload_moment_kgm=moment
+                )
+                load = "" if known is None else f", {known[arm].mass_kg.value:g} kg known in the hand"
                 print(
                     f"identify: {excitation.duration:.1f} s of excitation of the {arm} arm at "
-                    f"{args.rate:g} Hz, budget {args.budget:.0%} of each cap",
+                    f"{args.rate:g} Hz, budget {args.budget:.0%} of each cap{load}",
                     flush=True,
                 )
                 recs[arm] = run_excitation(
@@ -300,7 +317,14 @@ def _identify(args: argparse.Namespace) -> int:
     for arm, rec in recs.items():
         fits.update(
             fit_recording(
-                robot, rec, (arm,), period, strength=strength, armature=armature, payload=not args.unloaded
+                robot,
+                rec,
+                (arm,),
+                period,
+                strength=strength,
+                armature=armature,
+                payload=not args.unloaded,
+                known_payload=None if known is None else {arm: known[arm]},
             )
         )
     perturb = getattr(args, "emulate_perturb", None)
@@ -316,8 +340,16 @@ def _identify(args: argparse.Namespace) -> int:
         "excitation_s": round(sum(len(r.t) - 1 for r in recs.values()) * period, 3),
         "samples": sum(len(r.t) - 1 for r in recs.values()),
     }
+    notes = []
+    if known is not None:
+        notes.append(
+            f"payload held known: {args.known_payload:g} kg at the {args.known_payload_at or 'fingertip'} "
+            "(--known-payload), every strength fitted"
+        )
     if perturb is not None:
-        source["notes"] = f"hidden emulator perturbation: {perturb.describe()}"
+        notes.append(f"hidden emulator perturbation: {perturb.describe()}")
+    if notes:
+        source["notes"] = "; ".join(notes)
     params = to_params(fits, source)
     if prior is not None:  # held: the unloaded run's own estimates, intervals included
         params = held_from(params, prior, args.unloaded_from)
@@ -325,6 +357,8 @@ def _identify(args: argparse.Namespace) -> int:
     print(f"wrote {args.out} (sha256 {params.sha256[:16]}...)")
     for arm, f in fits.items():
         pay = "" if args.unloaded else f"; payload {f.mass:.3f} +- {f.mass_half95:.3f} kg"
+        if known is not None:
+            pay = f"; payload {f.mass:g} kg (held); strength {' '.join(f'{x:.3f}' for x in f.strength)}"
         print(f"  {arm}: residual {f.rms:.3f} N*m over {f.rows} rows{pay}")
     return 0
 
@@ -614,6 +648,23 @@ def _parser() -> argparse.ArgumentParser:
         "held (written as that file has them) while the payload is fitted (default: strength 1, "
         "armature fitted)",
     )
+    ident.add_argument(
+        "--known-payload",
+        type=_known_payload,
+        default=None,
+        metavar="KG",
+        help="a calibration mass of KG kg (0 < KG <= 2; measured within the budget: 0.4 at the fingertip) "
+        "fixed in each hand at --known-payload-at: held known, every joint's strength fitted, the "
+        "wrists' included; adds the lever phase (7.5 s per arm). Not with --unloaded or --unloaded-from",
+    )
+    ident.add_argument(
+        "--known-payload-at",
+        choices=PAYLOAD_SITES,
+        default=None,
+        metavar="SITE",
+        help="where the --known-payload mass sits on each hand: fingertip (the finger's tip site, 0.225 m "
+        "along the hand) or palm (the palm's centre, 0.1 m) (default fingertip)",
+    )
     ck = sub.add_parser("check-calibration", help="verify a saved calibration against a known resting pose")
     common(ck)
     ck.add_argument("--channels", default=None, metavar="SPEC", help=HELP["--channels"])
@@ -664,6 +715,15 @@ def _budget(text: str) -> float:
     value = positive("x")(text)
     if value > 0.5:
         raise argparse.ArgumentTypeError(f"must be a fraction of the cap in (0, 0.5], got {text!r}")
+    return value
+
+
+def _known_payload(text: str) -> float:
+    from bar_policy.robot.params import MASS_RANGE
+
+    value = positive("kg")(text)
+    if value > MASS_RANGE[1]:
+        raise argparse.ArgumentTypeError(f"must be a mass in (0, {MASS_RANGE[1]:g}] kg, got {text!r}")
     return value
 
 

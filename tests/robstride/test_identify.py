@@ -4,6 +4,8 @@ strength is not resolvable, see docs/sysid.md)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -78,14 +80,19 @@ def test_budget_breach_ends_in_damping_then_stop(robot, channels, make_emulator,
         assert_ends_with_damping_then_stop(listeners[iface], ids)
 
 
-def _excite_left_arm(robot, channels, hidden: str, sup: Supervisor):
-    """21 s of the left arm's excitation on the lockstep emulator whose robot is ``hidden`` (a spec)."""
+def _excite_left_arm(robot, channels, hidden: str, sup: Supervisor, *, moment=None, poses=4):
+    """21 s of the left arm's excitation on the lockstep emulator whose robot is ``hidden`` (a spec).
+
+    ``moment``: the plan for a known payload of this moment, kg*m (the lever phase); ``poses``: the first
+    this many of the held poses (fewer: a shorter run, the single-joint phases kept whole).
+    """
     with PerturbedEmulator(
         robot, channels, perturbation=parse_perturbation(hidden), mode="lockstep", control_dt=PERIOD
     ):
         group = _group(robot, channels)
         start = group.activate(lower=robot.lower, upper=robot.upper).q
-        ex = Excitation.plan(robot, start, ("left",), 21.0)
+        ex = Excitation.plan(robot, start, ("left",), 21.0, payload_moment_kgm=moment)
+        ex = replace(ex, poses=ex.poses[:poses])
         rec = run_excitation(group, robot, ex, sup, period=PERIOD, realtime=False)
         group.shutdown()
     return rec
@@ -182,6 +189,32 @@ def test_identify_cli_refusals_exit_2(tmp_path, capsys) -> None:
     err = capsys.readouterr().err.strip()
     assert err.startswith(f"bar-bus: error: --unloaded-from {partial}: no values for left_shoulder_pitch, ")
     assert "left_elbow_pitch" not in err and err.endswith("(identify those arms --unloaded first)")
+    # --known-payload: a mass in (0, 2] kg, a site of the two, not with the unloaded runs' options
+    for kg in ("0", "2.5", "nan"):
+        with pytest.raises(SystemExit) as e:
+            main([*base, "--known-payload", kg])
+        assert e.value.code == 2
+    assert "argument --known-payload: must be finite, got 'nan'" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as e:
+        main([*base, "--known-payload", "2.5"])
+    assert "argument --known-payload: must be a mass in (0, 2] kg, got '2.5'" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as e:
+        main([*base, "--known-payload", "0.4", "--known-payload-at", "wrist"])
+    assert e.value.code == 2 and "invalid choice: 'wrist'" in capsys.readouterr().err
+    for extra, msg in (
+        (
+            ["--known-payload", "0.4", "--unloaded"],
+            "--known-payload fits every strength with the payload held: not with --unloaded",
+        ),
+        (["--known-payload", "0.4", "--unloaded-from", str(partial)], "not with --unloaded-from"),
+        (
+            ["--known-payload-at", "palm"],
+            "--known-payload-at places the --known-payload mass: give --known-payload KG too",
+        ),
+    ):
+        assert main([*base, *extra]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("bar-bus: error: ") and err.endswith(msg) and "\n" not in err
     assert not (tmp_path / "p.json").exists()
 
 
@@ -197,6 +230,39 @@ def test_identifies_a_hidden_strength_unloaded(robot, channels) -> None:
     for c in (0, 1, 2, 3):
         assert fit.strength[c] == pytest.approx(0.9, rel=0.05), fit.joints[c]
     assert fit.mass == 0.0
+
+
+@pytest.mark.slow
+def test_identifies_the_wrists_strength_with_a_known_payload(robot, channels) -> None:
+    """Strength 0.9, 0.4 kg at the fingertip, friction + 0.5 N*m hidden; the mass given as known.
+
+    One arm, one held pose (4.5 s: the wrists' values come from the single-joint phases), the fast phase
+    and the lever phase: 31 s of excitation.
+    """
+    from bar_policy.robot.params import Estimate, Payload
+    from bar_policy.robot.perturb import PAYLOAD_POS
+    from bar_policy.robot.scene import load_model
+
+    # the truth, from the hidden spec, not the fit: the fingertip site of the left hand, (0.0225, 0.225,
+    # 0.007) m; friction 0.1 (the model's) + 0.5; armature the model's (the spec leaves it)
+    known = {"left": Payload(Estimate(0.4), PAYLOAD_POS["fingertip"]["left_hand"])}
+    sup = Supervisor(robot)
+    moment = 0.4 * float(np.linalg.norm(known["left"].com_m))  # 0.090 kg*m: a heavy payload
+    hidden = "strength=0.9,payload_kg=0.4,friction_nm=0.5"
+    rec = _excite_left_arm(robot, channels, hidden, sup, moment=moment, poses=1)
+    assert sup.peak <= 0.5  # never above half a cap, asked or reported (the loaded wrist roll: 0.49)
+    assert [j for _, _, j in rec.lever_segments] == [robot.joint_names.index("left_wrist_yaw")]
+    fit = fit_recording(robot, rec, ("left",), PERIOD, known_payload=known)["left"]
+    print(f"strength {np.round(fit.strength, 4)}; friction {np.round(fit.friction, 3)}")
+    print(f"armature {np.round(fit.armature, 5)}")
+    model = load_model("arms")
+    for c in range(7):
+        assert fit.strength[c] == pytest.approx(0.9, rel=0.05), fit.joints[c]
+    for c in (4, 5, 6):  # the wrists: measured (docs/sysid.md)
+        truth = model.dof_armature[model.joint(fit.joints[c]).dofadr[0]]
+        assert fit.friction[c] == pytest.approx(0.6, rel=0.2), fit.joints[c]
+        assert fit.armature[c] == pytest.approx(truth, rel=0.25), fit.joints[c]
+    assert fit.mass == 0.4 and fit.mass_half95 == 0.0  # held, as given
 
 
 @pytest.mark.slow
@@ -299,6 +365,43 @@ def test_fast_phase_moves_one_joint_at_a_time_inside_the_limits(robot) -> None:
         # ends q'' steps by up to A (pi^2 / 2) / 0.3^2 = 0.12 * 55 = 6.6 rad/s^2: dt / 4 of it, 1.6e-3 rad/s
         num = np.gradient(q[:, j], dt)[1:-1]
         assert np.abs(num - dq[1:-1, j]).max() < 2e-3
+
+
+def test_lever_phase_sweeps_each_wrist_yaw_alone_with_the_hand_bent(robot) -> None:
+    from bar_policy.robot.sysid_excitation import LEVER_AMPLITUDE_RAD, LEVER_WRIST, LIMIT_MARGIN_RAD, RAMP_S
+
+    start = np.zeros(robot.num_joints)
+    plain = Excitation.plan(robot, start, ("left", "right"), 21.0)
+    ex = Excitation.plan(robot, start, ("left", "right"), 21.0, payload_moment_kgm=0.04)  # 0.4 kg, palm
+    assert plain.lever_segments() == [] and plain.lever_s == 0.0
+    segs = ex.lever_segments()
+    yaws = [robot.joint_names.index(f"{a}_wrist_yaw") for a in ("left", "right")]
+    assert [j for _, _, j in segs] == yaws
+    assert ex.fast_segments() == plain.fast_segments()  # the phases before it: as without a payload
+    assert np.array_equal(ex.fast_amplitude, plain.fast_amplitude)  # a light payload: the same amplitudes
+    heavy = Excitation.plan(robot, start, ("left",), 21.0, payload_moment_kgm=0.09)  # 0.4 kg, fingertip
+    assert heavy.fast_amplitude.tolist() == [0.06, 0.16, 0.12, 0.08, 0.12, 0.04, 0.04]
+    assert ex.duration == pytest.approx(segs[-1][1] + RAMP_S) == pytest.approx(plain.duration + ex.lever_s)
+    # the lever pose: the fast pose with the wrists bent as LEVER_WRIST (left), mirrored (right: yaw and
+    # roll negated)
+    pose = ex.lever_pose.reshape(2, 7)
+    assert pose[0, 4:] == pytest.approx(LEVER_WRIST) and pose[1, 4:] == pytest.approx([0.3, 0.45, 0.55])
+    assert pose[:, :4] == pytest.approx(ex.poses[0].reshape(2, 7)[:, :4])
+    dt = 0.001
+    for t0, t1, j in segs:
+        ts = np.arange(t0, t1, dt)
+        q = np.array([ex.at(t)[0] for t in ts])
+        dq = np.array([ex.at(t)[1] for t in ts])
+        i = int(np.flatnonzero(ex.joints == j)[0])
+        others = np.delete(np.arange(len(ex.joints)), i)
+        assert np.abs(q[:, ex.joints[others]] - ex.lever_pose[others]).max() < 1e-12  # the others held
+        assert q[:, j].max() <= robot.upper[j] - LIMIT_MARGIN_RAD
+        assert q[:, j].min() >= robot.lower[j] + LIMIT_MARGIN_RAD
+        assert np.ptp(q[:, j]) > LEVER_AMPLITUDE_RAD  # a wide sweep
+        # the velocity target is the position's derivative: where the fade ends q'' steps by up to
+        # 0.9 rad * (pi^2 / 2) / 0.3^2 = 49 rad/s^2, which central differences see as dt / 4 of it, 0.012
+        num = np.gradient(q[:, j], dt)[1:-1]
+        assert np.abs(num - dq[1:-1, j]).max() < 1.3e-2
 
 
 def test_a_loaded_file_writes_the_unloaded_runs_strength_and_armature() -> None:
