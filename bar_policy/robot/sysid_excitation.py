@@ -19,8 +19,8 @@ the yaw and tells the yaw's strength from its friction.
 
 Several poses, not one: gravity loads each joint differently at each, which is what separates strength
 from payload (``sysid_fit``). Every target stays ``LIMIT_MARGIN_RAD`` inside the joint limits (checked at
-plan time, ``ValueError`` otherwise). The torque budget is the supervisor's (``robstride.identify``): 50 %
-of each joint's cap, checked on every reading.
+plan time, ``ValueError`` otherwise). The torque budget is the supervisor's
+(``robstride.excitation_run``): 50 % of each joint's cap, checked on every reading.
 """
 
 from __future__ import annotations

@@ -21,9 +21,10 @@ JSON on Ctrl+C (or after ``--duration``). ``watchdog`` measures the CAN watchdog
 (``watchdog.probe_watchdog``; the motor is enabled with zero torque). ``--emulate`` (with ``--can-interface
 virtual``) answers with the in-process emulator, for a demonstration without hardware.
 
-``identify`` (``robstride.identify``, docs/sysid.md) excites each arm in turn around held poses inside a
-torque budget, then fits friction, damping, armature, strength and the hand's payload and writes a
-robot-parameters file (``robot.params``); on ``--can-interface virtual`` the lockstep emulator answers.
+``identify`` (``robstride.excitation_run``, then ``robstride.identify``; docs/sysid.md) excites each arm
+in turn around held poses inside a torque budget, then fits friction, damping, armature, strength and the
+hand's payload and writes a robot-parameters file (``robot.params``); on ``--can-interface virtual`` the
+lockstep emulator answers.
 ``check-calibration`` reads the joints (motors disabled) through a saved calibration against a resting pose
 and exits 2 beyond the threshold.
 
@@ -226,7 +227,8 @@ def _identify(args: argparse.Namespace) -> int:
     from bar_policy.robot.sysid_excitation import Excitation
     from bar_policy.robot.sysid_file import held_from, to_params
     from bar_policy.robstride.can_record import CanRecorder
-    from bar_policy.robstride.identify import Supervisor, fit_recording, run_excitation
+    from bar_policy.robstride.excitation_run import Supervisor, run_excitation
+    from bar_policy.robstride.identify import fit_recording
 
     robot = load_robot(args.mode)
     if args.interface == "virtual":

@@ -14,8 +14,9 @@ from bar_policy.robot.sysid_excitation import Excitation
 from bar_policy.robstride.canbus import open_can_buses
 from bar_policy.robstride.emulator_perturb import PerturbedEmulator
 from bar_policy.robstride.errors import FaultError
+from bar_policy.robstride.excitation_run import BudgetError, Supervisor, run_excitation
 from bar_policy.robstride.group import RobstrideGroup
-from bar_policy.robstride.identify import BudgetError, Supervisor, fit_recording, run_excitation
+from bar_policy.robstride.identify import fit_recording
 
 from .conftest import assert_ends_with_damping_then_stop
 
