@@ -277,7 +277,6 @@ class Excitation:
 
     def at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Position and velocity targets of every joint at ``t`` s, rad and rad/s, shape (num_joints,)."""
-        q, dq = self.start.copy(), np.zeros_like(self.start)
         seg = RAMP_S + self.hold_s
         k = int(t // seg) if t >= 0 else 0
         prev = self.start[self.joints] if k == 0 else self.poses[min(k, len(self.poses)) - 1]
@@ -291,18 +290,12 @@ class Excitation:
                 if u < self.lever_s:
                     return self._lever_at(u, prev, self.lever_pose)
                 u, prev = u - self.lever_s, self.lever_pose
-            # the ramp back
-            s, ds = _smooth(min(max(u / RAMP_S, 0.0), 1.0))
-            q[self.joints] = prev + (self.start[self.joints] - prev) * s
-            dq[self.joints] = (self.start[self.joints] - prev) * ds / RAMP_S
-            return q, dq
+            return self._ramp(min(max(u, 0.0), RAMP_S), prev, self.start[self.joints])  # the ramp back
         tau = t - k * seg
         pose = self.poses[k]
         if tau < RAMP_S:
-            s, ds = _smooth(tau / RAMP_S)
-            q[self.joints] = prev + (pose - prev) * s
-            dq[self.joints] = (pose - prev) * ds / RAMP_S
-            return q, dq
+            return self._ramp(tau, prev, pose)
+        q, dq = self.start.copy(), np.zeros_like(self.start)
         h = tau - RAMP_S
         w = 2 * np.pi * self.freqs
         fade, dfade = _smooth(min(h, self.hold_s - h, 1.0))  # sines fade in and out over 1 s
