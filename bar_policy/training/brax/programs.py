@@ -162,7 +162,8 @@ def make_programs(
 
     def reset(key: jax.Array, model_key: jax.Array) -> tuple[Any, jax.Array]:
         model_keys = slot_keys(model_key, ppo.num_envs, envs_local)
-        return batch(model_keys).reset(slot_keys(key, ppo.num_envs, envs_local)), model_keys
+        envs: BatchedEnv = batch(model_keys)
+        return envs.reset(slot_keys(key, ppo.num_envs, envs_local)), model_keys
 
     def iteration_keys(key: jax.Array, i: jax.Array) -> jax.Array:
         """Iteration ``i``'s ``(rollout, SGD)`` keys of an epoch keyed ``key``, this device's (shape (2, 2)).
@@ -190,7 +191,7 @@ def make_programs(
     def evaluate(params: Any, key: jax.Array, model_key: jax.Array, weights: dict) -> dict[str, jax.Array]:
         keys = slot_keys(model_key, cfg.eval.num_eval_envs, eval_local)
         e_env, e_rand = (env, randomizer) if eval_env is None else (eval_env, eval_randomizer)
-        env_e = slot_env(with_weights(e_env, weights), wrap_fn, e_rand, keys, auto_reset=False)
+        env_e: BatchedEnv = slot_env(with_weights(e_env, weights), wrap_fn, e_rand, keys, auto_reset=False)
         state = env_e.reset(slot_keys(key, cfg.eval.num_eval_envs, eval_local))
         return evaluation.evaluate(learner.make_policy, params, env_e, state, key, episode_length)
 
