@@ -42,10 +42,10 @@ def prior():
 
 def test_one_goal_key_gives_its_press_pose(prior, poses) -> None:
     """Goal key k in frame 0 only: its hand's actions are w / (w + rest) of the press pose's action, with
-    w = decay**0 = 1 and rest 0.05, plus the edge blend's lift, -0.45 of (press - hover) (frame 0: the
+    w = decay**0 = 1 and rest 0.02, plus the edge blend's lift, -0.45 of (press - hover) (frame 0: the
     note's last step); the other hand rests (action 0). Hands: left below middle C."""
     pc = KeyPosePriorConfig()
-    assert pc.edge_gain == 0.45 and pc.rest_weight == 0.05
+    assert pc.edge_gain == 0.45 and pc.rest_weight == 0.02
     manager = ObservationManager.for_task("piano", "arms")
     for midi, hand in ((48, 0), (61, 1)):
         k = midi - KB.lowest
@@ -55,7 +55,7 @@ def test_one_goal_key_gives_its_press_pose(prior, poses) -> None:
         obs[manager.term_slice("target_keys")] = target.reshape(-1)
         want = np.zeros(14)
         arm = np.arange(7) + 7 * hand
-        want[arm] = (1.0 / 1.05) * (poses.press[k, arm] - DEFAULT[arm]) / SCALE[arm] - 0.45 * (
+        want[arm] = (1.0 / 1.02) * (poses.press[k, arm] - DEFAULT[arm]) / SCALE[arm] - 0.45 * (
             poses.press[k, arm] - poses.hover[k, arm]
         ) / SCALE[arm]
         np.testing.assert_allclose(prior.apply(obs), np.clip(want, -PRIOR_BOUND, PRIOR_BOUND), atol=1e-5)
@@ -71,13 +71,13 @@ def test_one_goal_key_gives_its_press_pose(prior, poses) -> None:
 def test_edge_blend_pushes_before_a_note_and_lifts_before_its_end(prior, poses) -> None:
     """A 20-step note of one key (E4, right hand) at steps 30..49, the window at step t holding it in the
     frames j with 30 <= t + j < 50. The place blend, per the module docstring: press weights 0.6**j for
-    j <= 2, hover weights 0.6**j later, rest 0.05. The edge blend adds c_j (press - hover) per frame the key
+    j <= 2, hover weights 0.6**j later, rest 0.02. The edge blend adds c_j (press - hover) per frame the key
     is in, c_0 = -0.45, c_2 = +0.45: worked out per step,
 
-    - t = 28 (frames 2..10): place (0.36 press + H hover) / (0.36 + H + 0.05), H = sum 0.6**j, j = 3..10;
+    - t = 28 (frames 2..10): place (0.36 press + H hover) / (0.36 + H + 0.02), H = sum 0.6**j, j = 3..10;
       edge +0.45 (pushed: frame 2 on, frame 0 off);
-    - t = 35 (frames 0..10, held): place (1.96 press + H hover) / (1.96 + H + 0.05); edge 0;
-    - t = 48 (frames 0, 1): place 1.6 press / 1.65; edge -0.45 (lifted: frame 0 on, frame 2 off);
+    - t = 35 (frames 0..10, held): place (1.96 press + H hover) / (1.96 + H + 0.02); edge 0;
+    - t = 48 (frames 0, 1): place 1.6 press / 1.62; edge -0.45 (lifted: frame 0 on, frame 2 off);
     - t = 50 (gone): 0; the left arm stays at 0 throughout."""
     manager = ObservationManager.for_task("piano", "arms")
     k = 64 - KB.lowest
@@ -87,9 +87,9 @@ def test_edge_blend_pushes_before_a_note_and_lifts_before_its_end(prior, poses) 
     h = sum(0.6**j for j in range(3, 11))
     assert h == pytest.approx(0.216 * (1 - 0.6**8) / 0.4) == pytest.approx(0.53093, abs=1e-5)
     cases = {
-        28: (0.36 * press + h * hover) / (0.36 + h + 0.05) + 0.45 * (press - hover),
-        35: (1.96 * press + h * hover) / (1.96 + h + 0.05),
-        48: 1.6 * press / 1.65 - 0.45 * (press - hover),
+        28: (0.36 * press + h * hover) / (0.36 + h + 0.02) + 0.45 * (press - hover),
+        35: (1.96 * press + h * hover) / (1.96 + h + 0.02),
+        48: 1.6 * press / 1.62 - 0.45 * (press - hover),
         50: np.zeros(7),
     }
     for t, right in cases.items():
@@ -107,10 +107,54 @@ def test_edge_blend_pushes_before_a_note_and_lifts_before_its_end(prior, poses) 
     np.testing.assert_array_equal(prior.numer_bias[1], np.zeros(14))
 
 
+def test_between_notes_the_hand_leans_on_the_next_key_not_the_rest_pose(prior, poses) -> None:
+    """Why the rest weight is 0.02: the rest pose (piano_ready, held under gravity) puts the fingertip sphere
+    in front of the black keys and below their tops, so its share of the blend between two notes pulls the
+    hand's path low and forward, where it wedged against black keys' sides (docs/piano.md, "The place blend").
+
+    Geometry (``KeyboardConfig``): black keys' tops at 0.180 + 0.012 = 0.192 m, their front edges 55 mm behind
+    the white keys' front edge, 0.336 + 0.055 = 0.391 m; the held sphere (centre ~(0.357, ±0.157, 0.191),
+    radius 6 mm) lies below the one and in front of the other. The blend, by hand: the next note (F#4, black,
+    right hand) in frames 6..10 only (a gap before it), hover weights H = sum 0.6**j, j = 6..10 =
+    0.6**6 (1 - 0.6**5) / 0.4 = 0.107570; the hand's action is H / (H + 0.02) = 0.84322 of hover(F#4)'s
+    (0.68268 at the former 0.05), no edge term (frames 0 and 2 empty)."""
+    keys = key_table(KB)
+    black_top = KB.top_z + KB.black_rise
+    black_front = KB.front_x + (KB.white_length - KB.black_length)
+    assert black_top == pytest.approx(0.192) and black_front == pytest.approx(0.391)
+    assert [k.top_z for k in keys if k.black] == pytest.approx([black_top] * 20)
+    assert [k.front_x for k in keys if k.black] == pytest.approx([black_front] * 20)
+    model = load_model("arms", keyboard_scene(KB))
+    data = mujoco.MjData(model)
+    idx = RobotIndex.from_model(model, ROBOT.joint_names)
+    data.qpos[idx.qpos] = held_pose(DEFAULT)
+    mujoco.mj_kinematics(model, data)
+    for site in FINGERTIP_SITES:
+        tip = data.site_xpos[model.site(site).id]
+        assert tip[2] - KB.fingertip_radius < black_top - 0.005, f"{site} {tip}"
+        assert tip[0] + KB.fingertip_radius < black_front - 0.02, f"{site} {tip}"
+
+    h = sum(0.6**j for j in range(6, 11))
+    assert h == pytest.approx(0.6**6 * (1 - 0.6**5) / 0.4) == pytest.approx(0.107570, abs=1e-6)
+    assert h / (h + 0.02) == pytest.approx(0.84322, abs=1e-5)
+    assert h / (h + 0.05) == pytest.approx(0.68268, abs=1e-5)
+    manager = ObservationManager.for_task("piano", "arms")
+    k = 66 - KB.lowest
+    assert keys[k].black and poses.hand[k] == 1
+    target = np.zeros((TARGET_FRAMES, PIANO_KEYS), np.float32)
+    target[6:, k] = 1.0
+    obs = np.zeros(manager.size, np.float32)
+    obs[manager.term_slice("target_keys")] = target.reshape(-1)
+    want = np.zeros(14)
+    arm = np.arange(7, 14)
+    want[arm] = 0.84322 * (poses.hover[k, arm] - DEFAULT[arm]) / SCALE[arm]
+    np.testing.assert_allclose(prior.apply(obs), want, atol=1e-4)
+
+
 @pytest.mark.slow
 def test_edge_gain_zero_is_the_single_place_blend(poses) -> None:
     """``edge_gain=0`` (and no release blend): one blend, the prior before the edge blend (key k in frame 0:
-    press / 1.05)."""
+    press / 1.02)."""
     manager = ObservationManager.for_task("piano", "arms")
     plain = key_pose_prior(
         manager, KB, DEFAULT, SCALE, 2, KeyPosePriorConfig(edge_gain=0.0, release_gain=0.0)
@@ -122,7 +166,7 @@ def test_edge_gain_zero_is_the_single_place_blend(poses) -> None:
     obs = np.zeros(manager.size, np.float32)
     obs[manager.term_slice("target_keys")] = target.reshape(-1)
     want = np.zeros(14)
-    want[7:] = (poses.press[k, 7:] - DEFAULT[7:]) / SCALE[7:] / 1.05
+    want[7:] = (poses.press[k, 7:] - DEFAULT[7:]) / SCALE[7:] / 1.02
     np.testing.assert_allclose(plain.apply(obs), want, atol=1e-5)
 
 
@@ -163,10 +207,10 @@ def test_release_blend_lifts_a_key_held_down_off_its_goal(prior, poses) -> None:
     Worked per case (right arm; actions in units of SCALE; place and edge blends as in the tests above):
 
     - E4 down, no goal key: place 0 (rest pose only), edge 0, release 0.2 (hover_E4 - press_E4);
-    - E4 down and E4 the goal (frame 0 only): press_E4 / 1.05 - 0.45 (press_E4 - hover_E4) + the release
+    - E4 down and E4 the goal (frame 0 only): press_E4 / 1.02 - 0.45 (press_E4 - hover_E4) + the release
       term / 101 (blocked by its goal);
     - E4 down and D4 the goal (frame 0 only; the finger held against D4's side, docs/piano.md "Release
-      blend"): press_D4 / 1.05 - 0.45 (press_D4 - hover_D4) + 0.2 (hover_E4 - press_E4), unblocked (D4's
+      blend"): press_D4 / 1.02 - 0.45 (press_D4 - hover_D4) + 0.2 (hover_E4 - press_E4), unblocked (D4's
       goal bit is not E4's);
     - C3 (left, rank 12 of the left hand's keys) down and C5 (right, rank 12: the same blend) the goal:
       the left arm gets C3's full release term, the right arm C5's press and lift only."""
@@ -195,8 +239,8 @@ def test_release_blend_lifts_a_key_held_down_off_its_goal(prior, poses) -> None:
     release_e = 0.2 * (h_e - p_e)
     cases = [
         (({}, [64]), release_e),
-        (({64: 0}, [64]), p_e / 1.05 - 0.45 * (p_e - h_e) + release_e / 101),
-        (({62: 0}, [64]), p_d / 1.05 - 0.45 * (p_d - h_d) + release_e),
+        (({64: 0}, [64]), p_e / 1.02 - 0.45 * (p_e - h_e) + release_e / 101),
+        (({62: 0}, [64]), p_d / 1.02 - 0.45 * (p_d - h_d) + release_e),
     ]
     for (goal, down), want in cases:
         got = action(goal, down)
@@ -206,7 +250,7 @@ def test_release_blend_lifts_a_key_held_down_off_its_goal(prior, poses) -> None:
     p_c5, h_c5 = unit(poses.press, 72, right), unit(poses.hover, 72, right)
     want_left = 0.2 * (unit(poses.hover, 48, left) - unit(poses.press, 48, left))
     np.testing.assert_allclose(got[left], np.clip(want_left, -PRIOR_BOUND, PRIOR_BOUND), atol=1e-5)
-    want_right = p_c5 / 1.05 - 0.45 * (p_c5 - h_c5)
+    want_right = p_c5 / 1.02 - 0.45 * (p_c5 - h_c5)
     np.testing.assert_allclose(got[right], np.clip(want_right, -PRIOR_BOUND, PRIOR_BOUND), atol=1e-5)
     # open_loop(): the goal keys' part alone (the reference's): no release blend, 2 blends.
     open_prior = key_pose_prior(manager, KB, DEFAULT, SCALE, 2, pc.open_loop())

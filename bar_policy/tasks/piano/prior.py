@@ -87,8 +87,13 @@ class KeyPosePriorConfig:
     """Upward key force the press command holds, N (full travel takes 1.2 N at a white key's aim point)."""
     decay: float = 0.6
     """Weight ratio of successive goal-key frames (< 1: the nearest note leads)."""
-    rest_weight: float = 0.05
-    """Weight of the default pose, always in the place blend (a hand with no goal key in view rests)."""
+    rest_weight: float = 0.02
+    """Weight of the default pose, always in the place blend (a hand with no goal key in view rests). The
+    default pose holds the fingertip in front of the black keys and 7 mm below their tops, so between two
+    notes it pulls the hand's path low and forward: at 0.05 the fingertip crossed the keys below the black
+    tops and wedged beside a black key or reached it late. Prior alone, sim target, 8 random songs of seed
+    2026: black recall 0.767 at 0.05, 0.832 at 0.02, 0.835 at 0.01, 0.835 at 0.005; held-out F1 0.886,
+    0.901, 0.899, 0.900 (docs/piano.md, "The place blend")."""
     split_midi: int = HAND_SPLIT_MIDI
     """Keys below this MIDI number are the left hand's, the others the right's (middle C)."""
     press_gain: float = 1.0
