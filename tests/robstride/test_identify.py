@@ -99,30 +99,6 @@ def _excite_left_arm(robot, channels, hidden: str, sup: Supervisor, *, moment=No
     return rec
 
 
-@pytest.mark.slow
-def test_identifies_a_hidden_payload_and_friction(robot, channels) -> None:
-    """0.4 kg at the fingertip, friction + 0.5 N*m (total 0.6), hidden; one arm, 21 s of poses, fast phase."""
-    sup = Supervisor(robot)
-    rec = _excite_left_arm(robot, channels, "payload_kg=0.4,friction_nm=0.5", sup)
-    reported = np.abs(np.array(rec.tau)) / sup.cap
-    assert reported.max() <= 0.5 and sup.peak <= 0.5  # never above half a cap, asked or reported
-    fit = fit_recording(robot, rec, ("left",), PERIOD)["left"]
-    # targets met here: payload mass within 15 % (measured 0.401 kg), friction within 20 % on the shoulder
-    # pitch, roll and elbow (truth: 0.1 of the model + 0.5; measured 0.598, 0.600, 0.600) and, from the
-    # fast phase, the wrists (0.603, 0.602, 0.600); armature within 25 % on every joint (measured 0.00514
-    # for 0.005 on the pitch; 0.00182-0.00216 for 0.002, the shoulder roll the lowest: docs/sysid.md).
-    # Not asserted: the shoulder yaw's friction (0.476: at the edge)
-    assert fit.mass == pytest.approx(0.4, rel=0.15)
-    for c in (0, 1, 3, 4, 5, 6):
-        assert fit.friction[c] == pytest.approx(0.6, rel=0.2), fit.joints[c]
-    from bar_policy.robot.scene import load_model
-
-    model = load_model("arms")  # the emulator's robot: the perturbation leaves the armature as modelled
-    for c in range(7):
-        truth = model.dof_armature[model.joint(fit.joints[c]).dofadr[0]]
-        assert fit.armature[c] == pytest.approx(truth, rel=0.25), fit.joints[c]
-
-
 def test_out_of_range_estimates_are_written_at_the_range_end_and_noted() -> None:
     from bar_policy.robot.sysid_file import to_params
     from bar_policy.robot.sysid_fit import ArmFit
@@ -267,11 +243,16 @@ def test_identifies_the_wrists_strength_with_a_known_payload(robot, channels) ->
 
 
 @pytest.mark.slow
-def test_identify_cli_end_to_end(tmp_path, capsys) -> None:
-    """``bar-bus identify`` on the emulated bus writes a valid parameters file, its run and the CAN log."""
+def test_identify_cli_end_to_end(robot, tmp_path, capsys) -> None:
+    """``bar-bus identify`` on the emulated bus: 0.4 kg at the fingertip and friction + 0.5 N*m (total 0.6)
+    hidden, one arm, 21 s of poses and the fast phase; the parameters file holds the hidden robot within the
+    targets, the run stays under half a cap, and the CAN log holds every command."""
+    import re
+
     import can
 
     from bar_policy.robot.params import load_params
+    from bar_policy.robot.scene import load_model
     from bar_policy.robstride.tools import main
 
     out, blf = tmp_path / "p.json", tmp_path / "id.blf"
@@ -292,14 +273,27 @@ def test_identify_cli_end_to_end(tmp_path, capsys) -> None:
     ]
     assert main(argv) == 0
     text = capsys.readouterr().out
-    assert "peak torque" in text and f"wrote {out}" in text
+    assert f"wrote {out}" in text
+    peak = re.search(r"peak torque (\d+)% of a cap", text)
+    assert peak is not None and int(peak.group(1)) <= 50  # never above half a cap, asked or reported
     p = load_params(out)
-    assert sorted(p.joints) == sorted(j for j in p.joints if j.startswith("left_")) and len(p.joints) == 7
+    left = [j for j in robot.joint_names if j.startswith("left_")]
+    assert sorted(p.joints) == sorted(left) and len(p.joints) == 7
     # 21 s of poses and 16.5 s of the fast phase (a 2.5 s ramp, 7 joints x 2 s): 37.5 s at 2 ms, rounds
     # 0..18750
     assert p.source["emulated"] is True and p.source["samples"] == 18751
     assert "hidden emulator perturbation: payload_kg=0.4,friction_nm=0.5" in p.source["notes"]
+    # targets: payload mass within 15 % (measured 0.401 kg), friction within 20 % (truth: 0.1 of the model
+    # + 0.5; measured 0.598-0.603) on every joint but the shoulder yaw (0.476: at the edge, not asserted),
+    # armature within 25 % of the model's (the perturbation leaves it) on every joint (docs/sysid.md)
     assert p.payload["left"].mass_kg.value == pytest.approx(0.4, rel=0.15)
+    model = load_model("arms")
+    for name in left:
+        jp = p.joints[name]
+        if name != "left_shoulder_yaw":
+            assert jp.friction_nm.value == pytest.approx(0.6, rel=0.2), name
+        truth = model.dof_armature[model.joint(name).dofadr[0]]
+        assert jp.armature.value == pytest.approx(truth, rel=0.25), name
     # the raw CAN log: every MIT command of the run went out (14 motors per round, 18751 rounds at least)
     frames = sum(1 for m in can.LogReader(str(blf)) if not m.is_rx and m.arbitration_id >> 24 == 1)
     assert frames >= 14 * 18751
