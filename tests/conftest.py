@@ -23,3 +23,13 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(Path.home() / ".cache" / "bar_policy" / "jax"))
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1")
 os.environ.setdefault("MUJOCO_GL", "egl")
+
+
+def pytest_xdist_auto_num_workers(config: object) -> int:
+    """``-n auto`` (``pyproject.toml``'s ``addopts``): one worker per core this process may use, at most 4.
+
+    On 2 cores two workers cut the default tier from 11m27s to 7m31s (docs/testing.md): XLA compiles one
+    program on one thread. More than 4 would repeat the session fixtures' compiles for little gain, and
+    each worker holds its own compiled programs in memory. ``-n 0`` runs in this process.
+    """
+    return max(1, min(len(os.sched_getaffinity(0)), 4))

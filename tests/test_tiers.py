@@ -25,8 +25,9 @@ def test_param(x):
 @pytest.fixture
 def suite(pytester: pytest.Pytester) -> pytest.Pytester:
     """A four-test suite (two of them slow: one test, one parameter) under the tiers plugin."""
-    pytester.syspathinsert(Path(__file__).parent)
-    pytester.makeconftest('pytest_plugins = ["tiers"]')
+    # the path in the conftest itself: pytest-xdist's workers, other processes, import ``tiers`` too
+    here = str(Path(__file__).parent)
+    pytester.makeconftest(f'import sys\nsys.path.insert(0, {here!r})\npytest_plugins = ["tiers"]')
     pytester.makeini("[pytest]\nmarkers =\n    slow: heavy\n")
     pytester.makepyfile(test_a=SUITE)
     return pytester
@@ -48,3 +49,10 @@ def test_slow_runs_everything_and_a_mark_expression_chooses(suite: pytest.Pytest
 def test_a_slow_test_named_by_its_node_id_runs(suite: pytest.Pytester) -> None:
     suite.runpytest("test_a.py::test_heavy").assert_outcomes(passed=1)
     suite.runpytest("test_a.py::test_param").assert_outcomes(passed=2)
+
+
+def test_a_run_on_two_workers_says_what_it_left_out(suite: pytest.Pytester) -> None:
+    """Under pytest-xdist the controller collects nothing: the workers' count reaches its summary."""
+    r = suite.runpytest("-n", "2")
+    r.assert_outcomes(passed=2)
+    r.stdout.fnmatch_lines(["2 slow tests left out: python -m pytest -q --slow runs them too"])

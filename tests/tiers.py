@@ -9,6 +9,8 @@ runs the default tier, then ``-m slow``). A ``-m`` expression, or a test named b
 
 from __future__ import annotations
 
+from typing import Any
+
 import pytest
 
 SLOW_LEFT_OUT = pytest.StashKey[int]()
@@ -36,6 +38,20 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         config.hook.pytest_deselected(items=slow)
         items[:] = keep
         config.stash[SLOW_LEFT_OUT] = len(slow)
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    """On a pytest-xdist worker: hand the count to the controller, which collects nothing itself."""
+    out = getattr(session.config, "workeroutput", None)
+    if out is not None:
+        out["slow_left_out"] = session.config.stash.get(SLOW_LEFT_OUT, 0)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node: Any, error: Any) -> None:
+    """On the pytest-xdist controller: each worker collects the whole suite; any one's count is the run's."""
+    n = getattr(node, "workeroutput", {}).get("slow_left_out", 0)
+    node.config.stash[SLOW_LEFT_OUT] = max(node.config.stash.get(SLOW_LEFT_OUT, 0), n)
 
 
 def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter, config: pytest.Config) -> None:
