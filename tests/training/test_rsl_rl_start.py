@@ -43,7 +43,9 @@ def _run(script: str, tmp_path: Path) -> dict:
         timeout=240,
     )
     assert out.returncode == 0, out.stderr[-4000:]
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    # The result goes to a file, not stdout: the compile threads print their progress lines there while
+    # the script runs, and a line of theirs can land in the middle of a printed result.
+    return json.loads((tmp_path / "result.json").read_text())
 
 
 @pytest.mark.slow
@@ -57,8 +59,7 @@ timer = StartupTimer()
 cfg = toy_config(Path({str(tmp_path)!r}), "prep", TOY_RSL)
 prepare_rsl_rl(ToyReach(), cfg, randomizer=None, start=StartUp(timer=timer))
 loaded = [m for m in {TORCH_SIDE!r} if m in sys.modules]
-print(json.dumps({{"programs": list(timer.programs), "loaded": loaded}}))
-sys.stdout.flush()
+Path("result.json").write_text(json.dumps({{"programs": list(timer.programs), "loaded": loaded}}))
 os._exit(0)
 """,
         tmp_path,
@@ -97,8 +98,7 @@ try:
     run(cfg, env=ToyReach())
 except Stop:
     pass
-print(json.dumps({{"events": events}}))
-sys.stdout.flush()
+Path("result.json").write_text(json.dumps({{"events": events}}))
 os._exit(0)
 """,
         tmp_path,
