@@ -330,9 +330,10 @@ class TrainConfig:
     and jaxlib (``training/startup/autotune.py``); GPUs only, never overwrites. H100, LiteReach gpu preset,
     empty compile cache: first evaluation at 68.6 s instead of 99.4 s, same training speed (2026-11-27)."""
     quick_compile: bool = False
-    """Compile every program with XLA's LLVM at -O1 (``startup.compile_cache.QUICK_COMPILE``): a shorter
-    compile at about the same speed on a CPU. For smoke runs and tests on a CPU (the tiny preset sets it); not
-    measured on GPUs (docs/training.md, "Smoke run")."""
+    """Compile every program with XLA's LLVM at -O1 and its older CPU fusion emitters
+    (``startup.compile_cache.QUICK_COMPILE``): a shorter compile at about the same speed on a CPU. For smoke
+    runs and tests on a CPU (the tiny preset sets it); not measured on GPUs
+    (docs/training.md, "Smoke run")."""
     executable_cache: bool = True
     """Executable cache in <cache directory>/executables (with the compile cache): a rerun of the same
     command and code loads each program without tracing, lowering or compiling it. Used on GPU backends;

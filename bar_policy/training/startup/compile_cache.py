@@ -22,14 +22,18 @@ __all__ = [
     "quiet_xla_alarms",
 ]
 
-QUICK_COMPILE: dict[str, Any] = {"xla_backend_optimization_level": 1}
+QUICK_COMPILE: dict[str, Any] = {"xla_backend_optimization_level": 1, "xla_cpu_use_fusion_emitters": False}
 """XLA options of ``TrainConfig.quick_compile`` (the tiny preset's): LLVM's code generation at -O1 instead
 of the default -O2/-O3 pipeline; XLA's HLO passes (fusion, layout) still run. The tiny preset's evaluation
 on the 2-core CPU (process CPU seconds, jaxlib 0.10.2, 2026-12-02): compile 39.2 s at -O1, 48.8 s with only
 ``xla_llvm_disable_expensive_passes``, one run 2.07 and 2.01 s; at -O0 it compiled faster still but ran
-several times slower, which three evaluations per run paid back (docs/training.md, "Smoke run")."""
+several times slower, which three evaluations per run paid back (docs/training.md, "Smoke run").
+``xla_cpu_use_fusion_emitters`` off: XLA's CPU backend writes each fusion's loop with its older emitters, and
+the whole cold smoke run took 147.6 CPU s and 1.18 GB against 219.6 s and 2.96 GB (the env step ran as fast;
+float32 results differ in rounding only; 2-core CPU, 2026-12-03). A GPU compile ignores it."""
 QUICK_COMPILE_NOTE = (
-    "quick compile: XLA's LLVM at -O1 (smoke-run programs: compile sooner, run about as fast; "
+    "quick compile: XLA's LLVM at -O1, its older CPU fusion emitters (smoke-run programs: compile sooner, "
+    "run about as fast; "
     "--no-quick-compile turns it off)"
 )
 
