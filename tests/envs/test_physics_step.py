@@ -10,6 +10,8 @@ O(1)).
 from __future__ import annotations
 
 import copy
+import functools
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -30,7 +32,7 @@ RTOL = 1e-12
 
 @pytest.fixture(scope="module")
 def piano() -> mujoco.MjModel:
-    return load_model("arms", keyboard_scene(compact_config()))
+    return _reference("piano")[0]
 
 
 def _press_states(m: mujoco.MjModel, n: int = 6) -> list[mujoco.MjData]:
@@ -94,26 +96,38 @@ def test_ancestor_mask_by_hand() -> None:
     assert sorted(np.flatnonzero(anc[wrists[0]] | anc[wrists[1]]).tolist()) == list(range(14))
 
 
-def _compare(m: mujoco.MjModel, states: list[mujoco.MjData], cholesky: str = "library") -> int:
+@functools.cache
+def _reference(model: str) -> tuple[mujoco.MjModel, Callable[[mjx.Data], tuple[mjx.Data, mjx.Data]]]:
+    """``model`` (``arms`` or ``piano``) and MJX's own ``(forward, step)`` of it as one jitted function.
+
+    One program for both (the step's forward is the same computation), built once a process for every test
+    that compares against it (each an XLA compile of a minute or more on a CPU).
+    """
+    m = load_model("arms", keyboard_scene(compact_config())) if model == "piano" else load_model("arms")
+    with jax.enable_x64(True):
+        mx = mjx.put_model(m)
+    return m, jax.jit(lambda d: (mjx.forward(mx, d), mjx.step(mx, d)))
+
+
+def _compare(model: str, states: list[mujoco.MjData], cholesky: str = "library") -> int:
     """physics_step.forward/step against mjx.forward/step from each state, float64; returns the largest
     number of active contact rows seen (to show the states are in contact). ``cholesky``: the plan's."""
+    m, reference = _reference(model)
     plan = physics_step.plan(m, cholesky=cholesky)
     most = 0
     with jax.enable_x64(True):
         mx = mjx.put_model(m)
-        ours_f = jax.jit(lambda d: physics_step.forward(mx, d, plan))
-        ours_s = jax.jit(lambda d: physics_step.step(mx, d, plan))
-        ref_f, ref_s = jax.jit(lambda d: mjx.forward(mx, d)), jax.jit(lambda d: mjx.step(mx, d))
+        ours = jax.jit(lambda d: (physics_step.forward(mx, d, plan), physics_step.step(mx, d, plan)))
         for s in states:
             d = mjx.put_data(m, s)
-            a, b = ref_f(d), ours_f(d)
+            (a, a_step), (b, b_step) = reference(d), ours(d)
             assert a.qacc.dtype == jnp.float64
             np.testing.assert_allclose(b._impl.efc_J, a._impl.efc_J, rtol=RTOL, atol=RTOL)
             np.testing.assert_allclose(b._impl.efc_aref, a._impl.efc_aref, rtol=RTOL, atol=RTOL * 1e2)
             scale = float(np.abs(a.qacc).max())
             np.testing.assert_allclose(b.qacc, a.qacc, rtol=0, atol=RTOL * scale)
             np.testing.assert_allclose(b.qfrc_constraint, a.qfrc_constraint, rtol=0, atol=RTOL * scale)
-            a, b = ref_s(d), ours_s(d)
+            a, b = a_step, b_step
             np.testing.assert_allclose(b.qpos, a.qpos, rtol=0, atol=RTOL)
             np.testing.assert_allclose(b.qvel, a.qvel, rtol=0, atol=RTOL * scale)
             active = np.asarray(a._impl.efc_D) * (np.asarray(a._impl.efc_pos) < 0)
@@ -126,14 +140,14 @@ def test_piano_step_equals_mjx_step_in_contact(piano) -> None:
     states = _press_states(piano)
     # The states push keys down (> 0.01 rad; a key's full travel is 0.067-0.105 rad) in C MuJoCo.
     assert max(np.abs(s.qpos[14:]).max() for s in states) > 0.01
-    assert _compare(piano, states) >= 2  # both fingertips on keys (contact rows active)
+    assert _compare("piano", states) >= 2  # both fingertips on keys (contact rows active)
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("cholesky", physics_step.CHOLESKY)
 def test_reach_step_equals_mjx_step(cholesky: str) -> None:
     # scalar / columns: every Cholesky of the step written out (small_spd; opt-in, for the GPU's graphs).
-    m = load_model("arms")
+    m = _reference("arms")[0]
     rng = np.random.default_rng(3)
     states = []
     for _ in range(4):
@@ -144,7 +158,7 @@ def test_reach_step_equals_mjx_step(cholesky: str) -> None:
         states.append(d)
     assert physics_step.plan(m).split is None
     assert physics_step.plan(m, cholesky=cholesky).unrolled is (cholesky != "library")
-    _compare(m, states, cholesky)
+    _compare("arms", states, cholesky)
 
 
 def test_small_spd_against_numpy() -> None:
@@ -223,4 +237,4 @@ def test_while_newton_loop_gives_the_same_step(piano, monkeypatch) -> None:
     # The env's Newton loop is written out, keeping a body's result only where the loop's condition held
     # before it; MJX's while_loop gives the same step (compared at the module's float64 tolerance, _compare).
     monkeypatch.setattr(leaf_newton, "newton_loop", leaf_newton.while_newton_loop)
-    assert _compare(piano, _press_states(piano, n=3)) >= 2
+    assert _compare("piano", _press_states(piano, n=3)) >= 2
