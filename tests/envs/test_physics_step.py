@@ -97,8 +97,11 @@ def test_ancestor_mask_by_hand() -> None:
 
 
 @functools.cache
-def _reference(model: str) -> tuple[mujoco.MjModel, Callable[[mjx.Data], tuple[mjx.Data, mjx.Data]]]:
-    """``model`` (``arms`` or ``piano``) and MJX's own ``(forward, step)`` of it as one jitted function.
+def _reference(
+    model: str,
+) -> tuple[mujoco.MjModel, mjx.Model, Callable[[mjx.Data], tuple[mjx.Data, mjx.Data]]]:
+    """``model`` (``arms`` or ``piano``), its float64 MJX model and MJX's own ``(forward, step)`` of it as
+    one jitted function.
 
     One program for both (the step's forward is the same computation), built once a process for every test
     that compares against it (each an XLA compile of a minute or more on a CPU).
@@ -106,17 +109,16 @@ def _reference(model: str) -> tuple[mujoco.MjModel, Callable[[mjx.Data], tuple[m
     m = load_model("arms", keyboard_scene(compact_config())) if model == "piano" else load_model("arms")
     with jax.enable_x64(True):
         mx = mjx.put_model(m)
-    return m, jax.jit(lambda d: (mjx.forward(mx, d), mjx.step(mx, d)))
+    return m, mx, jax.jit(lambda d: (mjx.forward(mx, d), mjx.step(mx, d)))
 
 
 def _compare(model: str, states: list[mujoco.MjData], cholesky: str = "library") -> int:
     """physics_step.forward/step against mjx.forward/step from each state, float64; returns the largest
     number of active contact rows seen (to show the states are in contact). ``cholesky``: the plan's."""
-    m, reference = _reference(model)
+    m, mx, reference = _reference(model)
     plan = physics_step.plan(m, cholesky=cholesky)
     most = 0
     with jax.enable_x64(True):
-        mx = mjx.put_model(m)
         ours = jax.jit(lambda d: (physics_step.forward(mx, d, plan), physics_step.step(mx, d, plan)))
         for s in states:
             d = mjx.put_data(m, s)

@@ -46,6 +46,18 @@ def test_the_tiny_preset_is_a_smoke_run():
     assert not preset("gpu").quick_compile and not preset("cpu").quick_compile
 
 
+def test_the_suite_compiles_as_the_tiny_preset():
+    """``tests/conftest.py`` writes ``QUICK_COMPILE`` out as ``XLA_FLAGS`` (it imports no package code):
+    every option of the preset's is there, with its value."""
+    import os
+
+    from bar_policy.training.startup.compile_cache import QUICK_COMPILE
+
+    flags = os.environ["XLA_FLAGS"].split()
+    for name, value in QUICK_COMPILE.items():
+        assert f"--{name}={str(value).lower()}" in flags, name
+
+
 def test_evaluation_labels_by_hand():
     assert evaluation_set(16.0, held_out=False) == "16 fresh episodes, randomised as in training"
     held_out = "4,096 episodes of the held-out evaluation set, nominal model"

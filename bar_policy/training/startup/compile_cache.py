@@ -33,8 +33,7 @@ the whole cold smoke run took 147.6 CPU s and 1.18 GB against 219.6 s and 2.96 G
 float32 results differ in rounding only; 2-core CPU, 2026-12-03). A GPU compile ignores it."""
 QUICK_COMPILE_NOTE = (
     "quick compile: XLA's LLVM at -O1, its older CPU fusion emitters (smoke-run programs: compile sooner, "
-    "run about as fast; "
-    "--no-quick-compile turns it off)"
+    "run about as fast; --no-quick-compile turns it off)"
 )
 
 
