@@ -77,12 +77,12 @@ class KeyPosePriorConfig:
     """Fingertip sphere above the key top when hovering, m (prior alone on the held-out songs, sim target:
     mean F1 0.60 at 15 mm, 0.79 at 30 mm, 0.72 at 40 mm, lead 2; with the count-in and an 8 mm press,
     0.74 at 15 mm, 0.78 at 20 mm, 0.80 at 25 mm, 0.82 at 30 mm; docs/piano.md)."""
-    press_below_m: float = 0.008
+    press_below_m: float = 0.014
     """Press target below the aim point's full-travel depth, m (the key's stop takes the rest). Deeper than
     the key needs because the place blend mixes the press pose with the hover poses of the later frames:
-    8 mm puts the blended fingertip past the press threshold sooner. Prior alone, held-out songs with the
-    0.5 s count-in, sim target: mean F1 0.793 at 4 mm, 0.808 at 6, 0.817 at 8, 0.821 at 9, 0.812 at 10,
-    0.813 at 12; training songs 0.773 at 4 mm, 0.800 at 8, 0.776 at 9 (docs/piano.md, "Count-in")."""
+    a deeper press puts the blended fingertip past the press threshold sooner. Prior alone, rest weight
+    0.02, sim target: held-out F1 0.901 at 8 mm, 0.909 at 14, 0.907 at 16; random songs (32, seed 2026)
+    black recall 0.838 at 8 mm, 0.850 at 12, 0.851 at 14, 0.856 at 16 (docs/piano.md, "Press depth")."""
     press_force_n: float = 1.5
     """Upward key force the press command holds, N (full travel takes 1.2 N at a white key's aim point)."""
     decay: float = 0.6
