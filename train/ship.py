@@ -297,12 +297,9 @@ def main(argv: list[str] | None = None, *, eval_options: Mapping[str, Any] | Non
         from bar_policy import envs
         from bar_policy.training.throughput import raw_env_steps_per_second
 
-        env = envs.load(env_name)
+        env, randomizer = envs.load_for_training(env_name)
         raw = raw_env_steps_per_second(
-            env,
-            envs.wrap_for_brax_training,
-            num_envs=known.raw_throughput,
-            randomizer=envs.get_randomizer(env_name, env.config),
+            env, envs.wrap_for_brax_training, num_envs=known.raw_throughput, randomizer=randomizer
         )
         final["raw_env_throughput"] = raw
         paths["json"].write_text(json.dumps(final, indent=2, sort_keys=True))

@@ -49,6 +49,7 @@ __all__ = [
     "default_config",
     "get_randomizer",
     "load",
+    "load_for_training",
     "make_batched_env",
     "nominal_config",
     "wrap_for_brax_training",
@@ -101,11 +102,28 @@ def load(
         overrides: dotted-path overrides applied on top (``bar_policy.overrides.apply_overrides``: the one
             override syntax, also that of ``bar-train --env-overrides``).
     """
-    cls, default, _ = _entry(name)
-    cfg = config if config is not None else default()
-    if overrides:
-        cfg = apply_overrides(cfg, overrides)
+    cls, cfg, _ = _resolve(name, config, overrides)
     return cls(cfg)
+
+
+def load_for_training(
+    name: str = DEFAULT_ENV,
+    config: Any | None = None,
+    overrides: Iterable[str] | Mapping[str, Any] | None = None,
+) -> tuple[MjxEnv, Callable]:
+    """``(load(name, config, overrides), get_randomizer(name, env.config))``, the config resolved once.
+
+    What a trainer takes from the registry: the env and the model-level randomiser of its own config.
+    """
+    cls, cfg, make = _resolve(name, config, overrides)
+    return cls(cfg), make(cfg)
+
+
+def _resolve(name: str, config: Any | None, overrides: Iterable[str] | Mapping[str, Any] | None) -> tuple:
+    """``(env class, config with the overrides applied, randomiser factory)`` of a registered env."""
+    cls, default, make = _entry(name)
+    cfg = config if config is not None else default()
+    return cls, apply_overrides(cfg, overrides) if overrides else cfg, make
 
 
 def get_randomizer(name: str = DEFAULT_ENV, config: Any | None = None) -> Callable:

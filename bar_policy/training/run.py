@@ -87,8 +87,9 @@ def _run(cfg: TrainConfig, *, env_config: Any, env: Any, started_at: float | Non
         randomizer = None
         if env is None:
             with local_default_devices():
-                env = envs.load(cfg.env_name, config=env_config, overrides=list(cfg.env_overrides) or None)
-            randomizer = envs.get_randomizer(cfg.env_name, env.config)
+                env, randomizer = envs.load_for_training(
+                    cfg.env_name, config=env_config, overrides=list(cfg.env_overrides) or None
+                )
         # The task's evaluation env (LiteTrack: held-out clips, nominal physics, as the ship gate's sim
         # target); a distinct one is evaluated without model randomisation.
         eval_env = env.evaluation_env() if hasattr(env, "evaluation_env") else None

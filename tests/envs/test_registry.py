@@ -9,6 +9,7 @@ import re
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import pytest
 
 from bar_policy import envs
@@ -95,3 +96,16 @@ def test_overrides_reach_robot_and_task_fields():
     nominal = envs.nominal_config(cfg)
     assert nominal.motion == cfg.motion and nominal.init_noise == 0
     assert nominal.actuator.latency_steps == (0, 0)
+
+
+def test_load_for_training_gives_the_env_and_the_randomiser_of_its_overridden_config():
+    # One override reaches both: the env's config, and the randomiser's friction draw, whose range of
+    # 0.2 to 0.2 N*m gives every robot joint exactly 0.2 N*m in every slot.
+    items = ["randomization.frictionloss=[0.2, 0.2]", "randomization.link_mass_scale=null"]
+    env, randomizer = envs.load_for_training("LiteReach", overrides=items)
+    assert env.config == envs.load("LiteReach", overrides=items).config
+    assert env.config.randomization.frictionloss == (0.2, 0.2)
+    model, _ = randomizer(env.mjx_model, rng=jax.random.split(jax.random.PRNGKey(0), 3))
+    joints = env.robot_index.dof
+    friction = np.asarray(model.dof_frictionloss)[:, joints]
+    np.testing.assert_array_equal(friction, np.full((3, len(joints)), np.float32(0.2)))

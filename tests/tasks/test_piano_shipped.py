@@ -68,7 +68,8 @@ def test_shipped_piano_plays_a_black_key_song(tmp_path) -> None:
     out = tmp_path / "eval.json"
     song = "jingle_bells_e_flat"
     assert song in EVAL_HELDOUT
-    assert main(["eval", "--policy", str(PIANO), "--songs", song, "--random-songs", "0", "--json", str(out)]) == 0
+    argv = ["eval", "--policy", str(PIANO), "--songs", song, "--random-songs", "0", "--json", str(out)]
+    assert main(argv) == 0
     res = json.loads(out.read_text())
     assert [s["song"] for s in res["songs"]] == [song]
     assert res["f1"] >= 0.9 and res["recall_black"] >= 0.85 and res["recall_white"] >= 0.85
