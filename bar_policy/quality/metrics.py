@@ -78,8 +78,7 @@ def at_cap(demand: Array, cap: Array, fraction: float = CAP_FRACTION) -> Array:
     Returns:
         Boolean, shape ``(..., n)``.
     """
-    xp = array_namespace(demand, cap)
-    return xp.abs(demand) >= fraction * cap
+    return abs(demand) >= fraction * cap
 
 
 def near_limit(q: Array, lower: Array, upper: Array, margin: float = LIMIT_MARGIN_RAD) -> Array:
@@ -101,8 +100,7 @@ def cap_dwell_step(time_at_cap: Array, at_cap_now: Array, dt: float) -> Array:
         at_cap_now: this tick's ``at_cap``, shape ``(..., n)``.
         dt: tick length, s.
     """
-    xp = array_namespace(time_at_cap, at_cap_now)
-    return xp.where(at_cap_now, time_at_cap + dt, 0.0 * time_at_cap)
+    return (time_at_cap + dt) * at_cap_now  # 0 where below the cap, in the time's dtype
 
 
 def dwell_exceeded(time_at_cap: Array, limit: float = CAP_DWELL_S) -> Array:
@@ -124,9 +122,8 @@ def action_rate(actions: Array) -> Array:
     Returns:
         Shape ``(T - 1, ...)``; its mean is the reported action rate.
     """
-    xp = array_namespace(actions)
     d = actions[1:] - actions[:-1]
-    return xp.sum(d * d, axis=-1)
+    return (d * d).sum(axis=-1)
 
 
 def _segments(n: int, length: int) -> list[int]:

@@ -351,9 +351,12 @@ def test_the_key_holds_reward_weights_by_name(tmp_path, monkeypatch):
         cfg = envs.load("LiteReach", overrides=overrides or None).config
         return json.loads(json.dumps(dataclasses.asdict(cfg), default=list))
 
-    overrides = ([], ["reward.scales.success=0.6"], ["reward.fine_std=0.04"])
+    # The last two spell one setting two ways: one env config.
+    weight, field = ["reward.scales.success=0.6"], ["reward.fine_std=0.04"]
+    overrides = ([], weight, field, ["sim_dt=0.004"], ["sim_dt=4e-3"])
     records = [env_record(o) for o in overrides]
     assert records[0]["reward"]["scales"]["success"] != 0.6  # the override is a change
+    assert records[3] == records[4] != records[0]
     for backend in ("brax", "rsl-rl"):
         ctx = []
         for o, r in zip(overrides, records, strict=True):  # the run's config holds them too
@@ -363,12 +366,14 @@ def test_the_key_holds_reward_weights_by_name(tmp_path, monkeypatch):
             ctx.append(executable_cache_for(cfg, tmp_path, record, Toy()).context)
         assert ctx[0] == ctx[1], backend
         assert ctx[0] != ctx[2], backend
+        assert ctx[3] == ctx[4] != ctx[0], backend  # one env config, one key, however it was spelt
     train = {"seed": 0, "env_overrides": ["sim_dt=0.004", "reward.scales.success=0.6"]}
     t, e = ek.weights_by_name(train, records[1])
     assert e["reward"]["scales"] == sorted(records[1]["reward"]["scales"])  # the names stay
-    assert t == {"seed": 0, "env_overrides": ["sim_dt=0.004"]}
+    assert t == {"seed": 0}  # the env record holds what the overrides did
     assert records[1]["reward"]["scales"]["success"] == 0.6  # the record itself is left whole
-    assert ek.weights_by_name(train, {"gain": 0.3}) == (train, {"gain": 0.3})  # no weights: as it is
+    assert ek.weights_by_name(train, {"gain": 0.3}) == ({"seed": 0}, {"gain": 0.3})  # no weights
+    assert ek.weights_by_name(train, None) == (train, None)  # a stand-in env: the overrides stay
 
 
 def test_key_covers_config_code_versions_platform_and_signature():

@@ -53,6 +53,7 @@ def slot_env(
     wrap_fn: Callable[..., BatchedEnv],
     randomizer: Callable[..., Any] | None,
     model_keys: jax.Array,
+    weights: dict[str, jax.Array] | None = None,
     **kw: Any,
 ) -> BatchedEnv:
     """The batched env of this device's slots, each on the model its key draws (per-device code).
@@ -60,6 +61,7 @@ def slot_env(
     The randomised model is built inside the program from the slots' keys (a traced value, sharded with
     the slots), not closed over as a constant; ``kw`` goes to ``wrap_fn`` (e.g. ``auto_reset=False``).
     """
+    env = env if weights is None else with_weights(env, weights)
     rfn = None
     if randomizer is not None:
 
@@ -157,13 +159,12 @@ def make_programs(
     episode_length = int(env.episode_length)
 
     def batch(model_keys: jax.Array, weights: dict[str, jax.Array] | None = None, **kw: Any) -> BatchedEnv:
-        e = env if weights is None else with_weights(env, weights)
-        return slot_env(e, wrap_fn, randomizer, model_keys, **kw)
+        return slot_env(env, wrap_fn, randomizer, model_keys, weights, **kw)
 
     def reset(key: jax.Array, model_key: jax.Array) -> tuple[Any, jax.Array]:
-        model_keys = slot_keys(model_key, ppo.num_envs, envs_local)
+        model_keys, reset_keys = (slot_keys(k, ppo.num_envs, envs_local) for k in (model_key, key))
         envs: BatchedEnv = batch(model_keys)
-        return envs.reset(slot_keys(key, ppo.num_envs, envs_local)), model_keys
+        return envs.reset(reset_keys), model_keys
 
     def iteration_keys(key: jax.Array, i: jax.Array) -> jax.Array:
         """Iteration ``i``'s ``(rollout, SGD)`` keys of an epoch keyed ``key``, this device's (shape (2, 2)).
@@ -189,10 +190,10 @@ def make_programs(
         return strip_weak_type(ts), jax.lax.pmean(metrics, axis_name=AXIS)
 
     def evaluate(params: Any, key: jax.Array, model_key: jax.Array, weights: dict) -> dict[str, jax.Array]:
-        keys = slot_keys(model_key, cfg.eval.num_eval_envs, eval_local)
+        keys, reset_keys = (slot_keys(k, cfg.eval.num_eval_envs, eval_local) for k in (model_key, key))
         e_env, e_rand = (env, randomizer) if eval_env is None else (eval_env, eval_randomizer)
-        env_e: BatchedEnv = slot_env(with_weights(e_env, weights), wrap_fn, e_rand, keys, auto_reset=False)
-        state = env_e.reset(slot_keys(key, cfg.eval.num_eval_envs, eval_local))
+        env_e: BatchedEnv = slot_env(e_env, wrap_fn, e_rand, keys, weights, auto_reset=False)
+        state = env_e.reset(reset_keys)
         return evaluation.evaluate(learner.make_policy, params, env_e, state, key, episode_length)
 
     rep, shard = P(), P(AXIS)

@@ -10,8 +10,9 @@ submits; ``docs/training.md`` has the measurements.
 
 - the program's name and the jitted function's module and qualified name;
 - the run's context, passed in explicitly (``executable_key.run_context`` of the run's record: the training
-  config ``config_to_dict(cfg)`` less ``OUTSIDE_PROGRAMS``, the env config (its reward weights by name
-  only: ``weights_by_name``), the env's class and, for an env class outside ``bar_policy``, its source
+  config ``config_to_dict(cfg)`` less ``OUTSIDE_PROGRAMS`` (and less ``env_overrides`` when the env config
+  is there to hold their effect), the env config (its reward weights by name only: ``weights_by_name``),
+  the env's class and, for an env class outside ``bar_policy``, its source
   file's hash); the seed and every randomisation setting the programs close over live in those configs;
 - ``package_hash()`` (these helpers live in ``executable_key``): the content of every file under
   ``bar_policy/`` (code, XML, JSON, meshes), once per process;

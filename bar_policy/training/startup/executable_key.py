@@ -25,7 +25,6 @@ from typing import Any
 import numpy as np
 
 from bar_policy._files import PACKAGE_ROOT, package_hash
-from bar_policy.overrides import split_override
 
 __all__ = [
     "OUTSIDE_PROGRAMS",
@@ -238,20 +237,22 @@ def program_fields(train: Mapping[str, Any]) -> dict[str, Any]:
 def weights_by_name(
     train: Mapping[str, Any], env: Mapping[str, Any] | None
 ) -> tuple[Mapping[str, Any], Mapping[str, Any] | None]:
-    """The key's training and env config parts, with the reward weights by name only.
+    """The key's training and env config parts: the env by its resolved record, reward weights by name only.
 
     Every program that steps the env takes the weights as an argument (the brax rollout and evaluation,
-    ``training.brax.programs``; the rsl-rl steps, ``rsl_rl.programs``), so their values are left out. The env
-    record keeps the terms' names, and the training config's ``env_overrides`` lose their
-    ``reward.scales.*`` items. A run that changes only a weight is then served.
+    ``training.brax.programs``; the rsl-rl steps, ``rsl_rl.programs``), so their values are left out: the env
+    record keeps the terms' names, and a run that changes only a weight is served. With an env record the
+    training config's ``env_overrides`` go too: the record holds their effect, so two spellings of one
+    setting (``sim_dt=0.004``, ``sim_dt=4e-3``) are one key. Without one (a stand-in env) they stay.
     """
-    reward = env.get("reward") if isinstance(env, Mapping) else None
-    scales = reward.get("scales") if isinstance(reward, Mapping) else None
-    if not isinstance(scales, Mapping):
+    if not isinstance(env, Mapping):
         return train, env
-    overrides = train.get("env_overrides", ())
-    kept = [o for o in overrides if not split_override(o)[0].startswith("reward.scales.")]
-    return {**train, "env_overrides": kept}, {**env, "reward": {**reward, "scales": sorted(scales)}}
+    train = {k: v for k, v in train.items() if k != "env_overrides"}
+    reward = env.get("reward")
+    scales = reward.get("scales") if isinstance(reward, Mapping) else None
+    if isinstance(scales, Mapping):
+        env = {**env, "reward": {**reward, "scales": sorted(scales)}}
+    return train, env
 
 
 def run_context(record: Mapping[str, Any], env: Any) -> dict[str, Any]:
