@@ -16,7 +16,9 @@ API JAX recommends in place of ``pmap`` (which jax >= 0.8 itself implements on t
 
 Under ``jax.distributed`` the mesh spans every process's devices (``jax.devices()``); each process feeds
 and reads only its addressable shards. Host values enter through ``replicate`` (every process passes the
-same value) and leave through ``to_host`` (the first local replica).
+same value) and leave through ``jax.device_get``, which reads a fully replicated array from one local
+replica on any process count (the trainer's parameters, metrics and evaluations are all replicated);
+``to_host`` gives the first local shard of any array (the tests and benches inspect sharded ones).
 """
 
 from __future__ import annotations
@@ -76,7 +78,10 @@ class DataParallel:
         return jax.tree.map(one, tree)
 
     def to_host(self, tree: Any) -> Any:
-        """Replicated global arrays -> numpy (this process's first replica; no cross-process traffic)."""
+        """Global arrays -> numpy: this process's first shard of each, no cross-process traffic.
+
+        A replicated array's first shard is its whole value; the trainer reads those with ``jax.device_get``.
+        """
 
         def one(x: Any) -> np.ndarray:
             if isinstance(x, jax.Array):

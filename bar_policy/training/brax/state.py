@@ -163,7 +163,7 @@ class BraxRun:
         self.ts, self.envs, metrics, stats = run_epoch(
             self.rollout, self.update, self.ts, self.envs, epoch_key, self.iteration_index, self.weights
         )
-        metrics, stats = epoch_totals(*self.dp.to_host((metrics, stats)))
+        metrics, stats = epoch_totals(*jax.device_get((metrics, stats)))
         self.epoch_end = time.monotonic()
         self.epoch_s = seconds = self.epoch_end - t0
         steps = self.iters_per_epoch * self.cfg.ppo.steps_per_iteration
@@ -188,13 +188,13 @@ class BraxRun:
         if step:  # the step-0 evaluation's time includes its compile
             self.last_eval_s = time.monotonic() - t_eval
         kept = f"  best so far: the parameters at {step:,} steps are kept"
-        yield from self.evaluations.record(step, m, lambda: _host_params(self.dp.to_host(self.ts)), kept)
+        yield from self.evaluations.record(step, m, lambda: _host_params(jax.device_get(self.ts)), kept)
         self.programs.confirm()  # every loaded program has run: none is a suspect of a crash
 
     def evaluation(self, params: tuple[Any, Any], key: np.ndarray) -> dict[str, float]:
         """The evaluation program's figures, as host floats, for replicated ``(normalizer, policy)``."""
         m = self.programs["evaluate"](params, self.dp.replicate(key), self.eval_model_key, self.weights)
-        return {k: float(v) for k, v in self.dp.to_host(m).items()}
+        return {k: float(v) for k, v in jax.device_get(m).items()}
 
     def evaluate_initial(self) -> Generator[Record, Any, float]:
         """The untrained policy's evaluation (its params re-created by ``init``), reported as step 0.
@@ -209,7 +209,7 @@ class BraxRun:
 
     def checkpoint(self) -> SaveCheckpoint:
         """The training state to save (every process fetches its own replica; only process 0 writes)."""
-        return SaveCheckpoint(self.dp.to_host(self.ts), self.env_steps, self.iteration)
+        return SaveCheckpoint(jax.device_get(self.ts), self.env_steps, self.iteration)
 
     def result(self, learner: Any, prior: Any, start_steps: int, train_seconds: float) -> BraxTrainResult:
         """The run's result: host params, the records, and an evaluator on the compiled evaluation."""
@@ -219,7 +219,7 @@ class BraxRun:
             return self.evaluation(dp.replicate(tuple(params[:2])), host_key(eval_seed, _K_EVAL))
 
         return BraxTrainResult(
-            params=_host_params(dp.to_host(self.ts)),
+            params=_host_params(jax.device_get(self.ts)),
             make_policy=learner.make_policy,
             env_steps=self.env_steps,
             run_env_steps=self.env_steps - start_steps,
