@@ -55,7 +55,8 @@ without it unlearn the prior's black-key presses) and half the cost for a wrong 
 more than a white one; held-out black recall 0.82 -> 0.88 on seed 0), encoder offsets of +-2 mrad (the
 system identification's calibration accuracy; at +-10 mrad the MJX evaluation's F1 of the prior alone is
 0.810, at +-2 mrad 0.827), and 8 M env steps (the C MuJoCo gate's best iterate comes within the first 2 M;
-later iterates trade black presses for fewer wrong keys and add chatter: docs/piano.md, "Seeds").
+later iterates trade black presses for fewer wrong keys and add chatter: docs/piano.md, "The shipped
+policy and its seeds").
 """
 
 PIANO_ROBUST = robust(PIANO, "piano-robust")
