@@ -11,8 +11,10 @@
 
 Nothing here fails: without git, outside a git checkout, or when git times out, the commit and the dirty
 flag read ``"unknown"``, unless ``BAR_POLICY_GIT_COMMIT`` (and ``BAR_POLICY_GIT_DIRTY``) state them for a
-copied work tree (the lent GPU machines get no ``.git``), recorded as ``git_source: "environment"``. A
-library that is not installed reads ``"absent"``. ``describe(record)`` gives the one or two lines
+copied work tree (the lent GPU machines get no ``.git``), recorded as ``git_source: "environment"``. Where
+git answers, it wins; a ``BAR_POLICY_GIT_COMMIT`` it contradicts is kept as ``stated_commit`` and shown (a
+copied tree can carry a stale ``.git``: a file trained so once read a week-old commit). A library that is
+not installed reads ``"absent"``. ``describe(record)`` gives the one or two lines
 ``bar-deploy`` prints at start; it informs and never refuses. numpy-free and jax-free (the
 deploy runtime imports it).
 """
@@ -140,17 +142,21 @@ def collect(argv: Sequence[str] | None = None, root: str | os.PathLike[str] | No
     """
     commit, dirty = git_state(root)
     source = "git" if commit != UNKNOWN else "none"
-    if commit == UNKNOWN and os.environ.get(COMMIT_ENV, "").strip():
+    stated = os.environ.get(COMMIT_ENV, "").strip()
+    if commit == UNKNOWN and stated:
         # A copy of a checkout without .git (the lent GPU machines get the work tree only): the commit as
         # the person who copied it states it, recorded as such.
-        commit, source = os.environ[COMMIT_ENV].strip(), "environment"
+        commit, source = stated, "environment"
         dirty = {"1": True, "true": True, "0": False, "false": False}.get(
             os.environ.get(DIRTY_ENV, "").strip().lower(), UNKNOWN
         )
+    # git wins, but a stated commit it contradicts is kept beside it: a copied tree can carry a stale .git.
+    disagrees = source == "git" and stated and not commit.startswith(stated.lower())
     return {
         "git_commit": commit,
         "git_dirty": dirty,
         "git_source": source,
+        **({"stated_commit": stated} if disagrees else {}),
         "versions": library_versions(),
         "argv": list(sys.argv if argv is None else argv),
         "cwd": os.getcwd(),
@@ -182,7 +188,9 @@ def commit_text(record: Mapping[str, Any]) -> str:
     commit = str(record.get("git_commit", UNKNOWN))
     tree = {True: "dirty tree", False: "clean tree"}.get(record.get("git_dirty"), "tree state unknown")
     given = f", as given by {COMMIT_ENV}" if record.get("git_source") == "environment" else ""
-    return f"{commit[:12]} ({tree}{given})"
+    stated = record.get("stated_commit")
+    against = f"; {COMMIT_ENV} said {str(stated)[:12]}: a stale .git?" if stated else ""
+    return f"{commit[:12]} ({tree}{given}{against})"
 
 
 def describe(record: Mapping[str, Any] | None, code_version: str = "") -> list[str]:

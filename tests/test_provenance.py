@@ -205,9 +205,16 @@ def test_a_copied_work_tree_takes_the_commit_from_the_environment(repo, tmp_path
     assert provenance.commit_text(record) == "abcdef012345 (clean tree, as given by BAR_POLICY_GIT_COMMIT)"
     monkeypatch.setenv("BAR_POLICY_GIT_DIRTY", "maybe")  # not a flag: unknown, not guessed
     assert provenance.collect(root=copy)["git_dirty"] == "unknown"
-    # In a real checkout git wins over the variable.
+    # In a real checkout git wins over the variable; a variable git contradicts is kept beside it and shown.
     record = provenance.collect(root=repo)
-    assert record["git_source"] == "git" and record["git_commit"] == _expected_commit(b"hello\n", "first")
+    head = _expected_commit(b"hello\n", "first")
+    assert record["git_source"] == "git" and record["git_commit"] == head
+    assert record["stated_commit"] == "abcdef0123456789abcdef0123456789abcdef01"
+    assert provenance.commit_text(record).endswith(
+        "; BAR_POLICY_GIT_COMMIT said abcdef012345: a stale .git?)"
+    )
+    monkeypatch.setenv("BAR_POLICY_GIT_COMMIT", head[:7])  # a short hash of HEAD agrees: nothing extra
+    assert "stated_commit" not in provenance.collect(root=repo)
 
 
 def test_library_versions_installed_or_absent():
