@@ -13,7 +13,7 @@ Nothing here fails: without git, outside a git checkout, or when git times out, 
 flag read ``"unknown"``, unless ``BAR_POLICY_GIT_COMMIT`` (and ``BAR_POLICY_GIT_DIRTY``) state them for a
 copied work tree (the lent GPU machines get no ``.git``), recorded as ``git_source: "environment"``. Where
 git answers, it wins; a ``BAR_POLICY_GIT_COMMIT`` it contradicts is kept as ``stated_commit`` and shown (a
-copied tree can carry a stale ``.git``: a file trained so once read a week-old commit). A library that is
+copied tree can carry a stale ``.git``: a file trained so once recorded an older commit). A library that is
 not installed reads ``"absent"``. ``describe(record)`` gives the one or two lines
 ``bar-deploy`` prints at start; it informs and never refuses. numpy-free and jax-free (the
 deploy runtime imports it).

@@ -132,8 +132,8 @@ def get_randomizer(name: str = DEFAULT_ENV, config: Any | None = None) -> Callab
     ``rng`` is a batch of keys, shape (num_envs, 2) (what brax PPO passes). Pass the env's config so the
     ranges match it (default: ``default_config(name)``).
     """
-    _, default, make = _entry(name)
-    return make(config if config is not None else default())
+    _, cfg, make = _resolve(name, config, None)
+    return make(cfg)
 
 
 def make_batched_env(

@@ -59,7 +59,9 @@ def slot_env(
     """The batched env of this device's slots, each on the model its key draws (per-device code).
 
     The randomised model is built inside the program from the slots' keys (a traced value, sharded with
-    the slots), not closed over as a constant; ``kw`` goes to ``wrap_fn`` (e.g. ``auto_reset=False``).
+    the slots), not closed over as a constant; ``weights``: the reward weights the batch steps with
+    (``envs.reward_weights.with_weights``; None: the env's own); ``kw`` goes to ``wrap_fn`` (e.g.
+    ``auto_reset=False``).
     """
     env = env if weights is None else with_weights(env, weights)
     rfn = None
