@@ -377,14 +377,21 @@ class Runtime(RunLoop):
                 used, n_action_clipped = self.actions(action, t)
                 q_policy = self.policy.q_command(used)
         cmd = self._with_stop_torque(sf.command(t, q_policy), state.q)
-        sat = sf.check_torque(cmd, state, self.config.control_dt)
+        applied = self.target.applies_commands
+        sat = sf.check_torque(cmd, state, self.config.control_dt, use_reported=applied)
         demand = sf.last_demand
-        if sat is not None and not self.target.applies_commands:
+        if sat is not None and not applied:
             self._unapplied_saturation(sat[1])
             sat = None
         if q_policy is not None:
             ref = self.commands.target_q()
-            self.quality.update(demand, state.q, self.actions.last, cmd.q if ref is None else cmd.q - ref)
+            self.quality.update(
+                demand,
+                state.q,
+                self.actions.last,
+                cmd.q if ref is None else cmd.q - ref,
+                state.tau if applied else None,
+            )
         if sat is not None:
             self._fault(*sat, t)
             cmd = self._with_stop_torque(sf.command(t, q_policy), state.q)

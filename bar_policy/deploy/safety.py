@@ -15,7 +15,8 @@ Modes (the MIT surface of the seed; which fields are nonzero):
 
 Faults (each moves HOLD or POLICY to DAMPING with its reason; the first occurrence of a fault kind while
 already in DAMPING is logged too): non-finite state or action, a joint beyond its limit by more than
-``limit_margin``, a torque demand at the cap for longer than ``saturation_time``, a state older than
+``limit_margin``, a joint at its torque cap (the demand beyond it, the motor's reported torque near it) for
+longer than ``saturation_time``, a state older than
 ``stale_timeout``, ``max_overruns`` consecutive loop overruns, hardware faults reported by the target, and a
 policy that keeps asking far beyond its action range (``action_out_of_range``: some raw action entry at
 ``|a| >= action_range_factor * bound`` for longer than ``action_range_time``, bound = the policy's action
@@ -94,7 +95,11 @@ class SafetySupervisor:
         self._ramp_target = self.default_q.copy()
         self._ramp_T = self.config.ramp_time
         self._gain0 = 0.0
-        self._dwell = CapDwell(self.config.saturation_fraction * self.torque_cap, self.config.saturation_time)
+        self._dwell = CapDwell(
+            self.config.saturation_fraction * self.torque_cap,
+            self.config.saturation_time,
+            self.config.saturation_reported_fraction * self.torque_cap,
+        )
         self.last_demand = np.zeros(n)
         """Unclipped MIT torque of the last command checked by ``check_torque``, N*m."""
         self._overruns = 0
@@ -265,18 +270,26 @@ class SafetySupervisor:
             )
         return None
 
-    def check_torque(self, cmd: MitCommand, state: JointState, dt: float) -> tuple[str, str] | None:
+    def check_torque(
+        self, cmd: MitCommand, state: JointState, dt: float, *, use_reported: bool = True
+    ) -> tuple[str, str] | None:
         """Track time at the torque cap; a fault when any joint has been there longer than allowed.
 
-        The demand is the unclipped MIT torque of ``cmd`` at the measured state, N*m.
+        The demand is the unclipped MIT torque of ``cmd`` at the measured state, N*m; a joint is at the cap
+        while it reaches ``saturation_fraction`` of the cap and the torque its motor reports (``state.tau``)
+        reaches ``saturation_reported_fraction`` of it (``quality.metrics.at_cap``). ``use_reported`` False:
+        the demand alone (a target that applies no command reports no torque: a dry run's would-be
+        saturation).
         """
         signed = mit_torque(cmd, state.q, state.dq)
         self.last_demand = signed
         demand = np.abs(signed)
-        over = self._dwell.update(signed, dt)
+        over = self._dwell.update(signed, dt, np.asarray(state.tau, dtype=float) if use_reported else None)
         if over.size:
             items = ", ".join(
-                f"{self.joint_names[i]} ({demand[i]:.2f} N*m, cap {self.torque_cap[i]:g})" for i in over
+                f"{self.joint_names[i]} ({demand[i]:.2f} N*m asked, {abs(float(state.tau[i])):.2f} reported, "
+                f"cap {self.torque_cap[i]:g})"
+                for i in over
             )
             return "torque_saturation", f"torque at the cap for > {self.config.saturation_time:g} s: {items}"
         return None

@@ -66,22 +66,34 @@ def check_action_scale(
 class CapDwell:
     """Time each joint's torque demand has stayed at its cap; the supervisor's saturation rule.
 
-    A joint is at the cap when ``|demand| >= level``. Its time grows by ``dt`` per tick at the cap and
-    returns to 0 at its first tick below it, so only an unbroken run at the cap counts (a sign change
-    at the cap does not break it: a 25 Hz bang-bang between +cap and -cap counts as at the cap).
-    ``over()`` lists the joints past ``limit`` seconds. ``bench/track_fidelity.py`` applies the same rule
-    to the MJX env's torques.
+    A joint is at the cap when ``|demand| >= level`` (and, with ``reported_level``, while the torque its
+    motor reports is ``>= reported_level``: ``quality.metrics.at_cap``). Its time grows by ``dt`` per tick
+    at the cap and returns to 0 at its first tick below it, so only an unbroken run at the cap counts (a
+    sign change at the cap does not break it: a 25 Hz bang-bang between +cap and -cap counts as at the
+    cap). ``over()`` lists the joints past ``limit`` seconds. ``bench/track_fidelity.py`` applies the same
+    rule to the MJX env's torques.
     """
 
-    def __init__(self, level: np.ndarray, limit: float) -> None:
-        """``level``: per-joint cap, N*m, shape (n,); ``limit``: allowed time at it, s."""
+    def __init__(self, level: np.ndarray, limit: float, reported_level: np.ndarray | None = None) -> None:
+        """Per-joint levels and the time allowed at them.
+
+        ``level``: per-joint cap, N*m, shape (n,); ``limit``: allowed time at it, s; ``reported_level``:
+        per-joint level the reported torque must reach too, N*m, shape (n,) (None: the demand alone).
+        """
         self.level = np.asarray(level, dtype=float)
         self.limit = float(limit)
+        self.reported_level = None if reported_level is None else np.asarray(reported_level, dtype=float)
         self.time = np.zeros_like(self.level)
 
-    def update(self, demand: np.ndarray, dt: float) -> np.ndarray:
-        """Count one tick of ``dt`` s at signed torque ``demand`` (N*m, shape (n,)); returns ``over()``."""
+    def update(self, demand: np.ndarray, dt: float, reported: np.ndarray | None = None) -> np.ndarray:
+        """Count one tick of ``dt`` s at signed torque ``demand`` (N*m, shape (n,)); returns ``over()``.
+
+        ``reported``: the torque the motors report, N*m, shape (n,); with ``reported_level`` set a joint is
+        at the cap only where it reaches that level too (None: the demand alone).
+        """
         at_cap = np.abs(demand) >= self.level
+        if self.reported_level is not None and reported is not None:
+            at_cap &= np.abs(reported) >= self.reported_level
         self.time = np.where(at_cap, self.time + dt, 0.0)
         return self.over()
 

@@ -6,6 +6,8 @@ import enum
 import math
 from dataclasses import dataclass
 
+from bar_policy.quality.metrics import REPORTED_CAP_FRACTION
+
 __all__ = ["Mode", "SafetyConfig", "Transition"]
 
 
@@ -29,7 +31,13 @@ class SafetyConfig:
     limit_margin: float = 0.1
     """A measured joint further than this beyond its limit is a fault, rad."""
     saturation_fraction: float = 1.0
-    """A joint is at the cap when ``|unclipped MIT torque| >= fraction * torque_cap``."""
+    """A joint is at the cap when ``|unclipped MIT torque| >= fraction * torque_cap`` (and its motor reports
+    ``saturation_reported_fraction`` of the cap)."""
+    saturation_reported_fraction: float = REPORTED_CAP_FRACTION
+    """...and while the torque the motor reports (``JointState.tau``) is at least this share of the cap,
+    dimensionless, in [0, 1] (0: the demand alone). The demand is the command sent now at the state just
+    read; under latency the motor applies an older one, and a lead over the cap while the motor delivers a
+    fraction of it is not a saturated joint (``quality.metrics.REPORTED_CAP_FRACTION``)."""
     saturation_time: float = 0.5
     """Time a joint may stay at its torque cap before it is a fault, s."""
     stale_timeout: float = 0.1
@@ -60,6 +68,11 @@ class SafetyConfig:
         if not 0 < self.saturation_fraction <= 1:
             raise ValueError(
                 f"SafetyConfig.saturation_fraction must be in (0, 1], got {self.saturation_fraction}"
+            )
+        if not 0 <= self.saturation_reported_fraction <= 1:
+            raise ValueError(
+                "SafetyConfig.saturation_reported_fraction must be in [0, 1], got "
+                f"{self.saturation_reported_fraction}"
             )
         if self.max_overruns < 0:
             raise ValueError(f"SafetyConfig.max_overruns must be >= 0, got {self.max_overruns}")

@@ -450,7 +450,9 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         dwell = None
         if "cap_dwell" in info:
             demand = self._supervised_demand(state.data, info, action)
-            dwell = cap_dwell_step(info["cap_dwell"], at_cap(demand, self._cap), cfg.ctrl_dt)
+            reported = self._reported_torque(state.data, info, cmd)
+            hit = at_cap(demand, self._cap, reported=reported)
+            dwell = cap_dwell_step(info["cap_dwell"], hit, cfg.ctrl_dt)
         tau_cap = self._act.tau_cap if strength is None else strength * self._act.tau_cap
         inv_cap = 1.0 / self._cap
         inv_cap_sq = 1.0 / np.square(self._cap)
@@ -526,6 +528,18 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         zero = jnp.zeros_like(q)
         cmd = MitCommand(q=self.q_command(sent), dq=zero, kp=self._kp, kd=self._kd, tau_ff=zero)
         return mit_torque(cmd, q, dq)
+
+    def _reported_torque(self, data: mjx.Data, info: dict, cmd: MitCommand) -> jax.Array:
+        """The torque the motors report with the state the supervisor reads, N*m, shape (n,).
+
+        The firmware's MIT torque of the command it applies (``cmd``, after any action latency, at the
+        episode's gains) at that state, clipped to the cap, before ``strength`` (a motor's reading is its
+        current times its nominal torque constant). With observation latency the robot's reading is of an
+        older tick; this uses the command of the current one at that state (the difference is one tick of
+        the command's change).
+        """
+        q, dq = self._read_state(data, info)
+        return jnp.clip(mit_torque(cmd, q, dq), -self._cap, self._cap)
 
     def _true_state(self, data: mjx.Data) -> jax.Array:
         """The robot's true ``(q, dq)`` stacked, shape (2, n) (rad, rad/s): an ``obs_buf`` entry."""

@@ -8,7 +8,11 @@ jax in, jax out (inside jit / vmap / scan during training).
 Per policy tick ``t`` of an episode (a clip, a reach episode, a deploy run's POLICY segment):
 
 - **at the torque cap**: a joint's *unclipped* MIT torque demand ``|tau|`` reaches ``CAP_FRACTION`` of its
-  firmware cap (the firmware clips it there: the joint is saturated). The deploy supervisor's saturation
+  firmware cap (the firmware clips it there: the joint is saturated) and, where the motor's torque is
+  read back (the deploy side: ``JointState.tau``, the firmware's torque at its own reading), that torque is
+  at least ``REPORTED_CAP_FRACTION`` of the cap too. The demand is the command the runtime sends at the
+  state it has just read; with latency the motor applies an older command, and a demand over the cap while
+  the motor reports a fraction of it is a lead, not a saturated joint. The deploy supervisor's saturation
   fault is the same test held for ``CAP_DWELL_S`` without a break (``cap_dwell_step``).
 - **near a joint limit**: a joint's measured position is within ``LIMIT_MARGIN_RAD`` of its lower or upper
   limit.
@@ -39,6 +43,7 @@ __all__ = [
     "CHATTER_SEGMENT_S",
     "LIMIT_MARGIN_RAD",
     "MIN_CHATTER_TICKS",
+    "REPORTED_CAP_FRACTION",
     "action_rate",
     "at_cap",
     "cap_dwell_step",
@@ -54,6 +59,12 @@ are bounded at 2.5 rad/s and 12.5 rad/s^2, whose ratio puts their energy under 0
 CAP_FRACTION = 1.0
 """A joint is at its torque cap when ``|unclipped demand| >= CAP_FRACTION * cap`` (the supervisor's
 ``SafetyConfig.saturation_fraction`` default)."""
+REPORTED_CAP_FRACTION = 0.8
+"""Where the motor's torque is read back, a joint is at its cap only while ``|reported| >=
+REPORTED_CAP_FRACTION * cap`` as well (the supervisor's ``SafetyConfig.saturation_reported_fraction``
+default). Below 1 because a real motor's torque reading ripples around its limit (and the feedback codec
+rounds it), and a motor weakened to this share of its nominal torque still reads as saturated: the reading
+is the firmware's current times its nominal torque constant."""
 CAP_DWELL_S = 0.5
 """Unbroken time at the cap that the deploy supervisor turns into a fault, s."""
 LIMIT_MARGIN_RAD = 0.02
@@ -67,18 +78,30 @@ CHATTER_SEGMENT_S = 2.0
 is below -70 dB)."""
 
 
-def at_cap(demand: Array, cap: Array, fraction: float = CAP_FRACTION) -> Array:
-    """Whether each joint's unclipped torque demand is at its cap.
+def at_cap(
+    demand: Array,
+    cap: Array,
+    fraction: float = CAP_FRACTION,
+    reported: Array | None = None,
+    reported_fraction: float = REPORTED_CAP_FRACTION,
+) -> Array:
+    """Whether each joint is at its torque cap: the demand beyond it (and the motor's torque near it).
 
     Args:
         demand: unclipped MIT torque, N*m, shape ``(..., n)``.
         cap: firmware torque cap, N*m, shape ``(n,)``.
-        fraction: share of the cap that counts as at it.
+        fraction: share of the cap the demand must reach.
+        reported: the torque the motor reports, N*m, shape ``(..., n)``; None: the demand alone (the MJX
+            evaluation, whose demand is the applied command's: its clipped value is the motor's torque).
+        reported_fraction: share of the cap the reported torque must reach.
 
     Returns:
         Boolean, shape ``(..., n)``.
     """
-    return abs(demand) >= fraction * cap
+    hit = abs(demand) >= fraction * cap
+    if reported is None:
+        return hit
+    return hit & (abs(reported) >= reported_fraction * cap)
 
 
 def near_limit(q: Array, lower: Array, upper: Array, margin: float = LIMIT_MARGIN_RAD) -> Array:

@@ -89,7 +89,14 @@ class QualityMeter:
         self.limit_ticks = 0
         self.action_rate_sum = 0.0
 
-    def update(self, demand: np.ndarray, q: np.ndarray, action: np.ndarray, signal: np.ndarray) -> None:
+    def update(
+        self,
+        demand: np.ndarray,
+        q: np.ndarray,
+        action: np.ndarray,
+        signal: np.ndarray,
+        reported: np.ndarray | None = None,
+    ) -> None:
         """Count one policy tick.
 
         Args:
@@ -97,9 +104,12 @@ class QualityMeter:
             q: measured joint positions, rad, (n,).
             action: the policy's action this tick (after any filter: what was applied), (n,).
             signal: the chatter signal, rad, (n,): ``q_cmd - q_ref`` (tracking) or ``q_cmd`` (reach).
+            reported: the torque the motors report, N*m, (n,) (``JointState.tau``); None: the demand alone
+                (``quality.metrics.at_cap``).
         """
         self.ticks += 1
-        self.cap_ticks += int(np.any(qm.at_cap(np.asarray(demand, dtype=float), self.cap)))
+        rep = None if reported is None else np.asarray(reported, dtype=float)
+        self.cap_ticks += int(np.any(qm.at_cap(np.asarray(demand, dtype=float), self.cap, reported=rep)))
         self.limit_ticks += int(np.any(qm.near_limit(np.asarray(q, dtype=float), self.lower, self.upper)))
         a = np.asarray(action, dtype=float)
         if self._last_action is not None:

@@ -8,14 +8,16 @@ import numpy as np
 
 from bar_policy.deploy.targets.base import JointState, TargetError
 from bar_policy.deploy.targets.mock import MockTarget
+from bar_policy.robot.mit import mit_torque
 
 
 class SteppedMock(MockTarget):
     """The mock echo, but synchronous: its clock is ``k * dt`` after k calls of ``advance(dt)``.
 
     Fault injection by read index (0-based, = control tick): ``nan_from`` (q[2] = NaN), ``freeze_from``
-    (stamp stops advancing), ``offset_from`` (``offset`` added to the reported q), ``faults_from``
-    (hardware fault strings), ``raise_at`` (read_state raises TargetError).
+    (stamp stops advancing), ``offset_from`` (``offset`` added to the reported q; the reported torque is the
+    firmware's at that q, as a motor whose own encoder reads it: capped MIT torque of the last command),
+    ``faults_from`` (hardware fault strings), ``raise_at`` (read_state raises TargetError).
     """
 
     synchronous = True
@@ -61,8 +63,11 @@ class SteppedMock(MockTarget):
             raise TargetError(f"injected bus failure at read {k}")
         s = super().read_state()
         q = s.q
+        tau = s.tau
         if self.offset_from is not None and k >= self.offset_from:
             q = q + self.offset
+            if self.last_command is not None:
+                tau = np.asarray(mit_torque(self.last_command, q, s.dq, self._cap))
         if self.nan_from is not None and k >= self.nan_from:
             q = q.copy()
             q[2] = np.nan
@@ -70,7 +75,7 @@ class SteppedMock(MockTarget):
         if self.freeze_from is not None and k >= self.freeze_from:
             stamp = self.freeze_from * self.dt
         faults = ("MOTOR_FAULT id 13",) if self.faults_from is not None and k >= self.faults_from else ()
-        return JointState(q=q, dq=s.dq, tau=s.tau, stamp=stamp, faults=faults)
+        return JointState(q=q, dq=s.dq, tau=tau, stamp=stamp, faults=faults)
 
 
 class SlowMock(MockTarget):

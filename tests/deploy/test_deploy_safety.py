@@ -192,15 +192,35 @@ def test_joint_within_limit_margin_is_no_fault(zero_policy):
 
 def test_torque_at_cap_too_long_goes_to_damping(zero_policy):
     # The target reports left_shoulder_pitch 1 rad below its command: demand Kp * 1 = 50 N*m >= cap 17.
-    # Time at the cap after tick k is (k + 1) * 0.02 s; the limit 0.5 s is exceeded first at k = 25.
+    # Tick 0's reading has no torque (no command written yet); from tick 1 on the motor reports its cap,
+    # 17 N*m (its law at the reported q). Time at the cap after tick k is k * 0.02 s, past 0.5 s at k = 26.
     off = np.zeros(14)
     off[0] = -1.0
     target = SteppedMock(offset_from=0, offset=off)
     _, res = _run(zero_policy, target)
     tr = _fault_transition(res)
-    assert tr["tick"] == 25 and "torque_saturation" in tr["reason"] and "left_shoulder_pitch" in tr["reason"]
+    assert tr["tick"] == 26 and "torque_saturation" in tr["reason"] and "left_shoulder_pitch" in tr["reason"]
+    assert "50.00 N*m asked, 17.00 reported, cap 17" in tr["reason"]
     # The fault tick itself already sends damping (the command is recomputed after the check).
-    _assert_damping_after(target, 24, DEFAULT + off)
+    _assert_damping_after(target, 25, DEFAULT + off)
+
+
+def test_a_demand_over_the_cap_while_the_motor_reports_little_is_no_fault(zero_policy):
+    # The same 1 rad gap, but the motor reports the echo's torque (the law at the true q, which followed
+    # the command: ~0 N*m), as a motor applying an older command under latency does: 50 N*m asked for
+    # 1 s, never a fault (the demand alone would fault at tick 25, test above), and the quality meter
+    # counts no tick at the cap either.
+    off = np.zeros(14)
+    off[0] = -1.0
+
+    class LeadMock(SteppedMock):
+        def read_state(self):
+            s = super().read_state()
+            return JointState(q=s.q, dq=s.dq, tau=np.full(14, 0.5), stamp=s.stamp, faults=s.faults)
+
+    rt, res = _run(zero_policy, LeadMock(offset_from=0, offset=off), duration=1.0)
+    assert res.fault_count == 0 and res.end_reason.startswith("duration reached"), res.end_reason
+    assert rt.quality.cap_ticks == 0 and rt.quality.ticks == 50
 
 
 def test_target_fault_report_goes_to_damping(zero_policy):
@@ -354,7 +374,13 @@ def test_damping_latches_faults_do_not_leave_it():
 
 @pytest.mark.parametrize(
     "kwargs",
-    [{"ramp_time": -1.0}, {"damping_kd": 0.0}, {"saturation_fraction": 1.5}, {"max_overruns": -1}],
+    [
+        {"ramp_time": -1.0},
+        {"damping_kd": 0.0},
+        {"saturation_fraction": 1.5},
+        {"saturation_reported_fraction": 1.2},
+        {"max_overruns": -1},
+    ],
 )
 def test_safety_config_validates(kwargs):
     with pytest.raises(ValueError, match="SafetyConfig"):
@@ -384,3 +410,19 @@ def test_cap_dwell_counts_unbroken_runs_at_the_cap_per_joint():
         assert over.tolist() == want_over
     d.reset()
     assert d.time.tolist() == [0.0, 0.0] and d.over().size == 0
+
+
+def test_cap_dwell_with_a_reported_level_needs_the_motor_at_it_too():
+    # Caps 2 and 4 N*m, reported levels 1.6 and 3.2 N*m (0.8 x), 0.05 s allowed, 0.02 s ticks; by hand.
+    d = CapDwell(np.array([2.0, 4.0]), 0.05, np.array([1.6, 3.2]))
+    steps = [
+        ([2.0, 5.0], [1.6, 0.3], [0.02, 0.0], []),  # joint 1: asked 5, the motor reports 0.3 (a lead)
+        ([2.5, 5.0], [-2.0, 3.2], [0.04, 0.02], []),
+        ([2.1, -4.0], [1.9, -3.5], [0.06, 0.04], [0]),
+        ([3.0, 4.0], [1.5, 3.3], [0.0, 0.06], [1]),  # joint 0's motor below its level: the run breaks
+        ([3.0, 4.0], None, [0.02, 0.08], [1]),  # no reading of the torque: the demand alone
+    ]
+    for demand, reported, want_time, want_over in steps:
+        over = d.update(np.array(demand), 0.02, None if reported is None else np.array(reported))
+        np.testing.assert_allclose(d.time, want_time, atol=1e-12)
+        assert over.tolist() == want_over

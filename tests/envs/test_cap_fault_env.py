@@ -5,12 +5,15 @@ The nominal reach env with the option on; the left wrist yaw is held still by a 
 the command stays away), and the policy's action on that joint steps to +1 for 10 steps, to 0.05 for 20
 (about 2 N*m once the 3 Hz action filter has settled: the run at the cap breaks and the dwell restarts),
 then +1 until the episode ends. Two steps of action latency: the motor applies the command of two steps
-ago, while the deploy supervisor checks the one the runtime sends now, and so must the termination. The
-time at the cap is worked out here from the states the env reached: the MIT demand ``Kp (q_cmd - q) - Kd
-dq`` of each step's sent command (the filtered action, no latency) at the state the step starts from (the
-supervisor's test, ``quality.metrics.at_cap``), summed over unbroken runs of 20 ms steps; the episode must
-end on the 26th step of an unbroken run (0.52 s > 0.5 s) and not before. The first step already counts (the
-sent command asks 12.6 N*m; the applied one, the reset's hold, nothing).
+ago, while the deploy supervisor checks the one the runtime sends now, and so must the termination, with
+the torque the motor reports as the second half of the test. The time at the cap is worked out here from
+the states the env reached: the MIT demand ``Kp (q_cmd - q) - Kd dq`` of each step's sent command (the
+filtered action, no latency) at the state the step starts from must reach the cap, and the motor's torque
+(the same law for the command sent two steps earlier, clipped to the cap) must reach 0.8 of it
+(``quality.metrics.at_cap`` with ``reported``), summed over unbroken runs of 20 ms steps; the episode must
+end on the 26th step of an unbroken run (0.52 s > 0.5 s) and not before. The first two steps do not count:
+the sent command asks 12.6 N*m while the motor still applies the reset's hold and reports nothing (a lead,
+not a saturated joint).
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ def test_the_episode_ends_on_the_26th_step_at_the_cap_and_a_break_restarts_the_c
     assert cap == 4.0  # the wrist's firmware cap (docs: lite-model), N*m
     lower, upper = float(env.robot.lower[j]), float(env.robot.upper[j])
     pattern = [1.0] * 10 + [0.05] * 20 + [1.0] * 40
-    dwell_hand, done_at, margins, dwells = 0.0, None, [], []
+    dwell_hand, done_at, margins, rep_margins, dwells, sent_hist = 0.0, None, [], [], [], [0.0, 0.0]
     for k, a_j in enumerate(pattern):
         q0 = float(env.robot_q(s.data)[j])
         dq0 = float(env.robot_dq(s.data)[j])
@@ -52,8 +55,14 @@ def test_the_episode_ends_on_the_26th_step_at_the_cap_and_a_break_restarts_the_c
         sent = float(s.info["last_act"][j])  # after the env's action filter, before the latency
         q_cmd = float(np.clip(env.default_pose[j] + env.action_scale[j] * sent, lower, upper))
         demand = kp * (q_cmd - q0) - kd * dq0  # dq_cmd = 0, tau_ff = 0, no encoder offset (nominal)
+        applied = sent_hist[-2]  # two steps of latency: the reset's hold (action 0) for the first two
+        sent_hist.append(sent)
+        q_app = float(np.clip(env.default_pose[j] + env.action_scale[j] * applied, lower, upper))
+        reported = float(np.clip(kp * (q_app - q0) - kd * dq0, -cap, cap))
         margins.append(abs(abs(demand) - cap) / cap)
-        dwell_hand = dwell_hand + 0.02 if abs(demand) >= cap else 0.0
+        if abs(reported) > 0.01 * cap:
+            rep_margins.append(abs(abs(reported) - 0.8 * cap) / cap)
+        dwell_hand = dwell_hand + 0.02 if abs(demand) >= cap and abs(reported) >= 0.8 * cap else 0.0
         dwells.append(dwell_hand)
         # float32 sums of 0.02 against float64: 26 additions, well inside 1e-5 s
         np.testing.assert_allclose(float(s.info["cap_dwell"][j]), dwell_hand, rtol=0, atol=1e-5)
@@ -65,7 +74,9 @@ def test_the_episode_ends_on_the_26th_step_at_the_cap_and_a_break_restarts_the_c
     # The boolean at-cap test is exact only away from the cap: the command's 16-bit quantisation moves the
     # demand by at most Kp * 4e-4 rad = 0.02 N*m (0.5 % of 4 N*m); every step here is further than 1 %.
     assert min(margins) > 0.01, f"a step's demand within 1 % of the cap: {min(margins):.4f}"
-    assert dwells[0] == 0.02, "the sent command's first step at the cap must count"
+    # The reported torque's test likewise, against its 0.8 x cap level: outside the 0.5 % quantisation.
+    assert min(rep_margins) > 0.006, f"a step's torque within 0.6 % of 0.8 x cap: {min(rep_margins):.4f}"
+    assert dwells[:3] == [0.0, 0.0, 0.02], "a lead over the cap counts once the motor reports it"
     assert done_at is not None, "the episode never ended on the cap"
     broke = [k for k in range(1, len(dwells)) if dwells[k] == 0.0 and dwells[k - 1] > 0.0]
     assert broke and broke[0] < 30, "the 0.05 phase must bring the demand under the cap"

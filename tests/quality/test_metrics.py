@@ -38,6 +38,27 @@ def test_at_cap_numpy_and_jax() -> None:
     assert isinstance(got_j, jax.Array) and np.asarray(got_j)[[0, 2, 3]].tolist() == [want[0], *want[2:]]
 
 
+def test_at_cap_with_the_reported_torque_needs_both() -> None:
+    # Caps 4 and 10 N*m; the reported level 0.8 x cap is 3.2 and 8.0 N*m (dyadic-free but exact to compare:
+    # the values below sit at least 0.1 N*m from each level).
+    cap = np.array([4.0, 10.0])
+    demand = np.array([[5.7, -12.0], [5.7, -12.0], [3.9, 10.0], [-4.0, 10.0]])
+    reported = np.array([[0.2, -10.0], [4.0, -7.9], [4.0, 8.1], [-3.3, 7.0]])
+    # row 0: wrist asked 5.7 but reports 0.2 (a lead under latency): no; joint 1 both: yes.
+    # row 1: joint 0 both: yes; joint 1 reports 7.9 < 8.0: no. row 2: demand 3.9 < 4: no; 10 and 8.1: yes.
+    # row 3: |-4| >= 4 and |-3.3| >= 3.2: yes; 7.0 < 8.0: no. The sign does not matter (bang-bang).
+    want = [[False, True], [True, False], [False, True], [True, False]]
+    assert qm.at_cap(demand, cap, reported=reported).tolist() == want
+    got_j = qm.at_cap(jnp.asarray(demand), jnp.asarray(cap), reported=jnp.asarray(reported))
+    assert np.asarray(got_j).tolist() == want
+    assert qm.REPORTED_CAP_FRACTION == 0.8
+    # reported_fraction 0: the demand alone, as without ``reported``.
+    assert (
+        qm.at_cap(demand, cap, reported=reported, reported_fraction=0.0).tolist()
+        == qm.at_cap(demand, cap).tolist()
+    )
+
+
 def test_near_limit_numpy_and_jax() -> None:
     lo, hi = np.array([-1.0, 0.0]), np.array([1.0, 2.0])
     q = np.array(
