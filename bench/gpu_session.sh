@@ -52,6 +52,9 @@
 # Work goes to $WORK; $OUT gets summary_<part>.md (the table printed last) and session_<part>.tgz (logs,
 # metrics, configs; the recipes: each run's files, the track runs' newest checkpoint).
 set -u
+# A device's copy of the checkout may carry a stale .git, whose answer would win over BAR_POLICY_GIT_COMMIT:
+# with the commit stated, git is kept out (docs/training.md, "Provenance").
+if [ -n "${BAR_POLICY_GIT_COMMIT:-}" ]; then export GIT_DIR=/nonexistent; fi
 PART=${1:-}
 [ $# -gt 0 ] && shift
 SMOKE=""
