@@ -91,3 +91,29 @@ def test_the_piano_preset_sets_it_and_the_override_reaches_the_env_config() -> N
     # A wrong key at a black goal tick costs -0.5 + 0.25, half of one elsewhere.
     assert cfg.reward.scales.wrong_keys + cfg.reward.scales.wrong_keys_black_goal == -0.25
     assert cfg.actuator.encoder_offset == 0.002
+
+
+def test_deviation_from_the_reference_costs_at_black_goals_only() -> None:
+    cs4, e4 = 61 - KB.lowest, 64 - KB.lowest
+    (row,) = [
+        t
+        for t in reward_terms(RewardConfig(scales=RewardScales(prior_deviation_black=-0.5)))
+        if t.name == "prior_deviation_black"
+    ]
+    assert row.inputs == ("action", "reference_action", "black_goal_keys")
+    reference = np.linspace(-0.5, 0.5, 14)
+    action = reference.copy()
+    action[2], action[9] = action[2] + 0.25, action[9] - 0.5  # 0.0625 + 0.25 = 0.3125 action units^2
+
+    def cost(goal_keys: list[int], a: np.ndarray) -> float:
+        goal = np.zeros(KB.n_keys)
+        goal[goal_keys] = 1.0
+        signals = {"action": a, "reference_action": reference, "black_goal_keys": goal * BLACK}
+        return float(row.weight * row.fn(*(signals[i] for i in row.inputs)))
+
+    assert cost([cs4], action) == pytest.approx(-0.5 * 0.3125, rel=1e-12)  # a black goal: the cost
+    assert cost([cs4, e4], action) == pytest.approx(-0.5 * 0.3125, rel=1e-12)  # a chord with a black key
+    assert cost([e4], action) == 0.0  # a white goal alone: free
+    assert cost([], action) == 0.0
+    assert cost([cs4], reference) == 0.0  # on the reference: nothing
+    assert RewardScales().prior_deviation_black == 0.0

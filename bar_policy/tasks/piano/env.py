@@ -304,6 +304,7 @@ class LitePiano(LiteRobotEnv):
         angles = self.key_angles(data)
         down = angles >= self._threshold
         windows = jax.lax.dynamic_slice_in_dim(self._hands[info["song"]], s, TARGET_FRAMES, axis=1)
+        ref_act = self.reference_state(info)
         signals = {
             "key_depression": rewards.key_depression(angles, self._angle_max),
             "keys_down": down,
@@ -313,6 +314,7 @@ class LitePiano(LiteRobotEnv):
             "key_sites": data.site_xpos[self._key_sites],
             "hand_goal": rewards.next_goal(windows),
             "tau_applied": data.qfrc_applied[self.robot_index.dof],
+            "reference_action": ref_act,
         }
         counts = piano_metrics.step_counts(down, goal)
         step = piano_metrics.scores(counts)
@@ -336,7 +338,7 @@ class LitePiano(LiteRobotEnv):
         }  # strong float32, as reset's
         return TaskStep(
             signals=signals,
-            info={"ref_act": self.reference_state(info), "ref_keys": down.astype(jnp.float32)},
+            info={"ref_act": ref_act, "ref_keys": down.astype(jnp.float32)},
             metrics=f32,
         )
 

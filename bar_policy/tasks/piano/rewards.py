@@ -143,6 +143,20 @@ def wrong_keys_at_black_goal(pressed: Array, goal: Array, black_goal: Array) -> 
     return xp.where(any_black, wrong_keys_pressed(pressed, goal), 0.0)
 
 
+def deviation_at_black_goal(action: Array, reference: Array, black_goal: Array) -> Array:
+    """Cost: ``sum((action - reference)^2)`` at a step whose goal holds a black key, else 0, ``(...)``.
+
+    ``action``: the applied action, ``reference``: the key-pose reference's (the prior's action through the
+    same filter), action units, shape ``(..., n)``; ``black_goal``: the goal's black keys, bool or 0/1,
+    ``(..., n_keys)``. A residual trained on the prior gives up its black presses while it gains precision
+    elsewhere (docs/piano.md, "What moves the trained residual"); a weight on this holds it near the prior
+    where the black keys are played and leaves it free at every other step.
+    """
+    xp = array_namespace(action, reference, black_goal)
+    any_black = xp.any(black_goal > 0.5, axis=-1)
+    return xp.where(any_black, xp.sum(xp.square(action - reference), axis=-1), 0.0)
+
+
 def fingertip_distance(fingertips: Array, key_sites: Array, hand_goal: Array) -> Array:
     """Distance from each hand's fingertip to the nearest of that hand's goal keys, m; inf for none.
 

@@ -5,7 +5,8 @@ Every row reads the step's signals: the robot's (``LiteRobotEnv.robot_signals``:
 (fraction of travel each key is down, (n_keys,)), ``keys_down`` (past the press threshold, bool (n_keys,)),
 ``goal_keys`` (0/1 (n_keys,)), ``black_goal_keys`` (its black keys, 0/1 (n_keys,)), ``fingertips`` (m, (2,
 3)), ``key_sites`` (the keys' top sites, m, (n_keys, 3)), ``hand_goal`` (each hand's next goal keys, bool (2,
-n_keys)) and ``tau_applied`` (the motor torque the last substep applied, N m, (n,)). The key terms are the
+n_keys)), ``tau_applied`` (the motor torque the last substep applied, N m, (n,)) and
+``reference_action`` (the key-pose reference's filtered action after the step, (n,)). The key terms are the
 piano's own (``rewards``, after RoboPianist), the robot's costs ``bar_policy.envs.rewards``'. The weights are
 the config's ``reward.scales`` (``RewardScales``, here: what each is and why; the programs' runtime argument).
 The piano ends an episode only on the robot's non-finite state: it has no termination of its own.
@@ -43,6 +44,10 @@ class RewardScales:
     ``wrong_keys``: a wrong key there costs ``wrong_keys + wrong_keys_black_goal``. 0 (the default) leaves
     the table as it was; a positive weight relieves the trade a residual learns against the prior's black
     presses, which brush more neighbours than white ones (docs/piano.md, "Black keys")."""
+    prior_deviation_black: float = 0.0
+    """``sum((a - a_ref)^2)`` of the applied action against the key-pose reference's, at steps whose goal
+    holds a black key (``rewards.deviation_at_black_goal``), action units squared. 0 (the default) leaves
+    the table as it was; a negative weight keeps a residual on the prior's black presses."""
     fingertip_near: float = 0.5
     """Each hand's fingertip near its next goal key (``rewards.fingertip_to_goal``: 1 within 1 cm)."""
     energy: float = -2e-3
@@ -88,6 +93,12 @@ def reward_terms(rc: RewardConfig) -> tuple[RewardTerm, ...]:
             rewards.wrong_keys_at_black_goal,
             w.wrong_keys_black_goal,
             ("keys_down", "goal_keys", "black_goal_keys"),
+        ),
+        RewardTerm(
+            "prior_deviation_black",
+            rewards.deviation_at_black_goal,
+            w.prior_deviation_black,
+            ("action", "reference_action", "black_goal_keys"),
         ),
         RewardTerm(
             "fingertip_near",
