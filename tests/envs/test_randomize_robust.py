@@ -250,6 +250,7 @@ def test_robust_presets_turn_the_randomisation_on(name, env_name):
             "reward.scales.torque_near_cap=-1.0",
             "terminate_on_cap_fault=true",
         ),
+        "piano-robust": ("joint_error_ema=true", "terminate_on_cap_fault=true"),
     }.get(name, ())
     assert cfg.env_overrides == (*base.env_overrides, *ROBUST_ENV_OVERRIDES, *extra)
     # The tracker's robust stage resumes a nominal run at a third of its learning rate (3e-4 -> 1e-4).
