@@ -449,8 +449,7 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         strength = info.get("strength")
         dwell = None
         if "cap_dwell" in info:
-            demand = self._supervised_demand(state.data, info, action)
-            reported = self._reported_torque(state.data, info, cmd)
+            demand, reported = self._supervised_torques(state.data, info, action, cmd)
             hit = at_cap(demand, self._cap, reported=reported)
             dwell = cap_dwell_step(info["cap_dwell"], hit, cfg.ctrl_dt)
         tau_cap = self._act.tau_cap if strength is None else strength * self._act.tau_cap
@@ -515,31 +514,25 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         metrics.update(task.metrics)
         return State(data=data, obs=obs, reward=reward, done=done, metrics=metrics, info=new_info)
 
-    def _supervised_demand(self, data: mjx.Data, info: dict, sent: jax.Array) -> jax.Array:
-        """The torque the deploy supervisor checks against the cap this step, N*m, shape (n,).
+    def _supervised_torques(
+        self, data: mjx.Data, info: dict, sent: jax.Array, cmd: MitCommand
+    ) -> tuple[jax.Array, jax.Array]:
+        """What the deploy supervisor checks against the cap this step: ``(demand, reported)``, N*m, (n,).
 
-        As ``deploy.safety.Supervisor.check_torque`` computes it: the unclipped MIT torque of the command
-        the runtime sends (``sent``, the filtered action before any action latency, at the file's nominal
-        Kp and Kd) at the state it has just read (``_read_state``: the observation's, without its noise).
-        Not the command the motor applies: with latency that one is older and nearer the state, and a
-        policy that leads a delayed arm trips the supervisor while its motors sit well inside their caps.
+        Both at the state it has just read (``_read_state``: the observation's, without its noise), read
+        once. ``demand``, as ``deploy.safety.Supervisor.check_torque`` computes it: the unclipped MIT torque
+        of the command the runtime sends (``sent``, the filtered action before any action latency, at the
+        file's nominal Kp and Kd). ``reported``: the torque the motors report, the firmware's MIT torque of
+        the command it applies (``cmd``, after any action latency, at the episode's gains) clipped to the
+        cap, before ``strength`` (a motor's reading is its current times its nominal torque constant). With
+        latency the applied command is older and nearer the state: a policy that leads a delayed arm asks
+        past the cap while its motors report a fraction of it. With observation latency the robot's reading
+        is of an older tick; ``reported`` uses the current applied command at that state.
         """
         q, dq = self._read_state(data, info)
         zero = jnp.zeros_like(q)
-        cmd = MitCommand(q=self.q_command(sent), dq=zero, kp=self._kp, kd=self._kd, tau_ff=zero)
-        return mit_torque(cmd, q, dq)
-
-    def _reported_torque(self, data: mjx.Data, info: dict, cmd: MitCommand) -> jax.Array:
-        """The torque the motors report with the state the supervisor reads, N*m, shape (n,).
-
-        The firmware's MIT torque of the command it applies (``cmd``, after any action latency, at the
-        episode's gains) at that state, clipped to the cap, before ``strength`` (a motor's reading is its
-        current times its nominal torque constant). With observation latency the robot's reading is of an
-        older tick; this uses the command of the current one at that state (the difference is one tick of
-        the command's change).
-        """
-        q, dq = self._read_state(data, info)
-        return jnp.clip(mit_torque(cmd, q, dq), -self._cap, self._cap)
+        asked = MitCommand(q=self.q_command(sent), dq=zero, kp=self._kp, kd=self._kd, tau_ff=zero)
+        return mit_torque(asked, q, dq), jnp.clip(mit_torque(cmd, q, dq), -self._cap, self._cap)
 
     def _true_state(self, data: mjx.Data) -> jax.Array:
         """The robot's true ``(q, dq)`` stacked, shape (2, n) (rad, rad/s): an ``obs_buf`` entry."""

@@ -225,8 +225,8 @@ class RobotEnvConfig:
     terminate_on_cap_fault: bool = False
     """End an episode on the deploy supervisor's saturation fault: a joint whose unclipped MIT demand, as
     the supervisor computes it (the command the runtime sends, before any action latency, at the state it
-    has read: ``LiteRobotEnv._supervised_demand``), sits at its torque cap, while the torque the motor
-    reports is near it too (``LiteRobotEnv._reported_torque``, ``quality.metrics.at_cap``), for more than
+    has read: ``LiteRobotEnv._supervised_torques``), sits at its torque cap, while the torque the motor
+    reports is near it too (``quality.metrics.at_cap``), for more than
     ``quality.metrics.CAP_DWELL_S`` (0.5 s) unbroken (``info["cap_dwell"]``, s per joint;
     ``envs.terminations.cap_fault``). On the robot that fault ends the run in damping; without the
     termination a training episode rides on (the tracker's fast wrist-yaw clips under two ticks of action
