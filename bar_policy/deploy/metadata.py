@@ -5,7 +5,8 @@ Two families of keys are written:
 - ``bar.*`` keys, JSON-valued: everything ``bar-deploy`` checks before it runs a policy (observation schema
   and fingerprint, joint order, gains, default pose, action scale and semantics, rates, training
   randomisation ranges, code version). Optional keys (``OPTIONAL_BAR_KEYS``): ``bar.action_filter``,
-  ``bar.command_transition`` (``metadata_fields`` parses them), and ``bar.provenance``: the git commit
+  ``bar.command_transition``, ``bar.robot_params``, ``bar.song_lead_steps`` (``metadata_fields`` parses
+  them), and ``bar.provenance``: the git commit
   and dirty flag, the library versions and the training command (``bar_policy.provenance``), which
   informs and is never checked (older files load without it, a malformed one with the problem in its
   place, ``provenance.read_record``).
@@ -47,6 +48,7 @@ from bar_policy.deploy.metadata_fields import (
     int_prop,
     provenance_key,
     robot_params_key,
+    song_lead_key,
 )
 
 __all__ = [
@@ -106,11 +108,18 @@ BAR_KEYS = (
 )
 """Keys every ``bar`` file carries (``from_props`` refuses a file that lacks one)."""
 
-OPTIONAL_BAR_KEYS = ("bar.action_filter", "bar.command_transition", "bar.provenance", "bar.robot_params")
+OPTIONAL_BAR_KEYS = (
+    "bar.action_filter",
+    "bar.command_transition",
+    "bar.provenance",
+    "bar.robot_params",
+    "bar.song_lead_steps",
+)
 """``bar.*`` keys a file may lack (older files): read when present, never required. ``bar.action_filter``
 and ``bar.command_transition`` are validated when present; ``bar.provenance`` informs only and is never
 checked; ``bar.robot_params`` (the robot-parameters file a policy trained on: ``{"sha256", "summary"}``,
-``robot.params.params_record``) must be an object with a hex ``sha256``; absent: the nominal model."""
+``robot.params.params_record``) must be an object with a hex ``sha256``; absent: the nominal model;
+``bar.song_lead_steps`` (the piano's goal keys' lead) an integer >= 0; absent: 0."""
 
 DIALECTS = ("bar", "hc")
 """Metadata dialects: ``bar`` (``bar.*`` keys plus the HC keys, checked to agree), ``hc`` (HC keys only)."""
@@ -173,6 +182,9 @@ class PolicyMetadata:
     command_transition_s: float = 0.0
     """Duration of the minimum-jerk move of the commanded target to each new command, s
     (``bar_policy.tasks.reach.transition_point``; optional key ``bar.command_transition``); 0: a step."""
+    song_lead_steps: int = 0
+    """Control steps the piano's goal keys lead the song (``tasks.piano.bank.PlaybackConfig.lead_steps``;
+    optional key ``bar.song_lead_steps``); 0: frame 0 is the step's own goal (files before the key)."""
     provenance: Mapping[str, Any] = field(default_factory=dict)
     """``bar.provenance``: git commit and dirty flag, library versions, training command
     (``bar_policy.provenance.collect``); empty when the file has none."""
@@ -219,6 +231,9 @@ class PolicyMetadata:
         c = self.command_transition_s
         if isinstance(c, bool) or not (isinstance(c, int | float) and math.isfinite(c) and c >= 0):
             raise MetadataError(f"command transition must be a number of s >= 0, got {shorten(repr(c))}")
+        d = self.song_lead_steps
+        if isinstance(d, bool) or not (isinstance(d, int) and d >= 0):
+            raise MetadataError(f"song lead must be an integer >= 0 (control steps), got {shorten(repr(d))}")
         if any("," in n for n in self.body_names) or "," in self.dataset_repo_id:
             raise MetadataError("body_names and dataset_repo_id must not contain commas (HC's CSV form)")
 
@@ -253,6 +268,8 @@ class PolicyMetadata:
         }
         if self.command_transition_s > 0:
             bar["bar.command_transition"] = {"duration_s": self.command_transition_s, "profile": "min_jerk"}
+        if self.song_lead_steps > 0:
+            bar["bar.song_lead_steps"] = self.song_lead_steps
         if self.provenance:
             bar["bar.provenance"] = dict(self.provenance)
         if self.robot_params:
@@ -367,6 +384,7 @@ class PolicyMetadata:
             dataset_repo_id=props["dataset_repo_id"],
             action_filter_hz=action_filter_key(props),
             command_transition_s=command_transition_key(props),
+            song_lead_steps=song_lead_key(props),
             provenance=provenance_key(props.get("bar.provenance")),
             robot_params=robot_params_key(props),
         )

@@ -24,6 +24,7 @@ __all__ = [
     "int_prop",
     "provenance_key",
     "robot_params_key",
+    "song_lead_key",
 ]
 
 _HC_REL_TOL = 1e-5
@@ -209,3 +210,20 @@ def command_transition_key(props: Mapping[str, str]) -> float:
             f"(the only profile), got {shorten(repr(text))}"
         )
     return float(v["duration_s"])
+
+
+def song_lead_key(props: Mapping[str, str]) -> int:
+    """Optional key ``bar.song_lead_steps``: an integer >= 0; absent (older files, other tasks): 0.
+
+    The control steps the piano's goal keys lead the song (``tasks.piano.bank.PlaybackConfig``).
+    """
+    text = props.get("bar.song_lead_steps")
+    if text is None:
+        return 0
+    v = loads_json(text, "metadata key 'bar.song_lead_steps'", MetadataError)
+    if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+        raise MetadataError(
+            "metadata key 'bar.song_lead_steps' must be an integer >= 0 (control steps), got "
+            f"{shorten(repr(text))}"
+        )
+    return v

@@ -92,6 +92,7 @@ def policy_metadata(
         lookahead_steps=int(extra.get("lookahead_steps", 0)),
         dataset_repo_id=str(extra.get("dataset_repo_id", "")),
         command_transition_s=float(extra.get("command_transition_s", 0.0)),
+        song_lead_steps=int(extra.get("song_lead_steps", 0)),
         provenance=_jsonable(dict(provenance) if provenance is not None else collect()),
         robot_params=_params_record(getattr(env, "robot_params", None)),
     )

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from bar_policy.tasks.piano.bank import PlaybackConfig, song_bank
+from bar_policy.tasks.piano.bank import SONG_LEAD_STEPS, PlaybackConfig, song_bank
 from bar_policy.tasks.piano.env import LitePiano, PianoEnvConfig, nominal_config
 from bar_policy.tasks.piano.key_input import MidiKeys
 from bar_policy.tasks.piano.keyboard import black_keys, compact_config, press_thresholds
@@ -85,16 +85,21 @@ def test_count_in_refusals() -> None:
 
 def test_env_and_song_commands_play_songs_alike() -> None:
     """Parity: for every song of a small env's bank (a library song and a random one), ``SongCommands`` (the
-    robot's side) gives the env's ``target_keys`` and ``progress`` (``LitePiano.task_obs``) at every step of
-    the episode, count-in included; the songs start no earlier than the count-in on both sides."""
+    robot's side) with the env's playback gives the env's ``target_keys`` and ``progress``
+    (``LitePiano.task_obs``) at every step of the episode, count-in included; the songs start no earlier than
+    the count-in on both sides. The lead, by definition: ``target_keys`` at step t are the bank's rows
+    t + 2 .. t + 12 (``SONG_LEAD_STEPS`` = 2), while the tick's goal (``goal_now``, what is scored) is
+    row t."""
     cfg = dataclasses.replace(nominal_config(), songs=1, library=("c_major_arpeggio_right",))
     env = LitePiano(cfg)
     count_in = cfg.playback.count_in_s
     assert count_in == PlaybackConfig().count_in_s == 0.5
+    lead = cfg.playback.lead_steps
+    assert lead == SONG_LEAD_STEPS == 2 and PlaybackConfig().lead_steps == 0
     data = SimpleNamespace(qpos=jnp.zeros(env.mj_model.nq))  # keys at rest: key_pressed all 0
     obs = jax.jit(lambda step, song: env.task_obs(None, data, None, {"step": step, "song": song}))
     for i, song in enumerate(env.songs):
-        src = SongCommands(song, cfg.keyboard, env.dt, MidiKeys(queue.Queue(), cfg.keyboard))
+        src = SongCommands(song, cfg.keyboard, env.dt, MidiKeys(queue.Queue(), cfg.keyboard), cfg.playback)
         assert song.duration_s + count_in <= cfg.episode_length_s  # the random song fits after the count-in
         first = round(max(count_in, song.notes[0].start_s) / env.dt)
         assert np.flatnonzero(env.bank.down[i].any(axis=1))[0] == first
@@ -105,6 +110,9 @@ def test_env_and_song_commands_play_songs_alike() -> None:
             want = obs(jnp.int32(t), jnp.int32(i))
             got = src(t * env.dt)
             np.testing.assert_array_equal(got["target_keys"], np.asarray(want["target_keys"]), f"step {t}")
+            rows = env.bank.down[i, t + lead : t + lead + TARGET_FRAMES].reshape(-1)
+            np.testing.assert_array_equal(got["target_keys"], rows, f"step {t}")
+            np.testing.assert_array_equal(src.goal_now(), env.bank.down[i, t] > 0.5, f"step {t}")
             # Within a float32 ulp (the jitted division may round the other way): 1e-7; a step is 0.002.
             np.testing.assert_allclose(got["progress"], np.asarray(want["progress"]), rtol=0, atol=1e-7)
             if t >= src.song_steps:

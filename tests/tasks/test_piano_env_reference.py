@@ -199,17 +199,19 @@ def test_reference_of_hand_made_windows(env, start) -> None:
 def test_reference_hook_on_the_songs_windows(env, start, k_max) -> None:
     """``task_reference`` at song steps with goal keys, from a given filter state ``f``: ``default +
     scale (f + alpha (a - f))``, ``a`` the hand blend of the bank's window at that step (the observation's
-    ``target_keys``)."""
+    ``target_keys``: the window from the step plus the playback's lead)."""
     kb = env.config.keyboard
+    lead = env.config.playback.lead_steps
+    assert lead == 2
     default = env.default_pose.astype(np.float64)
     hook = jax.jit(env.task_reference)
     rng = np.random.default_rng(0)
-    steps = [t for t in range(25, T, 23) if env.bank.down[0, t : t + TARGET_FRAMES].any()]
+    steps = [t for t in range(25, T, 23) if env.bank.down[0, t + lead : t + lead + TARGET_FRAMES].any()]
     assert len(steps) >= 8
     for t in steps:
         f = rng.uniform(-0.5, 0.5, 14).astype(np.float32)
         info = {**start.info, "step": jnp.int32(t), "ref_act": jnp.asarray(f)}
-        a = hand_blend(_frames(env.bank.down[0, t : t + TARGET_FRAMES], kb), default, kb, SCALE)
+        a = hand_blend(_frames(env.bank.down[0, t + lead : t + lead + TARGET_FRAMES], kb), default, kb, SCALE)
         want = default + SCALE * (f + ALPHA * (a - f))
         tol = q_tol(k_max, blend_tol(k_max))
         np.testing.assert_allclose(np.asarray(hook(info)), want, rtol=0, atol=tol, err_msg=f"step {t}")

@@ -39,7 +39,7 @@ from bar_policy.tasks.piano.keys import KinematicKeys
 from bar_policy.tasks.piano.scene import keyboard_scene
 from bar_policy.tasks.piano.song_library import HELDOUT, SONG_NAMES, library_bpm, library_song
 from bar_policy.tasks.piano.songs import Song, SongError, read_song, song_from_json
-from bar_policy.tasks.piano.source import SongCommands
+from bar_policy.tasks.piano.source import SongCommands, policy_playback
 
 if TYPE_CHECKING:
     from bar_policy.robot.kinematics import Kinematics
@@ -260,7 +260,13 @@ class PianoTask(DeployTask):
         keys = key_source(getattr(args, "keys", None), getattr(args, "target", "sim"), kin, emulated)
         reference = KeyPoseReference.for_policy(policy)
         return SongCommands(
-            song, compact_config(), policy.policy_dt, keys, reference=reference, arrangement=arrangement
+            song,
+            compact_config(),
+            policy.policy_dt,
+            keys,
+            policy_playback(policy),
+            reference=reference,
+            arrangement=arrangement,
         )
 
     def run_figure(

@@ -11,13 +11,14 @@ and the initial-state noise are the robot env's (``bar_policy.envs.robot``); the
   ``episode_length_s - count_in_s``), each played with ``playback``'s count-in (the first note no earlier
   than ``count_in_s``; ``SongCommands`` plays songs on the robot with the same) and cut or padded to the
   episode. Each episode plays one song, drawn uniformly, from its start (the count-in's).
-- **Observation**: ``ObservationManager.for_task("piano", mode)``: ``target_keys`` (the goal keys at the
-  current control step and the next ``TARGET_FRAMES - 1``), ``progress`` (steps / episode steps, from the
+- **Observation**: ``ObservationManager.for_task("piano", mode)``: ``target_keys`` (the goal keys of
+  ``TARGET_FRAMES`` control steps from the current one plus ``playback.lead_steps``: the song read ahead
+  by the lead, ``bank.PlaybackConfig``), ``progress`` (steps / episode steps, from the
   episode's start: the count-in's ticks count, as on the robot),
   ``key_pressed`` (the keys past their press threshold now), then q, dq and the last action.
 - **Step ``t``** (the ``t``-th control step of the episode, ``t = step - 1``): the goal is the bank's row
-  ``t`` (what ``target_keys`` showed as current when the action was chosen); it is compared with the keys
-  down after the step. Rewards are the rows of the task's term table (``term_table.py``: functions of
+  ``t`` (the song's own time: ``target_keys`` showed it ``lead_steps`` steps before); it is compared with
+  the keys down after the step. Rewards are the rows of the task's term table (``term_table.py``: functions of
   ``rewards`` and ``bar_policy.envs.rewards``) weighted by ``RewardScales``; metrics
   are the step's true positives, false positives and false negatives and its precision, recall and F1
   (``metrics``), so the evaluation reports RoboPianist's step means and the pooled F1 beside them; and the
@@ -61,7 +62,7 @@ from bar_policy.obs.action_prior import BlendPrior
 from bar_policy.robot.constants import FINGERTIP_SITES
 from bar_policy.tasks.piano import metrics as piano_metrics
 from bar_policy.tasks.piano import rewards, term_table
-from bar_policy.tasks.piano.bank import PlaybackConfig, song_bank, training_songs
+from bar_policy.tasks.piano.bank import SONG_LEAD_STEPS, PlaybackConfig, song_bank, training_songs
 from bar_policy.tasks.piano.held import held_pose
 from bar_policy.tasks.piano.keyboard import (
     KeyboardConfig,
@@ -98,9 +99,9 @@ class PianoEnvConfig(RobotEnvConfig):
     """Tempo range of the random songs, beats per minute (a beat = one short note)."""
     song_seed: int = 0
     """Seed of the random songs."""
-    playback: PlaybackConfig = field(default_factory=PlaybackConfig)
-    """How the songs are played: the count-in before the first note (``SongCommands`` plays with the
-    default on the robot)."""
+    playback: PlaybackConfig = field(default_factory=lambda: PlaybackConfig(lead_steps=SONG_LEAD_STEPS))
+    """How the songs are played: the count-in before the first note and the goal keys' lead
+    (``SongCommands`` plays with the policy file's lead, ``bar.song_lead_steps``, and the same count-in)."""
     reward: RewardConfig = field(default_factory=RewardConfig)
     """Reward terms and weights."""
     prior: KeyPosePriorConfig = field(default_factory=KeyPosePriorConfig)
@@ -206,7 +207,8 @@ class LitePiano(LiteRobotEnv):
         ``info["step"]`` and the keys down (the observation's ``target_keys`` and ``key_pressed`` when the
         step's action was chosen), shape (n,).
         """
-        window = jax.lax.dynamic_slice_in_dim(self._down[info["song"]], info["step"], TARGET_FRAMES, axis=0)
+        start = info["step"] + self.config.playback.lead_steps
+        window = jax.lax.dynamic_slice_in_dim(self._down[info["song"]], start, TARGET_FRAMES, axis=0)
         return self.filtered_action(info["ref_act"], self.reference_action(window, info.get("ref_keys")))
 
     def task_reference(self, info: dict) -> jax.Array:
@@ -260,11 +262,18 @@ class LitePiano(LiteRobotEnv):
         }
 
     def task_metadata(self) -> dict:
-        """The song set's id (``dataset_repo_id``): the bank's recipe, count-in included."""
+        """The song set's id and the goal keys' lead.
+
+        ``dataset_repo_id``: the bank's recipe, count-in included; ``song_lead_steps``: ``SongCommands``
+        must read the song as far ahead as training did.
+        """
         c = self.config
         lib = "+".join(c.library) if c.library else "none"
         count_in = f"countin{c.playback.count_in_s:g}s"
-        return {"dataset_repo_id": f"bar_policy.piano:random{c.songs}-seed{c.song_seed}-{count_in}-{lib}"}
+        return {
+            "dataset_repo_id": f"bar_policy.piano:random{c.songs}-seed{c.song_seed}-{count_in}-{lib}",
+            "song_lead_steps": c.playback.lead_steps,
+        }
 
     # -- hooks -------------------------------------------------------------------------------------
     def key_angles(self, data: mjx.Data) -> jax.Array:
@@ -343,9 +352,10 @@ class LitePiano(LiteRobotEnv):
         )
 
     def task_obs(self, model: mjx.Model, data: mjx.Data, q_meas: jax.Array, info: dict) -> dict:
-        """Goal keys of the next ``TARGET_FRAMES`` steps, progress, and the keys down now."""
+        """Goal keys of ``TARGET_FRAMES`` steps from ``step + lead_steps``, progress, the keys down now."""
         step = info["step"]
-        window = jax.lax.dynamic_slice_in_dim(self._down[info["song"]], step, TARGET_FRAMES, axis=0)
+        start = step + self.config.playback.lead_steps
+        window = jax.lax.dynamic_slice_in_dim(self._down[info["song"]], start, TARGET_FRAMES, axis=0)
         down = (self.key_angles(data) >= self._threshold).astype(jnp.float32)
         return {
             "target_keys": window.reshape(-1),

@@ -51,7 +51,7 @@ from bar_policy.tasks.piano.reference import KeyPoseReference
 from bar_policy.tasks.piano.results import PianoEval, SongResult, SongTicks
 from bar_policy.tasks.piano.scene import keyboard_scene
 from bar_policy.tasks.piano.songs import Song
-from bar_policy.tasks.piano.source import END_HOLD_S, SongCommands, sim_keys
+from bar_policy.tasks.piano.source import END_HOLD_S, SongCommands, policy_playback, sim_keys
 
 __all__ = ["EVAL_KEY_SOURCES", "evaluate"]
 
@@ -75,7 +75,8 @@ def evaluate(
 ) -> PianoEval:
     """Play each song once on ``target`` (default: ``runner``'s in the keyboard's scene; module docstring).
 
-    ``playback``: the count-in (default ``PlaybackConfig()``, the env's and ``bar-deploy``'s). ``keys``: where
+    ``playback``: the count-in and the goal keys' lead (default ``source.policy_playback(policy)``: the
+    env's count-in and the file's lead, as ``bar-deploy`` plays). ``keys``: where
     the policy's ``key_pressed`` comes from, one of ``EVAL_KEY_SOURCES`` (the score counts the simulated
     keys whatever it is). ``on_song``: called after each song with its result and its scored ticks as arrays
     (``SongTicks``), for analyses beyond the means. ``group``: the group of ``songs`` (``SongResult.group``);
@@ -89,7 +90,7 @@ def evaluate(
     sim = target or runner.target(scene=keyboard_scene(kb))
     q0 = held_pose(policy.robot.pose("piano_ready"), policy.robot.mode)  # as the env starts
     reference = KeyPoseReference.for_policy(policy, kb)
-    pb = PlaybackConfig() if playback is None else playback
+    pb = policy_playback(policy) if playback is None else playback
     fingertips = None
     if keys == "kinematic":  # one model build for every song
         from bar_policy.robot.kinematics import Kinematics
@@ -100,7 +101,7 @@ def evaluate(
     for index, (song, in_group) in enumerate(played, 1):
         sim.reset(q0)
         source, truth = _key_sources(keys, sim, kb, fingertips)
-        commands = SongCommands(song, kb, policy.policy_dt, source, playback, reference, truth=truth)
+        commands = SongCommands(song, kb, policy.policy_dt, source, pb, reference, truth=truth)
         reads: list[np.ndarray] = []
         q_cmds: list[np.ndarray] = []
 

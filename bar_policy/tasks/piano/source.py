@@ -2,8 +2,10 @@
 
 ``SongCommands`` feeds the three piano terms each control tick, as the env builds them (``env.py``):
 
-- ``target_keys``: rows ``s .. s + TARGET_FRAMES - 1`` of the song's goal keys (``bank.song_bank``, the env's
-  count-in and rounding of note times to steps), ``s`` the control step since POLICY began (0 before it);
+- ``target_keys``: rows ``s + D .. s + D + TARGET_FRAMES - 1`` of the song's goal keys (``bank.song_bank``,
+  the env's count-in and rounding of note times to steps), ``s`` the control step since POLICY began (0
+  before it), ``D`` the playback's lead (``PlaybackConfig.lead_steps``: the policy file's
+  ``bar.song_lead_steps``, ``policy_playback``); the tick's goal, what is scored, is row ``s``;
 - ``progress``: ``s / max(EPISODE_STEPS, song steps)``: the env's ``step / 500`` for a song of up to 10 s
   with its count-in (a longer song runs to 1 at its end instead of beyond it). Both count from the song's
   step 0, the count-in's start, as the env counts from the episode's start;
@@ -55,7 +57,7 @@ if TYPE_CHECKING:
     from bar_policy.tasks.piano.arrange import Arrangement
     from bar_policy.tasks.piano.reference import KeyPoseReference
 
-__all__ = ["END_HOLD_S", "EPISODE_STEPS", "SongCommands", "sim_keys"]
+__all__ = ["END_HOLD_S", "EPISODE_STEPS", "SongCommands", "policy_playback", "sim_keys"]
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +65,15 @@ EPISODE_STEPS = 500
 """The env's episode, control steps (``PianoEnvConfig.episode_length_s`` 10 s at 50 Hz): progress's scale."""
 END_HOLD_S = 0.5
 """The run goes on this long after the song's last note ends, s (the last key is released)."""
+
+
+def policy_playback(policy: Any) -> PlaybackConfig:
+    """How ``policy`` plays songs: the env's count-in and the goal keys' lead it trained with.
+
+    The lead is its file's ``bar.song_lead_steps``: 0 for a file without the key, whose training read frame
+    0 as the step's goal.
+    """
+    return PlaybackConfig(lead_steps=int(getattr(policy.metadata, "song_lead_steps", 0)))
 
 
 class SongCommands(CommandSource):
@@ -85,7 +96,8 @@ class SongCommands(CommandSource):
         """Play ``song`` on ``keyboard`` at control period ``dt`` s, reading keys from ``keys``.
 
         ``keys`` None: the simulated keys of the target the runtime attaches (``attach``; the sim target
-        in the keyboard's scene). ``playback``: the count-in (default ``PlaybackConfig()``, the env's).
+        in the keyboard's scene). ``playback``: the count-in and the goal keys' lead (default
+        ``PlaybackConfig()``: the env's count-in, no lead; a policy's own: ``policy_playback``).
         ``reference``: the key-pose reference ``target_q`` returns (None: no reference; module docstring).
         ``truth``: the keys a tick is scored against (``scored_keys``), read just before ``keys`` so both
         see one state; None: ``keys`` itself (the simulated keys, where they feed the policy).
@@ -104,12 +116,14 @@ class SongCommands(CommandSource):
         self.playback = PlaybackConfig() if playback is None else playback
         # Room for the song after any count-in: the bank plays it (count-in, rounding) and gives its length.
         room = math.ceil((song.duration_s + self.playback.count_in_s) / dt) + 1
-        check_table_size(f"song {song.name!r}", room + TARGET_FRAMES, keyboard.n_keys)  # before allocating
+        rows = room + self.playback.lead_steps + TARGET_FRAMES
+        check_table_size(f"song {song.name!r}", rows, keyboard.n_keys)  # before allocating
         bank = song_bank([song], keyboard, dt, room, TARGET_FRAMES - 1, self.playback)
         self.song_steps = int(bank.steps[0])
         """The song's length as played, control steps: its last note's end, count-in included."""
-        self.down = bank.down[0, : self.song_steps + TARGET_FRAMES]
-        """Goal keys, 0/1 float32, shape (song steps + TARGET_FRAMES, n_keys)."""
+        self.lead = self.playback.lead_steps
+        self.down = bank.down[0, : self.song_steps + self.lead + TARGET_FRAMES]
+        """Goal keys, 0/1 float32, shape (song steps + lead + TARGET_FRAMES, n_keys)."""
         self.window = song_window(self.down)
         """The scored steps ``[first, stop)``: the first note's start to the last note's end, as played."""
         self.tally = KeyTally(black_keys(keyboard), self.window)
@@ -159,7 +173,7 @@ class SongCommands(CommandSource):
         self._pressed = np.asarray(self.keys.read(t), bool)
         if self.truth is None:
             self._true = self._pressed
-        target = self.down[s : s + TARGET_FRAMES].reshape(-1).astype(np.float32)
+        target = self.down[s + self.lead : s + self.lead + TARGET_FRAMES].reshape(-1).astype(np.float32)
         if self.reference is not None and self._t0 is not None:  # one filter step per POLICY tick
             self._ref_state = self.reference.filtered(self._ref_state, target, self._pressed)
         return {
@@ -233,6 +247,7 @@ class SongCommands(CommandSource):
             "song_steps": self.song_steps,
             "song_window_steps": list(self.window),
             "count_in_s": self.playback.count_in_s,
+            "song_lead_steps": self.lead,
             "keys": keys,
             "reference": None if self.reference is None else self.reference.prior.label,
             "arrangement": None if self.arrangement is None else self.arrangement.to_dict(),
