@@ -18,7 +18,8 @@ pressing frames (the preset's 2), ``--filter-hz`` the action filter written into
 code (``tasks.piano.evaluate``: the deploy runtime, the safety supervisor): ``sim`` on the C MuJoCo sim
 target, ``bus`` through ``RealTarget`` and the lockstep Robstride emulator on virtual CAN buses
 (``EmulatedBusTarget`` in the keyboard's scene: the 16-bit feedback codec, the firmware's MIT law).
-``--count-in S`` plays them with that count-in (``bank.PlaybackConfig``; default its own). It prints one
+``--count-in S`` plays them with that count-in (``bank.PlaybackConfig``; default its own); the song lead
+is the file's (``source.policy_playback``). It prints one
 markdown row per song and column (F1, precision, recall, pooled F1, faulted) and writes ``--json``.
 """
 
@@ -41,6 +42,7 @@ from bar_policy.tasks.piano.prior import KeyPosePriorConfig
 from bar_policy.tasks.piano.results import PianoEval
 from bar_policy.tasks.piano.scene import keyboard_scene
 from bar_policy.tasks.piano.song_library import HELDOUT, library_song
+from bar_policy.tasks.piano.source import policy_playback
 
 
 def _prior_config(items: list[str]) -> KeyPosePriorConfig:
@@ -93,9 +95,15 @@ def write_prior_policy(
     return export_policy(policy, meta, path, prior.apply)
 
 
-def run_column(name: str, policy_path: Path, songs: list[str], playback: PlaybackConfig) -> PianoEval:
-    """The songs on the sim target (``sim``) or through the emulated bus (``bus``)."""
+def run_column(name: str, policy_path: Path, songs: list[str], count_in_s: float | None) -> PianoEval:
+    """The songs on the sim target (``sim``) or through the emulated bus (``bus``).
+
+    Played as the file trained (``source.policy_playback``: its song lead), with ``count_in_s`` when given.
+    """
     policy = load_policy(str(policy_path))
+    playback = policy_playback(policy)
+    if count_in_s is not None:
+        playback = dataclasses.replace(playback, count_in_s=count_in_s)
     runner = SimEpisodes(policy)
     tracks = [library_song(s) for s in songs]
     if name == "sim":
@@ -125,23 +133,23 @@ def main() -> None:
         t0 = time.perf_counter()
         summary = write_prior_policy(args.out, _prior_config(args.prior), args.lead, args.filter_hz)
         print(f"wrote {args.out} ({time.perf_counter() - t0:.0f} s, parity {summary['max_abs_error']:.1e})")
-    playback = PlaybackConfig() if args.count_in is None else PlaybackConfig(count_in_s=args.count_in)
+    count_in = PlaybackConfig().count_in_s if args.count_in is None else args.count_in
     songs = args.songs.split(",")
     out = {
         "policy": str(args.out),
         "prior": args.prior,
         "lead": args.lead,
         "filter_hz": args.filter_hz,
-        "count_in_s": playback.count_in_s,
+        "count_in_s": count_in,
         "columns": {},
     }
     if args.eval:
-        print(f"count-in {playback.count_in_s} s, prior {args.prior or 'default'}, lead {args.lead}")
+        print(f"count-in {count_in} s, prior {args.prior or 'default'}, lead {args.lead}")
         print("| column | song | F1 | precision | recall | pooled F1 | faulted |")
         print("|---|---|---:|---:|---:|---:|---|")
     for column in args.eval:
         t0 = time.perf_counter()
-        res = run_column(column, args.out, songs, playback)
+        res = run_column(column, args.out, songs, args.count_in)
         for s in res.songs:
             print(
                 f"| {column} | {s.song} | {s.f1:.3f} | {s.precision:.3f} | {s.recall:.3f} | "
