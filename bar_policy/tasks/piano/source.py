@@ -122,6 +122,7 @@ class SongCommands(CommandSource):
         self.song_steps = int(bank.steps[0])
         """The song's length as played, control steps: its last note's end, count-in included."""
         self.lead = self.playback.lead_steps
+        """Control steps ``target_keys`` read ahead of the scored step (``PlaybackConfig.lead_steps``)."""
         self.down = bank.down[0, : self.song_steps + self.lead + TARGET_FRAMES]
         """Goal keys, 0/1 float32, shape (song steps + lead + TARGET_FRAMES, n_keys)."""
         self.window = song_window(self.down)
