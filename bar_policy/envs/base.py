@@ -118,7 +118,8 @@ class MjxEnv(abc.ABC):
 
         ``body_names`` (tuple of str), ``lookahead_steps`` (int) and ``dataset_repo_id`` (str), empty for
         tasks without references; ``command_transition_s`` (float, s) for tasks whose commands move along
-        ``tasks.reach.shared.transition_point``.
+        ``tasks.reach.shared.transition_point``; ``song_lead_steps`` (int) for the piano's goal keys read
+        ahead of the song (``tasks.piano.bank.PlaybackConfig``).
         """
         return {}
 

@@ -69,11 +69,13 @@ def test_every_env_traces_and_keeps_the_trainer_contract(name):
     for a, b in zip(jax.tree_util.tree_leaves(s), jax.tree_util.tree_leaves(s1), strict=True):
         assert (a.shape, a.dtype, a.weak_type) == (b.shape, b.dtype, b.weak_type)
     assert "success_rate" in jax.eval_shape(env.eval_ratios, s1.metrics)
+    # The keys training.metadata.policy_metadata writes into the file: any other would be dropped unseen.
     assert set(env.task_metadata()) <= {
         "body_names",
         "lookahead_steps",
         "dataset_repo_id",
         "command_transition_s",
+        "song_lead_steps",
     }
 
 
