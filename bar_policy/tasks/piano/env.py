@@ -207,9 +207,16 @@ class LitePiano(LiteRobotEnv):
         ``info["step"]`` and the keys down (the observation's ``target_keys`` and ``key_pressed`` when the
         step's action was chosen), shape (n,).
         """
-        start = info["step"] + self.config.playback.lead_steps
-        window = jax.lax.dynamic_slice_in_dim(self._down[info["song"]], start, TARGET_FRAMES, axis=0)
+        window = self._target_window(info["song"], info["step"])
         return self.filtered_action(info["ref_act"], self.reference_action(window, info.get("ref_keys")))
+
+    def _target_window(self, song: jax.Array, step: jax.Array) -> jax.Array:
+        """The goal keys ``target_keys`` shows at ``step``, shape (TARGET_FRAMES, n_keys).
+
+        ``TARGET_FRAMES`` rows of the bank from ``step`` plus the playback's lead.
+        """
+        start = step + self.config.playback.lead_steps
+        return jax.lax.dynamic_slice_in_dim(self._down[song], start, TARGET_FRAMES, axis=0)
 
     def task_reference(self, info: dict) -> jax.Array:
         """The key-pose reference of the step of ``info``: ``default + scale * reference_state(info)``, rad.
@@ -354,8 +361,7 @@ class LitePiano(LiteRobotEnv):
     def task_obs(self, model: mjx.Model, data: mjx.Data, q_meas: jax.Array, info: dict) -> dict:
         """Goal keys of ``TARGET_FRAMES`` steps from ``step + lead_steps``, progress, the keys down now."""
         step = info["step"]
-        start = step + self.config.playback.lead_steps
-        window = jax.lax.dynamic_slice_in_dim(self._down[info["song"]], start, TARGET_FRAMES, axis=0)
+        window = self._target_window(info["song"], step)
         down = (self.key_angles(data) >= self._threshold).astype(jnp.float32)
         return {
             "target_keys": window.reshape(-1),
