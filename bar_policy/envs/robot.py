@@ -363,8 +363,11 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
             "signal": q_cmd if ref is None else q_cmd - ref,
         }
 
-    def action_prior(self, lead_steps: int) -> Prior:
+    def action_prior(self, lead_steps: int, error_gain: float = 0.0) -> Prior:
         """The task's action prior (``obs.action_prior``), ``lead_steps`` control steps ahead.
+
+        ``error_gain``: the gain of its integral term on ``joint_error_ema`` (``network.prior_error_gain``;
+        0: none), for a task whose prior has one.
 
         Raises:
             ValueError: the task has none (this default: reach has no reference to follow).

@@ -155,7 +155,11 @@ def _prior_nodes(prior: Prior, atanh: bool) -> tuple[list[onnx.TensorProto], lis
 
 
 def _affine_nodes(prior: ActionPrior) -> tuple[list[onnx.TensorProto], list[onnx.NodeProto]]:
-    """``prior_action = clip(gain * obs[:, index] + offset, -bound, bound)``."""
+    """``prior_action = clip(gain * obs[:, index] + offset [+ integral term], -bound, bound)``.
+
+    The integral term is ``error_gain * obs[:, error_index]`` (``ActionPrior``); its nodes only for a
+    prior that has one, so a prior without it exports the graph it always had.
+    """
     inits = [
         numpy_helper.from_array(np.asarray(prior.index, np.int64), "prior_index"),
         numpy_helper.from_array(np.asarray(prior.gain, np.float32), "prior_gain"),
@@ -167,8 +171,20 @@ def _affine_nodes(prior: ActionPrior) -> tuple[list[onnx.TensorProto], list[onnx
         helper.make_node("Gather", ["obs", "prior_index"], ["prior_obs"], axis=1),
         helper.make_node("Mul", ["prior_obs", "prior_gain"], ["prior_scaled"]),
         helper.make_node("Add", ["prior_scaled", "prior_offset"], ["prior_affine"]),
-        helper.make_node("Clip", ["prior_affine", "prior_low", "prior_high"], ["prior_action"]),
     ]
+    affine = "prior_affine"
+    if prior.has_error_term:
+        inits += [
+            numpy_helper.from_array(np.asarray(prior.error_index, np.int64), "prior_error_index"),
+            numpy_helper.from_array(np.asarray(prior.error_gain, np.float32), "prior_error_gain"),
+        ]
+        nodes += [
+            helper.make_node("Gather", ["obs", "prior_error_index"], ["prior_error_obs"], axis=1),
+            helper.make_node("Mul", ["prior_error_obs", "prior_error_gain"], ["prior_error_scaled"]),
+            helper.make_node("Add", ["prior_affine", "prior_error_scaled"], ["prior_integral"]),
+        ]
+        affine = "prior_integral"
+    nodes.append(helper.make_node("Clip", [affine, "prior_low", "prior_high"], ["prior_action"]))
     return inits, nodes
 
 

@@ -12,6 +12,16 @@ so a zero MLP output commands the reference itself and the network learns only t
 the filter's lag, the arm's dynamics). The reference prior reads one frame of ``motion_joint_pos``:
 ``a = (q_ref - default) / scale``, the action whose command is that frame's pose.
 
+**Integral term** (``error_index``, ``error_gain``; ``reference_prior(error_gain=...)``): the prior may add
+``error_gain * obs[index of joint_error_ema]``, the moving average ``z`` of ``q_cmd - q``
+(``robot.error_ema``). At gain 1 (``z / scale`` action units) it is integral action without a state of its
+own: while the command is ``q_ref + z``, the average's step ``z + alpha (q_cmd - q - z)`` is
+``z + alpha (q_ref - q)``, the tracking error integrated at ``1 / tau`` (tau 0.5 s); under a steady load
+``tau_l`` the P-law's spring holds ``q_cmd - q = tau_l / Kp``, so ``z`` tends to it, the command to
+``q_ref + tau_l / Kp`` and ``q`` to ``q_ref``, whatever the load (gravity, a payload, a weaker motor). The
+MLP keeps the dynamic part. Without contacts nothing winds it up; against a contact (a piano key's stop)
+it would, which is why the piano's prior has none (docs/robustness.md, "The integral prior").
+
 The prior has no parameters: it is part of the network's structure, written into the ONNX graph by
 ``bar_policy.export`` (Gather, Mul, Add, Clip, Atanh before the output Tanh), so a deployed file is still
 ``obs -> actions`` and the runtime never knows it is there. numpy only (the deploy side imports
@@ -29,6 +39,7 @@ import numpy as np
 
 from bar_policy._array import Array, array_namespace
 from bar_policy.obs.manager import ObservationManager
+from bar_policy.obs.robot_layout import ERROR_EMA_TERM
 
 __all__ = ["PRIOR_BOUND", "ActionPrior", "BlendPrior", "Prior", "check_fits", "reference_prior"]
 
@@ -39,7 +50,10 @@ the MLP can still move an action whose reference sits at the edge of the action 
 
 @dataclass(frozen=True, kw_only=True)
 class ActionPrior:
-    """``prior(obs) = clip(gain * obs[..., index] + offset, -bound, bound)``, one entry per action."""
+    """``prior(obs) = clip(gain * obs[..., index] + offset [+ integral term], -bound, bound)``, per action.
+
+    The integral term (module docstring), for a prior that has one: ``error_gain * obs[..., error_index]``.
+    """
 
     index: tuple[int, ...]
     """Observation entries read, one per action (canonical joint order)."""
@@ -49,6 +63,10 @@ class ActionPrior:
     """Added per action, action units."""
     bound: float = PRIOR_BOUND
     """Symmetric clip of the prior, action units, in (0, 1) (atanh of it must be finite)."""
+    error_index: tuple[int, ...] = ()
+    """Observation entries of the integral term (``joint_error_ema``), one per action; () for none."""
+    error_gain: tuple[float, ...] = ()
+    """Multiplier per action on ``error_index``'s entries, action units per observation unit."""
 
     def __post_init__(self) -> None:
         n = len(self.index)
@@ -57,10 +75,15 @@ class ActionPrior:
                 f"index, gain and offset need one entry per action (>= 1), got {n}, {len(self.gain)}, "
                 f"{len(self.offset)}"
             )
-        if any(int(i) != i or i < 0 for i in self.index):
-            raise ValueError(f"index entries must be integers >= 0, got {self.index}")
-        if not all(math.isfinite(v) for v in (*self.gain, *self.offset)):
-            raise ValueError("gain and offset must be finite")
+        if len(self.error_index) != len(self.error_gain) or len(self.error_index) not in (0, n):
+            raise ValueError(
+                f"error_index and error_gain need one entry per action ({n}) or none, got "
+                f"{len(self.error_index)}, {len(self.error_gain)}"
+            )
+        if any(int(i) != i or i < 0 for i in (*self.index, *self.error_index)):
+            raise ValueError(f"index entries must be integers >= 0, got {self.index}, {self.error_index}")
+        if not all(math.isfinite(v) for v in (*self.gain, *self.offset, *self.error_gain)):
+            raise ValueError("gain, offset and error_gain must be finite")
         if not 0.0 < self.bound < 1.0:
             raise ValueError(f"bound must be in (0, 1) action units, got {self.bound}")
 
@@ -69,19 +92,26 @@ class ActionPrior:
         """Number of actions A."""
         return len(self.index)
 
+    @property
+    def has_error_term(self) -> bool:
+        """Whether the prior adds the integral term."""
+        return bool(self.error_index)
+
     def check_observation_size(self, obs_size: int) -> None:
         """``ValueError`` unless every index is inside an observation of ``obs_size`` entries."""
-        if max(self.index) >= obs_size:
-            raise ValueError(
-                f"the prior reads observation entry {max(self.index)}, the observation has {obs_size}"
-            )
+        last = max((*self.index, *self.error_index))
+        if last >= obs_size:
+            raise ValueError(f"the prior reads observation entry {last}, the observation has {obs_size}")
 
     def apply(self, obs: Array) -> Array:
         """The prior action, shape ``(..., A)``, for observations of shape ``(..., obs)`` (numpy or jax)."""
         xp = array_namespace(obs)
         g = np.asarray(self.gain, np.float32)
         c = np.asarray(self.offset, np.float32)
-        return xp.clip(obs[..., np.asarray(self.index)] * g + c, -self.bound, self.bound)
+        a = obs[..., np.asarray(self.index)] * g + c
+        if self.error_index:
+            a = a + obs[..., np.asarray(self.error_index)] * np.asarray(self.error_gain, np.float32)
+        return xp.clip(a, -self.bound, self.bound)
 
     def pre_tanh(self, obs: Array) -> Array:
         """``atanh(prior(obs))``: what is added to a tanh-squashed policy's mean, shape ``(..., A)``."""
@@ -89,12 +119,15 @@ class ActionPrior:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready record (run configs and reports)."""
-        return {
+        out: dict[str, Any] = {
             "index": list(self.index),
             "gain": list(self.gain),
             "offset": list(self.offset),
             "bound": self.bound,
         }
+        if self.error_index:
+            out.update(error_index=list(self.error_index), error_gain=list(self.error_gain))
+        return out
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -216,9 +249,13 @@ def check_fits(prior: Prior, obs_size: int, action_size: int, holder: str = "the
 
 
 def reference_prior(
-    manager: ObservationManager, default: np.ndarray, scale: np.ndarray, lead_steps: int
+    manager: ObservationManager,
+    default: np.ndarray,
+    scale: np.ndarray,
+    lead_steps: int,
+    error_gain: float = 0.0,
 ) -> ActionPrior:
-    """The prior that commands the reference pose ``lead_steps`` control steps ahead.
+    """The prior that commands the reference pose ``lead_steps`` control steps ahead (plus the integral term).
 
     Args:
         manager: a tracking layout (with ``motion_joint_pos``: the reference at the next ``lookahead_steps``
@@ -227,9 +264,12 @@ def reference_prior(
         scale: rad per action unit, shape (A,), > 0.
         lead_steps: which frame, 1 = the next one (the pose the command of this step reaches for), up to
             ``lookahead_steps``; more lead offsets the action filter's lag.
+        error_gain: the integral term's gain, >= 0 (module docstring): the command adds ``error_gain * z``
+            rad, ``z`` the layout's ``joint_error_ema``; 1 cancels a steady load; 0: no term.
 
     Raises:
-        ValueError: the layout has no ``motion_joint_pos``, or ``lead_steps`` is outside 1..lookahead_steps.
+        ValueError: the layout has no ``motion_joint_pos``, ``lead_steps`` is outside 1..lookahead_steps,
+            ``error_gain`` is negative or not finite, or it is > 0 and the layout has no ``joint_error_ema``.
     """
     k = manager.schema.lookahead_steps
     if "motion_joint_pos" not in manager.term_names:
@@ -243,9 +283,25 @@ def reference_prior(
         raise ValueError("scale must be > 0 rad per action unit")
     term = manager.term("motion_joint_pos")
     start = manager.term_slice("motion_joint_pos").start + (lead_steps - 1) * n
+    if not (math.isfinite(error_gain) and error_gain >= 0.0):
+        raise ValueError(f"error_gain must be a finite number >= 0, got {error_gain}")
+    error_index: tuple[int, ...] = ()
+    error_gains: tuple[float, ...] = ()
+    if error_gain > 0.0:
+        if ERROR_EMA_TERM not in manager.term_names:
+            raise ValueError(
+                f"error_gain {error_gain}: layout {manager.schema.name} v{manager.schema.version} has no "
+                f"{ERROR_EMA_TERM} term (the robust layouts: RobotEnvConfig.joint_error_ema=true)"
+            )
+        ema = manager.term_slice(ERROR_EMA_TERM)
+        error_index = tuple(range(ema.start, ema.stop))
+        # obs = term.scale * z  =>  error_gain * z rad is error_gain / (term.scale * scale) per obs unit
+        error_gains = tuple(float(v) for v in error_gain / (manager.term(ERROR_EMA_TERM).scale * scale))
     # obs = term.scale * q_ref (no default offset on this term)  =>  a = (obs / term.scale - default) / scale
     return ActionPrior(
         index=tuple(range(start, start + n)),
         gain=tuple(float(v) for v in 1.0 / (term.scale * scale)),
         offset=tuple(float(v) for v in -default / scale),
+        error_index=error_index,
+        error_gain=error_gains,
     )

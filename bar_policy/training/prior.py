@@ -32,4 +32,4 @@ def action_prior(env: Any, net: NetworkConfig, env_name: str) -> Prior | None:
             f"network.action_prior={net.action_prior!r}: {type(env).__name__} has "
             f"{'the ' + repr(kind) + ' prior' if kind else 'no action prior'}; valid values for it: {valid}"
         )
-    return env.action_prior(net.prior_lead_steps)
+    return env.action_prior(net.prior_lead_steps, net.prior_error_gain)

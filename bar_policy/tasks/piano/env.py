@@ -164,8 +164,18 @@ class LitePiano(LiteRobotEnv):
         self._hands = to_device(self.bank.hands)
         self._held = to_device(held_pose(np.asarray(self._default), cfg.mode), np.float32)
 
-    def action_prior(self, lead_steps: int) -> BlendPrior:
-        """The key-pose prior (``prior.py``): goal-key frames ``0..lead_steps`` press, later ones hover."""
+    def action_prior(self, lead_steps: int, error_gain: float = 0.0) -> BlendPrior:
+        """The key-pose prior (``prior.py``): goal-key frames ``0..lead_steps`` press, later ones hover.
+
+        Raises:
+            ValueError: ``error_gain`` is not 0: the key-pose prior has no integral term (against a key's
+                stop the error average winds up: docs/robustness.md, "The integral prior").
+        """
+        if error_gain != 0.0:
+            raise ValueError(
+                f"network.prior_error_gain={error_gain}: LitePiano's key_pose prior has no integral term "
+                "(against the keys' stops it winds up); valid: 0"
+            )
         c = self.config
         return key_pose_prior(self.obs_manager, c.keyboard, self._default, self._scale, lead_steps, c.prior)
 

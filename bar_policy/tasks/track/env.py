@@ -118,9 +118,13 @@ class LiteTrack(LiteRobotEnv):
         """
         return LiteTrack(nominal(heldout_config(self.config)))
 
-    def action_prior(self, lead_steps: int) -> ActionPrior:
-        """The reference prior: the action whose command is the reference ``lead_steps`` frames ahead."""
-        return reference_prior(self.obs_manager, self._default, self._scale, lead_steps)
+    def action_prior(self, lead_steps: int, error_gain: float = 0.0) -> ActionPrior:
+        """The reference prior: the action whose command is the reference ``lead_steps`` frames ahead.
+
+        ``error_gain`` > 0 adds the integral term (``obs.action_prior``; the layout needs
+        ``joint_error_ema``): the command becomes the reference plus ``error_gain`` times the error average.
+        """
+        return reference_prior(self.obs_manager, self._default, self._scale, lead_steps, error_gain)
 
     def _spans(self) -> list[tuple[int, int]]:
         t = self.reference
