@@ -12,7 +12,7 @@ the export's parity gate against the prior's numpy ``apply``. ``--lead`` is the 
 commands (``network.prior_lead_steps``, 5 = 100 ms); ``--error-gain G`` > 0 adds the integral term
 (``network.prior_error_gain``: the command adds ``G`` times ``joint_error_ema``) and turns the layout's error
 average on (``RobotEnvConfig.joint_error_ema``, the track layout's v2). The suite table of a file shows what
-the prior alone gives on each perturbed robot, before any learning (docs/robustness.md, "The integral
+the prior alone gives on each perturbed robot, before any learning (docs/robust_training.md, "The integral
 prior").
 """
 

@@ -56,8 +56,8 @@ def test_a_file_without_provenance_loads_and_says_so():
 
 
 def test_the_shipped_reach_policy_says_what_trained_it():
-    """The reach policy shipped from the robust run (docs/robustness.md, "Reach: shipped"): its commit, the
-    tree flagged dirty (the only difference: the untracked script that launched the run on the GPU host),
+    """The reach policy shipped from the robust run (docs/robust_training.md, "Reach: shipped"): its commit,
+    the tree flagged dirty (the only difference: the untracked script that launched the run on the GPU host),
     the command, and the 1 s command transition it was trained with."""
     from bar_policy.deploy.policy import load_policy
 

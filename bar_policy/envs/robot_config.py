@@ -140,7 +140,7 @@ class ModelRandomizationConfig:
     added damping, armature scale and payload are off (with a robot-parameters file: its values). 0
     (default): no such slot. Why: the wide ranges are drawn per joint independently, so a slot whose 14
     joints are all near the nominal robot (the one the ship gate's sim target runs) essentially never
-    occurs (friction U(0.05, 1.35): P(all 14 below 0.35) = (0.3 / 1.3)^14 = 1e-9); docs/robustness.md."""
+    occurs (friction U(0.05, 1.35): P(all 14 below 0.35) = (0.3 / 1.3)^14 = 1e-9); docs/robust_training.md."""
     factor_share: float = 1.0
     """Probability, 0..1, that each robust factor is on, drawn independently per factor and env slot (the
     model's: friction's robust addition, link mass scale, added damping, armature scale, payload) and per
@@ -153,7 +153,7 @@ class ModelRandomizationConfig:
     (default): every factor on, the draws as without it, bit for bit. Why: the wide ranges drawn all at
     once make a slot where everything is hard at once common, unlike the deploy suite's rows, which perturb
     one factor at a time (plus one combined row); with share p a slot carries 5p model perturbations on
-    average (docs/robustness.md)."""
+    average (docs/robust_training.md)."""
     payload_at: str = "fingertip"
     """Where the payload sits in the hand (``PAYLOAD_AT``): ``fingertip`` (the finger2 tip site), ``palm``
     (the palm collider's centre), or ``either`` (one of the two per env slot and hand, even odds)."""
@@ -230,7 +230,7 @@ class RobotEnvConfig:
     ``quality.metrics.CAP_DWELL_S`` (0.5 s) unbroken (``info["cap_dwell"]``, s per joint;
     ``envs.terminations.cap_fault``). On the robot that fault ends the run in damping; without the
     termination a training episode rides on (the tracker's fast wrist-yaw clips under two ticks of action
-    delay, docs/robustness.md). False (default): no such termination."""
+    delay, docs/robust_training.md). False (default): no such termination."""
     robot_params: str | None = None
     """Path of a robot-parameters file (``bar_policy.robot.params``, ``bar-bus identify --out``;
     ``bar-train --robot-params FILE``): the model is the identified robot (the file's friction, damping,

@@ -1,7 +1,7 @@
 """The robustness randomisation as env overrides, and the ``<task>-robust`` training presets built from it.
 
 ``ROBUST_ENV_OVERRIDES`` turns on the randomisation that covers the deploy side's perturbation suite
-(``bar_policy.robot.perturb_suite``; docs/robustness.md, "Training for robustness"): every field it sets
+(``bar_policy.robot.perturb_suite``; docs/robust_training.md): every field it sets
 is a ``RobotEnvConfig`` field whose default leaves today's presets as they were. A task's preset module
 adds ``robust(PRESET, "<task>-robust")``; any other run gets the same with
 ``--env-overrides`` and these items. Plain data: this module imports nothing (the task records are read
@@ -31,7 +31,7 @@ ROBUST_ENV_OVERRIDES: tuple[str, ...] = (
 """``dotted.path=value`` items on a ``RobotEnvConfig`` (``bar_policy.overrides``) that cover the suite's
 rows: mass x0.8/x1.2, payload 0.5 kg at fingertip or palm, friction +1.0 N*m, damping +1.0 N*m*s/rad,
 strength x0.8, action delay 2 ticks, observation delay 1 tick, offset 0.01 rad; and keep the nominal robot
-inside the training distribution and measured by the evaluations (docs/robustness.md, "The MJX-vs-C gap
+inside the training distribution and measured by the evaluations (docs/robust_training.md, "The MJX-vs-C gap
 of the first robust reach file")."""
 
 

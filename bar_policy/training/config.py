@@ -94,7 +94,7 @@ class NetworkConfig:
     ``reference`` prior, on a layout with ``joint_error_ema``): the prior's command adds this times the
     error average, rad per rad; 1 cancels a steady load (a payload's sag, gravity itself) before the MLP
     learns anything; 0: none. The prior alone on the sim target, 12 held-out clips: 3.80 cm at 0, 0.90 cm
-    at 1 (docs/robustness.md, "The integral prior")."""
+    at 1 (docs/robust_training.md, "The integral prior")."""
 
     prior_noise_std: float | None = None
     """With an action prior: the policy's initial action noise std, pre-tanh action units (None: brax's

@@ -1,8 +1,8 @@
 """The two-tick action delay on the tracker's held-out clips: what the motors do, what the supervisor sees.
 
 Every tracker file so far ends two held-out clips (random-s1-001, -005) of the suite's ``action delay 2
-ticks`` row in a ``torque_saturation`` fault on a wrist yaw (docs/robustness.md, "The tracker with the error
-average"). A scripted player with no feedback separates the robot from the rule: each tick it sends the
+ticks`` row in a ``torque_saturation`` fault on a wrist yaw (docs/robust_training.md, "The tracker with the
+error average"). A scripted player with no feedback separates the robot from the rule: each tick it sends the
 clip's reference 4 ticks ahead (the 2 ticks of delay plus 2 for the arm's own lag, ``Kd / Kp`` = 40 ms at
 Kp 50, Kd 2), at the firmware's Kp and Kd, ``dq_cmd = 0``, on the perturbed sim target the suite runs
 (``action_delay_ticks=2``).

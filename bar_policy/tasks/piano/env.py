@@ -169,7 +169,7 @@ class LitePiano(LiteRobotEnv):
 
         Raises:
             ValueError: ``error_gain`` is not 0: the key-pose prior has no integral term (against a key's
-                stop the error average winds up: docs/robustness.md, "The integral prior").
+                stop the error average winds up: docs/robust_training.md, "The integral prior").
         """
         if error_gain != 0.0:
             raise ValueError(

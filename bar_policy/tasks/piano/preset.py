@@ -70,4 +70,4 @@ and the tracker's do."""
 
 PIANO_ROBUST = robust(PIANO, "piano-robust", PIANO_ROBUST_EXTRA)
 """The ``piano`` preset with the robustness randomisation (``tasks.robust_preset.ROBUST_ENV_OVERRIDES``;
-docs/robustness.md, "Training for robustness") and ``PIANO_ROBUST_EXTRA``."""
+docs/robust_training.md) and ``PIANO_ROBUST_EXTRA``."""

@@ -164,8 +164,8 @@ REACH_ROBUST_EXTRA: tuple[str, ...] = (
     "joint_error_ema=true",  # the integral-like input (layout lite_reach_arms v2)
 )
 """Reach's own items of the robust preset, after the randomisation: measured on the suite in
-docs/robustness.md ("Reach: the suite passes")."""
+docs/robust_training.md, "Reach: shipped"."""
 
 REACH_ROBUST = robust(GPU, "reach-robust", REACH_ROBUST_EXTRA)
 """The ``gpu`` preset with the robustness randomisation (``tasks.robust_preset.ROBUST_ENV_OVERRIDES``;
-docs/robustness.md, "Training for robustness") and ``REACH_ROBUST_EXTRA``."""
+docs/robust_training.md) and ``REACH_ROBUST_EXTRA``."""

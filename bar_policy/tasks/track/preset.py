@@ -120,7 +120,7 @@ TRACK_ROBUST_EXTRA: tuple[str, ...] = (
     "reward.scales.torque_near_cap=-1.0",  # x10 the nominal weight, as reach's
     "terminate_on_cap_fault=true",  # an episode ends where the robot's supervisor would fault
 )
-"""Tracking's own items of the robust preset, after the randomisation (docs/robustness.md, "The tracker
+"""Tracking's own items of the robust preset, after the randomisation (docs/robust_training.md, "The tracker
 with the error average")."""
 
 TRACK_ROBUST = {**robust(TRACK, "track-robust", TRACK_ROBUST_EXTRA), "ppo.learning_rate": 1e-4}
@@ -129,4 +129,4 @@ TRACK_ROBUST = {**robust(TRACK, "track-robust", TRACK_ROBUST_EXTRA), "ppo.learni
 resumed from a ``track`` run trained with ``--env-overrides joint_error_ema=true`` (the same layout).
 From that 30.1 M-step first stage (MJX nominal 98.7 %, 0.83 cm), 120.6 M env steps in all (one H200,
 f519ab4, 2026-12-03) end at MJX nominal 99.3 %, 0.72 cm; from scratch, without the extras and at 3e-4,
-the preset's run ended at 77.7 %, 1.58 cm (docs/robustness.md, "First robust tracker")."""
+the preset's run ended at 77.7 %, 1.58 cm (docs/robust_training.md, "First robust tracker")."""
