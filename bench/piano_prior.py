@@ -76,16 +76,7 @@ def write_prior_policy(
         cfg = dataclasses.replace(cfg, action_filter_hz=filter_hz)
     env = LitePiano(cfg)
     prior = env.action_prior(lead)
-    n_obs, n_act = env.obs_manager.size, env.action_size
-    policy = MlpPolicy(
-        obs_mean=np.zeros(n_obs, np.float32),
-        obs_std=np.ones(n_obs, np.float32),
-        kernels=(np.zeros((n_obs, n_act), np.float32),),
-        biases=(np.zeros(n_act, np.float32),),
-        activation="swish",
-        head="tanh_loc",
-        prior=prior,
-    )
+    policy = MlpPolicy.prior_only(env.obs_manager.size, prior)
     record = {
         "backend": "none: the key-pose prior alone (bench/piano_prior.py)",
         "prior": dataclasses.asdict(prior_config),

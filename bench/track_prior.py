@@ -23,8 +23,6 @@ import dataclasses
 import time
 from pathlib import Path
 
-import numpy as np
-
 
 def write_prior_policy(path: Path, lead: int, error_gain: float) -> dict:
     """Write the zero-MLP policy of ``LiteTrack``'s reference prior to ``path``; the export's summary."""
@@ -39,16 +37,7 @@ def write_prior_policy(path: Path, lead: int, error_gain: float) -> dict:
         cfg = dataclasses.replace(cfg, joint_error_ema=True)
     env = LiteTrack(cfg)
     prior = env.action_prior(lead, error_gain)
-    n_obs, n_act = env.obs_manager.size, env.action_size
-    policy = MlpPolicy(
-        obs_mean=np.zeros(n_obs, np.float32),
-        obs_std=np.ones(n_obs, np.float32),
-        kernels=(np.zeros((n_obs, n_act), np.float32),),
-        biases=(np.zeros(n_act, np.float32),),
-        activation="swish",
-        head="tanh_loc",
-        prior=prior,
-    )
+    policy = MlpPolicy.prior_only(env.obs_manager.size, prior)
     record = {
         "backend": "none: the reference prior alone (bench/track_prior.py)",
         "prior_lead_steps": lead,

@@ -72,6 +72,24 @@ class MlpPolicy:
                     f"layer {i}: input {k.shape[0]} != previous output {self.kernels[i - 1].shape[1]}"
                 )
 
+    @classmethod
+    def prior_only(cls, obs_size: int, prior: Prior) -> MlpPolicy:
+        """The ``tanh_loc`` policy of one zero layer on ``prior``: its actions are ``prior(obs)`` itself.
+
+        ``tanh(0 + atanh(prior(obs)))``: what a run would export before its first update with the MLP's
+        output at exactly zero (the benches of a prior alone; ``obs_size`` entries, the prior's actions).
+        """
+        n_act = prior.action_size
+        return cls(
+            obs_mean=np.zeros(obs_size, np.float32),
+            obs_std=np.ones(obs_size, np.float32),
+            kernels=(np.zeros((obs_size, n_act), np.float32),),
+            biases=(np.zeros(n_act, np.float32),),
+            activation="swish",
+            head="tanh_loc",
+            prior=prior,
+        )
+
     @property
     def obs_size(self) -> int:
         """Observation size."""

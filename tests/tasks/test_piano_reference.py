@@ -80,16 +80,7 @@ def prior_file(tmp_path_factory) -> Path:
     )
     om = ObservationManager.for_task("piano", "arms")
     prior = key_pose_prior(om, KB, np.asarray(meta.default_joint_pos), np.full(14, SCALE), LEAD_STEPS)
-    n = om.size
-    policy = MlpPolicy(
-        obs_mean=np.zeros(n, np.float32),
-        obs_std=np.ones(n, np.float32),
-        kernels=(np.zeros((n, 14), np.float32),),
-        biases=(np.zeros(14, np.float32),),
-        activation="swish",
-        head="tanh_loc",
-        prior=prior,
-    )
+    policy = MlpPolicy.prior_only(om.size, prior)
     path = tmp_path_factory.mktemp("piano_ref") / "prior.onnx"
     export_policy(policy, meta, path, prior.apply)
     return path

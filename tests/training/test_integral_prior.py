@@ -110,16 +110,7 @@ def test_onnx_graph_carries_the_integral_term(v2, pose_scale):
     )
 
     def graph(prior: ActionPrior):
-        zero = MlpPolicy(
-            obs_mean=np.zeros(v2.size, np.float32),
-            obs_std=np.ones(v2.size, np.float32),
-            kernels=(np.zeros((v2.size, N), np.float32),),
-            biases=(np.zeros(N, np.float32),),
-            activation="swish",
-            head="tanh_loc",
-            prior=prior,
-        )
-        return build_onnx_model(zero)
+        return build_onnx_model(MlpPolicy.prior_only(v2.size, prior))
 
     with_term = reference_prior(v2, default, scale, 5, error_gain=1.0)
     model = graph(with_term)
