@@ -19,8 +19,9 @@ own: while the command is ``q_ref + z``, the average's step ``z + alpha (q_cmd -
 ``z + alpha (q_ref - q)``, the tracking error integrated at ``1 / tau`` (tau 0.5 s); under a steady load
 ``tau_l`` the P-law's spring holds ``q_cmd - q = tau_l / Kp``, so ``z`` tends to it, the command to
 ``q_ref + tau_l / Kp`` and ``q`` to ``q_ref``, whatever the load (gravity, a payload, a weaker motor). The
-MLP keeps the dynamic part. Without contacts nothing winds it up; against a contact (a piano key's stop)
-it would, which is why the piano's prior has none (docs/robust_training.md, "The integral prior").
+MLP keeps the dynamic part. It winds up wherever ``q`` cannot follow the command: against a contact (a
+piano key's stop: the piano's prior has none, docs/robust_training.md, "The integral prior") or a motor at
+its torque cap, until the prior's clip at ``bound``; at a joint limit the command's clip bounds it.
 
 The prior has no parameters: it is part of the network's structure, written into the ONNX graph by
 ``bar_policy.export`` (Gather, Mul, Add, Clip, Atanh before the output Tanh), so a deployed file is still
