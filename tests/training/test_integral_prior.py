@@ -201,3 +201,30 @@ def test_tiny_track_run_trains_and_exports_the_integral_prior(tmp_path, pose_sca
     props = {p.key: p.value for p in onnx.load(str(summary.onnx_path)).metadata_props}
     summary.result.at(state).export_onnx(PolicyMetadata.from_props(props), tmp_path / "zero.onnx")
     np.testing.assert_allclose(_run_onnx((tmp_path / "zero.onnx").read_bytes(), obs), by_hand, atol=1e-6)
+
+
+def test_track_prior_bench_writes_the_integral_prior_alone(tmp_path, pose_scale):
+    """``bench/track_prior.py --error-gain 1``: a file of the v2 layout that the deploy side loads, whose
+    actions are ``(q_ref[4] - default + z) / scale`` (lead 5) by hand; without a gain, the v1 layout and
+    ``(q_ref[4] - default) / scale`` (float32 through the graph: 1e-6)."""
+    from script_modules import load_bench
+
+    from bar_policy.deploy.policy import load_policy
+
+    bench = load_bench("track_prior")
+    default, scale = pose_scale
+    rng = np.random.default_rng(5)
+    q_ref = default + scale * rng.uniform(-0.5, 0.5, N)
+    z = rng.uniform(-0.03, 0.03, N)
+    for gain, version, want in ((1.0, 2, (q_ref - default + z) / scale), (0.0, 1, (q_ref - default) / scale)):
+        path = tmp_path / f"prior_{gain}.onnx"
+        bench.write_prior_policy(path, 5, gain)
+        policy = load_policy(str(path))
+        layout = policy.obs_manager
+        assert layout.schema.version == version
+        assert ("joint_error_ema" in layout.term_names) == (gain > 0)
+        inputs = {t.name: np.zeros(t.size) for t in layout.schema.terms}
+        inputs["motion_joint_pos"] = np.tile(q_ref, K)
+        if gain:
+            inputs["joint_error_ema"] = z
+        np.testing.assert_allclose(policy(layout.compute(inputs)), want, atol=1e-6, err_msg=f"gain {gain}")
