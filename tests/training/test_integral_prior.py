@@ -11,6 +11,9 @@ gain 1 the error ``q_ref - q_k = (tau_l / Kp)(1 - alpha)^(k - 1)``: it decays at
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -228,3 +231,55 @@ def test_track_prior_bench_writes_the_integral_prior_alone(tmp_path, pose_scale)
         if gain:
             inputs["joint_error_ema"] = z
         np.testing.assert_allclose(policy(layout.compute(inputs)), want, atol=1e-6, err_msg=f"gain {gain}")
+
+
+def test_brax_network_and_its_export_carry_the_integral_prior(v2, pose_scale, tmp_path):
+    """The brax backend (the presets'): the deterministic action is tanh(mlp_loc(normalised obs) +
+    atanh(prior(raw obs))), the MLP computed by brax's own network without the prior on the same params
+    (float32, 1e-5 as in ``test_action_prior``), and the exported file passes the parity gate with the term
+    in its graph."""
+    import jax
+    import jax.numpy as jnp
+    from brax.training.acme import running_statistics, specs
+    from brax.training.agents.ppo import networks as ppo_networks
+
+    from bar_policy.export.policy import export_brax_policy
+    from bar_policy.training.brax.networks import make_networks
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "deploy"))
+    from policy_factory import default_metadata
+
+    default, scale = pose_scale
+    prior = reference_prior(v2, default, scale, 5, error_gain=1.0)
+    cfg = NetworkConfig(
+        policy_hidden=(32, 32), value_hidden=(16,), action_prior="reference", prior_error_gain=1.0
+    )
+    net = make_networks(v2.size, N, cfg, True, prior)
+    k1, k2, k3 = jax.random.split(jax.random.PRNGKey(11), 3)
+    norm = running_statistics.init_state(specs.Array((v2.size,), jnp.float32))
+    norm = running_statistics.update(norm, 0.3 * jax.random.normal(k3, (2048, v2.size)))
+    params = (norm, net.policy_network.init(k1), net.value_network.init(k2))
+    rng = np.random.default_rng(6)
+    obs = np.stack(
+        [
+            _obs(v2, default + scale * rng.uniform(-0.6, 0.6, N), rng.uniform(-0.04, 0.04, N), rng)
+            for _ in range(4)
+        ]
+    )
+    plain = make_networks(v2.size, N, NetworkConfig(policy_hidden=(32, 32), value_hidden=(16,)), True)
+    loc = np.asarray(plain.policy_network.apply(params[0], params[1], obs))[:, :N]
+    want = np.tanh(loc + np.arctanh(prior.apply(obs)))
+    got, _ = ppo_networks.make_inference_fn(net)(params, deterministic=True)(obs, jax.random.PRNGKey(0))
+    np.testing.assert_allclose(np.asarray(got), want, atol=1e-5)
+
+    meta = default_metadata(obs_schema=v2.schema.to_json(), obs_fingerprint=v2.fingerprint, task="track")
+    info = export_brax_policy(
+        params,
+        ppo_networks.make_inference_fn(net),
+        meta,
+        tmp_path / "p.onnx",
+        activation="swish",
+        num_parity_obs=256,
+        prior=prior,
+    )
+    assert info["max_abs_error"] <= 1e-5
