@@ -4,9 +4,10 @@ the command, by hand, in a closed loop worked out by hand, through the ONNX grap
 Expected values: the prior's command is ``q_ref + G z`` (``obs.action_prior``, "Integral term"); in a
 quasi-static loop where the P-law's spring carries a constant load ``tau_l`` (``q = q_cmd - tau_l / Kp``, the
 arm settled within each 20 ms step), the average's step ``z_k = z_{k-1} + alpha ((q_cmd_{k-1} - q_k) -
-z_{k-1})`` sees ``q_cmd - q = tau_l / Kp`` every step, so ``z_k = (tau_l / Kp)(1 - (1 - alpha)^k)`` and at
-gain 1 the error ``q_ref - q_k = (tau_l / Kp)(1 - alpha)^(k - 1)``: it decays at 1 / tau (alpha = 0.02 /
-0.5 = 0.04) where the reference prior alone holds ``tau_l / Kp`` for ever.
+z_{k-1})`` sees ``q_cmd - q = tau_l / Kp`` every step, so from ``z_1 = 0`` (the policy's first tick)
+``z_k = (tau_l / Kp)(1 - (1 - alpha)^(k - 1))`` and at gain 1 the error ``q_ref - q_k = (tau_l / Kp)(1 -
+alpha)^(k - 1)``: it decays at 1 / tau (alpha = 0.02 / 0.5 = 0.04) where the reference prior alone holds
+``tau_l / Kp`` for ever.
 """
 
 from __future__ import annotations
