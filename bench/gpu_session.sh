@@ -42,9 +42,11 @@
 #   recipe track VARIANT... (~9.5 min): --preset track on one shared cache, MINUTES (8.9); A and B name the
 #             ablation sets; `SEED=0 ... recipe track recipe` is the figure of record; rsl: the field's
 #             rsl-rl values (field_cli_flags(8192)) on the preset's networks and prior, initial std 0.3;
-#             rsl-fixed: --preset track-rsl. Without GPUS the variants share the GPU at 4096 envs, batch
+#             rsl-fixed: --preset track-rsl; ema, integral: the error average's layout without and with
+#             the prior's integral term; robust_integral: track-robust from scratch with it. Without GPUS the variants share the GPU at 4096 envs, batch
 #             512 (XLA_PYTHON_CLIENT_MEM_FRACTION=$MEM, 0.22); NO_CKPT=1 leaves the checkpoints out
-#   recipe piano VARIANT... (~9 min): --preset piano, MINUTES (7.2)
+#   recipe piano VARIANT... (~9 min): --preset piano, MINUTES (7.2); robust, robust_hover36: piano-robust,
+#             with the 36 mm hover (docs/robust_training.md)
 #
 # smoke-PART (smoke-startup, smoke-rsl, smoke-update, smoke-precision, smoke-prealloc, smoke-loadflags,
 # smoke-scaling N, smoke-recipe TASK): the part's logic on the CPU with tiny sizes.
@@ -349,11 +351,15 @@ recipe_variants() {  # recipe_variants TASK: VARIANT (name -> extra arguments on
         [no_sampling]="--env-overrides sampling.enabled=false" [fixed_lr]="--ppo.schedule fixed"
         [no_near_cap]="--env-overrides reward.scales.torque_near_cap=0.0" [tf32]="--matmul-precision default"
         [rsl]="RSL" [rsl-fixed]="--preset track-rsl"  # the last --preset wins
+        [ema]="--env-overrides joint_error_ema=true"  # the error average's layout, no integral: the control
+        [integral]="--env-overrides joint_error_ema=true --network.prior-error-gain 1"
+        [robust_integral]="--preset track-robust --network.prior-error-gain 1"  # from scratch, randomised
       ) ;;
     piano)
       VARIANT=(
         [preset]="" [accel]="--env-overrides reward.scales.action_accel=-0.5 reward.scales.torque_near_cap=-1.0"
         [lr3e-4]="--ppo.learning-rate 3e-4"
+        [robust]="--preset piano-robust" [robust_hover36]="--preset piano-robust --env-overrides prior.hover_m=0.036"
       ) ;;
     *) echo "unknown task ${1:-} for recipe; tasks: reach, track, piano"; exit 2 ;;
   esac
