@@ -110,7 +110,7 @@ class ActionPrior:
         g = np.asarray(self.gain, np.float32)
         c = np.asarray(self.offset, np.float32)
         a = obs[..., np.asarray(self.index)] * g + c
-        if self.error_index:
+        if self.has_error_term:
             a = a + obs[..., np.asarray(self.error_index)] * np.asarray(self.error_gain, np.float32)
         return xp.clip(a, -self.bound, self.bound)
 
@@ -126,7 +126,7 @@ class ActionPrior:
             "offset": list(self.offset),
             "bound": self.bound,
         }
-        if self.error_index:
+        if self.has_error_term:
             out.update(error_index=list(self.error_index), error_gain=list(self.error_gain))
         return out
 
