@@ -44,7 +44,8 @@
 #             rsl-rl values (field_cli_flags(8192)) on the preset's networks and prior, initial std 0.3;
 #             rsl-fixed: --preset track-rsl; ema, integral: the error average's layout without and with
 #             the prior's integral term (integral_warm: 10 critic-only iterations first, as the piano's);
-#             robust_integral: track-robust from scratch with it. Without GPUS the variants share the GPU at 4096 envs, batch
+#             robust_integral: track-robust from scratch with it (robust_integral_quiet: initial std 0.1
+#             and 10 critic-only iterations, the piano's start). Without GPUS the variants share the GPU at 4096 envs, batch
 #             512 (XLA_PYTHON_CLIENT_MEM_FRACTION=$MEM, 0.22); NO_CKPT=1 leaves the checkpoints out
 #   recipe piano VARIANT... (~9 min): --preset piano, MINUTES (7.2); robust, robust_hover36: piano-robust,
 #             with the 36 mm hover (docs/robust_training.md)
@@ -356,6 +357,7 @@ recipe_variants() {  # recipe_variants TASK: VARIANT (name -> extra arguments on
         [integral]="--env-overrides joint_error_ema=true --network.prior-error-gain 1"
         [integral_warm]="--env-overrides joint_error_ema=true --network.prior-error-gain 1 --ppo.actor-warmup-iterations 10"
         [robust_integral]="--preset track-robust --network.prior-error-gain 1"  # from scratch, randomised
+        [robust_integral_quiet]="--preset track-robust --network.prior-error-gain 1 --network.prior-noise-std 0.1 --ppo.actor-warmup-iterations 10"
       ) ;;
     piano)
       VARIANT=(
