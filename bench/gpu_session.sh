@@ -45,7 +45,8 @@
 #             rsl-fixed: --preset track-rsl; ema, integral: the error average's layout without and with
 #             the prior's integral term (integral_warm: 10 critic-only iterations first, as the piano's);
 #             robust_integral: track-robust from scratch with it (robust_integral_quiet: initial std 0.1
-#             and 10 critic-only iterations, the piano's start). Without GPUS the variants share the GPU at 4096 envs, batch
+#             and 10 critic-only iterations, the piano's start); integral_quiet[_lr1e-4|_lr3e-5] and
+#             robust_integral_quiet_lr3e-5: that start at the preset's or a lower learning rate. Without GPUS the variants share the GPU at 4096 envs, batch
 #             512 (XLA_PYTHON_CLIENT_MEM_FRACTION=$MEM, 0.22); NO_CKPT=1 leaves the checkpoints out
 #   recipe piano VARIANT... (~9 min): --preset piano, MINUTES (7.2); robust, robust_hover36: piano-robust,
 #             with the 36 mm hover (docs/robust_training.md)
@@ -345,6 +346,8 @@ recipe_variants() {  # recipe_variants TASK: VARIANT (name -> extra arguments on
     track)
       local old="reward.scales.action_rate=-0.005 reward.scales.torque_near_cap=0.0 reward.scales.fingertip_pos=0.0"
       old="$old action_filter_hz=null sampling.enabled=false"
+      local quiet_net="--network.prior-error-gain 1 --network.prior-noise-std 0.1 --ppo.actor-warmup-iterations 10"
+      local quiet="--env-overrides joint_error_ema=true $quiet_net"
       VARIANT=(
         [recipe]="" [actuator_gains]="--env-overrides gains=actuator"
         [no_filter]="--env-overrides action_filter_hz=null"
@@ -358,6 +361,10 @@ recipe_variants() {  # recipe_variants TASK: VARIANT (name -> extra arguments on
         [integral_warm]="--env-overrides joint_error_ema=true --network.prior-error-gain 1 --ppo.actor-warmup-iterations 10"
         [robust_integral]="--preset track-robust --network.prior-error-gain 1"  # from scratch, randomised
         [robust_integral_quiet]="--preset track-robust --network.prior-error-gain 1 --network.prior-noise-std 0.1 --ppo.actor-warmup-iterations 10"
+        [integral_quiet]="$quiet"  # the integral prior with the piano's start, the preset's 3e-4
+        [integral_quiet_lr1e-4]="$quiet --ppo.learning-rate 1e-4"
+        [integral_quiet_lr3e-5]="$quiet --ppo.learning-rate 3e-5"
+        [robust_integral_quiet_lr3e-5]="--preset track-robust $quiet_net --ppo.learning-rate 3e-5"  # the preset: 1e-4
       ) ;;
     piano)
       VARIANT=(
