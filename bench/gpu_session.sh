@@ -46,7 +46,8 @@
 #             the prior's integral term (integral_warm: 10 critic-only iterations first, as the piano's);
 #             robust_integral: track-robust from scratch with it (robust_integral_quiet: initial std 0.1
 #             and 10 critic-only iterations, the piano's start); integral_quiet[_lr1e-4|_lr3e-5] and
-#             robust_integral_quiet_lr3e-5: that start at the preset's or a lower learning rate. Without GPUS the variants share the GPU at 4096 envs, batch
+#             robust_integral_quiet_lr3e-5: that start at the preset's or a lower learning rate;
+#             [robust_]integral_std03: initial std 0.03 (docs/robust_training.md). Without GPUS the variants share the GPU at 4096 envs, batch
 #             512 (XLA_PYTHON_CLIENT_MEM_FRACTION=$MEM, 0.22); NO_CKPT=1 leaves the checkpoints out
 #   recipe piano VARIANT... (~9 min): --preset piano, MINUTES (7.2); robust, robust_hover36: piano-robust,
 #             with the 36 mm hover (docs/robust_training.md)
@@ -364,6 +365,8 @@ recipe_variants() {  # recipe_variants TASK: VARIANT (name -> extra arguments on
         [integral_quiet]="$quiet"  # the integral prior with the piano's start, the preset's 3e-4
         [integral_quiet_lr1e-4]="$quiet --ppo.learning-rate 1e-4"
         [integral_quiet_lr3e-5]="$quiet --ppo.learning-rate 3e-5"
+        [integral_std03]="${quiet/prior-noise-std 0.1/prior-noise-std 0.03}"  # rollouts inside the fingertip kernel
+        [robust_integral_std03]="--preset track-robust ${quiet_net/prior-noise-std 0.1/prior-noise-std 0.03}"
         [robust_integral_quiet_lr3e-5]="--preset track-robust $quiet_net --ppo.learning-rate 3e-5"  # the preset: 1e-4
       ) ;;
     piano)
