@@ -47,10 +47,11 @@
 #             robust_integral: track-robust from scratch with it (robust_integral_quiet: initial std 0.1
 #             and 10 critic-only iterations, the piano's start); integral_quiet[_lr1e-4|_lr3e-5] and
 #             robust_integral_quiet_lr3e-5: that start at the preset's or a lower learning rate;
-#             [robust_]integral_std03: initial std 0.03 (docs/robust_training.md). Without GPUS the variants share the GPU at 4096 envs, batch
-#             512 (XLA_PYTHON_CLIENT_MEM_FRACTION=$MEM, 0.22); NO_CKPT=1 leaves the checkpoints out
+#             [robust_]integral_std03: initial std 0.03 (docs/robust_training.md). Without GPUS the
+#             variants share the GPU at 4096 envs, batch 512 (XLA_PYTHON_CLIENT_MEM_FRACTION=$MEM, 0.22);
+#             NO_CKPT=1 leaves the checkpoints out
 #   recipe piano VARIANT... (~9 min): --preset piano, MINUTES (7.2); robust, robust_hover36: piano-robust,
-#             with the 36 mm hover (docs/robust_training.md)
+#             with the 36 mm hover (docs/robust_training.md); [robust_]std03: initial std 0.03
 #
 # smoke-PART (smoke-startup, smoke-rsl, smoke-update, smoke-precision, smoke-prealloc, smoke-loadflags,
 # smoke-scaling N, smoke-recipe TASK): the part's logic on the CPU with tiny sizes.
@@ -374,6 +375,7 @@ recipe_variants() {  # recipe_variants TASK: VARIANT (name -> extra arguments on
         [preset]="" [accel]="--env-overrides reward.scales.action_accel=-0.5 reward.scales.torque_near_cap=-1.0"
         [lr3e-4]="--ppo.learning-rate 3e-4"
         [robust]="--preset piano-robust" [robust_hover36]="--preset piano-robust --env-overrides prior.hover_m=0.036"
+        [std03]="--network.prior-noise-std 0.03" [robust_std03]="--preset piano-robust --network.prior-noise-std 0.03"
       ) ;;
     *) echo "unknown task ${1:-} for recipe; tasks: reach, track, piano"; exit 2 ;;
   esac
