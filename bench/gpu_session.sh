@@ -348,8 +348,8 @@ recipe_variants() {  # recipe_variants TASK: VARIANT (name -> extra arguments on
     track)
       local old="reward.scales.action_rate=-0.005 reward.scales.torque_near_cap=0.0 reward.scales.fingertip_pos=0.0"
       old="$old action_filter_hz=null sampling.enabled=false"
-      local quiet_net="--network.prior-error-gain 1 --network.prior-noise-std 0.1 --ppo.actor-warmup-iterations 10"
-      local quiet="--env-overrides joint_error_ema=true $quiet_net"
+      # the integral prior with the piano's start (10 critic-only iterations) on the error average's layout
+      local warm="--network.prior-error-gain 1 --ppo.actor-warmup-iterations 10" ema="--env-overrides joint_error_ema=true"
       VARIANT=(
         [recipe]="" [actuator_gains]="--env-overrides gains=actuator"
         [no_filter]="--env-overrides action_filter_hz=null"
@@ -360,15 +360,15 @@ recipe_variants() {  # recipe_variants TASK: VARIANT (name -> extra arguments on
         [rsl]="RSL" [rsl-fixed]="--preset track-rsl"  # the last --preset wins
         [ema]="--env-overrides joint_error_ema=true"  # the error average's layout, no integral: the control
         [integral]="--env-overrides joint_error_ema=true --network.prior-error-gain 1"
-        [integral_warm]="--env-overrides joint_error_ema=true --network.prior-error-gain 1 --ppo.actor-warmup-iterations 10"
+        [integral_warm]="$ema $warm"
         [robust_integral]="--preset track-robust --network.prior-error-gain 1"  # from scratch, randomised
-        [robust_integral_quiet]="--preset track-robust --network.prior-error-gain 1 --network.prior-noise-std 0.1 --ppo.actor-warmup-iterations 10"
-        [integral_quiet]="$quiet"  # the integral prior with the piano's start, the preset's 3e-4
-        [integral_quiet_lr1e-4]="$quiet --ppo.learning-rate 1e-4"
-        [integral_quiet_lr3e-5]="$quiet --ppo.learning-rate 3e-5"
-        [integral_std03]="${quiet/prior-noise-std 0.1/prior-noise-std 0.03}"  # rollouts inside the fingertip kernel
-        [robust_integral_std03]="--preset track-robust ${quiet_net/prior-noise-std 0.1/prior-noise-std 0.03}"
-        [robust_integral_quiet_lr3e-5]="--preset track-robust $quiet_net --ppo.learning-rate 3e-5"  # the preset: 1e-4
+        [robust_integral_quiet]="--preset track-robust $warm --network.prior-noise-std 0.1"
+        [integral_quiet]="$ema $warm --network.prior-noise-std 0.1"  # the preset's 3e-4
+        [integral_quiet_lr1e-4]="$ema $warm --network.prior-noise-std 0.1 --ppo.learning-rate 1e-4"
+        [integral_quiet_lr3e-5]="$ema $warm --network.prior-noise-std 0.1 --ppo.learning-rate 3e-5"
+        [robust_integral_quiet_lr3e-5]="--preset track-robust $warm --network.prior-noise-std 0.1 --ppo.learning-rate 3e-5"
+        [integral_std03]="$ema $warm --network.prior-noise-std 0.03"  # rollouts inside the fingertip kernel
+        [robust_integral_std03]="--preset track-robust $warm --network.prior-noise-std 0.03"
       ) ;;
     piano)
       VARIANT=(
