@@ -348,8 +348,9 @@ recipe_variants() {  # recipe_variants TASK: VARIANT (name -> extra arguments on
     track)
       local old="reward.scales.action_rate=-0.005 reward.scales.torque_near_cap=0.0 reward.scales.fingertip_pos=0.0"
       old="$old action_filter_hz=null sampling.enabled=false"
-      # the integral prior with the piano's start (10 critic-only iterations) on the error average's layout
-      local warm="--network.prior-error-gain 1 --ppo.actor-warmup-iterations 10" ema="--env-overrides joint_error_ema=true"
+      local ema="--env-overrides joint_error_ema=true"  # the error average's layout
+      # the integral prior with the piano's start (10 critic-only iterations)
+      local warm="--network.prior-error-gain 1 --ppo.actor-warmup-iterations 10"
       VARIANT=(
         [recipe]="" [actuator_gains]="--env-overrides gains=actuator"
         [no_filter]="--env-overrides action_filter_hz=null"
@@ -358,8 +359,8 @@ recipe_variants() {  # recipe_variants TASK: VARIANT (name -> extra arguments on
         [no_sampling]="--env-overrides sampling.enabled=false" [fixed_lr]="--ppo.schedule fixed"
         [no_near_cap]="--env-overrides reward.scales.torque_near_cap=0.0" [tf32]="--matmul-precision default"
         [rsl]="RSL" [rsl-fixed]="--preset track-rsl"  # the last --preset wins
-        [ema]="--env-overrides joint_error_ema=true"  # the error average's layout, no integral: the control
-        [integral]="--env-overrides joint_error_ema=true --network.prior-error-gain 1"
+        [ema]="$ema"  # no integral: the control
+        [integral]="$ema --network.prior-error-gain 1"
         [integral_warm]="$ema $warm"
         [robust_integral]="--preset track-robust --network.prior-error-gain 1"  # from scratch, randomised
         [robust_integral_quiet]="--preset track-robust $warm --network.prior-noise-std 0.1"
