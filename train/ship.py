@@ -7,6 +7,7 @@
     python train/ship.py --ppo.num-timesteps 60000000   # any train/ppo.py flag passes through
     python train/ship.py --from-run runs/X --robustness "payload 0.5 kg palm,push 10 N"   # those rows only
     python train/ship.py --from-run runs/X --robustness none   # the nominal gate alone (recorded as such)
+    python train/ship.py --rejudge lite_track_arms             # judge a published file again, as deployed now
 
 The task comes from the run (``env_name`` in its ``final_eval.json`` / ``config.json``: LiteReach and
 LiteReachNeck -> reach, LiteTrack -> track); the default name is ``lite_<task>_<mode>``.
@@ -187,6 +188,81 @@ def _eval_lines(result: Any) -> list[str]:
     return lines[: -len(gate)] if lines[-len(gate) :] == gate else lines
 
 
+def judge(
+    onnx: str | Path,
+    task: str,
+    result: Any,
+    rows: tuple[SuiteRow, ...],
+    eval_options: Mapping[str, Any] | None,
+    checkpoints_dir: str,
+) -> dict[str, Any] | None:
+    """Both gates on ``onnx``, its held-out ``result`` given, printed.
+
+    Returns the ``ship_gate`` record, or None when the file is refused (a nominal miss, or a miss on a gated
+    row of ``rows``).
+    """
+    report = result.gate_report()
+    misses = check(task, report)
+    print("\n".join(_eval_lines(result)))
+    print(thresholds_text(task))
+    for line in ["gate: PASS"] if not misses else [f"gate: MISS {m}" for m in misses]:
+        print(line)
+    if misses:
+        print(
+            f"ship: refused: {onnx} misses the {task} ship gate on held-out data ({len(misses)} miss(es)); "
+            f"nothing written to {checkpoints_dir}/"
+        )
+        return None
+    ship_gate = gate_record(task, report, misses)
+    if not rows:
+        print("robustness tier: not run (--robustness none): published on the nominal gate alone")
+        ship_gate["robustness"] = robustness_record(None)
+        return ship_gate
+    print(f"robustness tier: {len(rows)} row(s), each the held-out evaluation on a perturbed sim target")
+    suite = robustness_tier(onnx, task, rows, eval_options)
+    print(suite.format())
+    ship_gate["robustness"] = robustness_record(suite)
+    if not suite.passed:
+        missed = [r.row.name for r in suite.rows if r.verdict == "MISS"]
+        print(
+            f"ship: refused: {onnx} misses the robustness tier on {len(missed)} row(s): "
+            f"{', '.join(missed)}; nothing written to {checkpoints_dir}/"
+        )
+        return None
+    return ship_gate
+
+
+def rejudge(
+    name: str, checkpoints_dir: str, rows: tuple[SuiteRow, ...], eval_options: Mapping[str, Any] | None
+) -> int:
+    """``--rejudge NAME``: both gates on the published ``checkpoints/NAME.onnx`` as the deploy side runs it.
+
+    On a pass its JSON's ``ship_gate`` is replaced (the rest kept, ``rejudged`` stamped), on a miss nothing
+    is written (exit 3). Why: a change on the deploy side (a runtime default, the suite) changes what a
+    shipped file does on the robot, and its record must say what it does now.
+    """
+    path = Path(checkpoints_dir) / f"{name}.json"
+    onnx = path.with_suffix(".onnx")
+    try:
+        record = json.loads(path.read_text())
+        task = record["ship_gate"]["task"]
+        result = held_out_evaluation(onnx, task, eval_options)
+    except (FileNotFoundError, KeyError, ValueError) as e:
+        print(f"ship: error: --rejudge {name}: {type(e).__name__}: {e}", file=sys.stderr)
+        return NOT_EVALUATED
+    print(f"held-out evaluation of {onnx} (published, task {task}), re-judged:")
+    ship_gate = judge(onnx, task, result, rows, eval_options, checkpoints_dir)
+    if ship_gate is None:
+        return REFUSED
+    from bar_policy.provenance import collect
+
+    ship_gate["rejudged"] = collect()
+    record["ship_gate"] = ship_gate
+    path.write_text(json.dumps(record, indent=2, sort_keys=True))
+    print(f"re-judged: {path} (ship_gate replaced)")
+    return SHIPPED
+
+
 def main(argv: list[str] | None = None, *, eval_options: Mapping[str, Any] | None = None) -> int:
     """Train (unless ``--from-run``), judge the file by the ship gate, publish; the exit status.
 
@@ -216,6 +292,13 @@ def main(argv: list[str] | None = None, *, eval_options: Mapping[str, Any] | Non
         "a gated one: 'suite' (every row but nominal; the default), row names from robot/perturb_suite.py "
         "(comma-separated), or 'none' (the nominal gate alone, recorded as not run)",
     )
+    pre.add_argument(
+        "--rejudge",
+        default=None,
+        metavar="NAME",
+        help="judge the published checkpoints/NAME.onnx again (both gates, as the deploy side runs it now) "
+        "and replace its JSON's ship_gate on a pass; nothing else runs",
+    )
     pre.add_argument("--checkpoints-dir", default="checkpoints", help="where the ONNX and JSON go")
     pre.add_argument("--docs-dir", default="docs", help="where the reach curve and reach.md results go")
     known, rest = pre.parse_known_args(sys.argv[1:] if argv is None else argv)
@@ -224,6 +307,14 @@ def main(argv: list[str] | None = None, *, eval_options: Mapping[str, Any] | Non
     except ValueError as e:
         print(f"ship: error: {e}", file=sys.stderr)
         return NOT_EVALUATED
+    if known.rejudge is not None:
+        if known.from_run is not None or rest:
+            print(
+                "ship: error: --rejudge judges a published file; it takes no run or training options",
+                file=sys.stderr,
+            )
+            return NOT_EVALUATED
+        return rejudge(known.rejudge, known.checkpoints_dir, rows, eval_options)
     if known.from_run is not None and rest:
         print(
             f"ship: error: --from-run publishes an existing run; {rest} are not ship options and would "
@@ -249,36 +340,10 @@ def main(argv: list[str] | None = None, *, eval_options: Mapping[str, Any] | Non
         print(f"ship: error: {e}", file=sys.stderr)
         print("ship: nothing published")
         return NOT_EVALUATED
-    report = result.gate_report()
-    misses = check(task, report)
     print(f"held-out evaluation of {onnx} ({env_name} run {run_dir}, task {task}):")
-    print("\n".join(_eval_lines(result)))
-    print(thresholds_text(task))
-    for line in ["gate: PASS"] if not misses else [f"gate: MISS {m}" for m in misses]:
-        print(line)
-    if misses:
-        print(
-            f"ship: refused: {onnx} misses the {task} ship gate on held-out data ({len(misses)} miss(es)); "
-            f"nothing written to {known.checkpoints_dir}/"
-        )
+    ship_gate = judge(onnx, task, result, rows, eval_options, known.checkpoints_dir)
+    if ship_gate is None:
         return REFUSED
-
-    ship_gate = gate_record(task, report, misses)
-    if not rows:
-        print("robustness tier: not run (--robustness none): published on the nominal gate alone")
-        ship_gate["robustness"] = robustness_record(None)
-    else:
-        print(f"robustness tier: {len(rows)} row(s), each the held-out evaluation on a perturbed sim target")
-        suite = robustness_tier(onnx, task, rows, eval_options)
-        print(suite.format())
-        ship_gate["robustness"] = robustness_record(suite)
-        if not suite.passed:
-            missed = [r.row.name for r in suite.rows if r.verdict == "MISS"]
-            print(
-                f"ship: refused: {onnx} misses the robustness tier on {len(missed)} row(s): "
-                f"{', '.join(missed)}; nothing written to {known.checkpoints_dir}/"
-            )
-            return REFUSED
 
     mode = run_config(run_dir).get("env", {}).get("mode", "arms")
     name = known.name or f"lite_{task}_{mode}"

@@ -194,6 +194,7 @@ def _run_session(
             start_mode=args.start,
             damping_after_fault=args.damping_time,
             stop_damping=args.stop_damping,
+            hand_load=args.hand_load,
             end_hold=args.end_hold,
             realtime=args.realtime or args.viewer,
             rt_priority=args.rt_priority,
@@ -412,6 +413,7 @@ def _eval(argv: Sequence[str]) -> int:
     _common(p)
     cli_parser.perturb_option(p, suite=True)
     cli_parser.robot_params_option(p)
+    cli_parser.hand_load_option(p)
     p.add_argument("--json", type=Path, help="write the per-episode / per-clip results here")
     p.add_argument(
         "-q",
@@ -435,7 +437,9 @@ def _eval(argv: Sequence[str]) -> int:
             policy, task = _policy_task(args, "eval")
             params_record = _params_check(args, policy)
             if args.perturb is None:
-                runner = SimEpisodes(policy, robot_params=args.robot_params, say=say)
+                runner = SimEpisodes(
+                    policy, robot_params=args.robot_params, say=say, hand_load=args.hand_load
+                )
                 result = task.evaluate(policy, args, runner)
             else:
                 from bar_policy.deploy.robustness import evaluate_perturbed
@@ -448,6 +452,7 @@ def _eval(argv: Sequence[str]) -> int:
                     _say,
                     progress=not args.quiet,
                     robot_params=args.robot_params,
+                    hand_load=args.hand_load,
                 )
         except ValueError as e:  # PolicyLoadError, OptionError, bad settings
             _print_warnings(tally)

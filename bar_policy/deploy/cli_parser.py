@@ -204,9 +204,24 @@ def run_parser() -> argparse.ArgumentParser:
     )
     perturb_option(p, suite=False)
     robot_params_option(p)
+    hand_load_option(p)
     for task in all_tasks():
         task.add_run_arguments(p)
     return p
+
+
+def hand_load_option(p: argparse.ArgumentParser) -> None:
+    """``--hand-load estimate|off``: the hand-load compensation (``deploy.hand_load``); default the task's."""
+    from bar_policy.deploy.run_config import HAND_LOAD_KINDS
+
+    p.add_argument(
+        "--hand-load",
+        default=None,
+        choices=HAND_LOAD_KINDS,
+        help="hand-load compensation: estimate = fit what each hand carries from the motors' torque and "
+        "add its gravity torque as the MIT law's feed-forward (tau_ff, within the caps); off = none "
+        "(default: the task's: track estimate, reach and piano off)",
+    )
 
 
 def robot_params_option(p: argparse.ArgumentParser) -> None:

@@ -45,6 +45,7 @@ class SimEpisodes:
         perturbation: Perturbation | None = None,
         robot_params: RobotParams | None = None,
         say: Callable[[str], None] | None = None,
+        hand_load: str | None = None,
     ) -> None:
         """``safety``: the supervisor's thresholds (default ``SafetyConfig()``; the ramp is always 0).
 
@@ -53,8 +54,10 @@ class SimEpisodes:
         top of it; None: the description's robot).
         ``say``: where the progress lines go (``progress``; ``bar-deploy eval`` passes ``print``, ``--quiet``
         None: no lines).
+        ``hand_load``: the runs' hand-load compensation (``RuntimeConfig.hand_load``; None: the task's).
         """
         self.policy = policy
+        self.hand_load = hand_load
         self.safety = dataclasses.replace(safety or SafetyConfig(), ramp_time=0.0)
         self.perturbation = perturbation
         self.robot_params = robot_params
@@ -109,5 +112,6 @@ class SimEpisodes:
             damping_after_fault=0.0,
             handle_signals=False,
             safety=self.safety,
+            hand_load=self.hand_load,
         )
         return Runtime(self.policy, target, commands, cfg, kinematics=kinematics, on_tick=on_tick).run()

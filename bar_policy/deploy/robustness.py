@@ -228,12 +228,14 @@ def evaluate_perturbed(
     *,
     progress: bool = True,
     robot_params: RobotParams | None = None,
+    hand_load: str | None = None,
 ) -> Any:
     """``bar-deploy eval --perturb``: the suite (``"suite"``) or one perturbed evaluation (its result).
 
     ``say`` gets the perturbation's line and, with ``progress`` (``bar-deploy eval`` without ``--quiet``),
     each suite row as it ends or each episode's progress line of one perturbed evaluation.
     ``robot_params`` (``--robot-params``): every row perturbs that identified robot instead of the model.
+    ``hand_load`` (``--hand-load``): the runs' hand-load compensation (None: the task's).
     """
     from bar_policy.deploy.episodes import SimEpisodes
 
@@ -243,7 +245,7 @@ def evaluate_perturbed(
             policy,
             task,
             args,
-            lambda p: SimEpisodes(policy, perturbation=p, robot_params=robot_params),
+            lambda p: SimEpisodes(policy, perturbation=p, robot_params=robot_params, hand_load=hand_load),
             progress=(lambda s: say(s)) if progress else None,
         )
     assert isinstance(perturb, Perturbation)
@@ -251,5 +253,11 @@ def evaluate_perturbed(
     return task.evaluate(
         policy,
         args,
-        SimEpisodes(policy, perturbation=perturb, robot_params=robot_params, say=say if progress else None),
+        SimEpisodes(
+            policy,
+            perturbation=perturb,
+            robot_params=robot_params,
+            say=say if progress else None,
+            hand_load=hand_load,
+        ),
     )

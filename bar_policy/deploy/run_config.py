@@ -43,6 +43,11 @@ EXIT_STOP_UNCONFIRMED = 3
 """Exit status: the safe stop was not confirmed (a joint did not answer, or ``safe_stop`` raised)."""
 
 
+HAND_LOAD_KINDS = ("estimate", "off")
+"""``RuntimeConfig.hand_load``: ``estimate`` fits the hands' loads online and adds their gravity torque as
+``tau_ff`` (``deploy.hand_load``); ``off``: none."""
+
+
 @dataclass(frozen=True, kw_only=True)
 class RuntimeConfig:
     """Loop settings."""
@@ -63,6 +68,9 @@ class RuntimeConfig:
     stop_damping: str = "gravity"
     """The damping of the fault and end stops (``deploy.gravity``): ``gravity`` adds the model's gravity
     torque at the measured q as ``tau_ff`` (within the caps), ``plain`` is Kd alone."""
+    hand_load: str | None = None
+    """Hand-load compensation in POLICY (and the end's HOLD), one of ``HAND_LOAD_KINDS``; None: the command
+    source's (``CommandSource.hand_load``: tracking ``estimate``, the other tasks ``off``)."""
     realtime: bool = False
     """Pace a synchronous target at wall-clock rate (for the viewer)."""
     spin_s: float = 0.0003
@@ -87,6 +95,10 @@ class RuntimeConfig:
         if self.stop_damping not in ("gravity", "plain"):
             raise ValueError(
                 f"RuntimeConfig.stop_damping must be 'gravity' or 'plain', got {self.stop_damping!r}"
+            )
+        if self.hand_load is not None and self.hand_load not in HAND_LOAD_KINDS:
+            raise ValueError(
+                f"RuntimeConfig.hand_load must be one of {HAND_LOAD_KINDS} or None, got {self.hand_load!r}"
             )
         if self.start_mode not in ("hold", "policy"):
             raise ValueError(f"RuntimeConfig.start_mode must be 'hold' or 'policy', got {self.start_mode!r}")

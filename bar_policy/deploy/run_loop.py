@@ -240,6 +240,7 @@ class RunLoop:
                         safe_stop=safe_stop,
                         stop_report=None if report is None else report.to_dict(),
                         stop_damping=self.stop_damping_record(),
+                        hand_load=self.hand_load_record(),
                         exception=None if error is None else f"{type(error).__name__}: {error}",
                         transitions=[tr.to_dict() for tr in self.safety.transitions],
                         timing=timing.summary(),

@@ -69,6 +69,7 @@ import numpy as np
 from bar_policy.deploy.action_path import ActionPath
 from bar_policy.deploy.contract import PolicyLoadError
 from bar_policy.deploy.gravity import GravityTorque
+from bar_policy.deploy.hand_load import HandLoadEstimator
 from bar_policy.deploy.inputs import StateInputs
 from bar_policy.deploy.log.live import LiveServer
 from bar_policy.deploy.log.run_log import RunLog
@@ -160,6 +161,9 @@ class Runtime(RunLoop):
         self.gravity = GravityTorque(robot.mode) if self.config.stop_damping == "gravity" else None
         """``tau_ff`` of the DAMPING after a fault or a stop, and of the target's own safe stop (None:
         damping alone; ``deploy.gravity``)."""
+        self.hand_load = self._hand_load(commands, target)
+        """The hand-load fit whose feed-forward POLICY and the end's HOLD add as ``tau_ff`` (None: off;
+        ``deploy.hand_load``)."""
         use_stop_torque = getattr(target, "use_stop_torque", None)
         if use_stop_torque is not None:
             use_stop_torque(self.gravity)
@@ -263,6 +267,45 @@ class Runtime(RunLoop):
             self._end_t, self._end_after = t, self.config.damping_after_fault
             self._end_reason = f"fault {kind}: {detail}"
             self.completed = False
+
+    def _hand_load(self, commands: CommandSource, target: Target) -> HandLoadEstimator | None:
+        """The run's hand-load fit: ``config.hand_load``, else the source's.
+
+        None where the target cannot feed it (a dry run, the mock: their torque is not the motors'), logged.
+        """
+        kind = self.config.hand_load or commands.hand_load
+        self.hand_load_kind = kind
+        """``estimate`` or ``off``, and why when a requested fit was left off (run log)."""
+        if kind != "estimate":
+            return None
+        if not (target.applies_commands and target.measures_torque):
+            self.hand_load_kind = f"off (asked estimate; {type(target).__name__} measures no applied torque)"
+            log.warning("hand-load compensation left off: %s", self.hand_load_kind)
+            return None
+        return HandLoadEstimator(self.policy.robot.mode, self.config.control_dt)
+
+    def _with_hand_load(self, cmd: MitCommand, state: JointState) -> MitCommand:
+        """``cmd`` with the hand-load feed-forward added to ``tau_ff``.
+
+        POLICY: a fit on this tick's measured torque, then its feed-forward, once a command has been written
+        (before it the torque is no command's: a reset's 0); HOLD after POLICY (the end's): the last
+        estimate's (no fit: the arm is not following the policy). Other modes: ``cmd`` unchanged.
+        """
+        if self.hand_load is None:
+            return cmd
+        mode = self.safety.mode
+        if mode == Mode.POLICY and self.last_command is not None:
+            return cmd._replace(tau_ff=cmd.tau_ff + self.hand_load.step(state.q, state.tau))
+        if mode == Mode.HOLD and self.hand_load.updates:
+            return cmd._replace(tau_ff=cmd.tau_ff + self.hand_load.torque(state.q))
+        return cmd
+
+    def hand_load_record(self) -> dict[str, Any]:
+        """For the run log: the compensation's kind and, when on, the fit's record."""
+        rec: dict[str, Any] = {"kind": self.hand_load_kind}
+        if self.hand_load is not None:
+            rec.update(self.hand_load.record())
+        return rec
 
     def _with_stop_torque(self, cmd: MitCommand, q: np.ndarray) -> MitCommand:
         """In DAMPING with gravity compensation: ``tau_ff`` = the gravity torque at the measured ``q``."""
@@ -376,7 +419,7 @@ class Runtime(RunLoop):
             else:
                 used, n_action_clipped = self.actions(action, t)
                 q_policy = self.policy.q_command(used)
-        cmd = self._with_stop_torque(sf.command(t, q_policy), state.q)
+        cmd = self._with_hand_load(self._with_stop_torque(sf.command(t, q_policy), state.q), state)
         applied = self.target.applies_commands
         sat = sf.check_torque(cmd, state, self.config.control_dt, use_reported=applied)
         demand = sf.last_demand
@@ -394,7 +437,7 @@ class Runtime(RunLoop):
             )
         if sat is not None:
             self._fault(*sat, t)
-            cmd = self._with_stop_torque(sf.command(t, q_policy), state.q)
+            cmd = self._with_hand_load(self._with_stop_torque(sf.command(t, q_policy), state.q), state)
             demand = mit_torque(cmd, state.q, state.dq)
         self.target.write_command(cmd)
         self.last_command = cmd

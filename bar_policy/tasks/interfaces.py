@@ -53,6 +53,9 @@ class CommandSource(abc.ABC):
 
     names: tuple[str, ...] = ()
     """Command terms fed to the observation, in the layout's order."""
+    hand_load: ClassVar[str] = "off"
+    """The task's hand-load compensation when the run does not choose one (``RuntimeConfig.hand_load``):
+    ``estimate`` or ``off`` (``deploy.hand_load``)."""
     outside_count: int = 0
     """Commands seen outside the training distribution (counted and logged, never clipped)."""
 

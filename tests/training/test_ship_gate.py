@@ -237,3 +237,31 @@ def test_robustness_rows_are_named_or_refused(capsys):
     # A flag ship does not know is not dropped with --from-run (it would only apply to a training run).
     assert ship.main(["--from-run", "x", "--robustness-enforce"]) == ship.NOT_EVALUATED
     assert "['--robustness-enforce'] are not ship options" in capsys.readouterr().err
+
+
+def test_rejudge_replaces_a_published_record_on_a_pass_and_keeps_it_on_a_miss(tmp_path, monkeypatch, capsys):
+    # A published tracker (the zero-weight file, its JSON an older record): re-judged with a faked passing
+    # held-out evaluation and the reported offset row, its ship_gate is replaced (the rest of the JSON kept,
+    # the re-judging stamped); with the real evaluation (decimetres of error) it misses and nothing changes.
+    monkeypatch.chdir(tmp_path)
+    ck = tmp_path / "ck"
+    ck.mkdir()
+    make_policy_file(ck / "t.onnx", metadata=default_metadata(task="track"))
+    old = {"env_steps": 7, "ship_gate": {"task": "track", "verdict": "pass", "robustness": "absent"}}
+    (ck / "t.json").write_text(json.dumps(old))
+    args = ["--rejudge", "t", "--checkpoints-dir", str(ck), "--robustness", "offset 0.01 rad"]
+    rc = ship.main(args, eval_options=SHORT["track"])  # the real evaluation: a miss
+    out = capsys.readouterr().out
+    assert rc == ship.REFUSED and "gate: MISS" in out and "ship: refused" in out
+    assert json.loads((ck / "t.json").read_text()) == old
+    monkeypatch.setattr(
+        ship, "held_out_evaluation", lambda onnx, task, options=None: _Passing(_passing_track_report())
+    )
+    assert ship.main(args, eval_options=SHORT["track"]) == ship.SHIPPED
+    new = json.loads((ck / "t.json").read_text())
+    assert new["env_steps"] == 7 and new["ship_gate"]["verdict"] == "pass"
+    assert [r["name"] for r in new["ship_gate"]["robustness"]["rows"]] == ["offset 0.01 rad"]
+    assert "git_commit" in new["ship_gate"]["rejudged"]
+    assert ship.main(["--rejudge", "t", "--from-run", "x"]) == ship.NOT_EVALUATED
+    assert "--rejudge judges a published file" in capsys.readouterr().err
+    assert ship.main(["--rejudge", "nope", "--checkpoints-dir", str(ck)]) == ship.NOT_EVALUATED

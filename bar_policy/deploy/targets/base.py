@@ -123,6 +123,9 @@ class Target(abc.ABC):
     """False when written commands never reach the joints (a dry run): the measured state cannot follow
     them, so the torque a command would demand at that state is no fault of the run (``Runtime`` skips the
     saturation rule and logs it once)."""
+    measures_torque: bool = True
+    """False when ``read_state``'s torque is not what the motors applied (the mock's echo): the hand-load
+    fit (``deploy.hand_load``) needs that torque, and the runtime leaves it off on such a target."""
 
     def __init__(self, joint_names: tuple[str, ...]) -> None:
         self.joint_names = tuple(joint_names)

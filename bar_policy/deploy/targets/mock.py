@@ -23,6 +23,7 @@ class MockTarget(Target):
     """Echoes MIT commands into the joint state."""
 
     synchronous = False
+    measures_torque = False  # its torque is the law's at the echoed state, not a physical one
 
     def __init__(self, mode: str = "arms", *, initial_q: np.ndarray | None = None) -> None:
         """Create the mock for a joint set.

@@ -76,6 +76,8 @@ class MotionReference(CommandSource):
     """A clip's reference with lookahead, one tick at a time (see the module docstring)."""
 
     task = "track"
+    # the payload rows of the robustness suite pass with it (docs/robustness.md, "Hand-load compensation")
+    hand_load = "estimate"
 
     def __init__(
         self,
