@@ -197,3 +197,16 @@ def test_mock_target_leaves_the_fit_off():
     assert rt.hand_load_record()["kind"].startswith("off (asked estimate; MockTarget measures no applied")
     with pytest.raises(ValueError, match=r"RuntimeConfig.hand_load must be one of \('estimate', 'off'\)"):
         RuntimeConfig(hand_load="on")
+
+
+@pytest.mark.parametrize("sub", [["eval"], []])
+def test_cli_refuses_an_unknown_hand_load_in_one_line(sub, capsys):
+    from bar_policy.deploy.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main([*sub, "--policy", "checkpoints/lite_track_arms.onnx", "--hand-load", "on"])
+    assert e.value.code == 2
+    assert (
+        "argument --hand-load: invalid choice: 'on' (choose from 'estimate', 'off')"
+        in capsys.readouterr().err
+    )
