@@ -411,9 +411,7 @@ def _eval(argv: Sequence[str]) -> int:
     from bar_policy.deploy.tasks import all_tasks
 
     _common(p)
-    cli_parser.perturb_option(p, suite=True)
-    cli_parser.robot_params_option(p)
-    cli_parser.hand_load_option(p)
+    cli_parser.robot_options(p, suite=True)
     p.add_argument("--json", type=Path, help="write the per-episode / per-clip results here")
     p.add_argument(
         "-q",

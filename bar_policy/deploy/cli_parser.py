@@ -202,12 +202,20 @@ def run_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--video", type=Path, metavar="PATH", help="sim: write a video (.mp4, or .gif without ffmpeg)"
     )
-    perturb_option(p, suite=False)
-    robot_params_option(p)
-    hand_load_option(p)
+    robot_options(p, suite=False)
     for task in all_tasks():
         task.add_run_arguments(p)
     return p
+
+
+def robot_options(p: argparse.ArgumentParser, *, suite: bool) -> None:
+    """The robot a run or an evaluation meets, and how the runtime meets it.
+
+    ``--perturb`` (``suite``: the suite allowed), ``--robot-params``, ``--hand-load``.
+    """
+    perturb_option(p, suite=suite)
+    robot_params_option(p)
+    hand_load_option(p)
 
 
 def hand_load_option(p: argparse.ArgumentParser) -> None:
