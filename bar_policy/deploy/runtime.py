@@ -21,6 +21,8 @@ A ``TargetError`` from the target mid-run is the fault ``target``: the loop ends
 has already damped and stopped), and the run ends as any fault does, without an exception. The DAMPING
 after a fault or a stop carries the gravity torque at the measured q as ``tau_ff`` (``deploy.gravity``;
 ``RuntimeConfig.stop_damping``), which the target's own safe stop uses too (``Target.use_stop_torque``).
+POLICY and the end's HOLD carry the hand-load fit's feed-forward in ``tau_ff`` (``deploy.hand_load``;
+``RuntimeConfig.hand_load``, by default the command source's), checked by the saturation rule with the rest.
 
 Start-up: ZERO_TORQUE until the first state; a valid first state gives DAMPING then HOLD (ramp to the
 command source's ``hold_pose``, else the policy's rest pose ``policy.hold_pose``, over
