@@ -30,7 +30,8 @@ Bounds, never silent: a hand whose estimated mass ``m`` leaves ``+-max_kg`` is s
 and a feed-forward beyond the firmware cap is clipped to it, each counted (``record``) and its first
 occurrence logged.
 
-The model is the robot alone (``robot.scene.load_model``), as ``deploy.gravity``'s. Only a target that
+The model and its gravity torque are ``deploy.gravity``'s (the robot alone). A tick whose measured state
+or torque is not finite is not fitted (counted) and gets no feed-forward. Only a target that
 measures the torque its motors apply (``Target.measures_torque``) can feed the fit; numpy and MuJoCo, no jax.
 """
 
@@ -44,9 +45,9 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from bar_policy.deploy.gravity import GravityTorque
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.index import RobotIndex
-from bar_policy.robot.scene import load_model
 
 __all__ = ["HandLoadConfig", "HandLoadEstimator"]
 
@@ -89,12 +90,11 @@ class HandLoadEstimator:
     def __init__(self, mode: str, control_dt: float, config: HandLoadConfig | None = None) -> None:
         self.config = config or HandLoadConfig()
         robot = load_robot(mode)
-        self.model = load_model(mode)
+        self._gravity = GravityTorque(mode)  # g(q), and the model state the Jacobians are read from
+        self.model, self.data = self._gravity.model, self._gravity.data
         if not np.allclose(self.model.opt.gravity, (0.0, 0.0, -GRAVITY)):
             raise ValueError(f"the model's gravity {self.model.opt.gravity} is not (0, 0, -{GRAVITY})")
-        self.data = mujoco.MjData(self.model)
-        index = RobotIndex.from_model(self.model, robot.joint_names)
-        self._qadr, self._dadr = index.qpos, index.dof
+        self._dadr = RobotIndex.from_model(self.model, robot.joint_names).dof
         self.cap = np.asarray(robot.torque_cap, np.float64)
         self.n = len(robot.joint_names)
         self.arms = [
@@ -113,6 +113,8 @@ class HandLoadEstimator:
         """Fits so far (POLICY ticks with a measured torque)."""
         self.mass_sum = np.zeros(2)
         """Sum of ``masses`` over the fits, kg (``mean_masses``)."""
+        self.nonfinite_count = 0
+        """Ticks not fitted because the measured state or torque was not finite."""
         self.mass_bound_count = 0
         """Fits whose estimated mass of a hand left ``+-max_kg`` and was scaled back."""
         self.clip_count = 0
@@ -138,11 +140,7 @@ class HandLoadEstimator:
         docstring), on that arm's joints, (7, 4).
         """
         m, d = self.model, self.data
-        d.qpos[self._qadr] = q
-        d.qvel[:] = 0.0
-        mujoco.mj_fwdPosition(m, d)
-        mujoco.mj_fwdVelocity(m, d)  # qvel = 0: qfrc_bias is gravity alone
-        gravity = d.qfrc_bias[self._dadr].copy()
+        gravity = self._gravity.raw(q)  # leaves d at q, zero velocity
         phis = []
         step = self.config.arm_m
         for arm, body, site in zip(self.arms, self.bodies, self.sites, strict=True):
@@ -161,8 +159,15 @@ class HandLoadEstimator:
 
         ``q``: the measured positions, rad; ``tau``: the torque the motors applied, N*m; both (n,).
         """
-        gravity, phis = self.regressors(np.asarray(q, np.float64))
-        residual = np.asarray(tau, np.float64) - gravity
+        q, tau = np.asarray(q, np.float64), np.asarray(tau, np.float64)
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(tau))):
+            self.nonfinite_count += 1
+            self._log_once(
+                "nonfinite", "hand load: a non-finite state or torque, not fitted (further counted)"
+            )
+            return np.zeros(self.n)
+        gravity, phis = self.regressors(q)
+        residual = tau - gravity
         c = self.config
         for h, (arm, phi) in enumerate(zip(self.arms, phis, strict=True)):
             self._a[h] = self.forget * self._a[h] + phi.T @ phi
@@ -183,8 +188,11 @@ class HandLoadEstimator:
         return self._feedforward(phis)
 
     def torque(self, q: np.ndarray) -> np.ndarray:
-        """The feed-forward of the current estimate at ``q`` (rad, (n,)) without a fit, N*m, (n,)."""
-        return self._feedforward(self.regressors(np.asarray(q, np.float64))[1])
+        """The current estimate's feed-forward at ``q`` (rad, (n,)), no fit: N*m, (n,); 0 at non-finite q."""
+        q = np.asarray(q, np.float64)
+        if not np.all(np.isfinite(q)):
+            return np.zeros(self.n)
+        return self._feedforward(self.regressors(q)[1])
 
     def _feedforward(self, phis: list[np.ndarray]) -> np.ndarray:
         out = np.zeros(self.n)
@@ -219,6 +227,7 @@ class HandLoadEstimator:
             "mass_kg": {HANDS[h][0]: float(m) for h, m in enumerate(self.masses)},
             "mean_mass_kg": {HANDS[h][0]: float(m) for h, m in enumerate(self.mean_masses)},
             "mass_bound_count": self.mass_bound_count,
+            "nonfinite_count": self.nonfinite_count,
             "clipped_joint_evaluations": self.clip_count,
             "max_abs_feedforward_nm": [float(v) for v in self.max_abs],
         }
