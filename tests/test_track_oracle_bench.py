@@ -9,6 +9,8 @@ itself adds 0.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import mujoco
 import numpy as np
 import pytest
@@ -25,7 +27,7 @@ oracle = load_bench("track_oracle")
 
 @pytest.fixture(scope="module")
 def setup():
-    policy = load_policy("checkpoints/lite_track_arms.onnx")
+    policy = load_policy(str(Path(__file__).resolve().parents[1] / "checkpoints" / "lite_track_arms.onnx"))
     nominal = SimEpisodes(policy).target().model
     payload = SimEpisodes(policy, perturbation=parse_perturbation("payload_kg=0.5")).target().model
     return policy, nominal, payload

@@ -10,6 +10,8 @@ perturbed robot's holding torque the fit recovers the payload up to its ridge an
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import mujoco
 import numpy as np
 import pytest
@@ -24,6 +26,8 @@ from bar_policy.robot.scene import load_model
 
 ROBOT = load_robot("arms")
 DT = 0.02
+TRACKER = Path(__file__).resolve().parents[2] / "checkpoints" / "lite_track_arms.onnx"
+"""The shipped tracker (the runtime tests run it on its held-out clip)."""
 
 
 def _poses(n: int, seed: int = 0) -> np.ndarray:
@@ -136,7 +140,7 @@ def _clip_run(spec: str | None, hand_load: str | None):
     from bar_policy.tasks.track.evaluate import evaluate_track
     from bar_policy.tasks.track.reference import load_motion
 
-    policy = load_policy("checkpoints/lite_track_arms.onnx")
+    policy = load_policy(str(TRACKER))
     perturbation = None if spec is None else parse_perturbation(spec)
     runner = SimEpisodes(policy, perturbation=perturbation, hand_load=hand_load)
     seen = []
@@ -190,7 +194,7 @@ def test_mock_target_leaves_the_fit_off():
     from bar_policy.deploy.targets.mock import MockTarget
     from bar_policy.tasks.track.reference import load_motion, reference_for
 
-    policy = load_policy("checkpoints/lite_track_arms.onnx")
+    policy = load_policy(str(TRACKER))
     ref = reference_for(policy, load_motion("random-s1-003", "arms"))
     rt = Runtime(policy, MockTarget("arms"), ref, RuntimeConfig(hand_load="estimate"))
     assert rt.hand_load is None
@@ -204,9 +208,28 @@ def test_cli_refuses_an_unknown_hand_load_in_one_line(sub, capsys):
     from bar_policy.deploy.cli import main
 
     with pytest.raises(SystemExit) as e:
-        main([*sub, "--policy", "checkpoints/lite_track_arms.onnx", "--hand-load", "on"])
+        main([*sub, "--policy", str(TRACKER), "--hand-load", "on"])
     assert e.value.code == 2
     assert (
         "argument --hand-load: invalid choice: 'on' (choose from 'estimate', 'off')"
         in capsys.readouterr().err
     )
+
+
+def test_a_non_finite_reading_is_not_fitted_and_gets_no_feed_forward(payload_model):
+    """A NaN torque (a garbled reading) or position: the tick is counted, the estimate kept, the
+    feed-forward 0."""
+    est = HandLoadEstimator("arms", DT, HandLoadConfig(ridge=1e-6, tau_s=100.0))
+    poses = _poses(21, seed=5)
+    for q in poses[:20]:
+        est.step(q, _holding_torque(payload_model, q))
+    before = est.theta.copy()
+    bad = _holding_torque(payload_model, poses[20])
+    bad[3] = np.nan
+    assert np.all(est.step(poses[20], bad) == 0.0)
+    q_nan = poses[20].copy()
+    q_nan[0] = np.nan
+    assert np.all(est.step(q_nan, _holding_torque(payload_model, poses[20])) == 0.0)
+    assert np.all(est.torque(q_nan) == 0.0)
+    np.testing.assert_array_equal(est.theta, before)
+    assert est.nonfinite_count == 2 and est.updates == 20 and est.record()["nonfinite_count"] == 2
