@@ -45,7 +45,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from bar_policy.deploy.gravity import GravityTorque
+from bar_policy.deploy.gravity import CapClip, GravityTorque
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.index import RobotIndex
 
@@ -95,7 +95,6 @@ class HandLoadEstimator:
         if not np.allclose(self.model.opt.gravity, (0.0, 0.0, -GRAVITY)):
             raise ValueError(f"the model's gravity {self.model.opt.gravity} is not (0, 0, -{GRAVITY})")
         self._dadr = RobotIndex.from_model(self.model, robot.joint_names).dof
-        self.cap = np.asarray(robot.torque_cap, np.float64)
         self.n = len(robot.joint_names)
         self.arms = [
             np.array([i for i, j in enumerate(robot.joint_names) if j.startswith(prefix + "_")])
@@ -117,10 +116,8 @@ class HandLoadEstimator:
         """Ticks not fitted because the measured state or torque was not finite."""
         self.mass_bound_count = 0
         """Fits whose estimated mass of a hand left ``+-max_kg`` and was scaled back."""
-        self.clip_count = 0
-        """Joint-evaluations of the feed-forward beyond the cap, clipped to it."""
-        self.max_abs = np.zeros(self.n)
-        """Largest |feed-forward| asked per joint before the clip, N*m."""
+        self.clip = CapClip("hand-load feed-forward", robot.joint_names, robot.torque_cap)
+        """The caps' clip of the feed-forward: ``clip_count``, ``max_abs`` (N*m per joint)."""
         self._logged: set[str] = set()
 
     @property
@@ -198,17 +195,7 @@ class HandLoadEstimator:
         out = np.zeros(self.n)
         for arm, phi, w in zip(self.arms, phis, self.theta, strict=True):
             out[arm] = phi @ w
-        np.maximum(self.max_abs, np.abs(out), out=self.max_abs)
-        over = np.abs(out) > self.cap
-        if over.any():
-            self.clip_count += int(over.sum())
-            self._log_once(
-                "cap",
-                f"hand load feed-forward beyond the cap on joints {np.flatnonzero(over).tolist()}: clipped "
-                "to it (further ones counted)",
-            )
-            out = np.clip(out, -self.cap, self.cap)
-        return out
+        return self.clip(out)
 
     def _log_once(self, key: str, message: str) -> None:
         if key not in self._logged:
@@ -228,6 +215,6 @@ class HandLoadEstimator:
             "mean_mass_kg": {HANDS[h][0]: float(m) for h, m in enumerate(self.mean_masses)},
             "mass_bound_count": self.mass_bound_count,
             "nonfinite_count": self.nonfinite_count,
-            "clipped_joint_evaluations": self.clip_count,
-            "max_abs_feedforward_nm": [float(v) for v in self.max_abs],
+            "clipped_joint_evaluations": self.clip.clip_count,
+            "max_abs_feedforward_nm": [float(v) for v in self.clip.max_abs],
         }

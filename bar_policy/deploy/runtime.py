@@ -439,7 +439,7 @@ class Runtime(RunLoop):
             )
         if sat is not None:
             self._fault(*sat, t)
-            cmd = self._with_hand_load(self._with_stop_torque(sf.command(t, q_policy), state.q), state)
+            cmd = self._with_stop_torque(sf.command(t, q_policy), state.q)  # DAMPING: no hand-load term
             demand = mit_torque(cmd, state.q, state.dq)
         self.target.write_command(cmd)
         self.last_command = cmd

@@ -79,7 +79,7 @@ def test_fit_recovers_a_fingertip_payload_and_its_torque(payload_model):
     q = _poses(1, seed=7)[0]
     want = _site_torque(q, FINGERTIP_SITES[0], 0.5) + _site_torque(q, FINGERTIP_SITES[1], 0.5)
     np.testing.assert_allclose(est.torque(q), want, atol=1e-5)
-    assert est.updates == 60 and est.clip_count == 0 and est.mass_bound_count == 0
+    assert est.updates == 60 and est.clip.clip_count == 0 and est.mass_bound_count == 0
 
 
 def test_nominal_robot_reads_no_load():
