@@ -10,6 +10,7 @@ Usage::
     bar-deploy log recover RUN_DIR|run.mcap   (a run.mcap cut by a crash -> a complete, indexed MCAP)
     bar-deploy eval --policy reach.onnx [--episodes N] [--seed N]
     bar-deploy eval --policy track.onnx [--clips heldout|gestures|NAME,...] [--hold-s S]
+    bar-deploy eval --policy F [--target sim|bus] [--perturb SPEC|suite] [--hand-load estimate|tare|off]
 
 The policy file's task (``bar.task``; for HC-only files the task its terms imply) picks the command source
 and the evaluation (``deploy.tasks``); an option of another task is refused with a message that names both.
@@ -30,6 +31,9 @@ handlers are installed ends quietly: ``signals.early_interrupt`` (the console en
 ``--unsafe-allow-step-start`` is given.
 
 The only module that prints. Never imports jax, torch or onnx.
+
+One unit: the console's whole surface, each subcommand a short parse-check-run-print path sharing the
+refusal, warning-tally and exit-status helpers (the parsers are ``cli_parser``'s).
 """
 
 from __future__ import annotations
@@ -403,14 +407,15 @@ def _print_warnings(tally: WarningTally) -> None:
 def _eval(argv: Sequence[str]) -> int:
     p = _Parser(
         prog="bar-deploy eval",
-        description="Sim2sim on the C MuJoCo sim target with the policy's task metric: reach, the segment "
-        "success rate over seeded episodes; track, the joint / tracked-body / fingertip errors on held-out "
-        "clips.",
+        description="Sim2sim on the C MuJoCo sim target (or the emulated CAN bus) with the policy's task "
+        "metric: reach, the segment success rate over seeded episodes; track, the joint / tracked-body / "
+        "fingertip errors on held-out clips; piano, key-press F1 on held-out and random songs.",
     )
-    from bar_policy.deploy.episodes import SimEpisodes
+    from bar_policy.deploy.episodes import BusEpisodes, SimEpisodes
     from bar_policy.deploy.tasks import all_tasks
 
     _common(p)
+    cli_parser.eval_target_option(p)
     cli_parser.robot_options(p, suite=True)
     p.add_argument("--json", type=Path, help="write the per-episode / per-clip results here")
     p.add_argument(
@@ -426,7 +431,9 @@ def _eval(argv: Sequence[str]) -> int:
     if args.json is not None and not (args.json.parent.is_dir() and os.access(args.json.parent, os.W_OK)):
         return _fail(f"--json {str(args.json)!r}: its directory does not exist or is not writable")
     _configure_logging(args.verbose)
-    logging.getLogger("bar_policy.deploy.safety").setLevel(logging.WARNING)
+    for name in ("bar_policy.deploy.safety", "bar_policy.deploy.targets", "bar_policy.robstride"):
+        if not args.verbose:  # their INFO lines repeat every episode
+            logging.getLogger(name).setLevel(logging.WARNING)
     say = None if args.quiet else _say
     # Warnings repeat across episodes (one clip warning per joint and episode): each kind is counted and
     # printed once after the result, never dropped.
@@ -435,10 +442,9 @@ def _eval(argv: Sequence[str]) -> int:
             policy, task = _policy_task(args, "eval")
             params_record = _params_check(args, policy)
             if args.perturb is None:
-                runner = SimEpisodes(
-                    policy, robot_params=args.robot_params, say=say, hand_load=args.hand_load
-                )
-                result = task.evaluate(policy, args, runner)
+                kind = BusEpisodes if args.target == "bus" else SimEpisodes
+                with kind(policy, robot_params=args.robot_params, say=say, hand_load=args.hand_load) as run:
+                    result = task.evaluate(policy, args, run)
             else:
                 from bar_policy.deploy.robustness import evaluate_perturbed
 
@@ -451,6 +457,7 @@ def _eval(argv: Sequence[str]) -> int:
                     progress=not args.quiet,
                     robot_params=args.robot_params,
                     hand_load=args.hand_load,
+                    bus=args.target == "bus",
                 )
         except ValueError as e:  # PolicyLoadError, OptionError, bad settings
             _print_warnings(tally)

@@ -218,8 +218,24 @@ def robot_options(p: argparse.ArgumentParser, *, suite: bool) -> None:
     hand_load_option(p)
 
 
+EVAL_TARGETS = ("sim", "bus")
+"""``bar-deploy eval --target``: the C MuJoCo sim target, or the real target over the emulated bus."""
+
+
+def eval_target_option(p: argparse.ArgumentParser) -> None:
+    """``bar-deploy eval --target sim|bus`` (``deploy.episodes``: ``SimEpisodes``, ``BusEpisodes``)."""
+    p.add_argument(
+        "--target",
+        default="sim",
+        choices=EVAL_TARGETS,
+        help="sim = the C MuJoCo sim target (default); bus = the real target's CAN code over python-can "
+        "virtual buses to the in-process Robstride emulator in lockstep (16-bit feedback, the firmware's "
+        "law), whose robot --perturb and --robot-params make",
+    )
+
+
 def hand_load_option(p: argparse.ArgumentParser) -> None:
-    """``--hand-load estimate|off``: the hand-load compensation (``deploy.hand_load``); default the task's."""
+    """``--hand-load estimate|tare|off``: the hand-load compensation (``deploy.hand_load``)."""
     from bar_policy.deploy.run_config import HAND_LOAD_KINDS
 
     p.add_argument(
@@ -227,8 +243,9 @@ def hand_load_option(p: argparse.ArgumentParser) -> None:
         default=None,
         choices=HAND_LOAD_KINDS,
         help="hand-load compensation: estimate = fit what each hand carries from the motors' torque and "
-        "add its gravity torque as the MIT law's feed-forward (tau_ff, within the caps); off = none "
-        "(default: the task's: track estimate, reach and piano off)",
+        "add its gravity torque as the MIT law's feed-forward (tau_ff, within the caps); tare = fit it "
+        "while the commands hold the arms still at the start (the piano's count-in), then keep it; off = "
+        "none (default: the task's: track estimate, piano tare, reach off)",
     )
 
 

@@ -4,6 +4,11 @@
 ``DeployTask.evaluate``, so the task runs its episodes through the deploy code path (``Runtime``: the
 observation manager, the action clip, the safety supervisor, the target's MIT law) without importing the
 runtime: every episode starts in POLICY with no ramp, a fault damps nothing, no signal handlers.
+
+``BusEpisodes`` runs the same episodes on the real target over the emulated Robstride bus in lockstep
+(``targets.emulated.EmulatedBusTarget``: the CAN code path, the 16-bit feedback, the firmware's law with
+its explicit damping; ``bar-deploy eval --target bus``), the perturbed robot being the emulator's. A runner
+is a context manager: leaving it closes the targets it made (the emulator's thread and its buses).
 """
 
 from __future__ import annotations
@@ -11,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from bar_policy.deploy.run_config import RunResult, RuntimeConfig
 from bar_policy.deploy.runtime import Runtime
@@ -21,6 +26,7 @@ from bar_policy.deploy.safety_config import Mode
 if TYPE_CHECKING:
     from bar_policy.deploy.policy import OnnxPolicy
     from bar_policy.deploy.targets.base import Target
+    from bar_policy.deploy.targets.emulated import EmulatedBusTarget
     from bar_policy.deploy.targets.sim import SimTarget
     from bar_policy.robot.kinematics import Kinematics
     from bar_policy.robot.params import RobotParams
@@ -29,13 +35,15 @@ if TYPE_CHECKING:
     from bar_policy.tasks.episodes import TickHook
     from bar_policy.tasks.interfaces import CommandSource
 
-__all__ = ["SimEpisodes"]
+__all__ = ["BusEpisodes", "SimEpisodes"]
 
 
 class SimEpisodes:
     """Episodes of ``policy`` on the C MuJoCo sim target (or a target the caller passes to ``run``)."""
 
     policy_mode = Mode.POLICY
+    target_label = "C MuJoCo sim target"
+    """What the evaluations' reports call the target."""
 
     def __init__(
         self,
@@ -66,6 +74,15 @@ class SimEpisodes:
         from bar_policy.deploy.targets.sim import note_physics_dt
 
         note_physics_dt(policy.metadata.physics_dt)  # once per evaluation, not per episode
+
+    def __enter__(self) -> SimEpisodes:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Close the targets this runner made (the sim target holds nothing to close)."""
 
     def progress(self, kind: str, index: int, total: int, figure: str) -> None:
         """One progress line: ``eval episode 3/100: <figure> (12.3 s)``, the time since the runner was made.
@@ -115,3 +132,37 @@ class SimEpisodes:
             hand_load=self.hand_load,
         )
         return Runtime(self.policy, target, commands, cfg, kinematics=kinematics, on_tick=on_tick).run()
+
+
+class BusEpisodes(SimEpisodes):
+    """Episodes of ``policy`` on the real target over the emulated bus in lockstep (module docstring)."""
+
+    target_label = "emulated CAN bus (lockstep)"
+
+    def __init__(self, policy: OnnxPolicy, *args: Any, **kwargs: Any) -> None:
+        """As ``SimEpisodes``; ``perturbation`` and ``robot_params`` make the emulator's robot."""
+        super().__init__(policy, *args, **kwargs)
+        self._made: list[EmulatedBusTarget] = []
+
+    def target(self, *, initial_pose: str | None = None, scene: SceneEdit | None = None) -> EmulatedBusTarget:
+        """A fresh emulated bus in ``scene`` (None: the robot alone; the piano's keyboard).
+
+        ``initial_pose`` is unused: every evaluation resets the target to its episode's pose, where the
+        emulator starts at rest (``EmulatedBusTarget.reset``).
+        """
+        from bar_policy.deploy.targets.emulated import EmulatedBusTarget
+
+        target = EmulatedBusTarget(
+            self.policy.robot.mode,
+            self.policy.policy_dt,
+            scene=scene,
+            perturbation=self.perturbation,
+            robot_params=self.robot_params,
+        )
+        self._made.append(target)
+        return target
+
+    def close(self) -> None:
+        """Close every emulated bus this runner made (safe to call twice)."""
+        while self._made:
+            self._made.pop().close()

@@ -1,12 +1,13 @@
 """``bar-deploy eval --perturb suite``: the task's evaluation on every row of the robustness suite, one table.
 
-Each row of ``robot.perturb_suite.SUITE`` runs the task's own evaluation (``DeployTask.evaluate``, the
-same episodes, clips or songs as a plain ``bar-deploy eval``) on the sim target of the perturbed robot
-(``targets.perturbed``) and is judged by the task's ship gate (``quality.gate.check``) as far as the row's
-``gating`` says. The table: perturbation, completion %, the task's metrics (``task_metrics``: track, the
-mean fingertip and joint errors; reach, the median segment-end distance and the success %; piano, F1 %),
-ticks at a torque cap %, the worst episode's chatter (mrad), the verdict (PASS, MISS, or ``report`` for a
-row not judged) and the first metric's ratio to the nominal row's.
+Each row of ``robot.perturb_suite.SUITE`` runs the task's own evaluation (``DeployTask.evaluate``, the same
+episodes, clips or songs as a plain ``bar-deploy eval``) on the sim target of the perturbed robot
+(``targets.perturbed``), or on the emulated bus whose robot is the perturbed one (``--target bus``,
+``deploy.episodes.BusEpisodes``), and is judged by the task's ship gate (``quality.gate.check``) as far as
+the row's ``gating`` says. The table: perturbation, completion %, the task's metrics (``task_metrics``:
+track, the mean fingertip and joint errors; reach, the median segment-end distance and the success %; piano,
+F1 %), ticks at a torque cap %, the worst episode's chatter (mrad), the verdict (PASS, MISS, or ``report``
+for a row not judged) and the first metric's ratio to the nominal row's.
 
 ``train/ship.py`` runs the suite's rows (``--robustness ROWS``, default every row) through ``run_suite``
 after the nominal gate, records each row's verdict in the published JSON and refuses a file that misses a
@@ -138,6 +139,8 @@ class SuiteResult:
     task: str
     policy: str
     rows: list[RowResult] = field(default_factory=list)
+    target: str = "C MuJoCo sim target"
+    """The rows' target (``EpisodeRunner.target_label``)."""
 
     @property
     def passed(self) -> bool:
@@ -156,7 +159,7 @@ class SuiteResult:
             pairs = enumerate(zip(cells, widths, strict=True))
             return line(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in pairs)
 
-        out = [f"robustness suite: policy {self.policy} ({self.task}), sim target"]
+        out = [f"robustness suite: policy {self.policy} ({self.task}), {self.target}"]
         out.append(thresholds_text(self.task))
         out += [fmt(head), fmt(["-" * w for w in widths]), *(fmt(b) for b in body)]
         for r in self.rows:
@@ -177,6 +180,7 @@ class SuiteResult:
         return {
             "task": self.task,
             "policy": self.policy,
+            "target": self.target,
             "passed": self.passed,
             "rows": [r.to_dict() for r in self.rows],
         }
@@ -196,14 +200,17 @@ def run_suite(
         policy: the loaded policy.
         task: its deploy task (``evaluate(policy, args, runner)``, ``name``).
         args: the eval options (episodes, clips, ...), the same for every row.
-        make_runner: the episode runner of a perturbed sim target (``SimEpisodes(policy, perturbation=p)``).
+        make_runner: the episode runner of a perturbed robot (``SimEpisodes(policy, perturbation=p)``; a
+            context manager, left after the row's evaluation).
         rows: the suite (default ``SUITE``).
         progress: called with a line as each row ends.
     """
     out = SuiteResult(task=task.name, policy=str(getattr(policy, "path", "")))
     nominal: float | None = None
     for row in rows:
-        result = task.evaluate(policy, args, make_runner(row.perturbation))
+        with make_runner(row.perturbation) as runner:
+            result = task.evaluate(policy, args, runner)
+        out.target = runner.target_label
         report = result.gate_report()
         verdict, misses = row_verdict(task.name, report, row.gating)
         metrics = task_metrics(report)
@@ -229,6 +236,7 @@ def evaluate_perturbed(
     progress: bool = True,
     robot_params: RobotParams | None = None,
     hand_load: str | None = None,
+    bus: bool = False,
 ) -> Any:
     """``bar-deploy eval --perturb``: the suite (``"suite"``) or one perturbed evaluation (its result).
 
@@ -236,28 +244,20 @@ def evaluate_perturbed(
     each suite row as it ends or each episode's progress line of one perturbed evaluation.
     ``robot_params`` (``--robot-params``): every row perturbs that identified robot instead of the model.
     ``hand_load`` (``--hand-load``): the runs' hand-load compensation (None: the task's).
+    ``bus`` (``--target bus``): the emulated bus's robot is the perturbed one (``BusEpisodes``), else the
+    sim target's.
     """
-    from bar_policy.deploy.episodes import SimEpisodes
+    from bar_policy.deploy.episodes import BusEpisodes, SimEpisodes
+
+    kind = BusEpisodes if bus else SimEpisodes
+
+    def runner(p: Perturbation, say: Callable[[str], None] | None = None) -> SimEpisodes:
+        return kind(policy, perturbation=p, robot_params=robot_params, say=say, hand_load=hand_load)
 
     if perturb == "suite":
         say(f"robustness suite: {len(SUITE)} rows, each the task's whole evaluation")
-        return run_suite(
-            policy,
-            task,
-            args,
-            lambda p: SimEpisodes(policy, perturbation=p, robot_params=robot_params, hand_load=hand_load),
-            progress=(lambda s: say(s)) if progress else None,
-        )
+        return run_suite(policy, task, args, runner, progress=(lambda s: say(s)) if progress else None)
     assert isinstance(perturb, Perturbation)
-    say(f"perturbed sim target (hidden from the policy): {perturb.describe()}")
-    return task.evaluate(
-        policy,
-        args,
-        SimEpisodes(
-            policy,
-            perturbation=perturb,
-            robot_params=robot_params,
-            say=say if progress else None,
-            hand_load=hand_load,
-        ),
-    )
+    say(f"perturbed {'emulated bus' if bus else 'sim target'} (hidden from the policy): {perturb.describe()}")
+    with runner(perturb, say if progress else None) as episodes:
+        return task.evaluate(policy, args, episodes)

@@ -43,9 +43,10 @@ EXIT_STOP_UNCONFIRMED = 3
 """Exit status: the safe stop was not confirmed (a joint did not answer, or ``safe_stop`` raised)."""
 
 
-HAND_LOAD_KINDS = ("estimate", "off")
+HAND_LOAD_KINDS = ("estimate", "tare", "off")
 """``RuntimeConfig.hand_load``: ``estimate`` fits the hands' loads online and adds their gravity torque as
-``tau_ff`` (``deploy.hand_load``); ``off``: none."""
+``tau_ff`` (``deploy.hand_load``); ``tare`` fits them while the command source holds the arms still and
+free (``CommandSource.still_s``: the piano's count-in), then keeps that estimate; ``off``: none."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -70,7 +71,7 @@ class RuntimeConfig:
     torque at the measured q as ``tau_ff`` (within the caps), ``plain`` is Kd alone."""
     hand_load: str | None = None
     """Hand-load compensation in POLICY (and the end's HOLD), one of ``HAND_LOAD_KINDS``; None: the command
-    source's (``CommandSource.hand_load``: tracking ``estimate``, the other tasks ``off``)."""
+    source's (``CommandSource.hand_load``: tracking ``estimate``, the piano ``tare``, reach ``off``)."""
     realtime: bool = False
     """Pace a synchronous target at wall-clock rate (for the viewer)."""
     spin_s: float = 0.0003

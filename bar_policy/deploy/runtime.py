@@ -22,7 +22,8 @@ has already damped and stopped), and the run ends as any fault does, without an 
 after a fault or a stop carries the gravity torque at the measured q as ``tau_ff`` (``deploy.gravity``;
 ``RuntimeConfig.stop_damping``), which the target's own safe stop uses too (``Target.use_stop_torque``).
 POLICY and the end's HOLD carry the hand-load fit's feed-forward in ``tau_ff`` (``deploy.hand_load``;
-``RuntimeConfig.hand_load``, by default the command source's), checked by the saturation rule with the rest.
+``RuntimeConfig.hand_load``, by default the command source's; ``tare`` fits during the source's still
+start, ``CommandSource.still_s``, and keeps that estimate), checked by the saturation rule with the rest.
 
 Start-up: ZERO_TORQUE until the first state; a valid first state gives DAMPING then HOLD (ramp to the
 command source's ``hold_pose``, else the policy's rest pose ``policy.hold_pose``, over
@@ -274,30 +275,45 @@ class Runtime(RunLoop):
         """The run's hand-load fit: ``config.hand_load``, else the source's.
 
         None where the target cannot feed it (a dry run, the mock: their torque is not the motors'), logged.
+        ``tare`` on a source without a still start (``CommandSource.still_s`` under one tick) is refused
+        (``ValueError``, naming the kinds that work).
         """
         kind = self.config.hand_load or commands.hand_load
         self.hand_load_kind = kind
-        """``estimate`` or ``off``, and why when a requested fit was left off (run log)."""
-        if kind != "estimate":
+        """``estimate``, ``tare`` or ``off``, and why when a requested fit was left off (run log)."""
+        self._tare: int | None = None
+        """``tare``: how many POLICY ticks fit, the source's still start; None: every tick (``estimate``)."""
+        if kind == "off":
             return None
+        dt = self.config.control_dt
+        if kind == "tare":
+            self._tare = round(commands.still_s / dt)
+            if self._tare < 1:
+                raise ValueError(
+                    f"hand-load tare needs a still start and {type(commands).__name__} has "
+                    f"{commands.still_s:g} s (CommandSource.still_s); valid here: estimate or off"
+                )
         if not (target.applies_commands and target.measures_torque):
-            self.hand_load_kind = f"off (asked estimate; {type(target).__name__} measures no applied torque)"
+            self.hand_load_kind = f"off (asked {kind}; {type(target).__name__} measures no applied torque)"
             log.warning("hand-load compensation left off: %s", self.hand_load_kind)
             return None
-        return HandLoadEstimator(self.policy.robot.mode, self.config.control_dt)
+        return HandLoadEstimator(self.policy.robot.mode, dt)
 
     def _with_hand_load(self, cmd: MitCommand, state: JointState) -> MitCommand:
         """``cmd`` with the hand-load feed-forward added to ``tau_ff``.
 
         POLICY: a fit on this tick's measured torque, then its feed-forward, once a command has been written
-        (before it the torque is no command's: a reset's 0); HOLD after POLICY (the end's): the last
-        estimate's (no fit: the arm is not following the policy). Other modes: ``cmd`` unchanged.
+        (before it the torque is no command's: a reset's 0); under ``tare`` only on the still start's
+        ticks (``_tare``), after them the kept estimate's feed-forward; HOLD after POLICY (the end's): the
+        last estimate's (no fit: the arm is not following the policy). Other modes: ``cmd`` unchanged.
         """
         if self.hand_load is None:
             return cmd
         mode = self.safety.mode
         if mode == Mode.POLICY and self.last_command is not None:
-            return cmd._replace(tau_ff=cmd.tau_ff + self.hand_load.step(state.q, state.tau))
+            if self._tare is None or self.hand_load.updates < self._tare:
+                return cmd._replace(tau_ff=cmd.tau_ff + self.hand_load.step(state.q, state.tau))
+            return cmd._replace(tau_ff=cmd.tau_ff + self.hand_load.torque(state.q))
         if mode == Mode.HOLD and self.hand_load.updates:
             return cmd._replace(tau_ff=cmd.tau_ff + self.hand_load.torque(state.q))
         return cmd
@@ -305,6 +321,8 @@ class Runtime(RunLoop):
     def hand_load_record(self) -> dict[str, Any]:
         """For the run log: the compensation's kind and, when on, the fit's record."""
         rec: dict[str, Any] = {"kind": self.hand_load_kind}
+        if self._tare is not None:
+            rec["tare_ticks"] = self._tare
         if self.hand_load is not None:
             rec.update(self.hand_load.record())
         return rec

@@ -67,6 +67,8 @@ class EpisodeRunner(Protocol):
 
     policy_mode: Any
     """The supervisor's mode while the policy drives (compare with the runtime's ``safety.mode``)."""
+    target_label: str
+    """What a report calls the runner's target (``C MuJoCo sim target``, ``emulated CAN bus (lockstep)``)."""
 
     def target(self, *, initial_pose: str | None = None, scene: SceneEdit | None = None) -> Any:
         """A fresh sim target (``reset(q[, dq])``, ``read_state()``).

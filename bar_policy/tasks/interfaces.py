@@ -55,7 +55,7 @@ class CommandSource(abc.ABC):
     """Command terms fed to the observation, in the layout's order."""
     hand_load: ClassVar[str] = "off"
     """The task's hand-load compensation when the run does not choose one (``RuntimeConfig.hand_load``):
-    ``estimate`` or ``off`` (``deploy.hand_load``)."""
+    ``estimate``, ``tare`` (needs ``still_s`` > 0) or ``off`` (``deploy.hand_load``)."""
     outside_count: int = 0
     """Commands seen outside the training distribution (counted and logged, never clipped)."""
 
@@ -87,6 +87,14 @@ class CommandSource(abc.ABC):
     def end_pose(self) -> np.ndarray | None:
         """Where HOLD goes once ``finished`` (rad); None: the pose the robot is in."""
         return None
+
+    @property
+    def still_s(self) -> float:
+        """How long from POLICY's first tick the commands hold the arms still and off any contact, s.
+
+        The hand-load ``tare`` fits the loads then (0: never still; ``tare`` is refused).
+        """
+        return 0.0
 
     def begin(self, t: float) -> None:  # noqa: B027 - optional hook
         """POLICY starts at run time ``t`` (s): the commands' phase 0."""

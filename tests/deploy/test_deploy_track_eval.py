@@ -137,7 +137,7 @@ def test_eval_cli_reports_the_tracking_metric(track_policy, tmp_path, capsys):
     first, progress, report = out.split("\n", 2)
     assert first.startswith("provenance: not recorded")  # bar-deploy's first line: the file's provenance
     assert progress.startswith("eval clip 1/1: tiny, joint error ")  # then one progress line per clip
-    assert report.startswith(f"tracking (SimTarget) policy {track_policy.path}")
+    assert report.startswith(f"tracking (C MuJoCo sim target) policy {track_policy.path}")
     data = json.loads(out_json.read_text())
     assert [c["clip"] for c in data["clips"]] == ["tiny"] and data["clips"][0]["steps"] == 3 + 5
     # The same protocol in process (the sim is deterministic): the CLI printed and wrote these numbers.

@@ -185,6 +185,28 @@ def test_emulated_bus_with_a_perturbation_follows_the_perturbed_sim(tmp_path, sp
         assert abs(sim.sums[key] - nominal.sums[key]) > 0.05 * nominal.sums[key], key  # it does perturb
 
 
+def test_bus_episodes_run_the_evaluation_on_the_perturbed_emulator(tmp_path):
+    """``bar-deploy eval --target bus``'s runner (``BusEpisodes``): the evaluation's own target is the
+    lockstep emulator of the perturbed robot, so the swing's errors follow the perturbed sim target's within
+    the sim-vs-bus 2 % above; the report names the bus; leaving the runner closes its emulator."""
+    from bar_policy.deploy.episodes import BusEpisodes
+
+    policy = _track_policy(tmp_path)
+    p = parse_perturbation(SUITE[-1].spec)
+    clip = Clip.make("tiny", 50.0, Q0 + 0.01 * np.arange(4)[:, None])
+    sim = evaluate_track(policy, [clip], runner=SimEpisodes(policy, perturbation=p), hold_s=0.2)
+    with BusEpisodes(policy, perturbation=p) as runner:
+        bus = evaluate_track(policy, [clip], runner=runner, hold_s=0.2)
+        (target,) = runner._made
+        assert target.perturbation == p and target.emu.model.body("left_hand_payload").mass[0] == 0.3
+    assert not runner._made and not target.emu._threads and target.emu._stop.is_set()
+    assert bus.target == "emulated CAN bus (lockstep)" and sim.target == "C MuJoCo sim target"
+    s, b = sim.clips[0], bus.clips[0]
+    assert s.steps == b.steps == 13 and not b.faulted
+    for key in ("joint_error", "body_pos_error", "fingertip_error"):
+        assert b.sums[key] == pytest.approx(s.sums[key], rel=0.02), key
+
+
 def test_the_runtime_does_not_see_the_emulators_perturbation():
     """The host reads ``q + offset`` through the 16-bit feedback (8 pi / 65535 = 3.8e-4 rad per count)
     while the emulator's true joints sit at the pose; the strength is invisible in the torque reading."""
@@ -248,10 +270,20 @@ def test_run_suite_table_ratios_and_verdict():
             tip = {None: 0.5, 1.2: 0.75, 0.01: 2.0}[runner.mass or runner.offset or None]
             return Result(_report(100.0, 0.0, 1.0, tip))
 
+    closed = []
+
     class Runner:
+        target_label = "a fake target"
+
         def __init__(self, p):
             self.mass = p.mass_scale if p.mass_scale != 1.0 else None
             self.offset = p.offset_rad or None
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            closed.append(self)
 
     rows = (
         SuiteRow("nominal", ""),
@@ -259,6 +291,8 @@ def test_run_suite_table_ratios_and_verdict():
         SuiteRow("offset", "offset_rad=0.01", gating="none"),
     )
     res = run_suite(object(), Task(), None, Runner, rows=rows)
+    assert len(closed) == 3  # each row's runner left (its targets closed) after its evaluation
+    assert res.target == "a fake target" and "(track), a fake target" in res.format().splitlines()[0]
     assert [r.verdict for r in res.rows] == ["PASS", "PASS", "report"] and res.passed
     assert [r.ratio for r in res.rows] == [1.0, 1.5, 4.0]  # 0.75 / 0.5, 2.0 / 0.5
     text = res.format()
@@ -439,3 +473,14 @@ def test_eval_perturb_spec_on_the_cli_changes_the_score(tmp_path, capsys):
     assert "perturbed sim target (hidden from the policy): offset_rad=0.05" in capsys.readouterr().out
     # 0.05 rad on seven joints of a ~0.45 m arm moves a fingertip by centimetres (3.4 cm measured here)
     assert np.abs(dists["offset"] - dists["nominal"]).max() > 0.01
+    # The same on the emulated bus (--target bus): the emulator's robot carries the offset, the report says
+    # which target; its fingertips within 2 mm of the sim target's (16-bit feedback, a 20 ms damping round).
+    out = tmp_path / "bus.json"
+    assert main([*base, "--perturb", "offset_rad=0.05", "--target", "bus", "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert data["target"] == "emulated CAN bus (lockstep)"
+    bus = np.array([data["episodes"][0]["dist_left"], data["episodes"][0]["dist_right"]])
+    np.testing.assert_allclose(bus, dists["offset"], atol=0.002)
+    text = capsys.readouterr().out
+    assert "perturbed emulated bus (hidden from the policy): offset_rad=0.05" in text
+    assert "sim2sim (emulated CAN bus (lockstep)) policy" in text

@@ -155,6 +155,11 @@ def test_song_source_count_in_by_hand() -> None:
     assert src.finished(1.0 + 35 * 0.02 + END_HOLD_S - 0.02) is None
     assert src.finished(1.0 + 35 * 0.02 + END_HOLD_S) == "song 'one' finished"
     assert src.metadata()["count_in_s"] == 0.5 and "0.5 s count-in" in src.describe()
+    # The hand-load tare's window: the ticks before C4 enters the look-ahead, 15 of them (steps 0..14);
+    # with a 2-step lead (a file's bar.song_lead_steps) it enters 2 steps earlier: 13.
+    assert src.hand_load == "tare" and src.still_s == pytest.approx(15 * 0.02)
+    led = SongCommands(song, KB, 0.02, MidiKeys(queue.Queue(), KB), PlaybackConfig(lead_steps=2))
+    assert led.still_s == pytest.approx(13 * 0.02)
 
 
 def test_the_piano_is_a_deploy_task_implied_by_its_target_keys() -> None:

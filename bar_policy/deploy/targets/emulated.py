@@ -34,6 +34,7 @@ from bar_policy.deploy.targets.base import JointState, StopReport, Target
 from bar_policy.deploy.targets.real import RealTarget
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.mit import MitCommand
+from bar_policy.robot.params import RobotParams
 from bar_policy.robot.perturb_spec import Perturbation
 from bar_policy.robot.scene import SceneEdit
 from bar_policy.robstride.emulator import RobstrideEmulator
@@ -62,6 +63,7 @@ class EmulatedBusTarget(Target):
         can_timeout: float = LOCKSTEP_CAN_TIMEOUT,
         scene: SceneEdit | None = None,
         perturbation: Perturbation | None = None,
+        robot_params: RobotParams | None = None,
     ) -> None:
         """Start the emulator (the real target starts on ``reset``).
 
@@ -73,6 +75,8 @@ class EmulatedBusTarget(Target):
             scene: a task's additions to the emulator's scene (None: the robot alone).
             perturbation: the emulated robot differs from the model so (``robot.perturb_spec``), hidden
                 from the real target (``robstride.emulator_perturb``); None: the nominal robot.
+            robot_params: the emulated robot is that identified one (``robot.params``, ``--robot-params``),
+                ``perturbation`` on top; None: the description's robot.
         """
         self.robot = load_robot(mode)
         super().__init__(self.robot.joint_names)
@@ -91,6 +95,7 @@ class EmulatedBusTarget(Target):
             control_dt=control_dt,
             scene=scene,
             perturbation=perturbation,
+            robot_params=robot_params,
         ).start()
         self.inner: RealTarget | None = None
         self._stop_torque: Callable[[np.ndarray], np.ndarray] | None = None

@@ -156,6 +156,7 @@ def evaluate(
         fingerprint=policy.obs_manager.fingerprint,
         random_songs=random_label,
         arrangements=dict(arrangements or {}),
+        target=runner.target_label if target is None else type(target).__name__,
     )
 
 

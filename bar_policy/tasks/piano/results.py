@@ -149,6 +149,8 @@ class PianoEval(EvalReport):
     arrangements: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     """Song name -> its arrangement (``arrange.Arrangement.to_dict``: tempo, hands, every note shortened) for
     the songs played arranged (a MIDI file, or ``--tempo``); the others are played as written."""
+    target: str = "C MuJoCo sim target"
+    """The songs' target (``EpisodeRunner.target_label``, or the class of the one given)."""
 
     def group(self, group: str = "held-out") -> list[SongResult]:
         """The songs of one group (``SongResult.group``)."""
@@ -230,6 +232,7 @@ class PianoEval(EvalReport):
         """JSON form (each song's ``chatter_mrad``, against the reference, beside ``chatter_raw_mrad``)."""
         return {
             "policy": self.policy,
+            "target": self.target,
             "obs_fingerprint": self.fingerprint,
             "f1": self.f1(),
             "f1_pooled": self.f1_pooled(),
@@ -257,7 +260,7 @@ class PianoEval(EvalReport):
 
     def format(self) -> str:
         """Summary lines: one per song, the totals, the quality line and the gate."""
-        lines = [f"piano on the C MuJoCo sim target: policy {self.policy} [{self.fingerprint}]"]
+        lines = [f"piano on the {self.target}: policy {self.policy} [{self.fingerprint}]"]
         keys = sorted({s.keys for s in self.songs} - {"sim"})
         if keys:
             lines.append(f"key_pressed from {', '.join(keys)}; scored against the simulated keys")

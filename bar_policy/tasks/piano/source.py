@@ -12,6 +12,9 @@
 - ``key_pressed``: the key source's reading (``keys.py``: the simulated keys, a MIDI keyboard, or the
   fingertips' kinematics), named in the log.
 
+The hand-load compensation's default here is ``tare`` (``CommandSource.hand_load``): fitted while the
+count-in holds the hands still above the keys (``still_s``), kept for the song.
+
 With a ``truth`` source (``bar-deploy eval --keys kinematic``), the keys that really went down are read at
 the same instant as ``key_pressed`` (``scored_keys``): the policy sees the chosen source, the score counts
 the simulated keys.
@@ -81,6 +84,10 @@ class SongCommands(CommandSource):
 
     task = "piano"
     names = ("target_keys", "progress", "key_pressed")
+    hand_load = "tare"
+    """The hand-load fit runs during the count-in's still hands (``still_s``) and is kept for the song: a
+    key's reaction at the fingertip reads as a lighter hand, and fitted during play it undid the presses
+    (docs/robustness.md, "Hand-load compensation")."""
 
     def __init__(
         self,
@@ -158,6 +165,18 @@ class SongCommands(CommandSource):
         self._t0 = t
         if self.reference is not None:
             self._ref_state = self.reference.start
+
+    @property
+    def still_s(self) -> float:
+        """Time from POLICY's first tick before a goal key enters ``target_keys``, s.
+
+        The count-in less the look-ahead (lead + ``TARGET_FRAMES`` - 1 steps), while the policy holds the
+        held pose (a song of no note: all of it).
+        """
+        keyed = np.flatnonzero(self.down.any(axis=1))
+        if keyed.size == 0:
+            return self.song_steps * self.dt
+        return max(int(keyed[0]) - self.lead - TARGET_FRAMES + 1, 0) * self.dt
 
     # -- each tick ---------------------------------------------------------------------------------
     def step_at(self, t: float) -> int:

@@ -103,6 +103,8 @@ class EvalResult(EvalReport):
     episodes: list[EpisodeResult]
     policy: str
     fingerprint: str
+    target: str = "C MuJoCo sim target"
+    """The episodes' target (``EpisodeRunner.target_label``, or the class of the one given)."""
 
     @property
     def segments(self) -> int:
@@ -128,6 +130,7 @@ class EvalResult(EvalReport):
         return {
             "policy": self.policy,
             "obs_fingerprint": self.fingerprint,
+            "target": self.target,
             "config": asdict(self.config),
             "success_rate": self.success_rate,
             "wilson95": [lo, hi],
@@ -159,7 +162,7 @@ class EvalResult(EvalReport):
         dr = np.concatenate([e.dist_right for e in self.episodes])
         return "\n".join(
             [
-                f"sim2sim (C MuJoCo sim target) policy {self.policy} [{self.fingerprint}]",
+                f"sim2sim ({self.target}) policy {self.policy} [{self.fingerprint}]",
                 f"episodes {len(self.episodes)} (seeds {c.seed}..{c.seed + len(self.episodes) - 1}), "
                 f"length {c.episode_length:g} s, resample "
                 f"{'none' if c.resample_period is None else f'{c.resample_period:g} s'}, init noise "
@@ -234,5 +237,9 @@ def evaluate(
             )
         )
     return EvalResult(
-        config=cfg, episodes=results, policy=str(policy.path), fingerprint=policy.obs_manager.fingerprint
+        config=cfg,
+        episodes=results,
+        policy=str(policy.path),
+        fingerprint=policy.obs_manager.fingerprint,
+        target=runner.target_label if target is None else type(target).__name__,
     )

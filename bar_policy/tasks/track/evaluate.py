@@ -341,7 +341,7 @@ def evaluate_track(
     return TrackEvalResult(
         policy=str(policy.path),
         fingerprint=policy.obs_manager.fingerprint,
-        target=label or type(sim).__name__,
+        target=label or (runner.target_label if target is None else type(target).__name__),
         clip_set=clip_set or clip_set_id("custom", list(clips)),
         hold_s=hold_s,
         clips=results,
