@@ -3,12 +3,12 @@
     python bench/reach_emulator.py --policy x.onnx [--episodes 20] [--seed 0]
 
 Both runs use the deploy team's sim2sim protocol (``bar_policy.tasks.reach.evaluate``: seeded targets, 5 s
-episodes, success = both fingertips within 3 cm at each segment end). The "real" run drives
-``RealTarget`` over two python-can virtual buses to a *lockstep* ``RobstrideEmulator``
-(``bar_policy.deploy.targets.emulated.EmulatedBusTarget``): every command round advances one control period
-of MuJoCo physics, so the episode runs faster than real time and the state the policy sees went through the
-16-bit feedback codec. Per episode the target is rebuilt and started (scan, cap writes, enable, one 20 ms
-damping round: the only difference in the initial condition).
+episodes, success = both fingertips within 3 cm at each segment end). The "real" run drives ``RealTarget``
+over two python-can virtual buses to a *lockstep* ``RobstrideEmulator`` (``EmulatedBusTarget``, through
+``deploy.episodes.BusEpisodes``, ``bar-deploy eval --target bus``): every command round advances one control
+period of MuJoCo physics, so the episode runs faster than real time and the state the policy sees went
+through the 16-bit feedback codec. Per episode the target is rebuilt and started (scan, cap writes, enable,
+one 20 ms damping round: the only difference in the initial condition).
 """
 
 from __future__ import annotations
@@ -18,9 +18,8 @@ import time
 
 import numpy as np
 
-from bar_policy.deploy.episodes import SimEpisodes
+from bar_policy.deploy.episodes import BusEpisodes, SimEpisodes
 from bar_policy.deploy.policy import load_policy
-from bar_policy.deploy.targets.emulated import EmulatedBusTarget
 from bar_policy.tasks.reach.evaluate import EvalConfig, evaluate
 
 
@@ -36,11 +35,8 @@ def main() -> None:
     runner = SimEpisodes(policy)
     sim = evaluate(policy, cfg, runner=runner)
     t1 = time.perf_counter()
-    target = EmulatedBusTarget(policy.robot.mode, policy.policy_dt)
-    try:
-        real = evaluate(policy, cfg, target=target, runner=runner)
-    finally:
-        target.close()
+    with BusEpisodes(policy) as bus:  # bar-deploy eval --target bus's runner
+        real = evaluate(policy, cfg, runner=bus)
     t2 = time.perf_counter()
     print(f"policy {args.policy}: {args.episodes} episodes, seed {args.seed}")
     for name, r, dt in (
