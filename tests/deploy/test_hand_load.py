@@ -10,6 +10,8 @@ perturbed robot's holding torque the fit recovers the payload up to its ridge an
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from pathlib import Path
 
 import mujoco
@@ -134,6 +136,25 @@ def test_config_refusals():
         HandLoadConfig(max_kg=float("nan"))
 
 
+@contextlib.contextmanager
+def _runtimes() -> Iterator[list]:
+    """Collect every ``Runtime`` made inside the block (an evaluation makes one per episode)."""
+    from bar_policy.deploy import runtime as runtime_module
+
+    made: list = []
+    init = runtime_module.Runtime.__init__
+
+    def spy(self, *a, **k):
+        init(self, *a, **k)
+        made.append(self)
+
+    runtime_module.Runtime.__init__ = spy  # type: ignore[method-assign]
+    try:
+        yield made
+    finally:
+        runtime_module.Runtime.__init__ = init  # type: ignore[method-assign]
+
+
 def _clip_run(spec: str | None, hand_load: str | None):
     """The shipped tracker on held-out clip random-s1-003 on the sim target of ``spec``, as ``bar-deploy
     eval`` runs it; returns ``(runtime, fingertip error cm)``."""
@@ -145,23 +166,8 @@ def _clip_run(spec: str | None, hand_load: str | None):
     policy = load_policy(str(TRACKER))
     perturbation = None if spec is None else parse_perturbation(spec)
     runner = SimEpisodes(policy, perturbation=perturbation, hand_load=hand_load)
-    seen = []
-    run = runner.run
-    runner.run = lambda *a, **k: seen.append(run(*a, **k)) or seen[-1]  # type: ignore[method-assign]
-    from bar_policy.deploy import runtime as runtime_module
-
-    made = []
-    init = runtime_module.Runtime.__init__
-
-    def spy(self, *a, **k):
-        init(self, *a, **k)
-        made.append(self)
-
-    runtime_module.Runtime.__init__ = spy  # type: ignore[method-assign]
-    try:
+    with _runtimes() as made:
         res = evaluate_track(policy, [load_motion("random-s1-003", "arms")], runner=runner)
-    finally:
-        runtime_module.Runtime.__init__ = init  # type: ignore[method-assign]
     return made[0], 100 * res.clips[0].mean("fingertip_error")
 
 
@@ -241,27 +247,15 @@ def test_a_non_finite_reading_is_not_fitted_and_gets_no_feed_forward(payload_mod
 def _song_run(spec: str | None, hand_load: str | None):
     """The shipped piano policy playing held-out g_major_scales_two_hands (270 ticks) on the sim target of
     ``spec``, as ``bar-deploy eval`` plays it; returns ``(runtime, song result)``."""
-    from bar_policy.deploy import runtime as runtime_module
     from bar_policy.deploy.episodes import SimEpisodes
     from bar_policy.deploy.policy import load_policy
     from bar_policy.tasks.piano.evaluate import evaluate
     from bar_policy.tasks.piano.song_library import library_song
 
     policy = load_policy(str(PIANO))
-    made = []
-    init = runtime_module.Runtime.__init__
-
-    def spy(self, *a, **k):
-        init(self, *a, **k)
-        made.append(self)
-
-    runtime_module.Runtime.__init__ = spy  # type: ignore[method-assign]
     perturbation = None if spec is None else parse_perturbation(spec)
-    try:
-        with SimEpisodes(policy, perturbation=perturbation, hand_load=hand_load) as runner:
-            res = evaluate(policy, [library_song("g_major_scales_two_hands")], runner=runner)
-    finally:
-        runtime_module.Runtime.__init__ = init  # type: ignore[method-assign]
+    with _runtimes() as made, SimEpisodes(policy, perturbation=perturbation, hand_load=hand_load) as runner:
+        res = evaluate(policy, [library_song("g_major_scales_two_hands")], runner=runner)
     return made[0], res.songs[0]
 
 
