@@ -8,6 +8,7 @@
     python train/ship.py --from-run runs/X --robustness "payload 0.5 kg palm,push 10 N"   # those rows only
     python train/ship.py --from-run runs/X --robustness none   # the nominal gate alone (recorded as such)
     python train/ship.py --rejudge lite_track_arms             # judge a published file again, as deployed now
+    python train/ship.py --from-run runs/X --robustness-targets sim   # the tier on the sim target alone
 
 The task comes from the run (``env_name`` in its ``final_eval.json`` / ``config.json``: LiteReach and
 LiteReachNeck -> reach, LiteTrack -> track); the default name is ``lite_<task>_<mode>``.
@@ -23,10 +24,12 @@ policy, so a tracker run leaves them alone), then whether the issue's reach targ
 
 The robustness tier (``--robustness ROWS``: ``suite``, the default, for every row of
 ``robot/perturb_suite.py`` but ``nominal``, or row names, comma-separated) runs after the nominal gate
-passed: each row is the same held-out evaluation on the perturbed sim target
-(``deploy.robustness.run_suite``), judged by the gate as far as the row's ``gating`` says; the table is
-printed and every row's verdict (PASS, MISS, ``report``), its misses and figures go into the published
-JSON under ``ship_gate.robustness``. A file that misses a gated row is refused (exit 3, the rows named,
+passed: each row is the same held-out evaluation on the perturbed sim target, then on the emulated bus
+whose robot is the perturbed one (``--robustness-targets``, default ``sim,bus``: the real target's CAN code
+and the lockstep emulator, ``deploy.episodes.BusEpisodes``; ``deploy.robustness.run_suite``), judged by
+the gate as far as the row's ``gating`` says; each table is printed and every row's verdict (PASS, MISS,
+``report``), its misses and figures go into the published JSON under ``ship_gate.robustness`` (sim) and
+``ship_gate.robustness_bus``. A file that misses a gated row is refused (exit 3, the rows named,
 nothing written): a policy that fails on the robots the suite stands for does not ship. ``--robustness
 none`` publishes on the nominal gate alone, said on the terminal and recorded
 (``ship_gate.robustness.verdict`` ``not run``), for a file meant for the model only.
@@ -129,14 +132,38 @@ def robustness_rows(text: str) -> tuple[SuiteRow, ...]:
     return tuple(by_name[n] for n in names)
 
 
-def robustness_tier(
-    onnx: str | Path, task: str, rows: tuple[SuiteRow, ...], options: Mapping[str, Any] | None = None
-) -> Any:
-    """Each row's held-out evaluation on the perturbed sim target, judged (``deploy.robustness.SuiteResult``).
+ROBUSTNESS_TARGETS = ("sim", "bus")
+"""Where the robustness tier runs (``--robustness-targets``): the C MuJoCo sim target, the emulated bus."""
 
-    ``options``: as ``held_out_evaluation``'s (None: the eval's defaults).
+
+def robustness_targets(text: str) -> tuple[str, ...]:
+    """The targets ``--robustness-targets`` names: comma-separated, each of ``ROBUSTNESS_TARGETS`` once.
+
+    Raises ``ValueError`` naming the valid ones otherwise.
     """
-    from bar_policy.deploy.episodes import SimEpisodes
+    names = tuple(t.strip() for t in text.split(",") if t.strip())
+    bad = [t for t in names if t not in ROBUSTNESS_TARGETS]
+    if bad or not names or len(set(names)) != len(names):
+        raise ValueError(
+            f"--robustness-targets {text!r}: give each of {', '.join(ROBUSTNESS_TARGETS)} at most once, "
+            "comma-separated"
+        )
+    return names
+
+
+def robustness_tier(
+    onnx: str | Path,
+    task: str,
+    rows: tuple[SuiteRow, ...],
+    options: Mapping[str, Any] | None = None,
+    target: str = "sim",
+) -> Any:
+    """Each row's held-out evaluation on the perturbed ``target``, judged (``deploy.robustness.SuiteResult``).
+
+    ``options``: as ``held_out_evaluation``'s (None: the eval's defaults). ``target``: ``sim`` (the C MuJoCo
+    sim target) or ``bus`` (the emulated bus, ``BusEpisodes``).
+    """
+    from bar_policy.deploy.episodes import BusEpisodes, SimEpisodes
     from bar_policy.deploy.policy import load_policy
     from bar_policy.deploy.robustness import run_suite
     from bar_policy.deploy.tasks import get_task
@@ -147,7 +174,7 @@ def robustness_tier(
         policy,
         get_task(task),
         args,
-        lambda p: SimEpisodes(policy, perturbation=p),
+        lambda p: (BusEpisodes if target == "bus" else SimEpisodes)(policy, perturbation=p),
         rows,
         progress=lambda line: print(line, flush=True),
     )
@@ -166,7 +193,7 @@ def robustness_record(suite: Any) -> dict[str, Any]:
         d.pop("gate_report", None)
         d["report"] = {k: v for k, v in r.report.items() if k != "episodes"}
         rows.append(d)
-    return {"verdict": "pass" if suite.passed else "miss", "rows": rows}
+    return {"verdict": "pass" if suite.passed else "miss", "target": suite.target, "rows": rows}
 
 
 def gate_record(task: str, report: Mapping[str, Any], misses: list[Miss]) -> dict[str, Any]:
@@ -195,11 +222,12 @@ def judge(
     rows: tuple[SuiteRow, ...],
     eval_options: Mapping[str, Any] | None,
     checkpoints_dir: str,
+    targets: tuple[str, ...] = ROBUSTNESS_TARGETS,
 ) -> dict[str, Any] | None:
     """Both gates on ``onnx``, its held-out ``result`` given, printed.
 
     Returns the ``ship_gate`` record, or None when the file is refused (a nominal miss, or a miss on a gated
-    row of ``rows``).
+    row of ``rows`` on one of ``targets``, which run in order and stop at the first that misses).
     """
     report = result.gate_report()
     misses = check(task, report)
@@ -218,22 +246,28 @@ def judge(
         print("robustness tier: not run (--robustness none): published on the nominal gate alone")
         ship_gate["robustness"] = robustness_record(None)
         return ship_gate
-    print(f"robustness tier: {len(rows)} row(s), each the held-out evaluation on a perturbed sim target")
-    suite = robustness_tier(onnx, task, rows, eval_options)
-    print(suite.format())
-    ship_gate["robustness"] = robustness_record(suite)
-    if not suite.passed:
-        missed = [r.row.name for r in suite.rows if r.verdict == "MISS"]
-        print(
-            f"ship: refused: {onnx} misses the robustness tier on {len(missed)} row(s): "
-            f"{', '.join(missed)}; nothing written to {checkpoints_dir}/"
-        )
-        return None
+    for target in targets:
+        where = "the emulated bus" if target == "bus" else "a perturbed sim target"
+        print(f"robustness tier: {len(rows)} row(s), each the held-out evaluation on {where}")
+        suite = robustness_tier(onnx, task, rows, eval_options, target)
+        print(suite.format())
+        ship_gate["robustness" if target == "sim" else f"robustness_{target}"] = robustness_record(suite)
+        if not suite.passed:
+            missed = [r.row.name for r in suite.rows if r.verdict == "MISS"]
+            print(
+                f"ship: refused: {onnx} misses the robustness tier on {len(missed)} row(s): "
+                f"{', '.join(missed)} ({suite.target}); nothing written to {checkpoints_dir}/"
+            )
+            return None
     return ship_gate
 
 
 def rejudge(
-    name: str, checkpoints_dir: str, rows: tuple[SuiteRow, ...], eval_options: Mapping[str, Any] | None
+    name: str,
+    checkpoints_dir: str,
+    rows: tuple[SuiteRow, ...],
+    eval_options: Mapping[str, Any] | None,
+    targets: tuple[str, ...] = ROBUSTNESS_TARGETS,
 ) -> int:
     """``--rejudge NAME``: both gates on the published ``checkpoints/NAME.onnx`` as the deploy side runs it.
 
@@ -251,7 +285,7 @@ def rejudge(
         print(f"ship: error: --rejudge {name}: {type(e).__name__}: {e}", file=sys.stderr)
         return NOT_EVALUATED
     print(f"held-out evaluation of {onnx} (published, task {task}), re-judged:")
-    ship_gate = judge(onnx, task, result, rows, eval_options, checkpoints_dir)
+    ship_gate = judge(onnx, task, result, rows, eval_options, checkpoints_dir, targets)
     if ship_gate is None:
         return REFUSED
     from bar_policy.provenance import collect
@@ -293,6 +327,13 @@ def main(argv: list[str] | None = None, *, eval_options: Mapping[str, Any] | Non
         "(comma-separated), or 'none' (the nominal gate alone, recorded as not run)",
     )
     pre.add_argument(
+        "--robustness-targets",
+        default=",".join(ROBUSTNESS_TARGETS),
+        metavar="TARGETS",
+        help="where the robustness tier runs, comma-separated, a file must pass on each: sim (the C MuJoCo "
+        "sim target), bus (the real target's CAN code and the lockstep emulator); default sim,bus",
+    )
+    pre.add_argument(
         "--rejudge",
         default=None,
         metavar="NAME",
@@ -304,6 +345,7 @@ def main(argv: list[str] | None = None, *, eval_options: Mapping[str, Any] | Non
     known, rest = pre.parse_known_args(sys.argv[1:] if argv is None else argv)
     try:
         rows = robustness_rows(known.robustness)
+        targets = robustness_targets(known.robustness_targets)
     except ValueError as e:
         print(f"ship: error: {e}", file=sys.stderr)
         return NOT_EVALUATED
@@ -314,7 +356,7 @@ def main(argv: list[str] | None = None, *, eval_options: Mapping[str, Any] | Non
                 file=sys.stderr,
             )
             return NOT_EVALUATED
-        return rejudge(known.rejudge, known.checkpoints_dir, rows, eval_options)
+        return rejudge(known.rejudge, known.checkpoints_dir, rows, eval_options, targets)
     if known.from_run is not None and rest:
         print(
             f"ship: error: --from-run publishes an existing run; {rest} are not ship options and would "
@@ -341,7 +383,7 @@ def main(argv: list[str] | None = None, *, eval_options: Mapping[str, Any] | Non
         print("ship: nothing published")
         return NOT_EVALUATED
     print(f"held-out evaluation of {onnx} ({env_name} run {run_dir}, task {task}):")
-    ship_gate = judge(onnx, task, result, rows, eval_options, known.checkpoints_dir)
+    ship_gate = judge(onnx, task, result, rows, eval_options, known.checkpoints_dir, targets)
     if ship_gate is None:
         return REFUSED
 

@@ -221,6 +221,15 @@ def test_robustness_tier_refuses_a_file_that_misses_a_gated_row_and_records_a_pa
         ("offset 0.01 rad", "offset_rad=0.01", "none", "report"),
     ]
     assert any("max_fingertip_error_cm" in m for m in rec["robustness"]["rows"][0]["misses"])  # reported
+    # By default the tier runs on the sim target, then on the emulated bus, each recorded with its target.
+    assert rec["robustness"]["target"] == "C MuJoCo sim target"
+    bus = rec["robustness_bus"]
+    assert bus["target"] == "emulated CAN bus (lockstep)" and bus["verdict"] == "pass"
+    assert [(r["name"], r["verdict"]) for r in bus["rows"]] == [("offset 0.01 rad", "report")]
+    out = capsys.readouterr().out
+    assert "each the held-out evaluation on a perturbed sim target" in out
+    assert "each the held-out evaluation on the emulated bus" in out
+    assert "robustness suite: policy " in out and "(track), emulated CAN bus (lockstep)" in out
 
 
 def test_robustness_rows_are_named_or_refused(capsys):
@@ -234,6 +243,11 @@ def test_robustness_rows_are_named_or_refused(capsys):
     assert ship.robustness_rows("none") == ()  # the nominal gate alone
     assert ship.main(["--robustness", "mass x9", "--from-run", "x"]) == ship.NOT_EVALUATED
     assert "valid: 'suite', 'none' or any of" in capsys.readouterr().err
+    assert ship.robustness_targets("bus, sim") == ("bus", "sim")
+    assert ship.robustness_targets("sim") == ("sim",)
+    for bad in ("sim,sim", "gpu", ""):
+        assert ship.main(["--robustness-targets", bad, "--from-run", "x"]) == ship.NOT_EVALUATED
+        assert "give each of sim, bus at most once, comma-separated" in capsys.readouterr().err
     # A flag ship does not know is not dropped with --from-run (it would only apply to a training run).
     assert ship.main(["--from-run", "x", "--robustness-enforce"]) == ship.NOT_EVALUATED
     assert "['--robustness-enforce'] are not ship options" in capsys.readouterr().err
