@@ -133,7 +133,8 @@ def robustness_rows(text: str) -> tuple[SuiteRow, ...]:
 
 
 ROBUSTNESS_TARGETS = ("sim", "bus")
-"""Where the robustness tier runs (``--robustness-targets``): the C MuJoCo sim target, the emulated bus."""
+"""Where the robustness tier runs (``--robustness-targets``), in order: the C MuJoCo sim target, the emulated
+bus (keys of ``deploy.episodes.RUNNERS``, imported only when the tier runs)."""
 
 
 def robustness_targets(text: str) -> tuple[str, ...]:
@@ -163,7 +164,7 @@ def robustness_tier(
     ``options``: as ``held_out_evaluation``'s (None: the eval's defaults). ``target``: ``sim`` (the C MuJoCo
     sim target) or ``bus`` (the emulated bus, ``BusEpisodes``).
     """
-    from bar_policy.deploy.episodes import BusEpisodes, SimEpisodes
+    from bar_policy.deploy.episodes import RUNNERS
     from bar_policy.deploy.policy import load_policy
     from bar_policy.deploy.robustness import run_suite
     from bar_policy.deploy.tasks import get_task
@@ -174,7 +175,7 @@ def robustness_tier(
         policy,
         get_task(task),
         args,
-        lambda p: (BusEpisodes if target == "bus" else SimEpisodes)(policy, perturbation=p),
+        lambda p: RUNNERS[target](policy, perturbation=p),
         rows,
         progress=lambda line: print(line, flush=True),
     )

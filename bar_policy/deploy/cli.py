@@ -411,7 +411,7 @@ def _eval(argv: Sequence[str]) -> int:
         "metric: reach, the segment success rate over seeded episodes; track, the joint / tracked-body / "
         "fingertip errors on held-out clips; piano, key-press F1 on held-out and random songs.",
     )
-    from bar_policy.deploy.episodes import BusEpisodes, SimEpisodes
+    from bar_policy.deploy.episodes import RUNNERS
     from bar_policy.deploy.tasks import all_tasks
 
     _common(p)
@@ -442,7 +442,7 @@ def _eval(argv: Sequence[str]) -> int:
             policy, task = _policy_task(args, "eval")
             params_record = _params_check(args, policy)
             if args.perturb is None:
-                kind = BusEpisodes if args.target == "bus" else SimEpisodes
+                kind = RUNNERS[args.target]
                 with kind(policy, robot_params=args.robot_params, say=say, hand_load=args.hand_load) as run:
                     result = task.evaluate(policy, args, run)
             else:
@@ -457,7 +457,7 @@ def _eval(argv: Sequence[str]) -> int:
                     progress=not args.quiet,
                     robot_params=args.robot_params,
                     hand_load=args.hand_load,
-                    bus=args.target == "bus",
+                    target=args.target,
                 )
         except ValueError as e:  # PolicyLoadError, OptionError, bad settings
             _print_warnings(tally)

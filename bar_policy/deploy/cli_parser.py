@@ -218,16 +218,14 @@ def robot_options(p: argparse.ArgumentParser, *, suite: bool) -> None:
     hand_load_option(p)
 
 
-EVAL_TARGETS = ("sim", "bus")
-"""``bar-deploy eval --target``: the C MuJoCo sim target, or the real target over the emulated bus."""
-
-
 def eval_target_option(p: argparse.ArgumentParser) -> None:
-    """``bar-deploy eval --target sim|bus`` (``deploy.episodes``: ``SimEpisodes``, ``BusEpisodes``)."""
+    """``bar-deploy eval --target sim|bus``: the keys of ``deploy.episodes.RUNNERS``."""
+    from bar_policy.deploy.episodes import RUNNERS
+
     p.add_argument(
         "--target",
         default="sim",
-        choices=EVAL_TARGETS,
+        choices=tuple(RUNNERS),
         help="sim = the C MuJoCo sim target (default); bus = the real target's CAN code over python-can "
         "virtual buses to the in-process Robstride emulator in lockstep (16-bit feedback, the firmware's "
         "law), whose robot --perturb and --robot-params make",

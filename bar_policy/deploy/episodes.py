@@ -35,7 +35,7 @@ if TYPE_CHECKING:
     from bar_policy.tasks.episodes import TickHook
     from bar_policy.tasks.interfaces import CommandSource
 
-__all__ = ["BusEpisodes", "SimEpisodes"]
+__all__ = ["RUNNERS", "BusEpisodes", "SimEpisodes"]
 
 
 class SimEpisodes:
@@ -166,3 +166,8 @@ class BusEpisodes(SimEpisodes):
         """Close every emulated bus this runner made (safe to call twice)."""
         while self._made:
             self._made.pop().close()
+
+
+RUNNERS: dict[str, type[SimEpisodes]] = {"sim": SimEpisodes, "bus": BusEpisodes}
+"""The episode runner of each evaluation target (``bar-deploy eval --target``, ``train/ship.py
+--robustness-targets``)."""

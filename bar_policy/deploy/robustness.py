@@ -236,7 +236,7 @@ def evaluate_perturbed(
     progress: bool = True,
     robot_params: RobotParams | None = None,
     hand_load: str | None = None,
-    bus: bool = False,
+    target: str = "sim",
 ) -> Any:
     """``bar-deploy eval --perturb``: the suite (``"suite"``) or one perturbed evaluation (its result).
 
@@ -244,12 +244,12 @@ def evaluate_perturbed(
     each suite row as it ends or each episode's progress line of one perturbed evaluation.
     ``robot_params`` (``--robot-params``): every row perturbs that identified robot instead of the model.
     ``hand_load`` (``--hand-load``): the runs' hand-load compensation (None: the task's).
-    ``bus`` (``--target bus``): the emulated bus's robot is the perturbed one (``BusEpisodes``), else the
-    sim target's.
+    ``target`` (``--target``, a key of ``deploy.episodes.RUNNERS``): ``bus``, the emulated bus's robot is
+    the perturbed one (``BusEpisodes``); ``sim``, the sim target's.
     """
-    from bar_policy.deploy.episodes import BusEpisodes, SimEpisodes
+    from bar_policy.deploy.episodes import RUNNERS, SimEpisodes
 
-    kind = BusEpisodes if bus else SimEpisodes
+    kind = RUNNERS[target]
 
     def runner(p: Perturbation, say: Callable[[str], None] | None = None) -> SimEpisodes:
         return kind(policy, perturbation=p, robot_params=robot_params, say=say, hand_load=hand_load)
@@ -258,6 +258,7 @@ def evaluate_perturbed(
         say(f"robustness suite: {len(SUITE)} rows, each the task's whole evaluation")
         return run_suite(policy, task, args, runner, progress=(lambda s: say(s)) if progress else None)
     assert isinstance(perturb, Perturbation)
-    say(f"perturbed {'emulated bus' if bus else 'sim target'} (hidden from the policy): {perturb.describe()}")
+    where = "emulated bus" if target == "bus" else "sim target"
+    say(f"perturbed {where} (hidden from the policy): {perturb.describe()}")
     with runner(perturb, say if progress else None) as episodes:
         return task.evaluate(policy, args, episodes)

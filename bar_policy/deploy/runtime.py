@@ -309,13 +309,12 @@ class Runtime(RunLoop):
         """
         if self.hand_load is None:
             return cmd
-        mode = self.safety.mode
-        if mode == Mode.POLICY and self.last_command is not None:
-            if self._tare is None or self.hand_load.updates < self._tare:
-                return cmd._replace(tau_ff=cmd.tau_ff + self.hand_load.step(state.q, state.tau))
-            return cmd._replace(tau_ff=cmd.tau_ff + self.hand_load.torque(state.q))
-        if mode == Mode.HOLD and self.hand_load.updates:
-            return cmd._replace(tau_ff=cmd.tau_ff + self.hand_load.torque(state.q))
+        fit, mode = self.hand_load, self.safety.mode
+        fitting = self._tare is None or fit.updates < self._tare
+        if mode == Mode.POLICY and self.last_command is not None and fitting:
+            return cmd._replace(tau_ff=cmd.tau_ff + fit.step(state.q, state.tau))
+        if mode in (Mode.POLICY, Mode.HOLD) and fit.updates:  # no fit: tare's kept estimate, the end's HOLD
+            return cmd._replace(tau_ff=cmd.tau_ff + fit.torque(state.q))
         return cmd
 
     def hand_load_record(self) -> dict[str, Any]:
