@@ -51,7 +51,8 @@
 #             variants share the GPU at 4096 envs, batch 512 (XLA_PYTHON_CLIENT_MEM_FRACTION=$MEM, 0.22);
 #             NO_CKPT=1 leaves the checkpoints out
 #   recipe piano VARIANT... (~9 min): --preset piano, MINUTES (7.2); robust, robust_hover36: piano-robust,
-#             with the 36 mm hover (docs/robust_training.md); [robust_]std03: initial std 0.03
+#             with the 36 mm hover (docs/robust_training.md); [robust_]std03: initial std 0.03;
+#             robust_std03_off2: that with the piano preset's +-2 mrad encoder offsets
 #
 # smoke-PART (smoke-startup, smoke-rsl, smoke-update, smoke-precision, smoke-prealloc, smoke-loadflags,
 # smoke-scaling N, smoke-recipe TASK): the part's logic on the CPU with tiny sizes.
@@ -377,6 +378,8 @@ recipe_variants() {  # recipe_variants TASK: VARIANT (name -> extra arguments on
         [lr3e-4]="--ppo.learning-rate 3e-4"
         [robust]="--preset piano-robust" [robust_hover36]="--preset piano-robust --env-overrides prior.hover_m=0.036"
         [std03]="--network.prior-noise-std 0.03" [robust_std03]="--preset piano-robust --network.prior-noise-std 0.03"
+        # the piano's own +-2 mrad offsets kept (the robust items widen them to 10 mrad, under the prior's F1)
+        [robust_std03_off2]="--preset piano-robust --network.prior-noise-std 0.03 --env-overrides actuator.encoder_offset=0.002"
       ) ;;
     *) echo "unknown task ${1:-} for recipe; tasks: reach, track, piano"; exit 2 ;;
   esac
