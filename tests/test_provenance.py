@@ -70,18 +70,23 @@ def test_the_shipped_reach_policy_says_what_trained_it():
 
 
 def test_the_shipped_tracker_says_what_trained_it():
-    """The tracker shipped from the 2026-11-29 run (docs/tracking.md row 13, one H200): its commit, a clean
-    tree, the versions and the exact training command, with the written-out Cholesky and TF32 SGD passes
-    that the track preset has had since."""
+    """The tracker shipped from the 2026-12-05 run (docs/tracking.md, "The shipped tracker", one H200): its
+    commit, a clean tree, the versions and the exact training command (the track preset, seed 1), and in
+    its record the written-out Cholesky and TF32 SGD passes that the preset carries, and the iterate
+    shipped (the best evaluated one)."""
     from bar_policy.deploy.policy import load_policy
 
     meta = load_policy(REPO / "checkpoints" / "lite_track_arms.onnx").metadata
-    assert meta.provenance["git_commit"].startswith("fabc7da") and meta.provenance["git_dirty"] is False
+    assert meta.provenance["git_commit"].startswith("af5dad9") and meta.provenance["git_dirty"] is False
     head, command = provenance.describe(meta.provenance, meta.code_version)
-    assert head.startswith("provenance: commit fabc7dabe316 (clean tree, as given by BAR_POLICY_GIT_COMMIT)")
+    assert head.startswith("provenance: commit af5dad91e8bf (clean tree, as given by BAR_POLICY_GIT_COMMIT)")
     assert "jax 0.11.2" in head
-    assert "--preset track --seed 0" in command and "--max-minutes 8.6" in command
-    assert "--ppo.update-precision tensorfloat32 --env-overrides cholesky=columns" in command
+    assert "--preset track --seed 1" in command and "--max-minutes 8.3" in command
+    record = json.loads((REPO / "checkpoints" / "lite_track_arms.json").read_text())
+    train = record["config"]["train"]
+    assert train["ppo"]["update_precision"] == "tensorfloat32"
+    assert train["env_overrides"] == ["cholesky=columns"]
+    assert record["iterate"] == "best" and record["provenance"]["git_commit"] == meta.provenance["git_commit"]
 
 
 @pytest.mark.parametrize(
