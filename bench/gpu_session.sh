@@ -53,7 +53,8 @@
 #   recipe piano VARIANT... (~9 min): --preset piano, MINUTES (7.2); robust, robust_hover36: piano-robust,
 #             with the 36 mm hover (docs/robust_training.md); [robust_]std03: initial std 0.03;
 #             robust_std03_off2: that with the piano preset's +-2 mrad encoder offsets; robust_fs025_off2: the
-#             preset's std with each robust factor on in a quarter of the slots or episodes
+#             preset's std with each robust factor on in a quarter of the slots or episodes; lead3,
+#             robust_fs025_off2_lead3: the song read 3 steps ahead (the preset's 2)
 #
 # smoke-PART (smoke-startup, smoke-rsl, smoke-update, smoke-precision, smoke-prealloc, smoke-loadflags,
 # smoke-scaling N, smoke-recipe TASK): the part's logic on the CPU with tiny sizes.
@@ -384,6 +385,9 @@ recipe_variants() {  # recipe_variants TASK: VARIANT (name -> extra arguments on
         # each robust factor on in a quarter of the slots or episodes, the +-2 mrad offsets: the randomisation that draws
         # every factor at once leaves the prior F1 0.31, and its residual trades the nominal robot's black keys for it
         [robust_fs025_off2]="--preset piano-robust --env-overrides randomization.factor_share=0.25 actuator.encoder_offset=0.002"
+        # the song read 3 steps (60 ms) ahead: the shipped file played so passes the delay row (docs/robust_training.md)
+        [lead3]="--env-overrides playback.lead_steps=3"
+        [robust_fs025_off2_lead3]="--preset piano-robust --env-overrides randomization.factor_share=0.25 actuator.encoder_offset=0.002 playback.lead_steps=3"
       ) ;;
     *) echo "unknown task ${1:-} for recipe; tasks: reach, track, piano"; exit 2 ;;
   esac
