@@ -375,6 +375,9 @@ recipe_variants() {  # recipe_variants TASK: VARIANT (name -> extra arguments on
         [robust_integral_std03]="--preset track-robust $warm --network.prior-noise-std 0.03"
       ) ;;
     piano)
+      # each robust factor on in a quarter of the slots or episodes, the +-2 mrad offsets: on every factor at once the
+      # prior reads F1 0.53 (0.79 at this share), and its residual trades the nominal robot's black keys for it
+      local fs025="--preset piano-robust --env-overrides randomization.factor_share=0.25 actuator.encoder_offset=0.002"
       VARIANT=(
         [preset]="" [accel]="--env-overrides reward.scales.action_accel=-0.5 reward.scales.torque_near_cap=-1.0"
         [lr3e-4]="--ppo.learning-rate 3e-4"
@@ -382,12 +385,9 @@ recipe_variants() {  # recipe_variants TASK: VARIANT (name -> extra arguments on
         [std03]="--network.prior-noise-std 0.03" [robust_std03]="--preset piano-robust --network.prior-noise-std 0.03"
         # the piano's own +-2 mrad offsets kept (the robust items widen them to 10 mrad, where the prior alone falls to F1 0.810)
         [robust_std03_off2]="--preset piano-robust --network.prior-noise-std 0.03 --env-overrides actuator.encoder_offset=0.002"
-        # each robust factor on in a quarter of the slots or episodes, the +-2 mrad offsets: on every factor at once the
-        # prior reads F1 0.53 (0.79 at this share), and its residual trades the nominal robot's black keys for it
-        [robust_fs025_off2]="--preset piano-robust --env-overrides randomization.factor_share=0.25 actuator.encoder_offset=0.002"
+        [robust_fs025_off2]="$fs025"
         # the song read 3 steps (60 ms) ahead: the shipped file played so passes the delay row (docs/robust_training.md)
-        [lead3]="--env-overrides playback.lead_steps=3"
-        [robust_fs025_off2_lead3]="--preset piano-robust --env-overrides randomization.factor_share=0.25 actuator.encoder_offset=0.002 playback.lead_steps=3"
+        [lead3]="--env-overrides playback.lead_steps=3" [robust_fs025_off2_lead3]="$fs025 playback.lead_steps=3"
       ) ;;
     *) echo "unknown task ${1:-} for recipe; tasks: reach, track, piano"; exit 2 ;;
   esac
