@@ -54,7 +54,9 @@
 #             with the 36 mm hover (docs/robust_training.md); [robust_]std03: initial std 0.03;
 #             robust_std03_off2: that with the piano preset's +-2 mrad encoder offsets; robust_fs025_off2: the
 #             preset's std with each robust factor on in a quarter of the slots or episodes; lead3,
-#             robust_fs025_off2_lead3: the song read 3 steps ahead (the preset's 2)
+#             robust_fs025_off2_lead3: the song read 3 steps ahead (the preset's 2); robust_fs025_off2_ff:
+#             robust_fs025_off2 with 0.5-1.0 of the payload's gravity torque sent as tau_ff (the runtime's
+#             hand-load compensation)
 #
 # smoke-PART (smoke-startup, smoke-rsl, smoke-update, smoke-precision, smoke-prealloc, smoke-loadflags,
 # smoke-scaling N, smoke-recipe TASK): the part's logic on the CPU with tiny sizes.
@@ -388,6 +390,8 @@ recipe_variants() {  # recipe_variants TASK: VARIANT (name -> extra arguments on
         [robust_fs025_off2]="$fs025"
         # the song read 3 steps (60 ms) ahead: the shipped file played so passes the delay row (docs/robust_training.md)
         [lead3]="--env-overrides playback.lead_steps=3" [robust_fs025_off2_lead3]="$fs025 playback.lead_steps=3"
+        # the runtime's hand-load compensation modelled: a share of the payload's gravity torque sent as tau_ff
+        [robust_fs025_off2_ff]="$fs025 randomization.payload_ff_share=0.5,1.0"
       ) ;;
     *) echo "unknown task ${1:-} for recipe; tasks: reach, track, piano"; exit 2 ;;
   esac

@@ -1,11 +1,12 @@
 """The Robstride actuator model inside the MJX env: latency, gain scaling, wire quantisation, torque cap.
 
-Per control step the policy action becomes an MIT command ``(q_cmd, dq_cmd = 0, Kp, Kd, tau_ff = 0)``;
-per physics substep the motor applies ``bar_policy.robot.mit.firmware_torque`` to the *measured* joint
-state (true q plus the per-episode encoder offset). The 16-bit wire quantisation of the command is done
-once per control step (``quantize_command``), because the command is constant over the substeps; the
-substeps then call ``firmware_torque(..., quantize_wire=False)``. This is arithmetically identical to
-quantising inside every substep and saves ten quantisations per control step.
+Per control step the policy action becomes an MIT command ``(q_cmd, dq_cmd = 0, Kp, Kd, tau_ff)`` (tau_ff
+0, or the modelled hand-load compensation: ``payload_ff``); per physics substep the motor applies
+``bar_policy.robot.mit.firmware_torque`` to the *measured* joint state (true q plus the per-episode encoder
+offset). The 16-bit wire quantisation of the command is done once per control step (``quantize_command``),
+because the command is constant over the substeps; the substeps then call ``firmware_torque(...,
+quantize_wire=False)``. This is arithmetically identical to quantising inside every substep and saves ten
+quantisations per control step.
 
 Each effect is switchable through ``ActuatorConfig`` (bar_policy.envs.robot_config).
 """
@@ -79,13 +80,20 @@ def apply_latency(buffer: jax.Array, action: jax.Array, latency: jax.Array) -> t
     return new, new[latency]
 
 
-def make_command(q_cmd: jax.Array, kp: jax.Array, kd: jax.Array, params: ActuatorParams) -> MitCommand:
-    """The MIT command the firmware decodes: ``(q_cmd, 0, kp, kd, 0)``, quantised when enabled.
+def make_command(
+    q_cmd: jax.Array,
+    kp: jax.Array,
+    kd: jax.Array,
+    params: ActuatorParams,
+    tau_ff: jax.Array | None = None,
+) -> MitCommand:
+    """The MIT command the firmware decodes: ``(q_cmd, 0, kp, kd, tau_ff)``, quantised when enabled.
 
-    Shapes: ``(n,)`` each (q_cmd in rad, kp in N*m/rad, kd in N*m*s/rad).
+    Shapes: ``(n,)`` each (q_cmd in rad, kp in N*m/rad, kd in N*m*s/rad, tau_ff in N*m). ``tau_ff`` None:
+    0 (the policy's command alone); given, it goes through the wire's 16-bit torque field like the others.
     """
     z = jnp.zeros_like(q_cmd)
-    cmd = MitCommand(q=q_cmd, dq=z, kp=kp, kd=kd, tau_ff=z)
+    cmd = MitCommand(q=q_cmd, dq=z, kp=kp, kd=kd, tau_ff=z if tau_ff is None else tau_ff)
     if params.quantize_wire:
         cmd = quantize_command(cmd, params.ranges)
     return cmd

@@ -9,7 +9,7 @@ robot env does the rest, identically for every task:
   observation's ``actions`` and the filter's state, which a reset sets to the action of the start pose.
   ``q_cmd = clip(default_pose + action_scale * a, lower, upper)`` with ``default_pose`` = the layout's
   ``default_joint_pos`` and ``action_scale`` per joint (``RobotEnvConfig.action_scale``).
-- **Control**: MIT command ``(q_cmd, dq_cmd = 0, Kp, Kd, tau_ff = 0)`` with Kp/Kd from the robot data or
+- **Control**: MIT command ``(q_cmd, dq_cmd = 0, Kp, Kd, tau_ff)`` with Kp/Kd from the robot data or
   the armature (``RobotEnvConfig.gains``; ``env.kp``, ``env.kd``; per-episode scale when randomised),
   16-bit wire quantisation, at ``ctrl_dt`` over ``n_substeps`` physics steps (Euler). Each substep
   computes the motor torque from the measured q (true q + encoder offset) and the true dq with
@@ -19,6 +19,11 @@ robot env does the rest, identically for every task:
 - **Latency**: the applied action is the one issued ``L`` control steps ago, ``L`` sampled per episode in
   ``ActuatorConfig.latency_steps``; with ``ActuatorConfig.obs_latency_steps`` the observation's measured
   joint state is the one of ``L_obs`` steps ago (``info["obs_buf"]``, the reset state at first).
+- **Hand-load compensation** (``randomization.payload_ff_share``, off by default: ``tau_ff = 0``): per episode
+  and hand a share of the payload's gravity torque (``envs.payload_ff``) is the command's ``tau_ff``, as the
+  deploy runtime's ``deploy.hand_load`` sends it; ``info["payload_ff"]`` holds the next command's, computed
+  from the state each step ends in (and the reset's), so the step, ``quality_signals`` and the supervisor's
+  demand read the same one.
 - **Strength** (``ActuatorConfig.strength``, off by default): per episode and joint, the joint receives
   ``s * clip(law, cap)`` and the implicit Kd term is ``s * Kd`` (the deploy side's ``strength``).
 - **Observation**: ``obs_manager.compute`` of the measured q (with encoder offset and noise), dq (with
@@ -49,8 +54,9 @@ arithmetic already live in their own modules (``actuator``, ``randomize``, ``phy
 PRNG use is fixed (reach's outputs are pinned by tests/data/reach_golden.npz): ``reset`` splits its key in 8
 (0 initial noise, 1 the task, 2 latency, 3 Kp scale, 4 Kd scale, 5 encoder offset, 6 the next step's key,
 7 observation noise); ``step`` splits ``info["rng"]`` in 3 (next key, observation noise, the task). The
-optional draws (strength, observation latency) fold a constant into key 3 and key 2 and happen only when
-their field is not at its default, whose state then has no ``strength``, ``obs_latency`` or ``obs_buf``;
+optional draws (strength, the feed-forward share, observation latency) fold a constant into key 3 and key 2
+and happen only when their field is not at its default, whose state then has no ``strength``,
+``payload_ff_share``, ``payload_ff``, ``obs_latency`` or ``obs_buf``;
 the draws of latency, encoder offset, strength and observation latency are ``randomize.episode_draws``,
 whose per-factor draws (``randomization.factor_share`` below 1) fold another constant into key 5.
 """
@@ -76,6 +82,7 @@ from bar_policy.envs.actuator import (
     robot_force,
 )
 from bar_policy.envs.base import MjxEnv, State
+from bar_policy.envs.payload_ff import draw_share, payload_body_ids, payload_feed_forward
 from bar_policy.envs.randomize import episode_draws, latency_buffers, payload_scene
 from bar_policy.envs.robot_config import RobotEnvConfig, nominal
 from bar_policy.envs.task import TaskHooks, Transition
@@ -149,6 +156,8 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         # Static dof addresses for scattering the robot's forces; None: the scene is the robot alone, whose
         # arrays are used as they are (no gather or scatter, bit-identical to the robot-only env).
         self._dof = None if self._index.robot_only else self._index.dof
+        # The payload bodies whose gravity torque the command feeds forward (None: tau_ff = 0).
+        self._payload_ids = None if cfg.randomization.payload_ff_share is None else payload_body_ids(mj_model)
         if cfg.joint_error_ema:  # the task's layout with the integral-like term, the next version
             obs_manager = ObservationManager(with_error_ema(obs_manager.schema))
         self._ema_alpha = error_ema_alpha(cfg.ctrl_dt) if cfg.joint_error_ema else 0.0
@@ -336,10 +345,18 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         return lowpass_step(last_action, action, self._filter_alpha)
 
     def _command(self, info: dict, action: jax.Array) -> tuple[jax.Array, jax.Array, MitCommand]:
-        """``(applied action, new latency buffer, decoded MIT command)`` of ``action`` in state ``info``."""
+        """``(applied action, new latency buffer, decoded MIT command)`` of ``action`` in state ``info``.
+
+        The command's ``tau_ff`` is ``info["payload_ff"]`` (the hand-load compensation), else 0.
+        """
         action = self.filtered_action(info["last_act"], action)
         buf, delayed = apply_latency(info["act_buf"], action, info["latency"])
-        return action, buf, make_command(self.q_command(delayed), info["kp"], info["kd"], self._act)
+        cmd = make_command(self.q_command(delayed), info["kp"], info["kd"], self._act, info.get("payload_ff"))
+        return action, buf, cmd
+
+    def _payload_ff(self, model: mjx.Model, data: mjx.Data, share: jax.Array) -> jax.Array:
+        """The hand-load feed-forward of a command sent from ``data``, N*m, (n,) (``envs.payload_ff``)."""
+        return payload_feed_forward(model, data, self._payload_ids, share, self._dof)
 
     def quality_signals(self, state: State, action: jax.Array) -> dict[str, jax.Array]:
         """What the safety and smoothness metrics (``bar_policy.quality``) see at this tick, unbatched.
@@ -424,6 +441,10 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
             optional["error_ema"] = jnp.zeros(n)  # z = 0 when a policy starts (robot.error_ema)
         if cfg.terminate_on_cap_fault:
             optional["cap_dwell"] = jnp.zeros(n)  # unbroken time at the cap, s per joint
+        if self._payload_ids is not None:  # the hand-load compensation: a share per hand, the first tau_ff
+            ff_share = draw_share(ks[3], cfg.randomization.payload_ff_share)
+            optional["payload_ff_share"] = ff_share
+            optional["payload_ff"] = self._payload_ff(model, data, ff_share)
         info = {
             "rng": ks[6],
             "step": jnp.zeros((), jnp.int32),
@@ -504,6 +525,8 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         }
         if dwell is not None:
             new_info["cap_dwell"] = dwell
+        if "payload_ff" in info:  # the next command's, from the state it will be sent from
+            new_info["payload_ff"] = self._payload_ff(model, data, info["payload_ff_share"])
         if "obs_buf" in info:
             newest = self._true_state(data)[None]
             new_info["obs_buf"] = jnp.concatenate([newest, info["obs_buf"][:-1]], axis=0)
@@ -525,16 +548,19 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         Both at the state it has just read (``_read_state``: the observation's, without its noise), read
         once. ``demand``, as ``deploy.safety.Supervisor.check_torque`` computes it: the unclipped MIT torque
         of the command the runtime sends (``sent``, the filtered action before any action latency, at the
-        file's nominal Kp and Kd). ``reported``: the torque the motors report, the firmware's MIT torque of
-        the command it applies (``cmd``, after any action latency, at the episode's gains) clipped to the
-        cap, before ``strength`` (a motor's reading is its current times its nominal torque constant). With
-        latency the applied command is older and nearer the state: a policy that leads a delayed arm asks
-        past the cap while its motors report a fraction of it. With observation latency the robot's reading
-        is of an older tick; ``reported`` uses the current applied command at that state.
+        file's nominal Kp and Kd, with the hand-load feed-forward ``info["payload_ff"]`` when that is on: the
+        runtime checks the command with its ``tau_ff``). ``reported``: the torque the motors report, the
+        firmware's MIT torque of the command it applies (``cmd``, after any action latency, at the episode's
+        gains) clipped to the cap, before ``strength`` (a motor's reading is its current times its nominal
+        torque constant). With latency the applied command is older and nearer the state: a policy that
+        leads a delayed arm asks past the cap while its motors report a fraction of it. With observation
+        latency the robot's reading is of an older tick; ``reported`` uses the current applied command at
+        that state.
         """
         q, dq = self._read_state(data, info)
         zero = jnp.zeros_like(q)
-        asked = MitCommand(q=self.q_command(sent), dq=zero, kp=self._kp, kd=self._kd, tau_ff=zero)
+        ff = info.get("payload_ff", zero)
+        asked = MitCommand(q=self.q_command(sent), dq=zero, kp=self._kp, kd=self._kd, tau_ff=ff)
         return mit_torque(asked, q, dq), jnp.clip(mit_torque(cmd, q, dq), -self._cap, self._cap)
 
     def _true_state(self, data: mjx.Data) -> jax.Array:

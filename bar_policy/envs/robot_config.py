@@ -157,6 +157,14 @@ class ModelRandomizationConfig:
     payload_at: str = "fingertip"
     """Where the payload sits in the hand (``PAYLOAD_AT``): ``fingertip`` (the finger2 tip site), ``palm``
     (the palm collider's centre), or ``either`` (one of the two per env slot and hand, even odds)."""
+    payload_ff_share: tuple[float, float] | None = None
+    """Share, dimensionless, of each hand's payload gravity torque fed forward as the MIT command's
+    ``tau_ff``, drawn per episode and hand ~ U(low, high): models the deploy runtime's hand-load
+    compensation (``deploy.hand_load``, which reads about 0.68 of a fingertip load in the piano's count-in).
+    Each command carries ``sum_b share_b J_p(b)^T (0, 0, m_b g)`` of the payload bodies at the state it is
+    sent from (``envs.payload_ff``); a slot or episode without a payload (``factor_share``,
+    ``nominal_share``) has payload mass 0 and so no feed-forward. Needs ``payload_kg``. None (default):
+    ``tau_ff = 0``, the env as without it."""
 
     def __post_init__(self) -> None:
         if self.frictionloss is not None:
@@ -173,6 +181,13 @@ class ModelRandomizationConfig:
             raise ValueError(f"nominal_share must be in [0, 1], got {self.nominal_share}")
         if not 0.0 <= self.factor_share <= 1.0:
             raise ValueError(f"factor_share must be in [0, 1], got {self.factor_share}")
+        if self.payload_ff_share is not None:
+            check_range("payload_ff_share", self.payload_ff_share, low=0.0)
+            if self.payload_kg is None:
+                raise ValueError(
+                    f"payload_ff_share={self.payload_ff_share!r} feeds the payload's gravity torque "
+                    "forward and needs payload_kg, which is None"
+                )
         if self.payload_at not in PAYLOAD_AT:
             raise ValueError(f"unknown payload_at {self.payload_at!r}; valid: {list(PAYLOAD_AT)}")
 
