@@ -56,7 +56,8 @@
 #             preset's std with each robust factor on in a quarter of the slots or episodes; lead3,
 #             robust_fs025_off2_lead3: the song read 3 steps ahead (the preset's 2); robust_fs025_off2_ff:
 #             robust_fs025_off2 with 0.5-1.0 of the payload's gravity torque sent as tau_ff (the runtime's
-#             hand-load compensation); robust_fs025_off2_ff_lead3: that at lead 3
+#             hand-load compensation); robust_fs025_off2_ff_lead3: that at lead 3; robust_fs025_off2_ff_dev2:
+#             with reward.scales.prior_deviation_black -2 (the residual's cost at black goals)
 #
 # smoke-PART (smoke-startup, smoke-rsl, smoke-update, smoke-precision, smoke-prealloc, smoke-loadflags,
 # smoke-scaling N, smoke-recipe TASK): the part's logic on the CPU with tiny sizes.
@@ -393,6 +394,8 @@ recipe_variants() {  # recipe_variants TASK: VARIANT (name -> extra arguments on
         # the runtime's hand-load compensation modelled: a share of the payload's gravity torque sent as tau_ff
         [robust_fs025_off2_ff]="$fs025 randomization.payload_ff_share=0.5,1.0"
         [robust_fs025_off2_ff_lead3]="$fs025 randomization.payload_ff_share=0.5,1.0 playback.lead_steps=3"
+        # a cost on the residual at black goals (the trained residuals lose the prior's black presses); not yet run
+        [robust_fs025_off2_ff_dev2]="$fs025 randomization.payload_ff_share=0.5,1.0 reward.scales.prior_deviation_black=-2.0"
       ) ;;
     *) echo "unknown task ${1:-} for recipe; tasks: reach, track, piano"; exit 2 ;;
   esac
