@@ -381,6 +381,7 @@ recipe_variants() {  # recipe_variants TASK: VARIANT (name -> extra arguments on
       # each robust factor on in a quarter of the slots or episodes, the +-2 mrad offsets: on every factor at once the
       # prior reads F1 0.53 (0.79 at this share), and its residual trades the nominal robot's black keys for it
       local fs025="--preset piano-robust --env-overrides randomization.factor_share=0.25 actuator.encoder_offset=0.002"
+      local ff="$fs025 randomization.payload_ff_share=0.5,1.0"
       VARIANT=(
         [preset]="" [accel]="--env-overrides reward.scales.action_accel=-0.5 reward.scales.torque_near_cap=-1.0"
         [lr3e-4]="--ppo.learning-rate 3e-4"
@@ -392,10 +393,9 @@ recipe_variants() {  # recipe_variants TASK: VARIANT (name -> extra arguments on
         # the song read 3 steps (60 ms) ahead: the shipped file played so passes the delay row (docs/robust_training.md)
         [lead3]="--env-overrides playback.lead_steps=3" [robust_fs025_off2_lead3]="$fs025 playback.lead_steps=3"
         # the runtime's hand-load compensation modelled: a share of the payload's gravity torque sent as tau_ff
-        [robust_fs025_off2_ff]="$fs025 randomization.payload_ff_share=0.5,1.0"
-        [robust_fs025_off2_ff_lead3]="$fs025 randomization.payload_ff_share=0.5,1.0 playback.lead_steps=3"
+        [robust_fs025_off2_ff]="$ff" [robust_fs025_off2_ff_lead3]="$ff playback.lead_steps=3"
         # a cost on the residual at black goals (the trained residuals lose the prior's black presses); not yet run
-        [robust_fs025_off2_ff_dev2]="$fs025 randomization.payload_ff_share=0.5,1.0 reward.scales.prior_deviation_black=-2.0"
+        [robust_fs025_off2_ff_dev2]="$ff reward.scales.prior_deviation_black=-2.0"
       ) ;;
     *) echo "unknown task ${1:-} for recipe; tasks: reach, track, piano"; exit 2 ;;
   esac

@@ -17,34 +17,15 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-import mujoco
 import numpy as np
 from mujoco import mjx
 
-from bar_policy.robot.index import model_names
-from bar_policy.robot.perturb import HAND_BODIES, payload_body_name
+from bar_policy.robot.perturb import HAND_BODIES
 
-__all__ = ["draw_share", "payload_body_ids", "payload_feed_forward"]
+__all__ = ["draw_share", "payload_feed_forward"]
 
 _SHARE_KEY = 0x484C46
 """Folded into an episode's reset key 3 for its share draw (no other draw's key changes)."""
-
-
-def payload_body_ids(model: mujoco.MjModel | mjx.Model) -> np.ndarray:
-    """The payload bodies' ids (``perturb.payload_body_name`` of each of ``HAND_BODIES``), shape (2,) int.
-
-    Raises:
-        ValueError: the model has no payload bodies (``randomize.payload_scene`` adds them).
-    """
-    bodies = model_names(model, model.name_bodyadr)
-    names = [payload_body_name(h) for h in HAND_BODIES]
-    missing = [n for n in names if n not in bodies]
-    if missing:
-        raise ValueError(
-            f"randomization.payload_ff_share needs the payload bodies {missing} in the model "
-            "(randomize.payload_scene; the robot env adds them when payload_kg is set)"
-        )
-    return np.array([bodies.index(n) for n in names])
 
 
 def draw_share(key: jax.Array, share: tuple[float, float]) -> jax.Array:
@@ -74,7 +55,7 @@ def payload_feed_forward(
         model: the env's model (possibly randomised; unbatched).
         data: the state the command is sent from; only ``qpos`` is read (the kinematics are recomputed, so
             a reset's state, never forwarded, works too).
-        body_ids: the payload bodies, shape (k,) (``payload_body_ids``).
+        body_ids: the payload bodies, shape (k,) (``randomize.payload_body_ids``).
         share: the share fed forward per payload body, dimensionless, shape (k,).
         dof: the robot joints' dof addresses (``RobotIndex.dof``), or None when the scene's dofs are
             exactly the robot's in order (``RobotIndex.robot_only``).

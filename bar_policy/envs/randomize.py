@@ -57,6 +57,7 @@ __all__ = [
     "factors_on",
     "latency_buffers",
     "make_randomizer",
+    "payload_body_ids",
     "payload_inertia",
     "payload_scene",
 ]
@@ -89,6 +90,25 @@ def payload_scene(scene: SceneEdit | None = None, skip: tuple[str, ...] = ()) ->
             body.inertia = [0.0, 0.0, 0.0]
 
     return edit
+
+
+def payload_body_ids(model: mujoco.MjModel | mjx.Model, field: str) -> np.ndarray:
+    """The payload bodies' ids (``perturb.payload_body_name`` of each of ``HAND_BODIES``), shape (2,) int.
+
+    ``field``: the ``randomization`` field that needs them, named in the error.
+
+    Raises:
+        ValueError: the model has no payload bodies (``payload_scene`` adds them).
+    """
+    bodies = model_names(model, model.name_bodyadr)
+    names = [payload_body_name(h) for h in HAND_BODIES]
+    missing = [n for n in names if n not in bodies]
+    if missing:
+        raise ValueError(
+            f"randomization.{field} needs the payload bodies {missing} in the model "
+            "(randomize.payload_scene; the robot env adds them when payload_kg is set)"
+        )
+    return np.array([bodies.index(n) for n in names])
 
 
 def payload_inertia(mass: jax.Array) -> jax.Array:
@@ -264,16 +284,7 @@ def make_randomizer(config: RobotEnvConfig) -> Randomizer:
         if rng.ndim != 2 or rng.shape[-1] != 2:
             raise ValueError(f"rng must be a batch of keys, shape (B, 2); got shape {rng.shape}")
         index = RobotIndex.from_model(model, joint_names)
-        payload_ids = None
-        if rc.payload_kg is not None:
-            bodies = model_names(model, model.name_bodyadr)
-            names = [payload_body_name(h) for h in HAND_BODIES]
-            if not all(n in bodies for n in names):
-                raise ValueError(
-                    f"randomization.payload_kg needs the payload bodies {names} in the model "
-                    "(randomize.payload_scene; the robot env adds them when payload_kg is set)"
-                )
-            payload_ids = np.array([bodies.index(n) for n in names])
+        payload_ids = None if rc.payload_kg is None else payload_body_ids(model, "payload_kg")
 
         def robot_dofs(field: jax.Array, values: jax.Array) -> jax.Array:
             """``field`` (nv,) with ``values`` (n,) at the robot's dofs (``values`` itself, robot alone)."""

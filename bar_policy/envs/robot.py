@@ -82,8 +82,8 @@ from bar_policy.envs.actuator import (
     robot_force,
 )
 from bar_policy.envs.base import MjxEnv, State
-from bar_policy.envs.payload_ff import draw_share, payload_body_ids, payload_feed_forward
-from bar_policy.envs.randomize import episode_draws, latency_buffers, payload_scene
+from bar_policy.envs.payload_ff import draw_share, payload_feed_forward
+from bar_policy.envs.randomize import episode_draws, latency_buffers, payload_body_ids, payload_scene
 from bar_policy.envs.robot_config import RobotEnvConfig, nominal
 from bar_policy.envs.task import TaskHooks, Transition
 from bar_policy.envs.term_table import TerminationTerm, check_names, reward_values, terminated, weighted_sum
@@ -157,7 +157,8 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         # arrays are used as they are (no gather or scatter, bit-identical to the robot-only env).
         self._dof = None if self._index.robot_only else self._index.dof
         # The payload bodies whose gravity torque the command feeds forward (None: tau_ff = 0).
-        self._payload_ids = None if cfg.randomization.payload_ff_share is None else payload_body_ids(mj_model)
+        ff_share = cfg.randomization.payload_ff_share
+        self._payload_ids = None if ff_share is None else payload_body_ids(mj_model, "payload_ff_share")
         if cfg.joint_error_ema:  # the task's layout with the integral-like term, the next version
             obs_manager = ObservationManager(with_error_ema(obs_manager.schema))
         self._ema_alpha = error_ema_alpha(cfg.ctrl_dt) if cfg.joint_error_ema else 0.0

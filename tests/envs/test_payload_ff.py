@@ -20,8 +20,8 @@ from mujoco import mjx
 from scene_support import key_scene
 
 from bar_policy import envs
-from bar_policy.envs.payload_ff import payload_body_ids, payload_feed_forward
-from bar_policy.envs.randomize import payload_scene
+from bar_policy.envs.payload_ff import payload_feed_forward
+from bar_policy.envs.randomize import payload_body_ids, payload_scene
 from bar_policy.envs.robot_config import ModelRandomizationConfig, RobotEnvConfig
 from bar_policy.overrides import apply_overrides
 from bar_policy.robot.constants import load_robot
@@ -50,7 +50,7 @@ def _bias(scene, masses: tuple[float, float], q: np.ndarray) -> tuple[np.ndarray
     Returns the bias at the robot's dofs, N*m (n,), and the scene's robot index.
     """
     m = load_model("arms", scene)
-    ids = payload_body_ids(m)
+    ids = payload_body_ids(m, "payload_ff_share")
     m.body_mass[ids] = masses
     index = RobotIndex.from_model(m, load_robot("arms").joint_names)
     d = mujoco.MjData(m)
@@ -68,7 +68,7 @@ def scene(request):
     """
     scene = payload_scene(key_scene if request.param == "key_scene" else None)
     m = load_model("arms", scene)
-    ids = payload_body_ids(m)
+    ids = payload_body_ids(m, "payload_ff_share")
     index = RobotIndex.from_model(m, load_robot("arms").joint_names)
     assert index.robot_only == (request.param == "robot")
     model = mjx.put_model(m)
@@ -153,7 +153,7 @@ def _reach(ff_share: tuple[float, float] | None):
 
 def _hold(env, masses: float) -> tuple[np.ndarray, object]:
     """The robot's q after ``STEPS`` steps of action 0 from the default pose, payload ``masses`` kg."""
-    ids = payload_body_ids(env.mj_model)
+    ids = payload_body_ids(env.mj_model, "payload_ff_share")
     model = env.mjx_model.replace(body_mass=env.mjx_model.body_mass.at[ids].set(masses))
     reset, step = _compiled(env)
     state = reset(model, jax.random.PRNGKey(0))
