@@ -57,7 +57,8 @@
 #             robust_fs025_off2_lead3: the song read 3 steps ahead (the preset's 2); robust_fs025_off2_ff:
 #             robust_fs025_off2 with 0.5-1.0 of the payload's gravity torque sent as tau_ff (the runtime's
 #             hand-load compensation); robust_fs025_off2_ff_lead3: that at lead 3; robust_fs025_off2_ff_dev2:
-#             with reward.scales.prior_deviation_black -2 (the residual's cost at black goals)
+#             with reward.scales.prior_deviation_black -2 (the residual's cost at black goals); _dev8: -8;
+#             robust_fs025_off2_ff_dev2_lead3: _dev2 at lead 3
 #
 # smoke-PART (smoke-startup, smoke-rsl, smoke-update, smoke-precision, smoke-prealloc, smoke-loadflags,
 # smoke-scaling N, smoke-recipe TASK): the part's logic on the CPU with tiny sizes.
@@ -394,8 +395,10 @@ recipe_variants() {  # recipe_variants TASK: VARIANT (name -> extra arguments on
         [lead3]="--env-overrides playback.lead_steps=3" [robust_fs025_off2_lead3]="$fs025 playback.lead_steps=3"
         # the runtime's hand-load compensation modelled: a share of the payload's gravity torque sent as tau_ff
         [robust_fs025_off2_ff]="$ff" [robust_fs025_off2_ff_lead3]="$ff playback.lead_steps=3"
-        # a cost on the residual at black goals (the trained residuals lose the prior's black presses); not yet run
+        # a cost on the residual at black goals (the trained residuals lose the prior's black presses)
         [robust_fs025_off2_ff_dev2]="$ff reward.scales.prior_deviation_black=-2.0"
+        [robust_fs025_off2_ff_dev8]="$ff reward.scales.prior_deviation_black=-8.0"
+        [robust_fs025_off2_ff_dev2_lead3]="$ff reward.scales.prior_deviation_black=-2.0 playback.lead_steps=3"
       ) ;;
     *) echo "unknown task ${1:-} for recipe; tasks: reach, track, piano"; exit 2 ;;
   esac
