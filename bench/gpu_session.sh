@@ -58,7 +58,8 @@
 #             robust_fs025_off2 with 0.5-1.0 of the payload's gravity torque sent as tau_ff (the runtime's
 #             hand-load compensation); robust_fs025_off2_ff_lead3: that at lead 3; robust_fs025_off2_ff_dev2:
 #             with reward.scales.prior_deviation_black -2 (the residual's cost at black goals); _dev8: -8;
-#             robust_fs025_off2_ff_dev2_lead3: _dev2 at lead 3
+#             robust_fs025_off2_ff_dev2_lead3: _dev2 at lead 3; _dev8_rest8, _dev8_rest32, _dev8_rest8_lead3:
+#             _dev8 with reward.scales.prior_deviation_rest -8 or -32 (the residual's cost in the count-in)
 #
 # smoke-PART (smoke-startup, smoke-rsl, smoke-update, smoke-precision, smoke-prealloc, smoke-loadflags,
 # smoke-scaling N, smoke-recipe TASK): the part's logic on the CPU with tiny sizes.
@@ -383,6 +384,7 @@ recipe_variants() {  # recipe_variants TASK: VARIANT (name -> extra arguments on
       # prior reads F1 0.53 (0.79 at this share), and its residual trades the nominal robot's black keys for it
       local fs025="--preset piano-robust --env-overrides randomization.factor_share=0.25 actuator.encoder_offset=0.002"
       local ff="$fs025 randomization.payload_ff_share=0.5,1.0"
+      local d8="$ff reward.scales.prior_deviation_black=-8.0"
       VARIANT=(
         [preset]="" [accel]="--env-overrides reward.scales.action_accel=-0.5 reward.scales.torque_near_cap=-1.0"
         [lr3e-4]="--ppo.learning-rate 3e-4"
@@ -397,8 +399,12 @@ recipe_variants() {  # recipe_variants TASK: VARIANT (name -> extra arguments on
         [robust_fs025_off2_ff]="$ff" [robust_fs025_off2_ff_lead3]="$ff playback.lead_steps=3"
         # a cost on the residual at black goals (the trained residuals lose the prior's black presses)
         [robust_fs025_off2_ff_dev2]="$ff reward.scales.prior_deviation_black=-2.0"
-        [robust_fs025_off2_ff_dev8]="$ff reward.scales.prior_deviation_black=-8.0"
+        [robust_fs025_off2_ff_dev8]="$d8"
         [robust_fs025_off2_ff_dev2_lead3]="$ff reward.scales.prior_deviation_black=-2.0 playback.lead_steps=3"
+        # and a cost on it in the count-in, where the tare fits (a residual moving the arm there reads friction as load)
+        [robust_fs025_off2_ff_dev8_rest8]="$d8 reward.scales.prior_deviation_rest=-8.0"
+        [robust_fs025_off2_ff_dev8_rest32]="$d8 reward.scales.prior_deviation_rest=-32.0"
+        [robust_fs025_off2_ff_dev8_rest8_lead3]="$d8 reward.scales.prior_deviation_rest=-8.0 playback.lead_steps=3"
       ) ;;
     *) echo "unknown task ${1:-} for recipe; tasks: reach, track, piano"; exit 2 ;;
   esac

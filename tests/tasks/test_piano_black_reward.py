@@ -117,3 +117,30 @@ def test_deviation_from_the_reference_costs_at_black_goals_only() -> None:
     assert cost([], action) == 0.0
     assert cost([cs4], reference) == 0.0  # on the reference: nothing
     assert RewardScales().prior_deviation_black == 0.0
+
+
+def test_deviation_from_the_reference_costs_at_rest_only() -> None:
+    """Neither hand with a goal key in view (the count-in, where the tare fits): the squared deviation;
+    any goal key of either hand in view: nothing."""
+    cs4 = 61 - KB.lowest
+    (row,) = [
+        t
+        for t in reward_terms(RewardConfig(scales=RewardScales(prior_deviation_rest=-2.0)))
+        if t.name == "prior_deviation_rest"
+    ]
+    assert row.inputs == ("action", "reference_action", "hand_goal")
+    reference = np.linspace(-0.5, 0.5, 14)
+    action = reference.copy()
+    action[0], action[13] = action[0] - 0.1, action[13] + 0.3  # 0.01 + 0.09 = 0.1 action units^2
+
+    def cost(hand: int | None, a: np.ndarray) -> float:
+        hand_goal = np.zeros((2, KB.n_keys))
+        if hand is not None:
+            hand_goal[hand, cs4] = 1.0
+        signals = {"action": a, "reference_action": reference, "hand_goal": hand_goal}
+        return float(row.weight * row.fn(*(signals[i] for i in row.inputs)))
+
+    assert cost(None, action) == pytest.approx(-2.0 * 0.1, rel=1e-12)
+    assert cost(0, action) == 0.0 and cost(1, action) == 0.0  # a goal in view of either hand: free
+    assert cost(None, reference) == 0.0
+    assert RewardScales().prior_deviation_rest == 0.0

@@ -157,6 +157,21 @@ def deviation_at_black_goal(action: Array, reference: Array, black_goal: Array) 
     return xp.where(any_black, xp.sum(xp.square(action - reference), axis=-1), 0.0)
 
 
+def deviation_at_rest(action: Array, reference: Array, hand_goal: Array) -> Array:
+    """Cost: ``sum((action - reference)^2)`` at a step where neither hand has a goal key in view, else 0.
+
+    ``action``, ``reference``: as ``deviation_at_black_goal``'s, ``(..., n)``; ``hand_goal``: each hand's
+    next goal keys (``next_goal``), bool or 0/1, ``(..., 2, n_keys)``: all 0 in the count-in and in a rest
+    longer than the view. The runtime's hand-load tare fits on the count-in's still ticks; a residual that
+    moves the arm there under joint friction leaves a spring torque the fit reads as load
+    (docs/robust_training.md, "The count-in's residual and the tare"). A weight on this holds the rest on
+    the prior.
+    """
+    xp = array_namespace(action, reference, hand_goal)
+    idle = ~xp.any(hand_goal > 0.5, axis=(-2, -1))
+    return xp.where(idle, xp.sum(xp.square(action - reference), axis=-1), 0.0)
+
+
 def fingertip_distance(fingertips: Array, key_sites: Array, hand_goal: Array) -> Array:
     """Distance from each hand's fingertip to the nearest of that hand's goal keys, m; inf for none.
 

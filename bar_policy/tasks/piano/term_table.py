@@ -48,6 +48,10 @@ class RewardScales:
     """``sum((a - a_ref)^2)`` of the applied action against the key-pose reference's, at steps whose goal
     holds a black key (``rewards.deviation_at_black_goal``), action units squared. 0 (the default) leaves
     the table as it was; a negative weight keeps a residual on the prior's black presses."""
+    prior_deviation_rest: float = 0.0
+    """``sum((a - a_ref)^2)`` at steps where neither hand has a goal key in view (the count-in, long rests;
+    ``rewards.deviation_at_rest``), action units squared. 0 (the default) leaves the table as it was; a
+    negative weight holds the residual still on the prior where the runtime's tare reads the hand load."""
     fingertip_near: float = 0.5
     """Each hand's fingertip near its next goal key (``rewards.fingertip_to_goal``: 1 within 1 cm)."""
     energy: float = -2e-3
@@ -99,6 +103,12 @@ def reward_terms(rc: RewardConfig) -> tuple[RewardTerm, ...]:
             rewards.deviation_at_black_goal,
             w.prior_deviation_black,
             ("action", "reference_action", "black_goal_keys"),
+        ),
+        RewardTerm(
+            "prior_deviation_rest",
+            rewards.deviation_at_rest,
+            w.prior_deviation_rest,
+            ("action", "reference_action", "hand_goal"),
         ),
         RewardTerm(
             "fingertip_near",
