@@ -146,6 +146,9 @@ class RunResult:
     """Raw action entries the policy produced (POLICY ticks x n_actions), the denominator of the clips."""
     later_faults: tuple[str, ...] = ()
     """The distinct faults after the first (which the end reason names), in the order they came."""
+    hand_load: dict[str, Any] = field(default_factory=dict)
+    """The hand-load compensation's record at the end (``Runtime.hand_load_record``: its kind and, when on,
+    the fit's last estimate per hand ``mass_kg``)."""
 
     @property
     def exit_status(self) -> int:

@@ -276,6 +276,7 @@ class RunLoop:
                 quality=self.quality_record(),
                 action_count=self.actions.count,
                 later_faults=later,
+                hand_load=self.hand_load_record(),
             )
         return self.result
 

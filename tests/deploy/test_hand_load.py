@@ -275,8 +275,9 @@ def test_piano_tares_the_load_in_its_count_in_and_keeps_it():
     kept = rt.hand_load.torque(rt.last_state.q)
     np.testing.assert_allclose(rt.last_command.tau_ff, kept, atol=1e-12)  # the end's HOLD: the kept estimate
     assert not song.faulted and song.f1 > 0.8
+    assert song.hand_load_kg == tuple(rt.hand_load.masses)  # the evaluation's record of the kept estimate
     _, off = _song_run("payload_kg=0.5", "off")
-    assert off.faulted and off.f1 < 0.5
+    assert off.faulted and off.f1 < 0.5 and off.hand_load_kg is None
     rt_nom, _ = _song_run(None, None)
     assert rt_nom.hand_load.updates == 13 and np.all(np.abs(rt_nom.hand_load.masses) < 0.02)
 

@@ -6,6 +6,8 @@ and the report's recalls are worked out by hand from small counts (ratios of int
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
 import bar_policy.tasks.registry  # noqa: F401 - registers every task's gate
@@ -145,3 +147,24 @@ def test_the_mjx_evaluation_fills_the_recall_rows_for_the_best_iterate() -> None
     assert excess("piano", high) == 0.0
     assert excess("piano", low) == pytest.approx(2 * (1 - 50 / 85), rel=1e-12)
     assert "recall_pct" not in held_out_report(base)  # another task's evaluation: no rows
+
+
+def test_the_hand_load_read_by_hand() -> None:
+    """Per song the compensation's estimate (left, right); the line: each hand's mean and range over the
+    songs that had it; no line when none had it (``--hand-load off``)."""
+    from dataclasses import replace
+
+    songs = [
+        replace(_song("held-out", 1, 0, 1, 0), hand_load_kg=(0.30, 0.10)),
+        replace(_song("random", 1, 0, 1, 0), hand_load_kg=(0.50, -0.02)),
+        _song("random", 1, 0, 1, 0),
+    ]
+    report = PianoEval(songs=songs, policy="p", fingerprint="f")
+    # left: (0.30 + 0.50) / 2 = 0.400, range 0.300..0.500; right: (0.10 - 0.02) / 2 = 0.040, -0.020..0.100
+    line = (
+        "hand load read (left / right, kg): mean 0.400 / 0.040, range 0.300..0.500 / -0.020..0.100 "
+        "over 2 songs"
+    )
+    assert report.hand_load_line() == line and line in report.format()
+    assert json.loads(json.dumps(report.to_dict()))["songs"][0]["hand_load_kg"] == [0.30, 0.10]
+    assert PianoEval(songs=songs[2:], policy="p", fingerprint="f").hand_load_line() is None

@@ -143,6 +143,7 @@ def evaluate(
             keys_down=int(np.sum(down)),
             **tally.colour(),
             group=in_group,
+            hand_load_kg=_hand_load_kg(res.hand_load),
         )
         results.append(result)
         fault = ", faulted" if result.faulted else ""
@@ -182,3 +183,9 @@ def _finite(x: float) -> float | None:
     """``x`` as a float, None for NaN (a window too short to measure)."""
     x = float(x)
     return None if np.isnan(x) else x
+
+
+def _hand_load_kg(record: dict[str, Any]) -> tuple[float, float] | None:
+    """(left, right) kg of a run's hand-load record (``RunResult.hand_load``), None without a fit."""
+    mass = record.get("mass_kg")
+    return None if mass is None else (float(mass["left"]), float(mass["right"]))

@@ -92,6 +92,9 @@ class SongResult:
     """White goal key-ticks pressed."""
     false_neg_white: int = 0
     """White goal key-ticks missed."""
+    hand_load_kg: tuple[float, float] | None = None
+    """The hand-load compensation's estimate per hand (left, right) at the song's end, kg: the piano's
+    ``tare`` reads it in the count-in and keeps it (docs/robustness.md); None when the compensation is off."""
 
     def colour_counts(self) -> dict[str, int]:
         """The song's ``COLOUR_COUNTS`` (TP and FN of each key colour's goal key-ticks)."""
@@ -228,6 +231,17 @@ class PianoEval(EvalReport):
             f"mean {mean:.2f} mrad, worst {worst.chatter_raw_mrad:.2f} mrad ({worst.song})"
         )
 
+    def hand_load_line(self) -> str | None:
+        """The hand-load estimate over every song in one line (None when no song had the compensation)."""
+        read = np.array([s.hand_load_kg for s in self.songs if s.hand_load_kg is not None])
+        if read.size == 0:
+            return None
+        lo, hi = read.min(axis=0), read.max(axis=0)
+        return (
+            f"hand load read (left / right, kg): mean {read[:, 0].mean():.3f} / {read[:, 1].mean():.3f}, "
+            f"range {lo[0]:.3f}..{hi[0]:.3f} / {lo[1]:.3f}..{hi[1]:.3f} over {len(read)} songs"
+        )
+
     def to_dict(self) -> dict[str, Any]:
         """JSON form (each song's ``chatter_mrad``, against the reference, beside ``chatter_raw_mrad``)."""
         return {
@@ -285,6 +299,9 @@ class PianoEval(EvalReport):
             lines.append(random)
         lines.append(quality_summary_line(self.gate_report()["quality"]))
         lines.append(self.raw_chatter_line())
+        load = self.hand_load_line()
+        if load is not None:
+            lines.append(load)
         lines.extend(self.gate_lines())
         return "\n".join(lines)
 
