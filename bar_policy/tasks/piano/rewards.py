@@ -164,7 +164,7 @@ def deviation_at_rest(action: Array, reference: Array, hand_goal: Array) -> Arra
     next goal keys (``next_goal``), bool or 0/1, ``(..., 2, n_keys)``: all 0 in the count-in and in a rest
     longer than the view. The runtime's hand-load tare fits on the count-in's still ticks; a residual that
     moves the arm there under joint friction leaves a spring torque the fit reads as load
-    (docs/robust_training.md, "The count-in's residual and the tare"). A weight on this holds the rest on
+    (docs/robustness.md, "The count-in's residual and the tare"). A weight on this holds the rest on
     the prior.
     """
     xp = array_namespace(action, reference, hand_goal)
