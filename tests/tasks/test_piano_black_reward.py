@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from bar_policy.envs import rewards  # noqa: F401 - first: term_table is imported through the registry
+from bar_policy.envs.term_table import RewardTerm
 from bar_policy.tasks.piano.keyboard import black_keys, compact_config
 from bar_policy.tasks.piano.preset import PIANO
 from bar_policy.tasks.piano.term_table import RewardConfig, RewardScales, reward_terms
@@ -93,13 +94,15 @@ def test_the_piano_preset_sets_it_and_the_override_reaches_the_env_config() -> N
     assert cfg.actuator.encoder_offset == 0.002
 
 
+def _row(name: str, weight: float) -> RewardTerm:
+    """The reward table's row ``name`` with its weight set to ``weight``."""
+    (row,) = [t for t in reward_terms(RewardConfig(scales=RewardScales(**{name: weight}))) if t.name == name]
+    return row
+
+
 def test_deviation_from_the_reference_costs_at_black_goals_only() -> None:
     cs4, e4 = 61 - KB.lowest, 64 - KB.lowest
-    (row,) = [
-        t
-        for t in reward_terms(RewardConfig(scales=RewardScales(prior_deviation_black=-0.5)))
-        if t.name == "prior_deviation_black"
-    ]
+    row = _row("prior_deviation_black", -0.5)
     assert row.inputs == ("action", "reference_action", "black_goal_keys")
     reference = np.linspace(-0.5, 0.5, 14)
     action = reference.copy()
@@ -123,11 +126,7 @@ def test_deviation_from_the_reference_costs_at_rest_only() -> None:
     """Neither hand with a goal key in view (the count-in, where the tare fits): the squared deviation;
     any goal key of either hand in view: nothing."""
     cs4 = 61 - KB.lowest
-    (row,) = [
-        t
-        for t in reward_terms(RewardConfig(scales=RewardScales(prior_deviation_rest=-2.0)))
-        if t.name == "prior_deviation_rest"
-    ]
+    row = _row("prior_deviation_rest", -2.0)
     assert row.inputs == ("action", "reference_action", "hand_goal")
     reference = np.linspace(-0.5, 0.5, 14)
     action = reference.copy()

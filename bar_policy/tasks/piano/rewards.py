@@ -153,8 +153,7 @@ def deviation_at_black_goal(action: Array, reference: Array, black_goal: Array) 
     where the black keys are played and leaves it free at every other step.
     """
     xp = array_namespace(action, reference, black_goal)
-    any_black = xp.any(black_goal > 0.5, axis=-1)
-    return xp.where(any_black, xp.sum(xp.square(action - reference), axis=-1), 0.0)
+    return _deviation_where(xp.any(black_goal > 0.5, axis=-1), action, reference)
 
 
 def deviation_at_rest(action: Array, reference: Array, hand_goal: Array) -> Array:
@@ -168,8 +167,13 @@ def deviation_at_rest(action: Array, reference: Array, hand_goal: Array) -> Arra
     the prior.
     """
     xp = array_namespace(action, reference, hand_goal)
-    idle = ~xp.any(hand_goal > 0.5, axis=(-2, -1))
-    return xp.where(idle, xp.sum(xp.square(action - reference), axis=-1), 0.0)
+    return _deviation_where(~xp.any(hand_goal > 0.5, axis=(-2, -1)), action, reference)
+
+
+def _deviation_where(mask: Array, action: Array, reference: Array) -> Array:
+    """``sum((action - reference)^2)`` over the last axis where ``mask`` (bool ``(...)``), else 0."""
+    xp = array_namespace(mask, action, reference)
+    return xp.where(mask, xp.sum(xp.square(action - reference), axis=-1), 0.0)
 
 
 def fingertip_distance(fingertips: Array, key_sites: Array, hand_goal: Array) -> Array:
