@@ -114,6 +114,11 @@ class HandLoadEstimator:
         """Sum of ``masses`` over the fits, kg (``mean_masses``)."""
         self.nonfinite_count = 0
         """Ticks not fitted because the measured state or torque was not finite."""
+        self.motion_rad = 0.0
+        """Largest joint excursion from the first fitted tick's pose over the fits, rad: where the arm
+        moved into a pose and stuck, its friction is in the residual and reads as load (a still start's
+        ``tare``; docs/robustness.md)."""
+        self._q_first: np.ndarray | None = None
         self.mass_bound_count = 0
         """Fits whose estimated mass of a hand left ``+-max_kg`` and was scaled back."""
         self.clip = CapClip("hand-load feed-forward", robot.joint_names, robot.torque_cap)
@@ -163,6 +168,9 @@ class HandLoadEstimator:
                 "nonfinite", "hand load: a non-finite state or torque, not fitted (further counted)"
             )
             return np.zeros(self.n)
+        if self._q_first is None:
+            self._q_first = q.copy()
+        self.motion_rad = max(self.motion_rad, float(np.max(np.abs(q - self._q_first))))
         gravity, phis = self.regressors(q)
         residual = tau - gravity
         c = self.config
@@ -213,6 +221,7 @@ class HandLoadEstimator:
             "fits": self.updates,
             "mass_kg": {HANDS[h][0]: float(m) for h, m in enumerate(self.masses)},
             "mean_mass_kg": {HANDS[h][0]: float(m) for h, m in enumerate(self.mean_masses)},
+            "motion_rad": self.motion_rad,
             "mass_bound_count": self.mass_bound_count,
             "nonfinite_count": self.nonfinite_count,
             "clipped_joint_evaluations": self.clip.clip_count,

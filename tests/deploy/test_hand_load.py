@@ -97,6 +97,21 @@ def test_nominal_robot_reads_no_load():
     np.testing.assert_allclose(ff, 0.0, atol=1e-12)
 
 
+def test_the_fit_records_how_far_the_arm_moved_while_it_ran():
+    """``motion_rad``: the largest joint excursion from the first fitted pose. Poses q0, q0 + 0.01 rad on
+    one joint, q0 - 0.02 on another, q0 again: 0.02 rad; a non-finite tick is not fitted and moves nothing."""
+    model = load_model("arms")
+    est = HandLoadEstimator("arms", DT)
+    q0 = _poses(1)[0]
+    a, b = q0.copy(), q0.copy()
+    a[3] += 0.01
+    b[9] -= 0.02
+    for q in (q0, a, b, q0):
+        est.step(q, _holding_torque(model, q))
+    est.step(np.full_like(q0, np.nan), np.zeros_like(q0))
+    assert est.motion_rad == pytest.approx(0.02, abs=1e-15) and est.record()["motion_rad"] == est.motion_rad
+
+
 def test_forgetting_follows_a_load_taken_off(payload_model):
     """With ``tau_s`` 0.1 s (5 ticks), 40 ticks of the payload then 40 of the bare robot: the estimate's
     memory of the payload is weighted by exp(-40 / 5) = 3e-4 of the new data's, so it reads below 1e-3 kg
@@ -276,6 +291,7 @@ def test_piano_tares_the_load_in_its_count_in_and_keeps_it():
     np.testing.assert_allclose(rt.last_command.tau_ff, kept, atol=1e-12)  # the end's HOLD: the kept estimate
     assert not song.faulted and song.f1 > 0.8
     assert song.hand_load_kg == tuple(rt.hand_load.masses)  # the evaluation's record of the kept estimate
+    assert song.hand_load_motion_mrad == 1e3 * rt.hand_load.motion_rad
     _, off = _song_run("payload_kg=0.5", "off")
     assert off.faulted and off.f1 < 0.5 and off.hand_load_kg is None
     rt_nom, _ = _song_run(None, None)

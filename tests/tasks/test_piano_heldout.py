@@ -150,20 +150,21 @@ def test_the_mjx_evaluation_fills_the_recall_rows_for_the_best_iterate() -> None
 
 
 def test_the_hand_load_read_by_hand() -> None:
-    """Per song the compensation's estimate (left, right); the line: each hand's mean and range over the
-    songs that had it; no line when none had it (``--hand-load off``)."""
+    """Per song the compensation's estimate (left, right) and the arm's motion while fitting; the line: each
+    hand's mean and range over the songs that had it, the largest motion; no line when none had it
+    (``--hand-load off``)."""
     from dataclasses import replace
 
     songs = [
-        replace(_song("held-out", 1, 0, 1, 0), hand_load_kg=(0.30, 0.10)),
-        replace(_song("random", 1, 0, 1, 0), hand_load_kg=(0.50, -0.02)),
+        replace(_song("held-out", 1, 0, 1, 0), hand_load_kg=(0.30, 0.10), hand_load_motion_mrad=0.4),
+        replace(_song("random", 1, 0, 1, 0), hand_load_kg=(0.50, -0.02), hand_load_motion_mrad=36.31),
         _song("random", 1, 0, 1, 0),
     ]
     report = PianoEval(songs=songs, policy="p", fingerprint="f")
     # left: (0.30 + 0.50) / 2 = 0.400, range 0.300..0.500; right: (0.10 - 0.02) / 2 = 0.040, -0.020..0.100
     line = (
         "hand load read (left / right, kg): mean 0.400 / 0.040, range 0.300..0.500 / -0.020..0.100 "
-        "over 2 songs"
+        "over 2 songs; the arm moved up to 36.3 mrad while fitting"
     )
     assert report.hand_load_line() == line and line in report.format()
     assert json.loads(json.dumps(report.to_dict()))["songs"][0]["hand_load_kg"] == [0.30, 0.10]

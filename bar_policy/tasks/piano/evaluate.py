@@ -143,7 +143,7 @@ def evaluate(
             keys_down=int(np.sum(down)),
             **tally.colour(),
             group=in_group,
-            hand_load_kg=_hand_load_kg(res.hand_load),
+            **_hand_load(res.hand_load),
         )
         results.append(result)
         fault = ", faulted" if result.faulted else ""
@@ -185,7 +185,12 @@ def _finite(x: float) -> float | None:
     return None if np.isnan(x) else x
 
 
-def _hand_load_kg(record: dict[str, Any]) -> tuple[float, float] | None:
-    """(left, right) kg of a run's hand-load record (``RunResult.hand_load``), None without a fit."""
+def _hand_load(record: dict[str, Any]) -> dict[str, Any]:
+    """``SongResult``'s hand-load fields from a run's record (``RunResult.hand_load``); none without a fit."""
     mass = record.get("mass_kg")
-    return None if mass is None else (float(mass["left"]), float(mass["right"]))
+    if mass is None:
+        return {}
+    return {
+        "hand_load_kg": (float(mass["left"]), float(mass["right"])),
+        "hand_load_motion_mrad": 1e3 * float(record["motion_rad"]),
+    }

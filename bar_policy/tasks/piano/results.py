@@ -95,6 +95,9 @@ class SongResult:
     hand_load_kg: tuple[float, float] | None = None
     """The hand-load compensation's estimate per hand (left, right) at the song's end, kg: the piano's
     ``tare`` reads it in the count-in and keeps it (docs/robustness.md); None when the compensation is off."""
+    hand_load_motion_mrad: float | None = None
+    """The largest joint excursion while the fit ran (``HandLoadEstimator.motion_rad``), mrad: an arm that
+    moved into its pose in the tare's count-in leaves its friction in the read; None when off."""
 
     def colour_counts(self) -> dict[str, int]:
         """The song's ``COLOUR_COUNTS`` (TP and FN of each key colour's goal key-ticks)."""
@@ -237,9 +240,11 @@ class PianoEval(EvalReport):
         if read.size == 0:
             return None
         lo, hi = read.min(axis=0), read.max(axis=0)
+        moved = [s.hand_load_motion_mrad for s in self.songs if s.hand_load_motion_mrad is not None]
+        motion = f"; the arm moved up to {max(moved):.1f} mrad while fitting" if moved else ""
         return (
             f"hand load read (left / right, kg): mean {read[:, 0].mean():.3f} / {read[:, 1].mean():.3f}, "
-            f"range {lo[0]:.3f}..{hi[0]:.3f} / {lo[1]:.3f}..{hi[1]:.3f} over {len(read)} songs"
+            f"range {lo[0]:.3f}..{hi[0]:.3f} / {lo[1]:.3f}..{hi[1]:.3f} over {len(read)} songs{motion}"
         )
 
     def to_dict(self) -> dict[str, Any]:
