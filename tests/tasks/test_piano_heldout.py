@@ -7,6 +7,7 @@ and the report's recalls are worked out by hand from small counts (ratios of int
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import pytest
 
@@ -153,8 +154,6 @@ def test_the_hand_load_read_by_hand() -> None:
     """Per song the compensation's estimate (left, right) and the arm's motion while fitting; the line: each
     hand's mean and range over the songs that had it, the largest motion; no line when none had it
     (``--hand-load off``)."""
-    from dataclasses import replace
-
     songs = [
         replace(_song("held-out", 1, 0, 1, 0), hand_load_kg=(0.30, 0.10), hand_load_motion_mrad=0.4),
         replace(_song("random", 1, 0, 1, 0), hand_load_kg=(0.50, -0.02), hand_load_motion_mrad=36.31),

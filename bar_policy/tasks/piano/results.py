@@ -236,11 +236,12 @@ class PianoEval(EvalReport):
 
     def hand_load_line(self) -> str | None:
         """The hand-load estimate over every song in one line (None when no song had the compensation)."""
-        read = np.array([s.hand_load_kg for s in self.songs if s.hand_load_kg is not None])
-        if read.size == 0:
+        fitted = [s for s in self.songs if s.hand_load_kg is not None]
+        if not fitted:
             return None
+        read = np.array([s.hand_load_kg for s in fitted])
         lo, hi = read.min(axis=0), read.max(axis=0)
-        moved = [s.hand_load_motion_mrad for s in self.songs if s.hand_load_motion_mrad is not None]
+        moved = [s.hand_load_motion_mrad for s in fitted if s.hand_load_motion_mrad is not None]
         motion = f"; the arm moved up to {max(moved):.1f} mrad while fitting" if moved else ""
         return (
             f"hand load read (left / right, kg): mean {read[:, 0].mean():.3f} / {read[:, 1].mean():.3f}, "
