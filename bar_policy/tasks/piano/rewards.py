@@ -163,8 +163,9 @@ def deviation_at_rest(action: Array, reference: Array, hand_goal: Array) -> Arra
     next goal keys (``next_goal``), bool or 0/1, ``(..., 2, n_keys)``: all 0 in the count-in and in a rest
     longer than the view. The runtime's hand-load tare fits on the count-in's still ticks; a residual that
     moves the arm there under joint friction leaves a spring torque the fit reads as load
-    (docs/robustness.md, "The count-in's residual and the tare"). A weight on this holds the rest on
-    the prior.
+    (docs/robustness.md, "The count-in's residual and the tare"). A weight on this pulls the rest toward
+    the prior; at -8 and -32 it left the count-in's motion at 25-28 mrad (43.8 without), the tare's
+    misread in place (docs/robust_training.md).
     """
     xp = array_namespace(action, reference, hand_goal)
     return _deviation_where(~xp.any(hand_goal > 0.5, axis=(-2, -1)), action, reference)

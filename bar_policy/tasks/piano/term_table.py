@@ -51,7 +51,7 @@ class RewardScales:
     prior_deviation_rest: float = 0.0
     """``sum((a - a_ref)^2)`` at steps where neither hand has a goal key in view (the count-in, long rests;
     ``rewards.deviation_at_rest``), action units squared. 0 (the default) leaves the table as it was; a
-    negative weight holds the residual still on the prior where the runtime's tare reads the hand load."""
+    negative weight pulls the residual toward the prior where the runtime's tare reads the hand load."""
     fingertip_near: float = 0.5
     """Each hand's fingertip near its next goal key (``rewards.fingertip_to_goal``: 1 within 1 cm)."""
     energy: float = -2e-3
