@@ -148,7 +148,7 @@ class RunResult:
     """The distinct faults after the first (which the end reason names), in the order they came."""
     hand_load: dict[str, Any] = field(default_factory=dict)
     """The hand-load compensation's record at the end (``Runtime.hand_load_record``: its kind and, when on,
-    the fit's last estimate per hand ``mass_kg``)."""
+    the fit's record: the last estimate per hand ``mass_kg``, the arm's ``motion_rad`` while fitting)."""
 
     @property
     def exit_status(self) -> int:
