@@ -199,6 +199,7 @@ def _run_session(
             damping_after_fault=args.damping_time,
             stop_damping=args.stop_damping,
             hand_load=args.hand_load,
+            load_inertia=_on_off(args.load_inertia),
             end_hold=args.end_hold,
             realtime=args.realtime or args.viewer,
             rt_priority=args.rt_priority,
@@ -390,6 +391,11 @@ def _after_exception(rt: object) -> int:
     return EXIT_FAULT if report is not None and report.confirmed else EXIT_STOP_UNCONFIRMED
 
 
+def _on_off(choice: str | None) -> bool | None:
+    """``--load-inertia``'s ``on`` / ``off`` as True / False; None (not given): None, the task's."""
+    return None if choice is None else choice == "on"
+
+
 def _say(line: str) -> None:
     """A progress line of ``bar-deploy eval``, flushed (the episodes take seconds each)."""
     print(line, flush=True)
@@ -443,7 +449,13 @@ def _eval(argv: Sequence[str]) -> int:
             params_record = _params_check(args, policy)
             if args.perturb is None:
                 kind = RUNNERS[args.target]
-                with kind(policy, robot_params=args.robot_params, say=say, hand_load=args.hand_load) as run:
+                with kind(
+                    policy,
+                    robot_params=args.robot_params,
+                    say=say,
+                    hand_load=args.hand_load,
+                    load_inertia=_on_off(args.load_inertia),
+                ) as run:
                     result = task.evaluate(policy, args, run)
             else:
                 from bar_policy.deploy.robustness import evaluate_perturbed
@@ -457,6 +469,7 @@ def _eval(argv: Sequence[str]) -> int:
                     progress=not args.quiet,
                     robot_params=args.robot_params,
                     hand_load=args.hand_load,
+                    load_inertia=_on_off(args.load_inertia),
                     target=args.target,
                 )
         except ValueError as e:  # PolicyLoadError, OptionError, bad settings

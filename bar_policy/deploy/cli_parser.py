@@ -211,11 +211,12 @@ def run_parser() -> argparse.ArgumentParser:
 def robot_options(p: argparse.ArgumentParser, *, suite: bool) -> None:
     """The robot a run or an evaluation meets, and how the runtime meets it.
 
-    ``--perturb`` (``suite``: the suite allowed), ``--robot-params``, ``--hand-load``.
+    ``--perturb`` (``suite``: the suite allowed), ``--robot-params``, ``--hand-load``, ``--load-inertia``.
     """
     perturb_option(p, suite=suite)
     robot_params_option(p)
     hand_load_option(p)
+    load_inertia_option(p)
 
 
 def eval_target_option(p: argparse.ArgumentParser) -> None:
@@ -244,6 +245,18 @@ def hand_load_option(p: argparse.ArgumentParser) -> None:
         "add its gravity torque as the MIT law's feed-forward (tau_ff, within the caps); tare = fit it "
         "while the commands hold the arms still at the start (the piano's count-in), then keep it; off = "
         "none (default: the task's: track estimate, piano tare, reach off)",
+    )
+
+
+def load_inertia_option(p: argparse.ArgumentParser) -> None:
+    """``--load-inertia on|off``: the hand load's inertia fed forward (``deploy.load_inertia``)."""
+    p.add_argument(
+        "--load-inertia",
+        default=None,
+        choices=("on", "off"),
+        help="on = add the inertia of the hand-load fit's masses to the feed-forward, from a reference arm "
+        "(the nominal robot simulated in the task's scene under the same commands); needs --hand-load "
+        "estimate or tare (default: the task's: piano on, track and reach off)",
     )
 
 

@@ -54,6 +54,7 @@ class SimEpisodes:
         robot_params: RobotParams | None = None,
         say: Callable[[str], None] | None = None,
         hand_load: str | None = None,
+        load_inertia: bool | None = None,
     ) -> None:
         """``safety``: the supervisor's thresholds (default ``SafetyConfig()``; the ramp is always 0).
 
@@ -63,9 +64,12 @@ class SimEpisodes:
         ``say``: where the progress lines go (``progress``; ``bar-deploy eval`` passes ``print``, ``--quiet``
         None: no lines).
         ``hand_load``: the runs' hand-load compensation (``RuntimeConfig.hand_load``; None: the task's).
+        ``load_inertia``: the runs' load-inertia feed-forward (``RuntimeConfig.load_inertia``; None: the
+        task's).
         """
         self.policy = policy
         self.hand_load = hand_load
+        self.load_inertia = load_inertia
         self.safety = dataclasses.replace(safety or SafetyConfig(), ramp_time=0.0)
         self.perturbation = perturbation
         self.robot_params = robot_params
@@ -130,6 +134,7 @@ class SimEpisodes:
             handle_signals=False,
             safety=self.safety,
             hand_load=self.hand_load,
+            load_inertia=self.load_inertia,
         )
         return Runtime(self.policy, target, commands, cfg, kinematics=kinematics, on_tick=on_tick).run()
 

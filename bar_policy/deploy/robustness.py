@@ -236,6 +236,7 @@ def evaluate_perturbed(
     progress: bool = True,
     robot_params: RobotParams | None = None,
     hand_load: str | None = None,
+    load_inertia: bool | None = None,
     target: str = "sim",
 ) -> Any:
     """``bar-deploy eval --perturb``: the suite (``"suite"``) or one perturbed evaluation (its result).
@@ -244,6 +245,7 @@ def evaluate_perturbed(
     each suite row as it ends or each episode's progress line of one perturbed evaluation.
     ``robot_params`` (``--robot-params``): every row perturbs that identified robot instead of the model.
     ``hand_load`` (``--hand-load``): the runs' hand-load compensation (None: the task's).
+    ``load_inertia`` (``--load-inertia``): the runs' load-inertia feed-forward (None: the task's).
     ``target`` (``--target``, a key of ``deploy.episodes.RUNNERS``): ``bus``, the emulated bus's robot is
     the perturbed one (``BusEpisodes``); ``sim``, the sim target's.
     """
@@ -252,7 +254,14 @@ def evaluate_perturbed(
     kind = RUNNERS[target]
 
     def runner(p: Perturbation, say: Callable[[str], None] | None = None) -> SimEpisodes:
-        return kind(policy, perturbation=p, robot_params=robot_params, say=say, hand_load=hand_load)
+        return kind(
+            policy,
+            perturbation=p,
+            robot_params=robot_params,
+            say=say,
+            hand_load=hand_load,
+            load_inertia=load_inertia,
+        )
 
     if perturb == "suite":
         say(f"robustness suite: {len(SUITE)} rows, each the task's whole evaluation")

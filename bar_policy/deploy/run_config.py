@@ -72,6 +72,10 @@ class RuntimeConfig:
     hand_load: str | None = None
     """Hand-load compensation in POLICY (and the end's HOLD), one of ``HAND_LOAD_KINDS``; None: the command
     source's (``CommandSource.hand_load``: tracking ``estimate``, the piano ``tare``, reach ``off``)."""
+    load_inertia: bool | None = None
+    """Feed the hand-load fit's masses' inertia forward in POLICY from a reference arm
+    (``deploy.load_inertia``; needs the fit); None: the command source's (``CommandSource.load_inertia``:
+    the piano on, else off)."""
     realtime: bool = False
     """Pace a synchronous target at wall-clock rate (for the viewer)."""
     spin_s: float = 0.0003

@@ -23,7 +23,9 @@ after a fault or a stop carries the gravity torque at the measured q as ``tau_ff
 ``RuntimeConfig.stop_damping``), which the target's own safe stop uses too (``Target.use_stop_torque``).
 POLICY and the end's HOLD carry the hand-load fit's feed-forward in ``tau_ff`` (``deploy.hand_load``;
 ``RuntimeConfig.hand_load``, by default the command source's; ``tare`` fits during the source's still
-start, ``CommandSource.still_s``, and keeps that estimate), checked by the saturation rule with the rest.
+start, ``CommandSource.still_s``, and keeps that estimate), and in POLICY the load's inertia fed forward from
+a reference arm (``deploy.load_inertia``; ``RuntimeConfig.load_inertia``, by default the source's), checked
+by the saturation rule with the rest.
 
 Start-up: ZERO_TORQUE until the first state; a valid first state gives DAMPING then HOLD (ramp to the
 command source's ``hold_pose``, else the policy's rest pose ``policy.hold_pose``, over
@@ -74,6 +76,7 @@ from bar_policy.deploy.contract import PolicyLoadError
 from bar_policy.deploy.gravity import GravityTorque
 from bar_policy.deploy.hand_load import HandLoadEstimator
 from bar_policy.deploy.inputs import StateInputs
+from bar_policy.deploy.load_inertia import LoadInertia
 from bar_policy.deploy.log.live import LiveServer
 from bar_policy.deploy.log.run_log import RunLog
 from bar_policy.deploy.policy import OnnxPolicy, action_reach_problems
@@ -167,6 +170,9 @@ class Runtime(RunLoop):
         self.hand_load = self._hand_load(commands, target)
         """The hand-load fit whose feed-forward POLICY and the end's HOLD add as ``tau_ff`` (None: off;
         ``deploy.hand_load``)."""
+        self.load_inertia = self._load_inertia(commands)
+        """The reference arm whose acceleration feeds the load's inertia forward in POLICY (None: off;
+        ``deploy.load_inertia``)."""
         use_stop_torque = getattr(target, "use_stop_torque", None)
         if use_stop_torque is not None:
             use_stop_torque(self.gravity)
@@ -299,22 +305,54 @@ class Runtime(RunLoop):
             return None
         return HandLoadEstimator(self.policy.robot.mode, dt)
 
+    def _load_inertia(self, commands: CommandSource) -> LoadInertia | None:
+        """The run's load-inertia feed-forward: ``config.load_inertia``, else the source's.
+
+        It needs the hand-load fit's mass: asked for (``config.load_inertia`` True) with the fit off by
+        choice, it is refused (``ValueError``, naming the hand-load kinds that work); by the source's
+        default, or where the target cannot feed the fit, it is left off and says why (run log).
+        """
+        asked = self.config.load_inertia
+        want = commands.load_inertia if asked is None else asked
+        self.load_inertia_kind = "on" if want else "off"
+        """``on`` or ``off``, and why when a wanted feed-forward was left off (run log)."""
+        if not want:
+            return None
+        if self.hand_load is None:
+            if asked and self.hand_load_kind == "off":
+                raise ValueError(
+                    "load inertia on needs the hand-load fit's mass: hand load must be estimate or tare "
+                    "(got off); or load inertia off"
+                )
+            self.load_inertia_kind = f"off (wanted; hand-load {self.hand_load_kind})"
+            return None
+        return LoadInertia(self.policy.robot.mode, self.config.control_dt, commands.reference_scene)
+
     def _with_hand_load(self, cmd: MitCommand, state: JointState) -> MitCommand:
         """``cmd`` with the hand-load feed-forward added to ``tau_ff``.
 
         POLICY: a fit on this tick's measured torque, then its feed-forward, once a command has been written
         (before it the torque is no command's: a reset's 0); under ``tare`` only on the still start's
         ticks (``_tare``), after them the kept estimate's feed-forward; HOLD after POLICY (the end's): the
-        last estimate's (no fit: the arm is not following the policy). Other modes: ``cmd`` unchanged.
+        last estimate's (no fit: the arm is not following the policy). In POLICY with the load-inertia
+        feed-forward on, the reference arm (started at the measured state on POLICY's first tick) advances
+        under ``cmd`` as given, and the inertia of the fit's masses is added too. Other modes: ``cmd``
+        unchanged.
         """
         if self.hand_load is None:
             return cmd
         fit, mode = self.hand_load, self.safety.mode
+        nominal = cmd
         fitting = self._tare is None or fit.updates < self._tare
         if mode == Mode.POLICY and self.last_command is not None and fitting:
-            return cmd._replace(tau_ff=cmd.tau_ff + fit.step(state.q, state.tau))
-        if mode in (Mode.POLICY, Mode.HOLD) and fit.updates:  # no fit: tare's kept estimate, the end's HOLD
-            return cmd._replace(tau_ff=cmd.tau_ff + fit.torque(state.q))
+            cmd = cmd._replace(tau_ff=cmd.tau_ff + fit.step(state.q, state.tau))
+        elif mode in (Mode.POLICY, Mode.HOLD) and fit.updates:  # no fit: tare's kept estimate, the end's HOLD
+            cmd = cmd._replace(tau_ff=cmd.tau_ff + fit.torque(state.q))
+        inertia = self.load_inertia
+        if inertia is not None and mode == Mode.POLICY:
+            if not inertia.started:
+                inertia.start(state.q, state.dq)
+            cmd = cmd._replace(tau_ff=cmd.tau_ff + inertia.step(nominal, state.q, fit.masses))
         return cmd
 
     def hand_load_record(self) -> dict[str, Any]:
@@ -324,6 +362,9 @@ class Runtime(RunLoop):
             rec["tare_ticks"] = self._tare
         if self.hand_load is not None:
             rec.update(self.hand_load.record())
+        rec["load_inertia"] = {"kind": self.load_inertia_kind}
+        if self.load_inertia is not None:
+            rec["load_inertia"].update(self.load_inertia.record())
         return rec
 
     def _with_stop_torque(self, cmd: MitCommand, q: np.ndarray) -> MitCommand:

@@ -56,6 +56,9 @@ class CommandSource(abc.ABC):
     hand_load: ClassVar[str] = "off"
     """The task's hand-load compensation when the run does not choose one (``RuntimeConfig.hand_load``):
     ``estimate``, ``tare`` (needs ``still_s`` > 0) or ``off`` (``deploy.hand_load``)."""
+    load_inertia: ClassVar[bool] = False
+    """The task's load-inertia feed-forward when the run does not choose (``RuntimeConfig.load_inertia``;
+    ``deploy.load_inertia``): the fit's masses' inertia, from a reference arm in ``reference_scene``."""
     outside_count: int = 0
     """Commands seen outside the training distribution (counted and logged, never clipped)."""
 
@@ -95,6 +98,14 @@ class CommandSource(abc.ABC):
         The hand-load ``tare`` fits the loads then (0: never still; ``tare`` is refused).
         """
         return 0.0
+
+    @property
+    def reference_scene(self) -> SceneEdit | None:
+        """What the task adds to the robot's scene, for the load-inertia reference arm (None: nothing).
+
+        The piano's keyboard: its keys stop the reference's fingertip where they stop the robot's.
+        """
+        return None
 
     def begin(self, t: float) -> None:  # noqa: B027 - optional hook
         """POLICY starts at run time ``t`` (s): the commands' phase 0."""

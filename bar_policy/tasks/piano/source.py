@@ -52,11 +52,13 @@ from bar_policy.tasks.piano.bank import PlaybackConfig, song_bank
 from bar_policy.tasks.piano.key_input import KeySource, SimKeys
 from bar_policy.tasks.piano.keyboard import KeyboardConfig, black_keys
 from bar_policy.tasks.piano.metrics import song_window
+from bar_policy.tasks.piano.scene import keyboard_scene
 from bar_policy.tasks.piano.songs import Song, check_table_size
 from bar_policy.tasks.piano.tally import KeyTally
 from bar_policy.tasks.piano.terms import PIANO_KEYS, TARGET_FRAMES
 
 if TYPE_CHECKING:
+    from bar_policy.robot.scene import SceneEdit
     from bar_policy.tasks.piano.arrange import Arrangement
     from bar_policy.tasks.piano.reference import KeyPoseReference
 
@@ -88,6 +90,9 @@ class SongCommands(CommandSource):
     """The hand-load fit runs during the count-in's still hands (``still_s``) and is kept for the song: a
     key's reaction at the fingertip reads as a lighter hand, and fitted during play it undid the presses
     (docs/robustness.md, "Hand-load compensation")."""
+    load_inertia = True
+    """The tare's masses' inertia is fed forward from a reference arm playing the same keys
+    (``deploy.load_inertia``; docs/robustness.md, "The load's inertia")."""
 
     def __init__(
         self,
@@ -165,6 +170,11 @@ class SongCommands(CommandSource):
         self._t0 = t
         if self.reference is not None:
             self._ref_state = self.reference.start
+
+    @property
+    def reference_scene(self) -> SceneEdit:
+        """The keyboard's scene (``scene.keyboard_scene``): the reference arm plays its keys."""
+        return keyboard_scene(self.keyboard)
 
     @property
     def still_s(self) -> float:
