@@ -21,11 +21,9 @@ A ``TargetError`` from the target mid-run is the fault ``target``: the loop ends
 has already damped and stopped), and the run ends as any fault does, without an exception. The DAMPING
 after a fault or a stop carries the gravity torque at the measured q as ``tau_ff`` (``deploy.gravity``;
 ``RuntimeConfig.stop_damping``), which the target's own safe stop uses too (``Target.use_stop_torque``).
-POLICY and the end's HOLD carry the hand-load fit's feed-forward in ``tau_ff`` (``deploy.hand_load``;
-``RuntimeConfig.hand_load``, by default the command source's; ``tare`` fits during the source's still
-start, ``CommandSource.still_s``, and keeps that estimate), and in POLICY the load's inertia fed forward from
-a reference arm (``deploy.load_inertia``; ``RuntimeConfig.load_inertia``, by default the source's), checked
-by the saturation rule with the rest.
+POLICY and the end's HOLD carry the hand-load fit's feed-forward in ``tau_ff``, and POLICY the load's
+inertia from a reference arm (``deploy.load_compensation``: ``RuntimeConfig.hand_load`` and
+``load_inertia``, by default the command source's), checked by the saturation rule with the rest.
 
 Start-up: ZERO_TORQUE until the first state; a valid first state gives DAMPING then HOLD (ramp to the
 command source's ``hold_pose``, else the policy's rest pose ``policy.hold_pose``, over
@@ -74,9 +72,8 @@ import numpy as np
 from bar_policy.deploy.action_path import ActionPath
 from bar_policy.deploy.contract import PolicyLoadError
 from bar_policy.deploy.gravity import GravityTorque
-from bar_policy.deploy.hand_load import HandLoadEstimator
 from bar_policy.deploy.inputs import StateInputs
-from bar_policy.deploy.load_inertia import LoadInertia
+from bar_policy.deploy.load_compensation import LoadCompensation
 from bar_policy.deploy.log.live import LiveServer
 from bar_policy.deploy.log.run_log import RunLog
 from bar_policy.deploy.policy import OnnxPolicy, action_reach_problems
@@ -167,12 +164,9 @@ class Runtime(RunLoop):
         self.gravity = GravityTorque(robot.mode) if self.config.stop_damping == "gravity" else None
         """``tau_ff`` of the DAMPING after a fault or a stop, and of the target's own safe stop (None:
         damping alone; ``deploy.gravity``)."""
-        self.hand_load = self._hand_load(commands, target)
-        """The hand-load fit whose feed-forward POLICY and the end's HOLD add as ``tau_ff`` (None: off;
-        ``deploy.hand_load``)."""
-        self.load_inertia = self._load_inertia(commands)
-        """The reference arm whose acceleration feeds the load's inertia forward in POLICY (None: off;
-        ``deploy.load_inertia``)."""
+        self.loads = LoadCompensation(self.config, commands, target, robot.mode)
+        """The hand-load fit and the load-inertia feed-forward POLICY and the end's HOLD add to ``tau_ff``
+        (``deploy.load_compensation``)."""
         use_stop_torque = getattr(target, "use_stop_torque", None)
         if use_stop_torque is not None:
             use_stop_torque(self.gravity)
@@ -277,95 +271,9 @@ class Runtime(RunLoop):
             self._end_reason = f"fault {kind}: {detail}"
             self.completed = False
 
-    def _hand_load(self, commands: CommandSource, target: Target) -> HandLoadEstimator | None:
-        """The run's hand-load fit: ``config.hand_load``, else the source's.
-
-        None where the target cannot feed it (a dry run, the mock: their torque is not the motors'), logged.
-        ``tare`` on a source without a still start (``CommandSource.still_s`` under one tick) is refused
-        (``ValueError``, naming the kinds that work).
-        """
-        kind = self.config.hand_load or commands.hand_load
-        self.hand_load_kind = kind
-        """``estimate``, ``tare`` or ``off``, and why when a requested fit was left off (run log)."""
-        self._tare: int | None = None
-        """``tare``: how many POLICY ticks fit, the source's still start; None: every tick (``estimate``)."""
-        if kind == "off":
-            return None
-        dt = self.config.control_dt
-        if kind == "tare":
-            self._tare = round(commands.still_s / dt)
-            if self._tare < 1:
-                raise ValueError(
-                    f"hand-load tare needs a still start and {type(commands).__name__} has "
-                    f"{commands.still_s:g} s (CommandSource.still_s); valid here: estimate or off"
-                )
-        if not (target.applies_commands and target.measures_torque):
-            self.hand_load_kind = f"off (asked {kind}; {type(target).__name__} measures no applied torque)"
-            log.warning("hand-load compensation left off: %s", self.hand_load_kind)
-            return None
-        return HandLoadEstimator(self.policy.robot.mode, dt)
-
-    def _load_inertia(self, commands: CommandSource) -> LoadInertia | None:
-        """The run's load-inertia feed-forward: ``config.load_inertia``, else the source's.
-
-        It needs the hand-load fit's mass: asked for (``config.load_inertia`` True) with the fit off by
-        choice, it is refused (``ValueError``, naming the hand-load kinds that work); by the source's
-        default, or where the target cannot feed the fit, it is left off and says why (run log).
-        """
-        asked = self.config.load_inertia
-        want = commands.load_inertia if asked is None else asked
-        self.load_inertia_kind = "on" if want else "off"
-        """``on`` or ``off``, and why when a wanted feed-forward was left off (run log)."""
-        if not want:
-            return None
-        if self.hand_load is None:
-            if asked and self.hand_load_kind == "off":
-                raise ValueError(
-                    "load inertia on needs the hand-load fit's mass: hand load must be estimate or tare "
-                    "(got off); or load inertia off"
-                )
-            self.load_inertia_kind = f"off (wanted; hand-load {self.hand_load_kind})"
-            return None
-        return LoadInertia(self.policy.robot.mode, self.config.control_dt, commands.reference_scene)
-
-    def _with_hand_load(self, cmd: MitCommand, state: JointState) -> MitCommand:
-        """``cmd`` with the hand-load feed-forward added to ``tau_ff``.
-
-        POLICY: a fit on this tick's measured torque, then its feed-forward, once a command has been written
-        (before it the torque is no command's: a reset's 0); under ``tare`` only on the still start's
-        ticks (``_tare``), after them the kept estimate's feed-forward; HOLD after POLICY (the end's): the
-        last estimate's (no fit: the arm is not following the policy). In POLICY with the load-inertia
-        feed-forward on, the reference arm (started at the measured state on POLICY's first tick) advances
-        under ``cmd`` as given, and the inertia of the fit's masses is added too. Other modes: ``cmd``
-        unchanged.
-        """
-        if self.hand_load is None:
-            return cmd
-        fit, mode = self.hand_load, self.safety.mode
-        nominal = cmd
-        fitting = self._tare is None or fit.updates < self._tare
-        if mode == Mode.POLICY and self.last_command is not None and fitting:
-            cmd = cmd._replace(tau_ff=cmd.tau_ff + fit.step(state.q, state.tau))
-        elif mode in (Mode.POLICY, Mode.HOLD) and fit.updates:  # no fit: tare's kept estimate, the end's HOLD
-            cmd = cmd._replace(tau_ff=cmd.tau_ff + fit.torque(state.q))
-        inertia = self.load_inertia
-        if inertia is not None and mode == Mode.POLICY:
-            if not inertia.started:
-                inertia.start(state.q, state.dq)
-            cmd = cmd._replace(tau_ff=cmd.tau_ff + inertia.step(nominal, state.q, fit.masses))
-        return cmd
-
     def hand_load_record(self) -> dict[str, Any]:
-        """For the run log: the compensation's kind and, when on, the fit's record."""
-        rec: dict[str, Any] = {"kind": self.hand_load_kind}
-        if self._tare is not None:
-            rec["tare_ticks"] = self._tare
-        if self.hand_load is not None:
-            rec.update(self.hand_load.record())
-        rec["load_inertia"] = {"kind": self.load_inertia_kind}
-        if self.load_inertia is not None:
-            rec["load_inertia"].update(self.load_inertia.record())
-        return rec
+        """For the run log: the load compensation's record (``LoadCompensation.record``)."""
+        return self.loads.record()
 
     def _with_stop_torque(self, cmd: MitCommand, q: np.ndarray) -> MitCommand:
         """In DAMPING with gravity compensation: ``tau_ff`` = the gravity torque at the measured ``q``."""
@@ -479,7 +387,8 @@ class Runtime(RunLoop):
             else:
                 used, n_action_clipped = self.actions(action, t)
                 q_policy = self.policy.q_command(used)
-        cmd = self._with_hand_load(self._with_stop_torque(sf.command(t, q_policy), state.q), state)
+        cmd = self._with_stop_torque(sf.command(t, q_policy), state.q)
+        cmd = self.loads(cmd, state, sf.mode, commanded=self.last_command is not None)
         applied = self.target.applies_commands
         sat = sf.check_torque(cmd, state, self.config.control_dt, use_reported=applied)
         demand = sf.last_demand

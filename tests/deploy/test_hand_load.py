@@ -198,15 +198,16 @@ def test_runtime_fits_the_payload_and_the_tracker_holds_its_accuracy():
     nominal robot the fit reads under 0.05 kg on average.
     """
     rt, tip = _clip_run("payload_kg=0.5", None)
-    assert rt.hand_load_kind == "estimate"
-    assert np.all((rt.hand_load.mean_masses > 0.3) & (rt.hand_load.mean_masses < 0.7))
+    assert rt.loads.kind == "estimate"
+    assert np.all((rt.loads.fit.mean_masses > 0.3) & (rt.loads.fit.mean_masses < 0.7))
     assert np.any(np.abs(rt.last_command.tau_ff) > 0.1)
     assert tip < 1.0
     rt_off, tip_off = _clip_run("payload_kg=0.5", "off")
-    assert rt_off.hand_load is None and rt_off.hand_load_record() == {"kind": "off"}
+    assert rt_off.loads.fit is None
+    assert rt_off.hand_load_record() == {"kind": "off", "load_inertia": {"kind": "off"}}
     assert tip_off > 2.0
     rt_nom, _ = _clip_run(None, None)
-    assert np.all(np.abs(rt_nom.hand_load.mean_masses) < 0.05)
+    assert np.all(np.abs(rt_nom.loads.fit.mean_masses) < 0.05)
 
 
 def test_mock_target_leaves_the_fit_off():
@@ -220,7 +221,7 @@ def test_mock_target_leaves_the_fit_off():
     policy = load_policy(str(TRACKER))
     ref = reference_for(policy, load_motion("random-s1-003", "arms"))
     rt = Runtime(policy, MockTarget("arms"), ref, RuntimeConfig(hand_load="estimate"))
-    assert rt.hand_load is None
+    assert rt.loads.fit is None
     assert rt.hand_load_record()["kind"].startswith("off (asked estimate; MockTarget measures no applied")
     kinds = r"\('estimate', 'tare', 'off'\)"
     with pytest.raises(ValueError, match=r"RuntimeConfig.hand_load must be one of " + kinds):
@@ -284,18 +285,18 @@ def test_piano_tares_the_load_in_its_count_in_and_keeps_it():
     load (under 0.02 kg: the held pose is the model's static solve).
     """
     rt, song = _song_run("payload_kg=0.5", None)
-    assert rt.hand_load_kind == "tare" and rt.hand_load_record()["tare_ticks"] == 13
-    assert rt.hand_load.updates == 13
-    assert np.all((rt.hand_load.masses > 0.25) & (rt.hand_load.masses < 0.6))
-    kept = rt.hand_load.torque(rt.last_state.q)
+    assert rt.loads.kind == "tare" and rt.hand_load_record()["tare_ticks"] == 13
+    assert rt.loads.fit.updates == 13
+    assert np.all((rt.loads.fit.masses > 0.25) & (rt.loads.fit.masses < 0.6))
+    kept = rt.loads.fit.torque(rt.last_state.q)
     np.testing.assert_allclose(rt.last_command.tau_ff, kept, atol=1e-12)  # the end's HOLD: the kept estimate
     assert not song.faulted and song.f1 > 0.8
-    assert song.hand_load_kg == tuple(rt.hand_load.masses)  # the evaluation's record of the kept estimate
-    assert song.hand_load_motion_mrad == 1e3 * rt.hand_load.motion_rad
+    assert song.hand_load_kg == tuple(rt.loads.fit.masses)  # the evaluation's record of the kept estimate
+    assert song.hand_load_motion_mrad == 1e3 * rt.loads.fit.motion_rad
     _, off = _song_run("payload_kg=0.5", "off")
     assert off.faulted and off.f1 < 0.5 and off.hand_load_kg is None
     rt_nom, _ = _song_run(None, None)
-    assert rt_nom.hand_load.updates == 13 and np.all(np.abs(rt_nom.hand_load.masses) < 0.02)
+    assert rt_nom.loads.fit.updates == 13 and np.all(np.abs(rt_nom.loads.fit.masses) < 0.02)
 
 
 def test_tare_is_refused_on_a_source_that_is_never_still():

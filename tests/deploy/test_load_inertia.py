@@ -191,12 +191,12 @@ def test_the_piano_feeds_it_forward_by_default_and_it_needs_the_fit():
     from bar_policy.tasks.interfaces import CommandSource
 
     rt = _piano_runtime(RuntimeConfig())
-    assert rt.load_inertia_kind == "on" and rt.hand_load_kind == "tare"
-    keys = rt.load_inertia.reference.model
+    assert rt.loads.inertia_kind == "on" and rt.loads.kind == "tare"
+    keys = rt.loads.inertia.reference.model
     assert keys.njnt > len(ROBOT.joint_names) and keys.joint(keys.njnt - 1).name.startswith("piano_key")
-    assert _piano_runtime(RuntimeConfig(load_inertia=False)).load_inertia is None
+    assert _piano_runtime(RuntimeConfig(load_inertia=False)).loads.inertia is None
     rt_off = _piano_runtime(RuntimeConfig(hand_load="off"))
-    assert rt_off.load_inertia is None
+    assert rt_off.loads.inertia is None
     assert rt_off.hand_load_record() == {
         "kind": "off",
         "load_inertia": {"kind": "off (wanted; hand-load off)"},
