@@ -83,7 +83,8 @@ class LoadInertia:
         self.massless_count = 0
         """Hand-ticks without a feed-forward because the hand's mass estimate was at or below zero."""
         self.max_deviation_rad = 0.0
-        """Largest ``|q - q_ref|`` over the joints and ticks, rad: how far the robot left the nominal arm."""
+        """Largest ``|q - q_ref|`` over the joints and ticks (both at the tick's instant), rad: how far the
+        robot left the nominal arm."""
         self.clip = CapClip("load inertia feed-forward", robot.joint_names, robot.torque_cap)
         """The caps' clip of the feed-forward: ``clip_count``, ``max_abs`` (N*m per joint)."""
 
@@ -99,13 +100,12 @@ class LoadInertia:
         measured positions, rad, (n,); ``masses``: the load per hand (left, right), kg, (2,).
         """
         ref = self.reference
-        dq0 = ref.read_state().dq
+        before = ref.read_state()  # the instant of the measured q
+        self.max_deviation_rad = max(self.max_deviation_rad, float(np.max(np.abs(q - before.q))))
         ref.write_command(cmd)
         ref.advance(self.control_dt)
-        now = ref.read_state()
         self.steps += 1
-        self.max_deviation_rad = max(self.max_deviation_rad, float(np.max(np.abs(q - now.q))))
-        acc = (now.dq - dq0) / self.control_dt
+        acc = (ref.read_state().dq - before.dq) / self.control_dt
         m, d = self.model, self.data
         d.qpos[self._qadr] = q
         mujoco.mj_kinematics(m, d)
