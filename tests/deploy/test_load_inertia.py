@@ -205,3 +205,42 @@ def test_the_piano_feeds_it_forward_by_default_and_it_needs_the_fit():
     with pytest.raises(ValueError, match=msg):
         _piano_runtime(RuntimeConfig(hand_load="off", load_inertia=True))
     assert CommandSource.load_inertia is False
+
+
+@pytest.mark.parametrize("sub", [["eval"], []])
+def test_cli_refuses_an_unknown_load_inertia_in_one_line(sub, capsys):
+    from bar_policy.deploy.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main([*sub, "--policy", str(PIANO), "--load-inertia", "yes"])
+    assert e.value.code == 2
+    assert (
+        "argument --load-inertia: invalid choice: 'yes' (choose from 'on', 'off')" in capsys.readouterr().err
+    )
+
+
+def test_cli_refuses_load_inertia_on_without_the_fit_in_one_line(capsys):
+    """``bar-deploy eval --hand-load off --load-inertia on``: the runtime's refusal, one line, exit 2."""
+    from bar_policy.deploy.cli import main
+
+    code = main(
+        [
+            "eval",
+            "--policy",
+            str(PIANO),
+            "-q",
+            "--songs",
+            "ode_to_joy",
+            "--random-songs",
+            "0",
+            "--hand-load",
+            "off",
+            "--load-inertia",
+            "on",
+        ]
+    )
+    assert code == 2
+    err = capsys.readouterr().err
+    assert (
+        "load inertia on needs the hand-load fit's mass: hand load must be estimate or tare (got off)" in err
+    )
