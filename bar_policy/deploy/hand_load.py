@@ -49,7 +49,7 @@ from bar_policy.deploy.gravity import CapClip, GravityTorque
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.index import RobotIndex
 
-__all__ = ["HandLoadConfig", "HandLoadEstimator"]
+__all__ = ["HANDS", "HandLoadConfig", "HandLoadEstimator", "hand_arms"]
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +58,11 @@ GRAVITY = 9.81
 
 HANDS = (("left", "left_hand", "left_finger2_tip"), ("right", "right_hand", "right_finger2_tip"))
 """(joint-name prefix, hand body, fingertip site: the load's reference point) per arm."""
+
+
+def hand_arms(joint_names: tuple[str, ...]) -> list[np.ndarray]:
+    """Per hand of ``HANDS``, the indices of its arm's joints in ``joint_names`` (canonical order)."""
+    return [np.array([i for i, j in enumerate(joint_names) if j.startswith(p + "_")]) for p, _, _ in HANDS]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -96,10 +101,7 @@ class HandLoadEstimator:
             raise ValueError(f"the model's gravity {self.model.opt.gravity} is not (0, 0, -{GRAVITY})")
         self._dadr = RobotIndex.from_model(self.model, robot.joint_names).dof
         self.n = len(robot.joint_names)
-        self.arms = [
-            np.array([i for i, j in enumerate(robot.joint_names) if j.startswith(prefix + "_")])
-            for prefix, _, _ in HANDS
-        ]
+        self.arms = hand_arms(robot.joint_names)
         self.bodies = [self.model.body(body).id for _, body, _ in HANDS]
         self.sites = [self.model.site(site).id for _, _, site in HANDS]
         self.forget = math.exp(-control_dt / self.config.tau_s)

@@ -42,7 +42,7 @@ import mujoco
 import numpy as np
 
 from bar_policy.deploy.gravity import CapClip
-from bar_policy.deploy.hand_load import HANDS
+from bar_policy.deploy.hand_load import HANDS, hand_arms
 from bar_policy.deploy.targets.sim import SimConfig, SimTarget
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.index import RobotIndex
@@ -66,13 +66,10 @@ class LoadInertia:
         """The nominal arm the runtime's commands drive (``q_ref``, ``dq_ref``: ``reference.read_state``)."""
         self.model = load_model(mode)  # the robot alone: the Jacobians at the measured q
         self.data = mujoco.MjData(self.model)
-        self._qadr = RobotIndex.from_model(self.model, robot.joint_names).qpos
-        dadr = RobotIndex.from_model(self.model, robot.joint_names).dof
-        self.arms = [
-            np.array([i for i, j in enumerate(robot.joint_names) if j.startswith(prefix + "_")])
-            for prefix, _, _ in HANDS
-        ]
-        self._arm_dofs = [dadr[arm] for arm in self.arms]
+        index = RobotIndex.from_model(self.model, robot.joint_names)
+        self._qadr = index.qpos
+        self.arms = hand_arms(robot.joint_names)
+        self._arm_dofs = [index.dof[arm] for arm in self.arms]
         self.bodies = [self.model.body(body).id for _, body, _ in HANDS]
         self.sites = [self.model.site(site).id for _, _, site in HANDS]
         self.n = len(robot.joint_names)
