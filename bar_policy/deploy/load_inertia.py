@@ -3,7 +3,7 @@
 The hand-load fit (``deploy.hand_load``) cancels a load's weight; its mass stays. 0.5 kg at a fingertip
 multiplies the wrist roll's and pitch's inertia by about 7 (0.004 -> 0.030 kg*m^2 at the ready pose) and
 doubles the shoulder roll's (0.16 + 0.19 kg*m^2): under the fixed Kp 50, Kd 2 the wrists turn from
-overdamped (damping ratio 1.5) to underdamped (0.8) and the shoulders slow, so a press lands late and
+overdamped (damping ratio 2.2) to underdamped (0.8) and the shoulders slow, so a press lands late and
 rings. A feed-forward that restores the nominal arm's dynamics needs the acceleration the nominal arm
 would have, and the MIT law's torque at the firmware's rate is not the runtime's to read.
 
