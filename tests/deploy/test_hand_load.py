@@ -229,16 +229,18 @@ def test_mock_target_leaves_the_fit_off():
 
 
 @pytest.mark.parametrize("sub", [["eval"], []])
-def test_cli_refuses_an_unknown_hand_load_in_one_line(sub, capsys):
+@pytest.mark.parametrize(
+    ("option", "value", "choices"),
+    [("--hand-load", "on", "'estimate', 'tare', 'off'"), ("--load-inertia", "yes", "'on', 'off'")],
+)
+def test_cli_refuses_an_unknown_load_compensation_in_one_line(sub, option, value, choices, capsys):
+    """``--hand-load`` and ``--load-inertia`` (``deploy.load_compensation``) outside their choices."""
     from bar_policy.deploy.cli import main
 
     with pytest.raises(SystemExit) as e:
-        main([*sub, "--policy", str(TRACKER), "--hand-load", "on"])
+        main([*sub, "--policy", str(TRACKER), option, value])
     assert e.value.code == 2
-    assert (
-        "argument --hand-load: invalid choice: 'on' (choose from 'estimate', 'tare', 'off')"
-        in capsys.readouterr().err
-    )
+    assert f"argument {option}: invalid choice: '{value}' (choose from {choices})" in capsys.readouterr().err
 
 
 def test_a_non_finite_reading_is_not_fitted_and_gets_no_feed_forward(payload_model):
