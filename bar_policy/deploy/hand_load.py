@@ -14,8 +14,9 @@ exact for any point mass on the hand). Each POLICY tick the motors' torque minus
 torque at the measured state, ``tau - g(q)``, is the unmodelled torque: the load, plus the arm's inertia
 and friction in motion, which average out. A least-squares fit of ``theta`` per hand with exponential
 forgetting (time constant ``tau_s``; recursive: ``A <- lam A + Phi^T Phi``, ``b <- lam b + Phi^T r``,
-``theta = (A + ridge I)^-1 b``) follows a load put on or taken off within about ``tau_s``; the ridge pulls
-toward no load at the fingertip, so a poorly excited centre reads as the fingertip, not as a wrong mass.
+``theta = (A + D)^-1 b``, ``D`` = diag(``ridge``, ``ridge_centre`` x3)) follows a load put on or taken off
+within about ``tau_s``; the ridge pulls the centre toward the fingertip far harder than the mass toward
+none, so a poorly excited centre (a still pose) reads as the fingertip, not as a wrong mass.
 ``Phi(q) theta`` is the next command's ``tau_ff``: the MIT law's feed-forward, which the firmware adds to
 ``Kp (q_cmd - q) + Kd (dq_cmd - dq)``. The policy's command is untouched: it sees the arm where the
 nominal robot would be.
@@ -72,10 +73,17 @@ class HandLoadConfig:
     tau_s: float = 0.25
     """Forgetting time constant, s: the fit weighs a tick ``tau_s`` ago by 1/e (docs/robustness.md,
     "Hand-load compensation": 1 s and 2 s left the combined row over the gate)."""
-    ridge: float = 10.0
-    """Regularisation toward no load, (N*m)^2 / kg^2: a tick's ``Phi^T Phi`` along the total mass is ~60, its
-    steady sum at ``tau_s`` ~700, so the first ticks of a run (a reset's torque transient) cannot swing
-    the estimate; at 1e-3 they read up to 3 kg."""
+    ridge: float = 1.0
+    """Regularisation of the mass toward none, (N*m)^2 / kg^2: a tick's ``Phi^T Phi`` along the mass is ~35
+    at the ready pose, its sum over the piano's 12-tick tare ~270, so the estimate keeps 99.6 % of the
+    load; the first tick's (a reset's torque transient) may swing, within ``max_kg`` (counted)."""
+    ridge_centre: float = 1000.0
+    """Regularisation of ``m c`` toward 0 (the load at the fingertip), (N*m)^2 / (kg*m)^2. At one still pose
+    the centre's columns (14-17 N*m per kg*m) are stronger than the mass's (6 N*m per kg) and nearly
+    collinear with it (singular values 18, 14, 1.5, 0): one ridge of 10 on all four moved a third of a
+    0.5 kg fingertip load into a 0.16 m centre offset, the same torque at that pose, 0.33 kg to the inertia
+    feed-forward (docs/robustness.md, "The tare's ridge"). In motion the centre is excited (~2400 per
+    parameter at ``tau_s``) and the ridge lets it move."""
     arm_m: float = 0.1
     """Step of the centre's finite difference along each hand axis, m (exact for any step: the Jacobian
     is affine in the point)."""
@@ -83,7 +91,7 @@ class HandLoadConfig:
     """Bound on each hand's estimated mass, kg."""
 
     def __post_init__(self) -> None:
-        for name in ("tau_s", "ridge", "arm_m", "max_kg"):
+        for name in ("tau_s", "ridge", "ridge_centre", "arm_m", "max_kg"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"HandLoadConfig.{name} must be a finite number > 0, got {v}")
@@ -105,6 +113,7 @@ class HandLoadEstimator:
         self.bodies = [self.model.body(body).id for _, body, _ in HANDS]
         self.sites = [self.model.site(site).id for _, _, site in HANDS]
         self.forget = math.exp(-control_dt / self.config.tau_s)
+        self._ridge = np.diag([self.config.ridge] + [self.config.ridge_centre] * 3)
         self._jac = np.zeros((3, self.model.nv))
         self.theta = np.zeros((2, 4))
         """Per hand ``(m, m c_x, m c_y, m c_z)``: kg, and kg*m of the centre from the fingertip site."""
@@ -179,7 +188,7 @@ class HandLoadEstimator:
         for h, (arm, phi) in enumerate(zip(self.arms, phis, strict=True)):
             self._a[h] = self.forget * self._a[h] + phi.T @ phi
             self._b[h] = self.forget * self._b[h] + phi.T @ residual[arm]
-            w = np.linalg.solve(self._a[h] + c.ridge * np.eye(4), self._b[h])
+            w = np.linalg.solve(self._a[h] + self._ridge, self._b[h])
             mass = float(w[0])
             if abs(mass) > c.max_kg:
                 w = w * (c.max_kg / abs(mass))
@@ -218,6 +227,7 @@ class HandLoadEstimator:
         return {
             "tau_s": c.tau_s,
             "ridge": c.ridge,
+            "ridge_centre": c.ridge_centre,
             "arm_m": c.arm_m,
             "max_kg": c.max_kg,
             "fits": self.updates,
