@@ -303,7 +303,13 @@ def main(argv: list[str] | None = None, *, eval_options: Mapping[str, Any] | Non
 
     ``eval_options``: for tests only, smaller held-out evaluations (see ``held_out_evaluation``).
     """
-    pre = argparse.ArgumentParser(add_help=False)
+    pre = argparse.ArgumentParser(
+        prog="python train/ship.py",
+        description="Train a policy (or take a finished run) and publish it under checkpoints/ if it passes "
+        "the ship gate: the nominal held-out evaluation, then the robustness suite on the sim target and "
+        "the emulated bus.",
+        add_help=False,
+    )
     pre.add_argument("--from-run", default=None, help="publish this finished run instead of training")
     pre.add_argument("--name", default=None, help="file stem under checkpoints/ (default lite_<task>_<mode>)")
     pre.add_argument(
@@ -343,7 +349,12 @@ def main(argv: list[str] | None = None, *, eval_options: Mapping[str, Any] | Non
     )
     pre.add_argument("--checkpoints-dir", default="checkpoints", help="where the ONNX and JSON go")
     pre.add_argument("--docs-dir", default="docs", help="where the reach curve and reach.md results go")
-    known, rest = pre.parse_known_args(sys.argv[1:] if argv is None else argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if "-h" in argv or "--help" in argv:  # ship's own options; the rest pass through to training
+        pre.print_help()
+        print("\nany other flag is a training flag (without --from-run): python train/ppo.py --help")
+        return SHIPPED
+    known, rest = pre.parse_known_args(argv)
     try:
         rows = robustness_rows(known.robustness)
         targets = robustness_targets(known.robustness_targets)

@@ -279,3 +279,15 @@ def test_rejudge_replaces_a_published_record_on_a_pass_and_keeps_it_on_a_miss(tm
     assert ship.main(["--rejudge", "t", "--from-run", "x"]) == ship.NOT_EVALUATED
     assert "--rejudge judges a published file" in capsys.readouterr().err
     assert ship.main(["--rejudge", "nope", "--checkpoints-dir", str(ck)]) == ship.NOT_EVALUATED
+
+
+def test_help_is_ships_own_and_points_to_the_training_flags(capsys):
+    """``--help`` prints ship's options (not the training CLI's, which the other flags pass through to),
+    then where the training flags are; exit 0, nothing run."""
+    assert ship.main(["--help"]) == ship.SHIPPED == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: python train/ship.py")
+    for flag in ("--from-run", "--rejudge", "--robustness", "--robustness-targets", "--iterate"):
+        assert flag in out
+    assert "python train/ppo.py --help" in out and "--preset" not in out
+    assert ship.main(["--preset", "track", "-h"]) == 0 and "--rejudge" in capsys.readouterr().out
