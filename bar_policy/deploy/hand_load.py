@@ -79,11 +79,11 @@ class HandLoadConfig:
     load; the first tick's (a reset's torque transient) may swing, within ``max_kg`` (counted)."""
     ridge_centre: float = 1000.0
     """Regularisation of ``m c`` toward 0 (the load at the fingertip), (N*m)^2 / (kg*m)^2. At one still pose
-    the centre's columns (14-17 N*m per kg*m) are stronger than the mass's (6 N*m per kg) and nearly
-    collinear with it (singular values 18, 14, 1.5, 0): one ridge of 10 on all four moved a third of a
-    0.5 kg fingertip load into a 0.16 m centre offset, the same torque at that pose, 0.33 kg to the inertia
-    feed-forward (docs/robustness.md, "The tare's ridge"). In motion the centre is excited (~2400 per
-    parameter at ``tau_s``) and the ridge lets it move."""
+    the centre's columns (norms 3-17 N*m per kg*m) are mostly stronger than the mass's (6 N*m per kg) and
+    nearly collinear with it (singular values 18, 14, 1.5, 0): one ridge of 10 on all four moved a third
+    of a 0.5 kg fingertip load into a 0.16 m centre offset, the same torque at that pose, 0.33 kg to the
+    inertia feed-forward (docs/robustness.md, "The tare's ridge"). A moving arm excites the centre (its
+    columns' sums at ``tau_s`` reach ~3600 per parameter), and the data outweigh the ridge."""
     arm_m: float = 0.1
     """Step of the centre's finite difference along each hand axis, m (exact for any step: the Jacobian
     is affine in the point)."""

@@ -92,8 +92,8 @@ def test_a_still_pose_reads_a_fingertip_load_as_mass(payload_model):
     centre's ridge keeps the load at the fingertip, so the mass reads it. By hand: the mass's ridge alone
     keeps ``S / (S + ridge)`` of it, ``S`` the 12 ticks' forgetting-weighted sum of ``|g J_z|^2`` over each
     arm's joints (``_site_torque`` of 1 kg), about 0.996; the centre's leak is held under 1 % (the ridge
-    of 1000 on each ``m c`` against the same sum of its columns, 10x the mass's): 0.99 x that to that. One
-    ridge of 10 on all four, as before, moves a third of the load into a centre offset (0.33 kg)."""
+    of 1000 on each ``m c`` against the same sum of its columns, at most 8x the mass's): 0.99 x that to
+    that. One ridge of 10 on all four moves a third of the load into a centre offset (0.33 kg)."""
     q = np.asarray(ROBOT.pose("piano_ready"))
     config = HandLoadConfig()
     lam = np.exp(-DT / config.tau_s)
