@@ -33,6 +33,7 @@ The scene itself (hinges, boxes, sites, sensors, fingertip contact spheres) is `
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, replace
 from typing import Any, NamedTuple
@@ -222,8 +223,13 @@ class Key(NamedTuple):
     """The key-top site (aim point) at rest, m."""
 
 
+@functools.cache
 def key_table(config: KeyboardConfig) -> tuple[Key, ...]:
-    """All keys, lowest first (``config.n_keys`` of them)."""
+    """All keys, lowest first (``config.n_keys`` of them).
+
+    Cached per keyboard (the config is frozen, the keys immutable): the deploy side reads each tick's
+    pressed keys through it (``pressed``), where building the table took 0.4 ms of a piano tick.
+    """
     c = config
     centre = _white_index(c.centre_note)
     keys = []
