@@ -22,7 +22,7 @@ from bar_policy.deploy.log.run_log import RunLog
 from bar_policy.deploy.run_config import RunResult
 from bar_policy.deploy.safety import Mode
 from bar_policy.deploy.targets.base import StopReport, TargetError, run_metadata_of
-from bar_policy.deploy.timing import Pacer, RealtimePriority
+from bar_policy.deploy.timing import FrozenHeap, Pacer, RealtimePriority
 from bar_policy.quality import summarise
 from bar_policy.robot.mjcf import lite_xml
 from bar_policy.signals import StopSignals
@@ -178,7 +178,7 @@ class RunLoop:
         pacer = Pacer(dt, paced=paced, spin_s=cfg.spin_s, n_deadlines=n_deadlines)
         error: BaseException | None = None
         try:
-            with RealtimePriority(cfg.rt_priority):
+            with FrozenHeap(), RealtimePriority(cfg.rt_priority):
                 while n_deadlines is None or pacer.index < n_deadlines:
                     start, lateness = pacer.wait()
                     t = k * dt if sync else self.target.now() - t0_target
