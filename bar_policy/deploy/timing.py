@@ -138,13 +138,14 @@ class FrozenHeap:
 
     Python's full collection scans every tracked object; after start-up (MuJoCo, onnxruntime, numpy, the
     models, the song) one took 15-21 ms inside a piano tick on the 2-core CPU, a whole 20 ms control period
-    (``bench/piano_tick.py``'s max). On entry a collection, then ``gc.freeze()``: what is alive moves to a
-    permanent generation no collection scans, so the loop's collections see only what the loop made; on exit
-    ``gc.unfreeze()``. Collection stays on: the loop's own garbage is still freed.
+    (``bench/piano_tick.py``'s max). On entry ``gc.freeze()``: what is alive moves to a permanent generation
+    no collection scans, so the loop's collections see only what the loop made; on exit ``gc.unfreeze()``.
+    Collection stays on: the loop's own garbage is still freed. No collection first: the loop starts with
+    the motors enabled and their watchdog armed, and a full collection of a large heap (a test process's)
+    took longer than the watchdog; start-up garbage frozen with the rest is only memory, freed after.
     """
 
     def __enter__(self) -> FrozenHeap:
-        gc.collect()
         gc.freeze()
         return self
 
