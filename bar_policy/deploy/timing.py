@@ -142,15 +142,21 @@ class FrozenHeap:
     no collection scans, so the loop's collections see only what the loop made; on exit ``gc.unfreeze()``.
     Collection stays on: the loop's own garbage is still freed. No collection first: the loop starts with
     the motors enabled and their watchdog armed, and a full collection of a large heap (a test process's)
-    took longer than the watchdog; start-up garbage frozen with the rest is only memory, freed after.
+    took longer than the watchdog; start-up garbage frozen with the rest is only memory, freed after. A heap
+    already frozen on entry (a caller's own freeze, an outer block) stays frozen on exit.
     """
 
+    def __init__(self) -> None:
+        self._owner = False
+
     def __enter__(self) -> FrozenHeap:
+        self._owner = gc.get_freeze_count() == 0
         gc.freeze()
         return self
 
     def __exit__(self, *exc: object) -> None:
-        gc.unfreeze()
+        if self._owner:
+            gc.unfreeze()
 
 
 class Pacer:

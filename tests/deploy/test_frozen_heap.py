@@ -53,3 +53,13 @@ def test_the_control_loop_runs_with_the_heap_frozen(make_policy, monkeypatch):
     Runtime(pol, SimTarget("arms"), SampledCommands(pol.obs_manager.command_names, seed=0), cfg).run()
     assert len(frozen) == 5 and min(frozen) > 0
     assert gc.get_freeze_count() == 0
+
+
+def test_a_heap_frozen_before_the_block_stays_frozen_after_it():
+    """An outer freeze (a caller's, or an outer block) is not undone by an inner block's exit."""
+    with FrozenHeap():
+        outer = gc.get_freeze_count()
+        with FrozenHeap():
+            pass
+        assert gc.get_freeze_count() >= outer > 0
+    assert gc.get_freeze_count() == 0
