@@ -32,7 +32,7 @@ numpy only.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -51,9 +51,6 @@ __all__ = ["LEAD_STEPS", "KeyPoseReference", "prior_entries"]
 
 LEAD_STEPS = int(PIANO["network.prior_lead_steps"])  # type: ignore[call-overload]
 """Goal-key frames ``0..LEAD_STEPS`` press in the reference: the preset's ``network.prior_lead_steps``."""
-
-_BLEND_ARRAYS = ("numer", "denom", "numer_bias", "denom_bias")
-"""``BlendPrior``'s arrays (``obs.action_prior``)."""
 
 
 def prior_entries(
@@ -132,8 +129,6 @@ class KeyPoseReference:
         prior = key_pose_prior(
             manager, keyboard or compact_config(), default[index], scale, LEAD_STEPS, config
         )
-        # ``blend`` computes in float32: its arrays converted once here, not on every tick (0.13 ms of one).
-        prior = replace(prior, **{f: np.asarray(getattr(prior, f), np.float32) for f in _BLEND_ARRAYS})
         term = manager.term("target_keys")
         keys = manager.term("key_pressed")
         clip = getattr(policy, "action_clip", None)
