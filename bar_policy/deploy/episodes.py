@@ -6,8 +6,8 @@ observation manager, the action clip, the safety supervisor, the target's MIT la
 runtime: every episode starts in POLICY with no ramp, a fault damps nothing, no signal handlers.
 
 ``BusEpisodes`` runs the same episodes on the real target over the emulated Robstride bus in lockstep
-(``targets.emulated.EmulatedBusTarget``: the CAN code path, the 16-bit feedback, the firmware's law with
-its explicit damping; ``bar-deploy eval --target bus``), the perturbed robot being the emulator's. A runner
+(``targets.emulated.EmulatedBusTarget``: the CAN code path, the 16-bit feedback, the firmware's law;
+``bar-deploy eval --target bus``), the perturbed robot being the emulator's. A runner
 is a context manager: leaving it closes the targets it made (the emulator's thread and its buses).
 """
 

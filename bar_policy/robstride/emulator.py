@@ -7,7 +7,8 @@ physics (``emulator_physics``) and clock:
 
 - Physics (``emulator_physics.EmulatorPhysics``, inherited): each MuJoCo step (2 ms) the MIT law of every
   enabled motor, ``firmware_torque`` (the one shared actuator model) with the motor's ``limit_torque`` as
-  the cap, goes into ``qfrc_applied``. Disabled motors apply nothing. Joint <-> motor frames use the
+  the cap, goes into ``qfrc_applied``, its damping integrated as the firmware's fast loop applies it
+  (``damping``). Disabled motors apply nothing. Joint <-> motor frames use the
   robot data's directions and the emulated robot's *true* homing offsets (``offsets``), so a calibration
   error shows up as it would on hardware.
 - Time: ``mode="lockstep"`` advances ``control_dt`` of physics once every enabled motor has received a type-1
@@ -45,7 +46,7 @@ from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.scene import SceneEdit, load_model
 from bar_policy.robstride import firmware as fw
 from bar_policy.robstride import framing, motor_side
-from bar_policy.robstride.emulator_physics import EmulatorPhysics
+from bar_policy.robstride.emulator_physics import EMULATOR_DAMPING, EmulatorPhysics
 from bar_policy.robstride.errors import FrameError
 from bar_policy.robstride.firmware import DEFAULT_LIMIT_CURRENT, EmulatedMotor, Injection, JointReading
 
@@ -78,6 +79,9 @@ class RobstrideEmulator(EmulatorPhysics):
         clock: the emulator's clock, s; must be the clock of the buses' frame timestamps.
         scene: a task's additions to the robot's MuJoCo scene (``bar_policy.robot.scene``); None: the robot
             alone. The motors act on the robot's joints by name (``RobotIndex``).
+        damping: how physics integrates the law's ``Kd`` term: ``trapezoid`` (the default: nearest the
+            firmware's fast loop), ``implicit`` (the sim target's) or ``explicit`` (a 500 Hz law);
+            ``emulator_physics``'s docstring.
     """
 
     def __init__(
@@ -98,9 +102,13 @@ class RobstrideEmulator(EmulatorPhysics):
         watchdog_tick: float = framing.CAN_TIMEOUT_TICK,
         clock: Callable[[], float] = time.time,
         scene: SceneEdit | None = None,
+        damping: str = EMULATOR_DAMPING[0],
     ) -> None:
         if mode not in EMULATOR_MODES:
             raise ValueError(f"unknown emulator mode {mode!r}; valid: {list(EMULATOR_MODES)}")
+        if damping not in EMULATOR_DAMPING:
+            raise ValueError(f"unknown emulator damping {damping!r}; valid: {list(EMULATOR_DAMPING)}")
+        self.damping = damping
         used = {j.can_interface for j in robot.joints}
         unmapped = sorted(used - set(channels))
         if unmapped:
@@ -159,6 +167,7 @@ class RobstrideEmulator(EmulatorPhysics):
         self.index = RobotIndex.from_model(self.model, robot.joint_names)
         """Addresses of the robot's joints in the scene."""
         self._qadr, self._dadr = self.index.qpos, self.index.dof
+        self._mjcf_damping = self.model.dof_damping[self._dadr].copy()
         q0 = robot.pose("arms_hanging") if initial_q is None else np.asarray(initial_q, dtype=np.float64)
         self.data.qpos[self._qadr] = q0
         mujoco.mj_forward(self.model, self.data)

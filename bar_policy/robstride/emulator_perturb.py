@@ -25,7 +25,6 @@ from collections.abc import Mapping
 from dataclasses import replace
 from typing import Any
 
-import mujoco
 import numpy as np
 
 from bar_policy.robot.constants import RobotSpec
@@ -148,18 +147,13 @@ class PerturbedEmulator(RobstrideEmulator):
 
     def _step(self, n: int) -> None:
         """``n`` physics steps: ``strength`` times the firmware torque, the pushes; then the delay line."""
-        torque, idx, d = self._law()
-        dadr = self._dadr[idx]
-        s = self.motor_perturbation.strength[idx]
-        tau_raw = np.zeros(len(idx))
-        for _ in range(n):
-            tau_raw = torque()
-            self.data.qfrc_applied[:] = 0.0
-            self.data.qfrc_applied[dadr] = s * d * tau_raw
-            if self._pusher is not None:
-                self._pusher.apply(self.data)
-            mujoco.mj_step(self.model, self.data)
-        self._tau_raw[idx] = tau_raw
+        _, idx, _, _, _ = self._law()
+        pusher = self._pusher
+        self._run(
+            n,
+            strength=self.motor_perturbation.strength[idx],
+            before=None if pusher is None else (lambda: pusher.apply(self.data)),
+        )
         self._snapshot()
 
 

@@ -66,17 +66,22 @@ def merge_fits(a: ArmFit, b: ArmFit) -> ArmFit:
 
 
 def round_samples(robot: RobotSpec, rec: Recording, period: float) -> ArmSamples:
-    """One sample per round: the state of reply ``k-1``, the torque command ``k`` asked for there.
+    """One sample per round, at its middle: the round's mean state, the law's torque there, its acceleration.
 
-    The acceleration is ``(dq_k - dq_{k-1}) / dt``, what followed.
+    The mean of the states of replies ``k-1`` and ``k``, the torque command ``k`` asks for at that state,
+    and the acceleration ``(dq_k - dq_{k-1}) / dt``.
 
-    The torque is the MIT law's at that state, ``Kp (q* - q) + Kd (dq* - dq) + ff``, not the reading of
-    one instant: at one physics step per round (the emulator at ``--rate`` 500 Hz: 2 ms) this is exactly
-    the torque the firmware applied over the step that produced the acceleration; on a real robot, whose
-    firmware runs the law faster than the bus, it is the round's torque to O(dt). A joint whose loop rings
-    faster than a slower round (a wrist at Kp 50 on a few g*m^2 rings at ~20 Hz) would bias a fit of
-    instantaneous readings. Strength is then the torque produced per torque the law asked for (the
-    budget keeps the law off its cap: no saturation).
+    The torque is the MIT law's, ``Kp (q* - q) + Kd (dq* - dq) + ff``, not the reading of one instant, and at
+    the round's mean state because the acceleration is the round's mean: a firmware that runs the law far
+    faster than the bus applies, over the round, the law's mean, which is the law at the mean state to
+    O(dt^2). The law at the start state instead reads the damping force's change over the round,
+    ``Kd dt qdd / 2``, as armature: +0.002 kg*m^2 at Kd 2 and 2 ms rounds (the emulator run 0.25 ms at a
+    time, the law every step: +0.002 on every joint, 40-100 % of the truth; docs/sysid.md). The
+    emulator's default damping, ``trapezoid`` (``robstride.emulator_physics``), is this mean to second
+    order; its ``explicit`` update holds the start's torque for the step, which this pairing reads as
+    -0.002. A joint whose loop rings faster than a slower round (a wrist at Kp 50 on a few g*m^2 rings at
+    ~20 Hz) would bias a fit of instantaneous readings. Strength is then the torque produced per torque
+    the law asked for (the budget keeps the law off its cap: no saturation).
 
     The law is ``robot.mit.firmware_torque``, the firmware's own (the emulator's), on the wire: every
     command field as decoded after the official 16-bit truncation, in the motor frame ``raw = direction *
@@ -96,9 +101,11 @@ def round_samples(robot: RobotSpec, rec: Recording, period: float) -> ArmSamples
     dq_mid = dq + d * rg.v_max / U16_MAX
     # the firmware's own law (the emulator's and the sim target's) on the motor-frame command and state
     raw = MitCommand(d * q_cmd + off, d * dq_cmd, np.asarray(robot.kp), np.asarray(robot.kd), d * ff)
-    tau = d * firmware_torque(raw, d * q_mid[:-1] + off, d * dq_mid[:-1], rg, robot.torque_cap)
+    # the round's mean state (the acceleration is the round's mean): the law's mean over it to O(dt^2)
+    q_round, dq_round = (q_mid[:-1] + q_mid[1:]) / 2, (dq_mid[:-1] + dq_mid[1:]) / 2
+    tau = d * firmware_torque(raw, d * q_round + off, d * dq_round, rg, robot.torque_cap)
     qdd = (dq[1:] - dq[:-1]) / period
-    return ArmSamples(q_mid[:-1], dq_mid[:-1], qdd, tau)
+    return ArmSamples(q_round, dq_round, qdd, tau)
 
 
 @dataclass(frozen=True)

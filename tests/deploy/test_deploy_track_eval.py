@@ -192,7 +192,7 @@ def test_plot_overlays_the_reference(track_policy, tmp_path, monkeypatch):
 def test_emulated_bus_column_follows_the_sim(track_policy):
     """The bench's bus column (RealTarget over virtual CAN to the lockstep emulator) against the sim target
     on a constant command that swings the arms from piano_ready to the default pose: the same steps and no
-    fault, errors within 2 % (the emulator integrates damping explicitly and feeds back 16-bit states)."""
+    fault, errors within 2 % (the emulator feeds back 16-bit states and starts after a damping round)."""
     from bar_policy.deploy.targets.emulated import EmulatedBusTarget
 
     piano = ROBOT.pose("piano_ready")

@@ -163,7 +163,7 @@ def _track_policy(tmp_path):
 def test_emulated_bus_with_a_perturbation_follows_the_perturbed_sim(tmp_path, spec):
     """As the nominal sim-vs-bus parity test (tests/deploy/test_deploy_track_eval.py): the same swing on the
     sim target and on the lockstep emulator behind the CAN code, both with one perturbation; errors within
-    the same 2 % (the emulator integrates damping explicitly, feeds back 16-bit states and starts after a
+    the same 2 % (the emulator feeds back 16-bit states and starts after a
     20 ms damping round), and far from the nominal robot's (the perturbation acts)."""
     from bar_policy.deploy.targets.emulated import EmulatedBusTarget
 
