@@ -7,22 +7,24 @@ more joints runs too. ``RobstrideEmulator`` (``emulator``: buses, threads, clock
 protocol) inherits this from ``EmulatorPhysics`` and owns the state it runs on (the attributes annotated
 below).
 
-The law's damping term (``damping``): the firmware evaluates the law inside its own loop, many times per 2
-ms step, so a motor damps as a continuous ``Kd`` would. Each mode puts a share of the ``Kd`` of every
-unsaturated enabled motor into Euler's implicit joint damping and keeps the force at the step's start
-exactly the firmware torque (``qfrc_applied = tau + share Kd dq``, the passive ``-share Kd dq`` cancelling
-it), so each step solves ``(M + h share Kd) dv = h tau``: that share of the damping force acts at the
-step's end velocity, the rest at its start:
+The law over a step (``damping``): the firmware evaluates the law inside its own loop, many times per 2 ms
+step, so over a step a motor applies the law's mean, as a continuous law would. Each mode hands part of the
+law's dependence on the state to Euler's implicit joint damping ``D`` (of every unsaturated enabled
+motor: a saturated one's torque does not depend on the state) and adds to ``qfrc_applied`` what cancels
+it at the step's start, so that the force acting over the step is the law at
 
-- ``trapezoid`` (the default, share 1/2): the damping force at the step's mean velocity, second order
-  (Crank-Nicolson); a wrist's fast mode decays by ``(1 - x/2) / (1 + x/2)`` per step, ``x = h Kd / mu``,
-  against the continuous law's ``exp(-x)``: the nearest of the three to a fast firmware, and what the
-  identification's fit assumes of a real motor (``robstride.identify.round_samples``);
-- ``implicit`` (share 1): the force at the step's end velocity, first order, ``1 / (1 + x)``: the sim
-  target's default and the MJX env's treatment, the same numbers;
-- ``explicit`` (share 0): the torque held for the step, a 500 Hz law (mujoco_ros2_control's update),
-  ``1 - x``: it rings in the wrist mode (docs/physics.md) and, under Coulomb friction, stalls a wrist where
-  a motor would not (docs/can.md, "The law's damping in the emulator").
+- ``trapezoid`` (the default): the step's mean state, ``(q_k + q_{k+1}) / 2`` and ``(dq_k + dq_{k+1}) /
+  2`` (``D = Kd / 2 + h Kp / 2``; Euler's position update is ``q_{k+1} = q_k + h dq_{k+1}``): second order,
+  the nearest of the three to a fast firmware, and the law the identification's fit reads at each round
+  (``robstride.identify.round_samples``); a wrist's fast mode (``x = h Kd / mu``) decays by about ``(1 - x
+  /2) / (1 + x/2)`` per step against the continuous law's ``exp(-x)``;
+- ``implicit``: the start position and the end velocity (``D = Kd``): first order, ``1 / (1 + x)``; the
+  sim target's default and the MJX env's treatment, the same numbers;
+- ``explicit``: the start state (``D = 0``), held for the step: a 500 Hz law (mujoco_ros2_control's
+  update), ``1 - x``, which rings in the wrist mode (docs/physics.md) and, under Coulomb friction, stalls
+  a wrist where a motor would not (docs/can.md, "The law over a step in the emulator").
+
+The torque a motor reports is the law at the step's start state, as a motor's reading at that instant.
 """
 
 from __future__ import annotations
@@ -44,8 +46,9 @@ __all__ = ["EMULATOR_DAMPING", "EmulatorPhysics"]
 EMULATOR_DAMPING = ("trapezoid", "implicit", "explicit")
 """How the emulator integrates the law's damping term (module docstring); the first is the default."""
 
-_IMPLICIT_SHARE = {"trapezoid": 0.5, "implicit": 1.0, "explicit": 0.0}
-"""Share of the law's ``Kd`` each mode hands to Euler's implicit joint damping."""
+_IMPLICIT_SHARE = {"trapezoid": (0.5, 0.5), "implicit": (1.0, 0.0), "explicit": (0.0, 0.0)}
+"""Per mode ``(a, b)``: Euler's implicit damping takes ``a Kd + b h Kp`` of each motor's law, the damping
+term at ``(1 - a) dq_k + a dq_{k+1}`` and the spring's at ``q_k + b h dq_{k+1}`` (module docstring)."""
 
 _Static = tuple[list[EmulatedMotor], np.ndarray, np.ndarray, WireRanges, np.ndarray]
 """Constants of the joint motors: motors, joint index, direction, wire ranges, T_max (N*m)."""
@@ -94,8 +97,8 @@ class EmulatorPhysics:
         """The motors' MIT law at the present state (lock held).
 
         Returns the torque function (the raw, motor-frame torque of every joint motor, 0 for disabled
-        ones), the joint index and direction per motor, each motor's ``Kd`` (0 when disabled, N*m*s/rad)
-        and its cap (N*m).
+        ones), the joint index and direction per motor, each motor's gains ``(Kp, Kd)``, shape (2, motors),
+        0 when disabled (N*m/rad, N*m*s/rad), and its cap (N*m).
         """
         ms, idx, d, ranges, t_max = self._static()
         off = np.array([m.offset for m in ms])
@@ -110,38 +113,40 @@ class EmulatorPhysics:
             dq_raw = d * self.data.qvel[dadr]
             return on * firmware_torque(mit, q_raw, dq_raw, ranges, cap, quantize_wire=False)
 
-        return torque, idx, d, on * cmd[3], cap
+        return torque, idx, d, on * cmd[2:4], cap
 
     def _run(
         self, n: int, strength: np.ndarray | None = None, before: Callable[[], None] | None = None
     ) -> None:
-        """``n`` physics steps under the law (lock held), its damping integrated as ``self.damping`` says.
+        """``n`` physics steps under the law (lock held), integrated as ``self.damping`` says.
 
-        ``strength`` (per joint motor, None: 1) scales the torque the joint receives and so the damping it
-        is integrated with; ``before`` runs before each ``mj_step`` (the pushes).
+        ``strength`` (per joint motor, None: 1) scales the torque the joint receives and so the part Euler
+        integrates implicitly; ``before`` runs before each ``mj_step`` (the pushes).
         """
-        torque, idx, d, kd, cap = self._law()
+        torque, idx, d, gains, cap = self._law()
         dadr = self._dadr[idx]
         s = np.ones(len(idx)) if strength is None else strength
-        share = _IMPLICIT_SHARE[self.damping]
-        implicit = share > 0.0
+        a, b = _IMPLICIT_SHARE[self.damping]
+        h = float(self.model.opt.timestep)
+        kd_share, implicit = s * a * gains[1], s * (a * gains[1] + b * h * gains[0])
         base = self._mjcf_damping[idx]
         tau_raw = np.zeros(len(idx))
         for _ in range(n):
             tau_raw = torque()
             self.data.qfrc_applied[:] = 0.0
             tau = s * d * tau_raw
-            if implicit:
-                # The passive force -D dq cancels the + D dq: the force is the firmware torque; Euler
-                # integrates D implicitly. A saturated motor's torque does not depend on dq: no D.
-                law_d = share * s * kd * (np.abs(tau_raw) < cap)
-                self.model.dof_damping[dadr] = base + law_d
-                tau = tau + law_d * self.data.qvel[dadr]
+            if a > 0.0:
+                # Euler solves M dv = h (qfrc_applied - D dq_{k+1}) (its passive -D dq, implicit): with
+                # D = a Kd + b h Kp and qfrc_applied = tau + a Kd dq_k, the force over the step is the law
+                # at q_k + b h dq_{k+1} and (1 - a) dq_k + a dq_{k+1} (module docstring).
+                unsat = np.abs(tau_raw) < cap
+                self.model.dof_damping[dadr] = base + unsat * implicit
+                tau = tau + unsat * kd_share * self.data.qvel[dadr]
             self.data.qfrc_applied[dadr] = tau
             if before is not None:
                 before()
             mujoco.mj_step(self.model, self.data)
-        if implicit:
+        if a > 0.0:
             self.model.dof_damping[dadr] = base
         self._tau_raw[idx] = tau_raw
 
