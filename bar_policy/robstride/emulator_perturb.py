@@ -147,11 +147,10 @@ class PerturbedEmulator(RobstrideEmulator):
 
     def _step(self, n: int) -> None:
         """``n`` physics steps: ``strength`` times the firmware torque, the pushes; then the delay line."""
-        _, idx, _, _, _ = self._law()
         pusher = self._pusher
         self._run(
             n,
-            strength=self.motor_perturbation.strength[idx],
+            strength=self.motor_perturbation.strength,
             before=None if pusher is None else (lambda: pusher.apply(self.data)),
         )
         self._snapshot()

@@ -120,12 +120,12 @@ class EmulatorPhysics:
     ) -> None:
         """``n`` physics steps under the law (lock held), integrated as ``self.damping`` says.
 
-        ``strength`` (per joint motor, None: 1) scales the torque the joint receives and so the part Euler
-        integrates implicitly; ``before`` runs before each ``mj_step`` (the pushes).
+        ``strength`` (per robot joint, canonical order; None: 1) scales the torque the joint receives and so
+        the part Euler integrates implicitly; ``before`` runs before each ``mj_step`` (the pushes).
         """
         torque, idx, d, gains, cap = self._law()
         dadr = self._dadr[idx]
-        s = np.ones(len(idx)) if strength is None else strength
+        s = np.ones(len(idx)) if strength is None else np.asarray(strength)[idx]
         a, b = _IMPLICIT_SHARE[self.damping]
         h = float(self.model.opt.timestep)
         kd_share, implicit = s * a * gains[1], s * (a * gains[1] + b * h * gains[0])
