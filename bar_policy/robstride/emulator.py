@@ -7,8 +7,8 @@ physics (``emulator_physics``) and clock:
 
 - Physics (``emulator_physics.EmulatorPhysics``, inherited): each MuJoCo step (2 ms) the MIT law of every
   enabled motor, ``firmware_torque`` (the one shared actuator model) with the motor's ``limit_torque`` as
-  the cap, goes into ``qfrc_applied``, its damping integrated as the firmware's fast loop applies it
-  (``damping``). Disabled motors apply nothing. Joint <-> motor frames use the
+  the cap, goes into ``qfrc_applied``; over each step the law acts at the step's mean state, as a fast
+  firmware applies it (``damping``). Disabled motors apply nothing. Joint <-> motor frames use the
   robot data's directions and the emulated robot's *true* homing offsets (``offsets``), so a calibration
   error shows up as it would on hardware.
 - Time: ``mode="lockstep"`` advances ``control_dt`` of physics once every enabled motor has received a type-1

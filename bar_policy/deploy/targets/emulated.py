@@ -17,10 +17,10 @@ the benchmarks (``bench/reach_emulator.py``, ``bench/track_fidelity.py``):
   parts a command source reads through ``companions`` (the emulator: ``model``, ``data``), as on
   ``--target real --can-interface virtual``.
 
-The emulator applies the MIT law through ``qfrc_applied`` with its Kd term integrated implicitly, as the
-firmware's fast loop damps (``robstride.emulator_physics``), the treatment of the sim target's default and
-the MJX env. Channels are unique per instance (``virtual`` channels are process-wide), so several can
-coexist.
+The emulator applies the MIT law over each physics step at the step's mean state, as a firmware that runs
+the law far faster than the bus does (``robstride.emulator_physics``, ``trapezoid``); the sim target
+integrates it as the policy trained (``targets.sim``). Channels are unique per instance (``virtual``
+channels are process-wide), so several can coexist.
 """
 
 from __future__ import annotations
