@@ -27,7 +27,8 @@ ROUNDS = 100
 def _law(q_cmd: np.ndarray, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
     """The law as ``round_samples`` evaluates it (motor frame, 16-bit command, no offsets), joint frame."""
     d = np.asarray(ROBOT.direction, dtype=np.float64)
-    raw = MitCommand(d * q_cmd, np.zeros_like(q), np.asarray(ROBOT.kp), np.asarray(ROBOT.kd), np.zeros_like(q))
+    zero = np.zeros_like(q)
+    raw = MitCommand(d * q_cmd, zero, np.asarray(ROBOT.kp), np.asarray(ROBOT.kd), zero)
     return d * firmware_torque(raw, d * q, d * dq, wire_ranges(ROBOT.models), ROBOT.torque_cap)
 
 
