@@ -44,6 +44,7 @@ from bar_policy.robot.kinematics import Kinematics
 from bar_policy.robot.mit import MitCommand, firmware_torque, quantize_command, wire_ranges
 from bar_policy.robot.scene import compile_scene, load_model, robot_spec
 from bar_policy.robstride.emulator import RobstrideEmulator
+from tests.robstride.helpers import command_position
 
 REFERENCE = Path(__file__).parents[1] / "data"
 
@@ -239,16 +240,7 @@ def _emulator_step_in_key_scene(damping: str, target: np.ndarray, steps: int) ->
     emu = RobstrideEmulator(ROBOT, channels, initial_q=pose, scene=key_scene, damping=damping)
     try:
         np.testing.assert_array_equal(emu.joint_positions(), pose)
-        for motor in emu.motors.values():
-            motor.enabled = True
-            # Motor frame: raw = direction * q (no homing offsets here).
-            motor.cmd = (
-                motor.direction * target[motor.joint],
-                0.0,
-                ROBOT.kp[motor.joint],
-                ROBOT.kd[motor.joint],
-                0.0,
-            )
+        command_position(emu, ROBOT, target)
         with emu._lock:
             emu._step(steps)
         cap = np.array([emu.motor(name).params[0x700B] for name in ROBOT.joint_names])

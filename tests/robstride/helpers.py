@@ -41,6 +41,16 @@ def make_group(
     return RobstrideGroup.from_robot(robot, buses, calibration=calibration, reply_timeout=timeout, **kw)
 
 
+def command_position(emu, robot, target) -> None:
+    """Enable every joint motor of the emulator ``emu`` and latch a position command to ``target`` (rad,
+    canonical order) at the robot's gains, as a type-1 frame would, without bus rounds (motor frame:
+    ``raw = direction * q``; no homing offsets)."""
+    for motor in emu.motors.values():
+        j = motor.joint
+        motor.enabled = True
+        motor.cmd = (motor.direction * target[j], 0.0, robot.kp[j], robot.kd[j], 0.0)
+
+
 def make_target(robot, channels, **kw) -> RealTarget:
     group = make_group(robot, channels, calibration=kw.pop("calibration", None), **kw.pop("group_kw", {}))
     kw.setdefault("refresh_on_read", False)

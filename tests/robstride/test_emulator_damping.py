@@ -24,6 +24,8 @@ from bar_policy.robot.scene import PHYSICS_DT, load_model
 from bar_policy.robstride.emulator import RobstrideEmulator
 from bar_policy.robstride.emulator_physics import EMULATOR_DAMPING
 
+from .helpers import command_position
+
 ROBOT = load_robot("arms")
 POSE = ROBOT.pose("piano_ready")
 KICK = 1.0  # rad/s given to one wrist joint at rest, the rest held at the pose
@@ -38,15 +40,7 @@ def _emulator_velocities(joint: int, damping: str) -> np.ndarray:
     channels = {"can0": f"damping-test{k}-can0", "can1": f"damping-test{k}-can1"}
     emu = RobstrideEmulator(ROBOT, channels, initial_q=POSE, damping=damping)
     try:
-        for motor in emu.motors.values():
-            motor.enabled = True
-            motor.cmd = (
-                motor.direction * POSE[motor.joint],
-                0.0,
-                ROBOT.kp[motor.joint],
-                ROBOT.kd[motor.joint],
-                0.0,
-            )
+        command_position(emu, ROBOT, POSE)
         emu.data.qvel[emu.index.dof[joint]] = KICK
         out = []
         for _ in range(STEPS):
