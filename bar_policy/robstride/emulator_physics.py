@@ -128,7 +128,7 @@ class EmulatorPhysics:
         s = np.ones(len(idx)) if strength is None else np.asarray(strength)[idx]
         a, b = _IMPLICIT_SHARE[self.damping]
         h = float(self.model.opt.timestep)
-        kd_share, implicit = s * a * gains[1], s * (a * gains[1] + b * h * gains[0])
+        kd_share, law_damping = s * a * gains[1], s * (a * gains[1] + b * h * gains[0])
         base = self._mjcf_damping[idx]
         tau_raw = np.zeros(len(idx))
         for _ in range(n):
@@ -140,7 +140,7 @@ class EmulatorPhysics:
                 # D = a Kd + b h Kp and qfrc_applied = tau + a Kd dq_k, the force over the step is the law
                 # at q_k + b h dq_{k+1} and (1 - a) dq_k + a dq_{k+1} (module docstring).
                 unsat = np.abs(tau_raw) < cap
-                self.model.dof_damping[dadr] = base + unsat * implicit
+                self.model.dof_damping[dadr] = base + unsat * law_damping
                 tau = tau + unsat * kd_share * self.data.qvel[dadr]
             self.data.qfrc_applied[dadr] = tau
             if before is not None:
