@@ -201,6 +201,7 @@ def _run_session(
             hand_load=args.hand_load,
             load_inertia=_on_off(args.load_inertia),
             end_hold=args.end_hold,
+            start_tare_s=args.start_tare,
             realtime=args.realtime or args.viewer,
             rt_priority=args.rt_priority,
             safety=safety,

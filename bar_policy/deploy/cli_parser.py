@@ -192,6 +192,14 @@ def run_parser() -> argparse.ArgumentParser:
         help="after the commands end (a motion clip's last frame), HOLD that pose this long, s (default 1)",
     )
     p.add_argument(
+        "--start-tare",
+        type=_seconds0,
+        default=1.0,
+        metavar="S",
+        help="with the hand-load tare (the piano's): after the start's ramp, HOLD the pose still this long "
+        "while the fit reads the load and lifts it, s (default 1; 0: the count-in alone)",
+    )
+    p.add_argument(
         "--rt-priority",
         type=_priority,
         metavar="1-99",

@@ -5,9 +5,11 @@ Both are chosen per run and scheduled by the runtime's mode.
 - The fit (``deploy.hand_load``; ``RuntimeConfig.hand_load``, else the command source's): ``estimate`` fits
   on every POLICY tick once a command has been written (before it the torque is no command's: a reset's
   0); ``tare`` only on the source's still start (``CommandSource.still_s``: the piano's count-in), then
-  keeps that estimate; ``off``: none. Left off, saying why, on a target whose torque is no motor's
-  (``Target.measures_torque``: the mock, a dry run). The end's HOLD keeps the last estimate (no fit: the
-  arm no longer follows the policy).
+  keeps that estimate, and on a start through HOLD also on the still ticks after the ramp
+  (``RuntimeConfig.start_tare_s``: the runtime says which with ``still``), feeding it forward as it goes, so
+  the count-in fits on from an arm already lifted off whatever it sagged onto; ``off``: none. Left off,
+  saying why, on a target whose torque is no motor's (``Target.measures_torque``: the mock, a dry run). The
+  end's HOLD keeps the last estimate (no fit: the arm no longer follows the policy).
 - The load's inertia (``deploy.load_inertia``; ``RuntimeConfig.load_inertia``, else the source's): in POLICY,
   the fit's masses times the reference arm's acceleration, the reference started on POLICY's first tick and
   fed each command before any load feed-forward. It needs the fit.
@@ -49,6 +51,10 @@ class LoadCompensation:
         """``tare``: how many POLICY ticks fit, the source's still start; None: every tick or no fit."""
         self.fit: HandLoadEstimator | None = None
         """The hand-load fit (None: off)."""
+        self.policy_fits = 0
+        """POLICY ticks fitted (``tare``: at most ``tare_ticks``)."""
+        self.start_fits = 0
+        """HOLD ticks fitted before POLICY (``tare`` on a start through HOLD)."""
         if self.kind == "tare":
             self.tare_ticks = round(commands.still_s / dt)
             if self.tare_ticks < 1:
@@ -79,18 +85,30 @@ class LoadCompensation:
         elif want:
             self.inertia = LoadInertia(mode, dt, commands.reference_scene)
 
-    def __call__(self, cmd: MitCommand, state: JointState, mode: Mode, *, commanded: bool) -> MitCommand:
+    @property
+    def start_tare(self) -> bool:
+        """The fit tares: a start through HOLD holds still for it after the ramp (``start_tare_s``)."""
+        return self.fit is not None and self.tare_ticks is not None
+
+    def __call__(
+        self, cmd: MitCommand, state: JointState, mode: Mode, *, commanded: bool, still: bool = False
+    ) -> MitCommand:
         """``cmd`` with the loads' feed-forward added to ``tau_ff`` (module docstring).
 
         ``state``: this tick's reading; ``mode``: the supervisor's mode for this tick; ``commanded``: a
-        command has been written before this tick.
+        command has been written before this tick; ``still``: a HOLD tick of the start's still dwell after
+        the ramp (``RuntimeConfig.start_tare_s``), where ``tare`` fits.
         """
         fit = self.fit
         if fit is None:
             return cmd
+        if still and mode == Mode.HOLD and commanded and self.start_tare:
+            self.start_fits += 1
+            return cmd._replace(tau_ff=cmd.tau_ff + fit.step(state.q, state.tau))
         nominal = cmd
-        fitting = self.tare_ticks is None or fit.updates < self.tare_ticks
+        fitting = self.tare_ticks is None or self.policy_fits < self.tare_ticks
         if mode == Mode.POLICY and commanded and fitting:
+            self.policy_fits += 1
             cmd = cmd._replace(tau_ff=cmd.tau_ff + fit.step(state.q, state.tau))
         elif mode in (Mode.POLICY, Mode.HOLD) and fit.updates:  # tare's kept estimate, the end's HOLD
             cmd = cmd._replace(tau_ff=cmd.tau_ff + fit.torque(state.q))
@@ -106,6 +124,7 @@ class LoadCompensation:
         rec: dict[str, Any] = {"kind": self.kind}
         if self.tare_ticks is not None:
             rec["tare_ticks"] = self.tare_ticks
+            rec["start_tare_ticks"] = self.start_fits
         if self.fit is not None:
             rec.update(self.fit.record())
         rec["load_inertia"] = {"kind": self.inertia_kind}

@@ -76,6 +76,12 @@ class RuntimeConfig:
     """Feed the hand-load fit's masses' inertia forward in POLICY from a reference arm
     (``deploy.load_inertia``; needs the fit); None: the command source's (``CommandSource.load_inertia``:
     the piano on, else off)."""
+    start_tare_s: float = 1.0
+    """With the hand-load ``tare`` and a start through HOLD (``start_mode="hold"``): how long HOLD holds its
+    target still after the ramp while the fit tares and feeds its estimate forward, s, before POLICY and
+    the source's still start (which fits on from there). A loaded arm sags onto what lies under the
+    start pose (the piano's keys) during the ramp; this lifts it off before the count-in (0: the count-in
+    alone, which reads what the keys do not carry; docs/robustness.md, "The piano's tare")."""
     realtime: bool = False
     """Pace a synchronous target at wall-clock rate (for the viewer)."""
     spin_s: float = 0.0003
@@ -109,7 +115,7 @@ class RuntimeConfig:
             raise ValueError(f"RuntimeConfig.start_mode must be 'hold' or 'policy', got {self.start_mode!r}")
         if self.rt_priority is not None and not 1 <= self.rt_priority <= 99:
             raise ValueError(f"RuntimeConfig.rt_priority must be in 1..99, got {self.rt_priority}")
-        for name in ("damping_after_fault", "end_hold", "action_reach_margin"):
+        for name in ("damping_after_fault", "end_hold", "action_reach_margin", "start_tare_s"):
             v = getattr(self, name)
             if not v >= 0:
                 raise ValueError(f"RuntimeConfig.{name} must be >= 0 s, got {v}")

@@ -27,7 +27,8 @@ inertia from a reference arm (``deploy.load_compensation``: ``RuntimeConfig.hand
 
 Start-up: ZERO_TORQUE until the first state; a valid first state gives DAMPING then HOLD (ramp to the
 command source's ``hold_pose``, else the policy's rest pose ``policy.hold_pose``, over
-``safety.ramp_time``) then POLICY, where the source's phase 0 begins (``source.begin(t)``);
+``safety.ramp_time``; with the hand-load ``tare``, then held still ``start_tare_s`` while the fit tares)
+then POLICY, where the source's phase 0 begins (``source.begin(t)``);
 ``start_mode="policy"`` skips the ramp (evaluation). A fault latches DAMPING; the run then continues in
 DAMPING for ``damping_after_fault`` s and ends. The end reason (``RunResult.end_reason``, the log's
 ``end_reason``) names the FIRST fault whenever one occurred: also when the duration runs out during the
@@ -195,6 +196,9 @@ class Runtime(RunLoop):
         """Ticks whose demand was at the cap too long on a target that applies no command (a dry run)."""
         self._end_t: float | None = None
         """Target time the run started to end (first fault or stop request), s."""
+        self._still_until: float | None = None
+        """Target time the start's still dwell after the HOLD ramp ends (``start_tare_s``), s; None before
+        the ramp completes."""
         self._end_reason = ""
         self._first_fault: str | None = None
         """``"fault KIND: detail"`` of the run's first fault (None: no fault)."""
@@ -358,8 +362,16 @@ class Runtime(RunLoop):
                     self._start_policy("start_mode=policy (no ramp)", t)
         if stop is not None:
             self._stop(stop, t)
+        still = False
         if sf.mode == Mode.HOLD and self._end_t is None and sf.ramp_complete(t):
-            self._start_policy("ramp complete", t)
+            dwell = self.config.start_tare_s if self.loads.start_tare else 0.0
+            if self._still_until is None:
+                self._still_until = t + dwell
+            if t >= self._still_until - 1e-9:
+                held = f"; held still {dwell:g} s for the hand-load tare" if dwell > 0 else ""
+                self._start_policy(f"ramp complete{held}", t)
+            else:
+                still = True
         if sf.mode == Mode.POLICY:
             done = self.commands.finished(t)
             if done is not None:
@@ -388,7 +400,7 @@ class Runtime(RunLoop):
                 used, n_action_clipped = self.actions(action, t)
                 q_policy = self.policy.q_command(used)
         cmd = self._with_stop_torque(sf.command(t, q_policy), state.q)
-        cmd = self.loads(cmd, state, sf.mode, commanded=self.last_command is not None)
+        cmd = self.loads(cmd, state, sf.mode, commanded=self.last_command is not None, still=still)
         applied = self.target.applies_commands
         sat = sf.check_torque(cmd, state, self.config.control_dt, use_reported=applied)
         demand = sf.last_demand

@@ -253,6 +253,8 @@ def test_song_on_the_mock_sim_and_emulated_targets(piano_policy, tmp_path, targe
             "1.5",
             "--ramp-time",
             "0.5",
+            "--start-tare",  # POLICY straight after the ramp: the start's tare has its own test
+            "0",
             "--log",
             str(tmp_path),
         ]
