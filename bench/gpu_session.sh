@@ -35,7 +35,8 @@
 #             WARM_MIN (1.2), G1_MIN (1.6)
 #
 # Training recipes (named variants of a task's preset, one per GPU of $GPUS, e.g. GPUS="0 1 2 3"; without
-# GPUS they share the one GPU; SEED=S sets every run's seed and names it <variant>-seed<S>):
+# GPUS they share the one GPU; SEED=S sets every run's seed and names it <variant>-seed<S>, VARIANT@S one
+# run's, e.g. `recipe piano stiff@0 stiff@1 stiff@2`):
 #   recipe reach VARIANT... (~3 min): each a cold run on its own cache, every 327,680 env steps evaluated with
 #             EXTRA="--eval.num-evals 124"; BASE="..." goes before each variant's flags; ONNX=1 exports;
 #             MINUTES (2.2). Judged by the env steps to 95 % and the steady env steps/s
@@ -59,7 +60,8 @@
 #             hand-load compensation); robust_fs025_off2_ff_lead3: that at lead 3; robust_fs025_off2_ff_dev2:
 #             with reward.scales.prior_deviation_black -2 (the residual's cost at black goals); _dev8: -8;
 #             robust_fs025_off2_ff_dev2_lead3: _dev2 at lead 3; _dev8_rest8, _dev8_rest32, _dev8_rest8_lead3:
-#             _dev8 with reward.scales.prior_deviation_rest -8 or -32 (the residual's cost in the count-in)
+#             _dev8 with reward.scales.prior_deviation_rest -8 or -32 (the residual's cost in the count-in);
+#             stiff, stiff_lead3, stiff_std03: the stiff gain profile (Kp 100, Kd 3; robot.gains)
 #
 # smoke-PART (smoke-startup, smoke-rsl, smoke-update, smoke-precision, smoke-prealloc, smoke-loadflags,
 # smoke-scaling N, smoke-recipe TASK): the part's logic on the CPU with tiny sizes.
@@ -405,6 +407,9 @@ recipe_variants() {  # recipe_variants TASK: VARIANT (name -> extra arguments on
         [robust_fs025_off2_ff_dev8_rest8]="$d8 reward.scales.prior_deviation_rest=-8.0"
         [robust_fs025_off2_ff_dev8_rest32]="$d8 reward.scales.prior_deviation_rest=-32.0"
         [robust_fs025_off2_ff_dev8_rest8_lead3]="$d8 reward.scales.prior_deviation_rest=-8.0 playback.lead_steps=3"
+        # the stiff gain profile (Kp 100, Kd 3: robot.gains): the prior alone presses faster against friction
+        [stiff]="--env-overrides gains=stiff" [stiff_lead3]="--env-overrides gains=stiff playback.lead_steps=3"
+        [stiff_std03]="--env-overrides gains=stiff --network.prior-noise-std 0.03"
       ) ;;
     *) echo "unknown task ${1:-} for recipe; tasks: reach, track, piano"; exit 2 ;;
   esac
@@ -428,7 +433,7 @@ recipe() {  # recipe TASK VARIANT...
   [ -n "$SMOKE" ] && [ ${#names[@]} -eq 0 ] && names=("${!VARIANT[@]}") && names=("${names[0]}")
   [ ${#names[@]} -gt 0 ] || { echo "recipe $task: name variants (${!VARIANT[*]})"; exit 2; }
   for v in "${names[@]}"; do
-    [ -n "${VARIANT[$v]+x}" ] || { echo "unknown variant $v for $task; valid: ${!VARIANT[*]}"; exit 2; }
+    [ -n "${VARIANT[${v%@*}]+x}" ] || { echo "unknown variant ${v%@*} for $task; valid: ${!VARIANT[*]}"; exit 2; }
   done
   local preset minutes t args=() gpus
   case "$task" in
@@ -449,9 +454,12 @@ recipe() {  # recipe TASK VARIANT...
       --final-eval-envs 8 --network.policy-hidden 16 16 --network.value-hidden 16 16)
   fi
   rm -rf "$WORK"/cache_* "$RUNS"  # a rerun starts afresh (a used run name is refused)
-  local i=0 runs=() name extra
+  local i=0 runs=() name extra seed
   for v in "${names[@]}"; do
-    name=$v${SEED:+-seed$SEED}
+    seed=${SEED:-}
+    [ "$v" != "${v%@*}" ] && seed=${v#*@}  # VARIANT@S: this run's seed
+    v=${v%@*}
+    name=$v${seed:+-seed$seed}
     runs+=("$RUNS/$name")
     extra=${VARIANT[$v]}
     [ "$extra" = RSL ] && extra=$(rsl_field_args)
@@ -460,7 +468,7 @@ recipe() {  # recipe TASK VARIANT...
     stamp "start $name (GPU ${gpus[$i]:-shared}): $extra"
     # shellcheck disable=SC2046,SC2086
     env $([ -n "${gpus[$i]:-}" ] && echo "CUDA_VISIBLE_DEVICES=${gpus[$i]}") timeout -k 5 $((${RUN_TIMEOUT:-$t} * TS)) \
-      python3 train/ppo.py --preset "$preset" ${SEED:+--seed $SEED} --run-name "$name" --runs-dir "$RUNS" \
+      python3 train/ppo.py --preset "$preset" ${seed:+--seed $seed} --run-name "$name" --runs-dir "$RUNS" \
       --max-minutes "$minutes" "${own[@]}" $extra "${args[@]}" ${EXTRA:-} > "$WORK/$name.log" 2>&1 &
     i=$((i + 1))
     sleep 2

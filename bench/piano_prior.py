@@ -11,8 +11,9 @@ with the MLP's output at exactly zero (training starts it at ``PRIOR_INIT_SCALE`
 (``obs.action_prior.BlendPrior``), the env's metadata (``training.metadata.policy_metadata`` of
 ``LitePiano``: action scale, 3 Hz filter, observation schema), the export's parity gate against the
 prior's numpy ``apply``. ``--prior FIELD=VALUE`` changes ``KeyPosePriorConfig`` fields (the per-frame
-ones as comma-separated lists: ``frame_weights=1,.6,...``, 11 values), ``--lead`` the
-pressing frames (the preset's 2), ``--filter-hz`` the action filter written into the metadata.
+ones as comma-separated lists: ``frame_weights=1,.6,...``, 11 values), ``--lead`` the pressing frames
+(the preset's 2), ``--filter-hz`` the action filter written into the metadata, ``--gains`` the gain
+profile (``robot.gains``).
 
 ``--eval sim bus`` plays the songs (``--songs``, default the held-out ones) through ``bar-deploy eval``'s
 code (``tasks.piano.evaluate``: the deploy runtime, the safety supervisor): ``sim`` on the C MuJoCo sim
@@ -35,6 +36,7 @@ import numpy as np
 
 from bar_policy.deploy.episodes import SimEpisodes
 from bar_policy.deploy.policy import load_policy
+from bar_policy.robot.gains import GAINS
 from bar_policy.tasks.piano.bank import PlaybackConfig
 from bar_policy.tasks.piano.evaluate import evaluate
 from bar_policy.tasks.piano.keyboard import compact_config
@@ -63,15 +65,16 @@ def _prior_config(items: list[str]) -> KeyPosePriorConfig:
 
 
 def write_prior_policy(
-    path: Path, prior_config: KeyPosePriorConfig, lead: int, filter_hz: float | None
+    path: Path, prior_config: KeyPosePriorConfig, lead: int, filter_hz: float | None, gains: str = "robot"
 ) -> dict:
-    """Export the zero-MLP policy of the env's prior to ``path`` (``export_policy``'s summary)."""
+    """Export the zero-MLP policy of the env's prior to ``path`` (``export_policy``'s summary), on the gain
+    profile ``gains`` (``robot.gains``: the file records it, its key poses hold with its Kp)."""
     from bar_policy.export.graph import MlpPolicy
     from bar_policy.export.policy import export_policy
     from bar_policy.tasks.piano.env import LitePiano, default_config
     from bar_policy.training.metadata import policy_metadata
 
-    cfg = dataclasses.replace(default_config(), prior=prior_config)
+    cfg = dataclasses.replace(default_config(), prior=prior_config, gains=gains)
     if filter_hz is not None:
         cfg = dataclasses.replace(cfg, action_filter_hz=filter_hz)
     env = LitePiano(cfg)
@@ -81,6 +84,7 @@ def write_prior_policy(
         "backend": "none: the key-pose prior alone (bench/piano_prior.py)",
         "prior": dataclasses.asdict(prior_config),
         "prior_lead_steps": lead,
+        "gains": gains,
     }
     meta = policy_metadata(env, training=record)
     return export_policy(policy, meta, path, prior.apply)
@@ -119,10 +123,14 @@ def main() -> None:
     p.add_argument("--songs", default=",".join(HELDOUT), help="comma-separated library songs")
     p.add_argument("--count-in", type=float, help="count-in, s (default PlaybackConfig's)")
     p.add_argument("--json", type=Path, help="write the results here")
+    p.add_argument(
+        "--gains", default="robot", choices=GAINS, help="gain profile (robot.gains; default: robot)"
+    )
     args = p.parse_args()
     if not args.no_write:
         t0 = time.perf_counter()
-        summary = write_prior_policy(args.out, _prior_config(args.prior), args.lead, args.filter_hz)
+        prior = _prior_config(args.prior)
+        summary = write_prior_policy(args.out, prior, args.lead, args.filter_hz, args.gains)
         print(f"wrote {args.out} ({time.perf_counter() - t0:.0f} s, parity {summary['max_abs_error']:.1e})")
     count_in = PlaybackConfig().count_in_s if args.count_in is None else args.count_in
     songs = args.songs.split(",")
@@ -131,6 +139,7 @@ def main() -> None:
         "prior": args.prior,
         "lead": args.lead,
         "filter_hz": args.filter_hz,
+        "gains": args.gains,
         "count_in_s": count_in,
         "columns": {},
     }

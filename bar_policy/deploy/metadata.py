@@ -5,11 +5,10 @@ Two families of keys are written:
 - ``bar.*`` keys, JSON-valued: everything ``bar-deploy`` checks before it runs a policy (observation schema
   and fingerprint, joint order, gains, default pose, action scale and semantics, rates, training
   randomisation ranges, code version). Optional keys (``OPTIONAL_BAR_KEYS``): ``bar.action_filter``,
-  ``bar.command_transition``, ``bar.robot_params``, ``bar.song_lead_steps`` (``metadata_fields`` parses
-  them), and ``bar.provenance``: the git commit
-  and dirty flag, the library versions and the training command (``bar_policy.provenance``), which
-  informs and is never checked (older files load without it, a malformed one with the problem in its
-  place, ``provenance.read_record``).
+  ``bar.command_transition``, ``bar.robot_params``, ``bar.song_lead_steps``, ``bar.gains``
+  (``metadata_fields`` parses them), and ``bar.provenance``: the git commit and dirty flag, the library
+  versions and the training command (``bar_policy.provenance``), which informs and is never checked (older
+  files load without it, a malformed one with the problem in its place, ``provenance.read_record``).
 - The 13 keys that Berkeley Humanoids' Humanoid Control runner requires (task_type, joint_names, ...), in
   the comma-separated form that mjlab's exporter writes, so our files also load there.
 
@@ -45,11 +44,13 @@ from bar_policy.deploy.metadata_fields import (
     csv_float,
     csv_floats,
     csv_names,
+    gains_key,
     int_prop,
     provenance_key,
     robot_params_key,
     song_lead_key,
 )
+from bar_policy.robot.gains import GAINS
 
 __all__ = [
     "ACTION_SEMANTICS",
@@ -114,12 +115,14 @@ OPTIONAL_BAR_KEYS = (
     "bar.provenance",
     "bar.robot_params",
     "bar.song_lead_steps",
+    "bar.gains",
 )
 """``bar.*`` keys a file may lack (older files): read when present, never required. ``bar.action_filter``
 and ``bar.command_transition`` are validated when present; ``bar.provenance`` informs only and is never
 checked; ``bar.robot_params`` (the robot-parameters file a policy trained on: ``{"sha256", "summary"}``,
 ``robot.params.params_record``) must be an object with a hex ``sha256``; absent: the nominal model;
-``bar.song_lead_steps`` (the piano's goal keys' lead) an integer >= 0; absent: 0."""
+``bar.song_lead_steps`` (the piano's goal keys' lead) an integer >= 0; absent: 0; ``bar.gains`` (the gain
+profile, ``robot.gains``) one of its names; absent: ``robot``."""
 
 DIALECTS = ("bar", "hc")
 """Metadata dialects: ``bar`` (``bar.*`` keys plus the HC keys, checked to agree), ``hc`` (HC keys only)."""
@@ -185,6 +188,9 @@ class PolicyMetadata:
     song_lead_steps: int = 0
     """Control steps the piano's goal keys lead the song (``tasks.piano.bank.PlaybackConfig.lead_steps``;
     optional key ``bar.song_lead_steps``); 0: frame 0 is the step's own goal (files before the key)."""
+    gains: str = "robot"
+    """The gain profile the file trained on (``robot.gains.GAINS``; optional key ``bar.gains``, written when
+    not ``robot``): the runtime checks the file's Kp / Kd against that profile of the robot data."""
     provenance: Mapping[str, Any] = field(default_factory=dict)
     """``bar.provenance``: git commit and dirty flag, library versions, training command
     (``bar_policy.provenance.collect``); empty when the file has none."""
@@ -234,6 +240,8 @@ class PolicyMetadata:
         d = self.song_lead_steps
         if isinstance(d, bool) or not (isinstance(d, int) and d >= 0):
             raise MetadataError(f"song lead must be an integer >= 0 (control steps), got {shorten(repr(d))}")
+        if self.gains not in GAINS:
+            raise MetadataError(f"gain profile must be one of {list(GAINS)}, got {shorten(repr(self.gains))}")
         if any("," in n for n in self.body_names) or "," in self.dataset_repo_id:
             raise MetadataError("body_names and dataset_repo_id must not contain commas (HC's CSV form)")
 
@@ -270,6 +278,8 @@ class PolicyMetadata:
             bar["bar.command_transition"] = {"duration_s": self.command_transition_s, "profile": "min_jerk"}
         if self.song_lead_steps > 0:
             bar["bar.song_lead_steps"] = self.song_lead_steps
+        if self.gains != "robot":
+            bar["bar.gains"] = self.gains
         if self.provenance:
             bar["bar.provenance"] = dict(self.provenance)
         if self.robot_params:
@@ -385,6 +395,7 @@ class PolicyMetadata:
             action_filter_hz=action_filter_key(props),
             command_transition_s=command_transition_key(props),
             song_lead_steps=song_lead_key(props),
+            gains=gains_key(props),
             provenance=provenance_key(props.get("bar.provenance")),
             robot_params=robot_params_key(props),
         )

@@ -12,6 +12,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from bar_policy._files import InputError, loads_json, shorten
+from bar_policy.robot.gains import GAINS
 
 __all__ = [
     "MetadataError",
@@ -21,6 +22,7 @@ __all__ = [
     "csv_float",
     "csv_floats",
     "csv_names",
+    "gains_key",
     "int_prop",
     "provenance_key",
     "robot_params_key",
@@ -227,3 +229,19 @@ def song_lead_key(props: Mapping[str, str]) -> int:
             f"{shorten(repr(text))}"
         )
     return v
+
+
+def gains_key(props: Mapping[str, str]) -> str:
+    """Optional key ``bar.gains``: the gain profile the file trained on, one of ``robot.gains.GAINS``.
+
+    Absent (files before the key, and every file on the joint table's gains): ``robot``.
+    """
+    text = props.get("bar.gains")
+    if text is None:
+        return "robot"
+    v = loads_json(text, "metadata key 'bar.gains'", MetadataError)
+    if v not in GAINS:
+        raise MetadataError(
+            f"metadata key 'bar.gains' must be one of {list(GAINS)}, got {shorten(repr(text))}"
+        )
+    return str(v)

@@ -68,6 +68,7 @@ from bar_policy.deploy.safety import DEFAULT_REACH_MARGIN, check_action_scale
 from bar_policy.obs.manager import ObservationManager, ObservationSchema
 from bar_policy.obs.robot_layout import ERROR_EMA_TERM, with_error_ema
 from bar_policy.robot.constants import MODES, RobotSpec, load_robot
+from bar_policy.robot.gains import profile_gains
 
 __all__ = [
     "ACTION_CLIP_KEY",
@@ -311,13 +312,16 @@ def load_policy(
             f"({1 / meta.policy_dt:g} Hz vs {1 / control_dt:g} Hz)",
         )
 
-    # Gains: a bar file's must be the robot data's; an HC-only file's are used as they are (in range).
+    # Gains: a bar file's must be the robot data's for its profile (bar.gains); an HC-only file's are used
+    # as they are (in range).
     kp, kd = np.asarray(meta.joint_stiffness), np.asarray(meta.joint_damping)
     if meta.dialect == "hc":
         check_hc_gains(path, meta, robot)
     else:
-        for label, unit, got, want in (("Kp", "N*m/rad", kp, robot.kp), ("Kd", "N*m*s/rad", kd, robot.kd)):
-            msg = diff_values(label, unit, robot.joint_names, got, want)
+        want_kp, want_kd = profile_gains(robot, meta.gains)
+        of = "" if meta.gains == "robot" else f" (gain profile {meta.gains!r}, bar.gains)"
+        for label, unit, got, want in (("Kp", "N*m/rad", kp, want_kp), ("Kd", "N*m*s/rad", kd, want_kd)):
+            msg = diff_values(label + of, unit, robot.joint_names, got, want)
             if msg:
                 raise refuse(path, msg)
     undriven = [n for n in robot.joint_names if n not in meta.action_joint_names]

@@ -93,9 +93,9 @@ from bar_policy.obs.action_prior import Prior
 from bar_policy.obs.robot_layout import with_error_ema
 from bar_policy.quality.metrics import at_cap, cap_dwell_step
 from bar_policy.robot.action_filter import filter_alpha, lowpass_step, pose_action
-from bar_policy.robot.actuators import armature_gains
 from bar_policy.robot.constants import load_robot
 from bar_policy.robot.error_ema import error_ema_alpha, error_ema_step
+from bar_policy.robot.gains import profile_gains
 from bar_policy.robot.index import RobotIndex
 from bar_policy.robot.mit import MitCommand, mit_torque
 from bar_policy.robot.params import HANDS, RobotParams, load_params, motor_strength
@@ -180,9 +180,7 @@ class LiteRobotEnv(TaskHooks, MjxEnv):
         self._scale = np.array(np.broadcast_to(np.asarray(scale, dtype=f32), (n,)))
         self._lower = self.robot.lower.astype(f32)
         self._upper = self.robot.upper.astype(f32)
-        kp, kd = (
-            armature_gains(self.robot.armature) if cfg.gains == "actuator" else (self.robot.kp, self.robot.kd)
-        )
+        kp, kd = profile_gains(self.robot, cfg.gains)
         self._kp = np.asarray(kp, dtype=f32)
         self._kd = np.asarray(kd, dtype=f32)
         self._filter_alpha = filter_alpha(cfg.action_filter_hz, cfg.ctrl_dt)

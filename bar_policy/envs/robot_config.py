@@ -13,6 +13,7 @@ from typing import TypeVar
 
 from bar_policy.robot.action_filter import filter_alpha
 from bar_policy.robot.constants import MODES, load_robot
+from bar_policy.robot.gains import GAINS
 from bar_policy.robot.mjcf import PHYSICS_DT
 
 __all__ = [
@@ -27,9 +28,6 @@ __all__ = [
     "nominal",
 ]
 
-
-GAINS = ("robot", "actuator")
-"""Valid ``RobotEnvConfig.gains``."""
 
 PAYLOAD_AT = ("fingertip", "palm", "either")
 """Valid ``ModelRandomizationConfig.payload_at``."""
@@ -219,9 +217,11 @@ class RobotEnvConfig:
     (``bar_policy.robot.action_filter``; the deploy runtime applies the same one, from the file's
     ``bar.action_filter``); None: no filter, the action is applied as it comes."""
     gains: str = "robot"
-    """Kp/Kd of the MIT command: ``robot`` (the joint table: Humanoid Control's first-activation gains, 50 and
-    2 on every arm joint) or ``actuator`` (derived from each joint's armature J as lite_description does,
-    BeyondMimic's recipe: ``Kp = J w^2``, ``Kd = 2 zeta J w``, ``w = 2 pi 10 Hz``, ``zeta = 2``)."""
+    """Kp/Kd of the MIT command, a profile of ``robot.gains.GAINS``: ``robot`` (the joint table: Humanoid
+    Control's first-activation gains, 50 and 2 on every arm joint), ``stiff`` (Kp x 2, Kd x 1.5: 100 and 3)
+    or ``actuator`` (derived from each joint's armature J as lite_description does, BeyondMimic's recipe:
+    ``Kp = J w^2``, ``Kd = 2 zeta J w``, ``w = 2 pi 10 Hz``, ``zeta = 2``). The file records it
+    (``bar.gains``) and the runtime checks the file's gains against it."""
     actuator: ActuatorConfig = field(default_factory=ActuatorConfig)
     """Actuator model and its per-episode randomisation."""
     obs_noise: ObsNoiseConfig = field(default_factory=ObsNoiseConfig)

@@ -51,11 +51,12 @@ def policy_metadata(
     """Metadata for a policy trained on ``env`` (a ``bar_policy.envs`` env).
 
     Reads the joint order, action joints and observation schema from ``env.obs_manager``, Kp/Kd from
-    ``env.kp``/``env.kd`` (N*m/rad, N*m*s/rad), the default pose and per-joint action scale (rad) from
-    ``env.default_pose``/``env.action_scale``, the policy period from ``env.dt`` (s), the physics step from
-    ``env.config.sim_dt``, the randomisation ranges from ``env.config`` and the action filter's cutoff from
-    ``env.action_filter_hz`` (Hz; None: no filter), and the robot-parameters file's hash and summary from
-    ``env.robot_params`` (``bar.robot_params``; none for the nominal model).
+    ``env.kp``/``env.kd`` (N*m/rad, N*m*s/rad) and their profile's name from ``env.config.gains``, the default
+    pose and per-joint action scale (rad) from ``env.default_pose``/``env.action_scale``, the policy period
+    from ``env.dt`` (s), the physics step from ``env.config.sim_dt``, the randomisation ranges from
+    ``env.config`` and the action filter's cutoff from ``env.action_filter_hz`` (Hz; None: no filter), and the
+    robot-parameters file's hash and summary from ``env.robot_params`` (``bar.robot_params``; none for the
+    nominal model).
 
     Args:
         env: the (unwrapped) training env.
@@ -93,6 +94,7 @@ def policy_metadata(
         dataset_repo_id=str(extra.get("dataset_repo_id", "")),
         command_transition_s=float(extra.get("command_transition_s", 0.0)),
         song_lead_steps=int(extra.get("song_lead_steps", 0)),
+        gains=str(getattr(cfg, "gains", "robot")),
         provenance=_jsonable(dict(provenance) if provenance is not None else collect()),
         robot_params=_params_record(getattr(env, "robot_params", None)),
     )

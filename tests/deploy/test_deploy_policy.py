@@ -11,6 +11,7 @@ import pytest
 from onnx import TensorProto
 from policy_factory import default_metadata, make_policy_file
 
+from bar_policy.deploy.metadata import MetadataError
 from bar_policy.deploy.policy import PolicyLoadError, load_policy, read_metadata
 from bar_policy.obs import ObservationManager
 from bar_policy.robot.constants import load_robot
@@ -215,3 +216,33 @@ def test_refuses_bad_action_clip(tmp_path):
 
 def test_policy_error_is_a_value_error():
     assert issubclass(PolicyLoadError, ValueError)
+
+
+def test_a_file_on_the_stiff_profile_loads_with_its_gains_and_a_wrong_claim_is_refused(tmp_path):
+    """``bar.gains`` names the profile the file's Kp / Kd must equal (``robot.gains``): a ``stiff`` file (Kp
+    100, Kd 3 on every arm joint, by hand: 2 x 50 and 1.5 x 2) loads and runs on them; the same gains
+    without the key (the ``robot`` profile) or the table's gains under ``stiff`` are refused, naming the
+    profile; an unknown profile is refused naming the valid ones."""
+    stiff = default_metadata(joint_stiffness=(100.0,) * 14, joint_damping=(3.0,) * 14, gains="stiff")
+    assert stiff.to_props()["bar.gains"] == '"stiff"'
+    assert "bar.gains" not in default_metadata().to_props()  # robot: no key, as in older files
+    policy = load_policy(make_policy_file(tmp_path / "stiff.onnx", metadata=stiff))
+    np.testing.assert_array_equal(policy.kp, 100.0)
+    np.testing.assert_array_equal(policy.kd, 3.0)
+    claim = dataclasses.replace(stiff, gains="robot")
+    with pytest.raises(
+        PolicyLoadError, match=r"Kp \(N\*m/rad\) differ .*left_shoulder_pitch: policy 100, robot 50"
+    ):
+        load_policy(make_policy_file(tmp_path / "claim.onnx", metadata=claim))
+    table = default_metadata(gains="stiff")
+    with pytest.raises(
+        PolicyLoadError, match=r"Kp \(gain profile 'stiff', bar.gains\) .* policy 50, robot 100"
+    ):
+        load_policy(make_policy_file(tmp_path / "table.onnx", metadata=table))
+    p = make_policy_file(tmp_path / "soft.onnx", metadata=stiff, props={"bar.gains": '"soft"'})
+    with pytest.raises(
+        PolicyLoadError, match=r"'bar\.gains' must be one of \['robot', 'stiff', 'actuator'\]"
+    ):
+        load_policy(p)
+    with pytest.raises(MetadataError, match=r"gain profile must be one of \['robot', 'stiff', 'actuator'\]"):
+        default_metadata(gains="soft")

@@ -23,8 +23,12 @@ def test_actuator_gains_follow_the_armature_recipe():
     np.testing.assert_allclose(env.kp, kp, rtol=1e-6)
     np.testing.assert_allclose(env.kp[[0, 1]], [19.7392, 7.8957], rtol=1e-4)
     np.testing.assert_allclose(env.kd[[0, 1]], [1.25664, 0.502655], rtol=1e-4)
-    with pytest.raises(ValueError, match="unknown gains 'stiff'; valid: \\['robot', 'actuator'\\]"):
-        dataclasses.replace(envs.nominal_config(), gains="stiff")
+    with pytest.raises(ValueError, match="unknown gains 'soft'; valid: \\['robot', 'stiff', 'actuator'\\]"):
+        dataclasses.replace(envs.nominal_config(), gains="soft")
+    # The stiff profile: twice the table's Kp, 1.5 times its Kd (robot.gains), by hand 100 and 3.
+    stiff = envs.load("LiteReach", config=dataclasses.replace(envs.nominal_config(), gains="stiff"))
+    np.testing.assert_array_equal(stiff.kp, 100.0)
+    np.testing.assert_array_equal(stiff.kd, 3.0)
 
 
 def test_action_filter_config_is_validated():

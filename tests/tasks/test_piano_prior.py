@@ -333,3 +333,32 @@ def test_key_switches_stay_under_the_caps(poses) -> None:
         ]:
             demand = ROBOT.kp[arm] * alpha * np.abs(poses.press[k, arm] - other[arm])
             assert np.all(demand < ROBOT.torque_cap[arm]), f"key {k + KB.lowest}: {demand.round(2)} N*m"
+
+
+def test_key_poses_and_the_held_pose_fold_in_the_gains_they_are_for() -> None:
+    """A key's press command is its IK pose plus the holding torque over Kp (``q + hold(q, hand, 1.5 N) /
+    Kp``), so the stiff profile's (Kp 100) folds in half of the table's (Kp 50) at the same IK pose:
+    ``q = 2 press_100 - press_50``, and that q must give back ``press_50`` with C MuJoCo's holding torque
+    (``HoldingTorque``) by hand, on every key's arm: float64 round-off of a fold-in under 0.1 rad, 1e-9 rad.
+    Hovers alike without the key force. The held start pose solves ``q = q0 - g(q) / Kp`` at either Kp."""
+    from bar_policy.robot.gains import profile_gains
+    from bar_policy.tasks.piano.held import HoldingTorque
+
+    kp50 = profile_gains(ROBOT, "robot")[0]
+    kp100 = profile_gains(ROBOT, "stiff")[0]
+    table = key_poses(KB, "arms")
+    stiff = key_poses(KB, "arms", None, tuple(kp100))
+    hold = HoldingTorque("arms")
+    force = KeyPosePriorConfig().press_force_n
+    for i, h in enumerate(table.hand):
+        arm = np.arange(7) + 7 * int(h)
+        name = ("left", "right")[int(h)]
+        for pose, args in ((table.press, (name, force)), (table.hover, ())):
+            other = stiff.press if pose is table.press else stiff.hover
+            q = 2 * other[i] - pose[i]
+            back = q + hold(q, *args) / kp50
+            np.testing.assert_allclose(back[arm], pose[i][arm], atol=1e-9)
+        assert np.max(np.abs(stiff.press[i] - table.press[i])) > 1e-3  # the fold-in is there to halve
+    for kp in (kp50, kp100):
+        q = held_pose(DEFAULT, kp=kp)
+        np.testing.assert_allclose(q, DEFAULT - hold(q) / kp, atol=1e-9)

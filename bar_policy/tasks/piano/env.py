@@ -162,7 +162,7 @@ class LitePiano(LiteRobotEnv):
         self.bank = song_bank(songs, kb, cfg.ctrl_dt, self.episode_length, TARGET_FRAMES - 1, cfg.playback)
         self._down = to_device(self.bank.down)
         self._hands = to_device(self.bank.hands)
-        self._held = to_device(held_pose(np.asarray(self._default), cfg.mode), np.float32)
+        self._held = to_device(held_pose(np.asarray(self._default), cfg.mode, kp=self._kp), np.float32)
 
     def action_prior(self, lead_steps: int, error_gain: float = 0.0) -> BlendPrior:
         """The key-pose prior (``prior.py``): goal-key frames ``0..lead_steps`` press, later ones hover.
@@ -177,7 +177,9 @@ class LitePiano(LiteRobotEnv):
                 "(against the keys' stops it winds up); valid: 0"
             )
         c = self.config
-        return key_pose_prior(self.obs_manager, c.keyboard, self._default, self._scale, lead_steps, c.prior)
+        return key_pose_prior(
+            self.obs_manager, c.keyboard, self._default, self._scale, lead_steps, c.prior, kp=self._kp
+        )
 
     @functools.cached_property
     def reference_prior(self) -> BlendPrior:
@@ -188,7 +190,13 @@ class LitePiano(LiteRobotEnv):
         """
         c = self.config
         return key_pose_prior(
-            self.obs_manager, c.keyboard, self._default, self._scale, LEAD_STEPS, KeyPosePriorConfig()
+            self.obs_manager,
+            c.keyboard,
+            self._default,
+            self._scale,
+            LEAD_STEPS,
+            KeyPosePriorConfig(),
+            kp=self._kp,
         )
 
     @functools.cached_property

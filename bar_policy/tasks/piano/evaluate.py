@@ -88,7 +88,8 @@ def evaluate(
         raise ValueError(f"keys = {keys!r}; valid: {', '.join(EVAL_KEY_SOURCES)}")
     kb = compact_config()
     sim = target or runner.target(scene=keyboard_scene(kb))
-    q0 = held_pose(policy.robot.pose("piano_ready"), policy.robot.mode)  # as the env starts
+    kp = np.asarray(policy.metadata.joint_stiffness, np.float64)  # the file's gains, as the env trained it
+    q0 = held_pose(policy.robot.pose("piano_ready"), policy.robot.mode, kp=kp)  # as the env starts
     reference = KeyPoseReference.for_policy(policy, kb)
     pb = policy_playback(policy) if playback is None else playback
     fingertips = None

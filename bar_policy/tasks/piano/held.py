@@ -45,15 +45,18 @@ class HoldingTorque:
         return tau
 
 
-def held_pose(q0: np.ndarray, mode: str = "arms", iterations: int = 50) -> np.ndarray:
+def held_pose(
+    q0: np.ndarray, mode: str = "arms", iterations: int = 50, kp: np.ndarray | None = None
+) -> np.ndarray:
     """Joint positions (rad, canonical order, shape (n,)) where the robot's springs at ``q0`` hold gravity.
 
     Fixed-point iteration ``q <- q0 - g(q) / Kp`` on the robot-alone model (a contraction: the gravity
-    torque's slope is well below Kp for these arms); joint limits clip the result.
+    torque's slope is well below Kp for these arms); joint limits clip the result. ``kp``: the springs'
+    Kp, N*m/rad, shape (n,); None: the joint table's.
     """
     robot = load_robot(mode)
     gravity = HoldingTorque(mode)
-    kp = np.asarray(robot.kp, np.float64)
+    kp = np.asarray(robot.kp if kp is None else kp, np.float64)
     q0 = np.asarray(q0, np.float64)
     q = q0.copy()
     for _ in range(iterations):

@@ -189,31 +189,40 @@ class KeyPoses:
 
 @functools.lru_cache(maxsize=4)
 def key_poses(
-    keyboard: KeyboardConfig, mode: str = "arms", config: KeyPosePriorConfig | None = None
+    keyboard: KeyboardConfig,
+    mode: str = "arms",
+    config: KeyPosePriorConfig | None = None,
+    kp: tuple[float, ...] | None = None,
 ) -> KeyPoses:
     """The hover and press commands of every key of ``keyboard`` (see the module docstring).
 
+    ``kp``: the Kp the commands are for, N*m/rad, one per joint (a tuple: the result is memoised; the spring
+    that holds gravity and the key force: ``q_cmd = q + tau / Kp``); None: the joint table's.
+
     The IK takes about 6 s on the 2-core CPU (10-16 s on the H100 machine's), so the result is kept on
-    disk (``bar_policy._array_cache``), keyed on the keyboard, the mode, the prior config and the package's
-    files; a rerun loads it bit for bit.
+    disk (``bar_policy._array_cache``), keyed on the keyboard, the mode, the prior config, the gains (when
+    not the table's) and the package's files; a rerun loads it bit for bit.
 
     Raises:
         ValueError: IK finds no valid pose (joint limits, self-contact, the keyboard's case) for a key.
     """
     pc = config or KeyPosePriorConfig()
+    table = np.asarray(load_robot(mode).kp, np.float64)
+    gains = table if kp is None else np.asarray(kp, np.float64)
     parts = {"keyboard": repr(keyboard), "mode": mode, "config": repr(pc)}
+    if not np.array_equal(gains, table):
+        parts["kp"] = repr(gains.tolist())
     names = tuple(f.name for f in dataclasses.fields(KeyPoses))
-    solve = lambda: vars(_solve_key_poses(keyboard, mode, pc))  # noqa: E731
+    solve = lambda: vars(_solve_key_poses(keyboard, mode, pc, gains))  # noqa: E731
     arrays = cached_arrays("piano_key_poses", parts, names, solve)
     return KeyPoses(**arrays)
 
 
-def _solve_key_poses(keyboard: KeyboardConfig, mode: str, pc: KeyPosePriorConfig) -> KeyPoses:
+def _solve_key_poses(keyboard: KeyboardConfig, mode: str, pc: KeyPosePriorConfig, kp: np.ndarray) -> KeyPoses:
     """``key_poses`` without the cache: IK for every key, outward from the keys under the fingertips."""
     checker = ReachChecker(keyboard)
     keys = key_table(keyboard)
     robot = load_robot(mode)
-    kp = np.asarray(robot.kp, np.float64)
     cap = np.asarray(robot.torque_cap, np.float64)
     q_ready = np.asarray(robot.pose("piano_ready"), np.float64)
     hand = np.array([0 if k.midi < pc.split_midi else 1 for k in keys])
@@ -314,6 +323,7 @@ def key_pose_prior(
     scale: np.ndarray,
     lead_steps: int,
     config: KeyPosePriorConfig | None = None,
+    kp: np.ndarray | None = None,
 ) -> BlendPrior:
     """The piano's prior over the ``target_keys`` entries of ``manager``'s layout (module docstring).
 
@@ -324,6 +334,7 @@ def key_pose_prior(
         scale: rad per action unit, shape (n,), > 0.
         lead_steps: goal-key frames 0..lead_steps get the press pose, 0..``TARGET_FRAMES - 1``.
         config: the poses' and the blend's settings.
+        kp: the Kp the policy runs on, N*m/rad, shape (n,) (``key_poses``); None: the joint table's.
     """
     pc = config or KeyPosePriorConfig()
     if "target_keys" not in manager.term_names:
@@ -332,7 +343,8 @@ def key_pose_prior(
         raise ValueError(
             f"lead_steps must be in 0..{TARGET_FRAMES - 1} (the goal-key frames), got {lead_steps}"
         )
-    poses = key_poses(keyboard, manager.schema.mode, pc)
+    gains = None if kp is None else tuple(float(x) for x in np.asarray(kp, np.float64))
+    poses = key_poses(keyboard, manager.schema.mode, pc, gains)
     n_keys = len(poses.hand)
     sl = manager.term_slice("target_keys")
     if sl.stop - sl.start != TARGET_FRAMES * n_keys:

@@ -126,8 +126,9 @@ class KeyPoseReference:
         default = np.asarray(policy.default_joint_pos, dtype=np.float64)
         scale = np.asarray(meta.action_scale, dtype=np.float64)
         manager = policy.obs_manager
+        kp = np.asarray(meta.joint_stiffness, dtype=np.float64)  # the file's gains: its prior's springs
         prior = key_pose_prior(
-            manager, keyboard or compact_config(), default[index], scale, LEAD_STEPS, config
+            manager, keyboard or compact_config(), default[index], scale, LEAD_STEPS, config, kp=kp
         )
         term = manager.term("target_keys")
         keys = manager.term("key_pressed")
