@@ -11,7 +11,10 @@ sim target (``deploy.targets.perturbed``), on the firmware side of the bus:
 - ``strength``: the joint receives ``strength`` times the firmware's capped torque; the feedback's torque
   is the firmware's own (unscaled);
 - ``action_delay_ticks``: the motors act on the commands of ``N`` control periods (``control_dt``) ago,
-  on the physics clock (zero torque before any); lockstep makes this exactly ``N`` command rounds;
+  on the physics clock (zero torque before any); lockstep makes this exactly ``N`` command rounds. After a
+  evaluation's start (``prime_delay``, after the teleport and the start's damping round) the next command
+  fills the line and acts at once, as on the perturbed sim target (the state set is one the motors were
+  holding);
 - ``obs_delay_ticks``: the feedback reports the joint state of ``N`` control periods ago (the state at a
   teleport, ``set_joint_positions``, until then);
 - ``push_n``: ``robot.perturb.Pusher`` on the hands before every physics step.
@@ -66,6 +69,8 @@ class PerturbedEmulator(RobstrideEmulator):
             for j in robot.joints
         }
         self._cmd_hist: deque[tuple[float, np.ndarray]] = deque()
+        self._prime = False
+        """The next command fills the delay line (the first after a teleport)."""
         self._obs_hist: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = deque()
         super().__init__(
             robot,
@@ -95,6 +100,9 @@ class PerturbedEmulator(RobstrideEmulator):
             return cmd
         t = float(self.data.time)
         hist = self._cmd_hist
+        if self._prime:  # an evaluation's first command: the motors were holding it
+            self._prime = False
+            hist.append((t - n * self.control_dt, cmd))
         if hist and abs(hist[-1][0] - t) < _EPS_T:
             hist[-1] = (t, cmd)
         else:
@@ -135,6 +143,16 @@ class PerturbedEmulator(RobstrideEmulator):
             super().set_joint_positions(q, scene_at_rest=scene_at_rest)
             self._cmd_hist.clear()
             self._snapshot(reset=True)
+
+    def prime_delay(self) -> None:
+        """The next command fills the action delay line and acts at once.
+
+        An evaluation's start (``EmulatedBusTarget.reset``): its teleported state is one the motors were
+        holding.
+        """
+        with self._lock:
+            self._cmd_hist.clear()
+            self._prime = True
 
     # -- physics -------------------------------------------------------------------------------------
     def _command_matrix(self, cmd: np.ndarray) -> np.ndarray:

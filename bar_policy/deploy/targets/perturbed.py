@@ -9,8 +9,11 @@ scene (masses, payloads, friction, damping, armature) and whose motors differ fr
 - ``strength``: the joint receives ``strength * clip(law, cap)`` (the torque and its cap scaled); with
   implicit damping the Kd term Euler integrates is ``strength * Kd`` likewise. ``read_state``'s torque is
   the firmware's unscaled figure, as a motor's own torque reading would be;
-- ``action_delay_ticks``: a command acts ``N`` writes after it was written (zero torque until then after a
-  reset, as a motor that has heard nothing);
+- ``action_delay_ticks``: a command acts ``N`` writes after it was written; the first one written after a
+  reset fills the line and acts at once (the reset state is one the motors were holding: an evaluation
+  starts at the held pose as training's latency buffer starts full of the first action, and a robot's
+  start has HOLD's commands in flight; an empty line's zero torque dropped a loaded arm for the first
+  ticks, and the tare read the fall);
 - ``obs_delay_ticks``: ``read_state`` returns the state of ``N`` ``advance`` calls ago (the reset state
   until then), stamped now (the host does not know the reading is old);
 - ``push_n``: ``robot.perturb.Pusher`` writes ``xfrc_applied`` of the hands before every physics step.
@@ -57,6 +60,8 @@ class PerturbedSimTarget(SimTarget):
         """The per-joint strength and offset, the delays."""
         self._pusher: Pusher | None = None
         self._cmd_queue: deque[tuple[MitCommand, MitCommand]] = deque()
+        self._prime = True
+        """The next command written fills the delay line (the first after a reset)."""
         self._obs_queue: deque[JointState] = deque(maxlen=perturbation.obs_delay_ticks + 1)
         super().__init__(mode, config, scene=perturbed_scene(perturbation, scene))
         if perturbation.push_n > 0:
@@ -73,6 +78,7 @@ class PerturbedSimTarget(SimTarget):
         super().reset(q, dq)
         self._latched = (self._cmd, self._wire_cmd)
         self._cmd_queue.clear()
+        self._prime = True
         self._obs_queue.clear()
         self._obs_queue.append(self._measured())
         if self._pusher is not None:
@@ -100,6 +106,9 @@ class PerturbedSimTarget(SimTarget):
     def write_command(self, cmd: MitCommand) -> None:
         """Queue ``cmd``; the one written ``action_delay_ticks`` writes ago acts from the next step on."""
         super().write_command(cmd)
+        if self._prime:  # the first command after a reset: the motors were holding it
+            self._prime = False
+            self._cmd_queue.extend([(self._cmd, self._wire_cmd)] * self.motors.action_delay_ticks)
         self._cmd_queue.append((self._cmd, self._wire_cmd))
         if len(self._cmd_queue) > self.motors.action_delay_ticks:
             self._latched = self._cmd_queue.popleft()
