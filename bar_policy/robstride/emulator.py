@@ -118,6 +118,9 @@ class RobstrideEmulator(EmulatorPhysics):
         self.model = load_model(robot.mode, scene)
         self.data = mujoco.MjData(self.model)
         self.n_substeps = max(1, round(control_dt / self.model.opt.timestep))
+        self.frozen = False
+        """Lockstep: complete rounds are answered without advancing physics (an evaluation's start-up, whose
+        activation takes no time on the episode's clock: ``EmulatedBusTarget.reset``)."""
         self.temperature = temperature
         if not watchdog_tick > 0:
             raise ValueError(f"watchdog_tick must be > 0 s, got {watchdog_tick!r}")
@@ -392,7 +395,8 @@ class RobstrideEmulator(EmulatorPhysics):
         }
         if not due <= self._commanded:
             return
-        self._step(self.n_substeps)
+        if not self.frozen:
+            self._step(self.n_substeps)
         pending, self._pending = self._pending, []
         self._commanded.clear()
         for m, _ in pending:

@@ -12,9 +12,9 @@ sim target (``deploy.targets.perturbed``), on the firmware side of the bus:
   is the firmware's own (unscaled);
 - ``action_delay_ticks``: the motors act on the commands of ``N`` control periods (``control_dt``) ago,
   on the physics clock (zero torque before any); lockstep makes this exactly ``N`` command rounds. After a
-  evaluation's start (``prime_delay``, after the teleport and the start's damping round) the next command
-  fills the line and acts at once, as on the perturbed sim target (the state set is one the motors were
-  holding);
+  evaluation's start (``prime_delay``, after the teleport) the start's damping rounds (Kp 0) act at once
+  and the first holding command fills the line, acting at once, as the first command on the perturbed sim
+  target (the state set is one the motors were holding);
 - ``obs_delay_ticks``: the feedback reports the joint state of ``N`` control periods ago (the state at a
   teleport, ``set_joint_positions``, until then);
 - ``push_n``: ``robot.perturb.Pusher`` on the hands before every physics step.
@@ -100,7 +100,9 @@ class PerturbedEmulator(RobstrideEmulator):
             return cmd
         t = float(self.data.time)
         hist = self._cmd_hist
-        if self._prime:  # an evaluation's first command: the motors were holding it
+        if self._prime:  # an evaluation's first hold: the motors were holding it
+            if not np.any(cmd[2] > 0):  # row 2, Kp: the start's damping rounds act at once
+                return cmd
             self._prime = False
             hist.append((t - n * self.control_dt, cmd))
         if hist and abs(hist[-1][0] - t) < _EPS_T:
@@ -145,10 +147,10 @@ class PerturbedEmulator(RobstrideEmulator):
             self._snapshot(reset=True)
 
     def prime_delay(self) -> None:
-        """The next command fills the action delay line and acts at once.
+        """The next holding command (Kp > 0) fills the action delay line and acts at once.
 
         An evaluation's start (``EmulatedBusTarget.reset``): its teleported state is one the motors were
-        holding.
+        holding; the real target's start-up damping rounds before that command act at once.
         """
         with self._lock:
             self._cmd_hist.clear()

@@ -119,7 +119,11 @@ class EmulatedBusTarget(Target):
             self.robot, group, refresh_on_read=False, damping_hold_s=0.0, scan_ids=range(1, 33)
         )
         self.inner.use_stop_torque(self._stop_torque)
-        self.inner.start()
+        self.emu.frozen = True  # the activation's damping round takes no time: the episode starts at q0
+        try:
+            self.inner.start()
+        finally:
+            self.emu.frozen = False
         prime = getattr(self.emu, "prime_delay", None)
         if prime is not None:  # the evaluation's first command acts at once (a perturbed emulator's delay)
             prime()
