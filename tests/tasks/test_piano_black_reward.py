@@ -86,8 +86,10 @@ def test_the_piano_preset_sets_it_and_the_override_reaches_the_env_config() -> N
         "reward.scales.key_press_black=1.0",
         "reward.scales.wrong_keys_black_goal=0.25",
         "actuator.encoder_offset=0.002",
+        "gains=stiff",
     )
     cfg = envs.apply_overrides(envs.default_config("LitePiano"), PIANO["env_overrides"])
+    assert cfg.gains == "stiff"  # Kp 100, Kd 3 (robot.gains)
     assert cfg.reward.scales.key_press_black == 1.0 and cfg.reward.scales.key_press == 1.0
     # A wrong key at a black goal tick costs -0.5 + 0.25, half of one elsewhere.
     assert cfg.reward.scales.wrong_keys + cfg.reward.scales.wrong_keys_black_goal == -0.25

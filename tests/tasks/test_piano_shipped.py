@@ -4,10 +4,10 @@ C MuJoCo sim target with the held-out songs (the path ``bar-deploy eval`` runs).
 The thresholds are the piano's ship gate (``bar_policy.tasks.piano.gate``): F1 >= 0.9 on the held-out songs
 (RoboPianist's step mean over each song's window), black and white recall >= 0.85 on them and on random
 songs, every song completed, at most 0.5 % of ticks at a torque cap, chatter against the key-pose reference
-at most 5 mrad. The file passed it when it shipped with held-out F1 0.954, black recall 0.948 held out and
-0.881 on random songs, chatter 0.14 mrad (docs/piano.md). The sim target steps C MuJoCo in float64 and the
+at most 5 mrad. The file passed it when it shipped with held-out F1 0.962, black recall 0.963 held out and
+0.904 on random songs, chatter 0.13 mrad (docs/piano.md). The sim target steps C MuJoCo in float64 and the
 policy runs in onnxruntime's float32 on the CPU, so the figures move by far less than the room between
-machines (the thinnest is random black recall: 265 of 8,534 key-ticks).
+machines (the thinnest is random black recall: 461 of 8,534 key-ticks).
 """
 
 from __future__ import annotations
@@ -45,6 +45,9 @@ def test_shipped_piano_declares_its_task_for_humanoid_control() -> None:
     assert f"-seed{RANDOM_EVAL_SEED}-" not in md["dataset_repo_id"]  # the random evaluation songs' seed
     # It reads the song 2 control steps ahead, as it trained (docs/piano.md, "Song lead").
     assert md["bar.song_lead_steps"] == "2"
+    # It runs on the stiff gains, Kp 100 and Kd 3 on every arm joint (docs/gains.md), and says so.
+    assert md["bar.gains"] == '"stiff"'
+    assert md["joint_stiffness"] == ",".join(["100"] * 14) and md["joint_damping"] == ",".join(["3"] * 14)
 
 
 def test_shipped_piano_is_small() -> None:
@@ -66,7 +69,7 @@ def test_shipped_piano_plays_the_held_out_songs_on_the_sim_target(tmp_path) -> N
 def test_shipped_piano_plays_a_black_key_song(tmp_path) -> None:
     """One held-out song in E-flat major (1,174 black and 610 white goal key-ticks), the gate's rows that one
     song can fill: completed, no tick at a cap, chatter within 5 mrad, F1 >= 0.9 and black and white recall
-    >= 0.85 (0.971, 0.965 and 0.972 when the file shipped)."""
+    >= 0.85 (0.977, 0.974 and 0.974 when the file shipped)."""
     out = tmp_path / "eval.json"
     song = "jingle_bells_e_flat"
     assert song in EVAL_HELDOUT

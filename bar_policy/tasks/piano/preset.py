@@ -39,10 +39,13 @@ PIANO = {
     # wrong key elsewhere (docs/piano.md, "Black keys").
     # Encoder offsets of +-2 mrad, the calibration's accuracy (a 10 mrad shoulder offset moves the fingertip
     # about 5 mm: half a black key).
+    # The stiff gain profile, Kp 100 / Kd 3 (robot.gains; docs/gains.md): the prior presses through a
+    # joint's friction and a load's sag sooner, and passes the robustness suite where Kp 50 did not.
     "env_overrides": (
         "reward.scales.key_press_black=1.0",
         "reward.scales.wrong_keys_black_goal=0.25",
         "actuator.encoder_offset=0.002",
+        "gains=stiff",
     ),
 }
 """LitePiano on one H100 (``--preset piano``): a fixed learning rate of 1e-4 after 10 iterations of critic
@@ -52,7 +55,8 @@ constraint rows: reach's nefc 82 becomes 137 with the contact caps), a wider fir
 observation, the black goal keys' extra press reward (``reward.scales.key_press_black`` 1.0: files trained
 without it unlearn the prior's black-key presses) and half the cost for a wrong key at a black goal tick
 (``reward.scales.wrong_keys_black_goal`` 0.25 on ``wrong_keys`` -0.5: a black press brushes its neighbours
-more than a white one; held-out black recall 0.82 -> 0.88 on seed 0), encoder offsets of +-2 mrad (the
+more than a white one; held-out black recall 0.82 -> 0.88 on seed 0), the stiff gains (Kp 100, Kd 3: the
+file records ``bar.gains``), encoder offsets of +-2 mrad (the
 system identification's calibration accuracy; at +-10 mrad the MJX evaluation's F1 of the prior alone is
 0.810, at +-2 mrad 0.827), and 8 M env steps (the C MuJoCo gate's best iterate comes within the first 2 M;
 later iterates trade black presses for fewer wrong keys and add chatter: docs/piano.md, "The shipped
