@@ -221,6 +221,7 @@ def _deploy_reference(env: LitePiano) -> KeyPoseReference:
     """The deploy side's reference, built by ``for_policy`` from a policy with the env's metadata."""
     meta = SimpleNamespace(
         action_joint_names=env.robot.joint_names,
+        joint_stiffness=tuple(float(x) for x in env.kp),  # the file's gains: the prior's springs
         action_scale=tuple(float(x) for x in env.action_scale),
         action_filter_hz=env.action_filter_hz,
     )

@@ -207,10 +207,9 @@ def key_poses(
         ValueError: IK finds no valid pose (joint limits, self-contact, the keyboard's case) for a key.
     """
     pc = config or KeyPosePriorConfig()
-    table = np.asarray(load_robot(mode).kp, np.float64)
-    gains = table if kp is None else np.asarray(kp, np.float64)
     parts = {"keyboard": repr(keyboard), "mode": mode, "config": repr(pc)}
-    if not np.array_equal(gains, table):
+    gains = None if kp is None else np.asarray(kp, np.float64)
+    if gains is not None and not np.array_equal(gains, load_robot(mode).kp):
         parts["kp"] = repr(gains.tolist())
     names = tuple(f.name for f in dataclasses.fields(KeyPoses))
     solve = lambda: vars(_solve_key_poses(keyboard, mode, pc, gains))  # noqa: E731
@@ -218,11 +217,14 @@ def key_poses(
     return KeyPoses(**arrays)
 
 
-def _solve_key_poses(keyboard: KeyboardConfig, mode: str, pc: KeyPosePriorConfig, kp: np.ndarray) -> KeyPoses:
+def _solve_key_poses(
+    keyboard: KeyboardConfig, mode: str, pc: KeyPosePriorConfig, kp: np.ndarray | None
+) -> KeyPoses:
     """``key_poses`` without the cache: IK for every key, outward from the keys under the fingertips."""
     checker = ReachChecker(keyboard)
     keys = key_table(keyboard)
     robot = load_robot(mode)
+    kp = np.asarray(robot.kp if kp is None else kp, np.float64)
     cap = np.asarray(robot.torque_cap, np.float64)
     q_ready = np.asarray(robot.pose("piano_ready"), np.float64)
     hand = np.array([0 if k.midi < pc.split_midi else 1 for k in keys])
