@@ -9,7 +9,7 @@ so a file trained on other gains never runs on a wrong law silently.
 - ``stiff``: the table's Kp x ``STIFF_KP_FACTOR`` (2) and Kd x ``STIFF_KD_FACTOR`` (1.5): Kp 100, Kd 3 on an
   arm joint. A press against a joint's Coulomb friction ``f`` stops ``f / Kp`` short of its command and
   starts only once the spring's torque exceeds it; the piano's black-key onsets are where that shows
-  (docs/piano.md, "Gains"). The damping ratio at a shoulder stays about as it was (Kd / 2 sqrt(Kp I):
+  (docs/gains.md). The damping ratio at a shoulder stays about as it was (Kd / 2 sqrt(Kp I):
   x 1.5 / sqrt(2) = x 1.06).
 - ``actuator``: derived from each joint's armature (``actuators.armature_gains``, BeyondMimic's recipe).
 """
