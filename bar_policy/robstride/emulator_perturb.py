@@ -11,7 +11,7 @@ sim target (``deploy.targets.perturbed``), on the firmware side of the bus:
 - ``strength``: the joint receives ``strength`` times the firmware's capped torque; the feedback's torque
   is the firmware's own (unscaled);
 - ``action_delay_ticks``: the motors act on the commands of ``N`` control periods (``control_dt``) ago,
-  on the physics clock (zero torque before any); lockstep makes this exactly ``N`` command rounds. After a
+  on the physics clock (zero torque before any); lockstep makes this exactly ``N`` command rounds. After an
   evaluation's start (``prime_delay``, after the teleport) the start's damping rounds (Kp 0) act at once
   and the first holding command fills the line, acting at once, as the first command on the perturbed sim
   target (the state set is one the motors were holding);
@@ -70,7 +70,7 @@ class PerturbedEmulator(RobstrideEmulator):
         }
         self._cmd_hist: deque[tuple[float, np.ndarray]] = deque()
         self._prime = False
-        """The next command fills the delay line (the first after a teleport)."""
+        """The next holding command fills the delay line (``prime_delay``: an evaluation's start)."""
         self._obs_hist: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = deque()
         super().__init__(
             robot,
